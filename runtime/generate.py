@@ -1,0 +1,121 @@
+"""Generate a tri-plane: chain the level stages with noise injection.
+
+Level 0: T_0 = G_0(P(z0)). Level i > 0: U = bilinear resize of T_(i-1) to
+level i's plane sizes (align_corners=True); T_i = U + G_i(U + sigma_i n_i).
+P's pooling and the resizes are plain numpy; the convolutions run in the
+model's onnxruntime sessions.
+
+Planes are (C, H, W) float32 in the order xy (X, Y), xz (X, Z), yz (Y, Z).
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import noise
+from .errors import InputError
+
+# A sample's coarsest grid may not shrink below this many voxels per axis.
+MIN_SIDE = 2
+
+
+def plane_sizes(size) -> list:
+    """Plane sizes of a grid (X, Y, Z): [(X, Y), (X, Z), (Y, Z)]."""
+    x, y, z = size
+    return [(x, y), (x, z), (y, z)]
+
+
+def scaled_sizes(sizes: list, factors=(1.0, 1.0, 1.0)) -> list:
+    """Every level's grid for a sample `factors` times the training size per axis."""
+    if len(factors) != 3 or any(not f > 0 for f in factors):
+        raise InputError(f"size factors must be 3 positive numbers, got {tuple(factors)}")
+    out = [tuple(max(MIN_SIDE, round(n * f)) for n, f in zip(size, factors)) for size in sizes]
+    return out
+
+
+def adaptive_pool(volume: np.ndarray, bins: int) -> list:
+    """Average-pool a (X, Y, Z) volume into `bins` slabs along each plane's
+    dropped axis: [(bins, X, Y), (bins, X, Z), (bins, Y, Z)].
+
+    Bin k of n covers floor(k n / bins) .. ceil((k + 1) n / bins), as torch's
+    adaptive average pooling does (bins may overlap when n is not a multiple).
+    """
+
+    def pool(axis):
+        n = volume.shape[axis]
+        k = np.arange(bins)
+        start, end = (k * n) // bins, -((-(k + 1) * n) // bins)
+        cumsum = np.concatenate([np.zeros_like(np.take(volume, [0], axis)),
+                                 np.cumsum(volume, axis=axis, dtype=np.float64)], axis=axis)
+        sums = np.take(cumsum, end, axis) - np.take(cumsum, start, axis)
+        shape = [1, 1, 1]
+        shape[axis] = bins
+        return (sums / (end - start).reshape(shape)).astype(np.float32)
+
+    return [np.moveaxis(pool(axis), axis, 0) for axis in (2, 1, 0)]
+
+
+def resize_matrix(n_in: int, n_out: int) -> np.ndarray:
+    """(n_out, n_in) linear interpolation weights, align_corners=True."""
+    weights = np.zeros((n_out, n_in), np.float32)
+    src = np.arange(n_out) * ((n_in - 1) / (n_out - 1)) if n_out > 1 else np.zeros(1)
+    low = np.minimum(np.floor(src).astype(int), n_in - 1)
+    high = np.minimum(low + 1, n_in - 1)
+    frac = (src - low).astype(np.float32)
+    rows = np.arange(n_out)
+    np.add.at(weights, (rows, low), 1 - frac)
+    np.add.at(weights, (rows, high), frac)
+    return weights
+
+
+def resize_plane(plane: np.ndarray, size) -> np.ndarray:
+    """Bilinear resize (align_corners=True) of a (C, H, W) plane to `size`."""
+    h, w = size
+    if plane.shape[1:] == (h, w):
+        return plane
+    rows, cols = resize_matrix(plane.shape[1], h), resize_matrix(plane.shape[2], w)
+    return (rows @ plane @ cols.T).astype(np.float32)
+
+
+@dataclass
+class Noise:
+    """The noise of one sample, unscaled (std 1).
+
+    z0 : (X, Y, Z) at the coarsest level; planes[i] : 3 x (C, H, W) for
+    level i > 0, or None for no noise (planes[0] is always None).
+    """
+
+    z0: np.ndarray
+    planes: list
+
+
+def draw_noise(seed: int, sizes: list, channels: int) -> Noise:
+    """The noise a seed stands for, at the given level sizes."""
+    planes = [None] + [
+        [noise.plane_noise(seed, level, k, channels, shape) for k, shape in enumerate(plane_sizes(size))]
+        for level, size in enumerate(sizes) if level > 0
+    ]
+    return Noise(noise.z0_noise(seed, sizes[0]), planes)
+
+
+def triplane(model, sample: Noise, sizes: list) -> list:
+    """Chain the levels: the final tri-plane, 3 x (C, H, W)."""
+    m = model.manifest
+    amps = m.noise_amps
+    pooled = adaptive_pool(amps[0] * sample.z0, m.pool_bins)
+    projected = model.projection.run([p[None] for p in pooled])  # 3 x (1, C, H, W)
+    planes = [p[0] for p in model.levels[0].run(projected)]
+    for level in range(1, len(sizes)):
+        upsampled = [resize_plane(p, s) for p, s in zip(planes, plane_sizes(sizes[level]))]
+        inputs = upsampled
+        if sample.planes[level] is not None:
+            inputs = [u + amps[level] * n for u, n in zip(upsampled, sample.planes[level])]
+        residuals = model.levels[level].run([x[None] for x in inputs])
+        planes = [u + r[0] for u, r in zip(upsampled, residuals)]
+    return planes
+
+
+def reconstruction_noise(model, sizes: list) -> Noise:
+    """z0* from the manifest's seed and no later noise: the training shape."""
+    m = model.manifest
+    return Noise(noise.z0_noise(m.recon_seed, sizes[0]), [None] * len(sizes))

@@ -1,0 +1,188 @@
+"""Load a sinshape .onnx file once: check it, cut it into one session per stage.
+
+A model file is untrusted input. It is refused, with one line saying why,
+unless it is a plain ONNX file of bounded size, with no external-data
+references (nothing that reads other files), only the few standard ops the
+stages use, a manifest of a supported format version, and stages that run
+and give the shapes the manifest implies.
+"""
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import onnx
+import onnxruntime as ort
+from google.protobuf.message import DecodeError
+
+from . import manifest as fmt
+from .errors import InputError
+
+MAX_MODEL_BYTES = 512 * 1024 * 1024
+# Every op a stage may contain (default ONNX domain only: no custom ops).
+ALLOWED_OPS = {"Conv", "InstanceNormalization", "LeakyRelu", "Transpose", "MatMul", "Add", "Relu", "Sigmoid"}
+
+
+@dataclass
+class Stage:
+    """One runnable stage: a session and its tensor names, in plane order."""
+
+    session: ort.InferenceSession
+    inputs: list
+    outputs: list
+
+    def run(self, arrays: list) -> list:
+        feeds = {name: np.ascontiguousarray(a, dtype=np.float32) for name, a in zip(self.inputs, arrays)}
+        return self.session.run(self.outputs, feeds)
+
+
+@dataclass
+class Model:
+    """A loaded model: its manifest and its stages."""
+
+    path: Path
+    manifest: fmt.Manifest
+    projection: Stage
+    levels: list  # one Stage per level, coarsest first
+    decoder_planes: Stage
+    decoder_head: Stage
+
+
+def default_threads() -> int:
+    """All cores this process may use (onnxruntime's own default counts
+    physical cores only, which on small VMs can mean one)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
+def read_model(path: Path) -> onnx.ModelProto:
+    """Parse the file as ONNX, refusing what could reach beyond it."""
+    if not path.is_file():
+        raise InputError(f"{path}: no such model file")
+    size = path.stat().st_size
+    if size > MAX_MODEL_BYTES:
+        raise InputError(f"{path}: {size / 2**20:.0f} MB is too large for a sinshape model")
+    try:
+        model = onnx.load_model_from_string(path.read_bytes())
+    except (DecodeError, ValueError, RuntimeError):
+        raise InputError(f"{path}: not an ONNX file") from None
+    except OSError as error:
+        raise InputError(f"{path}: cannot read ({error.strerror})") from None
+    graph = model.graph
+    if len(graph.node) == 0:
+        raise InputError(f"{path}: not a sinshape model (an empty or non-ONNX file)")
+    if any(t.data_location == onnx.TensorProto.EXTERNAL or t.external_data for t in graph.initializer):
+        raise InputError(f"{path}: refers to external data files; sinshape models are self-contained")
+    if graph.sparse_initializer or model.functions:
+        raise InputError(f"{path}: has sparse initializers or functions, which sinshape models never do")
+    bad_ops = sorted({n.op_type for n in graph.node if n.domain not in ("", "ai.onnx") or n.op_type not in ALLOWED_OPS})
+    if bad_ops:
+        raise InputError(f"{path}: uses ops a sinshape model never has ({', '.join(bad_ops[:5])})")
+    return model
+
+
+def read_manifest(model: onnx.ModelProto, path: Path) -> fmt.Manifest:
+    props = {p.key: p.value for p in model.metadata_props}
+    if fmt.METADATA_KEY not in props:
+        raise InputError(f"{path}: an ONNX model, but not a sinshape model (no {fmt.METADATA_KEY} metadata)")
+    try:
+        return fmt.parse(props[fmt.METADATA_KEY])
+    except InputError as error:
+        raise InputError(f"{path}: {error}") from None
+
+
+def stage_model(model: onnx.ModelProto, inputs: list, outputs: list, path: Path) -> bytes:
+    """The sub-graph computing `outputs` from `inputs`, as a serialized model."""
+    graph = model.graph
+    producer = {out: node for node in graph.node for out in node.output}
+    weights = {t.name: t for t in graph.initializer}
+    graph_inputs = {v.name: v for v in graph.input}
+    graph_outputs = {v.name: v for v in graph.output}
+    missing = [n for n in inputs if n not in graph_inputs] + [n for n in outputs if n not in graph_outputs]
+    if missing:
+        raise InputError(f"{path}: the manifest names tensors the graph lacks ({', '.join(missing[:3])})")
+
+    nodes, used, todo, seen = [], set(), list(outputs), set()
+    while todo:  # walk back from the outputs to the stage's inputs
+        name = todo.pop()
+        if name in seen or name in inputs:
+            continue
+        seen.add(name)
+        if name in weights:
+            used.add(name)
+        elif name in producer:
+            node = producer[name]
+            if node.name not in {n.name for n in nodes}:
+                nodes.append(node)
+            todo.extend(i for i in node.input if i)
+        else:
+            raise InputError(f"{path}: tensor {name!r} depends on something outside its stage")
+    order = {id(node): i for i, node in enumerate(graph.node)}  # keep the file's topological order
+    nodes.sort(key=lambda node: order[id(node)])
+    sub = onnx.helper.make_graph(
+        nodes, "stage", [graph_inputs[n] for n in inputs], [graph_outputs[n] for n in outputs],
+        [weights[n] for n in sorted(used)],
+    )
+    sub_model = onnx.helper.make_model(sub, opset_imports=model.opset_import, ir_version=model.ir_version)
+    return sub_model.SerializeToString()
+
+
+def session(data: bytes, threads: int, path: Path) -> ort.InferenceSession:
+    options = ort.SessionOptions()
+    options.intra_op_num_threads = threads
+    options.inter_op_num_threads = 1
+    options.log_severity_level = 3  # errors only: warnings are not the user's business
+    try:
+        return ort.InferenceSession(data, options, providers=["CPUExecutionProvider"])
+    except Exception as error:  # onnxruntime raises its own exception types
+        raise InputError(f"{path}: onnxruntime cannot load a stage ({str(error).splitlines()[0][:200]})") from None
+
+
+def check_stages(model: Model) -> None:
+    """Run every stage once on a small input: the file is coherent, or refused."""
+    m = model.manifest
+    c, h = m.channels, m.hidden
+    probes = [
+        (model.projection, [np.zeros((1, m.pool_bins, 4, 5), np.float32)] * 3, (1, c, 4, 5)),
+        *((level, [np.zeros((1, c, 4, 5), np.float32)] * 3, (1, c, 4, 5)) for level in model.levels),
+        (model.decoder_planes, [np.zeros((1, c, 4, 5), np.float32)] * 3, (1, 4, 5, h)),
+        (model.decoder_head, [np.zeros((2, 1, 1, h), np.float32)] * 3, (2, 1, 1, 1)),
+    ]
+    for stage, arrays, shape in probes:
+        try:
+            outputs = stage.run(arrays)
+        except Exception as error:  # onnxruntime's own exception types
+            raise InputError(f"{model.path}: stage {stage.inputs[0].split('.')[0]} does not run "
+                             f"({str(error).splitlines()[0][:200]})") from None
+        if any(o.shape != shape for o in outputs):
+            raise InputError(f"{model.path}: stage {stage.inputs[0].split('.')[0]} gives shape "
+                             f"{outputs[0].shape}, expected {shape}")
+
+
+def load(path, threads: int | None = None) -> Model:
+    """Read, check and prepare a model; `threads` per session (default: all cores)."""
+    path = Path(path)
+    threads = default_threads() if threads is None else threads
+    if threads < 1:
+        raise InputError(f"--threads must be at least 1, got {threads}")
+    proto = read_model(path)
+    manifest = read_manifest(proto, path)
+
+    def make(names: dict) -> Stage:
+        data = stage_model(proto, names["inputs"], names["outputs"], path)
+        return Stage(session(data, threads, path), names["inputs"], names["outputs"])
+
+    stages = manifest.stages
+    model = Model(
+        path=path,
+        manifest=manifest,
+        projection=make(stages["projection"]),
+        levels=[make(names) for names in stages["levels"]],
+        decoder_planes=make(stages["decoder_planes"]),
+        decoder_head=make(stages["decoder_head"]),
+    )
+    check_stages(model)
+    return model

@@ -1,0 +1,123 @@
+"""`sinrun train`: help, the missing-torch message, and bad input as one line."""
+
+import os
+import signal
+import subprocess
+import sys
+
+import pytest
+from click.testing import CliRunner
+
+from sinshape.cli.main import cli
+
+BLOCK_TORCH = "import sys; sys.modules['torch'] = None; "  # makes `import torch` raise ImportError
+
+
+def run_sinrun(*args, block_torch=False, **kwargs):
+    code = (BLOCK_TORCH if block_torch else "") + "from sinshape.cli.main import main; main()"
+    return subprocess.run([sys.executable, "-c", code, *map(str, args)], capture_output=True, text=True, **kwargs)
+
+
+def assert_one_line_error(result, *fragments):
+    assert result.exit_code != 0 if hasattr(result, "exit_code") else result.returncode != 0
+    output = result.output if hasattr(result, "output") else result.stderr
+    lines = [line for line in output.strip().splitlines() if line]
+    assert "Traceback" not in output
+    assert len(lines) == 1 and lines[0].startswith("Error:"), output
+    for fragment in fragments:
+        assert fragment in lines[0], lines[0]
+
+
+def test_help_explains_every_option():
+    result = CliRunner().invoke(cli, ["train", "--help"])
+    assert result.exit_code == 0
+    for option in ["--res", "--levels", "--iters", "--preset", "--resume", "--seed", "--output"]:
+        assert option in result.output
+    assert "paper" in result.output and "tiny" in result.output
+    top = CliRunner().invoke(cli, ["--help"])
+    assert top.exit_code == 0 and "train" in top.output
+
+
+def test_without_torch_train_says_how_to_install_it(tiny_pyramid, tmp_path):
+    result = run_sinrun("train", tiny_pyramid, "-o", tmp_path / "m.onnx", block_torch=True)
+    assert result.returncode == 1
+    assert_one_line_error(result, "pip install 'sinshape[train]'")
+    assert not (tmp_path / "m.onnx").exists()
+
+
+def write(path, text):
+    path.write_text(text)
+    return path
+
+
+@pytest.fixture
+def bad_inputs(tmp_path):
+    return {
+        "missing": (tmp_path / "nothing.obj", "no such file"),
+        "format": (write(tmp_path / "notes.txt", "hello"), "notes.txt"),
+        "empty": (write(tmp_path / "empty.obj", "# nothing\n"), "empty.obj"),
+        "flat": (write(tmp_path / "flat.obj", "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3\nf 1 3 4\n"), "flat.obj"),
+    }
+
+
+@pytest.mark.parametrize("case", ["missing", "format", "empty", "flat"])
+def test_bad_input_files(case, bad_inputs, tmp_path):
+    pytest.importorskip("torch")
+    path, fragment = bad_inputs[case]
+    out = tmp_path / "m.onnx"
+    result = CliRunner().invoke(cli, ["train", str(path), "-o", str(out), "--preset", "tiny"])
+    assert_one_line_error(result, fragment)
+    assert list(tmp_path.glob("m.*")) == []  # no model, no checkpoint, no temporary file
+
+
+def test_bad_options_and_outputs(tiny_pyramid, tmp_path):
+    pytest.importorskip("torch")
+    runner = CliRunner()
+    cases = [
+        (["--res", "10"], tmp_path / "m.onnx", "--res 10"),
+        (["--levels", "6"], tmp_path / "m.onnx", "asks for more"),
+        ([], tmp_path / "no-such-folder" / "m.onnx", "does not exist"),
+        ([], tmp_path, "is a directory"),
+    ]
+    for options, out, fragment in cases:
+        result = runner.invoke(cli, ["train", str(tiny_pyramid), "-o", str(out), "--preset", "tiny", *options])
+        assert_one_line_error(result, fragment)
+    assert list(tmp_path.glob("m.*")) == []
+    result = runner.invoke(cli, ["train", str(tiny_pyramid), "-o", str(tmp_path / "m.onnx"), "--resume", "--iters", "5"])
+    assert result.exit_code == 2 and "leave out --iters" in result.output
+
+
+def test_unwritable_output_folder(tiny_pyramid, tmp_path):
+    pytest.importorskip("torch")
+    if os.geteuid() == 0:  # root writes through permissions; /proc refuses everyone
+        if not os.path.isdir("/proc/self"):
+            pytest.skip("no unwritable folder for root")
+        target = "/proc/sinshape-test.onnx"
+    else:
+        locked = tmp_path / "locked"
+        locked.mkdir(mode=0o500)
+        target = str(locked / "m.onnx")
+    result = CliRunner().invoke(cli, ["train", str(tiny_pyramid), "-o", target, "--preset", "tiny"])
+    assert_one_line_error(result, "cannot write")
+
+
+def test_ctrl_c_saves_a_checkpoint_and_says_how_to_resume(tiny_pyramid, tmp_path):
+    pytest.importorskip("torch")
+    out = tmp_path / "m.onnx"
+    process = subprocess.Popen(
+        [sys.executable, "-c", "from sinshape.cli.main import main; main()", "train", str(tiny_pyramid),
+         "-o", str(out), "--preset", "tiny", "--iters", "100000"],
+        stderr=subprocess.PIPE, text=True,
+    )
+    for line in process.stderr:  # wait until training is under way
+        if "level 1/2" in line and "/100000" in line:
+            break
+    process.send_signal(signal.SIGINT)
+    _, rest = process.communicate(timeout=60)
+    assert process.returncode == 130
+    assert "--resume" in rest and "Traceback" not in rest
+    assert train_checkpoint(out).exists() and not out.exists()
+
+
+def train_checkpoint(out):
+    return out.with_name(out.stem + ".ckpt.pt")

@@ -1,0 +1,57 @@
+"""The exported .onnx file: valid, small, ours, and equal to the torch model."""
+
+import json
+
+import numpy as np
+import onnx
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from sinshape.runtime import generate, load, manifest, query  # noqa: E402
+from sinshape.trainer import pyramid, train  # noqa: E402
+
+
+def test_file_is_valid_onnx_with_the_promised_ops(tiny_model):
+    model = onnx.load(tiny_model)
+    onnx.checker.check_model(model, full_check=True)
+    assert model.ir_version == 8 and model.opset_import[0].version == 17
+    ops = {n.op_type for n in model.graph.node}
+    assert "InstanceNormalization" in ops and "BatchNormalization" not in ops
+    assert ops <= load.ALLOWED_OPS
+    # 2 levels x 3 planes x 4 convs of 32x32x3x3, plus small parts: well under 1 MB.
+    assert tiny_model.stat().st_size < 1_000_000
+
+
+def test_manifest_says_how_the_model_was_made(tiny_model, tiny_pyramid):
+    props = {p.key: p.value for p in onnx.load(tiny_model).metadata_props}
+    m = json.loads(props[manifest.METADATA_KEY])
+    assert m["format"] == "sinshape" and m["format_version"] == manifest.FORMAT_VERSION
+    assert [level["size"] for level in m["levels"]] == [[15, 15, 15], [20, 18, 15]]
+    assert m["levels"][0]["noise_amp"] == 1.0 and 0 < m["levels"][1]["noise_amp"] < 1
+    assert m["source"] == {"name": tiny_pyramid.name, "sha256": pyramid.file_sha256(tiny_pyramid),
+                           "kind": "pyramid"}
+    assert m["config"]["iters"] == 3 and m["config"]["levels"] == 2
+    assert len(m["training"]["level_seconds"]) == 2 and m["training"]["seconds"] > 0
+    assert m["channels"] == 32 and m["pool_bins"] == 8 and m["recon_seed"] == 1234
+
+
+@pytest.mark.parametrize("seed", [None, 11])
+def test_onnxruntime_equals_torch(tiny_model, seed):
+    """Parity: reconstruction (seed None) and a random draw, the same noise fed to both."""
+    generator, sizes, amps = train.load_generator(train.default_checkpoint_path(tiny_model))
+    model = load.load(tiny_model)
+    if seed is None:
+        sample = generate.reconstruction_noise(model, sizes)
+    else:
+        sample = generate.draw_noise(seed, sizes, model.manifest.channels)
+    ours = query.grid_occupancy(model, generate.triplane(model, sample, sizes))
+
+    z0 = torch.from_numpy(sample.z0)[None, None]
+    noises = [None if planes is None else [amps[i] * torch.from_numpy(p)[None] for p in planes]
+              for i, planes in enumerate(sample.planes)]
+    with torch.no_grad():
+        reference = generator(z0, noises, sizes).numpy()
+    assert ours.shape == reference.shape == sizes[-1]
+    assert np.abs(ours - reference).max() < 1e-4
+    assert 0.05 < (ours > 0.5).mean() < 0.95  # a shape, not an empty or full grid

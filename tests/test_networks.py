@@ -1,0 +1,63 @@
+"""The torch networks agree with the paper's definitions and with the runtime's numpy."""
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from sinshape.runtime import generate  # noqa: E402
+from sinshape.trainer import networks  # noqa: E402
+
+
+def test_projection_pooling_matches_the_runtime():
+    volume = np.random.default_rng(0).normal(size=(17, 15, 23)).astype(np.float32)
+    pooled_torch = networks.Projection(8, 32).pool(torch.from_numpy(volume)[None, None])
+    pooled_numpy = generate.adaptive_pool(volume, 8)
+    for t, n in zip(pooled_torch, pooled_numpy):
+        np.testing.assert_allclose(t[0].numpy(), n, atol=1e-6)
+    # xy drops z: the bins average slabs of z.
+    np.testing.assert_allclose(pooled_numpy[0][0], volume[:, :, 0:3].mean(axis=2), atol=1e-6)
+
+
+def test_plane_resize_matches_the_runtime():
+    plane = torch.randn(1, 32, 11, 15)
+    resized = networks.resize_planes([plane, plane, plane], (11, 15, 15))  # sizes only matter per plane
+    ours = generate.resize_plane(plane[0].numpy(), (21, 29))
+    torch_ref = torch.nn.functional.interpolate(plane, size=(21, 29), mode="bilinear", align_corners=True)
+    np.testing.assert_allclose(ours, torch_ref[0].numpy(), atol=1e-5)
+    assert resized[0].shape == (1, 32, 11, 15)
+
+
+def test_decoder_first_layer_trick_equals_the_whole_mlp():
+    decoder = networks.Decoder(32, 32)
+    planes = [torch.randn(1, 32, *s) for s in networks.plane_sizes((9, 7, 5))]
+    grid = decoder.grid(planes)
+    axes = [torch.linspace(-1, 1, n) for n in (9, 7, 5)]
+    coords = torch.stack(torch.meshgrid(*axes, indexing="ij"), dim=-1).reshape(-1, 3)
+    with torch.no_grad():
+        points = decoder.points(planes, coords).reshape(9, 7, 5)
+    np.testing.assert_allclose(grid.detach().numpy(), points.numpy(), atol=1e-5)
+
+
+def test_discriminator_receptive_field_is_11_voxels():
+    critic = networks.Discriminator()
+    # InstanceNorm couples every voxel through its statistics; the field is the convs'.
+    critic.net = torch.nn.Sequential(*[m for m in critic.net if not isinstance(m, torch.nn.InstanceNorm3d)])
+    volume = torch.zeros(1, 1, 31, 31, 31, requires_grad=True)
+    scores = critic(volume)
+    scores[0, 0, 5, 5, 5].backward()
+    touched = volume.grad[0, 0].abs() > 0
+    extent = [int(np.ptp(np.nonzero(touched.numpy())[axis])) + 1 for axis in range(3)]
+    assert extent == [11, 11, 11]
+
+
+def test_generator_keeps_sizes_through_levels():
+    gen = networks.TriplaneGenerator()
+    for _ in range(3):
+        gen.add_level()
+    sizes = [(15, 15, 15), (20, 18, 15), (26, 24, 16)]
+    noises = [None] + [[torch.randn(1, 32, *s) for s in networks.plane_sizes(size)] for size in sizes[1:]]
+    with torch.no_grad():
+        occupancy = gen(torch.randn(1, 1, *sizes[0]), noises, sizes)
+    assert occupancy.shape == sizes[-1]
+    assert occupancy.min() >= 0 and occupancy.max() <= 1

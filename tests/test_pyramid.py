@@ -1,0 +1,91 @@
+"""Pyramid sizes, HDF5 reading and training targets."""
+
+import h5py
+import numpy as np
+import pytest
+
+from conftest import DATA, write_pyramid
+from sinshape.runtime.errors import InputError
+from sinshape.trainer import pyramid
+
+
+def test_level_count_gives_a_coarsest_side_of_22_to_33():
+    assert pyramid.level_count(128) == 6  # 128 96 72 54 41 31
+    assert pyramid.level_count(64) == 4  # 64 48 36 27
+    assert pyramid.level_count(33) == 1
+    for res in range(34, 600, 7):
+        count = pyramid.level_count(res)
+        sizes, _ = pyramid.level_sizes((res, res, res), count)
+        assert 22 <= max(sizes[0]) <= 33
+
+
+@pytest.mark.parametrize("name", ["Canyon_r128s6.h5", "NaturalArch_r128s7.h5", "SmallTown_r128s6.h5"])
+def test_level_sizes_reproduce_the_ssg_pyramids(name):
+    path = DATA / "pyramids" / name
+    if not path.exists():
+        pytest.skip("shared data not present")
+    with h5py.File(path) as f:
+        sizes = [f[f"scale{i}"].shape for i in range(int(f.attrs["n_scales"]))]
+    _, stretched = pyramid.level_sizes(sizes[-1], len(sizes))
+    # The longest side follows the ceil(0.75 x) chain exactly. The SSG files
+    # voxelised each level at that side and cropped it, so the other axes
+    # agree with the per-axis chain to within a voxel.
+    assert [max(s) for s in stretched] == [max(s) for s in sizes]
+    assert np.abs(np.array(stretched) - np.array(sizes)).max() <= 1
+
+
+def test_too_many_levels_for_the_15_voxel_minimum_is_refused():
+    with pytest.raises(InputError, match="15-voxel minimum"):
+        pyramid.level_sizes((32, 20, 20), 5)
+
+
+def test_stretch_raises_short_axes_and_keeps_the_shape():
+    volume = np.zeros((20, 10, 20), bool)
+    volume[:, :5] = True  # lower half along y
+    out = pyramid.stretch(volume, (20, 15, 20))
+    assert out.shape == (20, 15, 20)
+    assert out[:, :7].all() and not out[:, 8:].any()
+
+
+def test_h5_pyramid_is_read_coarsest_first(tmp_path):
+    path = write_pyramid(tmp_path / "p.h5", [(15, 15, 15), (20, 18, 15), (26, 24, 16)])
+    p = pyramid.load_pyramid(path, res=64)
+    assert p.sizes == [(15, 15, 15), (20, 18, 15), (26, 24, 16)]
+    assert p.source_kind == "pyramid" and len(p.source_sha256) == 64
+    assert pyramid.load_pyramid(path, res=64, levels=2).sizes == [(20, 18, 15), (26, 24, 16)]
+
+
+def test_h5_finest_first_is_reordered(tmp_path):
+    path = write_pyramid(tmp_path / "p.h5", [(26, 24, 16), (20, 18, 15)])
+    assert pyramid.load_pyramid(path, res=64).sizes == [(20, 18, 15), (26, 24, 16)]
+
+
+def test_bad_h5_files_are_refused(tmp_path):
+    no_attr = tmp_path / "a.h5"
+    with h5py.File(no_attr, "w") as f:
+        f.create_dataset("scale0", data=np.ones((15, 15, 15), bool))
+    missing = tmp_path / "b.h5"
+    with h5py.File(missing, "w") as f:
+        f.attrs["n_scales"] = 2
+        f.create_dataset("scale0", data=np.ones((15, 15, 15), bool))
+    empty = tmp_path / "c.h5"
+    with h5py.File(empty, "w") as f:
+        f.attrs["n_scales"] = 1
+        f.create_dataset("scale0", data=np.zeros((15, 15, 15), bool))
+    garbage = tmp_path / "d.h5"
+    garbage.write_bytes(b"not hdf5 at all")
+    for path, message in [(no_attr, "n_scales"), (missing, "scale1"), (empty, "empty"), (garbage, "HDF5")]:
+        with pytest.raises(InputError, match=message):
+            pyramid.load_pyramid(path, res=64)
+    with pytest.raises(InputError, match="no such file"):
+        pyramid.load_pyramid(tmp_path / "nothing.h5", res=64)
+
+
+def test_training_targets_are_blurred_and_clipped(tiny_pyramid):
+    p = pyramid.load_pyramid(tiny_pyramid, res=64)
+    for level, target in zip(p.levels, pyramid.training_targets(p, 0.5)):
+        assert target.dtype == np.float32 and target.shape == level.shape
+        assert target.min() >= 0 and target.max() <= 1
+        soft = (target > 0.01) & (target < 0.99)
+        assert soft.any()  # the surface is blurred...
+        assert np.array_equal(target > 0.5, level) or np.mean((target > 0.5) != level) < 0.01  # ...not moved

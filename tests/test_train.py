@@ -1,0 +1,92 @@
+"""Long training behaves: resume skips finished levels, Ctrl-C saves, NaN stops."""
+
+import math
+
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from sinshape.trainer import train  # noqa: E402
+from sinshape.trainer.config import PRESETS, make_config  # noqa: E402
+from sinshape.runtime.errors import InputError  # noqa: E402
+
+
+def test_presets():
+    paper = PRESETS["paper"]
+    assert (paper.iters, paper.d_steps, paper.g_steps, paper.lr) == (2000, 3, 3, 1e-4)
+    assert (paper.gp_weight, paper.rec_weight, paper.noise_ratio) == (0.1, 10.0, 0.1)
+    assert PRESETS["default"].res == 64
+    assert make_config("tiny", iters=7).iters == 7
+    with pytest.raises(InputError, match="unknown preset"):
+        make_config("huge")
+    with pytest.raises(InputError, match="--res"):
+        make_config("default", res=8)
+
+
+def interrupt_at(level, iteration):
+    def progress(p):
+        if (p.level, p.iteration) == (level, iteration):
+            raise KeyboardInterrupt
+
+    return progress
+
+
+def test_interrupt_saves_and_resume_skips_finished_levels(tmp_path, tiny_pyramid):
+    out = tmp_path / "m.onnx"
+    ckpt = train.default_checkpoint_path(out)
+    with pytest.raises(train.Interrupted, match="--resume"):
+        train.train(tiny_pyramid, out, make_config("tiny", iters=3), progress=interrupt_at(1, 2))
+    assert not out.exists() and ckpt.exists()
+    saved = torch.load(ckpt, weights_only=True)
+    assert (saved["level"], saved["iteration"]) == (1, 2)
+
+    seen = []
+    manifest = train.train(tiny_pyramid, out, None, resume=True, progress=lambda p: seen.append((p.level, p.iteration)))
+    assert seen == [(1, 3)]  # only the one missing iteration of level 2 ran
+    assert out.exists()
+    assert manifest["training"]["level_seconds"][0] == round(saved["seconds"][0], 1)
+    final = torch.load(ckpt, weights_only=True)
+    for key, value in saved["generator"].items():
+        if key.startswith("levels.0.") or key.startswith("projection."):
+            assert torch.equal(final["generator"][key], value), key  # frozen levels untouched
+
+
+def test_resume_refuses_another_input(tmp_path, tiny_pyramid):
+    out = tmp_path / "m.onnx"
+    with pytest.raises(train.Interrupted):
+        train.train(tiny_pyramid, out, make_config("tiny", iters=2), progress=interrupt_at(0, 1))
+    other = tmp_path / "other.h5"
+    other.write_bytes(tiny_pyramid.read_bytes() + b"\0")
+    with pytest.raises(InputError, match="another file"):
+        train.train(other, out, None, resume=True)
+
+
+def test_divergence_stops_and_keeps_the_last_good_checkpoint(tmp_path, tiny_pyramid, monkeypatch):
+    real_iterate = train.Trainer.iterate
+
+    def iterate(self, recon_below):
+        losses = real_iterate(self, recon_below)
+        return {**losses, "D": math.nan} if self.level == 1 else losses
+
+    monkeypatch.setattr(train.Trainer, "iterate", iterate)
+    out = tmp_path / "m.onnx"
+    with pytest.raises(train.TrainingDiverged, match="level 2, iteration 1.*D loss nan"):
+        train.train(tiny_pyramid, out, make_config("tiny", iters=2))
+    assert not out.exists()
+    saved = torch.load(train.default_checkpoint_path(out), weights_only=True)
+    assert (saved["level"], saved["iteration"]) == (1, 0)  # level 1 finished, nothing after
+
+
+def test_periodic_checkpoints(tmp_path, tiny_pyramid):
+    out = tmp_path / "m.onnx"
+    ckpt = train.default_checkpoint_path(out)
+    iterations = []
+
+    def progress(p):
+        if ckpt.exists():
+            state = torch.load(ckpt, weights_only=True)
+            iterations.append((state["level"], state["iteration"]))
+
+    train.train(tiny_pyramid, out, make_config("tiny", iters=3), checkpoint_every=0.0, progress=progress)
+    # With no delay allowed, a checkpoint follows every iteration.
+    assert (0, 1) in iterations and (0, 2) in iterations

@@ -1,0 +1,177 @@
+"""Write a trained generator as one .onnx file: every stage plus the manifest.
+
+The graphs are built node by node from the weights rather than traced by
+torch.onnx: the networks are four op types deep, a hand-built graph has
+exactly the ops and tensor names that docs/FORMAT.md promises (torch's
+exporters have turned InstanceNorm into a training-mode BatchNormalization
+and change their defaults between releases), and export needs no onnxscript.
+The parity test checks the file against the torch model.
+
+The stages are disconnected parts of one graph, each with its own inputs and
+outputs; the runtime cuts the graph into one session per stage.
+"""
+
+import importlib.metadata
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import onnx
+import torch
+from onnx import TensorProto, helper, numpy_helper
+
+from sinshape.runtime import manifest as fmt
+
+# ONNX IR 8 / opset 17: read by every onnxruntime since 1.14; newer onnx
+# releases write newer IR versions by default, which older runtimes reject.
+IR_VERSION = 8
+OPSET = 17
+
+
+class GraphBuilder:
+    """Collects nodes, initializers and graph inputs/outputs."""
+
+    def __init__(self):
+        self.nodes, self.initializers, self.inputs, self.outputs = [], [], [], []
+        self.counter = 0
+
+    def weight(self, name: str, value) -> str:
+        array = value.detach().cpu().numpy() if isinstance(value, torch.Tensor) else np.asarray(value)
+        self.initializers.append(numpy_helper.from_array(array.astype(np.float32), name))
+        return name
+
+    def node(self, op: str, inputs: list, output: str | None = None, **attrs) -> str:
+        self.counter += 1
+        output = output or f"{inputs[0]}/{op}{self.counter}"
+        self.nodes.append(helper.make_node(op, inputs, [output], name=f"{op}_{self.counter}", **attrs))
+        return output
+
+    def input(self, name: str, dims: list) -> str:
+        self.inputs.append(helper.make_tensor_value_info(name, TensorProto.FLOAT, dims))
+        return name
+
+    def output(self, name: str, dims: list) -> None:
+        self.outputs.append(helper.make_tensor_value_info(name, TensorProto.FLOAT, dims))
+
+
+def symbolic(name: str, fixed: dict) -> list:
+    """Dims of a rank-4 tensor: `fixed` maps axis -> size, others are named."""
+    return [fixed.get(axis, f"{name}_d{axis}") for axis in range(4)]
+
+
+def add_projection(g: GraphBuilder, projection, names: dict) -> None:
+    """P's 1x1 convs (bins -> C, with bias), one per plane."""
+    for conv, x, y in zip(projection.convs, names["inputs"], names["outputs"]):
+        g.input(x, symbolic(x, {0: 1, 1: conv.in_channels}))
+        w = g.weight(f"{x}.weight", conv.weight)
+        b = g.weight(f"{x}.bias", conv.bias)
+        g.node("Conv", [x, w, b], y, kernel_shape=[1, 1])
+        g.output(y, symbolic(y, {0: 1, 1: conv.out_channels}))
+
+
+def add_level(g: GraphBuilder, level, names: dict, norm_scale: str, norm_bias: str) -> None:
+    """G_i: per plane, (Conv3x3 -> InstanceNorm -> LeakyReLU) x 3 -> Conv3x3 + bias."""
+    for stack, x, y in zip(level.stacks, names["inputs"], names["outputs"]):
+        channels = stack[0].in_channels
+        g.input(x, symbolic(x, {0: 1, 1: channels}))
+        h = x
+        convs = [m for m in stack if isinstance(m, torch.nn.Conv2d)]
+        for k, conv in enumerate(convs):
+            args = [h, g.weight(f"{x}.conv{k}.weight", conv.weight)]
+            if conv.bias is not None:
+                args.append(g.weight(f"{x}.conv{k}.bias", conv.bias))
+            last = k == len(convs) - 1
+            h = g.node("Conv", args, y if last else None, kernel_shape=[3, 3], pads=[1, 1, 1, 1])
+            if not last:
+                h = g.node("InstanceNormalization", [h, norm_scale, norm_bias], epsilon=1e-5)
+                h = g.node("LeakyRelu", [h], alpha=0.2)
+        g.output(y, symbolic(y, {0: 1, 1: channels}))
+
+
+def add_decoder(g: GraphBuilder, decoder, plane_names: dict, head_names: dict) -> None:
+    """The MLP split at its first layer (DESIGN.md section 4).
+
+    decoder_planes: each plane (1, C, H, W) -> (1, H, W, hidden) = plane^T W_k^T.
+    decoder_head: three broadcastable (..., hidden) -> sigmoid(w2 relu(sum + b1) + b2).
+    """
+    hidden = decoder.fc1.out_features
+    blocks = decoder.fc1.weight.split(decoder.channels, dim=1)
+    for block, x, y in zip(blocks, plane_names["inputs"], plane_names["outputs"]):
+        g.input(x, symbolic(x, {0: 1, 1: decoder.channels}))
+        h = g.node("Transpose", [x], perm=[0, 2, 3, 1])
+        g.node("MatMul", [h, g.weight(f"{x}.weight", block.T)], y)
+        g.output(y, symbolic(y, {0: 1, 3: hidden}))
+    a, b, c = (g.input(x, symbolic(x, {3: hidden})) for x in head_names["inputs"])
+    h = g.node("Add", [g.node("Add", [a, b]), c])
+    h = g.node("Relu", [g.node("Add", [h, g.weight("decoder_head.bias1", decoder.fc1.bias)])])
+    h = g.node("MatMul", [h, g.weight("decoder_head.weight2", decoder.fc2.weight.T)])
+    h = g.node("Add", [h, g.weight("decoder_head.bias2", decoder.fc2.bias)])
+    (y,) = head_names["outputs"]
+    g.node("Sigmoid", [h], y)
+    g.output(y, ["head_d0", "head_d1", "head_d2", 1])
+
+
+def build_model(generator, manifest: dict) -> onnx.ModelProto:
+    """The ONNX model of a generator with its manifest in the metadata."""
+    stages = manifest["stages"]
+    g = GraphBuilder()
+    add_projection(g, generator.projection, stages["projection"])
+    scale = g.weight("instance_norm.scale", np.ones(generator.channels))
+    bias = g.weight("instance_norm.bias", np.zeros(generator.channels))
+    for level, names in zip(generator.levels, stages["levels"]):
+        add_level(g, level, names, scale, bias)
+    add_decoder(g, generator.decoder, stages["decoder_planes"], stages["decoder_head"])
+    graph = helper.make_graph(g.nodes, "sinshape", g.inputs, g.outputs, g.initializers)
+    model = helper.make_model(
+        graph,
+        opset_imports=[helper.make_opsetid("", OPSET)],
+        ir_version=IR_VERSION,
+        producer_name="sinshape",
+        producer_version=importlib.metadata.version("sinshape"),
+    )
+    helper.set_model_props(model, {fmt.METADATA_KEY: json.dumps(manifest, indent=1)})
+    onnx.checker.check_model(model, full_check=True)
+    return model
+
+
+def make_manifest(generator, *, sizes, noise_amps, config, pyramid, seconds) -> dict:
+    """The manifest dict (runtime/manifest.py checks it before it is written)."""
+    manifest = {
+        "format": fmt.FORMAT_NAME,
+        "format_version": fmt.FORMAT_VERSION,
+        "created_by": f"sinshape {importlib.metadata.version('sinshape')}, torch {torch.__version__}",
+        "planes": list(fmt.PLANES),
+        "channels": generator.channels,
+        "pool_bins": generator.projection.bins,
+        "mlp_hidden": generator.decoder.fc1.out_features,
+        "levels": [{"size": list(s), "noise_amp": float(a)} for s, a in zip(sizes, noise_amps)],
+        "recon_seed": config.recon_seed,
+        "noise": fmt.NOISE_SCHEME,
+        "frame": {"origin": list(pyramid.origin), "spacing": list(pyramid.spacing)},
+        "stages": fmt.stage_names(len(sizes)),
+        "source": {"name": pyramid.source_name, "sha256": pyramid.source_sha256, "kind": pyramid.source_kind},
+        "config": config.to_dict(),
+        "training": {
+            "seconds": round(sum(seconds), 1),
+            "level_seconds": [round(s, 1) for s in seconds],
+            "iterations_per_level": config.iters,
+        },
+    }
+    fmt.parse(json.dumps(manifest))  # the trainer never writes what the runtime would refuse
+    return manifest
+
+
+def export_model(generator, *, sizes, noise_amps, config, pyramid, seconds, path) -> dict:
+    """Write the model to `path` atomically; returns its manifest."""
+    manifest = make_manifest(generator, sizes=sizes, noise_amps=noise_amps, config=config,
+                             pyramid=pyramid, seconds=seconds)
+    model = build_model(generator, manifest)
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    try:
+        onnx.save_model(model, tmp)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return manifest

@@ -1,0 +1,194 @@
+"""The SSG networks in PyTorch: projection, per-level tri-plane generators,
+the shared MLP decoder, and the 3-D discriminator.
+
+Conventions shared with the runtime (docs/FORMAT.md):
+- A level's grid is (X, Y, Z). Its planes, in this order, are xy (X, Y),
+  xz (X, Z) and yz (Y, Z); plane k drops axis 2 - k.
+- Plane tensors are (1, C, H, W); grids are (X, Y, Z) or (1, 1, X, Y, Z).
+- The decoder's feature of a point concatenates its xy, xz, yz features.
+
+Networks take plain ints; nothing here reads a config.
+"""
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+PLANES = ("xy", "xz", "yz")
+
+
+def plane_sizes(size: tuple) -> list:
+    """Plane sizes of a grid (X, Y, Z): [(X, Y), (X, Z), (Y, Z)]."""
+    x, y, z = size
+    return [(x, y), (x, z), (y, z)]
+
+
+def plane_stack(channels: int) -> nn.Sequential:
+    """Four 3x3 convs; the first three without bias, each followed by
+    InstanceNorm (no affine) and LeakyReLU(0.2); the last with bias, bare."""
+    layers = []
+    for _ in range(3):
+        layers += [
+            nn.Conv2d(channels, channels, 3, padding=1, bias=False),
+            nn.InstanceNorm2d(channels),
+            nn.LeakyReLU(0.2),
+        ]
+    layers.append(nn.Conv2d(channels, channels, 3, padding=1))
+    return nn.Sequential(*layers)
+
+
+class LevelGenerator(nn.Module):
+    """G_i: one independent conv stack per plane."""
+
+    def __init__(self, channels: int):
+        super().__init__()
+        self.stacks = nn.ModuleList(plane_stack(channels) for _ in PLANES)
+
+    def forward(self, planes: list) -> list:
+        return [stack(plane) for stack, plane in zip(self.stacks, planes)]
+
+
+class Projection(nn.Module):
+    """P: average-pool a 3-D noise into `bins` slabs per plane, then a 1x1 conv."""
+
+    def __init__(self, bins: int, channels: int):
+        super().__init__()
+        self.bins = bins
+        self.convs = nn.ModuleList(nn.Conv2d(bins, channels, 1) for _ in PLANES)
+
+    def pool(self, volume: torch.Tensor) -> list:
+        """volume : (1, 1, X, Y, Z) -> [(1, bins, X, Y), (1, bins, X, Z), (1, bins, Y, Z)].
+
+        Bin k of n covers floor(k n / bins) .. ceil((k + 1) n / bins), exactly
+        torch's adaptive average pooling.
+        """
+        x, y, z = volume.shape[-3:]
+        b = self.bins
+        xy = F.adaptive_avg_pool3d(volume, (x, y, b))[0, 0].permute(2, 0, 1)  # (b, X, Y)
+        xz = F.adaptive_avg_pool3d(volume, (x, b, z))[0, 0].permute(1, 0, 2)  # (b, X, Z)
+        yz = F.adaptive_avg_pool3d(volume, (b, y, z))[0, 0]  # (b, Y, Z)
+        return [xy[None], xz[None], yz[None]]
+
+    def forward(self, volume: torch.Tensor) -> list:
+        return [conv(p) for conv, p in zip(self.convs, self.pool(volume))]
+
+
+class Decoder(nn.Module):
+    """Shared MLP: Linear(3C, H) -> ReLU -> Linear(H, 1) -> sigmoid.
+
+    The first layer is linear in the concatenated features, so it is applied
+    to each plane before the planes are combined (DESIGN.md section 4):
+    W [f_xy; f_xz; f_yz] = W_xy f_xy + W_xz f_xz + W_yz f_yz. A voxel then
+    costs a sum of three H-vectors instead of a (3C x H) product, and the
+    backward pass never holds a (voxels, 3C) tensor.
+    """
+
+    def __init__(self, channels: int, hidden: int):
+        super().__init__()
+        self.channels = channels
+        self.fc1 = nn.Linear(3 * channels, hidden)
+        self.fc2 = nn.Linear(hidden, 1)
+
+    def project_planes(self, planes: list) -> list:
+        """[(1, C, H, W)] * 3 -> [(H, W, hidden)] * 3: each plane times its W_k."""
+        weights = self.fc1.weight.split(self.channels, dim=1)  # 3 x (hidden, C)
+        return [torch.einsum("chw,oc->hwo", plane[0], w) for plane, w in zip(planes, weights)]
+
+    def head(self, hidden: torch.Tensor) -> torch.Tensor:
+        """Pre-activation sums (..., hidden) -> occupancy (...)."""
+        return torch.sigmoid(F.linear(F.relu(hidden + self.fc1.bias), self.fc2.weight)[..., 0] + self.fc2.bias)
+
+    def grid(self, planes: list) -> torch.Tensor:
+        """Occupancy at the planes' own resolution: voxel (x, y, z) reads plane
+        cells xy[x, y], xz[x, z], yz[y, z]. Returns (X, Y, Z)."""
+        pxy, pxz, pyz = self.project_planes(planes)
+        hidden = pxy[:, :, None] + pxz[:, None] + pyz[None]  # (X, Y, Z, hidden)
+        return self.head(hidden)
+
+    def points(self, planes: list, coords: torch.Tensor) -> torch.Tensor:
+        """Occupancy at arbitrary points, the straightforward way: sample each
+        plane bilinearly (align_corners=True) and run the whole MLP.
+
+        coords : (n, 3) in [-1, 1] (grid corner to corner) -> (n,) occupancy.
+        """
+        features = []
+        for plane, (a, b) in zip(planes, ((0, 1), (0, 2), (1, 2))):
+            # grid_sample's grid is (x=width, y=height): width is the plane's last axis.
+            grid = coords[:, [b, a]].view(1, 1, -1, 2)
+            features.append(F.grid_sample(plane, grid, align_corners=True)[0, :, 0].T)  # (n, C)
+        return torch.sigmoid(self.fc2(F.relu(self.fc1(torch.cat(features, dim=1)))))[:, 0]
+
+
+def resize_planes(planes: list, size: tuple) -> list:
+    """Bilinear resize (align_corners=True) of tri-planes to a grid size."""
+    return [
+        F.interpolate(p, size=s, mode="bilinear", align_corners=True)
+        for p, s in zip(planes, plane_sizes(size))
+    ]
+
+
+class TriplaneGenerator(nn.Module):
+    """P, the level generators G_0..G_n and the decoder, chained.
+
+    Level 0: T_0 = G_0(P(z0)). Level i > 0: U = resize(T_(i-1));
+    T_i = U + G_i(U + sigma_i * n_i). Levels are appended as training grows.
+    """
+
+    def __init__(self, channels: int = 32, bins: int = 8, hidden: int = 32):
+        super().__init__()
+        self.channels = channels
+        self.projection = Projection(bins, channels)
+        self.levels = nn.ModuleList()
+        self.decoder = Decoder(channels, hidden)
+
+    def add_level(self) -> LevelGenerator:
+        level = LevelGenerator(self.channels)
+        self.levels.append(level)
+        return level
+
+    def start(self, z0: torch.Tensor) -> list:
+        """z0 : (1, 1, X, Y, Z) -> T_0, the coarsest tri-plane."""
+        return self.levels[0](self.projection(z0))
+
+    def step(self, planes: list, level: int, size: tuple, noise: list | None) -> list:
+        """T_(level-1) -> T_level at grid `size`; noise: 3 planes already
+        scaled by sigma_level, or None for none (reconstruction)."""
+        upsampled = resize_planes(planes, size)
+        inputs = upsampled if noise is None else [u + n for u, n in zip(upsampled, noise)]
+        return [u + g for u, g in zip(upsampled, self.levels[level](inputs))]
+
+    def planes(self, z0: torch.Tensor, noises: list, sizes: list, upto: int | None = None) -> list:
+        """The tri-plane after level `upto` (default: the last).
+
+        noises[i] is level i's scaled noise (3 planes) or None; noises[0] is unused.
+        """
+        upto = len(self.levels) - 1 if upto is None else upto
+        planes = self.start(z0)
+        for level in range(1, upto + 1):
+            planes = self.step(planes, level, sizes[level], noises[level])
+        return planes
+
+    def forward(self, z0: torch.Tensor, noises: list, sizes: list) -> torch.Tensor:
+        """Occupancy (X, Y, Z) of the last level's grid."""
+        return self.decoder.grid(self.planes(z0, noises, sizes))
+
+
+class Discriminator(nn.Module):
+    """Patch critic with an 11^3 receptive field. It returns its score map;
+    the WGAN losses use the map's mean, the gradient penalty its sum."""
+
+    def __init__(self, channels: int = 32):
+        super().__init__()
+        self.net = nn.Sequential(
+            nn.Conv3d(1, channels, 3, stride=2, padding=1, bias=False),
+            nn.InstanceNorm3d(channels),
+            nn.LeakyReLU(0.2),
+            nn.Conv3d(channels, channels, 3, bias=False),
+            nn.InstanceNorm3d(channels),
+            nn.LeakyReLU(0.2),
+            nn.Conv3d(channels, 1, 3),
+        )
+
+    def forward(self, volume: torch.Tensor) -> torch.Tensor:
+        """volume : (B, 1, X, Y, Z) -> (B, 1, x, y, z) scores."""
+        return self.net(volume)

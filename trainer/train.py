@@ -1,0 +1,364 @@
+"""Progressive training, coarse to fine, with checkpoints that survive a crash.
+
+At level i only G_i (plus P at level 0) and the shared decoder train; lower
+levels are frozen. One iteration is `d_steps` critic updates (WGAN-GP) then
+`g_steps` generator updates (adversarial + 10 x reconstruction MSE). The
+discriminator is shared by all levels and keeps training across them; the
+optimisers are created anew per level.
+
+A checkpoint (weights-only loadable) is written after every level and every
+few minutes; `resume=True` continues from it without redoing finished levels.
+Ctrl-C saves one before it stops.
+"""
+
+import dataclasses
+import math
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+import torch.nn.functional as F
+
+from sinshape.runtime import noise
+from sinshape.runtime.errors import InputError
+
+from . import export
+from .config import TrainConfig
+from .networks import Discriminator, TriplaneGenerator, plane_sizes
+from .pyramid import load_pyramid, training_targets
+
+CHECKPOINT_FORMAT = "sinshape-checkpoint"
+CHECKPOINT_VERSION = 1
+LOSS_LIMIT = 1e6  # a loss beyond this (or NaN) means training has diverged
+
+
+class TrainingDiverged(RuntimeError):
+    """A loss became NaN or exploded; the last good checkpoint is kept."""
+
+
+class Interrupted(RuntimeError):
+    """Ctrl-C during training; a checkpoint was saved first."""
+
+
+@dataclass
+class Progress:
+    """What a progress display needs after each iteration."""
+
+    level: int
+    levels: int
+    iteration: int  # iterations done in this level
+    iters: int
+    size: tuple
+    losses: dict
+
+
+def default_checkpoint_path(output: Path) -> Path:
+    """model.onnx -> model.ckpt.pt, beside the model."""
+    return output.with_name(output.stem + ".ckpt.pt")
+
+
+def seeded(seed: int, *ids: int) -> int:
+    """A torch seed for one purpose, derived from the run's seed."""
+    return noise.stream_key(seed, *ids) >> 1  # torch seeds must fit in int64
+
+
+def atomic_save(obj, path: Path) -> None:
+    """torch.save to a temporary file, then rename: never a half-written file."""
+    tmp = path.with_name(path.name + ".tmp")
+    torch.save(obj, tmp)
+    os.replace(tmp, path)
+
+
+def check_writable(path: Path) -> None:
+    """Fail now, not after hours of training, if `path` cannot be written."""
+    if path.is_dir():
+        raise InputError(f"{path}: is a directory, not a file name")
+    if not path.parent.is_dir():
+        raise InputError(f"{path}: the folder {path.parent} does not exist")
+    probe = path.with_name(path.name + ".probe")
+    try:
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as error:
+        raise InputError(f"{path}: cannot write here ({error.strerror})") from None
+
+
+class Trainer:
+    """The state of one training run: data, networks, optimisers, position."""
+
+    def __init__(self, config: TrainConfig, pyramid):
+        self.config = config
+        self.pyramid = pyramid
+        self.sizes = pyramid.sizes
+        self.targets = [torch.from_numpy(t)[None, None] for t in training_targets(pyramid, config.blur_sigma)]
+        self.z0_recon = torch.from_numpy(noise.z0_noise(config.recon_seed, self.sizes[0]))[None, None]
+        with torch.random.fork_rng():
+            torch.manual_seed(seeded(config.seed, 0))
+            self.generator = TriplaneGenerator(config.channels, config.pool_bins, config.mlp_hidden)
+            self.critic = Discriminator(config.channels)
+        self.rng = torch.Generator().manual_seed(seeded(config.seed, 1))
+        self.noise_amps = []  # sigma_i per level; sigma_0 = 1 is the std of z0
+        self.level = 0  # the level being trained
+        self.iteration = 0  # iterations done at that level
+        self.seconds = []  # wall time per finished level
+        self.level_seconds = 0.0  # wall time so far at the current level
+        self.opt_g = self.opt_d = None
+
+    # -- levels ------------------------------------------------------------
+    def begin_level(self) -> None:
+        """Add G_level, set its noise amplitude, create fresh optimisers."""
+        level = self.level
+        with torch.random.fork_rng():
+            torch.manual_seed(seeded(self.config.seed, 2, level))
+            self.generator.add_level()
+        if len(self.noise_amps) == level:
+            self.noise_amps.append(1.0 if level == 0 else self.initial_noise_amp(level))
+        self.make_optimizers()
+
+    def initial_noise_amp(self, level: int) -> float:
+        """sigma_i = ratio * RMSE(trilinear upsample of rec_(i-1), real_i)."""
+        with torch.no_grad():
+            rec = self.reconstruct(level - 1)
+            up = F.interpolate(rec[None, None], size=self.sizes[level], mode="trilinear", align_corners=False)
+            return self.config.noise_ratio * math.sqrt(F.mse_loss(up, self.targets[level]).item())
+
+    def make_optimizers(self) -> None:
+        c = self.config
+        trained = [self.generator.levels[self.level], self.generator.decoder]
+        if self.level == 0:
+            trained.append(self.generator.projection)
+        params = [p for module in trained for p in module.parameters()]
+        self.opt_g = torch.optim.Adam(params, lr=c.lr, betas=(c.beta1, c.beta2))
+        self.opt_d = torch.optim.Adam(self.critic.parameters(), lr=c.lr, betas=(c.beta1, c.beta2))
+
+    # -- sampling ------------------------------------------------------------
+    def random_noises(self, upto: int) -> tuple:
+        """A fresh z0 and scaled per-level plane noises for levels 1..upto."""
+        z0 = torch.randn((1, 1, *self.sizes[0]), generator=self.rng)
+        noises = [None]
+        for level in range(1, upto + 1):
+            amp = self.noise_amps[level]
+            noises.append([
+                amp * torch.randn((1, self.config.channels, *s), generator=self.rng)
+                for s in plane_sizes(self.sizes[level])
+            ])
+        return z0, noises
+
+    def reconstruct(self, level: int) -> torch.Tensor:
+        """Occupancy (X, Y, Z) at `level` for z0* and zero later noise."""
+        planes = self.generator.planes(self.z0_recon, [None] * (level + 1), self.sizes, upto=level)
+        return self.generator.decoder.grid(planes)
+
+    def frozen_planes(self, z0, noises) -> list:
+        """T_(level-1) from the frozen levels, or P(z0) inputs at level 0."""
+        with torch.no_grad():
+            return self.generator.planes(z0, noises, self.sizes, upto=self.level - 1)
+
+    def fake(self, below: list, noise_planes) -> torch.Tensor:
+        """This level's occupancy (X, Y, Z) from the frozen levels' output."""
+        gen = self.generator
+        planes = gen.levels[0](below) if self.level == 0 else gen.step(below, self.level, self.sizes[self.level], noise_planes)
+        return gen.decoder.grid(planes)
+
+    def below(self, z0, noises):
+        """Inputs of the trained level: P(z0) at level 0, else frozen T_(level-1)."""
+        if self.level == 0:
+            return self.generator.projection(z0)
+        return self.frozen_planes(z0, noises)
+
+    # -- one iteration -------------------------------------------------------
+    def iterate(self, recon_below) -> dict:
+        """(1) update D `d_steps` times, (2) update G `g_steps` times."""
+        c, level, real = self.config, self.level, self.targets[self.level]
+        critic, gen = self.critic, self.generator
+
+        # (1) Update D: minimise D(fake) - D(real) + gp_weight * GP.
+        critic.requires_grad_(True)
+        for _ in range(c.d_steps):
+            with torch.no_grad():
+                z0, noises = self.random_noises(level)
+                fake = self.fake(self.below(z0, noises), noises[level] if level else None)[None, None]
+            scores = critic(torch.cat([real, fake]))
+            d_real, d_fake = scores[0].mean(), scores[1].mean()
+            loss_d = d_fake - d_real + c.gp_weight * self.gradient_penalty(real, fake)
+            self.opt_d.zero_grad(set_to_none=True)
+            loss_d.backward()
+            self.opt_d.step()
+
+        # (2) Update G: minimise -D(fake) + rec_weight * MSE(rec, real).
+        critic.requires_grad_(False)
+        for _ in range(c.g_steps):
+            z0, noises = self.random_noises(level)
+            below = self.below(z0, noises)
+            fake = self.fake(below, noises[level] if level else None)
+            loss_adv = -critic(fake[None, None]).mean()
+            rec_below = gen.projection(self.z0_recon) if level == 0 else recon_below
+            rec = self.fake(rec_below, None)
+            loss_rec = F.mse_loss(rec, real[0, 0])
+            loss_g = loss_adv + c.rec_weight * loss_rec
+            self.opt_g.zero_grad(set_to_none=True)
+            loss_g.backward()
+            self.opt_g.step()
+        critic.requires_grad_(True)
+        return {"D": loss_d.item(), "G": loss_adv.item(), "rec": loss_rec.item()}
+
+    def gradient_penalty(self, real, fake) -> torch.Tensor:
+        """WGAN-GP on one random mix of real and fake.
+
+        As the authors' code does, the norm is taken over the channel axis,
+        which has size 1: the penalty is mean((|dD/dx| - 1)^2) per voxel, of
+        the gradient of the score map's sum.
+        """
+        alpha = torch.rand(1, generator=self.rng)
+        mixed = (alpha * real + (1 - alpha) * fake).requires_grad_(True)
+        (grad,) = torch.autograd.grad(self.critic(mixed).sum(), mixed, create_graph=True)
+        return ((grad.abs() - 1) ** 2).mean()
+
+    # -- checkpoints ---------------------------------------------------------
+    def state(self) -> dict:
+        p = self.pyramid
+        return {
+            "format": CHECKPOINT_FORMAT,
+            "version": CHECKPOINT_VERSION,
+            "config": self.config.to_dict(),
+            "source": {"name": p.source_name, "sha256": p.source_sha256, "kind": p.source_kind},
+            "sizes": [list(s) for s in self.sizes],
+            "level": self.level,
+            "iteration": self.iteration,
+            "noise_amps": list(self.noise_amps),
+            "seconds": list(self.seconds),
+            "level_seconds": self.level_seconds,
+            "generator": self.generator.state_dict(),
+            "critic": self.critic.state_dict(),
+            "opt_g": self.opt_g.state_dict() if self.opt_g else None,
+            "opt_d": self.opt_d.state_dict() if self.opt_d else None,
+            "rng": self.rng.get_state(),
+        }
+
+    def restore(self, state: dict) -> None:
+        """Load a checkpoint made by `state()` for the same source and config."""
+        self.level, self.iteration = state["level"], state["iteration"]
+        self.noise_amps, self.seconds = list(state["noise_amps"]), list(state["seconds"])
+        self.level_seconds = state["level_seconds"]
+        started = count_levels(state["generator"])
+        for _ in range(started):
+            with torch.random.fork_rng():
+                self.generator.add_level()
+        self.generator.load_state_dict(state["generator"])
+        self.critic.load_state_dict(state["critic"])
+        self.rng.set_state(state["rng"])
+        if state["opt_g"] is not None and started == self.level + 1:
+            self.make_optimizers()
+            self.opt_g.load_state_dict(state["opt_g"])
+            self.opt_d.load_state_dict(state["opt_d"])
+
+
+def count_levels(generator_state: dict) -> int:
+    """How many level generators a TriplaneGenerator state dict holds."""
+    return len({key.split(".")[1] for key in generator_state if key.startswith("levels.")})
+
+
+def load_checkpoint(path: Path) -> dict:
+    """Read a checkpoint and check that it is one of ours."""
+    if not path.is_file():
+        raise InputError(f"{path}: no checkpoint to resume from")
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as error:  # torch raises many kinds for a bad file
+        raise InputError(f"{path}: not a readable checkpoint ({type(error).__name__})") from None
+    if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT:
+        raise InputError(f"{path}: not a sinshape checkpoint")
+    if state.get("version") != CHECKPOINT_VERSION:
+        raise InputError(f"{path}: checkpoint version {state.get('version')} is not {CHECKPOINT_VERSION}")
+    return state
+
+
+def train(input_path, output_path, config: TrainConfig | None, *, resume: bool = False,
+          checkpoint_path=None, checkpoint_every: float = 300.0, progress=None, log=None):
+    """Train on a mesh or SSG pyramid and export the model to `output_path`.
+
+    With resume, `config` must be None: the checkpoint's config is used.
+    `progress(Progress)` is called after every iteration; `log(str)` for
+    level starts and checkpoints. Returns the manifest written into the model.
+    Raises InputError for bad input, TrainingDiverged, or Interrupted.
+    """
+    log = log or (lambda message: None)
+    output_path = Path(output_path)
+    checkpoint_path = Path(checkpoint_path) if checkpoint_path else default_checkpoint_path(output_path)
+    check_writable(output_path)
+    check_writable(checkpoint_path)
+
+    if (config is None) != resume:
+        raise ValueError("pass a config to start training, or resume=True without one")
+    state = None
+    if resume:
+        # The checkpoint says how the pyramid was made; the hash, of what file.
+        state = load_checkpoint(checkpoint_path)
+        config = TrainConfig.from_dict(state["config"])
+    pyramid = load_pyramid(input_path, config.res, config.levels, config.level_factor, config.min_size)
+    if resume and pyramid.source_sha256 != state["source"]["sha256"]:
+        raise InputError(f"{checkpoint_path}: this checkpoint was trained on another file ({state['source']['name']})")
+    # Record what was actually used: an .h5 pyramid fixes res and levels.
+    config = dataclasses.replace(config, res=max(pyramid.sizes[-1]), levels=len(pyramid.levels))
+
+    trainer = Trainer(config, pyramid)
+    if state is not None:
+        trainer.restore(state)
+        if trainer.level < len(trainer.sizes):
+            log(f"resuming at level {trainer.level + 1}/{len(trainer.sizes)}, iteration {trainer.iteration}")
+        else:
+            log("every level is trained already; exporting")
+
+    last_save = time.monotonic()
+    try:
+        while trainer.level < len(trainer.sizes):
+            if len(trainer.generator.levels) == trainer.level:
+                trainer.begin_level()
+            level = trainer.level
+            log(f"level {level + 1}/{len(trainer.sizes)}: grid {trainer.sizes[level]}, "
+                f"noise amplitude {trainer.noise_amps[level]:.4g}")
+            recon_below = trainer.frozen_planes(trainer.z0_recon, [None] * len(trainer.sizes)) if level else None
+            while trainer.iteration < config.iters:
+                started = time.monotonic()
+                losses = trainer.iterate(recon_below)
+                bad = [k for k, v in losses.items() if not math.isfinite(v) or abs(v) > LOSS_LIMIT]
+                if bad:
+                    raise TrainingDiverged(
+                        f"training diverged at level {level + 1}, iteration {trainer.iteration + 1} "
+                        f"({', '.join(f'{k} loss {losses[k]:.3g}' for k in bad)}); "
+                        f"the last good checkpoint is {checkpoint_path}; try another --seed"
+                    )
+                trainer.iteration += 1
+                trainer.level_seconds += time.monotonic() - started
+                if progress:
+                    progress(Progress(level, len(trainer.sizes), trainer.iteration, config.iters,
+                                      trainer.sizes[level], losses))
+                if time.monotonic() - last_save > checkpoint_every:
+                    atomic_save(trainer.state(), checkpoint_path)
+                    last_save = time.monotonic()
+            trainer.seconds.append(trainer.level_seconds)
+            trainer.level, trainer.iteration, trainer.level_seconds = level + 1, 0, 0.0
+            trainer.opt_g = trainer.opt_d = None
+            atomic_save(trainer.state(), checkpoint_path)
+            last_save = time.monotonic()
+            log(f"level {level + 1} done in {trainer.seconds[-1]:.0f} s; checkpoint {checkpoint_path}")
+    except KeyboardInterrupt:
+        atomic_save(trainer.state(), checkpoint_path)
+        raise Interrupted(f"interrupted; progress saved to {checkpoint_path}; continue with --resume") from None
+
+    return export.export_model(trainer.generator, sizes=trainer.sizes, noise_amps=trainer.noise_amps,
+                               config=config, pyramid=pyramid, seconds=trainer.seconds, path=output_path)
+
+
+def load_generator(checkpoint_path) -> tuple:
+    """The trained generator of a checkpoint, with its level sizes and noise
+    amplitudes: for sampling with torch (tests, benchmarks)."""
+    state = load_checkpoint(Path(checkpoint_path))
+    config = TrainConfig.from_dict(state["config"])
+    generator = TriplaneGenerator(config.channels, config.pool_bins, config.mlp_hidden)
+    for _ in range(count_levels(state["generator"])):
+        generator.add_level()
+    generator.load_state_dict(state["generator"])
+    return generator.eval(), [tuple(s) for s in state["sizes"]], list(state["noise_amps"])
