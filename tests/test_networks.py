@@ -61,3 +61,12 @@ def test_generator_keeps_sizes_through_levels():
         occupancy = gen(torch.randn(1, 1, *sizes[0]), noises, sizes)
     assert occupancy.shape == sizes[-1]
     assert occupancy.min() >= 0 and occupancy.max() <= 1
+
+
+def test_grid_head_gradients_are_exact(monkeypatch):
+    monkeypatch.setattr(networks.GridHead, "SLAB_FLOATS", 40)  # several slabs even on a tiny grid
+    gen = torch.Generator().manual_seed(0)
+    shapes = [(5, 4, 3), (5, 6, 3), (4, 6, 3), (1, 3), (1,)]
+    inputs = [torch.randn(s, generator=gen, dtype=torch.float64, requires_grad=True) for s in shapes]
+    assert len(networks.GridHead.slabs(inputs[0], inputs[2])) > 1
+    assert torch.autograd.gradcheck(networks.GridHead.apply, inputs)
