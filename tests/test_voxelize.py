@@ -15,10 +15,11 @@ import trimesh
 from scipy import ndimage
 from skimage import measure
 
+from conftest import DATA
 from sinshape.runtime.errors import InputError
 from sinshape.trainer.voxelize import _add_crossings, _split_to_size, load_mesh, voxelize
 
-MESH_DIR = Path("/work/shared/data/meshes")
+MESH_DIR = DATA / "meshes"
 REAL_MESHES = [
     MESH_DIR / name
     for name in (
