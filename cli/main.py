@@ -142,5 +142,212 @@ def train(input_path, output, preset, res, levels, iters, seed, resume, checkpoi
                f"trained in {format_seconds(manifest['training']['seconds'])})")
 
 
+def parse_seeds(text: str) -> list:
+    """'3', '0-99' or '1,5,9-12' -> a list of seeds."""
+    seeds = []
+    try:
+        for part in text.split(","):
+            low, _, high = part.strip().partition("-")
+            seeds.extend(range(int(low), int(high or low) + 1))
+    except ValueError:
+        raise click.BadParameter(f"{text!r} is not a seed list like 3, 0-99 or 1,5,9-12") from None
+    if not seeds or min(seeds) < 0:
+        raise click.BadParameter(f"{text!r} gives no non-negative seeds")
+    return seeds
+
+
+def parse_size(text: str) -> tuple:
+    """'2' or '2,1,1' -> per-axis factors of the training size."""
+    try:
+        factors = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise click.BadParameter(f"{text!r} is not a factor like 2 or 2,1,0.5") from None
+    if len(factors) == 1:
+        factors *= 3
+    if len(factors) != 3 or not all(0 < f < float("inf") for f in factors):
+        raise click.BadParameter(f"{text!r}: give one or three positive factors, like 2 or 2,1,0.5")
+    return factors
+
+
+def named_output(output: Path, **fields) -> Path:
+    """Fill {seed}-style fields in an output name, or add them before the suffix."""
+    if "{" in output.name:
+        try:
+            return output.with_name(output.name.format(**fields))
+        except (KeyError, IndexError, ValueError):
+            raise click.BadParameter(f"{output.name}: only {', '.join('{' + k + '}' for k in fields)} "
+                                     "can be filled in") from None
+    tag = "_".join(f"{key}{value}" for key, value in fields.items())
+    return output.with_name(f"{output.stem}_{tag}{output.suffix}")
+
+
+def progress_bar(length: int, label: str):
+    """A progress bar on stderr, shown only on a terminal and for more than one step."""
+    return click.progressbar(length=length, label=label, file=sys.stderr,
+                             hidden=length < 2 or not sys.stderr.isatty())
+
+
+MODEL_ARGUMENT = click.argument("model", required=False)
+THREADS_OPTION = click.option("--threads", type=int, default=None,
+                              help="onnxruntime threads per stage. Default: all cores.")
+SCALE_OPTION = click.option("--scale", type=float, default=1.0, show_default=True,
+                            help="Query the shape on a grid this many times finer per axis (any positive "
+                                 "number). Finer grids give smoother surfaces, not new detail.")
+SIZE_OPTION = click.option("--size", "size", type=str, default="1", show_default=True,
+                           help="Sample size as factors of the training size: one factor, or sx,sy,sz "
+                                "for another aspect ratio (e.g. 2,1,1 is twice as long along x).")
+
+
+def mesh_options(command):
+    """Options shared by the commands that write meshes."""
+    for option in reversed([
+        click.option("--smooth", type=int, default=0, show_default=True,
+                     help="Smoothing iterations (the paper uses 3 Laplacian iterations)."),
+        click.option("--smoother", type=click.Choice(["laplacian", "taubin"]), default="laplacian",
+                     show_default=True, help="Laplacian (as the paper) or Taubin (keeps volume)."),
+        click.option("--largest", is_flag=True, help="Keep only the largest connected piece."),
+        click.option("--frame", type=click.Choice(["input", "model"]), default="input", show_default=True,
+                     help="Vertex coordinates: the training mesh's frame (samples overlay it) or "
+                          "finest-voxel units."),
+    ]):
+        command = option(command)
+    return command
+
+
+def open_model(model, threads):
+    from sinshape import models
+    from sinshape.runtime import load
+
+    return load.load_model(models.find(model), threads=threads)
+
+
+def write_sample(model, triplane, path: Path, scale, smooth, smoother, largest, frame, progress=None):
+    """Mesh or grid of one sample, by the output's extension."""
+    from sinshape.runtime import mesh, query, write
+
+    if write.output_kind(path) == "grid":
+        occupancy = query.dense(model, triplane, scale)
+        write.write_grid(occupancy, path, size=triplane.size, scale=scale)
+    else:
+        result = mesh.extract(model, triplane, scale, smooth, smoother, largest, frame, progress)
+        write.write_mesh(result, path)
+
+
+@cli.command()
+@MODEL_ARGUMENT
+@click.option("--seed", type=int, default=None, help="Seed of the sample (the same seed gives the same shape). Default 0.")
+@click.option("--seeds", type=str, default=None, help="Many samples, one file each: 0-99 or 1,5,9-12.")
+@click.option("--recon", is_flag=True, help="The training shape itself (the fixed reconstruction noise), not a new sample.")
+@SCALE_OPTION
+@SIZE_OPTION
+@click.option("-o", "--output", type=click.Path(path_type=Path), default=None,
+              help="Output file: .ply .obj .stl .off .glb (a mesh) or .npz (the occupancy grid). "
+                   "With --seeds, {seed} in the name is replaced, or _seedN is added. Default: MODEL_seedN.ply.")
+@mesh_options
+@THREADS_OPTION
+def sample(model, seed, seeds, recon, scale, size, output, smooth, smoother, largest, frame, threads):
+    """Generate new shapes from a model and write them as meshes.
+
+    MODEL is a .onnx file from `sinrun train` or the name of a shipped model
+    (`sinrun models` lists them); without it, the default shipped model.
+    Needs no torch.
+    """
+    from sinshape.runtime import generate, write
+
+    if sum(x is not None and x is not False for x in (seed, seeds, recon or None)) > 1:
+        raise click.UsageError("give one of --seed, --seeds or --recon")
+    factors = parse_size(size)
+    chosen = parse_seeds(seeds) if seeds else [None] if recon else [0 if seed is None else seed]
+    loaded = open_model(model, threads)
+    if output is None:
+        output = Path(f"{loaded.path.stem}_recon.ply" if recon else f"{loaded.path.stem}_seed{{seed}}.ply")
+    paths = [named_output(output, seed=s) if seeds or "{" in output.name else output for s in chosen]
+    write.output_kind(paths[0])
+    write.check_writable(paths[0])
+    with progress_bar(len(chosen), "sampling") as bar:
+        for s, path in zip(chosen, paths):
+            triplane = generate.sample(loaded, s, factors)
+            write_sample(loaded, triplane, path, scale, smooth, smoother, largest, frame)
+            bar.update(1)
+    click.echo(f"wrote {paths[0]}" if len(paths) == 1 else f"wrote {len(paths)} files: {paths[0]} .. {paths[-1]}")
+
+
+@cli.command()
+@MODEL_ARGUMENT
+@click.option("--seeds", type=int, nargs=2, required=True, help="The two seeds to blend, e.g. --seeds 3 7.")
+@click.option("--steps", type=int, default=9, show_default=True, help="How many shapes along the way.")
+@click.option("--range", "alpha_range", type=float, nargs=2, default=(-0.5, 1.5), show_default=True,
+              help="Blend weights from..to; outside 0..1 extrapolates beyond the two seeds.")
+@SCALE_OPTION
+@SIZE_OPTION
+@click.option("-o", "--output", type=click.Path(path_type=Path), default=Path("interp.ply"), show_default=True,
+              help="Output name; _stepK_aALPHA is added for each shape (or fill {step} and {alpha}).")
+@mesh_options
+@THREADS_OPTION
+def interpolate(model, seeds, steps, alpha_range, scale, size, output, smooth, smoother, largest, frame, threads):
+    """Blend the coarse noise of two seeds: shapes morphing from one to the other.
+
+    The input noise is (1 - a) z0(A) + a z0(B); the finer levels' noise of
+    seed A is held fixed, so the shapes change smoothly.
+    """
+    import numpy as np
+
+    from sinshape.runtime import generate, write
+
+    if steps < 1:
+        raise click.BadParameter("--steps must be at least 1")
+    factors = parse_size(size)
+    loaded = open_model(model, threads)
+    alphas = np.linspace(*alpha_range, steps) if steps > 1 else np.array([alpha_range[0]])
+    paths = [named_output(output, step=f"{k:02d}", alpha=f"{a:+.2f}") for k, a in enumerate(alphas)]
+    write.output_kind(paths[0])
+    write.check_writable(paths[0])
+    with progress_bar(len(paths), "interpolating") as bar:
+        for alpha, path in zip(alphas, paths):
+            triplane = generate.interpolate(loaded, seeds[0], seeds[1], float(alpha), factors)
+            write_sample(loaded, triplane, path, scale, smooth, smoother, largest, frame)
+            bar.update(1)
+    click.echo(f"wrote {len(paths)} files: {paths[0]} .. {paths[-1]}")
+
+
+@cli.command()
+@MODEL_ARGUMENT
+def info(model):
+    """Show how a model was made: levels, sizes, training input, config, time."""
+    import json
+
+    loaded = open_model(model, threads=1)
+    m = loaded.manifest.raw
+    click.echo(f"{loaded.path}")
+    click.echo(f"  format      {m['format']} {m['format_version']}  ({m.get('created_by', '?')})")
+    source = m.get("source", {})
+    click.echo(f"  trained on  {source.get('name', '?')} ({source.get('kind', '?')}, sha256 {source.get('sha256', '?')[:12]}...)")
+    training = m.get("training", {})
+    click.echo(f"  training    {format_seconds(training.get('seconds', 0))} wall time, "
+               f"{training.get('iterations_per_level', '?')} iterations per level")
+    click.echo(f"  networks    {m['channels']} channels, {m['pool_bins']} pooling bins, MLP hidden {m['mlp_hidden']}")
+    origin, spacing = (", ".join(f"{v:.4g}" for v in m["frame"][k]) for k in ("origin", "spacing"))
+    click.echo(f"  frame       voxel (0, 0, 0) at ({origin}), voxel size ({spacing})")
+    click.echo("  levels      size          noise amplitude   seconds")
+    seconds = training.get("level_seconds", [])
+    for i, level in enumerate(m["levels"]):
+        took = f"{seconds[i]:.0f}" if i < len(seconds) else ""
+        click.echo(f"    {i:<8}  {'x'.join(map(str, level['size'])):<12}  {level['noise_amp']:<16.4g}  {took}")
+    click.echo("  config      " + json.dumps(m.get("config", {}), sort_keys=True))
+
+
+@cli.command(name="models")
+def list_models():
+    """List the shipped models (sample one with `sinrun sample NAME`)."""
+    from sinshape import models
+
+    shipped = models.available()
+    if not shipped:
+        click.echo("no shipped models are installed")
+    for name, path in sorted(shipped.items()):
+        marker = " (default)" if name == models.DEFAULT else ""
+        click.echo(f"{name}{marker}  {path}")
+
+
 def main():
     cli(prog_name="sinrun")

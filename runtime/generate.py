@@ -17,6 +17,14 @@ from .errors import InputError
 
 # A sample's coarsest grid may not shrink below this many voxels per axis.
 MIN_SIDE = 2
+# Work needing more memory than this is refused up front, saying how much it needs.
+MEMORY_LIMIT = 4 << 30
+
+
+def check_memory(needed: int, what: str) -> None:
+    if needed > MEMORY_LIMIT:
+        raise InputError(f"{what} needs about {needed / 2**30:.1f} GiB of memory "
+                         f"(limit {MEMORY_LIMIT / 2**30:.0f} GiB)")
 
 
 def plane_sizes(size) -> list:
@@ -78,6 +86,15 @@ def resize_plane(plane: np.ndarray, size) -> np.ndarray:
 
 
 @dataclass
+class TriPlane:
+    """A generated tri-plane: 3 x (C, H, W) float32 planes (xy, xz, yz)
+    spanning a grid of `size` (X, Y, Z) finest-level voxels."""
+
+    planes: list
+    size: tuple
+
+
+@dataclass
 class Noise:
     """The noise of one sample, unscaled (std 1).
 
@@ -98,8 +115,8 @@ def draw_noise(seed: int, sizes: list, channels: int) -> Noise:
     return Noise(noise.z0_noise(seed, sizes[0]), planes)
 
 
-def triplane(model, sample: Noise, sizes: list) -> list:
-    """Chain the levels: the final tri-plane, 3 x (C, H, W)."""
+def triplane(model, sample: Noise, sizes: list) -> TriPlane:
+    """Chain the levels with the given noise: the final tri-plane."""
     m = model.manifest
     amps = m.noise_amps
     pooled = adaptive_pool(amps[0] * sample.z0, m.pool_bins)
@@ -112,10 +129,49 @@ def triplane(model, sample: Noise, sizes: list) -> list:
             inputs = [u + amps[level] * n for u, n in zip(upsampled, sample.planes[level])]
         residuals = model.levels[level].run([x[None] for x in inputs])
         planes = [u + r[0] for u, r in zip(upsampled, residuals)]
-    return planes
+    return TriPlane(planes, tuple(sizes[-1]))
 
 
 def reconstruction_noise(model, sizes: list) -> Noise:
     """z0* from the manifest's seed and no later noise: the training shape."""
     m = model.manifest
     return Noise(noise.z0_noise(m.recon_seed, sizes[0]), [None] * len(sizes))
+
+
+def check_generation_memory(sizes: list, channels: int, factors) -> None:
+    """z0 and its float64 pooling sums, and a few copies of the largest tri-plane."""
+    z0 = np.prod(sizes[0]) * 16
+    planes = max(sum(h * w for h, w in plane_sizes(size)) for size in sizes) * channels * 4 * 6
+    check_memory(int(z0 + planes), f"a sample of size {'x'.join(f'{f:g}' for f in factors)}")
+
+
+def check_seed(seed: int) -> int:
+    if not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**63:
+        raise InputError(f"a seed must be an integer in [0, 2**63), got {seed}")
+    return int(seed)
+
+
+def sample(model, seed: int | None = None, factors=(1.0, 1.0, 1.0)) -> TriPlane:
+    """The tri-plane of one sample: a seed, or None for the training shape.
+
+    factors scale the training size per axis (any size and aspect ratio).
+    """
+    sizes = scaled_sizes(model.manifest.sizes, factors)
+    check_generation_memory(sizes, model.manifest.channels, factors)
+    if seed is None:
+        if sizes != [tuple(s) for s in model.manifest.sizes]:
+            raise InputError("the reconstruction exists only at the training size; drop --size")
+        return triplane(model, reconstruction_noise(model, sizes), sizes)
+    return triplane(model, draw_noise(check_seed(seed), sizes, model.manifest.channels), sizes)
+
+
+def interpolate(model, seed_a: int, seed_b: int, alpha: float, factors=(1.0, 1.0, 1.0)) -> TriPlane:
+    """Blend two samples: z0 = (1 - alpha) z0_A + alpha z0_B, later noise of seed A held fixed.
+
+    alpha outside [0, 1] extrapolates (the paper shows -0.5 .. 1.5).
+    """
+    sizes = scaled_sizes(model.manifest.sizes, factors)
+    check_generation_memory(sizes, model.manifest.channels, factors)
+    a = draw_noise(check_seed(seed_a), sizes, model.manifest.channels)
+    z0_b = noise.z0_noise(check_seed(seed_b), sizes[0])
+    return triplane(model, Noise((1 - alpha) * a.z0 + alpha * z0_b, a.planes), sizes)

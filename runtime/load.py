@@ -37,6 +37,17 @@ class Stage:
         return self.session.run(self.outputs, feeds)
 
 
+@dataclass(frozen=True)
+class HeadWeights:
+    """The decoder head's parameters, read from the graph by their documented
+    names: the runtime evaluates the head in numpy and bounds it over boxes
+    (which needs the signs of w2)."""
+
+    bias1: np.ndarray  # (D,)
+    weight2: np.ndarray  # (D,)
+    bias2: float
+
+
 @dataclass
 class Model:
     """A loaded model: its manifest and its stages."""
@@ -47,6 +58,7 @@ class Model:
     levels: list  # one Stage per level, coarsest first
     decoder_planes: Stage
     decoder_head: Stage
+    head: HeadWeights
 
 
 def default_threads() -> int:
@@ -141,6 +153,19 @@ def session(data: bytes, threads: int, path: Path) -> ort.InferenceSession:
         raise InputError(f"{path}: onnxruntime cannot load a stage ({str(error).splitlines()[0][:200]})") from None
 
 
+def read_head(model: onnx.ModelProto, hidden: int, path: Path) -> HeadWeights:
+    weights = {t.name: t for t in model.graph.initializer}
+    names = fmt.HEAD_WEIGHTS
+    if any(name not in weights for name in names):
+        raise InputError(f"{path}: the decoder head lacks its weights ({', '.join(names)})")
+    b1, w2, b2 = (onnx.numpy_helper.to_array(weights[name]).astype(np.float32) for name in names)
+    if b1.shape != (hidden,) or w2.shape != (hidden, 1) or b2.shape != (1,):
+        raise InputError(f"{path}: decoder head weights have shapes {b1.shape}, {w2.shape}, {b2.shape}")
+    if not all(np.isfinite(a).all() for a in (b1, w2, b2)):
+        raise InputError(f"{path}: decoder head weights are not finite")
+    return HeadWeights(b1, w2[:, 0], float(b2[0]))
+
+
 def check_stages(model: Model) -> None:
     """Run every stage once on a small input: the file is coherent, or refused."""
     m = model.manifest
@@ -160,9 +185,16 @@ def check_stages(model: Model) -> None:
         if any(o.shape != shape for o in outputs):
             raise InputError(f"{model.path}: stage {stage.inputs[0].split('.')[0]} gives shape "
                              f"{outputs[0].shape}, expected {shape}")
+    # The numpy head must be the graph's head.
+    from .query import head_occupancy
+
+    hidden = np.random.default_rng(0).normal(size=(3, 64, 1, 1, h)).astype(np.float32)
+    (graph,) = model.decoder_head.run(list(hidden))
+    if np.abs(graph[..., 0] - head_occupancy(model.head, hidden.sum(axis=0))).max() > 1e-5:
+        raise InputError(f"{model.path}: the decoder head graph does not match its weights")
 
 
-def load(path, threads: int | None = None) -> Model:
+def load_model(path, threads: int | None = None) -> Model:
     """Read, check and prepare a model; `threads` per session (default: all cores)."""
     path = Path(path)
     threads = default_threads() if threads is None else threads
@@ -183,6 +215,7 @@ def load(path, threads: int | None = None) -> Model:
         levels=[make(names) for names in stages["levels"]],
         decoder_planes=make(stages["decoder_planes"]),
         decoder_head=make(stages["decoder_head"]),
+        head=read_head(proto, manifest.hidden, path),
     )
     check_stages(model)
     return model

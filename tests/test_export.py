@@ -36,16 +36,18 @@ def test_manifest_says_how_the_model_was_made(tiny_model, tiny_pyramid):
     assert m["channels"] == 32 and m["pool_bins"] == 8 and m["recon_seed"] == 1234
 
 
-@pytest.mark.parametrize("seed", [None, 11])
-def test_onnxruntime_equals_torch(tiny_model, seed):
-    """Parity: reconstruction (seed None) and a random draw, the same noise fed to both."""
+@pytest.mark.parametrize("seed, factors", [(None, (1, 1, 1)), (11, (1, 1, 1)), (12, (1.5, 1, 0.7))])
+def test_onnxruntime_equals_torch(tiny_model, seed, factors):
+    """Parity: reconstruction (seed None) and random draws, at the training size
+    and another, the same noise fed to both."""
     generator, sizes, amps = train.load_generator(train.default_checkpoint_path(tiny_model))
-    model = load.load(tiny_model)
+    model = load.load_model(tiny_model)
+    sizes = generate.scaled_sizes(sizes, factors)
     if seed is None:
         sample = generate.reconstruction_noise(model, sizes)
     else:
         sample = generate.draw_noise(seed, sizes, model.manifest.channels)
-    ours = query.grid_occupancy(model, generate.triplane(model, sample, sizes))
+    ours = query.dense(model, generate.triplane(model, sample, sizes), 1.0)
 
     z0 = torch.from_numpy(sample.z0)[None, None]
     noises = [None if planes is None else [amps[i] * torch.from_numpy(p)[None] for p in planes]

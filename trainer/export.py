@@ -104,9 +104,10 @@ def add_decoder(g: GraphBuilder, decoder, plane_names: dict, head_names: dict) -
         g.output(y, symbolic(y, {0: 1, 3: hidden}))
     a, b, c = (g.input(x, symbolic(x, {3: hidden})) for x in head_names["inputs"])
     h = g.node("Add", [g.node("Add", [a, b]), c])
-    h = g.node("Relu", [g.node("Add", [h, g.weight("decoder_head.bias1", decoder.fc1.bias)])])
-    h = g.node("MatMul", [h, g.weight("decoder_head.weight2", decoder.fc2.weight.T)])
-    h = g.node("Add", [h, g.weight("decoder_head.bias2", decoder.fc2.bias)])
+    bias1, weight2, bias2 = fmt.HEAD_WEIGHTS
+    h = g.node("Relu", [g.node("Add", [h, g.weight(bias1, decoder.fc1.bias)])])
+    h = g.node("MatMul", [h, g.weight(weight2, decoder.fc2.weight.T)])
+    h = g.node("Add", [h, g.weight(bias2, decoder.fc2.bias)])
     (y,) = head_names["outputs"]
     g.node("Sigmoid", [h], y)
     g.output(y, ["head_d0", "head_d1", "head_d2", 1])

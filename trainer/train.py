@@ -23,6 +23,7 @@ import torch.nn.functional as F
 
 from sinshape.runtime import noise
 from sinshape.runtime.errors import InputError
+from sinshape.runtime.write import check_writable
 
 from . import export
 from .config import TrainConfig
@@ -69,20 +70,6 @@ def atomic_save(obj, path: Path) -> None:
     tmp = path.with_name(path.name + ".tmp")
     torch.save(obj, tmp)
     os.replace(tmp, path)
-
-
-def check_writable(path: Path) -> None:
-    """Fail now, not after hours of training, if `path` cannot be written."""
-    if path.is_dir():
-        raise InputError(f"{path}: is a directory, not a file name")
-    if not path.parent.is_dir():
-        raise InputError(f"{path}: the folder {path.parent} does not exist")
-    probe = path.with_name(path.name + ".probe")
-    try:
-        probe.write_bytes(b"")
-        probe.unlink()
-    except OSError as error:
-        raise InputError(f"{path}: cannot write here ({error.strerror})") from None
 
 
 class Trainer:

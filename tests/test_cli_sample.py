@@ -1,0 +1,174 @@
+"""`sinrun sample / interpolate / info / models`: torch-free, deterministic, one-line errors."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import onnx
+import pytest
+import trimesh
+from click.testing import CliRunner
+
+from sinshape.cli.main import cli
+from sinshape.runtime import manifest as fmt
+from test_cli_train import BLOCK_TORCH, assert_one_line_error, run_sinrun
+
+
+def sinrun(*args):
+    return CliRunner().invoke(cli, [str(a) for a in args])
+
+
+def test_sampling_works_with_torch_unimportable(tiny_model, tmp_path):
+    out = tmp_path / "s.ply"
+    check = tmp_path / "modules.json"
+    code = (BLOCK_TORCH + "import json, sys\n"
+            "from sinshape.cli.main import main\n"
+            "try:\n    main()\nexcept SystemExit as e:\n    code = e.code\n"
+            f"json.dump({{'code': code, 'modules': sorted(sys.modules)}}, open({str(check)!r}, 'w'))\n")
+    result = subprocess.run([sys.executable, "-c", code, "sample", str(tiny_model), "--seed", "3",
+                             "--scale", "2", "-o", str(out)], capture_output=True, text=True)
+    report = json.loads(check.read_text())
+    assert report["code"] in (0, None), result.stderr
+    assert trimesh.load(out).is_watertight
+    # torch could not have been used: importing it fails in that process...
+    probe = subprocess.run([sys.executable, "-c", BLOCK_TORCH + "import torch"], capture_output=True)
+    assert probe.returncode != 0
+    # ...and nothing from the trainer was imported.
+    assert not [m for m in report["modules"] if m.startswith("sinshape.trainer")]
+
+
+@pytest.mark.parametrize("suffix", [".ply", ".obj", ".stl", ".off", ".glb", ".npz"])
+def test_same_seed_same_bytes(tiny_model, tmp_path, suffix):
+    paths = [tmp_path / f"{name}{suffix}" for name in ("a", "b", "c")]
+    for path, seed in zip(paths, (4, 4, 5)):
+        assert sinrun("sample", tiny_model, "--seed", seed, "--scale", "1.5", "-o", path).exit_code == 0
+    a, b, c = (p.read_bytes() for p in paths)
+    assert a == b and a != c
+
+
+def test_npz_holds_the_occupancy_grid(tiny_model, tmp_path):
+    out = tmp_path / "g.npz"
+    assert sinrun("sample", tiny_model, "--recon", "--scale", "2", "-o", out).exit_code == 0
+    with np.load(out) as data:
+        grid = data["occupancy"]
+        assert grid.shape == tuple(2 * n for n in (20, 18, 15)) and grid.dtype == np.float32
+        assert 0 <= grid.min() and grid.max() <= 1
+
+
+def test_many_seeds_one_file_each(tiny_model, tmp_path):
+    result = sinrun("sample", tiny_model, "--seeds", "2-4,9", "-o", tmp_path / "s.obj")
+    assert result.exit_code == 0, result.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == [f"s_seed{s}.obj" for s in (2, 3, 4, 9)]
+    result = sinrun("sample", tiny_model, "--seeds", "1,2", "-o", tmp_path / "x{seed}.ply")
+    assert (tmp_path / "x1.ply").exists() and (tmp_path / "x2.ply").exists()
+
+
+def test_size_and_smoothing_options(tiny_model, tmp_path):
+    plain, wide, smooth = tmp_path / "p.ply", tmp_path / "w.ply", tmp_path / "s.ply"
+    assert sinrun("sample", tiny_model, "--seed", 1, "-o", plain, "--frame", "model").exit_code == 0
+    assert sinrun("sample", tiny_model, "--seed", 1, "--size", "2,1,1", "-o", wide, "--frame", "model").exit_code == 0
+    assert sinrun("sample", tiny_model, "--seed", 1, "--smooth", 3, "--largest", "-o", smooth,
+                  "--frame", "model").exit_code == 0
+    plain, wide, smooth = (trimesh.load(p) for p in (plain, wide, smooth))
+    assert wide.extents[0] > 1.6 * plain.extents[0]
+    assert abs(wide.extents[1] - plain.extents[1]) < 2
+    assert len(smooth.split(only_watertight=False)) == 1
+    assert not np.allclose(smooth.vertices[:10], plain.vertices[:10])
+
+
+def test_interpolate_writes_every_step(tiny_model, tmp_path):
+    result = sinrun("interpolate", tiny_model, "--seeds", 3, 7, "--steps", 5, "-o", tmp_path / "i.ply")
+    assert result.exit_code == 0, result.output
+    names = sorted(p.name for p in tmp_path.iterdir())
+    assert len(names) == 5 and names[0] == "i_step00_alpha-0.50.ply" and names[-1] == "i_step04_alpha+1.50.ply"
+
+
+def test_info_shows_the_manifest(tiny_model, tiny_pyramid):
+    result = sinrun("info", tiny_model)
+    assert result.exit_code == 0
+    for text in ("sinshape 1", tiny_pyramid.name, "20x18x15", "15x15x15", "iterations per level"):
+        assert text in result.output
+
+
+def test_help_for_every_command():
+    for command in ("sample", "interpolate", "info", "models"):
+        result = sinrun(command, "--help")
+        assert result.exit_code == 0 and "Usage" in result.output
+    assert "--scale" in sinrun("sample", "--help").output
+
+
+def rewrite_manifest(source, target, change):
+    model = onnx.load(source)
+    for prop in model.metadata_props:
+        if prop.key == fmt.METADATA_KEY:
+            manifest = json.loads(prop.value)
+            change(manifest)
+            prop.value = json.dumps(manifest)
+    onnx.save(model, target)
+    return target
+
+
+def foreign_model(path):
+    node = onnx.helper.make_node("Relu", ["x"], ["y"])
+    graph = onnx.helper.make_graph([node], "g", [onnx.helper.make_tensor_value_info("x", 1, [1])],
+                                   [onnx.helper.make_tensor_value_info("y", 1, [1])])
+    onnx.save(onnx.helper.make_model(graph), path)
+    return path
+
+
+def external_data_model(source, path):
+    model = onnx.load(source)
+    tensor = model.graph.initializer[0]
+    tensor.data_location = onnx.TensorProto.EXTERNAL
+    entry = tensor.external_data.add()
+    entry.key, entry.value = "location", "weights.bin"
+    path.write_bytes(model.SerializeToString())  # onnx.save would try to write the data file
+    (path.parent / "weights.bin").write_bytes(b"\0" * 1024)
+    return path
+
+
+def test_bad_models_are_refused_in_one_line(tiny_model, tmp_path):
+    garbage = tmp_path / "garbage.onnx"
+    garbage.write_bytes(b"\x00\x01 not a protobuf at all \xff" * 10)
+    cases = [
+        (tmp_path / "missing.onnx", "no such model file"),
+        (garbage, "not an ONNX file"),
+        (foreign_model(tmp_path / "foreign.onnx"), "not a sinshape model"),
+        (rewrite_manifest(tiny_model, tmp_path / "newer.onnx", lambda m: m.update(format_version=99)),
+         "newer than this sinshape reads"),
+        (rewrite_manifest(tiny_model, tmp_path / "broken.onnx", lambda m: m["levels"].pop()), "stages"),
+        (rewrite_manifest(tiny_model, tmp_path / "sizes.onnx", lambda m: m["levels"][0].update(size=[0, 1, 1])),
+         "size"),
+        (external_data_model(tiny_model, tmp_path / "external.onnx"), "external data"),
+    ]
+    for path, fragment in cases:
+        out = tmp_path / "out.ply"
+        assert_one_line_error(sinrun("sample", path, "-o", out), fragment)
+        assert not out.exists() and not list(tmp_path.glob(".out*"))
+
+
+def test_bad_options_are_refused_in_one_line(tiny_model, tmp_path):
+    out = tmp_path / "out.ply"
+    cases = [
+        (["--scale", "0"], "positive"),
+        (["--scale", "-2"], "positive"),
+        (["--scale", "100000"], "points per axis"),
+        (["--size", "80"], "GiB"),
+        (["--scale", "300", "-o", str(tmp_path / "g.npz")], "GiB"),
+        (["-o", str(tmp_path / "out.xyz")], "unsupported output format"),
+        (["-o", str(tmp_path / "nowhere" / "out.ply")], "does not exist"),
+        (["-o", "/proc/sinshape.ply"], "cannot write"),
+        (["--threads", "0"], "threads"),
+    ]
+    for options, fragment in cases:
+        result = sinrun("sample", tiny_model, "-o", str(out), *options)
+        assert_one_line_error(result, fragment)
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+    usage = sinrun("sample", tiny_model, "--size", "0,1,1")
+    assert usage.exit_code == 2 and "positive factors" in usage.output
+
+
+def test_models_lists_shipped_models():
+    result = sinrun("models")
+    assert result.exit_code == 0 and result.output.strip()

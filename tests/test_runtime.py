@@ -1,0 +1,122 @@
+"""The torch-free runtime: generation, band queries, meshes, and the Python API."""
+
+import numpy as np
+import pytest
+
+from sinshape import runtime
+from sinshape.runtime import generate, query
+
+
+@pytest.fixture(scope="module")
+def model(tiny_model):
+    return runtime.load_model(tiny_model, threads=2)
+
+
+def band_labels(model, triplane, scale):
+    """Inside/outside of every grid point as the band search reports it."""
+    shape = query.grid_shape(triplane.size, scale)
+    block = query.BLOCK
+    labels = np.zeros(shape, bool)
+    for slab in query.band(model, triplane, scale):
+        padded = np.zeros((block + 1, *(n * block + 1 for n in slab.state.shape)), bool)
+        if slab.values is not None:
+            padded[:] = slab.values > 0.5
+        for (by, bz), state in np.ndenumerate(slab.state):
+            if state != 0:  # a uniform block: its label for every point
+                padded[:, by * block:by * block + block + 1, bz * block:bz * block + block + 1] = state > 0
+        for i in range(block + 1):
+            x = slab.index * block + i - 1
+            if 0 <= x < shape[0]:
+                labels[x] = padded[i, 1:shape[1] + 1, 1:shape[2] + 1]
+    return labels
+
+
+@pytest.mark.parametrize("scale", [2, 4])
+def test_band_equals_dense(model, scale):
+    for seed in (3, 8):
+        triplane = runtime.sample(model, seed)
+        dense = runtime.dense(model, triplane, scale) > 0.5
+        assert 0.01 < dense.mean() < 0.99
+        assert np.array_equal(band_labels(model, triplane, scale), dense)
+
+
+def test_band_skips_uniform_blocks(model, monkeypatch):
+    """On a half-space the band must evaluate only blocks near the plane."""
+    triplane = runtime.sample(model, 3)
+    size = triplane.size
+    # Occupancy as a function of x alone: sigmoid(32 relu(x) - 16), x in [-1, 1]
+    # along the grid, so the surface is the plane x = 0.5 and x < 0.5 is outside.
+    d = model.manifest.hidden
+    flat = [np.zeros((n_a, n_b, d), np.float32) for n_a, n_b in generate.plane_sizes(size)]
+    flat[0][:] = np.linspace(-1, 1, size[0])[:, None, None]
+    monkeypatch.setattr(query, "project", lambda m, t: query.Projected(flat, t.size))
+    monkeypatch.setattr(model, "head", runtime.load.HeadWeights(np.zeros(d, np.float32),
+                                                               np.full(d, 1.0, np.float32), -16.0))
+    slabs = list(query.band(model, triplane, 4))
+    last = query.grid_shape(size, 4)[0] - 1
+    far = [s for s in slabs if -1 + 2 * min(s.index * query.BLOCK + query.BLOCK - 1, last) / last < 0.45]
+    assert len(far) >= 2 and all((s.state == -1).all() and s.values is None for s in far)
+    active = sum(int((s.state == 0).sum()) for s in slabs)
+    assert active < sum(s.state.size for s in slabs) / 2
+    assert np.array_equal(band_labels(model, triplane, 4), runtime.dense(model, triplane, 4) > 0.5)
+
+
+def test_points_agree_with_the_grid(model):
+    triplane = runtime.sample(model, 5)
+    grid = runtime.dense(model, triplane, 1)
+    rng = np.random.default_rng(0)
+    index = rng.integers(0, grid.shape, size=(50, 3))
+    np.testing.assert_allclose(runtime.points(model, triplane, index.astype(float)), grid[tuple(index.T)], atol=1e-5)
+    # Between grid points the value is between its neighbours' range, and outside the grid it is 0.
+    assert runtime.points(model, triplane, np.array([[-1.0, 0, 0], [0, 0, 1e6]])).tolist() == [0.0, 0.0]
+    fine = runtime.dense(model, triplane, 2)
+    assert fine.shape == tuple(2 * n for n in grid.shape)
+    np.testing.assert_allclose(fine[0, 0, 0], grid[0, 0, 0], atol=1e-5)  # corners align
+
+
+@pytest.mark.parametrize("scale, factors", [(1, (1, 1, 1)), (2, (1, 1, 1)), (2.5, (1, 1, 1)), (1, (1.5, 1, 0.8))])
+def test_meshes_are_closed(model, scale, factors):
+    mesh = runtime.extract(model, runtime.sample(model, 3, factors), scale, frame="model")
+    assert len(mesh.faces) > 100
+    assert mesh.is_watertight and mesh.is_volume and mesh.volume > 0
+    size = np.array(generate.scaled_sizes(model.manifest.sizes, factors)[-1])
+    assert (mesh.bounds[0] >= -1).all() and (mesh.bounds[1] <= size).all()
+
+
+def test_input_frame_places_the_sample_on_its_example(model):
+    triplane = runtime.sample(model, 3)
+    in_model = runtime.extract(model, triplane, frame="model")
+    in_input = runtime.extract(model, triplane, frame="input")
+    m = model.manifest
+    np.testing.assert_allclose(in_input.vertices, np.array(m.origin) + in_model.vertices * np.array(m.spacing))
+
+
+def test_reconstruction_and_seeds(model):
+    recon = runtime.sample(model, None)
+    assert recon.size == tuple(model.manifest.sizes[-1])
+    a, b = runtime.sample(model, 1), runtime.sample(model, 1)
+    assert all(np.array_equal(p, q) for p, q in zip(a.planes, b.planes))
+    c = runtime.sample(model, 2)
+    assert not np.array_equal(a.planes[0], c.planes[0])
+    with pytest.raises(runtime.InputError, match="training size"):
+        runtime.sample(model, None, (2, 1, 1))
+    with pytest.raises(runtime.InputError, match="seed"):
+        runtime.sample(model, -4)
+
+
+def test_interpolation_ends_are_the_seeds(model):
+    start, end = runtime.interpolate(model, 3, 7, 0.0), runtime.interpolate(model, 3, 7, 1.0)
+    np.testing.assert_allclose(start.planes[0], runtime.sample(model, 3).planes[0], atol=1e-6)
+    z0_only = generate.Noise(generate.draw_noise(7, model.manifest.sizes, 32).z0,
+                             generate.draw_noise(3, model.manifest.sizes, 32).planes)
+    np.testing.assert_allclose(end.planes[0], generate.triplane(model, z0_only, model.manifest.sizes).planes[0],
+                               atol=1e-5)
+
+
+def test_absurd_sizes_are_refused_with_the_memory_they_need(model):
+    with pytest.raises(runtime.InputError, match="GiB"):
+        runtime.sample(model, 1, (60, 60, 60))
+    with pytest.raises(runtime.InputError, match="GiB"):
+        runtime.dense(model, runtime.sample(model, 1), 200)
+    with pytest.raises(runtime.InputError, match="positive"):
+        query.grid_shape((10, 10, 10), -1)
