@@ -1,0 +1,301 @@
+"""Draw shaded pictures of triangle meshes with numpy and pillow only.
+
+For the README gallery and for previewing samples on machines with no
+display and no OpenGL, without making the runtime heavier. A small software
+rasteriser: the camera looks at the mesh's bounding-box centre from an
+azimuth and elevation and frames the whole mesh; triangles go into a
+z-buffer in vectorised batches; faces are lit flat (Lambert, two-sided, two
+directional lights) and outlined where depth jumps.
+
+Colours are RGB floats in [0, 1]; images are (H, W, 3) uint8; sizes are
+(width, height), as in pillow.
+"""
+
+import os
+from pathlib import Path
+
+import numpy as np
+import trimesh
+from PIL import Image, ImageDraw, ImageFont
+
+from .errors import InputError
+
+CLAY = (0.86, 0.82, 0.76)
+BACKGROUND = (0.97, 0.97, 0.96)
+OUTLINE = (0.18, 0.18, 0.20)
+LABEL = (0.15, 0.15, 0.15)
+
+# Per "up" axis: that axis, the side the camera sees at azimuth 0 (the
+# model's front by the usual convention) and the axis to the camera's right.
+FRAMES = {
+    "y": {"up": (0, 1, 0), "front": (0, 0, 1), "right": (1, 0, 0)},  # OBJ: front is +z
+    "z": {"up": (0, 0, 1), "front": (0, -1, 0), "right": (1, 0, 0)},  # Blender: front is -y
+}
+
+# Lights are fixed to the camera (x right, y up, z towards the viewer), so
+# every view is lit alike: a key light from the upper left, a weak fill from
+# the right: (direction, strength).
+LIGHTS = [((-0.4, 0.7, 0.6), 0.62), ((0.8, -0.1, 0.6), 0.12)]
+AMBIENT = 0.30
+
+FIELD_OF_VIEW = 35.0  # degrees; only sets the strength of the perspective
+MARGIN = 0.05  # blank border around the mesh, as a fraction of the image side
+EDGE_JUMP = 0.04  # outline where depth jumps by this fraction of the mesh's depth range
+BATCH = 1 << 20  # candidate pixels per rasterising step: bounds the memory used
+
+
+def render(mesh: trimesh.Trimesh, size=(512, 512), azimuth=35.0, elevation=25.0, up="y",
+           projection="perspective", color=CLAY, background=BACKGROUND, outline=True,
+           supersample=2) -> np.ndarray:
+    """A shaded picture of `mesh`, (height, width, 3) uint8.
+
+    The camera circles the `up` axis ("y" or "z"): azimuth 0 looks at the
+    front (+z if y is up, as in OBJ files; -y if z is up, as in Blender),
+    positive azimuths turn it towards +x, positive elevations raise it.
+    `projection` is "perspective" or "orthographic". Either way the mesh
+    fills the picture less a small margin. Drawing `supersample` times larger
+    and averaging smooths jagged edges; 1 is faster.
+    """
+    width, height = size
+    s = supersample
+    if min(width, height, s) < 1:
+        raise InputError(f"size and supersample must be at least 1, got {tuple(size)} and {supersample}")
+    camera = camera_triangles(mesh, azimuth, elevation, up)
+    corners, nearness = project(camera, (width * s, height * s), projection)
+    face, depth = rasterise(corners, nearness, (width * s, height * s))
+    # One colour per face, then the background last, where face -1 picks it.
+    palette = np.vstack([lambert(camera, corners)[:, None] * color, background]).astype(np.float32)
+    image = palette[face]
+    if outline:
+        image[depth_edges(depth, s)] = OUTLINE
+    image = image.reshape(height, s, width, s, 3).mean(axis=(1, 3))
+    return np.round(np.clip(image, 0, 1) * 255).astype(np.uint8)
+
+
+def render_views(mesh: trimesh.Trimesh, size=(384, 384), views=((35, 25), (125, 25), (215, 25), (305, 25)),
+                 **options) -> np.ndarray:
+    """One picture per (azimuth, elevation) in `views`, side by side:
+    (height, width * len(views), 3) uint8. `options` go to `render`."""
+    return np.concatenate([render(mesh, size, azimuth, elevation, **options) for azimuth, elevation in views],
+                          axis=1)
+
+
+def render_grid(meshes: list, labels: list, columns: int, size=(320, 320), **options) -> np.ndarray:
+    """The meshes in rows of `columns` cells, each a `size` picture with its
+    label in a strip beneath: (rows * (height + strip), columns * width, 3)
+    uint8, strip = `label_height(size)`. Cells past the last mesh stay blank.
+    `options` go to `render`."""
+    if len(meshes) != len(labels):
+        raise InputError(f"render_grid got {len(meshes)} meshes but {len(labels)} labels")
+    if not meshes or columns < 1:
+        raise InputError("render_grid needs at least one mesh and one column")
+    width, height = size
+    strip = label_height(size)
+    font = ImageFont.load_default(size=round(strip * 0.6))
+    background = tuple(round(255 * c) for c in options.get("background", BACKGROUND))
+    cells = []
+    for mesh, label in zip(meshes, labels):
+        cell = Image.new("RGB", (width, height + strip), background)
+        cell.paste(Image.fromarray(render(mesh, size, **options)))
+        # Drawn on its own cell, a long label is cut at the cell's edge rather
+        # than running into the neighbour's.
+        ImageDraw.Draw(cell).text((width / 2, height + strip / 2), str(label), anchor="mm", font=font,
+                                  fill=tuple(round(255 * c) for c in LABEL))
+        cells.append(np.asarray(cell))
+    rows = -(-len(cells) // columns)
+    cells += [np.full_like(cells[0], background)] * (rows * columns - len(cells))
+    return np.concatenate([np.concatenate(cells[r * columns:(r + 1) * columns], axis=1) for r in range(rows)])
+
+
+def label_height(size) -> int:
+    """Height in pixels of render_grid's label strip for cells of `size`."""
+    return max(14, round(size[1] / 12))
+
+
+def save_png(image: np.ndarray, path) -> None:
+    """Write a (H, W, 3) uint8 image to `path` as PNG, through a temporary
+    file and a rename, so that `path` never holds a half-written picture."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    try:
+        Image.fromarray(image).save(tmp, format="PNG")
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def camera_axes(azimuth: float, elevation: float, up: str) -> np.ndarray:
+    """(3, 3): rows are the camera's right, up and backward (towards the eye)
+    directions in world coordinates."""
+    if up not in FRAMES:
+        raise InputError(f"up must be one of {sorted(FRAMES)}, got {up!r}")
+    world_up, front, right = (np.array(FRAMES[up][k], dtype=np.float64) for k in ("up", "front", "right"))
+    azimuth, elevation = np.radians(azimuth), np.radians(elevation)
+    horizontal = np.cos(azimuth) * front + np.sin(azimuth) * right
+    backward = np.cos(elevation) * horizontal + np.sin(elevation) * world_up
+    # Written out rather than cross(world_up, backward): stays defined looking straight down.
+    camera_right = np.cos(azimuth) * right - np.sin(azimuth) * front
+    return np.stack([camera_right, np.cross(backward, camera_right), backward])
+
+
+def camera_triangles(mesh: trimesh.Trimesh, azimuth: float, elevation: float, up: str) -> np.ndarray:
+    """The corners of every face, (m, 3, 3) float, in camera coordinates (x
+    right, y up, z towards the eye) centred on the bounding box's centre."""
+    if len(mesh.faces) == 0:
+        raise InputError("cannot render an empty mesh (it has no faces)")
+    faces = np.asarray(mesh.faces)
+    vertices = np.asarray(mesh.vertices, dtype=np.float64)
+    used = vertices[np.bincount(faces.ravel(), minlength=len(vertices)) > 0]  # stray vertices don't count
+    if not np.isfinite(used).all():
+        raise InputError("cannot render a mesh with non-finite vertex coordinates")
+    centre = (used.min(axis=0) + used.max(axis=0)) / 2
+    # Vertices rather than corners: fewer, and numpy's product of a very
+    # tall (k, 3) array with a (3, 3) one is oddly slow.
+    return ((vertices - centre) @ camera_axes(azimuth, elevation, up).T)[faces]
+
+
+def project(camera: np.ndarray, size, projection: str):
+    """Camera-space corners (m, 3, 3) -> pixel positions (m, 3, 2) (x right,
+    y down) and nearness (m, 3).
+
+    Nearness grows towards the eye and, unlike depth under perspective, is
+    affine in screen space: it interpolates linearly across a projected
+    triangle and is what the z-buffer compares.
+    """
+    if projection == "perspective":
+        radius = np.linalg.norm(camera, axis=-1).max()
+        # The eye sits where the bounding sphere fills the field of view, so
+        # every corner is in front of it (depth >= distance - radius > 0).
+        distance = max(radius, 1e-12) / np.sin(np.radians(FIELD_OF_VIEW) / 2)
+        depth = distance - camera[..., 2]
+        flat, nearness = camera[..., :2] / depth[..., None], 1 / depth
+    elif projection == "orthographic":
+        flat, nearness = camera[..., :2], camera[..., 2]
+    else:
+        raise InputError(f"projection must be 'perspective' or 'orthographic', got {projection!r}")
+    # Scale and shift the projected bounding box into the picture, less the margin.
+    width, height = size
+    low, high = flat.min(axis=(0, 1)), flat.max(axis=(0, 1))
+    with np.errstate(divide="ignore"):  # a flat mesh seen edge-on has zero extent one way
+        scale = (1 - 2 * MARGIN) * np.min(np.array([width, height]) / (high - low))
+    if not np.isfinite(scale):  # every face projects to one point
+        scale = 1.0
+    pixels = (flat - (low + high) / 2) * scale * np.array([1, -1]) + np.array([width, height]) / 2
+    return pixels, nearness
+
+
+def rasterise(corners: np.ndarray, nearness: np.ndarray, size):
+    """Z-buffer the projected faces: for each pixel, the index of the nearest
+    face covering its centre (-1 for none) and that face's nearness there
+    (-inf for none), both (height, width).
+
+    corners : (m, 3, 2) float pixel positions; nearness : (m, 3) float.
+
+    Faces are grouped by the width and height of their pixel bounding box,
+    so that one batch tests many faces against a rectangle of candidate
+    pixels of one size. Sizes are exact up to 8 pixels (most faces of a dense
+    mesh) and rounded up to a power of two beyond, so there are few groups.
+    """
+    width, height = size
+    # Columns and rows whose pixel centres (integer + 0.5) lie in each face's bounding box.
+    first = np.maximum(np.ceil(corners.min(axis=1) - 0.5), 0).astype(np.int64)
+    last = np.minimum(np.floor(corners.max(axis=1) - 0.5), [width - 1, height - 1]).astype(np.int64)
+    a, e1, e2 = corners[:, 0], corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
+    area = cross(e1, e2)
+    kept = np.flatnonzero((last >= first).all(axis=1) & (area != 0))  # covering a pixel centre
+    first, span = first[kept], (last - first)[kept]
+    a, e1, e2, area, nearness = a[kept], e1[kept], e2[kept], area[kept, None], nearness[kept]
+
+    # Across a face, the barycentric weights of corners 1 and 2 and the
+    # nearness are affine in the pixel position. Each is kept per face as
+    # (value at the first candidate's centre, change per pixel right, per
+    # pixel down). Dividing by the signed area suits either winding.
+    q = first + 0.5 - a
+    w1 = np.stack([cross(q, e2), e2[:, 1], -e2[:, 0]], axis=1) / area
+    w2 = np.stack([cross(e1, q), -e1[:, 1], e1[:, 0]], axis=1) / area
+    near = (nearness[:, :1] * [1, 0, 0] + (nearness[:, 1:2] - nearness[:, :1]) * w1
+            + (nearness[:, 2:] - nearness[:, :1]) * w2)
+
+    zbuffer = np.full(width * height, -np.inf)
+    owner = np.full(width * height, -1, dtype=np.int64)
+    boxes = span + 1
+    boxes = np.where(boxes <= 8, boxes, 2 ** np.ceil(np.log2(boxes)).astype(np.int64))
+    # One integer per (width, height): np.unique on rows is much slower.
+    groups, group_of = np.unique(boxes[:, 0] << 32 | boxes[:, 1], return_inverse=True)
+    for index, (box_width, box_height) in enumerate(zip(groups >> 32, groups & 0xFFFFFFFF)):
+        dy, dx = np.divmod(np.arange(box_width * box_height), box_width)  # offsets from a face's first pixel
+        group = np.flatnonzero(group_of == index)
+        step = max(1, BATCH // (box_width * box_height))
+        for start in range(0, len(group), step):
+            f = group[start:start + step]
+            u = w1[f, 0, None] + w1[f, 1, None] * dx + w1[f, 2, None] * dy
+            v = w2[f, 0, None] + w2[f, 1, None] * dx + w2[f, 2, None] * dy
+            # The tolerance keeps a pixel centre on an edge shared by two
+            # faces from being missed by both through rounding.
+            inside = ((dx <= span[f, 0, None]) & (dy <= span[f, 1, None])
+                      & (u >= -1e-9) & (v >= -1e-9) & (u + v <= 1 + 1e-9))
+            row, col = np.nonzero(inside)
+            f, dx_in, dy_in = f[row], dx[col], dy[col]
+            pixel = (first[f, 1] + dy_in) * width + first[f, 0] + dx_in
+            keep_nearest(pixel, near[f, 0] + near[f, 1] * dx_in + near[f, 2] * dy_in, kept[f], zbuffer, owner)
+    return owner.reshape(height, width), zbuffer.reshape(height, width)
+
+
+def cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """z of the cross product of 2D vectors (..., 2): twice the signed triangle area."""
+    return u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
+
+
+def keep_nearest(pixel, near, face, zbuffer, owner) -> None:
+    """Depth-test fragments (k,): pixel index, nearness and face each; update
+    the buffers in place."""
+    np.maximum.at(zbuffer, pixel, near)  # unlike zbuffer[pixel] = ..., right when a pixel repeats
+    # The fragments that set their pixel's nearness win it. Where two tie,
+    # the two faces meet there, and either is right.
+    won = near == zbuffer[pixel]
+    owner[pixel[won]] = face[won]
+
+
+def lambert(camera: np.ndarray, corners: np.ndarray) -> np.ndarray:
+    """Brightness of each face, (m,) float: ambient plus Lambert from LIGHTS,
+    with each normal turned towards the eye, so that open meshes and flipped
+    faces are lit like the rest."""
+    normals = np.cross(camera[:, 1] - camera[:, 0], camera[:, 2] - camera[:, 0])
+    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-300)
+    # A face whose normal points at the eye has its corners clockwise on
+    # screen (y points down): negative signed area. That holds under
+    # perspective too, where the sign of the normal's z does not tell.
+    facing = cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]) < 0
+    normals[~facing] *= -1
+    light = np.full(len(normals), AMBIENT)
+    for direction, strength in LIGHTS:
+        light += strength * np.maximum(normals @ (np.array(direction) / np.linalg.norm(direction)), 0)
+    return light
+
+
+def depth_edges(nearness: np.ndarray, width=1) -> np.ndarray:
+    """Pixels to outline, (H, W) bool: the near side of every jump in depth,
+    the mesh's silhouette included, in lines `width` pixels wide.
+
+    A pixel is an edge when it is nearer than the mean of its two neighbours
+    (along x or y) by more than EDGE_JUMP of the depth range. Nearness is
+    affine across a flat face, so surfaces seen at a grazing angle are not
+    outlined, and background pixels never are.
+    """
+    covered = np.isfinite(nearness)
+    if not covered.any():
+        return covered
+    low, high = nearness[covered].min(), nearness[covered].max()
+    # Depth range scaled to 0..1, the background at -2: far enough behind
+    # that every silhouette pixel passes the test.
+    level = np.where(covered, (nearness - low) / max(high - low, 1e-300), -2.0)
+    padded = np.pad(level, 1, constant_values=-2.0)
+    centre = padded[1:-1, 1:-1]
+    across = centre - (padded[1:-1, :-2] + padded[1:-1, 2:]) / 2
+    down = centre - (padded[:-2, 1:-1] + padded[2:, 1:-1]) / 2
+    edges = covered & ((across > EDGE_JUMP) | (down > EDGE_JUMP))
+    wide = edges.copy()
+    for dy in range(width):
+        for dx in range(width):
+            wide[dy:, dx:] |= edges[:edges.shape[0] - dy, :edges.shape[1] - dx]
+    return wide
