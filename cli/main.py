@@ -336,6 +336,114 @@ def info(model):
     click.echo("  config      " + json.dumps(m.get("config", {}), sort_keys=True))
 
 
+def read_mesh(path: Path):
+    """A mesh file for rendering, or a one-line error."""
+    import trimesh
+
+    try:
+        mesh = trimesh.load(path, force="mesh")
+    except Exception as error:  # trimesh raises many kinds for a bad file
+        raise InputError(f"{path}: cannot read as a mesh ({str(error).splitlines()[0][:120]})") from None
+    if not len(getattr(mesh, "faces", [])):
+        raise InputError(f"{path}: no triangles to render")
+    return mesh
+
+
+def crop(mesh, zoom: float):
+    """The faces whose centres lie in the central 1/zoom of the bounding box."""
+    if zoom < 1:
+        raise InputError(f"--zoom must be 1 or more, got {zoom}")
+    if zoom == 1:
+        return mesh
+    centre, half = mesh.bounds.mean(axis=0), mesh.extents / (2 * zoom)
+    keep = (abs(mesh.triangles_center - centre) <= half).all(axis=1)
+    return mesh.submesh([keep.nonzero()[0]], append=True)
+
+
+@cli.command()
+@click.argument("inputs", metavar="MESH_OR_MODEL...", nargs=-1, required=True)
+@click.option("-o", "--output", type=click.Path(path_type=Path), required=True, help="The picture (.png).")
+@click.option("--seeds", type=str, default="0-3", show_default=True,
+              help="Samples to draw from each model input: 0-3 or 1,5,9.")
+@click.option("--recon", is_flag=True, help="Draw each model's reconstruction of its training shape first.")
+@SCALE_OPTION
+@SIZE_OPTION
+@click.option("--smooth", type=int, default=0, show_default=True, help="Laplacian smoothing of samples.")
+@click.option("--views", type=int, default=1, show_default=True,
+              help="Views per shape, turning around the up axis (a turntable row per shape).")
+@click.option("--up", type=click.Choice(["y", "z"]), default="y", show_default=True,
+              help="Which axis points up: y for most .obj files, z for voxel data and the example shapes.")
+@click.option("--columns", type=int, default=4, show_default=True, help="Shapes per row (with one view each).")
+@click.option("--image-size", type=int, default=320, show_default=True, help="Pixels per shape, square.")
+@click.option("--zoom", type=float, default=1.0, show_default=True,
+              help="Show only the central 1/ZOOM of each shape: a close-up.")
+@click.option("--azimuth", type=float, default=35.0, show_default=True, help="Camera angle around the up axis.")
+@click.option("--elevation", type=float, default=25.0, show_default=True, help="Camera angle above the ground.")
+@THREADS_OPTION
+def render(inputs, output, seeds, recon, scale, size, smooth, views, up, columns, image_size, zoom,
+           azimuth, elevation, threads):
+    """Draw shaded pictures of meshes or of a model's samples, headless.
+
+    Each input is a mesh file (drawn as it is) or a model (.onnx or a shipped
+    name; its samples are drawn, labelled by seed). Several inputs make one
+    picture, e.g. `sinrun render towerruins.obj towerruins --seeds 1-3`
+    shows the training mesh beside three samples.
+    """
+    import numpy as np
+
+    from sinshape.runtime import generate, mesh, render as draw, write
+
+    if output.suffix.lower() != ".png":
+        raise InputError(f"{output}: the picture is written as .png")
+    write.check_writable(output)
+    if views < 1 or columns < 1 or image_size < 16:
+        raise click.UsageError("--views and --columns must be at least 1, --image-size at least 16")
+    factors = parse_size(size)
+    shapes, labels = [], []
+    for item in inputs:
+        path = Path(item)
+        if path.is_file() and path.suffix.lower() in write.MESH_FORMATS:
+            shapes.append(read_mesh(path))
+            labels.append(path.name)
+            continue
+        model = open_model(item, threads)
+        for seed in ([None] if recon else []) + parse_seeds(seeds):
+            triplane = generate.sample(model, seed, factors if seed is not None else (1, 1, 1))
+            shapes.append(mesh.extract(model, triplane, scale, smooth=smooth))
+            labels.append("reconstruction" if seed is None else f"seed {seed}")
+    shapes = [crop(shape, zoom) for shape in shapes]
+    options = dict(up=up, size=(image_size, image_size))
+    if views > 1:
+        turns = [((azimuth + 360 * k / views) % 360, elevation) for k in range(views)]
+        picture = np.concatenate([draw.render_views(s, views=turns, **options) for s in shapes])
+    else:
+        picture = draw.render_grid(shapes, labels, min(columns, len(shapes)), azimuth=azimuth,
+                                   elevation=elevation, **options)
+    draw.save_png(picture, output)
+    click.echo(f"wrote {output} ({picture.shape[1]}x{picture.shape[0]})")
+
+
+@cli.command()
+@click.argument("name")
+@click.option("-o", "--output", type=click.Path(path_type=Path), required=True,
+              help="Mesh file to write: .obj .ply .stl .off .glb.")
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the random details.")
+@click.option("--detail", type=int, default=None, help="Resolution or element count; smaller is faster. Default: the demo size.")
+def shape(name, output, seed, detail):
+    """Write a procedural example shape to train on (z is up).
+
+    NAME is terrain, acropolis, stairs, wall or cheese.
+    """
+    from sinshape.trainer import shapes
+
+    from sinshape.runtime.write import check_writable
+
+    check_writable(output)
+    written = shapes.write_shape(name, output, seed=seed, detail=detail)
+    click.echo(f"wrote {output} ({len(written.faces)} faces, extents "
+               f"{' x '.join(f'{e:.2f}' for e in written.extents)})")
+
+
 @cli.command(name="models")
 def list_models():
     """List the shipped models (sample one with `sinrun sample NAME`)."""

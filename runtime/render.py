@@ -11,14 +11,12 @@ Colours are RGB floats in [0, 1]; images are (H, W, 3) uint8; sizes are
 (width, height), as in pillow.
 """
 
-import os
-from pathlib import Path
-
 import numpy as np
 import trimesh
 from PIL import Image, ImageDraw, ImageFont
 
 from .errors import InputError
+from .write import atomic_write
 
 CLAY = (0.86, 0.82, 0.76)
 BACKGROUND = (0.97, 0.97, 0.96)
@@ -115,13 +113,7 @@ def label_height(size) -> int:
 def save_png(image: np.ndarray, path) -> None:
     """Write a (H, W, 3) uint8 image to `path` as PNG, through a temporary
     file and a rename, so that `path` never holds a half-written picture."""
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    try:
-        Image.fromarray(image).save(tmp, format="PNG")
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    atomic_write(path, lambda f: Image.fromarray(image).save(f, format="PNG"))
 
 
 def camera_axes(azimuth: float, elevation: float, up: str) -> np.ndarray:

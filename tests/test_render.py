@@ -198,12 +198,11 @@ def test_save_png_failing_midway_keeps_the_old_file(tmp_path, monkeypatch):
     path.write_bytes(b"old")
 
     def half_save(self, fp, *args, **kwargs):
-        with open(fp, "wb") as f:
-            f.write(b"\x89PNG half")
-        raise OSError("disk full")
+        fp.write(b"\x89PNG half")
+        raise OSError(28, "No space left on device")
 
     monkeypatch.setattr(Image.Image, "save", half_save)
-    with pytest.raises(OSError):
+    with pytest.raises(ValueError, match="cannot write"):
         R.save_png(np.zeros((4, 4, 3), np.uint8), path)
     assert path.read_bytes() == b"old"
     assert [p.name for p in tmp_path.iterdir()] == ["box.png"]
