@@ -46,16 +46,16 @@ def concat_decode(decoder, planes) -> torch.Tensor:
 class StraightforwardTrainer(train.Trainer):
     """The same training, computed as the authors' code computes it."""
 
-    def fake(self, below, noise_planes):
+    def fake(self, inputs, noise_planes):
         gen = self.generator
-        planes = gen.levels[0](below) if self.level == 0 else gen.step(below, self.level, self.sizes[self.level], noise_planes)
+        planes = gen.levels[0](inputs) if self.level == 0 else gen.step(inputs, self.level, self.sizes[self.level], noise_planes)
         return concat_decode(gen.decoder, planes)
 
-    def iterate(self, recon_below):
+    def iterate(self, recon_inputs):
         c, level, real = self.config, self.level, self.targets[self.level]
         for _ in range(c.d_steps):
             z0, noises = self.random_noises(level)
-            fake = self.fake(self.below(z0, noises), noises[level] if level else None)[None, None]
+            fake = self.fake(self.inputs(z0, noises), noises[level] if level else None)[None, None]
             loss_d = self.critic(fake.detach()).mean() - self.critic(real).mean() \
                 + c.gp_weight * self.gradient_penalty(real, fake.detach())
             self.opt_d.zero_grad()
@@ -64,9 +64,9 @@ class StraightforwardTrainer(train.Trainer):
         self.critic.requires_grad_(False)
         for _ in range(c.g_steps):
             z0, noises = self.random_noises(level)
-            fake = self.fake(self.below(z0, noises), noises[level] if level else None)
+            fake = self.fake(self.inputs(z0, noises), noises[level] if level else None)
             loss_adv = -self.critic(fake[None, None]).mean()
-            loss_rec = F.mse_loss(self.fake(recon_below, None), real[0, 0])
+            loss_rec = F.mse_loss(self.fake(recon_inputs, None), real[0, 0])
             self.opt_g.zero_grad()
             (loss_adv + c.rec_weight * loss_rec).backward()
             self.opt_g.step()
@@ -83,11 +83,11 @@ def seconds_per_iteration(trainer_class, side: int, iterations: int) -> float:
     trainer.begin_level()
     trainer.level = 1
     trainer.begin_level()
-    recon_below = trainer.frozen_planes(trainer.z0_recon, [None, None])
-    trainer.iterate(recon_below)  # warm-up: first calls allocate and pick kernels
+    recon_inputs = trainer.inputs(trainer.z0_recon, [None, None])
+    trainer.iterate(recon_inputs)  # warm-up: first calls allocate and pick kernels
     started = time.perf_counter()
     for _ in range(iterations):
-        trainer.iterate(recon_below)
+        trainer.iterate(recon_inputs)
     return (time.perf_counter() - started) / iterations
 
 

@@ -99,13 +99,16 @@ def format_seconds(seconds: float) -> str:
               help="Number of levels. Default: enough that the coarsest longest side is at most 33 voxels.")
 @click.option("--iters", type=int, default=None, help="Training iterations per level (3 D + 3 G steps each).")
 @click.option("--seed", type=int, default=None, help="Seed of the training run (weights, noise draws). Default 0.")
+@click.option("--generator", type=click.Choice(["triplane", "voxel"]), default=None,
+              help="triplane (the method) or voxel: the paper's SinGAN-3D baseline, 3-D convs on voxels, "
+                   "for comparisons; it writes a .pt checkpoint (-o baseline.pt), not an .onnx model.")
 @click.option("--resume", is_flag=True,
               help="Continue an interrupted run from its checkpoint, skipping finished levels, "
                    "with the checkpoint's settings.")
 @click.option("--checkpoint", type=click.Path(path_type=Path), default=None,
               help="Checkpoint file. Default: MODEL.ckpt.pt beside the output.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress output.")
-def train(input_path, output, preset, res, levels, iters, seed, resume, checkpoint, quiet):
+def train(input_path, output, preset, res, levels, iters, seed, generator, resume, checkpoint, quiet):
     """Train a model on one example shape and export it as one .onnx file.
 
     INPUT is a mesh (.obj, .ply, .stl, .off, .glb; not necessarily watertight)
@@ -120,7 +123,7 @@ def train(input_path, output, preset, res, levels, iters, seed, resume, checkpoi
     from sinshape.trainer import config as configs
     from sinshape.trainer import train as training
 
-    overrides = dict(preset=preset, res=res, levels=levels, iters=iters, seed=seed)
+    overrides = dict(preset=preset, res=res, levels=levels, iters=iters, seed=seed, generator=generator)
     given = [f"--{name}" for name, value in overrides.items() if value is not None]
     if resume and given:
         raise click.UsageError(f"--resume continues with the checkpoint's settings; leave out {', '.join(given)}")

@@ -64,8 +64,8 @@ def test_resume_refuses_another_input(tmp_path, tiny_pyramid):
 def test_divergence_stops_and_keeps_the_last_good_checkpoint(tmp_path, tiny_pyramid, monkeypatch):
     real_iterate = train.Trainer.iterate
 
-    def iterate(self, recon_below):
-        losses = real_iterate(self, recon_below)
+    def iterate(self, recon_inputs):
+        losses = real_iterate(self, recon_inputs)
         return {**losses, "D": math.nan} if self.level == 1 else losses
 
     monkeypatch.setattr(train.Trainer, "iterate", iterate)
@@ -90,3 +90,19 @@ def test_periodic_checkpoints(tmp_path, tiny_pyramid):
     train.train(tiny_pyramid, out, make_config("tiny", iters=3), checkpoint_every=0.0, progress=progress)
     # With no delay allowed, a checkpoint follows every iteration.
     assert (0, 1) in iterations and (0, 2) in iterations
+
+
+def test_voxel_baseline_trains_and_resumes(tmp_path, tiny_pyramid):
+    out = tmp_path / "baseline.pt"
+    with pytest.raises(train.Interrupted):
+        train.train(tiny_pyramid, out, make_config("tiny", iters=2, generator="voxel"), progress=interrupt_at(1, 1))
+    summary = train.train(tiny_pyramid, out, None, resume=True)
+    assert len(summary["levels"]) == 2 and not list(tmp_path.glob("*.onnx"))
+    generator, sizes, amps = train.load_generator(out)
+    assert type(generator).__name__ == "VoxelGenerator" and len(generator.levels) == 2
+    noises = [None, [amps[1] * torch.randn(1, 1, *sizes[1])]]
+    with torch.no_grad():
+        volume = generator(torch.randn(1, 1, *sizes[0]), noises, sizes)
+    assert volume.shape == sizes[1] and -0.01 < volume.min() and volume.max() < 1.01
+    with pytest.raises(InputError, match="checkpoint"):
+        train.train(tiny_pyramid, tmp_path / "b.onnx", make_config("tiny", generator="voxel"))

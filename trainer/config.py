@@ -22,6 +22,8 @@ class TrainConfig:
     blur_sigma: float = 0.5  # Gaussian blur of the training targets
 
     # Networks (Wu & Zheng 2022): 32 channels everywhere, 8 pooling bins.
+    # generator "voxel" is the paper's SinGAN-3D baseline (3-D convs on voxels).
+    generator: str = "triplane"
     channels: int = 32
     pool_bins: int = 8
     mlp_hidden: int = 32
@@ -45,6 +47,7 @@ class TrainConfig:
         checks = [
             (self.res >= self.min_size, f"--res {self.res} is below the {self.min_size}-voxel minimum of every level"),
             (self.levels is None or self.levels >= 1, f"--levels must be at least 1, got {self.levels}"),
+            (self.generator in ("triplane", "voxel"), f"--generator must be triplane or voxel, got {self.generator!r}"),
             (self.iters >= 1, f"--iters must be at least 1, got {self.iters}"),
             (self.d_steps >= 1 and self.g_steps >= 1, "d_steps and g_steps must be at least 1"),
             (self.lr > 0, f"lr must be positive, got {self.lr}"),

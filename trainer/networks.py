@@ -217,9 +217,114 @@ class TriplaneGenerator(nn.Module):
             planes = self.step(planes, level, sizes[level], noises[level])
         return planes
 
-    def forward(self, z0: torch.Tensor, noises: list, sizes: list) -> torch.Tensor:
-        """Occupancy (X, Y, Z) of the last level's grid."""
-        return self.decoder.grid(self.planes(z0, noises, sizes))
+    def forward(self, z0: torch.Tensor, noises: list, sizes: list, upto: int | None = None) -> torch.Tensor:
+        """Occupancy (X, Y, Z) of level `upto`'s grid (default: the last level)."""
+        return self.decoder.grid(self.planes(z0, noises, sizes, upto))
+
+    # The interface the trainer uses, shared with VoxelGenerator.
+    def noise_shapes(self, size: tuple) -> list:
+        """Shapes of one level's noise: a C-channel map per plane."""
+        return [(1, self.channels, *s) for s in plane_sizes(size)]
+
+    def inputs(self, z0: torch.Tensor, noises: list, sizes: list, level: int) -> list:
+        """What level `level` builds on: P(z0) at level 0 (P trains with it),
+        else the frozen levels' tri-plane, computed without gradients."""
+        if level == 0:
+            return self.projection(z0)
+        with torch.no_grad():
+            return self.planes(z0, noises, sizes, upto=level - 1)
+
+    def output(self, inputs: list, level: int, size: tuple, noise: list | None) -> torch.Tensor:
+        """Level `level`'s occupancy (X, Y, Z) from its inputs and scaled noise."""
+        planes = self.levels[0](inputs) if level == 0 else self.step(inputs, level, size, noise)
+        return self.decoder.grid(planes)
+
+    def trained_modules(self, level: int) -> list:
+        """What trains at a level: G_level and the shared decoder (and P at level 0)."""
+        return [self.levels[level], self.decoder] + ([self.projection] if level == 0 else [])
+
+
+class VoxelLevel(nn.Module):
+    """A SinGAN-3D level: 3-D convs on the voxel grid, adding to its input.
+
+    head Conv3d(1 -> C) and two Conv3d(C -> C), each with InstanceNorm and
+    LeakyReLU(0.2); tail Conv3d(C -> 1) and tanh. out = input + tail, softly
+    clamped to [0, 1] (slope 0.002 outside), as the authors' baseline does.
+    """
+
+    def __init__(self, channels: int):
+        super().__init__()
+        layers = []
+        for c_in in (1, channels, channels):
+            layers += [nn.Conv3d(c_in, channels, 3, padding=1, bias=False), nn.InstanceNorm3d(channels),
+                       nn.LeakyReLU(0.2)]
+        self.net = nn.Sequential(*layers, nn.Conv3d(channels, 1, 3, padding=1), nn.Tanh())
+
+    def forward(self, noise: torch.Tensor, volume: torch.Tensor) -> torch.Tensor:
+        out = volume + self.net(noise + volume)
+        return torch.maximum(torch.minimum(out, 0.002 * out + 0.998), 0.002 * out)
+
+
+class VoxelGenerator(nn.Module):
+    """The paper's 3-D baseline (SinGAN-3D): the same pipeline with 3-D conv
+    generators on voxels instead of tri-planes.
+
+    Level 0: V_0 = L_0(z0, 0). Level i > 0: U = trilinear resize of V_(i-1)
+    (align_corners=True); V_i = L_i(sigma_i n_i, U) with n_i a 1-channel
+    volume. Training only: it has no .onnx export.
+    """
+
+    def __init__(self, channels: int = 32):
+        super().__init__()
+        self.channels = channels
+        self.levels = nn.ModuleList()
+
+    def add_level(self) -> VoxelLevel:
+        level = VoxelLevel(self.channels)
+        self.levels.append(level)
+        return level
+
+    def noise_shapes(self, size: tuple) -> list:
+        return [(1, 1, *size)]
+
+    def volume(self, z0, noises, sizes, upto: int) -> torch.Tensor:
+        """(1, 1, X, Y, Z) output of level `upto`."""
+        volume = self.levels[0](z0, torch.zeros_like(z0))
+        for level in range(1, upto + 1):
+            volume = self.output_volume(volume, level, sizes[level], noises[level])
+        return volume
+
+    def output_volume(self, previous, level, size, noise) -> torch.Tensor:
+        upsampled = F.interpolate(previous, size=size, mode="trilinear", align_corners=True)
+        return self.levels[level](torch.zeros_like(upsampled) if noise is None else noise[0], upsampled)
+
+    def forward(self, z0, noises, sizes, upto: int | None = None) -> torch.Tensor:
+        return self.volume(z0, noises, sizes, len(self.levels) - 1 if upto is None else upto)[0, 0]
+
+    def inputs(self, z0, noises, sizes, level: int):
+        """z0 at level 0, else the frozen levels' volume (no gradients)."""
+        if level == 0:
+            return z0
+        with torch.no_grad():
+            return self.volume(z0, noises, sizes, level - 1)
+
+    def output(self, inputs, level: int, size: tuple, noise) -> torch.Tensor:
+        if level == 0:
+            return self.levels[0](inputs, torch.zeros_like(inputs))[0, 0]
+        return self.output_volume(inputs, level, size, noise)[0, 0]
+
+    def trained_modules(self, level: int) -> list:
+        return [self.levels[level]]
+
+
+GENERATORS = ("triplane", "voxel")
+
+
+def make_generator(kind: str, channels: int, bins: int, hidden: int) -> nn.Module:
+    """The generator a config names: the paper's tri-planes or the voxel baseline."""
+    if kind == "voxel":
+        return VoxelGenerator(channels)
+    return TriplaneGenerator(channels, bins, hidden)
 
 
 class Discriminator(nn.Module):

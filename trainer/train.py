@@ -27,7 +27,7 @@ from sinshape.runtime.write import check_writable
 
 from . import export
 from .config import TrainConfig
-from .networks import Discriminator, TriplaneGenerator, plane_sizes
+from .networks import Discriminator, make_generator
 from .pyramid import load_pyramid, training_targets
 
 CHECKPOINT_FORMAT = "sinshape-checkpoint"
@@ -56,8 +56,10 @@ class Progress:
 
 
 def default_checkpoint_path(output: Path) -> Path:
-    """model.onnx -> model.ckpt.pt, beside the model."""
-    return output.with_name(output.stem + ".ckpt.pt")
+    """model.onnx -> model.ckpt.pt, beside the model. A .pt output (the voxel
+    baseline, which has no .onnx form) is its own checkpoint."""
+    output = Path(output)
+    return output if output.suffix == ".pt" else output.with_name(output.stem + ".ckpt.pt")
 
 
 def seeded(seed: int, *ids: int) -> int:
@@ -83,7 +85,7 @@ class Trainer:
         self.z0_recon = torch.from_numpy(noise.z0_noise(config.recon_seed, self.sizes[0]))[None, None]
         with torch.random.fork_rng():
             torch.manual_seed(seeded(config.seed, 0))
-            self.generator = TriplaneGenerator(config.channels, config.pool_bins, config.mlp_hidden)
+            self.generator = make_generator(config.generator, config.channels, config.pool_bins, config.mlp_hidden)
             self.critic = Discriminator(config.channels)
         self.rng = torch.Generator().manual_seed(seeded(config.seed, 1))
         self.noise_amps = []  # sigma_i per level; sigma_0 = 1 is the std of z0
@@ -113,10 +115,7 @@ class Trainer:
 
     def make_optimizers(self) -> None:
         c = self.config
-        trained = [self.generator.levels[self.level], self.generator.decoder]
-        if self.level == 0:
-            trained.append(self.generator.projection)
-        params = [p for module in trained for p in module.parameters()]
+        params = [p for module in self.generator.trained_modules(self.level) for p in module.parameters()]
         self.opt_g = torch.optim.Adam(params, lr=c.lr, betas=(c.beta1, c.beta2))
         self.opt_d = torch.optim.Adam(self.critic.parameters(), lr=c.lr, betas=(c.beta1, c.beta2))
 
@@ -127,46 +126,34 @@ class Trainer:
         noises = [None]
         for level in range(1, upto + 1):
             amp = self.noise_amps[level]
-            noises.append([
-                amp * torch.randn((1, self.config.channels, *s), generator=self.rng)
-                for s in plane_sizes(self.sizes[level])
-            ])
+            noises.append([amp * torch.randn(shape, generator=self.rng)
+                           for shape in self.generator.noise_shapes(self.sizes[level])])
         return z0, noises
 
     def reconstruct(self, level: int) -> torch.Tensor:
         """Occupancy (X, Y, Z) at `level` for z0* and zero later noise."""
-        planes = self.generator.planes(self.z0_recon, [None] * (level + 1), self.sizes, upto=level)
-        return self.generator.decoder.grid(planes)
+        return self.generator(self.z0_recon, [None] * (level + 1), self.sizes, upto=level)
 
-    def frozen_planes(self, z0, noises) -> list:
-        """T_(level-1) from the frozen levels, or P(z0) inputs at level 0."""
-        with torch.no_grad():
-            return self.generator.planes(z0, noises, self.sizes, upto=self.level - 1)
+    def inputs(self, z0, noises):
+        """What the trained level builds on (frozen levels: no gradients)."""
+        return self.generator.inputs(z0, noises, self.sizes, self.level)
 
-    def fake(self, below: list, noise_planes) -> torch.Tensor:
-        """This level's occupancy (X, Y, Z) from the frozen levels' output."""
-        gen = self.generator
-        planes = gen.levels[0](below) if self.level == 0 else gen.step(below, self.level, self.sizes[self.level], noise_planes)
-        return gen.decoder.grid(planes)
-
-    def below(self, z0, noises):
-        """Inputs of the trained level: P(z0) at level 0, else frozen T_(level-1)."""
-        if self.level == 0:
-            return self.generator.projection(z0)
-        return self.frozen_planes(z0, noises)
+    def fake(self, inputs, noise) -> torch.Tensor:
+        """This level's occupancy (X, Y, Z)."""
+        return self.generator.output(inputs, self.level, self.sizes[self.level], noise)
 
     # -- one iteration -------------------------------------------------------
-    def iterate(self, recon_below) -> dict:
+    def iterate(self, recon_inputs) -> dict:
         """(1) update D `d_steps` times, (2) update G `g_steps` times."""
         c, level, real = self.config, self.level, self.targets[self.level]
-        critic, gen = self.critic, self.generator
+        critic = self.critic
 
         # (1) Update D: minimise D(fake) - D(real) + gp_weight * GP.
         critic.requires_grad_(True)
         for _ in range(c.d_steps):
             with torch.no_grad():
                 z0, noises = self.random_noises(level)
-                fake = self.fake(self.below(z0, noises), noises[level] if level else None)[None, None]
+                fake = self.fake(self.inputs(z0, noises), noises[level] if level else None)[None, None]
             scores = critic(torch.cat([real, fake]))
             d_real, d_fake = scores[0].mean(), scores[1].mean()
             loss_d = d_fake - d_real + c.gp_weight * self.gradient_penalty(real, fake)
@@ -178,11 +165,10 @@ class Trainer:
         critic.requires_grad_(False)
         for _ in range(c.g_steps):
             z0, noises = self.random_noises(level)
-            below = self.below(z0, noises)
-            fake = self.fake(below, noises[level] if level else None)
+            fake = self.fake(self.inputs(z0, noises), noises[level] if level else None)
             loss_adv = -critic(fake[None, None]).mean()
-            rec_below = gen.projection(self.z0_recon) if level == 0 else recon_below
-            rec = self.fake(rec_below, None)
+            # Level 0's inputs train with it; above, the frozen levels' are cached.
+            rec = self.fake(self.inputs(self.z0_recon, None) if level == 0 else recon_inputs, None)
             loss_rec = F.mse_loss(rec, real[0, 0])
             loss_g = loss_adv + c.rec_weight * loss_rec
             self.opt_g.zero_grad(set_to_none=True)
@@ -274,6 +260,9 @@ def train(input_path, output_path, config: TrainConfig | None, *, resume: bool =
     log = log or (lambda message: None)
     output_path = Path(output_path)
     checkpoint_path = Path(checkpoint_path) if checkpoint_path else default_checkpoint_path(output_path)
+    if config is not None and (config.generator == "voxel") != (output_path.suffix == ".pt"):
+        raise InputError(f"{output_path}: the triplane generator writes a .onnx model, the voxel baseline "
+                         "a .pt checkpoint")
     check_writable(output_path)
     check_writable(checkpoint_path)
 
@@ -306,10 +295,10 @@ def train(input_path, output_path, config: TrainConfig | None, *, resume: bool =
             level = trainer.level
             log(f"level {level + 1}/{len(trainer.sizes)}: grid {trainer.sizes[level]}, "
                 f"noise amplitude {trainer.noise_amps[level]:.4g}")
-            recon_below = trainer.frozen_planes(trainer.z0_recon, [None] * len(trainer.sizes)) if level else None
+            recon_inputs = trainer.inputs(trainer.z0_recon, [None] * len(trainer.sizes)) if level else None
             while trainer.iteration < config.iters:
                 started = time.monotonic()
-                losses = trainer.iterate(recon_below)
+                losses = trainer.iterate(recon_inputs)
                 bad = [k for k, v in losses.items() if not math.isfinite(v) or abs(v) > LOSS_LIMIT]
                 if bad:
                     raise TrainingDiverged(
@@ -335,6 +324,9 @@ def train(input_path, output_path, config: TrainConfig | None, *, resume: bool =
         atomic_save(trainer.state(), checkpoint_path)
         raise Interrupted(f"interrupted; progress saved to {checkpoint_path}; continue with --resume") from None
 
+    if config.generator == "voxel":  # the baseline has no .onnx form: its checkpoint is the model
+        return {"levels": [{"size": list(s)} for s in trainer.sizes],
+                "training": {"seconds": sum(trainer.seconds), "level_seconds": trainer.seconds}}
     return export.export_model(trainer.generator, sizes=trainer.sizes, noise_amps=trainer.noise_amps,
                                config=config, pyramid=pyramid, seconds=trainer.seconds, path=output_path)
 
@@ -344,7 +336,7 @@ def load_generator(checkpoint_path) -> tuple:
     amplitudes: for sampling with torch (tests, benchmarks)."""
     state = load_checkpoint(Path(checkpoint_path))
     config = TrainConfig.from_dict(state["config"])
-    generator = TriplaneGenerator(config.channels, config.pool_bins, config.mlp_hidden)
+    generator = make_generator(config.generator, config.channels, config.pool_bins, config.mlp_hidden)
     for _ in range(count_levels(state["generator"])):
         generator.add_level()
     generator.load_state_dict(state["generator"])
