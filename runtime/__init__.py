@@ -10,10 +10,19 @@
 Stages, one module each: load -> generate -> query -> mesh -> write.
 """
 
-from .errors import InputError
-from .generate import TriPlane, interpolate, sample
-from .load import Model, load_model
-from .mesh import extract
-from .query import dense, points
+import importlib
 
-__all__ = ["InputError", "Model", "TriPlane", "dense", "extract", "interpolate", "load_model", "points", "sample"]
+# Where each public name lives. They are imported on first use, so that
+# importing a light module (runtime.errors, for the CLI's --help) does not
+# pull in onnxruntime, trimesh and scikit-image.
+_EXPORTS = {
+    "InputError": "errors", "Model": "load", "load_model": "load", "TriPlane": "generate",
+    "sample": "generate", "interpolate": "generate", "extract": "mesh", "dense": "query", "points": "query",
+}
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name):
+    if name in _EXPORTS:
+        return getattr(importlib.import_module(f".{_EXPORTS[name]}", __name__), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

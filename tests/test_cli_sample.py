@@ -172,3 +172,13 @@ def test_bad_options_are_refused_in_one_line(tiny_model, tmp_path):
 def test_models_lists_shipped_models():
     result = sinrun("models")
     assert result.exit_code == 0 and result.output.strip()
+
+
+def test_help_imports_nothing_heavy():
+    """--help must stay instant: no onnxruntime, trimesh or torch behind it."""
+    code = ("import sys\nfrom sinshape.cli.main import main\n"
+            "try:\n    main()\nexcept SystemExit:\n    pass\n"
+            "heavy = [m for m in ('torch', 'onnxruntime', 'trimesh', 'skimage') if m in sys.modules]\n"
+            "assert not heavy, heavy\n")
+    result = subprocess.run([sys.executable, "-c", code, "--help"], capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
