@@ -1,0 +1,27 @@
+#!/usr/bin/env bash
+# Renders the README's gallery with `sinrun render` (headless, CPU only).
+#   bash docs/gallery/make.sh PATH/TO/towerruins.obj
+# The example shapes are made here with `sinrun shape`; towerruins.obj is the
+# CC-BY-4.0 mesh the towerruins model was trained on (see models/towerruins.md).
+set -euo pipefail
+tower=${1:?usage: make.sh PATH/TO/towerruins.obj}
+cd "$(dirname "$0")"
+work=$(mktemp -d)
+sinrun shape terrain -o "$work/terrain.obj"
+sinrun shape acropolis -o "$work/acropolis.obj"
+
+# Each model: its training shape, then samples at the training size.
+sinrun render "$tower" towerruins --seeds 1-4 --scale 2 --columns 5 --image-size 256 -o towerruins.png
+sinrun render "$work/terrain.obj" terrain --seeds 1-4 --scale 2 --up z --columns 5 --image-size 256 -o terrain.png
+sinrun render "$work/acropolis.obj" acropolis --seeds 1-4 --scale 2 --up z --columns 5 --image-size 256 -o acropolis.png
+
+# Other sizes and aspect ratios: twice as long, twice as wide, half as deep.
+sinrun render terrain --seeds 5 --size 2,1,1 --scale 2 --up z --image-size 384 -o terrain_2x1.png
+sinrun render acropolis --seeds 5 --size 2,1,1 --scale 2 --up z --image-size 384 -o acropolis_2x1.png
+sinrun render acropolis --seeds 6 --size 1,2,1 --scale 2 --up z --image-size 384 -o acropolis_1x2.png
+sinrun render towerruins --seeds 5 --size 2,1,2 --scale 2 --image-size 384 -o towerruins_2x1x2.png
+
+# Resolution: the same sample queried at scale 1 and at scale 8, close up.
+sinrun render towerruins --seeds 3 --scale 1 --zoom 3 --image-size 384 -o closeup_scale1.png
+sinrun render towerruins --seeds 3 --scale 8 --zoom 3 --image-size 384 -o closeup_scale8.png
+rm -r "$work"
