@@ -159,6 +159,17 @@ def parse_seeds(text: str) -> list:
     return seeds
 
 
+def parse_fractions(text: str) -> tuple:
+    """'0.5,0.7,1' -> three numbers in [0, 1]."""
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != 3 or not all(0 <= v <= 1 for v in values):
+        raise click.BadParameter(f"{text!r}: give three fractions in [0, 1], like 0.5,0.7,1")
+    return values
+
+
 def parse_size(text: str) -> tuple:
     """'2' or '2,1,1' -> per-axis factors of the training size."""
     try:
@@ -352,14 +363,19 @@ def read_mesh(path: Path):
     return mesh
 
 
-def crop(mesh, zoom: float):
-    """The faces whose centres lie in the central 1/zoom of the bounding box."""
+def crop(mesh, zoom: float, focus: tuple):
+    """The faces whose centres lie in a box 1/zoom the size of the bounding
+    box, centred at `focus` (fractions of the bounding box per axis)."""
+    import numpy as np
+
     if zoom < 1:
         raise InputError(f"--zoom must be 1 or more, got {zoom}")
     if zoom == 1:
         return mesh
-    centre, half = mesh.bounds.mean(axis=0), mesh.extents / (2 * zoom)
-    keep = (abs(mesh.triangles_center - centre) <= half).all(axis=1)
+    centre = mesh.bounds[0] + np.asarray(focus) * mesh.extents
+    keep = (abs(mesh.triangles_center - centre) <= mesh.extents / (2 * zoom)).all(axis=1)
+    if not keep.any():
+        raise InputError(f"no part of the shape lies in the --zoom box at --focus {','.join(map(str, focus))}")
     return mesh.submesh([keep.nonzero()[0]], append=True)
 
 
@@ -379,11 +395,13 @@ def crop(mesh, zoom: float):
 @click.option("--columns", type=int, default=4, show_default=True, help="Shapes per row (with one view each).")
 @click.option("--image-size", type=int, default=320, show_default=True, help="Pixels per shape, square.")
 @click.option("--zoom", type=float, default=1.0, show_default=True,
-              help="Show only the central 1/ZOOM of each shape: a close-up.")
+              help="Show only a box 1/ZOOM the size of each shape: a close-up.")
+@click.option("--focus", type=str, default="0.5,0.5,0.5", show_default=True,
+              help="Where the --zoom box is centred, as fractions of the shape's bounding box per axis.")
 @click.option("--azimuth", type=float, default=35.0, show_default=True, help="Camera angle around the up axis.")
 @click.option("--elevation", type=float, default=25.0, show_default=True, help="Camera angle above the ground.")
 @THREADS_OPTION
-def render(inputs, output, seeds, recon, scale, size, smooth, views, up, columns, image_size, zoom,
+def render(inputs, output, seeds, recon, scale, size, smooth, views, up, columns, image_size, zoom, focus,
            azimuth, elevation, threads):
     """Draw shaded pictures of meshes or of a model's samples, headless.
 
@@ -413,8 +431,12 @@ def render(inputs, output, seeds, recon, scale, size, smooth, views, up, columns
         for seed in ([None] if recon else []) + parse_seeds(seeds):
             triplane = generate.sample(model, seed, factors if seed is not None else (1, 1, 1))
             shapes.append(mesh.extract(model, triplane, scale, smooth=smooth))
-            labels.append("reconstruction" if seed is None else f"seed {seed}")
-    shapes = [crop(shape, zoom) for shape in shapes]
+            label = "reconstruction" if seed is None else f"seed {seed}"
+            if seed is not None and factors != (1, 1, 1):
+                label += ", size " + "x".join(f"{f:g}" for f in factors)
+            labels.append(label if scale == 1 else f"{label}, scale {scale:g}")
+    focus = parse_fractions(focus)
+    shapes = [crop(shape, zoom, focus) for shape in shapes]
     options = dict(up=up, size=(image_size, image_size))
     if views > 1:
         turns = [((azimuth + 360 * k / views) % 360, elevation) for k in range(views)]

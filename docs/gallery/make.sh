@@ -22,6 +22,6 @@ sinrun render acropolis --seeds 6 --size 1,2,1 --scale 2 --up z --image-size 384
 sinrun render towerruins --seeds 5 --size 2,1,2 --scale 2 --image-size 384 -o towerruins_2x1x2.png
 
 # Resolution: the same sample queried at scale 1 and at scale 8, close up.
-sinrun render towerruins --seeds 3 --scale 1 --zoom 3 --image-size 384 -o closeup_scale1.png
-sinrun render towerruins --seeds 3 --scale 8 --zoom 3 --image-size 384 -o closeup_scale8.png
+sinrun render towerruins --seeds 3 --scale 1 --zoom 3 --focus 0.5,0.8,1 --image-size 384 -o closeup_scale1.png
+sinrun render towerruins --seeds 3 --scale 8 --zoom 3 --focus 0.5,0.8,1 --image-size 384 -o closeup_scale8.png
 rm -r "$work"
