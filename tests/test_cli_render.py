@@ -46,3 +46,12 @@ def test_shape_writes_a_closed_example(tmp_path):
     mesh = trimesh.load(out)
     assert mesh.is_watertight and mesh.volume > 0
     assert_one_line_error(sinrun("shape", "castle", "-o", out), "known shapes")
+
+
+def test_zoom_box_must_hold_part_of_the_shape(tmp_path):
+    box = tmp_path / "box.obj"
+    trimesh.creation.box((2, 1, 1)).export(box)
+    assert_one_line_error(sinrun("render", box, "--zoom", 10, "--focus", "0,0,0", "-o", tmp_path / "z.png"),
+                          "no part of the shape")
+    assert sinrun("render", box, "--zoom", 2, "--focus", "0.5,0.5,1", "-o", tmp_path / "z.png").exit_code == 0
+    assert sinrun("render", box, "--focus", "2,0,0", "-o", tmp_path / "z.png").exit_code == 2
