@@ -32,25 +32,40 @@ def band_mesh(model, triplane, scale: float = 1.0, block: int = query.BLOCK, pro
                 cube = slab.values[:, by * block:by * block + block + 1, bz * block:bz * block + block + 1]
                 if cube.min() >= 0.5 or cube.max() <= 0.5:
                     continue  # active by its bounds, but no crossing after all
-                v, f, _, _ = measure.marching_cubes(cube, 0.5)
-                vertices.append(v + (slab.index * block, by * block, bz * block))
-                faces.append(f + count)
+                v, f, _, _ = measure.marching_cubes(cube, 0.5)  # float32 (V, 3), int32 (F, 3)
+                # float32 keeps seam vertices exact: block-local values plus integer offsets.
+                v += np.array([slab.index * block, by * block, bz * block], np.float32)
+                # Lewiner's "descent" convention winds faces towards higher values,
+                # i.e. inwards for occupancy: reverse them so normals point out.
+                vertices.append(v)
+                faces.append(f[:, ::-1] + np.int32(count))
                 count += len(v)
         if progress:
             progress(slab.index + 1, slabs)
     if not vertices:
         return trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), int), process=False)
     vertices, faces = np.concatenate(vertices), np.concatenate(faces)
-    # Seam vertices are exact duplicates: merge by value.
-    vertices, inverse = np.unique(vertices, axis=0, return_inverse=True)
-    faces = inverse.reshape(-1)[faces]
+    vertices, faces = merge_seams(vertices, faces, block)
     # Padded grid index -> grid index -> model coordinates.
     steps = np.array([(n - 1) / (m - 1) for n, m in zip(triplane.size, shape)])
-    mesh = trimesh.Trimesh((vertices - 1) * steps, faces, process=False)
-    # Lewiner's "descent" convention orients faces into higher values, i.e.
-    # inwards for occupancy; flip them so normals point out.
-    mesh.invert()
-    return mesh
+    return trimesh.Trimesh((vertices - 1) * steps, faces, process=False)
+
+
+def merge_seams(vertices: np.ndarray, faces: np.ndarray, block: int) -> tuple:
+    """Weld the duplicate vertices that neighbouring blocks make on their
+    shared faces. Only vertices on a block face (a coordinate that is a
+    multiple of the block size, exactly, since it lies on a grid edge) can be
+    duplicates, so only those are compared, by value.
+
+    vertices : (n, 3) float, faces : (m, 3) int -> the welded pair.
+    """
+    seam = (vertices % block == 0).any(axis=1)
+    inner = np.nonzero(~seam)[0]
+    welded, inverse = np.unique(vertices[seam], axis=0, return_inverse=True)
+    index = np.empty(len(vertices), faces.dtype)
+    index[inner] = np.arange(len(inner))
+    index[seam] = len(inner) + inverse.reshape(-1)
+    return np.concatenate([vertices[inner], welded]), index[faces]
 
 
 def extract(model, triplane, scale: float = 1.0, smooth: int = 0, smoother: str = "laplacian",
