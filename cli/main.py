@@ -33,15 +33,14 @@ def cli():
     """
 
 
-def import_torch():
-    """torch, or a one-line explanation of how to get it."""
+def require_torch() -> None:
+    """A one-line explanation of how to get torch, if it is missing."""
     try:
-        import torch
+        import torch  # noqa: F401
     except ImportError:
         raise click.ClickException(
             "training needs PyTorch, which is not installed: pip install 'sinshape[train]'"
         ) from None
-    return torch
 
 
 class TrainProgress:
@@ -117,7 +116,7 @@ def train(input_path, output, preset, res, levels, iters, seed, generator, resum
     Checkpoints are written after every level and every 5 minutes; Ctrl-C
     saves one and stops; --resume continues.
     """
-    import_torch()
+    require_torch()
     import signal
 
     from sinshape.trainer import config as configs
