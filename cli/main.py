@@ -158,46 +158,27 @@ def parse_seeds(text: str) -> list:
     return seeds
 
 
-def parse_fractions(text: str) -> tuple:
-    """'0.5,0.7,1' -> three numbers in [0, 1]."""
+def parse_triple(text: str, valid, example: str) -> tuple:
+    """'a,b,c', or one value for all three axes -> three floats passing `valid`."""
     try:
         values = tuple(float(v) for v in text.split(","))
     except ValueError:
         values = ()
-    if len(values) != 3 or not all(0 <= v <= 1 for v in values):
-        raise click.BadParameter(f"{text!r}: give three fractions in [0, 1], like 0.5,0.7,1")
+    if len(values) == 1:
+        values *= 3
+    if len(values) != 3 or not all(valid(v) for v in values):
+        raise click.BadParameter(f"{text!r}: give {example}")
     return values
 
 
 def parse_size(text: str) -> tuple:
     """'2' or '2,1,1' -> per-axis factors of the training size."""
-    try:
-        factors = tuple(float(v) for v in text.split(","))
-    except ValueError:
-        raise click.BadParameter(f"{text!r} is not a factor like 2 or 2,1,0.5") from None
-    if len(factors) == 1:
-        factors *= 3
-    if len(factors) != 3 or not all(0 < f < float("inf") for f in factors):
-        raise click.BadParameter(f"{text!r}: give one or three positive factors, like 2 or 2,1,0.5")
-    return factors
+    return parse_triple(text, lambda f: 0 < f < float("inf"), "one or three positive factors, like 2 or 2,1,0.5")
 
 
-def named_output(output: Path, **fields) -> Path:
-    """Fill {seed}-style fields in an output name, or add them before the suffix."""
-    if "{" in output.name:
-        try:
-            return output.with_name(output.name.format(**fields))
-        except (KeyError, IndexError, ValueError):
-            raise click.BadParameter(f"{output.name}: only {', '.join('{' + k + '}' for k in fields)} "
-                                     "can be filled in") from None
-    tag = "_".join(f"{key}{value}" for key, value in fields.items())
-    return output.with_name(f"{output.stem}_{tag}{output.suffix}")
-
-
-def progress_bar(length: int, label: str):
-    """A progress bar on stderr, shown only on a terminal and for more than one step."""
-    return click.progressbar(length=length, label=label, file=sys.stderr,
-                             hidden=length < 2 or not sys.stderr.isatty())
+def parse_fractions(text: str) -> tuple:
+    """'0.5,0.7,1' -> three numbers in [0, 1]."""
+    return parse_triple(text, lambda v: 0 <= v <= 1, "three fractions in [0, 1], like 0.5,0.7,1")
 
 
 MODEL_ARGUMENT = click.argument("model", required=False)
