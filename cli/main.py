@@ -181,6 +181,24 @@ def parse_fractions(text: str) -> tuple:
     return parse_triple(text, lambda v: 0 <= v <= 1, "three fractions in [0, 1], like 0.5,0.7,1")
 
 
+def named_output(output: Path, **fields) -> Path:
+    """Fill {seed}-style fields in an output name, or add them before the suffix."""
+    if "{" in output.name:
+        try:
+            return output.with_name(output.name.format(**fields))
+        except (KeyError, IndexError, ValueError):
+            raise click.BadParameter(f"{output.name}: only {', '.join('{' + k + '}' for k in fields)} "
+                                     "can be filled in") from None
+    tag = "_".join(f"{key}{value}" for key, value in fields.items())
+    return output.with_name(f"{output.stem}_{tag}{output.suffix}")
+
+
+def progress_bar(length: int, label: str):
+    """A progress bar on stderr, shown only on a terminal and for more than one step."""
+    return click.progressbar(length=length, label=label, file=sys.stderr,
+                             hidden=length < 2 or not sys.stderr.isatty())
+
+
 MODEL_ARGUMENT = click.argument("model", required=False)
 THREADS_OPTION = click.option("--threads", type=int, default=None,
                               help="onnxruntime threads per stage. Default: all cores.")
