@@ -108,6 +108,9 @@ def test_ctrl_c_saves_a_checkpoint_and_says_how_to_resume(tiny_pyramid, tmp_path
         [sys.executable, "-c", "from sinshape.cli.main import main; main()", "train", str(tiny_pyramid),
          "-o", str(out), "--preset", "tiny", "--iters", "100000"],
         stderr=subprocess.PIPE, text=True,
+        # A shell starts background jobs with SIGINT ignored, and Python keeps an
+        # ignored SIGINT: give the child the default, as a terminal would.
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
     for line in process.stderr:  # wait until training is under way
         if "level 1/2" in line and "/100000" in line:
