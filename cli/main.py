@@ -363,11 +363,9 @@ def read_mesh(path: Path):
 
 def crop(mesh, zoom: float, focus: tuple):
     """The faces whose centres lie in a box 1/zoom the size of the bounding
-    box, centred at `focus` (fractions of the bounding box per axis)."""
+    box (zoom >= 1), centred at `focus` (fractions of the bounding box per axis)."""
     import numpy as np
 
-    if zoom < 1:
-        raise InputError(f"--zoom must be 1 or more, got {zoom}")
     if zoom == 1:
         return mesh
     centre = mesh.bounds[0] + np.asarray(focus) * mesh.extents
@@ -417,7 +415,11 @@ def render(inputs, output, seeds, recon, scale, size, smooth, views, up, columns
     write.check_writable(output)
     if views < 1 or columns < 1 or image_size < 16:
         raise click.UsageError("--views and --columns must be at least 1, --image-size at least 16")
-    factors = parse_size(size)
+    if zoom < 1:
+        raise InputError(f"--zoom must be 1 or more, got {zoom}")
+    # Every option is checked before the first model is sampled.
+    factors, focus = parse_size(size), parse_fractions(focus)
+    chosen = ([None] if recon else []) + parse_seeds(seeds)
     shapes, labels = [], []
     for item in inputs:
         path = Path(item)
@@ -426,14 +428,13 @@ def render(inputs, output, seeds, recon, scale, size, smooth, views, up, columns
             labels.append(path.name)
             continue
         model = open_model(item, threads)
-        for seed in ([None] if recon else []) + parse_seeds(seeds):
+        for seed in chosen:
             triplane = generate.sample(model, seed, factors if seed is not None else (1, 1, 1))
             shapes.append(mesh.extract(model, triplane, scale, smooth=smooth))
             label = "reconstruction" if seed is None else f"seed {seed}"
             if seed is not None and factors != (1, 1, 1):
                 label += ", size " + "x".join(f"{f:g}" for f in factors)
             labels.append(label if scale == 1 else f"{label}, scale {scale:g}")
-    focus = parse_fractions(focus)
     shapes = [crop(shape, zoom, focus) for shape in shapes]
     options = dict(up=up, size=(image_size, image_size))
     if views > 1:
