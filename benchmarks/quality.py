@@ -40,7 +40,7 @@ with torch.no_grad():
         rng = torch.Generator().manual_seed(seed)
         z0 = torch.from_numpy(noise.z0_noise(seed, sizes[0]))[None, None]
         noises = [None] + [[amps[i] * torch.randn((1, 1, *sizes[i]), generator=rng)] for i in range(1, len(sizes))]
-        volumes.append(generator(z0, noises, sizes).numpy() > 0.5)
+        volumes.append(generator(z0, noises, sizes)[0].numpy() > 0.5)
 sampled = time.perf_counter()
 lp = evaluate.lp_metrics(volumes, truth)
 print(json.dumps({"lp_iou": lp["lp_iou"], "lp_f": lp["lp_f"], "diversity": evaluate.diversity(volumes),

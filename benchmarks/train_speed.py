@@ -46,6 +46,10 @@ def concat_decode(decoder, planes) -> torch.Tensor:
 class StraightforwardTrainer(train.Trainer):
     """The same training, computed as the authors' code computes it."""
 
+    def __init__(self, config, pyramid):
+        super().__init__(config, pyramid)
+        self.critic.forward = self.critic.net  # plain PyTorch kernel choice
+
     def fake(self, inputs, noise_planes):
         gen = self.generator
         planes = gen.levels[0](inputs) if self.level == 0 else gen.step(inputs, self.level, self.sizes[self.level], noise_planes)
@@ -56,8 +60,9 @@ class StraightforwardTrainer(train.Trainer):
         for _ in range(c.d_steps):
             z0, noises = self.random_noises(level)
             fake = self.fake(self.inputs(z0, noises), noises[level] if level else None)[None, None]
+            alpha = torch.rand(1, generator=self.rng)
             loss_d = self.critic(fake.detach()).mean() - self.critic(real).mean() \
-                + c.gp_weight * self.gradient_penalty(real, fake.detach())
+                + c.gp_weight * self.gradient_penalty(real, fake.detach(), alpha)
             self.opt_d.zero_grad()
             loss_d.backward()
             self.opt_d.step()
@@ -66,7 +71,8 @@ class StraightforwardTrainer(train.Trainer):
             z0, noises = self.random_noises(level)
             fake = self.fake(self.inputs(z0, noises), noises[level] if level else None)
             loss_adv = -self.critic(fake[None, None]).mean()
-            loss_rec = F.mse_loss(self.fake(recon_inputs, None), real[0, 0])
+            rec_inputs = self.inputs(self.z0_recon, None) if level == 0 else recon_inputs
+            loss_rec = F.mse_loss(self.fake(rec_inputs, None), real[0, 0])
             self.opt_g.zero_grad()
             (loss_adv + c.rec_weight * loss_rec).backward()
             self.opt_g.step()

@@ -31,7 +31,7 @@ def test_plane_resize_matches_the_runtime():
 def test_decoder_first_layer_trick_equals_the_whole_mlp():
     decoder = networks.Decoder(32, 32)
     planes = [torch.randn(1, 32, *s) for s in networks.plane_sizes((9, 7, 5))]
-    grid = decoder.grid(planes)
+    grid = decoder.grid(planes)[0]
     axes = [torch.linspace(-1, 1, n) for n in (9, 7, 5)]
     coords = torch.stack(torch.meshgrid(*axes, indexing="ij"), dim=-1).reshape(-1, 3)
     with torch.no_grad():
@@ -59,7 +59,7 @@ def test_generator_keeps_sizes_through_levels():
     noises = [None] + [[torch.randn(1, 32, *s) for s in networks.plane_sizes(size)] for size in sizes[1:]]
     with torch.no_grad():
         occupancy = gen(torch.randn(1, 1, *sizes[0]), noises, sizes)
-    assert occupancy.shape == sizes[-1]
+    assert occupancy.shape == (1, *sizes[-1])
     assert occupancy.min() >= 0 and occupancy.max() <= 1
 
 
@@ -70,3 +70,49 @@ def test_grid_head_gradients_are_exact(monkeypatch):
     inputs = [torch.randn(s, generator=gen, dtype=torch.float64, requires_grad=True) for s in shapes]
     assert len(networks.GridHead.slabs(inputs[0], inputs[2])) > 1
     assert torch.autograd.gradcheck(networks.GridHead.apply, inputs)
+
+
+@pytest.mark.parametrize("kind", ["triplane", "voxel"])
+def test_a_batch_gives_each_sample_as_alone(kind):
+    """Training runs several samples as one batch; each must come out as it
+    would on its own (InstanceNorm is per sample, the decoder per grid)."""
+    torch.manual_seed(0)
+    gen = networks.make_generator(kind, 8, 4, 8)
+    sizes = [(15, 15, 16), (20, 18, 21)]
+    for _ in sizes:
+        gen.add_level()
+    z0 = torch.randn(3, 1, *sizes[0])
+    noise = [torch.randn(3, *shape[1:]) for shape in gen.noise_shapes(sizes[1])]
+    with torch.no_grad():
+        batch = gen.output(gen.inputs(z0, [None, noise], sizes, 1), 1, sizes[1], noise)
+        alone = [gen.output(gen.inputs(z0[i:i + 1], [None, [n[i:i + 1] for n in noise]], sizes, 1), 1,
+                            sizes[1], [n[i:i + 1] for n in noise]) for i in range(3)]
+    assert batch.shape == (3, *sizes[1])
+    np.testing.assert_allclose(batch.numpy(), torch.cat(alone).numpy(), atol=1e-5)
+    assert (batch[0] - batch[1]).abs().max() > 1e-3  # the samples differ
+
+
+def test_critic_avoids_the_slow_kernel_with_the_same_values_and_gradients():
+    critic = networks.Discriminator(8)
+    volume = torch.rand(1, 1, 24, 15, 17, requires_grad=True)
+    with torch.profiler.profile(record_shapes=True) as profile:
+        scores = critic(volume)
+        (grad,) = torch.autograd.grad(scores.sum(), volume, create_graph=True)
+        grad.square().sum().backward()
+    # (batch, channels) of the inputs that took the slow kernel: only 1-channel
+    # ones (cheap) may remain, none of the multi-channel convolutions.
+    slow = [tuple(e.input_shapes[0][:2]) for e in profile.events() if e.name == "aten::slow_conv3d_forward"]
+    assert all(channels == 1 for _, channels in slow)
+    assert any(e.name == "aten::mkldnn_convolution" for e in profile.events())
+    weight_grads = [p.grad.clone() for p in critic.parameters() if p.grad is not None]
+
+    critic.zero_grad()
+    plain = critic.net(volume)  # PyTorch's own kernel choice
+    (plain_grad,) = torch.autograd.grad(plain.sum(), volume, create_graph=True)
+    plain_grad.square().sum().backward()
+    torch.testing.assert_close(scores, plain)
+    torch.testing.assert_close(grad, plain_grad)
+    theirs = [p.grad for p in critic.parameters() if p.grad is not None]
+    assert len(weight_grads) == len(theirs) == 3
+    for ours, plain_weight_grad in zip(weight_grads, theirs):
+        torch.testing.assert_close(ours, plain_weight_grad, rtol=1e-4, atol=1e-5)

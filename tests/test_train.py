@@ -103,6 +103,6 @@ def test_voxel_baseline_trains_and_resumes(tmp_path, tiny_pyramid):
     noises = [None, [amps[1] * torch.randn(1, 1, *sizes[1])]]
     with torch.no_grad():
         volume = generator(torch.randn(1, 1, *sizes[0]), noises, sizes)
-    assert volume.shape == sizes[1] and -0.01 < volume.min() and volume.max() < 1.01
+    assert volume.shape == (1, *sizes[1]) and -0.01 < volume.min() and volume.max() < 1.01
     with pytest.raises(InputError, match="checkpoint"):
         train.train(tiny_pyramid, tmp_path / "b.onnx", make_config("tiny", generator="voxel"))

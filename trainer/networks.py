@@ -4,7 +4,9 @@ the shared MLP decoder, and the 3-D discriminator.
 Conventions shared with the runtime (docs/FORMAT.md):
 - A level's grid is (X, Y, Z). Its planes, in this order, are xy (X, Y),
   xz (X, Z) and yz (Y, Z); plane k drops axis 2 - k.
-- Plane tensors are (1, C, H, W); grids are (X, Y, Z) or (1, 1, X, Y, Z).
+- Plane tensors are (B, C, H, W); occupancy grids are (B, X, Y, Z), volumes
+  (B, 1, X, Y, Z). Training batches independent samples (the critic steps'
+  fakes, a fake with the reconstruction); export and sampling use B = 1.
 - The decoder's feature of a point concatenates its xy, xz, yz features.
 
 Networks take plain ints; nothing here reads a config.
@@ -57,17 +59,17 @@ class Projection(nn.Module):
         self.convs = nn.ModuleList(nn.Conv2d(bins, channels, 1) for _ in PLANES)
 
     def pool(self, volume: torch.Tensor) -> list:
-        """volume : (1, 1, X, Y, Z) -> [(1, bins, X, Y), (1, bins, X, Z), (1, bins, Y, Z)].
+        """volume : (B, 1, X, Y, Z) -> [(B, bins, X, Y), (B, bins, X, Z), (B, bins, Y, Z)].
 
         Bin k of n covers floor(k n / bins) .. ceil((k + 1) n / bins), exactly
         torch's adaptive average pooling.
         """
         x, y, z = volume.shape[-3:]
         b = self.bins
-        xy = F.adaptive_avg_pool3d(volume, (x, y, b))[0, 0].permute(2, 0, 1)  # (b, X, Y)
-        xz = F.adaptive_avg_pool3d(volume, (x, b, z))[0, 0].permute(1, 0, 2)  # (b, X, Z)
-        yz = F.adaptive_avg_pool3d(volume, (b, y, z))[0, 0]  # (b, Y, Z)
-        return [xy[None], xz[None], yz[None]]
+        xy = F.adaptive_avg_pool3d(volume, (x, y, b))[:, 0].permute(0, 3, 1, 2)  # (B, b, X, Y)
+        xz = F.adaptive_avg_pool3d(volume, (x, b, z))[:, 0].permute(0, 2, 1, 3)  # (B, b, X, Z)
+        yz = F.adaptive_avg_pool3d(volume, (b, y, z))[:, 0]  # (B, b, Y, Z)
+        return [xy, xz, yz]
 
     def forward(self, volume: torch.Tensor) -> list:
         return [conv(p) for conv, p in zip(self.convs, self.pool(volume))]
@@ -90,21 +92,24 @@ class Decoder(nn.Module):
         self.fc2 = nn.Linear(hidden, 1)
 
     def project_planes(self, planes: list) -> list:
-        """[(1, C, H, W)] * 3 -> [(H, W, hidden)] * 3: each plane times its W_k."""
+        """[(B, C, H, W)] * 3 -> [(B, H, W, hidden)] * 3: each plane times its W_k."""
         weights = self.fc1.weight.split(self.channels, dim=1)  # 3 x (hidden, C)
-        return [torch.einsum("chw,oc->hwo", plane[0], w) for plane, w in zip(planes, weights)]
+        return [torch.einsum("bchw,oc->bhwo", plane, w) for plane, w in zip(planes, weights)]
 
     def grid(self, planes: list) -> torch.Tensor:
         """Occupancy at the planes' own resolution: voxel (x, y, z) reads plane
-        cells xy[x, y], xz[x, z], yz[y, z]. Returns (X, Y, Z)."""
+        cells xy[x, y], xz[x, z], yz[y, z]. Returns (B, X, Y, Z)."""
         pxy, pxz, pyz = self.project_planes(planes)
-        return GridHead.apply(pxy + self.fc1.bias, pxz, pyz, self.fc2.weight, self.fc2.bias)
+        pxy = pxy + self.fc1.bias
+        return torch.stack([GridHead.apply(pxy[b], pxz[b], pyz[b], self.fc2.weight, self.fc2.bias)
+                            for b in range(len(pxy))])
 
     def points(self, planes: list, coords: torch.Tensor) -> torch.Tensor:
         """Occupancy at arbitrary points, the straightforward way: sample each
         plane bilinearly (align_corners=True) and run the whole MLP.
 
-        coords : (n, 3) in [-1, 1] (grid corner to corner) -> (n,) occupancy.
+        planes of one sample (B = 1); coords : (n, 3) in [-1, 1] (grid corner
+        to corner) -> (n,) occupancy.
         """
         features = []
         for plane, (a, b) in zip(planes, ((0, 1), (0, 2), (1, 2))):
@@ -196,7 +201,7 @@ class TriplaneGenerator(nn.Module):
         return level
 
     def start(self, z0: torch.Tensor) -> list:
-        """z0 : (1, 1, X, Y, Z) -> T_0, the coarsest tri-plane."""
+        """z0 : (B, 1, X, Y, Z) -> T_0, the coarsest tri-plane."""
         return self.levels[0](self.projection(z0))
 
     def step(self, planes: list, level: int, size: tuple, noise: list | None) -> list:
@@ -218,12 +223,12 @@ class TriplaneGenerator(nn.Module):
         return planes
 
     def forward(self, z0: torch.Tensor, noises: list, sizes: list, upto: int | None = None) -> torch.Tensor:
-        """Occupancy (X, Y, Z) of level `upto`'s grid (default: the last level)."""
+        """Occupancy (B, X, Y, Z) of level `upto`'s grid (default: the last level)."""
         return self.decoder.grid(self.planes(z0, noises, sizes, upto))
 
     # The interface the trainer uses, shared with VoxelGenerator.
     def noise_shapes(self, size: tuple) -> list:
-        """Shapes of one level's noise: a C-channel map per plane."""
+        """Shapes of one sample's noise at a level: a C-channel map per plane."""
         return [(1, self.channels, *s) for s in plane_sizes(size)]
 
     def inputs(self, z0: torch.Tensor, noises: list, sizes: list, level: int) -> list:
@@ -235,7 +240,7 @@ class TriplaneGenerator(nn.Module):
             return self.planes(z0, noises, sizes, upto=level - 1)
 
     def output(self, inputs: list, level: int, size: tuple, noise: list | None) -> torch.Tensor:
-        """Level `level`'s occupancy (X, Y, Z) from its inputs and scaled noise."""
+        """Level `level`'s occupancy (B, X, Y, Z) from its inputs and scaled noise."""
         planes = self.levels[0](inputs) if level == 0 else self.step(inputs, level, size, noise)
         return self.decoder.grid(planes)
 
@@ -288,7 +293,7 @@ class VoxelGenerator(nn.Module):
         return [(1, 1, *size)]
 
     def volume(self, z0, noises, sizes, upto: int) -> torch.Tensor:
-        """(1, 1, X, Y, Z) output of level `upto`."""
+        """(B, 1, X, Y, Z) output of level `upto`."""
         volume = self.levels[0](z0, torch.zeros_like(z0))
         for level in range(1, upto + 1):
             volume = self.output_volume(volume, level, sizes[level], noises[level])
@@ -299,7 +304,7 @@ class VoxelGenerator(nn.Module):
         return self.levels[level](torch.zeros_like(upsampled) if noise is None else noise[0], upsampled)
 
     def forward(self, z0, noises, sizes, upto: int | None = None) -> torch.Tensor:
-        return self.volume(z0, noises, sizes, len(self.levels) - 1 if upto is None else upto)[0, 0]
+        return self.volume(z0, noises, sizes, len(self.levels) - 1 if upto is None else upto)[:, 0]
 
     def inputs(self, z0, noises, sizes, level: int):
         """z0 at level 0, else the frozen levels' volume (no gradients)."""
@@ -310,8 +315,8 @@ class VoxelGenerator(nn.Module):
 
     def output(self, inputs, level: int, size: tuple, noise) -> torch.Tensor:
         if level == 0:
-            return self.levels[0](inputs, torch.zeros_like(inputs))[0, 0]
-        return self.output_volume(inputs, level, size, noise)[0, 0]
+            return self.levels[0](inputs, torch.zeros_like(inputs))[:, 0]
+        return self.output_volume(inputs, level, size, noise)[:, 0]
 
     def trained_modules(self, level: int) -> list:
         return [self.levels[level]]
@@ -345,4 +350,26 @@ class Discriminator(nn.Module):
 
     def forward(self, volume: torch.Tensor) -> torch.Tensor:
         """volume : (B, 1, X, Y, Z) -> (B, 1, x, y, z) scores."""
-        return self.net(volume)
+        for layer in self.net:
+            volume = on_fast_kernel(layer, volume) if isinstance(layer, nn.Conv3d) else layer(volume)
+        return volume
+
+
+# PyTorch (aten's use_mkldnn rule) runs a batch-1 float32 convolution with
+# stride 1 and a kernel of at most 3 on its generic slow_conv kernel, not
+# oneDNN, when batch * channels * the first two spatial sides is at most this.
+SLOW_KERNEL_LIMIT = 20480
+
+
+def on_fast_kernel(conv: nn.Module, x: torch.Tensor) -> torch.Tensor:
+    """conv(x), sent to oneDNN where PyTorch would pick its slow kernel.
+
+    The critic's batch-1 calls (generator steps, gradient penalty) at levels
+    below about 90x25x40 fall under the rule, and that kernel is several
+    times slower than oneDNN here (benchmarks/train_speed.py). A detached copy
+    makes the batch 2, which takes oneDNN; the copy's output is dropped, so
+    values and gradients are those of conv(x).
+    """
+    slow = (x.device.type == "cpu" and x.dtype == torch.float32 and x.shape[0] == 1
+            and conv.stride == (1,) * len(conv.stride) and x.shape[:4].numel() <= SLOW_KERNEL_LIMIT)
+    return conv(torch.cat([x, x.detach()]))[:1] if slow else conv(x)

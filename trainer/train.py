@@ -132,43 +132,56 @@ class Trainer:
 
     def reconstruct(self, level: int) -> torch.Tensor:
         """Occupancy (X, Y, Z) at `level` for z0* and zero later noise."""
-        return self.generator(self.z0_recon, [None] * (level + 1), self.sizes, upto=level)
+        return self.generator(self.z0_recon, [None] * (level + 1), self.sizes, upto=level)[0]
 
     def inputs(self, z0, noises):
         """What the trained level builds on (frozen levels: no gradients)."""
         return self.generator.inputs(z0, noises, self.sizes, self.level)
 
     def fake(self, inputs, noise) -> torch.Tensor:
-        """This level's occupancy (X, Y, Z)."""
+        """This level's occupancy (B, X, Y, Z)."""
         return self.generator.output(inputs, self.level, self.sizes[self.level], noise)
 
     # -- one iteration -------------------------------------------------------
     def iterate(self, recon_inputs) -> dict:
-        """(1) update D `d_steps` times, (2) update G `g_steps` times."""
+        """(1) update D `d_steps` times, (2) update G `g_steps` times.
+
+        Samples that go through the same network state share one batch (the
+        same values, fewer and larger kernel calls): the frozen levels' output
+        for every draw of the iteration, the critic steps' fakes (G does not
+        change during them), and each generator step's fake with the
+        reconstruction. Random draws are made in the order they are used.
+        """
         c, level, real = self.config, self.level, self.targets[self.level]
         critic = self.critic
+        d_draws = [(*self.random_noises(level), torch.rand(1, generator=self.rng)) for _ in range(c.d_steps)]
+        g_draws = [self.random_noises(level) for _ in range(c.g_steps)]
+        z0, noises = cat_draws([draw[:2] for draw in d_draws] + g_draws)
+        noise = noises[level]  # (d_steps + g_steps) samples; None at level 0
+        with torch.no_grad():
+            inputs = self.inputs(z0, noises)
+            fakes = self.fake(take(inputs, slice(0, c.d_steps)), take(noise, slice(0, c.d_steps)))
 
         # (1) Update D: minimise D(fake) - D(real) + gp_weight * GP.
         critic.requires_grad_(True)
-        for _ in range(c.d_steps):
-            with torch.no_grad():
-                z0, noises = self.random_noises(level)
-                fake = self.fake(self.inputs(z0, noises), noises[level] if level else None)[None, None]
+        for fake, (_, _, alpha) in zip(fakes[:, None, None], d_draws):
             scores = critic(torch.cat([real, fake]))
             d_real, d_fake = scores[0].mean(), scores[1].mean()
-            loss_d = d_fake - d_real + c.gp_weight * self.gradient_penalty(real, fake)
+            loss_d = d_fake - d_real + c.gp_weight * self.gradient_penalty(real, fake, alpha)
             self.opt_d.zero_grad(set_to_none=True)
             loss_d.backward()
             self.opt_d.step()
 
         # (2) Update G: minimise -D(fake) + rec_weight * MSE(rec, real).
         critic.requires_grad_(False)
-        for _ in range(c.g_steps):
-            z0, noises = self.random_noises(level)
-            fake = self.fake(self.inputs(z0, noises), noises[level] if level else None)
+        for i in range(c.d_steps, c.d_steps + c.g_steps):
+            one = slice(i, i + 1)
+            if level == 0:  # P trains with G_0: both samples start from their z0
+                fake, rec = self.fake(self.inputs(torch.cat([z0[one], self.z0_recon]), None), None)
+            else:  # the reconstruction's frozen input is cached, its noise is zero
+                pair = cat_batch([take(inputs, one), recon_inputs])
+                fake, rec = self.fake(pair, [torch.cat([n[one], torch.zeros_like(n[one])]) for n in noise])
             loss_adv = -critic(fake[None, None]).mean()
-            # Level 0's inputs train with it; above, the frozen levels' are cached.
-            rec = self.fake(self.inputs(self.z0_recon, None) if level == 0 else recon_inputs, None)
             loss_rec = F.mse_loss(rec, real[0, 0])
             loss_g = loss_adv + c.rec_weight * loss_rec
             self.opt_g.zero_grad(set_to_none=True)
@@ -177,14 +190,13 @@ class Trainer:
         critic.requires_grad_(True)
         return {"D": loss_d.item(), "G": loss_adv.item(), "rec": loss_rec.item()}
 
-    def gradient_penalty(self, real, fake) -> torch.Tensor:
-        """WGAN-GP on one random mix of real and fake.
+    def gradient_penalty(self, real, fake, alpha) -> torch.Tensor:
+        """WGAN-GP on the mix alpha * real + (1 - alpha) * fake.
 
         As the authors' code does, the norm is taken over the channel axis,
         which has size 1: the penalty is mean((|dD/dx| - 1)^2) per voxel, of
         the gradient of the score map's sum.
         """
-        alpha = torch.rand(1, generator=self.rng)
         mixed = (alpha * real + (1 - alpha) * fake).requires_grad_(True)
         (grad,) = torch.autograd.grad(self.critic(mixed).sum(), mixed, create_graph=True)
         return ((grad.abs() - 1) ** 2).mean()
@@ -226,6 +238,28 @@ class Trainer:
             self.make_optimizers()
             self.opt_g.load_state_dict(state["opt_g"])
             self.opt_d.load_state_dict(state["opt_d"])
+
+
+def cat_batch(items: list):
+    """Samples joined along the batch axis: tensors, or tri-planes (lists of 3)."""
+    if isinstance(items[0], torch.Tensor):
+        return torch.cat(items)
+    return [torch.cat(planes) for planes in zip(*items)]
+
+
+def take(batch, index: slice):
+    """Some samples of a batch: a tensor, tri-planes (a list of 3), or None."""
+    if batch is None or isinstance(batch, torch.Tensor):
+        return None if batch is None else batch[index]
+    return [planes[index] for planes in batch]
+
+
+def cat_draws(draws: list) -> tuple:
+    """[(z0, noises)] of single samples -> one (z0, noises) batch."""
+    z0 = torch.cat([z0 for z0, _ in draws])
+    noises = [None if level[0] is None else cat_batch(list(level))
+              for level in zip(*(noises for _, noises in draws))]
+    return z0, noises
 
 
 def count_levels(generator_state: dict) -> int:
