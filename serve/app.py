@@ -129,6 +129,7 @@ class Sampler:
         self.cache = OrderedDict()  # SampleRequest -> Sample, least recently used first
         self.cache_bytes, self.cache_entries, self.cached_bytes = cache_bytes, cache_entries, 0
         self.pending = {}  # SampleRequest -> asyncio.Task
+        self.running = self.most_running = 0  # samples being made now, and at most so far
 
     async def get(self, model, request: SampleRequest) -> tuple:
         """(Sample, True if it came from the cache)."""
@@ -151,9 +152,10 @@ class Sampler:
             raise HTTPException(503, f"busy: no sampling slot came free within {self.timeout:g} s; "
                                      "try again later") from None
         cancel = threading.Event()
+        self.running += 1
+        self.most_running = max(self.most_running, self.running)
         future = loop.run_in_executor(self.pool, make_sample, model, request, cancel)
-        # The slot is freed when the thread ends, not when the request gives up on it.
-        future.add_done_callback(lambda f: (self.slots.release(), f.cancelled() or f.exception()))
+        future.add_done_callback(self.finished)
         try:
             result = await asyncio.wait_for(asyncio.shield(future), max(0.0, deadline - loop.time()))
         except asyncio.TimeoutError:
@@ -162,6 +164,13 @@ class Sampler:
                                      "ask for a smaller size or scale") from None
         self.store(request, result)
         return result
+
+    def finished(self, future) -> None:
+        """The slot is freed when the thread ends, not when the request gives up on it."""
+        self.running -= 1
+        self.slots.release()
+        if not future.cancelled():
+            future.exception()  # retrieved, so a cut-off request's Cancelled is not logged as lost
 
     def store(self, request: SampleRequest, result: Sample) -> None:
         if len(result.body) > self.cache_bytes // 4:
@@ -260,8 +269,9 @@ def create_app(loaded: dict, slots: int | None = None, timeout: float = 60.0,
     @app.get("/health", summary="Liveness: the server answers and how busy it is")
     async def health(request: Request):
         sampler = request.app.state.sampler
-        return {"status": "ok", "models": len(loaded), "cached_files": len(sampler.cache),
-                "cached_bytes": sampler.cached_bytes, "in_flight": len(sampler.pending)}
+        return {"status": "ok", "models": len(loaded), "slots": slots, "sampling": sampler.running,
+                "most_sampling": sampler.most_running, "in_flight": len(sampler.pending),
+                "cached_files": len(sampler.cache), "cached_bytes": sampler.cached_bytes}
 
     @app.get("/api/models", summary="The models this server samples")
     async def list_models():
