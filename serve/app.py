@@ -33,6 +33,7 @@ from fastapi import FastAPI, HTTPException, Query, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
+from pydantic import BaseModel
 
 from sinshape import models as shipped
 from sinshape.runtime import generate, load, mesh, query, write
@@ -43,6 +44,27 @@ Format = Literal["glb", "ply", "obj", "stl", "off", "npz"]
 MEDIA_TYPES = {"glb": "model/gltf-binary", "obj": "model/obj", "stl": "model/stl"}  # others: octet-stream
 MAX_SMOOTH = 100  # smoothing cannot be interrupted; this bounds it
 log = logging.getLogger("sinshape.serve")
+
+
+class Detail(BaseModel):
+    """Every error's body."""
+
+    detail: str
+
+
+def errors(*statuses) -> dict:
+    """OpenAPI descriptions of a route's error answers (422 replaces FastAPI's list form)."""
+    meaning = {400: "a value the runtime refuses", 404: "no such model", 413: "over the memory limit",
+               422: "a value of the wrong type or range", 503: "no sampling slot free in time",
+               504: "over the time limit"}
+    return {status: {"model": Detail, "description": meaning[status]} for status in statuses}
+
+
+FILE_ANSWERS = {
+    200: {"description": "The file", "content": {t: {} for t in [*MEDIA_TYPES.values(), "application/octet-stream"]}},
+    304: {"description": "Not modified: If-None-Match named its ETag"},
+    **errors(400, 404, 413, 422, 503, 504),
+}
 
 
 @dataclass(frozen=True)
@@ -130,6 +152,7 @@ class Sampler:
         self.cache_bytes, self.cache_entries, self.cached_bytes = cache_bytes, cache_entries, 0
         self.pending = {}  # SampleRequest -> asyncio.Task
         self.running = self.most_running = 0  # samples being made now, and at most so far
+        self.cancels = set()  # one Event per sample being made
 
     async def get(self, model, request: SampleRequest) -> tuple:
         """(Sample, True if it came from the cache)."""
@@ -152,10 +175,11 @@ class Sampler:
             raise HTTPException(503, f"busy: no sampling slot came free within {self.timeout:g} s; "
                                      "try again later") from None
         cancel = threading.Event()
+        self.cancels.add(cancel)
         self.running += 1
         self.most_running = max(self.most_running, self.running)
         future = loop.run_in_executor(self.pool, make_sample, model, request, cancel)
-        future.add_done_callback(self.finished)
+        future.add_done_callback(lambda f: self.finished(f, cancel))
         try:
             result = await asyncio.wait_for(asyncio.shield(future), max(0.0, deadline - loop.time()))
         except asyncio.TimeoutError:
@@ -165,8 +189,9 @@ class Sampler:
         self.store(request, result)
         return result
 
-    def finished(self, future) -> None:
+    def finished(self, future, cancel: threading.Event) -> None:
         """The slot is freed when the thread ends, not when the request gives up on it."""
+        self.cancels.discard(cancel)
         self.running -= 1
         self.slots.release()
         if not future.cancelled():
@@ -182,6 +207,9 @@ class Sampler:
             self.cached_bytes -= len(dropped.body)
 
     def close(self) -> None:
+        """Stop: samples being made stop at their next slab, queued ones never start."""
+        for cancel in self.cancels:
+            cancel.set()
         self.pool.shutdown(wait=False, cancel_futures=True)
 
 
@@ -278,12 +306,13 @@ def create_app(loaded: dict, slots: int | None = None, timeout: float = 60.0,
         return [{"name": name, "size": list(m.manifest.sizes[-1]), "levels": len(m.manifest.sizes),
                  "training_input": m.manifest.raw.get("source", {}).get("name")} for name, m in loaded.items()]
 
-    @app.get("/api/models/{name}", summary="One model's manifest: levels, sizes, training input, config")
+    @app.get("/api/models/{name}", summary="One model's manifest: levels, sizes, training input, config",
+             responses=errors(404))
     async def describe(name: str):
         return summary(name, find(name))
 
     @app.get("/api/models/{name}/sample", summary="One sample as a file",
-             response_class=Response, responses={200: {"content": {t: {} for t in MEDIA_TYPES.values()}}})
+             response_class=Response, responses=FILE_ANSWERS)
     async def sample(
         request: Request,
         name: str,
@@ -302,7 +331,8 @@ def create_app(loaded: dict, slots: int | None = None, timeout: float = 60.0,
                    "Content-Disposition": f'attachment; filename="{wanted.filename()}"'}
         if made.faces is not None:
             headers["X-Faces"] = str(made.faces)
-        if made.etag in [tag.strip() for tag in request.headers.get("if-none-match", "").split(",")]:
+        known = [tag.strip().removeprefix("W/") for tag in request.headers.get("if-none-match", "").split(",")]
+        if made.etag in known:
             return Response(status_code=304, headers=headers)
         return Response(made.body, media_type=MEDIA_TYPES.get(format, "application/octet-stream"), headers=headers)
 
