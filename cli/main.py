@@ -572,7 +572,8 @@ def serve(model_names, host, port, timeout, threads):
     click.echo(f"serving {', '.join(loaded)} at http://{shown}:{port}/ (no authentication"
                f"{'; loopback only' if host in ('127.0.0.1', '::1', 'localhost') else '; reachable from the network'})"
                " - Ctrl-C stops", err=True)
-    server = uvicorn.Server(uvicorn.Config(app.create_app(loaded, timeout=timeout), log_level="warning"))
+    server = uvicorn.Server(uvicorn.Config(app.create_app(loaded, timeout=timeout), log_level="warning",
+                                          timeout_graceful_shutdown=5))
     server.run(sockets=[sock])
 
 

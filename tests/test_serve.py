@@ -243,6 +243,18 @@ def test_serve_without_the_extra_says_how_to_get_it(monkeypatch):
     assert_one_line_error(CliRunner().invoke(cli, ["serve"]), "pip install 'sinshape[serve]'")
 
 
+def test_models_by_name_or_path_and_every_shipped_one_by_default(tmp_path):
+    from sinshape import models
+    from sinshape.serve import app
+
+    assert list(app.load_models([])) == sorted(models.available())
+    copy = tmp_path / "mine.onnx"
+    copy.write_bytes(models.find("terrain").read_bytes())
+    assert list(app.load_models(["terrain", str(copy)], threads=1)) == ["terrain", "mine"]
+    with pytest.raises(app.InputError, match="two models are called 'terrain'"):
+        app.load_models(["terrain", str(models.find("terrain"))])
+
+
 def test_the_runtime_knows_nothing_about_http():
     runtime = Path(__file__).resolve().parents[1] / "runtime"
     for source in runtime.glob("*.py"):

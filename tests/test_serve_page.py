@@ -26,8 +26,10 @@ def page():
     with running_server("terrain") as (base, _), sync_api.sync_playwright() as playwright:
         browser = playwright.chromium.launch(executable_path=CHROMIUM, args=ARGS)
         page = browser.new_page(viewport={"width": 900, "height": 600}, accept_downloads=True)
-        page.errors = []
+        page.errors, page.outside = [], []
         page.on("pageerror", lambda error: page.errors.append(str(error)))
+        page.route("**/*", lambda route: route.continue_() if route.request.url.startswith(base)
+                   else (page.outside.append(route.request.url), route.abort()))  # offline: no CDN
         page.base = base
         yield page
         browser.close()
@@ -83,7 +85,7 @@ def test_browse_samples_see_errors_and_download(page, tmp_path):
     download.value.save_as(saved)
     mesh = trimesh.load(saved, force="mesh")
     assert len(mesh.faces) == int(page.text_content("#status").split()[0].replace(",", ""))
-    assert not page.errors
+    assert not page.errors and not page.outside
 
 
 def test_the_url_holds_the_state(page):
