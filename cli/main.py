@@ -531,6 +531,52 @@ def evaluate(model, reference, samples, first_seed, scale, upsample, json_path, 
         write.atomic_write(json_path, lambda f: f.write(json.dumps(results, indent=1).encode()))
 
 
+@cli.command()
+@click.argument("model_names", metavar="[MODEL]...", nargs=-1)
+@click.option("--host", default="127.0.0.1", show_default=True,
+              help="Address to listen on. The default, loopback, is reachable from this machine only; "
+                   "another address (0.0.0.0: every interface) exposes the service to the network, "
+                   "and it has no authentication.")
+@click.option("--port", type=click.IntRange(0, 65535), default=8000, show_default=True, help="Port to listen on.")
+@click.option("--timeout", type=click.FloatRange(min=0, min_open=True), default=60.0, show_default=True,
+              help="Seconds a sample request may take before it is answered 504.")
+@THREADS_OPTION
+def serve(model_names, host, port, timeout, threads):
+    """Serve models over HTTP: a JSON API and a page to browse samples in 3-D.
+
+    MODEL is a .onnx file or the name of a shipped model; without any, every
+    shipped model. Open http://HOST:PORT/ in a browser; the API is described
+    at /openapi.json. There is no authentication: anyone who can reach the
+    address can use it, so it listens on loopback unless --host says otherwise.
+    Needs the serve extra: pip install 'sinshape[serve]'.
+    """
+    import socket
+
+    try:
+        import uvicorn
+
+        from sinshape.serve import app
+    except ImportError as error:
+        raise click.ClickException(f"serving needs {error.name}, which is not installed: "
+                                   "pip install 'sinshape[serve]'") from None
+    loaded = app.load_models(model_names, threads)
+    try:  # bind here, so a taken port is one line, not a server's traceback
+        family = socket.AF_INET6 if ":" in host else socket.AF_INET
+        sock = socket.socket(family, socket.SOCK_STREAM)
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        sock.bind((host, port))
+    except (OSError, OverflowError) as error:
+        raise InputError(f"cannot listen on {host}:{port} ({getattr(error, 'strerror', None) or error})") from None
+    port = sock.getsockname()[1]
+    shown = f"[{host}]" if ":" in host else host
+    click.echo(f"serving {', '.join(loaded)} at http://{shown}:{port}/ (no authentication"
+               f"{'; loopback only' if host in ('127.0.0.1', '::1', 'localhost') else '; reachable from the network'})"
+               " - Ctrl-C stops", err=True)
+    server = uvicorn.Server(uvicorn.Config(app.create_app(loaded, timeout=timeout), log_level="warning",
+                                          timeout_graceful_shutdown=5))
+    server.run(sockets=[sock])
+
+
 @cli.command(name="models")
 def list_models():
     """List the shipped models (sample one with `sinrun sample NAME`)."""

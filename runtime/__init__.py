@@ -16,7 +16,7 @@ import importlib
 # importing a light module (runtime.errors, for the CLI's --help) does not
 # pull in onnxruntime, trimesh and scikit-image.
 _EXPORTS = {
-    "InputError": "errors", "Model": "load", "load_model": "load", "TriPlane": "generate",
+    "InputError": "errors", "MemoryLimitError": "errors", "Model": "load", "load_model": "load", "TriPlane": "generate",
     "sample": "generate", "interpolate": "generate", "extract": "mesh", "dense": "query", "points": "query",
 }
 __all__ = sorted(_EXPORTS)

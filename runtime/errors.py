@@ -9,3 +9,8 @@ and exits non-zero; any other exception is a bug and keeps its traceback.
 
 class InputError(ValueError):
     """Bad user input, reported as one line without a traceback."""
+
+
+class MemoryLimitError(InputError):
+    """Work refused up front because it would need more memory than the
+    limit (runtime.generate.MEMORY_LIMIT); the message gives the figure."""

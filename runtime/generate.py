@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import noise
-from .errors import InputError
+from .errors import InputError, MemoryLimitError
 
 # A sample's coarsest grid may not shrink below this many voxels per axis.
 MIN_SIDE = 2
@@ -23,7 +23,7 @@ MEMORY_LIMIT = 4 << 30
 
 def check_memory(needed: int, what: str) -> None:
     if needed > MEMORY_LIMIT:
-        raise InputError(f"{what} needs about {needed / 2**30:.1f} GiB of memory "
+        raise MemoryLimitError(f"{what} needs about {needed / 2**30:.1f} GiB of memory "
                          f"(limit {MEMORY_LIMIT / 2**30:.0f} GiB)")
 
 

@@ -2,7 +2,8 @@
 
 Meshes: .ply .obj .stl .off .glb (trimesh's exporters). Occupancy grids:
 .npz. Every file is written to a temporary name beside the target and then
-renamed, so a crash or Ctrl-C leaves either the old file or the new one.
+renamed, so a crash or Ctrl-C leaves either the old file or the new one;
+mesh_bytes and grid_bytes give the same bytes in memory, to send elsewhere.
 """
 
 import io
@@ -57,14 +58,26 @@ def atomic_write(path, write) -> None:
         tmp.unlink(missing_ok=True)
 
 
+def mesh_bytes(mesh, suffix: str) -> bytes:
+    """A trimesh mesh as the file bytes of a mesh format ('.ply', '.glb', ...)."""
+    data = mesh.export(file_type=MESH_FORMATS[suffix.lower()])
+    return data.encode() if isinstance(data, str) else data
+
+
+def grid_bytes(occupancy: np.ndarray, **fields) -> bytes:
+    """An occupancy grid (and small metadata arrays) as compressed .npz bytes."""
+    buffer = io.BytesIO()
+    np.savez_compressed(buffer, occupancy=occupancy, **{k: np.asarray(v) for k, v in fields.items()})
+    return buffer.getvalue()
+
+
 def write_mesh(mesh, path) -> None:
     """Export a trimesh mesh in the format its extension names."""
-    data = mesh.export(file_type=MESH_FORMATS[Path(path).suffix.lower()])
-    atomic_write(path, lambda f: f.write(data.encode() if isinstance(data, str) else data))
+    data = mesh_bytes(mesh, Path(path).suffix)
+    atomic_write(path, lambda f: f.write(data))
 
 
 def write_grid(occupancy: np.ndarray, path, **fields) -> None:
     """Save an occupancy grid (and small metadata arrays) as compressed .npz."""
-    buffer = io.BytesIO()
-    np.savez_compressed(buffer, occupancy=occupancy, **{k: np.asarray(v) for k, v in fields.items()})
-    atomic_write(path, lambda f: f.write(buffer.getvalue()))
+    data = grid_bytes(occupancy, **fields)
+    atomic_write(path, lambda f: f.write(data))

@@ -1,0 +1,344 @@
+"""The ASGI app: list models, describe one, sample one as a file, and the page.
+
+Routes parse typed query values (a wrong type is a 422 with a one-line
+message before any code runs), call the runtime, and answer. Everything a
+request shares is made once, in the lifespan: the loaded models, a thread
+pool and a semaphore sized to the cores (sampling never runs on the event
+loop), and a bounded LRU cache of finished files keyed by the normalised
+request. A seed stands for the same shape everywhere, so a file's ETag (the
+sha256 of its bytes) is strong and the cache never goes stale.
+
+Errors are JSON {"detail": "one line"}: 422 for a value of the wrong type
+or range, 400 for a value the runtime refuses, 413 for work that would
+exceed the runtime's memory limit (the message gives the figure), 404 for an
+unknown model, 503 when no sampling slot frees up in time, 504 when
+sampling takes longer than the time limit.
+"""
+
+import asyncio
+import hashlib
+import importlib.metadata
+import logging
+import math
+import threading
+import time
+from collections import OrderedDict
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import asynccontextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Literal
+
+from fastapi import FastAPI, HTTPException, Query, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import FileResponse, JSONResponse, Response
+from fastapi.staticfiles import StaticFiles
+from pydantic import BaseModel
+
+from sinshape import models as shipped
+from sinshape.runtime import generate, load, mesh, query, write
+from sinshape.runtime.errors import InputError, MemoryLimitError
+
+STATIC = Path(__file__).parent / "static"
+Format = Literal["glb", "ply", "obj", "stl", "off", "npz"]
+MEDIA_TYPES = {"glb": "model/gltf-binary", "obj": "model/obj", "stl": "model/stl"}  # others: octet-stream
+MAX_SMOOTH = 100  # smoothing cannot be interrupted; this bounds it
+log = logging.getLogger("sinshape.serve")
+
+
+class Detail(BaseModel):
+    """Every error's body."""
+
+    detail: str
+
+
+def errors(*statuses) -> dict:
+    """OpenAPI descriptions of a route's error answers (422 replaces FastAPI's list form)."""
+    meaning = {400: "a value the runtime refuses", 404: "no such model", 413: "over the memory limit",
+               422: "a value of the wrong type or range", 503: "no sampling slot free in time",
+               504: "over the time limit"}
+    return {status: {"model": Detail, "description": meaning[status]} for status in statuses}
+
+
+FILE_ANSWERS = {
+    200: {"description": "The file", "content": {t: {} for t in [*MEDIA_TYPES.values(), "application/octet-stream"]}},
+    304: {"description": "Not modified: If-None-Match named its ETag"},
+    **errors(400, 404, 413, 422, 503, 504),
+}
+
+
+@dataclass(frozen=True)
+class SampleRequest:
+    """A normalised sample request: equal requests give equal bytes."""
+
+    model: str
+    seed: int
+    size: tuple  # (sx, sy, sz) factors of the training size
+    scale: float
+    smooth: int
+    format: str
+
+    def filename(self) -> str:
+        tags = [f"seed{self.seed}"]
+        if self.size != (1.0, 1.0, 1.0):
+            tags.append("size" + "x".join(f"{f:g}" for f in self.size))
+        if self.scale != 1:
+            tags.append(f"scale{self.scale:g}")
+        if self.smooth and self.format != "npz":
+            tags.append(f"smooth{self.smooth}")
+        return f"{self.model}_{'_'.join(tags)}.{self.format}"
+
+
+@dataclass(frozen=True)
+class Sample:
+    """A finished file."""
+
+    body: bytes
+    etag: str  # strong: the sha256 of the body, quoted
+    faces: int | None  # None for an occupancy grid
+    seconds: float  # time it took to make
+
+
+class Cancelled(Exception):
+    """Raised inside a sampling thread whose request ran out of time."""
+
+
+def parse_size(text: str) -> tuple:
+    """'2' or '2,1,0.5' -> three finite positive factors (as `sinrun sample --size`)."""
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) == 1:
+        values *= 3
+    if len(values) != 3 or not all(0 < v < math.inf for v in values):
+        raise InputError(f"size {text!r}: give one or three positive factors, like 2 or 2,1,0.5")
+    return values
+
+
+def make_sample(model, request: SampleRequest, cancel: threading.Event) -> Sample:
+    """The file one request asks for, made by the runtime (runs in a worker thread)."""
+
+    def check_cancel(*_):
+        if cancel.is_set():
+            raise Cancelled
+
+    started = time.perf_counter()
+    triplane = generate.sample(model, request.seed, request.size)
+    check_cancel()
+    if request.format == "npz":  # the occupancy grid, as `sinrun sample -o x.npz` writes it
+        body = write.grid_bytes(query.dense(model, triplane, request.scale), size=triplane.size, scale=request.scale)
+        faces = None
+    else:
+        result = mesh.extract(model, triplane, request.scale, smooth=request.smooth, progress=check_cancel)
+        body = write.mesh_bytes(result, f".{request.format}")
+        faces = len(result.faces)
+    return Sample(body, f'"{hashlib.sha256(body).hexdigest()[:40]}"', faces, time.perf_counter() - started)
+
+
+class Sampler:
+    """Bounded sampling: at most `slots` samples at once, each within `timeout`
+    seconds, finished files kept in an LRU cache of at most `cache_bytes`.
+
+    Identical requests in flight share one computation. Lives on the event
+    loop's thread; only make_sample runs in the pool.
+    """
+
+    def __init__(self, slots: int, timeout: float, cache_bytes: int, cache_entries: int = 256):
+        self.slots = asyncio.Semaphore(slots)
+        self.pool = ThreadPoolExecutor(max_workers=slots, thread_name_prefix="sample")
+        self.timeout = timeout
+        self.cache = OrderedDict()  # SampleRequest -> Sample, least recently used first
+        self.cache_bytes, self.cache_entries, self.cached_bytes = cache_bytes, cache_entries, 0
+        self.pending = {}  # SampleRequest -> asyncio.Task
+        self.running = self.most_running = 0  # samples being made now, and at most so far
+        self.cancels = set()  # one Event per sample being made
+
+    async def get(self, model, request: SampleRequest) -> tuple:
+        """(Sample, True if it came from the cache)."""
+        if request in self.cache:
+            self.cache.move_to_end(request)
+            return self.cache[request], True
+        task = self.pending.get(request)
+        if task is None:
+            task = asyncio.ensure_future(self.compute(model, request))
+            self.pending[request] = task
+            task.add_done_callback(lambda _: self.pending.pop(request, None))
+        return await asyncio.shield(task), False
+
+    async def compute(self, model, request: SampleRequest) -> Sample:
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + self.timeout
+        try:
+            await asyncio.wait_for(self.slots.acquire(), self.timeout)
+        except asyncio.TimeoutError:
+            raise HTTPException(503, f"busy: no sampling slot came free within {self.timeout:g} s; "
+                                     "try again later") from None
+        cancel = threading.Event()
+        self.cancels.add(cancel)
+        self.running += 1
+        self.most_running = max(self.most_running, self.running)
+        future = loop.run_in_executor(self.pool, make_sample, model, request, cancel)
+        future.add_done_callback(lambda f: self.finished(f, cancel))
+        try:
+            result = await asyncio.wait_for(asyncio.shield(future), max(0.0, deadline - loop.time()))
+        except asyncio.TimeoutError:
+            cancel.set()
+            raise HTTPException(504, f"sampling took longer than the {self.timeout:g} s limit; "
+                                     "ask for a smaller size or scale") from None
+        self.store(request, result)
+        return result
+
+    def finished(self, future, cancel: threading.Event) -> None:
+        """The slot is freed when the thread ends, not when the request gives up on it."""
+        self.cancels.discard(cancel)
+        self.running -= 1
+        self.slots.release()
+        if not future.cancelled():
+            future.exception()  # retrieved, so a cut-off request's Cancelled is not logged as lost
+
+    def store(self, request: SampleRequest, result: Sample) -> None:
+        if len(result.body) > self.cache_bytes // 4:
+            return  # a few huge files would flush everything else
+        self.cache[request] = result
+        self.cached_bytes += len(result.body)
+        while self.cached_bytes > self.cache_bytes or len(self.cache) > self.cache_entries:
+            _, dropped = self.cache.popitem(last=False)
+            self.cached_bytes -= len(dropped.body)
+
+    def close(self) -> None:
+        """Stop: samples being made stop at their next slab, queued ones never start."""
+        for cancel in self.cancels:
+            cancel.set()
+        self.pool.shutdown(wait=False, cancel_futures=True)
+
+
+def load_models(names, threads: int | None = None) -> dict:
+    """Shipped model names or .onnx paths -> {name: loaded model}; none: every shipped model."""
+    paths = {}
+    for item in names or sorted(shipped.available()):
+        path = shipped.find(item)
+        name = item if item in shipped.available() and not Path(item).is_file() else path.stem
+        if name in paths:
+            raise InputError(f"two models are called {name!r}; rename one file")
+        paths[name] = path
+    if not paths:
+        raise InputError("no model given and no shipped model is installed; name a .onnx file")
+    return {name: load.load_model(path, threads=threads) for name, path in paths.items()}
+
+
+def summary(name: str, model) -> dict:
+    """What a client needs to know about a model: its levels, sizes, training input and config."""
+    m = model.manifest.raw
+    training = m.get("training", {})
+    return {
+        "name": name,
+        "file": model.path.name,
+        "levels": len(m["levels"]),
+        "size": list(model.manifest.sizes[-1]),
+        "sizes": [list(s) for s in model.manifest.sizes],
+        "noise_amps": model.manifest.noise_amps,
+        "training_input": m.get("source", {}),
+        "training": {key: training[key] for key in ("seconds", "iterations_per_level") if key in training},
+        "config": m.get("config", {}),
+        "frame": m["frame"],
+        "format_version": m["format_version"],
+    }
+
+
+def one_line(error: RequestValidationError) -> str:
+    """Pydantic's list of errors -> 'seed: Input should be a valid integer (got 'x')'."""
+    parts = []
+    for e in error.errors():
+        where = ".".join(str(p) for p in e.get("loc", ()) if p not in ("query", "path"))
+        got = f" (got {e['input']!r})" if "input" in e and e["input"] is not None else ""
+        parts.append(f"{where}: {e.get('msg', 'invalid')}{got}")
+    return "; ".join(parts)
+
+
+def create_app(loaded: dict, slots: int | None = None, timeout: float = 60.0,
+               cache_bytes: int = 256 << 20) -> FastAPI:
+    """The web app serving `loaded` ({name: runtime Model}).
+
+    slots: samples made at once (default: the cores); timeout: seconds a
+    request may take; cache_bytes: memory for finished files.
+    """
+    slots = slots or load.default_threads()
+
+    @asynccontextmanager
+    async def lifespan(app):
+        app.state.sampler = Sampler(slots, timeout, cache_bytes)
+        yield
+        app.state.sampler.close()
+
+    app = FastAPI(title="sinshape", version=importlib.metadata.version("sinshape"), lifespan=lifespan,
+                  description="Sample new 3D shapes from sinshape models. No authentication.",
+                  docs_url=None, redoc_url=None)  # their pages load scripts from a CDN; /openapi.json stays
+
+    @app.exception_handler(RequestValidationError)
+    async def invalid(request, error):
+        return JSONResponse({"detail": one_line(error)}, status_code=422)
+
+    @app.exception_handler(InputError)
+    async def refused(request, error):
+        return JSONResponse({"detail": str(error)}, status_code=413 if isinstance(error, MemoryLimitError) else 400)
+
+    @app.exception_handler(Exception)
+    async def failed(request, error):
+        log.exception("failed: %s", request.url)
+        return JSONResponse({"detail": f"internal error ({type(error).__name__}); see the server's log"},
+                            status_code=500)
+
+    def find(name: str):
+        if name not in loaded:
+            raise HTTPException(404, f"unknown model {name!r}; this server has {', '.join(loaded)}")
+        return loaded[name]
+
+    @app.get("/health", summary="Liveness: the server answers and how busy it is")
+    async def health(request: Request):
+        sampler = request.app.state.sampler
+        return {"status": "ok", "models": len(loaded), "slots": slots, "sampling": sampler.running,
+                "most_sampling": sampler.most_running, "in_flight": len(sampler.pending),
+                "cached_files": len(sampler.cache), "cached_bytes": sampler.cached_bytes}
+
+    @app.get("/api/models", summary="The models this server samples")
+    async def list_models():
+        return [{"name": name, "size": list(m.manifest.sizes[-1]), "levels": len(m.manifest.sizes),
+                 "training_input": m.manifest.raw.get("source", {}).get("name")} for name, m in loaded.items()]
+
+    @app.get("/api/models/{name}", summary="One model's manifest: levels, sizes, training input, config",
+             responses=errors(404))
+    async def describe(name: str):
+        return summary(name, find(name))
+
+    @app.get("/api/models/{name}/sample", summary="One sample as a file",
+             response_class=Response, responses=FILE_ANSWERS)
+    async def sample(
+        request: Request,
+        name: str,
+        seed: Annotated[int, Query(ge=0, lt=2**63, description="The same seed gives the same shape.")] = 0,
+        size: Annotated[str, Query(description="Factors of the training size: one, or sx,sy,sz.")] = "1",
+        scale: Annotated[float, Query(gt=0, allow_inf_nan=False,
+                                      description="Query a grid this many times finer per axis.")] = 1.0,
+        smooth: Annotated[int, Query(ge=0, le=MAX_SMOOTH, description="Laplacian smoothing steps.")] = 0,
+        format: Annotated[Format, Query(description="glb ply obj stl off: a mesh; npz: the occupancy grid.")] = "glb",
+    ):
+        model = find(name)
+        wanted = SampleRequest(name, seed, parse_size(size), scale, smooth, format)
+        made, hit = await request.app.state.sampler.get(model, wanted)
+        headers = {"ETag": made.etag, "Cache-Control": "no-cache", "X-Cache": "hit" if hit else "miss",
+                   "X-Sample-Seconds": f"{made.seconds:.3f}",
+                   "Content-Disposition": f'attachment; filename="{wanted.filename()}"'}
+        if made.faces is not None:
+            headers["X-Faces"] = str(made.faces)
+        known = [tag.strip().removeprefix("W/") for tag in request.headers.get("if-none-match", "").split(",")]
+        if made.etag in known:
+            return Response(status_code=304, headers=headers)
+        return Response(made.body, media_type=MEDIA_TYPES.get(format, "application/octet-stream"), headers=headers)
+
+    @app.get("/", include_in_schema=False)
+    async def page():
+        return FileResponse(STATIC / "index.html")
+
+    app.mount("/static", StaticFiles(directory=STATIC), name="static")
+    return app

@@ -1,0 +1,263 @@
+"""`sinrun serve`: the HTTP API against a real server on a free loopback port."""
+
+import contextlib
+import io
+import json
+import re
+import socket
+import subprocess
+import sys
+import time
+import urllib.error
+import urllib.request
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+from click.testing import CliRunner
+
+from sinshape.cli.main import cli
+from test_cli_train import assert_one_line_error
+
+pytest.importorskip("fastapi", reason="needs the serve extra: pip install 'sinshape[serve]'")
+pytest.importorskip("uvicorn", reason="needs the serve extra: pip install 'sinshape[serve]'")
+
+TERRAIN = (64, 41, 15)  # the shipped terrain model's training size
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def get(url: str, headers=None) -> tuple:
+    """(status, headers, body) of a GET, 4xx and 5xx included."""
+    request = urllib.request.Request(url, headers=headers or {})
+    try:
+        with urllib.request.urlopen(request, timeout=60) as response:
+            return response.status, response.headers, response.read()
+    except urllib.error.HTTPError as error:
+        return error.code, error.headers, error.read()
+
+
+@contextlib.contextmanager
+def running_server(*args):
+    """`sinrun serve ARGS` in a child process on a free port: yields (base URL, process)."""
+    port = free_port()
+    code = "from sinshape.cli.main import main; main()"
+    process = subprocess.Popen([sys.executable, "-c", code, "serve", *map(str, args), "--port", str(port)],
+                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    base = f"http://127.0.0.1:{port}"
+    try:
+        for _ in range(300):
+            if process.poll() is not None:
+                raise AssertionError(f"the server stopped: {process.stdout.read()}")
+            with contextlib.suppress(OSError):
+                if get(f"{base}/health")[0] == 200:
+                    break
+            time.sleep(0.1)
+        else:
+            raise AssertionError("the server did not answer /health within 30 s")
+        yield base, process
+    finally:
+        process.terminate()
+        output = process.communicate(timeout=20)[0]
+        assert "Traceback" not in output, output
+
+
+@pytest.fixture(scope="module")
+def server():
+    with running_server("terrain", "--threads", 2) as running:
+        yield running
+
+
+def peak_rss_mb(pid: int) -> float:
+    """The process's peak resident memory so far (VmHWM), in MB."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) / 1024
+    raise AssertionError("no VmHWM in /proc")
+
+
+def sample_url(base, model="terrain", **query) -> str:
+    return f"{base}/api/models/{model}/sample?" + "&".join(f"{k}={v}" for k, v in query.items())
+
+
+def test_health_models_and_manifest(server):
+    base, _ = server
+    status, _, body = get(f"{base}/health")
+    assert status == 200 and json.loads(body)["status"] == "ok"
+    status, _, body = get(f"{base}/api/models")
+    assert status == 200 and json.loads(body) == [
+        {"name": "terrain", "size": list(TERRAIN), "levels": 4, "training_input": "terrain.obj"}]
+    status, _, body = get(f"{base}/api/models/terrain")
+    summary = json.loads(body)
+    assert status == 200 and summary["levels"] == len(summary["sizes"]) == 4
+    assert summary["sizes"][-1] == list(TERRAIN) and summary["training_input"]["name"] == "terrain.obj"
+    assert summary["config"]["res"] == 64 and summary["noise_amps"][0] == 1.0
+
+
+def test_openapi_describes_every_route(server):
+    status, _, body = get(f"{server[0]}/openapi.json")
+    paths = json.loads(body)["paths"]
+    assert status == 200
+    assert {"/health", "/api/models", "/api/models/{name}", "/api/models/{name}/sample"} <= set(paths)
+    params = {p["name"] for p in paths["/api/models/{name}/sample"]["get"]["parameters"]}
+    assert params == {"name", "seed", "size", "scale", "smooth", "format"}
+
+
+def test_the_page_and_its_offline_scripts(server):
+    base, _ = server
+    status, headers, body = get(f"{base}/")
+    assert status == 200 and b'id="download"' in body and headers["Content-Type"].startswith("text/html")
+    assert b"http" not in body.split(b"<body")[0], "the page's head must load nothing from the network"
+    for path in ("viewer.js", "vendor/three/three.module.js", "vendor/three/three.core.js",
+                 "vendor/three/addons/loaders/GLTFLoader.js", "vendor/three/addons/controls/OrbitControls.js",
+                 "vendor/three/LICENSE"):
+        assert get(f"{base}/static/{path}")[0] == 200, path
+
+
+def test_a_sample_is_the_file_sinrun_sample_writes(server, tmp_path):
+    status, headers, body = get(sample_url(server[0], seed=5, size="1.5,1,1", smooth=2, format="ply"))
+    assert status == 200
+    assert headers["Content-Disposition"] == 'attachment; filename="terrain_seed5_size1.5x1x1_smooth2.ply"'
+    out = tmp_path / "s.ply"
+    result = CliRunner().invoke(cli, ["sample", "terrain", "--seed", "5", "--size", "1.5,1,1", "--smooth", "2",
+                                      "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    assert body == out.read_bytes()
+    assert int(headers["X-Faces"]) == len(trimesh.load(out).faces) > 1000
+
+
+@pytest.mark.parametrize("fmt", ["glb", "ply", "obj", "stl", "off", "npz"])
+def test_every_format_loads(server, fmt):
+    status, headers, body = get(sample_url(server[0], seed=2, format=fmt))
+    assert status == 200 and headers["Content-Disposition"].endswith(f'seed2.{fmt}"')
+    if fmt == "npz":
+        with np.load(io.BytesIO(body)) as data:
+            assert data["occupancy"].shape == TERRAIN and 0 <= data["occupancy"].min() < 0.5 < data["occupancy"].max()
+    else:
+        mesh = trimesh.load(io.BytesIO(body), file_type=fmt, force="mesh")
+        assert len(mesh.faces) == int(headers["X-Faces"]) > 1000
+
+
+def test_a_repeated_request_is_a_cache_hit(server):
+    url = sample_url(server[0], seed=11, scale=2)
+    started = time.perf_counter()
+    status, first, body = get(url)
+    missed = time.perf_counter() - started
+    started = time.perf_counter()
+    status2, second, body2 = get(url.replace("scale=2", "scale=2.0"))  # the same request, normalised
+    hit = time.perf_counter() - started
+    assert status == status2 == 200 and body == body2
+    assert first["X-Cache"] == "miss" and second["X-Cache"] == "hit"
+    assert first["ETag"] == second["ETag"] and first["ETag"].startswith('"')  # strong: no W/
+    assert hit < missed / 3, (hit, missed)
+    status, headers, body = get(url, {"If-None-Match": first["ETag"]})
+    assert status == 304 and body == b"" and headers["ETag"] == first["ETag"]
+    other = get(sample_url(server[0], seed=12, scale=2))[1]
+    assert other["ETag"] != first["ETag"]
+
+
+@pytest.mark.parametrize("query, status, fragment", [
+    ({"seed": "abc"}, 422, "seed: Input should be a valid integer"),
+    ({"seed": "-1"}, 422, "seed: Input should be greater than or equal to 0"),
+    ({"seed": str(2**63)}, 422, "seed: Input should be less than"),
+    ({"scale": "0"}, 422, "scale: Input should be greater than 0"),
+    ({"scale": "nan"}, 422, "scale: Input should be a finite number"),
+    ({"scale": "1e9"}, 400, "at most 65536 points per axis"),
+    ({"scale": "40", "format": "npz"}, 413, "GiB of memory (limit 4 GiB)"),
+    ({"size": "1000"}, 413, "needs about"),
+    ({"size": "abc"}, 400, "give one or three positive factors"),
+    ({"size": "1,1"}, 400, "give one or three positive factors"),
+    ({"size": "0,1,1"}, 400, "give one or three positive factors"),
+    ({"smooth": "-3"}, 422, "smooth: Input should be greater than or equal to 0"),
+    ({"format": "xyz"}, 422, "format: Input should be 'glb', 'ply'"),
+    ({"model": "nope"}, 404, "unknown model 'nope'; this server has terrain"),
+])
+def test_bad_values_are_4xx_with_one_line(server, query, status, fragment):
+    base, _ = server
+    got, headers, body = get(sample_url(base, **query))
+    assert got == status and headers["Content-Type"] == "application/json"
+    detail = json.loads(body)["detail"]
+    assert isinstance(detail, str) and "\n" not in detail and fragment in detail, detail
+    assert get(f"{base}/health")[0] == 200
+
+
+def test_twenty_concurrent_requests(server):
+    """All answered, correctly: the same seed gives the same bytes, different
+    seeds different meshes. Peak memory stays bounded: the server (models
+    loaded, ~250 MB) plus at most 2 samples in flight (slots = cores; one
+    terrain sample at scale 2 peaks near 100 MB) plus the cache (these files
+    are ~1 MB each) stays well under 1 GB over the server's whole life."""
+    base, process = server
+    seeds = [200 + i % 10 for i in range(20)]
+    with ThreadPoolExecutor(20) as pool:
+        answers = list(pool.map(lambda s: get(sample_url(base, seed=s, scale=2)), seeds))
+    assert [status for status, _, _ in answers] == [200] * 20
+    bodies = {}
+    for seed, (_, headers, body) in zip(seeds, answers):
+        assert bodies.setdefault(seed, body) == body
+    meshes = [trimesh.load(io.BytesIO(body), file_type="glb", force="mesh") for body in bodies.values()]
+    assert len({len(m.faces) for m in meshes}) > 5 and all(len(m.faces) > 1000 for m in meshes)
+    assert peak_rss_mb(process.pid) < 600
+    health = json.loads(get(f"{base}/health")[2])
+    assert health["in_flight"] == health["sampling"] == 0 and 1 <= health["most_sampling"] <= health["slots"]
+
+
+def test_a_slow_request_is_cut_off_by_the_time_limit():
+    """A 504 within the limit, and the cut-off sample stops at its next slab
+    and frees its slot (all of it would take ~2.5 s: terrain at scale 8)."""
+    with running_server("terrain", "--timeout", "0.3") as (base, _):
+        started = time.perf_counter()
+        status, _, body = get(sample_url(base, seed=1, scale=8))
+        assert status == 504 and "longer than the 0.3 s limit" in json.loads(body)["detail"]
+        while json.loads(get(f"{base}/health")[2])["sampling"]:
+            time.sleep(0.02)
+        assert time.perf_counter() - started < 1.5
+        assert get(f"{base}/api/models/terrain")[0] == 200
+
+
+def test_serve_help_says_loopback_and_no_authentication():
+    result = CliRunner().invoke(cli, ["serve", "--help"])
+    assert result.exit_code == 0
+    text = " ".join(result.output.split())
+    assert "no authentication" in text and "[default: 127.0.0.1]" in text and "exposes" in text
+
+
+def test_serve_refuses_a_taken_port_and_a_missing_model_in_one_line():
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        assert_one_line_error(CliRunner().invoke(cli, ["serve", "terrain", "--port", port]),
+                              f"cannot listen on 127.0.0.1:{port}")
+    assert_one_line_error(CliRunner().invoke(cli, ["serve", "nope"]), "neither a model file nor a shipped model")
+    assert_one_line_error(CliRunner().invoke(cli, ["serve", "missing.onnx"]), "no such model file")
+
+
+def test_serve_without_the_extra_says_how_to_get_it(monkeypatch):
+    monkeypatch.setitem(sys.modules, "uvicorn", None)
+    assert_one_line_error(CliRunner().invoke(cli, ["serve"]), "pip install 'sinshape[serve]'")
+
+
+def test_models_by_name_or_path_and_every_shipped_one_by_default(tmp_path):
+    from sinshape import models
+    from sinshape.serve import app
+
+    assert list(app.load_models([])) == sorted(models.available())
+    copy = tmp_path / "mine.onnx"
+    copy.write_bytes(models.find("terrain").read_bytes())
+    assert list(app.load_models(["terrain", str(copy)], threads=1)) == ["terrain", "mine"]
+    with pytest.raises(app.InputError, match="two models are called 'terrain'"):
+        app.load_models(["terrain", str(models.find("terrain"))])
+
+
+def test_the_runtime_knows_nothing_about_http():
+    runtime = Path(__file__).resolve().parents[1] / "runtime"
+    web = re.compile(r"^\s*(from|import)\s+(fastapi|starlette|uvicorn|http|urllib|sinshape\.serve)\b", re.M)
+    sources = list(runtime.glob("*.py"))
+    assert sources and not [source.name for source in sources if web.search(source.read_text())]

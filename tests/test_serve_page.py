@@ -1,0 +1,98 @@
+"""The page at / in a real headless browser: Debian's chromium, driven by Playwright."""
+
+import io
+import re
+import shutil
+
+import numpy as np
+import pytest
+import trimesh
+from PIL import Image
+
+from test_serve import running_server
+
+sync_api = pytest.importorskip("playwright.sync_api", reason="needs playwright (the test extra)")
+CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+if not shutil.which(CHROMIUM):
+    pytest.skip("needs Debian's chromium (apt-get install chromium; .ci/run does)", allow_module_level=True)
+
+BACKGROUND = np.array([0x20, 0x24, 0x2A])  # the view's background colour (serve/static/viewer.js)
+# WebGL without a GPU: chromium's software renderer.
+ARGS = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"]
+
+
+@pytest.fixture(scope="module")
+def page():
+    with running_server("terrain") as (base, _), sync_api.sync_playwright() as playwright:
+        browser = playwright.chromium.launch(executable_path=CHROMIUM, args=ARGS)
+        page = browser.new_page(viewport={"width": 900, "height": 600}, accept_downloads=True)
+        page.errors, page.outside = [], []
+        page.on("pageerror", lambda error: page.errors.append(str(error)))
+        page.route("**/*", lambda route: route.continue_() if route.request.url.startswith(base)
+                   else (page.outside.append(route.request.url), route.abort()))  # offline: no CDN
+        page.base = base
+        yield page
+        browser.close()
+
+
+def view_pixels(page, path) -> np.ndarray:
+    """A screenshot of the 3-D view, saved to `path` (to look at when a test fails): (H, W, 3) int."""
+    png = page.locator("#view canvas").screenshot(path=path)
+    return np.asarray(Image.open(io.BytesIO(png)).convert("RGB"), dtype=int)
+
+
+def shape_fraction(pixels: np.ndarray) -> float:
+    """The fraction of the view that is not background."""
+    return float((np.abs(pixels - BACKGROUND).sum(axis=-1) > 30).mean())
+
+
+def wait_ready(page, seed: int) -> None:
+    page.wait_for_function(f"document.body.dataset.state === 'ready' && location.search.includes('seed={seed}&')",
+                           timeout=30_000)
+
+
+def test_browse_samples_see_errors_and_download(page, tmp_path):
+    page.goto(f"{page.base}/?seed=3&up=z")
+    wait_ready(page, 3)
+    assert re.fullmatch(r"[\d,]+ faces · \d+\.\d\d s( \(cached\))?", page.text_content("#status"))
+    first = view_pixels(page, tmp_path / "seed3.png")
+    assert shape_fraction(first) > 0.1, f"the view looks blank: {tmp_path / 'seed3.png'}"
+
+    page.click("#next")
+    wait_ready(page, 4)
+    assert page.input_value("#seed") == "4"
+    second = view_pixels(page, tmp_path / "seed4.png")
+    assert shape_fraction(second) > 0.1
+    changed = (np.abs(second - first).sum(axis=-1) > 30).mean()
+    assert changed > 0.02, f"seed 4 looks like seed 3: {tmp_path}"
+
+    page.fill("#scale", "0")
+    page.press("#scale", "Enter")
+    page.wait_for_function("document.body.dataset.state === 'error'", timeout=30_000)
+    assert page.is_visible("#error")
+    assert "scale: Input should be greater than 0" in page.text_content("#error")
+    assert "scale=0" in page.url
+
+    page.fill("#scale", "1")
+    page.press("#scale", "Enter")
+    wait_ready(page, 4)
+    assert not page.is_visible("#error")
+    page.select_option("#format", "ply")
+    with page.expect_download() as download:
+        page.click("#download")
+    assert download.value.suggested_filename == "terrain_seed4.ply"
+    saved = tmp_path / "download.ply"
+    download.value.save_as(saved)
+    mesh = trimesh.load(saved, force="mesh")
+    assert len(mesh.faces) == int(page.text_content("#status").split()[0].replace(",", ""))
+    assert not page.errors and not page.outside
+
+
+def test_the_url_holds_the_state(page):
+    page.goto(f"{page.base}/?model=terrain&seed=7&size=1.5,1,1&scale=1&smooth=2&up=z&format=obj")
+    wait_ready(page, 7)
+    fields = {name: page.input_value(f"#{name}") for name in ("seed", "sx", "sy", "sz", "smooth", "up", "format")}
+    assert fields == {"seed": "7", "sx": "1.5", "sy": "1", "sz": "1", "smooth": "2", "up": "z", "format": "obj"}
+    href = page.get_attribute("#download", "href")
+    assert href.endswith("api/models/terrain/sample?seed=7&size=1.5%2C1%2C1&scale=1&smooth=2&format=obj")
+    assert not page.errors
