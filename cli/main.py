@@ -83,7 +83,22 @@ def format_seconds(seconds: float) -> str:
     return f"{seconds // 3600}:{seconds // 60 % 60:02d}:{seconds % 60:02d}"
 
 
-@cli.command()
+class TrainCommand(click.Command):
+    """`sinrun train --help` ends with what --device auto and --precision auto
+    pick on this machine, and why (it imports torch only then)."""
+
+    def format_epilog(self, ctx, formatter):
+        try:
+            from sinshape.trainer import device
+        except ImportError:
+            picked = "PyTorch is not installed here: pip install 'sinshape[train]'"
+        else:
+            picked = device.choose().describe()
+        with formatter.section("On this machine"):
+            formatter.write_text(f"--device auto --precision auto picks {picked}.")
+
+
+@cli.command(cls=TrainCommand)
 @click.argument("input_path", metavar="INPUT", type=click.Path(path_type=Path))
 @click.option("-o", "--output", type=click.Path(path_type=Path), required=True,
               help="Where to write the model (.onnx). A checkpoint MODEL.ckpt.pt is kept beside it.")
@@ -97,6 +112,19 @@ def format_seconds(seconds: float) -> str:
 @click.option("--levels", type=int, default=None,
               help="Number of levels. Default: enough that the coarsest longest side is at most 33 voxels.")
 @click.option("--iters", type=int, default=None, help="Training iterations per level (3 D + 3 G steps each).")
+@click.option("--minutes", type=float, default=None,
+              help="A time budget for the whole run instead of --iters: the seconds per iteration of "
+                   "every level are measured first, then each level gets the same number of iterations "
+                   "so that training ends within the budget. The plan is printed and saved in the model.")
+@click.option("--device", default="auto", show_default=True,
+              help="auto, cpu, cuda or cuda:N. auto: CUDA when torch sees a GPU, else the CPU. The "
+                   "model and its samples do not depend on it; --resume may continue on another device.")
+@click.option("--precision", type=click.Choice(["auto", "fp32", "bf16"]), default=None,
+              help="auto (default): bf16 autocast for the convolutions on CPUs with native bf16 "
+                   "(AVX512-BF16, AMX) and TF32 on CUDA, float32 otherwise; fp32: float32 throughout.")
+@click.option("--critic-crop", type=int, default=None,
+              help="Changes the method, off by default: the critic sees random boxes of at most this "
+                   "many voxels per side (its field is 11) instead of whole levels; faster at large levels.")
 @click.option("--seed", type=int, default=None, help="Seed of the training run (weights, noise draws). Default 0.")
 @click.option("--generator", type=click.Choice(["triplane", "voxel"]), default=None,
               help="triplane (the method) or voxel: the paper's SinGAN-3D baseline, 3-D convs on voxels, "
@@ -107,7 +135,8 @@ def format_seconds(seconds: float) -> str:
 @click.option("--checkpoint", type=click.Path(path_type=Path), default=None,
               help="Checkpoint file. Default: MODEL.ckpt.pt beside the output.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress output.")
-def train(input_path, output, preset, res, levels, iters, seed, generator, resume, checkpoint, quiet):
+def train(input_path, output, preset, res, levels, iters, minutes, device, precision, critic_crop, seed, generator,
+          resume, checkpoint, quiet):
     """Train a model on one example shape and export it as one .onnx file.
 
     INPUT is a mesh (.obj, .ply, .stl, .off, .glb; not necessarily watertight)
@@ -122,8 +151,11 @@ def train(input_path, output, preset, res, levels, iters, seed, generator, resum
     from sinshape.trainer import config as configs
     from sinshape.trainer import train as training
 
-    overrides = dict(preset=preset, res=res, levels=levels, iters=iters, seed=seed, generator=generator)
-    given = [f"--{name}" for name, value in overrides.items() if value is not None]
+    if iters is not None and minutes is not None:
+        raise click.UsageError("give --iters or --minutes, not both: a time budget plans the iterations")
+    overrides = dict(preset=preset, res=res, levels=levels, iters=iters, minutes=minutes, precision=precision,
+                     critic_crop=critic_crop, seed=seed, generator=generator)
+    given = [f"--{name.replace('_', '-')}" for name, value in overrides.items() if value is not None]
     if resume and given:
         raise click.UsageError(f"--resume continues with the checkpoint's settings; leave out {', '.join(given)}")
     config = None if resume else configs.make_config(**{**overrides, "preset": preset or "default"})
@@ -131,7 +163,7 @@ def train(input_path, output, preset, res, levels, iters, seed, generator, resum
     signal.signal(signal.SIGTERM, raise_interrupt)  # `kill` saves a checkpoint too, like Ctrl-C
     try:
         manifest = training.train(
-            input_path, output, config, resume=resume, checkpoint_path=checkpoint,
+            input_path, output, config, resume=resume, device=device, checkpoint_path=checkpoint,
             progress=None if quiet else TrainProgress(), log=report,
         )
     except training.Interrupted as error:

@@ -39,6 +39,17 @@ class TrainConfig:
     rec_weight: float = 10.0
     noise_ratio: float = 0.1  # sigma_i = noise_ratio * RMSE(upsampled rec_(i-1), real_i)
 
+    # Speed. A time budget in minutes plans the iterations of every level to
+    # fit it (`iters` is then unused) and records the plan in level_iters.
+    minutes: float | None = None
+    level_iters: tuple | None = None
+    # "auto": bf16 autocast on CPUs with native bf16, TF32 on CUDA, else fp32.
+    precision: str = "auto"
+    # Off (None) in the paper's method: the critic sees random boxes of at most
+    # this many voxels per side instead of the whole grid (its receptive field
+    # is 11), so large levels cost less. It changes what is trained.
+    critic_crop: int | None = None
+
     # Randomness: the training run, and the fixed reconstruction noise z0*.
     seed: int = 0
     recon_seed: int = 1234
@@ -51,6 +62,11 @@ class TrainConfig:
             (self.iters >= 1, f"--iters must be at least 1, got {self.iters}"),
             (self.d_steps >= 1 and self.g_steps >= 1, "d_steps and g_steps must be at least 1"),
             (self.lr > 0, f"lr must be positive, got {self.lr}"),
+            (self.minutes is None or 0 < self.minutes <= 60 * 24 * 365,
+             f"--minutes must be positive (and at most a year), got {self.minutes}"),
+            (self.precision in ("auto", "fp32", "bf16"), f"--precision must be auto, fp32 or bf16, got {self.precision!r}"),
+            (self.critic_crop is None or self.critic_crop >= 16,
+             f"--critic-crop must be at least 16 voxels (the critic's field is 11), got {self.critic_crop}"),
             (0 <= self.seed < 2**63, f"--seed must be in [0, 2**63), got {self.seed}"),
         ]
         for ok, message in checks:
@@ -63,7 +79,10 @@ class TrainConfig:
     @classmethod
     def from_dict(cls, values: dict) -> "TrainConfig":
         known = {f.name for f in dataclasses.fields(cls)}
-        return cls(**{k: v for k, v in values.items() if k in known})
+        values = {k: v for k, v in values.items() if k in known}
+        if values.get("level_iters") is not None:  # a list once saved as JSON
+            values["level_iters"] = tuple(values["level_iters"])
+        return cls(**values)
 
 
 PRESETS = {

@@ -136,7 +136,7 @@ def build_model(generator, manifest: dict) -> onnx.ModelProto:
     return model
 
 
-def make_manifest(generator, *, sizes, noise_amps, config, pyramid, seconds) -> dict:
+def make_manifest(generator, *, sizes, noise_amps, config, pyramid, seconds, ran_on: dict) -> dict:
     """The manifest dict (runtime/manifest.py checks it before it is written)."""
     manifest = {
         "format": fmt.FORMAT_NAME,
@@ -156,17 +156,19 @@ def make_manifest(generator, *, sizes, noise_amps, config, pyramid, seconds) -> 
         "training": {
             "seconds": round(sum(seconds), 1),
             "level_seconds": [round(s, 1) for s in seconds],
-            "iterations_per_level": config.iters,
+            "iterations_per_level": list(config.level_iters) if config.level_iters else config.iters,
+            **ran_on,
         },
     }
     fmt.parse(json.dumps(manifest))  # the trainer never writes what the runtime would refuse
     return manifest
 
 
-def export_model(generator, *, sizes, noise_amps, config, pyramid, seconds, path) -> dict:
-    """Write the model to `path` atomically; returns its manifest."""
+def export_model(generator, *, sizes, noise_amps, config, pyramid, seconds, path, ran_on=None) -> dict:
+    """Write the model to `path` atomically; returns its manifest. `ran_on`:
+    where training ran ({"device", "precision"}), recorded with its times."""
     manifest = make_manifest(generator, sizes=sizes, noise_amps=noise_amps, config=config,
-                             pyramid=pyramid, seconds=seconds)
+                             pyramid=pyramid, seconds=seconds, ran_on=ran_on or {})
     model = build_model(generator, manifest)
     path = Path(path)
     tmp = path.with_name(path.name + ".tmp")

@@ -99,7 +99,8 @@ class Decoder(nn.Module):
     def grid(self, planes: list) -> torch.Tensor:
         """Occupancy at the planes' own resolution: voxel (x, y, z) reads plane
         cells xy[x, y], xz[x, z], yz[y, z]. Returns (B, X, Y, Z)."""
-        pxy, pxz, pyz = self.project_planes(planes)
+        with torch.autocast(planes[0].device.type, enabled=False):  # occupancy is always float32
+            pxy, pxz, pyz = self.project_planes([plane.float() for plane in planes])
         pxy = pxy + self.fc1.bias
         return torch.stack([GridHead.apply(pxy[b], pxz[b], pyz[b], self.fc2.weight, self.fc2.bias)
                             for b in range(len(pxy))])
@@ -352,7 +353,7 @@ class Discriminator(nn.Module):
         """volume : (B, 1, X, Y, Z) -> (B, 1, x, y, z) scores."""
         for layer in self.net:
             volume = on_fast_kernel(layer, volume) if isinstance(layer, nn.Conv3d) else layer(volume)
-        return volume
+        return volume.float()  # the WGAN losses are small differences of large scores
 
 
 # PyTorch (aten's use_mkldnn rule) runs a batch-1 float32 convolution with

@@ -26,6 +26,7 @@ from sinshape.runtime.errors import InputError
 from sinshape.runtime.write import check_writable
 
 from . import export
+from . import device as devices
 from .config import TrainConfig
 from .networks import Discriminator, make_generator
 from .pyramid import load_pyramid, training_targets
@@ -77,16 +78,20 @@ def atomic_save(obj, path: Path) -> None:
 class Trainer:
     """The state of one training run: data, networks, optimisers, position."""
 
-    def __init__(self, config: TrainConfig, pyramid):
+    def __init__(self, config: TrainConfig, pyramid, placement: devices.Placement | None = None):
         self.config = config
         self.pyramid = pyramid
         self.sizes = pyramid.sizes
-        self.targets = [torch.from_numpy(t)[None, None] for t in training_targets(pyramid, config.blur_sigma)]
-        self.z0_recon = torch.from_numpy(noise.z0_noise(config.recon_seed, self.sizes[0]))[None, None]
-        with torch.random.fork_rng():
+        self.placement = placement or devices.choose("cpu", "fp32")
+        self.device = device = self.placement.device
+        self.targets = [torch.from_numpy(t)[None, None].to(device) for t in training_targets(pyramid, config.blur_sigma)]
+        self.z0_recon = torch.from_numpy(noise.z0_noise(config.recon_seed, self.sizes[0]))[None, None].to(device)
+        with torch.random.fork_rng():  # weights are initialised on the CPU: the same on every device
             torch.manual_seed(seeded(config.seed, 0))
-            self.generator = make_generator(config.generator, config.channels, config.pool_bins, config.mlp_hidden)
-            self.critic = Discriminator(config.channels)
+            self.generator = make_generator(config.generator, config.channels, config.pool_bins,
+                                            config.mlp_hidden).to(device)
+            self.critic = Discriminator(config.channels).to(device)
+        # Every random draw comes from this CPU generator, then moves to the device.
         self.rng = torch.Generator().manual_seed(seeded(config.seed, 1))
         self.noise_amps = []  # sigma_i per level; sigma_0 = 1 is the std of z0
         self.level = 0  # the level being trained
@@ -94,6 +99,8 @@ class Trainer:
         self.seconds = []  # wall time per finished level
         self.level_seconds = 0.0  # wall time so far at the current level
         self.opt_g = self.opt_d = None
+        # Iterations per level; under a time budget each level's is planned as it starts.
+        self.plan = list(config.level_iters or [0 if config.minutes else config.iters] * len(self.sizes))
 
     # -- levels ------------------------------------------------------------
     def begin_level(self) -> None:
@@ -101,7 +108,7 @@ class Trainer:
         level = self.level
         with torch.random.fork_rng():
             torch.manual_seed(seeded(self.config.seed, 2, level))
-            self.generator.add_level()
+            self.generator.add_level().to(self.device)
         if len(self.noise_amps) == level:
             self.noise_amps.append(1.0 if level == 0 else self.initial_noise_amp(level))
         self.make_optimizers()
@@ -122,13 +129,25 @@ class Trainer:
     # -- sampling ------------------------------------------------------------
     def random_noises(self, upto: int) -> tuple:
         """A fresh z0 and scaled per-level plane noises for levels 1..upto."""
-        z0 = torch.randn((1, 1, *self.sizes[0]), generator=self.rng)
+        z0 = self.draw(torch.randn, (1, 1, *self.sizes[0]))
         noises = [None]
         for level in range(1, upto + 1):
             amp = self.noise_amps[level]
-            noises.append([amp * torch.randn(shape, generator=self.rng)
+            noises.append([amp * self.draw(torch.randn, shape)
                            for shape in self.generator.noise_shapes(self.sizes[level])])
         return z0, noises
+
+    def draw(self, sampler, shape) -> torch.Tensor:
+        """A draw from the run's CPU generator, on the training device."""
+        return sampler(shape, generator=self.rng).to(self.device)
+
+    def recon_inputs(self):
+        """The frozen levels' output for the reconstruction (None at level 0,
+        where P trains): constant through a level, so computed once."""
+        if self.level == 0:
+            return None
+        with self.placement.autocast():
+            return self.inputs(self.z0_recon, [None] * (self.level + 1))
 
     def reconstruct(self, level: int) -> torch.Tensor:
         """Occupancy (X, Y, Z) at `level` for z0* and zero later noise."""
@@ -152,9 +171,13 @@ class Trainer:
         change during them), and each generator step's fake with the
         reconstruction. Random draws are made in the order they are used.
         """
+        with self.placement.autocast():
+            return self.steps(recon_inputs)
+
+    def steps(self, recon_inputs) -> dict:
         c, level, real = self.config, self.level, self.targets[self.level]
         critic = self.critic
-        d_draws = [(*self.random_noises(level), torch.rand(1, generator=self.rng)) for _ in range(c.d_steps)]
+        d_draws = [(*self.random_noises(level), self.draw(torch.rand, 1)) for _ in range(c.d_steps)]
         g_draws = [self.random_noises(level) for _ in range(c.g_steps)]
         z0, noises = cat_draws([draw[:2] for draw in d_draws] + g_draws)
         noise = noises[level]  # (d_steps + g_steps) samples; None at level 0
@@ -165,9 +188,10 @@ class Trainer:
         # (1) Update D: minimise D(fake) - D(real) + gp_weight * GP.
         critic.requires_grad_(True)
         for fake, (_, _, alpha) in zip(fakes[:, None, None], d_draws):
-            scores = critic(torch.cat([real, fake]))
+            seen_real, seen_fake = self.critic_view(real), self.critic_view(fake)
+            scores = critic(torch.cat([seen_real, seen_fake]))
             d_real, d_fake = scores[0].mean(), scores[1].mean()
-            loss_d = d_fake - d_real + c.gp_weight * self.gradient_penalty(real, fake, alpha)
+            loss_d = d_fake - d_real + c.gp_weight * self.gradient_penalty(seen_real, seen_fake, alpha)
             self.opt_d.zero_grad(set_to_none=True)
             loss_d.backward()
             self.opt_d.step()
@@ -181,7 +205,7 @@ class Trainer:
             else:  # the reconstruction's frozen input is cached, its noise is zero
                 pair = cat_batch([take(inputs, one), recon_inputs])
                 fake, rec = self.fake(pair, [torch.cat([n[one], torch.zeros_like(n[one])]) for n in noise])
-            loss_adv = -critic(fake[None, None]).mean()
+            loss_adv = -critic(self.critic_view(fake[None, None])).mean()
             loss_rec = F.mse_loss(rec, real[0, 0])
             loss_g = loss_adv + c.rec_weight * loss_rec
             self.opt_g.zero_grad(set_to_none=True)
@@ -189,6 +213,18 @@ class Trainer:
             self.opt_g.step()
         critic.requires_grad_(True)
         return {"D": loss_d.item(), "G": loss_adv.item(), "rec": loss_rec.item()}
+
+    def critic_view(self, volume: torch.Tensor) -> torch.Tensor:
+        """What the critic sees of a (1, 1, X, Y, Z) volume: all of it, or with
+        `critic_crop`, a box of at most that side at a random place."""
+        side = self.config.critic_crop
+        if side is None or max(volume.shape[2:]) <= side:
+            return volume
+        box = [slice(None), slice(None)]
+        for n in volume.shape[2:]:
+            start = int(torch.randint(0, max(n - side, 0) + 1, (1,), generator=self.rng))
+            box.append(slice(start, start + side))
+        return volume[tuple(box)]
 
     def gradient_penalty(self, real, fake, alpha) -> torch.Tensor:
         """WGAN-GP on the mix alpha * real + (1 - alpha) * fake.
@@ -202,6 +238,10 @@ class Trainer:
         return ((grad.abs() - 1) ** 2).mean()
 
     # -- checkpoints ---------------------------------------------------------
+    def trained_seconds(self) -> float:
+        """Training time so far, over every run of this model."""
+        return sum(self.seconds) + self.level_seconds
+
     def state(self) -> dict:
         p = self.pyramid
         return {
@@ -213,6 +253,7 @@ class Trainer:
             "level": self.level,
             "iteration": self.iteration,
             "noise_amps": list(self.noise_amps),
+            "plan": list(self.plan),
             "seconds": list(self.seconds),
             "level_seconds": self.level_seconds,
             "generator": self.generator.state_dict(),
@@ -227,10 +268,11 @@ class Trainer:
         self.level, self.iteration = state["level"], state["iteration"]
         self.noise_amps, self.seconds = list(state["noise_amps"]), list(state["seconds"])
         self.level_seconds = state["level_seconds"]
+        self.plan = list(state.get("plan") or self.plan)  # checkpoints before budgets had none
         started = count_levels(state["generator"])
         for _ in range(started):
             with torch.random.fork_rng():
-                self.generator.add_level()
+                self.generator.add_level().to(self.device)
         self.generator.load_state_dict(state["generator"])
         self.critic.load_state_dict(state["critic"])
         self.rng.set_state(state["rng"])
@@ -282,15 +324,17 @@ def load_checkpoint(path: Path) -> dict:
     return state
 
 
-def train(input_path, output_path, config: TrainConfig | None, *, resume: bool = False,
+def train(input_path, output_path, config: TrainConfig | None, *, resume: bool = False, device: str = "auto",
           checkpoint_path=None, checkpoint_every: float = 300.0, progress=None, log=None):
     """Train on a mesh or SSG pyramid and export the model to `output_path`.
 
-    With resume, `config` must be None: the checkpoint's config is used.
-    `progress(Progress)` is called after every iteration; `log(str)` for
-    level starts and checkpoints. Returns the manifest written into the model.
+    With resume, `config` must be None: the checkpoint's config is used (the
+    device may differ from the one the run started on). `progress(Progress)`
+    is called after every iteration; `log(str)` for the plan, level starts and
+    checkpoints. Returns the manifest written into the model.
     Raises InputError for bad input, TrainingDiverged, or Interrupted.
     """
+    clock_started = time.monotonic()  # a time budget counts from here
     log = log or (lambda message: None)
     output_path = Path(output_path)
     checkpoint_path = Path(checkpoint_path) if checkpoint_path else default_checkpoint_path(output_path)
@@ -307,19 +351,27 @@ def train(input_path, output_path, config: TrainConfig | None, *, resume: bool =
         # The checkpoint says how the pyramid was made; the hash, of what file.
         state = load_checkpoint(checkpoint_path)
         config = TrainConfig.from_dict(state["config"])
+    placement = devices.choose(device, config.precision)
+    placement.activate()
     pyramid = load_pyramid(input_path, config.res, config.levels, config.level_factor, config.min_size)
     if resume and pyramid.source_sha256 != state["source"]["sha256"]:
         raise InputError(f"{checkpoint_path}: this checkpoint was trained on another file ({state['source']['name']})")
     # Record what was actually used: an .h5 pyramid fixes res and levels.
     config = dataclasses.replace(config, res=max(pyramid.sizes[-1]), levels=len(pyramid.levels))
 
-    trainer = Trainer(config, pyramid)
+    log(f"training on {placement.describe()}")
+    trainer = Trainer(config, pyramid, placement)
     if state is not None:
         trainer.restore(state)
         if trainer.level < len(trainer.sizes):
             log(f"resuming at level {trainer.level + 1}/{len(trainer.sizes)}, iteration {trainer.iteration}")
         else:
             log("every level is trained already; exporting")
+    budget = None
+    if config.minutes is not None and trainer.level < len(trainer.sizes):
+        budget = Budget(config.minutes * 60 - trainer.trained_seconds(), clock_started,
+                        time_levels(config, pyramid, placement))
+        log(budget.describe(trainer))
 
     last_save = time.monotonic()
     try:
@@ -327,10 +379,13 @@ def train(input_path, output_path, config: TrainConfig | None, *, resume: bool =
             if len(trainer.generator.levels) == trainer.level:
                 trainer.begin_level()
             level = trainer.level
+            if budget and trainer.iteration == 0:
+                trainer.plan[level] = budget.iterations(trainer)
+            iters = trainer.plan[level]
             log(f"level {level + 1}/{len(trainer.sizes)}: grid {trainer.sizes[level]}, "
-                f"noise amplitude {trainer.noise_amps[level]:.4g}")
-            recon_inputs = trainer.inputs(trainer.z0_recon, [None] * len(trainer.sizes)) if level else None
-            while trainer.iteration < config.iters:
+                f"noise amplitude {trainer.noise_amps[level]:.4g}, {iters} iterations")
+            recon_inputs = trainer.recon_inputs()
+            while trainer.iteration < iters:
                 started = time.monotonic()
                 losses = trainer.iterate(recon_inputs)
                 bad = [k for k, v in losses.items() if not math.isfinite(v) or abs(v) > LOSS_LIMIT]
@@ -343,7 +398,7 @@ def train(input_path, output_path, config: TrainConfig | None, *, resume: bool =
                 trainer.iteration += 1
                 trainer.level_seconds += time.monotonic() - started
                 if progress:
-                    progress(Progress(level, len(trainer.sizes), trainer.iteration, config.iters,
+                    progress(Progress(level, len(trainer.sizes), trainer.iteration, iters,
                                       trainer.sizes[level], losses))
                 if time.monotonic() - last_save > checkpoint_every:
                     atomic_save(trainer.state(), checkpoint_path)
@@ -358,11 +413,73 @@ def train(input_path, output_path, config: TrainConfig | None, *, resume: bool =
         atomic_save(trainer.state(), checkpoint_path)
         raise Interrupted(f"interrupted; progress saved to {checkpoint_path}; continue with --resume") from None
 
+    if config.minutes is not None:  # the plan is part of how the model was made
+        config = dataclasses.replace(config, level_iters=tuple(trainer.plan))
+    ran_on = {"device": placement.device.type, "precision": placement.precision}
     if config.generator == "voxel":  # the baseline has no .onnx form: its checkpoint is the model
         return {"levels": [{"size": list(s)} for s in trainer.sizes],
-                "training": {"seconds": sum(trainer.seconds), "level_seconds": trainer.seconds}}
+                "training": {"seconds": sum(trainer.seconds), "level_seconds": trainer.seconds, **ran_on}}
     return export.export_model(trainer.generator, sizes=trainer.sizes, noise_amps=trainer.noise_amps,
-                               config=config, pyramid=pyramid, seconds=trainer.seconds, path=output_path)
+                               config=config, pyramid=pyramid, seconds=trainer.seconds, ran_on=ran_on,
+                               path=output_path)
+
+
+def time_levels(config: TrainConfig, pyramid, placement, rounds: int = 2) -> list:
+    """Seconds per iteration at every level, measured on a throwaway trainer
+    (untrained weights cost what trained ones do)."""
+    trainer = Trainer(config, pyramid, placement)
+    costs = []
+    for level in range(len(trainer.sizes)):
+        trainer.level = level
+        trainer.begin_level()
+        recon_inputs = trainer.recon_inputs()
+        trainer.iterate(recon_inputs)  # the first call allocates and picks kernels
+        started = time.monotonic()
+        for _ in range(rounds):
+            trainer.iterate(recon_inputs)
+        costs.append((time.monotonic() - started) / rounds)
+    return costs
+
+
+class Budget:
+    """Plans every level's iterations so that training ends with its budget.
+
+    Every level gets the same count, as in the paper, from the measured
+    seconds per iteration. Each level re-plans what is left, with the costs
+    scaled by how the finished levels compared with their measurement, so a
+    machine that slows down or speeds up still ends near the deadline.
+    """
+
+    RESERVE = 2.0  # seconds kept for the export and the last checkpoint
+
+    def __init__(self, seconds: float, clock_started: float, costs: list):
+        self.deadline = clock_started + seconds
+        self.costs = costs
+        self.predicted = self.actual = 0.0  # seconds of the levels finished in this run
+        self.counted = set()
+
+    def iterations(self, trainer) -> int:
+        """Iterations for the level `trainer` is starting."""
+        for level, seconds in enumerate(trainer.seconds):
+            if level not in self.counted and trainer.plan[level]:
+                self.counted.add(level)
+                self.predicted += trainer.plan[level] * self.costs[level]
+                self.actual += seconds
+        drift = self.actual / self.predicted if self.predicted else 1.0
+        left = self.deadline - time.monotonic() - self.RESERVE
+        count = math.floor(left / (drift * sum(self.costs[trainer.level:])))
+        if count < 1:
+            raise InputError(f"the time budget leaves {max(left, 0):.0f} s for the levels from "
+                             f"{trainer.level + 1} on, which need {drift * sum(self.costs[trainer.level:]):.1f} s "
+                             "per iteration; give more --minutes")
+        return count
+
+    def describe(self, trainer) -> str:
+        left = self.deadline - time.monotonic() - self.RESERVE
+        count = math.floor(left / sum(self.costs[trainer.level:]))
+        costs = ", ".join(f"{c:.2f}" for c in self.costs)
+        return (f"plan: {count} iterations per level for levels {trainer.level + 1}-{len(self.costs)} in "
+                f"{left / 60:.1f} min; measured s/iteration per level: {costs}")
 
 
 def load_generator(checkpoint_path) -> tuple:

@@ -1,0 +1,99 @@
+"""Where training runs and in which precision: chosen once per run, per machine.
+
+Neither changes what a model means: noise is drawn on the CPU from the run's
+seeded generator whatever the device, checkpoints load on any device, and the
+exported model is float32 either way. The precision is a speed choice whose
+effect on quality is measured (README, docs/EVALUATION.md):
+
+- CPU with native bf16 (AVX512-BF16 or AMX): the convolutions run under bf16
+  autocast, measured 1.2-1.5x faster per iteration here at the same quality.
+  Without native bf16, oneDNN emulates it and it is many times slower, so
+  such CPUs stay in float32.
+- CUDA: TF32 for convolutions and matrix products (float32 range and storage,
+  a 10-bit mantissa in the products), the usual setting for GAN training on
+  Ampere and later; the decoder's occupancy is float32 everywhere.
+"""
+
+from contextlib import nullcontext
+from dataclasses import dataclass
+
+import torch
+
+from sinshape.runtime.errors import InputError
+
+DEVICES = ("auto", "cpu", "cuda", "cuda:N")
+PRECISIONS = ("auto", "fp32", "bf16")
+
+
+@dataclass(frozen=True)
+class Placement:
+    """A device, the precision used on it, and why they were picked."""
+
+    device: torch.device
+    precision: str  # "fp32", "tf32" (CUDA) or "bf16"
+    reason: str
+
+    def activate(self) -> None:
+        """Set the process-wide switches this placement needs."""
+        if self.device.type == "cuda":
+            torch.backends.cuda.matmul.allow_tf32 = torch.backends.cudnn.allow_tf32 = self.precision == "tf32"
+            torch.backends.cudnn.benchmark = True  # every level keeps one grid size
+
+    def autocast(self):
+        """The context training steps run in."""
+        if self.precision != "bf16":
+            return nullcontext()
+        return torch.autocast(self.device.type, dtype=torch.bfloat16)
+
+    def describe(self) -> str:
+        return f"{self.device} ({self.precision}): {self.reason}"
+
+
+def native_bf16() -> bool:
+    """Whether this CPU computes bf16 in hardware (AVX512-BF16 or AMX tiles)."""
+    checks = [getattr(torch.cpu, name, None) for name in ("_is_avx512_bf16_supported", "_is_amx_tile_supported")]
+    return any(check is not None and check() for check in checks)
+
+
+def parse_device(name: str) -> torch.device:
+    """'cpu', 'cuda' or 'cuda:N' -> a torch.device that exists here."""
+    try:
+        device = torch.device(name)
+    except RuntimeError:
+        device = None
+    if device is None or device.type not in ("cpu", "cuda"):
+        raise InputError(f"device must be one of {', '.join(DEVICES)}, got {name!r}")
+    if device.type == "cuda":
+        if not torch.cuda.is_available():
+            raise InputError(f"device {name!r}: torch {torch.__version__} sees no CUDA GPU "
+                             f"({'a CPU-only build' if torch.version.cuda is None else 'no usable GPU or driver'})")
+        if (device.index or 0) >= torch.cuda.device_count():
+            raise InputError(f"device {name!r}: torch sees {torch.cuda.device_count()} CUDA GPU(s)")
+    return device
+
+
+def choose(device: str = "auto", precision: str = "auto") -> Placement:
+    """Resolve 'auto' for the device and the precision on this machine."""
+    if precision not in PRECISIONS:
+        raise InputError(f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
+    if device == "auto":
+        if torch.cuda.is_available():
+            picked, reason = torch.device("cuda"), f"auto: torch sees {torch.cuda.get_device_name(0)}"
+        else:
+            why = "a CPU-only build" if torch.version.cuda is None else "no CUDA GPU found"
+            picked, reason = torch.device("cpu"), f"auto: torch {torch.__version__} is {why}"
+    else:
+        picked, reason = parse_device(device), "asked for"
+
+    if precision == "fp32":
+        return Placement(picked, "fp32", reason + "; float32 asked for")
+    if picked.type == "cuda":
+        if precision == "bf16":
+            return Placement(picked, "bf16", reason + "; bf16 autocast asked for")
+        return Placement(picked, "tf32", reason + "; TF32 products on CUDA")
+    if native_bf16():
+        return Placement(picked, "bf16", reason + "; bf16 autocast: this CPU has native bf16")
+    if precision == "bf16":
+        raise InputError("precision bf16: this CPU has no native bf16 (AVX512-BF16 or AMX), where it is "
+                         "many times slower than float32; use --precision fp32 or auto")
+    return Placement(picked, "fp32", reason + "; float32: this CPU has no native bf16")
