@@ -26,6 +26,7 @@ import torch.nn.functional as F
 
 from sinshape.trainer import train
 from sinshape.trainer.config import make_config
+from sinshape.trainer.networks import TriplaneGenerator
 from sinshape.trainer.pyramid import Pyramid
 
 
@@ -46,12 +47,14 @@ def concat_decode(decoder, planes) -> torch.Tensor:
 class StraightforwardTrainer(train.Trainer):
     """The same training, computed as the authors' code computes it."""
 
-    def __init__(self, config, pyramid):
-        super().__init__(config, pyramid)
+    def __init__(self, config, pyramid, placement=None):
+        super().__init__(config, pyramid, placement)
         self.critic.forward = self.critic.net  # plain PyTorch kernel choice
 
     def fake(self, inputs, noise_planes):
         gen = self.generator
+        if not isinstance(gen, TriplaneGenerator):  # the voxel baseline: no decoder
+            return super().fake(inputs, noise_planes)[0]
         planes = gen.levels[0](inputs) if self.level == 0 else gen.step(inputs, self.level, self.sizes[self.level], noise_planes)
         return concat_decode(gen.decoder, planes)
 
