@@ -1,20 +1,26 @@
 """Training speed: seconds per iteration, ours against a straightforward port.
 
-    python benchmarks/train_speed.py                 # 64^3 and 96^3 levels, side by side
-    python benchmarks/train_speed.py --sizes 64      # one size
+    python benchmarks/train_speed.py                 # the six level sizes of a paper res-128 pyramid
+    python benchmarks/train_speed.py --rounds 9      # more repetitions (the median is reported)
     python benchmarks/train_speed.py --full MESH     # also: the whole default preset on MESH
 
-An iteration is the paper's: 3 critic steps, then 3 generator steps, at a
-level i > 0 (frozen level below, noise injection). The straightforward port
-does what the authors' code does: the decoder concatenates the three plane
-features of every voxel into a (X, Y, Z, 96) tensor and runs the whole MLP
-under autograd; critic steps build the generator's autograd graph and then
-detach it; real and fake go through the critic separately. Both trainers
-compute the same losses on the same shapes, so the ratio is the speed-up.
+An iteration is the paper's: 3 critic steps, then 3 generator steps, at level
+i of a pyramid with the given level sizes (frozen levels below, noise
+injection). The straightforward port does what the authors' code does, in
+float32: the decoder concatenates the three plane features of every voxel
+into a (X, Y, Z, 96) tensor and runs the whole MLP under autograd; every
+sample goes through the networks on its own (critic steps build the
+generator's autograd graph and then detach it; real, fake and the gradient
+penalty's mix go through the critic separately), with PyTorch's own kernel
+choice. Both compute the same losses from the same random draws (a test
+checks it), so the ratio is the speed-up. The trainers run one iteration in
+turn, round after round, so a busy machine slows them alike; the median of
+the rounds is reported. sinshape runs twice: in float32 (the same
+computation) and with what it picks on this machine (--precision auto).
 """
 
 import argparse
-import math
+import statistics
 import sys
 import tempfile
 import time
@@ -24,10 +30,13 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from sinshape.trainer import train
+from sinshape.trainer import device, train
 from sinshape.trainer.config import make_config
 from sinshape.trainer.networks import TriplaneGenerator
 from sinshape.trainer.pyramid import Pyramid
+
+# The level sizes of one of the paper's res-128 pyramids (the training issue's).
+PAPER_SIZES = [(31, 15, 15), (41, 15, 19), (54, 16, 26), (72, 20, 34), (96, 28, 44), (128, 36, 60)]
 
 
 def wavy_terrain(size) -> np.ndarray:
@@ -83,37 +92,56 @@ class StraightforwardTrainer(train.Trainer):
         return {"D": loss_d.item(), "G": loss_adv.item(), "rec": loss_rec.item()}
 
 
-def seconds_per_iteration(trainer_class, side: int, iterations: int) -> float:
-    """Train level 1 of a two-level cubic pyramid whose finest side is `side`."""
-    coarse = math.ceil(side * 0.75)
-    pyramid = Pyramid([wavy_terrain((coarse,) * 3), wavy_terrain((side,) * 3)],
-                      (0.0,) * 3, (1.0,) * 3, "terrain", "0" * 64, "pyramid")
-    trainer = trainer_class(make_config("paper", levels=2), pyramid)
-    trainer.begin_level()
-    trainer.level = 1
-    trainer.begin_level()
-    recon_inputs = trainer.inputs(trainer.z0_recon, [None, None])
+def trainer_at(trainer_class, sizes: list, level: int, placement):
+    """A trainer at `level` of a wavy terrain with these level sizes, warmed up."""
+    pyramid = Pyramid([wavy_terrain(size) for size in sizes[:level + 1]], (0.0,) * 3, (1.0,) * 3,
+                      "terrain", "0" * 64, "pyramid")
+    trainer = trainer_class(make_config("paper", levels=level + 1), pyramid, placement)
+    for trainer.level in range(level + 1):
+        trainer.begin_level()
+    recon_inputs = trainer.recon_inputs()
     trainer.iterate(recon_inputs)  # warm-up: first calls allocate and pick kernels
+    return trainer, recon_inputs
+
+
+def timed_iteration(trainer, recon_inputs) -> float:
     started = time.perf_counter()
-    for _ in range(iterations):
-        trainer.iterate(recon_inputs)
-    return (time.perf_counter() - started) / iterations
+    trainer.iterate(recon_inputs)
+    return time.perf_counter() - started
 
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--sizes", type=int, nargs="+", default=[64, 96])
-    parser.add_argument("--iterations", type=int, default=3)
+    parser.add_argument("--rounds", type=int, default=5, help="iterations each trainer runs per level")
     parser.add_argument("--full", type=Path, help="also train the default preset on this mesh, end to end")
     args = parser.parse_args()
 
-    print(f"torch {torch.__version__}, {torch.get_num_threads()} threads")
-    print("| level | straightforward s/iter | sinshape s/iter | speed-up |")
-    print("|---|---|---|---|")
-    for side in args.sizes:
-        base = seconds_per_iteration(StraightforwardTrainer, side, args.iterations)
-        ours = seconds_per_iteration(train.Trainer, side, args.iterations)
-        print(f"| {side}^3 | {base:.2f} | {ours:.2f} | {base / ours:.2f}x |", flush=True)
+    picked = device.choose("cpu")
+    fp32 = device.Placement(torch.device("cpu"), "fp32", "float32 asked for")
+    print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, CPU capability "
+          f"{torch.backends.cpu.get_cpu_capability()}, native bf16: {device.native_bf16()}")
+    print(f"sinshape picked: {picked.describe()}")
+    print("| level | grid | straightforward s/iter | sinshape fp32 | sinshape " + picked.precision
+          + " | speed-up fp32 | speed-up " + picked.precision + " |")
+    print("|---|---|---|---|---|---|---|")
+    sums = np.zeros(3)
+    for level, size in enumerate(PAPER_SIZES):
+        runs = [trainer_at(StraightforwardTrainer, PAPER_SIZES, level, fp32),
+                trainer_at(train.Trainer, PAPER_SIZES, level, fp32),
+                trainer_at(train.Trainer, PAPER_SIZES, level, picked)]
+        seconds = [[] for _ in runs]
+        for _ in range(args.rounds):
+            for run, times in zip(runs, seconds):
+                times.append(timed_iteration(*run))
+        base, ours32, ours = (statistics.median(times) for times in seconds)
+        sums += (base, ours32, ours)
+        print(f"| {level} | {'x'.join(map(str, size))} | {base:.3f} | {ours32:.3f} | {ours:.3f} "
+              f"| {base / ours32:.2f}x | {base / ours:.2f}x |", flush=True)
+    base, ours32, ours = sums
+    print(f"| sum | | {base:.2f} | {ours32:.2f} | {ours:.2f} | {base / ours32:.2f}x | {base / ours:.2f}x |")
+    print(f"\nThe paper's setting (2000 iterations per level) at these sizes: straightforward "
+          f"{base * 2000 / 3600:.2f} h, sinshape fp32 {ours32 * 2000 / 3600:.2f} h, "
+          f"sinshape {picked.precision} {ours * 2000 / 3600:.2f} h")
 
     if args.full:
         with tempfile.TemporaryDirectory() as tmp:
