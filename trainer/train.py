@@ -163,6 +163,11 @@ class Trainer:
 
     # -- one iteration -------------------------------------------------------
     def iterate(self, recon_inputs) -> dict:
+        """One iteration, in the precision of the run's placement."""
+        with self.placement.autocast():
+            return self.update_steps(recon_inputs)
+
+    def update_steps(self, recon_inputs) -> dict:
         """(1) update D `d_steps` times, (2) update G `g_steps` times.
 
         Samples that go through the same network state share one batch (the
@@ -171,10 +176,6 @@ class Trainer:
         change during them), and each generator step's fake with the
         reconstruction. Random draws are made in the order they are used.
         """
-        with self.placement.autocast():
-            return self.steps(recon_inputs)
-
-    def steps(self, recon_inputs) -> dict:
         c, level, real = self.config, self.level, self.targets[self.level]
         critic = self.critic
         d_draws = [(*self.random_noises(level), self.draw(torch.rand, 1)) for _ in range(c.d_steps)]
