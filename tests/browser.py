@@ -1,0 +1,63 @@
+"""A headless chromium on a static folder, for the browser runtime's tests and
+benchmarks/web_speed.py: a loopback file server in a thread (with or without
+the cross-origin isolation headers that multi-threaded WASM needs) and a page.
+"""
+
+import contextlib
+import functools
+import http.server
+import shutil
+import threading
+from pathlib import Path
+
+CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+# WebGL without a GPU: chromium's software renderer (as tests/test_serve_page.py).
+ARGS = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"]
+ISOLATION = {"Cross-Origin-Opener-Policy": "same-origin", "Cross-Origin-Embedder-Policy": "require-corp"}
+
+
+class Handler(http.server.SimpleHTTPRequestHandler):
+    extensions_map = {**http.server.SimpleHTTPRequestHandler.extensions_map,
+                      ".mjs": "text/javascript", ".js": "text/javascript", ".wasm": "application/wasm"}
+    headers_to_send = {}
+
+    def end_headers(self):
+        for key, value in self.headers_to_send.items():
+            self.send_header(key, value)
+        super().end_headers()
+
+    def log_message(self, *args):
+        pass
+
+
+@contextlib.contextmanager
+def static_server(folder: Path, isolated: bool = False):
+    """Serve `folder` on a free loopback port in a thread: yields the base URL."""
+    handler = type("Handler", (Handler,), {"headers_to_send": ISOLATION if isolated else {}})
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), functools.partial(handler, directory=str(folder)))
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    try:
+        yield f"http://127.0.0.1:{server.server_address[1]}"
+    finally:
+        server.shutdown()
+        server.server_close()
+
+
+@contextlib.contextmanager
+def chromium_page(base: str):
+    """A page in headless chromium that may reach only `base`: yields the page
+    (page.errors: uncaught errors, page.outside: requests elsewhere)."""
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as playwright:
+        browser = playwright.chromium.launch(executable_path=CHROMIUM, args=ARGS)
+        try:
+            page = browser.new_page(viewport={"width": 900, "height": 600})
+            page.errors, page.outside = [], []
+            page.on("pageerror", lambda error: page.errors.append(str(error)))
+            page.route("**/*", lambda route: route.continue_() if route.request.url.startswith(base)
+                       else (page.outside.append(route.request.url), route.abort()))
+            yield page
+        finally:
+            browser.close()
