@@ -45,19 +45,24 @@ def static_server(folder: Path, isolated: bool = False):
 
 
 @contextlib.contextmanager
-def chromium_page(base: str):
-    """A page in headless chromium that may reach only `base`: yields the page
-    (page.errors: uncaught errors, page.outside: requests elsewhere)."""
+def chromium():
+    """Headless chromium (Playwright's sync API allows one at a time): yields the browser."""
     from playwright.sync_api import sync_playwright
 
     with sync_playwright() as playwright:
         browser = playwright.chromium.launch(executable_path=CHROMIUM, args=ARGS)
         try:
-            page = browser.new_page(viewport={"width": 900, "height": 600})
-            page.errors, page.outside = [], []
-            page.on("pageerror", lambda error: page.errors.append(str(error)))
-            page.route("**/*", lambda route: route.continue_() if route.request.url.startswith(base)
-                       else (page.outside.append(route.request.url), route.abort()))
-            yield page
+            yield browser
         finally:
             browser.close()
+
+
+def open_page(browser, base: str):
+    """A page that may reach only `base` (page.errors: uncaught errors, page.outside:
+    requests elsewhere, which are aborted)."""
+    page = browser.new_page(viewport={"width": 900, "height": 600})
+    page.errors, page.outside = [], []
+    page.on("pageerror", lambda error: page.errors.append(str(error)))
+    page.route("**/*", lambda route: route.continue_() if route.request.url.startswith(base)
+               else (page.outside.append(route.request.url), route.abort()))
+    return page
