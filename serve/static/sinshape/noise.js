@@ -35,19 +35,13 @@ export function streamKey(seed, ...ids) {
 let hiOut = 0;
 let loOut = 0;
 
-/** The full 64-bit product of two uint32 values (exact, in doubles). */
-function mul32(a, b) {
-  const a0 = a & 0xffff, a1 = a >>> 16, b0 = b & 0xffff, b1 = b >>> 16;
-  const mid = a0 * b1 + a1 * b0; // < 2^33
-  const low = a0 * b0 + (mid % 65536) * 65536; // < 2^33
-  loOut = low >>> 0;
-  hiOut = (a1 * b1 + Math.floor(mid / 65536) + Math.floor(low / TWO32)) >>> 0;
-}
-
-/** (ah, al) * (bh, bl) mod 2^64. */
+/** (ah, al) * (bh, bl) mod 2^64, with 16-bit limbs for the high half of al * bl. */
 function mul64(ah, al, bh, bl) {
-  mul32(al, bl);
-  hiOut = (hiOut + Math.imul(ah, bl) + Math.imul(al, bh)) >>> 0;
+  const a0 = al & 0xffff, a1 = al >>> 16, b0 = bl & 0xffff, b1 = bl >>> 16;
+  const p01 = a0 * b1, p10 = a1 * b0; // < 2^32, exact
+  const carry = (((a0 * b0) >>> 16) + (p01 & 0xffff) + (p10 & 0xffff)) >>> 16;
+  hiOut = (a1 * b1 + (p01 >>> 16) + (p10 >>> 16) + carry + Math.imul(ah, bl) + Math.imul(al, bh)) >>> 0;
+  loOut = Math.imul(al, bl) >>> 0;
 }
 
 /** (ah, al) + (bh, bl) mod 2^64. */
@@ -78,15 +72,6 @@ function normalFromBits(hi, lo) {
   return Math.fround(Math.sqrt(-2.0 * Math.log(u1)) * Math.cos(2.0 * Math.PI * u2));
 }
 
-/** One value: the recipe's step 2-4 for a counter n = (nHi, nLo) under a key. */
-function valueAt(keyHi, keyLo, nHi, nLo) {
-  add64(nHi, nLo, 0, 1); // n + 1
-  mul64(hiOut, loOut, GOLDEN_HI, GOLDEN_LO); // GOLDEN * (n + 1)
-  add64(keyHi, keyLo, hiOut, loOut); // k + ...
-  mix64(hiOut, loOut);
-  return normalFromBits(hiOut, loOut);
-}
-
 function checkShape(shape, offset) {
   if (shape.length !== offset.length || shape.length < 2 || shape.length > 3) {
     throw new RangeError(`noise blocks are 2-D or 3-D, got shape ${shape}, offset ${offset}`);
@@ -114,8 +99,19 @@ export function normal(seed, stream, shape, offset = null, out = null) {
     for (let b = o1; b < o1 + s1; b++) {
       // n = (a << 42) | (b << 21) | c, in halves: bits 32.. are a << 10 | b >> 11
       const nHi = ((a << 10) | (b >>> 11)) >>> 0;
-      const bLow = ((b & 0x7ff) << 21) >>> 0;
-      for (let c = o2; c < o2 + s2; c++) out[i++] = valueAt(keyHi, keyLo, nHi, (bLow | c) >>> 0);
+      const nLo = (((b & 0x7ff) << 21) | o2) >>> 0;
+      // state = k + GOLDEN * (n + 1) for the row's first value; along the row n
+      // grows by one (c is the lowest bits), so the state grows by GOLDEN.
+      add64(nHi, nLo, 0, 1);
+      mul64(hiOut, loOut, GOLDEN_HI, GOLDEN_LO);
+      add64(keyHi, keyLo, hiOut, loOut);
+      let sHi = hiOut, sLo = loOut;
+      for (let c = 0; c < s2; c++) {
+        mix64(sHi, sLo);
+        out[i++] = normalFromBits(hiOut, loOut);
+        add64(sHi, sLo, GOLDEN_HI, GOLDEN_LO);
+        sHi = hiOut; sLo = loOut;
+      }
     }
   }
   return out;
