@@ -13,6 +13,9 @@ from pathlib import Path
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 # WebGL without a GPU: chromium's software renderer (as tests/test_serve_page.py).
 ARGS = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"]
+# WebGPU without a GPU: SwiftShader's Vulkan (slow, but it runs the WebGPU backend's kernels).
+WEBGPU_ARGS = ["--enable-unsafe-webgpu", "--enable-features=Vulkan", "--use-vulkan=swiftshader",
+               "--use-webgpu-adapter=swiftshader"]
 ISOLATION = {"Cross-Origin-Opener-Policy": "same-origin", "Cross-Origin-Embedder-Policy": "require-corp"}
 
 
@@ -44,13 +47,18 @@ def static_server(folder: Path, isolated: bool = False):
         server.server_close()
 
 
+def launch(playwright, extra_args=()):
+    """Headless chromium from a running sync_playwright(), with the software renderer."""
+    return playwright.chromium.launch(executable_path=CHROMIUM, args=[*ARGS, *extra_args])
+
+
 @contextlib.contextmanager
-def chromium():
-    """Headless chromium (Playwright's sync API allows one at a time): yields the browser."""
+def chromium(extra_args=()):
+    """Headless chromium (Playwright's sync API runs one instance at a time): yields the browser."""
     from playwright.sync_api import sync_playwright
 
     with sync_playwright() as playwright:
-        browser = playwright.chromium.launch(executable_path=CHROMIUM, args=ARGS)
+        browser = launch(playwright, extra_args)
         try:
             yield browser
         finally:

@@ -13,7 +13,7 @@ import pytest
 from click.testing import CliRunner
 from onnx import TensorProto, helper
 
-from browser import CHROMIUM, chromium, open_page, static_server
+from browser import CHROMIUM, WEBGPU_ARGS, launch, open_page, static_server
 from sinshape import models
 from sinshape.cli.main import cli
 from sinshape.runtime import load, mesh, query
@@ -58,9 +58,18 @@ def terrain():
 
 
 @pytest.fixture(scope="module")
-def browser():
-    with chromium() as launched:
-        yield launched
+def playwright():
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as running:
+        yield running
+
+
+@pytest.fixture(scope="module")
+def browser(playwright):
+    launched = launch(playwright)
+    yield launched
+    launched.close()
 
 
 @pytest.fixture(scope="module")
@@ -136,6 +145,23 @@ def test_grid_and_mesh_equal_the_python_runtime(site_page, terrain, scale, size)
     assert abs(js["faces"] - len(python.faces)) <= len(python.faces) / 1000
     assert abs(js["vertices"] - len(python.vertices)) <= len(python.vertices) / 1000
     assert js["volume"] == pytest.approx(python.volume, rel=1e-3)  # > 0: faces wound outwards, as Python's
+
+
+def test_webgpu_gives_the_same_grid(site_page, terrain, playwright):
+    """Where the browser has WebGPU the page uses it (here: SwiftShader, about 15 s); same grid within 1e-4."""
+    page = site_page  # the fixture's folder, served again for a browser with WebGPU switched on
+    browser = launch(playwright, WEBGPU_ARGS)
+    try:
+        gpu_page = open_page(browser, page.base)
+        gpu_page.goto(f"{page.base}/README.txt")
+        if not gpu_page.evaluate("async () => Boolean(navigator.gpu && await navigator.gpu.requestAdapter())"):
+            pytest.skip("this chromium offers no WebGPU adapter, not even SwiftShader's")
+        js = gpu_page.evaluate(SAMPLE_JS, [3, [1, 1, 1], 1])
+    finally:
+        browser.close()
+    assert js["backend"] == "webgpu"
+    grid = np.frombuffer(base64.b64decode(js["grid"]), np.float32).reshape(js["shape"])
+    assert np.abs(grid - query.dense(terrain, sample(terrain, 3), 1)).max() < 1e-4
 
 
 def foreign_model(path: Path) -> Path:
