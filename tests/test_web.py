@@ -13,7 +13,7 @@ import pytest
 from click.testing import CliRunner
 from onnx import TensorProto, helper
 
-from browser import CHROMIUM, WEBGPU_ARGS, launch, open_page, static_server
+from browser import CHROMIUM, WEBGPU_ARGS, http_server_process, launch, open_page
 from sinshape import models
 from sinshape.cli.main import cli
 from sinshape.runtime import load, mesh, query
@@ -74,10 +74,10 @@ def browser(playwright):
 
 @pytest.fixture(scope="module")
 def site_page(tmp_path_factory, browser):
-    """The exported site, served without isolation headers (as python -m http.server), in chromium."""
+    """`sinrun export-web terrain -o site && python -m http.server -d site`, in chromium."""
     folder = tmp_path_factory.mktemp("web") / "site"
     site.export_site(["terrain"], folder)
-    with static_server(folder) as base:
+    with http_server_process(folder) as base:
         page = open_page(browser, base)
         page.base, page.folder = base, folder
         yield page
