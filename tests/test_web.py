@@ -164,6 +164,21 @@ def test_webgpu_gives_the_same_grid(site_page, terrain, playwright):
     assert np.abs(grid - query.dense(terrain, sample(terrain, 3), 1)).max() < 1e-4
 
 
+def test_smoothing_is_trimeshs_laplacian_filter(site_page, terrain):
+    """--smooth in the browser: the filter the Python runtime uses, on the same mesh, to 1e-9."""
+    page = site_page
+    if not page.url.startswith(page.base):
+        page.goto(f"{page.base}/README.txt")
+    raw = mesh.band_mesh(terrain, sample(terrain, 3), 1)
+    smoothed = page.evaluate("""async ([positions, faces]) => {
+      const s = await import('./static/sinshape/runtime.js');
+      return Array.from(s.smooth({ positions: Float64Array.from(positions), faces: Uint32Array.from(faces) }, 3).positions);
+    }""", [raw.vertices.ravel().tolist(), raw.faces.ravel().tolist()])
+    expected = mesh.finish(raw.copy(), smooth=3).vertices
+    assert np.abs(np.reshape(smoothed, (-1, 3)) - expected).max() < 1e-9
+    assert np.abs(expected - raw.vertices).mean() > 0.01  # it does smooth
+
+
 def foreign_model(path: Path) -> Path:
     x = helper.make_tensor_value_info("x", TensorProto.FLOAT, [1])
     y = helper.make_tensor_value_info("y", TensorProto.FLOAT, [1])

@@ -111,3 +111,73 @@ export function surface(grid, size, manifest = null) {
   }
   return { positions, faces };
 }
+
+/** Volume and centre of mass of a closed mesh (trimesh's mass_properties, unit density). */
+export function massProperties({ positions: p, faces: f }) {
+  let volume = 0;
+  const moment = [0, 0, 0];
+  for (let i = 0; i < f.length; i += 3) {
+    const a = 3 * f[i], b = 3 * f[i + 1], c = 3 * f[i + 2];
+    const u = [p[b] - p[a], p[b + 1] - p[a + 1], p[b + 2] - p[a + 2]];
+    const v = [p[c] - p[a], p[c + 1] - p[a + 1], p[c + 2] - p[a + 2]];
+    const cross = [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
+    for (let k = 0; k < 3; k++) {
+      const x0 = p[a + k], x1 = p[b + k], x2 = p[c + k], f1 = x0 + x1 + x2;
+      if (k === 0) volume += cross[0] * f1;
+      moment[k] += cross[k] * (x0 * x0 + x1 * x1 + x0 * x1 + x2 * f1);
+    }
+  }
+  volume /= 6;
+  return { volume, center: moment.map((m) => m / 24 / volume) };
+}
+
+/**
+ * Laplacian smoothing as trimesh's filter_laplacian (the Python runtime's
+ * --smooth): each step moves every vertex by lamb towards the mean of its
+ * neighbours, then rescales about the centre of mass to the initial volume.
+ * Changes mesh.positions in place and returns the mesh.
+ */
+export function smooth(mesh, iterations, lamb = 0.5) {
+  const { positions, faces } = mesh;
+  const n = positions.length / 3;
+  if (!iterations || faces.length === 0) return mesh;
+  // Unique neighbours of every vertex, in compressed rows.
+  const pairs = new Set();
+  const degree = new Int32Array(n);
+  for (let i = 0; i < faces.length; i += 3) {
+    for (let k = 0; k < 3; k++) {
+      const a = faces[i + k], b = faces[i + (k + 1) % 3];
+      const key = a < b ? a * n + b : b * n + a;
+      if (!pairs.has(key)) { pairs.add(key); degree[a]++; degree[b]++; }
+    }
+  }
+  const start = new Int32Array(n + 1);
+  for (let v = 0; v < n; v++) start[v + 1] = start[v] + degree[v];
+  const fill = start.slice(0, n), neighbours = new Int32Array(start[n]);
+  for (const key of pairs) {
+    const a = Math.floor(key / n), b = key - a * n;
+    neighbours[fill[a]++] = b;
+    neighbours[fill[b]++] = a;
+  }
+  const initial = massProperties(mesh);
+  const current = Float64Array.from(positions), next = new Float64Array(current.length);
+  const view = { positions: current, faces };
+  for (let step = 0; step < iterations; step++) {
+    for (let v = 0; v < n; v++) {
+      const count = start[v + 1] - start[v];
+      for (let k = 0; k < 3; k++) {
+        let sum = 0;
+        for (let j = start[v]; j < start[v + 1]; j++) sum += current[3 * neighbours[j] + k];
+        next[3 * v + k] = count ? current[3 * v + k] + lamb * (sum / count - current[3 * v + k]) : current[3 * v + k];
+      }
+    }
+    current.set(next);
+    const scale = Math.cbrt(initial.volume / massProperties(view).volume);
+    for (let i = 0; i < current.length; i++) {
+      const c = initial.center[i % 3];
+      current[i] = (current[i] - c) * scale + c;
+    }
+  }
+  positions.set(current);
+  return mesh;
+}

@@ -216,7 +216,8 @@ export async function loadModel(bytes, { name = 'model.onnx', backend = 'auto', 
       await checkStages(loaded);
       return loaded;
     } catch (error) {
-      if (error instanceof InputError) throw error;
+      // A stage WebGPU cannot run falls back to WASM; on the last backend a refusal stands.
+      if (error instanceof InputError && provider === providers[providers.length - 1]) throw error;
       lastError = error;
     }
   }

@@ -8,13 +8,14 @@
 //   const tri = await sinshape.sample(model, 3, [1, 1, 1]);
 //   const grid = await sinshape.grid(model, tri, 2);     // { data: Float32Array (X, Y, Z), shape }
 //   const mesh = sinshape.surface(grid, tri.size, model.manifest);   // { positions, faces }
+//   sinshape.smooth(mesh, 3);                            // Laplacian steps, as --smooth
 import { project, dense } from './query.js';
 
 export { InputError, loadModel, configure, parseManifest } from './model.js';
 export { sample, scaledSizes } from './generate.js';
 export { normal, streamKey } from './noise.js';
 export { gridShape, project, dense } from './query.js';
-export { marchingCubes, surface } from './mesh.js';
+export { marchingCubes, massProperties, smooth, surface } from './mesh.js';
 
 /** Occupancy on a grid `scale` times finer than the tri-plane (both stages of the query). */
 export async function grid(model, tri, scale = 1) {
