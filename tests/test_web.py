@@ -5,6 +5,11 @@ Debian's headless chromium against the Python runtime, on a site written by
 import base64
 import json
 import re
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
 from pathlib import Path
 
 import numpy as np
@@ -267,6 +272,12 @@ def test_the_serve_page_switches_to_the_browser(browser):
         assert not page.errors and not page.outside
 
 
+def free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
 def run(*args):
     return CliRunner().invoke(cli, [str(a) for a in args])
 
@@ -281,6 +292,26 @@ def test_export_web_writes_replaces_and_refuses(tmp_path):
     assert 'data-site="static"' in (out / "index.html").read_text()
     for name in ("ort.min.mjs", "ort-wasm-simd-threaded.jsep.mjs", "ort-wasm-simd-threaded.jsep.wasm", "LICENSE"):
         assert (out / "static" / "vendor" / "onnxruntime-web" / name).is_file()
+    # Its serve.py sends the headers that let WASM use threads, and JavaScript and WASM types.
+    port = free_port()
+    server = subprocess.Popen([sys.executable, "serve.py", str(port)], cwd=out, stdout=subprocess.DEVNULL)
+    try:
+        for _ in range(100):
+            try:
+                answers = {path: urllib.request.urlopen(f"http://127.0.0.1:{port}/{path}", timeout=5).headers
+                           for path in ("", "static/sinshape/runtime.js",
+                                        "static/vendor/onnxruntime-web/ort-wasm-simd-threaded.jsep.wasm")}
+                break
+            except OSError:
+                time.sleep(0.1)
+        else:
+            raise AssertionError("serve.py did not answer")
+    finally:
+        server.terminate()
+        server.wait(timeout=10)
+    assert all(h["Cross-Origin-Embedder-Policy"] == "require-corp" for h in answers.values())
+    assert answers["static/sinshape/runtime.js"]["Content-Type"] == "text/javascript"
+    assert answers["static/vendor/onnxruntime-web/ort-wasm-simd-threaded.jsep.wasm"]["Content-Type"] == "application/wasm"
     # A previous export is replaced; any other folder with files is refused, untouched.
     (out / "stale.txt").write_text("x")
     assert run("export-web", "terrain", "-o", out).exit_code == 0
