@@ -268,7 +268,7 @@ def test_the_serve_page_switches_to_the_browser(browser):
         assert abs(faces - int(server_faces.replace(",", ""))) <= faces / 1000
         assert page.evaluate("crossOriginIsolated")
         backend = page.text_content("#backend")
-        assert re.search(r"on WASM, \d+ threads?$", backend) and "not cross-origin isolated" not in backend
+        assert re.search(r"on WASM, \d+ threads?; model loaded and checked in \d+\.\d\d s$", backend) and "not cross-origin isolated" not in backend
         assert not page.errors and not page.outside
 
 

@@ -161,7 +161,10 @@ async function browserModel(name) {
       if (!response.ok) throw new Error(`cannot fetch ${entry.url}: ${response.status} ${response.statusText}`);
       bytes = new Uint8Array(await response.arrayBuffer());
     }
-    return runtime.loadModel(bytes, { name: entry.file });
+    const started = performance.now();
+    const model = await runtime.loadModel(bytes, { name: entry.file });
+    entry.seconds = (performance.now() - started) / 1000;
+    return model;
   })();
   try {
     return await entry.loaded;
@@ -171,10 +174,11 @@ async function browserModel(name) {
   }
 }
 
-function backendText(model) {
+function backendText(model, loadSeconds) {
   const threads = model.threads === 1 ? '1 thread' : `${model.threads} threads`;
   const isolation = crossOriginIsolated ? '' : ' (the page is not cross-origin isolated, so WASM runs single-threaded)';
-  return model.backend === 'webgpu' ? 'onnxruntime-web on WebGPU' : `onnxruntime-web on WASM, ${threads}${isolation}`;
+  const backend = model.backend === 'webgpu' ? 'onnxruntime-web on WebGPU' : `onnxruntime-web on WASM, ${threads}${isolation}`;
+  return `${backend}; model loaded and checked in ${loadSeconds.toFixed(2)} s`;
 }
 
 function parseSeed(text) {
@@ -207,8 +211,9 @@ function plyBlob({ positions, faces }) {
   return new Blob([header, body], { type: 'application/octet-stream' });
 }
 
-async function sampleHere(ticket, started) {
+async function sampleHere(ticket) {
   const model = await browserModel(state.model);
+  const started = performance.now(); // the sample's own time, the model's loading apart
   const seed = parseSeed(String(state.seed).trim());
   const factors = parseFactors(state.size);
   const scale = Number(state.scale);
@@ -223,7 +228,7 @@ async function sampleHere(ticket, started) {
   const faces = (mesh.faces.length / 3).toLocaleString('en');
   const seconds = ((performance.now() - started) / 1000).toFixed(2);
   $('status').textContent = `${faces} faces · ${seconds} s · in this browser`;
-  $('backend').textContent = backendText(model);
+  $('backend').textContent = backendText(model, browserModels.get(state.model).seconds);
   if (downloadUrl) URL.revokeObjectURL(downloadUrl);
   downloadUrl = URL.createObjectURL(plyBlob(mesh));
   $('download').href = downloadUrl;
@@ -245,7 +250,7 @@ async function load() {
   if (state.where === 'browser') {
     $('download').removeAttribute('href');
     try {
-      await sampleHere(ticket, started);
+      await sampleHere(ticket);
     } catch (error) {
       if (ticket !== latest) return;
       $('status').textContent = '';
