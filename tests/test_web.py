@@ -35,12 +35,14 @@ VECTORS = json.loads((Path(__file__).parent / "data" / "noise_vectors.json").rea
 TERRAIN = models.find("terrain")
 
 # Runs in the page: load the model once, sample, query the grid, mesh it.
-SAMPLE_JS = """async ([seed, size, scale]) => {
+SAMPLE_JS = """async ([seed, size, scale, name = 'terrain']) => {
   const s = await import('./static/sinshape/runtime.js');
-  window.terrain ??= await s.loadModel(new Uint8Array(await (await fetch('models/terrain.onnx')).arrayBuffer()),
-                                       { name: 'terrain.onnx' });
-  const tri = await s.sample(window.terrain, seed, size);
-  const grid = await s.grid(window.terrain, tri, scale);
+  window.models ??= {};
+  window.models[name] ??= await s.loadModel(new Uint8Array(await (await fetch(`models/${name}.onnx`)).arrayBuffer()),
+                                            { name: `${name}.onnx` });
+  const model = window.models[name];
+  const tri = await s.sample(model, seed, size);
+  const grid = await s.grid(model, tri, scale);
   const m = s.surface(grid, tri.size);
   const bytes = new Uint8Array(grid.data.buffer);
   let text = '';
@@ -53,7 +55,7 @@ SAMPLE_JS = """async ([seed, size, scale]) => {
       + p[a + 2] * (p[b] * p[c + 1] - p[b + 1] * p[c]);
   }
   return { grid: btoa(text), shape: grid.shape, size: tri.size, vertices: p.length / 3, faces: f.length / 3,
-           volume: volume / 6, backend: window.terrain.backend };
+           volume: volume / 6, backend: model.backend };
 }"""
 
 
@@ -81,7 +83,7 @@ def browser(playwright):
 def site_page(tmp_path_factory, browser):
     """`sinrun export-web terrain -o site && python -m http.server -d site`, in chromium."""
     folder = tmp_path_factory.mktemp("web") / "site"
-    site.export_site(["terrain"], folder)
+    site.export_site(["terrain", "towerruins"], folder)
     with http_server_process(folder) as base:
         page = open_page(browser, base)
         page.base, page.folder = base, folder
@@ -134,19 +136,21 @@ def test_noise_vectors_bit_for_bit(site_page):
     np.testing.assert_array_equal(np.float32(blocks[1]), noise.normal(7, (1, 3, 2, 9), (6, 5), (100, 2000)).ravel())
 
 
-@pytest.mark.parametrize("scale, size", [(1, (1, 1, 1)), (2, (1, 1, 1)), (1, (1.5, 1, 0.75))])
-def test_grid_and_mesh_equal_the_python_runtime(site_page, terrain, scale, size):
+@pytest.mark.parametrize("name, scale, size", [("terrain", 1, (1, 1, 1)), ("terrain", 2, (1, 1, 1)),
+                                               ("terrain", 1, (1.5, 1, 0.75)), ("towerruins", 1, (1, 1, 1))])
+def test_grid_and_mesh_equal_the_python_runtime(site_page, terrain, name, scale, size):
     page = site_page
     if not page.url.startswith(page.base):
         page.goto(f"{page.base}/README.txt")
-    js = page.evaluate(SAMPLE_JS, [3, list(size), scale])
-    triplane = sample(terrain, 3, size)
-    expected = query.dense(terrain, triplane, scale)
+    js = page.evaluate(SAMPLE_JS, [3, list(size), scale, name])
+    model = terrain if name == "terrain" else load.load_model(models.find(name), threads=2)
+    triplane = sample(model, 3, size)
+    expected = query.dense(model, triplane, scale)
     grid = np.frombuffer(base64.b64decode(js["grid"]), np.float32).reshape(js["shape"])
     assert grid.shape == expected.shape and tuple(js["size"]) == triplane.size
     assert np.abs(grid - expected).max() < 1e-4
     assert 0.1 < (expected > 0.5).mean() < 0.9  # a real surface, not an empty or full grid
-    python = mesh.band_mesh(terrain, triplane, scale)
+    python = mesh.band_mesh(model, triplane, scale)
     assert abs(js["faces"] - len(python.faces)) <= len(python.faces) / 1000
     assert abs(js["vertices"] - len(python.vertices)) <= len(python.vertices) / 1000
     assert js["volume"] == pytest.approx(python.volume, rel=1e-3)  # > 0: faces wound outwards, as Python's
@@ -225,7 +229,10 @@ def test_files_are_refused_as_the_python_loader_refuses_them(site_page, tmp_path
     assert page.is_visible("#error")
     assert page.text_content("#error") == "foreign.onnx: an ONNX model, but not a sinshape model (no sinshape.manifest metadata)"
 
-    files = [foreign, altered_terrain(tmp_path / "newer.onnx", newer_version),
+    (tmp_path / "text.onnx").write_text("hello, not a model")
+    (tmp_path / "empty.onnx").write_bytes(b"")
+    files = [foreign, tmp_path / "text.onnx", tmp_path / "empty.onnx",
+             altered_terrain(tmp_path / "newer.onnx", newer_version),
              altered_terrain(tmp_path / "external.onnx", external_data),
              altered_terrain(tmp_path / "op.onnx", foreign_op)]
     messages = page.evaluate("""async (files) => {
@@ -245,7 +252,8 @@ def test_files_are_refused_as_the_python_loader_refuses_them(site_page, tmp_path
         with pytest.raises(InputError) as python:
             load.load_model(path)
         assert message == str(python.value).replace(str(path), path.name)
-    assert "newer than this sinshape reads" in messages[1] and "external data" in messages[2]
+    assert "not an ONNX file" in messages[1] and "newer than this sinshape reads" in messages[3]
+    assert "external data" in messages[4] and "(Softmax)" in messages[5]
 
 
 def test_the_serve_page_switches_to_the_browser(browser):
