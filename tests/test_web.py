@@ -228,6 +228,14 @@ def test_files_are_refused_as_the_python_loader_refuses_them(site_page, tmp_path
     page.wait_for_function("document.body.dataset.state === 'error'", timeout=30_000)
     assert page.is_visible("#error")
     assert page.text_content("#error") == "foreign.onnx: an ONNX model, but not a sinshape model (no sinshape.manifest metadata)"
+    # A sinshape file of the user's own is checked and sampled, beside the listed models.
+    mine = tmp_path / "mine.onnx"
+    mine.write_bytes(TERRAIN.read_bytes())
+    page.set_input_files("#file", mine)
+    page.wait_for_function("document.body.dataset.state === 'ready' && location.search.includes('mine')",
+                           timeout=30_000)
+    assert page.input_value("#model") == "mine (file)" and not page.is_visible("#error")
+    assert len(page.locator("#model option").all()) == 3  # terrain, towerruins, the file
 
     (tmp_path / "text.onnx").write_text("hello, not a model")
     (tmp_path / "empty.onnx").write_bytes(b"")

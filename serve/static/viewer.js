@@ -294,20 +294,23 @@ function step(delta) {
 }
 
 async function openFile(file) {
-  const name = file.name.replace(/\.onnx$/i, '');
+  // Named apart from the listed models, so a file called terrain.onnx replaces nothing.
+  const name = `${file.name.replace(/\.onnx$/i, '')} (file)`;
+  const previous = browserModels.get(name);
   browserModels.set(name, { bytes: new Uint8Array(await file.arrayBuffer()), file: file.name });
   document.body.dataset.state = 'loading';
   $('status').textContent = `checking ${file.name}…`;
   try {
     await browserModel(name);
   } catch (error) {
-    browserModels.delete(name);
+    if (previous) browserModels.set(name, previous);
+    else browserModels.delete(name);
     $('status').textContent = '';
     report(error.message);
     document.body.dataset.state = 'error';
     return;
   }
-  if (![...$('model').options].some((o) => o.value === name)) $('model').add(new Option(`${name} (file)`, name));
+  if (![...$('model').options].some((o) => o.value === name)) $('model').add(new Option(name, name));
   fromForm();
   state.model = name;
   toForm();
