@@ -192,6 +192,7 @@ export async function loadModel(bytes, { name = 'model.onnx', backend = 'auto', 
 
   let lastError = null;
   for (const provider of providers) {
+    const sessions = []; // released if this backend fails
     try {
       const make = async (names) => {
         let data;
@@ -202,6 +203,7 @@ export async function loadModel(bytes, { name = 'model.onnx', backend = 'auto', 
           throw error;
         }
         const session = await ort.InferenceSession.create(data, { executionProviders: [provider], graphOptimizationLevel: 'all' });
+        sessions.push(session);
         return new Stage(session, names.inputs, names.outputs);
       };
       const stages = manifest.stages;
@@ -216,6 +218,7 @@ export async function loadModel(bytes, { name = 'model.onnx', backend = 'auto', 
       await checkStages(loaded);
       return loaded;
     } catch (error) {
+      await Promise.allSettled(sessions.map((session) => session.release()));
       // A stage WebGPU cannot run falls back to WASM; on the last backend a refusal stands.
       if (error instanceof InputError && provider === providers[providers.length - 1]) throw error;
       lastError = error;
