@@ -609,6 +609,26 @@ def serve(model_names, host, port, timeout, threads):
     server.run(sockets=[sock])
 
 
+@cli.command(name="export-web")
+@click.argument("model_names", metavar="MODEL...", nargs=-1, required=True)
+@click.option("-o", "--output", type=click.Path(path_type=Path), required=True,
+              help="The folder to write: new, empty, or one export-web wrote before (it is replaced).")
+def export_web(model_names, output):
+    """Write a static web site that samples models in the browser, with no server.
+
+    MODEL is a .onnx file or the name of a shipped model. The folder holds the
+    page, the JavaScript runtime, onnxruntime-web and the models; any static
+    file server serves it, offline (python -m http.server -d DIR). The same
+    seed gives the same shape as `sinrun sample`. Its README.txt says how to
+    let WASM use several threads.
+    """
+    from sinshape.serve import site
+
+    result = site.export_site(model_names, output, importlib.metadata.version("sinshape"))
+    click.echo(f"wrote {output} ({', '.join(result['models'])}; {result['files']} files, "
+               f"{result['bytes'] / 2**20:.1f} MB): python -m http.server -d {output}")
+
+
 @cli.command(name="models")
 def list_models():
     """List the shipped models (sample one with `sinrun sample NAME`)."""

@@ -13,6 +13,10 @@ or range, 400 for a value the runtime refuses, 413 for work that would
 exceed the runtime's memory limit (the message gives the figure), 404 for an
 unknown model, 503 when no sampling slot frees up in time, 504 when
 sampling takes longer than the time limit.
+
+Every answer carries the cross-origin isolation headers (COOP/COEP), so the
+page's in-browser sampling may run onnxruntime-web's WASM on several threads
+(SharedArrayBuffer needs them); the page loads nothing from elsewhere.
 """
 
 import asyncio
@@ -43,6 +47,8 @@ STATIC = Path(__file__).parent / "static"
 Format = Literal["glb", "ply", "obj", "stl", "off", "npz"]
 MEDIA_TYPES = {"glb": "model/gltf-binary", "obj": "model/obj", "stl": "model/stl"}  # others: octet-stream
 MAX_SMOOTH = 100  # smoothing cannot be interrupted; this bounds it
+# Cross-origin isolation: lets the page use SharedArrayBuffer (multi-threaded WASM).
+ISOLATION_HEADERS = {"Cross-Origin-Opener-Policy": "same-origin", "Cross-Origin-Embedder-Policy": "require-corp"}
 log = logging.getLogger("sinshape.serve")
 
 
@@ -275,6 +281,12 @@ def create_app(loaded: dict, slots: int | None = None, timeout: float = 60.0,
                   description="Sample new 3D shapes from sinshape models. No authentication.",
                   docs_url=None, redoc_url=None)  # their pages load scripts from a CDN; /openapi.json stays
 
+    @app.middleware("http")
+    async def isolate(request, call_next):
+        response = await call_next(request)
+        response.headers.update(ISOLATION_HEADERS)
+        return response
+
     @app.exception_handler(RequestValidationError)
     async def invalid(request, error):
         return JSONResponse({"detail": one_line(error)}, status_code=422)
@@ -310,6 +322,12 @@ def create_app(loaded: dict, slots: int | None = None, timeout: float = 60.0,
              responses=errors(404))
     async def describe(name: str):
         return summary(name, find(name))
+
+    @app.get("/api/models/{name}/onnx", summary="The model file itself, for sampling in the browser",
+             response_class=FileResponse, responses={200: {"content": {"application/octet-stream": {}}},
+                                                     **errors(404)})
+    async def model_file(name: str):
+        return FileResponse(find(name).path, media_type="application/octet-stream", filename=f"{name}.onnx")
 
     @app.get("/api/models/{name}/sample", summary="One sample as a file",
              response_class=Response, responses=FILE_ANSWERS)

@@ -54,6 +54,7 @@ def test_committed_vectors():
     for v in vectors:
         block = noise.normal(v["seed"], tuple(v["stream"]), [1] * len(v["position"]), v["position"])
         assert block.item() == pytest.approx(v["normal"], abs=1e-6)
+        assert f"{int(block.view(np.uint32).item()):08x}" == v["float32_bits"]  # bit for bit
 
 
 def test_tiles_equal_slices_of_the_whole():

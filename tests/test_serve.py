@@ -18,6 +18,7 @@ import pytest
 import trimesh
 from click.testing import CliRunner
 
+from sinshape import models
 from sinshape.cli.main import cli
 from test_cli_train import assert_one_line_error
 
@@ -118,6 +119,21 @@ def test_the_page_and_its_offline_scripts(server):
                  "vendor/three/addons/loaders/GLTFLoader.js", "vendor/three/addons/controls/OrbitControls.js",
                  "vendor/three/LICENSE"):
         assert get(f"{base}/static/{path}")[0] == 200, path
+
+
+def test_the_model_file_and_isolation_headers_for_the_browser(server):
+    base, _ = server
+    status, headers, body = get(f"{base}/api/models/terrain/onnx")
+    assert status == 200 and body == models.find("terrain").read_bytes()
+    for url in (f"{base}/", f"{base}/static/sinshape/runtime.js", f"{base}/api/models"):
+        status, headers, _ = get(url)
+        assert status == 200 and headers["Cross-Origin-Opener-Policy"] == "same-origin"
+        assert headers["Cross-Origin-Embedder-Policy"] == "require-corp"
+    for path in ("sinshape/model.js", "vendor/onnxruntime-web/ort.min.mjs",
+                 "vendor/onnxruntime-web/ort-wasm-simd-threaded.jsep.wasm", "vendor/onnxruntime-web/LICENSE"):
+        assert get(f"{base}/static/{path}")[0] == 200, path
+    status, _, body = get(f"{base}/api/models/nope/onnx")
+    assert status == 404 and "unknown model 'nope'" in json.loads(body)["detail"]
 
 
 def test_a_sample_is_the_file_sinrun_sample_writes(server, tmp_path):

@@ -1,11 +1,16 @@
 // The sinshape page: pick a model and a seed, see the sample in 3-D, download it.
 // The state lives in the URL's query string, so a view can be shared.
+// A sample is made on the server (its API) or in this browser (the JavaScript
+// runtime in sinshape/, on onnxruntime-web); a static site from
+// `sinrun export-web` (body data-site="static") has no server and samples in
+// the browser only.
 import * as THREE from 'three';
 import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
 
 const $ = (id) => document.getElementById(id);
-const FIELDS = ['model', 'seed', 'size', 'scale', 'smooth', 'up', 'format'];
+const FIELDS = ['model', 'where', 'seed', 'size', 'scale', 'smooth', 'up', 'format'];
+const STATIC_SITE = document.body.dataset.site === 'static';
 
 // ---- the 3-D view: one scene, one shape at a time, drawn on demand
 const view = $('view');
@@ -60,6 +65,17 @@ function frame() {
   draw();
 }
 
+function showMesh({ positions, faces }) {
+  const geometry = new THREE.BufferGeometry();
+  geometry.setAttribute('position', new THREE.BufferAttribute(positions, 3));
+  geometry.setIndex(new THREE.BufferAttribute(faces, 1));
+  geometry.computeVertexNormals();
+  holder.clear();
+  holder.add(new THREE.Mesh(geometry, material));
+  orient(state.up);
+  frame();
+}
+
 function show(gltf) {
   holder.clear();
   gltf.scene.traverse((node) => {
@@ -74,11 +90,14 @@ function show(gltf) {
 }
 
 // ---- the state: read from the URL, written back to it
-const state = { model: '', seed: 0, size: '1,1,1', scale: '1', smooth: '0', up: 'y', format: 'glb' };
+const state = {
+  model: '', where: STATIC_SITE ? 'browser' : 'server', seed: 0, size: '1,1,1', scale: '1', smooth: '0', up: 'y', format: 'glb',
+};
 
 function readUrl() {
   const query = new URLSearchParams(location.search);
   for (const key of FIELDS) if (query.has(key)) state[key] = query.get(key);
+  if (STATIC_SITE || !['server', 'browser'].includes(state.where)) state.where = STATIC_SITE ? 'browser' : 'server';
 }
 
 function writeUrl() {
@@ -94,14 +113,23 @@ function toForm() {
   $('sx').value = x ?? 1;
   $('sy').value = y ?? x ?? 1;
   $('sz').value = z ?? x ?? 1;
-  for (const key of ['scale', 'smooth', 'up', 'format']) $(key).value = state[key];
+  for (const key of ['where', 'scale', 'smooth', 'up', 'format']) $(key).value = state[key];
+  showMode();
+}
+
+function showMode() {
+  const browser = state.where === 'browser';
+  $('where-label').hidden = STATIC_SITE;
+  $('file-label').hidden = !browser;
+  $('format').disabled = browser; // the browser writes .ply
+  $('backend').hidden = !browser;
 }
 
 function fromForm() {
   state.model = $('model').value;
   state.seed = $('seed').value.trim();
   state.size = [$('sx').value, $('sy').value, $('sz').value].map((v) => v.trim()).join(',');
-  for (const key of ['scale', 'smooth', 'up', 'format']) state[key] = $(key).value.trim();
+  for (const key of ['where', 'scale', 'smooth', 'up', 'format']) state[key] = $(key).value.trim();
 }
 
 function sampleUrl(format) {
@@ -116,16 +144,123 @@ function report(error) {
   $('error').hidden = !error;
 }
 
+// ---- sampling in this browser: the runtime is imported on first use, so the
+// server mode never fetches onnxruntime-web's 28 MB of WASM
+let runtime = null;
+const browserModels = new Map(); // name -> { url or bytes, file, loaded: a promise of the loaded model }
+let downloadUrl = null;
+
+async function browserModel(name) {
+  runtime ??= await import('./sinshape/runtime.js');
+  const entry = browserModels.get(name);
+  if (!entry) throw new Error(`unknown model '${name}'`);
+  entry.loaded ??= (async () => {
+    let bytes = entry.bytes;
+    if (!bytes) {
+      const response = await fetch(entry.url);
+      if (!response.ok) throw new Error(`cannot fetch ${entry.url}: ${response.status} ${response.statusText}`);
+      bytes = new Uint8Array(await response.arrayBuffer());
+    }
+    const started = performance.now();
+    const model = await runtime.loadModel(bytes, { name: entry.file });
+    entry.seconds = (performance.now() - started) / 1000;
+    return model;
+  })();
+  try {
+    return await entry.loaded;
+  } catch (error) {
+    entry.loaded = null; // a later try fetches again
+    throw error;
+  }
+}
+
+function backendText(model, loadSeconds) {
+  const threads = model.threads === 1 ? '1 thread' : `${model.threads} threads`;
+  const isolation = crossOriginIsolated ? '' : ' (the page is not cross-origin isolated, so WASM runs single-threaded)';
+  const backend = model.backend === 'webgpu' ? 'onnxruntime-web on WebGPU' : `onnxruntime-web on WASM, ${threads}${isolation}`;
+  return `${backend}; model loaded and checked in ${loadSeconds.toFixed(2)} s`;
+}
+
+function parseSeed(text) {
+  if (!/^\d+$/.test(text)) throw new Error(`seed: give a whole number, got '${text}'`);
+  return BigInt(text);
+}
+
+function parseFactors(text) {
+  const values = String(text).split(',').map(Number);
+  const factors = values.length === 1 ? [values[0], values[0], values[0]] : values;
+  if (factors.length !== 3 || !factors.every((v) => v > 0 && Number.isFinite(v))) {
+    throw new Error(`size '${text}': give one or three positive factors, like 2 or 2,1,0.5`);
+  }
+  return factors;
+}
+
+/** A binary PLY file of a mesh. */
+function plyBlob({ positions, faces }) {
+  const header = `ply\nformat binary_little_endian 1.0\nelement vertex ${positions.length / 3}\n`
+    + 'property float x\nproperty float y\nproperty float z\n'
+    + `element face ${faces.length / 3}\nproperty list uchar int vertex_indices\nend_header\n`;
+  const body = new DataView(new ArrayBuffer(positions.length * 4 + (faces.length / 3) * 13));
+  positions.forEach((v, i) => body.setFloat32(4 * i, v, true));
+  let at = positions.length * 4;
+  for (let f = 0; f < faces.length; f += 3) {
+    body.setUint8(at, 3);
+    for (let k = 0; k < 3; k++) body.setInt32(at + 1 + 4 * k, faces[f + k], true);
+    at += 13;
+  }
+  return new Blob([header, body], { type: 'application/octet-stream' });
+}
+
+async function sampleHere(ticket) {
+  const model = await browserModel(state.model);
+  const started = performance.now(); // the sample's own time, the model's loading apart
+  const seed = parseSeed(String(state.seed).trim());
+  const factors = parseFactors(state.size);
+  const scale = Number(state.scale);
+  if (!(scale > 0 && Number.isFinite(scale))) throw new Error(`scale: give a positive number, got '${state.scale}'`);
+  const tri = await runtime.sample(model, seed, factors);
+  const grid = await runtime.grid(model, tri, scale);
+  const steps = Number(state.smooth);
+  if (!(Number.isInteger(steps) && steps >= 0 && steps <= 100)) throw new Error(`smooth: give a whole number of steps in 0..100, got '${state.smooth}'`);
+  const mesh = runtime.smooth(runtime.surface(grid, tri.size, model.manifest), steps);
+  if (ticket !== latest) return;
+  showMesh(mesh);
+  const faces = (mesh.faces.length / 3).toLocaleString('en');
+  const seconds = ((performance.now() - started) / 1000).toFixed(2);
+  $('status').textContent = `${faces} faces · ${seconds} s · in this browser`;
+  $('backend').textContent = backendText(model, browserModels.get(state.model).seconds);
+  if (downloadUrl) URL.revokeObjectURL(downloadUrl);
+  downloadUrl = URL.createObjectURL(plyBlob(mesh));
+  $('download').href = downloadUrl;
+  $('download').download = `${state.model}_seed${seed}.ply`;
+  report('');
+  document.body.dataset.state = 'ready';
+}
+
 // ---- fetching a sample: the newest request wins
 let latest = 0;
 
 async function load() {
   const ticket = ++latest;
   writeUrl();
-  $('download').href = sampleUrl(state.format);
+  showMode();
   document.body.dataset.state = 'loading';
   $('status').textContent = 'sampling…';
   const started = performance.now();
+  if (state.where === 'browser') {
+    $('download').removeAttribute('href');
+    try {
+      await sampleHere(ticket);
+    } catch (error) {
+      if (ticket !== latest) return;
+      $('status').textContent = '';
+      report(error.message);
+      document.body.dataset.state = 'error';
+    }
+    return;
+  }
+  $('download').href = sampleUrl(state.format);
+  $('download').download = '';
   try {
     const response = await fetch(sampleUrl('glb'));
     if (!response.ok) {
@@ -158,12 +293,40 @@ function step(delta) {
   load();
 }
 
+async function openFile(file) {
+  // Named apart from the listed models, so a file called terrain.onnx replaces nothing.
+  const name = `${file.name.replace(/\.onnx$/i, '')} (file)`;
+  const previous = browserModels.get(name);
+  browserModels.set(name, { bytes: new Uint8Array(await file.arrayBuffer()), file: file.name });
+  document.body.dataset.state = 'loading';
+  $('status').textContent = `checking ${file.name}…`;
+  try {
+    await browserModel(name);
+  } catch (error) {
+    if (previous) browserModels.set(name, previous);
+    else browserModels.delete(name);
+    $('status').textContent = '';
+    report(error.message);
+    document.body.dataset.state = 'error';
+    return;
+  }
+  if (![...$('model').options].some((o) => o.value === name)) $('model').add(new Option(name, name));
+  fromForm();
+  state.model = name;
+  toForm();
+  load();
+}
+
 async function start() {
   readUrl();
   try {
-    const response = await fetch('api/models');
+    const response = await fetch(STATIC_SITE ? 'models.json' : 'api/models');
     const models = await response.json();
-    for (const m of models) $('model').add(new Option(`${m.name} (${m.size.join('x')})`, m.name));
+    for (const m of models) {
+      $('model').add(new Option(`${m.name} (${m.size.join('x')})`, m.name));
+      const url = STATIC_SITE ? m.file : `api/models/${encodeURIComponent(m.name)}/onnx`;
+      browserModels.set(m.name, { url, file: `${m.name}.onnx` });
+    }
     if (!models.some((m) => m.name === state.model)) state.model = models[0]?.name ?? '';
   } catch (error) {
     report(`cannot list the models: ${error.message}`);
@@ -173,7 +336,8 @@ async function start() {
   $('controls').addEventListener('submit', (event) => { event.preventDefault(); fromForm(); load(); });
   $('prev').addEventListener('click', () => step(-1));
   $('next').addEventListener('click', () => step(+1));
-  for (const id of ['model', 'seed', 'sx', 'sy', 'sz', 'scale', 'smooth']) {
+  $('file').addEventListener('change', () => { if ($('file').files.length) openFile($('file').files[0]); });
+  for (const id of ['model', 'where', 'seed', 'sx', 'sy', 'sz', 'scale', 'smooth']) {
     $(id).addEventListener('change', () => { fromForm(); load(); });
   }
   $('up').addEventListener('change', () => { fromForm(); writeUrl(); orient(state.up); frame(); });

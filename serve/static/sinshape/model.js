@@ -1,0 +1,260 @@
+// Load a sinshape .onnx file in the browser: check it as runtime/load.py does
+// (the same refusals, in one line each), cut it into one onnxruntime-web
+// session per stage, and read the decoder head's weights.
+import * as ort from '../vendor/onnxruntime-web/ort.min.mjs';
+import { FormatError, readModel, stageModel, tensorFloats } from './onnx.js';
+
+export const FORMAT_NAME = 'sinshape';
+export const FORMAT_VERSION = 1;
+export const METADATA_KEY = 'sinshape.manifest';
+export const NOISE_SCHEME = 'splitmix64-boxmuller-v1';
+export const PLANES = ['xy', 'xz', 'yz'];
+export const HEAD_WEIGHTS = ['decoder_head.bias1', 'decoder_head.weight2', 'decoder_head.bias2'];
+const MAX_LEVELS = 64;
+const MAX_SIDE = 4096;
+const MAX_MODEL_BYTES = 512 * 1024 * 1024;
+const ALLOWED_OPS = new Set(['Conv', 'InstanceNormalization', 'LeakyRelu', 'Transpose', 'MatMul', 'Add', 'Relu', 'Sigmoid']);
+
+/** A file refused, or a value out of range: its message is one line for the user. */
+export class InputError extends Error {}
+
+/** Input and output tensor names of every stage (runtime/manifest.py: stage_names). */
+export function stageNames(levels) {
+  const io = (stage) => ({ inputs: PLANES.map((p) => `${stage}.${p}`), outputs: PLANES.map((p) => `${stage}.${p}.out`) });
+  return {
+    projection: io('projection'),
+    levels: Array.from({ length: levels }, (_, i) => io(`level${i}`)),
+    decoder_planes: io('decoder_planes'),
+    decoder_head: { inputs: PLANES.map((p) => `decoder_head.${p}`), outputs: ['decoder_head.occupancy'] },
+  };
+}
+
+const isInt = (v, low, high) => Number.isInteger(v) && v >= low && v <= high;
+const isNumber = (v) => typeof v === 'number' && Number.isFinite(v);
+const sameJson = (a, b) => JSON.stringify(a) === JSON.stringify(b);
+
+function need(ok, message) {
+  if (!ok) throw new InputError(`bad model manifest: ${message}`);
+}
+
+/** Check a manifest's JSON text, as runtime/manifest.py's parse: the fields the runtime uses, and raw. */
+export function parseManifest(textValue) {
+  let raw;
+  try {
+    raw = JSON.parse(textValue);
+  } catch {
+    throw new InputError('bad model manifest: not valid JSON');
+  }
+  need(raw !== null && typeof raw === 'object' && !Array.isArray(raw), 'not a JSON object');
+  need(raw.format === FORMAT_NAME, `format is ${JSON.stringify(raw.format ?? null)}, not '${FORMAT_NAME}'`);
+  const version = raw.format_version;
+  need(isInt(version, 1, 1e6), `format_version ${JSON.stringify(version ?? null)} is not a positive integer`);
+  if (version > FORMAT_VERSION) {
+    throw new InputError(`model format version ${version} is newer than this sinshape reads (${FORMAT_VERSION}); upgrade sinshape`);
+  }
+  need(sameJson(raw.planes ?? [], PLANES), `planes must be ${JSON.stringify(PLANES)}`);
+  need(raw.noise === NOISE_SCHEME, `noise scheme ${JSON.stringify(raw.noise ?? null)} is not '${NOISE_SCHEME}'`);
+  for (const key of ['channels', 'pool_bins', 'mlp_hidden']) need(isInt(raw[key], 1, 1024), `${key} must be an integer in [1, 1024]`);
+  // recon_seed may exceed 2^53: read its digits from the text, not the parsed number.
+  const seedText = /"recon_seed"\s*:\s*(\d+)\s*[,}]/.exec(textValue)?.[1];
+  need(seedText !== undefined && BigInt(seedText) < 2n ** 64n, 'recon_seed must be an integer in [0, 2**64)');
+
+  const levels = raw.levels;
+  need(Array.isArray(levels) && levels.length >= 1 && levels.length <= MAX_LEVELS, `levels must be a list of 1..${MAX_LEVELS}`);
+  const sizes = [], amps = [];
+  levels.forEach((level, i) => {
+    need(level !== null && typeof level === 'object', `level ${i} is not an object`);
+    const size = level.size;
+    need(Array.isArray(size) && size.length === 3 && size.every((n) => isInt(n, 2, MAX_SIDE)),
+      `level ${i} size must be 3 integers in [2, ${MAX_SIDE}]`);
+    need(isNumber(level.noise_amp) && level.noise_amp >= 0, `level ${i} noise_amp must be a non-negative number`);
+    sizes.push([...size]);
+    amps.push(level.noise_amp);
+  });
+  const frame = raw.frame;
+  need(frame !== null && typeof frame === 'object', 'frame is missing');
+  need(Array.isArray(frame.origin) && frame.origin.length === 3 && frame.origin.every(isNumber), 'frame origin must be 3 numbers');
+  need(Array.isArray(frame.spacing) && frame.spacing.length === 3 && frame.spacing.every((s) => isNumber(s) && s > 0),
+    'frame spacing must be 3 positive numbers');
+  need(sameJson(raw.stages, stageNames(levels.length)), 'stages do not name the standard tensors for this level count');
+  return {
+    sizes, noiseAmps: amps, channels: raw.channels, poolBins: raw.pool_bins, hidden: raw.mlp_hidden,
+    reconSeed: BigInt(seedText), origin: frame.origin, spacing: frame.spacing, stages: raw.stages, raw,
+  };
+}
+
+/** Parse the file's bytes as ONNX, refusing what could reach beyond it or is not a sinshape graph. */
+export function readChecked(bytes, name) {
+  if (bytes.length > MAX_MODEL_BYTES) throw new InputError(`${name}: ${(bytes.length / 2 ** 20).toFixed(0)} MB is too large for a sinshape model`);
+  let model;
+  try {
+    model = readModel(bytes);
+  } catch (error) {
+    if (error instanceof FormatError) throw new InputError(`${name}: not an ONNX file`);
+    throw error;
+  }
+  const { graph } = model;
+  if (graph.nodes.length === 0) throw new InputError(`${name}: not a sinshape model (an empty or non-ONNX file)`);
+  if (graph.initializers.some((t) => t.external)) {
+    throw new InputError(`${name}: refers to external data files; sinshape models are self-contained`);
+  }
+  if (graph.sparse || model.functions) {
+    throw new InputError(`${name}: has sparse initializers or functions, which sinshape models never do`);
+  }
+  const bad = [...new Set(graph.nodes.filter((n) => !['', 'ai.onnx'].includes(n.domain) || !ALLOWED_OPS.has(n.opType))
+    .map((n) => n.opType))].sort();
+  if (bad.length) throw new InputError(`${name}: uses ops a sinshape model never has (${bad.slice(0, 5).join(', ')})`);
+  if (!(METADATA_KEY in model.metadata)) {
+    throw new InputError(`${name}: an ONNX model, but not a sinshape model (no ${METADATA_KEY} metadata)`);
+  }
+  let manifest;
+  try {
+    manifest = parseManifest(model.metadata[METADATA_KEY]);
+  } catch (error) {
+    if (error instanceof InputError) throw new InputError(`${name}: ${error.message}`);
+    throw error;
+  }
+  return { model, manifest };
+}
+
+function readHead(model, hidden, name) {
+  const weights = new Map(model.graph.initializers.map((t) => [t.name, t]));
+  if (HEAD_WEIGHTS.some((n) => !weights.has(n))) throw new InputError(`${name}: the decoder head lacks its weights (${HEAD_WEIGHTS.join(', ')})`);
+  const [b1, w2, b2] = HEAD_WEIGHTS.map((n) => weights.get(n));
+  if (!sameJson(b1.dims, [hidden]) || !sameJson(w2.dims, [hidden, 1]) || !sameJson(b2.dims, [1])) {
+    throw new InputError(`${name}: decoder head weights have shapes (${b1.dims}), (${w2.dims}), (${b2.dims})`);
+  }
+  const [bias1, weight2, bias2] = [b1, w2, b2].map(tensorFloats);
+  if (![bias1, weight2, bias2].every((a) => a.every(Number.isFinite))) throw new InputError(`${name}: decoder head weights are not finite`);
+  return { bias1, weight2, bias2: bias2[0] };
+}
+
+/** One runnable stage: a session and its tensor names, in plane order. */
+export class Stage {
+  constructor(session, inputs, outputs) {
+    Object.assign(this, { session, inputs, outputs });
+  }
+
+  /** arrays: [{ data: Float32Array, dims }] per input -> [{ data, dims }] per output. */
+  async run(arrays) {
+    const feeds = {};
+    this.inputs.forEach((name, i) => { feeds[name] = new ort.Tensor('float32', arrays[i].data, arrays[i].dims); });
+    const results = await this.session.run(feeds);
+    return this.outputs.map((name) => ({ data: results[name].data, dims: results[name].dims }));
+  }
+}
+
+/** The numpy head of runtime/query.py: sigmoid(w2 . relu(h + b1) + b2) for one pre-activation vector. */
+export function headValue(head, hidden, at = 0) {
+  let sum = 0;
+  for (let c = 0; c < head.bias1.length; c++) {
+    const h = hidden[at + c] + head.bias1[c];
+    if (h > 0) sum += h * head.weight2[c];
+  }
+  return 1 / (1 + Math.exp(-(sum + head.bias2)));
+}
+
+let configured = null;
+
+/**
+ * Set up onnxruntime-web once: where its files are (no CDN), and threads.
+ * threads: null = all cores when the page is cross-origin isolated, else 1.
+ */
+export function configure({ threads = null, wasmPaths = null } = {}) {
+  if (configured) return configured;
+  const isolated = globalThis.crossOriginIsolated === true;
+  const wanted = threads ?? (isolated ? Math.min(navigator.hardwareConcurrency || 1, 8) : 1);
+  ort.env.wasm.numThreads = isolated ? wanted : 1; // threads need SharedArrayBuffer
+  ort.env.wasm.wasmPaths = wasmPaths ?? new URL('../vendor/onnxruntime-web/', import.meta.url).href;
+  ort.env.logLevel = 'error';
+  configured = { threads: ort.env.wasm.numThreads, isolated, version: ort.env.versions?.web ?? '' };
+  return configured;
+}
+
+async function webgpuAvailable() {
+  try {
+    return Boolean(globalThis.navigator?.gpu && await navigator.gpu.requestAdapter());
+  } catch {
+    return false;
+  }
+}
+
+/**
+ * Load and check a model from its bytes (Uint8Array). backend: 'auto' (WebGPU
+ * where the browser has it, else WASM), 'webgpu' or 'wasm'. Returns
+ * { name, manifest, projection, levels, decoderPlanes, decoderHead, head, backend, threads }.
+ */
+export async function loadModel(bytes, { name = 'model.onnx', backend = 'auto', threads = null } = {}) {
+  const { model, manifest } = readChecked(bytes, name);
+  const head = readHead(model, manifest.hidden, name);
+  const setup = configure({ threads });
+  const providers = backend === 'auto' ? (await webgpuAvailable() ? ['webgpu', 'wasm'] : ['wasm']) : [backend];
+
+  let lastError = null;
+  for (const provider of providers) {
+    const sessions = []; // released if this backend fails
+    try {
+      const make = async (names) => {
+        let data;
+        try {
+          data = stageModel(model, names.inputs, names.outputs);
+        } catch (error) {
+          if (error instanceof FormatError) throw new InputError(`${name}: ${error.message}`);
+          throw error;
+        }
+        const session = await ort.InferenceSession.create(data, { executionProviders: [provider], graphOptimizationLevel: 'all' });
+        sessions.push(session);
+        return new Stage(session, names.inputs, names.outputs);
+      };
+      const stages = manifest.stages;
+      const loaded = {
+        name, manifest, head, backend: provider, threads: provider === 'wasm' ? setup.threads : null,
+        projection: await make(stages.projection),
+        levels: [],
+        decoderPlanes: await make(stages.decoder_planes),
+        decoderHead: await make(stages.decoder_head),
+      };
+      for (const names of stages.levels) loaded.levels.push(await make(names));
+      await checkStages(loaded);
+      return loaded;
+    } catch (error) {
+      await Promise.allSettled(sessions.map((session) => session.release()));
+      // A stage WebGPU cannot run falls back to WASM; on the last backend a refusal stands.
+      if (error instanceof InputError && provider === providers[providers.length - 1]) throw error;
+      lastError = error;
+    }
+  }
+  const message = String(lastError?.message ?? lastError).split('\n')[0].slice(0, 200);
+  throw new InputError(`${name}: onnxruntime cannot load a stage (${message})`);
+}
+
+/** Run every stage once on a small input: the file is coherent, or refused (runtime/load.py: check_stages). */
+async function checkStages(model) {
+  const m = model.manifest, c = m.channels, h = m.hidden;
+  const zeros = (dims) => Array(3).fill({ data: new Float32Array(dims.reduce((a, b) => a * b)), dims });
+  const probes = [
+    [model.projection, zeros([1, m.poolBins, 4, 5]), [1, c, 4, 5]],
+    ...model.levels.map((level) => [level, zeros([1, c, 4, 5]), [1, c, 4, 5]]),
+    [model.decoderPlanes, zeros([1, c, 4, 5]), [1, 4, 5, h]],
+  ];
+  for (const [stage, arrays, shape] of probes) {
+    let outputs;
+    try {
+      outputs = await stage.run(arrays);
+    } catch (error) {
+      throw new InputError(`${model.name}: stage ${stage.inputs[0].split('.')[0]} does not run (${String(error.message ?? error).split('\n')[0].slice(0, 200)})`);
+    }
+    if (outputs.some((o) => !sameJson(Array.from(o.dims), shape))) {
+      throw new InputError(`${model.name}: stage ${stage.inputs[0].split('.')[0]} gives shape (${outputs[0].dims}), expected (${shape})`);
+    }
+  }
+  // The head evaluated here must be the graph's head.
+  const n = 16, hidden = Array.from({ length: 3 }, (_, k) => Float32Array.from({ length: n * h }, (_, i) => Math.sin(i * 1.7 + k)));
+  const [graph] = await model.decoderHead.run(hidden.map((data) => ({ data, dims: [n, 1, 1, h] })));
+  const sum = new Float32Array(n * h).map((_, i) => hidden[0][i] + hidden[1][i] + hidden[2][i]);
+  for (let i = 0; i < n; i++) {
+    if (Math.abs(graph.data[i] - headValue(model.head, sum, i * h)) > 1e-5) {
+      throw new InputError(`${model.name}: the decoder head graph does not match its weights`);
+    }
+  }
+}

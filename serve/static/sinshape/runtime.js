@@ -1,0 +1,23 @@
+// The sinshape runtime for the browser: sample shapes from a sinshape .onnx
+// file with onnxruntime-web, with no server. The same seed gives the same
+// shape as the Python runtime (docs/FORMAT.md is the contract; docs/WEB.md
+// says what differs).
+//
+//   import * as sinshape from './sinshape/runtime.js';
+//   const model = await sinshape.loadModel(bytes, { name: 'terrain.onnx' });
+//   const tri = await sinshape.sample(model, 3, [1, 1, 1]);
+//   const grid = await sinshape.grid(model, tri, 2);     // { data: Float32Array (X, Y, Z), shape }
+//   const mesh = sinshape.surface(grid, tri.size, model.manifest);   // { positions, faces }
+//   sinshape.smooth(mesh, 3);                            // Laplacian steps, as --smooth
+import { project, dense } from './query.js';
+
+export { InputError, loadModel, configure, parseManifest } from './model.js';
+export { sample, scaledSizes } from './generate.js';
+export { normal, streamKey } from './noise.js';
+export { gridShape, project, dense } from './query.js';
+export { marchingCubes, massProperties, smooth, surface } from './mesh.js';
+
+/** Occupancy on a grid `scale` times finer than the tri-plane (both stages of the query). */
+export async function grid(model, tri, scale = 1) {
+  return dense(model, await project(model, tri), scale);
+}

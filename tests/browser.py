@@ -1,0 +1,105 @@
+"""A headless chromium on a static folder, for the browser runtime's tests and
+benchmarks/web_speed.py: a loopback file server in a thread (with or without
+the cross-origin isolation headers that multi-threaded WASM needs) and a page.
+"""
+
+import contextlib
+import functools
+import http.server
+import shutil
+import socket
+import subprocess
+import sys
+import threading
+import time
+import urllib.request
+from pathlib import Path
+
+CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+# WebGL without a GPU: chromium's software renderer (as tests/test_serve_page.py).
+ARGS = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"]
+# WebGPU without a GPU: SwiftShader's Vulkan (slow, but it runs the WebGPU backend's kernels).
+WEBGPU_ARGS = ["--enable-unsafe-webgpu", "--enable-features=Vulkan", "--use-vulkan=swiftshader",
+               "--use-webgpu-adapter=swiftshader"]
+ISOLATION = {"Cross-Origin-Opener-Policy": "same-origin", "Cross-Origin-Embedder-Policy": "require-corp"}
+
+
+class Handler(http.server.SimpleHTTPRequestHandler):
+    """Python's file server (the types of `python -m http.server`), plus optional headers."""
+
+    headers_to_send = {}
+
+    def end_headers(self):
+        for key, value in self.headers_to_send.items():
+            self.send_header(key, value)
+        super().end_headers()
+
+    def log_message(self, *args):
+        pass
+
+
+@contextlib.contextmanager
+def http_server_process(folder: Path):
+    """`python -m http.server -d FOLDER` itself, in a child process on a free
+    loopback port, as a user would run it: yields the base URL."""
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    process = subprocess.Popen([sys.executable, "-m", "http.server", "-d", str(folder), "--bind", "127.0.0.1",
+                                str(port)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    base = f"http://127.0.0.1:{port}"
+    try:
+        for _ in range(100):
+            with contextlib.suppress(OSError):
+                urllib.request.urlopen(f"{base}/", timeout=5).close()
+                break
+            time.sleep(0.1)
+        else:
+            raise AssertionError("python -m http.server did not answer within 10 s")
+        yield base
+    finally:
+        process.terminate()
+        process.wait(timeout=10)
+
+
+@contextlib.contextmanager
+def static_server(folder: Path, isolated: bool = False):
+    """Serve `folder` on a free loopback port in a thread: yields the base URL."""
+    handler = type("Handler", (Handler,), {"headers_to_send": ISOLATION if isolated else {}})
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), functools.partial(handler, directory=str(folder)))
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    try:
+        yield f"http://127.0.0.1:{server.server_address[1]}"
+    finally:
+        server.shutdown()
+        server.server_close()
+
+
+def launch(playwright, extra_args=()):
+    """Headless chromium from a running sync_playwright(), with the software renderer."""
+    return playwright.chromium.launch(executable_path=CHROMIUM, args=[*ARGS, *extra_args])
+
+
+@contextlib.contextmanager
+def chromium(extra_args=()):
+    """Headless chromium (Playwright's sync API runs one instance at a time): yields the browser."""
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as playwright:
+        browser = launch(playwright, extra_args)
+        try:
+            yield browser
+        finally:
+            browser.close()
+
+
+def open_page(browser, base: str):
+    """A page that may reach only `base` (page.errors: uncaught errors, page.outside:
+    requests elsewhere, which are aborted)."""
+    page = browser.new_page(viewport={"width": 900, "height": 600})
+    page.errors, page.outside = [], []
+    page.on("pageerror", lambda error: page.errors.append(str(error)))
+    page.route("**/*", lambda route: route.continue_() if route.request.url.startswith(base)
+               else (page.outside.append(route.request.url), route.abort()))
+    return page

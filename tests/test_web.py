@@ -1,0 +1,349 @@
+"""Sampling in the browser: the JavaScript runtime (serve/static/sinshape/) in
+Debian's headless chromium against the Python runtime, on a site written by
+`sinrun export-web`, and the switch on the page of `sinrun serve`."""
+
+import base64
+import json
+import re
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
+from pathlib import Path
+
+import numpy as np
+import onnx
+import pytest
+from click.testing import CliRunner
+from onnx import TensorProto, helper
+
+from browser import CHROMIUM, WEBGPU_ARGS, http_server_process, launch, open_page
+from sinshape import models
+from sinshape.cli.main import cli
+from sinshape.runtime import load, mesh, query
+from sinshape.runtime.errors import InputError
+from sinshape.runtime.generate import sample
+from sinshape.serve import site
+from test_cli_train import assert_one_line_error
+
+pytest.importorskip("playwright.sync_api", reason="needs playwright (the test extra)")
+if not Path(CHROMIUM).is_file():
+    pytest.skip("needs Debian's chromium (apt-get install chromium; .ci/run does)", allow_module_level=True)
+
+VECTORS = json.loads((Path(__file__).parent / "data" / "noise_vectors.json").read_text())
+TERRAIN = models.find("terrain")
+
+# Runs in the page: load the model once, sample, query the grid, mesh it.
+SAMPLE_JS = """async ([seed, size, scale, name = 'terrain']) => {
+  const s = await import('./static/sinshape/runtime.js');
+  window.models ??= {};
+  window.models[name] ??= await s.loadModel(new Uint8Array(await (await fetch(`models/${name}.onnx`)).arrayBuffer()),
+                                            { name: `${name}.onnx` });
+  const model = window.models[name];
+  const tri = await s.sample(model, seed, size);
+  const grid = await s.grid(model, tri, scale);
+  const m = s.surface(grid, tri.size);
+  const bytes = new Uint8Array(grid.data.buffer);
+  let text = '';
+  for (let i = 0; i < bytes.length; i += 8192) text += String.fromCharCode(...bytes.subarray(i, i + 8192));
+  let volume = 0;
+  const p = m.positions, f = m.faces;
+  for (let i = 0; i < f.length; i += 3) {
+    const [a, b, c] = [3 * f[i], 3 * f[i + 1], 3 * f[i + 2]];
+    volume += p[a] * (p[b + 1] * p[c + 2] - p[b + 2] * p[c + 1]) - p[a + 1] * (p[b] * p[c + 2] - p[b + 2] * p[c])
+      + p[a + 2] * (p[b] * p[c + 1] - p[b + 1] * p[c]);
+  }
+  return { grid: btoa(text), shape: grid.shape, size: tri.size, vertices: p.length / 3, faces: f.length / 3,
+           volume: volume / 6, backend: model.backend };
+}"""
+
+
+@pytest.fixture(scope="module")
+def terrain():
+    return load.load_model(TERRAIN, threads=2)
+
+
+@pytest.fixture(scope="module")
+def playwright():
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as running:
+        yield running
+
+
+@pytest.fixture(scope="module")
+def browser(playwright):
+    launched = launch(playwright)
+    yield launched
+    launched.close()
+
+
+@pytest.fixture(scope="module")
+def site_page(tmp_path_factory, browser):
+    """`sinrun export-web terrain -o site && python -m http.server -d site`, in chromium."""
+    folder = tmp_path_factory.mktemp("web") / "site"
+    site.export_site(["terrain", "towerruins"], folder)
+    with http_server_process(folder) as base:
+        page = open_page(browser, base)
+        page.base, page.folder = base, folder
+        yield page
+        page.close()
+
+
+def wait_done(page, timeout=60_000) -> str:
+    page.wait_for_function("['ready', 'error'].includes(document.body.dataset.state)", timeout=timeout)
+    return page.evaluate("document.body.dataset.state")
+
+
+def test_the_exported_page_samples_in_the_browser(site_page, terrain, tmp_path):
+    page = site_page
+    page.goto(f"{page.base}/?seed=3&up=z")
+    assert wait_done(page) == "ready", page.text_content("#error")
+    status = page.text_content("#status")
+    assert re.fullmatch(r"[\d,]+ faces · \d+\.\d\d s · in this browser", status), status
+    python_faces = len(mesh.band_mesh(terrain, sample(terrain, 3), 1).faces)
+    assert abs(int(status.split()[0].replace(",", "")) - python_faces) <= python_faces / 1000
+    # No headers for threads here: the page says it runs on one.
+    assert "WASM, 1 thread (the page is not cross-origin isolated" in page.text_content("#backend")
+    assert not page.is_visible("#where")  # a static site has no server to switch to
+    shot = page.locator("#view canvas").screenshot(path=tmp_path / "seed3.png")
+    assert len(shot) > 20_000, f"the view looks blank: {tmp_path / 'seed3.png'}"
+    page.click("#next")
+    page.wait_for_function("location.search.includes('seed=4&') && document.body.dataset.state === 'ready'",
+                           timeout=30_000)
+    assert page.text_content("#status") != status
+    assert not page.errors and not page.outside
+
+
+def test_noise_vectors_bit_for_bit(site_page):
+    page = site_page
+    page.goto(f"{page.base}/README.txt")  # any page of the site, without the viewer
+    bits = page.evaluate("""async (vectors) => {
+      const { normal } = await import('./static/sinshape/noise.js');
+      const hex = (x) => new Uint32Array(Float32Array.of(x).buffer)[0].toString(16).padStart(8, '0');
+      return vectors.map((v) => hex(normal(BigInt(v.seed), v.stream, v.position.map(() => 1), v.position)[0]));
+    }""", [{**v, "seed": str(v["seed"])} for v in VECTORS])
+    assert bits == [v["float32_bits"] for v in VECTORS]
+    # Whole blocks too: a 3-D z0 and a tile of a plane stream, bit for bit.
+    from sinshape.runtime import noise
+
+    blocks = page.evaluate("""async () => {
+      const { normal } = await import('./static/sinshape/noise.js');
+      return [Array.from(normal(42, [0], [5, 4, 3])), Array.from(normal(7, [1, 3, 2, 9], [6, 5], [100, 2000]))];
+    }""")
+    np.testing.assert_array_equal(np.float32(blocks[0]), noise.z0_noise(42, (5, 4, 3)).ravel())
+    np.testing.assert_array_equal(np.float32(blocks[1]), noise.normal(7, (1, 3, 2, 9), (6, 5), (100, 2000)).ravel())
+
+
+@pytest.mark.parametrize("name, scale, size", [("terrain", 1, (1, 1, 1)), ("terrain", 2, (1, 1, 1)),
+                                               ("terrain", 1, (1.5, 1, 0.75)), ("towerruins", 1, (1, 1, 1))])
+def test_grid_and_mesh_equal_the_python_runtime(site_page, terrain, name, scale, size):
+    page = site_page
+    if not page.url.startswith(page.base):
+        page.goto(f"{page.base}/README.txt")
+    js = page.evaluate(SAMPLE_JS, [3, list(size), scale, name])
+    model = terrain if name == "terrain" else load.load_model(models.find(name), threads=2)
+    triplane = sample(model, 3, size)
+    expected = query.dense(model, triplane, scale)
+    grid = np.frombuffer(base64.b64decode(js["grid"]), np.float32).reshape(js["shape"])
+    assert grid.shape == expected.shape and tuple(js["size"]) == triplane.size
+    assert np.abs(grid - expected).max() < 1e-4
+    assert 0.1 < (expected > 0.5).mean() < 0.9  # a real surface, not an empty or full grid
+    python = mesh.band_mesh(model, triplane, scale)
+    assert abs(js["faces"] - len(python.faces)) <= len(python.faces) / 1000
+    assert abs(js["vertices"] - len(python.vertices)) <= len(python.vertices) / 1000
+    assert js["volume"] == pytest.approx(python.volume, rel=1e-3)  # > 0: faces wound outwards, as Python's
+
+
+def test_webgpu_gives_the_same_grid(site_page, terrain, playwright):
+    """Where the browser has WebGPU the page uses it (here: SwiftShader, about 15 s); same grid within 1e-4."""
+    page = site_page  # the fixture's folder, served again for a browser with WebGPU switched on
+    browser = launch(playwright, WEBGPU_ARGS)
+    try:
+        gpu_page = open_page(browser, page.base)
+        gpu_page.goto(f"{page.base}/README.txt")
+        if not gpu_page.evaluate("async () => Boolean(navigator.gpu && await navigator.gpu.requestAdapter())"):
+            pytest.skip("this chromium offers no WebGPU adapter, not even SwiftShader's")
+        js = gpu_page.evaluate(SAMPLE_JS, [3, [1, 1, 1], 1])
+    finally:
+        browser.close()
+    assert js["backend"] == "webgpu"
+    grid = np.frombuffer(base64.b64decode(js["grid"]), np.float32).reshape(js["shape"])
+    assert np.abs(grid - query.dense(terrain, sample(terrain, 3), 1)).max() < 1e-4
+
+
+def test_smoothing_is_trimeshs_laplacian_filter(site_page, terrain):
+    """--smooth in the browser: the filter the Python runtime uses, on the same mesh, to 1e-9."""
+    page = site_page
+    if not page.url.startswith(page.base):
+        page.goto(f"{page.base}/README.txt")
+    raw = mesh.band_mesh(terrain, sample(terrain, 3), 1)
+    smoothed = page.evaluate("""async ([positions, faces]) => {
+      const s = await import('./static/sinshape/runtime.js');
+      return Array.from(s.smooth({ positions: Float64Array.from(positions), faces: Uint32Array.from(faces) }, 3).positions);
+    }""", [raw.vertices.ravel().tolist(), raw.faces.ravel().tolist()])
+    expected = mesh.finish(raw.copy(), smooth=3).vertices
+    assert np.abs(np.reshape(smoothed, (-1, 3)) - expected).max() < 1e-9
+    assert np.abs(expected - raw.vertices).mean() > 0.01  # it does smooth
+
+
+def foreign_model(path: Path) -> Path:
+    x = helper.make_tensor_value_info("x", TensorProto.FLOAT, [1])
+    y = helper.make_tensor_value_info("y", TensorProto.FLOAT, [1])
+    graph = helper.make_graph([helper.make_node("Add", ["x", "x"], ["y"])], "g", [x], [y])
+    onnx.save(helper.make_model(graph), path)
+    return path
+
+
+def altered_terrain(path: Path, change) -> Path:
+    proto = onnx.load(TERRAIN)
+    change(proto)
+    path.write_bytes(proto.SerializeToString())
+    return path
+
+
+def newer_version(proto):
+    for prop in proto.metadata_props:
+        if prop.key == "sinshape.manifest":
+            prop.value = json.dumps({**json.loads(prop.value), "format_version": 2})
+
+
+def external_data(proto):
+    tensor = proto.graph.initializer[0]
+    tensor.data_location = TensorProto.EXTERNAL
+    tensor.external_data.add(key="location", value="weights.bin")
+
+
+def foreign_op(proto):
+    proto.graph.node[0].op_type = "Softmax"
+
+
+def test_files_are_refused_as_the_python_loader_refuses_them(site_page, tmp_path):
+    page = site_page
+    page.goto(f"{page.base}/?seed=3")
+    wait_done(page)
+    foreign = foreign_model(tmp_path / "foreign.onnx")
+    page.set_input_files("#file", foreign)
+    page.wait_for_function("document.body.dataset.state === 'error'", timeout=30_000)
+    assert page.is_visible("#error")
+    assert page.text_content("#error") == "foreign.onnx: an ONNX model, but not a sinshape model (no sinshape.manifest metadata)"
+    # A sinshape file of the user's own is checked and sampled, beside the listed models.
+    mine = tmp_path / "mine.onnx"
+    mine.write_bytes(TERRAIN.read_bytes())
+    page.set_input_files("#file", mine)
+    page.wait_for_function("document.body.dataset.state === 'ready' && location.search.includes('mine')",
+                           timeout=30_000)
+    assert page.input_value("#model") == "mine (file)" and not page.is_visible("#error")
+    assert len(page.locator("#model option").all()) == 3  # terrain, towerruins, the file
+
+    (tmp_path / "text.onnx").write_text("hello, not a model")
+    (tmp_path / "empty.onnx").write_bytes(b"")
+    files = [foreign, tmp_path / "text.onnx", tmp_path / "empty.onnx",
+             altered_terrain(tmp_path / "newer.onnx", newer_version),
+             altered_terrain(tmp_path / "external.onnx", external_data),
+             altered_terrain(tmp_path / "op.onnx", foreign_op)]
+    messages = page.evaluate("""async (files) => {
+      const s = await import('./static/sinshape/runtime.js');
+      const out = [];
+      for (const [name, data] of files) {
+        try {
+          await s.loadModel(Uint8Array.from(atob(data), (c) => c.charCodeAt(0)), { name });
+          out.push('loaded');
+        } catch (error) {
+          out.push(error.message);
+        }
+      }
+      return out;
+    }""", [[f.name, base64.b64encode(f.read_bytes()).decode()] for f in files])
+    for path, message in zip(files, messages):
+        with pytest.raises(InputError) as python:
+            load.load_model(path)
+        assert message == str(python.value).replace(str(path), path.name)
+    assert "not an ONNX file" in messages[1] and "newer than this sinshape reads" in messages[3]
+    assert "external data" in messages[4] and "(Softmax)" in messages[5]
+
+
+def test_the_serve_page_switches_to_the_browser(browser):
+    """On `sinrun serve` (COOP/COEP sent: WASM on threads) the switch samples the same shape here."""
+    pytest.importorskip("fastapi")
+    from test_serve import running_server
+
+    with running_server("terrain") as (base, _):
+        page = open_page(browser, base)
+        page.goto(f"{base}/?seed=3&where=server")
+        assert wait_done(page) == "ready"
+        server_faces = page.text_content("#status").split()[0]
+        assert not page.is_visible("#backend")
+        page.select_option("#where", "browser")
+        page.wait_for_function("location.search.includes('where=browser') && document.body.dataset.state === 'ready'",
+                               timeout=60_000)
+        status = page.text_content("#status")
+        assert status.endswith("in this browser")
+        faces = int(status.split()[0].replace(",", ""))
+        assert abs(faces - int(server_faces.replace(",", ""))) <= faces / 1000
+        assert page.evaluate("crossOriginIsolated")
+        backend = page.text_content("#backend")
+        assert re.search(r"on WASM, \d+ threads?; model loaded and checked in \d+\.\d\d s$", backend) and "not cross-origin isolated" not in backend
+        assert not page.errors and not page.outside
+
+
+def free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+def run(*args):
+    return CliRunner().invoke(cli, [str(a) for a in args])
+
+
+def test_export_web_writes_replaces_and_refuses(tmp_path):
+    out = tmp_path / "site"
+    result = run("export-web", "terrain", "-o", out)
+    assert result.exit_code == 0, result.output
+    assert "python -m http.server -d" in result.output
+    assert {"index.html", "models.json", "serve.py", "_headers", "README.txt"} <= {p.name for p in out.iterdir()}
+    assert (out / "models" / "terrain.onnx").read_bytes() == TERRAIN.read_bytes()
+    assert 'data-site="static"' in (out / "index.html").read_text()
+    for name in ("ort.min.mjs", "ort-wasm-simd-threaded.jsep.mjs", "ort-wasm-simd-threaded.jsep.wasm", "LICENSE"):
+        assert (out / "static" / "vendor" / "onnxruntime-web" / name).is_file()
+    # Its serve.py sends the headers that let WASM use threads, and JavaScript and WASM types.
+    port = free_port()
+    server = subprocess.Popen([sys.executable, "serve.py", str(port)], cwd=out, stdout=subprocess.DEVNULL)
+    try:
+        for _ in range(100):
+            try:
+                answers = {path: urllib.request.urlopen(f"http://127.0.0.1:{port}/{path}", timeout=5).headers
+                           for path in ("", "static/sinshape/runtime.js",
+                                        "static/vendor/onnxruntime-web/ort-wasm-simd-threaded.jsep.wasm")}
+                break
+            except OSError:
+                time.sleep(0.1)
+        else:
+            raise AssertionError("serve.py did not answer")
+    finally:
+        server.terminate()
+        server.wait(timeout=10)
+    assert all(h["Cross-Origin-Embedder-Policy"] == "require-corp" for h in answers.values())
+    assert answers["static/sinshape/runtime.js"]["Content-Type"] == "text/javascript"
+    assert answers["static/vendor/onnxruntime-web/ort-wasm-simd-threaded.jsep.wasm"]["Content-Type"] == "application/wasm"
+    # A previous export is replaced; any other folder with files is refused, untouched.
+    (out / "stale.txt").write_text("x")
+    assert run("export-web", "terrain", "-o", out).exit_code == 0
+    assert not (out / "stale.txt").exists()
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "keep.txt").write_text("mine")
+    assert_one_line_error(run("export-web", "terrain", "-o", other), "a folder with other files in it")
+    assert [p.name for p in other.iterdir()] == ["keep.txt"]
+    # A bad model: one line, nothing written.
+    assert_one_line_error(run("export-web", foreign_model(tmp_path / "foreign.onnx"), "-o", tmp_path / "new"),
+                          "not a sinshape model")
+    assert not (tmp_path / "new").exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["foreign.onnx", "other", "site"]
+
+
+def test_export_web_help():
+    result = run("export-web", "--help")
+    assert result.exit_code == 0 and "static web site" in result.output and "--output" in result.output
