@@ -190,27 +190,27 @@ def parse_seeds(text: str) -> list:
     return seeds
 
 
-def parse_triple(text: str, valid, example: str) -> tuple:
-    """'a,b,c', or one value for all three axes -> three floats passing `valid`."""
+def as_option(parse, text: str) -> tuple:
+    """A runtime parser's InputError as click's message for a bad option value."""
     try:
-        values = tuple(float(v) for v in text.split(","))
-    except ValueError:
-        values = ()
-    if len(values) == 1:
-        values *= 3
-    if len(values) != 3 or not all(valid(v) for v in values):
-        raise click.BadParameter(f"{text!r}: give {example}")
-    return values
+        return parse(text)
+    except InputError as error:
+        raise click.BadParameter(f"{text!r}: {str(error).split(': ', 1)[1]}") from None
 
 
 def parse_size(text: str) -> tuple:
     """'2' or '2,1,1' -> per-axis factors of the training size."""
-    return parse_triple(text, lambda f: 0 < f < float("inf"), "one or three positive factors, like 2 or 2,1,0.5")
+    from sinshape.runtime import generate
+
+    return as_option(generate.parse_size, text)
 
 
 def parse_fractions(text: str) -> tuple:
     """'0.5,0.7,1' -> three numbers in [0, 1]."""
-    return parse_triple(text, lambda v: 0 <= v <= 1, "three fractions in [0, 1], like 0.5,0.7,1")
+    from sinshape.runtime import generate
+
+    return as_option(lambda t: generate.parse_triple(t, lambda v: 0 <= v <= 1,
+                                                     "three fractions in [0, 1], like 0.5,0.7,1"), text)
 
 
 def named_output(output: Path, **fields) -> Path:

@@ -33,6 +33,25 @@ def plane_sizes(size) -> list:
     return [(x, y), (x, z), (y, z)]
 
 
+def parse_triple(text: str, valid, example: str, name: str = "size") -> tuple:
+    """'a,b,c', or one value for all three axes -> three floats passing `valid`.
+    The text form of per-axis values, shared by the command line and the web API."""
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) == 1:
+        values *= 3
+    if len(values) != 3 or not all(valid(v) for v in values):
+        raise InputError(f"{name} {text!r}: give {example}")
+    return values
+
+
+def parse_size(text: str) -> tuple:
+    """'2' or '2,1,0.5' -> three finite positive size factors, one per axis."""
+    return parse_triple(text, lambda f: 0 < f < float("inf"), "one or three positive factors, like 2 or 2,1,0.5")
+
+
 def scaled_sizes(sizes: list, factors=(1.0, 1.0, 1.0)) -> list:
     """Every level's grid for a sample `factors` times the training size per axis."""
     if len(factors) != 3 or any(not f > 0 for f in factors):

@@ -23,7 +23,6 @@ import asyncio
 import hashlib
 import importlib.metadata
 import logging
-import math
 import threading
 import time
 from collections import OrderedDict
@@ -107,19 +106,6 @@ class Sample:
 
 class Cancelled(Exception):
     """Raised inside a sampling thread whose request ran out of time."""
-
-
-def parse_size(text: str) -> tuple:
-    """'2' or '2,1,0.5' -> three finite positive factors (as `sinrun sample --size`)."""
-    try:
-        values = tuple(float(v) for v in text.split(","))
-    except ValueError:
-        values = ()
-    if len(values) == 1:
-        values *= 3
-    if len(values) != 3 or not all(0 < v < math.inf for v in values):
-        raise InputError(f"size {text!r}: give one or three positive factors, like 2 or 2,1,0.5")
-    return values
 
 
 def make_sample(model, request: SampleRequest, cancel: threading.Event) -> Sample:
@@ -342,7 +328,7 @@ def create_app(loaded: dict, slots: int | None = None, timeout: float = 60.0,
         format: Annotated[Format, Query(description="glb ply obj stl off: a mesh; npz: the occupancy grid.")] = "glb",
     ):
         model = find(name)
-        wanted = SampleRequest(name, seed, parse_size(size), scale, smooth, format)
+        wanted = SampleRequest(name, seed, generate.parse_size(size), scale, smooth, format)
         made, hit = await request.app.state.sampler.get(model, wanted)
         headers = {"ETag": made.etag, "Cache-Control": "no-cache", "X-Cache": "hit" if hit else "miss",
                    "X-Sample-Seconds": f"{made.seconds:.3f}",
