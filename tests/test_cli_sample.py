@@ -91,6 +91,26 @@ def test_info_shows_the_manifest(tiny_model, tiny_pyramid):
         assert text in result.output
 
 
+def test_version_is_the_packages():
+    from importlib import metadata
+
+    from sinshape import runtime
+
+    assert runtime.__version__ == metadata.version("sinshape")
+    result = sinrun("--version")
+    assert result.exit_code == 0 and result.output == f"sinrun, version {runtime.__version__}\n"
+
+
+def test_library_errors_name_parameters_and_the_cli_names_options():
+    from sinshape.cli.main import command_line_message
+    from sinshape.runtime.errors import InputError
+
+    levels = InputError("t.h5 has 3 levels; levels 5 asks for more", "levels")
+    assert command_line_message(levels) == "t.h5 has 3 levels; --levels 5 asks for more"
+    assert command_line_message(InputError("factors must be 3 positive numbers", "factors")).startswith("--size must")
+    assert command_line_message(InputError("a seed must be an integer", "seed")) == "a seed must be an integer"
+
+
 def test_help_for_every_command():
     for command in ("sample", "interpolate", "info", "models"):
         result = sinrun(command, "--help")
@@ -151,15 +171,17 @@ def test_bad_models_are_refused_in_one_line(tiny_model, tmp_path):
 def test_bad_options_are_refused_in_one_line(tiny_model, tmp_path):
     out = tmp_path / "out.ply"
     cases = [
-        (["--scale", "0"], "positive"),
+        (["--scale", "0"], "--scale must be a positive number"),
         (["--scale", "-2"], "positive"),
-        (["--scale", "100000"], "points per axis"),
-        (["--size", "80"], "GiB"),
-        (["--scale", "300", "-o", str(tmp_path / "g.npz")], "GiB"),
+        (["--scale", "100000"], "--scale 100000.0 asks for"),
+        (["--size", "1000"], "GiB"),  # petabytes: beyond any machine's memory
+        (["--scale", "3000", "-o", str(tmp_path / "g.npz")], "GiB"),
         (["-o", str(tmp_path / "out.xyz")], "unsupported output format"),
         (["-o", str(tmp_path / "nowhere" / "out.ply")], "does not exist"),
         (["-o", "/proc/sinshape.ply"], "cannot write"),
-        (["--threads", "0"], "threads"),
+        (["--threads", "0"], "--threads must be at least 1"),
+        (["--recon", "--size", "2"], "training size; drop --size"),
+        (["--smooth", "-1"], "--smooth must be 0 or more"),
     ]
     for options, fragment in cases:
         result = sinrun("sample", tiny_model, "-o", str(out), *options)

@@ -162,7 +162,7 @@ def pyramid_from_h5(path: Path, levels: int | None = None) -> Pyramid:
         grids.reverse()
     if levels is not None:
         if levels > len(grids):
-            raise InputError(f"{path.name} has {len(grids)} levels; --levels {levels} asks for more")
+            raise InputError(f"{path.name} has {len(grids)} levels; levels {levels} asks for more", "levels")
         grids = grids[len(grids) - levels:]
     return Pyramid(
         levels=[grid.astype(bool) for grid in grids],
