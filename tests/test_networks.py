@@ -72,6 +72,12 @@ def test_grid_head_gradients_are_exact(monkeypatch):
     assert torch.autograd.gradcheck(networks.GridHead.apply, inputs)
 
 
+def test_an_unknown_generator_kind_is_refused():
+    assert isinstance(networks.make_generator("voxel", 8, 4, 8), networks.VoxelGenerator)
+    with pytest.raises(ValueError, match="unknown generator 'voxels'"):
+        networks.make_generator("voxels", 8, 4, 8)
+
+
 @pytest.mark.parametrize("kind", ["triplane", "voxel"])
 def test_a_batch_gives_each_sample_as_alone(kind):
     """Training runs several samples as one batch; each must come out as it

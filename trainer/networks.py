@@ -323,14 +323,13 @@ class VoxelGenerator(nn.Module):
         return [self.levels[level]]
 
 
-GENERATORS = ("triplane", "voxel")
-
-
 def make_generator(kind: str, channels: int, bins: int, hidden: int) -> nn.Module:
     """The generator a config names: the paper's tri-planes or the voxel baseline."""
+    if kind == "triplane":
+        return TriplaneGenerator(channels, bins, hidden)
     if kind == "voxel":
         return VoxelGenerator(channels)
-    return TriplaneGenerator(channels, bins, hidden)
+    raise ValueError(f"unknown generator {kind!r}; choose triplane or voxel")
 
 
 class Discriminator(nn.Module):
