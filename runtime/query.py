@@ -4,8 +4,9 @@ band around the surface.
 The decoder's first layer is applied to each plane once (stage
 decoder_planes), and bilinear interpolation commutes with it, so a point
 costs the sum of three interpolated hidden vectors, a ReLU and a dot product
-(docs/METHOD.md, "The decoder's first layer"). On a regular grid the interpolation is separable:
-a fine plane row is a matrix product of the coarse plane with resize weights.
+(docs/METHOD.md, "The decoder's first layer"). On a regular grid the
+interpolation is separable: a fine plane row is a matrix product of the
+coarse plane with resize weights.
 
 A grid `scale` times finer has round(N * scale) points per axis spanning the
 same extent as the N plane cells (align_corners=True), so scale 1 reads the
