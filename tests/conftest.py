@@ -1,25 +1,12 @@
-"""Shared fixtures: tiny inputs and one tiny trained model per test session."""
+"""Shared fixtures: tiny inputs and one tiny trained model per test session.
 
-import os
-from pathlib import Path
+Tests need nothing outside the checkout: inputs are made here, by
+trainer/shapes.py, or read from tests/data (see its README for licences).
+"""
 
 import h5py
 import numpy as np
 import pytest
-
-
-def find_data() -> Path:
-    """The workplace's shared data: $SINSHAPE_DATA, beside the checkout, or /work/shared/data.
-    Tests that need it skip when it is absent."""
-    candidates = [os.environ.get("SINSHAPE_DATA"), Path(__file__).resolve().parents[2] / "shared" / "data",
-                  "/work/shared/data"]
-    for candidate in filter(None, candidates):
-        if Path(candidate).is_dir():
-            return Path(candidate)
-    return Path("/nonexistent/shared/data")
-
-
-DATA = find_data()
 
 
 def write_pyramid(path, sizes):
