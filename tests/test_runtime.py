@@ -69,10 +69,16 @@ def test_points_agree_with_the_grid(model):
     rng = np.random.default_rng(0)
     index = rng.integers(0, grid.shape, size=(50, 3))
     np.testing.assert_allclose(runtime.points(model, triplane, index.astype(float)), grid[tuple(index.T)], atol=1e-5)
-    # Between grid points the value is between its neighbours' range, and outside the grid it is 0.
+    # Outside the grid a point is empty.
     assert runtime.points(model, triplane, np.array([[-1.0, 0, 0], [0, 0, 1e6]])).tolist() == [0.0, 0.0]
+    # Between grid points: a finer grid's points lie between the cells, and
+    # points() at their coordinates gives the finer grid's values.
     fine = runtime.dense(model, triplane, 2)
     assert fine.shape == tuple(2 * n for n in grid.shape)
+    fine_index = rng.integers(0, fine.shape, size=(50, 3))
+    coords = fine_index * (np.array(grid.shape) - 1) / (np.array(fine.shape) - 1)
+    assert (coords % 1 > 0.01).any(axis=1).mean() > 0.9  # most are off the training grid
+    np.testing.assert_allclose(runtime.points(model, triplane, coords), fine[tuple(fine_index.T)], atol=1e-5)
     np.testing.assert_allclose(fine[0, 0, 0], grid[0, 0, 0], atol=1e-5)  # corners align
 
 
