@@ -14,7 +14,8 @@ from sinshape.runtime import __version__
 from sinshape.runtime.errors import InputError
 
 # Library errors name a function's parameter; on the command line it is an option.
-OPTIONS = {"scale": "--scale", "factors": "--size", "smooth": "--smooth", "threads": "--threads", "levels": "--levels"}
+OPTIONS = {"scale": "--scale", "factors": "--size", "smooth": "--smooth", "threads": "--threads",
+           "levels": "--levels", "res": "--res"}
 
 
 def command_line_message(error: InputError) -> str:

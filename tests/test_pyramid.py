@@ -41,8 +41,9 @@ def test_level_sizes_reproduce_the_ssg_pyramids(name):
 
 
 def test_too_many_levels_for_the_15_voxel_minimum_is_refused():
-    with pytest.raises(InputError, match="15-voxel minimum"):
+    with pytest.raises(InputError, match="15-voxel minimum; use fewer levels or a higher res$") as refused:
         pyramid.level_sizes((32, 20, 20), 5)
+    assert refused.value.parameter == "res"
 
 
 def test_stretch_raises_short_axes_and_keeps_the_shape():

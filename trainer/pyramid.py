@@ -67,7 +67,7 @@ def level_sizes(finest: tuple, count: int, factor: float = 0.75, min_size: int =
     if max(chain[0]) < min_size:
         raise InputError(
             f"{count} levels shrink the coarsest level's longest side to {max(chain[0])} voxels, "
-            f"below the {min_size}-voxel minimum; use fewer levels or a higher --res"
+            f"below the {min_size}-voxel minimum; use fewer levels or a higher res", "res"
         )
     return chain, [tuple(max(n, min_size) for n in size) for size in chain]
 
