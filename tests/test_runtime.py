@@ -5,6 +5,7 @@ import os
 import numpy as np
 import pytest
 
+from conftest import TINY_ONNX
 from sinshape import runtime
 from sinshape.runtime import generate, query
 
@@ -173,3 +174,16 @@ def test_memory_estimates_count_the_decoders_hidden_width(model, monkeypatch, sc
     assert needed["a"] == mx * my * mz * 4 + my * mz * d * 4
     py, pz = (-(-(m + 1) // block) * block + 1 for m in (my, mz))
     assert needed["meshing"] == py * pz * (d + 3 * (block + 1)) * 4 + (block + 1) * (py + pz) * d * 4
+
+
+def test_the_committed_tiny_model_is_the_tiny_pyramids(tiny_pyramid):
+    """tests/data/tiny.onnx stands in for tiny_model where torch is missing:
+    it must still load and come from the pyramid the tests describe."""
+    import hashlib
+
+    model = runtime.load_model(TINY_ONNX, threads=1)
+    source = model.manifest.raw["source"]
+    assert source["name"] == tiny_pyramid.name
+    assert source["sha256"] == hashlib.sha256(tiny_pyramid.read_bytes()).hexdigest()
+    assert model.manifest.sizes == [(15, 15, 15), (20, 18, 15)]
+    assert runtime.extract(model, runtime.sample(model, 3)).is_watertight
