@@ -31,7 +31,8 @@ one BLAS thread, reference = finest level of SmallTown_r128s6 (128x46x84):
     lp_metrics of 100 flipped and shifted copies:  3.2 s
     diversity of those 100:                        0.14 s
 
-The per-sample time comes from (SSG's SmallTown_r128s6.h5 in the current folder)
+The per-sample time comes from this, with SSG's SmallTown_r128s6.h5 in the
+current folder:
 
     OPENBLAS_NUM_THREADS=1 python -c "
     import h5py, numpy as np, timeit; from sinshape.runtime.evaluate import *

@@ -152,11 +152,16 @@ def test_available_memory_reads_the_machine_or_falls_back(monkeypatch):
         with open("/proc/meminfo") as f:
             kib = next(int(line.split()[1]) for line in f if line.startswith("MemAvailable:"))
         assert abs(generate.available_memory() - kib * 1024) < 256 << 20  # it moves while we read
-    def unreadable(*args, **kwargs):
-        raise OSError("no /proc here")
-    monkeypatch.setattr("builtins.open", unreadable)
+
+    def unreadable(*args):
+        raise OSError("no /proc/meminfo here")
+
+    def unknown(name):
+        raise ValueError(f"unrecognized configuration name {name}")
+
+    monkeypatch.setattr(generate, "open", unreadable, raising=False)  # shadows the builtin there
     assert generate.available_memory() > 0  # sysconf's free pages
-    monkeypatch.setattr(generate.os, "sysconf", lambda name: (_ for _ in ()).throw(ValueError(name)))
+    monkeypatch.setattr(generate.os, "sysconf", unknown)
     assert generate.available_memory() == generate.FALLBACK_MEMORY_LIMIT
 
 
