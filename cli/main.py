@@ -4,13 +4,30 @@ Heavy imports (torch, onnxruntime, trimesh) happen inside the commands, so
 `--help` is instant and everything but `train` works without torch.
 """
 
-import importlib.metadata
+import re
 import sys
 from pathlib import Path
 
 import click
 
+from sinshape.runtime import __version__
 from sinshape.runtime.errors import InputError
+
+# Library errors name a function's parameter; on the command line it is an option.
+OPTIONS = {"scale": "--scale", "factors": "--size", "smooth": "--smooth", "threads": "--threads",
+           "levels": "--levels", "res": "--res"}
+
+
+def command_line_message(error: InputError) -> str:
+    """The error's message with its parameter written as the option that sets it."""
+    message = str(error)
+    if error.parameter not in OPTIONS:
+        return message
+    words = list(re.finditer(rf"\b{error.parameter}\b", message))
+    if not words:
+        return message
+    last = words[-1]
+    return message[:last.start()] + OPTIONS[error.parameter] + message[last.end():]
 
 
 class Sinrun(click.Group):
@@ -20,11 +37,11 @@ class Sinrun(click.Group):
         try:
             return super().invoke(ctx)
         except InputError as error:
-            raise click.ClickException(str(error)) from None
+            raise click.ClickException(command_line_message(error)) from None
 
 
 @click.group(cls=Sinrun, context_settings={"help_option_names": ["-h", "--help"]})
-@click.version_option(importlib.metadata.version("sinshape"), prog_name="sinrun")
+@click.version_option(__version__, prog_name="sinrun")
 def cli():
     """Learn to generate new 3D shapes from one example shape.
 
@@ -265,7 +282,7 @@ def open_model(model, threads):
     return load.load_model(models.find(model), threads=threads)
 
 
-def write_sample(model, triplane, path: Path, scale, smooth, smoother, largest, frame, progress=None):
+def write_sample(model, triplane, path: Path, scale, smooth, smoother, largest, frame):
     """Mesh or grid of one sample, by the output's extension."""
     from sinshape.runtime import mesh, query, write
 
@@ -273,7 +290,7 @@ def write_sample(model, triplane, path: Path, scale, smooth, smoother, largest, 
         occupancy = query.dense(model, triplane, scale)
         write.write_grid(occupancy, path, size=triplane.size, scale=scale)
     else:
-        result = mesh.extract(model, triplane, scale, smooth, smoother, largest, frame, progress)
+        result = mesh.extract(model, triplane, scale, smooth, smoother, largest, frame)
         write.write_mesh(result, path)
 
 

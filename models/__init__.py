@@ -1,5 +1,6 @@
 """Models shipped with sinshape: every NAME.onnx in this folder, with its
-card NAME.md beside it."""
+card NAME.md beside it. It imports only the runtime's errors: finding a
+model loads nothing."""
 
 from importlib import resources
 from pathlib import Path

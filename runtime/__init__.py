@@ -8,9 +8,17 @@
     grid = runtime.dense(model, triplane, scale=1)    # (X, Y, Z) occupancy in [0, 1]
 
 Stages, one module each: load -> generate -> query -> mesh -> write.
+
+It imports numpy, scipy, onnx, onnxruntime, trimesh, scikit-image and
+pillow; never torch, and nothing from sinshape.trainer, .cli or .serve: a
+model file and its manifest (docs/FORMAT.md) are all it shares with the
+trainer. `__version__` is the installed sinshape distribution's version.
 """
 
 import importlib
+from importlib import metadata
+
+__version__ = metadata.version("sinshape")
 
 # Where each public name lives. They are imported on first use, so that
 # importing a light module (runtime.errors, for the CLI's --help) does not
@@ -19,7 +27,7 @@ _EXPORTS = {
     "InputError": "errors", "MemoryLimitError": "errors", "Model": "load", "load_model": "load", "TriPlane": "generate",
     "sample": "generate", "interpolate": "generate", "extract": "mesh", "dense": "query", "points": "query",
 }
-__all__ = sorted(_EXPORTS)
+__all__ = sorted(_EXPORTS) + ["__version__"]
 
 
 def __getattr__(name):

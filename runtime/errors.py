@@ -4,13 +4,25 @@ Everything the user controls (a mesh, a pyramid, a model file, an option
 value, an output path) is checked where it is read; a failed check raises
 `InputError` with a message that fits on one line. The CLI prints that line
 and exits non-zero; any other exception is a bug and keeps its traceback.
+
+A message about one parameter calls it by the library's name for it
+(`scale must be a positive number`) and sets `parameter`, so that a front
+end can say it its own way (the CLI writes `--scale`). Where the name is
+also an ordinary word of the message, the parameter is its last occurrence
+(`x.h5 has 3 levels; levels 5 asks for more`).
 """
 
 
 class InputError(ValueError):
-    """Bad user input, reported as one line without a traceback."""
+    """Bad user input, reported as one line without a traceback; `parameter`
+    names the function parameter at fault, where there is one."""
+
+    def __init__(self, message: str, parameter: str | None = None):
+        super().__init__(message)
+        self.parameter = parameter
 
 
 class MemoryLimitError(InputError):
     """Work refused up front because it would need more memory than the
-    limit (runtime.generate.MEMORY_LIMIT); the message gives the figure."""
+    limit (a `memory_limit` parameter, by default the memory available:
+    runtime.generate.check_memory); the message gives the figure."""

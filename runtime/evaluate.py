@@ -31,11 +31,12 @@ one BLAS thread, reference = finest level of SmallTown_r128s6 (128x46x84):
     lp_metrics of 100 flipped and shifted copies:  3.2 s
     diversity of those 100:                        0.14 s
 
-The per-sample time comes from
+The per-sample time comes from this, with SSG's SmallTown_r128s6.h5 in the
+current folder:
 
     OPENBLAS_NUM_THREADS=1 python -c "
     import h5py, numpy as np, timeit; from sinshape.runtime.evaluate import *
-    v = h5py.File('/work/shared/data/pyramids/SmallTown_r128s6.h5')['scale5'][:]
+    v = h5py.File('SmallTown_r128s6.h5')['scale5'][:]
     ref, g = valid_patches(v), v ^ (np.random.default_rng(0).random(v.shape) < 0.01)
     print(timeit.timeit(lambda: lp_scores(g, ref, np.random.default_rng(0)), number=20) / 20)"
 

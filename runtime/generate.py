@@ -8,6 +8,7 @@ model's onnxruntime sessions.
 Planes are (C, H, W) float32 in the order xy (X, Y), xz (X, Z), yz (Y, Z).
 """
 
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -17,14 +18,34 @@ from .errors import InputError, MemoryLimitError
 
 # A sample's coarsest grid may not shrink below this many voxels per axis.
 MIN_SIDE = 2
-# Work needing more memory than this is refused up front, saying how much it needs.
-MEMORY_LIMIT = 4 << 30
+# The memory limit where the machine does not say how much memory is available.
+FALLBACK_MEMORY_LIMIT = 4 << 30
 
 
-def check_memory(needed: int, what: str) -> None:
-    if needed > MEMORY_LIMIT:
+def available_memory() -> int:
+    """Bytes of memory available to new work: MemAvailable on Linux (it
+    counts reclaimable caches), else the free physical pages, else
+    FALLBACK_MEMORY_LIMIT."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (AttributeError, ValueError, OSError):
+        return FALLBACK_MEMORY_LIMIT
+
+
+def check_memory(needed: int, what: str, limit: int | None = None) -> None:
+    """Refuse work up front, with the figure, if it needs more than `limit`
+    bytes (None: the memory available now)."""
+    limit = available_memory() if limit is None else limit
+    if needed > limit:
         raise MemoryLimitError(f"{what} needs about {needed / 2**30:.1f} GiB of memory "
-                         f"(limit {MEMORY_LIMIT / 2**30:.0f} GiB)")
+                               f"(limit {limit / 2**30:.1f} GiB)")
 
 
 def plane_sizes(size) -> list:
@@ -55,7 +76,7 @@ def parse_size(text: str) -> tuple:
 def scaled_sizes(sizes: list, factors=(1.0, 1.0, 1.0)) -> list:
     """Every level's grid for a sample `factors` times the training size per axis."""
     if len(factors) != 3 or any(not f > 0 for f in factors):
-        raise InputError(f"size factors must be 3 positive numbers, got {tuple(factors)}")
+        raise InputError(f"factors must be 3 positive numbers, got {tuple(factors)}", "factors")
     out = [tuple(max(MIN_SIDE, round(n * f)) for n, f in zip(size, factors)) for size in sizes]
     return out
 
@@ -157,40 +178,44 @@ def reconstruction_noise(model, sizes: list) -> Noise:
     return Noise(noise.z0_noise(m.recon_seed, sizes[0]), [None] * len(sizes))
 
 
-def check_generation_memory(sizes: list, channels: int, factors) -> None:
+def check_generation_memory(sizes: list, channels: int, factors, limit: int | None = None) -> None:
     """z0 and its float64 pooling sums, and a few copies of the largest tri-plane."""
     z0 = np.prod(sizes[0]) * 16
     planes = max(sum(h * w for h, w in plane_sizes(size)) for size in sizes) * channels * 4 * 6
-    check_memory(int(z0 + planes), f"a sample of size {'x'.join(f'{f:g}' for f in factors)}")
+    check_memory(int(z0 + planes), f"a sample of size {'x'.join(f'{f:g}' for f in factors)}", limit)
 
 
 def check_seed(seed: int) -> int:
     if not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**63:
-        raise InputError(f"a seed must be an integer in [0, 2**63), got {seed}")
+        raise InputError(f"a seed must be an integer in [0, 2**63), got {seed}", "seed")
     return int(seed)
 
 
-def sample(model, seed: int | None = None, factors=(1.0, 1.0, 1.0)) -> TriPlane:
+def sample(model, seed: int | None = None, factors=(1.0, 1.0, 1.0), memory_limit: int | None = None) -> TriPlane:
     """The tri-plane of one sample: a seed, or None for the training shape.
 
     factors scale the training size per axis (any size and aspect ratio).
+    Work needing more than memory_limit bytes (None: the memory available
+    now) is refused up front with MemoryLimitError.
     """
     sizes = scaled_sizes(model.manifest.sizes, factors)
-    check_generation_memory(sizes, model.manifest.channels, factors)
+    check_generation_memory(sizes, model.manifest.channels, factors, memory_limit)
     if seed is None:
         if sizes != [tuple(s) for s in model.manifest.sizes]:
-            raise InputError("the reconstruction exists only at the training size; drop --size")
+            raise InputError("the reconstruction exists only at the training size; drop factors", "factors")
         return triplane(model, reconstruction_noise(model, sizes), sizes)
     return triplane(model, draw_noise(check_seed(seed), sizes, model.manifest.channels), sizes)
 
 
-def interpolate(model, seed_a: int, seed_b: int, alpha: float, factors=(1.0, 1.0, 1.0)) -> TriPlane:
+def interpolate(model, seed_a: int, seed_b: int, alpha: float, factors=(1.0, 1.0, 1.0),
+                memory_limit: int | None = None) -> TriPlane:
     """Blend two samples: z0 = (1 - alpha) z0_A + alpha z0_B, later noise of seed A held fixed.
 
-    alpha outside [0, 1] extrapolates (the paper shows -0.5 .. 1.5).
+    alpha outside [0, 1] extrapolates (the paper shows -0.5 .. 1.5);
+    memory_limit as for `sample`.
     """
     sizes = scaled_sizes(model.manifest.sizes, factors)
-    check_generation_memory(sizes, model.manifest.channels, factors)
+    check_generation_memory(sizes, model.manifest.channels, factors, memory_limit)
     a = draw_noise(check_seed(seed_a), sizes, model.manifest.channels)
     z0_b = noise.z0_noise(check_seed(seed_b), sizes[0])
     return triplane(model, Noise((1 - alpha) * a.z0 + alpha * z0_b, a.planes), sizes)

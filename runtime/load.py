@@ -203,7 +203,7 @@ def load_model(path, threads: int | None = None) -> Model:
     path = Path(path)
     threads = default_threads() if threads is None else threads
     if threads < 1:
-        raise InputError(f"--threads must be at least 1, got {threads}")
+        raise InputError(f"threads must be at least 1, got {threads}", "threads")
     proto = read_model(path)
     manifest = read_manifest(proto, path)
 

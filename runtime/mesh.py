@@ -17,16 +17,18 @@ from .errors import InputError
 SMOOTHERS = ("laplacian", "taubin")
 
 
-def band_mesh(model, triplane, scale: float = 1.0, block: int = query.BLOCK, progress=None) -> trimesh.Trimesh:
+def band_mesh(model, triplane, scale: float = 1.0, block: int = query.BLOCK, progress=None,
+              memory_limit: int | None = None) -> trimesh.Trimesh:
     """The 0.5 surface of a tri-plane on a grid `scale` times finer.
 
     Vertices are in model coordinates (finest training voxels; see
     query.points). progress(done, total) is called after each slab.
+    memory_limit: as for query.band.
     """
     shape = query.grid_shape(triplane.size, scale)
     slabs = -(-(shape[0] + 1) // block)
     vertices, faces, count = [], [], 0
-    for slab in query.band(model, triplane, scale, block):
+    for slab in query.band(model, triplane, scale, block, memory_limit=memory_limit):
         if slab.values is not None:
             for by, bz in np.argwhere(slab.state == 0):
                 cube = slab.values[:, by * block:by * block + block + 1, bz * block:bz * block + block + 1]
@@ -69,12 +71,16 @@ def merge_seams(vertices: np.ndarray, faces: np.ndarray, block: int) -> tuple:
 
 
 def extract(model, triplane, scale: float = 1.0, smooth: int = 0, smoother: str = "laplacian",
-            largest: bool = False, frame: str = "input", progress=None) -> trimesh.Trimesh:
+            largest: bool = False, frame: str = "input", progress=None,
+            memory_limit: int | None = None) -> trimesh.Trimesh:
     """A sample's mesh: band marching cubes, clean-up, then the chosen frame
-    ('input': overlays the training mesh; 'model': finest-voxel units)."""
+    ('input': overlays the training mesh; 'model': finest-voxel units).
+    Meshing that needs more than memory_limit bytes (None: the memory
+    available) is refused up front."""
     if frame not in ("input", "model"):
-        raise InputError(f"unknown frame {frame!r}; choose input or model")
-    mesh = finish(band_mesh(model, triplane, scale, progress=progress), smooth, smoother, largest)
+        raise InputError(f"unknown frame {frame!r}; choose input or model", "frame")
+    mesh = finish(band_mesh(model, triplane, scale, progress=progress, memory_limit=memory_limit),
+                  smooth, smoother, largest)
     return to_frame(mesh, model.manifest) if frame == "input" else mesh
 
 
@@ -87,9 +93,9 @@ def to_frame(mesh: trimesh.Trimesh, manifest) -> trimesh.Trimesh:
 def finish(mesh: trimesh.Trimesh, smooth: int = 0, smoother: str = "laplacian", largest: bool = False) -> trimesh.Trimesh:
     """Optional clean-up: keep the largest component, then smooth."""
     if smooth < 0:
-        raise InputError(f"--smooth must be 0 or more iterations, got {smooth}")
+        raise InputError(f"smooth must be 0 or more iterations, got {smooth}", "smooth")
     if smoother not in SMOOTHERS:
-        raise InputError(f"unknown smoother {smoother!r}; choose {' or '.join(SMOOTHERS)}")
+        raise InputError(f"unknown smoother {smoother!r}; choose {' or '.join(SMOOTHERS)}", "smoother")
     if largest and len(mesh.faces):
         parts = mesh.split(only_watertight=False)
         mesh = max(parts, key=lambda part: len(part.faces))

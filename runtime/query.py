@@ -4,8 +4,9 @@ band around the surface.
 The decoder's first layer is applied to each plane once (stage
 decoder_planes), and bilinear interpolation commutes with it, so a point
 costs the sum of three interpolated hidden vectors, a ReLU and a dot product
-(DESIGN.md section 4). On a regular grid the interpolation is separable:
-a fine plane row is a matrix product of the coarse plane with resize weights.
+(docs/METHOD.md, "The decoder's first layer"). On a regular grid the
+interpolation is separable: a fine plane row is a matrix product of the
+coarse plane with resize weights.
 
 A grid `scale` times finer has round(N * scale) points per axis spanning the
 same extent as the N plane cells (align_corners=True), so scale 1 reads the
@@ -98,11 +99,11 @@ def bilinear(plane: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
 def grid_shape(size, scale: float) -> tuple:
     """Points per axis of a grid `scale` times finer than `size`."""
     if not np.isfinite(scale) or scale <= 0:
-        raise InputError(f"--scale must be a positive number, got {scale}")
+        raise InputError(f"scale must be a positive number, got {scale}", "scale")
     shape = tuple(max(2, round(n * scale)) for n in size)
     if max(shape) > MAX_SIDE:
-        raise InputError(f"--scale {scale} asks for a {'x'.join(map(str, shape))} grid; "
-                         f"at most {MAX_SIDE} points per axis are supported")
+        raise InputError(f"scale {scale} asks for a {'x'.join(map(str, shape))} grid; "
+                         f"at most {MAX_SIDE} points per axis are supported", "scale")
     return shape
 
 
@@ -193,9 +194,11 @@ def rectangle_bounds(plane: np.ndarray, ranges_a: list, ranges_b: list) -> tuple
     return lo, hi
 
 
-def band(model, triplane: TriPlane, scale: float, block: int = BLOCK, chunk: int = 16):
+def band(model, triplane: TriPlane, scale: float, block: int = BLOCK, chunk: int = 16,
+         memory_limit: int | None = None):
     """Occupancy on a grid `scale` times finer, evaluated only in blocks that
-    the surface may cross; yields one Slab per x block row.
+    the surface may cross; yields one Slab per x block row. Work needing more
+    than memory_limit bytes (None: the memory available) is refused up front.
 
     A block's hidden pre-activations are bounded, per channel, by the min and
     max of the coarse projected plane samples that its points interpolate
@@ -209,9 +212,10 @@ def band(model, triplane: TriPlane, scale: float, block: int = BLOCK, chunk: int
     proj = project(model, triplane)
     grid = FineGrid(proj, scale, block)
     py, pz = grid.padded[1:]
+    hidden = proj.planes[2].shape[-1]  # the decoder's hidden width D
     # The yz plane at every (y, z), three slab buffers, the x rows of two planes.
-    needed = py * pz * (proj.planes[2].shape[-1] + 3 * (block + 1)) * 4 + (block + 1) * (py + pz) * 128 * 4
-    check_memory(needed, f"meshing a {'x'.join(map(str, grid.shape))} grid")
+    needed = py * pz * (hidden + 3 * (block + 1)) * 4 + (block + 1) * (py + pz) * hidden * 4
+    check_memory(needed, f"meshing a {'x'.join(map(str, grid.shape))} grid", memory_limit)
     head = model.head
     ranges = [grid.coarse_ranges(axis) for axis in range(3)]
     yz_lo, yz_hi = rectangle_bounds(proj.planes[2], ranges[1], ranges[2])  # (nby, nbz, D)
@@ -272,11 +276,15 @@ def band(model, triplane: TriPlane, scale: float, block: int = BLOCK, chunk: int
         yield Slab(bx, values, state)
 
 
-def dense(model, triplane: TriPlane, scale: float = 1.0) -> np.ndarray:
-    """Occupancy on every point of a grid `scale` times finer: (Mx, My, Mz) float32."""
+def dense(model, triplane: TriPlane, scale: float = 1.0, memory_limit: int | None = None) -> np.ndarray:
+    """Occupancy on every point of a grid `scale` times finer: (Mx, My, Mz)
+    float32. Refused up front if it needs more than memory_limit bytes (None:
+    the memory available)."""
     mx, my, mz = grid_shape(triplane.size, scale)
-    check_memory(mx * my * mz * 4 + my * mz * 128 * 4,
-                 f"a dense {mx}x{my}x{mz} occupancy grid (a mesh output streams instead)")
+    hidden = model.manifest.hidden  # the decoder's hidden width D
+    # The grid, and the yz plane at every (y, z).
+    check_memory(mx * my * mz * 4 + my * mz * hidden * 4,
+                 f"a dense {mx}x{my}x{mz} occupancy grid (a mesh output streams instead)", memory_limit)
     proj = project(model, triplane)
     grid = FineGrid(proj, scale)
     out = np.empty(grid.shape, np.float32)

@@ -19,23 +19,29 @@ def sinrun(*args):
     return CliRunner().invoke(cli, [str(a) for a in args])
 
 
-def test_sampling_works_with_torch_unimportable(tiny_model, tmp_path):
-    out = tmp_path / "s.ply"
-    check = tmp_path / "modules.json"
-    code = (BLOCK_TORCH + "import json, sys\n"
+def sample_in_a_process(model, out, check, block_torch: bool) -> dict:
+    """Run `sinrun sample` in a fresh process; its exit code and the modules it imported."""
+    code = ((BLOCK_TORCH if block_torch else "") + "import json, sys\n"
             "from sinshape.cli.main import main\n"
             "try:\n    main()\nexcept SystemExit as e:\n    code = e.code\n"
             f"json.dump({{'code': code, 'modules': sorted(sys.modules)}}, open({str(check)!r}, 'w'))\n")
-    result = subprocess.run([sys.executable, "-c", code, "sample", str(tiny_model), "--seed", "3",
+    result = subprocess.run([sys.executable, "-c", code, "sample", str(model), "--seed", "3",
                              "--scale", "2", "-o", str(out)], capture_output=True, text=True)
     report = json.loads(check.read_text())
     assert report["code"] in (0, None), result.stderr
-    assert trimesh.load(out).is_watertight
-    # torch could not have been used: importing it fails in that process...
-    probe = subprocess.run([sys.executable, "-c", BLOCK_TORCH + "import torch"], capture_output=True)
-    assert probe.returncode != 0
-    # ...and nothing from the trainer was imported.
-    assert not [m for m in report["modules"] if m.startswith("sinshape.trainer")]
+    return report
+
+
+def test_sampling_works_with_torch_unimportable(tiny_model, tmp_path):
+    blocked = sample_in_a_process(tiny_model, tmp_path / "s.ply", tmp_path / "blocked.json", block_torch=True)
+    assert trimesh.load(tmp_path / "s.ply").is_watertight
+    # Where torch is installed, sampling still leaves it (and the trainer) alone:
+    # no code path quietly prefers torch when it happens to be there.
+    free = sample_in_a_process(tiny_model, tmp_path / "t.ply", tmp_path / "free.json", block_torch=False)
+    assert (tmp_path / "s.ply").read_bytes() == (tmp_path / "t.ply").read_bytes()
+    for report in (blocked, free):
+        assert not [m for m in report["modules"] if m.startswith("sinshape.trainer")]
+    assert not [m for m in free["modules"] if m == "torch" or m.startswith("torch.")]
 
 
 @pytest.mark.parametrize("suffix", [".ply", ".obj", ".stl", ".off", ".glb", ".npz"])
@@ -89,6 +95,26 @@ def test_info_shows_the_manifest(tiny_model, tiny_pyramid):
     assert result.exit_code == 0
     for text in ("sinshape 1", tiny_pyramid.name, "20x18x15", "15x15x15", "iterations per level"):
         assert text in result.output
+
+
+def test_version_is_the_packages():
+    from importlib import metadata
+
+    from sinshape import runtime
+
+    assert runtime.__version__ == metadata.version("sinshape")
+    result = sinrun("--version")
+    assert result.exit_code == 0 and result.output == f"sinrun, version {runtime.__version__}\n"
+
+
+def test_library_errors_name_parameters_and_the_cli_names_options():
+    from sinshape.cli.main import command_line_message
+    from sinshape.runtime.errors import InputError
+
+    levels = InputError("t.h5 has 3 levels; levels 5 asks for more", "levels")
+    assert command_line_message(levels) == "t.h5 has 3 levels; --levels 5 asks for more"
+    assert command_line_message(InputError("factors must be 3 positive numbers", "factors")).startswith("--size must")
+    assert command_line_message(InputError("a seed must be an integer", "seed")) == "a seed must be an integer"
 
 
 def test_help_for_every_command():
@@ -151,15 +177,17 @@ def test_bad_models_are_refused_in_one_line(tiny_model, tmp_path):
 def test_bad_options_are_refused_in_one_line(tiny_model, tmp_path):
     out = tmp_path / "out.ply"
     cases = [
-        (["--scale", "0"], "positive"),
+        (["--scale", "0"], "--scale must be a positive number"),
         (["--scale", "-2"], "positive"),
-        (["--scale", "100000"], "points per axis"),
-        (["--size", "80"], "GiB"),
-        (["--scale", "300", "-o", str(tmp_path / "g.npz")], "GiB"),
+        (["--scale", "100000"], "--scale 100000.0 asks for"),
+        (["--size", "1000"], "GiB"),  # petabytes: beyond any machine's memory
+        (["--scale", "3000", "-o", str(tmp_path / "g.npz")], "GiB"),
         (["-o", str(tmp_path / "out.xyz")], "unsupported output format"),
         (["-o", str(tmp_path / "nowhere" / "out.ply")], "does not exist"),
         (["-o", "/proc/sinshape.ply"], "cannot write"),
-        (["--threads", "0"], "threads"),
+        (["--threads", "0"], "--threads must be at least 1"),
+        (["--recon", "--size", "2"], "training size; drop --size"),
+        (["--smooth", "-1"], "--smooth must be 0 or more"),
     ]
     for options, fragment in cases:
         result = sinrun("sample", tiny_model, "-o", str(out), *options)
@@ -169,9 +197,19 @@ def test_bad_options_are_refused_in_one_line(tiny_model, tmp_path):
     assert usage.exit_code == 2 and "positive factors" in usage.output
 
 
-def test_models_lists_shipped_models():
+def test_models_lists_shipped_models(monkeypatch):
+    from sinshape import models
+
+    shipped = models.available()
+    assert {"towerruins", "terrain", "acropolis"} <= set(shipped) and models.DEFAULT in shipped
+    lines = sinrun("models").output.splitlines()
+    assert len(lines) == len(shipped)
+    for line, (name, path) in zip(lines, sorted(shipped.items())):
+        marker = " (default)" if name == models.DEFAULT else ""
+        assert line == f"{name}{marker}  {path}" and path.is_file()
+    monkeypatch.setattr(models, "available", dict)
     result = sinrun("models")
-    assert result.exit_code == 0 and result.output.strip()
+    assert result.exit_code == 0 and result.output == "no shipped models are installed\n"
 
 
 def test_help_imports_nothing_heavy():

@@ -75,7 +75,7 @@ def test_bad_options_and_outputs(tiny_pyramid, tmp_path):
     runner = CliRunner()
     cases = [
         (["--res", "10"], tmp_path / "m.onnx", "--res 10"),
-        (["--levels", "6"], tmp_path / "m.onnx", "asks for more"),
+        (["--levels", "6"], tmp_path / "m.onnx", "has 2 levels; --levels 6 asks for more"),
         ([], tmp_path / "no-such-folder" / "m.onnx", "does not exist"),
         ([], tmp_path, "is a directory"),
     ]

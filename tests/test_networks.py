@@ -20,12 +20,17 @@ def test_projection_pooling_matches_the_runtime():
 
 
 def test_plane_resize_matches_the_runtime():
-    plane = torch.randn(1, 32, 11, 15)
-    resized = networks.resize_planes([plane, plane, plane], (11, 15, 15))  # sizes only matter per plane
-    ours = generate.resize_plane(plane[0].numpy(), (21, 29))
-    torch_ref = torch.nn.functional.interpolate(plane, size=(21, 29), mode="bilinear", align_corners=True)
-    np.testing.assert_allclose(ours, torch_ref[0].numpy(), atol=1e-5)
-    assert resized[0].shape == (1, 32, 11, 15)
+    """The trainer's resize of a tri-plane to a finer grid, plane by plane,
+    equals the runtime's numpy resize (both bilinear, align_corners)."""
+    planes = [torch.randn(1, 8, *s) for s in networks.plane_sizes((11, 15, 9))]
+    size = (21, 29, 13)
+    resized = networks.resize_planes(planes, size)
+    for plane, ours, shape in zip(planes, resized, networks.plane_sizes(size)):
+        theirs = generate.resize_plane(plane[0].numpy(), shape)
+        assert theirs.shape == (8, *shape)
+        np.testing.assert_allclose(ours[0].numpy(), theirs, atol=1e-5)
+    # align_corners: the corner cells are kept exactly.
+    np.testing.assert_allclose(resized[0][0, :, -1, -1].numpy(), planes[0][0, :, -1, -1].numpy(), atol=1e-6)
 
 
 def test_decoder_first_layer_trick_equals_the_whole_mlp():
@@ -70,6 +75,12 @@ def test_grid_head_gradients_are_exact(monkeypatch):
     inputs = [torch.randn(s, generator=gen, dtype=torch.float64, requires_grad=True) for s in shapes]
     assert len(networks.GridHead.slabs(inputs[0], inputs[2])) > 1
     assert torch.autograd.gradcheck(networks.GridHead.apply, inputs)
+
+
+def test_an_unknown_generator_kind_is_refused():
+    assert isinstance(networks.make_generator("voxel", 8, 4, 8), networks.VoxelGenerator)
+    with pytest.raises(ValueError, match="unknown generator 'voxels'"):
+        networks.make_generator("voxels", 8, 4, 8)
 
 
 @pytest.mark.parametrize("kind", ["triplane", "voxel"])

@@ -4,7 +4,7 @@ import h5py
 import numpy as np
 import pytest
 
-from conftest import DATA, write_pyramid
+from conftest import write_pyramid
 from sinshape.runtime.errors import InputError
 from sinshape.trainer import pyramid
 
@@ -19,13 +19,19 @@ def test_level_count_gives_a_coarsest_side_of_22_to_33():
         assert 22 <= max(sizes[0]) <= 33
 
 
-@pytest.mark.parametrize("name", ["Canyon_r128s6.h5", "NaturalArch_r128s7.h5", "SmallTown_r128s6.h5"])
+# The level sizes of three pyramids the SSG authors published (their files'
+# scale0 .. scale{n-1} shapes; the files themselves are not shipped).
+SSG_PYRAMIDS = {
+    "Canyon_r128s6": [(31, 31, 15), (41, 41, 15), (54, 54, 15), (72, 72, 15), (96, 96, 20), (128, 128, 26)],
+    "NaturalArch_r128s7": [(15, 15, 24), (17, 19, 31), (21, 23, 41), (28, 30, 54), (38, 40, 72), (50, 54, 96),
+                           (66, 72, 128)],
+    "SmallTown_r128s6": [(31, 15, 21), (41, 15, 27), (54, 20, 36), (72, 26, 48), (96, 34, 64), (128, 46, 84)],
+}
+
+
+@pytest.mark.parametrize("name", SSG_PYRAMIDS)
 def test_level_sizes_reproduce_the_ssg_pyramids(name):
-    path = DATA / "pyramids" / name
-    if not path.exists():
-        pytest.skip("shared data not present")
-    with h5py.File(path) as f:
-        sizes = [f[f"scale{i}"].shape for i in range(int(f.attrs["n_scales"]))]
+    sizes = SSG_PYRAMIDS[name]
     _, stretched = pyramid.level_sizes(sizes[-1], len(sizes))
     # The longest side follows the ceil(0.75 x) chain exactly. The SSG files
     # voxelised each level at that side and cropped it, so the other axes
@@ -35,8 +41,9 @@ def test_level_sizes_reproduce_the_ssg_pyramids(name):
 
 
 def test_too_many_levels_for_the_15_voxel_minimum_is_refused():
-    with pytest.raises(InputError, match="15-voxel minimum"):
+    with pytest.raises(InputError, match="15-voxel minimum; use fewer levels or a higher res$") as refused:
         pyramid.level_sizes((32, 20, 20), 5)
+    assert refused.value.parameter == "res"
 
 
 def test_stretch_raises_short_axes_and_keeps_the_shape():

@@ -1,8 +1,11 @@
 """The torch-free runtime: generation, band queries, meshes, and the Python API."""
 
+import os
+
 import numpy as np
 import pytest
 
+from conftest import TINY_ONNX
 from sinshape import runtime
 from sinshape.runtime import generate, query
 
@@ -67,10 +70,16 @@ def test_points_agree_with_the_grid(model):
     rng = np.random.default_rng(0)
     index = rng.integers(0, grid.shape, size=(50, 3))
     np.testing.assert_allclose(runtime.points(model, triplane, index.astype(float)), grid[tuple(index.T)], atol=1e-5)
-    # Between grid points the value is between its neighbours' range, and outside the grid it is 0.
+    # Outside the grid a point is empty.
     assert runtime.points(model, triplane, np.array([[-1.0, 0, 0], [0, 0, 1e6]])).tolist() == [0.0, 0.0]
+    # Between grid points: a finer grid's points lie between the cells, and
+    # points() at their coordinates gives the finer grid's values.
     fine = runtime.dense(model, triplane, 2)
     assert fine.shape == tuple(2 * n for n in grid.shape)
+    fine_index = rng.integers(0, fine.shape, size=(50, 3))
+    coords = fine_index * (np.array(grid.shape) - 1) / (np.array(fine.shape) - 1)
+    assert (coords % 1 > 0.01).any(axis=1).mean() > 0.9  # most are off the training grid
+    np.testing.assert_allclose(runtime.points(model, triplane, coords), fine[tuple(fine_index.T)], atol=1e-5)
     np.testing.assert_allclose(fine[0, 0, 0], grid[0, 0, 0], atol=1e-5)  # corners align
 
 
@@ -114,9 +123,72 @@ def test_interpolation_ends_are_the_seeds(model):
 
 
 def test_absurd_sizes_are_refused_with_the_memory_they_need(model):
-    with pytest.raises(runtime.InputError, match="GiB"):
-        runtime.sample(model, 1, (60, 60, 60))
-    with pytest.raises(runtime.InputError, match="GiB"):
-        runtime.dense(model, runtime.sample(model, 1), 200)
-    with pytest.raises(runtime.InputError, match="positive"):
+    # Petabytes: beyond the memory of any machine these tests run on.
+    with pytest.raises(runtime.MemoryLimitError, match="GiB"):
+        runtime.sample(model, 1, (1000, 1000, 1000))
+    with pytest.raises(runtime.MemoryLimitError, match="GiB"):
+        runtime.dense(model, runtime.sample(model, 1), 3000)
+    with pytest.raises(runtime.InputError, match="positive") as refused:
         query.grid_shape((10, 10, 10), -1)
+    assert refused.value.parameter == "scale" and str(refused.value).startswith("scale must")
+
+
+def test_the_memory_limit_is_a_parameter_defaulting_to_the_available_memory(model, monkeypatch):
+    triplane = runtime.sample(model, 1)
+    with pytest.raises(runtime.MemoryLimitError, match=r"\(limit 0\.0 GiB\)"):
+        runtime.sample(model, 1, memory_limit=1000)
+    with pytest.raises(runtime.MemoryLimitError, match="meshing"):
+        runtime.extract(model, triplane, memory_limit=1000)
+    with pytest.raises(runtime.MemoryLimitError, match="dense"):
+        runtime.dense(model, triplane, memory_limit=1000)
+    monkeypatch.setattr(generate, "available_memory", lambda: 1000)
+    with pytest.raises(runtime.MemoryLimitError):
+        runtime.interpolate(model, 1, 2, 0.5)
+    assert len(runtime.extract(model, triplane, memory_limit=1 << 30).faces) > 0
+
+
+def test_available_memory_reads_the_machine_or_falls_back(monkeypatch):
+    if os.path.exists("/proc/meminfo"):
+        with open("/proc/meminfo") as f:
+            kib = next(int(line.split()[1]) for line in f if line.startswith("MemAvailable:"))
+        assert abs(generate.available_memory() - kib * 1024) < 256 << 20  # it moves while we read
+
+    def unreadable(*args):
+        raise OSError("no /proc/meminfo here")
+
+    def unknown(name):
+        raise ValueError(f"unrecognized configuration name {name}")
+
+    monkeypatch.setattr(generate, "open", unreadable, raising=False)  # shadows the builtin there
+    assert generate.available_memory() > 0  # sysconf's free pages
+    monkeypatch.setattr(generate.os, "sysconf", unknown)
+    assert generate.available_memory() == generate.FALLBACK_MEMORY_LIMIT
+
+
+@pytest.mark.parametrize("scale", [1, 2.5])
+def test_memory_estimates_count_the_decoders_hidden_width(model, monkeypatch, scale):
+    """dense: the grid and the yz plane of D-vectors; band: the yz plane,
+    three slab buffers and two planes' rows of D-vectors (D = hidden width)."""
+    needed = {}
+    monkeypatch.setattr(query, "check_memory", lambda n, what, limit=None: needed.setdefault(what.split()[0], n))
+    triplane = runtime.sample(model, 2)
+    runtime.dense(model, triplane, scale)
+    list(query.band(model, triplane, scale))
+    d, block = model.manifest.hidden, query.BLOCK
+    mx, my, mz = query.grid_shape(triplane.size, scale)
+    assert needed["a"] == mx * my * mz * 4 + my * mz * d * 4
+    py, pz = (-(-(m + 1) // block) * block + 1 for m in (my, mz))
+    assert needed["meshing"] == py * pz * (d + 3 * (block + 1)) * 4 + (block + 1) * (py + pz) * d * 4
+
+
+def test_the_committed_tiny_model_is_the_tiny_pyramids(tiny_pyramid):
+    """tests/data/tiny.onnx stands in for tiny_model where torch is missing:
+    it must still load and come from the pyramid the tests describe."""
+    import hashlib
+
+    model = runtime.load_model(TINY_ONNX, threads=1)
+    source = model.manifest.raw["source"]
+    assert source["name"] == tiny_pyramid.name
+    assert source["sha256"] == hashlib.sha256(tiny_pyramid.read_bytes()).hexdigest()
+    assert model.manifest.sizes == [(15, 15, 15), (20, 18, 15)]
+    assert runtime.extract(model, runtime.sample(model, 3)).is_watertight

@@ -185,7 +185,7 @@ def test_a_repeated_request_is_a_cache_hit(server):
     ({"scale": "0"}, 422, "scale: Input should be greater than 0"),
     ({"scale": "nan"}, 422, "scale: Input should be a finite number"),
     ({"scale": "1e9"}, 400, "at most 65536 points per axis"),
-    ({"scale": "40", "format": "npz"}, 413, "GiB of memory (limit 4 GiB)"),
+    ({"scale": "1000", "format": "npz"}, 413, "GiB of memory (limit"),
     ({"size": "1000"}, 413, "needs about"),
     ({"size": "abc"}, 400, "give one or three positive factors"),
     ({"size": "1,1"}, 400, "give one or three positive factors"),

@@ -90,7 +90,7 @@ def add_level(g: GraphBuilder, level, names: dict, norm_scale: str, norm_bias: s
 
 
 def add_decoder(g: GraphBuilder, decoder, plane_names: dict, head_names: dict) -> None:
-    """The MLP split at its first layer (DESIGN.md section 4).
+    """The MLP split at its first layer (docs/METHOD.md, "The decoder's first layer").
 
     decoder_planes: each plane (1, C, H, W) -> (1, H, W, hidden) = plane^T W_k^T.
     decoder_head: three broadcastable (..., hidden) -> sigmoid(w2 relu(sum + b1) + b2).

@@ -79,7 +79,7 @@ class Decoder(nn.Module):
     """Shared MLP: Linear(3C, H) -> ReLU -> Linear(H, 1) -> sigmoid.
 
     The first layer is linear in the concatenated features, so it is applied
-    to each plane before the planes are combined (DESIGN.md section 4):
+    to each plane before the planes are combined (docs/METHOD.md):
     W [f_xy; f_xz; f_yz] = W_xy f_xy + W_xz f_xz + W_yz f_yz. A voxel then
     costs a sum of three H-vectors instead of a (3C x H) product, and the
     backward pass never holds a (voxels, 3C) tensor.
@@ -323,14 +323,13 @@ class VoxelGenerator(nn.Module):
         return [self.levels[level]]
 
 
-GENERATORS = ("triplane", "voxel")
-
-
 def make_generator(kind: str, channels: int, bins: int, hidden: int) -> nn.Module:
     """The generator a config names: the paper's tri-planes or the voxel baseline."""
+    if kind == "triplane":
+        return TriplaneGenerator(channels, bins, hidden)
     if kind == "voxel":
         return VoxelGenerator(channels)
-    return TriplaneGenerator(channels, bins, hidden)
+    raise ValueError(f"unknown generator {kind!r}; choose triplane or voxel")
 
 
 class Discriminator(nn.Module):

@@ -67,7 +67,7 @@ def level_sizes(finest: tuple, count: int, factor: float = 0.75, min_size: int =
     if max(chain[0]) < min_size:
         raise InputError(
             f"{count} levels shrink the coarsest level's longest side to {max(chain[0])} voxels, "
-            f"below the {min_size}-voxel minimum; use fewer levels or a higher --res"
+            f"below the {min_size}-voxel minimum; use fewer levels or a higher res", "res"
         )
     return chain, [tuple(max(n, min_size) for n in size) for size in chain]
 
@@ -162,7 +162,7 @@ def pyramid_from_h5(path: Path, levels: int | None = None) -> Pyramid:
         grids.reverse()
     if levels is not None:
         if levels > len(grids):
-            raise InputError(f"{path.name} has {len(grids)} levels; --levels {levels} asks for more")
+            raise InputError(f"{path.name} has {len(grids)} levels; levels {levels} asks for more", "levels")
         grids = grids[len(grids) - levels:]
     return Pyramid(
         levels=[grid.astype(bool) for grid in grids],
