@@ -33,7 +33,7 @@ def test_batched_iterations_equal_the_straightforward_ones(tiny_pyramid, generat
     Plain SGD stands in for Adam here: Adam turns a gradient that is zero up
     to float noise (the critic's last bias) into a full step of either sign.
     """
-    monkeypatch.setattr(torch.optim, "Adam", lambda params, lr, betas: torch.optim.SGD(params, lr=0.01))
+    monkeypatch.setattr(torch.optim, "Adam", lambda params, lr, betas: torch.optim.SGD(params, lr=1e-3))
     pyramid = load_pyramid(tiny_pyramid, 32)
     ours = trainer_at_level(train.Trainer, pyramid, level, generator=generator)
     plain = trainer_at_level(StraightforwardTrainer, pyramid, level, generator=generator)
@@ -44,7 +44,7 @@ def test_batched_iterations_equal_the_straightforward_ones(tiny_pyramid, generat
             assert ours_losses[key] == pytest.approx(plain_losses[key], rel=1e-3, abs=1e-4), key
     for ours_module, plain_module in ((ours.generator, plain.generator), (ours.critic, plain.critic)):
         for a, b in zip(ours_module.parameters(), plain_module.parameters()):
-            torch.testing.assert_close(a, b, rtol=1e-2, atol=1e-3)  # weights move by up to 0.05
+            torch.testing.assert_close(a, b, rtol=1e-2, atol=2e-4)  # weights move by up to 5e-3
     # Training moved the weights: the comparison is not of two untouched copies.
     fresh = trainer_at_level(train.Trainer, pyramid, level, generator=generator)
     moved = [(a - b).abs().max() for a, b in zip(ours.critic.parameters(), fresh.critic.parameters())]
