@@ -92,16 +92,24 @@ class StraightforwardTrainer(train.Trainer):
         return {"D": loss_d.item(), "G": loss_adv.item(), "rec": loss_rec.item()}
 
 
-def trainer_at(trainer_class, sizes: list, level: int, placement):
+def trainer_at(trainer_class, sizes: list, level: int, placement, **options):
     """A trainer at `level` of a wavy terrain with these level sizes, warmed up."""
     pyramid = Pyramid([wavy_terrain(size) for size in sizes[:level + 1]], (0.0,) * 3, (1.0,) * 3,
                       "terrain", "0" * 64, "pyramid")
-    trainer = trainer_class(make_config("paper", levels=level + 1), pyramid, placement)
+    trainer = trainer_class(make_config("paper", levels=level + 1, **options), pyramid, placement)
     for trainer.level in range(level + 1):
         trainer.begin_level()
     recon_inputs = trainer.recon_inputs()
     trainer.iterate(recon_inputs)  # warm-up: first calls allocate and pick kernels
     return trainer, recon_inputs
+
+
+def row(head: str, seconds) -> str:
+    """A table row: the seconds of each trainer, then each one's speed-up."""
+    base, *ours = seconds
+    cells = [f"{base:.3f}", *(f"{s:.3f}" for s in ours[:2]), *(f"{base / s:.2f}x" for s in ours[:2])]
+    cells += [f"{ours[2]:.3f}", f"{base / ours[2]:.2f}x"] if len(ours) > 2 else []
+    return head + "| " + " | ".join(cells) + " |"
 
 
 def timed_iteration(trainer, recon_inputs) -> float:
@@ -113,6 +121,8 @@ def timed_iteration(trainer, recon_inputs) -> float:
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--rounds", type=int, default=5, help="iterations each trainer runs per level")
+    parser.add_argument("--critic-crop", type=int, default=None,
+                        help="also time sinshape with this --critic-crop (a change of method)")
     parser.add_argument("--full", type=Path, help="also train the default preset on this mesh, end to end")
     args = parser.parse_args()
 
@@ -121,24 +131,27 @@ def main():
     print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, CPU capability "
           f"{torch.backends.cpu.get_cpu_capability()}, native bf16: {device.native_bf16()}")
     print(f"sinshape picked: {picked.describe()}")
+    crop = args.critic_crop
     print("| level | grid | straightforward s/iter | sinshape fp32 | sinshape " + picked.precision
-          + " | speed-up fp32 | speed-up " + picked.precision + " |")
-    print("|---|---|---|---|---|---|---|")
-    sums = np.zeros(3)
+          + " | speed-up fp32 | speed-up " + picked.precision + " |"
+          + (f" crop {crop}, {picked.precision} | its speed-up |" if crop else ""))
+    print("|---|---|---|---|---|---|---|" + ("---|---|" if crop else ""))
+    sums = np.zeros(4)
     for level, size in enumerate(PAPER_SIZES):
         runs = [trainer_at(StraightforwardTrainer, PAPER_SIZES, level, fp32),
                 trainer_at(train.Trainer, PAPER_SIZES, level, fp32),
                 trainer_at(train.Trainer, PAPER_SIZES, level, picked)]
+        if crop:
+            runs.append(trainer_at(train.Trainer, PAPER_SIZES, level, picked, critic_crop=crop))
         seconds = [[] for _ in runs]
         for _ in range(args.rounds):
             for run, times in zip(runs, seconds):
                 times.append(timed_iteration(*run))
-        base, ours32, ours = (statistics.median(times) for times in seconds)
-        sums += (base, ours32, ours)
-        print(f"| {level} | {'x'.join(map(str, size))} | {base:.3f} | {ours32:.3f} | {ours:.3f} "
-              f"| {base / ours32:.2f}x | {base / ours:.2f}x |", flush=True)
-    base, ours32, ours = sums
-    print(f"| sum | | {base:.2f} | {ours32:.2f} | {ours:.2f} | {base / ours32:.2f}x | {base / ours:.2f}x |")
+        medians = [statistics.median(times) for times in seconds]
+        sums[:len(medians)] += medians
+        print(row(f"| {level} | {'x'.join(map(str, size))} ", medians), flush=True)
+    print(row("| sum | ", sums[:len(runs)]))
+    base, ours32, ours = sums[:3]
     print(f"\nThe paper's setting (2000 iterations per level) at these sizes: straightforward "
           f"{base * 2000 / 3600:.2f} h, sinshape fp32 {ours32 * 2000 / 3600:.2f} h, "
           f"sinshape {picked.precision} {ours * 2000 / 3600:.2f} h")

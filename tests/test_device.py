@@ -78,6 +78,25 @@ def test_bf16_autocast_runs_the_convolutions_in_bf16_and_keeps_the_decoder_in_fl
     torch.testing.assert_close(occupancy, reference)
 
 
+def test_bf16_steps_see_the_weights_the_optimiser_just_changed():
+    """Autocast's weight cache would keep the first bf16 copy of each weight
+    for the whole context; training updates weights inside it."""
+    from sinshape.trainer import networks
+
+    placement = device.Placement(torch.device("cpu"), "bf16", "test")
+    critic = networks.Discriminator(8)
+    volume = torch.rand(2, 1, 20, 16, 16)
+    optimiser = torch.optim.SGD(critic.parameters(), lr=0.1)
+    with placement.autocast():
+        before = critic(volume)
+        before.mean().backward()
+        optimiser.step()
+        after = critic(volume)
+    fresh = critic(volume)  # outside autocast: float32 with the new weights
+    assert (after - before).abs().max() > 1e-3
+    torch.testing.assert_close(after, fresh, rtol=0.05, atol=0.05)
+
+
 def train_tiny(path, tiny_pyramid, **options):
     return train.train(tiny_pyramid, path, make_config("tiny", iters=2), **options)
 

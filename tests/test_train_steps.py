@@ -33,7 +33,7 @@ def test_batched_iterations_equal_the_straightforward_ones(tiny_pyramid, generat
     Plain SGD stands in for Adam here: Adam turns a gradient that is zero up
     to float noise (the critic's last bias) into a full step of either sign.
     """
-    monkeypatch.setattr(torch.optim, "Adam", lambda params, lr, betas: torch.optim.SGD(params, lr=1e-3))
+    monkeypatch.setattr(torch.optim, "Adam", lambda params, lr, betas, **_: torch.optim.SGD(params, lr=1e-3))
     pyramid = load_pyramid(tiny_pyramid, 32)
     ours = trainer_at_level(train.Trainer, pyramid, level, generator=generator)
     plain = trainer_at_level(StraightforwardTrainer, pyramid, level, generator=generator)
@@ -55,7 +55,7 @@ class FakeTrainer:
     """What Budget reads of a trainer."""
 
     def __init__(self, levels):
-        self.level, self.seconds, self.plan = 0, [], [0] * levels
+        self.level, self.iteration, self.seconds, self.plan = 0, 0, [], [0] * levels
 
 
 def test_budget_plans_equal_iterations_and_corrects_for_drift(monkeypatch):
@@ -70,7 +70,12 @@ def test_budget_plans_equal_iterations_and_corrects_for_drift(monkeypatch):
     now[0] += 25
     trainer.seconds.append(25.0)
     trainer.level = 1
-    assert budget.iterations(trainer) == 10  # 75 s left / (2 x 3.5 s)
+    trainer.plan[1] = budget.iterations(trainer)
+    assert trainer.plan[1] == 10  # 75 s left / (2 x 3.5 s)
+    # Level 1's share of the time: 10 iterations at twice the measured 1 s.
+    assert budget.level_end(trainer) == pytest.approx(now[0] + 20)
+    trainer.iteration = 4
+    assert budget.level_end(trainer) == pytest.approx(now[0] + 12)
     with pytest.raises(train.InputError, match="give more --minutes"):
         train.Budget(1, now[0], costs).iterations(FakeTrainer(3))
 

@@ -40,10 +40,15 @@ class Placement:
             torch.backends.cudnn.benchmark = True  # every level keeps one grid size
 
     def autocast(self):
-        """The context training steps run in."""
+        """The context training steps run in.
+
+        Its weight cache is off: autocast would otherwise keep the first bf16
+        copy of every weight for the whole context, and the optimiser steps
+        inside it would be invisible to later forward passes.
+        """
         if self.precision != "bf16":
             return nullcontext()
-        return torch.autocast(self.device.type, dtype=torch.bfloat16)
+        return torch.autocast(self.device.type, dtype=torch.bfloat16, cache_enabled=False)
 
     def describe(self) -> str:
         return f"{self.device} ({self.precision}): {self.reason}"
