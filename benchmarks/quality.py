@@ -28,7 +28,8 @@ SAMPLE_VOXEL = """
 import json, resource, sys, time
 import torch
 from sinshape.runtime import evaluate, noise
-from sinshape.trainer import pyramid, train
+from sinshape.prep import pyramid
+from sinshape.trainer import train
 checkpoint, reference, samples = sys.argv[1], sys.argv[2], int(sys.argv[3])
 torch.set_num_threads(2)
 generator, sizes, amps = train.load_generator(checkpoint)

@@ -507,7 +507,7 @@ def shape(name, output, seed, detail):
 
     NAME is terrain, acropolis, stairs, wall or cheese.
     """
-    from sinshape.trainer import shapes
+    from sinshape.prep import shapes
 
     from sinshape.runtime.write import check_writable
 
@@ -544,18 +544,14 @@ def evaluate(model, reference, samples, first_seed, scale, upsample, json_path, 
     import time
 
     from sinshape.runtime import evaluate as metrics, write
-    from sinshape.trainer.pyramid import load_pyramid
+    from sinshape.prep.pyramid import reference_grid
 
     if samples < 2:
         raise click.UsageError("--samples must be at least 2 (diversity compares samples)")
     loaded = open_model(model, threads)
-    config = loaded.manifest.raw.get("config", {})
-    res = round(config.get("res", max(loaded.manifest.sizes[-1])) * scale)
-    if scale != 1 and Path(reference).suffix.lower() in (".h5", ".hdf5"):
-        raise InputError("--scale needs a mesh reference: an .h5 pyramid has one resolution")
     if json_path:
         write.check_writable(json_path)
-    truth = load_pyramid(reference, res=res, levels=1).levels[-1]
+    truth = reference_grid(reference, loaded.manifest, scale)
     started = time.perf_counter()
     with progress_bar(samples, "sampling") as bar:
         volumes = metrics.sample_volumes(loaded, range(first_seed, first_seed + samples), scale, upsample,

@@ -1,4 +1,4 @@
-"""Tests of `sinshape.trainer.voxelize`.
+"""Tests of `sinshape.prep.voxelize`.
 
 Synthetic meshes are checked against exact oracles (plane equations of convex
 bodies, an analytic torus, exact voxel sets of a plane and a thin slab); the
@@ -17,8 +17,8 @@ from scipy import ndimage
 from skimage import measure
 
 from sinshape.runtime.errors import InputError
-from sinshape.trainer import shapes
-from sinshape.trainer.voxelize import _add_crossings, _split_to_size, load_mesh, voxelize
+from sinshape.prep import shapes
+from sinshape.prep.voxelize import _add_crossings, _split_to_size, load_mesh, voxelize
 
 TOWERRUINS = Path(__file__).parent / "data" / "towerruins" / "towerruins.obj"
 # Small versions of the procedural shapes: thin walls, columns, steps. (Not

@@ -29,7 +29,7 @@ from . import export
 from . import device as devices
 from .config import TrainConfig
 from .networks import Discriminator, make_generator
-from .pyramid import load_pyramid, training_targets
+from sinshape.prep.pyramid import load_pyramid, training_targets
 
 CHECKPOINT_FORMAT = "sinshape-checkpoint"
 CHECKPOINT_VERSION = 1

@@ -52,7 +52,7 @@ longest side, first call / repeated call (towerruins: 24k faces):
 
 measured with::
 
-    python -c "import sys, time, numpy as np; from sinshape.trainer.voxelize \\
+    python -c "import sys, time, numpy as np; from sinshape.prep.voxelize \\
     import load_mesh, voxelize; m = load_mesh(sys.argv[1]); h = m.extents.max() \\
     / int(sys.argv[2]); t = time.perf_counter(); voxelize(m, m.bounds[0], [h] * 3, \\
     np.ceil(m.extents / h)); print(time.perf_counter() - t)" MESH.obj 128
