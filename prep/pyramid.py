@@ -20,6 +20,7 @@ import numpy as np
 from scipy import ndimage
 
 from sinshape.runtime.errors import InputError
+from sinshape.runtime.generate import resize_volume
 
 from . import voxelize
 
@@ -76,21 +77,11 @@ def level_sizes(finest: tuple, count: int, factor: float = LEVEL_FACTOR, min_siz
     return chain, [tuple(max(n, min_size) for n in size) for size in chain]
 
 
-def resize_trilinear(volume: np.ndarray, shape: tuple) -> np.ndarray:
-    """Trilinear resize with align_corners=True: corner voxels map to corners.
-
-    volume : (X, Y, Z) float; returns `shape` float32.
-    """
-    axes = [np.linspace(0, n_in - 1, n_out) for n_in, n_out in zip(volume.shape, shape)]
-    coords = np.stack(np.meshgrid(*axes, indexing="ij"))
-    return ndimage.map_coordinates(volume.astype(np.float32), coords, order=1, mode="nearest")
-
-
 def stretch(volume: np.ndarray, shape: tuple) -> np.ndarray:
     """Raise short axes to `shape`: trilinear resize, then threshold at 0.5."""
     if volume.shape == tuple(shape):
         return volume
-    return resize_trilinear(volume, shape) > 0.5
+    return resize_volume(volume, shape) > 0.5
 
 
 def training_targets(pyramid: Pyramid, sigma: float = 0.5) -> list:

@@ -190,28 +190,17 @@ def diversity(samples: list) -> float:
     return float(np.mean(distance.sum(axis=1) / (n - 1)))  # the diagonal is 0
 
 
-def upsample_trilinear(volume: np.ndarray, shape: tuple) -> np.ndarray:
-    """Trilinear resize (align_corners=True) of an occupancy grid: the
-    baseline that querying the tri-planes at a finer scale is compared with."""
-    from .generate import resize_matrix
-
-    out = volume.astype(np.float32)
-    for axis, n in enumerate(shape):
-        out = np.moveaxis(np.tensordot(resize_matrix(out.shape[axis], n), out, axes=(1, axis)), 0, axis)
-    return out
-
-
 def sample_volumes(model, seeds, scale: float = 1.0, upsample: bool = False, progress=None) -> list:
     """Binary occupancy grids (occupancy > 0.5) of samples at `scale`, queried
     from the tri-planes or (upsample) trilinearly upsampled from scale 1."""
-    from .generate import sample
+    from .generate import resize_volume, sample
     from .query import dense, grid_shape
 
     volumes = []
     for seed in seeds:
         triplane = sample(model, seed)
         if upsample:
-            grid = upsample_trilinear(dense(model, triplane, 1.0), grid_shape(triplane.size, scale))
+            grid = resize_volume(dense(model, triplane, 1.0), grid_shape(triplane.size, scale))
         else:
             grid = dense(model, triplane, scale)
         volumes.append(grid > 0.5)

@@ -124,3 +124,24 @@ def test_reference_grid_follows_the_models_settings(tmp_path):
     tall = pyramid.reference_grid(mesh, manifest(min_size=22))
     assert min(tall.shape) == 22 and max(tall.shape) == 24
     assert pyramid.reference_grid(mesh, manifest(), scale=2).shape[np.argmax(default.shape)] == 48
+
+
+def test_stretch_decides_ties_as_it_always_has():
+    """Stretching 10 -> 15 voxels puts sample points exactly halfway between
+    voxels, so which side of 0.5 they land on depends on rounding. The levels
+    of a pyramid must not change with the implementation: the reference is
+    scipy's map_coordinates (float64 inside, float32 out), which made them."""
+    from scipy import ndimage
+
+    rng = np.random.default_rng(0)
+    ties = 0
+    for _ in range(50):
+        shape = tuple(int(n) for n in rng.integers(2, 15, 3))
+        target = tuple(max(n, 15) for n in shape)
+        volume = rng.random(shape) < 0.5
+        axes = [np.linspace(0, n - 1, m) for n, m in zip(shape, target)]
+        before = ndimage.map_coordinates(volume.astype(np.float32), np.stack(np.meshgrid(*axes, indexing="ij")),
+                                         order=1, mode="nearest")
+        ties += np.count_nonzero(before == 0.5)
+        assert np.array_equal(pyramid.stretch(volume, target), before > 0.5)
+    assert ties > 0
