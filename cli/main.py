@@ -397,19 +397,6 @@ def info(model):
     click.echo("  config      " + json.dumps(m.get("config", {}), sort_keys=True))
 
 
-def read_mesh(path: Path):
-    """A mesh file for rendering, or a one-line error."""
-    import trimesh
-
-    try:
-        mesh = trimesh.load(path, force="mesh")
-    except Exception as error:  # trimesh raises many kinds for a bad file
-        raise InputError(f"{path}: cannot read as a mesh ({str(error).splitlines()[0][:120]})") from None
-    if not len(getattr(mesh, "faces", [])):
-        raise InputError(f"{path}: no triangles to render")
-    return mesh
-
-
 def crop(mesh, zoom: float, focus: tuple):
     """The faces whose centres lie in a box 1/zoom the size of the bounding
     box (zoom >= 1), centred at `focus` (fractions of the bounding box per axis)."""
@@ -457,6 +444,7 @@ def render(inputs, output, seeds, recon, scale, size, smooth, views, up, columns
     """
     import numpy as np
 
+    from sinshape.prep.voxelize import load_mesh
     from sinshape.runtime import generate, mesh, render as draw, write
 
     if output.suffix.lower() != ".png":
@@ -473,7 +461,7 @@ def render(inputs, output, seeds, recon, scale, size, smooth, views, up, columns
     for item in inputs:
         path = Path(item)
         if path.is_file() and path.suffix.lower() in write.MESH_FORMATS:
-            shapes.append(read_mesh(path))
+            shapes.append(load_mesh(path, solid=False))
             labels.append(path.name)
             continue
         model = open_model(item, threads)

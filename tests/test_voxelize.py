@@ -389,3 +389,12 @@ def test_load_mesh_errors_are_one_line_naming_the_file(tmp_path, name, write, sa
         load_mesh(path)
     message = str(error.value)
     assert "\n" not in message and name in message and says in message
+
+
+def test_a_flat_mesh_loads_when_no_solid_is_needed(tmp_path):
+    """`sinrun render` draws a flat mesh that voxelizing refuses."""
+    path = tmp_path / "square.stl"
+    trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], [[0, 1, 2], [0, 2, 3]]).export(path)
+    assert len(load_mesh(path, solid=False).faces) == 2
+    with pytest.raises(InputError, match="flat"):
+        load_mesh(path)
