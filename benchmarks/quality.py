@@ -52,6 +52,14 @@ print(json.dumps({"lp_iou": lp["lp_iou"], "lp_f": lp["lp_f"], "diversity": evalu
 
 # Runs a command in a fresh wrapper process, whose children are only that
 # command, so RUSAGE_CHILDREN's max RSS is the command's own peak.
+# Scored in a fresh process, like training, so that its peak memory is its own.
+EVAL_TRIPLANE = """
+import json, sys
+from sinshape.runtime import evaluate, load
+model, reference, samples = load.load_model(sys.argv[1]), sys.argv[2], int(sys.argv[3])
+print(json.dumps(evaluate.evaluate_model(model, reference, samples)))
+"""
+
 WRAPPER = ("import resource, subprocess, sys; r = subprocess.run(sys.argv[1:]); "
            "print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024, file=sys.stderr); sys.exit(r.returncode)")
 
@@ -104,10 +112,9 @@ def main():
                 SINRUN, "train", str(data), "-o", str(model), "--res", str(args.res), "--iters", str(args.iters),
                 "--generator", generator, "--quiet"])
             if generator == "triplane":
-                report = work / f"{model.stem}_eval.json"
-                _, _, eval_mb = run_measured([SINRUN, "eval", str(model), "--reference", str(data),
-                                              "-n", str(args.samples), "--json", str(report)])
-                scores = json.loads(report.read_text())
+                output, _, eval_mb = run_measured([sys.executable, "-c", EVAL_TRIPLANE, str(model), str(data),
+                                                   str(args.samples)])
+                scores = json.loads(output.strip().splitlines()[-1])
                 manifest = json.loads(subprocess.run(
                     [sys.executable, "-c", "import json,sys; from sinshape.runtime import load; "
                      "print(json.dumps(load.load_model(sys.argv[1]).manifest.raw))", str(model)],

@@ -529,33 +529,20 @@ def evaluate(model, reference, samples, first_seed, scale, upsample, json_path, 
     plausibility); diversity: mean 1 - IoU between samples. Needs no torch.
     """
     import json
-    import time
 
-    from sinshape.runtime import evaluate as metrics, write
-    from sinshape.prep.pyramid import reference_grid
+    from sinshape.runtime import write
+    from sinshape.runtime.evaluate import evaluate_model
 
     if samples < 2:
         raise click.UsageError("--samples must be at least 2 (diversity compares samples)")
     loaded = open_model(model, threads)
     if json_path:
         write.check_writable(json_path)
-    truth = reference_grid(reference, loaded.manifest, scale)
-    started = time.perf_counter()
     with progress_bar(samples, "sampling") as bar:
-        volumes = metrics.sample_volumes(loaded, range(first_seed, first_seed + samples), scale, upsample,
-                                         progress=lambda: bar.update(1))
-    sampled = time.perf_counter()
-    lp = metrics.lp_metrics(volumes, truth)
-    results = {
-        "model": str(loaded.path), "reference": str(reference), "samples": samples, "scale": scale,
-        "query": "trilinear upsampling of scale 1" if upsample else "tri-plane",
-        "reference_size": list(truth.shape), "sample_size": list(volumes[0].shape),
-        "lp_iou": lp["lp_iou"], "lp_f": lp["lp_f"], "diversity": metrics.diversity(volumes),
-        "seconds_sampling": round(sampled - started, 2), "seconds_scoring": round(time.perf_counter() - sampled, 2),
-        "per_sample": lp["per_sample"],
-    }
+        results = evaluate_model(loaded, reference, samples, first_seed, scale, upsample,
+                                 progress=lambda: bar.update(1))
     click.echo(f"{loaded.path.name} against {Path(reference).name}: {samples} samples of "
-               f"{'x'.join(map(str, volumes[0].shape))}, reference {'x'.join(map(str, truth.shape))}")
+               f"{'x'.join(map(str, results['sample_size']))}, reference {'x'.join(map(str, results['reference_size']))}")
     click.echo(f"  LP-IoU     {results['lp_iou']:.3f}")
     click.echo(f"  LP-F       {results['lp_f']:.3f}")
     click.echo(f"  diversity  {results['diversity']:.3f}")
