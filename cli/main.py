@@ -612,7 +612,7 @@ def export_web(model_names, output):
     """
     from sinshape.serve import site
 
-    result = site.export_site(model_names, output, importlib.metadata.version("sinshape"))
+    result = site.export_site(model_names, output, __version__)
     click.echo(f"wrote {output} ({', '.join(result['models'])}; {result['files']} files, "
                f"{result['bytes'] / 2**20:.1f} MB): python -m http.server -d {output}")
 
