@@ -4,6 +4,7 @@ Heavy imports (torch, onnxruntime, trimesh) happen inside the commands, so
 `--help` is instant and everything but `train` works without torch.
 """
 
+import itertools
 import re
 import sys
 from pathlib import Path
@@ -193,41 +194,80 @@ def train(input_path, output, preset, res, levels, iters, minutes, device, preci
                f"trained in {format_seconds(manifest['training']['seconds'])})")
 
 
-def parse_seeds(text: str) -> list:
-    """'3', '0-99' or '1,5,9-12' -> a list of seeds."""
-    seeds = []
-    try:
-        for part in text.split(","):
-            low, _, high = part.strip().partition("-")
-            seeds.extend(range(int(low), int(high or low) + 1))
-    except ValueError:
-        raise click.BadParameter(f"{text!r} is not a seed list like 3, 0-99 or 1,5,9-12") from None
-    if not seeds or min(seeds) < 0:
-        raise click.BadParameter(f"{text!r} gives no non-negative seeds")
-    return seeds
+class SeedList:
+    """Seeds such as 1,5,9-12 kept as ranges, so that 0-100000000 costs
+    nothing until it is iterated."""
+
+    def __init__(self, ranges: list):
+        self.ranges = [r for r in ranges if len(r)]
+
+    def __len__(self) -> int:
+        return sum(len(r) for r in self.ranges)
+
+    def __iter__(self):
+        return itertools.chain.from_iterable(self.ranges)
+
+    @property
+    def first(self) -> int:
+        return self.ranges[0][0]
+
+    @property
+    def last(self) -> int:
+        return self.ranges[-1][-1]
 
 
-def as_option(parse, text: str) -> tuple:
-    """A runtime parser's InputError as click's message for a bad option value."""
-    try:
-        return parse(text)
-    except InputError as error:
-        raise click.BadParameter(f"{text!r}: {str(error).split(': ', 1)[1]}") from None
+class Seeds(click.ParamType):
+    """'3', '0-99' or '1,5,9-12' -> a SeedList."""
+
+    name = "seeds"
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, SeedList):
+            return value
+        try:
+            ranges = []
+            for part in value.split(","):
+                low, _, high = part.strip().partition("-")
+                ranges.append(range(int(low), int(high or low) + 1))
+        except ValueError:
+            self.fail(f"{value!r} is not a seed list like 3, 0-99 or 1,5,9-12", param, ctx)
+        seeds = SeedList(ranges)
+        if not len(seeds) or any(r[0] < 0 for r in seeds.ranges):
+            self.fail(f"{value!r} gives no non-negative seeds", param, ctx)
+        return seeds
+
+
+class PerAxis(click.ParamType):
+    """One value for all three axes, or 'a,b,c': parsed by the runtime, which
+    reads the same text from the web API."""
+
+    def __init__(self, name: str, parse):
+        self.name, self.parse = name, parse
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, tuple):
+            return value
+        try:
+            return self.parse(value)
+        except InputError as error:
+            self.fail(f"{value!r}: {str(error).split(': ', 1)[1]}", param, ctx)
 
 
 def parse_size(text: str) -> tuple:
     """'2' or '2,1,1' -> per-axis factors of the training size."""
     from sinshape.runtime import generate
 
-    return as_option(generate.parse_size, text)
+    return generate.parse_size(text)
 
 
 def parse_fractions(text: str) -> tuple:
     """'0.5,0.7,1' -> three numbers in [0, 1]."""
     from sinshape.runtime import generate
 
-    return as_option(lambda t: generate.parse_triple(t, lambda v: 0 <= v <= 1,
-                                                     "three fractions in [0, 1], like 0.5,0.7,1"), text)
+    return generate.parse_triple(text, lambda v: 0 <= v <= 1, "three fractions in [0, 1], like 0.5,0.7,1")
+
+
+SEEDS, SIZE, FRACTIONS = Seeds(), PerAxis("size", parse_size), PerAxis("fractions", parse_fractions)
 
 
 def named_output(output: Path, **fields) -> Path:
@@ -254,7 +294,7 @@ THREADS_OPTION = click.option("--threads", type=int, default=None,
 SCALE_OPTION = click.option("--scale", type=float, default=1.0, show_default=True,
                             help="Query the shape on a grid this many times finer per axis (any positive "
                                  "number). Finer grids give smoother surfaces, not new detail.")
-SIZE_OPTION = click.option("--size", "size", type=str, default="1", show_default=True,
+SIZE_OPTION = click.option("--size", "size", type=SIZE, default="1", show_default=True,
                            help="Sample size as factors of the training size: one factor, or sx,sy,sz "
                                 "for another aspect ratio (e.g. 2,1,1 is twice as long along x).")
 
@@ -282,22 +322,10 @@ def open_model(model, threads):
     return load.load_model(models.find(model), threads=threads)
 
 
-def write_sample(model, triplane, path: Path, scale, smooth, smoother, largest, frame):
-    """Mesh or grid of one sample, by the output's extension."""
-    from sinshape.runtime import mesh, query, write
-
-    if write.output_kind(path) == "grid":
-        occupancy = query.dense(model, triplane, scale)
-        write.write_grid(occupancy, path, size=triplane.size, scale=scale)
-    else:
-        result = mesh.extract(model, triplane, scale, smooth, smoother, largest, frame)
-        write.write_mesh(result, path)
-
-
 @cli.command()
 @MODEL_ARGUMENT
 @click.option("--seed", type=int, default=None, help="Seed of the sample (the same seed gives the same shape). Default 0.")
-@click.option("--seeds", type=str, default=None, help="Many samples, one file each: 0-99 or 1,5,9-12.")
+@click.option("--seeds", type=SEEDS, default=None, help="Many samples, one file each: 0-99 or 1,5,9-12.")
 @click.option("--recon", is_flag=True, help="The training shape itself (the fixed reconstruction noise), not a new sample.")
 @SCALE_OPTION
 @SIZE_OPTION
@@ -317,20 +345,22 @@ def sample(model, seed, seeds, recon, scale, size, output, smooth, smoother, lar
 
     if sum(x is not None and x is not False for x in (seed, seeds, recon or None)) > 1:
         raise click.UsageError("give one of --seed, --seeds or --recon")
-    factors = parse_size(size)
-    chosen = parse_seeds(seeds) if seeds else [None] if recon else [0 if seed is None else seed]
+    chosen = seeds if seeds else [None] if recon else [0 if seed is None else seed]
     loaded = open_model(model, threads)
     if output is None:
         output = Path(f"{loaded.path.stem}_recon.ply" if recon else f"{loaded.path.stem}_seed{{seed}}.ply")
-    paths = [named_output(output, seed=s) if seeds or "{" in output.name else output for s in chosen]
-    write.output_kind(paths[0])
-    write.check_writable(paths[0])
+
+    def path_of(s):
+        return named_output(output, seed=s) if seeds or "{" in output.name else output
+
+    first = path_of(seeds.first if seeds else chosen[0])
+    write.output_kind(first)
+    write.check_writable(first)
+    outputs = ((path_of(s), generate.sample(loaded, s, size)) for s in chosen)
     with progress_bar(len(chosen), "sampling") as bar:
-        for s, path in zip(chosen, paths):
-            triplane = generate.sample(loaded, s, factors)
-            write_sample(loaded, triplane, path, scale, smooth, smoother, largest, frame)
-            bar.update(1)
-    click.echo(f"wrote {paths[0]}" if len(paths) == 1 else f"wrote {len(paths)} files: {paths[0]} .. {paths[-1]}")
+        write.write_samples(loaded, outputs, progress=lambda: bar.update(1), scale=scale, smooth=smooth,
+                            smoother=smoother, largest=largest, frame=frame)
+    click.echo(f"wrote {first}" if len(chosen) == 1 else f"wrote {len(chosen)} files: {first} .. {path_of(seeds.last)}")
 
 
 @cli.command()
@@ -357,17 +387,15 @@ def interpolate(model, seeds, steps, alpha_range, scale, size, output, smooth, s
 
     if steps < 1:
         raise click.BadParameter("--steps must be at least 1")
-    factors = parse_size(size)
     loaded = open_model(model, threads)
     alphas = np.linspace(*alpha_range, steps) if steps > 1 else np.array([alpha_range[0]])
     paths = [named_output(output, step=f"{k:02d}", alpha=f"{a:+.2f}") for k, a in enumerate(alphas)]
     write.output_kind(paths[0])
     write.check_writable(paths[0])
+    outputs = ((path, generate.interpolate(loaded, seeds[0], seeds[1], float(a), size)) for a, path in zip(alphas, paths))
     with progress_bar(len(paths), "interpolating") as bar:
-        for alpha, path in zip(alphas, paths):
-            triplane = generate.interpolate(loaded, seeds[0], seeds[1], float(alpha), factors)
-            write_sample(loaded, triplane, path, scale, smooth, smoother, largest, frame)
-            bar.update(1)
+        write.write_samples(loaded, outputs, progress=lambda: bar.update(1), scale=scale, smooth=smooth,
+                            smoother=smoother, largest=largest, frame=frame)
     click.echo(f"wrote {len(paths)} files: {paths[0]} .. {paths[-1]}")
 
 
@@ -397,24 +425,10 @@ def info(model):
     click.echo("  config      " + json.dumps(m.get("config", {}), sort_keys=True))
 
 
-def crop(mesh, zoom: float, focus: tuple):
-    """The faces whose centres lie in a box 1/zoom the size of the bounding
-    box (zoom >= 1), centred at `focus` (fractions of the bounding box per axis)."""
-    import numpy as np
-
-    if zoom == 1:
-        return mesh
-    centre = mesh.bounds[0] + np.asarray(focus) * mesh.extents
-    keep = (abs(mesh.triangles_center - centre) <= mesh.extents / (2 * zoom)).all(axis=1)
-    if not keep.any():
-        raise InputError(f"no part of the shape lies in the --zoom box at --focus {','.join(map(str, focus))}")
-    return mesh.submesh([keep.nonzero()[0]], append=True)
-
-
 @cli.command()
 @click.argument("inputs", metavar="MESH_OR_MODEL...", nargs=-1, required=True)
 @click.option("-o", "--output", type=click.Path(path_type=Path), required=True, help="The picture (.png).")
-@click.option("--seeds", type=str, default="0-3", show_default=True,
+@click.option("--seeds", type=SEEDS, default="0-3", show_default=True,
               help="Samples to draw from each model input: 0-3 or 1,5,9.")
 @click.option("--recon", is_flag=True, help="Draw each model's reconstruction of its training shape first.")
 @SCALE_OPTION
@@ -428,7 +442,7 @@ def crop(mesh, zoom: float, focus: tuple):
 @click.option("--image-size", type=int, default=320, show_default=True, help="Pixels per shape, square.")
 @click.option("--zoom", type=float, default=1.0, show_default=True,
               help="Show only a box 1/ZOOM the size of each shape: a close-up.")
-@click.option("--focus", type=str, default="0.5,0.5,0.5", show_default=True,
+@click.option("--focus", type=FRACTIONS, default="0.5,0.5,0.5", show_default=True,
               help="Where the --zoom box is centred, as fractions of the shape's bounding box per axis.")
 @click.option("--azimuth", type=float, default=35.0, show_default=True, help="Camera angle around the up axis.")
 @click.option("--elevation", type=float, default=25.0, show_default=True, help="Camera angle above the ground.")
@@ -454,9 +468,7 @@ def render(inputs, output, seeds, recon, scale, size, smooth, views, up, columns
         raise click.UsageError("--views and --columns must be at least 1, --image-size at least 16")
     if zoom < 1:
         raise InputError(f"--zoom must be 1 or more, got {zoom}")
-    # Every option is checked before the first model is sampled.
-    factors, focus = parse_size(size), parse_fractions(focus)
-    chosen = ([None] if recon else []) + parse_seeds(seeds)
+    chosen = [None, *seeds] if recon else seeds
     shapes, labels = [], []
     for item in inputs:
         path = Path(item)
@@ -466,13 +478,10 @@ def render(inputs, output, seeds, recon, scale, size, smooth, views, up, columns
             continue
         model = open_model(item, threads)
         for seed in chosen:
-            triplane = generate.sample(model, seed, factors if seed is not None else (1, 1, 1))
+            triplane = generate.sample(model, seed, size if seed is not None else (1, 1, 1))
             shapes.append(mesh.extract(model, triplane, scale, smooth=smooth))
-            label = "reconstruction" if seed is None else f"seed {seed}"
-            if seed is not None and factors != (1, 1, 1):
-                label += ", size " + "x".join(f"{f:g}" for f in factors)
-            labels.append(label if scale == 1 else f"{label}, scale {scale:g}")
-    shapes = [crop(shape, zoom, focus) for shape in shapes]
+            labels.append(draw.sample_label(seed, size, scale))
+    shapes = [draw.crop(shape, zoom, focus) for shape in shapes]
     options = dict(up=up, size=(image_size, image_size))
     if views > 1:
         turns = [((azimuth + 360 * k / views) % 360, elevation) for k in range(views)]

@@ -108,6 +108,28 @@ def write_mesh(mesh, path) -> None:
     atomic_write(path, lambda f: f.write(data))
 
 
+def write_sample(model, triplane, path, scale: float = 1.0, smooth: int = 0, smoother: str = "laplacian",
+                 largest: bool = False, frame: str = "input") -> None:
+    """One sample as the file its extension names: a mesh, or the .npz grid."""
+    from . import mesh, query
+
+    if output_kind(path) == "grid":
+        write_grid(query.dense(model, triplane, scale), path, size=triplane.size, scale=scale)
+    else:
+        write_mesh(mesh.extract(model, triplane, scale, smooth, smoother, largest, frame), path)
+
+
+def write_samples(model, outputs, progress=None, **options) -> None:
+    """Write each (path, tri-plane) of `outputs` with `write_sample(**options)`,
+    then call progress(). `outputs` is consumed lazily, so a generator that
+    makes each tri-plane when asked keeps one sample in memory at a time:
+    `sinrun sample --seeds` and `sinrun interpolate` are this loop."""
+    for path, triplane in outputs:
+        write_sample(model, triplane, path, **options)
+        if progress:
+            progress()
+
+
 def write_grid(occupancy: np.ndarray, path, **fields) -> None:
     """Save an occupancy grid (and small metadata arrays) as compressed .npz."""
     data = grid_bytes(occupancy, **fields)
