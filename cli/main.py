@@ -62,34 +62,51 @@ def require_torch() -> None:
 
 
 class TrainProgress:
-    """One line per level: a bar on a terminal, a line every 10% otherwise."""
+    """One line per level: click's progress bar on a terminal, with the
+    losses beside it; elsewhere (a log file, CI) a line every 10%, where
+    click's bar would print only its label."""
 
     def __init__(self, stream=sys.stderr):
         self.stream = stream
         self.tty = stream.isatty()
         self.level = None
+        self.bar = None
         self.started = 0.0
         self.reported = -1
 
     def __call__(self, p) -> None:
         import time
 
-        if p.level != self.level:
-            self.level, self.started, self.reported = p.level, time.monotonic(), -1
-        elapsed = time.monotonic() - self.started
-        left = elapsed / p.iteration * (p.iters - p.iteration)
         losses = "  ".join(f"{k} {v:+.4f}" for k, v in p.losses.items())
         head = f"level {p.level + 1}/{p.levels} {'x'.join(map(str, p.size))}"
-        tail = f"{p.iteration}/{p.iters}  {losses}  {format_seconds(left)} left"
+        if p.level != self.level:
+            self.level, self.started, self.reported = p.level, time.monotonic(), -1
+            if self.tty:
+                self.bar = click.progressbar(length=p.iters, label=head, file=self.stream, show_pos=True,
+                                             item_show_func=lambda text: text)
+                self.bar.__enter__()
         if self.tty:
-            filled = int(20 * p.iteration / p.iters)
-            self.stream.write(f"\r{head} [{'#' * filled}{'.' * (20 - filled)}] {tail}\033[K")
+            self.bar.update(p.iteration - self.bar.pos, losses)
             if p.iteration == p.iters:
-                self.stream.write("\n")
-        elif p.iteration * 10 // p.iters != self.reported or p.iteration == p.iters:
+                self.close()
+            return
+        if p.iteration * 10 // p.iters != self.reported or p.iteration == p.iters:
             self.reported = p.iteration * 10 // p.iters
-            self.stream.write(f"{head} {tail}\n")
-        self.stream.flush()
+            left = (time.monotonic() - self.started) / p.iteration * (p.iters - p.iteration)
+            self.stream.write(f"{head} {p.iteration}/{p.iters}  {losses}  {format_seconds(left)} left\n")
+            self.stream.flush()
+
+    def close(self) -> None:
+        """End the bar's line and show the cursor again."""
+        if self.bar is not None:
+            self.bar.__exit__(None, None, None)
+            self.bar = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *error) -> None:
+        self.close()  # also after Ctrl-C, before the command says where it saved
 
 
 def raise_interrupt(signum, frame):
@@ -164,6 +181,7 @@ def train(input_path, output, preset, res, levels, iters, minutes, device, preci
     saves one and stops; --resume continues.
     """
     require_torch()
+    import contextlib
     import signal
 
     from sinshape.trainer import config as configs
@@ -180,10 +198,11 @@ def train(input_path, output, preset, res, levels, iters, minutes, device, preci
     report = (lambda message: None) if quiet else (lambda message: click.echo(message, err=True))
     signal.signal(signal.SIGTERM, raise_interrupt)  # `kill` saves a checkpoint too, like Ctrl-C
     try:
-        manifest = training.train(
-            input_path, output, config, resume=resume, device=device, checkpoint_path=checkpoint,
-            progress=None if quiet else TrainProgress(), log=report,
-        )
+        with contextlib.nullcontext() if quiet else TrainProgress() as progress:
+            manifest = training.train(
+                input_path, output, config, resume=resume, device=device, checkpoint_path=checkpoint,
+                progress=progress, log=report,
+            )
     except training.Interrupted as error:
         click.echo(str(error), err=True)
         sys.exit(130)
