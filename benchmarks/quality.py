@@ -25,10 +25,11 @@ import h5py
 SINRUN = str(Path(sys.executable).with_name("sinrun"))
 
 SAMPLE_VOXEL = """
-import json, resource, sys, time
+import json, sys, time
 import torch
 from sinshape.runtime import evaluate, noise
-from sinshape.trainer import pyramid, train
+from sinshape.prep import pyramid
+from sinshape.trainer import train
 checkpoint, reference, samples = sys.argv[1], sys.argv[2], int(sys.argv[3])
 torch.set_num_threads(2)
 generator, sizes, amps = train.load_generator(checkpoint)
@@ -45,9 +46,19 @@ sampled = time.perf_counter()
 lp = evaluate.lp_metrics(volumes, truth)
 print(json.dumps({"lp_iou": lp["lp_iou"], "lp_f": lp["lp_f"], "diversity": evaluate.diversity(volumes),
                   "seconds_sampling": sampled - started,
-                  "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))
+                  "level_seconds": torch.load(checkpoint, weights_only=True)["seconds"], "sizes": sizes}))
 """
 
+
+# Scored in a fresh process, like training, so that its peak memory is its own.
+SAMPLE_TRIPLANE = """
+import json, sys
+from sinshape.runtime import evaluate, load
+model, reference, samples = load.load_model(sys.argv[1]), sys.argv[2], int(sys.argv[3])
+scores = evaluate.evaluate_model(model, reference, samples)
+print(json.dumps({**scores, "level_seconds": model.manifest.raw["training"]["level_seconds"],
+                  "sizes": [list(s) for s in model.manifest.sizes]}))
+"""
 
 # Runs a command in a fresh wrapper process, whose children are only that
 # command, so RUSAGE_CHILDREN's max RSS is the command's own peak.
@@ -102,27 +113,10 @@ def main():
             _, train_wall, train_mb = run_measured([
                 SINRUN, "train", str(data), "-o", str(model), "--res", str(args.res), "--iters", str(args.iters),
                 "--generator", generator, "--quiet"])
-            if generator == "triplane":
-                report = work / f"{model.stem}_eval.json"
-                _, _, eval_mb = run_measured([SINRUN, "eval", str(model), "--reference", str(data),
-                                              "-n", str(args.samples), "--json", str(report)])
-                scores = json.loads(report.read_text())
-                manifest = json.loads(subprocess.run(
-                    [sys.executable, "-c", "import json,sys; from sinshape.runtime import load; "
-                     "print(json.dumps(load.load_model(sys.argv[1]).manifest.raw))", str(model)],
-                    capture_output=True, text=True, check=True).stdout)
-                level_seconds, sizes = manifest["training"]["level_seconds"], [lv["size"] for lv in manifest["levels"]]
-                sample_mb = eval_mb
-            else:
-                output, _, _ = run_measured([sys.executable, "-c", SAMPLE_VOXEL, str(model), str(data),
-                                             str(args.samples)])
-                scores = json.loads(output.strip().splitlines()[-1])
-                state = json.loads(subprocess.run(
-                    [sys.executable, "-c", "import json,sys,torch; s=torch.load(sys.argv[1], weights_only=True); "
-                     "print(json.dumps({'seconds': s['seconds'], 'sizes': s['sizes']}))", str(model)],
-                    capture_output=True, text=True, check=True).stdout)
-                level_seconds, sizes = state["seconds"], state["sizes"]
-                sample_mb = scores["peak_mb"]
+            script = SAMPLE_TRIPLANE if generator == "triplane" else SAMPLE_VOXEL
+            output, _, sample_mb = run_measured([sys.executable, "-c", script, str(model), str(data), str(args.samples)])
+            scores = json.loads(output.strip().splitlines()[-1])
+            level_seconds, sizes = scores["level_seconds"], scores["sizes"]
             row = {
                 "shape": source.name, "generator": generator, "grid": "x".join(map(str, sizes[-1])),
                 "levels": len(sizes), "iters": args.iters, "train_minutes": train_wall / 60,

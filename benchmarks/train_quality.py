@@ -30,7 +30,7 @@ def acropolis_pyramid(path: Path) -> Path:
     """The acropolis voxelised at each of PAPER_SIZES (its box fills every grid)."""
     import h5py
 
-    from sinshape.trainer import shapes, voxelize
+    from sinshape.prep import shapes, voxelize
 
     if path.exists():
         return path

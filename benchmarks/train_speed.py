@@ -33,7 +33,7 @@ import torch.nn.functional as F
 from sinshape.trainer import device, train
 from sinshape.trainer.config import make_config
 from sinshape.trainer.networks import TriplaneGenerator
-from sinshape.trainer.pyramid import Pyramid
+from sinshape.prep.pyramid import Pyramid
 
 # The level sizes of one of the paper's res-128 pyramids (the training issue's).
 PAPER_SIZES = [(31, 15, 15), (41, 15, 19), (54, 16, 26), (72, 20, 34), (96, 28, 44), (128, 36, 60)]

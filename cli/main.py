@@ -4,6 +4,7 @@ Heavy imports (torch, onnxruntime, trimesh) happen inside the commands, so
 `--help` is instant and everything but `train` works without torch.
 """
 
+import itertools
 import re
 import sys
 from pathlib import Path
@@ -61,34 +62,51 @@ def require_torch() -> None:
 
 
 class TrainProgress:
-    """One line per level: a bar on a terminal, a line every 10% otherwise."""
+    """One line per level: click's progress bar on a terminal, with the
+    losses beside it; elsewhere (a log file, CI) a line every 10%, where
+    click's bar would print only its label."""
 
     def __init__(self, stream=sys.stderr):
         self.stream = stream
         self.tty = stream.isatty()
         self.level = None
+        self.bar = None
         self.started = 0.0
         self.reported = -1
 
     def __call__(self, p) -> None:
         import time
 
-        if p.level != self.level:
-            self.level, self.started, self.reported = p.level, time.monotonic(), -1
-        elapsed = time.monotonic() - self.started
-        left = elapsed / p.iteration * (p.iters - p.iteration)
         losses = "  ".join(f"{k} {v:+.4f}" for k, v in p.losses.items())
         head = f"level {p.level + 1}/{p.levels} {'x'.join(map(str, p.size))}"
-        tail = f"{p.iteration}/{p.iters}  {losses}  {format_seconds(left)} left"
+        if p.level != self.level:
+            self.level, self.started, self.reported = p.level, time.monotonic(), -1
+            if self.tty:
+                self.bar = click.progressbar(length=p.iters, label=head, file=self.stream, show_pos=True,
+                                             item_show_func=lambda text: text)
+                self.bar.__enter__()
         if self.tty:
-            filled = int(20 * p.iteration / p.iters)
-            self.stream.write(f"\r{head} [{'#' * filled}{'.' * (20 - filled)}] {tail}\033[K")
+            self.bar.update(p.iteration - self.bar.pos, losses)
             if p.iteration == p.iters:
-                self.stream.write("\n")
-        elif p.iteration * 10 // p.iters != self.reported or p.iteration == p.iters:
+                self.close()
+            return
+        if p.iteration * 10 // p.iters != self.reported or p.iteration == p.iters:
             self.reported = p.iteration * 10 // p.iters
-            self.stream.write(f"{head} {tail}\n")
-        self.stream.flush()
+            left = (time.monotonic() - self.started) / p.iteration * (p.iters - p.iteration)
+            self.stream.write(f"{head} {p.iteration}/{p.iters}  {losses}  {format_seconds(left)} left\n")
+            self.stream.flush()
+
+    def close(self) -> None:
+        """End the bar's line and show the cursor again."""
+        if self.bar is not None:
+            self.bar.__exit__(None, None, None)
+            self.bar = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *error) -> None:
+        self.close()  # also after Ctrl-C, before the command says where it saved
 
 
 def raise_interrupt(signum, frame):
@@ -163,6 +181,7 @@ def train(input_path, output, preset, res, levels, iters, minutes, device, preci
     saves one and stops; --resume continues.
     """
     require_torch()
+    import contextlib
     import signal
 
     from sinshape.trainer import config as configs
@@ -179,10 +198,11 @@ def train(input_path, output, preset, res, levels, iters, minutes, device, preci
     report = (lambda message: None) if quiet else (lambda message: click.echo(message, err=True))
     signal.signal(signal.SIGTERM, raise_interrupt)  # `kill` saves a checkpoint too, like Ctrl-C
     try:
-        manifest = training.train(
-            input_path, output, config, resume=resume, device=device, checkpoint_path=checkpoint,
-            progress=None if quiet else TrainProgress(), log=report,
-        )
+        with contextlib.nullcontext() if quiet else TrainProgress() as progress:
+            manifest = training.train(
+                input_path, output, config, resume=resume, device=device, checkpoint_path=checkpoint,
+                progress=progress, log=report,
+            )
     except training.Interrupted as error:
         click.echo(str(error), err=True)
         sys.exit(130)
@@ -193,41 +213,80 @@ def train(input_path, output, preset, res, levels, iters, minutes, device, preci
                f"trained in {format_seconds(manifest['training']['seconds'])})")
 
 
-def parse_seeds(text: str) -> list:
-    """'3', '0-99' or '1,5,9-12' -> a list of seeds."""
-    seeds = []
-    try:
-        for part in text.split(","):
-            low, _, high = part.strip().partition("-")
-            seeds.extend(range(int(low), int(high or low) + 1))
-    except ValueError:
-        raise click.BadParameter(f"{text!r} is not a seed list like 3, 0-99 or 1,5,9-12") from None
-    if not seeds or min(seeds) < 0:
-        raise click.BadParameter(f"{text!r} gives no non-negative seeds")
-    return seeds
+class SeedList:
+    """Seeds such as 1,5,9-12 kept as ranges, so that 0-100000000 costs
+    nothing until it is iterated."""
+
+    def __init__(self, ranges: list):
+        self.ranges = [r for r in ranges if len(r)]
+
+    def __len__(self) -> int:
+        return sum(len(r) for r in self.ranges)
+
+    def __iter__(self):
+        return itertools.chain.from_iterable(self.ranges)
+
+    @property
+    def first(self) -> int:
+        return self.ranges[0][0]
+
+    @property
+    def last(self) -> int:
+        return self.ranges[-1][-1]
 
 
-def as_option(parse, text: str) -> tuple:
-    """A runtime parser's InputError as click's message for a bad option value."""
-    try:
-        return parse(text)
-    except InputError as error:
-        raise click.BadParameter(f"{text!r}: {str(error).split(': ', 1)[1]}") from None
+class Seeds(click.ParamType):
+    """'3', '0-99' or '1,5,9-12' -> a SeedList."""
+
+    name = "seeds"
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, SeedList):
+            return value
+        try:
+            ranges = []
+            for part in value.split(","):
+                low, _, high = part.strip().partition("-")
+                ranges.append(range(int(low), int(high or low) + 1))
+        except ValueError:
+            self.fail(f"{value!r} is not a seed list like 3, 0-99 or 1,5,9-12", param, ctx)
+        seeds = SeedList(ranges)
+        if not len(seeds) or any(r[0] < 0 for r in seeds.ranges):
+            self.fail(f"{value!r} gives no non-negative seeds", param, ctx)
+        return seeds
+
+
+class PerAxis(click.ParamType):
+    """One value for all three axes, or 'a,b,c': parsed by the runtime, which
+    reads the same text from the web API."""
+
+    def __init__(self, name: str, parse):
+        self.name, self.parse = name, parse
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, tuple):
+            return value
+        try:
+            return self.parse(value)
+        except InputError as error:
+            self.fail(f"{value!r}: {str(error).split(': ', 1)[1]}", param, ctx)
 
 
 def parse_size(text: str) -> tuple:
     """'2' or '2,1,1' -> per-axis factors of the training size."""
     from sinshape.runtime import generate
 
-    return as_option(generate.parse_size, text)
+    return generate.parse_size(text)
 
 
 def parse_fractions(text: str) -> tuple:
     """'0.5,0.7,1' -> three numbers in [0, 1]."""
     from sinshape.runtime import generate
 
-    return as_option(lambda t: generate.parse_triple(t, lambda v: 0 <= v <= 1,
-                                                     "three fractions in [0, 1], like 0.5,0.7,1"), text)
+    return generate.parse_triple(text, lambda v: 0 <= v <= 1, "three fractions in [0, 1], like 0.5,0.7,1")
+
+
+SEEDS, SIZE, FRACTIONS = Seeds(), PerAxis("size", parse_size), PerAxis("fractions", parse_fractions)
 
 
 def named_output(output: Path, **fields) -> Path:
@@ -254,7 +313,7 @@ THREADS_OPTION = click.option("--threads", type=int, default=None,
 SCALE_OPTION = click.option("--scale", type=float, default=1.0, show_default=True,
                             help="Query the shape on a grid this many times finer per axis (any positive "
                                  "number). Finer grids give smoother surfaces, not new detail.")
-SIZE_OPTION = click.option("--size", "size", type=str, default="1", show_default=True,
+SIZE_OPTION = click.option("--size", "size", type=SIZE, default="1", show_default=True,
                            help="Sample size as factors of the training size: one factor, or sx,sy,sz "
                                 "for another aspect ratio (e.g. 2,1,1 is twice as long along x).")
 
@@ -282,22 +341,10 @@ def open_model(model, threads):
     return load.load_model(models.find(model), threads=threads)
 
 
-def write_sample(model, triplane, path: Path, scale, smooth, smoother, largest, frame):
-    """Mesh or grid of one sample, by the output's extension."""
-    from sinshape.runtime import mesh, query, write
-
-    if write.output_kind(path) == "grid":
-        occupancy = query.dense(model, triplane, scale)
-        write.write_grid(occupancy, path, size=triplane.size, scale=scale)
-    else:
-        result = mesh.extract(model, triplane, scale, smooth, smoother, largest, frame)
-        write.write_mesh(result, path)
-
-
 @cli.command()
 @MODEL_ARGUMENT
 @click.option("--seed", type=int, default=None, help="Seed of the sample (the same seed gives the same shape). Default 0.")
-@click.option("--seeds", type=str, default=None, help="Many samples, one file each: 0-99 or 1,5,9-12.")
+@click.option("--seeds", type=SEEDS, default=None, help="Many samples, one file each: 0-99 or 1,5,9-12.")
 @click.option("--recon", is_flag=True, help="The training shape itself (the fixed reconstruction noise), not a new sample.")
 @SCALE_OPTION
 @SIZE_OPTION
@@ -317,20 +364,22 @@ def sample(model, seed, seeds, recon, scale, size, output, smooth, smoother, lar
 
     if sum(x is not None and x is not False for x in (seed, seeds, recon or None)) > 1:
         raise click.UsageError("give one of --seed, --seeds or --recon")
-    factors = parse_size(size)
-    chosen = parse_seeds(seeds) if seeds else [None] if recon else [0 if seed is None else seed]
+    chosen = seeds if seeds else [None] if recon else [0 if seed is None else seed]
     loaded = open_model(model, threads)
     if output is None:
         output = Path(f"{loaded.path.stem}_recon.ply" if recon else f"{loaded.path.stem}_seed{{seed}}.ply")
-    paths = [named_output(output, seed=s) if seeds or "{" in output.name else output for s in chosen]
-    write.output_kind(paths[0])
-    write.check_writable(paths[0])
+
+    def path_of(s):
+        return named_output(output, seed=s) if seeds or "{" in output.name else output
+
+    first = path_of(seeds.first if seeds else chosen[0])
+    write.output_kind(first)
+    write.check_writable(first)
+    outputs = ((path_of(s), generate.sample(loaded, s, size)) for s in chosen)
     with progress_bar(len(chosen), "sampling") as bar:
-        for s, path in zip(chosen, paths):
-            triplane = generate.sample(loaded, s, factors)
-            write_sample(loaded, triplane, path, scale, smooth, smoother, largest, frame)
-            bar.update(1)
-    click.echo(f"wrote {paths[0]}" if len(paths) == 1 else f"wrote {len(paths)} files: {paths[0]} .. {paths[-1]}")
+        write.write_samples(loaded, outputs, progress=lambda: bar.update(1), scale=scale, smooth=smooth,
+                            smoother=smoother, largest=largest, frame=frame)
+    click.echo(f"wrote {first}" if len(chosen) == 1 else f"wrote {len(chosen)} files: {first} .. {path_of(seeds.last)}")
 
 
 @cli.command()
@@ -357,17 +406,15 @@ def interpolate(model, seeds, steps, alpha_range, scale, size, output, smooth, s
 
     if steps < 1:
         raise click.BadParameter("--steps must be at least 1")
-    factors = parse_size(size)
     loaded = open_model(model, threads)
     alphas = np.linspace(*alpha_range, steps) if steps > 1 else np.array([alpha_range[0]])
     paths = [named_output(output, step=f"{k:02d}", alpha=f"{a:+.2f}") for k, a in enumerate(alphas)]
     write.output_kind(paths[0])
     write.check_writable(paths[0])
+    outputs = ((path, generate.interpolate(loaded, seeds[0], seeds[1], float(a), size)) for a, path in zip(alphas, paths))
     with progress_bar(len(paths), "interpolating") as bar:
-        for alpha, path in zip(alphas, paths):
-            triplane = generate.interpolate(loaded, seeds[0], seeds[1], float(alpha), factors)
-            write_sample(loaded, triplane, path, scale, smooth, smoother, largest, frame)
-            bar.update(1)
+        write.write_samples(loaded, outputs, progress=lambda: bar.update(1), scale=scale, smooth=smooth,
+                            smoother=smoother, largest=largest, frame=frame)
     click.echo(f"wrote {len(paths)} files: {paths[0]} .. {paths[-1]}")
 
 
@@ -397,37 +444,10 @@ def info(model):
     click.echo("  config      " + json.dumps(m.get("config", {}), sort_keys=True))
 
 
-def read_mesh(path: Path):
-    """A mesh file for rendering, or a one-line error."""
-    import trimesh
-
-    try:
-        mesh = trimesh.load(path, force="mesh")
-    except Exception as error:  # trimesh raises many kinds for a bad file
-        raise InputError(f"{path}: cannot read as a mesh ({str(error).splitlines()[0][:120]})") from None
-    if not len(getattr(mesh, "faces", [])):
-        raise InputError(f"{path}: no triangles to render")
-    return mesh
-
-
-def crop(mesh, zoom: float, focus: tuple):
-    """The faces whose centres lie in a box 1/zoom the size of the bounding
-    box (zoom >= 1), centred at `focus` (fractions of the bounding box per axis)."""
-    import numpy as np
-
-    if zoom == 1:
-        return mesh
-    centre = mesh.bounds[0] + np.asarray(focus) * mesh.extents
-    keep = (abs(mesh.triangles_center - centre) <= mesh.extents / (2 * zoom)).all(axis=1)
-    if not keep.any():
-        raise InputError(f"no part of the shape lies in the --zoom box at --focus {','.join(map(str, focus))}")
-    return mesh.submesh([keep.nonzero()[0]], append=True)
-
-
 @cli.command()
 @click.argument("inputs", metavar="MESH_OR_MODEL...", nargs=-1, required=True)
 @click.option("-o", "--output", type=click.Path(path_type=Path), required=True, help="The picture (.png).")
-@click.option("--seeds", type=str, default="0-3", show_default=True,
+@click.option("--seeds", type=SEEDS, default="0-3", show_default=True,
               help="Samples to draw from each model input: 0-3 or 1,5,9.")
 @click.option("--recon", is_flag=True, help="Draw each model's reconstruction of its training shape first.")
 @SCALE_OPTION
@@ -441,7 +461,7 @@ def crop(mesh, zoom: float, focus: tuple):
 @click.option("--image-size", type=int, default=320, show_default=True, help="Pixels per shape, square.")
 @click.option("--zoom", type=float, default=1.0, show_default=True,
               help="Show only a box 1/ZOOM the size of each shape: a close-up.")
-@click.option("--focus", type=str, default="0.5,0.5,0.5", show_default=True,
+@click.option("--focus", type=FRACTIONS, default="0.5,0.5,0.5", show_default=True,
               help="Where the --zoom box is centred, as fractions of the shape's bounding box per axis.")
 @click.option("--azimuth", type=float, default=35.0, show_default=True, help="Camera angle around the up axis.")
 @click.option("--elevation", type=float, default=25.0, show_default=True, help="Camera angle above the ground.")
@@ -457,6 +477,7 @@ def render(inputs, output, seeds, recon, scale, size, smooth, views, up, columns
     """
     import numpy as np
 
+    from sinshape.prep.voxelize import load_mesh
     from sinshape.runtime import generate, mesh, render as draw, write
 
     if output.suffix.lower() != ".png":
@@ -466,25 +487,20 @@ def render(inputs, output, seeds, recon, scale, size, smooth, views, up, columns
         raise click.UsageError("--views and --columns must be at least 1, --image-size at least 16")
     if zoom < 1:
         raise InputError(f"--zoom must be 1 or more, got {zoom}")
-    # Every option is checked before the first model is sampled.
-    factors, focus = parse_size(size), parse_fractions(focus)
-    chosen = ([None] if recon else []) + parse_seeds(seeds)
+    chosen = [None, *seeds] if recon else seeds
     shapes, labels = [], []
     for item in inputs:
         path = Path(item)
         if path.is_file() and path.suffix.lower() in write.MESH_FORMATS:
-            shapes.append(read_mesh(path))
+            shapes.append(load_mesh(path, solid=False))
             labels.append(path.name)
             continue
         model = open_model(item, threads)
         for seed in chosen:
-            triplane = generate.sample(model, seed, factors if seed is not None else (1, 1, 1))
+            triplane = generate.sample(model, seed, size if seed is not None else (1, 1, 1))
             shapes.append(mesh.extract(model, triplane, scale, smooth=smooth))
-            label = "reconstruction" if seed is None else f"seed {seed}"
-            if seed is not None and factors != (1, 1, 1):
-                label += ", size " + "x".join(f"{f:g}" for f in factors)
-            labels.append(label if scale == 1 else f"{label}, scale {scale:g}")
-    shapes = [crop(shape, zoom, focus) for shape in shapes]
+            labels.append(draw.sample_label(seed, size, scale))
+    shapes = [draw.crop(shape, zoom, focus) for shape in shapes]
     options = dict(up=up, size=(image_size, image_size))
     if views > 1:
         turns = [((azimuth + 360 * k / views) % 360, elevation) for k in range(views)]
@@ -507,7 +523,7 @@ def shape(name, output, seed, detail):
 
     NAME is terrain, acropolis, stairs, wall or cheese.
     """
-    from sinshape.trainer import shapes
+    from sinshape.prep import shapes
 
     from sinshape.runtime.write import check_writable
 
@@ -541,37 +557,20 @@ def evaluate(model, reference, samples, first_seed, scale, upsample, json_path, 
     plausibility); diversity: mean 1 - IoU between samples. Needs no torch.
     """
     import json
-    import time
 
-    from sinshape.runtime import evaluate as metrics, write
-    from sinshape.trainer.pyramid import load_pyramid
+    from sinshape.runtime import write
+    from sinshape.runtime.evaluate import evaluate_model
 
     if samples < 2:
         raise click.UsageError("--samples must be at least 2 (diversity compares samples)")
     loaded = open_model(model, threads)
-    config = loaded.manifest.raw.get("config", {})
-    res = round(config.get("res", max(loaded.manifest.sizes[-1])) * scale)
-    if scale != 1 and Path(reference).suffix.lower() in (".h5", ".hdf5"):
-        raise InputError("--scale needs a mesh reference: an .h5 pyramid has one resolution")
     if json_path:
         write.check_writable(json_path)
-    truth = load_pyramid(reference, res=res, levels=1).levels[-1]
-    started = time.perf_counter()
     with progress_bar(samples, "sampling") as bar:
-        volumes = metrics.sample_volumes(loaded, range(first_seed, first_seed + samples), scale, upsample,
-                                         progress=lambda: bar.update(1))
-    sampled = time.perf_counter()
-    lp = metrics.lp_metrics(volumes, truth)
-    results = {
-        "model": str(loaded.path), "reference": str(reference), "samples": samples, "scale": scale,
-        "query": "trilinear upsampling of scale 1" if upsample else "tri-plane",
-        "reference_size": list(truth.shape), "sample_size": list(volumes[0].shape),
-        "lp_iou": lp["lp_iou"], "lp_f": lp["lp_f"], "diversity": metrics.diversity(volumes),
-        "seconds_sampling": round(sampled - started, 2), "seconds_scoring": round(time.perf_counter() - sampled, 2),
-        "per_sample": lp["per_sample"],
-    }
+        results = evaluate_model(loaded, reference, samples, first_seed, scale, upsample,
+                                 progress=lambda: bar.update(1))
     click.echo(f"{loaded.path.name} against {Path(reference).name}: {samples} samples of "
-               f"{'x'.join(map(str, volumes[0].shape))}, reference {'x'.join(map(str, truth.shape))}")
+               f"{'x'.join(map(str, results['sample_size']))}, reference {'x'.join(map(str, results['reference_size']))}")
     click.echo(f"  LP-IoU     {results['lp_iou']:.3f}")
     click.echo(f"  LP-F       {results['lp_f']:.3f}")
     click.echo(f"  diversity  {results['diversity']:.3f}")
@@ -641,7 +640,7 @@ def export_web(model_names, output):
     """
     from sinshape.serve import site
 
-    result = site.export_site(model_names, output, importlib.metadata.version("sinshape"))
+    result = site.export_site(model_names, output, __version__)
     click.echo(f"wrote {output} ({', '.join(result['models'])}; {result['files']} files, "
                f"{result['bytes'] / 2**20:.1f} MB): python -m http.server -d {output}")
 

@@ -12,7 +12,8 @@ Stages, one module each: load -> generate -> query -> mesh -> write.
 It imports numpy, scipy, onnx, onnxruntime, trimesh, scikit-image and
 pillow; never torch, and nothing from sinshape.trainer, .cli or .serve: a
 model file and its manifest (docs/FORMAT.md) are all it shares with the
-trainer. `__version__` is the installed sinshape distribution's version.
+trainer. Only evaluate.evaluate_model imports sinshape.prep (torch-free),
+for the grid a model is scored against. `__version__` is the installed sinshape distribution's version.
 """
 
 import importlib

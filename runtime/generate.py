@@ -15,6 +15,7 @@ import numpy as np
 
 from . import noise
 from .errors import InputError, MemoryLimitError
+from .manifest import plane_sizes
 
 # A sample's coarsest grid may not shrink below this many voxels per axis.
 MIN_SIDE = 2
@@ -46,12 +47,6 @@ def check_memory(needed: int, what: str, limit: int | None = None) -> None:
     if needed > limit:
         raise MemoryLimitError(f"{what} needs about {needed / 2**30:.1f} GiB of memory "
                                f"(limit {limit / 2**30:.1f} GiB)")
-
-
-def plane_sizes(size) -> list:
-    """Plane sizes of a grid (X, Y, Z): [(X, Y), (X, Z), (Y, Z)]."""
-    x, y, z = size
-    return [(x, y), (x, z), (y, z)]
 
 
 def parse_triple(text: str, valid, example: str, name: str = "size") -> tuple:
@@ -103,17 +98,30 @@ def adaptive_pool(volume: np.ndarray, bins: int) -> list:
     return [np.moveaxis(pool(axis), axis, 0) for axis in (2, 1, 0)]
 
 
-def resize_matrix(n_in: int, n_out: int) -> np.ndarray:
+def resize_matrix(n_in: int, n_out: int, dtype=np.float32) -> np.ndarray:
     """(n_out, n_in) linear interpolation weights, align_corners=True."""
-    weights = np.zeros((n_out, n_in), np.float32)
+    weights = np.zeros((n_out, n_in), dtype)
     src = np.arange(n_out) * ((n_in - 1) / (n_out - 1)) if n_out > 1 else np.zeros(1)
     low = np.minimum(np.floor(src).astype(int), n_in - 1)
     high = np.minimum(low + 1, n_in - 1)
-    frac = (src - low).astype(np.float32)
+    frac = (src - low).astype(dtype)
     rows = np.arange(n_out)
     np.add.at(weights, (rows, low), 1 - frac)
     np.add.at(weights, (rows, high), frac)
     return weights
+
+
+def resize_volume(volume: np.ndarray, shape) -> np.ndarray:
+    """Trilinear resize (align_corners=True) of an (X, Y, Z) volume to `shape`, float32.
+
+    Computed in float64, so that a value of exactly 0.5 stays 0.5: the
+    pyramid's stretched levels and evaluation's upsampling baseline both
+    threshold at 0.5 and decide such ties the same way.
+    """
+    out = np.asarray(volume, dtype=np.float64)
+    for axis, n in enumerate(shape):
+        out = np.moveaxis(np.tensordot(resize_matrix(out.shape[axis], n, np.float64), out, axes=(1, axis)), 0, axis)
+    return out.astype(np.float32)
 
 
 def resize_plane(plane: np.ndarray, size) -> np.ndarray:

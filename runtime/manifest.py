@@ -17,10 +17,16 @@ FORMAT_VERSION = 1
 METADATA_KEY = "sinshape.manifest"  # key of the manifest in the ONNX metadata_props
 NOISE_SCHEME = "splitmix64-boxmuller-v1"  # runtime/noise.py
 PLANES = ("xy", "xz", "yz")  # plane k drops grid axis 2 - k
+PLANE_AXES = ((0, 1), (0, 2), (1, 2))  # the grid axes each plane keeps, in PLANES order
 # Initializers of stage decoder_head, (D,), (D, 1), (1,): b1, w2, b2.
 HEAD_WEIGHTS = ("decoder_head.bias1", "decoder_head.weight2", "decoder_head.bias2")
 MAX_LEVELS = 64
 MAX_SIDE = 4096  # a level's side in voxels; far above anything trainable
+
+
+def plane_sizes(size) -> list:
+    """Plane sizes of a grid (X, Y, Z), in PLANES order: [(X, Y), (X, Z), (Y, Z)]."""
+    return [(size[a], size[b]) for a, b in PLANE_AXES]
 
 
 def stage_names(levels: int) -> dict:

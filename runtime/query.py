@@ -21,11 +21,11 @@ from scipy.special import expit
 
 from .errors import InputError
 from .generate import TriPlane, check_memory, resize_matrix
+from .manifest import PLANE_AXES
 
 BLOCK = 16  # cells per block side in the band search; see benchmarks/sample_speed.py
 BOUND_MARGIN = 1e-4  # a block is uniform only if its bound clears 0.5 by this much
 MAX_SIDE = 1 << 16  # grid points per axis; beyond this a scale is absurd
-PLANE_AXES = ((0, 1), (0, 2), (1, 2))  # the grid axes of planes xy, xz, yz
 
 
 def head_occupancy(head, hidden: np.ndarray) -> np.ndarray:

@@ -105,6 +105,28 @@ def render_grid(meshes: list, labels: list, columns: int, size=(320, 320), **opt
     return np.concatenate([np.concatenate(cells[r * columns:(r + 1) * columns], axis=1) for r in range(rows)])
 
 
+def crop(mesh: trimesh.Trimesh, zoom: float, focus=(0.5, 0.5, 0.5)) -> trimesh.Trimesh:
+    """A close-up: the faces whose centres lie in a box 1/zoom the size of the
+    bounding box (zoom >= 1), centred at `focus` (fractions of the bounding
+    box per axis). InputError if the box holds none."""
+    if zoom == 1:
+        return mesh
+    centre = mesh.bounds[0] + np.asarray(focus) * mesh.extents
+    keep = (abs(mesh.triangles_center - centre) <= mesh.extents / (2 * zoom)).all(axis=1)
+    if not keep.any():
+        raise InputError(f"no part of the shape lies in the --zoom box at --focus {','.join(map(str, focus))}")
+    return mesh.submesh([keep.nonzero()[0]], append=True)
+
+
+def sample_label(seed, factors=(1, 1, 1), scale: float = 1.0) -> str:
+    """The caption of a drawn sample: its seed (None: the reconstruction),
+    and its size and scale where they are not the training ones."""
+    label = "reconstruction" if seed is None else f"seed {seed}"
+    if seed is not None and tuple(factors) != (1, 1, 1):
+        label += ", size " + "x".join(f"{f:g}" for f in factors)
+    return label if scale == 1 else f"{label}, scale {scale:g}"
+
+
 def label_height(size) -> int:
     """Height in pixels of render_grid's label strip for cells of `size`."""
     return max(14, round(size[1] / 12))

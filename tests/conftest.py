@@ -1,7 +1,7 @@
 """Shared fixtures: tiny inputs and one tiny trained model per test session.
 
 Tests need nothing outside the checkout: inputs are made here, by
-trainer/shapes.py, or read from tests/data (see its README for licences).
+prep/shapes.py, or read from tests/data (see its README for licences).
 """
 
 from pathlib import Path

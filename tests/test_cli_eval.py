@@ -4,7 +4,7 @@ import json
 
 import numpy as np
 
-from sinshape.runtime import evaluate
+from sinshape.runtime import generate
 from test_cli_sample import sinrun
 from test_cli_train import assert_one_line_error, run_sinrun
 
@@ -36,7 +36,19 @@ def test_eval_refuses_bad_requests(tiny_model, tiny_pyramid, tmp_path):
 
 def test_upsampling_baseline_keeps_corners_and_shape():
     volume = np.random.default_rng(0).random((5, 6, 7)).astype(np.float32)
-    up = evaluate.upsample_trilinear(volume, (9, 11, 13))
+    up = generate.resize_volume(volume, (9, 11, 13))
     assert up.shape == (9, 11, 13)
     assert np.allclose(up[::2, ::2, ::2], volume, atol=1e-6)  # align_corners: every other point is an original
     assert np.allclose(up[1, 0, 0], volume[:2, 0, 0].mean(), atol=1e-6)
+
+
+def test_eval_reports_what_evaluate_model_returns(tiny_model, tiny_pyramid, tmp_path):
+    """The command is a thin wrapper: a tool calling the library gets the same scores."""
+    from sinshape.runtime import evaluate, load
+
+    out = tmp_path / "e.json"
+    assert sinrun("eval", tiny_model, "--reference", tiny_pyramid, "-n", 3, "--json", out).exit_code == 0
+    ours = evaluate.evaluate_model(load.load_model(tiny_model), tiny_pyramid, samples=3)
+    cli = json.loads(out.read_text())
+    timings = ("seconds_sampling", "seconds_scoring")
+    assert {k: v for k, v in cli.items() if k not in timings} == {k: v for k, v in ours.items() if k not in timings}

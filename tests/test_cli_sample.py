@@ -70,6 +70,42 @@ def test_many_seeds_one_file_each(tiny_model, tmp_path):
     assert (tmp_path / "x1.ply").exists() and (tmp_path / "x2.ply").exists()
 
 
+def test_a_seed_range_is_lazy():
+    """--seeds 0-100000000 must not build a hundred million seeds up front."""
+    from sinshape.cli.main import SEEDS
+
+    seeds = SEEDS.convert("0-100000000,7", None, None)
+    assert all(isinstance(r, range) for r in seeds.ranges)
+    assert (len(seeds), seeds.first, seeds.last) == (100_000_002, 0, 7)
+    assert list(SEEDS.convert("2-4,9", None, None)) == [2, 3, 4, 9]
+
+
+@pytest.mark.parametrize("option, value, says", [
+    ("--seeds", "1-x", "not a seed list"), ("--seeds", "5-3", "no non-negative seeds"),
+    ("--size", "1,1", "positive factors"), ("--focus", "2,0,0", "fractions in [0, 1]"),
+])
+def test_bad_seeds_and_triples_are_usage_errors_naming_the_option(tiny_model, tmp_path, option, value, says):
+    command = "render" if option == "--focus" else "sample"
+    result = sinrun(command, tiny_model, option, value, "-o", tmp_path / "x.png")
+    assert result.exit_code == 2 and option in result.output and says in result.output
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_write_samples_writes_lazily_and_reports_each(tiny_model, tmp_path):
+    from sinshape.runtime import generate, load, write
+
+    model, made, done = load.load_model(tiny_model), [], []
+
+    def outputs():
+        for seed in (1, 2):
+            made.append(seed)
+            yield tmp_path / f"s{seed}.npz", generate.sample(model, seed)
+
+    write.write_samples(model, outputs(), progress=lambda: done.append(len(made)))
+    assert done == [1, 2]  # each sample written before the next one is made
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s1.npz", "s2.npz"]
+
+
 def test_size_and_smoothing_options(tiny_model, tmp_path):
     plain, wide, smooth = tmp_path / "p.ply", tmp_path / "w.ply", tmp_path / "s.ply"
     assert sinrun("sample", tiny_model, "--seed", 1, "-o", plain, "--frame", "model").exit_code == 0

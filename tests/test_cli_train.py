@@ -124,3 +124,40 @@ def test_ctrl_c_saves_a_checkpoint_and_says_how_to_resume(tiny_pyramid, tmp_path
 
 def train_checkpoint(out):
     return out.with_name(out.stem + ".ckpt.pt")
+
+
+def progress_of(stream, iterations, iters=20, interrupt=False):
+    """What TrainProgress writes for level 1 of 2 up to `iterations`."""
+    from types import SimpleNamespace
+
+    from sinshape.cli.main import TrainProgress
+
+    try:
+        with TrainProgress(stream) as show:
+            for i in range(1, iterations + 1):
+                show(SimpleNamespace(level=0, levels=2, size=(20, 18, 15), iteration=i, iters=iters,
+                                     losses={"d": 0.25}))
+            if interrupt:
+                raise KeyboardInterrupt
+    except KeyboardInterrupt:
+        pass
+    return stream.getvalue()
+
+
+def test_progress_is_a_line_every_10_percent_in_a_log():
+    import io
+
+    lines = progress_of(io.StringIO(), 20).splitlines()
+    assert len(lines) == 11 and lines[-1].startswith("level 1/2 20x18x15 20/20  d +0.2500")
+
+
+def test_progress_is_a_bar_on_a_terminal_and_ends_its_line_on_ctrl_c():
+    import io
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    text = progress_of(Terminal(), 5, interrupt=True)
+    assert "level 1/2 20x18x15" in text and "5/20" in text and "d +0.2500" in text
+    assert text.endswith("\033[?25h\n")  # cursor shown again, the next message on a line of its own

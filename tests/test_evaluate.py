@@ -153,7 +153,7 @@ def test_lp_metrics_averages_samples_that_do_not_affect_each_other():
 
 
 def test_a_voxelised_example_against_itself_scores_one(tmp_path):
-    from sinshape.trainer import pyramid, shapes
+    from sinshape.prep import pyramid, shapes
 
     path = tmp_path / "acropolis.obj"
     shapes.write_shape("acropolis", path, detail=4)

@@ -9,7 +9,8 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from sinshape.runtime import generate, load, manifest, query  # noqa: E402
-from sinshape.trainer import pyramid, train  # noqa: E402
+from sinshape.prep import pyramid  # noqa: E402
+from sinshape.trainer import train  # noqa: E402
 
 
 def test_file_is_valid_onnx_with_the_promised_ops(tiny_model):

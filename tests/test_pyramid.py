@@ -1,12 +1,16 @@
 """Pyramid sizes, HDF5 reading and training targets."""
 
+import subprocess
+import sys
+from types import SimpleNamespace
+
 import h5py
 import numpy as np
 import pytest
 
 from conftest import write_pyramid
+from sinshape.prep import pyramid, shapes
 from sinshape.runtime.errors import InputError
-from sinshape.trainer import pyramid
 
 
 def test_level_count_gives_a_coarsest_side_of_22_to_33():
@@ -96,3 +100,48 @@ def test_training_targets_are_blurred_and_clipped(tiny_pyramid):
         soft = (target > 0.01) & (target < 0.99)
         assert soft.any()  # the surface is blurred...
         assert np.array_equal(target > 0.5, level) or np.mean((target > 0.5) != level) < 0.01  # ...not moved
+
+
+def test_prep_does_not_import_torch():
+    """Evaluation prepares its reference here on machines without torch."""
+    code = ("import sys; from sinshape.prep import pyramid, shapes, voxelize; "
+            "print(sorted(m for m in sys.modules if m == 'torch' or m.startswith(('torch.', 'sinshape.trainer'))))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"
+
+
+def test_reference_grid_follows_the_models_settings(tmp_path):
+    """A model trained with another minimum side is scored against a grid
+    built with that minimum, not the default one."""
+    mesh = tmp_path / "stairs.obj"
+    shapes.write_shape("stairs", mesh, detail=4)
+    def manifest(**config):
+        return SimpleNamespace(raw={"config": {"res": 24, **config}}, sizes=[(24, 24, 24)])
+
+    default = pyramid.reference_grid(mesh, manifest())
+    assert default.shape == pyramid.load_pyramid(mesh, res=24, levels=1).levels[-1].shape
+    assert min(default.shape) >= pyramid.MIN_SIZE
+    tall = pyramid.reference_grid(mesh, manifest(min_size=22))
+    assert min(tall.shape) == 22 and max(tall.shape) == 24
+    assert pyramid.reference_grid(mesh, manifest(), scale=2).shape[np.argmax(default.shape)] == 48
+
+
+def test_stretch_decides_ties_as_it_always_has():
+    """Stretching 10 -> 15 voxels puts sample points exactly halfway between
+    voxels, so which side of 0.5 they land on depends on rounding. The levels
+    of a pyramid must not change with the implementation: the reference is
+    scipy's map_coordinates (float64 inside, float32 out), which made them."""
+    from scipy import ndimage
+
+    rng = np.random.default_rng(0)
+    ties = 0
+    for _ in range(50):
+        shape = tuple(int(n) for n in rng.integers(2, 15, 3))
+        target = tuple(max(n, 15) for n in shape)
+        volume = rng.random(shape) < 0.5
+        axes = [np.linspace(0, n - 1, m) for n, m in zip(shape, target)]
+        before = ndimage.map_coordinates(volume.astype(np.float32), np.stack(np.meshgrid(*axes, indexing="ij")),
+                                         order=1, mode="nearest")
+        ties += np.count_nonzero(before == 0.5)
+        assert np.array_equal(pyramid.stretch(volume, target), before > 0.5)
+    assert ties > 0

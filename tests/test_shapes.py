@@ -5,7 +5,7 @@ import pytest
 import trimesh
 
 from sinshape.runtime.errors import InputError
-from sinshape.trainer import shapes
+from sinshape.prep import shapes
 
 # Small versions, each made in well under a second.
 SMALL = {"terrain": 32, "acropolis": 4, "stairs": 6, "wall": 6, "cheese": 40}

@@ -9,7 +9,7 @@ torch = pytest.importorskip("torch")
 
 from sinshape.trainer import device, train  # noqa: E402
 from sinshape.trainer.config import make_config  # noqa: E402
-from sinshape.trainer.pyramid import Pyramid, load_pyramid  # noqa: E402
+from sinshape.prep.pyramid import Pyramid, load_pyramid  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 from train_speed import StraightforwardTrainer  # noqa: E402

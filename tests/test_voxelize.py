@@ -1,4 +1,4 @@
-"""Tests of `sinshape.trainer.voxelize`.
+"""Tests of `sinshape.prep.voxelize`.
 
 Synthetic meshes are checked against exact oracles (plane equations of convex
 bodies, an analytic torus, exact voxel sets of a plane and a thin slab); the
@@ -17,8 +17,8 @@ from scipy import ndimage
 from skimage import measure
 
 from sinshape.runtime.errors import InputError
-from sinshape.trainer import shapes
-from sinshape.trainer.voxelize import _add_crossings, _split_to_size, load_mesh, voxelize
+from sinshape.prep import shapes
+from sinshape.prep.voxelize import _add_crossings, _split_to_size, load_mesh, voxelize
 
 TOWERRUINS = Path(__file__).parent / "data" / "towerruins" / "towerruins.obj"
 # Small versions of the procedural shapes: thin walls, columns, steps. (Not
@@ -389,3 +389,12 @@ def test_load_mesh_errors_are_one_line_naming_the_file(tmp_path, name, write, sa
         load_mesh(path)
     message = str(error.value)
     assert "\n" not in message and name in message and says in message
+
+
+def test_a_flat_mesh_loads_when_no_solid_is_needed(tmp_path):
+    """`sinrun render` draws a flat mesh that voxelizing refuses."""
+    path = tmp_path / "square.stl"
+    trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], [[0, 1, 2], [0, 2, 3]]).export(path)
+    assert len(load_mesh(path, solid=False).faces) == 2
+    with pytest.raises(InputError, match="flat"):
+        load_mesh(path)

@@ -6,13 +6,14 @@ shape and export it as one .onnx file (needs the train extra, PyTorch).
 
     train.train("mymesh.obj", "mymesh.onnx", make_config("default"))
 
-Modules: config (the frozen settings and presets), voxelize and pyramid
-(the input as voxel levels), shapes (procedural examples), networks,
-device, train (the level loop, checkpoints), export (the .onnx file).
+Modules: config (the frozen settings and presets), networks, device,
+train (the level loop, checkpoints), export (the .onnx file). The input
+becomes voxel levels in sinshape.prep, which evaluation shares.
 
 It may import torch, numpy, scipy, h5py, onnx, trimesh and scikit-image,
-and from the runtime only what defines the shared contract: its errors, the
-manifest format, the noise and the writers. Never the CLI or serve.
+sinshape.prep, and from the runtime only what defines the shared contract:
+its errors, the manifest format, the noise and the writers. Never the CLI
+or serve.
 The method is described in docs/METHOD.md, the file it writes in
 docs/FORMAT.md.
 """

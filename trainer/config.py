@@ -8,6 +8,7 @@ plain ints; only `train` reads a config.
 import dataclasses
 from dataclasses import dataclass
 
+from sinshape.prep.pyramid import LEVEL_FACTOR, MIN_SIZE
 from sinshape.runtime.errors import InputError
 
 
@@ -17,8 +18,8 @@ class TrainConfig:
     # (None: as many as bring the coarsest longest side to 33 or below).
     res: int = 128
     levels: int | None = None
-    level_factor: float = 0.75  # size[i-1] = ceil(size[i] * factor), per axis
-    min_size: int = 15  # shorter axes are stretched to this (the D needs room)
+    level_factor: float = LEVEL_FACTOR  # size[i-1] = ceil(size[i] * factor), per axis
+    min_size: int = MIN_SIZE  # shorter axes are stretched to this (the D needs room)
     blur_sigma: float = 0.5  # Gaussian blur of the training targets
 
     # Networks (Wu & Zheng 2022): 32 channels everywhere, 8 pooling bins.

@@ -13,8 +13,6 @@ outputs; the runtime cuts the graph into one session per stage.
 
 import importlib.metadata
 import json
-import os
-from pathlib import Path
 
 import numpy as np
 import onnx
@@ -22,6 +20,7 @@ import torch
 from onnx import TensorProto, helper, numpy_helper
 
 from sinshape.runtime import manifest as fmt
+from sinshape.runtime.write import atomic_write
 
 # ONNX IR 8 / opset 17: read by every onnxruntime since 1.14; newer onnx
 # releases write newer IR versions by default, which older runtimes reject.
@@ -170,11 +169,6 @@ def export_model(generator, *, sizes, noise_amps, config, pyramid, seconds, path
     manifest = make_manifest(generator, sizes=sizes, noise_amps=noise_amps, config=config,
                              pyramid=pyramid, seconds=seconds, ran_on=ran_on or {})
     model = build_model(generator, manifest)
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    try:
-        onnx.save_model(model, tmp)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    data = model.SerializeToString()  # what onnx.save_model writes
+    atomic_write(path, lambda f: f.write(data))
     return manifest

@@ -16,13 +16,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-PLANES = ("xy", "xz", "yz")
-
-
-def plane_sizes(size: tuple) -> list:
-    """Plane sizes of a grid (X, Y, Z): [(X, Y), (X, Z), (Y, Z)]."""
-    x, y, z = size
-    return [(x, y), (x, z), (y, z)]
+from sinshape.runtime.manifest import PLANES, plane_sizes
 
 
 def plane_stack(channels: int) -> nn.Sequential:

@@ -13,7 +13,6 @@ Ctrl-C saves one before it stops.
 
 import dataclasses
 import math
-import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,13 +22,13 @@ import torch.nn.functional as F
 
 from sinshape.runtime import noise
 from sinshape.runtime.errors import InputError
-from sinshape.runtime.write import check_writable
+from sinshape.runtime.write import atomic_write, check_writable
 
 from . import export
 from . import device as devices
 from .config import TrainConfig
 from .networks import Discriminator, make_generator
-from .pyramid import load_pyramid, training_targets
+from sinshape.prep.pyramid import load_pyramid, training_targets
 
 CHECKPOINT_FORMAT = "sinshape-checkpoint"
 CHECKPOINT_VERSION = 1
@@ -69,10 +68,9 @@ def seeded(seed: int, *ids: int) -> int:
 
 
 def atomic_save(obj, path: Path) -> None:
-    """torch.save to a temporary file, then rename: never a half-written file."""
-    tmp = path.with_name(path.name + ".tmp")
-    torch.save(obj, tmp)
-    os.replace(tmp, path)
+    """torch.save through the runtime's atomic writer: never a half-written
+    checkpoint, and no temporary file left behind."""
+    atomic_write(path, lambda f: torch.save(obj, f))
 
 
 class Trainer:

@@ -52,7 +52,7 @@ longest side, first call / repeated call (towerruins: 24k faces):
 
 measured with::
 
-    python -c "import sys, time, numpy as np; from sinshape.trainer.voxelize \\
+    python -c "import sys, time, numpy as np; from sinshape.prep.voxelize \\
     import load_mesh, voxelize; m = load_mesh(sys.argv[1]); h = m.extents.max() \\
     / int(sys.argv[2]); t = time.perf_counter(); voxelize(m, m.bounds[0], [h] * 3, \\
     np.ceil(m.extents / h)); print(time.perf_counter() - t)" MESH.obj 128
@@ -85,11 +85,13 @@ _OVERLAP_SLACK = 1e-9
 _CHUNK = 1 << 15
 
 
-def load_mesh(path: str | Path) -> trimesh.Trimesh:
+def load_mesh(path: str | Path, solid: bool = True) -> trimesh.Trimesh:
     """Load any mesh file trimesh reads into one triangle mesh.
 
     A scene is concatenated with its transforms applied. Every way the file
-    can be unusable raises `InputError` with a one-line message naming it.
+    can be unusable raises `InputError` with a one-line message naming it;
+    `solid` also refuses a flat mesh, which has no inside to voxelize (a
+    picture of one is fine).
     """
     path = Path(path)
     formats = sorted(trimesh.exchange.load.mesh_formats())
@@ -112,6 +114,8 @@ def load_mesh(path: str | Path) -> trimesh.Trimesh:
     if len(mesh.faces) == 0:
         raise InputError(f"{path}: no triangles (an empty mesh, a point cloud or lines)")
     mesh.remove_unreferenced_vertices()
+    if not solid:
+        return mesh
     extents = mesh.extents
     thin = extents < _FLAT_RATIO * extents.max()
     if thin.any():

@@ -1,14 +1,14 @@
 """The voxel pyramid: the example shape at every level, coarsest first.
 
 Sizes follow SSG: the finest grid has `res` voxels along its longest side and
-fits the shape's bounding box; each coarser size is ceil(0.75 * finer) per
-axis; an axis shorter than 15 voxels is stretched to 15. Every level is
+fits the shape's bounding box; each coarser size is ceil(LEVEL_FACTOR * finer)
+per axis; an axis shorter than MIN_SIZE voxels is stretched to MIN_SIZE. Every level is
 voxelised from the mesh on its own, not downsampled from the finest one.
 An SSG HDF5 pyramid (attribute `n_scales`, datasets `scale0` (coarsest) ..
 `scale{n-1}`) is read as it is.
 
-numpy and scipy only: evaluation, which is torch-free, voxelises references
-the same way.
+numpy and scipy only: evaluation, which is torch-free, voxelises its
+reference the same way, with the model's own settings (`reference_grid`).
 """
 
 import hashlib
@@ -20,12 +20,17 @@ import numpy as np
 from scipy import ndimage
 
 from sinshape.runtime.errors import InputError
+from sinshape.runtime.generate import resize_volume
 
 from . import voxelize
 
 # The coarsest level's longest side should be 2-3x the discriminator's
 # 11-voxel receptive field: levels are added until it is at most this.
 COARSEST_MAX = 33
+# SSG's pyramid: each level ceil(0.75 x) the finer one per axis, no axis below
+# 15 voxels (the critic needs room). TrainConfig's defaults are these.
+LEVEL_FACTOR = 0.75
+MIN_SIZE = 15
 PYRAMID_SUFFIXES = (".h5", ".hdf5")
 
 
@@ -45,7 +50,7 @@ class Pyramid:
         return [tuple(int(n) for n in level.shape) for level in self.levels]
 
 
-def level_count(longest: int, factor: float = 0.75) -> int:
+def level_count(longest: int, factor: float = LEVEL_FACTOR) -> int:
     """How many levels bring the longest side from `longest` to <= 33."""
     count = 1
     while longest > COARSEST_MAX:
@@ -54,7 +59,7 @@ def level_count(longest: int, factor: float = 0.75) -> int:
     return count
 
 
-def level_sizes(finest: tuple, count: int, factor: float = 0.75, min_size: int = 15) -> tuple:
+def level_sizes(finest: tuple, count: int, factor: float = LEVEL_FACTOR, min_size: int = MIN_SIZE) -> tuple:
     """Grid sizes per level, coarsest first: (voxelised sizes, stretched sizes).
 
     The voxelised size is the ceil(factor * finer) chain; the stretched size
@@ -72,21 +77,11 @@ def level_sizes(finest: tuple, count: int, factor: float = 0.75, min_size: int =
     return chain, [tuple(max(n, min_size) for n in size) for size in chain]
 
 
-def resize_trilinear(volume: np.ndarray, shape: tuple) -> np.ndarray:
-    """Trilinear resize with align_corners=True: corner voxels map to corners.
-
-    volume : (X, Y, Z) float; returns `shape` float32.
-    """
-    axes = [np.linspace(0, n_in - 1, n_out) for n_in, n_out in zip(volume.shape, shape)]
-    coords = np.stack(np.meshgrid(*axes, indexing="ij"))
-    return ndimage.map_coordinates(volume.astype(np.float32), coords, order=1, mode="nearest")
-
-
 def stretch(volume: np.ndarray, shape: tuple) -> np.ndarray:
     """Raise short axes to `shape`: trilinear resize, then threshold at 0.5."""
     if volume.shape == tuple(shape):
         return volume
-    return resize_trilinear(volume, shape) > 0.5
+    return resize_volume(volume, shape) > 0.5
 
 
 def training_targets(pyramid: Pyramid, sigma: float = 0.5) -> list:
@@ -107,7 +102,7 @@ def file_sha256(path: Path) -> str:
 
 
 def pyramid_from_mesh(path: Path, res: int, levels: int | None = None,
-                      factor: float = 0.75, min_size: int = 15) -> Pyramid:
+                      factor: float = LEVEL_FACTOR, min_size: int = MIN_SIZE) -> Pyramid:
     """Voxelise a mesh file at every level of its pyramid."""
     mesh = voxelize.load_mesh(path)
     corners = mesh.vertices[mesh.faces.reshape(-1)]
@@ -175,7 +170,7 @@ def pyramid_from_h5(path: Path, levels: int | None = None) -> Pyramid:
 
 
 def load_pyramid(path, res: int, levels: int | None = None,
-                 factor: float = 0.75, min_size: int = 15) -> Pyramid:
+                 factor: float = LEVEL_FACTOR, min_size: int = MIN_SIZE) -> Pyramid:
     """The pyramid of a mesh file (voxelised at `res`) or of an SSG .h5 file."""
     path = Path(path)
     if not path.is_file():
@@ -183,3 +178,19 @@ def load_pyramid(path, res: int, levels: int | None = None,
     if path.suffix.lower() in PYRAMID_SUFFIXES:
         return pyramid_from_h5(path, levels)
     return pyramid_from_mesh(path, res, levels, factor, min_size)
+
+
+def reference_grid(path, manifest, scale: float = 1.0) -> np.ndarray:
+    """The finest level of a model's training input, made with the model's
+    settings (res, level factor, minimum side from its manifest's config), so
+    that a model trained with non-default settings is scored against its own
+    grid. `manifest` is a runtime Manifest; `scale` voxelises a mesh that much
+    finer. Returns (X, Y, Z) bool.
+    """
+    path = Path(path)
+    config = manifest.raw.get("config", {})
+    if scale != 1 and path.suffix.lower() in PYRAMID_SUFFIXES:
+        raise InputError("scale needs a mesh reference: an .h5 pyramid has one resolution", "scale")
+    res = round(config.get("res", max(manifest.sizes[-1])) * scale)
+    return load_pyramid(path, res=res, levels=1, factor=config.get("level_factor", LEVEL_FACTOR),
+                        min_size=config.get("min_size", MIN_SIZE)).levels[-1]

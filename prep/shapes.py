@@ -17,7 +17,6 @@ units.
 numpy, scikit-image and trimesh only: no torch.
 """
 
-import os
 from pathlib import Path
 from typing import Callable
 
@@ -25,9 +24,8 @@ import numpy as np
 import trimesh
 from skimage import measure
 
+from sinshape.runtime import write
 from sinshape.runtime.errors import InputError
-
-WRITE_SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb")
 
 # Grid points farther than MARGIN voxels outside a primitive's bounding box
 # are left alone: its distance there exceeds MARGIN voxels, so it cannot
@@ -352,20 +350,11 @@ def make_shape(name: str, seed: int = 0, detail: int | None = None) -> trimesh.T
 
 
 def write_shape(name: str, path, seed: int = 0, detail: int | None = None) -> trimesh.Trimesh:
-    """Make a shape and write it to `path`, in the format its suffix names; returns the mesh.
-
-    Written to a temporary file beside `path` and renamed, so that `path`
-    never holds a half-written mesh.
-    """
+    """Make a shape and write it to `path`, in the format its suffix names
+    (atomically, as every sample is written); returns the mesh."""
     path = Path(path)
-    suffix = path.suffix.lower()
-    if suffix not in WRITE_SUFFIXES:
-        raise InputError(f"cannot write a mesh as {path.name!r}; use one of {', '.join(WRITE_SUFFIXES)}")
+    if path.suffix.lower() not in write.MESH_FORMATS:
+        raise InputError(f"cannot write a mesh as {path.name!r}; use one of {', '.join(write.MESH_FORMATS)}")
     mesh = make_shape(name, seed, detail)
-    tmp = path.with_name(path.name + ".tmp")
-    try:
-        mesh.export(tmp, file_type=suffix[1:])
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    write.write_mesh(mesh, path)
     return mesh

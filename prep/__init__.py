@@ -1,0 +1,16 @@
+"""sinshape data preparation: an example shape as voxel grids, no torch.
+
+    from sinshape.prep import pyramid
+
+    levels = pyramid.load_pyramid("mymesh.obj", res=64).levels  # (X, Y, Z) bool, coarsest first
+    truth = pyramid.reference_grid("mymesh.obj", model.manifest)  # what `sinrun eval` scores against
+
+Modules: voxelize (a mesh file -> a solid occupancy grid), pyramid (a mesh
+or an SSG .h5 file -> the levels a model is trained on, and the reference a
+model is scored against), shapes (procedural example meshes).
+
+Both the trainer and evaluation prepare their data here, so a model is
+scored against the grid it was trained on. It imports numpy, scipy, h5py,
+trimesh and scikit-image, and from the runtime only its errors and its
+writer; never torch, and nothing from sinshape.trainer, .cli or .serve.
+"""
