@@ -16,7 +16,9 @@ import argparse
 import json
 import subprocess
 import sys
+import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -143,10 +145,11 @@ def main():
         print(f"| {scale:g} | {ours['generate']:.2f} + {ours['mesh']:.2f} = {ours_s:.2f} | {ours['peak_mb']:.0f} | {cells} |",
               flush=True)
 
-    started = time.perf_counter()
-    sinrun = str(__import__("pathlib").Path(sys.executable).with_name("sinrun"))
-    subprocess.run([sinrun, "sample", args.model, "--seed", str(args.seed), "-o", "/tmp/sample_speed.ply"],
-                   check=True, capture_output=True)
+    sinrun = str(Path(sys.executable).with_name("sinrun"))
+    with tempfile.TemporaryDirectory() as folder:
+        started = time.perf_counter()
+        subprocess.run([sinrun, "sample", args.model, "--seed", str(args.seed), "-o", str(Path(folder) / "s.ply")],
+                       check=True, capture_output=True)
     print(f"\n`sinrun sample MODEL --seed {args.seed}` (scale 1) wall time, start-up included: "
           f"{time.perf_counter() - started:.2f} s")
     flops = run(GFLOPS, args.model, args.seed, args.threads)
