@@ -380,7 +380,8 @@ def info(model):
     loaded = open_model(model, threads=1)
     m = loaded.manifest.raw
     click.echo(f"{loaded.path}")
-    click.echo(f"  format      {m['format']} {m['format_version']}  ({m.get('created_by', '?')})")
+    click.echo(f"  format      {m['format']} {m['format_version']}  ({m.get('created_by', '?')})"
+               + ("" if "checksum" in m else f"\n  note        format {m['format_version']}: no checksum"))
     source = m.get("source", {})
     click.echo(f"  trained on  {source.get('name', '?')} ({source.get('kind', '?')}, sha256 {source.get('sha256', '?')[:12]}...)")
     training = m.get("training", {})
@@ -395,6 +396,16 @@ def info(model):
         took = f"{seconds[i]:.0f}" if i < len(seconds) else ""
         click.echo(f"    {i:<8}  {'x'.join(map(str, level['size'])):<12}  {level['noise_amp']:<16.4g}  {took}")
     click.echo("  config      " + json.dumps(m.get("config", {}), sort_keys=True))
+
+
+def file_sha256(path: Path) -> str:
+    import hashlib
+
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
 
 
 def read_mesh(path: Path):
@@ -532,8 +543,10 @@ def shape(name, output, seed, detail):
                    "querying the tri-planes at the finer scale.")
 @click.option("--json", "json_path", type=click.Path(path_type=Path), default=None,
               help="Also write the results, per sample too, as JSON.")
+@click.option("--force", is_flag=True,
+              help="Score against a reference that is not the model's training input without a warning.")
 @THREADS_OPTION
-def evaluate(model, reference, samples, first_seed, scale, upsample, json_path, threads):
+def evaluate(model, reference, samples, first_seed, scale, upsample, json_path, force, threads):
     """Score a model as the paper does: LP-IoU, LP-F-score and diversity.
 
     LP-IoU / LP-F: the fraction of 11^3 surface patches of each sample that
@@ -556,6 +569,11 @@ def evaluate(model, reference, samples, first_seed, scale, upsample, json_path, 
     if json_path:
         write.check_writable(json_path)
     truth = load_pyramid(reference, res=res, levels=1).levels[-1]
+    source = loaded.manifest.raw.get("source", {})
+    if not force and source.get("sha256") and file_sha256(reference) != source["sha256"]:
+        click.echo(f"Warning: {Path(reference).name} is not the file {loaded.path.name} was trained on "
+                   f"({source.get('name', '?')}, sha256 {source['sha256'][:12]}...): the scores compare "
+                   "with another shape (--force silences this)", err=True)
     started = time.perf_counter()
     with progress_bar(samples, "sampling") as bar:
         volumes = metrics.sample_volumes(loaded, range(first_seed, first_seed + samples), scale, upsample,
@@ -639,6 +657,8 @@ def export_web(model_names, output):
     seed gives the same shape as `sinrun sample`. Its README.txt says how to
     let WASM use several threads.
     """
+    import importlib.metadata
+
     from sinshape.serve import site
 
     result = site.export_site(model_names, output, importlib.metadata.version("sinshape"))
