@@ -38,6 +38,9 @@ class Sinrun(click.Group):
             return super().invoke(ctx)
         except InputError as error:
             raise click.ClickException(command_line_message(error)) from None
+        except KeyboardInterrupt:
+            click.echo("interrupted", err=True)
+            sys.exit(130)
 
 
 @click.group(cls=Sinrun, context_settings={"help_option_names": ["-h", "--help"]})
@@ -199,6 +202,8 @@ def parse_seeds(text: str) -> list:
     try:
         for part in text.split(","):
             low, _, high = part.strip().partition("-")
+            if high and int(high) < int(low):
+                raise click.BadParameter(f"{text!r}: {part.strip()} counts down; write {high}-{low}")
             seeds.extend(range(int(low), int(high or low) + 1))
     except ValueError:
         raise click.BadParameter(f"{text!r} is not a seed list like 3, 0-99 or 1,5,9-12") from None
@@ -233,7 +238,12 @@ def parse_fractions(text: str) -> tuple:
 def named_output(output: Path, **fields) -> Path:
     """Fill {seed}-style fields in an output name, or add them before the suffix."""
     if "{" in output.name:
+        import string
+
         try:
+            if any(name is not None and (name not in fields or spec or conversion)
+                   for _, name, spec, conversion in string.Formatter().parse(output.name)):
+                raise ValueError("a field other than a plain {name}")
             return output.with_name(output.name.format(**fields))
         except (KeyError, IndexError, ValueError):
             raise click.BadParameter(f"{output.name}: only {', '.join('{' + k + '}' for k in fields)} "
@@ -286,11 +296,16 @@ def write_sample(model, triplane, path: Path, scale, smooth, smoother, largest, 
     """Mesh or grid of one sample, by the output's extension."""
     from sinshape.runtime import mesh, query, write
 
+    if any(round(n * scale) < 2 for n in triplane.size):
+        click.echo(f"Warning: --scale {scale:g} leaves under 2 grid points on an axis; the grid is clamped "
+                   "to 2 and the shape barely resolved", err=True)
     if write.output_kind(path) == "grid":
         occupancy = query.dense(model, triplane, scale)
         write.write_grid(occupancy, path, size=triplane.size, scale=scale)
     else:
         result = mesh.extract(model, triplane, scale, smooth, smoother, largest, frame)
+        if not len(result.faces):
+            raise InputError(f"{path.name}: the sample has no surface at this --scale and --size; nothing written")
         write.write_mesh(result, path)
 
 
@@ -357,6 +372,8 @@ def interpolate(model, seeds, steps, alpha_range, scale, size, output, smooth, s
 
     if steps < 1:
         raise click.BadParameter("--steps must be at least 1")
+    if not all(np.isfinite(alpha_range)):
+        raise click.BadParameter(f"--range must be two finite numbers, got {alpha_range[0]} {alpha_range[1]}")
     factors = parse_size(size)
     loaded = open_model(model, threads)
     alphas = np.linspace(*alpha_range, steps) if steps > 1 else np.array([alpha_range[0]])
@@ -561,6 +578,8 @@ def evaluate(model, reference, samples, first_seed, scale, upsample, json_path, 
 
     if samples < 2:
         raise click.UsageError("--samples must be at least 2 (diversity compares samples)")
+    if not 0 < scale < float("inf"):
+        raise InputError(f"--scale must be a positive number, got {scale}")
     loaded = open_model(model, threads)
     config = loaded.manifest.raw.get("config", {})
     res = round(config.get("res", max(loaded.manifest.sizes[-1])) * scale)

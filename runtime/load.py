@@ -73,6 +73,8 @@ def default_threads() -> int:
 
 def read_model(path: Path) -> onnx.ModelProto:
     """Parse the file as ONNX, refusing what could reach beyond it."""
+    if path.is_dir():
+        raise InputError(f"{path}: a directory, not a model file")
     if not path.is_file():
         raise InputError(f"{path}: no such model file")
     size = path.stat().st_size
