@@ -296,7 +296,7 @@ def write_sample(model, triplane, path: Path, scale, smooth, smoother, largest, 
     """Mesh or grid of one sample, by the output's extension."""
     from sinshape.runtime import mesh, query, write
 
-    if any(round(n * scale) < 2 for n in triplane.size):
+    if 0 < scale and any(round(n * scale) < 2 for n in triplane.size):
         click.echo(f"Warning: --scale {scale:g} leaves under 2 grid points on an axis; the grid is clamped "
                    "to 2 and the shape barely resolved", err=True)
     if write.output_kind(path) == "grid":
