@@ -292,6 +292,15 @@ def open_model(model, threads):
     return load.load_model(models.find(model), threads=threads)
 
 
+def warn_if_clamped(model, factors) -> None:
+    """A warning when --size shrinks some level below the smallest grid it can have."""
+    from sinshape.runtime import generate
+
+    if any(round(n * f) < generate.MIN_SIDE for size in model.manifest.sizes for n, f in zip(size, factors)):
+        click.echo(f"Warning: --size {','.join(f'{f:g}' for f in factors)} shrinks some levels below "
+                   f"{generate.MIN_SIDE} voxels; they are clamped, so the shape is not to scale", err=True)
+
+
 def write_sample(model, triplane, path: Path, scale, smooth, smoother, largest, frame):
     """Mesh or grid of one sample, by the output's extension."""
     from sinshape.runtime import mesh, query, write
@@ -340,6 +349,7 @@ def sample(model, seed, seeds, recon, scale, size, output, smooth, smoother, lar
     paths = [named_output(output, seed=s) if seeds or "{" in output.name else output for s in chosen]
     write.output_kind(paths[0])
     write.check_writable(paths[0])
+    warn_if_clamped(loaded, factors)
     with progress_bar(len(chosen), "sampling") as bar:
         for s, path in zip(chosen, paths):
             triplane = generate.sample(loaded, s, factors)
@@ -380,6 +390,7 @@ def interpolate(model, seeds, steps, alpha_range, scale, size, output, smooth, s
     paths = [named_output(output, step=f"{k:02d}", alpha=f"{a:+.2f}") for k, a in enumerate(alphas)]
     write.output_kind(paths[0])
     write.check_writable(paths[0])
+    warn_if_clamped(loaded, factors)
     with progress_bar(len(paths), "interpolating") as bar:
         for alpha, path in zip(alphas, paths):
             triplane = generate.interpolate(loaded, seeds[0], seeds[1], float(alpha), factors)

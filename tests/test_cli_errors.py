@@ -57,8 +57,14 @@ def test_an_empty_sample_is_refused_not_written(tiny_model, tmp_path, monkeypatc
     # As --size 0.01 gave with tests/data/tiny.onnx: a 2x2x2 grid, all inside or all outside.
     monkeypatch.setattr(mesh, "extract", lambda *args, **kwargs: trimesh.Trimesh())
     out = tmp_path / "s.ply"
-    assert_one_line_error(sinrun("sample", tiny_model, "-o", out, "--size", "0.01"), "no surface", "nothing written")
+    assert_one_line_error(sinrun("sample", tiny_model, "-o", out, "--size", "0.5"), "no surface", "nothing written")
     assert not out.exists()
+
+
+def test_clamped_levels_warn(tiny_model, tmp_path):
+    result = sinrun("sample", tiny_model, "-o", tmp_path / "s.npz", "--size", "0.05")
+    assert result.exit_code == 0 and "Warning: --size 0.05,0.05,0.05 shrinks some levels below 2" in result.output
+    assert "Warning" not in sinrun("sample", tiny_model, "-o", tmp_path / "t.npz", "--size", "0.5").output
 
 
 def test_a_clamped_grid_is_written_with_a_warning(tiny_model, tmp_path):
