@@ -519,6 +519,8 @@ def render(inputs, output, seeds, recon, scale, size, smooth, views, up, columns
         for seed in chosen:
             triplane = generate.sample(model, seed, factors if seed is not None else (1, 1, 1))
             shapes.append(mesh.extract(model, triplane, scale, smooth=smooth))
+            if not len(shapes[-1].faces):
+                raise InputError(f"{item}: seed {seed} has no surface at this --scale and --size; nothing drawn")
             label = "reconstruction" if seed is None else f"seed {seed}"
             if seed is not None and factors != (1, 1, 1):
                 label += ", size " + "x".join(f"{f:g}" for f in factors)

@@ -93,3 +93,14 @@ def test_the_library_names_alpha(tiny_model):
     with pytest.raises(InputError, match="alpha must be a finite number") as error:
         generate.interpolate(load_model(tiny_model, threads=1), 0, 1, float("nan"))
     assert error.value.parameter == "alpha"
+
+
+def test_render_refuses_an_empty_sample(tiny_model, tmp_path, monkeypatch):
+    import trimesh
+
+    from sinshape.runtime import mesh
+
+    monkeypatch.setattr(mesh, "extract", lambda *args, **kwargs: trimesh.Trimesh())
+    out = tmp_path / "r.png"
+    assert_one_line_error(sinrun("render", tiny_model, "-o", out), "no surface", "nothing drawn")
+    assert not out.exists()
