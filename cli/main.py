@@ -39,6 +39,9 @@ class Sinrun(click.Group):
             return super().invoke(ctx)
         except InputError as error:
             raise click.ClickException(command_line_message(error)) from None
+        except KeyboardInterrupt:
+            click.echo("interrupted", err=True)
+            sys.exit(130)
 
 
 @click.group(cls=Sinrun, context_settings={"help_option_names": ["-h", "--help"]})
@@ -247,6 +250,8 @@ class Seeds(click.ParamType):
             ranges = []
             for part in value.split(","):
                 low, _, high = part.strip().partition("-")
+                if high and int(high) < int(low):
+                    self.fail(f"{value!r}: {part.strip()} counts down; write {high}-{low}", param, ctx)
                 ranges.append(range(int(low), int(high or low) + 1))
         except ValueError:
             self.fail(f"{value!r} is not a seed list like 3, 0-99 or 1,5,9-12", param, ctx)
@@ -292,7 +297,12 @@ SEEDS, SIZE, FRACTIONS = Seeds(), PerAxis("size", parse_size), PerAxis("fraction
 def named_output(output: Path, **fields) -> Path:
     """Fill {seed}-style fields in an output name, or add them before the suffix."""
     if "{" in output.name:
+        import string
+
         try:
+            if any(name is not None and (name not in fields or spec or conversion)
+                   for _, name, spec, conversion in string.Formatter().parse(output.name)):
+                raise ValueError("a field other than a plain {name}")
             return output.with_name(output.name.format(**fields))
         except (KeyError, IndexError, ValueError):
             raise click.BadParameter(f"{output.name}: only {', '.join('{' + k + '}' for k in fields)} "
@@ -375,6 +385,7 @@ def sample(model, seed, seeds, recon, scale, size, output, smooth, smoother, lar
     first = path_of(seeds.first if seeds else chosen[0])
     write.output_kind(first)
     write.check_writable(first)
+    warn_if_clamped(loaded, size, scale)
     outputs = ((path_of(s), generate.sample(loaded, s, size)) for s in chosen)
     with progress_bar(len(chosen), "sampling") as bar:
         write.write_samples(loaded, outputs, progress=lambda: bar.update(1), scale=scale, smooth=smooth,
@@ -406,7 +417,10 @@ def interpolate(model, seeds, steps, alpha_range, scale, size, output, smooth, s
 
     if steps < 1:
         raise click.BadParameter("--steps must be at least 1")
+    if not all(np.isfinite(alpha_range)):
+        raise click.BadParameter(f"--range must be two finite numbers, got {alpha_range[0]} {alpha_range[1]}")
     loaded = open_model(model, threads)
+    warn_if_clamped(loaded, size, scale)
     alphas = np.linspace(*alpha_range, steps) if steps > 1 else np.array([alpha_range[0]])
     paths = [named_output(output, step=f"{k:02d}", alpha=f"{a:+.2f}") for k, a in enumerate(alphas)]
     write.output_kind(paths[0])
@@ -418,6 +432,20 @@ def interpolate(model, seeds, steps, alpha_range, scale, size, output, smooth, s
     click.echo(f"wrote {len(paths)} files: {paths[0]} .. {paths[-1]}")
 
 
+def warn_if_clamped(model, factors, scale) -> None:
+    """Warnings when --size shrinks some level, or --scale the final grid,
+    below the smallest grid it can have: the shape is then not to scale."""
+    from sinshape.runtime import generate
+
+    if any(round(n * f) < generate.MIN_SIDE for size in model.manifest.sizes for n, f in zip(size, factors)):
+        click.echo(f"Warning: --size {','.join(f'{f:g}' for f in factors)} shrinks some levels below "
+                   f"{generate.MIN_SIDE} voxels; they are clamped, so the shape is not to scale", err=True)
+    final = [max(generate.MIN_SIDE, round(n * f)) for n, f in zip(model.manifest.sizes[-1], factors)]
+    if 0 < scale and any(round(n * scale) < 2 for n in final):
+        click.echo(f"Warning: --scale {scale:g} leaves under 2 grid points on an axis; the grid is clamped "
+                   "to 2 and the shape barely resolved", err=True)
+
+
 @cli.command()
 @MODEL_ARGUMENT
 def info(model):
@@ -427,7 +455,8 @@ def info(model):
     loaded = open_model(model, threads=1)
     m = loaded.manifest.raw
     click.echo(f"{loaded.path}")
-    click.echo(f"  format      {m['format']} {m['format_version']}  ({m.get('created_by', '?')})")
+    click.echo(f"  format      {m['format']} {m['format_version']}  ({m.get('created_by', '?')})"
+               + ("" if "checksum" in m else f"\n  note        format {m['format_version']}: no checksum"))
     source = m.get("source", {})
     click.echo(f"  trained on  {source.get('name', '?')} ({source.get('kind', '?')}, sha256 {source.get('sha256', '?')[:12]}...)")
     training = m.get("training", {})
@@ -499,6 +528,8 @@ def render(inputs, output, seeds, recon, scale, size, smooth, views, up, columns
         for seed in chosen:
             triplane = generate.sample(model, seed, size if seed is not None else (1, 1, 1))
             shapes.append(mesh.extract(model, triplane, scale, smooth=smooth))
+            if not len(shapes[-1].faces):
+                raise InputError(f"{item}: seed {seed} has no surface at this --scale and --size; nothing drawn")
             labels.append(draw.sample_label(seed, size, scale))
     shapes = [draw.crop(shape, zoom, focus) for shape in shapes]
     options = dict(up=up, size=(image_size, image_size))
@@ -548,8 +579,10 @@ def shape(name, output, seed, detail):
                    "querying the tri-planes at the finer scale.")
 @click.option("--json", "json_path", type=click.Path(path_type=Path), default=None,
               help="Also write the results, per sample too, as JSON.")
+@click.option("--force", is_flag=True,
+              help="Score against a reference that is not the model's training input without a warning.")
 @THREADS_OPTION
-def evaluate(model, reference, samples, first_seed, scale, upsample, json_path, threads):
+def evaluate(model, reference, samples, first_seed, scale, upsample, json_path, force, threads):
     """Score a model as the paper does: LP-IoU, LP-F-score and diversity.
 
     LP-IoU / LP-F: the fraction of 11^3 surface patches of each sample that
@@ -558,14 +591,23 @@ def evaluate(model, reference, samples, first_seed, scale, upsample, json_path, 
     """
     import json
 
+    from sinshape.prep.pyramid import file_sha256
     from sinshape.runtime import write
     from sinshape.runtime.evaluate import evaluate_model
 
     if samples < 2:
         raise click.UsageError("--samples must be at least 2 (diversity compares samples)")
+    if not 0 < scale < float("inf"):
+        raise InputError(f"--scale must be a positive number, got {scale}")
     loaded = open_model(model, threads)
     if json_path:
         write.check_writable(json_path)
+    source = loaded.manifest.raw.get("source", {})
+    if (not force and source.get("sha256") and Path(reference).is_file()
+            and file_sha256(Path(reference)) != source["sha256"]):
+        click.echo(f"Warning: {Path(reference).name} is not the file {loaded.path.name} was trained on "
+                   f"({source.get('name', '?')}, sha256 {source['sha256'][:12]}...): the scores compare "
+                   "with another shape (--force silences this)", err=True)
     with progress_bar(samples, "sampling") as bar:
         results = evaluate_model(loaded, reference, samples, first_seed, scale, upsample,
                                  progress=lambda: bar.update(1))
@@ -638,6 +680,8 @@ def export_web(model_names, output):
     seed gives the same shape as `sinrun sample`. Its README.txt says how to
     let WASM use several threads.
     """
+    import importlib.metadata
+
     from sinshape.serve import site
 
     result = site.export_site(model_names, output, __version__)

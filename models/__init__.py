@@ -24,6 +24,8 @@ def find(name_or_path: str | None) -> Path:
             raise InputError("no model given and no default model is installed; name a .onnx file")
         return shipped[DEFAULT]
     path = Path(name_or_path)
+    if path.is_dir():
+        raise InputError(f"{path}: a directory, not a model file")
     if path.is_file() or path.suffix.lower() == ".onnx":
         return path  # load() reports a missing file
     if name_or_path in shipped:

@@ -222,6 +222,8 @@ def interpolate(model, seed_a: int, seed_b: int, alpha: float, factors=(1.0, 1.0
     alpha outside [0, 1] extrapolates (the paper shows -0.5 .. 1.5);
     memory_limit as for `sample`.
     """
+    if not np.isfinite(alpha):
+        raise InputError(f"alpha must be a finite number, got {alpha}", "alpha")
     sizes = scaled_sizes(model.manifest.sizes, factors)
     check_generation_memory(sizes, model.manifest.channels, factors, memory_limit)
     a = draw_noise(check_seed(seed_a), sizes, model.manifest.channels)

@@ -3,8 +3,9 @@
 A model file is untrusted input. It is refused, with one line saying why,
 unless it is a plain ONNX file of bounded size, with no external-data
 references (nothing that reads other files), only the few standard ops the
-stages use, a manifest of a supported format version, and stages that run
-and give the shapes the manifest implies.
+stages use, a manifest of a supported format version whose every field has
+a sane type and range, a checksum that matches (format 2), and stages that
+run and give finite values of the shapes the manifest implies.
 """
 
 import os
@@ -72,6 +73,8 @@ def default_threads() -> int:
 
 def read_model(path: Path) -> onnx.ModelProto:
     """Parse the file as ONNX, refusing what could reach beyond it."""
+    if path.is_dir():
+        raise InputError(f"{path}: a directory, not a model file")
     if not path.is_file():
         raise InputError(f"{path}: no such model file")
     size = path.stat().st_size
@@ -101,9 +104,14 @@ def read_manifest(model: onnx.ModelProto, path: Path) -> fmt.Manifest:
     if fmt.METADATA_KEY not in props:
         raise InputError(f"{path}: an ONNX model, but not a sinshape model (no {fmt.METADATA_KEY} metadata)")
     try:
-        return fmt.parse(props[fmt.METADATA_KEY])
+        manifest = fmt.parse(props[fmt.METADATA_KEY])
     except InputError as error:
         raise InputError(f"{path}: {error}") from None
+    if "checksum" in manifest.raw:
+        weights = [(t.name, onnx.numpy_helper.to_array(t)) for t in model.graph.initializer]
+        if fmt.checksum(manifest.raw, weights) != manifest.raw["checksum"]:
+            raise InputError(f"{path}: corrupt model: the checksum of its weights and manifest does not match")
+    return manifest
 
 
 def stage_model(model: onnx.ModelProto, inputs: list, outputs: list, path: Path) -> bytes:
@@ -186,14 +194,18 @@ def check_stages(model: Model) -> None:
         except Exception as error:  # onnxruntime's own exception types
             raise InputError(f"{model.path}: stage {stage.inputs[0].split('.')[0]} does not run "
                              f"({str(error).splitlines()[0][:200]})") from None
+        name = stage.inputs[0].split(".")[0]
         if any(o.shape != shape for o in outputs):
-            raise InputError(f"{model.path}: stage {stage.inputs[0].split('.')[0]} gives shape "
-                             f"{outputs[0].shape}, expected {shape}")
+            raise InputError(f"{model.path}: stage {name} gives shape {outputs[0].shape}, expected {shape}")
+        if not all(np.isfinite(o).all() for o in outputs):
+            raise InputError(f"{model.path}: stage {name} gives NaN or infinite values (bad weights)")
     # The numpy head must be the graph's head.
     from .query import head_occupancy
 
     hidden = np.random.default_rng(0).normal(size=(3, 64, 1, 1, h)).astype(np.float32)
     (graph,) = model.decoder_head.run(list(hidden))
+    if not np.isfinite(graph).all():
+        raise InputError(f"{model.path}: stage decoder_head gives NaN or infinite values (bad weights)")
     if np.abs(graph[..., 0] - head_occupancy(model.head, hidden.sum(axis=0))).max() > 1e-5:
         raise InputError(f"{model.path}: the decoder head graph does not match its weights")
 

@@ -6,14 +6,16 @@ made. The trainer writes it with `stage_names` and checks it with `parse`;
 the runtime reads it with `parse`. This module is the contract in code.
 """
 
+import hashlib
 import json
 import math
+import re
 from dataclasses import dataclass
 
 from .errors import InputError
 
 FORMAT_NAME = "sinshape"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 2 adds `checksum`; version-1 files still load, unchecked
 METADATA_KEY = "sinshape.manifest"  # key of the manifest in the ONNX metadata_props
 NOISE_SCHEME = "splitmix64-boxmuller-v1"  # runtime/noise.py
 PLANES = ("xy", "xz", "yz")  # plane k drops grid axis 2 - k
@@ -22,6 +24,11 @@ PLANE_AXES = ((0, 1), (0, 2), (1, 2))  # the grid axes each plane keeps, in PLAN
 HEAD_WEIGHTS = ("decoder_head.bias1", "decoder_head.weight2", "decoder_head.bias2")
 MAX_LEVELS = 64
 MAX_SIDE = 4096  # a level's side in voxels; far above anything trainable
+MAX_MANIFEST_CHARS = 1 << 20  # a real manifest is a few kB
+MAX_DEPTH = 16  # JSON nesting; a real manifest nests 5 deep
+MAX_NOISE_AMP = 100.0  # sigma_i; trained amplitudes are below 1
+MAX_COORD = 1e12  # |origin| and spacing: any more and the mesh's coordinates overflow float32
+CHECKSUM_RE = re.compile(r"sha256:[0-9a-f]{64}")
 
 
 def plane_sizes(size) -> list:
@@ -69,15 +76,60 @@ def _is_int(value, low, high) -> bool:
 
 
 def _is_number(value) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    if isinstance(value, int) and not isinstance(value, bool):
+        return abs(value) <= 2**63  # math.isfinite of a huge int overflows
+    return isinstance(value, float) and math.isfinite(value)
+
+
+def _depth(text: str) -> int:
+    """The deepest nesting of brackets outside strings, found without parsing
+    (json.loads of a deep nesting raises RecursionError)."""
+    depth = deepest = 0
+    for token in re.finditer(r'"(?:[^"\\]|\\.)*"|[\[{]|[\]}]', text):
+        t = token.group()
+        if t in "[{":
+            depth += 1
+            deepest = max(deepest, depth)
+        elif t in "]}":
+            depth -= 1
+    return deepest
+
+
+def _plain(value, types) -> bool:
+    """`value` is a dict of str -> values of `types`, or lists of them."""
+    def ok(v):
+        if isinstance(v, list):
+            return all(ok(x) for x in v)
+        return v is None or (isinstance(v, types) and (not isinstance(v, float) or math.isfinite(v)))
+
+    return isinstance(value, dict) and all(isinstance(k, str) and ok(v) for k, v in value.items())
+
+
+def checksum(raw: dict, weights) -> str:
+    """`sha256:` + hex digest over the manifest without `checksum` (canonical
+    JSON: sorted keys, no spaces, ASCII) and then, for every initializer in
+    order of name, its name, a zero byte and its float32 little-endian values
+    (docs/FORMAT.md, "Checksum"). `weights`: (name, float32 array) pairs."""
+    digest = hashlib.sha256()
+    body = {k: v for k, v in raw.items() if k != "checksum"}
+    digest.update(json.dumps(body, sort_keys=True, separators=(",", ":")).encode())
+    for name, array in sorted(weights, key=lambda pair: pair[0]):
+        digest.update(name.encode() + b"\0")
+        digest.update(array.astype("<f4").tobytes())
+    return "sha256:" + digest.hexdigest()
 
 
 def parse(text: str) -> Manifest:
-    """Check a manifest's JSON text; raise InputError naming what is wrong."""
+    """Check a manifest's JSON text, every field's type and range; raise
+    InputError naming what is wrong."""
+    _require(isinstance(text, str) and len(text) <= MAX_MANIFEST_CHARS, f"not JSON text of at most {MAX_MANIFEST_CHARS} characters")
+    _require(_depth(text) <= MAX_DEPTH, f"JSON nested deeper than {MAX_DEPTH}")
     try:
         raw = json.loads(text)
     except (json.JSONDecodeError, TypeError):
         raise InputError("bad model manifest: not valid JSON") from None
+    except (ValueError, RecursionError):  # an integer of thousands of digits (Python 3.11+)
+        raise InputError("bad model manifest: a number too large to read") from None
     _require(isinstance(raw, dict), "not a JSON object")
     _require(raw.get("format") == FORMAT_NAME, f"format is {raw.get('format')!r}, not {FORMAT_NAME!r}")
     version = raw.get("format_version")
@@ -86,7 +138,10 @@ def parse(text: str) -> Manifest:
         raise InputError(
             f"model format version {version} is newer than this sinshape reads ({FORMAT_VERSION}); upgrade sinshape"
         )
-    _require(list(raw.get("planes", [])) == list(PLANES), f"planes must be {list(PLANES)}")
+    if version >= 2:
+        _require(isinstance(raw.get("checksum"), str) and CHECKSUM_RE.fullmatch(raw["checksum"]) is not None,
+                 "checksum must be 'sha256:' and 64 hex digits")
+    _require(raw.get("planes") == list(PLANES), f"planes must be {list(PLANES)}")
     _require(raw.get("noise") == NOISE_SCHEME, f"noise scheme {raw.get('noise')!r} is not {NOISE_SCHEME!r}")
     for key in ("channels", "pool_bins", "mlp_hidden"):
         _require(_is_int(raw.get(key), 1, 1024), f"{key} must be an integer in [1, 1024]")
@@ -101,16 +156,30 @@ def parse(text: str) -> Manifest:
         _require(isinstance(size, list) and len(size) == 3 and all(_is_int(n, 2, MAX_SIDE) for n in size),
                  f"level {i} size must be 3 integers in [2, {MAX_SIDE}]")
         amp = level.get("noise_amp")
-        _require(_is_number(amp) and amp >= 0, f"level {i} noise_amp must be a non-negative number")
+        _require(_is_number(amp) and 0 <= amp <= MAX_NOISE_AMP, f"level {i} noise_amp must be a number in [0, {MAX_NOISE_AMP:g}]")
         sizes.append(tuple(size))
         amps.append(float(amp))
 
     frame = raw.get("frame")
     _require(isinstance(frame, dict), "frame is missing")
     origin, spacing = frame.get("origin"), frame.get("spacing")
-    _require(isinstance(origin, list) and len(origin) == 3 and all(map(_is_number, origin)), "frame origin must be 3 numbers")
-    _require(isinstance(spacing, list) and len(spacing) == 3 and all(_is_number(s) and s > 0 for s in spacing),
-             "frame spacing must be 3 positive numbers")
+    _require(isinstance(origin, list) and len(origin) == 3 and all(_is_number(v) and abs(v) <= MAX_COORD for v in origin),
+             f"frame origin must be 3 numbers within +-{MAX_COORD:g}")
+    _require(isinstance(spacing, list) and len(spacing) == 3
+             and all(_is_number(s) and 0 < s and s * MAX_SIDE <= MAX_COORD for s in spacing),
+             f"frame spacing must be 3 positive numbers, at most {MAX_COORD / MAX_SIDE:g}")
+    _require(raw.get("created_by") is None or isinstance(raw["created_by"], str), "created_by must be a string")
+    source = raw.get("source", {})
+    _require(isinstance(source, dict) and all(isinstance(source.get(k, ""), str) for k in ("name", "sha256", "kind")),
+             "source must be an object of strings name, sha256, kind")
+    for key, types in (("config", (str, int, float, bool)), ("training", (str, int, float))):
+        _require(_plain(raw.get(key, {}), types), f"{key} must be an object of plain values")
+    res = raw.get("config", {}).get("res", 2)
+    _require(_is_int(res, 1, MAX_SIDE), f"config res must be an integer in [1, {MAX_SIDE}]")
+    training = raw.get("training", {})
+    _require(_is_number(training.get("seconds", 0))
+             and all(_is_number(s) for s in (training.get("level_seconds") or [])),
+             "training seconds must be numbers")
 
     stages = raw.get("stages")
     _require(stages == stage_names(len(levels)), "stages do not name the standard tensors for this level count")

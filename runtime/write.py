@@ -115,8 +115,11 @@ def write_sample(model, triplane, path, scale: float = 1.0, smooth: int = 0, smo
 
     if output_kind(path) == "grid":
         write_grid(query.dense(model, triplane, scale), path, size=triplane.size, scale=scale)
-    else:
-        write_mesh(mesh.extract(model, triplane, scale, smooth, smoother, largest, frame), path)
+        return
+    result = mesh.extract(model, triplane, scale, smooth, smoother, largest, frame)
+    if not len(result.faces):
+        raise InputError(f"{Path(path).name}: the sample has no surface at this scale and size; nothing written")
+    write_mesh(result, path)
 
 
 def write_samples(model, outputs, progress=None, **options) -> None:

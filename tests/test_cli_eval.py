@@ -52,3 +52,20 @@ def test_eval_reports_what_evaluate_model_returns(tiny_model, tiny_pyramid, tmp_
     cli = json.loads(out.read_text())
     timings = ("seconds_sampling", "seconds_scoring")
     assert {k: v for k, v in cli.items() if k not in timings} == {k: v for k, v in ours.items() if k not in timings}
+
+
+def test_eval_warns_when_the_reference_is_not_the_training_input(tiny_model, tmp_path):
+    from conftest import write_pyramid
+
+    other = write_pyramid(tmp_path / "other.h5", [(20, 18, 14), (20, 18, 15)])
+    result = sinrun("eval", tiny_model, "--reference", other, "-n", 2)
+    assert result.exit_code == 0, result.output
+    assert "Warning: other.h5 is not the file" in result.output and "--force" in result.output
+    assert "terrain.h5" in result.output  # the recorded source is named
+    forced = sinrun("eval", tiny_model, "--reference", other, "-n", 2, "--force")
+    assert forced.exit_code == 0 and "Warning" not in forced.output
+
+
+def test_eval_is_silent_about_its_own_training_input(tiny_model, tiny_pyramid):
+    result = sinrun("eval", tiny_model, "--reference", tiny_pyramid, "-n", 2)
+    assert result.exit_code == 0 and "Warning" not in result.output

@@ -206,7 +206,7 @@ def altered_terrain(path: Path, change) -> Path:
 def newer_version(proto):
     for prop in proto.metadata_props:
         if prop.key == "sinshape.manifest":
-            prop.value = json.dumps({**json.loads(prop.value), "format_version": 2})
+            prop.value = json.dumps({**json.loads(prop.value), "format_version": 99})
 
 
 def external_data(proto):

@@ -130,13 +130,17 @@ def build_model(generator, manifest: dict) -> onnx.ModelProto:
         producer_name="sinshape",
         producer_version=importlib.metadata.version("sinshape"),
     )
-    helper.set_model_props(model, {fmt.METADATA_KEY: json.dumps(manifest, indent=1)})
+    weights = [(t.name, numpy_helper.to_array(t)) for t in graph.initializer]
+    manifest["checksum"] = fmt.checksum(manifest, weights)  # format 2: over the weights and the rest
+    text = json.dumps(manifest, indent=1)
+    fmt.parse(text)  # the trainer never writes what the runtime would refuse
+    helper.set_model_props(model, {fmt.METADATA_KEY: text})
     onnx.checker.check_model(model, full_check=True)
     return model
 
 
 def make_manifest(generator, *, sizes, noise_amps, config, pyramid, seconds, ran_on: dict) -> dict:
-    """The manifest dict (runtime/manifest.py checks it before it is written)."""
+    """The manifest dict, less its checksum (build_model adds it and checks the whole)."""
     manifest = {
         "format": fmt.FORMAT_NAME,
         "format_version": fmt.FORMAT_VERSION,
@@ -159,7 +163,6 @@ def make_manifest(generator, *, sizes, noise_amps, config, pyramid, seconds, ran
             **ran_on,
         },
     }
-    fmt.parse(json.dumps(manifest))  # the trainer never writes what the runtime would refuse
     return manifest
 
 

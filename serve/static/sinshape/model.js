@@ -5,7 +5,7 @@ import * as ort from '../vendor/onnxruntime-web/ort.min.mjs';
 import { FormatError, readModel, stageModel, tensorFloats } from './onnx.js';
 
 export const FORMAT_NAME = 'sinshape';
-export const FORMAT_VERSION = 1;
+export const FORMAT_VERSION = 2;  // 2 adds a checksum, not verified in the browser (docs/RELIABILITY.md)
 export const METADATA_KEY = 'sinshape.manifest';
 export const NOISE_SCHEME = 'splitmix64-boxmuller-v1';
 export const PLANES = ['xy', 'xz', 'yz'];
