@@ -76,6 +76,13 @@ def test_budget_plans_equal_iterations_and_corrects_for_drift(monkeypatch):
     assert budget.level_end(trainer) == pytest.approx(now[0] + 20)
     trainer.iteration = 4
     assert budget.level_end(trainer) == pytest.approx(now[0] + 12)
+    # The last level runs to the deadline, while one more iteration fits.
+    trainer.level, trainer.iteration, trainer.level_seconds = 2, 10, 20.0
+    assert budget.level_end(trainer) == pytest.approx(1100.0)
+    now[0] = 1098.5  # at 2 s per iteration, one more would end at 1100.5
+    assert budget.room_for_another(trainer) is False
+    now[0] = 1090.0
+    assert budget.room_for_another(trainer) is True
     with pytest.raises(train.InputError, match="give more --minutes"):
         train.Budget(1, now[0], costs).iterations(FakeTrainer(3))
 

@@ -387,11 +387,11 @@ def train(input_path, output_path, config: TrainConfig | None, *, resume: bool =
             log(f"level {level + 1}/{len(trainer.sizes)}: grid {trainer.sizes[level]}, "
                 f"noise amplitude {trainer.noise_amps[level]:.4g}, {iters} iterations")
             recon_inputs = trainer.recon_inputs()
-            while trainer.iteration < iters:
+            last = level == len(trainer.sizes) - 1
+            while trainer.iteration < iters or (budget and last and budget.room_for_another(trainer)):
                 started = time.monotonic()
                 if trainer.iteration and started > stop_at:  # slower than planned: keep to the budget
                     log(f"level {level + 1} used its share of the budget after {trainer.iteration} iterations")
-                    trainer.plan[level] = iters = trainer.iteration
                     break
                 losses = trainer.iterate(recon_inputs)
                 bad = [k for k, v in losses.items() if not math.isfinite(v) or abs(v) > LOSS_LIMIT]
@@ -404,11 +404,12 @@ def train(input_path, output_path, config: TrainConfig | None, *, resume: bool =
                 trainer.iteration += 1
                 trainer.level_seconds += time.monotonic() - started
                 if progress:
-                    progress(Progress(level, len(trainer.sizes), trainer.iteration, iters,
+                    progress(Progress(level, len(trainer.sizes), trainer.iteration, max(iters, trainer.iteration),
                                       trainer.sizes[level], losses))
                 if time.monotonic() - last_save > checkpoint_every:
                     atomic_save(trainer.state(), checkpoint_path)
                     last_save = time.monotonic()
+            trainer.plan[level] = trainer.iteration  # a budget may have cut or extended the level
             trainer.seconds.append(trainer.level_seconds)
             trainer.level, trainer.iteration, trainer.level_seconds = level + 1, 0, 0.0
             trainer.opt_g = trainer.opt_d = None
@@ -485,8 +486,17 @@ class Budget:
         """When the level `trainer` is at should end: its share of the time left.
         A level still running then stops early, and later levels re-plan, so
         a machine that slows down mid-level does not overrun the budget."""
+        if trainer.level == len(self.costs) - 1:  # the last level has what is left
+            return self.deadline - self.RESERVE
         iterations_left = trainer.plan[trainer.level] - trainer.iteration
         return time.monotonic() + iterations_left * self.drift * self.costs[trainer.level]
+
+    def room_for_another(self, trainer) -> bool:
+        """Whether one more iteration of the last level, at its own pace so
+        far, still ends before the deadline: the last level uses what the
+        others left, instead of ending early on a pessimistic plan."""
+        pace = trainer.level_seconds / max(trainer.iteration, 1)
+        return time.monotonic() + pace < self.deadline - self.RESERVE
 
     def describe(self, trainer) -> str:
         left = self.deadline - time.monotonic() - self.RESERVE
