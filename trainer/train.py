@@ -499,8 +499,8 @@ class Budget:
         return time.monotonic() + pace < self.deadline - self.RESERVE
 
     def describe(self, trainer) -> str:
+        count = self.iterations(trainer)  # refuses a budget too small for one iteration per level
         left = self.deadline - time.monotonic() - self.RESERVE
-        count = math.floor(left / sum(self.costs[trainer.level:]))
         costs = ", ".join(f"{c:.2f}" for c in self.costs)
         return (f"plan: {count} iterations per level for levels {trainer.level + 1}-{len(self.costs)} in "
                 f"{left / 60:.1f} min; measured s/iteration per level: {costs}")
