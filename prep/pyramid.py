@@ -2,8 +2,9 @@
 
 Sizes follow SSG: the finest grid has `res` voxels along its longest side and
 fits the shape's bounding box; each coarser size is ceil(LEVEL_FACTOR * finer)
-per axis; an axis shorter than MIN_SIZE voxels is stretched to MIN_SIZE. Every level is
-voxelised from the mesh on its own, not downsampled from the finest one.
+per axis; an axis shorter than MIN_SIZE voxels is raised to MIN_SIZE (thinner
+voxels). Every level is voxelised from the mesh on its own, over the same box,
+not downsampled from the finest one.
 An SSG HDF5 pyramid (attribute `n_scales`, datasets `scale0` (coarsest) ..
 `scale{n-1}`) is read as it is.
 
@@ -20,7 +21,6 @@ import numpy as np
 from scipy import ndimage
 
 from sinshape.runtime.errors import InputError
-from sinshape.runtime.generate import resize_volume
 
 from . import voxelize
 
@@ -59,12 +59,9 @@ def level_count(longest: int, factor: float = LEVEL_FACTOR) -> int:
     return count
 
 
-def level_sizes(finest: tuple, count: int, factor: float = LEVEL_FACTOR, min_size: int = MIN_SIZE) -> tuple:
-    """Grid sizes per level, coarsest first: (voxelised sizes, stretched sizes).
-
-    The voxelised size is the ceil(factor * finer) chain; the stretched size
-    raises every axis to at least `min_size`.
-    """
+def level_sizes(finest: tuple, count: int, factor: float = LEVEL_FACTOR, min_size: int = MIN_SIZE) -> list:
+    """Grid sizes per level, coarsest first: the ceil(factor * finer) chain
+    per axis, every axis raised to at least `min_size`."""
     chain = [tuple(int(n) for n in finest)]
     for _ in range(count - 1):
         chain.append(tuple(math.ceil(n * factor) for n in chain[-1]))
@@ -74,14 +71,7 @@ def level_sizes(finest: tuple, count: int, factor: float = LEVEL_FACTOR, min_siz
             f"{count} levels shrink the coarsest level's longest side to {max(chain[0])} voxels, "
             f"below the {min_size}-voxel minimum; use fewer levels or a higher res", "res"
         )
-    return chain, [tuple(max(n, min_size) for n in size) for size in chain]
-
-
-def stretch(volume: np.ndarray, shape: tuple) -> np.ndarray:
-    """Raise short axes to `shape`: trilinear resize, then threshold at 0.5."""
-    if volume.shape == tuple(shape):
-        return volume
-    return resize_volume(volume, shape) > 0.5
+    return [tuple(max(n, min_size) for n in size) for size in chain]
 
 
 def training_targets(pyramid: Pyramid, sigma: float = 0.5) -> list:
@@ -108,25 +98,25 @@ def pyramid_from_mesh(path: Path, res: int, levels: int | None = None,
     corners = mesh.vertices[mesh.faces.reshape(-1)]
     low, high = corners.min(axis=0), corners.max(axis=0)
     extent = high - low
-    voxel = extent.max() / res  # cubic voxels at the finest level
+    voxel = extent.max() / res  # cubic voxels at the finest level, before raising short axes
     finest = tuple(max(1, math.ceil(e / voxel - 1e-6)) for e in extent)
     # The finest grid box is centred on the mesh's bounding box; every level
-    # spans the same box with its own (slightly anisotropic) voxels.
+    # spans the same box with its own (slightly anisotropic) voxels. A short
+    # axis raised to min_size voxels is voxelised at that size (thinner
+    # voxels), and the frame records the voxels as they are.
     box = np.array(finest) * voxel
     box_low = (low + high) / 2 - box / 2
     count = levels if levels is not None else level_count(max(finest), factor)
-    voxelised, stretched = level_sizes(finest, count, factor, min_size)
-    grids = [
-        stretch(voxelize.voxelize(mesh, box_low, box / np.array(size), size), target)
-        for size, target in zip(voxelised, stretched)
-    ]
-    for size, grid in zip(stretched, grids):
+    sizes = level_sizes(finest, count, factor, min_size)
+    grids = [voxelize.voxelize(mesh, box_low, box / np.array(size), size) for size in sizes]
+    for size, grid in zip(sizes, grids):
         if not grid.any():
             raise InputError(f"{path.name}: the mesh gives an empty {size} grid; is it a closed solid?")
+    spacing = box / np.array(sizes[-1])
     return Pyramid(
         levels=grids,
-        origin=tuple(float(v) for v in box_low + voxel / 2),
-        spacing=(float(voxel),) * 3,
+        origin=tuple(float(v) for v in box_low + spacing / 2),
+        spacing=tuple(float(v) for v in spacing),
         source_name=path.name,
         source_sha256=file_sha256(path),
         source_kind="mesh",

@@ -114,9 +114,9 @@ def resize_matrix(n_in: int, n_out: int, dtype=np.float32) -> np.ndarray:
 def resize_volume(volume: np.ndarray, shape) -> np.ndarray:
     """Trilinear resize (align_corners=True) of an (X, Y, Z) volume to `shape`, float32.
 
-    Computed in float64, so that a value of exactly 0.5 stays 0.5: the
-    pyramid's stretched levels and evaluation's upsampling baseline both
-    threshold at 0.5 and decide such ties the same way.
+    Computed in float64, so that a value of exactly 0.5 stays 0.5:
+    evaluation's upsampling baseline thresholds at 0.5 and decides such ties
+    the same way on every machine.
     """
     out = np.asarray(volume, dtype=np.float64)
     for axis, n in enumerate(shape):

@@ -19,7 +19,7 @@ def test_level_count_gives_a_coarsest_side_of_22_to_33():
     assert pyramid.level_count(33) == 1
     for res in range(34, 600, 7):
         count = pyramid.level_count(res)
-        sizes, _ = pyramid.level_sizes((res, res, res), count)
+        sizes = pyramid.level_sizes((res, res, res), count)
         assert 22 <= max(sizes[0]) <= 33
 
 
@@ -36,7 +36,7 @@ SSG_PYRAMIDS = {
 @pytest.mark.parametrize("name", SSG_PYRAMIDS)
 def test_level_sizes_reproduce_the_ssg_pyramids(name):
     sizes = SSG_PYRAMIDS[name]
-    _, stretched = pyramid.level_sizes(sizes[-1], len(sizes))
+    stretched = pyramid.level_sizes(sizes[-1], len(sizes))
     # The longest side follows the ceil(0.75 x) chain exactly. The SSG files
     # voxelised each level at that side and cropped it, so the other axes
     # agree with the per-axis chain to within a voxel.
@@ -48,14 +48,6 @@ def test_too_many_levels_for_the_15_voxel_minimum_is_refused():
     with pytest.raises(InputError, match="15-voxel minimum; use fewer levels or a higher res$") as refused:
         pyramid.level_sizes((32, 20, 20), 5)
     assert refused.value.parameter == "res"
-
-
-def test_stretch_raises_short_axes_and_keeps_the_shape():
-    volume = np.zeros((20, 10, 20), bool)
-    volume[:, :5] = True  # lower half along y
-    out = pyramid.stretch(volume, (20, 15, 20))
-    assert out.shape == (20, 15, 20)
-    assert out[:, :7].all() and not out[:, 8:].any()
 
 
 def test_h5_pyramid_is_read_coarsest_first(tmp_path):
@@ -126,22 +118,23 @@ def test_reference_grid_follows_the_models_settings(tmp_path):
     assert pyramid.reference_grid(mesh, manifest(), scale=2).shape[np.argmax(default.shape)] == 48
 
 
-def test_stretch_decides_ties_as_it_always_has():
-    """Stretching 10 -> 15 voxels puts sample points exactly halfway between
-    voxels, so which side of 0.5 they land on depends on rounding. The levels
-    of a pyramid must not change with the implementation: the reference is
-    scipy's map_coordinates (float64 inside, float32 out), which made them."""
-    from scipy import ndimage
+# Boxes of several aspect ratios; at res 24 the last two have axes under 15
+# voxels, which are voxelised with 15 thinner voxels.
+BOXES = [(2, 2, 2), (2, 1.2, 0.9), (3, 1, 0.2), (0.3, 2, 0.5)]
 
-    rng = np.random.default_rng(0)
-    ties = 0
-    for _ in range(50):
-        shape = tuple(int(n) for n in rng.integers(2, 15, 3))
-        target = tuple(max(n, 15) for n in shape)
-        volume = rng.random(shape) < 0.5
-        axes = [np.linspace(0, n - 1, m) for n, m in zip(shape, target)]
-        before = ndimage.map_coordinates(volume.astype(np.float32), np.stack(np.meshgrid(*axes, indexing="ij")),
-                                         order=1, mode="nearest")
-        ties += np.count_nonzero(before == 0.5)
-        assert np.array_equal(pyramid.stretch(volume, target), before > 0.5)
-    assert ties > 0
+
+@pytest.mark.parametrize("extents", BOXES)
+def test_the_frame_puts_the_finest_grid_on_the_mesh(tmp_path, extents):
+    """origin + index * spacing (per axis) is where a finest voxel's centre
+    lies in the input's frame: the occupied voxels cover the mesh's box."""
+    import trimesh
+
+    path = tmp_path / "box.obj"
+    trimesh.creation.box(extents).apply_translation((5, -2, 1)).export(path)
+    p = pyramid.load_pyramid(path, res=24, levels=1)
+    spacing = np.array(p.spacing)
+    occupied = np.argwhere(p.levels[-1])
+    low = np.array(p.origin) + (occupied.min(axis=0) - 0.5) * spacing
+    high = np.array(p.origin) + (occupied.max(axis=0) + 0.5) * spacing
+    bounds = trimesh.load(path).bounds
+    assert np.all(np.abs(low - bounds[0]) <= spacing) and np.all(np.abs(high - bounds[1]) <= spacing)

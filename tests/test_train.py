@@ -106,3 +106,26 @@ def test_voxel_baseline_trains_and_resumes(tmp_path, tiny_pyramid):
     assert volume.shape == (1, *sizes[1]) and -0.01 < volume.min() and volume.max() < 1.01
     with pytest.raises(InputError, match="checkpoint"):
         train.train(tiny_pyramid, tmp_path / "b.onnx", make_config("tiny", generator="voxel"))
+
+
+def test_the_reconstruction_overlays_a_thin_example(tmp_path):
+    """A box thinner than 15 voxels along z (3 at res 16) is trained on 15
+    thinner voxels there; the model's frame says so, and its reconstruction,
+    in the input's frame, has the box's bounds. One iteration leaves the
+    surface up to about 2 voxels off (the frame of the grid alone is tested
+    to a voxel in test_pyramid.py); the old cubic frame put the top 11 of
+    those voxels too high."""
+    import numpy as np
+    import trimesh
+
+    from sinshape.runtime import generate, load, mesh
+
+    path = tmp_path / "slab.obj"
+    trimesh.creation.box((3, 1.2, 0.4)).apply_translation((5, -2, 1)).export(path)
+    out = tmp_path / "slab.onnx"
+    train.train(path, out, make_config("tiny", res=16, levels=1, iters=1))
+    model = load.load_model(out, threads=1)
+    recon = mesh.extract(model, generate.sample(model, None))
+    spacing = np.array(model.manifest.spacing)
+    assert spacing[2] < spacing[0] / 2  # 15 voxels, not 3, across the slab
+    assert np.all(np.abs(recon.bounds - trimesh.load(path).bounds) <= 2 * spacing)
