@@ -384,7 +384,7 @@ def sample(model, seed, seeds, recon, scale, size, output, smooth, smoother, lar
 
     first = path_of(seeds.first if seeds else chosen[0])
     write.output_kind(first)
-    write.check_writable(first)
+    write.check_writable(first, [loaded.path])
     warn_if_clamped(loaded, size, scale)
     outputs = ((path_of(s), generate.sample(loaded, s, size)) for s in chosen)
     with progress_bar(len(chosen), "sampling") as bar:
@@ -424,7 +424,7 @@ def interpolate(model, seeds, steps, alpha_range, scale, size, output, smooth, s
     alphas = np.linspace(*alpha_range, steps) if steps > 1 else np.array([alpha_range[0]])
     paths = [named_output(output, step=f"{k:02d}", alpha=f"{a:+.2f}") for k, a in enumerate(alphas)]
     write.output_kind(paths[0])
-    write.check_writable(paths[0])
+    write.check_writable(paths[0], [loaded.path])
     outputs = ((path, generate.interpolate(loaded, seeds[0], seeds[1], float(a), size)) for a, path in zip(alphas, paths))
     with progress_bar(len(paths), "interpolating") as bar:
         write.write_samples(loaded, outputs, progress=lambda: bar.update(1), scale=scale, smooth=smooth,
@@ -511,7 +511,7 @@ def render(inputs, output, seeds, recon, scale, size, smooth, views, up, columns
 
     if output.suffix.lower() != ".png":
         raise InputError(f"{output}: the picture is written as .png")
-    write.check_writable(output)
+    write.check_writable(output, [Path(item) for item in inputs])
     if views < 1 or columns < 1 or image_size < 16:
         raise click.UsageError("--views and --columns must be at least 1, --image-size at least 16")
     if zoom < 1:
@@ -601,7 +601,7 @@ def evaluate(model, reference, samples, first_seed, scale, upsample, json_path, 
         raise InputError(f"--scale must be a positive number, got {scale}")
     loaded = open_model(model, threads)
     if json_path:
-        write.check_writable(json_path)
+        write.check_writable(json_path, [loaded.path, reference])
     source = loaded.manifest.raw.get("source", {})
     if (not force and source.get("sha256") and Path(reference).is_file()
             and file_sha256(Path(reference)) != source["sha256"]):

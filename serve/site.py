@@ -15,12 +15,11 @@ Needs no FastAPI: only the runtime (to check the models) and the files.
 """
 
 import json
-import os
 import shutil
 from pathlib import Path
 
 from sinshape import models as shipped
-from sinshape.runtime import load
+from sinshape.runtime import load, write
 from sinshape.runtime.errors import InputError
 
 STATIC = Path(__file__).parent / "static"
@@ -146,11 +145,14 @@ def export_site(names, out, version: str = "") -> dict:
         raise InputError(f"{out}: a folder with other files in it; name a new or empty folder "
                          "(a folder that export-web wrote is replaced)")
     paths = resolve(names)
+    for path in paths.values():  # replacing the folder would delete them
+        if out.resolve() in Path(path).resolve().parents:
+            raise InputError(f"{path}: a model inside the folder {out} that is replaced; copy it elsewhere first")
     parent = out.absolute().parent
     if not parent.is_dir():
         raise InputError(f"{parent}: no such folder")
-    temporary = parent / f".{out.name}.partial-{os.getpid()}"
-    old = parent / f".{out.name}.old-{os.getpid()}"
+    # Unique names of bounded length: two exports to one folder never share them.
+    temporary, old = write.temporary_path(parent / out.name, "partial"), write.temporary_path(parent / out.name, "old")
     try:
         temporary.mkdir()
         write_site(temporary, paths, version)

@@ -69,3 +69,14 @@ def test_eval_warns_when_the_reference_is_not_the_training_input(tiny_model, tmp
 def test_eval_is_silent_about_its_own_training_input(tiny_model, tiny_pyramid):
     result = sinrun("eval", tiny_model, "--reference", tiny_pyramid, "-n", 2)
     assert result.exit_code == 0 and "Warning" not in result.output
+
+
+def test_eval_never_writes_its_json_over_the_model_or_the_reference(tiny_model, tiny_pyramid, tmp_path):
+    model, reference = tmp_path / "m.onnx", tmp_path / "r.h5"
+    model.write_bytes(tiny_model.read_bytes())
+    reference.write_bytes(tiny_pyramid.read_bytes())
+    (tmp_path / "link.json").symlink_to(reference)
+    for target in (model, reference, tmp_path / "link.json"):
+        result = sinrun("eval", model, "--reference", reference, "-n", 2, "--json", target)
+        assert_one_line_error(result, "is the input")
+    assert model.read_bytes() == tiny_model.read_bytes() and reference.read_bytes() == tiny_pyramid.read_bytes()

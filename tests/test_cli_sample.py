@@ -259,3 +259,14 @@ def test_help_imports_nothing_heavy():
             "assert not heavy, heavy\n")
     result = subprocess.run([sys.executable, "-c", code, "--help"], capture_output=True, text=True)
     assert result.returncode == 0, result.stderr
+
+
+def test_a_sample_is_never_written_over_its_model(tiny_model, tmp_path):
+    """Through a link named like a mesh, for the first of --seeds or a later one."""
+    model = tmp_path / "m.onnx"
+    model.write_bytes(tiny_model.read_bytes())
+    (tmp_path / "s_3.ply").symlink_to(model)
+    for options in (["--seed", "3"], ["--seeds", "2-3"]):
+        result = sinrun("sample", model, *options, "-o", tmp_path / "s_{seed}.ply")
+        assert_one_line_error(result, "s_3.ply: is the input")
+    assert model.read_bytes() == tiny_model.read_bytes()

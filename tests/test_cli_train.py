@@ -161,3 +161,29 @@ def test_progress_is_a_bar_on_a_terminal_and_ends_its_line_on_ctrl_c():
     text = progress_of(Terminal(), 5, interrupt=True)
     assert "level 1/2 20x18x15" in text and "5/20" in text and "d +0.2500" in text
     assert text.endswith("\033[?25h\n")  # cursor shown again, the next message on a line of its own
+
+
+def test_training_never_writes_over_its_input(tmp_path):
+    """The model, or the checkpoint derived from it or named, is never the
+    input: not by name, nor through a link; and a model is an .onnx file."""
+    from sinshape.prep import shapes
+
+    source = tmp_path / "s.obj"
+    shapes.write_shape("stairs", source, detail=4)
+    before = source.read_bytes()
+    (tmp_path / "link.onnx").symlink_to(source)
+    (tmp_path / "link.ckpt.pt").symlink_to(source)
+    cases = [
+        (["-o", source], "writes a .onnx model"),
+        (["-o", tmp_path / "link.onnx"], "is the input"),
+        (["-o", tmp_path / "link.onnx", "--checkpoint", tmp_path / "c.pt"], "is the input"),
+        (["-o", tmp_path / "m.onnx", "--checkpoint", source], "is the input"),
+        (["-o", tmp_path / "link"], "writes a .onnx model"),  # its checkpoint would be link.ckpt.pt
+        (["-o", tmp_path / "m.onnx", "--checkpoint", tmp_path / "m.onnx"], "would overwrite the model"),
+        (["-o", tmp_path / "v.pt", "--generator", "voxel", "--checkpoint", tmp_path / "c.pt"], "give one of them"),
+    ]
+    for options, fragment in cases:
+        result = CliRunner().invoke(cli, ["train", str(source), *map(str, options), "--preset", "tiny"])
+        assert_one_line_error(result, fragment)
+    assert source.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["link.ckpt.pt", "link.onnx", "s.obj"]

@@ -347,3 +347,11 @@ def test_export_web_writes_replaces_and_refuses(tmp_path):
 def test_export_web_help():
     result = run("export-web", "--help")
     assert result.exit_code == 0 and "static web site" in result.output and "--output" in result.output
+
+
+def test_export_web_refuses_a_model_inside_the_folder_it_replaces(tmp_path):
+    out = tmp_path / "site"
+    assert run("export-web", "terrain", "-o", out).exit_code == 0
+    inside = out / "models" / "terrain.onnx"
+    assert_one_line_error(run("export-web", inside, "-o", out), "inside the folder")
+    assert inside.read_bytes() == TERRAIN.read_bytes()

@@ -7,7 +7,7 @@ import stat
 import pytest
 
 from sinshape.runtime.errors import InputError
-from sinshape.runtime.write import atomic_write
+from sinshape.runtime.write import atomic_write, check_writable
 
 
 def temporaries(folder) -> list:
@@ -91,3 +91,32 @@ def test_a_failed_checkpoint_save_leaves_no_temporary(tmp_path):
         atomic_save({"unpicklable": lambda: None}, target)
     assert target.read_bytes() == b"old"
     assert os.listdir(tmp_path) == ["m.ckpt.pt"]
+
+
+def test_a_name_of_254_characters_can_be_written(tmp_path):
+    """The temporary beside it keeps only part of the name, so it stays
+    within the file system's 255-byte limit."""
+    target = tmp_path / ("m" * 250 + ".ply")
+    check_writable(target)
+    atomic_write(target, lambda f: f.write(b"x"))
+    assert target.read_bytes() == b"x" and os.listdir(tmp_path) == [target.name]
+
+
+def test_an_input_is_never_an_output(tmp_path):
+    """The same file by its name, a symbolic link or a hard link is refused,
+    and so is a pipe; the check writes nothing."""
+    source = tmp_path / "shape.obj"
+    source.write_bytes(b"v 0 0 0")
+    (tmp_path / "soft.obj").symlink_to(source)
+    os.link(source, tmp_path / "hard.obj")
+    os.mkfifo(tmp_path / "pipe.obj")
+    for name in ("shape.obj", "soft.obj", "hard.obj"):
+        with pytest.raises(InputError, match="is the input"):
+            check_writable(tmp_path / name, [source])
+        with pytest.raises(InputError, match="is the input"):
+            check_writable(tmp_path / ".." / tmp_path.name / name, [tmp_path / "hard.obj"])
+    with pytest.raises(InputError, match="not a regular file"):
+        check_writable(tmp_path / "pipe.obj")
+    check_writable(tmp_path / "new.obj", [source, tmp_path / "missing.obj"])
+    assert source.read_bytes() == b"v 0 0 0"
+    assert sorted(os.listdir(tmp_path)) == ["hard.obj", "pipe.obj", "shape.obj", "soft.obj"]

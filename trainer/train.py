@@ -22,7 +22,7 @@ import torch.nn.functional as F
 
 from sinshape.runtime import noise
 from sinshape.runtime.errors import InputError
-from sinshape.runtime.write import atomic_write, check_writable
+from sinshape.runtime.write import atomic_write, check_writable, is_same_file
 
 from . import export
 from . import device as devices
@@ -59,7 +59,26 @@ def default_checkpoint_path(output: Path) -> Path:
     """model.onnx -> model.ckpt.pt, beside the model. A .pt output (the voxel
     baseline, which has no .onnx form) is its own checkpoint."""
     output = Path(output)
-    return output if output.suffix == ".pt" else output.with_name(output.stem + ".ckpt.pt")
+    return output if output.suffix.lower() == ".pt" else output.with_name(output.stem + ".ckpt.pt")
+
+
+def check_outputs(input_path, output_path: Path, checkpoint_path: Path, generator: str) -> None:
+    """Refuse, before any work, outputs that would be lost or destroy a file:
+    the wrong kind of model file, a model and checkpoint that are one file
+    (but for the voxel baseline, whose checkpoint is its model), and an
+    output or checkpoint that is the training input."""
+    suffix = ".pt" if generator == "voxel" else ".onnx"
+    if output_path.suffix.lower() != suffix:
+        raise InputError(f"{output_path}: the triplane generator writes a .onnx model, the voxel baseline "
+                         "a .pt checkpoint")
+    for path in (output_path, checkpoint_path):
+        check_writable(path, [input_path])
+    same = checkpoint_path.absolute() == output_path.absolute() or is_same_file(checkpoint_path, output_path)
+    if suffix == ".onnx" and same:
+        raise InputError(f"{checkpoint_path}: the checkpoint would overwrite the model; name another file")
+    if suffix == ".pt" and not same:
+        raise InputError(f"{checkpoint_path}: the voxel baseline's checkpoint is its model {output_path}; "
+                         "give one of them")
 
 
 def seeded(seed: int, *ids: int) -> int:
@@ -339,12 +358,6 @@ def train(input_path, output_path, config: TrainConfig | None, *, resume: bool =
     log = log or (lambda message: None)
     output_path = Path(output_path)
     checkpoint_path = Path(checkpoint_path) if checkpoint_path else default_checkpoint_path(output_path)
-    if config is not None and (config.generator == "voxel") != (output_path.suffix == ".pt"):
-        raise InputError(f"{output_path}: the triplane generator writes a .onnx model, the voxel baseline "
-                         "a .pt checkpoint")
-    check_writable(output_path)
-    check_writable(checkpoint_path)
-
     if (config is None) != resume:
         raise ValueError("pass a config to start training, or resume=True without one")
     state = None
@@ -352,6 +365,7 @@ def train(input_path, output_path, config: TrainConfig | None, *, resume: bool =
         # The checkpoint says how the pyramid was made; the hash, of what file.
         state = load_checkpoint(checkpoint_path)
         config = TrainConfig.from_dict(state["config"])
+    check_outputs(input_path, output_path, checkpoint_path, config.generator)
     placement = devices.choose(device, config.precision)
     placement.activate()
     pyramid = load_pyramid(input_path, config.res, config.levels, config.level_factor, config.min_size)
