@@ -21,6 +21,8 @@ import numpy as np
 from scipy import ndimage
 
 from sinshape.runtime.errors import InputError
+from sinshape.runtime.generate import check_memory
+from sinshape.runtime.manifest import MAX_SIDE
 
 from . import voxelize
 
@@ -32,6 +34,9 @@ COARSEST_MAX = 33
 LEVEL_FACTOR = 0.75
 MIN_SIZE = 15
 PYRAMID_SUFFIXES = (".h5", ".hdf5")
+# Levels an .h5 pyramid may have: far more than any real one (a 4096-voxel
+# side brings the coarsest to 33 voxels in 18).
+MAX_LEVELS = 32
 
 
 @dataclass(frozen=True)
@@ -123,34 +128,33 @@ def pyramid_from_mesh(path: Path, res: int, levels: int | None = None,
     )
 
 
-def pyramid_from_h5(path: Path, levels: int | None = None) -> Pyramid:
-    """Read an SSG HDF5 pyramid; `levels` keeps only the finest that many."""
+def pyramid_from_h5(path: Path, levels: int | None = None, min_size: int = MIN_SIZE) -> Pyramid:
+    """Read an SSG HDF5 pyramid; `levels` keeps only the finest that many.
+    Everything in the file is checked before a grid is read: the level
+    count, each level's type and shape (at least `min_size`, growing from
+    coarse to fine) and the memory the grids need; then their values."""
     import h5py
 
     try:
         with h5py.File(path, "r") as f:
-            count = int(f.attrs["n_scales"]) if "n_scales" in f.attrs else None
-            if count is None or count < 1:
-                raise InputError(f"{path.name}: not an SSG pyramid (no positive 'n_scales' attribute)")
-            missing = [f"scale{i}" for i in range(count) if f"scale{i}" not in f]
-            if missing:
-                raise InputError(f"{path.name}: n_scales is {count} but {', '.join(missing)} is missing")
-            grids = [np.asarray(f[f"scale{i}"][()]) for i in range(count)]
+            datasets = _h5_datasets(f, path.name, min_size)
+            check_memory(sum(d.size * (d.dtype.itemsize + 1 + 4) for d in datasets),
+                         f"reading {path.name} (its grids, as read, as occupancy and as training targets)")
+            grids = [_occupancy(np.asarray(d[()]), f"{path.name}: {d.name.lstrip('/')}") for d in datasets]
     except OSError as error:
         raise InputError(f"{path.name}: cannot read as HDF5 ({error})") from None
-    for i, grid in enumerate(grids):
-        if grid.ndim != 3 or grid.size == 0:
-            raise InputError(f"{path.name}: scale{i} is not a 3-D grid (shape {grid.shape})")
-        if not grid.any():
-            raise InputError(f"{path.name}: scale{i} is empty")
     if grids[0].size > grids[-1].size:  # some files store the finest level first
         grids.reverse()
+    for i, (coarse, fine) in enumerate(zip(grids, grids[1:])):
+        if any(c > n for c, n in zip(coarse.shape, fine.shape)):
+            raise InputError(f"{path.name}: its levels do not grow from coarse to fine along every axis "
+                             f"(level {i} is {coarse.shape}, level {i + 1} {fine.shape})")
     if levels is not None:
         if levels > len(grids):
             raise InputError(f"{path.name} has {len(grids)} levels; levels {levels} asks for more", "levels")
         grids = grids[len(grids) - levels:]
     return Pyramid(
-        levels=[grid.astype(bool) for grid in grids],
+        levels=grids,
         origin=(0.0, 0.0, 0.0),
         spacing=(1.0, 1.0, 1.0),
         source_name=path.name,
@@ -159,14 +163,57 @@ def pyramid_from_h5(path: Path, levels: int | None = None) -> Pyramid:
     )
 
 
+def _h5_datasets(f, name: str, min_size: int) -> list:
+    """The scale0 .. scale{n-1} datasets of an open SSG file, n = n_scales,
+    each checked to be a numeric 3-D grid of sides in [min_size, MAX_SIDE]."""
+    count = f.attrs.get("n_scales")
+    if count is None:
+        raise InputError(f"{name}: not an SSG pyramid (no 'n_scales' attribute)")
+    if not (isinstance(count, (int, np.integer)) and not isinstance(count, (bool, np.bool_))
+            and 1 <= count <= MAX_LEVELS):
+        raise InputError(f"{name}: n_scales must be a whole number of levels in [1, {MAX_LEVELS}], got {count}")
+    count = int(count)
+    datasets = []
+    for i in range(count):
+        item = f.get(f"scale{i}")
+        if item is None:
+            raise InputError(f"{name}: n_scales is {count} but scale{i} is missing")
+        if not hasattr(item, "dtype") or item.dtype.kind not in "biuf":
+            raise InputError(f"{name}: scale{i} is not a grid of numbers")
+        if len(item.shape) != 3 or not all(min_size <= n <= MAX_SIDE for n in item.shape):
+            raise InputError(f"{name}: scale{i} is not a 3-D grid of {min_size} to {MAX_SIDE} voxels a side "
+                             f"(shape {item.shape})")
+        datasets.append(item)
+    return datasets
+
+
+def _occupancy(grid: np.ndarray, name: str) -> np.ndarray:
+    """An occupancy grid from the numbers stored: 0 (empty) to 1 (full),
+    occupied from 0.5. NaN, infinities and values outside [0, 1] mean the
+    file holds something else."""
+    if grid.dtype.kind == "b":
+        occupied = grid
+    else:
+        if not np.isfinite(grid).all():
+            raise InputError(f"{name} holds NaN or infinite values, not occupancy")
+        if grid.min() < 0 or grid.max() > 1:
+            raise InputError(f"{name} holds values in [{grid.min():g}, {grid.max():g}], not occupancy in [0, 1]")
+        occupied = grid >= 0.5
+    if not occupied.any():
+        raise InputError(f"{name} is empty")
+    return occupied
+
+
 def load_pyramid(path, res: int, levels: int | None = None,
                  factor: float = LEVEL_FACTOR, min_size: int = MIN_SIZE) -> Pyramid:
     """The pyramid of a mesh file (voxelised at `res`) or of an SSG .h5 file."""
     path = Path(path)
+    if path.is_dir():
+        raise InputError(f"{path}: a directory, not a mesh or .h5 file")
     if not path.is_file():
         raise InputError(f"{path}: no such file")
     if path.suffix.lower() in PYRAMID_SUFFIXES:
-        return pyramid_from_h5(path, levels)
+        return pyramid_from_h5(path, levels, min_size)
     return pyramid_from_mesh(path, res, levels, factor, min_size)
 
 

@@ -60,6 +60,7 @@ measured with::
 
 from __future__ import annotations
 
+import io
 import itertools
 from pathlib import Path
 
@@ -70,8 +71,8 @@ import trimesh
 
 from sinshape.runtime.errors import InputError
 
-# A mesh whose bounding box is thinner than this fraction of its largest
-# extent along some axis is flat: it has no inside to fill.
+# A mesh thinner than this fraction of its size across some direction is
+# flat: it has no inside to fill.
 _FLAT_RATIO = 1e-3
 
 # Ray offset from the voxel centres, in voxels, per axis (irrational ratios).
@@ -89,7 +90,8 @@ def load_mesh(path: str | Path, solid: bool = True) -> trimesh.Trimesh:
     """Load any mesh file trimesh reads into one triangle mesh.
 
     A scene is concatenated with its transforms applied. Every way the file
-    can be unusable raises `InputError` with a one-line message naming it;
+    can be unusable raises `InputError` with a one-line message naming it:
+    NaN or infinite coordinates (trimesh would drop their faces silently);
     `solid` also refuses a flat mesh, which has no inside to voxelize (a
     picture of one is fine).
     """
@@ -98,32 +100,71 @@ def load_mesh(path: str | Path, solid: bool = True) -> trimesh.Trimesh:
     if not path.exists():
         raise InputError(f"{path}: no such file")
     if not path.is_file():
-        raise InputError(f"{path}: not a file")
+        raise InputError(f"{path}: a directory, not a mesh file" if path.is_dir() else f"{path}: not a file")
     file_type = path.suffix.lower().lstrip(".")
     if file_type not in formats:
         works = ", ".join("." + f for f in formats)
         found = f"mesh format '{path.suffix}'" if path.suffix else "file name without extension"
         raise InputError(f"{path}: unsupported {found} (use one of {works})")
-    if path.stat().st_size == 0:
+    data = path.read_bytes()
+    if not data:
         raise InputError(f"{path}: empty file")
+    data = _as_text(data, file_type, path)
     try:
-        mesh = trimesh.load_scene(str(path)).to_mesh()
+        # Unprocessed, so that faces with NaN coordinates are seen, not dropped.
+        scene = trimesh.load_scene(io.BytesIO(data), file_type=file_type, process=False,
+                                   resolver=trimesh.resolvers.FilePathResolver(str(path)))
+        mesh = scene.to_mesh()
     except Exception as exc:  # trimesh's parsers raise anything on a bad file
         reason = " ".join(str(exc).split()) or type(exc).__name__
         raise InputError(f"{path}: cannot read as .{file_type}: {reason}") from None
     if len(mesh.faces) == 0:
         raise InputError(f"{path}: no triangles (an empty mesh, a point cloud or lines)")
+    if not np.isfinite(mesh.vertices[mesh.faces]).all():
+        raise InputError(f"{path}: NaN or infinite vertex coordinates")
+    mesh.process()  # merges duplicate vertices, as trimesh's default loading does
     mesh.remove_unreferenced_vertices()
-    if not solid:
-        return mesh
-    extents = mesh.extents
-    thin = extents < _FLAT_RATIO * extents.max()
-    if thin.any():
-        axes = ", ".join("xyz"[i] for i in np.flatnonzero(thin))
-        raise InputError(
-            f"{path}: flat mesh (no thickness along {axes}), so it has no inside to voxelize"
-        )
+    if solid:
+        _check_not_flat(mesh.vertices, path)
     return mesh
+
+
+# Formats that are always text, and STL, which is text unless its size fits
+# the binary layout (an 84-byte header and count, 50 bytes a triangle).
+_TEXT_FORMATS = ("obj", "off")
+
+
+def _as_text(data: bytes, file_type: str, path: Path) -> bytes:
+    """The bytes of a text format as UTF-8 that trimesh reads without its
+    optional encoding guesser: a non-UTF-8 byte (a Latin-1 comment) is read
+    as Latin-1, which decodes every byte; numbers and keywords are ASCII in
+    both. A file with NUL bytes is binary data, not this format's text."""
+    binary_stl = file_type == "stl" and len(data) >= 84 and len(data) == 84 + 50 * int.from_bytes(data[80:84], "little")
+    if file_type not in _TEXT_FORMATS and (file_type != "stl" or binary_stl):
+        return data
+    if b"\0" in data:
+        if file_type == "stl":
+            raise InputError(f"{path}: neither binary STL (its size does not fit its triangle count) nor STL text")
+        raise InputError(f"{path}: binary data, not .{file_type} text")
+    try:
+        return data.decode("utf-8").encode()
+    except UnicodeDecodeError:
+        return data.decode("latin-1").encode()
+
+
+def _check_not_flat(vertices: np.ndarray, path: Path) -> None:
+    """Refuse points that lie in a plane or on a line, in any orientation:
+    thinner than _FLAT_RATIO of the mesh's size across its thinnest
+    principal direction (the axis-aligned box would miss a tilted plane)."""
+    centred = vertices - vertices.mean(axis=0)
+    directions = np.linalg.eigh(centred.T @ centred)[1]  # principal directions, columns
+    widths = np.sort(np.ptp(centred @ directions, axis=0))[::-1]  # largest first
+    if widths[0] == 0:
+        raise InputError(f"{path}: all its points coincide, so it has no inside to voxelize")
+    thin = int(np.count_nonzero(widths < _FLAT_RATIO * widths[0]))
+    if thin:
+        lie = "on a line" if thin == 2 else "in a plane"
+        raise InputError(f"{path}: flat mesh (its points lie {lie}), so it has no inside to voxelize")
 
 
 def voxelize(mesh: trimesh.Trimesh, origin, spacing, shape) -> np.ndarray:

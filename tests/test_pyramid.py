@@ -1,5 +1,6 @@
 """Pyramid sizes, HDF5 reading and training targets."""
 
+import re
 import subprocess
 import sys
 from types import SimpleNamespace
@@ -138,3 +139,69 @@ def test_the_frame_puts_the_finest_grid_on_the_mesh(tmp_path, extents):
     high = np.array(p.origin) + (occupied.max(axis=0) + 0.5) * spacing
     bounds = trimesh.load(path).bounds
     assert np.all(np.abs(low - bounds[0]) <= spacing) and np.all(np.abs(high - bounds[1]) <= spacing)
+
+
+def h5_file(path, n_scales="count", **grids):
+    """An .h5 file with the given datasets and n_scales (their count by default)."""
+    with h5py.File(path, "w") as f:
+        if n_scales is not None:
+            f.attrs["n_scales"] = len(grids) if n_scales == "count" else n_scales
+        for name, data in grids.items():
+            f.create_dataset(name, data=data) if isinstance(data, np.ndarray) else f.create_group(name)
+    return path
+
+
+GOOD = np.ones((15, 15, 15), bool)
+BAD_H5 = {
+    "nan_grid": ({"scale0": np.full((15, 15, 15), np.nan, np.float32)}, "count", "NaN or infinite"),
+    "inf_value": ({"scale0": np.where(GOOD, np.inf, 0).astype(np.float32)}, "count", "NaN or infinite"),
+    "values_255": ({"scale0": GOOD.astype(np.uint8) * 255}, "count", "not occupancy in [0, 1]"),
+    "negative": ({"scale0": -GOOD.astype(np.float32)}, "count", "not occupancy in [0, 1]"),
+    "strings": ({"scale0": np.full((15, 15, 15), b"x")}, "count", "not a grid of numbers"),
+    "a_group": ({"scale0": None}, "count", "not a grid of numbers"),
+    "n_scales_1e9": ({"scale0": GOOD}, 10**9, "n_scales must be a whole number of levels in [1, 32]"),
+    "n_scales_float": ({"scale0": GOOD}, 1.0, "n_scales must be"),
+    "n_scales_negative": ({"scale0": GOOD}, -3, "n_scales must be"),
+    "n_scales_string": ({"scale0": GOOD}, "one", "n_scales must be"),
+    "n_scales_bool": ({"scale0": GOOD}, True, "n_scales must be"),
+    "n_scales_list": ({"scale0": GOOD}, [1, 2], "n_scales must be"),
+    "missing_scale": ({"scale0": GOOD, "scale2": GOOD}, 3, "scale1 is missing"),
+    "two_dimensional": ({"scale0": np.ones((15, 15), bool)}, "count", "not a 3-D grid"),
+    "too_small": ({"scale0": np.ones((15, 15, 4), bool)}, "count", "not a 3-D grid of 15 to 4096"),
+    "absurd_side": ({"scale0": np.zeros((1, 1, 5000), bool)}, "count", "shape (1, 1, 5000)"),
+    "shrinking_axis": ({"scale0": np.ones((15, 30, 15), bool), "scale1": np.ones((40, 20, 40), bool)},
+                       "count", "do not grow from coarse to fine"),
+}
+
+
+@pytest.mark.parametrize("case", BAD_H5)
+def test_bad_h5_contents_are_refused_by_name(tmp_path, case):
+    grids, n_scales, message = BAD_H5[case]
+    path = h5_file(tmp_path / "p.h5", n_scales, **grids)
+    with pytest.raises(InputError, match=re.escape(message)):
+        pyramid.load_pyramid(path, res=64)
+
+
+def test_h5_grids_that_do_not_fit_in_memory_are_refused_before_reading(tmp_path, monkeypatch):
+    """The shape is read, not the data: 4000^3 voxels at 9 bytes each."""
+    path = tmp_path / "huge.h5"
+    with h5py.File(path, "w") as f:  # chunked and empty: a few kB on disk
+        f.attrs["n_scales"] = 1
+        f.create_dataset("scale0", shape=(4000, 4000, 4000), dtype=np.float32, chunks=(64, 64, 64))
+    monkeypatch.setattr(np, "asarray", lambda *a, **k: pytest.fail("read the grid"))
+    with pytest.raises(InputError, match=r"huge.h5 .*needs about 536\.4 GiB"):
+        pyramid.load_pyramid(path, res=64)
+
+
+def test_soft_h5_occupancy_is_read_from_0_5(tmp_path):
+    soft = np.zeros((15, 15, 15), np.float32)
+    soft[:5], soft[5:8] = 0.9, 0.4
+    p = pyramid.load_pyramid(h5_file(tmp_path / "p.h5", scale0=soft), res=64)
+    assert p.levels[0][:5].all() and not p.levels[0][5:].any()
+
+
+@pytest.mark.parametrize("name", ["shapes.obj", "pyramid.h5", "folder"])
+def test_a_directory_is_named_as_one(tmp_path, name):
+    (tmp_path / name).mkdir()
+    with pytest.raises(InputError, match="a directory, not a mesh or .h5 file"):
+        pyramid.load_pyramid(tmp_path / name, res=64)

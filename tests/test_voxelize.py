@@ -377,7 +377,29 @@ BAD_FILES = [  # (file name, how to write it or None, part of the message)
     ("square.stl", _export(trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]],
                                            [[0, 1, 2], [0, 2, 3]])), "flat"),
     ("sheet.off", _export(trimesh.creation.box(extents=(1.0, 1.0, 1e-4))), "flat"),
+    # Not along an axis: a tilted triangle, a tilted thin sheet, points on a diagonal.
+    ("tilted.obj", _write_text("v 0 0 0\nv 1 1 0\nv 0 1 1\nf 1 2 3\n"), "lie in a plane"),
+    ("tilted-sheet.stl", _export(trimesh.creation.box(extents=(1.0, 1.0, 1e-4)).apply_transform(
+        trimesh.transformations.rotation_matrix(0.7, [1, 2, 3]))), "lie in a plane"),
+    ("diagonal.obj", _write_text("v 0 0 0\nv 1 1 1\nv 2 2 2\nv 3 3 3\nf 1 2 3\nf 1 3 4\n"), "on a line"),
+    ("point.obj", _write_text("v 1 2 3\nv 1 2 3\nv 1 2 3\nf 1 2 3\n"), "coincide"),
+    # NaN or infinite coordinates: trimesh would drop their faces (a cube trains as a wedge).
+    ("nan.obj", lambda path: path.write_text(_cube_obj().replace("v -0.5 -0.5 -0.5", "v nan -0.5 -0.5")),
+     "NaN or infinite"),
+    ("inf.obj", lambda path: path.write_text(_cube_obj().replace("v -0.5 -0.5 -0.5", "v -inf -0.5 -0.5")),
+     "NaN or infinite"),
+    # Binary garbage is named as such, not as a missing optional module.
+    ("garbage.obj", lambda path: path.write_bytes(bytes(range(256)) * 4), "binary data, not .obj text"),
+    ("garbage.stl", lambda path: path.write_bytes(bytes(range(256)) * 4), "neither binary STL"),
+    ("garbage.off", lambda path: path.write_bytes(b"OFF\n" + bytes(range(256))), "binary data"),
 ]
+
+
+def _cube_obj() -> str:
+    """A unit cube as OBJ text, its first vertex written `v -0.5 -0.5 -0.5`."""
+    box = trimesh.creation.box()
+    return ("".join(f"v {' '.join(f'{c:g}' for c in v)}\n" for v in box.vertices)
+            + "".join(f"f {' '.join(str(i + 1) for i in f)}\n" for f in box.faces))
 
 
 @pytest.mark.parametrize("name, write, says", BAD_FILES, ids=[case[0] for case in BAD_FILES])
@@ -389,6 +411,13 @@ def test_load_mesh_errors_are_one_line_naming_the_file(tmp_path, name, write, sa
         load_mesh(path)
     message = str(error.value)
     assert "\n" not in message and name in message and says in message
+
+
+def test_an_obj_with_a_latin_1_comment_loads(tmp_path):
+    """A byte that is not UTF-8 in a comment does not matter to the geometry."""
+    path = tmp_path / "cube.obj"
+    path.write_bytes("# made by caf\u00e9 software\n".encode("latin-1") + _cube_obj().encode())
+    np.testing.assert_allclose(load_mesh(path).bounds, [[-0.5] * 3, [0.5] * 3])
 
 
 def test_a_flat_mesh_loads_when_no_solid_is_needed(tmp_path):
