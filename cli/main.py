@@ -17,18 +17,20 @@ from sinshape.runtime.errors import InputError
 # Library errors name a function's parameter; on the command line it is an option.
 OPTIONS = {"scale": "--scale", "factors": "--size", "smooth": "--smooth", "threads": "--threads",
            "levels": "--levels", "res": "--res"}
+# ctx.meta key: {parameter: what set it} where a command's value came from elsewhere than OPTIONS says.
+SOURCES = "sinrun.sources"
 
 
-def command_line_message(error: InputError) -> str:
+def command_line_message(error: InputError, options: dict = OPTIONS) -> str:
     """The error's message with its parameter written as the option that sets it."""
     message = str(error)
-    if error.parameter not in OPTIONS:
+    if error.parameter not in options:
         return message
     words = list(re.finditer(rf"\b{error.parameter}\b", message))
     if not words:
         return message
     last = words[-1]
-    return message[:last.start()] + OPTIONS[error.parameter] + message[last.end():]
+    return message[:last.start()] + options[error.parameter] + message[last.end():]
 
 
 class Sinrun(click.Group):
@@ -38,7 +40,9 @@ class Sinrun(click.Group):
         try:
             return super().invoke(ctx)
         except InputError as error:
-            raise click.ClickException(command_line_message(error)) from None
+            # A command may say that a value came from elsewhere than its option.
+            options = {**OPTIONS, **ctx.meta.get(SOURCES, {})}
+            raise click.ClickException(command_line_message(error, options)) from None
         except KeyboardInterrupt:
             click.echo("interrupted", err=True)
             sys.exit(130)
@@ -198,6 +202,9 @@ def train(input_path, output, preset, res, levels, iters, minutes, device, preci
     if resume and given:
         raise click.UsageError(f"--resume continues with the checkpoint's settings; leave out {', '.join(given)}")
     config = None if resume else configs.make_config(**{**overrides, "preset": preset or "default"})
+    if levels is None:  # an .h5 file with fewer levels blames where the count came from
+        click.get_current_context().meta[SOURCES] = {
+            "levels": "the checkpoint's levels" if resume else f"the {preset or 'default'} preset's levels"}
     report = (lambda message: None) if quiet else (lambda message: click.echo(message, err=True))
     signal.signal(signal.SIGTERM, raise_interrupt)  # `kill` saves a checkpoint too, like Ctrl-C
     try:

@@ -174,11 +174,12 @@ def test_training_never_writes_over_its_input(tmp_path):
     (tmp_path / "link.onnx").symlink_to(source)
     (tmp_path / "link.ckpt.pt").symlink_to(source)
     cases = [
-        (["-o", source], "writes a .onnx model"),
+        (["-o", source], "is the input"),
+        (["-o", tmp_path / "s.ply"], "writes a .onnx model"),
         (["-o", tmp_path / "link.onnx"], "is the input"),
         (["-o", tmp_path / "link.onnx", "--checkpoint", tmp_path / "c.pt"], "is the input"),
         (["-o", tmp_path / "m.onnx", "--checkpoint", source], "is the input"),
-        (["-o", tmp_path / "link"], "writes a .onnx model"),  # its checkpoint would be link.ckpt.pt
+        (["-o", tmp_path / "link"], "link.ckpt.pt: is the input"),  # the checkpoint derived from -o
         (["-o", tmp_path / "m.onnx", "--checkpoint", tmp_path / "m.onnx"], "would overwrite the model"),
         (["-o", tmp_path / "v.pt", "--generator", "voxel", "--checkpoint", tmp_path / "c.pt"], "give one of them"),
     ]
@@ -187,3 +188,13 @@ def test_training_never_writes_over_its_input(tmp_path):
         assert_one_line_error(result, fragment)
     assert source.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["link.ckpt.pt", "link.onnx", "s.obj"]
+
+
+def test_an_h5_with_too_few_levels_blames_the_preset_not_an_option_never_given(tmp_path):
+    pytest.importorskip("torch")
+    from conftest import write_pyramid
+
+    one = write_pyramid(tmp_path / "one.h5", [(15, 15, 15)])
+    result = CliRunner().invoke(cli, ["train", str(one), "-o", str(tmp_path / "m.onnx"), "--preset", "tiny"])
+    assert_one_line_error(result, "one.h5 has 1 levels; the tiny preset's levels 2 asks for more")
+    assert "--levels" not in result.output

@@ -67,12 +67,12 @@ def check_outputs(input_path, output_path: Path, checkpoint_path: Path, generato
     the wrong kind of model file, a model and checkpoint that are one file
     (but for the voxel baseline, whose checkpoint is its model), and an
     output or checkpoint that is the training input."""
+    for path in (output_path, checkpoint_path):
+        check_writable(path, [input_path])
     suffix = ".pt" if generator == "voxel" else ".onnx"
     if output_path.suffix.lower() != suffix:
         raise InputError(f"{output_path}: the triplane generator writes a .onnx model, the voxel baseline "
                          "a .pt checkpoint")
-    for path in (output_path, checkpoint_path):
-        check_writable(path, [input_path])
     same = checkpoint_path.absolute() == output_path.absolute() or is_same_file(checkpoint_path, output_path)
     if suffix == ".onnx" and same:
         raise InputError(f"{checkpoint_path}: the checkpoint would overwrite the model; name another file")
