@@ -37,6 +37,9 @@ PYRAMID_SUFFIXES = (".h5", ".hdf5")
 # Levels an .h5 pyramid may have: far more than any real one (a 4096-voxel
 # side brings the coarsest to 33 voxels in 18).
 MAX_LEVELS = 32
+# An .h5 level's shortest side: the critic's field, one patch. Files are used
+# as they are (SSG's have 15 or more; the minimum for meshes is MIN_SIZE).
+MIN_H5_SIDE = 11
 
 
 @dataclass(frozen=True)
@@ -128,16 +131,16 @@ def pyramid_from_mesh(path: Path, res: int, levels: int | None = None,
     )
 
 
-def pyramid_from_h5(path: Path, levels: int | None = None, min_size: int = MIN_SIZE) -> Pyramid:
+def pyramid_from_h5(path: Path, levels: int | None = None) -> Pyramid:
     """Read an SSG HDF5 pyramid; `levels` keeps only the finest that many.
     Everything in the file is checked before a grid is read: the level
-    count, each level's type and shape (at least `min_size`, growing from
-    coarse to fine) and the memory the grids need; then their values."""
+    count, each level's type and shape (growing from coarse to fine) and the
+    memory the grids need; then their values."""
     import h5py
 
     try:
         with h5py.File(path, "r") as f:
-            datasets = _h5_datasets(f, path.name, min_size)
+            datasets = _h5_datasets(f, path.name)
             check_memory(sum(d.size * (d.dtype.itemsize + 1 + 4) for d in datasets),
                          f"reading {path.name} (its grids, as read, as occupancy and as training targets)")
             grids = [_occupancy(np.asarray(d[()]), f"{path.name}: {d.name.lstrip('/')}") for d in datasets]
@@ -145,6 +148,9 @@ def pyramid_from_h5(path: Path, levels: int | None = None, min_size: int = MIN_S
         raise InputError(f"{path.name}: cannot read as HDF5 ({error})") from None
     if grids[0].size > grids[-1].size:  # some files store the finest level first
         grids.reverse()
+    if max(grids[-1].shape) < MIN_SIZE:  # a model's res, its finest longest side, is at least that
+        raise InputError(f"{path.name}: the finest level is {grids[-1].shape}, under the {MIN_SIZE}-voxel "
+                         "minimum along every axis")
     for i, (coarse, fine) in enumerate(zip(grids, grids[1:])):
         if any(c > n for c, n in zip(coarse.shape, fine.shape)):
             raise InputError(f"{path.name}: its levels do not grow from coarse to fine along every axis "
@@ -163,9 +169,9 @@ def pyramid_from_h5(path: Path, levels: int | None = None, min_size: int = MIN_S
     )
 
 
-def _h5_datasets(f, name: str, min_size: int) -> list:
+def _h5_datasets(f, name: str) -> list:
     """The scale0 .. scale{n-1} datasets of an open SSG file, n = n_scales,
-    each checked to be a numeric 3-D grid of sides in [min_size, MAX_SIDE]."""
+    each checked to be a numeric 3-D grid of sides in [MIN_H5_SIDE, MAX_SIDE]."""
     count = f.attrs.get("n_scales")
     if count is None:
         raise InputError(f"{name}: not an SSG pyramid (no 'n_scales' attribute)")
@@ -180,8 +186,8 @@ def _h5_datasets(f, name: str, min_size: int) -> list:
             raise InputError(f"{name}: n_scales is {count} but scale{i} is missing")
         if not hasattr(item, "dtype") or item.dtype.kind not in "biuf":
             raise InputError(f"{name}: scale{i} is not a grid of numbers")
-        if len(item.shape) != 3 or not all(min_size <= n <= MAX_SIDE for n in item.shape):
-            raise InputError(f"{name}: scale{i} is not a 3-D grid of {min_size} to {MAX_SIDE} voxels a side "
+        if len(item.shape) != 3 or not all(MIN_H5_SIDE <= n <= MAX_SIDE for n in item.shape):
+            raise InputError(f"{name}: scale{i} is not a 3-D grid of {MIN_H5_SIDE} to {MAX_SIDE} voxels a side "
                              f"(shape {item.shape})")
         datasets.append(item)
     return datasets
@@ -213,7 +219,7 @@ def load_pyramid(path, res: int, levels: int | None = None,
     if not path.is_file():
         raise InputError(f"{path}: no such file")
     if path.suffix.lower() in PYRAMID_SUFFIXES:
-        return pyramid_from_h5(path, levels, min_size)
+        return pyramid_from_h5(path, levels)
     return pyramid_from_mesh(path, res, levels, factor, min_size)
 
 
