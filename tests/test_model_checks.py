@@ -9,6 +9,7 @@ import onnx
 import pytest
 from click.testing import CliRunner
 
+from sinshape import models
 from sinshape.cli.main import cli
 from sinshape.runtime import load_model
 from sinshape.runtime import manifest as fmt
@@ -62,20 +63,34 @@ def v2_model(tiny_model):
     return tiny_model
 
 
+def flip_bytes(rng):
+    """A change that inverts 8 bytes at a random place of a random weight."""
+    def flip(model):
+        tensor = model.graph.initializer[int(rng.integers(len(model.graph.initializer)))]
+        if not tensor.raw_data:  # stored as float_data
+            tensor.raw_data = onnx.numpy_helper.to_array(tensor).astype("<f4").tobytes()
+            del tensor.float_data[:]
+        data = bytearray(tensor.raw_data)
+        at = int(rng.integers(len(data) - 8))
+        data[at:at + 8] = bytes(b ^ 0xFF for b in data[at:at + 8])
+        tensor.raw_data = bytes(data)
+    return flip
+
+
 def test_flipped_weight_bytes_are_named_corruption(v2_model, tmp_path):
     rng = np.random.default_rng(0)
     for trial in range(5):
-        def flip(model):
-            tensor = model.graph.initializer[int(rng.integers(len(model.graph.initializer)))]
-            if not tensor.raw_data:  # stored as float_data
-                tensor.raw_data = onnx.numpy_helper.to_array(tensor).astype("<f4").tobytes()
-                del tensor.float_data[:]
-            data = bytearray(tensor.raw_data)
-            at = int(rng.integers(len(data) - 8))
-            data[at:at + 8] = bytes(b ^ 0xFF for b in data[at:at + 8])
-            tensor.raw_data = bytes(data)
+        refused(altered(v2_model, tmp_path / f"flipped{trial}.onnx", flip_bytes(rng), seal=False), "corrupt model")
 
-        refused(altered(v2_model, tmp_path / f"flipped{trial}.onnx", flip, seal=False), "corrupt model")
+
+@pytest.mark.parametrize("name", sorted(models.available()))
+def test_a_shipped_model_with_a_flipped_byte_is_named_corrupt(name, tmp_path):
+    """The shipped models carry format 2's checksum, so they are protected too."""
+    path = models.find(name)
+    assert json.loads(manifest_prop(onnx.load(path)).value)["format_version"] == 2
+    flipped = altered(path, tmp_path / f"{name}.onnx", flip_bytes(np.random.default_rng(1)), seal=False)
+    with pytest.raises(InputError, match="corrupt model"):
+        load_model(flipped, threads=1)
 
 
 def test_an_edited_manifest_is_named_corruption(v2_model, tmp_path):
