@@ -27,7 +27,7 @@ def test_output_patterns_fill_plain_fields_only(tiny_model, tmp_path):
         assert result.exit_code == 2 and "only {seed} can be filled in" in result.output, (pattern, result.output)
     assert list(tmp_path.iterdir()) == []
     assert sinrun("sample", tiny_model, "--seeds", "0-1", "-o", tmp_path / "s_{seed}.ply").exit_code == 0
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["s_0.ply", "s_1.ply"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s_0.ply", "s_1.ply", "s_index.jsonl"]
 
 
 def test_a_directory_is_not_called_missing(tmp_path):
