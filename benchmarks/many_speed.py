@@ -10,7 +10,8 @@ peak memory is the process's max RSS, Ray's own processes not counted):
    per core, and Ray on this machine with as many CPUs (its overhead:
    starting Ray, its actors, moving bytes through it).
 2. One large sample (`--big-model`, `--big-scale`) with `--threads 1` and
-   with all cores, written as a streamed .ply.
+   with all cores, written as a streamed .ply; then meshing at
+   `--alternated-scale` with 1 thread and all, alternated in one process.
 3. The terrain at `--size NxN,1` for each N of --sizes at `--scale 2`:
    seconds, peak memory, faces, file size (a streamed .ply).
 """
@@ -67,6 +68,32 @@ def big_table(folder: Path, model: str, scale: float, cores: int) -> None:
         out.unlink()
 
 
+# Meshing with 1 thread and with all, alternated in one process: a ratio that
+# other jobs on a shared machine disturb less than fresh processes' seconds.
+ALTERNATED = """
+import json, sys, time
+from sinshape import models, runtime
+from sinshape.runtime import mesh
+model = runtime.load_model(models.find(sys.argv[1]))
+triplane = runtime.sample(model, 3)
+for threads in [1, int(sys.argv[3])] * 2:
+    started = time.perf_counter()
+    mesh.band_mesh(model, triplane, float(sys.argv[2]), threads=threads)
+    print(json.dumps([threads, time.perf_counter() - started]), flush=True)
+"""
+
+
+def alternated_table(model: str, scale: float, cores: int) -> None:
+    print(f"\n### meshing {model} at --scale {scale:g} in one process, threads alternated\n")
+    print("| round | 1 thread | " + f"{cores} threads | speed-up |")
+    print("|---|---|---|---|")
+    out = subprocess.run([sys.executable, "-c", ALTERNATED, model, str(scale), str(cores)],
+                         capture_output=True, text=True, check=True)
+    seconds = [json.loads(line)[1] for line in out.stdout.splitlines()]
+    for k in range(0, len(seconds), 2):
+        print(f"| {k // 2 + 1} | {seconds[k]:.1f} s | {seconds[k + 1]:.1f} s | {seconds[k] / seconds[k + 1]:.2f}x |")
+
+
 def terrain_table(folder: Path, sizes: list) -> None:
     print("\n### terrain at --size N,N,1 --scale 2, seed 3, streamed .ply\n")
     print("| size | area factor | seconds | peak memory | faces | file |")
@@ -95,7 +122,9 @@ def main():
     parser.add_argument("--big-model", default="towerruins", help="model of the second table")
     parser.add_argument("--big-scale", type=float, default=16.0, help="its --scale")
     parser.add_argument("--sizes", type=int, nargs="+", default=[1, 2, 4, 8], help="terrain sizes N (N,N,1)")
-    parser.add_argument("--skip", nargs="*", default=[], choices=["seeds", "big", "terrain"])
+    parser.add_argument("--alternated-scale", type=float, default=8.0,
+                        help="scale of --big-model for the alternated-threads table")
+    parser.add_argument("--skip", nargs="*", default=[], choices=["seeds", "big", "alternated", "terrain"])
     args = parser.parse_args()
     cores = len(os.sched_getaffinity(0))
     print(f"{cores} cores, {time.strftime('%Y-%m-%d %H:%M')}")
@@ -105,6 +134,8 @@ def main():
             seeds_table(folder, cores, args.seeds)
         if "big" not in args.skip:
             big_table(folder, args.big_model, args.big_scale, cores)
+        if "alternated" not in args.skip:
+            alternated_table(args.big_model, args.alternated_scale, cores)
         if "terrain" not in args.skip:
             terrain_table(folder, args.sizes)
 
