@@ -16,7 +16,7 @@ from sinshape.runtime.errors import InputError
 
 # Library errors name a function's parameter; on the command line it is an option.
 OPTIONS = {"scale": "--scale", "factors": "--size", "smooth": "--smooth", "threads": "--threads",
-           "levels": "--levels", "res": "--res"}
+           "levels": "--levels", "res": "--res", "workers": "--workers"}
 # ctx.meta key: {parameter: what set it} where a command's value came from elsewhere than OPTIONS says.
 SOURCES = "sinrun.sources"
 
@@ -361,16 +361,29 @@ def open_model(model, threads):
 @cli.command()
 @MODEL_ARGUMENT
 @click.option("--seed", type=int, default=None, help="Seed of the sample (the same seed gives the same shape). Default 0.")
-@click.option("--seeds", type=SEEDS, default=None, help="Many samples, one file each: 0-99 or 1,5,9-12.")
+@click.option("--seeds", type=SEEDS, default=None,
+              help="Many samples, one file each: 0-99 or 1,5,9-12. A resumable job: see --engine.")
 @click.option("--recon", is_flag=True, help="The training shape itself (the fixed reconstruction noise), not a new sample.")
 @SCALE_OPTION
 @SIZE_OPTION
 @click.option("-o", "--output", type=click.Path(path_type=Path), default=None,
-              help="Output file: .ply .obj .stl .off .glb (a mesh) or .npz (the occupancy grid). "
-                   "With --seeds, {seed} in the name is replaced, or _seedN is added. Default: MODEL_seedN.ply.")
+              help="Output file: .ply (streamed to disk slab by slab, any size) or .obj .stl .off .glb (made "
+                   "whole in memory), or .npz (the occupancy grid). With --seeds, {seed} in the name is "
+                   "replaced, or _seedN is added. Default: MODEL_seedN.ply.")
 @mesh_options
 @THREADS_OPTION
-def sample(model, seed, seeds, recon, scale, size, output, smooth, smoother, largest, frame, threads):
+@click.option("--workers", type=int, default=None,
+              help="With --seeds: worker processes (--engine local; default: one per core) or Ray actors "
+                   "(--engine ray; default: one per CPU of the cluster), each loading the model once.")
+@click.option("--engine", type=click.Choice(["local", "ray"]), default="local", show_default=True,
+              help="With --seeds: this machine's cores, or a Ray cluster (pip install 'sinshape[ray]'). "
+                   "Files are written atomically and an index (JSON lines) beside them records each "
+                   "seed; a rerun skips the seeds already done.")
+@click.option("--address", default=None,
+              help="With --engine ray: the cluster's address. Default: Ray's own (RAY_ADDRESS, else a "
+                   "local Ray on this machine).")
+def sample(model, seed, seeds, recon, scale, size, output, smooth, smoother, largest, frame, threads, workers,
+           engine, address):
     """Generate new shapes from a model and write them as meshes.
 
     MODEL is a .onnx file from `sinrun train` or the name of a shipped model
@@ -381,23 +394,53 @@ def sample(model, seed, seeds, recon, scale, size, output, smooth, smoother, lar
 
     if sum(x is not None and x is not False for x in (seed, seeds, recon or None)) > 1:
         raise click.UsageError("give one of --seed, --seeds or --recon")
-    chosen = seeds if seeds else [None] if recon else [0 if seed is None else seed]
+    if not seeds and (workers is not None or engine != "local" or address is not None):
+        raise click.UsageError("--workers, --engine and --address are for many samples: give --seeds")
     loaded = open_model(model, threads)
     if output is None:
         output = Path(f"{loaded.path.stem}_recon.ply" if recon else f"{loaded.path.stem}_seed{{seed}}.ply")
-
-    def path_of(s):
-        return named_output(output, seed=s) if seeds or "{" in output.name else output
-
-    first = path_of(seeds.first if seeds else chosen[0])
-    write.output_kind(first)
-    write.check_writable(first, [loaded.path])
     warn_if_clamped(loaded, size, scale)
-    outputs = ((path_of(s), generate.sample(loaded, s, size)) for s in chosen)
-    with progress_bar(len(chosen), "sampling") as bar:
-        write.write_samples(loaded, outputs, progress=lambda: bar.update(1), scale=scale, smooth=smooth,
-                            smoother=smoother, largest=largest, frame=frame)
-    click.echo(f"wrote {first}" if len(chosen) == 1 else f"wrote {len(chosen)} files: {first} .. {path_of(seeds.last)}")
+    if seeds:
+        sample_seeds(loaded.path, seeds, output, engine, workers, threads, address, size=size, scale=scale,
+                     smooth=smooth, smoother=smoother, largest=largest, frame=frame)
+        return
+    chosen = None if recon else 0 if seed is None else seed
+    path = named_output(output, seed=chosen) if "{" in output.name else output
+    write.output_kind(path)
+    write.check_writable(path, [loaded.path])
+    write.write_sample(loaded, generate.sample(loaded, chosen, size), path, scale=scale, smooth=smooth,
+                       smoother=smoother, largest=largest, frame=frame, threads=threads)
+    click.echo(f"wrote {path}")
+
+
+def sample_seeds(model_path, seeds, output, engine, workers, threads, address, **options) -> None:
+    """`sinrun sample --seeds`: one resumable job, one progress bar."""
+    import time
+
+    from sinshape.runtime import many
+
+    if "{" in output.name:
+        named_output(output, seed=0)  # only {seed} may be filled in
+        pattern = output
+    else:
+        pattern = output.with_name(f"{output.stem}_seed{{seed}}{output.suffix}")
+    started, made = time.monotonic(), [0]
+
+    def rate(_):
+        seconds = time.monotonic() - started
+        return f"{made[0] / seconds:.2f} seeds/s" if made[0] and seconds > 0 else ""
+
+    with click.progressbar(length=len(seeds), label="sampling", file=sys.stderr, show_pos=True,
+                           item_show_func=rate, hidden=len(seeds) < 2 or not sys.stderr.isatty()) as bar:
+        def progress(seed, record):
+            made[0] += record is not None
+            bar.update(1, seed)
+
+        result = many.sample_many(model_path, iter(seeds), pattern, engine, workers, threads, address,
+                                  progress=progress, **options)
+    skipped = f", {result['skipped']} already done" if result["skipped"] else ""
+    click.echo(f"wrote {result['written']} files{skipped}: {named_output(pattern, seed=seeds.first)} .. "
+               f"{named_output(pattern, seed=seeds.last)}; index {result['index']}")
 
 
 @cli.command()

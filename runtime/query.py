@@ -194,45 +194,56 @@ def rectangle_bounds(plane: np.ndarray, ranges_a: list, ranges_b: list) -> tuple
     return lo, hi
 
 
-def band(model, triplane: TriPlane, scale: float, block: int = BLOCK, chunk: int = 16,
-         memory_limit: int | None = None):
-    """Occupancy on a grid `scale` times finer, evaluated only in blocks that
-    the surface may cross; yields one Slab per x block row. Work needing more
-    than memory_limit bytes (None: the memory available) is refused up front.
+class Band:
+    """The band search of one tri-plane on a grid `scale` times finer: the
+    occupancy of each x slab of blocks, evaluated only in blocks that the
+    surface may cross. Work needing more than memory_limit bytes (None: the
+    memory available) is refused up front.
 
     A block's hidden pre-activations are bounded, per channel, by the min and
     max of the coarse projected plane samples that its points interpolate
     between (interpolation weights are convex); head_bounds turns that into
     exact occupancy bounds. Blocks whose bounds clear 0.5 are uniform and
     never evaluated, so the result is the dense result, at a cost that grows
-    with the surface's area rather than the volume. Consecutive slabs share
-    one plane of points; its values are carried from the previous slab, so
-    both sides of a seam see the same numbers.
+    with the surface's area rather than the volume.
+
+    Slabs are independent (`slab` may run on several threads at once);
+    `carry` then makes neighbours agree on the plane of points they share.
     """
-    proj = project(model, triplane)
-    grid = FineGrid(proj, scale, block)
-    py, pz = grid.padded[1:]
-    hidden = proj.planes[2].shape[-1]  # the decoder's hidden width D
-    # The yz plane at every (y, z), three slab buffers, the x rows of two planes.
-    needed = py * pz * (hidden + 3 * (block + 1)) * 4 + (block + 1) * (py + pz) * hidden * 4
-    check_memory(needed, f"meshing a {'x'.join(map(str, grid.shape))} grid", memory_limit)
-    head = model.head
-    ranges = [grid.coarse_ranges(axis) for axis in range(3)]
-    yz_lo, yz_hi = rectangle_bounds(proj.planes[2], ranges[1], ranges[2])  # (nby, nbz, D)
-    real_y = grid.is_real(1, np.arange(grid.padded[1]))
-    real_z = grid.is_real(2, np.arange(grid.padded[2]))
-    # Blocks that hold padding points cannot be all inside.
-    padded_yz = np.array([[not (real_y[b * block:b * block + block + 1].all() and
-                                real_z[c * block:c * block + block + 1].all())
-                           for c in range(grid.blocks[2])] for b in range(grid.blocks[1])])
-    previous = None  # (values of the last plane, where they are valid)
-    for bx in range(grid.blocks[0]):
-        if ranges[0][bx] is None:
-            previous = None
-            yield Slab(bx, None, np.full(grid.blocks[1:], -1, np.int8))
-            continue
-        xy_lo, xy_hi = rectangle_bounds(proj.planes[0], [ranges[0][bx]], ranges[1])
-        xz_lo, xz_hi = rectangle_bounds(proj.planes[1], [ranges[0][bx]], ranges[2])
+
+    def __init__(self, model, triplane: TriPlane, scale: float, block: int = BLOCK, chunk: int = 16,
+                 memory_limit: int | None = None, slabs_at_once: int = 1):
+        proj = project(model, triplane)
+        self.grid = grid = FineGrid(proj, scale, block)
+        self.head, self.block, self.chunk = model.head, block, chunk
+        py, pz = grid.padded[1:]
+        hidden = proj.planes[2].shape[-1]  # the decoder's hidden width D
+        # The yz plane at every (y, z); per slab being worked on, three slab
+        # buffers and the x rows of two planes.
+        per_slab = py * pz * 3 * (block + 1) * 4 + (block + 1) * (py + pz) * hidden * 4
+        needed = py * pz * hidden * 4 + per_slab * slabs_at_once
+        check_memory(needed, f"meshing a {'x'.join(map(str, grid.shape))} grid", memory_limit)
+        self.ranges = [grid.coarse_ranges(axis) for axis in range(3)]
+        self.yz_bounds = rectangle_bounds(proj.planes[2], self.ranges[1], self.ranges[2])  # (nby, nbz, D) each
+        self.real_y = grid.is_real(1, np.arange(grid.padded[1]))
+        self.real_z = grid.is_real(2, np.arange(grid.padded[2]))
+        # Blocks that hold padding points cannot be all inside.
+        self.padded_yz = np.array([[not (self.real_y[b * block:b * block + block + 1].all() and
+                                         self.real_z[c * block:c * block + block + 1].all())
+                                    for c in range(grid.blocks[2])] for b in range(grid.blocks[1])])
+        grid.yz  # made now, not by the first of several threads to need it
+
+    def __len__(self) -> int:
+        return self.grid.blocks[0]
+
+    def slab(self, bx: int) -> "Slab":
+        """The occupancy of x block row bx, before `carry`."""
+        grid, block, head = self.grid, self.block, self.head
+        if self.ranges[0][bx] is None:
+            return Slab(bx, None, np.full(grid.blocks[1:], -1, np.int8))
+        xy_lo, xy_hi = rectangle_bounds(grid.proj.planes[0], [self.ranges[0][bx]], self.ranges[1])
+        xz_lo, xz_hi = rectangle_bounds(grid.proj.planes[1], [self.ranges[0][bx]], self.ranges[2])
+        yz_lo, yz_hi = self.yz_bounds
         low = xy_lo[0][:, None] + xz_lo[0][None] + yz_lo
         high = xy_hi[0][:, None] + xz_hi[0][None] + yz_hi
         empty = np.isinf(low).any(axis=-1)  # blocks with no real points at all
@@ -240,23 +251,22 @@ def band(model, triplane: TriPlane, scale: float, block: int = BLOCK, chunk: int
         occ_low, occ_high = head_bounds(head, low, high)
         padded_x = not grid.is_real(0, np.arange(bx * block, bx * block + block + 1)).all()
         state = np.zeros(grid.blocks[1:], np.int8)
-        state[(occ_low > 0.5 + BOUND_MARGIN) & ~padded_yz & (not padded_x)] = 1
+        state[(occ_low > 0.5 + BOUND_MARGIN) & ~self.padded_yz & (not padded_x)] = 1
         state[occ_high < 0.5 - BOUND_MARGIN] = -1
         state[empty] = -1
         active = np.argwhere(state == 0)
         if len(active) == 0:
-            previous = None
-            yield Slab(bx, None, state)
-            continue
+            return Slab(bx, None, state)
 
         rows = slice(bx * block, bx * block + block + 1)
         xy = grid.fine_plane(0, rows)  # (B+1, Py, D)
         xz = grid.fine_plane(1, rows)  # (B+1, Pz, D)
         values = np.zeros((block + 1, grid.padded[1], grid.padded[2]), np.float32)
         real_x = grid.is_real(0, np.arange(rows.start, rows.stop))
+        real_y, real_z = self.real_y, self.real_z
         span = np.arange(block + 1)
-        for start in range(0, len(active), chunk):
-            part = active[start:start + chunk]
+        for start in range(0, len(active), self.chunk):
+            part = active[start:start + self.chunk]
             ys = part[:, 0, None] * block + span  # (k, B+1) padded indices
             zs = part[:, 1, None] * block + span
             hidden = (xy[:, ys].transpose(1, 0, 2, 3)[:, :, :, None]  # (k, x, y, 1, D)
@@ -266,14 +276,34 @@ def band(model, triplane: TriPlane, scale: float, block: int = BLOCK, chunk: int
             occupancy *= (real_x[:, None, None] & real_y[ys][:, None, :, None] & real_z[zs][:, None, None, :])
             for (by, bz), block_values in zip(part, occupancy):
                 values[:, by * block:by * block + block + 1, bz * block:bz * block + block + 1] = block_values
-        if previous is not None:
-            plane, valid = previous
-            values[0][valid] = plane[valid]
-        valid = np.zeros(values.shape[1:], bool)
-        for by, bz in active:
-            valid[by * block:by * block + block + 1, bz * block:bz * block + block + 1] = True
-        previous = (values[-1].copy(), valid)
-        yield Slab(bx, values, state)
+        return Slab(bx, values, state)
+
+    def carry(self, slabs):
+        """Consecutive slabs share one plane of points: give the later one the
+        earlier one's values there, so both sides of a seam see the same
+        numbers. slabs: in order, as `slab` made them; yields them."""
+        block, previous = self.block, None  # (values of the last plane, where they are valid)
+        for slab in slabs:
+            if slab.values is None:
+                previous = None
+                yield slab
+                continue
+            if previous is not None:
+                plane, valid = previous
+                slab.values[0][valid] = plane[valid]
+            valid = np.zeros(slab.values.shape[1:], bool)
+            for by, bz in np.argwhere(slab.state == 0):
+                valid[by * block:by * block + block + 1, bz * block:bz * block + block + 1] = True
+            previous = (slab.values[-1].copy(), valid)
+            yield slab
+
+
+def band(model, triplane: TriPlane, scale: float, block: int = BLOCK, chunk: int = 16,
+         memory_limit: int | None = None):
+    """Occupancy on a grid `scale` times finer, evaluated only in blocks that
+    the surface may cross (see Band); yields one Slab per x block row."""
+    search = Band(model, triplane, scale, block, chunk, memory_limit)
+    return search.carry(search.slab(bx) for bx in range(len(search)))
 
 
 def dense(model, triplane: TriPlane, scale: float = 1.0, memory_limit: int | None = None) -> np.ndarray:

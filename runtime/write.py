@@ -1,7 +1,8 @@
 """Write samples by file extension, never leaving a half-written file.
 
-Meshes: .ply .obj .stl .off .glb (trimesh's exporters). Occupancy grids:
-.npz. Every file is written to a temporary name beside the target and then
+Meshes: .ply (binary, written here, streamed slab by slab so that its size
+is bounded by the disk, not the memory) and .obj .stl .off .glb (trimesh's
+exporters, which need the whole mesh in memory). Occupancy grids: .npz. Every file is written to a temporary name beside the target and then
 renamed (`atomic_write`, which the trainer uses for its models and
 checkpoints too), so a crash or Ctrl-C leaves either the old file or the new one;
 mesh_bytes and grid_bytes give the same bytes in memory, to send elsewhere.
@@ -11,6 +12,8 @@ import errno
 import io
 import os
 import secrets
+import shutil
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -121,10 +124,63 @@ def _create_temporary(path: Path) -> tuple:
     raise FileExistsError(errno.EEXIST, "no free temporary name", str(path))
 
 
+# A binary PLY face: the vertex count (3) and three int32 indices.
+PLY_FACE = np.dtype([("count", "u1"), ("indices", "<i4", (3,))])
+PLY_COUNT_DIGITS = 10  # counts are zero-padded to a fixed width, so the header can be patched in place
+
+
+def ply_header(vertices: int, faces: int) -> bytes:
+    return (f"ply\nformat binary_little_endian 1.0\ncomment made by sinshape\n"
+            f"element vertex {vertices:0{PLY_COUNT_DIGITS}d}\n"
+            "property float x\nproperty float y\nproperty float z\n"
+            f"element face {faces:0{PLY_COUNT_DIGITS}d}\n"
+            "property list uchar int vertex_indices\nend_header\n").encode()
+
+
+def ply_faces(faces: np.ndarray) -> bytes:
+    if len(faces) and faces.max() >= 2**31:
+        raise InputError("the mesh has more than 2**31 vertices, beyond what a PLY face index holds")
+    records = np.empty(len(faces), PLY_FACE)
+    records["count"] = 3
+    records["indices"] = faces
+    return records.tobytes()
+
+
+def write_ply_pieces(file, pieces, folder) -> tuple:
+    """Write (vertices, faces) pieces (mesh.pieces: new vertices, global face
+    indices) to a binary file as one PLY, holding one piece at a time.
+    folder: where the temporary faces go (None: the system's).
+
+    PLY puts all vertices before all faces, so faces wait in an unnamed
+    temporary file in `folder` (gone with the process, whatever happens),
+    and are appended at the end; then the header's counts are patched.
+    Returns (vertices, faces) counts.
+    """
+    counts = [0, 0]
+    file.write(ply_header(0, 0))
+    with tempfile.TemporaryFile(dir=folder) as faces_file:
+        for vertices, faces in pieces:
+            file.write(np.asarray(vertices, "<f4").tobytes())  # float32, as trimesh writes PLY
+            faces_file.write(ply_faces(faces))
+            counts[0] += len(vertices)
+            counts[1] += len(faces)
+        faces_file.seek(0)
+        shutil.copyfileobj(faces_file, file, 1 << 22)
+    file.seek(0)
+    file.write(ply_header(*counts))
+    file.seek(0, os.SEEK_END)
+    return tuple(counts)
+
+
 def mesh_bytes(mesh, suffix: str) -> bytes:
     """A trimesh mesh as the file bytes of a mesh format ('.ply', '.glb', ...)."""
+    if suffix.lower() == ".ply":  # the bytes a streamed write makes of the same mesh
+        buffer = io.BytesIO()
+        write_ply_pieces(buffer, [(mesh.vertices, mesh.faces)], None)
+        return buffer.getvalue()
     data = mesh.export(file_type=MESH_FORMATS[suffix.lower()])
     return data.encode() if isinstance(data, str) else data
+
 
 
 def grid_bytes(occupancy: np.ndarray, **fields) -> bytes:
@@ -141,18 +197,48 @@ def write_mesh(mesh, path) -> None:
 
 
 def write_sample(model, triplane, path, scale: float = 1.0, smooth: int = 0, smoother: str = "laplacian",
-                 largest: bool = False, frame: str = "input") -> None:
-    """One sample as the file its extension names: a mesh, or the .npz grid."""
+                 largest: bool = False, frame: str = "input", threads: int | None = None) -> None:
+    """One sample as the file its extension names: a mesh, or the .npz grid.
+    A .ply without smoothing or --largest (which need the whole mesh) is
+    streamed slab by slab: any size fits in memory."""
     from . import mesh, query
 
     check_writable(path, [model.path])  # each name of a --seeds list, not only the first
-    if output_kind(path) == "grid":
-        write_grid(query.dense(model, triplane, scale), path, size=triplane.size, scale=scale)
+    path = Path(path)
+    if output_kind(path) == "grid" or path.suffix.lower() != ".ply" or smooth or largest:
+        data, _ = sample_bytes(model, triplane, path, scale, smooth, smoother, largest, frame, threads)
+        atomic_write(path, lambda f: f.write(data))
         return
-    result = mesh.extract(model, triplane, scale, smooth, smoother, largest, frame)
+    mesh.check_frame(frame)
+    pieces = mesh.pieces(model, triplane, scale, threads=threads)
+    if frame == "input":
+        pieces = ((mesh.in_frame(v, model.manifest), f) for v, f in pieces)
+
+    def write(file):
+        if not write_ply_pieces(file, pieces, path.parent)[1]:
+            raise no_surface(path)
+
+    atomic_write(path, write)
+
+
+def sample_bytes(model, triplane, path, scale: float = 1.0, smooth: int = 0, smoother: str = "laplacian",
+                 largest: bool = False, frame: str = "input", threads: int | None = None) -> tuple:
+    """One sample as the bytes of the file `path` names, made in memory, and
+    its mesh (None for a grid): what write_sample writes, for a caller that
+    writes elsewhere or wants the mesh too."""
+    from . import mesh, query
+
+    path = Path(path)
+    if output_kind(path) == "grid":
+        return grid_bytes(query.dense(model, triplane, scale), size=triplane.size, scale=scale), None
+    result = mesh.extract(model, triplane, scale, smooth, smoother, largest, frame, threads=threads)
     if not len(result.faces):
-        raise InputError(f"{Path(path).name}: the sample has no surface at this scale and size; nothing written")
-    write_mesh(result, path)
+        raise no_surface(path)
+    return mesh_bytes(result, path.suffix), result
+
+
+def no_surface(path: Path) -> InputError:
+    return InputError(f"{path.name}: the sample has no surface at this scale and size; nothing written")
 
 
 def write_samples(model, outputs, progress=None, **options) -> None:
@@ -164,9 +250,3 @@ def write_samples(model, outputs, progress=None, **options) -> None:
         write_sample(model, triplane, path, **options)
         if progress:
             progress()
-
-
-def write_grid(occupancy: np.ndarray, path, **fields) -> None:
-    """Save an occupancy grid (and small metadata arrays) as compressed .npz."""
-    data = grid_bytes(occupancy, **fields)
-    atomic_write(path, lambda f: f.write(data))

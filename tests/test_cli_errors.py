@@ -27,7 +27,7 @@ def test_output_patterns_fill_plain_fields_only(tiny_model, tmp_path):
         assert result.exit_code == 2 and "only {seed} can be filled in" in result.output, (pattern, result.output)
     assert list(tmp_path.iterdir()) == []
     assert sinrun("sample", tiny_model, "--seeds", "0-1", "-o", tmp_path / "s_{seed}.ply").exit_code == 0
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["s_0.ply", "s_1.ply"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s_0.ply", "s_1.ply", "s_index.jsonl"]
 
 
 def test_a_directory_is_not_called_missing(tmp_path):
@@ -56,9 +56,10 @@ def test_an_empty_sample_is_refused_not_written(tiny_model, tmp_path, monkeypatc
 
     # As --size 0.01 gave with tests/data/tiny.onnx: a 2x2x2 grid, all inside or all outside.
     monkeypatch.setattr(mesh, "extract", lambda *args, **kwargs: trimesh.Trimesh())
-    out = tmp_path / "s.ply"
-    assert_one_line_error(sinrun("sample", tiny_model, "-o", out, "--size", "0.5"), "no surface", "nothing written")
-    assert not out.exists()
+    monkeypatch.setattr(mesh, "pieces", lambda *args, **kwargs: iter(()))  # a .ply streams
+    for out in (tmp_path / "s.ply", tmp_path / "s.glb"):
+        assert_one_line_error(sinrun("sample", tiny_model, "-o", out, "--size", "0.5"), "no surface", "nothing written")
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_clamped_levels_warn(tiny_model, tmp_path):

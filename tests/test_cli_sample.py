@@ -65,7 +65,7 @@ def test_npz_holds_the_occupancy_grid(tiny_model, tmp_path):
 def test_many_seeds_one_file_each(tiny_model, tmp_path):
     result = sinrun("sample", tiny_model, "--seeds", "2-4,9", "-o", tmp_path / "s.obj")
     assert result.exit_code == 0, result.output
-    assert sorted(p.name for p in tmp_path.iterdir()) == [f"s_seed{s}.obj" for s in (2, 3, 4, 9)]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s_index.jsonl"] + [f"s_seed{s}.obj" for s in (2, 3, 4, 9)]
     result = sinrun("sample", tiny_model, "--seeds", "1,2", "-o", tmp_path / "x{seed}.ply")
     assert (tmp_path / "x1.ply").exists() and (tmp_path / "x2.ply").exists()
 

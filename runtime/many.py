@@ -1,0 +1,271 @@
+"""Many samples as one resumable job: seeds spread over worker processes on
+this machine, or over a Ray cluster.
+
+Workers load the model once and send back each seed's file bytes and
+figures; only this process writes, atomically, then appends the seed to an
+index file beside the outputs (JSON lines, fsynced, so it is valid after a
+crash). A rerun skips every seed that is in the index and whose file
+exists; Ctrl-C leaves no partial file. Seeds are taken lazily, a few ahead of
+the workers, so a range of any length costs nothing up front.
+"""
+
+import json
+import os
+import queue
+import re
+import signal
+import socket
+import tempfile
+import time
+from pathlib import Path
+
+from .errors import InputError
+from .load import default_threads, load_model
+
+ENGINES = ("local", "ray")
+FIELD = "{seed}"
+
+
+def index_path(pattern) -> Path:
+    """The index beside the outputs: out/{seed}.glb -> out/index.jsonl,
+    out/tower_seed{seed}.ply -> out/tower_index.jsonl."""
+    pattern = Path(pattern)
+    return pattern.with_name(Path(re.sub(r"(seed)?\{seed\}", "index", pattern.name)).stem + ".jsonl")
+
+
+def read_index(path: Path) -> set:
+    """The seeds an index records. A line cut short by a crash is dropped
+    from the file, so that the next line starts clean."""
+    if not path.is_file():
+        return set()
+    data = path.read_bytes()
+    end = data.rfind(b"\n") + 1
+    if end < len(data):
+        with open(path, "r+b") as f:
+            f.truncate(end)
+    seeds = set()
+    for line in data[:end].splitlines():
+        try:
+            seeds.add(int(json.loads(line)["seed"]))
+        except (ValueError, KeyError, TypeError):
+            raise InputError(f"{path}: not a sinshape index (a line is not a seed's JSON record); "
+                             "move it away or choose another output name") from None
+    return seeds
+
+
+class Worker:
+    """One worker's model, loaded once, and the recipe for a seed's file."""
+
+    def __init__(self, model, suffix: str, threads: int, options: dict):
+        if isinstance(model, bytes):  # sent over the network (Ray): load it from a local copy
+            with tempfile.NamedTemporaryFile(suffix=".onnx") as f:
+                f.write(model)
+                f.flush()
+                self.model = load_model(f.name, threads=threads)
+        else:
+            self.model = load_model(model, threads=threads)
+        self.suffix, self.threads, self.options = suffix, threads, dict(options)
+
+    def run(self, seed: int) -> tuple:
+        """(file bytes, index record without the file name) of one seed."""
+        from . import generate, write
+
+        started = time.perf_counter()
+        options = dict(self.options)
+        triplane = generate.sample(self.model, seed, options.pop("size", (1.0, 1.0, 1.0)))
+        data, mesh = write.sample_bytes(self.model, triplane, f"seed{seed}{self.suffix}",
+                                        threads=self.threads, **options)
+        record = {"seed": seed, "vertices": None, "faces": None, "watertight": None, "volume": None}
+        if mesh is not None:
+            record.update(vertices=len(mesh.vertices), faces=len(mesh.faces),
+                          watertight=bool(mesh.is_watertight), volume=round(float(mesh.volume), 6))
+        record["seconds"] = round(time.perf_counter() - started, 3)
+        return data, record
+
+
+_worker = None  # a pool process's Worker
+
+
+def _start_process(*args) -> None:
+    global _worker
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the driver's to handle
+    _worker = Worker(*args)
+
+
+def _run_in_process(seed: int) -> tuple:
+    return _worker.run(seed)
+
+
+class InProcess:
+    """One worker: this process."""
+
+    def __init__(self, model_path, suffix, threads, options):
+        self.worker, self.done = Worker(model_path, suffix, threads, options), []
+
+    slots = 1
+
+    def submit(self, seed: int) -> None:
+        self.done.append(self.worker.run(seed))
+
+    def next_result(self) -> tuple:
+        return self.done.pop(0)
+
+    def close(self) -> None:
+        pass
+
+
+class Processes:
+    """Worker processes on this machine (multiprocessing, spawned)."""
+
+    def __init__(self, model_path, suffix, threads, options, workers: int):
+        import multiprocessing
+
+        self.pool = multiprocessing.get_context("spawn").Pool(
+            workers, initializer=_start_process, initargs=(str(model_path), suffix, threads, options))
+        self.results = queue.Queue()
+        self.slots = 2 * workers  # one running and one waiting per worker
+
+    def submit(self, seed: int) -> None:
+        self.pool.apply_async(_run_in_process, (seed,), callback=self.results.put,
+                              error_callback=self.results.put)
+
+    def next_result(self) -> tuple:
+        result = self.results.get()
+        if isinstance(result, BaseException):
+            raise result
+        return result
+
+    def close(self) -> None:
+        self.pool.terminate()
+        self.pool.join()
+
+
+def check_reachable(address: str | None, timeout: float = 5.0) -> None:
+    """Refuse a host:port that does not answer within `timeout` seconds:
+    ray.init would retry it for minutes."""
+    if not address or address in ("auto", "local"):
+        return
+    host, _, port = address.split("://")[-1].rpartition(":")
+    try:
+        socket.create_connection((host, int(port)), timeout).close()
+    except (OSError, ValueError) as error:
+        reason = getattr(error, "strerror", None) or "give HOST:PORT"
+        raise InputError(f"cannot reach the Ray cluster at {address} ({reason})", "address") from None
+
+
+class RayActors:
+    """Ray actors, each holding a Worker; Ray's own default cluster unless
+    `address` names one."""
+
+    def __init__(self, model_path, suffix, threads, options, workers: int | None, address: str | None):
+        try:
+            import ray
+        except ImportError:
+            raise InputError("the ray engine needs Ray, which is not installed: "
+                             "pip install 'sinshape[ray]'", "engine") from None
+        self.ray, self.started = ray, not ray.is_initialized()
+        if self.started:
+            check_reachable(address)
+            try:
+                ray.init(address=address, include_dashboard=False, logging_level="ERROR",
+                         log_to_driver=False)
+            except (ConnectionError, RuntimeError, ValueError) as error:
+                where = address or os.environ.get("RAY_ADDRESS") or "a local Ray"
+                raise InputError(f"cannot reach the Ray cluster at {where}: {str(error).splitlines()[0]}",
+                                 "address") from None
+        if workers is None:
+            workers = max(1, int(ray.cluster_resources().get("CPU", 1)) // threads)
+        actor = ray.remote(num_cpus=threads)(Worker)
+        model = ray.put(Path(model_path).read_bytes())
+        self.actors = [actor.remote(model, suffix, threads, options) for _ in range(workers)]
+        self.free = self.actors * 2  # one running and one waiting per actor
+        self.slots = len(self.free)
+        self.pending = {}  # object ref -> actor
+
+    def submit(self, seed: int) -> None:
+        actor = self.free.pop()
+        self.pending[actor.run.remote(seed)] = actor
+
+    def next_result(self) -> tuple:
+        (ready,), _ = self.ray.wait(list(self.pending), num_returns=1)
+        self.free.append(self.pending.pop(ready))
+        try:
+            return self.ray.get(ready)
+        except self.ray.exceptions.RayTaskError as error:
+            raise error.cause from None  # an InputError of the seed, say, rather than Ray's report
+
+    def close(self) -> None:
+        for actor in self.actors:
+            self.ray.kill(actor)
+        if self.started:
+            self.ray.shutdown()
+
+
+def sample_many(model_path, seeds, pattern, engine: str = "local", workers: int | None = None,
+                threads: int | None = None, address: str | None = None, progress=None, **options) -> dict:
+    """Write one file per seed, `pattern` with {seed} filled in, resumably.
+
+    seeds: any iterable of seeds, read lazily. engine 'local': `workers`
+    processes (None: one per core; 1: this process), or 'ray': Ray actors
+    (None: one per CPU of the cluster) on the cluster at `address` (None:
+    Ray's default). threads: per worker (None: the cores divided among the
+    local workers; 1 on Ray). options: size, scale, smooth, smoother,
+    largest, frame, as for write.write_sample; each sample is made in
+    memory. progress(seed, record or None if skipped) after each seed.
+    Returns {"written", "skipped", "index"}.
+    """
+    from . import write
+
+    pattern = Path(pattern)
+    if FIELD not in pattern.name:
+        raise InputError(f"{pattern.name}: many seeds need {FIELD} in the output file name", "pattern")
+    if engine not in ENGINES:
+        raise InputError(f"unknown engine {engine!r}; choose {' or '.join(ENGINES)}", "engine")
+    if workers is not None and workers < 1:
+        raise InputError(f"workers must be at least 1, got {workers}", "workers")
+    if threads is not None and threads < 1:
+        raise InputError(f"threads must be at least 1, got {threads}", "threads")
+    write.output_kind(pattern)
+    write.check_writable(pattern.with_name(pattern.name.replace(FIELD, "0")), [model_path])
+    load_model(model_path, threads=1)  # a bad model is one line here, not one per worker
+    index = index_path(pattern)
+    done = read_index(index)
+    if engine == "ray":
+        pool = RayActors(model_path, pattern.suffix, threads or 1, options, workers, address)
+    else:
+        workers = default_threads() if workers is None else workers
+        threads = threads or max(1, default_threads() // workers)
+        pool = (InProcess(model_path, pattern.suffix, threads, options) if workers == 1 else
+                Processes(model_path, pattern.suffix, threads, options, workers))
+    written = skipped = running = 0
+    try:
+        with open(index, "a") as log:
+            def finish():
+                nonlocal written, running
+                data, record = pool.next_result()
+                running -= 1
+                path = pattern.with_name(pattern.name.replace(FIELD, str(record["seed"])))
+                write.check_writable(path, [model_path])  # never over the model, under any name
+                write.atomic_write(path, lambda f: f.write(data))
+                log.write(json.dumps({"seed": record["seed"], "file": path.name, **record}) + "\n")
+                log.flush()
+                os.fsync(log.fileno())
+                written += 1
+                if progress:
+                    progress(record["seed"], record)
+
+            for seed in seeds:
+                if seed in done and pattern.with_name(pattern.name.replace(FIELD, str(seed))).is_file():
+                    skipped += 1
+                    if progress:
+                        progress(seed, None)
+                    continue
+                if running == pool.slots:
+                    finish()
+                pool.submit(seed)
+                running += 1
+            while running:
+                finish()
+    finally:
+        pool.close()
+    return {"written": written, "skipped": skipped, "index": index}
