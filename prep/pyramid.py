@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
+from sinshape.runtime.budget import check_memory
 from sinshape.runtime.errors import InputError
 from sinshape.runtime.generate import resize_volume
 
@@ -32,6 +33,10 @@ COARSEST_MAX = 33
 LEVEL_FACTOR = 0.75
 MIN_SIZE = 15
 PYRAMID_SUFFIXES = (".h5", ".hdf5")
+# Peak bytes voxelising a mesh needs per voxel of its finest level (crossing
+# counts, votes, the coarser levels, the blurred targets): 43 measured on
+# tests/data/towerruins at res 128 and 256 (docs/RELIABILITY.md).
+VOXELIZE_BYTES_PER_VOXEL = 48
 
 
 @dataclass(frozen=True)
@@ -102,8 +107,10 @@ def file_sha256(path: Path) -> str:
 
 
 def pyramid_from_mesh(path: Path, res: int, levels: int | None = None,
-                      factor: float = LEVEL_FACTOR, min_size: int = MIN_SIZE) -> Pyramid:
-    """Voxelise a mesh file at every level of its pyramid."""
+                      factor: float = LEVEL_FACTOR, min_size: int = MIN_SIZE, check=None) -> Pyramid:
+    """Voxelise a mesh file at every level of its pyramid. check(sizes), if
+    given, sees the level sizes before any is voxelised (to refuse work up
+    front); voxelising that would not fit in memory is refused too."""
     mesh = voxelize.load_mesh(path)
     corners = mesh.vertices[mesh.faces.reshape(-1)]
     low, high = corners.min(axis=0), corners.max(axis=0)
@@ -116,6 +123,9 @@ def pyramid_from_mesh(path: Path, res: int, levels: int | None = None,
     box_low = (low + high) / 2 - box / 2
     count = levels if levels is not None else level_count(max(finest), factor)
     voxelised, stretched = level_sizes(finest, count, factor, min_size)
+    check_memory(VOXELIZE_BYTES_PER_VOXEL * math.prod(finest), f"voxelising a {'x'.join(map(str, finest))} grid")
+    if check:
+        check(stretched)
     grids = [
         stretch(voxelize.voxelize(mesh, box_low, box / np.array(size), size), target)
         for size, target in zip(voxelised, stretched)
@@ -170,14 +180,19 @@ def pyramid_from_h5(path: Path, levels: int | None = None) -> Pyramid:
 
 
 def load_pyramid(path, res: int, levels: int | None = None,
-                 factor: float = LEVEL_FACTOR, min_size: int = MIN_SIZE) -> Pyramid:
-    """The pyramid of a mesh file (voxelised at `res`) or of an SSG .h5 file."""
+                 factor: float = LEVEL_FACTOR, min_size: int = MIN_SIZE, check=None) -> Pyramid:
+    """The pyramid of a mesh file (voxelised at `res`) or of an SSG .h5 file.
+    check(sizes), if given, sees the level sizes before a mesh is voxelised,
+    after an .h5 file is read."""
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: no such file")
     if path.suffix.lower() in PYRAMID_SUFFIXES:
-        return pyramid_from_h5(path, levels)
-    return pyramid_from_mesh(path, res, levels, factor, min_size)
+        pyramid = pyramid_from_h5(path, levels)
+        if check:
+            check(pyramid.sizes)
+        return pyramid
+    return pyramid_from_mesh(path, res, levels, factor, min_size, check)
 
 
 def reference_grid(path, manifest, scale: float = 1.0) -> np.ndarray:

@@ -8,45 +8,17 @@ model's onnxruntime sessions.
 Planes are (C, H, W) float32 in the order xy (X, Y), xz (X, Z), yz (Y, Z).
 """
 
-import os
 from dataclasses import dataclass
 
 import numpy as np
 
 from . import noise
-from .errors import InputError, MemoryLimitError
+from .budget import check_memory
+from .errors import InputError
 from .manifest import plane_sizes
 
 # A sample's coarsest grid may not shrink below this many voxels per axis.
 MIN_SIDE = 2
-# The memory limit where the machine does not say how much memory is available.
-FALLBACK_MEMORY_LIMIT = 4 << 30
-
-
-def available_memory() -> int:
-    """Bytes of memory available to new work: MemAvailable on Linux (it
-    counts reclaimable caches), else the free physical pages, else
-    FALLBACK_MEMORY_LIMIT."""
-    try:
-        with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
-    try:
-        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
-    except (AttributeError, ValueError, OSError):
-        return FALLBACK_MEMORY_LIMIT
-
-
-def check_memory(needed: int, what: str, limit: int | None = None) -> None:
-    """Refuse work up front, with the figure, if it needs more than `limit`
-    bytes (None: the memory available now)."""
-    limit = available_memory() if limit is None else limit
-    if needed > limit:
-        raise MemoryLimitError(f"{what} needs about {needed / 2**30:.1f} GiB of memory "
-                               f"(limit {limit / 2**30:.1f} GiB)")
 
 
 def parse_triple(text: str, valid, example: str, name: str = "size") -> tuple:

@@ -15,6 +15,11 @@ from . import query
 from .errors import InputError
 
 SMOOTHERS = ("laplacian", "taubin")
+# Smoothing spreads each vertex over about sqrt(iterations) grid steps, and
+# costs one pass over the mesh per iteration: 100 iterations already blur
+# over about 10 steps, the size of the patches the model learnt (the paper
+# smooths 3 times), so more would only erase the shape, slowly.
+MAX_SMOOTH = 100
 
 
 def band_mesh(model, triplane, scale: float = 1.0, block: int = query.BLOCK, progress=None,
@@ -92,8 +97,8 @@ def to_frame(mesh: trimesh.Trimesh, manifest) -> trimesh.Trimesh:
 
 def finish(mesh: trimesh.Trimesh, smooth: int = 0, smoother: str = "laplacian", largest: bool = False) -> trimesh.Trimesh:
     """Optional clean-up: keep the largest component, then smooth."""
-    if smooth < 0:
-        raise InputError(f"smooth must be 0 or more iterations, got {smooth}", "smooth")
+    if not 0 <= smooth <= MAX_SMOOTH:
+        raise InputError(f"smooth must be 0 to {MAX_SMOOTH} iterations, got {smooth}", "smooth")
     if smoother not in SMOOTHERS:
         raise InputError(f"unknown smoother {smoother!r}; choose {' or '.join(SMOOTHERS)}", "smoother")
     if largest and len(mesh.faces):

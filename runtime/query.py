@@ -20,7 +20,8 @@ import numpy as np
 from scipy.special import expit
 
 from .errors import InputError
-from .generate import TriPlane, check_memory, resize_matrix
+from .budget import check_memory
+from .generate import TriPlane, resize_matrix
 from .manifest import PLANE_AXES
 
 BLOCK = 16  # cells per block side in the band search; see benchmarks/sample_speed.py

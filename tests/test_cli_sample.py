@@ -226,7 +226,8 @@ def test_bad_options_are_refused_in_one_line(tiny_model, tmp_path):
         (["-o", "/proc/sinshape.ply"], "cannot write"),
         (["--threads", "0"], "--threads must be at least 1"),
         (["--recon", "--size", "2"], "training size; drop --size"),
-        (["--smooth", "-1"], "--smooth must be 0 or more"),
+        (["--smooth", "-1"], "--smooth must be 0 to 100"),
+        (["--smooth", "1000000"], "--smooth must be 0 to 100"),
     ]
     for options, fragment in cases:
         result = sinrun("sample", tiny_model, "-o", str(out), *options)

@@ -1,0 +1,43 @@
+"""Refuse work up front, with the figure: the one memory check of every command.
+
+Each stage estimates the bytes its work needs from the sizes it is given
+(a sample's levels, a meshing grid, a picture, a procedural shape's grid, a
+training level) before it allocates anything, and calls `check_memory`,
+which compares the estimate with a limit: a `memory_limit` parameter, by
+default the memory available now. The refusal is a MemoryLimitError that
+says "needs about N GiB of memory (limit M GiB)", on the command line and
+in the web API alike.
+"""
+
+import os
+
+from .errors import MemoryLimitError
+
+# The memory limit where the machine does not say how much memory is available.
+FALLBACK_MEMORY_LIMIT = 4 << 30
+
+
+def available_memory() -> int:
+    """Bytes of memory available to new work: MemAvailable on Linux (it
+    counts reclaimable caches), else the free physical pages, else
+    FALLBACK_MEMORY_LIMIT."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (AttributeError, ValueError, OSError):
+        return FALLBACK_MEMORY_LIMIT
+
+
+def check_memory(needed: int, what: str, limit: int | None = None) -> None:
+    """Refuse work up front, with the figure, if it needs more than `limit`
+    bytes (None: the memory available now)."""
+    limit = available_memory() if limit is None else limit
+    if needed > limit:
+        raise MemoryLimitError(f"{what} needs about {needed / 2**30:.1f} GiB of memory "
+                               f"(limit {limit / 2**30:.1f} GiB)")
