@@ -390,10 +390,13 @@ def sample(model, seed, seeds, recon, scale, size, output, smooth, smoother, lar
     write.output_kind(first)
     write.check_writable(first)
     warn_if_clamped(loaded, size, scale)
+    if scale > 2 and write.output_kind(first) == "mesh":
+        say_how_long(loaded, generate.sample(loaded, seeds.first if seeds else chosen[0], size), scale, len(chosen))
     outputs = ((path_of(s), generate.sample(loaded, s, size)) for s in chosen)
-    with progress_bar(len(chosen), "sampling") as bar:
+    single = len(chosen) == 1
+    with progress_bar(len(chosen), "sampling") as bar, SlabProgress(show=single) as slabs:
         write.write_samples(loaded, outputs, progress=lambda: bar.update(1), scale=scale, smooth=smooth,
-                            smoother=smoother, largest=largest, frame=frame)
+                            smoother=smoother, largest=largest, frame=frame, mesh_progress=slabs)
     click.echo(f"wrote {first}" if len(chosen) == 1 else f"wrote {len(chosen)} files: {first} .. {path_of(seeds.last)}")
 
 
@@ -440,6 +443,37 @@ def interpolate(model, seeds, steps, alpha_range, scale, size, output, smooth, s
         write.write_samples(loaded, outputs, progress=lambda: bar.update(1), scale=scale, smooth=smooth,
                             smoother=smoother, largest=largest, frame=frame)
     click.echo(f"wrote {steps} files: {path(0)} .. {path(steps - 1)}")
+
+
+def say_how_long(model, triplane, scale, count) -> None:
+    """'about N minutes' on stderr before a long sampling run."""
+    from sinshape.runtime import mesh
+
+    seconds = mesh.estimate_seconds(model, triplane, scale) * count
+    if seconds > 30:
+        click.echo(f"--scale {scale:g}: about {format_seconds(seconds)} (h:mm:ss) "
+                   f"for {count} sample{'s' if count > 1 else ''}", err=True)
+
+
+class SlabProgress:
+    """A progress bar over the slabs one sample is meshed in (on a terminal)."""
+
+    def __init__(self, show: bool):
+        self.show, self.bar = show, None
+
+    def __call__(self, done: int, total: int) -> None:
+        if not self.show:
+            return
+        if self.bar is None:
+            self.bar = progress_bar(total, "meshing").__enter__()
+        self.bar.update(done - self.bar.pos)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *error) -> None:
+        if self.bar is not None:
+            self.bar.__exit__(*error)
 
 
 def warn_if_clamped(model, factors, scale) -> None:

@@ -109,14 +109,15 @@ def write_mesh(mesh, path) -> None:
 
 
 def write_sample(model, triplane, path, scale: float = 1.0, smooth: int = 0, smoother: str = "laplacian",
-                 largest: bool = False, frame: str = "input") -> None:
-    """One sample as the file its extension names: a mesh, or the .npz grid."""
+                 largest: bool = False, frame: str = "input", mesh_progress=None) -> None:
+    """One sample as the file its extension names: a mesh, or the .npz grid.
+    mesh_progress(done, total) is called as meshing goes (mesh.extract)."""
     from . import mesh, query
 
     if output_kind(path) == "grid":
         write_grid(query.dense(model, triplane, scale), path, size=triplane.size, scale=scale)
         return
-    result = mesh.extract(model, triplane, scale, smooth, smoother, largest, frame)
+    result = mesh.extract(model, triplane, scale, smooth, smoother, largest, frame, progress=mesh_progress)
     if not len(result.faces):
         raise InputError(f"{Path(path).name}: the sample has no surface at this scale and size; nothing written")
     write_mesh(result, path)
