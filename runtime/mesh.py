@@ -65,6 +65,7 @@ def estimate_seconds(model, triplane, scale: float) -> float:
     between scales 2 and 8, docs/RELIABILITY.md)."""
     import time
 
+    query.check_band_memory(triplane.size, scale, model.manifest.hidden)  # refused work takes no time
     measured = min(scale, 2.0)
     started = time.perf_counter()
     band_mesh(model, triplane, measured)

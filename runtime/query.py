@@ -195,6 +195,16 @@ def rectangle_bounds(plane: np.ndarray, ranges_a: list, ranges_b: list) -> tuple
     return lo, hi
 
 
+def check_band_memory(size, scale: float, hidden: int, block: int = BLOCK, memory_limit: int | None = None) -> None:
+    """Refuse up front a band search (`band`) that needs more than
+    memory_limit bytes: the yz plane of D = `hidden` pre-activations at every
+    padded (y, z), three slab buffers, and the x rows of two planes."""
+    shape = grid_shape(size, scale)
+    py, pz = (-(-(m + 1) // block) * block + 1 for m in shape[1:])
+    needed = py * pz * (hidden + 3 * (block + 1)) * 4 + (block + 1) * (py + pz) * hidden * 4
+    check_memory(needed, f"meshing a {'x'.join(map(str, shape))} grid", memory_limit)
+
+
 def band(model, triplane: TriPlane, scale: float, block: int = BLOCK, chunk: int = 16,
          memory_limit: int | None = None):
     """Occupancy on a grid `scale` times finer, evaluated only in blocks that
@@ -210,13 +220,9 @@ def band(model, triplane: TriPlane, scale: float, block: int = BLOCK, chunk: int
     one plane of points; its values are carried from the previous slab, so
     both sides of a seam see the same numbers.
     """
+    check_band_memory(triplane.size, scale, model.manifest.hidden, block, memory_limit)
     proj = project(model, triplane)
     grid = FineGrid(proj, scale, block)
-    py, pz = grid.padded[1:]
-    hidden = proj.planes[2].shape[-1]  # the decoder's hidden width D
-    # The yz plane at every (y, z), three slab buffers, the x rows of two planes.
-    needed = py * pz * (hidden + 3 * (block + 1)) * 4 + (block + 1) * (py + pz) * hidden * 4
-    check_memory(needed, f"meshing a {'x'.join(map(str, grid.shape))} grid", memory_limit)
     head = model.head
     ranges = [grid.coarse_ranges(axis) for axis in range(3)]
     yz_lo, yz_hi = rectangle_bounds(proj.planes[2], ranges[1], ranges[2])  # (nby, nbz, D)
