@@ -16,7 +16,8 @@ from sinshape.runtime.errors import InputError
 
 # Library errors name a function's parameter; on the command line it is an option.
 OPTIONS = {"scale": "--scale", "factors": "--size", "smooth": "--smooth", "threads": "--threads",
-           "levels": "--levels", "res": "--res", "detail": "--detail"}
+           "levels": "--levels", "res": "--res", "detail": "--detail",
+           "alpha": "--range", "samples": "--samples"}
 
 
 def command_line_message(error: InputError) -> str:

@@ -117,7 +117,7 @@ def load_mesh(path: str | Path, solid: bool = True) -> trimesh.Trimesh:
     if not solid:
         return mesh
     extents = mesh.extents
-    thin = extents < _FLAT_RATIO * extents.max()
+    thin = extents < _FLAT_RATIO * extents.max() if extents.max() > 0 else extents == 0  # or a single point
     if thin.any():
         axes = ", ".join("xyz"[i] for i in np.flatnonzero(thin))
         raise InputError(

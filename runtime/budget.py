@@ -9,9 +9,10 @@ says "needs about N GiB of memory (limit M GiB)", on the command line and
 in the web API alike.
 """
 
+import numbers
 import os
 
-from .errors import MemoryLimitError
+from .errors import InputError, MemoryLimitError
 
 # The memory limit where the machine does not say how much memory is available.
 FALLBACK_MEMORY_LIMIT = 4 << 30
@@ -37,6 +38,8 @@ def available_memory() -> int:
 def check_memory(needed: int, what: str, limit: int | None = None) -> None:
     """Refuse work up front, with the figure, if it needs more than `limit`
     bytes (None: the memory available now)."""
+    if limit is not None and not isinstance(limit, numbers.Real):
+        raise InputError(f"memory_limit must be a number of bytes, got {limit!r}", "memory_limit")
     limit = available_memory() if limit is None else limit
     if needed > limit:
         raise MemoryLimitError(f"{what} needs about {needed / 2**30:.1f} GiB of memory "

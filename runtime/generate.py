@@ -8,6 +8,7 @@ model's onnxruntime sessions.
 Planes are (C, H, W) float32 in the order xy (X, Y), xz (X, Z), yz (Y, Z).
 """
 
+import numbers
 from dataclasses import dataclass
 
 import numpy as np
@@ -19,6 +20,9 @@ from .manifest import plane_sizes
 
 # A sample's coarsest grid may not shrink below this many voxels per axis.
 MIN_SIDE = 2
+# How far `interpolate` extrapolates: its noise is then this many times the
+# std the levels were trained on (1e308 overflowed to NaN and failed).
+MAX_ALPHA = 100
 
 
 def parse_triple(text: str, valid, example: str, name: str = "size") -> tuple:
@@ -42,8 +46,9 @@ def parse_size(text: str) -> tuple:
 
 def scaled_sizes(sizes: list, factors=(1.0, 1.0, 1.0)) -> list:
     """Every level's grid for a sample `factors` times the training size per axis."""
-    if len(factors) != 3 or any(not f > 0 for f in factors):
-        raise InputError(f"factors must be 3 positive numbers, got {tuple(factors)}", "factors")
+    if not (isinstance(factors, (tuple, list, np.ndarray)) and len(factors) == 3
+            and all(isinstance(f, numbers.Real) and 0 < f < float("inf") for f in factors)):
+        raise InputError(f"factors must be 3 positive numbers, got {factors!r}", "factors")
     out = [tuple(max(MIN_SIDE, round(n * f)) for n, f in zip(size, factors)) for size in sizes]
     return out
 
@@ -191,11 +196,11 @@ def interpolate(model, seed_a: int, seed_b: int, alpha: float, factors=(1.0, 1.0
                 memory_limit: int | None = None) -> TriPlane:
     """Blend two samples: z0 = (1 - alpha) z0_A + alpha z0_B, later noise of seed A held fixed.
 
-    alpha outside [0, 1] extrapolates (the paper shows -0.5 .. 1.5);
-    memory_limit as for `sample`.
+    alpha outside [0, 1] extrapolates (the paper shows -0.5 .. 1.5) up to
+    MAX_ALPHA; memory_limit as for `sample`.
     """
-    if not np.isfinite(alpha):
-        raise InputError(f"alpha must be a finite number, got {alpha}", "alpha")
+    if not (isinstance(alpha, (int, float, np.number)) and -MAX_ALPHA <= alpha <= MAX_ALPHA):
+        raise InputError(f"alpha must be a number in [-{MAX_ALPHA}, {MAX_ALPHA}], got {alpha}", "alpha")
     sizes = scaled_sizes(model.manifest.sizes, factors)
     check_generation_memory(sizes, model.manifest.channels, factors, memory_limit)
     a = draw_noise(check_seed(seed_a), sizes, model.manifest.channels)

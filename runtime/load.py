@@ -8,6 +8,7 @@ a sane type and range, a checksum that matches (format 2), and stages that
 run and give finite values of the shapes the manifest implies.
 """
 
+import numbers
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,6 +22,9 @@ from . import manifest as fmt
 from .errors import InputError
 
 MAX_MODEL_BYTES = 512 * 1024 * 1024
+# onnxruntime starts every thread of every stage's pool up front (a million
+# took minutes before failing); more threads than cores only slow it down.
+MAX_THREADS = 256
 # Every op a stage may contain (default ONNX domain only: no custom ops).
 ALLOWED_OPS = {"Conv", "InstanceNormalization", "LeakyRelu", "Transpose", "MatMul", "Add", "Relu", "Sigmoid"}
 
@@ -212,10 +216,12 @@ def check_stages(model: Model) -> None:
 
 def load_model(path, threads: int | None = None) -> Model:
     """Read, check and prepare a model; `threads` per session (default: all cores)."""
+    if not isinstance(path, (str, os.PathLike)):
+        raise InputError(f"path must be a file name, got {path!r}", "path")
     path = Path(path)
     threads = default_threads() if threads is None else threads
-    if threads < 1:
-        raise InputError(f"threads must be at least 1, got {threads}", "threads")
+    if not (isinstance(threads, numbers.Integral) and 1 <= threads <= MAX_THREADS):
+        raise InputError(f"threads must be 1 to {MAX_THREADS}, got {threads}", "threads")
     proto = read_model(path)
     manifest = read_manifest(proto, path)
 

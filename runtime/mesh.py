@@ -7,6 +7,8 @@ so seam vertices come out bit-identical and merge exactly, and the padding
 of empty points closes the surface at the grid's border.
 """
 
+import numbers
+
 import numpy as np
 import trimesh
 from skimage import measure
@@ -111,7 +113,7 @@ def to_frame(mesh: trimesh.Trimesh, manifest) -> trimesh.Trimesh:
 
 def finish(mesh: trimesh.Trimesh, smooth: int = 0, smoother: str = "laplacian", largest: bool = False) -> trimesh.Trimesh:
     """Optional clean-up: keep the largest component, then smooth."""
-    if not 0 <= smooth <= MAX_SMOOTH:
+    if not (isinstance(smooth, numbers.Integral) and 0 <= smooth <= MAX_SMOOTH):
         raise InputError(f"smooth must be 0 to {MAX_SMOOTH} iterations, got {smooth}", "smooth")
     if smoother not in SMOOTHERS:
         raise InputError(f"unknown smoother {smoother!r}; choose {' or '.join(SMOOTHERS)}", "smoother")

@@ -14,6 +14,7 @@ cells themselves. Grid positions outside the tri-plane count as empty: the
 grid is padded with one empty point on every side, so surfaces close.
 """
 
+import numbers
 from dataclasses import dataclass
 
 import numpy as np
@@ -69,9 +70,12 @@ def points(model, triplane: TriPlane, coords: np.ndarray, chunk: int = 1 << 16) 
     (i, j, k) of the sample at scale 1 is at (i, j, k); the sample spans
     [0, N - 1] per axis. Points outside count as empty. Returns (n,) float32.
     """
-    coords = np.asarray(coords, dtype=np.float64)
+    try:
+        coords = np.asarray(coords, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError("points must be an (n, 3) array of numbers", "coords") from None
     if coords.ndim != 2 or coords.shape[1] != 3:
-        raise InputError(f"points must be an (n, 3) array, got shape {coords.shape}")
+        raise InputError(f"points must be an (n, 3) array, got shape {coords.shape}", "coords")
     proj = project(model, triplane)
     size = np.array(triplane.size)
     out = np.zeros(len(coords), np.float32)
@@ -99,7 +103,7 @@ def bilinear(plane: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 def grid_shape(size, scale: float) -> tuple:
     """Points per axis of a grid `scale` times finer than `size`."""
-    if not np.isfinite(scale) or scale <= 0:
+    if not isinstance(scale, numbers.Real) or not 0 < scale < float("inf"):
         raise InputError(f"scale must be a positive number, got {scale}", "scale")
     shape = tuple(max(2, round(n * scale)) for n in size)
     if max(shape) > MAX_SIDE:
