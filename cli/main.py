@@ -427,9 +427,11 @@ def interpolate(model, seeds, steps, alpha_range, scale, size, output, smooth, s
         raise click.BadParameter("--steps must be at least 1")
     if not all(np.isfinite(alpha_range)):
         raise click.BadParameter(f"--range must be two finite numbers, got {alpha_range[0]} {alpha_range[1]}")
+    low, high = alpha_range
+    generate.check_alpha(low)  # before a name is made from it
+    generate.check_alpha(high)
     loaded = open_model(model, threads)
     warn_if_clamped(loaded, size, scale)
-    low, high = alpha_range
 
     def alpha(k):  # computed when needed: --steps 100000000 costs nothing up front
         return high if 0 < k == steps - 1 else low + k * (high - low) / max(steps - 1, 1)

@@ -11,6 +11,7 @@ in the web API alike.
 
 import numbers
 import os
+from decimal import Decimal
 
 from .errors import InputError, MemoryLimitError
 
@@ -42,5 +43,10 @@ def check_memory(needed: int, what: str, limit: int | None = None) -> None:
         raise InputError(f"memory_limit must be a number of bytes, got {limit!r}", "memory_limit")
     limit = available_memory() if limit is None else limit
     if needed > limit:
-        raise MemoryLimitError(f"{what} needs about {needed / 2**30:.1f} GiB of memory "
-                               f"(limit {limit / 2**30:.1f} GiB)")
+        raise MemoryLimitError(f"{what} needs about {gib(needed)} GiB of memory (limit {gib(limit)} GiB)")
+
+
+def gib(size) -> str:
+    """Bytes as GiB for a message, absurd sizes too (past what a float holds)."""
+    value = Decimal(int(size)) / 2**30
+    return f"{value:.1f}" if value < 10**15 else f"{value:.3g}"

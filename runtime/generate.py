@@ -192,6 +192,11 @@ def sample(model, seed: int | None = None, factors=(1.0, 1.0, 1.0), memory_limit
     return triplane(model, draw_noise(check_seed(seed), sizes, model.manifest.channels), sizes)
 
 
+def check_alpha(alpha: float) -> None:
+    if not (isinstance(alpha, numbers.Real) and -MAX_ALPHA <= alpha <= MAX_ALPHA):
+        raise InputError(f"alpha must be a number in [-{MAX_ALPHA}, {MAX_ALPHA}], got {alpha}", "alpha")
+
+
 def interpolate(model, seed_a: int, seed_b: int, alpha: float, factors=(1.0, 1.0, 1.0),
                 memory_limit: int | None = None) -> TriPlane:
     """Blend two samples: z0 = (1 - alpha) z0_A + alpha z0_B, later noise of seed A held fixed.
@@ -199,8 +204,7 @@ def interpolate(model, seed_a: int, seed_b: int, alpha: float, factors=(1.0, 1.0
     alpha outside [0, 1] extrapolates (the paper shows -0.5 .. 1.5) up to
     MAX_ALPHA; memory_limit as for `sample`.
     """
-    if not (isinstance(alpha, (int, float, np.number)) and -MAX_ALPHA <= alpha <= MAX_ALPHA):
-        raise InputError(f"alpha must be a number in [-{MAX_ALPHA}, {MAX_ALPHA}], got {alpha}", "alpha")
+    check_alpha(alpha)
     sizes = scaled_sizes(model.manifest.sizes, factors)
     check_generation_memory(sizes, model.manifest.channels, factors, memory_limit)
     a = draw_noise(check_seed(seed_a), sizes, model.manifest.channels)

@@ -35,9 +35,13 @@ def output_kind(path) -> str:
 def check_writable(path) -> None:
     """Fail before long work, not after it, if `path` cannot be written."""
     path = Path(path)
-    if path.is_dir():
+    try:
+        is_dir, folder_exists = path.is_dir(), path.parent.is_dir()
+    except OSError as error:  # a name too long for the file system
+        raise InputError(f"{path}: cannot write here ({error.strerror})") from None
+    if is_dir:
         raise InputError(f"{path}: is a directory, not a file name")
-    if not path.parent.is_dir():
+    if not folder_exists:
         raise InputError(f"{path}: the folder {path.parent} does not exist")
     probe = path.with_name(f".{path.name}.probe")
     try:

@@ -378,6 +378,11 @@ def test_the_case_bound_stops_a_hang():
 @pytest.mark.parametrize("args, fragment", [
     # a finite but enormous blend weight overflowed the noise to NaN: a traceback in marching cubes
     (["interpolate", "tiny.onnx", "--seeds", 0, 0, "--range", 0, 1e308], "--range must be a number in [-100, 100]"),
+    # 1e228 made a file name too long to look up: an OSError traceback
+    (["interpolate", "tiny.onnx", "--seeds", 0, 0, "--range", 1e228, 0], "--range must be a number in [-100, 100]"),
+    (["sample", "tiny.onnx", "-o", "s" * 300 + ".ply"], "cannot write here (File name too long)"),
+    # a size past what a float holds: the figure's division overflowed
+    (["sample", "tiny.onnx", "--size", 1.5e104], "needs about 1.70e+308 GiB of memory"),
     # a million threads: onnxruntime started them all, for minutes
     (["sample", "tiny.onnx", "--threads", 10**6], "--threads must be 1 to 256"),
 ])
