@@ -113,6 +113,8 @@ def load_mesh(path: str | Path, solid: bool = True) -> trimesh.Trimesh:
         raise InputError(f"{path}: cannot read as .{file_type}: {reason}") from None
     if len(mesh.faces) == 0:
         raise InputError(f"{path}: no triangles (an empty mesh, a point cloud or lines)")
+    if mesh.vertices.shape[1] != 3:
+        raise InputError(f"{path}: not a 3-D mesh (its vertices have {mesh.vertices.shape[1]} coordinates)")
     mesh.remove_unreferenced_vertices()
     if not solid:
         return mesh

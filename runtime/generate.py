@@ -8,6 +8,7 @@ model's onnxruntime sessions.
 Planes are (C, H, W) float32 in the order xy (X, Y), xz (X, Z), yz (Y, Z).
 """
 
+import math
 import numbers
 from dataclasses import dataclass
 
@@ -20,6 +21,9 @@ from .manifest import plane_sizes
 
 # A sample's coarsest grid may not shrink below this many voxels per axis.
 MIN_SIDE = 2
+# Voxels per axis of a sample's level: its noise is defined up to 2**21, and
+# no grid with more points than this is meshed (query.MAX_SIDE).
+MAX_SIDE = 1 << 16
 # How far `interpolate` extrapolates: its noise is then this many times the
 # std the levels were trained on (1e308 overflowed to NaN and failed).
 MAX_ALPHA = 100
@@ -50,6 +54,9 @@ def scaled_sizes(sizes: list, factors=(1.0, 1.0, 1.0)) -> list:
             and all(isinstance(f, numbers.Real) and 0 < f < float("inf") for f in factors)):
         raise InputError(f"factors must be 3 positive numbers, got {factors!r}", "factors")
     out = [tuple(max(MIN_SIDE, round(n * f)) for n, f in zip(size, factors)) for size in sizes]
+    if max(max(size) for size in out) > MAX_SIDE:
+        raise InputError(f"factors {','.join(f'{f:g}' for f in factors)} make a level longer than {MAX_SIDE} "
+                         f"voxels, the most a sample may have per axis", "factors")
     return out
 
 
@@ -165,7 +172,7 @@ def reconstruction_noise(model, sizes: list) -> Noise:
 
 def check_generation_memory(sizes: list, channels: int, factors, limit: int | None = None) -> None:
     """z0 and its float64 pooling sums, and a few copies of the largest tri-plane."""
-    z0 = np.prod(sizes[0]) * 16
+    z0 = math.prod(sizes[0]) * 16  # exact: numpy's int64 product wrapped round for huge sizes
     planes = max(sum(h * w for h, w in plane_sizes(size)) for size in sizes) * channels * 4 * 6
     check_memory(int(z0 + planes), f"a sample of size {'x'.join(f'{f:g}' for f in factors)}", limit)
 

@@ -97,6 +97,8 @@ def read_model(path: Path) -> onnx.ModelProto:
         raise InputError(f"{path}: refers to external data files; sinshape models are self-contained")
     if graph.sparse_initializer or model.functions:
         raise InputError(f"{path}: has sparse initializers or functions, which sinshape models never do")
+    if not all(isinstance(n.op_type, str) and isinstance(n.domain, str) for n in graph.node):
+        raise InputError(f"{path}: corrupt model: an op's name is not text")  # invalid UTF-8 reads as bytes
     bad_ops = sorted({n.op_type for n in graph.node if n.domain not in ("", "ai.onnx") or n.op_type not in ALLOWED_OPS})
     if bad_ops:
         raise InputError(f"{path}: uses ops a sinshape model never has ({', '.join(bad_ops[:5])})")

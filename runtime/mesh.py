@@ -62,16 +62,16 @@ def band_mesh(model, triplane, scale: float = 1.0, block: int = query.BLOCK, pro
 
 def estimate_seconds(model, triplane, scale: float) -> float:
     """About how long band_mesh takes at `scale`: measured at a scale of at
-    most 2 and extrapolated as the surface, and so the blocks evaluated,
-    grows: as scale^2 (the shipped models measure scale^1.8 to scale^2.3
-    between scales 2 and 8, docs/RELIABILITY.md)."""
+    most 2 and extrapolated as scale^2.2. The surface, and so the blocks
+    evaluated, grows as scale^2, and the shipped models measure scale^1.8
+    to scale^2.4 between scales 2 and 16 (docs/RELIABILITY.md)."""
     import time
 
     query.check_band_memory(triplane.size, scale, model.manifest.hidden)  # refused work takes no time
     measured = min(scale, 2.0)
     started = time.perf_counter()
     band_mesh(model, triplane, measured)
-    return (time.perf_counter() - started) * (scale / measured) ** 2
+    return (time.perf_counter() - started) * (scale / measured) ** 2.2
 
 
 def merge_seams(vertices: np.ndarray, faces: np.ndarray, block: int) -> tuple:

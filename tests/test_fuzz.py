@@ -381,8 +381,12 @@ def test_the_case_bound_stops_a_hang():
     # 1e228 made a file name too long to look up: an OSError traceback
     (["interpolate", "tiny.onnx", "--seeds", 0, 0, "--range", 1e228, 0], "--range must be a number in [-100, 100]"),
     (["sample", "tiny.onnx", "-o", "s" * 300 + ".ply"], "cannot write here (File name too long)"),
-    # a size past what a float holds: the figure's division overflowed
-    (["sample", "tiny.onnx", "--size", 1.5e104], "needs about 1.70e+308 GiB of memory"),
+    # 2e6 times the training size: numpy's int64 product of the sizes wrapped round and
+    # passed the memory check; the noise then refused positions past 2**21 (ValueError)
+    (["sample", "tiny.onnx", "--size", 2.0754e6], "longer than 65536 voxels"),
+    (["sample", "tiny.onnx", "--size", "3e6,0.1,0.1"], "longer than 65536 voxels"),
+    # an infinite scale: the clamping warning's round() overflowed
+    (["interpolate", "tiny.onnx", "--seeds", 0, 0, "--scale", "inf"], "--scale must be a positive number"),
     # a million threads: onnxruntime started them all, for minutes
     (["sample", "tiny.onnx", "--threads", 10**6], "--threads must be 1 to 256"),
 ])
@@ -410,3 +414,37 @@ def test_a_mesh_shrunk_to_one_point_is_flat(folder):
             pyramid.load_pyramid(path, 16)
     finally:
         path.unlink()
+
+
+def test_a_corrupt_op_name_is_refused(folder):
+    """Found by the fuzzer: a flipped bit made an op's name invalid UTF-8,
+    which protobuf reads as bytes; sorting it with str names was a TypeError."""
+    raw = bytearray(TINY_ONNX.read_bytes())
+    raw[1689] ^= 1 << 3
+    (folder / "bad.onnx").write_bytes(bytes(raw))
+    try:
+        with pytest.raises(InputError, match="corrupt model: an op's name is not text"):
+            runtime.load_model(folder / "bad.onnx", 1)
+    finally:
+        (folder / "bad.onnx").unlink()
+
+
+def test_a_mesh_of_2d_vertices_is_refused(folder):
+    """Found by the fuzzer: '99999999' written over an .obj's vertex lines
+    left 2-D vertices, and voxelising them an index error."""
+    from sinshape.prep import pyramid
+
+    path = folder / "flat2d.obj"
+    path.write_text("v 0 0\nv 1 0\nv 0 1\nv 1 1\nf 1 2 3\nf 2 3 4\n")
+    try:
+        with pytest.raises(InputError, match="not a 3-D mesh"):
+            pyramid.load_pyramid(path, 16)
+    finally:
+        path.unlink()
+
+
+def test_a_figure_past_what_a_float_holds():
+    """Found by the fuzzer (--size 1.5e104, before sizes were bounded): the
+    figure's division overflowed to an OverflowError traceback."""
+    with pytest.raises(InputError, match=r"needs about 9\.31e\+390 GiB of memory \(limit 0\.0 GiB\)"):
+        budget.check_memory(10**400, "it", 1)
