@@ -297,6 +297,8 @@ SEEDS, SIZE, FRACTIONS = Seeds(), PerAxis("size", parse_size), PerAxis("fraction
 
 def named_output(output: Path, **fields) -> Path:
     """Fill {seed}-style fields in an output name, or add them before the suffix."""
+    if not output.name:  # '.', '/', ''
+        raise click.BadParameter(f"{str(output)!r} is not a file name")
     if "{" in output.name:
         import string
 

@@ -105,11 +105,11 @@ def grid_shape(size, scale: float) -> tuple:
     """Points per axis of a grid `scale` times finer than `size`."""
     if not isinstance(scale, numbers.Real) or not 0 < scale < float("inf"):
         raise InputError(f"scale must be a positive number, got {scale}", "scale")
-    shape = tuple(max(2, round(n * scale)) for n in size)
-    if max(shape) > MAX_SIDE:
-        raise InputError(f"scale {scale} asks for a {'x'.join(map(str, shape))} grid; "
-                         f"at most {MAX_SIDE} points per axis are supported", "scale")
-    return shape
+    if max(size) * scale > MAX_SIDE:  # before round(), which overflows for 1e308
+        points = "x".join(f"{n * scale:.0f}" for n in size)  # inf past a float's range
+        raise InputError(f"scale {scale} asks for a {points} grid; at most {MAX_SIDE} points per axis are supported",
+                         "scale")
+    return tuple(max(2, round(n * scale)) for n in size)
 
 
 class FineGrid:
