@@ -490,7 +490,7 @@ def warn_if_clamped(model, factors, scale) -> None:
         click.echo(f"Warning: --size {','.join(f'{f:g}' for f in factors)} shrinks some levels below "
                    f"{generate.MIN_SIDE} voxels; they are clamped, so the shape is not to scale", err=True)
     final = [max(generate.MIN_SIDE, round(n * f)) for n, f in zip(model.manifest.sizes[-1], factors)]
-    if 0 < scale < float("inf") and any(round(n * scale) < 2 for n in final):
+    if 0 < scale and any(n * scale < 1.5 for n in final):  # round() below 2, without round()'s overflow
         click.echo(f"Warning: --scale {scale:g} leaves under 2 grid points on an axis; the grid is clamped "
                    "to 2 and the shape barely resolved", err=True)
 

@@ -221,7 +221,7 @@ def test_shape(folder, name, detail, seed, output):
 @given(command=st.sampled_from([["info", "tiny.onnx"], ["info", "box.obj"], ["info", "."], ["models"],
                                 ["eval", "tiny.onnx", "--reference", "box.obj"], ["eval", "tiny.onnx"]]),
        args=options({"-n": st.one_of(st.integers(-1, 3), ABSURD_INTS), "--first-seed": st.one_of(st.integers(0, 9),
-                     ABSURD_INTS), "--scale": small_or_absurd_float(0.5, 1.5), "--json": OUTPUTS}))
+                     ABSURD_INTS), "--scale": small_or_absurd_float(0.5, 1.5), "--json": OUTPUTS.filter(lambda name: name not in ("tiny.onnx", "box.obj"))}))
 def test_info_models_eval(folder, command, args):
     if command[0] == "eval" and not any(a == "-n" for a in args):
         args += ["-n", "2"]
@@ -389,7 +389,8 @@ def test_the_case_bound_stops_a_hang():
     (["interpolate", "tiny.onnx", "--seeds", 0, 0, "--scale", "inf"], "--scale must be a positive number"),
     # '.' has no name to add _stepK_alphaA to: a ValueError traceback
     (["interpolate", "tiny.onnx", "--seeds", 0, 0, "-o", "."], "'.' is not a file name"),
-    # n * 1e308 is infinite: round() overflowed
+    # n * 1e308 is infinite: round() overflowed, in the clamping warning and in the grid's size
+    (["sample", "tiny.onnx", "--scale", 1e308], "at most 65536 points per axis"),
     (["eval", "tiny.onnx", "--reference", "box.obj", "-n", 2, "--scale", 1e308], "at most 65536 points per axis"),
     # a million threads: onnxruntime started them all, for minutes
     (["sample", "tiny.onnx", "--threads", 10**6], "--threads must be 1 to 256"),
@@ -452,3 +453,19 @@ def test_a_figure_past_what_a_float_holds():
     figure's division overflowed to an OverflowError traceback."""
     with pytest.raises(InputError, match=r"needs about 9\.31e\+390 GiB of memory \(limit 0\.0 GiB\)"):
         budget.check_memory(10**400, "it", 1)
+
+
+def test_a_glb_whose_faces_point_past_its_vertices_is_refused(folder):
+    """Found by the fuzzer: one flipped bit in a .glb's index buffer; trimesh
+    loads it, and dropping unused vertices was an IndexError."""
+    from sinshape.prep import pyramid
+
+    raw = bytearray(MESHES[".glb"])
+    raw[689] ^= 1
+    path = folder / "bad.glb"
+    path.write_bytes(bytes(raw))
+    try:
+        with pytest.raises(InputError, match="faces refer to vertices it does not have"):
+            pyramid.load_pyramid(path, 16)
+    finally:
+        path.unlink()
