@@ -407,20 +407,6 @@ def test_eval_refuses_a_million_samples_up_front(folder):
     assert result.exit_code == 1 and "scoring 1000000 samples of 5400 voxels needs about 30051.5 GiB" in result.output
 
 
-def test_a_mesh_shrunk_to_one_point_is_flat(folder):
-    """Found by the fuzzer: one flipped bit in a .glb put every vertex at the
-    origin; zero extents passed the flatness test (0 < 0 is false)."""
-    from sinshape.prep import pyramid
-
-    path = folder / "point.obj"
-    path.write_text("v 0 0 0\nv 0 0 0\nv 0 0 0\nf 1 2 3\n")
-    try:
-        with pytest.raises(InputError, match="flat mesh"):
-            pyramid.load_pyramid(path, 16)
-    finally:
-        path.unlink()
-
-
 def test_a_corrupt_op_name_is_refused(folder):
     """Found by the fuzzer: a flipped bit made an op's name invalid UTF-8,
     which protobuf reads as bytes; sorting it with str names was a TypeError."""
@@ -434,20 +420,6 @@ def test_a_corrupt_op_name_is_refused(folder):
         (folder / "bad.onnx").unlink()
 
 
-def test_a_mesh_of_2d_vertices_is_refused(folder):
-    """Found by the fuzzer: '99999999' written over an .obj's vertex lines
-    left 2-D vertices, and voxelising them an index error."""
-    from sinshape.prep import pyramid
-
-    path = folder / "flat2d.obj"
-    path.write_text("v 0 0\nv 1 0\nv 0 1\nv 1 1\nf 1 2 3\nf 2 3 4\n")
-    try:
-        with pytest.raises(InputError, match="not a 3-D mesh"):
-            pyramid.load_pyramid(path, 16)
-    finally:
-        path.unlink()
-
-
 def test_a_figure_past_what_a_float_holds():
     """Found by the fuzzer (--size 1.5e104, before sizes were bounded): the
     figure's division overflowed to an OverflowError traceback."""
@@ -455,17 +427,28 @@ def test_a_figure_past_what_a_float_holds():
         budget.check_memory(10**400, "it", 1)
 
 
-def test_a_glb_whose_faces_point_past_its_vertices_is_refused(folder):
-    """Found by the fuzzer: one flipped bit in a .glb's index buffer; trimesh
-    loads it, and dropping unused vertices was an IndexError."""
+def glb_with_a_flipped_bit(at: int) -> bytes:
+    raw = bytearray(MESHES[".glb"])
+    raw[at] ^= 1
+    return bytes(raw)
+
+
+@pytest.mark.parametrize("name, data, fragment", [
+    # one flipped bit in a .glb put every vertex at the origin; zero extents
+    # passed the flatness test (0 < 0 is false), then a ValueError
+    ("point.obj", b"v 0 0 0\nv 0 0 0\nv 0 0 0\nf 1 2 3\n", "flat mesh"),
+    # '99999999' written over an .obj's vertex lines left 2-D vertices: an IndexError
+    ("flat2d.obj", b"v 0 0\nv 1 0\nv 0 1\nv 1 1\nf 1 2 3\nf 2 3 4\n", "not a 3-D mesh"),
+    # a flipped bit in a .glb's index buffer: faces past the vertices, an IndexError
+    ("bad.glb", glb_with_a_flipped_bit(689), "faces refer to vertices it does not have"),
+])
+def test_corrupt_meshes_found_by_the_fuzzer(folder, name, data, fragment):
     from sinshape.prep import pyramid
 
-    raw = bytearray(MESHES[".glb"])
-    raw[689] ^= 1
-    path = folder / "bad.glb"
-    path.write_bytes(bytes(raw))
+    path = folder / name
+    path.write_bytes(data)
     try:
-        with pytest.raises(InputError, match="faces refer to vertices it does not have"):
+        with pytest.raises(InputError, match=fragment):
             pyramid.load_pyramid(path, 16)
     finally:
         path.unlink()
