@@ -16,7 +16,8 @@ from sinshape.runtime.errors import InputError
 
 # Library errors name a function's parameter; on the command line it is an option.
 OPTIONS = {"scale": "--scale", "factors": "--size", "smooth": "--smooth", "threads": "--threads",
-           "levels": "--levels", "res": "--res", "workers": "--workers"}
+           "levels": "--levels", "res": "--res", "workers": "--workers", "detail": "--detail",
+           "alpha": "--range", "samples": "--samples"}
 # ctx.meta key: {parameter: what set it} where a command's value came from elsewhere than OPTIONS says.
 SOURCES = "sinrun.sources"
 
@@ -303,6 +304,8 @@ SEEDS, SIZE, FRACTIONS = Seeds(), PerAxis("size", parse_size), PerAxis("fraction
 
 def named_output(output: Path, **fields) -> Path:
     """Fill {seed}-style fields in an output name, or add them before the suffix."""
+    if not output.name:  # '.', '/', ''
+        raise click.BadParameter(f"{str(output)!r} is not a file name")
     if "{" in output.name:
         import string
 
@@ -335,11 +338,15 @@ SIZE_OPTION = click.option("--size", "size", type=SIZE, default="1", show_defaul
                                 "for another aspect ratio (e.g. 2,1,1 is twice as long along x).")
 
 
+SMOOTH_HELP = ("Smoothing iterations, 0 to 100 (the paper uses 3 Laplacian iterations); 100 already blurs "
+               "over about 10 grid steps, the size of the patches the model learnt.")
+
+
 def mesh_options(command):
     """Options shared by the commands that write meshes."""
     for option in reversed([
         click.option("--smooth", type=int, default=0, show_default=True,
-                     help="Smoothing iterations (the paper uses 3 Laplacian iterations)."),
+                     help=SMOOTH_HELP),
         click.option("--smoother", type=click.Choice(["laplacian", "taubin"]), default="laplacian",
                      show_default=True, help="Laplacian (as the paper) or Taubin (keeps volume)."),
         click.option("--largest", is_flag=True, help="Keep only the largest connected piece."),
@@ -400,16 +407,19 @@ def sample(model, seed, seeds, recon, scale, size, output, smooth, smoother, lar
     if output is None:
         output = Path(f"{loaded.path.stem}_recon.ply" if recon else f"{loaded.path.stem}_seed{{seed}}.ply")
     warn_if_clamped(loaded, size, scale)
+    first = seeds.first if seeds else None if recon else 0 if seed is None else seed
+    if scale > 2 and write.output_kind(output) == "mesh":
+        say_how_long(loaded, generate.sample(loaded, first, size), scale, len(seeds) if seeds else 1)
     if seeds:
         sample_seeds(loaded.path, seeds, output, engine, workers, threads, address, size=size, scale=scale,
                      smooth=smooth, smoother=smoother, largest=largest, frame=frame)
         return
-    chosen = None if recon else 0 if seed is None else seed
-    path = named_output(output, seed=chosen) if "{" in output.name else output
+    path = named_output(output, seed=first) if "{" in output.name else output
     write.output_kind(path)
     write.check_writable(path, [loaded.path])
-    write.write_sample(loaded, generate.sample(loaded, chosen, size), path, scale=scale, smooth=smooth,
-                       smoother=smoother, largest=largest, frame=frame, threads=threads)
+    with SlabProgress(show=True) as slabs:
+        write.write_sample(loaded, generate.sample(loaded, first, size), path, scale=scale, smooth=smooth,
+                           smoother=smoother, largest=largest, frame=frame, threads=threads, mesh_progress=slabs)
     click.echo(f"wrote {path}")
 
 
@@ -469,17 +479,56 @@ def interpolate(model, seeds, steps, alpha_range, scale, size, output, smooth, s
         raise click.BadParameter("--steps must be at least 1")
     if not all(np.isfinite(alpha_range)):
         raise click.BadParameter(f"--range must be two finite numbers, got {alpha_range[0]} {alpha_range[1]}")
+    low, high = alpha_range
+    generate.check_alpha(low)  # before a name is made from it
+    generate.check_alpha(high)
     loaded = open_model(model, threads)
     warn_if_clamped(loaded, size, scale)
-    alphas = np.linspace(*alpha_range, steps) if steps > 1 else np.array([alpha_range[0]])
-    paths = [named_output(output, step=f"{k:02d}", alpha=f"{a:+.2f}") for k, a in enumerate(alphas)]
-    write.output_kind(paths[0])
-    write.check_writable(paths[0], [loaded.path])
-    outputs = ((path, generate.interpolate(loaded, seeds[0], seeds[1], float(a), size)) for a, path in zip(alphas, paths))
-    with progress_bar(len(paths), "interpolating") as bar:
+
+    def alpha(k):  # computed when needed: --steps 100000000 costs nothing up front
+        return high if 0 < k == steps - 1 else low + k * (high - low) / max(steps - 1, 1)
+
+    def path(k):
+        return named_output(output, step=f"{k:02d}", alpha=f"{alpha(k):+.2f}")
+
+    write.output_kind(path(0))
+    write.check_writable(path(0), [loaded.path])
+    outputs = ((path(k), generate.interpolate(loaded, seeds[0], seeds[1], alpha(k), size)) for k in range(steps))
+    with progress_bar(steps, "interpolating") as bar:
         write.write_samples(loaded, outputs, progress=lambda: bar.update(1), scale=scale, smooth=smooth,
                             smoother=smoother, largest=largest, frame=frame)
-    click.echo(f"wrote {len(paths)} files: {paths[0]} .. {paths[-1]}")
+    click.echo(f"wrote {steps} files: {path(0)} .. {path(steps - 1)}")
+
+
+def say_how_long(model, triplane, scale, count) -> None:
+    """'about N minutes' on stderr before a long sampling run."""
+    from sinshape.runtime import mesh
+
+    seconds = mesh.estimate_seconds(model, triplane, scale) * count
+    if seconds > 30:
+        click.echo(f"--scale {scale:g}: about {format_seconds(seconds)} (h:mm:ss) "
+                   f"for {count} sample{'s' if count > 1 else ''}", err=True)
+
+
+class SlabProgress:
+    """A progress bar over the slabs one sample is meshed in (on a terminal)."""
+
+    def __init__(self, show: bool):
+        self.show, self.bar = show, None
+
+    def __call__(self, done: int, total: int) -> None:
+        if not self.show:
+            return
+        if self.bar is None:
+            self.bar = progress_bar(total, "meshing").__enter__()
+        self.bar.update(done - self.bar.pos)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *error) -> None:
+        if self.bar is not None:
+            self.bar.__exit__(*error)
 
 
 def warn_if_clamped(model, factors, scale) -> None:
@@ -491,7 +540,7 @@ def warn_if_clamped(model, factors, scale) -> None:
         click.echo(f"Warning: --size {','.join(f'{f:g}' for f in factors)} shrinks some levels below "
                    f"{generate.MIN_SIDE} voxels; they are clamped, so the shape is not to scale", err=True)
     final = [max(generate.MIN_SIDE, round(n * f)) for n, f in zip(model.manifest.sizes[-1], factors)]
-    if 0 < scale and any(round(n * scale) < 2 for n in final):
+    if 0 < scale and any(n * scale < 1.5 for n in final):  # round() below 2, without round()'s overflow
         click.echo(f"Warning: --scale {scale:g} leaves under 2 grid points on an axis; the grid is clamped "
                    "to 2 and the shape barely resolved", err=True)
 
@@ -531,7 +580,7 @@ def info(model):
 @click.option("--recon", is_flag=True, help="Draw each model's reconstruction of its training shape first.")
 @SCALE_OPTION
 @SIZE_OPTION
-@click.option("--smooth", type=int, default=0, show_default=True, help="Laplacian smoothing of samples.")
+@click.option("--smooth", type=int, default=0, show_default=True, help=SMOOTH_HELP)
 @click.option("--views", type=int, default=1, show_default=True,
               help="Views per shape, turning around the up axis (a turntable row per shape).")
 @click.option("--up", type=click.Choice(["y", "z"]), default="y", show_default=True,
@@ -566,29 +615,34 @@ def render(inputs, output, seeds, recon, scale, size, smooth, views, up, columns
         raise click.UsageError("--views and --columns must be at least 1, --image-size at least 16")
     if zoom < 1:
         raise InputError(f"--zoom must be 1 or more, got {zoom}")
-    chosen = [None, *seeds] if recon else seeds
+    meshes = [Path(item).is_file() and Path(item).suffix.lower() in write.MESH_FORMATS for item in inputs]
+    count = sum(1 if is_mesh else len(seeds) + recon for is_mesh in meshes)
+    draw.check_picture(count, (image_size, image_size), views, columns)
+    chosen = [None, *seeds] if recon else list(seeds)  # as many as fit in the picture
     shapes, labels = [], []
-    for item in inputs:
-        path = Path(item)
-        if path.is_file() and path.suffix.lower() in write.MESH_FORMATS:
-            shapes.append(load_mesh(path, solid=False))
-            labels.append(path.name)
-            continue
-        model = open_model(item, threads)
-        for seed in chosen:
-            triplane = generate.sample(model, seed, size if seed is not None else (1, 1, 1))
-            shapes.append(mesh.extract(model, triplane, scale, smooth=smooth))
-            if not len(shapes[-1].faces):
-                raise InputError(f"{item}: seed {seed} has no surface at this --scale and --size; nothing drawn")
-            labels.append(draw.sample_label(seed, size, scale))
+    with progress_bar(count - sum(meshes), "sampling") as bar:
+        for item, is_mesh in zip(inputs, meshes):
+            if is_mesh:
+                shapes.append(load_mesh(Path(item), solid=False))
+                labels.append(Path(item).name)
+                continue
+            model = open_model(item, threads)
+            for seed in chosen:
+                triplane = generate.sample(model, seed, size if seed is not None else (1, 1, 1))
+                shapes.append(mesh.extract(model, triplane, scale, smooth=smooth))
+                if not len(shapes[-1].faces):
+                    raise InputError(f"{item}: seed {seed} has no surface at this --scale and --size; nothing drawn")
+                labels.append(draw.sample_label(seed, size, scale))
+                bar.update(1)
     shapes = [draw.crop(shape, zoom, focus) for shape in shapes]
-    options = dict(up=up, size=(image_size, image_size))
-    if views > 1:
-        turns = [((azimuth + 360 * k / views) % 360, elevation) for k in range(views)]
-        picture = np.concatenate([draw.render_views(s, views=turns, **options) for s in shapes])
-    else:
-        picture = draw.render_grid(shapes, labels, min(columns, len(shapes)), azimuth=azimuth,
-                                   elevation=elevation, **options)
+    with progress_bar(len(shapes) * views, "drawing") as bar:
+        options = dict(up=up, size=(image_size, image_size), progress=lambda: bar.update(1))
+        if views > 1:
+            turns = [((azimuth + 360 * k / views) % 360, elevation) for k in range(views)]
+            picture = np.concatenate([draw.render_views(s, views=turns, **options) for s in shapes])
+        else:
+            picture = draw.render_grid(shapes, labels, min(columns, len(shapes)), azimuth=azimuth,
+                                       elevation=elevation, **options)
     draw.save_png(picture, output)
     click.echo(f"wrote {output} ({picture.shape[1]}x{picture.shape[0]})")
 

@@ -20,8 +20,8 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
+from sinshape.runtime.budget import check_memory
 from sinshape.runtime.errors import InputError
-from sinshape.runtime.generate import check_memory
 from sinshape.runtime.manifest import MAX_SIDE
 
 from . import voxelize
@@ -40,6 +40,10 @@ MAX_LEVELS = 32
 # An .h5 level's shortest side: the critic's field, one patch. Files are used
 # as they are (SSG's have 15 or more; the minimum for meshes is MIN_SIZE).
 MIN_H5_SIDE = 11
+# Peak bytes voxelising a mesh needs per voxel of its finest level (crossing
+# counts, votes, the coarser levels, the blurred targets): 43 measured on
+# tests/data/towerruins at res 128 and 256 (docs/RELIABILITY.md).
+VOXELIZE_BYTES_PER_VOXEL = 48
 
 
 @dataclass(frozen=True)
@@ -100,8 +104,10 @@ def file_sha256(path: Path) -> str:
 
 
 def pyramid_from_mesh(path: Path, res: int, levels: int | None = None,
-                      factor: float = LEVEL_FACTOR, min_size: int = MIN_SIZE) -> Pyramid:
-    """Voxelise a mesh file at every level of its pyramid."""
+                      factor: float = LEVEL_FACTOR, min_size: int = MIN_SIZE, check=None) -> Pyramid:
+    """Voxelise a mesh file at every level of its pyramid. check(sizes), if
+    given, sees the level sizes before any is voxelised (to refuse work up
+    front); voxelising that would not fit in memory is refused too."""
     mesh = voxelize.load_mesh(path)
     corners = mesh.vertices[mesh.faces.reshape(-1)]
     low, high = corners.min(axis=0), corners.max(axis=0)
@@ -116,6 +122,10 @@ def pyramid_from_mesh(path: Path, res: int, levels: int | None = None,
     box_low = (low + high) / 2 - box / 2
     count = levels if levels is not None else level_count(max(finest), factor)
     sizes = level_sizes(finest, count, factor, min_size)
+    check_memory(VOXELIZE_BYTES_PER_VOXEL * math.prod(sizes[-1]),
+                 f"voxelising a {'x'.join(map(str, sizes[-1]))} grid")
+    if check:
+        check(sizes)
     grids = [voxelize.voxelize(mesh, box_low, box / np.array(size), size) for size in sizes]
     for size, grid in zip(sizes, grids):
         if not grid.any():
@@ -211,16 +221,21 @@ def _occupancy(grid: np.ndarray, name: str) -> np.ndarray:
 
 
 def load_pyramid(path, res: int, levels: int | None = None,
-                 factor: float = LEVEL_FACTOR, min_size: int = MIN_SIZE) -> Pyramid:
-    """The pyramid of a mesh file (voxelised at `res`) or of an SSG .h5 file."""
+                 factor: float = LEVEL_FACTOR, min_size: int = MIN_SIZE, check=None) -> Pyramid:
+    """The pyramid of a mesh file (voxelised at `res`) or of an SSG .h5 file.
+    check(sizes), if given, sees the level sizes before a mesh is voxelised,
+    after an .h5 file is read."""
     path = Path(path)
     if path.is_dir():
         raise InputError(f"{path}: a directory, not a mesh or .h5 file")
     if not path.is_file():
         raise InputError(f"{path}: no such file")
     if path.suffix.lower() in PYRAMID_SUFFIXES:
-        return pyramid_from_h5(path, levels)
-    return pyramid_from_mesh(path, res, levels, factor, min_size)
+        pyramid = pyramid_from_h5(path, levels)
+        if check:
+            check(pyramid.sizes)
+        return pyramid
+    return pyramid_from_mesh(path, res, levels, factor, min_size, check)
 
 
 def reference_grid(path, manifest, scale: float = 1.0) -> np.ndarray:

@@ -25,6 +25,7 @@ import trimesh
 from skimage import measure
 
 from sinshape.runtime import write
+from sinshape.runtime.budget import check_memory
 from sinshape.runtime.errors import InputError
 
 # Grid points farther than MARGIN voxels outside a primitive's bounding box
@@ -33,6 +34,14 @@ from sinshape.runtime.errors import InputError
 # all that marching cubes reads. FAR is the field before anything is added.
 MARGIN = 2
 FAR = 1e3
+# Peak bytes per grid point of making a shape (the float64 field, its padded
+# copy, marching cubes' work and its mesh): 26 to 56 measured over the five
+# shapes, terrain at detail 1000 (150M points) included (docs/RELIABILITY.md).
+BYTES_PER_POINT = 64
+# Every shape's grid grows as detail^2 or detail^3, so far below this any
+# detail is refused by the memory check; the cap only keeps the per-element
+# lists that some shapes draw before their grid from growing unchecked.
+MAX_DETAIL = 100_000
 
 
 def _box_distance(*q):
@@ -62,6 +71,8 @@ class _Solid:
         self.step = step
         self.origin = np.asarray(lo, float) - MARGIN * step
         shape = np.ceil((np.asarray(hi, float) - lo) / step).astype(int) + 2 * MARGIN + 1
+        check_memory(BYTES_PER_POINT * int(np.prod(shape)),
+                     f"a shape on a {'x'.join(map(str, shape))} grid (its detail)")
         self.field = np.full(shape, FAR)
 
     def apply(self, lo, hi, sdf: Callable, cut: bool = False) -> None:
@@ -344,8 +355,8 @@ def make_shape(name: str, seed: int = 0, detail: int | None = None) -> trimesh.T
         raise InputError(f"shape seed must be non-negative, got {seed}")
     if detail is None:
         return SHAPES[name](seed)
-    if detail < 2:
-        raise InputError(f"shape detail must be at least 2, got {detail}")
+    if not 2 <= detail <= MAX_DETAIL:
+        raise InputError(f"shape detail must be in [2, {MAX_DETAIL}], got {detail}", "detail")
     return SHAPES[name](seed, detail)
 
 

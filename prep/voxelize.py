@@ -120,6 +120,10 @@ def load_mesh(path: str | Path, solid: bool = True) -> trimesh.Trimesh:
         raise InputError(f"{path}: cannot read as .{file_type}: {reason}") from None
     if len(mesh.faces) == 0:
         raise InputError(f"{path}: no triangles (an empty mesh, a point cloud or lines)")
+    if mesh.vertices.shape[1] != 3:
+        raise InputError(f"{path}: not a 3-D mesh (its vertices have {mesh.vertices.shape[1]} coordinates)")
+    if mesh.faces.min() < 0 or mesh.faces.max() >= len(mesh.vertices):
+        raise InputError(f"{path}: corrupt mesh: faces refer to vertices it does not have")
     if not np.isfinite(mesh.vertices[mesh.faces]).all():
         raise InputError(f"{path}: NaN or infinite vertex coordinates")
     mesh.process()  # merges duplicate vertices, as trimesh's default loading does

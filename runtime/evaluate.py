@@ -209,6 +209,21 @@ def sample_volumes(model, seeds, scale: float = 1.0, upsample: bool = False, pro
     return volumes
 
 
+def check_evaluation_memory(model, samples: int, scale: float, limit: int | None = None) -> None:
+    """Refuse up front scoring that needs more than `limit` bytes (None: the
+    memory available): every sample's grid is kept for diversity, whose
+    pairwise overlaps are a few (n, n) float64 matrices and (n, VOXEL_CHUNK)
+    float32 chunks; one sample is queried densely at a time."""
+    from .budget import check_memory
+    from .query import grid_shape
+
+    if samples < 1:
+        raise InputError(f"samples must be at least 1, got {samples}", "samples")
+    voxels = int(np.prod(grid_shape(model.manifest.sizes[-1], scale)))
+    needed = samples * voxels + 4 * 8 * samples**2 + 4 * VOXEL_CHUNK * samples + 8 * voxels
+    check_memory(needed, f"scoring {samples} samples of {voxels} voxels", limit)
+
+
 def evaluate_model(model, reference, samples: int = 100, first_seed: int = 0, scale: float = 1.0,
                    upsample: bool = False, progress=None) -> dict:
     """Score a loaded model as the paper does, against its training input.
@@ -224,6 +239,7 @@ def evaluate_model(model, reference, samples: int = 100, first_seed: int = 0, sc
 
     from sinshape.prep.pyramid import reference_grid
 
+    check_evaluation_memory(model, samples, scale)
     truth = reference_grid(reference, model.manifest, scale)
     started = time.perf_counter()
     volumes = sample_volumes(model, range(first_seed, first_seed + samples), scale, upsample, progress)

@@ -8,45 +8,25 @@ model's onnxruntime sessions.
 Planes are (C, H, W) float32 in the order xy (X, Y), xz (X, Z), yz (Y, Z).
 """
 
-import os
+import math
+import numbers
 from dataclasses import dataclass
 
 import numpy as np
 
 from . import noise
-from .errors import InputError, MemoryLimitError
+from .budget import check_memory
+from .errors import InputError
 from .manifest import plane_sizes
 
 # A sample's coarsest grid may not shrink below this many voxels per axis.
 MIN_SIDE = 2
-# The memory limit where the machine does not say how much memory is available.
-FALLBACK_MEMORY_LIMIT = 4 << 30
-
-
-def available_memory() -> int:
-    """Bytes of memory available to new work: MemAvailable on Linux (it
-    counts reclaimable caches), else the free physical pages, else
-    FALLBACK_MEMORY_LIMIT."""
-    try:
-        with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
-    try:
-        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
-    except (AttributeError, ValueError, OSError):
-        return FALLBACK_MEMORY_LIMIT
-
-
-def check_memory(needed: int, what: str, limit: int | None = None) -> None:
-    """Refuse work up front, with the figure, if it needs more than `limit`
-    bytes (None: the memory available now)."""
-    limit = available_memory() if limit is None else limit
-    if needed > limit:
-        raise MemoryLimitError(f"{what} needs about {needed / 2**30:.1f} GiB of memory "
-                               f"(limit {limit / 2**30:.1f} GiB)")
+# Voxels per axis of a sample's level: its noise is defined up to 2**21, and
+# no grid with more points than this is meshed (query.MAX_SIDE).
+MAX_SIDE = 1 << 16
+# How far `interpolate` extrapolates: its noise is then this many times the
+# std the levels were trained on (1e308 overflowed to NaN and failed).
+MAX_ALPHA = 100
 
 
 def parse_triple(text: str, valid, example: str, name: str = "size") -> tuple:
@@ -70,9 +50,13 @@ def parse_size(text: str) -> tuple:
 
 def scaled_sizes(sizes: list, factors=(1.0, 1.0, 1.0)) -> list:
     """Every level's grid for a sample `factors` times the training size per axis."""
-    if len(factors) != 3 or any(not f > 0 for f in factors):
-        raise InputError(f"factors must be 3 positive numbers, got {tuple(factors)}", "factors")
+    if not (isinstance(factors, (tuple, list, np.ndarray)) and len(factors) == 3
+            and all(isinstance(f, numbers.Real) and 0 < f < float("inf") for f in factors)):
+        raise InputError(f"factors must be 3 positive numbers, got {factors!r}", "factors")
     out = [tuple(max(MIN_SIDE, round(n * f)) for n, f in zip(size, factors)) for size in sizes]
+    if max(max(size) for size in out) > MAX_SIDE:
+        raise InputError(f"factors {','.join(f'{f:g}' for f in factors)} make a level longer than {MAX_SIDE} "
+                         f"voxels, the most a sample may have per axis", "factors")
     return out
 
 
@@ -188,7 +172,7 @@ def reconstruction_noise(model, sizes: list) -> Noise:
 
 def check_generation_memory(sizes: list, channels: int, factors, limit: int | None = None) -> None:
     """z0 and its float64 pooling sums, and a few copies of the largest tri-plane."""
-    z0 = np.prod(sizes[0]) * 16
+    z0 = math.prod(sizes[0]) * 16  # exact: numpy's int64 product wrapped round for huge sizes
     planes = max(sum(h * w for h, w in plane_sizes(size)) for size in sizes) * channels * 4 * 6
     check_memory(int(z0 + planes), f"a sample of size {'x'.join(f'{f:g}' for f in factors)}", limit)
 
@@ -215,15 +199,19 @@ def sample(model, seed: int | None = None, factors=(1.0, 1.0, 1.0), memory_limit
     return triplane(model, draw_noise(check_seed(seed), sizes, model.manifest.channels), sizes)
 
 
+def check_alpha(alpha: float) -> None:
+    if not (isinstance(alpha, numbers.Real) and -MAX_ALPHA <= alpha <= MAX_ALPHA):
+        raise InputError(f"alpha must be a number in [-{MAX_ALPHA}, {MAX_ALPHA}], got {alpha}", "alpha")
+
+
 def interpolate(model, seed_a: int, seed_b: int, alpha: float, factors=(1.0, 1.0, 1.0),
                 memory_limit: int | None = None) -> TriPlane:
     """Blend two samples: z0 = (1 - alpha) z0_A + alpha z0_B, later noise of seed A held fixed.
 
-    alpha outside [0, 1] extrapolates (the paper shows -0.5 .. 1.5);
-    memory_limit as for `sample`.
+    alpha outside [0, 1] extrapolates (the paper shows -0.5 .. 1.5) up to
+    MAX_ALPHA; memory_limit as for `sample`.
     """
-    if not np.isfinite(alpha):
-        raise InputError(f"alpha must be a finite number, got {alpha}", "alpha")
+    check_alpha(alpha)
     sizes = scaled_sizes(model.manifest.sizes, factors)
     check_generation_memory(sizes, model.manifest.channels, factors, memory_limit)
     a = draw_noise(check_seed(seed_a), sizes, model.manifest.channels)

@@ -8,6 +8,7 @@ a sane type and range, a checksum that matches (format 2), and stages that
 run and give finite values of the shapes the manifest implies.
 """
 
+import numbers
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,6 +22,9 @@ from . import manifest as fmt
 from .errors import InputError
 
 MAX_MODEL_BYTES = 512 * 1024 * 1024
+# onnxruntime starts every thread of every stage's pool up front (a million
+# took minutes before failing); more threads than cores only slow it down.
+MAX_THREADS = 256
 # Every op a stage may contain (default ONNX domain only: no custom ops).
 ALLOWED_OPS = {"Conv", "InstanceNormalization", "LeakyRelu", "Transpose", "MatMul", "Add", "Relu", "Sigmoid"}
 
@@ -93,6 +97,8 @@ def read_model(path: Path) -> onnx.ModelProto:
         raise InputError(f"{path}: refers to external data files; sinshape models are self-contained")
     if graph.sparse_initializer or model.functions:
         raise InputError(f"{path}: has sparse initializers or functions, which sinshape models never do")
+    if not all(isinstance(n.op_type, str) and isinstance(n.domain, str) for n in graph.node):
+        raise InputError(f"{path}: corrupt model: an op's name is not text")  # invalid UTF-8 reads as bytes
     bad_ops = sorted({n.op_type for n in graph.node if n.domain not in ("", "ai.onnx") or n.op_type not in ALLOWED_OPS})
     if bad_ops:
         raise InputError(f"{path}: uses ops a sinshape model never has ({', '.join(bad_ops[:5])})")
@@ -212,10 +218,12 @@ def check_stages(model: Model) -> None:
 
 def load_model(path, threads: int | None = None) -> Model:
     """Read, check and prepare a model; `threads` per session (default: all cores)."""
+    if not isinstance(path, (str, os.PathLike)):
+        raise InputError(f"path must be a file name, got {path!r}", "path")
     path = Path(path)
     threads = default_threads() if threads is None else threads
-    if threads < 1:
-        raise InputError(f"threads must be at least 1, got {threads}", "threads")
+    if not (isinstance(threads, numbers.Integral) and 1 <= threads <= MAX_THREADS):
+        raise InputError(f"threads must be 1 to {MAX_THREADS}, got {threads}", "threads")
     proto = read_model(path)
     manifest = read_manifest(proto, path)
 

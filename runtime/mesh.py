@@ -7,6 +7,7 @@ so seam vertices come out bit-identical and merge exactly, and the padding
 of empty points closes the surface at the grid's border.
 """
 
+import numbers
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 from functools import partial
@@ -20,6 +21,11 @@ from .errors import InputError
 from .load import default_threads
 
 SMOOTHERS = ("laplacian", "taubin")
+# Smoothing spreads each vertex over about sqrt(iterations) grid steps, and
+# costs one pass over the mesh per iteration: 100 iterations already blur
+# over about 10 steps, the size of the patches the model learnt (the paper
+# smooths 3 times), so more would only erase the shape, slowly.
+MAX_SMOOTH = 100
 
 
 def band_mesh(model, triplane, scale: float = 1.0, block: int = query.BLOCK, progress=None,
@@ -140,6 +146,20 @@ class SeamWelder:
         return vertices[new], index[faces]
 
 
+def estimate_seconds(model, triplane, scale: float) -> float:
+    """About how long band_mesh takes at `scale`: measured at a scale of at
+    most 2 and extrapolated as scale^2.2. The surface, and so the blocks
+    evaluated, grows as scale^2, and the shipped models measure scale^1.8
+    to scale^2.4 between scales 2 and 16 (docs/RELIABILITY.md)."""
+    import time
+
+    query.check_band_memory(triplane.size, scale, model.manifest.hidden)  # refused work takes no time
+    measured = min(scale, 2.0)
+    started = time.perf_counter()
+    band_mesh(model, triplane, measured)
+    return (time.perf_counter() - started) * (scale / measured) ** 2.2
+
+
 def merge_seams(vertices: np.ndarray, faces: np.ndarray, block: int) -> tuple:
     """Weld the duplicate vertices that neighbouring blocks make on their
     shared faces. Only vertices on a block face (a coordinate that is a
@@ -188,8 +208,8 @@ def in_frame(vertices: np.ndarray, manifest) -> np.ndarray:
 
 def finish(mesh: trimesh.Trimesh, smooth: int = 0, smoother: str = "laplacian", largest: bool = False) -> trimesh.Trimesh:
     """Optional clean-up: keep the largest component, then smooth."""
-    if smooth < 0:
-        raise InputError(f"smooth must be 0 or more iterations, got {smooth}", "smooth")
+    if not (isinstance(smooth, numbers.Integral) and 0 <= smooth <= MAX_SMOOTH):
+        raise InputError(f"smooth must be 0 to {MAX_SMOOTH} iterations, got {smooth}", "smooth")
     if smoother not in SMOOTHERS:
         raise InputError(f"unknown smoother {smoother!r}; choose {' or '.join(SMOOTHERS)}", "smoother")
     if largest and len(mesh.faces):

@@ -14,13 +14,15 @@ cells themselves. Grid positions outside the tri-plane count as empty: the
 grid is padded with one empty point on every side, so surfaces close.
 """
 
+import numbers
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.special import expit
 
 from .errors import InputError
-from .generate import TriPlane, check_memory, resize_matrix
+from .budget import check_memory
+from .generate import TriPlane, resize_matrix
 from .manifest import PLANE_AXES
 
 BLOCK = 16  # cells per block side in the band search; see benchmarks/sample_speed.py
@@ -68,9 +70,12 @@ def points(model, triplane: TriPlane, coords: np.ndarray, chunk: int = 1 << 16) 
     (i, j, k) of the sample at scale 1 is at (i, j, k); the sample spans
     [0, N - 1] per axis. Points outside count as empty. Returns (n,) float32.
     """
-    coords = np.asarray(coords, dtype=np.float64)
+    try:
+        coords = np.asarray(coords, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError("points must be an (n, 3) array of numbers", "coords") from None
     if coords.ndim != 2 or coords.shape[1] != 3:
-        raise InputError(f"points must be an (n, 3) array, got shape {coords.shape}")
+        raise InputError(f"points must be an (n, 3) array, got shape {coords.shape}", "coords")
     proj = project(model, triplane)
     size = np.array(triplane.size)
     out = np.zeros(len(coords), np.float32)
@@ -98,13 +103,13 @@ def bilinear(plane: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 def grid_shape(size, scale: float) -> tuple:
     """Points per axis of a grid `scale` times finer than `size`."""
-    if not np.isfinite(scale) or scale <= 0:
+    if not isinstance(scale, numbers.Real) or not 0 < scale < float("inf"):
         raise InputError(f"scale must be a positive number, got {scale}", "scale")
-    shape = tuple(max(2, round(n * scale)) for n in size)
-    if max(shape) > MAX_SIDE:
-        raise InputError(f"scale {scale} asks for a {'x'.join(map(str, shape))} grid; "
-                         f"at most {MAX_SIDE} points per axis are supported", "scale")
-    return shape
+    if max(size) * scale > MAX_SIDE:  # before round(), which overflows for 1e308
+        points = "x".join(f"{n * scale:.0f}" for n in size)  # inf past a float's range
+        raise InputError(f"scale {scale} asks for a {points} grid; at most {MAX_SIDE} points per axis are supported",
+                         "scale")
+    return tuple(max(2, round(n * scale)) for n in size)
 
 
 class FineGrid:
@@ -194,6 +199,19 @@ def rectangle_bounds(plane: np.ndarray, ranges_a: list, ranges_b: list) -> tuple
     return lo, hi
 
 
+def check_band_memory(size, scale: float, hidden: int, block: int = BLOCK, memory_limit: int | None = None,
+                      slabs_at_once: int = 1) -> None:
+    """Refuse up front a band search (`Band`) that needs more than
+    memory_limit bytes: the yz plane of D = `hidden` pre-activations at every
+    padded (y, z); per slab being worked on, three slab buffers and the x
+    rows of two planes."""
+    shape = grid_shape(size, scale)
+    py, pz = (-(-(m + 1) // block) * block + 1 for m in shape[1:])
+    per_slab = py * pz * 3 * (block + 1) * 4 + (block + 1) * (py + pz) * hidden * 4
+    needed = py * pz * hidden * 4 + per_slab * slabs_at_once
+    check_memory(needed, f"meshing a {'x'.join(map(str, shape))} grid", memory_limit)
+
+
 class Band:
     """The band search of one tri-plane on a grid `scale` times finer: the
     occupancy of each x slab of blocks, evaluated only in blocks that the
@@ -213,16 +231,10 @@ class Band:
 
     def __init__(self, model, triplane: TriPlane, scale: float, block: int = BLOCK, chunk: int = 16,
                  memory_limit: int | None = None, slabs_at_once: int = 1):
+        check_band_memory(triplane.size, scale, model.manifest.hidden, block, memory_limit, slabs_at_once)
         proj = project(model, triplane)
         self.grid = grid = FineGrid(proj, scale, block)
         self.head, self.block, self.chunk = model.head, block, chunk
-        py, pz = grid.padded[1:]
-        hidden = proj.planes[2].shape[-1]  # the decoder's hidden width D
-        # The yz plane at every (y, z); per slab being worked on, three slab
-        # buffers and the x rows of two planes.
-        per_slab = py * pz * 3 * (block + 1) * 4 + (block + 1) * (py + pz) * hidden * 4
-        needed = py * pz * hidden * 4 + per_slab * slabs_at_once
-        check_memory(needed, f"meshing a {'x'.join(map(str, grid.shape))} grid", memory_limit)
         self.ranges = [grid.coarse_ranges(axis) for axis in range(3)]
         self.yz_bounds = rectangle_bounds(proj.planes[2], self.ranges[1], self.ranges[2])  # (nby, nbz, D) each
         self.real_y = grid.is_real(1, np.arange(grid.padded[1]))

@@ -15,6 +15,7 @@ import numpy as np
 import trimesh
 from PIL import Image, ImageDraw, ImageFont
 
+from .budget import check_memory
 from .errors import InputError
 from .write import atomic_write
 
@@ -40,6 +41,16 @@ FIELD_OF_VIEW = 35.0  # degrees; only sets the strength of the perspective
 MARGIN = 0.05  # blank border around the mesh, as a fraction of the image side
 EDGE_JUMP = 0.04  # outline where depth jumps by this fraction of the mesh's depth range
 BATCH = 1 << 20  # candidate pixels per rasterising step: bounds the memory used
+# Peak bytes per drawn pixel (supersampled) of one render: z-buffer, face
+# index, colours and the outline's depth arrays; 69 measured at 1000 to 3000
+# pixels square (docs/RELIABILITY.md). And per pixel of the finished picture:
+# its cells, the joined rows, the image pillow encodes.
+RENDER_BYTES_PER_PIXEL = 72
+PICTURE_BYTES_PER_PIXEL = 12
+# Pillow refuses to open larger images (about 179M pixels: a decompression
+# bomb to it), and other readers guard alike: a picture that could not be
+# opened is not drawn.
+MAX_PICTURE_PIXELS = 2 * (2**30 // 4 // 3)
 
 
 def render(mesh: trimesh.Trimesh, size=(512, 512), azimuth=35.0, elevation=25.0, up="y",
@@ -70,19 +81,51 @@ def render(mesh: trimesh.Trimesh, size=(512, 512), azimuth=35.0, elevation=25.0,
     return np.round(np.clip(image, 0, 1) * 255).astype(np.uint8)
 
 
+def picture_size(count: int, size, views: int = 1, columns: int = 4) -> tuple:
+    """(width, height) of the picture of `count` shapes: one row of `views`
+    per shape (render_views), or with one view a grid of `columns` labelled
+    cells (render_grid)."""
+    width, height = size
+    if views > 1:
+        return width * views, height * count
+    columns = min(columns, count)
+    return width * columns, -(-count // columns) * (height + label_height(size))
+
+
+def check_picture(count: int, size, views: int = 1, columns: int = 4, supersample: int = 2,
+                  memory_limit: int | None = None) -> None:
+    """Refuse up front a picture that no image reader would open, or whose
+    drawing needs more than memory_limit bytes (None: the memory available)."""
+    if min(count, views, columns, *size) < 1:
+        raise InputError(f"a picture needs at least one shape, view, column and pixel; got {count} shapes, "
+                         f"{views} views, {columns} columns, size {tuple(size)}", "size")
+    width, height = picture_size(count, size, views, columns)
+    if width * height > MAX_PICTURE_PIXELS:
+        raise InputError(f"a {width}x{height} picture has more than {MAX_PICTURE_PIXELS} pixels, which image "
+                         "readers refuse to open; draw fewer shapes or views, or smaller ones", "size")
+    drawn = size[0] * size[1] * supersample**2
+    check_memory(RENDER_BYTES_PER_PIXEL * drawn + PICTURE_BYTES_PER_PIXEL * width * height,
+                 f"a {width}x{height} picture", memory_limit)
+
+
 def render_views(mesh: trimesh.Trimesh, size=(384, 384), views=((35, 25), (125, 25), (215, 25), (305, 25)),
-                 **options) -> np.ndarray:
+                 progress=None, **options) -> np.ndarray:
     """One picture per (azimuth, elevation) in `views`, side by side:
-    (height, width * len(views), 3) uint8. `options` go to `render`."""
-    return np.concatenate([render(mesh, size, azimuth, elevation, **options) for azimuth, elevation in views],
-                          axis=1)
+    (height, width * len(views), 3) uint8. progress() is called after each
+    view; `options` go to `render`."""
+    pictures = []
+    for azimuth, elevation in views:
+        pictures.append(render(mesh, size, azimuth, elevation, **options))
+        if progress:
+            progress()
+    return np.concatenate(pictures, axis=1)
 
 
-def render_grid(meshes: list, labels: list, columns: int, size=(320, 320), **options) -> np.ndarray:
+def render_grid(meshes: list, labels: list, columns: int, size=(320, 320), progress=None, **options) -> np.ndarray:
     """The meshes in rows of `columns` cells, each a `size` picture with its
     label in a strip beneath: (rows * (height + strip), columns * width, 3)
     uint8, strip = `label_height(size)`. Cells past the last mesh stay blank.
-    `options` go to `render`."""
+    progress() is called after each cell; `options` go to `render`."""
     if len(meshes) != len(labels):
         raise InputError(f"render_grid got {len(meshes)} meshes but {len(labels)} labels")
     if not meshes or columns < 1:
@@ -100,6 +143,8 @@ def render_grid(meshes: list, labels: list, columns: int, size=(320, 320), **opt
         ImageDraw.Draw(cell).text((width / 2, height + strip / 2), str(label), anchor="mm", font=font,
                                   fill=tuple(round(255 * c) for c in LABEL))
         cells.append(np.asarray(cell))
+        if progress:
+            progress()
     rows = -(-len(cells) // columns)
     cells += [np.full_like(cells[0], background)] * (rows * columns - len(cells))
     return np.concatenate([np.concatenate(cells[r * columns:(r + 1) * columns], axis=1) for r in range(rows)])

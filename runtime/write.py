@@ -44,11 +44,15 @@ def check_writable(path, inputs=()) -> None:
     missing or read-only, or it is one of `inputs` (the same file, also
     through a symbolic or hard link), which writing would destroy."""
     path = Path(path)
-    _check_replaceable(path)
+    try:
+        _check_replaceable(path)
+        folder_exists = path.parent.is_dir()
+    except OSError as error:  # a name too long for the file system
+        raise InputError(f"{path}: cannot write here ({error.strerror})") from None
     for source in inputs:
         if source is not None and is_same_file(path, source):
             raise InputError(f"{path}: is the input {source}; writing it would destroy it, so name another file")
-    if not path.parent.is_dir():
+    if not folder_exists:
         raise InputError(f"{path}: the folder {path.parent} does not exist")
     try:
         tmp, fd = _create_temporary(path)
@@ -197,20 +201,23 @@ def write_mesh(mesh, path) -> None:
 
 
 def write_sample(model, triplane, path, scale: float = 1.0, smooth: int = 0, smoother: str = "laplacian",
-                 largest: bool = False, frame: str = "input", threads: int | None = None) -> None:
+                 largest: bool = False, frame: str = "input", threads: int | None = None,
+                 mesh_progress=None) -> None:
     """One sample as the file its extension names: a mesh, or the .npz grid.
     A .ply without smoothing or --largest (which need the whole mesh) is
-    streamed slab by slab: any size fits in memory."""
+    streamed slab by slab: any size fits in memory. mesh_progress(done,
+    total) is called as meshing goes."""
     from . import mesh, query
 
     check_writable(path, [model.path])  # each name of a --seeds list, not only the first
     path = Path(path)
     if output_kind(path) == "grid" or path.suffix.lower() != ".ply" or smooth or largest:
-        data, _ = sample_bytes(model, triplane, path, scale, smooth, smoother, largest, frame, threads)
+        data, _ = sample_bytes(model, triplane, path, scale, smooth, smoother, largest, frame, threads,
+                               mesh_progress)
         atomic_write(path, lambda f: f.write(data))
         return
     mesh.check_frame(frame)
-    pieces = mesh.pieces(model, triplane, scale, threads=threads)
+    pieces = mesh.pieces(model, triplane, scale, progress=mesh_progress, threads=threads)
     if frame == "input":
         pieces = ((mesh.in_frame(v, model.manifest), f) for v, f in pieces)
 
@@ -222,7 +229,8 @@ def write_sample(model, triplane, path, scale: float = 1.0, smooth: int = 0, smo
 
 
 def sample_bytes(model, triplane, path, scale: float = 1.0, smooth: int = 0, smoother: str = "laplacian",
-                 largest: bool = False, frame: str = "input", threads: int | None = None) -> tuple:
+                 largest: bool = False, frame: str = "input", threads: int | None = None,
+                 mesh_progress=None) -> tuple:
     """One sample as the bytes of the file `path` names, made in memory, and
     its mesh (None for a grid): what write_sample writes, for a caller that
     writes elsewhere or wants the mesh too."""
@@ -231,7 +239,8 @@ def sample_bytes(model, triplane, path, scale: float = 1.0, smooth: int = 0, smo
     path = Path(path)
     if output_kind(path) == "grid":
         return grid_bytes(query.dense(model, triplane, scale), size=triplane.size, scale=scale), None
-    result = mesh.extract(model, triplane, scale, smooth, smoother, largest, frame, threads=threads)
+    result = mesh.extract(model, triplane, scale, smooth, smoother, largest, frame, progress=mesh_progress,
+                          threads=threads)
     if not len(result.faces):
         raise no_surface(path)
     return mesh_bytes(result, path.suffix), result

@@ -45,7 +45,7 @@ from sinshape.runtime.errors import InputError, MemoryLimitError
 STATIC = Path(__file__).parent / "static"
 Format = Literal["glb", "ply", "obj", "stl", "off", "npz"]
 MEDIA_TYPES = {"glb": "model/gltf-binary", "obj": "model/obj", "stl": "model/stl"}  # others: octet-stream
-MAX_SMOOTH = 100  # smoothing cannot be interrupted; this bounds it
+MAX_SMOOTH = mesh.MAX_SMOOTH  # smoothing cannot be interrupted either; the runtime bounds it
 # Cross-origin isolation: lets the page use SharedArrayBuffer (multi-threaded WASM).
 ISOLATION_HEADERS = {"Cross-Origin-Opener-Policy": "same-origin", "Cross-Origin-Embedder-Policy": "require-corp"}
 log = logging.getLogger("sinshape.serve")

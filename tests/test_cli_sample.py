@@ -224,9 +224,11 @@ def test_bad_options_are_refused_in_one_line(tiny_model, tmp_path):
         (["-o", str(tmp_path / "out.xyz")], "unsupported output format"),
         (["-o", str(tmp_path / "nowhere" / "out.ply")], "does not exist"),
         (["-o", "/proc/sinshape.ply"], "cannot write"),
-        (["--threads", "0"], "--threads must be at least 1"),
+        (["--threads", "0"], "--threads must be 1 to 256"),
+        (["--threads", "1000000"], "--threads must be 1 to 256"),  # started a million threads
         (["--recon", "--size", "2"], "training size; drop --size"),
-        (["--smooth", "-1"], "--smooth must be 0 or more"),
+        (["--smooth", "-1"], "--smooth must be 0 to 100"),
+        (["--smooth", "1000000"], "--smooth must be 0 to 100"),
     ]
     for options, fragment in cases:
         result = sinrun("sample", tiny_model, "-o", str(out), *options)

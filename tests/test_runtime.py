@@ -7,7 +7,7 @@ import pytest
 
 from conftest import TINY_ONNX
 from sinshape import runtime
-from sinshape.runtime import generate, query
+from sinshape.runtime import budget, generate, query
 
 
 @pytest.fixture(scope="module")
@@ -141,7 +141,7 @@ def test_the_memory_limit_is_a_parameter_defaulting_to_the_available_memory(mode
         runtime.extract(model, triplane, memory_limit=1000)
     with pytest.raises(runtime.MemoryLimitError, match="dense"):
         runtime.dense(model, triplane, memory_limit=1000)
-    monkeypatch.setattr(generate, "available_memory", lambda: 1000)
+    monkeypatch.setattr(budget, "available_memory", lambda: 1000)
     with pytest.raises(runtime.MemoryLimitError):
         runtime.interpolate(model, 1, 2, 0.5)
     assert len(runtime.extract(model, triplane, memory_limit=1 << 30).faces) > 0
@@ -151,7 +151,7 @@ def test_available_memory_reads_the_machine_or_falls_back(monkeypatch):
     if os.path.exists("/proc/meminfo"):
         with open("/proc/meminfo") as f:
             kib = next(int(line.split()[1]) for line in f if line.startswith("MemAvailable:"))
-        assert abs(generate.available_memory() - kib * 1024) < 256 << 20  # it moves while we read
+        assert abs(budget.available_memory() - kib * 1024) < 256 << 20  # it moves while we read
 
     def unreadable(*args):
         raise OSError("no /proc/meminfo here")
@@ -159,10 +159,10 @@ def test_available_memory_reads_the_machine_or_falls_back(monkeypatch):
     def unknown(name):
         raise ValueError(f"unrecognized configuration name {name}")
 
-    monkeypatch.setattr(generate, "open", unreadable, raising=False)  # shadows the builtin there
-    assert generate.available_memory() > 0  # sysconf's free pages
-    monkeypatch.setattr(generate.os, "sysconf", unknown)
-    assert generate.available_memory() == generate.FALLBACK_MEMORY_LIMIT
+    monkeypatch.setattr(budget, "open", unreadable, raising=False)  # shadows the builtin there
+    assert budget.available_memory() > 0  # sysconf's free pages
+    monkeypatch.setattr(budget.os, "sysconf", unknown)
+    assert budget.available_memory() == budget.FALLBACK_MEMORY_LIMIT
 
 
 @pytest.mark.parametrize("scale", [1, 2.5])

@@ -21,6 +21,7 @@ import torch
 import torch.nn.functional as F
 
 from sinshape.runtime import noise
+from sinshape.runtime.budget import check_memory
 from sinshape.runtime.errors import InputError
 from sinshape.runtime.write import atomic_write, check_writable, is_same_file
 
@@ -33,6 +34,15 @@ from sinshape.prep.pyramid import load_pyramid, training_targets
 CHECKPOINT_FORMAT = "sinshape-checkpoint"
 CHECKPOINT_VERSION = 1
 LOSS_LIMIT = 1e6  # a loss beyond this (or NaN) means training has diverged
+
+# Peak memory one iteration adds, per voxel of its level, with 32 channels
+# and 3 + 3 steps in float32 (benchmarks/train_memory.py fits them to levels
+# of 8k to 440k voxels, docs/RELIABILITY.md): the generator decodes every
+# voxel of a batch of samples, the critic (and its gradient penalty's double
+# backward) sees the whole level or its --critic-crop box.
+GENERATOR_BYTES_PER_VOXEL = 520
+CRITIC_BYTES_PER_VOXEL = 230
+LEVEL_BYTES = 17 << 20  # what a level adds whatever its size
 
 
 class TrainingDiverged(RuntimeError):
@@ -368,7 +378,9 @@ def train(input_path, output_path, config: TrainConfig | None, *, resume: bool =
     check_outputs(input_path, output_path, checkpoint_path, config.generator)
     placement = devices.choose(device, config.precision)
     placement.activate()
-    pyramid = load_pyramid(input_path, config.res, config.levels, config.level_factor, config.min_size)
+    first = state["level"] if state else 0  # the levels still to train
+    pyramid = load_pyramid(input_path, config.res, config.levels, config.level_factor, config.min_size,
+                           check=lambda sizes: check_training_memory(sizes[first:], config, placement))
     if resume and pyramid.source_sha256 != state["source"]["sha256"]:
         raise InputError(f"{checkpoint_path}: this checkpoint was trained on another file ({state['source']['name']})")
     # Record what was actually used: an .h5 pyramid fixes res and levels.
@@ -443,6 +455,26 @@ def train(input_path, output_path, config: TrainConfig | None, *, resume: bool =
     return export.export_model(trainer.generator, sizes=trainer.sizes, noise_amps=trainer.noise_amps,
                                config=config, pyramid=pyramid, seconds=trainer.seconds, ran_on=ran_on,
                                path=output_path)
+
+
+def level_memory(size, config: TrainConfig) -> int:
+    """Bytes one training iteration at a level of `size` (X, Y, Z) needs
+    beyond the data and the networks. Activations grow with the channels."""
+    crop = config.critic_crop or max(size)
+    seen = math.prod(min(n, crop) for n in size)
+    per_voxel = GENERATOR_BYTES_PER_VOXEL * math.prod(size) + CRITIC_BYTES_PER_VOXEL * seen
+    return LEVEL_BYTES + per_voxel * config.channels // 32
+
+
+def check_training_memory(sizes: list, config: TrainConfig, placement) -> None:
+    """Refuse, before any level trains, a pyramid whose largest level would
+    not fit: in the GPU's free memory on CUDA, else in the memory available."""
+    if not sizes:
+        return
+    largest = max(sizes, key=math.prod)
+    limit = torch.cuda.mem_get_info(placement.device)[0] if placement.device.type == "cuda" else None
+    check_memory(level_memory(largest, config),
+                 f"training a level of {'x'.join(map(str, largest))} voxels", limit)
 
 
 def time_levels(config: TrainConfig, pyramid, placement, rounds: int = 2) -> list:

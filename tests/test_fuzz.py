@@ -1,0 +1,454 @@
+"""Property-based fuzzing of every command and the runtime's API, and of
+corrupted model and mesh files: no traceback, no hang, no partial or
+foreign file touched (docs/RELIABILITY.md, "The fuzz test").
+
+CI runs a bounded, derandomised pass (the same cases every run, no example
+database). A longer run draws new cases each time:
+
+    SINSHAPE_FUZZ_EXAMPLES=2000 pytest tests/test_fuzz.py --hypothesis-show-statistics
+
+Values are drawn from two kinds: small ones that give quick work, and
+absurd ones (huge, negative, NaN, of the wrong type) that must be refused
+up front. Valid work that is merely long (--scale 50) is left out, so that a
+case that runs past CASE_SECONDS is a hang, a bug. The memory available is
+fixed at 2 GiB, so that what is refused does not depend on the machine.
+"""
+
+import contextlib
+import io
+import os
+import signal
+import struct
+from datetime import timedelta
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+from click.testing import CliRunner
+from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import strategies as st
+
+from conftest import TINY_ONNX
+from sinshape import runtime
+from sinshape.cli.main import SEEDS, cli
+from sinshape.runtime import budget
+from sinshape.runtime.errors import InputError
+
+EXAMPLES = int(os.environ.get("SINSHAPE_FUZZ_EXAMPLES", "0"))
+LONG = EXAMPLES > 0
+CASE_SECONDS = 30  # a case running longer is a hang
+FUZZ = settings(
+    max_examples=EXAMPLES or 60,
+    deadline=timedelta(seconds=CASE_SECONDS),  # hypothesis's own bound, per example
+    derandomize=not LONG,  # CI: the same cases every run
+    database=None,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much,
+                           HealthCheck.function_scoped_fixture, HealthCheck.data_too_large],
+)
+MEMORY = 2 << 30
+
+
+class Hang(Exception):
+    """A case ran past CASE_SECONDS."""
+
+
+@contextlib.contextmanager
+def bounded(seconds=CASE_SECONDS):
+    """Fail a case that runs too long, even inside native code that never
+    returns to hypothesis's deadline check (SIGALRM; pytest runs tests in
+    the main thread)."""
+    def ring(signum, frame):
+        raise Hang(f"a case ran past {seconds} s")
+
+    previous = signal.signal(signal.SIGALRM, ring)
+    signal.setitimer(signal.ITIMER_REAL, seconds)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+
+
+@pytest.fixture(autouse=True)
+def fixed_memory(monkeypatch):
+    monkeypatch.setattr(budget, "available_memory", lambda: MEMORY)
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory):
+    """A folder with the tiny model, a small mesh and a foreign file that no
+    command may touch."""
+    root = tmp_path_factory.mktemp("fuzz")
+    (root / "tiny.onnx").write_bytes(TINY_ONNX.read_bytes())
+    trimesh.creation.box((2, 1, 1)).export(root / "box.obj")
+    (root / "untouched.ply").write_bytes(b"not sinshape's")
+    return root
+
+
+def snapshot(root: Path) -> dict:
+    return {p.relative_to(root): p.read_bytes() for p in root.rglob("*") if p.is_file()}
+
+
+def run_cli(root: Path, args: list):
+    """Run sinrun in-process in `root`; check there is no traceback and no
+    temporary, partial or foreign file left. Returns the result."""
+    before = snapshot(root)
+    cwd = os.getcwd()
+    os.chdir(root)
+    try:
+        with bounded():
+            result = CliRunner().invoke(cli, [str(a) for a in args])
+    finally:
+        os.chdir(cwd)
+    after = snapshot(root)
+    assert not isinstance(result.exception, Hang), args
+    if result.exception is not None and not isinstance(result.exception, SystemExit):
+        import traceback
+
+        raise AssertionError(f"sinrun {args}: {''.join(traceback.format_exception(result.exception))}")
+    assert "Traceback" not in result.output, (args, result.output)
+    if result.exit_code != 0:
+        assert result.exit_code in (1, 2), (args, result.exit_code)
+        assert any(line.startswith("Error:") for line in result.output.splitlines()), (args, result.output)
+    assert after[Path("untouched.ply")] == before[Path("untouched.ply")]  # named by no case
+    new = set(after) - set(before)
+    assert not [p for p in new if p.name.startswith(".")], (args, new)  # temporaries, probes
+    for path in set(after) & set(before):
+        if after[path] != before[path] and path.name not in ("tiny.onnx", "box.obj"):
+            before.pop(path)  # an output written again
+    for path in new:  # leave the folder as it was for the next case
+        (root / path).unlink()
+    assert after[Path("tiny.onnx")] == before[Path("tiny.onnx")] and after[Path("box.obj")] == before[Path("box.obj")]
+    return result
+
+
+# -- values ---------------------------------------------------------------
+ABSURD_INTS = st.one_of(st.integers(-2**70, -1), st.integers(10**6, 2**70))
+ABSURD_FLOATS = st.one_of(st.sampled_from([float("nan"), float("inf"), -float("inf"), 0.0, -0.0, 1e308, -1e-300]),
+                          st.floats(-1e30, 0), st.floats(1e4, 1e300))
+TEXT = st.text(st.sampled_from("0123456789-,.eE+ x{}:!nainf/"), max_size=12)
+
+
+def small_or_absurd_float(low, high):
+    return st.one_of(st.floats(low, high), ABSURD_FLOATS, TEXT)
+
+
+def seed_list_text():
+    """Seed lists that parse to at most 3 seeds, and text that may not parse."""
+    def few(text):
+        try:
+            return len(SEEDS.convert(text, None, None)) <= 3
+        except Exception:  # click's BadParameter: refused, which is what we test
+            return True
+    return st.one_of(st.from_regex(r"\A[0-9]{1,2}(-[0-9]{1,2})?(,[0-9]{1,2})?\Z"), TEXT).filter(few)
+
+
+def size_text():
+    factor = st.one_of(st.floats(0.01, 2.5), ABSURD_FLOATS).map(lambda f: f"{f:g}")
+    return st.one_of(factor, st.lists(factor, min_size=2, max_size=4).map(",".join), TEXT)
+
+
+OUTPUTS = st.sampled_from(["s.ply", "s.obj", "s.stl", "s.off", "s.glb", "s.npz", "s.xyz", "s", "{seed}.ply",
+                           "s_{seed:5}.ply", "{step}_{alpha}.ply", "{nope}.ply", "missing/s.ply", ".", "foreign.ply",
+                           "s.png", "{seed!r}.ply", "tiny.onnx"])
+MESH_OPTIONS = {
+    "--smooth": st.one_of(st.integers(0, 120), ABSURD_INTS, TEXT),
+    "--smoother": st.one_of(st.sampled_from(["laplacian", "taubin"]), TEXT),
+    "--frame": st.one_of(st.sampled_from(["input", "model"]), TEXT),
+    "--largest": st.just(None),
+    "--threads": st.one_of(st.integers(-2, 4), ABSURD_INTS),
+    "--scale": small_or_absurd_float(0.05, 2.5),
+    "--size": size_text(),
+}
+
+
+def options(table: dict):
+    """Some of the options of `table`, each with a drawn value (None: a flag)."""
+    def arguments(chosen):
+        args = []
+        for name, value in chosen:
+            args += [name] if value is None else [name, value]
+        return args
+    pairs = [st.tuples(st.just(name), values) for name, values in table.items()]
+    return st.lists(st.one_of(pairs), max_size=4).map(arguments)
+
+
+@FUZZ
+@given(args=options({**MESH_OPTIONS, "--seed": st.one_of(st.integers(0, 99), ABSURD_INTS, TEXT),
+                     "--seeds": seed_list_text(), "--recon": st.just(None), "-o": OUTPUTS}),
+       model=st.sampled_from(["tiny.onnx", "missing.onnx", "box.obj", ".", "foreign.ply"]))
+def test_sample(folder, args, model):
+    run_cli(folder, ["sample", model, *args])
+
+
+@FUZZ
+@given(args=options({**MESH_OPTIONS, "--steps": st.one_of(st.integers(-1, 3), ABSURD_INTS, TEXT),
+                     "-o": OUTPUTS}),
+       seeds=st.tuples(st.one_of(st.integers(0, 9), ABSURD_INTS), st.one_of(st.integers(0, 9), TEXT)),
+       alpha=st.tuples(small_or_absurd_float(-2, 2), small_or_absurd_float(-2, 2)))
+def test_interpolate(folder, args, seeds, alpha):
+    run_cli(folder, ["interpolate", "tiny.onnx", "--seeds", *seeds, "--range", *alpha, *args])
+
+
+@FUZZ
+@given(args=options({
+    "--seeds": seed_list_text(), "--recon": st.just(None), "--scale": small_or_absurd_float(0.05, 1.5),
+    "--size": size_text(), "--smooth": st.one_of(st.integers(0, 5), ABSURD_INTS),
+    "--views": st.one_of(st.integers(-1, 3), ABSURD_INTS), "--columns": st.one_of(st.integers(-1, 5), ABSURD_INTS),
+    "--image-size": st.one_of(st.integers(-1, 80), ABSURD_INTS), "--zoom": small_or_absurd_float(0.5, 4),
+    "--focus": st.one_of(size_text(), st.just("0.5,0.5,0.5")), "--azimuth": small_or_absurd_float(-720, 720),
+    "--elevation": small_or_absurd_float(-90, 90), "--up": st.one_of(st.sampled_from(["y", "z"]), TEXT),
+    "-o": st.sampled_from(["r.png", "r.jpg", "missing/r.png", "foreign.ply", "."])}),
+       inputs=st.lists(st.sampled_from(["tiny.onnx", "box.obj", "missing.obj", "."]), min_size=1, max_size=2))
+def test_render(folder, args, inputs):
+    if "-o" not in args:
+        args += ["-o", "r.png"]
+    if "--image-size" not in args:
+        args += ["--image-size", "32"]  # small pictures keep each case short
+    run_cli(folder, ["render", *inputs, *args])
+
+
+@FUZZ
+@given(name=st.one_of(st.sampled_from(["terrain", "acropolis", "stairs", "wall", "cheese"]), TEXT),
+       detail=st.one_of(st.integers(-1, 12), ABSURD_INTS, st.integers(10**4, 10**5), TEXT),
+       seed=st.one_of(st.integers(0, 5), ABSURD_INTS), output=OUTPUTS)
+def test_shape(folder, name, detail, seed, output):
+    run_cli(folder, ["shape", name, "--detail", detail, "--seed", seed, "-o", output])
+
+
+@FUZZ
+@given(command=st.sampled_from([["info", "tiny.onnx"], ["info", "box.obj"], ["info", "."], ["models"],
+                                ["eval", "tiny.onnx", "--reference", "box.obj"], ["eval", "tiny.onnx"]]),
+       args=options({"-n": st.one_of(st.integers(-1, 3), ABSURD_INTS), "--first-seed": st.one_of(st.integers(0, 9),
+                     ABSURD_INTS), "--scale": small_or_absurd_float(0.5, 1.5), "--json": OUTPUTS.filter(lambda name: name not in ("tiny.onnx", "box.obj"))}))
+def test_info_models_eval(folder, command, args):
+    if command[0] == "eval" and not any(a == "-n" for a in args):
+        args += ["-n", "2"]
+    run_cli(folder, [*command, *(args if command[0] == "eval" else [])])
+
+
+# -- the Python API -------------------------------------------------------
+@pytest.fixture(scope="module")
+def model():
+    return runtime.load_model(TINY_ONNX, threads=1)
+
+
+ANY = st.one_of(st.none(), st.booleans(), st.integers(-2**70, 2**70), st.floats(allow_nan=True), TEXT,
+                st.lists(st.floats(-3, 3), max_size=4).map(tuple))
+
+
+def api_call(function, *args, **kwargs):
+    """Call a runtime function: it returns, or raises InputError; nothing else."""
+    with bounded():
+        try:
+            return function(*args, **kwargs)
+        except InputError:
+            return None
+
+
+@FUZZ
+@given(seed=st.one_of(st.integers(0, 99), ANY), factors=st.one_of(st.sampled_from([(1, 1, 1), (0.5, 1, 2)]), ANY),
+       limit=st.one_of(st.none(), st.integers(-1, 2**40)), scale=st.one_of(st.floats(0.1, 2), ANY),
+       smooth=st.one_of(st.integers(0, 5), ANY), smoother=st.one_of(st.just("taubin"), ANY),
+       largest=ANY, frame=st.one_of(st.sampled_from(["input", "model"]), ANY))
+def test_api_sample_extract_dense(model, seed, factors, limit, scale, smooth, smoother, largest, frame):
+    triplane = api_call(runtime.sample, model, seed, factors, memory_limit=limit)
+    if triplane is None:
+        return
+    api_call(runtime.extract, model, triplane, scale, smooth, smoother, largest, frame)
+    api_call(runtime.dense, model, triplane, scale)
+
+
+@FUZZ
+@given(a=st.one_of(st.integers(0, 9), ANY), b=st.one_of(st.integers(0, 9), ANY),
+       alpha=st.one_of(st.floats(-2, 2), ANY),
+       coords=st.one_of(st.lists(st.lists(st.floats(allow_nan=True, allow_infinity=True), min_size=3, max_size=3),
+                                 max_size=5), st.lists(st.floats(-5, 30), max_size=7), ANY))
+def test_api_interpolate_points(model, a, b, alpha, coords):
+    triplane = api_call(runtime.interpolate, model, a, b, alpha)
+    if triplane is not None:
+        values = api_call(runtime.points, model, triplane, coords)
+        assert values is None or (np.isfinite(values).all() and ((0 <= values) & (values <= 1)).all())
+
+
+@FUZZ
+@given(threads=st.one_of(st.integers(-1, 4), ANY), name=st.sampled_from(["tiny.onnx", "box.obj", "none", "."]))
+def test_api_load_model(folder, threads, name):
+    api_call(runtime.load_model, folder / name, threads)
+
+
+# -- corrupted files ------------------------------------------------------
+def corrupt(data: bytes, draw) -> bytes:
+    """Truncate, flip bytes, or overwrite a run of bytes with a drawn value."""
+    kind = draw(st.sampled_from(["truncate", "flip", "write"]))
+    if kind == "truncate":
+        return data[:draw(st.integers(0, len(data) - 1))]
+    data = bytearray(data)
+    for _ in range(draw(st.integers(1, 8))):
+        at = draw(st.integers(0, len(data) - 1))
+        if kind == "flip":
+            data[at] ^= 1 << draw(st.integers(0, 7))
+        else:
+            value = draw(st.sampled_from([b"\xff" * 8, b"\x00" * 8, struct.pack("<d", float("nan")),
+                                          struct.pack("<q", 2**62), b"9" * 8, b"-1"]))
+            data[at:at + len(value)] = value
+    return bytes(data)
+
+
+def manifest_edits():
+    """A manifest field set to an odd value, as an editor would."""
+    keys = st.sampled_from(["format", "format_version", "created_by", "planes", "channels", "pool_bins", "mlp_hidden",
+                            "levels", "recon_seed", "noise", "frame", "stages", "source", "config", "training"])
+    values = st.one_of(st.none(), st.integers(-2**70, 2**70), st.floats(allow_nan=True), TEXT,
+                       st.lists(st.integers(-3, 40), max_size=4), st.just({}), st.just([{}]))
+    return st.tuples(keys, values)
+
+
+@FUZZ
+@given(data=st.data())
+def test_corrupted_models_are_refused_or_work(folder, data):
+    """A corrupted model loads and samples, or is refused in one line. An
+    edited manifest gets a matching checksum half the time, as a careful
+    editor would give it, so that its fields are read."""
+    import json
+
+    import onnx
+
+    from sinshape.runtime import manifest as fmt
+
+    raw = TINY_ONNX.read_bytes()
+    if data.draw(st.booleans()):
+        proto = onnx.load_from_string(raw)
+        entry = next(p for p in proto.metadata_props if p.key == fmt.METADATA_KEY)
+        manifest = json.loads(entry.value)
+        key, value = data.draw(manifest_edits())
+        if data.draw(st.booleans()):
+            manifest["levels"][data.draw(st.integers(0, 1))][data.draw(st.sampled_from(["size", "noise_amp"]))] = value
+        else:
+            manifest[key] = value
+        if data.draw(st.booleans()):
+            weights = [(t.name, onnx.numpy_helper.to_array(t)) for t in proto.graph.initializer]
+            manifest["checksum"] = fmt.checksum(manifest, weights)
+        entry.value = json.dumps(manifest)
+        raw = proto.SerializeToString()
+    else:
+        raw = corrupt(raw, data.draw)
+    path = folder / "bad.onnx"
+    path.write_bytes(raw)
+    try:
+        loaded = api_call(runtime.load_model, path, 1)
+        if loaded is not None:
+            triplane = api_call(runtime.sample, loaded, 1)
+            if triplane is not None:
+                api_call(runtime.extract, loaded, triplane)
+        run_cli(folder, ["info", "bad.onnx"])
+    finally:
+        path.unlink()
+
+
+MESHES = {suffix: trimesh.creation.box((2, 1, 1)).export(file_type=suffix[1:]) for suffix in
+          (".obj", ".ply", ".stl", ".off", ".glb")}
+
+
+@FUZZ
+@given(data=st.data(), suffix=st.sampled_from(sorted(MESHES)))
+def test_corrupted_meshes_are_refused_or_work(folder, data, suffix):
+    """A corrupted mesh is voxelised and drawn, or refused in one line."""
+    from sinshape.prep import pyramid
+
+    raw = MESHES[suffix]
+    raw = corrupt(raw.encode() if isinstance(raw, str) else raw, data.draw)
+    path = folder / f"bad{suffix}"
+    path.write_bytes(raw)
+    try:
+        api_call(pyramid.load_pyramid, path, 16, 1)
+        run_cli(folder, ["render", path.name, "--image-size", "32", "-o", "r.png"])
+    finally:
+        path.unlink()
+
+
+def test_the_case_bound_stops_a_hang():
+    with pytest.raises(Hang), bounded(0.2):
+        while True:
+            io.BytesIO(b"spin")
+
+
+# -- what the fuzzer found, kept as plain cases ----------------------------
+@pytest.mark.parametrize("args, fragment", [
+    # a finite but enormous blend weight overflowed the noise to NaN: a traceback in marching cubes
+    (["interpolate", "tiny.onnx", "--seeds", 0, 0, "--range", 0, 1e308], "--range must be a number in [-100, 100]"),
+    # 1e228 made a file name too long to look up: an OSError traceback
+    (["interpolate", "tiny.onnx", "--seeds", 0, 0, "--range", 1e228, 0], "--range must be a number in [-100, 100]"),
+    (["sample", "tiny.onnx", "-o", "s" * 300 + ".ply"], "cannot write here (File name too long)"),
+    # 2e6 times the training size: numpy's int64 product of the sizes wrapped round and
+    # passed the memory check; the noise then refused positions past 2**21 (ValueError)
+    (["sample", "tiny.onnx", "--size", 2.0754e6], "longer than 65536 voxels"),
+    (["sample", "tiny.onnx", "--size", "3e6,0.1,0.1"], "longer than 65536 voxels"),
+    # an infinite scale: the clamping warning's round() overflowed
+    (["interpolate", "tiny.onnx", "--seeds", 0, 0, "--scale", "inf"], "--scale must be a positive number"),
+    # '.' has no name to add _stepK_alphaA to: a ValueError traceback
+    (["interpolate", "tiny.onnx", "--seeds", 0, 0, "-o", "."], "'.' is not a file name"),
+    # n * 1e308 is infinite: round() overflowed, in the clamping warning and in the grid's size
+    (["sample", "tiny.onnx", "--scale", 1e308], "at most 65536 points per axis"),
+    (["eval", "tiny.onnx", "--reference", "box.obj", "-n", 2, "--scale", 1e308], "at most 65536 points per axis"),
+    # a million threads: onnxruntime started them all, for minutes
+    (["sample", "tiny.onnx", "--threads", 10**6], "--threads must be 1 to 256"),
+])
+def test_found_by_the_fuzzer(folder, args, fragment):
+    result = run_cli(folder, args)
+    assert result.exit_code in (1, 2) and fragment in result.output, result.output
+
+
+def test_eval_refuses_a_million_samples_up_front(folder):
+    """Found by the fuzzer: every sample's grid is kept and compared with
+    every other; -n 1000000 ran on for hours."""
+    result = run_cli(folder, ["eval", "tiny.onnx", "--reference", "box.obj", "-n", 10**6])
+    assert result.exit_code == 1 and "scoring 1000000 samples of 5400 voxels needs about 30051.5 GiB" in result.output
+
+
+def test_a_corrupt_op_name_is_refused(folder):
+    """Found by the fuzzer: a flipped bit made an op's name invalid UTF-8,
+    which protobuf reads as bytes; sorting it with str names was a TypeError."""
+    raw = bytearray(TINY_ONNX.read_bytes())
+    raw[1689] ^= 1 << 3
+    (folder / "bad.onnx").write_bytes(bytes(raw))
+    try:
+        with pytest.raises(InputError, match="corrupt model: an op's name is not text"):
+            runtime.load_model(folder / "bad.onnx", 1)
+    finally:
+        (folder / "bad.onnx").unlink()
+
+
+def test_a_figure_past_what_a_float_holds():
+    """Found by the fuzzer (--size 1.5e104, before sizes were bounded): the
+    figure's division overflowed to an OverflowError traceback."""
+    with pytest.raises(InputError, match=r"needs about 9\.31e\+390 GiB of memory \(limit 0\.0 GiB\)"):
+        budget.check_memory(10**400, "it", 1)
+
+
+def glb_with_a_flipped_bit(at: int) -> bytes:
+    raw = bytearray(MESHES[".glb"])
+    raw[at] ^= 1
+    return bytes(raw)
+
+
+@pytest.mark.parametrize("name, data, fragment", [
+    # one flipped bit in a .glb put every vertex at the origin; zero extents
+    # passed the flatness test (0 < 0 is false), then a ValueError
+    ("point.obj", b"v 0 0 0\nv 0 0 0\nv 0 0 0\nf 1 2 3\n", "no inside to voxelize"),
+    # '99999999' written over an .obj's vertex lines left 2-D vertices: an IndexError
+    ("flat2d.obj", b"v 0 0\nv 1 0\nv 0 1\nv 1 1\nf 1 2 3\nf 2 3 4\n", "not a 3-D mesh"),
+    # a flipped bit in a .glb's index buffer: faces past the vertices, an IndexError
+    ("bad.glb", glb_with_a_flipped_bit(689), "faces refer to vertices it does not have"),
+])
+def test_corrupt_meshes_found_by_the_fuzzer(folder, name, data, fragment):
+    from sinshape.prep import pyramid
+
+    path = folder / name
+    path.write_bytes(data)
+    try:
+        with pytest.raises(InputError, match=fragment):
+            pyramid.load_pyramid(path, 16)
+    finally:
+        path.unlink()
