@@ -32,9 +32,16 @@ MAX_SIDE = 1 << 16  # grid points per axis; beyond this a scale is absurd
 
 def head_occupancy(head, hidden: np.ndarray) -> np.ndarray:
     """sigmoid(w2 . relu(hidden + b1) + b2): (..., D) pre-activations -> (...) float32."""
-    h = hidden + head.bias1
-    np.maximum(h, 0, out=h)
-    return expit((h @ head.weight2 + head.bias2).astype(np.float32))
+    return biased_head_occupancy(head, hidden + head.bias1)
+
+
+def biased_head_occupancy(head, biased: np.ndarray) -> np.ndarray:
+    """head_occupancy of pre-activations that already hold b1, computed in
+    their own buffer (overwritten): the band search's inner loop."""
+    np.maximum(biased, 0, out=biased)
+    logits = biased @ head.weight2
+    logits += np.float32(head.bias2)
+    return expit(logits)
 
 
 def head_bounds(head, low: np.ndarray, high: np.ndarray) -> tuple:
@@ -229,12 +236,12 @@ class Band:
     `carry` then makes neighbours agree on the plane of points they share.
     """
 
-    def __init__(self, model, triplane: TriPlane, scale: float, block: int = BLOCK, chunk: int = 16,
+    def __init__(self, model, triplane: TriPlane, scale: float, block: int = BLOCK,
                  memory_limit: int | None = None, slabs_at_once: int = 1):
         check_band_memory(triplane.size, scale, model.manifest.hidden, block, memory_limit, slabs_at_once)
         proj = project(model, triplane)
         self.grid = grid = FineGrid(proj, scale, block)
-        self.head, self.block, self.chunk = model.head, block, chunk
+        self.head, self.block = model.head, block
         self.ranges = [grid.coarse_ranges(axis) for axis in range(3)]
         self.yz_bounds = rectangle_bounds(proj.planes[2], self.ranges[1], self.ranges[2])  # (nby, nbz, D) each
         self.real_y = grid.is_real(1, np.arange(grid.padded[1]))
@@ -243,7 +250,8 @@ class Band:
         self.padded_yz = np.array([[not (self.real_y[b * block:b * block + block + 1].all() and
                                          self.real_z[c * block:c * block + block + 1].all())
                                     for c in range(grid.blocks[2])] for b in range(grid.blocks[1])])
-        grid.yz  # made now, not by the first of several threads to need it
+        self.yz_biased = grid.fine_plane(2)  # the yz plane at every padded (y, z), with
+        self.yz_biased += self.head.bias1  # the head's first bias added once
 
     def __len__(self) -> int:
         return self.grid.blocks[0]
@@ -275,19 +283,17 @@ class Band:
         xz = grid.fine_plane(1, rows)  # (B+1, Pz, D)
         values = np.zeros((block + 1, grid.padded[1], grid.padded[2]), np.float32)
         real_x = grid.is_real(0, np.arange(rows.start, rows.stop))
-        real_y, real_z = self.real_y, self.real_z
-        span = np.arange(block + 1)
-        for start in range(0, len(active), self.chunk):
-            part = active[start:start + self.chunk]
-            ys = part[:, 0, None] * block + span  # (k, B+1) padded indices
-            zs = part[:, 1, None] * block + span
-            hidden = (xy[:, ys].transpose(1, 0, 2, 3)[:, :, :, None]  # (k, x, y, 1, D)
-                      + xz[:, zs].transpose(1, 0, 2, 3)[:, :, None]  # (k, x, 1, z, D)
-                      + grid.yz[ys[:, :, None], zs[:, None, :]][:, None])  # (k, 1, y, z, D)
-            occupancy = head_occupancy(head, hidden)  # (k, x, y, z)
-            occupancy *= (real_x[:, None, None] & real_y[ys][:, None, :, None] & real_z[zs][:, None, None, :])
-            for (by, bz), block_values in zip(part, occupancy):
-                values[:, by * block:by * block + block + 1, bz * block:bz * block + block + 1] = block_values
+        # One block at a time in one buffer of (B+1)^3 x D pre-activations
+        # (0.6 MB at D = 32): it stays in cache through the sum, the ReLU and
+        # the product, measured 1.2-1.5x faster than batches of blocks.
+        hidden = np.empty((block + 1,) * 3 + (xy.shape[-1],), np.float32)
+        for by, bz in active:
+            ys, zs = slice(by * block, by * block + block + 1), slice(bz * block, bz * block + block + 1)
+            np.add(xy[:, ys, None], xz[:, None, zs], out=hidden)  # (x, y, z, D)
+            hidden += self.yz_biased[None, ys, zs]
+            occupancy = biased_head_occupancy(head, hidden)
+            occupancy *= real_x[:, None, None] & self.real_y[None, ys, None] & self.real_z[None, None, zs]
+            values[:, ys, zs] = occupancy
         return Slab(bx, values, state)
 
     def carry(self, slabs):
@@ -310,11 +316,11 @@ class Band:
             yield slab
 
 
-def band(model, triplane: TriPlane, scale: float, block: int = BLOCK, chunk: int = 16,
+def band(model, triplane: TriPlane, scale: float, block: int = BLOCK,
          memory_limit: int | None = None):
     """Occupancy on a grid `scale` times finer, evaluated only in blocks that
     the surface may cross (see Band); yields one Slab per x block row."""
-    search = Band(model, triplane, scale, block, chunk, memory_limit)
+    search = Band(model, triplane, scale, block, memory_limit)
     return search.carry(search.slab(bx) for bx in range(len(search)))
 
 
