@@ -245,7 +245,7 @@ def sample_many(model_path, seeds, pattern, engine: str = "local", workers: int 
                 data, record = pool.next_result()
                 running -= 1
                 path = pattern.with_name(pattern.name.replace(FIELD, str(record["seed"])))
-                write.check_writable(path, [model_path])  # never over the model, under any name
+                write.check_not_input(path, [model_path])  # never over the model, under any name
                 write.atomic_write(path, lambda f: f.write(data))
                 log.write(json.dumps({"seed": record["seed"], "file": path.name, **record}) + "\n")
                 log.flush()

@@ -49,9 +49,7 @@ def check_writable(path, inputs=()) -> None:
         folder_exists = path.parent.is_dir()
     except OSError as error:  # a name too long for the file system
         raise InputError(f"{path}: cannot write here ({error.strerror})") from None
-    for source in inputs:
-        if source is not None and is_same_file(path, source):
-            raise InputError(f"{path}: is the input {source}; writing it would destroy it, so name another file")
+    check_not_input(path, inputs)
     if not folder_exists:
         raise InputError(f"{path}: the folder {path.parent} does not exist")
     try:
@@ -60,6 +58,14 @@ def check_writable(path, inputs=()) -> None:
         tmp.unlink()
     except OSError as error:
         raise InputError(f"{path}: cannot write here ({error.strerror})") from None
+
+
+def check_not_input(path, inputs) -> None:
+    """Refuse an output that is one of `inputs` (the same file, also through
+    a symbolic or hard link): writing it would destroy it."""
+    for source in inputs:
+        if source is not None and is_same_file(path, source):
+            raise InputError(f"{path}: is the input {source}; writing it would destroy it, so name another file")
 
 
 def is_same_file(a, b) -> bool:
