@@ -260,7 +260,7 @@ def write_samples(model, outputs, progress=None, **options) -> None:
     """Write each (path, tri-plane) of `outputs` with `write_sample(**options)`,
     then call progress(). `outputs` is consumed lazily, so a generator that
     makes each tri-plane when asked keeps one sample in memory at a time:
-    `sinrun sample --seeds` and `sinrun interpolate` are this loop."""
+    `sinrun interpolate` is this loop (`sample --seeds` is runtime.many)."""
     for path, triplane in outputs:
         write_sample(model, triplane, path, **options)
         if progress:
