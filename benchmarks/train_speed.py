@@ -2,6 +2,7 @@
 
     python benchmarks/train_speed.py                 # the six level sizes of a paper res-128 pyramid
     python benchmarks/train_speed.py --rounds 9      # more repetitions (the median is reported)
+    python benchmarks/train_speed.py --levels 0 5    # only some of the six levels
     python benchmarks/train_speed.py --full MESH     # also: the whole default preset on MESH
 
 An iteration is the paper's: 3 critic steps, then 3 generator steps, at level
@@ -13,13 +14,17 @@ sample goes through the networks on its own (critic steps build the
 generator's autograd graph and then detach it; real, fake and the gradient
 penalty's mix go through the critic separately), with PyTorch's own kernel
 choice. Both compute the same losses from the same random draws (a test
-checks it), so the ratio is the speed-up. The trainers run one iteration in
-turn, round after round, so a busy machine slows them alike; the median of
-the rounds is reported. sinshape runs twice: in float32 (the same
-computation) and with what it picks on this machine (--precision auto).
+checks it), so the ratio is the speed-up. Each trainer has its own process
+(sinshape's with the switches `sinrun train` sets, the port's without); they
+run one iteration in turn, round after round, so a busy machine slows them
+alike, and the median of the rounds is reported. sinshape runs in float32
+(the same computation) and, where this machine has native bf16, also with
+what it picks (--precision auto). The last column says how the critic's
+batch-1 and batch-2 convolutions run at each level (trainer/networks.py).
 """
 
 import argparse
+import multiprocessing
 import statistics
 import sys
 import tempfile
@@ -30,9 +35,9 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from sinshape.trainer import device, train
+from sinshape.trainer import device, networks, train
 from sinshape.trainer.config import make_config
-from sinshape.trainer.networks import TriplaneGenerator
+from sinshape.trainer.networks import Discriminator, TriplaneGenerator
 from sinshape.prep.pyramid import Pyramid
 
 # The level sizes of one of the paper's res-128 pyramids (the training issue's).
@@ -104,57 +109,94 @@ def trainer_at(trainer_class, sizes: list, level: int, placement, **options):
     return trainer, recon_inputs
 
 
-def row(head: str, seconds) -> str:
-    """A table row: the seconds of each trainer, then each one's speed-up."""
-    base, *ours = seconds
-    cells = [f"{base:.3f}", *(f"{s:.3f}" for s in ours[:2]), *(f"{base / s:.2f}x" for s in ours[:2])]
-    cells += [f"{ours[2]:.3f}", f"{base / ours[2]:.2f}x"] if len(ours) > 2 else []
-    return head + "| " + " | ".join(cells) + " |"
-
-
 def timed_iteration(trainer, recon_inputs) -> float:
     started = time.perf_counter()
     trainer.iterate(recon_inputs)
     return time.perf_counter() - started
 
 
+def serve_iterations(connection, straightforward: bool, level: int, precision: str, options: dict) -> None:
+    """A worker process: one trainer, one timed iteration per request.
+
+    Every trainer has its own process, so each runs as it would alone: the
+    straightforward port with the C library's default allocator, as the
+    authors' code runs; sinshape with the switches `train` sets.
+    """
+    placement = device.choose("cpu", precision)
+    if not straightforward:
+        placement.activate()
+    trainer = trainer_at(StraightforwardTrainer if straightforward else train.Trainer, PAPER_SIZES, level,
+                         placement, **options)
+    connection.send("ready")
+    while connection.recv():
+        connection.send(timed_iteration(*trainer))
+
+
+def critic_methods(size: tuple) -> str:
+    """How the critic's middle and last convolutions run at a level, for a
+    batch of one (generator steps, gradient penalty) and of two (real and fake)."""
+    critic = Discriminator(32)
+    middle_in = [(n + 1) // 2 for n in size]  # after the stride-2 first layer
+    last_in = [n - 2 for n in middle_in]
+    picks = []
+    for batch in (1, 2):
+        middle = networks.valid_conv_method(critic.net[3], torch.empty(batch, 32, *middle_in))
+        last = networks.valid_conv_method(critic.net[6], torch.empty(batch, 32, *last_in))
+        picks.append(f"B{batch}: {middle}/{last}")
+    return ", ".join(picks)
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--rounds", type=int, default=5, help="iterations each trainer runs per level")
+    parser.add_argument("--levels", type=int, nargs="+", default=range(len(PAPER_SIZES)),
+                        help="which of the six levels to time (default: all)")
     parser.add_argument("--critic-crop", type=int, default=None,
                         help="also time sinshape with this --critic-crop (a change of method)")
     parser.add_argument("--full", type=Path, help="also train the default preset on this mesh, end to end")
     args = parser.parse_args()
 
     picked = device.choose("cpu")
-    fp32 = device.Placement(torch.device("cpu"), "fp32", "float32 asked for")
     print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, CPU capability "
           f"{torch.backends.cpu.get_cpu_capability()}, native bf16: {device.native_bf16()}")
-    print(f"sinshape picked: {picked.describe()}")
-    crop = args.critic_crop
-    print("| level | grid | straightforward s/iter | sinshape fp32 | sinshape " + picked.precision
-          + " | speed-up fp32 | speed-up " + picked.precision + " |"
-          + (f" crop {crop}, {picked.precision} | its speed-up |" if crop else ""))
-    print("|---|---|---|---|---|---|---|" + ("---|---|" if crop else ""))
-    sums = np.zeros(4)
-    for level, size in enumerate(PAPER_SIZES):
-        runs = [trainer_at(StraightforwardTrainer, PAPER_SIZES, level, fp32),
-                trainer_at(train.Trainer, PAPER_SIZES, level, fp32),
-                trainer_at(train.Trainer, PAPER_SIZES, level, picked)]
-        if crop:
-            runs.append(trainer_at(train.Trainer, PAPER_SIZES, level, picked, critic_crop=crop))
+    print(f"sinshape picked: {picked.describe()}; allocator keeps freed memory: {device.keep_freed_memory()}")
+    # (name, straightforward, precision, options) of each trainer in the table
+    runs = [("straightforward", True, "fp32", {}), ("sinshape fp32", False, "fp32", {})]
+    if picked.precision != "fp32":
+        runs.append((f"sinshape {picked.precision}", False, picked.precision, {}))
+    if args.critic_crop:
+        runs.append((f"crop {args.critic_crop}, {picked.precision}", False, picked.precision,
+                     {"critic_crop": args.critic_crop}))
+    names = [name for name, *_ in runs]
+    print("| level | grid | " + " | ".join(names) + " | " + " | ".join(f"speed-up {n}" for n in names[1:])
+          + " | critic's middle/last conv |")
+    print("|---" * (2 * len(runs) + 2) + "|")
+    sums = np.zeros(len(runs))
+    context = multiprocessing.get_context("spawn")
+    for level in args.levels:
+        size = PAPER_SIZES[level]
+        workers = []
+        for _, straightforward, precision, options in runs:
+            ours, theirs = context.Pipe()
+            process = context.Process(target=serve_iterations, args=(theirs, straightforward, level, precision, options))
+            process.start()
+            workers.append((process, ours))
+        for _, connection in workers:
+            connection.recv()  # built and warmed up
         seconds = [[] for _ in runs]
-        for _ in range(args.rounds):
-            for run, times in zip(runs, seconds):
-                times.append(timed_iteration(*run))
-        medians = [statistics.median(times) for times in seconds]
-        sums[:len(medians)] += medians
-        print(row(f"| {level} | {'x'.join(map(str, size))} ", medians), flush=True)
-    print(row("| sum | ", sums[:len(runs)]))
-    base, ours32, ours = sums[:3]
-    print(f"\nThe paper's setting (2000 iterations per level) at these sizes: straightforward "
-          f"{base * 2000 / 3600:.2f} h, sinshape fp32 {ours32 * 2000 / 3600:.2f} h, "
-          f"sinshape {picked.precision} {ours * 2000 / 3600:.2f} h")
+        for _ in range(args.rounds):  # the trainers take turns: a busy machine slows them alike
+            for (_, connection), times in zip(workers, seconds):
+                connection.send(True)
+                times.append(connection.recv())
+        for process, connection in workers:
+            connection.send(False)
+            process.join()
+        medians = np.array([statistics.median(times) for times in seconds])
+        sums += medians
+        print(row(f"| {level} | {'x'.join(map(str, size))} ", medians) + f" {critic_methods(size)} |", flush=True)
+    print(row("| sum | ", sums) + " |")
+    print(f"\nThe paper's setting (2000 iterations per level) at these sizes: "
+          + ", ".join(f"{name} {s * 2000 / 3600:.2f} h" for name, s in zip(names, sums)))
 
     if args.full:
         with tempfile.TemporaryDirectory() as tmp:
@@ -167,6 +209,12 @@ def main():
         iters = manifest["config"]["iters"]
         for i, (level, seconds) in enumerate(zip(manifest["levels"], manifest["training"]["level_seconds"])):
             print(f"| {i} | {'x'.join(map(str, level['size']))} | {seconds / iters:.3f} |")
+
+
+def row(head: str, seconds) -> str:
+    """A table row: every trainer's seconds, then each sinshape one's speed-up."""
+    base = seconds[0]
+    return head + "| " + " | ".join([f"{s:.3f}" for s in seconds] + [f"{base / s:.2f}x" for s in seconds[1:]]) + " |"
 
 
 if __name__ == "__main__":

@@ -47,7 +47,8 @@ def test_decoder_first_layer_trick_equals_the_whole_mlp():
 def test_discriminator_receptive_field_is_11_voxels():
     critic = networks.Discriminator()
     # InstanceNorm couples every voxel through its statistics; the field is the convs'.
-    critic.net = torch.nn.Sequential(*[m for m in critic.net if not isinstance(m, torch.nn.InstanceNorm3d)])
+    critic.net = torch.nn.Sequential(*[torch.nn.Identity() if isinstance(m, torch.nn.InstanceNorm3d) else m
+                                       for m in critic.net])
     volume = torch.zeros(1, 1, 31, 31, 31, requires_grad=True)
     scores = critic(volume)
     scores[0, 0, 5, 5, 5].backward()
@@ -103,27 +104,59 @@ def test_a_batch_gives_each_sample_as_alone(kind):
     assert (batch[0] - batch[1]).abs().max() > 1e-3  # the samples differ
 
 
-def test_critic_avoids_the_slow_kernel_with_the_same_values_and_gradients():
+def critic_and_its_plain_twin(volume: torch.Tensor, critic: "networks.Discriminator") -> list:
+    """Scores, input gradient and weight gradients of the gradient penalty's
+    double backward, through `critic` and through its layers as PyTorch runs them."""
+    results = []
+    for forward in (critic, critic.net):
+        critic.zero_grad()
+        x = volume.clone().requires_grad_(True)
+        scores = forward(x)
+        (grad,) = torch.autograd.grad(scores.sum(), x, create_graph=True)
+        grad.square().sum().backward()
+        results.append([scores, grad] + [p.grad.clone() for p in critic.parameters() if p.grad is not None])
+    return results
+
+
+@pytest.mark.parametrize("size, batch, methods", [
+    ((24, 15, 17), 1, ["halves", "halves"]),  # an even number of output slices
+    ((25, 15, 17), 1, ["halves", "halves"]),  # odd: the halves overlap by one more
+    ((60, 48, 50), 1, ["halves", "product"]),  # the last layer on 28x22x23 voxels
+    ((92, 48, 50), 2, ["conv", "product"]),   # real and fake: twice the voxels
+    ((24, 15, 17), 2, ["conv", "conv"]),
+])
+def test_the_critic_computes_each_layer_as_pytorch_does(size, batch, methods):
+    """Its convolutions take other kernels (valid_conv), not other values."""
+    torch.manual_seed(0)
+    critic = networks.Discriminator(8 if max(size) < 60 else 4)
+    volume = torch.rand(batch, 1, *size)
+    middle_in = [(n + 1) // 2 for n in size]
+    picked = [networks.valid_conv_method(critic.net[3], torch.empty(batch, critic.net[3].in_channels, *middle_in)),
+              networks.valid_conv_method(critic.net[6], torch.empty(batch, critic.net[6].in_channels,
+                                                                    *[n - 2 for n in middle_in]))]
+    if "product" in methods:  # the rule counts voxels; these tests use fewer channels, not fewer voxels
+        assert picked[1] == "product"
+    assert picked == methods
+    ours, plain = critic_and_its_plain_twin(volume, critic)
+    for mine, theirs in zip(ours, plain):  # float sums in another order: within 1e-5 of the largest
+        assert mine.shape == theirs.shape
+        assert (mine - theirs).abs().max() <= 1e-5 * theirs.abs().max()
+    assert ours[1].abs().sum() > 0 and all(g.abs().sum() > 0 for g in ours[2:])
+
+
+def test_batch_one_calls_leave_the_slow_kernel():
     critic = networks.Discriminator(8)
     volume = torch.rand(1, 1, 24, 15, 17, requires_grad=True)
     with torch.profiler.profile(record_shapes=True) as profile:
-        scores = critic(volume)
-        (grad,) = torch.autograd.grad(scores.sum(), volume, create_graph=True)
+        (grad,) = torch.autograd.grad(critic(volume).sum(), volume, create_graph=True)
         grad.square().sum().backward()
     # (batch, channels) of the inputs that took the slow kernel: only 1-channel
-    # ones (cheap) may remain, none of the multi-channel convolutions.
+    # ones (the first layer: cheap) may remain.
     slow = [tuple(e.input_shapes[0][:2]) for e in profile.events() if e.name == "aten::slow_conv3d_forward"]
     assert all(channels == 1 for _, channels in slow)
     assert any(e.name == "aten::mkldnn_convolution" for e in profile.events())
-    weight_grads = [p.grad.clone() for p in critic.parameters() if p.grad is not None]
 
-    critic.zero_grad()
-    plain = critic.net(volume)  # PyTorch's own kernel choice
-    (plain_grad,) = torch.autograd.grad(plain.sum(), volume, create_graph=True)
-    plain_grad.square().sum().backward()
-    torch.testing.assert_close(scores, plain)
-    torch.testing.assert_close(grad, plain_grad)
-    theirs = [p.grad for p in critic.parameters() if p.grad is not None]
-    assert len(weight_grads) == len(theirs) == 3
-    for ours, plain_weight_grad in zip(weight_grads, theirs):
-        torch.testing.assert_close(ours, plain_weight_grad, rtol=1e-4, atol=1e-5)
+
+def test_the_critic_keeps_pytorchs_kernels_under_autocast():
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        assert networks.valid_conv_method(networks.Discriminator(8).net[6], torch.empty(1, 8, 40, 40, 40)) == "conv"

@@ -344,26 +344,73 @@ class Discriminator(nn.Module):
 
     def forward(self, volume: torch.Tensor) -> torch.Tensor:
         """volume : (B, 1, X, Y, Z) -> (B, 1, x, y, z) scores."""
-        for layer in self.net:
-            volume = on_fast_kernel(layer, volume) if isinstance(layer, nn.Conv3d) else layer(volume)
-        return volume.float()  # the WGAN losses are small differences of large scores
+        first, norm1, act1, middle, norm2, act2, last = self.net
+        volume = act1(norm1(first(volume)))
+        volume = act2(norm2(valid_conv(middle, volume)))
+        return valid_conv(last, volume).float()  # the WGAN losses are small differences of large scores
 
 
 # PyTorch (aten's use_mkldnn rule) runs a batch-1 float32 convolution with
 # stride 1 and a kernel of at most 3 on its generic slow_conv kernel, not
 # oneDNN, when batch * channels * the first two spatial sides is at most this.
 SLOW_KERNEL_LIMIT = 20480
+# From this many input voxels per sample in the batch (a batch of B: B times
+# this many), a one-output-channel convolution and its gradients are faster
+# as a matrix product than in oneDNN (measured from 8x6x6 to 62x16x28).
+ONE_CHANNEL_PRODUCT_VOXELS = 8192
 
 
-def on_fast_kernel(conv: nn.Module, x: torch.Tensor) -> torch.Tensor:
-    """conv(x), sent to oneDNN where PyTorch would pick its slow kernel.
+def valid_conv(conv: nn.Conv3d, x: torch.Tensor) -> torch.Tensor:
+    """conv(x) for a stride-1, unpadded 3-D convolution, computed the fastest
+    of three equal ways (`valid_conv_method`)."""
+    method = valid_conv_method(conv, x)
+    if method == "product":
+        return one_channel_conv(x, conv.weight, conv.bias)
+    return halves_conv(conv, x) if method == "halves" else conv(x)
 
-    The critic's batch-1 calls (generator steps, gradient penalty) at levels
-    below about 90x25x40 fall under the rule, and that kernel is several
-    times slower than oneDNN here (benchmarks/train_speed.py). A detached copy
-    makes the batch 2, which takes oneDNN; the copy's output is dropped, so
-    values and gradients are those of conv(x).
+
+def valid_conv_method(conv: nn.Conv3d, x: torch.Tensor) -> str:
+    """How `valid_conv` computes conv(x): on a CPU in float32,
+
+    - "product": one output channel (the critic's last layer) on a large
+      grid, as a matrix product and shifted sums. oneDNN's kernels vectorise
+      over output channels and run such a layer at a tenth of their speed;
+    - "halves": batch 1 where PyTorch would pick its generic slow_conv kernel
+      (generator steps and gradient penalty below about 90x25x40), as two
+      overlapping halves along x in a batch of two, which oneDNN takes;
+    - "conv": PyTorch's own choice, as everywhere else (GPU, bf16).
     """
-    slow = (x.device.type == "cpu" and x.dtype == torch.float32 and x.shape[0] == 1
-            and conv.stride == (1,) * len(conv.stride) and x.shape[:4].numel() <= SLOW_KERNEL_LIMIT)
-    return conv(torch.cat([x, x.detach()]))[:1] if slow else conv(x)
+    if x.device.type != "cpu" or x.dtype != torch.float32 or torch.is_autocast_enabled("cpu"):
+        return "conv"
+    if conv.out_channels == 1 and x.shape[2:].numel() >= ONE_CHANNEL_PRODUCT_VOXELS * x.shape[0]:
+        return "product"
+    if x.shape[0] == 1 and x.shape[:4].numel() <= SLOW_KERNEL_LIMIT and x.shape[2] > conv.kernel_size[0]:
+        return "halves"
+    return "conv"
+
+
+def one_channel_conv(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None) -> torch.Tensor:
+    """conv3d(x, weight, bias) for one output channel and no padding: every
+    kernel tap's channel sum in one matrix product, then the taps' grids
+    shifted and added. x (B, C, X, Y, Z), weight (1, C, k, k, k)."""
+    b, c, *size = x.shape
+    k = weight.shape[-1]
+    taps = torch.matmul(weight.reshape(c, -1).T, x.reshape(b, c, -1)).view(b, -1, *size)  # (B, k^3, X, Y, Z)
+    out_size = [n - k + 1 for n in size]
+    out = None
+    for tap, tap_grid in enumerate(taps.unbind(1)):  # unbind: each tap's gradient is its own small tensor
+        i, j, l = tap // (k * k), tap // k % k, tap % k
+        part = tap_grid[:, i:i + out_size[0], j:j + out_size[1], l:l + out_size[2]]
+        out = part if out is None else out + part
+    return (out if bias is None else out + bias)[:, None]
+
+
+def halves_conv(conv: nn.Conv3d, x: torch.Tensor) -> torch.Tensor:
+    """conv(x) for batch 1, stride 1 and no padding, as one call on the two
+    halves of x along its first axis (overlapping by the kernel's reach, and by
+    one output slice more when the count is odd): the same outputs."""
+    reach = conv.kernel_size[0] - 1
+    length = x.shape[2] - reach  # output slices
+    half = (length + 1) // 2
+    out = conv(torch.cat([x[:, :, :half + reach], x[:, :, length - half:]]))
+    return torch.cat([out[:1], out[1:, :, 2 * half - length:]], dim=2)
