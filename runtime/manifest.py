@@ -177,9 +177,9 @@ def parse(text: str) -> Manifest:
     res = raw.get("config", {}).get("res", 2)
     _require(_is_int(res, 1, MAX_SIDE), f"config res must be an integer in [1, {MAX_SIDE}]")
     training = raw.get("training", {})
-    _require(_is_number(training.get("seconds", 0))
-             and all(_is_number(s) for s in (training.get("level_seconds") or [])),
-             "training seconds must be numbers")
+    level_seconds = training.get("level_seconds") or []
+    _require(_is_number(training.get("seconds", 0)) and isinstance(level_seconds, list)
+             and all(_is_number(s) for s in level_seconds), "training seconds must be numbers")
 
     stages = raw.get("stages")
     _require(stages == stage_names(len(levels)), "stages do not name the standard tensors for this level count")

@@ -146,6 +146,7 @@ NONSENSE = {
     "huge_recon_seed": (set_field(lambda m: m.update(recon_seed=10**3000)), "recon_seed"),
     "training_list": (set_field(lambda m: m.update(training=[1, 2])), "training"),
     "training_seconds": (set_field(lambda m: m["training"].update(seconds="long")), "training seconds"),
+    "level_seconds_number": (set_field(lambda m: m["training"].update(level_seconds=5)), "training seconds"),
     "source_string": (set_field(lambda m: m.update(source="terrain.h5")), "source"),
     "source_name_number": (set_field(lambda m: m["source"].update(name=3)), "source"),
     "config_string": (set_field(lambda m: m.update(config="tiny")), "config"),

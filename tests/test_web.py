@@ -203,10 +203,25 @@ def altered_terrain(path: Path, change) -> Path:
     return path
 
 
-def newer_version(proto):
-    for prop in proto.metadata_props:
-        if prop.key == "sinshape.manifest":
-            prop.value = json.dumps({**json.loads(prop.value), "format_version": 99})
+def edit_manifest(edit):
+    """A change of a model: its manifest edited (and not resealed)."""
+    def change(proto):
+        for prop in proto.metadata_props:
+            if prop.key == "sinshape.manifest":
+                manifest = json.loads(prop.value)
+                edit(manifest)
+                prop.value = json.dumps(manifest)
+    return change
+
+
+newer_version = edit_manifest(lambda m: m.update(format_version=99))
+
+
+def flipped_weight(proto):
+    tensor = next(t for t in proto.graph.initializer if t.raw_data)
+    data = bytearray(tensor.raw_data)
+    data[5] ^= 0x10
+    tensor.raw_data = bytes(data)
 
 
 def external_data(proto):
@@ -242,7 +257,15 @@ def test_files_are_refused_as_the_python_loader_refuses_them(site_page, tmp_path
     files = [foreign, tmp_path / "text.onnx", tmp_path / "empty.onnx",
              altered_terrain(tmp_path / "newer.onnx", newer_version),
              altered_terrain(tmp_path / "external.onnx", external_data),
-             altered_terrain(tmp_path / "op.onnx", foreign_op)]
+             altered_terrain(tmp_path / "op.onnx", foreign_op),
+             altered_terrain(tmp_path / "flipped.onnx", flipped_weight),
+             altered_terrain(tmp_path / "sealed.onnx", edit_manifest(lambda m: m.update(seed_note="edited"))),
+             altered_terrain(tmp_path / "seal.onnx", edit_manifest(lambda m: m.update(checksum="sha256:0"))),
+             altered_terrain(tmp_path / "amp.onnx", edit_manifest(lambda m: m["levels"][1].update(noise_amp=1e30))),
+             altered_terrain(tmp_path / "origin.onnx", edit_manifest(lambda m: m["frame"].update(origin=[1e300, 0, 0]))),
+             altered_terrain(tmp_path / "source.onnx", edit_manifest(lambda m: m.update(source=None))),
+             altered_terrain(tmp_path / "config.onnx", edit_manifest(lambda m: m["config"].update(iters={"a": 1}))),
+             altered_terrain(tmp_path / "seconds.onnx", edit_manifest(lambda m: m["training"].update(level_seconds=5)))]
     messages = page.evaluate("""async (files) => {
       const s = await import('./static/sinshape/runtime.js');
       const out = [];
@@ -262,6 +285,9 @@ def test_files_are_refused_as_the_python_loader_refuses_them(site_page, tmp_path
         assert message == str(python.value).replace(str(path), path.name)
     assert "not an ONNX file" in messages[1] and "newer than this sinshape reads" in messages[3]
     assert "external data" in messages[4] and "(Softmax)" in messages[5]
+    assert all("checksum of its weights and manifest does not match" in m for m in messages[6:8])
+    assert "checksum must be" in messages[8] and "noise_amp" in messages[9] and "origin" in messages[10]
+    assert "source" in messages[11] and "config" in messages[12] and "training seconds" in messages[13]
 
 
 def test_the_serve_page_switches_to_the_browser(browser):

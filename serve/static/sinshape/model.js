@@ -2,10 +2,11 @@
 // (the same refusals, in one line each), cut it into one onnxruntime-web
 // session per stage, and read the decoder head's weights.
 import * as ort from '../vendor/onnxruntime-web/ort.min.mjs';
+import { modelChecksum } from './checksum.js';
 import { FormatError, readModel, stageModel, tensorFloats } from './onnx.js';
 
 export const FORMAT_NAME = 'sinshape';
-export const FORMAT_VERSION = 2;  // 2 adds a checksum, not verified in the browser (docs/RELIABILITY.md)
+export const FORMAT_VERSION = 2;  // 2 adds a checksum (checksum.js)
 export const METADATA_KEY = 'sinshape.manifest';
 export const NOISE_SCHEME = 'splitmix64-boxmuller-v1';
 export const PLANES = ['xy', 'xz', 'yz'];
@@ -13,6 +14,12 @@ export const HEAD_WEIGHTS = ['decoder_head.bias1', 'decoder_head.weight2', 'deco
 const MAX_LEVELS = 64;
 const MAX_SIDE = 4096;
 const MAX_MODEL_BYTES = 512 * 1024 * 1024;
+const MAX_MANIFEST_CHARS = 2 ** 20;
+const MAX_DEPTH = 16;
+const MAX_NOISE_AMP = 100;
+const MAX_COORD = 1e12;
+// runtime/manifest.py's messages print these with Python's '%g'.
+const MAX_COORD_TEXT = '1e+12', MAX_SPACING_TEXT = '2.44141e+08';
 const ALLOWED_OPS = new Set(['Conv', 'InstanceNormalization', 'LeakyRelu', 'Transpose', 'MatMul', 'Add', 'Relu', 'Sigmoid']);
 
 /** A file refused, or a value out of range: its message is one line for the user. */
@@ -31,7 +38,26 @@ export function stageNames(levels) {
 
 const isInt = (v, low, high) => Number.isInteger(v) && v >= low && v <= high;
 const isNumber = (v) => typeof v === 'number' && Number.isFinite(v);
+/** obj[key] where obj has it, as Python's dict.get: a null value stays null. */
+const get = (obj, key, fallback) => (Object.hasOwn(obj, key) ? obj[key] : fallback);
+const isObject = (v) => v !== null && typeof v === 'object' && !Array.isArray(v);
 const sameJson = (a, b) => JSON.stringify(a) === JSON.stringify(b);
+
+/** The deepest nesting of brackets outside strings (runtime/manifest.py: _depth). */
+function depth(text) {
+  let now = 0, deepest = 0;
+  for (const [t] of text.matchAll(/"(?:[^"\\]|\\.)*"|[[{]|[\]}]/g)) {
+    if (t === '[' || t === '{') deepest = Math.max(deepest, ++now);
+    else if (t === ']' || t === '}') now--;
+  }
+  return deepest;
+}
+
+/** An object of keys to values of the given typeof names, or lists of them, or null (manifest.py: _plain). */
+function plain(value, types) {
+  const ok = (v) => (Array.isArray(v) ? v.every(ok) : v === null || (types.includes(typeof v) && (typeof v !== 'number' || Number.isFinite(v))));
+  return isObject(value) && Object.values(value).every(ok);
+}
 
 function need(ok, message) {
   if (!ok) throw new InputError(`bad model manifest: ${message}`);
@@ -39,6 +65,8 @@ function need(ok, message) {
 
 /** Check a manifest's JSON text, as runtime/manifest.py's parse: the fields the runtime uses, and raw. */
 export function parseManifest(textValue) {
+  need(typeof textValue === 'string' && textValue.length <= MAX_MANIFEST_CHARS, `not JSON text of at most ${MAX_MANIFEST_CHARS} characters`);
+  need(depth(textValue) <= MAX_DEPTH, `JSON nested deeper than ${MAX_DEPTH}`);
   let raw;
   try {
     raw = JSON.parse(textValue);
@@ -51,6 +79,9 @@ export function parseManifest(textValue) {
   need(isInt(version, 1, 1e6), `format_version ${JSON.stringify(version ?? null)} is not a positive integer`);
   if (version > FORMAT_VERSION) {
     throw new InputError(`model format version ${version} is newer than this sinshape reads (${FORMAT_VERSION}); upgrade sinshape`);
+  }
+  if (version >= 2) {
+    need(typeof raw.checksum === 'string' && /^sha256:[0-9a-f]{64}$/.test(raw.checksum), "checksum must be 'sha256:' and 64 hex digits");
   }
   need(sameJson(raw.planes ?? [], PLANES), `planes must be ${JSON.stringify(PLANES)}`);
   need(raw.noise === NOISE_SCHEME, `noise scheme ${JSON.stringify(raw.noise ?? null)} is not '${NOISE_SCHEME}'`);
@@ -67,15 +98,29 @@ export function parseManifest(textValue) {
     const size = level.size;
     need(Array.isArray(size) && size.length === 3 && size.every((n) => isInt(n, 2, MAX_SIDE)),
       `level ${i} size must be 3 integers in [2, ${MAX_SIDE}]`);
-    need(isNumber(level.noise_amp) && level.noise_amp >= 0, `level ${i} noise_amp must be a non-negative number`);
+    need(isNumber(level.noise_amp) && level.noise_amp >= 0 && level.noise_amp <= MAX_NOISE_AMP,
+      `level ${i} noise_amp must be a number in [0, ${MAX_NOISE_AMP}]`);
     sizes.push([...size]);
     amps.push(level.noise_amp);
   });
   const frame = raw.frame;
   need(frame !== null && typeof frame === 'object', 'frame is missing');
-  need(Array.isArray(frame.origin) && frame.origin.length === 3 && frame.origin.every(isNumber), 'frame origin must be 3 numbers');
-  need(Array.isArray(frame.spacing) && frame.spacing.length === 3 && frame.spacing.every((s) => isNumber(s) && s > 0),
-    'frame spacing must be 3 positive numbers');
+  need(Array.isArray(frame.origin) && frame.origin.length === 3 && frame.origin.every((v) => isNumber(v) && Math.abs(v) <= MAX_COORD),
+    `frame origin must be 3 numbers within +-${MAX_COORD_TEXT}`);
+  need(Array.isArray(frame.spacing) && frame.spacing.length === 3
+    && frame.spacing.every((s) => isNumber(s) && s > 0 && s * MAX_SIDE <= MAX_COORD),
+    `frame spacing must be 3 positive numbers, at most ${MAX_SPACING_TEXT}`);
+  need(get(raw, 'created_by', null) === null || typeof raw.created_by === 'string', 'created_by must be a string');
+  const source = get(raw, 'source', {});
+  need(isObject(source) && ['name', 'sha256', 'kind'].every((k) => typeof get(source, k, '') === 'string'),
+    'source must be an object of strings name, sha256, kind');
+  const config = get(raw, 'config', {}), training = get(raw, 'training', {});
+  need(plain(config, ['string', 'number', 'boolean']), 'config must be an object of plain values');
+  need(plain(training, ['string', 'number', 'boolean']), 'training must be an object of plain values');
+  need(isInt(get(config, 'res', 2), 1, MAX_SIDE), `config res must be an integer in [1, ${MAX_SIDE}]`);
+  const levelSeconds = get(training, 'level_seconds', null) || [];
+  need(isNumber(get(training, 'seconds', 0)) && Array.isArray(levelSeconds) && levelSeconds.every(isNumber),
+    'training seconds must be numbers');
   need(sameJson(raw.stages, stageNames(levels.length)), 'stages do not name the standard tensors for this level count');
   return {
     sizes, noiseAmps: amps, channels: raw.channels, poolBins: raw.pool_bins, hidden: raw.mlp_hidden,
@@ -107,14 +152,27 @@ export function readChecked(bytes, name) {
   if (!(METADATA_KEY in model.metadata)) {
     throw new InputError(`${name}: an ONNX model, but not a sinshape model (no ${METADATA_KEY} metadata)`);
   }
+  const manifestText = model.metadata[METADATA_KEY];
   let manifest;
   try {
-    manifest = parseManifest(model.metadata[METADATA_KEY]);
+    manifest = parseManifest(manifestText);
   } catch (error) {
     if (error instanceof InputError) throw new InputError(`${name}: ${error.message}`);
     throw error;
   }
+  if ('checksum' in manifest.raw && !checksumMatches(manifestText, graph.initializers, manifest.raw.checksum)) {
+    throw new InputError(`${name}: corrupt model: the checksum of its weights and manifest does not match`);
+  }
   return { model, manifest };
+}
+
+function checksumMatches(manifestText, initializers, checksum) {
+  try {
+    return modelChecksum(manifestText, initializers.map((t) => [t.name, tensorFloats(t)])) === checksum;
+  } catch (error) {
+    if (error instanceof FormatError) return false;  // a weight that is not float32: not what was sealed
+    throw error;
+  }
 }
 
 function readHead(model, hidden, name) {
