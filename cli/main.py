@@ -408,18 +408,21 @@ def sample(model, seed, seeds, recon, scale, size, output, smooth, smoother, lar
         output = Path(f"{loaded.path.stem}_recon.ply" if recon else f"{loaded.path.stem}_seed{{seed}}.ply")
     warn_if_clamped(loaded, size, scale)
     first = seeds.first if seeds else None if recon else 0 if seed is None else seed
-    if scale > 2 and write.output_kind(output) == "mesh":
-        say_how_long(loaded, generate.sample(loaded, first, size), scale, len(seeds) if seeds else 1)
     if seeds:
+        if scale > 2 and write.output_kind(output) == "mesh":
+            say_how_long(loaded, generate.sample(loaded, first, size), scale, len(seeds))
         sample_seeds(loaded.path, seeds, output, engine, workers, threads, address, size=size, scale=scale,
                      smooth=smooth, smoother=smoother, largest=largest, frame=frame)
         return
     path = named_output(output, seed=first) if "{" in output.name else output
-    write.output_kind(path)
+    kind = write.output_kind(path)
     write.check_writable(path, [loaded.path])
-    with SlabProgress(show=True) as slabs:
-        write.write_sample(loaded, generate.sample(loaded, first, size), path, scale=scale, smooth=smooth,
-                           smoother=smoother, largest=largest, frame=frame, threads=threads, mesh_progress=slabs)
+    triplane = generate.sample(loaded, first, size)
+    if scale > 2 and kind == "mesh":
+        say_how_long(loaded, triplane, scale, 1)
+    with SlabProgress() as slabs:
+        write.write_sample(loaded, triplane, path, scale=scale, smooth=smooth, smoother=smoother,
+                           largest=largest, frame=frame, threads=threads, mesh_progress=slabs)
     click.echo(f"wrote {path}")
 
 
@@ -513,12 +516,10 @@ def say_how_long(model, triplane, scale, count) -> None:
 class SlabProgress:
     """A progress bar over the slabs one sample is meshed in (on a terminal)."""
 
-    def __init__(self, show: bool):
-        self.show, self.bar = show, None
+    def __init__(self):
+        self.bar = None
 
     def __call__(self, done: int, total: int) -> None:
-        if not self.show:
-            return
         if self.bar is None:
             self.bar = progress_bar(total, "meshing").__enter__()
         self.bar.update(done - self.bar.pos)

@@ -22,7 +22,8 @@ from .manifest import plane_sizes
 # A sample's coarsest grid may not shrink below this many voxels per axis.
 MIN_SIDE = 2
 # Voxels per axis of a sample's level: its noise is defined up to 2**21, and
-# no grid with more points than this is meshed (query.MAX_SIDE).
+# grid points per axis: no level longer than this is made, and no grid with
+# more points is meshed (query); beyond it a size or scale is absurd.
 MAX_SIDE = 1 << 16
 # How far `interpolate` extrapolates: its noise is then this many times the
 # std the levels were trained on (1e308 overflowed to NaN and failed).

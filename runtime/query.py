@@ -22,12 +22,11 @@ from scipy.special import expit
 
 from .errors import InputError
 from .budget import check_memory
-from .generate import TriPlane, resize_matrix
+from .generate import MAX_SIDE, TriPlane, resize_matrix
 from .manifest import PLANE_AXES
 
 BLOCK = 16  # cells per block side in the band search; see benchmarks/sample_speed.py
 BOUND_MARGIN = 1e-4  # a block is uniform only if its bound clears 0.5 by this much
-MAX_SIDE = 1 << 16  # grid points per axis; beyond this a scale is absurd
 
 
 def head_occupancy(head, hidden: np.ndarray) -> np.ndarray:
@@ -179,7 +178,7 @@ class Slab:
     """One x-slab of blocks from the band search.
 
     values : (B + 1, Py, Pz) occupancy at padded points, filled only inside
-    active blocks (and the shared first plane, see `band`); state :
+    active blocks (and the shared first plane, see `Band.carry`); state :
     (nby, nbz) int8 per block, +1 all inside, -1 all outside, 0 active.
     """
 

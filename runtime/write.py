@@ -184,10 +184,9 @@ def write_ply_pieces(file, pieces, folder) -> tuple:
 
 def mesh_bytes(mesh, suffix: str) -> bytes:
     """A trimesh mesh as the file bytes of a mesh format ('.ply', '.glb', ...)."""
-    if suffix.lower() == ".ply":  # the bytes a streamed write makes of the same mesh
-        buffer = io.BytesIO()
-        write_ply_pieces(buffer, [(mesh.vertices, mesh.faces)], None)
-        return buffer.getvalue()
+    if suffix.lower() == ".ply":  # the bytes a streamed write (write_ply_pieces) makes of the same mesh
+        return (ply_header(len(mesh.vertices), len(mesh.faces)) + np.asarray(mesh.vertices, "<f4").tobytes()
+                + ply_faces(mesh.faces))
     data = mesh.export(file_type=MESH_FORMATS[suffix.lower()])
     return data.encode() if isinstance(data, str) else data
 
@@ -213,9 +212,9 @@ def write_sample(model, triplane, path, scale: float = 1.0, smooth: int = 0, smo
     A .ply without smoothing or --largest (which need the whole mesh) is
     streamed slab by slab: any size fits in memory. mesh_progress(done,
     total) is called as meshing goes."""
-    from . import mesh, query
+    from . import mesh
 
-    check_writable(path, [model.path])  # each name of a --seeds list, not only the first
+    check_writable(path, [model.path])  # every name `interpolate` writes, not only the first
     path = Path(path)
     if output_kind(path) == "grid" or path.suffix.lower() != ".ply" or smooth or largest:
         data, _ = sample_bytes(model, triplane, path, scale, smooth, smoother, largest, frame, threads,

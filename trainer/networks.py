@@ -401,8 +401,11 @@ def one_channel_conv(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor |
     for tap, tap_grid in enumerate(taps.unbind(1)):  # unbind: each tap's gradient is its own small tensor
         i, j, l = tap // (k * k), tap // k % k, tap % k
         part = tap_grid[:, i:i + out_size[0], j:j + out_size[1], l:l + out_size[2]]
-        out = part if out is None else out + part
-    return (out if bias is None else out + bias)[:, None]
+        if out is None:  # one output tensor, summed into in place
+            out = part.clone() if bias is None else part + bias
+        else:
+            out += part
+    return out[:, None]
 
 
 def halves_conv(conv: nn.Conv3d, x: torch.Tensor) -> torch.Tensor:

@@ -37,7 +37,7 @@ LOSS_LIMIT = 1e6  # a loss beyond this (or NaN) means training has diverged
 
 # Peak memory one iteration adds, per voxel of its level, with 32 channels
 # and 3 + 3 steps in float32 (benchmarks/train_memory.py fits them to levels
-# of 8k to 440k voxels, docs/RELIABILITY.md): the generator decodes every
+# of 8k to 276k voxels, docs/RELIABILITY.md): the generator decodes every
 # voxel of a batch of samples, the critic (and its gradient penalty's double
 # backward) sees the whole level or its --critic-crop box.
 GENERATOR_BYTES_PER_VOXEL = 520

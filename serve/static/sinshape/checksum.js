@@ -155,25 +155,23 @@ export function sha256Hex(parts) {
       const s1 = rotr(w[i - 2], 17) ^ rotr(w[i - 2], 19) ^ (w[i - 2] >>> 10);
       w[i] = w[i - 16] + s0 + w[i - 7] + s1;
     }
-    let [a, b, c, d, e, f, g, k] = h;
+    let a = h[0], b = h[1], c = h[2], d = h[3], e = h[4], f = h[5], g = h[6], k = h[7];
     for (let i = 0; i < 64; i++) {
       const t1 = k + (rotr(e, 6) ^ rotr(e, 11) ^ rotr(e, 25)) + ((e & f) ^ (~e & g)) + K[i] + w[i];
       const t2 = (rotr(a, 2) ^ rotr(a, 13) ^ rotr(a, 22)) + ((a & b) ^ (a & c) ^ (b & c));
-      [k, g, f, e, d, c, b, a] = [g, f, e, (d + t1) >>> 0, c, b, a, (t1 + t2) >>> 0];
+      k = g; g = f; f = e; e = (d + t1) | 0; d = c; c = b; b = a; a = (t1 + t2) | 0;
     }
-    [a, b, c, d, e, f, g, k].forEach((v, i) => { h[i] += v; });
+    h[0] += a; h[1] += b; h[2] += c; h[3] += d; h[4] += e; h[5] += f; h[6] += g; h[7] += k;
   }
   return Array.from(h, (v) => v.toString(16).padStart(8, '0')).join('');
 }
 
-/** 'sha256:...' of a manifest's text and the model's weights: [[name, Float32Array]]. */
+/** 'sha256:...' of a manifest's text and the model's weights: [[name, their
+ * float32 values as little-endian bytes]]. */
 export function modelChecksum(manifestText, weights) {
   const parts = [UTF8.encode(canonicalManifest(manifestText))];
-  for (const [name, values] of [...weights].sort((a, b) => byCodePoint(a[0], b[0]))) {
-    parts.push(UTF8.encode(name), new Uint8Array(1));
-    const le = new DataView(new ArrayBuffer(values.length * 4));
-    values.forEach((v, i) => le.setFloat32(4 * i, v, true));
-    parts.push(new Uint8Array(le.buffer));
+  for (const [name, bytes] of [...weights].sort((a, b) => byCodePoint(a[0], b[0]))) {
+    parts.push(UTF8.encode(name), new Uint8Array(1), bytes);
   }
   return `sha256:${sha256Hex(parts)}`;
 }

@@ -168,7 +168,10 @@ export function readChecked(bytes, name) {
 
 function checksumMatches(manifestText, initializers, checksum) {
   try {
-    return modelChecksum(manifestText, initializers.map((t) => [t.name, tensorFloats(t)])) === checksum;
+    // raw_data holds the little-endian float32 bytes the checksum covers; float_data is read as
+    // floats, whose array is little-endian on every platform a browser runs on.
+    const bytes = (t) => (t.dataType === 1 && t.data ? t.data : new Uint8Array(tensorFloats(t).buffer));
+    return modelChecksum(manifestText, initializers.map((t) => [t.name, bytes(t)])) === checksum;
   } catch (error) {
     if (error instanceof FormatError) return false;  // a weight that is not float32: not what was sealed
     throw error;
