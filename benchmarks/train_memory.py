@@ -2,7 +2,7 @@
 estimate `sinrun train` refuses work with (trainer/train.py, level_memory).
 
     python benchmarks/train_memory.py             # the table in docs/RELIABILITY.md
-    python benchmarks/train_memory.py --crop 16   # with --critic-crop 16
+    python benchmarks/train_memory.py --crop 16   # with --box 16
 
 Each size runs in a fresh process, on the CPU in float32: a coarse 16^3
 level, then one level of the size, two iterations (the first allocates).
@@ -33,7 +33,7 @@ def measure(size, crop) -> int:
     coarse = np.zeros((16, 16, 16), bool)
     coarse[:, :, :8] = True
     pyramid = Pyramid([coarse, finest], (0, 0, 0), (1, 1, 1), "wavy", "0" * 64, "pyramid")
-    config = make_config("tiny", critic_crop=crop, precision="fp32")
+    config = make_config("tiny", box=crop or 0, precision="fp32")
     trainer = train.Trainer(config, pyramid, device.choose("cpu", "fp32"))
     trainer.begin_level()
     trainer.iterate(trainer.recon_inputs())
@@ -49,7 +49,7 @@ def measure(size, crop) -> int:
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--crop", type=int, default=None, help="--critic-crop")
+    parser.add_argument("--crop", type=int, default=None, help="--box")
     parser.add_argument("--child", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
@@ -58,7 +58,7 @@ def main():
     from sinshape.trainer.config import make_config
     from sinshape.trainer.train import level_memory
 
-    config = make_config("tiny", critic_crop=args.crop)
+    config = make_config("tiny", box=args.crop or 0)
     print("| level size | voxels | measured MiB | estimate MiB |")
     print("|---|---|---|---|")
     for size in SIZES:

@@ -68,7 +68,7 @@ class StraightforwardTrainer(train.Trainer):
     def fake(self, inputs, noise_planes):
         gen = self.generator
         if not isinstance(gen, TriplaneGenerator):  # the voxel baseline: no decoder
-            return super().fake(inputs, noise_planes)[0]
+            return super().fake(inputs, noise_planes, [None])[0]
         planes = gen.levels[0](inputs) if self.level == 0 else gen.step(inputs, self.level, self.sizes[self.level], noise_planes)
         return concat_decode(gen.decoder, planes)
 
@@ -151,8 +151,8 @@ def main():
     parser.add_argument("--rounds", type=int, default=5, help="iterations each trainer runs per level")
     parser.add_argument("--levels", type=int, nargs="+", default=range(len(PAPER_SIZES)),
                         help="which of the six levels to time (default: all)")
-    parser.add_argument("--critic-crop", type=int, default=None,
-                        help="also time sinshape with this --critic-crop (a change of method)")
+    parser.add_argument("--critic-box", type=int, default=None,
+                        help="also time sinshape with this --critic-box (a change of method)")
     parser.add_argument("--full", type=Path, help="also train the default preset on this mesh, end to end")
     args = parser.parse_args()
 
@@ -164,9 +164,9 @@ def main():
     runs = [("straightforward", True, "fp32", {}), ("sinshape fp32", False, "fp32", {})]
     if picked.precision != "fp32":
         runs.append((f"sinshape {picked.precision}", False, picked.precision, {}))
-    if args.critic_crop:
-        runs.append((f"crop {args.critic_crop}, {picked.precision}", False, picked.precision,
-                     {"critic_crop": args.critic_crop}))
+    if args.critic_box:
+        runs.append((f"crop {args.critic_box}, {picked.precision}", False, picked.precision,
+                     {"critic_box": args.critic_box}))
     names = [name for name, *_ in runs]
     print("| level | grid | " + " | ".join(names) + " | " + " | ".join(f"speed-up {n}" for n in names[1:])
           + " | critic's middle/last conv |")

@@ -158,16 +158,23 @@ class TrainCommand(click.Command):
 @click.option("--minutes", type=float, default=None,
               help="A time budget for the whole run instead of --iters: the seconds per iteration of "
                    "every level are measured first, then each level gets the same number of iterations "
-                   "so that training ends within the budget. The plan is printed and saved in the model.")
+                   "so that training ends within the budget (a busy machine gives fewer iterations). A "
+                   "budget too small for --min-iters per level is refused before training, with what "
+                   "would fit. The plan and what was done are printed and saved in the model.")
+@click.option("--min-iters", type=click.IntRange(min=1), default=None,
+              help="With --minutes: the fewest iterations per level worth training (default 50).")
 @click.option("--device", default="auto", show_default=True,
               help="auto, cpu, cuda or cuda:N. auto: CUDA when torch sees a GPU, else the CPU. The "
                    "model and its samples do not depend on it; --resume may continue on another device.")
 @click.option("--precision", type=click.Choice(["auto", "fp32", "bf16"]), default=None,
               help="auto (default): bf16 autocast for the convolutions on CPUs with native bf16 "
                    "(AVX512-BF16, AMX) and TF32 on CUDA, float32 otherwise; fp32: float32 throughout.")
-@click.option("--critic-crop", type=int, default=None,
-              help="Changes the method, off by default: the critic sees random boxes of at most this "
-                   "many voxels per side (its field is 11) instead of whole levels; faster at large levels.")
+@click.option("--box", type=click.IntRange(min=0), default=None,
+              help="At levels larger than this many voxels per side, each step sees random boxes of this "
+                   "side instead of the whole grid, so an iteration costs what a box costs. 0: whole "
+                   "grids, as the paper. Default: the preset's.")
+@click.option("--lr", type=click.FloatRange(min=0, min_open=True), default=None,
+              help="Adam's learning rate for generator and critic. Default: the preset's.")
 @click.option("--seed", type=int, default=None, help="Seed of the training run (weights, noise draws). Default 0.")
 @click.option("--generator", type=click.Choice(["triplane", "voxel"]), default=None,
               help="triplane (the method) or voxel: the paper's SinGAN-3D baseline, 3-D convs on voxels, "
@@ -178,7 +185,7 @@ class TrainCommand(click.Command):
 @click.option("--checkpoint", type=click.Path(path_type=Path), default=None,
               help="Checkpoint file. Default: MODEL.ckpt.pt beside the output.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress output.")
-def train(input_path, output, preset, res, levels, iters, minutes, device, precision, critic_crop, seed, generator,
+def train(input_path, output, preset, res, levels, iters, minutes, min_iters, device, precision, box, lr, seed, generator,
           resume, checkpoint, quiet):
     """Train a model on one example shape and export it as one .onnx file.
 
@@ -197,8 +204,8 @@ def train(input_path, output, preset, res, levels, iters, minutes, device, preci
 
     if iters is not None and minutes is not None:
         raise click.UsageError("give --iters or --minutes, not both: a time budget plans the iterations")
-    overrides = dict(preset=preset, res=res, levels=levels, iters=iters, minutes=minutes, precision=precision,
-                     critic_crop=critic_crop, seed=seed, generator=generator)
+    overrides = dict(preset=preset, res=res, levels=levels, iters=iters, minutes=minutes, min_iters=min_iters,
+                     precision=precision, box=box, lr=lr, seed=seed, generator=generator)
     given = [f"--{name.replace('_', '-')}" for name, value in overrides.items() if value is not None]
     if resume and given:
         raise click.UsageError(f"--resume continues with the checkpoint's settings; leave out {', '.join(given)}")
@@ -562,6 +569,10 @@ def info(model):
     training = m.get("training", {})
     click.echo(f"  training    {format_seconds(training.get('seconds', 0))} wall time, "
                f"{training.get('iterations_per_level', '?')} iterations per level")
+    if m.get("config", {}).get("minutes") is not None:
+        measured = ", ".join(f"{c:.2f}" for c in training.get("measured_seconds_per_iteration", []))
+        click.echo(f"  budget      {m['config']['minutes']:g} min; planned {training.get('planned_iterations', '?')} "
+                   f"iterations per level from measured s/iteration {measured or '?'}")
     click.echo(f"  networks    {m['channels']} channels, {m['pool_bins']} pooling bins, MLP hidden {m['mlp_hidden']}")
     origin, spacing = (", ".join(f"{v:.4g}" for v in m["frame"][k]) for k in ("origin", "spacing"))
     click.echo(f"  frame       voxel (0, 0, 0) at ({origin}), voxel size ({spacing})")

@@ -24,7 +24,7 @@ def test_the_refusal_gives_the_figure_and_the_limit():
     budget.check_memory(1 << 30, "a thing", 1 << 30)  # exactly the limit fits
 
 
-def test_training_memory_grows_with_the_level_and_shrinks_with_a_critic_crop():
+def test_training_memory_grows_with_the_level_and_shrinks_with_a_box():
     pytest.importorskip("torch")
     from sinshape.trainer.config import make_config
     from sinshape.trainer.train import level_memory
@@ -33,7 +33,7 @@ def test_training_memory_grows_with_the_level_and_shrinks_with_a_critic_crop():
     small, large = level_memory((32, 32, 32), config), level_memory((64, 64, 64), config)
     assert 6 < (large - small) / (level_memory((48, 32, 32), config) - small) < 16  # linear in voxels: 224/16
     assert 180 << 20 < large < 240 << 20  # measured 199 MiB (benchmarks/train_memory.py)
-    assert level_memory((64, 64, 64), make_config("default", critic_crop=16)) < large
+    assert level_memory((64, 64, 64), make_config("default", box=16)) < large
     assert level_memory((64, 64, 64), make_config("default", channels=64)) > 1.9 * large - (40 << 20)
 
 

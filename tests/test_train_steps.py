@@ -8,6 +8,7 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from sinshape.trainer import device, train  # noqa: E402
+from sinshape.trainer.networks import TriplaneGenerator  # noqa: E402
 from sinshape.trainer.config import make_config  # noqa: E402
 from sinshape.prep.pyramid import Pyramid, load_pyramid  # noqa: E402
 
@@ -51,68 +52,47 @@ def test_batched_iterations_equal_the_straightforward_ones(tiny_pyramid, generat
     assert max(moved) > 1e-5
 
 
-class FakeTrainer:
-    """What Budget reads of a trainer."""
-
-    def __init__(self, levels):
-        self.level, self.iteration, self.seconds, self.plan = 0, 0, [], [0] * levels
-
-
-def test_budget_plans_equal_iterations_and_corrects_for_drift(monkeypatch):
-    now = [1000.0]
-    monkeypatch.setattr(train.time, "monotonic", lambda: now[0])
-    costs = [0.5, 1.0, 2.5]  # seconds per iteration per level
-    budget = train.Budget(100 + train.Budget.RESERVE, now[0], costs)
-    trainer = FakeTrainer(3)
-    trainer.plan[0] = budget.iterations(trainer)
-    assert trainer.plan[0] == 25  # 100 s / 4 s per round of the three levels
-    # Level 0 took twice its prediction: the rest is planned at double cost.
-    now[0] += 25
-    trainer.seconds.append(25.0)
-    trainer.level = 1
-    trainer.plan[1] = budget.iterations(trainer)
-    assert trainer.plan[1] == 10  # 75 s left / (2 x 3.5 s)
-    # Level 1's share of the time: 10 iterations at twice the measured 1 s.
-    assert budget.level_end(trainer) == pytest.approx(now[0] + 20)
-    trainer.iteration = 4
-    assert budget.level_end(trainer) == pytest.approx(now[0] + 12)
-    # The last level runs to the deadline, while one more iteration fits.
-    trainer.level, trainer.iteration, trainer.level_seconds = 2, 10, 20.0
-    assert budget.level_end(trainer) == pytest.approx(1100.0)
-    now[0] = 1098.5  # at 2 s per iteration, one more would end at 1100.5
-    assert budget.room_for_another(trainer) is False
-    now[0] = 1090.0
-    assert budget.room_for_another(trainer) is True
-    with pytest.raises(train.InputError, match="give more --minutes"):
-        train.Budget(1, now[0], costs).iterations(FakeTrainer(3))
+def test_boxes_fall_anywhere_and_reach_the_edges():
+    """A box hangs over the grid's edge by up to half its side, clipped: the
+    outermost voxels are seen at least a third as often as the middle ones
+    (boxes kept inside would see them 1 time in 9 here)."""
+    pyramid = Pyramid([torch.zeros(48, 20, 30).numpy() > 0], (0.0,) * 3, (1.0,) * 3, "x", "0" * 64, "pyramid")
+    trainer = train.Trainer(make_config("tiny", levels=1, box=32), pyramid, FP32)
+    seen = torch.zeros(48)
+    for _ in range(400):
+        x, y, z = trainer.draw_box()
+        assert 16 <= x.stop - x.start <= 32 and 0 <= x.start and x.stop <= 48
+        assert (y, z) == (slice(0, 20), slice(0, 30))  # axes no longer than the box are seen whole
+        seen[x] += 1
+    assert seen[0] > seen[24] / 3 and seen[47] > seen[24] / 3
+    # A level that fits in the box is seen whole, and draws nothing.
+    state = trainer.rng.get_state()
+    whole = train.Trainer(make_config("tiny", levels=1, box=48), pyramid, FP32)
+    whole.rng.set_state(state)
+    assert whole.draw_box() is None and torch.equal(whole.rng.get_state(), state)
 
 
-def test_a_budgeted_run_records_its_plan(tmp_path, tiny_pyramid, monkeypatch):
-    # Measured costs vary with the machine's load: fixed ones keep the first
-    # level's plan small; the second re-plans from how long the first took.
-    monkeypatch.setattr(train, "time_levels", lambda *args: [1.0, 2.0])
-    out = tmp_path / "m.onnx"
-    log = []
-    manifest = train.train(tiny_pyramid, out, make_config("tiny", minutes=0.2), log=log.append)
-    planned = manifest["config"]["level_iters"]
-    assert 1 <= planned[0] <= 3 and planned[1] >= 1  # (12 s - 2 s reserve - start-up) / 3 s
-    assert manifest["training"]["iterations_per_level"] == list(planned)
-    assert any(line.startswith("plan: ") for line in log)
-    assert manifest["config"]["minutes"] == 0.2
+def test_a_box_decodes_what_the_whole_grid_has_there():
+    generator = TriplaneGenerator(8, 4, 8)
+    planes = [torch.randn(1, 8, *size) for size in ((20, 12), (20, 14), (12, 14))]
+    box = (slice(3, 19), slice(0, 12), slice(5, 14))
+    whole = generator.decoder.grid(planes)[0]
+    torch.testing.assert_close(generator.decoder.grid(planes, box)[0], whole[box])
 
 
-def test_critic_crop_shows_random_boxes_of_the_given_side():
-    pyramid = Pyramid([torch.zeros(40, 20, 30).numpy() > 0], (0.0,) * 3, (1.0,) * 3, "x", "0" * 64, "pyramid")
-    trainer = train.Trainer(make_config("tiny", levels=1, critic_crop=16), pyramid, FP32)
-    volume = torch.arange(40 * 20 * 30, dtype=torch.float32).reshape(1, 1, 40, 20, 30)
-    corners = set()
-    for _ in range(20):
-        box = trainer.critic_view(volume)
-        assert box.shape == (1, 1, 16, 16, 16)
-        corner = box[0, 0, 0, 0, 0].item()
-        x, y, z = int(corner // 600), int(corner // 30 % 20), int(corner % 30)
-        assert torch.equal(box, volume[:, :, x:x + 16, y:y + 16, z:z + 16])
-        corners.add((x, y, z))
-    assert len(corners) > 10  # placed at random
-    whole = train.Trainer(make_config("tiny", levels=1), pyramid, FP32)
-    assert whole.critic_view(volume) is volume
+def test_the_critic_compares_the_same_box_of_real_and_fake(tiny_pyramid, monkeypatch):
+    """Every critic step sees a box of the real grid beside a fake of the same
+    size; the reconstruction is scored in a box of the real grid too."""
+    trainer = trainer_at_level(train.Trainer, load_pyramid(tiny_pyramid, 32), 1, box=16)
+    boxes = iter([(slice(i, i + 16), slice(1, 17), slice(0, 15)) for i in range(4)] * 3)
+    monkeypatch.setattr(trainer, "draw_box", lambda: next(boxes))
+    shown = []
+    critic_forward = trainer.critic.forward
+    monkeypatch.setattr(trainer.critic, "forward", lambda volume: shown.append(volume.detach()) or critic_forward(volume))
+    trainer.iterate(trainer.recon_inputs())
+    real = trainer.targets[1][0, 0]
+    pairs = [v for v in shown if v.shape[0] == 2]
+    assert len(pairs) == 3  # one per critic step (the gradient penalty's mix is a batch of one)
+    for step, pair in enumerate(pairs):
+        torch.testing.assert_close(pair[0, 0], real[step:step + 16, 1:17, 0:15])
+        assert not torch.equal(pair[1, 0], pair[0, 0])

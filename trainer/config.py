@@ -44,12 +44,15 @@ class TrainConfig:
     # fit it (`iters` is then unused) and records the plan in level_iters.
     minutes: float | None = None
     level_iters: tuple | None = None
+    min_iters: int = 50  # a budget that gives fewer per level is refused before training
     # "auto": bf16 autocast on CPUs with native bf16, TF32 on CUDA, else fp32.
     precision: str = "auto"
-    # Off (None) in the paper's method: the critic sees random boxes of at most
-    # this many voxels per side instead of the whole grid (its receptive field
-    # is 11), so large levels cost less. It changes what is trained.
-    critic_crop: int | None = None
+    # Off (0) in the paper's method: at levels larger than this many voxels
+    # per side, each step sees random boxes of at most this side instead of
+    # the whole grid (the critic's field is 11): the critic compares the same
+    # box of real and fake, the reconstruction is measured in another, and
+    # only boxes are decoded, so an iteration costs what its boxes cost.
+    box: int = 0
 
     # Randomness: the training run, and the fixed reconstruction noise z0*.
     seed: int = 0
@@ -63,11 +66,12 @@ class TrainConfig:
             (self.iters >= 1, f"--iters must be at least 1, got {self.iters}"),
             (self.d_steps >= 1 and self.g_steps >= 1, "d_steps and g_steps must be at least 1"),
             (self.lr > 0, f"lr must be positive, got {self.lr}"),
+            (self.min_iters >= 1, f"--min-iters must be at least 1, got {self.min_iters}"),
             (self.minutes is None or 0 < self.minutes <= 60 * 24 * 365,
              f"--minutes must be positive (and at most a year), got {self.minutes}"),
             (self.precision in ("auto", "fp32", "bf16"), f"--precision must be auto, fp32 or bf16, got {self.precision!r}"),
-            (self.critic_crop is None or self.critic_crop >= 16,
-             f"--critic-crop must be at least 16 voxels (the critic's field is 11), got {self.critic_crop}"),
+            (self.box == 0 or self.box >= 16,
+             f"--box must be 0 (whole grids) or at least 16 voxels (the critic's field is 11), got {self.box}"),
             (0 <= self.seed < 2**63, f"--seed must be in [0, 2**63), got {self.seed}"),
         ]
         for ok, message in checks:
@@ -93,7 +97,7 @@ PRESETS = {
     # README's benchmark table for the measured time and quality.
     "default": TrainConfig(res=64, iters=1000),
     # Seconds, for tests and smoke runs: two levels, a few iterations.
-    "tiny": TrainConfig(res=32, levels=2, iters=10),
+    "tiny": TrainConfig(res=32, levels=2, iters=10, min_iters=1),
 }
 
 

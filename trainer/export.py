@@ -168,7 +168,8 @@ def make_manifest(generator, *, sizes, noise_amps, config, pyramid, seconds, ran
 
 def export_model(generator, *, sizes, noise_amps, config, pyramid, seconds, path, ran_on=None) -> dict:
     """Write the model to `path` atomically; returns its manifest. `ran_on`:
-    where training ran ({"device", "precision"}), recorded with its times."""
+    where training ran ({"device", "precision"}) and, under a time budget,
+    its plan, recorded with its times."""
     manifest = make_manifest(generator, sizes=sizes, noise_amps=noise_amps, config=config,
                              pyramid=pyramid, seconds=seconds, ran_on=ran_on or {})
     model = build_model(generator, manifest)

@@ -90,9 +90,14 @@ class Decoder(nn.Module):
         weights = self.fc1.weight.split(self.channels, dim=1)  # 3 x (hidden, C)
         return [torch.einsum("bchw,oc->bhwo", plane, w) for plane, w in zip(planes, weights)]
 
-    def grid(self, planes: list) -> torch.Tensor:
+    def grid(self, planes: list, box: tuple | None = None) -> torch.Tensor:
         """Occupancy at the planes' own resolution: voxel (x, y, z) reads plane
-        cells xy[x, y], xz[x, z], yz[y, z]. Returns (B, X, Y, Z)."""
+        cells xy[x, y], xz[x, z], yz[y, z]. Returns (B, X, Y, Z), or with a
+        box (slices along x, y, z) only that part of the grid: a box costs
+        what its voxels cost, whatever the size of the planes."""
+        if box is not None:
+            sx, sy, sz = box
+            planes = [planes[0][..., sx, sy], planes[1][..., sx, sz], planes[2][..., sy, sz]]
         with torch.autocast(planes[0].device.type, enabled=False):  # occupancy is always float32
             pxy, pxz, pyz = self.project_planes([plane.float() for plane in planes])
         pxy = pxy + self.fc1.bias
@@ -221,6 +226,10 @@ class TriplaneGenerator(nn.Module):
         """Occupancy (B, X, Y, Z) of level `upto`'s grid (default: the last level)."""
         return self.decoder.grid(self.planes(z0, noises, sizes, upto))
 
+    def level_planes(self, inputs: list, level: int, size: tuple, noise: list | None) -> list:
+        """Level `level`'s tri-plane from its inputs and scaled noise."""
+        return self.levels[0](inputs) if level == 0 else self.step(inputs, level, size, noise)
+
     # The interface the trainer uses, shared with VoxelGenerator.
     def noise_shapes(self, size: tuple) -> list:
         """Shapes of one sample's noise at a level: a C-channel map per plane."""
@@ -234,10 +243,12 @@ class TriplaneGenerator(nn.Module):
         with torch.no_grad():
             return self.planes(z0, noises, sizes, upto=level - 1)
 
-    def output(self, inputs: list, level: int, size: tuple, noise: list | None) -> torch.Tensor:
-        """Level `level`'s occupancy (B, X, Y, Z) from its inputs and scaled noise."""
-        planes = self.levels[0](inputs) if level == 0 else self.step(inputs, level, size, noise)
-        return self.decoder.grid(planes)
+    def output(self, inputs: list, level: int, size: tuple, noise: list | None, boxes: list) -> list:
+        """Level `level`'s occupancy from its inputs and scaled noise: for
+        sample b of the batch, the box boxes[b] of its grid (None: all of it),
+        decoded alone."""
+        planes = self.level_planes(inputs, level, size, noise)
+        return [self.decoder.grid([p[b:b + 1] for p in planes], box)[0] for b, box in enumerate(boxes)]
 
     def trained_modules(self, level: int) -> list:
         """What trains at a level: G_level and the shared decoder (and P at level 0)."""
@@ -308,10 +319,12 @@ class VoxelGenerator(nn.Module):
         with torch.no_grad():
             return self.volume(z0, noises, sizes, level - 1)
 
-    def output(self, inputs, level: int, size: tuple, noise) -> torch.Tensor:
+    def output(self, inputs, level: int, size: tuple, noise, boxes: list) -> list:
         if level == 0:
-            return self.levels[0](inputs, torch.zeros_like(inputs))[:, 0]
-        return self.output_volume(inputs, level, size, noise)[:, 0]
+            volume = self.levels[0](inputs, torch.zeros_like(inputs))[:, 0]
+        else:
+            volume = self.output_volume(inputs, level, size, noise)[:, 0]
+        return [volume[b] if box is None else volume[b][box] for b, box in enumerate(boxes)]
 
     def trained_modules(self, level: int) -> list:
         return [self.levels[level]]

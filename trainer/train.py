@@ -23,9 +23,10 @@ import torch.nn.functional as F
 from sinshape.runtime import noise
 from sinshape.runtime.budget import check_memory
 from sinshape.runtime.errors import InputError
+from sinshape.runtime.manifest import plane_sizes
 from sinshape.runtime.write import atomic_write, check_writable, is_same_file
 
-from . import export
+from . import export, schedule
 from . import device as devices
 from .config import TrainConfig
 from .networks import Discriminator, make_generator
@@ -35,13 +36,15 @@ CHECKPOINT_FORMAT = "sinshape-checkpoint"
 CHECKPOINT_VERSION = 1
 LOSS_LIMIT = 1e6  # a loss beyond this (or NaN) means training has diverged
 
-# Peak memory one iteration adds, per voxel of its level, with 32 channels
-# and 3 + 3 steps in float32 (benchmarks/train_memory.py fits them to levels
-# of 8k to 276k voxels, docs/RELIABILITY.md): the generator decodes every
-# voxel of a batch of samples, the critic (and its gradient penalty's double
-# backward) sees the whole level or its --critic-crop box.
+# Peak memory one iteration adds, with 32 channels and 3 + 3 steps in float32
+# (benchmarks/train_memory.py fits them to levels of 8k to 2M voxels,
+# docs/RELIABILITY.md): per voxel the generator decodes (a batch of samples)
+# and the critic sees (with its gradient penalty's double backward), the
+# whole level or its boxes; per cell of the three planes, the generator's
+# convolutions.
 GENERATOR_BYTES_PER_VOXEL = 520
 CRITIC_BYTES_PER_VOXEL = 230
+PLANE_BYTES_PER_CELL = 0
 LEVEL_BYTES = 17 << 20  # what a level adds whatever its size
 
 
@@ -186,9 +189,35 @@ class Trainer:
         """What the trained level builds on (frozen levels: no gradients)."""
         return self.generator.inputs(z0, noises, self.sizes, self.level)
 
-    def fake(self, inputs, noise) -> torch.Tensor:
-        """This level's occupancy (B, X, Y, Z)."""
-        return self.generator.output(inputs, self.level, self.sizes[self.level], noise)
+    def fake(self, inputs, noise, boxes: list) -> list:
+        """This level's occupancy, sample b in the box boxes[b] (None: whole)."""
+        return self.generator.output(inputs, self.level, self.sizes[self.level], noise, boxes)
+
+    def draw_box(self) -> tuple | None:
+        """Where a step looks at this level: None for the whole grid, or
+        with `box`, slices of a box of at most that side at a random
+        place, drawn from the run's generator (nothing is drawn at a level
+        that fits in the box, so such levels train as the paper's do).
+
+        Boxes may hang over the grid's edge by up to half their side and are
+        clipped there. Boxes kept inside would see a voxel at the edge of a
+        128-voxel axis 1/81 as often as one in the middle (48-voxel boxes):
+        the example's outer parts would hardly be judged. Clipped ones see it
+        at least half as often, and the smallest box still holds 16 voxels
+        per axis, room for the critic's 11.
+        """
+        side, size = self.config.box, self.sizes[self.level]
+        if not side or max(size) <= side:
+            return None
+        box = []
+        for n in size:
+            inside = min(side, max(side // 2, 16))  # the least of a box that stays in the grid
+            if n <= side:
+                box.append(slice(0, n))
+                continue
+            start = int(torch.randint(inside - side, n - inside + 1, (1,), generator=self.rng))
+            box.append(slice(max(start, 0), min(start + side, n)))
+        return tuple(box)
 
     # -- one iteration -------------------------------------------------------
     def iterate(self, recon_inputs) -> dict:
@@ -204,21 +233,30 @@ class Trainer:
         for every draw of the iteration, the critic steps' fakes (G does not
         change during them), and each generator step's fake with the
         reconstruction. Random draws are made in the order they are used.
+
+        With `box`, every step shows the critic one box of the grid, the same
+        box of the real and the fake (a paired comparison: where the box falls
+        moves both scores alike), and the reconstruction is measured in
+        another box; only boxes are decoded. Each is an unbiased estimate of
+        its whole-grid term, at the cost of its box.
         """
-        c, level, real = self.config, self.level, self.targets[self.level]
+        c, level, real = self.config, self.level, self.targets[self.level][0, 0]
         critic = self.critic
-        d_draws = [(*self.random_noises(level), self.draw(torch.rand, 1)) for _ in range(c.d_steps)]
-        g_draws = [self.random_noises(level) for _ in range(c.g_steps)]
-        z0, noises = cat_draws([draw[:2] for draw in d_draws] + g_draws)
+        d_draws = [(*self.random_noises(level), self.draw(torch.rand, 1), self.draw_box())
+                   for _ in range(c.d_steps)]
+        g_draws = [(*self.random_noises(level), self.draw_box(), self.draw_box()) for _ in range(c.g_steps)]
+        z0, noises = cat_draws([draw[:2] for draw in d_draws] + [draw[:2] for draw in g_draws])
         noise = noises[level]  # (d_steps + g_steps) samples; None at level 0
         with torch.no_grad():
             inputs = self.inputs(z0, noises)
-            fakes = self.fake(take(inputs, slice(0, c.d_steps)), take(noise, slice(0, c.d_steps)))
+            fakes = self.fake(take(inputs, slice(0, c.d_steps)), take(noise, slice(0, c.d_steps)),
+                              [draw[3] for draw in d_draws])
 
         # (1) Update D: minimise D(fake) - D(real) + gp_weight * GP.
         critic.requires_grad_(True)
-        for fake, (_, _, alpha) in zip(fakes[:, None, None], d_draws):
-            seen_real, seen_fake = self.critic_view(real), self.critic_view(fake)
+        for fake, (_, _, alpha, box) in zip(fakes, d_draws):
+            seen_real = (real if box is None else real[box])[None, None]
+            seen_fake = fake[None, None]
             scores = critic(torch.cat([seen_real, seen_fake]))
             d_real, d_fake = scores[0].mean(), scores[1].mean()
             loss_d = d_fake - d_real + c.gp_weight * self.gradient_penalty(seen_real, seen_fake, alpha)
@@ -228,33 +266,22 @@ class Trainer:
 
         # (2) Update G: minimise -D(fake) + rec_weight * MSE(rec, real).
         critic.requires_grad_(False)
-        for i in range(c.d_steps, c.d_steps + c.g_steps):
+        for i, (_, _, box, rec_box) in zip(range(c.d_steps, c.d_steps + c.g_steps), g_draws):
             one = slice(i, i + 1)
             if level == 0:  # P trains with G_0: both samples start from their z0
-                fake, rec = self.fake(self.inputs(torch.cat([z0[one], self.z0_recon]), None), None)
+                fake, rec = self.fake(self.inputs(torch.cat([z0[one], self.z0_recon]), None), None, [box, rec_box])
             else:  # the reconstruction's frozen input is cached, its noise is zero
                 pair = cat_batch([take(inputs, one), recon_inputs])
-                fake, rec = self.fake(pair, [torch.cat([n[one], torch.zeros_like(n[one])]) for n in noise])
-            loss_adv = -critic(self.critic_view(fake[None, None])).mean()
-            loss_rec = F.mse_loss(rec, real[0, 0])
+                fake, rec = self.fake(pair, [torch.cat([n[one], torch.zeros_like(n[one])]) for n in noise],
+                                      [box, rec_box])
+            loss_adv = -critic(fake[None, None]).mean()
+            loss_rec = F.mse_loss(rec, real if rec_box is None else real[rec_box])
             loss_g = loss_adv + c.rec_weight * loss_rec
             self.opt_g.zero_grad(set_to_none=True)
             loss_g.backward()
             self.opt_g.step()
         critic.requires_grad_(True)
         return {"D": loss_d.item(), "G": loss_adv.item(), "rec": loss_rec.item()}
-
-    def critic_view(self, volume: torch.Tensor) -> torch.Tensor:
-        """What the critic sees of a (1, 1, X, Y, Z) volume: all of it, or with
-        `critic_crop`, a box of at most that side at a random place."""
-        side = self.config.critic_crop
-        if side is None or max(volume.shape[2:]) <= side:
-            return volume
-        box = [slice(None), slice(None)]
-        for n in volume.shape[2:]:
-            start = int(torch.randint(0, max(n - side, 0) + 1, (1,), generator=self.rng))
-            box.append(slice(start, start + side))
-        return volume[tuple(box)]
 
     def gradient_penalty(self, real, fake, alpha) -> torch.Tensor:
         """WGAN-GP on the mix alpha * real + (1 - alpha) * fake.
@@ -396,9 +423,11 @@ def train(input_path, output_path, config: TrainConfig | None, *, resume: bool =
             log("every level is trained already; exporting")
     budget = None
     if config.minutes is not None and trainer.level < len(trainer.sizes):
-        budget = Budget(config.minutes * 60 - trainer.trained_seconds(), clock_started,
-                        time_levels(config, pyramid, placement))
-        log(budget.describe(trainer))
+        budget = schedule.Budget(config.minutes * 60 - trainer.trained_seconds(), clock_started,
+                                 *time_levels(config, pyramid, placement), config.min_iters)
+        if trainer.level == 0 and trainer.iteration == 0:  # once a level has begun, never refuse
+            budget.refuse_if_too_small(trainer.sizes, pyramid.source_kind == "mesh")
+        log(budget.describe(trainer.level))
 
     last_save = time.monotonic()
     try:
@@ -407,18 +436,19 @@ def train(input_path, output_path, config: TrainConfig | None, *, resume: bool =
                 trainer.begin_level()
             level = trainer.level
             if budget and trainer.iteration == 0:
-                trainer.plan[level] = budget.iterations(trainer)
+                trainer.plan[level] = budget.start_level(level)
             iters = trainer.plan[level]
-            stop_at = budget.level_end(trainer) if budget else math.inf
+            stop_at = budget.level_end(level, iters - trainer.iteration) if budget else math.inf
             log(f"level {level + 1}/{len(trainer.sizes)}: grid {trainer.sizes[level]}, "
                 f"noise amplitude {trainer.noise_amps[level]:.4g}, {iters} iterations")
             recon_inputs = trainer.recon_inputs()
             last = level == len(trainer.sizes) - 1
-            while trainer.iteration < iters or (budget and last and budget.room_for_another(trainer)):
-                started = time.monotonic()
-                if trainer.iteration and started > stop_at:  # slower than planned: keep to the budget
+            done_here = 0  # iterations in this run of the level (its first one allocates)
+            while trainer.iteration < iters or (budget and last and budget.another_fits(level, stop_at)):
+                if budget and trainer.iteration and not budget.another_fits(level, stop_at):
                     log(f"level {level + 1} used its share of the budget after {trainer.iteration} iterations")
-                    break
+                    break  # slower than planned: keep to the budget
+                started = time.monotonic()
                 losses = trainer.iterate(recon_inputs)
                 bad = [k for k, v in losses.items() if not math.isfinite(v) or abs(v) > LOSS_LIMIT]
                 if bad:
@@ -428,7 +458,11 @@ def train(input_path, output_path, config: TrainConfig | None, *, resume: bool =
                         f"the last good checkpoint is {checkpoint_path}; try another --seed"
                     )
                 trainer.iteration += 1
-                trainer.level_seconds += time.monotonic() - started
+                done_here += 1
+                took = time.monotonic() - started
+                trainer.level_seconds += took
+                if budget:
+                    budget.observe(level, done_here, took)
                 if progress:
                     progress(Progress(level, len(trainer.sizes), trainer.iteration, max(iters, trainer.iteration),
                                       trainer.sizes[level], losses))
@@ -448,7 +482,11 @@ def train(input_path, output_path, config: TrainConfig | None, *, resume: bool =
 
     if config.minutes is not None:  # the plan is part of how the model was made
         config = dataclasses.replace(config, level_iters=tuple(trainer.plan))
+    # Recorded beside the times: where training ran and, under a budget, its plan.
     ran_on = {"device": placement.device.type, "precision": placement.precision}
+    if budget:
+        ran_on["planned_iterations"] = budget.planned
+        ran_on["measured_seconds_per_iteration"] = [round(c, 4) for c in budget.costs]
     if config.generator == "voxel":  # the baseline has no .onnx form: its checkpoint is the model
         return {"levels": [{"size": list(s)} for s in trainer.sizes],
                 "training": {"seconds": sum(trainer.seconds), "level_seconds": trainer.seconds, **ran_on}}
@@ -459,10 +497,13 @@ def train(input_path, output_path, config: TrainConfig | None, *, resume: bool =
 
 def level_memory(size, config: TrainConfig) -> int:
     """Bytes one training iteration at a level of `size` (X, Y, Z) needs
-    beyond the data and the networks. Activations grow with the channels."""
-    crop = config.critic_crop or max(size)
-    seen = math.prod(min(n, crop) for n in size)
-    per_voxel = GENERATOR_BYTES_PER_VOXEL * math.prod(size) + CRITIC_BYTES_PER_VOXEL * seen
+    beyond the data and the networks. Activations grow with the channels.
+    With boxes, only the voxels of a box are decoded and judged; the planes
+    are whole either way."""
+    box = config.box or max(size)
+    seen = math.prod(min(n, box) for n in size)
+    cells = sum(math.prod(plane) for plane in plane_sizes(size))
+    per_voxel = (GENERATOR_BYTES_PER_VOXEL + CRITIC_BYTES_PER_VOXEL) * seen + PLANE_BYTES_PER_CELL * cells
     return LEVEL_BYTES + per_voxel * config.channels // 32
 
 
@@ -477,79 +518,27 @@ def check_training_memory(sizes: list, config: TrainConfig, placement) -> None:
                  f"training a level of {'x'.join(map(str, largest))} voxels", limit)
 
 
-def time_levels(config: TrainConfig, pyramid, placement, rounds: int = 2) -> list:
-    """Seconds per iteration at every level, measured on a throwaway trainer
-    (untrained weights cost what trained ones do)."""
+def time_levels(config: TrainConfig, pyramid, placement, rounds: int = 3) -> tuple:
+    """Seconds per iteration at every level, and what a level's start adds,
+    measured on a throwaway trainer (untrained weights cost what trained ones
+    do). Returns (costs, startups): a cost is the mean of a few warm rounds
+    (with boxes, an iteration's cost varies with where its boxes fall); a
+    start-up is the level's set-up and first iteration (it allocates and picks
+    kernels) beyond one warm iteration."""
     trainer = Trainer(config, pyramid, placement)
-    costs = []
+    costs, startups = [], []
     for level in range(len(trainer.sizes)):
+        started = time.monotonic()
         trainer.level = level
         trainer.begin_level()
         recon_inputs = trainer.recon_inputs()
-        trainer.iterate(recon_inputs)  # the first call allocates and picks kernels
-        started = time.monotonic()
+        trainer.iterate(recon_inputs)
+        warm = time.monotonic()
         for _ in range(rounds):
             trainer.iterate(recon_inputs)
-        costs.append((time.monotonic() - started) / rounds)
-    return costs
-
-
-class Budget:
-    """Plans every level's iterations so that training ends with its budget.
-
-    Every level gets the same count, as in the paper, from the measured
-    seconds per iteration. Each level re-plans what is left, with the costs
-    scaled by how the finished levels compared with their measurement, so a
-    machine that slows down or speeds up still ends near the deadline.
-    """
-
-    RESERVE = 2.0  # seconds kept for the export and the last checkpoint
-
-    def __init__(self, seconds: float, clock_started: float, costs: list):
-        self.deadline = clock_started + seconds
-        self.costs = costs
-        self.predicted = self.actual = 0.0  # seconds of the levels finished in this run
-        self.counted = set()
-        self.drift = 1.0  # actual over measured seconds, so far
-
-    def iterations(self, trainer) -> int:
-        """Iterations for the level `trainer` is starting."""
-        for level, seconds in enumerate(trainer.seconds):
-            if level not in self.counted and trainer.plan[level]:
-                self.counted.add(level)
-                self.predicted += trainer.plan[level] * self.costs[level]
-                self.actual += seconds
-        drift = self.drift = self.actual / self.predicted if self.predicted else 1.0
-        left = self.deadline - time.monotonic() - self.RESERVE
-        count = math.floor(left / (drift * sum(self.costs[trainer.level:])))
-        if count < 1:
-            raise InputError(f"the time budget leaves {max(left, 0):.0f} s for the levels from "
-                             f"{trainer.level + 1} on, which need {drift * sum(self.costs[trainer.level:]):.1f} s "
-                             "per iteration; give more --minutes")
-        return count
-
-    def level_end(self, trainer) -> float:
-        """When the level `trainer` is at should end: its share of the time left.
-        A level still running then stops early, and later levels re-plan, so
-        a machine that slows down mid-level does not overrun the budget."""
-        if trainer.level == len(self.costs) - 1:  # the last level has what is left
-            return self.deadline - self.RESERVE
-        iterations_left = trainer.plan[trainer.level] - trainer.iteration
-        return time.monotonic() + iterations_left * self.drift * self.costs[trainer.level]
-
-    def room_for_another(self, trainer) -> bool:
-        """Whether one more iteration of the last level, at its own pace so
-        far, still ends before the deadline: the last level uses what the
-        others left, instead of ending early on a pessimistic plan."""
-        pace = trainer.level_seconds / max(trainer.iteration, 1)
-        return time.monotonic() + pace < self.deadline - self.RESERVE
-
-    def describe(self, trainer) -> str:
-        count = self.iterations(trainer)  # refuses a budget too small for one iteration per level
-        left = self.deadline - time.monotonic() - self.RESERVE
-        costs = ", ".join(f"{c:.2f}" for c in self.costs)
-        return (f"plan: {count} iterations per level for levels {trainer.level + 1}-{len(self.costs)} in "
-                f"{left / 60:.1f} min; measured s/iteration per level: {costs}")
+        costs.append((time.monotonic() - warm) / rounds)
+        startups.append(max(warm - started - costs[-1], 0.0))
+    return costs, startups
 
 
 def load_generator(checkpoint_path) -> tuple:
