@@ -1,16 +1,20 @@
-"""Training quality at the paper's level sizes: train, sample 100, score.
+"""Training quality per budget: train, sample 100, score.
 
-    python benchmarks/train_quality.py --iters 150 --seeds 0 1
-    python benchmarks/train_quality.py --iters 150 --seeds 0 1 --label crop48 -- --critic-crop 48
-    python benchmarks/train_quality.py --minutes 10 20 40 --seeds 0
-    python benchmarks/train_quality.py --iters 150 --sinrun OTHER/.venv/bin/sinrun --label before
+    python benchmarks/train_quality.py --minutes 10 20 40                  # the default trainer
+    python benchmarks/train_quality.py --minutes 10 20 40 --preset paper   # the paper's exact method
+    python benchmarks/train_quality.py --minutes 10 --seeds 0 1 --pyramid NaturalArch_r128s7.h5
+    python benchmarks/train_quality.py --iters 150 --seeds 0 1 --label box32 -- --box 32
+    python benchmarks/train_quality.py --minutes 40 --sinrun OTHER/.venv/bin/sinrun --label before
 
-The example is the procedural acropolis voxelised at the six level sizes of
-one of the paper's res-128 pyramids (31x15x15 .. 128x36x60), written once as
-an SSG .h5 pyramid so that any sinshape version (--sinrun) trains on exactly
-the same grids. Each run trains in a fresh process, then `sinrun eval` scores
-100 samples against the finest level (LP-IoU, LP-F, diversity). Arguments
-after `--` go to `sinrun train`. One JSON line per run goes to --results.
+The example is an SSG .h5 pyramid (--pyramid), by default the procedural
+acropolis voxelised at the six level sizes of one of the paper's res-128
+pyramids (31x15x15 .. 128x36x60), written once so that any sinshape version
+(--sinrun) trains on exactly the same grids. Each run trains in a fresh
+process (`sinrun train PYRAMID --preset P --minutes M` or `--iters N`),
+then `sinrun eval` scores 100 samples against the pyramid's finest level
+(LP-IoU, LP-F, diversity). Arguments after `--` go to `sinrun train`. One
+JSON line per run goes to --results. Runs are one after another: a run
+beside other work gets fewer iterations for its minutes.
 """
 
 import argparse
@@ -22,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-# The level sizes of the paper's res-128 pyramid the training issue quotes.
+# The level sizes of one of the paper's res-128 pyramids.
 PAPER_SIZES = [(31, 15, 15), (41, 15, 19), (54, 16, 26), (72, 20, 34), (96, 28, 44), (128, 36, 60)]
 
 
@@ -46,6 +50,18 @@ def acropolis_pyramid(path: Path) -> Path:
     return path
 
 
+def model_iterations(sinrun: str, model: Path) -> list:
+    """Iterations per level as trained, from the model's manifest (read with
+    the sinrun that wrote it, whose Python has onnx)."""
+    script = ("import json, sys, onnx; m = json.loads({p.key: p.value for p in "
+              "onnx.load(sys.argv[1]).metadata_props}['sinshape.manifest']); "
+              "t = m['training']; n = t['iterations_per_level']; "
+              "print(json.dumps(n if isinstance(n, list) else [n] * len(m['levels'])))")
+    python = Path(sinrun).with_name("python")
+    return json.loads(subprocess.run([str(python), "-c", script, str(model)], check=True, capture_output=True,
+                                     text=True).stdout)
+
+
 def run(command: list) -> float:
     started = time.perf_counter()
     subprocess.run(command, check=True, stdout=subprocess.DEVNULL)
@@ -57,33 +73,39 @@ def main():
     parser.add_argument("--iters", type=int, nargs="*", default=[], help="iterations per level, one run each")
     parser.add_argument("--minutes", type=float, nargs="*", default=[], help="time budgets, one run each")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0])
+    parser.add_argument("--preset", default="default", help="the sinrun train preset (default, paper)")
+    parser.add_argument("--pyramid", type=Path, default=None, help="an SSG .h5 pyramid (default: the acropolis "
+                        "at the paper's level sizes)")
     parser.add_argument("--sinrun", default=str(Path(sys.executable).with_name("sinrun")))
-    parser.add_argument("--label", default="sinshape")
+    parser.add_argument("--label", default=None, help="default: the preset's name")
     parser.add_argument("--work", type=Path, default=Path("train_quality"))
     parser.add_argument("--results", type=Path, default=None, help="default: WORK/results.jsonl")
     parser.add_argument("train_args", nargs="*", help="passed to sinrun train (after --)")
     args = parser.parse_args()
     args.work.mkdir(parents=True, exist_ok=True)
     results = args.results or args.work / "results.jsonl"
-    pyramid = acropolis_pyramid(args.work / "acropolis_paper_sizes.h5")
+    pyramid = args.pyramid or acropolis_pyramid(args.work / "acropolis_paper_sizes.h5")
+    label = args.label or args.preset
 
     budgets = [("--iters", str(n)) for n in args.iters] + [("--minutes", str(m)) for m in args.minutes]
-    print("| run | seed | budget | training wall | LP-IoU | LP-F | diversity |")
-    print("|---|---|---|---|---|---|---|")
+    print("| run | shape | seed | budget | training wall | iterations per level | LP-IoU | LP-F | diversity |")
+    print("|---|---|---|---|---|---|---|---|---|")
     for flag, value in budgets:
         for seed in args.seeds:
-            name = f"{args.label}_{flag.strip('-')}{value}_seed{seed}"
+            name = f"{label}_{pyramid.stem}_{flag.strip('-')}{value}_seed{seed}"
             model, scores = args.work / f"{name}.onnx", args.work / f"{name}.json"
-            wall = run([args.sinrun, "train", str(pyramid), "-o", str(model), "--preset", "paper", flag, value,
+            wall = run([args.sinrun, "train", str(pyramid), "-o", str(model), "--preset", args.preset, flag, value,
                         "--seed", str(seed), "--quiet", *args.train_args])
             run([args.sinrun, "eval", str(model), "--reference", str(pyramid), "-n", "100",
                  "--json", str(scores)])
             summary = json.loads(scores.read_text())
-            row = {"label": args.label, "seed": seed, flag.strip("-"): float(value), "train_args": args.train_args,
+            iterations = model_iterations(args.sinrun, model)
+            row = {"label": label, "shape": pyramid.stem, "seed": seed, "iterations_per_level": iterations, flag.strip("-"): float(value), "train_args": args.train_args,
                    "wall_seconds": round(wall, 1), **{k: summary[k] for k in ("lp_iou", "lp_f", "diversity")}}
             with open(results, "a") as f:
                 f.write(json.dumps(row) + "\n")
-            print(f"| {args.label} | {seed} | {flag} {value} | {wall / 60:.1f} min | {row['lp_iou']:.3f} "
+            print(f"| {label} | {pyramid.stem} | {seed} | {flag} {value} | {wall / 60:.1f} min | "
+                  f"{', '.join(map(str, iterations))} | {row['lp_iou']:.3f} "
                   f"| {row['lp_f']:.3f} | {row['diversity']:.3f} |", flush=True)
 
 

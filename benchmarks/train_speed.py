@@ -1,30 +1,38 @@
-"""Training speed: seconds per iteration, ours against a straightforward port.
+"""Training speed: seconds per iteration and peak memory per level, the
+paper's exact method against the default, side by side.
 
-    python benchmarks/train_speed.py                 # the six level sizes of a paper res-128 pyramid
-    python benchmarks/train_speed.py --rounds 9      # more repetitions (the median is reported)
-    python benchmarks/train_speed.py --levels 0 5    # only some of the six levels
+    python benchmarks/train_speed.py                 # a seven-level 128^3 pyramid (24^3 .. 128^3)
+    python benchmarks/train_speed.py --sizes paper   # the six level sizes of a paper res-128 pyramid
+    python benchmarks/train_speed.py --box 48 64     # also the default with boxes of these sides
+    python benchmarks/train_speed.py --port          # also a straightforward port of the authors' step
+    python benchmarks/train_speed.py --rounds 9 --levels 5 6
     python benchmarks/train_speed.py --full MESH     # also: the whole default preset on MESH
 
-An iteration is the paper's: 3 critic steps, then 3 generator steps, at level
-i of a pyramid with the given level sizes (frozen levels below, noise
-injection). The straightforward port does what the authors' code does, in
-float32: the decoder concatenates the three plane features of every voxel
-into a (X, Y, Z, 96) tensor and runs the whole MLP under autograd; every
-sample goes through the networks on its own (critic steps build the
-generator's autograd graph and then detach it; real, fake and the gradient
-penalty's mix go through the critic separately), with PyTorch's own kernel
-choice. Both compute the same losses from the same random draws (a test
-checks it), so the ratio is the speed-up. Each trainer has its own process
-(sinshape's with the switches `sinrun train` sets, the port's without); they
-run one iteration in turn, round after round, so a busy machine slows them
-alike, and the median of the rounds is reported. sinshape runs in float32
-(the same computation) and, where this machine has native bf16, also with
-what it picks (--precision auto). The last column says how the critic's
-batch-1 and batch-2 convolutions run at each level (trainer/networks.py).
+An iteration is 3 critic steps, then 3 generator steps, at level i of a
+pyramid with the given level sizes (frozen levels below, noise injection).
+"paper" is `--preset paper`, "default" the default preset (the same step
+with another learning rate, so the same speed), "box N" the default with
+`--box N` (only boxes of at most N voxels per side decoded and judged at
+large levels); all in the precision `sinrun train` picks here. The straightforward port (--port)
+does what the authors' code does, in float32: the decoder concatenates the
+three plane features of every voxel into a (X, Y, Z, 96) tensor and runs
+the whole MLP under autograd; every sample goes through the networks on its
+own, with PyTorch's own kernel choice. The port and the paper trainer
+compute the same losses from the same random draws (a test checks it).
+
+Each trainer has its own process per level (sinshape's with the switches
+`sinrun train` sets, the port's without); they run one iteration in turn,
+round after round, so a busy machine slows them alike, and the mean of the
+rounds is reported (with boxes an iteration's cost varies with where its
+boxes fall). Peak memory is the level's process's peak resident memory less
+what it held before it built the trainer: what training that level takes.
+The last column says how the critic's batch-1 and batch-2 convolutions run
+at each level in the paper trainer (trainer/networks.py).
 """
 
 import argparse
 import multiprocessing
+import resource
 import statistics
 import sys
 import tempfile
@@ -38,10 +46,12 @@ import torch.nn.functional as F
 from sinshape.trainer import device, networks, train
 from sinshape.trainer.config import make_config
 from sinshape.trainer.networks import Discriminator, TriplaneGenerator
-from sinshape.prep.pyramid import Pyramid
+from sinshape.prep.pyramid import Pyramid, level_sizes
 
-# The level sizes of one of the paper's res-128 pyramids (the training issue's).
+# The level sizes of one of the paper's res-128 pyramids, and of a 128^3 shape.
 PAPER_SIZES = [(31, 15, 15), (41, 15, 19), (54, 16, 26), (72, 20, 34), (96, 28, 44), (128, 36, 60)]
+CUBE_SIZES = level_sizes((128, 128, 128), 7)
+SIZES = {"cube": CUBE_SIZES, "paper": PAPER_SIZES}
 
 
 def wavy_terrain(size) -> np.ndarray:
@@ -97,11 +107,11 @@ class StraightforwardTrainer(train.Trainer):
         return {"D": loss_d.item(), "G": loss_adv.item(), "rec": loss_rec.item()}
 
 
-def trainer_at(trainer_class, sizes: list, level: int, placement, **options):
+def trainer_at(trainer_class, sizes: list, level: int, placement, preset: str = "paper", **options):
     """A trainer at `level` of a wavy terrain with these level sizes, warmed up."""
     pyramid = Pyramid([wavy_terrain(size) for size in sizes[:level + 1]], (0.0,) * 3, (1.0,) * 3,
                       "terrain", "0" * 64, "pyramid")
-    trainer = trainer_class(make_config("paper", levels=level + 1, **options), pyramid, placement)
+    trainer = trainer_class(make_config(preset, levels=level + 1, **options), pyramid, placement)
     for trainer.level in range(level + 1):
         trainer.begin_level()
     recon_inputs = trainer.recon_inputs()
@@ -115,8 +125,10 @@ def timed_iteration(trainer, recon_inputs) -> float:
     return time.perf_counter() - started
 
 
-def serve_iterations(connection, straightforward: bool, level: int, precision: str, options: dict) -> None:
-    """A worker process: one trainer, one timed iteration per request.
+def serve_iterations(connection, straightforward: bool, sizes: list, level: int, precision: str,
+                     preset: str, options: dict) -> None:
+    """A worker process: one trainer, one timed iteration per request, then
+    its peak memory.
 
     Every trainer has its own process, so each runs as it would alone: the
     straightforward port with the C library's default allocator, as the
@@ -125,11 +137,18 @@ def serve_iterations(connection, straightforward: bool, level: int, precision: s
     placement = device.choose("cpu", precision)
     if not straightforward:
         placement.activate()
-    trainer = trainer_at(StraightforwardTrainer if straightforward else train.Trainer, PAPER_SIZES, level,
-                         placement, **options)
+    before = resident_bytes()
+    trainer = trainer_at(StraightforwardTrainer if straightforward else train.Trainer, sizes, level,
+                         placement, preset, **options)
     connection.send("ready")
     while connection.recv():
         connection.send(timed_iteration(*trainer))
+    connection.send(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024 - before)
+
+
+def resident_bytes() -> int:
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[1]) * resource.getpagesize()
 
 
 def critic_methods(size: tuple) -> str:
@@ -148,37 +167,42 @@ def critic_methods(size: tuple) -> str:
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--sizes", choices=SIZES, default="cube", help="cube: 24^3 .. 128^3 in seven levels; "
+                        "paper: 31x15x15 .. 128x36x60 in six")
     parser.add_argument("--rounds", type=int, default=5, help="iterations each trainer runs per level")
-    parser.add_argument("--levels", type=int, nargs="+", default=range(len(PAPER_SIZES)),
-                        help="which of the six levels to time (default: all)")
-    parser.add_argument("--critic-box", type=int, default=None,
-                        help="also time sinshape with this --critic-box (a change of method)")
+    parser.add_argument("--levels", type=int, nargs="+", default=None, help="which levels to time (default: all)")
+    parser.add_argument("--box", type=int, nargs="*", default=[], help="also the default with --box N")
+    parser.add_argument("--port", action="store_true", help="also the straightforward port (float32)")
     parser.add_argument("--full", type=Path, help="also train the default preset on this mesh, end to end")
     args = parser.parse_args()
 
+    sizes = SIZES[args.sizes]
     picked = device.choose("cpu")
     print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, CPU capability "
           f"{torch.backends.cpu.get_cpu_capability()}, native bf16: {device.native_bf16()}")
     print(f"sinshape picked: {picked.describe()}; allocator keeps freed memory: {device.keep_freed_memory()}")
-    # (name, straightforward, precision, options) of each trainer in the table
-    runs = [("straightforward", True, "fp32", {}), ("sinshape fp32", False, "fp32", {})]
-    if picked.precision != "fp32":
-        runs.append((f"sinshape {picked.precision}", False, picked.precision, {}))
-    if args.critic_box:
-        runs.append((f"crop {args.critic_box}, {picked.precision}", False, picked.precision,
-                     {"critic_box": args.critic_box}))
+    print(f"default preset: box {make_config('default').box}, lr {make_config('default').lr:g}; "
+          f"paper preset: box {make_config('paper').box}, lr {make_config('paper').lr:g}")
+    # (name, straightforward, precision, preset, options) of each trainer in the table
+    runs = [("paper", False, picked.precision, "paper", {}), ("default", False, picked.precision, "default", {})]
+    runs += [(f"box {side}", False, picked.precision, "default", {"box": side}) for side in args.box]
+    if args.port:
+        runs = [("straightforward", True, "fp32", "paper", {}), ("paper fp32", False, "fp32", "paper", {})] + runs
     names = [name for name, *_ in runs]
-    print("| level | grid | " + " | ".join(names) + " | " + " | ".join(f"speed-up {n}" for n in names[1:])
-          + " | critic's middle/last conv |")
-    print("|---" * (2 * len(runs) + 2) + "|")
+    base = names.index("paper")
+    faster = [i for i, name in enumerate(names) if i > base]  # speed-ups over the paper trainer
+    print("| level | grid | " + " | ".join(f"{n} s" for n in names) + " | "
+          + " | ".join(f"{names[i]} speed-up" for i in faster) + " | "
+          + " | ".join(f"{n} peak MB" for n in names) + " | critic's middle/last conv |")
+    print("|---" * (2 * len(runs) + len(faster) + 3) + "|")
     sums = np.zeros(len(runs))
     context = multiprocessing.get_context("spawn")
-    for level in args.levels:
-        size = PAPER_SIZES[level]
+    for level in args.levels if args.levels is not None else range(len(sizes)):
         workers = []
-        for _, straightforward, precision, options in runs:
+        for _, straightforward, precision, preset, options in runs:
             ours, theirs = context.Pipe()
-            process = context.Process(target=serve_iterations, args=(theirs, straightforward, level, precision, options))
+            process = context.Process(target=serve_iterations,
+                                      args=(theirs, straightforward, sizes, level, precision, preset, options))
             process.start()
             workers.append((process, ours))
         for _, connection in workers:
@@ -188,14 +212,19 @@ def main():
             for (_, connection), times in zip(workers, seconds):
                 connection.send(True)
                 times.append(connection.recv())
+        peaks = []
         for process, connection in workers:
             connection.send(False)
+            peaks.append(connection.recv())
             process.join()
-        medians = np.array([statistics.median(times) for times in seconds])
-        sums += medians
-        print(row(f"| {level} | {'x'.join(map(str, size))} ", medians) + f" {critic_methods(size)} |", flush=True)
-    print(row("| sum | ", sums) + " |")
-    print(f"\nThe paper's setting (2000 iterations per level) at these sizes: "
+        means = np.array([statistics.mean(times) for times in seconds])
+        sums += means
+        print(f"| {level} | {'x'.join(map(str, sizes[level]))} | " + " | ".join(f"{s:.3f}" for s in means)
+              + " | " + " | ".join(f"{means[base] / means[i]:.2f}x" for i in faster) + " | "
+              + " | ".join(f"{p / 2**20:.0f}" for p in peaks) + f" | {critic_methods(sizes[level])} |", flush=True)
+    print("| sum | | " + " | ".join(f"{s:.2f}" for s in sums) + " | "
+          + " | ".join(f"{sums[base] / sums[i]:.2f}x" for i in faster) + " |")
+    print("\n2000 iterations per level at these sizes: "
           + ", ".join(f"{name} {s * 2000 / 3600:.2f} h" for name, s in zip(names, sums)))
 
     if args.full:
@@ -209,12 +238,6 @@ def main():
         iters = manifest["config"]["iters"]
         for i, (level, seconds) in enumerate(zip(manifest["levels"], manifest["training"]["level_seconds"])):
             print(f"| {i} | {'x'.join(map(str, level['size']))} | {seconds / iters:.3f} |")
-
-
-def row(head: str, seconds) -> str:
-    """A table row: every trainer's seconds, then each sinshape one's speed-up."""
-    base = seconds[0]
-    return head + "| " + " | ".join([f"{s:.3f}" for s in seconds] + [f"{base / s:.2f}x" for s in seconds[1:]]) + " |"
 
 
 if __name__ == "__main__":

@@ -7,7 +7,8 @@ shape and export it as one .onnx file (needs the train extra, PyTorch).
     train.train("mymesh.obj", "mymesh.onnx", make_config("default"))
 
 Modules: config (the frozen settings and presets), networks, device,
-train (the level loop, checkpoints), export (the .onnx file). The input
+train (the level loop, checkpoints), schedule (a time budget turned into
+iterations per level), export (the .onnx file). The input
 becomes voxel levels in sinshape.prep, which evaluation shares.
 
 It may import torch, numpy, scipy, h5py, onnx, trimesh and scikit-image,

@@ -36,15 +36,15 @@ CHECKPOINT_FORMAT = "sinshape-checkpoint"
 CHECKPOINT_VERSION = 1
 LOSS_LIMIT = 1e6  # a loss beyond this (or NaN) means training has diverged
 
-# Peak memory one iteration adds, with 32 channels and 3 + 3 steps in float32
-# (benchmarks/train_memory.py fits them to levels of 8k to 2M voxels,
-# docs/RELIABILITY.md): per voxel the generator decodes (a batch of samples)
-# and the critic sees (with its gradient penalty's double backward), the
-# whole level or its boxes; per cell of the three planes, the generator's
-# convolutions.
-GENERATOR_BYTES_PER_VOXEL = 520
+# Peak memory one iteration adds, with 32 channels and 3 + 3 steps in float32:
+# per voxel the generator decodes (a batch of samples) and the critic sees
+# (with its gradient penalty's double backward), the whole level or its
+# boxes; per cell of the three planes, the generator's convolutions (the
+# planes are whole either way). Fitted to the peaks benchmarks/train_speed.py
+# measures (24^3 to 128^3 levels, whole and in boxes; docs/RELIABILITY.md).
+GENERATOR_BYTES_PER_VOXEL = 364
 CRITIC_BYTES_PER_VOXEL = 230
-PLANE_BYTES_PER_CELL = 0
+PLANE_BYTES_PER_CELL = 12_500
 LEVEL_BYTES = 17 << 20  # what a level adds whatever its size
 
 
