@@ -209,9 +209,9 @@ class Trainer:
         side, size = self.config.box, self.sizes[self.level]
         if not side or max(size) <= side:
             return None
+        inside = min(side, max(side // 2, 16))  # the least of a box that stays in the grid
         box = []
         for n in size:
-            inside = min(side, max(side // 2, 16))  # the least of a box that stays in the grid
             if n <= side:
                 box.append(slice(0, n))
                 continue
@@ -503,8 +503,8 @@ def level_memory(size, config: TrainConfig) -> int:
     box = config.box or max(size)
     seen = math.prod(min(n, box) for n in size)
     cells = sum(math.prod(plane) for plane in plane_sizes(size))
-    per_voxel = (GENERATOR_BYTES_PER_VOXEL + CRITIC_BYTES_PER_VOXEL) * seen + PLANE_BYTES_PER_CELL * cells
-    return LEVEL_BYTES + per_voxel * config.channels // 32
+    activations = (GENERATOR_BYTES_PER_VOXEL + CRITIC_BYTES_PER_VOXEL) * seen + PLANE_BYTES_PER_CELL * cells
+    return LEVEL_BYTES + activations * config.channels // 32
 
 
 def check_training_memory(sizes: list, config: TrainConfig, placement) -> None:
