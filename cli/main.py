@@ -557,31 +557,12 @@ def warn_if_clamped(model, factors, scale) -> None:
 @MODEL_ARGUMENT
 def info(model):
     """Show how a model was made: levels, sizes, training input, config, time."""
-    import json
+    from sinshape.runtime.manifest import describe, printable
 
     loaded = open_model(model, threads=1)
-    m = loaded.manifest.raw
-    click.echo(f"{loaded.path}")
-    click.echo(f"  format      {m['format']} {m['format_version']}  ({m.get('created_by', '?')})"
-               + ("" if "checksum" in m else f"\n  note        format {m['format_version']}: no checksum"))
-    source = m.get("source", {})
-    click.echo(f"  trained on  {source.get('name', '?')} ({source.get('kind', '?')}, sha256 {source.get('sha256', '?')[:12]}...)")
-    training = m.get("training", {})
-    click.echo(f"  training    {format_seconds(training.get('seconds', 0))} wall time, "
-               f"{training.get('iterations_per_level', '?')} iterations per level")
-    if m.get("config", {}).get("minutes") is not None:
-        measured = ", ".join(f"{c:.2f}" for c in training.get("measured_seconds_per_iteration", []))
-        click.echo(f"  budget      {m['config']['minutes']:g} min; planned {training.get('planned_iterations', '?')} "
-                   f"iterations per level from measured s/iteration {measured or '?'}")
-    click.echo(f"  networks    {m['channels']} channels, {m['pool_bins']} pooling bins, MLP hidden {m['mlp_hidden']}")
-    origin, spacing = (", ".join(f"{v:.4g}" for v in m["frame"][k]) for k in ("origin", "spacing"))
-    click.echo(f"  frame       voxel (0, 0, 0) at ({origin}), voxel size ({spacing})")
-    click.echo("  levels      size          noise amplitude   seconds")
-    seconds = training.get("level_seconds", [])
-    for i, level in enumerate(m["levels"]):
-        took = f"{seconds[i]:.0f}" if i < len(seconds) else ""
-        click.echo(f"    {i:<8}  {'x'.join(map(str, level['size'])):<12}  {level['noise_amp']:<16.4g}  {took}")
-    click.echo("  config      " + json.dumps(m.get("config", {}), sort_keys=True))
+    click.echo(printable(loaded.path))
+    for line in describe(loaded.manifest.raw):
+        click.echo("  " + line)
 
 
 @cli.command()

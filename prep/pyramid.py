@@ -22,7 +22,7 @@ from scipy import ndimage
 
 from sinshape.runtime.budget import check_memory
 from sinshape.runtime.errors import InputError
-from sinshape.runtime.manifest import MAX_SIDE
+from sinshape.runtime.manifest import MAX_LEVEL_SIDE
 
 from . import voxelize
 
@@ -181,7 +181,7 @@ def pyramid_from_h5(path: Path, levels: int | None = None) -> Pyramid:
 
 def _h5_datasets(f, name: str) -> list:
     """The scale0 .. scale{n-1} datasets of an open SSG file, n = n_scales,
-    each checked to be a numeric 3-D grid of sides in [MIN_H5_SIDE, MAX_SIDE]."""
+    each checked to be a numeric 3-D grid of sides in [MIN_H5_SIDE, MAX_LEVEL_SIDE]."""
     count = f.attrs.get("n_scales")
     if count is None:
         raise InputError(f"{name}: not an SSG pyramid (no 'n_scales' attribute)")
@@ -196,8 +196,8 @@ def _h5_datasets(f, name: str) -> list:
             raise InputError(f"{name}: n_scales is {count} but scale{i} is missing")
         if not hasattr(item, "dtype") or item.dtype.kind not in "biuf":
             raise InputError(f"{name}: scale{i} is not a grid of numbers")
-        if len(item.shape) != 3 or not all(MIN_H5_SIDE <= n <= MAX_SIDE for n in item.shape):
-            raise InputError(f"{name}: scale{i} is not a 3-D grid of {MIN_H5_SIDE} to {MAX_SIDE} voxels a side "
+        if len(item.shape) != 3 or not all(MIN_H5_SIDE <= n <= MAX_LEVEL_SIDE for n in item.shape):
+            raise InputError(f"{name}: scale{i} is not a 3-D grid of {MIN_H5_SIDE} to {MAX_LEVEL_SIDE} voxels a side "
                              f"(shape {item.shape})")
         datasets.append(item)
     return datasets

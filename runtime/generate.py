@@ -21,10 +21,10 @@ from .manifest import plane_sizes
 
 # A sample's coarsest grid may not shrink below this many voxels per axis.
 MIN_SIDE = 2
-# Voxels per axis of a sample's level: its noise is defined up to 2**21, and
-# grid points per axis: no level longer than this is made, and no grid with
-# more points is meshed (query); beyond it a size or scale is absurd.
-MAX_SIDE = 1 << 16
+# Points per axis of anything a sample makes: no level longer than this is
+# generated, and no grid with more points is queried; beyond it a size or
+# scale is absurd (and the noise is defined up to 2**21 only).
+MAX_GRID_SIDE = 1 << 16
 # How far `interpolate` extrapolates: its noise is then this many times the
 # std the levels were trained on (1e308 overflowed to NaN and failed).
 MAX_ALPHA = 100
@@ -55,8 +55,8 @@ def scaled_sizes(sizes: list, factors=(1.0, 1.0, 1.0)) -> list:
             and all(isinstance(f, numbers.Real) and 0 < f < float("inf") for f in factors)):
         raise InputError(f"factors must be 3 positive numbers, got {factors!r}", "factors")
     out = [tuple(max(MIN_SIDE, round(n * f)) for n, f in zip(size, factors)) for size in sizes]
-    if max(max(size) for size in out) > MAX_SIDE:
-        raise InputError(f"factors {','.join(f'{f:g}' for f in factors)} make a level longer than {MAX_SIDE} "
+    if max(max(size) for size in out) > MAX_GRID_SIDE:
+        raise InputError(f"factors {','.join(f'{f:g}' for f in factors)} make a level longer than {MAX_GRID_SIDE} "
                          f"voxels, the most a sample may have per axis", "factors")
     return out
 
@@ -162,6 +162,8 @@ def triplane(model, sample: Noise, sizes: list) -> TriPlane:
             inputs = [u + amps[level] * n for u, n in zip(upsampled, sample.planes[level])]
         residuals = model.levels[level].run([x[None] for x in inputs])
         planes = [u + r[0] for u, r in zip(upsampled, residuals)]
+    if not all(np.isfinite(p).all() for p in planes):  # weights that pass the load checks and still overflow
+        raise InputError(f"{model.path}: the model gives NaN or infinite values for this sample (unusable weights)")
     return TriPlane(planes, tuple(sizes[-1]))
 
 

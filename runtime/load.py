@@ -3,11 +3,13 @@
 A model file is untrusted input. It is refused, with one line saying why,
 unless it is a plain ONNX file of bounded size, with no external-data
 references (nothing that reads other files), only the few standard ops the
-stages use, a manifest of a supported format version whose every field has
-a sane type and range, a checksum that matches (format 2), and stages that
-run and give finite values of the shapes the manifest implies.
+stages use, a seal over all its bytes that matches (format 3; format 2 had a
+checksum over the weights and manifest), a manifest of a supported format
+version whose every field has a sane type and range, and stages that run and
+give finite values of the shapes the manifest implies.
 """
 
+import json
 import numbers
 import os
 from dataclasses import dataclass
@@ -58,6 +60,7 @@ class Model:
     """A loaded model: its manifest and its stages."""
 
     path: Path
+    data: bytes  # the file as read and checked
     manifest: fmt.Manifest
     projection: Stage
     levels: list  # one Stage per level, coarsest first
@@ -75,8 +78,10 @@ def default_threads() -> int:
         return os.cpu_count() or 1
 
 
-def read_model(path: Path) -> onnx.ModelProto:
-    """Parse the file as ONNX, refusing what could reach beyond it."""
+def read_model(path: Path) -> tuple:
+    """(bytes, parsed ONNX, sealed): the file's seal checked first, so that a
+    corrupt byte anywhere is named corrupt before anything reads it; then
+    parsed as ONNX, refusing what could reach beyond the file."""
     if path.is_dir():
         raise InputError(f"{path}: a directory, not a model file")
     if not path.is_file():
@@ -85,11 +90,16 @@ def read_model(path: Path) -> onnx.ModelProto:
     if size > MAX_MODEL_BYTES:
         raise InputError(f"{path}: {size / 2**20:.0f} MB is too large for a sinshape model")
     try:
-        model = onnx.load_model_from_string(path.read_bytes())
-    except (DecodeError, ValueError, RuntimeError):
-        raise InputError(f"{path}: not an ONNX file") from None
+        data = path.read_bytes()
     except OSError as error:
         raise InputError(f"{path}: cannot read ({error.strerror})") from None
+    _, sealed, intact = fmt.unseal(data)
+    if sealed and not intact:
+        raise InputError(f"{path}: corrupt model: its bytes do not match the SHA-256 sealed at its end")
+    try:
+        model = onnx.load_model_from_string(data)
+    except (DecodeError, ValueError, RuntimeError):
+        raise InputError(f"{path}: not an ONNX file") from None
     graph = model.graph
     if len(graph.node) == 0:
         raise InputError(f"{path}: not a sinshape model (an empty or non-ONNX file)")
@@ -102,22 +112,55 @@ def read_model(path: Path) -> onnx.ModelProto:
     bad_ops = sorted({n.op_type for n in graph.node if n.domain not in ("", "ai.onnx") or n.op_type not in ALLOWED_OPS})
     if bad_ops:
         raise InputError(f"{path}: uses ops a sinshape model never has ({', '.join(bad_ops[:5])})")
-    return model
+    return data, model, sealed
 
 
-def read_manifest(model: onnx.ModelProto, path: Path) -> fmt.Manifest:
+def read_manifest(model: onnx.ModelProto, sealed: bool, path: Path) -> fmt.Manifest:
     props = {p.key: p.value for p in model.metadata_props}
     if fmt.METADATA_KEY not in props:
         raise InputError(f"{path}: an ONNX model, but not a sinshape model (no {fmt.METADATA_KEY} metadata)")
     try:
         manifest = fmt.parse(props[fmt.METADATA_KEY])
     except InputError as error:
+        if not sealed:  # what an unsealed file says of itself may be the corruption
+            raise InputError(f"{path}: {error} (or a corrupt file: it has no seal)") from None
         raise InputError(f"{path}: {error}") from None
-    if "checksum" in manifest.raw:
-        weights = [(t.name, onnx.numpy_helper.to_array(t)) for t in model.graph.initializer]
-        if fmt.checksum(manifest.raw, weights) != manifest.raw["checksum"]:
-            raise InputError(f"{path}: corrupt model: the checksum of its weights and manifest does not match")
+    version = manifest.raw["format_version"]
+    if version >= 3 and not sealed:
+        raise InputError(f"{path}: corrupt model: format {version} ends with a seal, and this file does not")
+    if version < 3 and sealed:
+        raise InputError(f"{path}: corrupt model: a seal on a format {version} file")
+    if version == 2 and not checksum_v2_matches(model, manifest.raw):
+        raise InputError(f"{path}: corrupt model: the checksum of its weights and manifest does not match")
     return manifest
+
+
+def checksum_v2_matches(model: onnx.ModelProto, raw: dict) -> bool:
+    try:
+        weights = [(t.name, onnx.numpy_helper.to_array(t)) for t in model.graph.initializer]
+        return fmt.checksum_v2(raw, weights) == raw["checksum"]
+    except Exception:  # a weight whose type, shape or name is damaged cannot be read: corrupt
+        return False
+
+
+def format3_bytes(model: Model) -> bytes:
+    """The model as a sealed format-3 file (its own bytes when it is one):
+    what the browser reads, which checks seals only."""
+    if model.manifest.raw["format_version"] >= 3:
+        return model.data
+    proto = onnx.load_model_from_string(model.data)
+    manifest = {k: v for k, v in model.manifest.raw.items() if k != "checksum"}
+    manifest["format_version"] = fmt.FORMAT_VERSION
+    next(p for p in proto.metadata_props if p.key == fmt.METADATA_KEY).value = json.dumps(manifest, indent=1)
+    return sealed_bytes(proto)
+
+
+def sealed_bytes(proto: onnx.ModelProto) -> bytes:
+    """A model's bytes with a fresh seal (any old one dropped first)."""
+    props = [(p.key, p.value) for p in proto.metadata_props if p.key != fmt.SEAL_KEY]
+    del proto.metadata_props[:]
+    onnx.helper.set_model_props(proto, dict(props))
+    return fmt.seal(proto.SerializeToString())
 
 
 def stage_model(model: onnx.ModelProto, inputs: list, outputs: list, path: Path) -> bytes:
@@ -224,8 +267,8 @@ def load_model(path, threads: int | None = None) -> Model:
     threads = default_threads() if threads is None else threads
     if not (isinstance(threads, numbers.Integral) and 1 <= threads <= MAX_THREADS):
         raise InputError(f"threads must be 1 to {MAX_THREADS}, got {threads}", "threads")
-    proto = read_model(path)
-    manifest = read_manifest(proto, path)
+    data, proto, sealed = read_model(path)
+    manifest = read_manifest(proto, sealed, path)
 
     def make(names: dict) -> Stage:
         data = stage_model(proto, names["inputs"], names["outputs"], path)
@@ -234,6 +277,7 @@ def load_model(path, threads: int | None = None) -> Model:
     stages = manifest.stages
     model = Model(
         path=path,
+        data=data,
         manifest=manifest,
         projection=make(stages["projection"]),
         levels=[make(names) for names in stages["levels"]],

@@ -15,19 +15,26 @@ from dataclasses import dataclass
 from .errors import InputError
 
 FORMAT_NAME = "sinshape"
-FORMAT_VERSION = 2  # 2 adds `checksum`; version-1 files still load, unchecked
+# 3 seals the file's bytes with a SHA-256 at its end; 2 had a `checksum`
+# field over the weights and manifest only; 1 had none. All three load.
+FORMAT_VERSION = 3
 METADATA_KEY = "sinshape.manifest"  # key of the manifest in the ONNX metadata_props
+SEAL_KEY = "sinshape.sha256"  # key of the last metadata_props entry: the seal (format 3 on)
 NOISE_SCHEME = "splitmix64-boxmuller-v1"  # runtime/noise.py
 PLANES = ("xy", "xz", "yz")  # plane k drops grid axis 2 - k
 PLANE_AXES = ((0, 1), (0, 2), (1, 2))  # the grid axes each plane keeps, in PLANES order
 # Initializers of stage decoder_head, (D,), (D, 1), (1,): b1, w2, b2.
 HEAD_WEIGHTS = ("decoder_head.bias1", "decoder_head.weight2", "decoder_head.bias2")
 MAX_LEVELS = 64
-MAX_SIDE = 4096  # a level's side in voxels; far above anything trainable
+MIN_LEVEL_SIDE = 8  # a level's side in voxels: trained levels have 15 or more
+MAX_LEVEL_SIDE = 4096  # far above anything trainable
 MAX_MANIFEST_CHARS = 1 << 20  # a real manifest is a few kB
 MAX_DEPTH = 16  # JSON nesting; a real manifest nests 5 deep
 MAX_NOISE_AMP = 100.0  # sigma_i; trained amplitudes are below 1
 MAX_COORD = 1e12  # |origin| and spacing: any more and the mesh's coordinates overflow float32
+# A voxel's size in the input's units, at least: below it (or below one float32
+# step at the origin's magnitude) every vertex of a mesh lands on one point.
+MIN_SPACING = 1e-9
 CHECKSUM_RE = re.compile(r"sha256:[0-9a-f]{64}")
 
 
@@ -105,11 +112,11 @@ def _plain(value, types) -> bool:
     return isinstance(value, dict) and all(isinstance(k, str) and ok(v) for k, v in value.items())
 
 
-def checksum(raw: dict, weights) -> str:
-    """`sha256:` + hex digest over the manifest without `checksum` (canonical
-    JSON: sorted keys, no spaces, ASCII) and then, for every initializer in
-    order of name, its name, a zero byte and its float32 little-endian values
-    (docs/FORMAT.md, "Checksum"). `weights`: (name, float32 array) pairs."""
+def checksum_v2(raw: dict, weights) -> str:
+    """Format 2's `checksum` field: `sha256:` + hex digest over the manifest
+    without `checksum` (canonical JSON: sorted keys, no spaces, ASCII) and
+    then, for every initializer in order of name, its name, a zero byte and
+    its float32 little-endian values. `weights`: (name, float32 array) pairs."""
     digest = hashlib.sha256()
     body = {k: v for k, v in raw.items() if k != "checksum"}
     digest.update(json.dumps(body, sort_keys=True, separators=(",", ":")).encode())
@@ -117,6 +124,36 @@ def checksum(raw: dict, weights) -> str:
         digest.update(name.encode() + b"\0")
         digest.update(array.astype("<f4").tobytes())
     return "sha256:" + digest.hexdigest()
+
+
+def _seal_prefix() -> bytes:
+    """The seal's bytes before its digest: an ONNX ModelProto field 14
+    (metadata_props) entry {key: SEAL_KEY, value: 64 hex digits}, in protobuf's
+    wire format, so that any ONNX reader reads the sealed file unchanged."""
+    key = SEAL_KEY.encode()
+    entry_length = 2 + len(key) + 2 + 64
+    return bytes([14 << 3 | 2, entry_length, 1 << 3 | 2, len(key)]) + key + bytes([2 << 3 | 2, 64])
+
+
+SEAL_PREFIX = _seal_prefix()
+SEAL_BYTES = len(SEAL_PREFIX) + 64
+
+
+def seal(body: bytes) -> bytes:
+    """A serialized ONNX model (without a seal) followed by its seal: the
+    SHA-256 of every byte before it, so a runtime checks the whole file,
+    graph, attributes, weights and manifest, with nothing but SHA-256."""
+    return body + SEAL_PREFIX + hashlib.sha256(body).hexdigest().encode()
+
+
+def unseal(data: bytes) -> tuple:
+    """(body, sealed, intact): `sealed` when `data` ends with a seal, `intact`
+    when its digest is that of the body. An unsealed file is all body."""
+    tail = data[-SEAL_BYTES:]
+    if len(data) <= SEAL_BYTES or not tail.startswith(SEAL_PREFIX):
+        return data, False, False
+    body = data[:-SEAL_BYTES]
+    return body, True, hashlib.sha256(body).hexdigest().encode() == tail[len(SEAL_PREFIX):]
 
 
 def parse(text: str) -> Manifest:
@@ -138,7 +175,7 @@ def parse(text: str) -> Manifest:
         raise InputError(
             f"model format version {version} is newer than this sinshape reads ({FORMAT_VERSION}); upgrade sinshape"
         )
-    if version >= 2:
+    if version == 2:
         _require(isinstance(raw.get("checksum"), str) and CHECKSUM_RE.fullmatch(raw["checksum"]) is not None,
                  "checksum must be 'sha256:' and 64 hex digits")
     _require(raw.get("planes") == list(PLANES), f"planes must be {list(PLANES)}")
@@ -153,8 +190,11 @@ def parse(text: str) -> Manifest:
     for i, level in enumerate(levels):
         _require(isinstance(level, dict), f"level {i} is not an object")
         size = level.get("size")
-        _require(isinstance(size, list) and len(size) == 3 and all(_is_int(n, 2, MAX_SIDE) for n in size),
-                 f"level {i} size must be 3 integers in [2, {MAX_SIDE}]")
+        _require(isinstance(size, list) and len(size) == 3
+                 and all(_is_int(n, MIN_LEVEL_SIDE, MAX_LEVEL_SIDE) for n in size),
+                 f"level {i} size must be 3 integers in [{MIN_LEVEL_SIDE}, {MAX_LEVEL_SIDE}]")
+        _require(i == 0 or all(a <= b for a, b in zip(sizes[-1], size)),
+                 f"level {i} size {size} is smaller than level {i - 1}'s along an axis (levels grow)")
         amp = level.get("noise_amp")
         _require(_is_number(amp) and 0 <= amp <= MAX_NOISE_AMP, f"level {i} noise_amp must be a number in [0, {MAX_NOISE_AMP:g}]")
         sizes.append(tuple(size))
@@ -166,8 +206,11 @@ def parse(text: str) -> Manifest:
     _require(isinstance(origin, list) and len(origin) == 3 and all(_is_number(v) and abs(v) <= MAX_COORD for v in origin),
              f"frame origin must be 3 numbers within +-{MAX_COORD:g}")
     _require(isinstance(spacing, list) and len(spacing) == 3
-             and all(_is_number(s) and 0 < s and s * MAX_SIDE <= MAX_COORD for s in spacing),
-             f"frame spacing must be 3 positive numbers, at most {MAX_COORD / MAX_SIDE:g}")
+             and all(_is_number(s) and MIN_SPACING <= s and s * MAX_LEVEL_SIDE <= MAX_COORD for s in spacing),
+             f"frame spacing must be 3 numbers in [{MIN_SPACING:g}, {MAX_COORD / MAX_LEVEL_SIDE:g}]")
+    step = max(abs(v) for v in origin) * 2.0**-23  # float32's step at the origin
+    _require(all(s > step for s in spacing),
+             "frame spacing is below float32's step at the frame's origin: every vertex would land on the same points")
     _require(raw.get("created_by") is None or isinstance(raw["created_by"], str), "created_by must be a string")
     source = raw.get("source", {})
     _require(isinstance(source, dict) and all(isinstance(source.get(k, ""), str) for k in ("name", "sha256", "kind")),
@@ -175,7 +218,7 @@ def parse(text: str) -> Manifest:
     for key, types in (("config", (str, int, float, bool)), ("training", (str, int, float))):
         _require(_plain(raw.get(key, {}), types), f"{key} must be an object of plain values")
     res = raw.get("config", {}).get("res", 2)
-    _require(_is_int(res, 1, MAX_SIDE), f"config res must be an integer in [1, {MAX_SIDE}]")
+    _require(_is_int(res, 1, MAX_LEVEL_SIDE), f"config res must be an integer in [1, {MAX_LEVEL_SIDE}]")
     training = raw.get("training", {})
     level_seconds = training.get("level_seconds") or []
     _require(_is_number(training.get("seconds", 0)) and isinstance(level_seconds, list)
@@ -195,3 +238,43 @@ def parse(text: str) -> Manifest:
         stages=stages,
         raw=raw,
     )
+
+
+def printable(value) -> str:
+    """A file's text for a terminal: control characters escaped, so a string
+    in a model cannot print a fake line or move the cursor."""
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in str(value))
+
+
+def describe(raw: dict) -> list:
+    """How a model was made, line by line, from a manifest that `parse` accepted."""
+    def clock(seconds) -> str:
+        seconds = int(seconds)
+        return f"{seconds // 3600}:{seconds // 60 % 60:02d}:{seconds % 60:02d}"
+
+    version = raw["format_version"]
+    seal = {1: "no checksum", 2: "checksum over weights and manifest"}.get(version, "sealed")
+    source, training, config = raw.get("source", {}), raw.get("training", {}), raw.get("config", {})
+    lines = [
+        f"format      {raw['format']} {version}, {seal}  ({printable(raw.get('created_by', '?'))})",
+        f"trained on  {printable(source.get('name', '?'))} ({printable(source.get('kind', '?'))}, "
+        f"sha256 {printable(source.get('sha256', '?'))[:12]}...)",
+        f"training    {clock(training.get('seconds', 0))} wall time, "
+        f"{printable(training.get('iterations_per_level', '?'))} iterations per level",
+    ]
+    if config.get("minutes") is not None:
+        measured = ", ".join(f"{c:.2f}" for c in training.get("measured_seconds_per_iteration", []))
+        lines.append(f"budget      {config['minutes']:g} min; planned {printable(training.get('planned_iterations', '?'))}"
+                     f" iterations per level from measured s/iteration {measured or '?'}")
+    origin, spacing = (", ".join(f"{v:.4g}" for v in raw["frame"][k]) for k in ("origin", "spacing"))
+    lines += [
+        f"networks    {raw['channels']} channels, {raw['pool_bins']} pooling bins, MLP hidden {raw['mlp_hidden']}",
+        f"frame       voxel (0, 0, 0) at ({origin}), voxel size ({spacing})",
+        "levels      size          noise amplitude   seconds",
+    ]
+    seconds = training.get("level_seconds", [])
+    for i, level in enumerate(raw["levels"]):
+        took = f"{seconds[i]:.0f}" if i < len(seconds) else ""
+        lines.append(f"  {i:<8}  {'x'.join(map(str, level['size'])):<12}  {level['noise_amp']:<16.4g}  {took}")
+    lines.append("config      " + printable(json.dumps(config, sort_keys=True)))
+    return lines

@@ -22,7 +22,7 @@ from scipy.special import expit
 
 from .errors import InputError
 from .budget import check_memory
-from .generate import MAX_SIDE, TriPlane, resize_matrix
+from .generate import MAX_GRID_SIDE, TriPlane, resize_matrix
 from .manifest import PLANE_AXES
 
 BLOCK = 16  # cells per block side in the band search; see benchmarks/sample_speed.py
@@ -111,9 +111,9 @@ def grid_shape(size, scale: float) -> tuple:
     """Points per axis of a grid `scale` times finer than `size`."""
     if not isinstance(scale, numbers.Real) or not 0 < scale < float("inf"):
         raise InputError(f"scale must be a positive number, got {scale}", "scale")
-    if max(size) * scale > MAX_SIDE:  # before round(), which overflows for 1e308
+    if max(size) * scale > MAX_GRID_SIDE:  # before round(), which overflows for 1e308
         points = "x".join(f"{n * scale:.0f}" for n in size)  # inf past a float's range
-        raise InputError(f"scale {scale} asks for a {points} grid; at most {MAX_SIDE} points per axis are supported",
+        raise InputError(f"scale {scale} asks for a {points} grid; at most {MAX_GRID_SIDE} points per axis are supported",
                          "scale")
     return tuple(max(2, round(n * scale)) for n in size)
 

@@ -256,6 +256,7 @@ def create_app(loaded: dict, slots: int | None = None, timeout: float = 60.0,
     request may take; cache_bytes: memory for finished files.
     """
     slots = slots or load.default_threads()
+    sealed = {name: load.format3_bytes(model) for name, model in loaded.items()}  # never re-read from disk
 
     @asynccontextmanager
     async def lifespan(app):
@@ -309,11 +310,13 @@ def create_app(loaded: dict, slots: int | None = None, timeout: float = 60.0,
     async def describe(name: str):
         return summary(name, find(name))
 
-    @app.get("/api/models/{name}/onnx", summary="The model file itself, for sampling in the browser",
-             response_class=FileResponse, responses={200: {"content": {"application/octet-stream": {}}},
-                                                     **errors(404)})
+    @app.get("/api/models/{name}/onnx", summary="The model file, as loaded and checked at start-up, sealed "
+             "as format 3 (what the browser reads)", response_class=Response,
+             responses={200: {"content": {"application/octet-stream": {}}}, **errors(404)})
     async def model_file(name: str):
-        return FileResponse(find(name).path, media_type="application/octet-stream", filename=f"{name}.onnx")
+        find(name)
+        return Response(sealed[name], media_type="application/octet-stream",
+                        headers={"Content-Disposition": f'attachment; filename="{name}.onnx"'})
 
     @app.get("/api/models/{name}/sample", summary="One sample as a file",
              response_class=Response, responses=FILE_ANSWERS)

@@ -79,19 +79,18 @@ Made by `sinrun export-web` (sinshape {version}).
 
 
 def resolve(names) -> dict:
-    """Shipped model names or .onnx paths -> {name: path}, each checked by the
-    Python loader (the same refusals as `sinrun sample`)."""
-    paths = {}
+    """Shipped model names or .onnx paths -> {name: loaded model}, each checked
+    by the Python loader (the same refusals as `sinrun sample`)."""
+    models = {}
     for item in names:
         path = shipped.find(item)
         name = item if item in shipped.available() and not Path(item).is_file() else path.stem
-        if name in paths:
+        if name in models:
             raise InputError(f"two models are called {name!r}; rename one file")
-        load.load_model(path, threads=1)
-        paths[name] = path
-    if not paths:
+        models[name] = load.load_model(path, threads=1)
+    if not models:
         raise InputError("name at least one model (a shipped name or a .onnx file)")
-    return paths
+    return models
 
 
 def page_html() -> str:
@@ -109,22 +108,22 @@ def page_html() -> str:
     return html
 
 
-def write_site(folder: Path, paths: dict, version: str) -> None:
-    """Every file of the site, into an empty `folder`."""
+def write_site(folder: Path, models: dict, version: str) -> None:
+    """Every file of the site, into an empty `folder`; models as sealed
+    format-3 files (older ones rewritten), which is what the browser reads."""
     shutil.copytree(STATIC, folder / "static", ignore=shutil.ignore_patterns("index.html", "__pycache__"))
     (folder / "index.html").write_text(page_html())
     (folder / "models").mkdir()
     listing = []
-    for name, path in paths.items():
-        shutil.copyfile(path, folder / "models" / f"{name}.onnx")
-        manifest = load.read_manifest(load.read_model(path), path)
-        listing.append({"name": name, "size": list(manifest.sizes[-1]), "levels": len(manifest.sizes),
-                        "file": f"models/{name}.onnx"})
+    for name, model in models.items():
+        (folder / "models" / f"{name}.onnx").write_bytes(load.format3_bytes(model))
+        sizes = model.manifest.sizes
+        listing.append({"name": name, "size": list(sizes[-1]), "levels": len(sizes), "file": f"models/{name}.onnx"})
     (folder / "models.json").write_text(json.dumps(listing, indent=1) + "\n")
     (folder / "serve.py").write_text(SERVE_PY)
     (folder / "_headers").write_text("/*\n" + "".join(f"  {k}: {v}\n" for k, v in HEADERS.items()))
-    (folder / "README.txt").write_text(README.format(names=", ".join(paths), version=version))
-    (folder / MARKER).write_text(json.dumps({"sinshape": version, "models": list(paths)}) + "\n")
+    (folder / "README.txt").write_text(README.format(names=", ".join(models), version=version))
+    (folder / MARKER).write_text(json.dumps({"sinshape": version, "models": list(models)}) + "\n")
 
 
 def folder_bytes(folder: Path) -> int:
@@ -144,10 +143,10 @@ def export_site(names, out, version: str = "") -> dict:
     if out.is_dir() and any(out.iterdir()) and not (out / MARKER).is_file():
         raise InputError(f"{out}: a folder with other files in it; name a new or empty folder "
                          "(a folder that export-web wrote is replaced)")
-    paths = resolve(names)
-    for path in paths.values():  # replacing the folder would delete them
-        if out.resolve() in Path(path).resolve().parents:
-            raise InputError(f"{path}: a model inside the folder {out} that is replaced; copy it elsewhere first")
+    models = resolve(names)
+    for model in models.values():  # replacing the folder would delete them
+        if out.resolve() in model.path.resolve().parents:
+            raise InputError(f"{model.path}: a model inside the folder {out} that is replaced; copy it elsewhere first")
     parent = out.absolute().parent
     if not parent.is_dir():
         raise InputError(f"{parent}: no such folder")
@@ -155,7 +154,7 @@ def export_site(names, out, version: str = "") -> dict:
     temporary, old = write.temporary_path(parent / out.name, "partial"), write.temporary_path(parent / out.name, "old")
     try:
         temporary.mkdir()
-        write_site(temporary, paths, version)
+        write_site(temporary, models, version)
         if out.exists():
             out.rename(old)
         temporary.rename(out)
@@ -165,4 +164,4 @@ def export_site(names, out, version: str = "") -> dict:
         shutil.rmtree(temporary, ignore_errors=True)
         shutil.rmtree(old, ignore_errors=True)
     files = [f for f in out.rglob("*") if f.is_file()]
-    return {"path": out, "models": list(paths), "bytes": sum(f.stat().st_size for f in files), "files": len(files)}
+    return {"path": out, "models": list(models), "bytes": sum(f.stat().st_size for f in files), "files": len(files)}

@@ -11,6 +11,7 @@ import trimesh
 from click.testing import CliRunner
 
 from sinshape.cli.main import cli
+from sinshape.runtime import load
 from sinshape.runtime import manifest as fmt
 from test_cli_train import BLOCK_TORCH, assert_one_line_error, run_sinrun
 
@@ -161,16 +162,14 @@ def test_help_for_every_command():
 
 
 def rewrite_manifest(source, target, change):
+    """`source` with its manifest changed, resealed so the change itself is what is refused."""
     model = onnx.load(source)
     for prop in model.metadata_props:
         if prop.key == fmt.METADATA_KEY:
             manifest = json.loads(prop.value)
             change(manifest)
-            if "checksum" in manifest:  # re-seal, so the change itself is what is refused
-                weights = [(t.name, onnx.numpy_helper.to_array(t)) for t in model.graph.initializer]
-                manifest["checksum"] = fmt.checksum(manifest, weights)
             prop.value = json.dumps(manifest)
-    onnx.save(model, target)
+    target.write_bytes(load.sealed_bytes(model))
     return target
 
 
@@ -188,7 +187,7 @@ def external_data_model(source, path):
     tensor.data_location = onnx.TensorProto.EXTERNAL
     entry = tensor.external_data.add()
     entry.key, entry.value = "location", "weights.bin"
-    path.write_bytes(model.SerializeToString())  # onnx.save would try to write the data file
+    path.write_bytes(load.sealed_bytes(model))  # onnx.save would try to write the data file
     (path.parent / "weights.bin").write_bytes(b"\0" * 1024)
     return path
 

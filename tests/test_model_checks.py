@@ -1,5 +1,5 @@
-"""A model file is untrusted, numbers included (issue 10, class 5): corrupt
-weights, NaN weights and nonsense manifest values are refused in one line."""
+"""A model file is untrusted, numbers included: a corrupt byte anywhere,
+NaN weights and nonsense manifest values are refused in one line."""
 
 import json
 from pathlib import Path
@@ -11,12 +11,13 @@ from click.testing import CliRunner
 
 from sinshape import models
 from sinshape.cli.main import cli
-from sinshape.runtime import load_model
+from sinshape.runtime import load, load_model
 from sinshape.runtime import manifest as fmt
 from sinshape.runtime.errors import InputError
 from test_cli_train import assert_one_line_error
 
 TINY_V1 = Path(__file__).parent / "data" / "tiny_v1.onnx"
+TINY_V2 = Path(__file__).parent / "data" / "tiny_v2.onnx"
 
 
 def sinrun(*args):
@@ -28,21 +29,12 @@ def manifest_prop(model: onnx.ModelProto):
     return prop
 
 
-def reseal(model: onnx.ModelProto) -> None:
-    """Recompute the checksum, so only the change made is wrong."""
-    prop = manifest_prop(model)
-    manifest = json.loads(prop.value)
-    weights = [(t.name, onnx.numpy_helper.to_array(t)) for t in model.graph.initializer]
-    manifest["checksum"] = fmt.checksum(manifest, weights)
-    prop.value = json.dumps(manifest)
-
-
 def altered(source, target: Path, change, seal=True) -> Path:
+    """`source` changed; resealed (so only the change made is wrong), or with
+    its old seal kept, as an editor that knows nothing of seals leaves it."""
     model = onnx.load(source)
     change(model)
-    if seal:
-        reseal(model)
-    target.write_bytes(model.SerializeToString())
+    target.write_bytes(load.sealed_bytes(model) if seal else model.SerializeToString())
     return target
 
 
@@ -58,8 +50,8 @@ def refused(path: Path, *fragments) -> None:
 
 
 @pytest.fixture(scope="module")
-def v2_model(tiny_model):
-    assert json.loads(manifest_prop(onnx.load(tiny_model)).value)["format_version"] == 2
+def v3_model(tiny_model):
+    assert json.loads(manifest_prop(onnx.load(tiny_model)).value)["format_version"] == 3
     return tiny_model
 
 
@@ -77,42 +69,120 @@ def flip_bytes(rng):
     return flip
 
 
-def test_flipped_weight_bytes_are_named_corruption(v2_model, tmp_path):
+def test_flipped_weight_bytes_are_named_corruption(v3_model, tmp_path):
     rng = np.random.default_rng(0)
     for trial in range(5):
-        refused(altered(v2_model, tmp_path / f"flipped{trial}.onnx", flip_bytes(rng), seal=False), "corrupt model")
+        refused(altered(v3_model, tmp_path / f"flipped{trial}.onnx", flip_bytes(rng), seal=False), "corrupt model")
 
 
 @pytest.mark.parametrize("name", sorted(models.available()))
 def test_a_shipped_model_with_a_flipped_byte_is_named_corrupt(name, tmp_path):
-    """The shipped models carry format 2's checksum, so they are protected too."""
+    """The shipped models are sealed format 3 files, so they are protected too."""
     path = models.find(name)
-    assert json.loads(manifest_prop(onnx.load(path)).value)["format_version"] == 2
+    assert json.loads(manifest_prop(onnx.load(path)).value)["format_version"] == 3
     flipped = altered(path, tmp_path / f"{name}.onnx", flip_bytes(np.random.default_rng(1)), seal=False)
     with pytest.raises(InputError, match="corrupt model"):
         load_model(flipped, threads=1)
 
 
-def test_an_edited_manifest_is_named_corruption(v2_model, tmp_path):
+def flip_bit(source: Path, target: Path, at: int, bit: int) -> Path:
+    data = bytearray(source.read_bytes())
+    data[at] ^= bit
+    target.write_bytes(bytes(data))
+    return target
+
+
+def node_attribute_offset(path: Path, op_type: str, name: str) -> int:
+    """Where a node attribute's float value lies in the file's bytes."""
+    model = onnx.load(path)
+    attribute = next(a for n in model.graph.node if n.op_type == op_type for a in n.attribute if a.name == name)
+    raw = attribute.SerializeToString()
+    at = path.read_bytes().find(raw)
+    assert at >= 0 and raw.count(raw[-4:]) == 1
+    return at + len(raw) - 4  # the float is the last field of the attribute
+
+
+def test_a_flipped_graph_attribute_is_named_corrupt(v3_model, tmp_path):
+    """Every byte is sealed: a LeakyRelu slope, outside the weights, too (0.2 once became 6.8e37)."""
+    at = node_attribute_offset(v3_model, "LeakyRelu", "alpha") + 3
+    for bit in (0x40, 0x01):
+        refused(flip_bit(v3_model, tmp_path / f"slope{bit}.onnx", at, bit), "corrupt model", "SHA-256")
+
+
+def test_bit_flips_anywhere_in_a_sealed_file_are_refused(v3_model, tmp_path):
+    size = v3_model.stat().st_size
+    for at in np.random.default_rng(2).integers(0, size, 40):
+        path = flip_bit(v3_model, tmp_path / "flip.onnx", int(at), 1 << int(at % 8))
+        with pytest.raises(InputError):
+            load_model(path, threads=1)
+
+
+def test_format_2_files_still_verify(tmp_path):
+    assert load_model(TINY_V2, threads=1).manifest.raw["format_version"] == 2
+    result = sinrun("info", TINY_V2)
+    assert result.exit_code == 0 and "sinshape 2, checksum over weights and manifest" in result.output
+    refused(altered(TINY_V2, tmp_path / "flipped.onnx", flip_bytes(np.random.default_rng(3)), seal=False),
+            "corrupt model",
+            "checksum of its weights")
+
+
+def test_damaged_weight_headers_in_format_2_are_named_corrupt(tmp_path):
+    """A flip in a weight's dims, type or name gave a traceback in the checksum step."""
+    def damage(field):
+        def change(model):
+            tensor = next(t for t in model.graph.initializer if t.name.startswith("level0.xy.conv1"))
+            if field == "dims":
+                tensor.dims[0] += 8
+            elif field == "type":
+                tensor.data_type = onnx.TensorProto.INT64
+            else:
+                tensor.name = "level0.xy.conv1.weigh\u00f4"
+        return change
+
+    for field in ("dims", "type", "name"):
+        refused(altered(TINY_V2, tmp_path / f"{field}.onnx", damage(field), seal=False), "corrupt model")
+
+
+def test_a_version_flipped_from_2_to_3_is_named_corrupt(tmp_path):
+    """Not "upgrade sinshape": a format-3 file ends with a seal, and this one has none."""
+    path = altered(TINY_V2, tmp_path / "v3.onnx", set_field(lambda m: m.update(format_version=3)), seal=False)
+    refused(path, "corrupt model", "ends with a seal")
+
+
+def test_older_models_are_sealed_as_format_3_unchanged(tmp_path):
+    for source in (TINY_V1, TINY_V2):
+        old = load_model(source, threads=1)
+        path = tmp_path / f"{source.stem}_3.onnx"
+        path.write_bytes(load.format3_bytes(old))
+        new = load_model(path, threads=1)
+        assert new.manifest.raw["format_version"] == 3 and "checksum" not in new.manifest.raw
+        assert new.manifest.sizes == old.manifest.sizes
+        seed = np.random.default_rng(4).integers(0, 2**31)
+        from sinshape import runtime
+        assert np.array_equal(runtime.dense(old, runtime.sample(old, int(seed))),
+                              runtime.dense(new, runtime.sample(new, int(seed))))
+
+
+def test_an_edited_manifest_is_named_corruption(v3_model, tmp_path):
     def edit(model):
         prop = manifest_prop(model)
         manifest = json.loads(prop.value)
         manifest["levels"][1]["noise_amp"] *= 2
         prop.value = json.dumps(manifest)
 
-    refused(altered(v2_model, tmp_path / "edited.onnx", edit, seal=False), "corrupt model")
+    refused(altered(v3_model, tmp_path / "edited.onnx", edit, seal=False), "corrupt model")
 
 
 def test_format_1_still_loads_with_a_note(tmp_path):
     assert load_model(TINY_V1, threads=1).manifest.raw["format_version"] == 1
     result = sinrun("info", TINY_V1)
-    assert result.exit_code == 0 and "format 1: no checksum" in result.output
+    assert result.exit_code == 0 and "sinshape 1, no checksum" in result.output
     result = sinrun("sample", TINY_V1, "-o", tmp_path / "s.ply")
     assert result.exit_code == 0 and (tmp_path / "s.ply").exists()
 
 
 @pytest.mark.parametrize("value", [np.nan, np.inf, -np.inf])
-def test_non_finite_weights_are_refused(v2_model, tmp_path, value):
+def test_non_finite_weights_are_refused(v3_model, tmp_path, value):
     def poison(model):
         for i, tensor in enumerate(model.graph.initializer):
             if tensor.name.startswith("level1.xz.conv1.weight"):
@@ -120,7 +190,21 @@ def test_non_finite_weights_are_refused(v2_model, tmp_path, value):
                 array.flat[3] = value
                 model.graph.initializer[i].CopyFrom(onnx.numpy_helper.from_array(array, tensor.name))
 
-    refused(altered(v2_model, tmp_path / "poisoned.onnx", poison), "stage level1", "NaN or infinite")
+    refused(altered(v3_model, tmp_path / "poisoned.onnx", poison), "stage level1", "NaN or infinite")
+
+
+def test_a_sample_that_overflows_is_an_error_and_no_file(v3_model, tmp_path):
+    """Huge finite weights pass the probe runs on zeros, then overflow on noise."""
+    def inflate(model):
+        for i, tensor in enumerate(model.graph.initializer):
+            if tensor.name.startswith("level1.") and tensor.name.endswith("conv1.weight"):
+                array = onnx.numpy_helper.to_array(tensor) * np.float32(1e37)
+                model.graph.initializer[i].CopyFrom(onnx.numpy_helper.from_array(array, tensor.name))
+
+    path = altered(v3_model, tmp_path / "huge.onnx", inflate)
+    out = tmp_path / "s.npz"
+    assert_one_line_error(sinrun("sample", path, "--seed", 1, "-o", out), "NaN or infinite values for this sample")
+    assert not out.exists()
 
 
 def set_manifest_text(change_text):
@@ -156,16 +240,27 @@ NONSENSE = {
     "noise_amp_1e30": (set_field(lambda m: m["levels"][1].update(noise_amp=1e30)), "noise_amp"),
     "created_by_list": (set_field(lambda m: m.update(created_by=["x"])), "created_by"),
     "planes_string": (set_field(lambda m: m.update(planes="xy")), "planes"),
+    "spacing_1e-300": (set_field(lambda m: m["frame"].update(spacing=[1e-300, 1, 1])), "spacing"),
+    "spacing_below_origin_step": (set_field(lambda m: m["frame"].update(origin=[1e9, 0, 0], spacing=[1e-3, 1, 1])),
+                                  "float32's step"),
+    "last_level_2": (set_field(lambda m: m["levels"][1].update(size=[2, 2, 2])), "level 1 size"),
+    "levels_shrink": (set_field(lambda m: m["levels"][1].update(size=m["levels"][0]["size"][:2] + [8])),
+                      "levels grow"),
 }
 
 
 @pytest.mark.parametrize("case", sorted(NONSENSE))
-def test_nonsense_manifest_values_are_refused(v2_model, tmp_path, case):
+def test_nonsense_manifest_values_are_refused(v3_model, tmp_path, case):
     change, fragment = NONSENSE[case]
-    seal = case not in ("deep", "long_int")  # JSON that does not parse cannot be resealed
-    refused(altered(v2_model, tmp_path / f"{case}.onnx", change, seal=seal), "bad model manifest", fragment)
+    refused(altered(v3_model, tmp_path / f"{case}.onnx", change), "bad model manifest", fragment)
 
 
-def test_eval_refuses_a_wrongly_typed_source(v2_model, tmp_path, tiny_pyramid):
-    path = altered(v2_model, tmp_path / "source.onnx", set_field(lambda m: m.update(source=7)))
+def test_info_escapes_control_characters(v3_model, tmp_path):
+    path = altered(v3_model, tmp_path / "fake.onnx", set_field(lambda m: m.update(created_by="x\r\nError: fake")))
+    result = sinrun("info", path)
+    assert result.exit_code == 0 and "\nError: fake" not in result.output and "x\\r\\nError: fake" in result.output
+
+
+def test_eval_refuses_a_wrongly_typed_source(v3_model, tmp_path, tiny_pyramid):
+    path = altered(v3_model, tmp_path / "source.onnx", set_field(lambda m: m.update(source=7)))
     assert_one_line_error(sinrun("eval", path, "--reference", tiny_pyramid), "source")

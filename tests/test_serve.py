@@ -136,6 +136,23 @@ def test_the_model_file_and_isolation_headers_for_the_browser(server):
     assert status == 404 and "unknown model 'nope'" in json.loads(body)["detail"]
 
 
+def test_model_files_are_served_as_checked_at_start_sealed_as_format_3(tmp_path):
+    """A format-2 model goes out sealed as format 3 (the browser checks seals
+    only), and what was checked at start-up is served even after the file changes."""
+    from sinshape.runtime import load_model
+
+    old = tmp_path / "old.onnx"
+    old.write_bytes((Path(__file__).parent / "data" / "tiny_v2.onnx").read_bytes())
+    with running_server(old, "--threads", 1) as (base, _):
+        old.write_bytes(b"replaced after start-up")
+        status, _, body = get(f"{base}/api/models/old/onnx")
+        old.unlink()
+        assert status == 200 and get(f"{base}/api/models/old/onnx")[2] == body
+    served = tmp_path / "served.onnx"
+    served.write_bytes(body)
+    assert load_model(served, threads=1).manifest.raw["format_version"] == 3
+
+
 def test_a_sample_is_the_file_sinrun_sample_writes(server, tmp_path):
     status, headers, body = get(sample_url(server[0], seed=5, size="1.5,1,1", smooth=2, format="ply"))
     assert status == 200

@@ -196,15 +196,17 @@ def foreign_model(path: Path) -> Path:
     return path
 
 
-def altered_terrain(path: Path, change) -> Path:
+def altered_terrain(path: Path, change, seal=True) -> Path:
+    """The terrain model changed, resealed (so that the change itself is what
+    is checked), or with its old seal, as an editor that knows nothing of seals leaves it."""
     proto = onnx.load(TERRAIN)
     change(proto)
-    path.write_bytes(proto.SerializeToString())
+    path.write_bytes(load.sealed_bytes(proto) if seal else proto.SerializeToString())
     return path
 
 
 def edit_manifest(edit):
-    """A change of a model: its manifest edited (and not resealed)."""
+    """A change of a model: its manifest edited."""
     def change(proto):
         for prop in proto.metadata_props:
             if prop.key == "sinshape.manifest":
@@ -234,6 +236,23 @@ def foreign_op(proto):
     proto.graph.node[0].op_type = "Softmax"
 
 
+def load_in_page(page, files) -> list:
+    """Each file loaded by the browser runtime: 'loaded', or its error message."""
+    return page.evaluate("""async (files) => {
+      const s = await import('./static/sinshape/runtime.js');
+      const out = [];
+      for (const [name, data] of files) {
+        try {
+          await s.loadModel(Uint8Array.from(atob(data), (c) => c.charCodeAt(0)), { name });
+          out.push('loaded');
+        } catch (error) {
+          out.push(error.message);
+        }
+      }
+      return out;
+    }""", [[f.name, base64.b64encode(f.read_bytes()).decode()] for f in files])
+
+
 def test_files_are_refused_as_the_python_loader_refuses_them(site_page, tmp_path):
     page = site_page
     page.goto(f"{page.base}/?seed=3")
@@ -258,36 +277,32 @@ def test_files_are_refused_as_the_python_loader_refuses_them(site_page, tmp_path
              altered_terrain(tmp_path / "newer.onnx", newer_version),
              altered_terrain(tmp_path / "external.onnx", external_data),
              altered_terrain(tmp_path / "op.onnx", foreign_op),
-             altered_terrain(tmp_path / "flipped.onnx", flipped_weight),
-             altered_terrain(tmp_path / "sealed.onnx", edit_manifest(lambda m: m.update(seed_note="edited"))),
-             altered_terrain(tmp_path / "seal.onnx", edit_manifest(lambda m: m.update(checksum="sha256:0"))),
+             altered_terrain(tmp_path / "flipped.onnx", flipped_weight, seal=False),
+             altered_terrain(tmp_path / "sealed.onnx", edit_manifest(lambda m: m.update(seed_note="edited")), seal=False),
+             altered_terrain(tmp_path / "unsealed.onnx", lambda proto: None, seal=False),
              altered_terrain(tmp_path / "amp.onnx", edit_manifest(lambda m: m["levels"][1].update(noise_amp=1e30))),
              altered_terrain(tmp_path / "origin.onnx", edit_manifest(lambda m: m["frame"].update(origin=[1e300, 0, 0]))),
              altered_terrain(tmp_path / "source.onnx", edit_manifest(lambda m: m.update(source=None))),
              altered_terrain(tmp_path / "config.onnx", edit_manifest(lambda m: m["config"].update(iters={"a": 1}))),
-             altered_terrain(tmp_path / "seconds.onnx", edit_manifest(lambda m: m["training"].update(level_seconds=5)))]
-    messages = page.evaluate("""async (files) => {
-      const s = await import('./static/sinshape/runtime.js');
-      const out = [];
-      for (const [name, data] of files) {
-        try {
-          await s.loadModel(Uint8Array.from(atob(data), (c) => c.charCodeAt(0)), { name });
-          out.push('loaded');
-        } catch (error) {
-          out.push(error.message);
-        }
-      }
-      return out;
-    }""", [[f.name, base64.b64encode(f.read_bytes()).decode()] for f in files])
+             altered_terrain(tmp_path / "seconds.onnx", edit_manifest(lambda m: m["training"].update(level_seconds=5))),
+             altered_terrain(tmp_path / "shrink.onnx", edit_manifest(lambda m: m["levels"][1].update(size=[9, 9, 9]))),
+             altered_terrain(tmp_path / "spacing.onnx", edit_manifest(lambda m: m["frame"].update(spacing=[1e-300, 1, 1]))),
+             altered_terrain(tmp_path / "step.onnx", edit_manifest(lambda m: m["frame"].update(origin=[1e9, 0, 0])))]
+    messages = load_in_page(page, files)
     for path, message in zip(files, messages):
         with pytest.raises(InputError) as python:
             load.load_model(path)
         assert message == str(python.value).replace(str(path), path.name)
     assert "not an ONNX file" in messages[1] and "newer than this sinshape reads" in messages[3]
     assert "external data" in messages[4] and "(Softmax)" in messages[5]
-    assert all("checksum of its weights and manifest does not match" in m for m in messages[6:8])
-    assert "checksum must be" in messages[8] and "noise_amp" in messages[9] and "origin" in messages[10]
+    assert all("do not match the SHA-256 sealed at its end" in m for m in messages[6:8])
+    assert "ends with a seal" in messages[8] and "noise_amp" in messages[9] and "origin" in messages[10]
     assert "source" in messages[11] and "config" in messages[12] and "training seconds" in messages[13]
+    assert "levels grow" in messages[14] and "spacing" in messages[15] and "float32's step" in messages[16]
+    # The page reads format 3 only (sinrun serve and export-web seal older models on the way out).
+    (message,) = load_in_page(page, [Path(__file__).parent / "data" / "tiny_v2.onnx"])
+    assert message == "tiny_v2.onnx: a format 2 model; the browser reads format 3, which `sinrun serve` and " \
+                      "`sinrun export-web` write from it"
 
 
 def test_the_serve_page_switches_to_the_browser(browser):

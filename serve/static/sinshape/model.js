@@ -2,24 +2,26 @@
 // (the same refusals, in one line each), cut it into one onnxruntime-web
 // session per stage, and read the decoder head's weights.
 import * as ort from '../vendor/onnxruntime-web/ort.min.mjs';
-import { modelChecksum } from './checksum.js';
+import { unseal } from './seal.js';
 import { FormatError, readModel, stageModel, tensorFloats } from './onnx.js';
 
 export const FORMAT_NAME = 'sinshape';
-export const FORMAT_VERSION = 2;  // 2 adds a checksum (checksum.js)
+export const FORMAT_VERSION = 3;  // 3 seals the file's bytes (seal.js); the page reads no older one
 export const METADATA_KEY = 'sinshape.manifest';
 export const NOISE_SCHEME = 'splitmix64-boxmuller-v1';
 export const PLANES = ['xy', 'xz', 'yz'];
 export const HEAD_WEIGHTS = ['decoder_head.bias1', 'decoder_head.weight2', 'decoder_head.bias2'];
 const MAX_LEVELS = 64;
-const MAX_SIDE = 4096;
+const MIN_LEVEL_SIDE = 8;
+const MAX_LEVEL_SIDE = 4096;
+const MIN_SPACING = 1e-9;
 const MAX_MODEL_BYTES = 512 * 1024 * 1024;
 const MAX_MANIFEST_CHARS = 2 ** 20;
 const MAX_DEPTH = 16;
 const MAX_NOISE_AMP = 100;
 const MAX_COORD = 1e12;
 // runtime/manifest.py's messages print these with Python's '%g'.
-const MAX_COORD_TEXT = '1e+12', MAX_SPACING_TEXT = '2.44141e+08';
+const MAX_COORD_TEXT = '1e+12', SPACING_TEXT = '[1e-09, 2.44141e+08]';
 const ALLOWED_OPS = new Set(['Conv', 'InstanceNormalization', 'LeakyRelu', 'Transpose', 'MatMul', 'Add', 'Relu', 'Sigmoid']);
 
 /** A file refused, or a value out of range: its message is one line for the user. */
@@ -80,7 +82,7 @@ export function parseManifest(textValue) {
   if (version > FORMAT_VERSION) {
     throw new InputError(`model format version ${version} is newer than this sinshape reads (${FORMAT_VERSION}); upgrade sinshape`);
   }
-  if (version >= 2) {
+  if (version === 2) {
     need(typeof raw.checksum === 'string' && /^sha256:[0-9a-f]{64}$/.test(raw.checksum), "checksum must be 'sha256:' and 64 hex digits");
   }
   need(sameJson(raw.planes ?? [], PLANES), `planes must be ${JSON.stringify(PLANES)}`);
@@ -96,8 +98,10 @@ export function parseManifest(textValue) {
   levels.forEach((level, i) => {
     need(level !== null && typeof level === 'object', `level ${i} is not an object`);
     const size = level.size;
-    need(Array.isArray(size) && size.length === 3 && size.every((n) => isInt(n, 2, MAX_SIDE)),
-      `level ${i} size must be 3 integers in [2, ${MAX_SIDE}]`);
+    need(Array.isArray(size) && size.length === 3 && size.every((n) => isInt(n, MIN_LEVEL_SIDE, MAX_LEVEL_SIDE)),
+      `level ${i} size must be 3 integers in [${MIN_LEVEL_SIDE}, ${MAX_LEVEL_SIDE}]`);
+    need(i === 0 || size.every((n, axis) => sizes[i - 1][axis] <= n),
+      `level ${i} size [${size.join(', ')}] is smaller than level ${i - 1}'s along an axis (levels grow)`);
     need(isNumber(level.noise_amp) && level.noise_amp >= 0 && level.noise_amp <= MAX_NOISE_AMP,
       `level ${i} noise_amp must be a number in [0, ${MAX_NOISE_AMP}]`);
     sizes.push([...size]);
@@ -108,8 +112,11 @@ export function parseManifest(textValue) {
   need(Array.isArray(frame.origin) && frame.origin.length === 3 && frame.origin.every((v) => isNumber(v) && Math.abs(v) <= MAX_COORD),
     `frame origin must be 3 numbers within +-${MAX_COORD_TEXT}`);
   need(Array.isArray(frame.spacing) && frame.spacing.length === 3
-    && frame.spacing.every((s) => isNumber(s) && s > 0 && s * MAX_SIDE <= MAX_COORD),
-    `frame spacing must be 3 positive numbers, at most ${MAX_SPACING_TEXT}`);
+    && frame.spacing.every((s) => isNumber(s) && s >= MIN_SPACING && s * MAX_LEVEL_SIDE <= MAX_COORD),
+    `frame spacing must be 3 numbers in ${SPACING_TEXT}`);
+  const step = Math.max(...frame.origin.map(Math.abs)) * 2 ** -23;  // float32's step at the origin
+  need(frame.spacing.every((s) => s > step),
+    "frame spacing is below float32's step at the frame's origin: every vertex would land on the same points");
   need(get(raw, 'created_by', null) === null || typeof raw.created_by === 'string', 'created_by must be a string');
   const source = get(raw, 'source', {});
   need(isObject(source) && ['name', 'sha256', 'kind'].every((k) => typeof get(source, k, '') === 'string'),
@@ -117,7 +124,7 @@ export function parseManifest(textValue) {
   const config = get(raw, 'config', {}), training = get(raw, 'training', {});
   need(plain(config, ['string', 'number', 'boolean']), 'config must be an object of plain values');
   need(plain(training, ['string', 'number', 'boolean']), 'training must be an object of plain values');
-  need(isInt(get(config, 'res', 2), 1, MAX_SIDE), `config res must be an integer in [1, ${MAX_SIDE}]`);
+  need(isInt(get(config, 'res', 2), 1, MAX_LEVEL_SIDE), `config res must be an integer in [1, ${MAX_LEVEL_SIDE}]`);
   const levelSeconds = get(training, 'level_seconds', null) || [];
   need(isNumber(get(training, 'seconds', 0)) && Array.isArray(levelSeconds) && levelSeconds.every(isNumber),
     'training seconds must be numbers');
@@ -128,9 +135,12 @@ export function parseManifest(textValue) {
   };
 }
 
-/** Parse the file's bytes as ONNX, refusing what could reach beyond it or is not a sinshape graph. */
+/** Check the file's seal, then parse its bytes as ONNX, refusing what could
+ * reach beyond it or is not a sinshape graph (runtime/load.py's read_model and read_manifest). */
 export function readChecked(bytes, name) {
   if (bytes.length > MAX_MODEL_BYTES) throw new InputError(`${name}: ${(bytes.length / 2 ** 20).toFixed(0)} MB is too large for a sinshape model`);
+  const { sealed, intact } = unseal(bytes);
+  if (sealed && !intact) throw new InputError(`${name}: corrupt model: its bytes do not match the SHA-256 sealed at its end`);
   let model;
   try {
     model = readModel(bytes);
@@ -152,30 +162,21 @@ export function readChecked(bytes, name) {
   if (!(METADATA_KEY in model.metadata)) {
     throw new InputError(`${name}: an ONNX model, but not a sinshape model (no ${METADATA_KEY} metadata)`);
   }
-  const manifestText = model.metadata[METADATA_KEY];
   let manifest;
   try {
-    manifest = parseManifest(manifestText);
+    manifest = parseManifest(model.metadata[METADATA_KEY]);
   } catch (error) {
-    if (error instanceof InputError) throw new InputError(`${name}: ${error.message}`);
-    throw error;
+    if (!(error instanceof InputError)) throw error;
+    throw new InputError(`${name}: ${error.message}${sealed ? '' : ' (or a corrupt file: it has no seal)'}`);
   }
-  if ('checksum' in manifest.raw && !checksumMatches(manifestText, graph.initializers, manifest.raw.checksum)) {
-    throw new InputError(`${name}: corrupt model: the checksum of its weights and manifest does not match`);
+  const version = manifest.raw.format_version;
+  if (version >= 3 && !sealed) throw new InputError(`${name}: corrupt model: format ${version} ends with a seal, and this file does not`);
+  if (version < 3 && sealed) throw new InputError(`${name}: corrupt model: a seal on a format ${version} file`);
+  if (version < 3) {
+    throw new InputError(`${name}: a format ${version} model; the browser reads format 3, which \`sinrun serve\` `
+      + 'and `sinrun export-web` write from it');
   }
   return { model, manifest };
-}
-
-function checksumMatches(manifestText, initializers, checksum) {
-  try {
-    // raw_data holds the little-endian float32 bytes the checksum covers; float_data is read as
-    // floats, whose array is little-endian on every platform a browser runs on.
-    const bytes = (t) => (t.dataType === 1 && t.data ? t.data : new Uint8Array(tensorFloats(t).buffer));
-    return modelChecksum(manifestText, initializers.map((t) => [t.name, bytes(t)])) === checksum;
-  } catch (error) {
-    if (error instanceof FormatError) return false;  // a weight that is not float32: not what was sealed
-    throw error;
-  }
 }
 
 function readHead(model, hidden, name) {

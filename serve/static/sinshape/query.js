@@ -5,7 +5,7 @@
 import { InputError } from './model.js';
 import { resizeWeights, roundHalfEven } from './generate.js';
 
-const MAX_SIDE = 1 << 16;
+const MAX_GRID_SIDE = 1 << 16;
 const MAX_BYTES = 2 * 2 ** 30; // a dense grid in a browser tab: stay well under its memory
 
 /** The final tri-plane times the decoder's first layer: { planes: 3 x (H, W, D), size }. */
@@ -18,8 +18,8 @@ export async function project(model, tri) {
 export function gridShape(size, scale) {
   if (!Number.isFinite(scale) || scale <= 0) throw new InputError(`--scale must be a positive number, got ${scale}`);
   const shape = size.map((n) => Math.max(2, roundHalfEven(n * scale)));
-  if (Math.max(...shape) > MAX_SIDE) {
-    throw new InputError(`--scale ${scale} asks for a ${shape.join('x')} grid; at most ${MAX_SIDE} points per axis are supported`);
+  if (Math.max(...shape) > MAX_GRID_SIDE) {
+    throw new InputError(`--scale ${scale} asks for a ${shape.join('x')} grid; at most ${MAX_GRID_SIDE} points per axis are supported`);
   }
   return shape;
 }
