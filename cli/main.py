@@ -378,6 +378,11 @@ def open_model(model, threads):
 @click.option("--seeds", type=SEEDS, default=None,
               help="Many samples, one file each: 0-99 or 1,5,9-12. A resumable job: see --engine.")
 @click.option("--recon", is_flag=True, help="The training shape itself (the fixed reconstruction noise), not a new sample.")
+@click.option("--keep", "keep", multiple=True, metavar="SEED:X0,Y0,Z0:X1,Y1,Z1",
+              help="Take this box from the sample of SEED, the rest from --seed, joined without a seam; "
+                   "repeat for more parts. Corners in the model's frame (the units of its meshes and "
+                   "`sinrun info`) or as percentages: 3:0%,0%,0%:50%,100%,100% is the lower half along x. "
+                   "The box less a 4-voxel join is exactly SEED's.")
 @SCALE_OPTION
 @SIZE_OPTION
 @click.option("-o", "--output", type=click.Path(path_type=Path), default=None,
@@ -396,7 +401,7 @@ def open_model(model, threads):
 @click.option("--address", default=None,
               help="With --engine ray: the cluster's address. Default: Ray's own (RAY_ADDRESS, else a "
                    "local Ray on this machine).")
-def sample(model, seed, seeds, recon, scale, size, output, smooth, smoother, largest, frame, threads, workers,
+def sample(model, seed, seeds, recon, keep, scale, size, output, smooth, smoother, largest, frame, threads, workers,
            engine, address):
     """Generate new shapes from a model and write them as meshes.
 
@@ -404,12 +409,14 @@ def sample(model, seed, seeds, recon, scale, size, output, smooth, smoother, lar
     (`sinrun models` lists them); without it, the default shipped model.
     Needs no torch.
     """
-    from sinshape.runtime import generate, write
+    from sinshape.runtime import edit, generate, write
 
     if sum(x is not None and x is not False for x in (seed, seeds, recon or None)) > 1:
         raise click.UsageError("give one of --seed, --seeds or --recon")
     if not seeds and (workers is not None or engine != "local" or address is not None):
         raise click.UsageError("--workers, --engine and --address are for many samples: give --seeds")
+    if keep and (seeds or recon):
+        raise click.UsageError("--keep composes one sample: give --seed, not --seeds or --recon")
     loaded = open_model(model, threads)
     if output is None:
         output = Path(f"{loaded.path.stem}_recon.ply" if recon else f"{loaded.path.stem}_seed{{seed}}.ply")
@@ -424,7 +431,7 @@ def sample(model, seed, seeds, recon, scale, size, output, smooth, smoother, lar
     path = named_output(output, seed=first) if "{" in output.name else output
     kind = write.output_kind(path)
     write.check_writable(path, [loaded.path])
-    triplane = generate.sample(loaded, first, size)
+    triplane = edit.compose_text(loaded, first, keep, size) if keep else generate.sample(loaded, first, size)
     if scale > 2 and kind == "mesh":
         say_how_long(loaded, triplane, scale, 1)
     with SlabProgress() as slabs:

@@ -4,12 +4,14 @@
 
     model = runtime.load_model("towerruins.onnx")    # once: checks and prepares the file
     triplane = runtime.sample(model, seed=3)          # a new shape (seed None: the training shape)
+    edited = runtime.compose(model, 7, [runtime.Part(3, (0, 0, 0), (30, 36, 31))])  # that box of seed 3 in seed 7
     mesh = runtime.extract(model, triplane, scale=4)  # trimesh.Trimesh, in the input mesh's frame
     grid = runtime.dense(model, triplane, scale=1)    # (X, Y, Z) occupancy in [0, 1]
     runtime.sample_many("towerruins.onnx", range(1000), "out/{seed}.glb")  # a resumable job on all cores
 
-Stages, one module each: load -> generate -> query -> mesh -> write; many
-runs them for many seeds on worker processes or a Ray cluster.
+Stages, one module each: load -> generate -> query -> mesh -> write; edit
+composes a sample from boxes of others; many runs them for many seeds on
+worker processes or a Ray cluster.
 
 It imports numpy, scipy, onnx, onnxruntime, trimesh, scikit-image and
 pillow; never torch, and nothing from sinshape.trainer, .cli or .serve: a
@@ -29,7 +31,7 @@ __version__ = metadata.version("sinshape")
 _EXPORTS = {
     "InputError": "errors", "MemoryLimitError": "errors", "Model": "load", "load_model": "load", "TriPlane": "generate",
     "sample": "generate", "interpolate": "generate", "extract": "mesh", "dense": "query", "points": "query",
-    "sample_many": "many",
+    "sample_many": "many", "compose": "edit", "Part": "edit",
 }
 __all__ = sorted(_EXPORTS) + ["__version__"]
 

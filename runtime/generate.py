@@ -148,20 +148,23 @@ def draw_noise(seed: int, sizes: list, channels: int) -> Noise:
     return Noise(noise.z0_noise(seed, sizes[0]), planes)
 
 
-def triplane(model, sample: Noise, sizes: list) -> TriPlane:
-    """Chain the levels with the given noise: the final tri-plane."""
+def triplane(model, sample: Noise, sizes: list, after_level=None) -> TriPlane:
+    """Chain the levels with the given noise: the final tri-plane.
+    `after_level(level, planes)`, if given, sees each level's planes and
+    returns the planes the chain goes on from (editing blends parts in)."""
     m = model.manifest
     amps = m.noise_amps
+    after_level = after_level or (lambda level, planes: planes)
     pooled = adaptive_pool(amps[0] * sample.z0, m.pool_bins)
     projected = model.projection.run([p[None] for p in pooled])  # 3 x (1, C, H, W)
-    planes = [p[0] for p in model.levels[0].run(projected)]
+    planes = after_level(0, [p[0] for p in model.levels[0].run(projected)])
     for level in range(1, len(sizes)):
         upsampled = [resize_plane(p, s) for p, s in zip(planes, plane_sizes(sizes[level]))]
         inputs = upsampled
         if sample.planes[level] is not None:
             inputs = [u + amps[level] * n for u, n in zip(upsampled, sample.planes[level])]
         residuals = model.levels[level].run([x[None] for x in inputs])
-        planes = [u + r[0] for u, r in zip(upsampled, residuals)]
+        planes = after_level(level, [u + r[0] for u, r in zip(upsampled, residuals)])
     if not all(np.isfinite(p).all() for p in planes):  # weights that pass the load checks and still overflow
         raise InputError(f"{model.path}: the model gives NaN or infinite values for this sample (unusable weights)")
     return TriPlane(planes, tuple(sizes[-1]))

@@ -39,7 +39,7 @@ from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel
 
 from sinshape import models as shipped
-from sinshape.runtime import generate, load, mesh, query, write
+from sinshape.runtime import edit, generate, load, mesh, query, write
 from sinshape.runtime.errors import InputError, MemoryLimitError
 
 STATIC = Path(__file__).parent / "static"
@@ -82,9 +82,10 @@ class SampleRequest:
     scale: float
     smooth: int
     format: str
+    parts: tuple = ()  # edit.Part boxes kept from other samples, in finest voxels
 
     def filename(self) -> str:
-        tags = [f"seed{self.seed}"]
+        tags = [f"seed{self.seed}"] + [f"keep{part.seed}" for part in self.parts]
         if self.size != (1.0, 1.0, 1.0):
             tags.append("size" + "x".join(f"{f:g}" for f in self.size))
         if self.scale != 1:
@@ -116,7 +117,10 @@ def make_sample(model, request: SampleRequest, cancel: threading.Event) -> Sampl
             raise Cancelled
 
     started = time.perf_counter()
-    triplane = generate.sample(model, request.seed, request.size)
+    if request.parts:
+        triplane = edit.compose(model, request.seed, request.parts, request.size)
+    else:
+        triplane = generate.sample(model, request.seed, request.size)
     check_cancel()
     if request.format == "npz":  # the occupancy grid, as `sinrun sample -o x.npz` writes it
         body = write.grid_bytes(query.dense(model, triplane, request.scale), size=triplane.size, scale=request.scale)
@@ -329,9 +333,15 @@ def create_app(loaded: dict, slots: int | None = None, timeout: float = 60.0,
                                       description="Query a grid this many times finer per axis.")] = 1.0,
         smooth: Annotated[int, Query(ge=0, le=MAX_SMOOTH, description="Laplacian smoothing steps.")] = 0,
         format: Annotated[Format, Query(description="glb ply obj stl off: a mesh; npz: the occupancy grid.")] = "glb",
+        keep: Annotated[list[str], Query(max_length=16, description="Parts to keep from other samples, "
+                                         "SEED:X0,Y0,Z0:X1,Y1,Z1 (the model's frame, or percentages like 50%); "
+                                         "repeat for more. The rest comes from `seed`.")] = [],
     ):
         model = find(name)
-        wanted = SampleRequest(name, seed, generate.parse_size(size), scale, smooth, format)
+        factors = generate.parse_size(size)
+        finest = generate.scaled_sizes(model.manifest.sizes, factors)[-1]
+        parts = tuple(edit.parse_part(text, model.manifest, finest) for text in keep)
+        wanted = SampleRequest(name, seed, factors, scale, smooth, format, parts)
         made, hit = await request.app.state.sampler.get(model, wanted)
         headers = {"ETag": made.etag, "Cache-Control": "no-cache", "X-Cache": "hit" if hit else "miss",
                    "X-Sample-Seconds": f"{made.seconds:.3f}",

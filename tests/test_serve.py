@@ -153,6 +153,19 @@ def test_model_files_are_served_as_checked_at_start_sealed_as_format_3(tmp_path)
     assert load_model(served, threads=1).manifest.raw["format_version"] == 3
 
 
+def test_keep_composes_as_the_command_line_does(server, tmp_path):
+    base, _ = server
+    part = "3:0%25,0%25,0%25:50%25,100%25,100%25"  # 3:0%,0%,0%:50%,100%,100%, escaped
+    status, headers, body = get(sample_url(base, seed=7, keep=part, format="npz"))
+    assert status == 200 and "keep3" in headers["Content-Disposition"]
+    out = tmp_path / "k.npz"
+    result = CliRunner().invoke(cli, ["sample", "terrain", "--seed", "7", "--keep", "3:0%,0%,0%:50%,100%,100%",
+                                      "-o", str(out)])
+    assert result.exit_code == 0 and body == out.read_bytes()
+    status, _, body = get(sample_url(base, seed=7, keep="3:0%25,0%25,0%25:150%25,100%25,100%25"))
+    assert status == 400 and "leaves the sample" in json.loads(body)["detail"]
+
+
 def test_a_sample_is_the_file_sinrun_sample_writes(server, tmp_path):
     status, headers, body = get(sample_url(server[0], seed=5, size="1.5,1,1", smooth=2, format="ply"))
     assert status == 200

@@ -1,0 +1,191 @@
+"""Compose a sample from boxes of other samples: keep a part, regenerate the rest.
+
+A part is an axis-aligned box of another seed's sample. Composing runs the
+level chain for the base seed, for each part's seed, and for the result; at
+every level the result's planes are blended, plane by plane, from three
+zones around each box's projection onto that plane (its rectangle):
+
+    inside, deeper than MARGIN cells     the part's planes, exactly
+    MARGIN cells either side of a face   the result's own, as its generator
+                                         made it from what surrounds it: the join
+    further out                          the base sample's planes, exactly
+
+and the result's noise is the part's inside the rectangle, the base's
+outside. A voxel reads one cell of each plane, so:
+- inside a box less MARGIN voxels (and one more at scale > 1, where a point
+  interpolates its neighbours' cells) the result equals the part's sample:
+  exact;
+- a voxel whose three cells all lie further than MARGIN outside the
+  rectangles equals the base sample: exact;
+- the rest is generated: the join around each box, and its "shadow": a
+  plane cell covers a whole line through the volume, so a voxel outside a
+  box that shares its range on two axes reads some of the part's cells.
+A face on the sample's own edge needs no join; its margin is not taken off.
+"""
+
+import numbers
+from dataclasses import dataclass
+
+import numpy as np
+
+from .budget import check_memory
+from .errors import InputError
+from .generate import Noise, TriPlane, check_seed, draw_noise, scaled_sizes, triplane
+from .manifest import PLANE_AXES, plane_sizes
+
+# Cells of each level blended on either side of a box's face: the reach of a
+# level's generator (four 3x3 convolutions).
+MARGIN = 4
+
+
+@dataclass(frozen=True)
+class Part:
+    """The box [low, high] (finest-voxel coordinates of the sample, per axis)
+    of the sample of `seed`."""
+
+    seed: int
+    low: tuple
+    high: tuple
+
+
+def parse_part(text: str, manifest, size: tuple) -> Part:
+    """'SEED:X0,Y0,Z0:X1,Y1,Z1' -> a Part of a sample of finest size `size`.
+    Corners are in the model's input frame (the units of its meshes and of
+    `sinrun info`), or percentages of the sample's extent ('50%'); the text
+    form shared by the command line and the web API."""
+    pieces = text.split(":")
+    if len(pieces) != 3:
+        raise InputError(f"part {text!r}: give SEED:X0,Y0,Z0:X1,Y1,Z1, like 3:0%,0%,0%:50%,100%,100%", "keep")
+    try:
+        seed = int(pieces[0])
+    except ValueError:
+        raise InputError(f"part {text!r}: the seed {pieces[0]!r} is not an integer", "keep") from None
+    corners = []
+    for corner in pieces[1:]:
+        values = corner.split(",")
+        if len(values) != 3:
+            raise InputError(f"part {text!r}: a corner needs 3 values, got {corner!r}", "keep")
+        point = []
+        for axis, value in enumerate(values):
+            try:
+                if value.strip().endswith("%"):
+                    point.append(float(value.strip()[:-1]) / 100 * (size[axis] - 1))
+                else:
+                    point.append((float(value) - manifest.origin[axis]) / manifest.spacing[axis])
+            except ValueError:
+                raise InputError(f"part {text!r}: {value!r} is not a number or a percentage", "keep") from None
+        corners.append(tuple(point))
+    return check_part(Part(seed, *corners), size)
+
+
+def check_part(part: Part, size: tuple) -> Part:
+    """A box inside the sample, with something left once its margins are taken off."""
+    check_seed(part.seed)
+    corners = (part.low, part.high)
+    if not all(isinstance(c, (tuple, list)) and len(c) == 3 and all(isinstance(v, numbers.Real) and np.isfinite(v)
+                                                                    for v in c) for c in corners):
+        raise InputError(f"a box needs two corners of 3 finite numbers, got {part.low!r}, {part.high!r}", "box")
+    for axis, (lo, hi, n) in enumerate(zip(part.low, part.high, size)):
+        name = "xyz"[axis]
+        if not lo < hi:
+            raise InputError(f"the box is empty or inverted along {name} ({lo:g} to {hi:g})", "box")
+        if lo < 0 or hi > n - 1:
+            raise InputError(f"the box ({lo:g} to {hi:g} along {name}) leaves the sample, whose voxels "
+                             f"run 0 to {n - 1} along {name}", "box")
+        kept = (hi if hi < n - 1 else np.inf) - (lo if lo > 0 else -np.inf) - 2 * MARGIN
+        if kept <= 0:
+            raise InputError(f"the box is {hi - lo:g} voxels along {name}: a kept box needs more than "
+                             f"{2 * MARGIN} (a {MARGIN}-voxel join on each side inside the sample)", "box")
+    return Part(int(part.seed), tuple(float(v) for v in part.low), tuple(float(v) for v in part.high))
+
+
+def depth(part: Part, finest: tuple, level_size: tuple, plane: int) -> np.ndarray:
+    """(H, W): how many level cells each cell of a plane lies inside the box's
+    rectangle (negative outside), by the nearer of its two axes; a face on
+    the sample's edge is infinitely far."""
+    out = None
+    for axis in PLANE_AXES[plane]:
+        n, cells = finest[axis], level_size[axis]
+        to_level = (cells - 1) / (n - 1) if n > 1 else 0.0
+        lo = part.low[axis] * to_level if part.low[axis] > 0 else -np.inf
+        hi = part.high[axis] * to_level if part.high[axis] < n - 1 else np.inf
+        c = np.arange(cells, dtype=np.float64)
+        d = np.minimum(c - lo, hi - c)
+        d = d[:, None] if out is None else d[None, :]
+        out = d if out is None else np.minimum(out, d)
+    return out
+
+
+def blend(base: list, made: list, parts: list, sources: list, finest: tuple, level_size: tuple) -> list:
+    """One level's planes: the base far from every box, each part deep inside its own, the result between."""
+    out = []
+    for k, made_plane in enumerate(made):
+        depths = [depth(part, finest, level_size, k) for part in parts]
+        near = np.ones(made_plane.shape[1:])  # how much of the result (not the base) a cell takes
+        for d in depths:
+            near = near * (1 - np.clip((d + MARGIN) / MARGIN, 0, 1))
+        plane = near[None] * base[k] + (1 - near[None]) * made_plane
+        for d, source in zip(depths, sources):
+            inside = np.clip(d / MARGIN, 0, 1)[None]
+            plane = inside * source[k] + (1 - inside) * plane
+        out.append(plane.astype(np.float32))
+    return out
+
+
+def compose_noise(base: Noise, parts: list, noises: list, sizes: list) -> Noise:
+    """The base seed's noise, with each part's inside its box (z0 in 3-D, the rest per plane)."""
+    finest = sizes[-1]
+    z0 = base.z0.copy()
+    box = [slice(None)] * 3
+    for part, n in zip(parts, noises):
+        for axis in range(3):
+            to_level = (sizes[0][axis] - 1) / (finest[axis] - 1) if finest[axis] > 1 else 0.0
+            box[axis] = slice(int(np.ceil(part.low[axis] * to_level)), int(np.floor(part.high[axis] * to_level)) + 1)
+        z0[tuple(box)] = n.z0[tuple(box)]
+    planes = [None]
+    for level in range(1, len(sizes)):
+        merged = [p.copy() for p in base.planes[level]]
+        for part, n in zip(parts, noises):
+            for k in range(3):
+                inside = depth(part, finest, sizes[level], k) >= 0
+                merged[k][:, inside] = n.planes[level][k][:, inside]
+        planes.append(merged)
+    return Noise(z0, planes)
+
+
+def chain(model, sample: Noise, sizes: list) -> list:
+    """Every level's planes of one sample, coarsest first."""
+    levels = []
+
+    def keep(level, planes):
+        levels.append(planes)
+        return planes
+
+    triplane(model, sample, sizes, after_level=keep)
+    return levels
+
+
+def compose(model, seed: int, parts, factors=(1.0, 1.0, 1.0), memory_limit: int | None = None) -> TriPlane:
+    """The sample of `seed` with each part's box taken from the part's own
+    sample (a later part wins where boxes overlap). Exact inside each box
+    less MARGIN voxels, and away from the boxes and their shadows; see the
+    module's docstring. memory_limit as for `generate.sample`."""
+    sizes = scaled_sizes(model.manifest.sizes, factors)
+    channels = model.manifest.channels
+    parts = [check_part(part, sizes[-1]) for part in parts]
+    if not parts:
+        raise InputError("give at least one part to keep", "parts")
+    cells = sum(h * w for size in sizes for h, w in plane_sizes(size))  # every level of a chain is kept
+    check_memory(cells * channels * 4 * (len(parts) + 3), f"composing {len(parts)} parts", memory_limit)
+    base_noise = draw_noise(check_seed(seed), sizes, channels)
+    noises = [draw_noise(part.seed, sizes, channels) for part in parts]
+    base = chain(model, base_noise, sizes)
+    sources = [chain(model, n, sizes) for n in noises]
+    return triplane(model, compose_noise(base_noise, parts, noises, sizes), sizes, after_level=lambda level, planes: blend(
+        base[level], planes, parts, [s[level] for s in sources], sizes[-1], sizes[level]))
+
+
+def compose_text(model, seed: int, parts: list, factors=(1.0, 1.0, 1.0), memory_limit: int | None = None) -> TriPlane:
+    """`compose` with parts in their text form (`parse_part`)."""
+    size = scaled_sizes(model.manifest.sizes, factors)[-1]
+    return compose(model, seed, [parse_part(text, model.manifest, size) for text in parts], factors, memory_limit)
