@@ -383,6 +383,11 @@ def open_model(model, threads):
                    "repeat for more parts. Corners in the model's frame (the units of its meshes and "
                    "`sinrun info`) or as percentages: 3:0%,0%,0%:50%,100%,100% is the lower half along x. "
                    "The box less a 4-voxel join is exactly SEED's.")
+@click.option("--layout", "layout_file", type=click.Path(path_type=Path), default=None,
+              help="Generate with the structure of this layout (.vox or .npz, from `sinrun layout`, edited "
+                   "as you like); --seed still varies the detail.")
+@click.option("--resample-layout", is_flag=True,
+              help="Fit a layout whose grid is not one of the model's levels to level 0's grid.")
 @SCALE_OPTION
 @SIZE_OPTION
 @click.option("-o", "--output", type=click.Path(path_type=Path), default=None,
@@ -401,7 +406,7 @@ def open_model(model, threads):
 @click.option("--address", default=None,
               help="With --engine ray: the cluster's address. Default: Ray's own (RAY_ADDRESS, else a "
                    "local Ray on this machine).")
-def sample(model, seed, seeds, recon, keep, scale, size, output, smooth, smoother, largest, frame, threads, workers,
+def sample(model, seed, seeds, recon, keep, layout_file, resample_layout, scale, size, output, smooth, smoother, largest, frame, threads, workers,
            engine, address):
     """Generate new shapes from a model and write them as meshes.
 
@@ -409,14 +414,16 @@ def sample(model, seed, seeds, recon, keep, scale, size, output, smooth, smoothe
     (`sinrun models` lists them); without it, the default shipped model.
     Needs no torch.
     """
-    from sinshape.runtime import edit, generate, write
+    from sinshape.runtime import edit, generate, layout, write
 
     if sum(x is not None and x is not False for x in (seed, seeds, recon or None)) > 1:
         raise click.UsageError("give one of --seed, --seeds or --recon")
     if not seeds and (workers is not None or engine != "local" or address is not None):
         raise click.UsageError("--workers, --engine and --address are for many samples: give --seeds")
-    if keep and (seeds or recon):
-        raise click.UsageError("--keep composes one sample: give --seed, not --seeds or --recon")
+    if (keep or layout_file) and (seeds or recon):
+        raise click.UsageError("--keep and --layout make one sample: give --seed, not --seeds or --recon")
+    if keep and layout_file:
+        raise click.UsageError("give --keep or --layout, not both")
     loaded = open_model(model, threads)
     if output is None:
         output = Path(f"{loaded.path.stem}_recon.ply" if recon else f"{loaded.path.stem}_seed{{seed}}.ply")
@@ -430,8 +437,11 @@ def sample(model, seed, seeds, recon, keep, scale, size, output, smooth, smoothe
         return
     path = named_output(output, seed=first) if "{" in output.name else output
     kind = write.output_kind(path)
-    write.check_writable(path, [loaded.path])
-    triplane = edit.compose_text(loaded, first, keep, size) if keep else generate.sample(loaded, first, size)
+    write.check_writable(path, [loaded.path] + ([layout_file] if layout_file else []))
+    if layout_file:
+        triplane = layout.sample_from_file(loaded, first, layout_file, size, resample_layout)
+    else:
+        triplane = edit.compose_text(loaded, first, keep, size) if keep else generate.sample(loaded, first, size)
     if scale > 2 and kind == "mesh":
         say_how_long(loaded, triplane, scale, 1)
     with SlabProgress() as slabs:
@@ -468,6 +478,30 @@ def sample_seeds(model_path, seeds, output, engine, workers, threads, address, *
     skipped = f", {result['skipped']} already done" if result["skipped"] else ""
     click.echo(f"wrote {result['written']} files{skipped}: {named_output(pattern, seed=seeds.first)} .. "
                f"{named_output(pattern, seed=seeds.last)}; index {result['index']}")
+
+
+@cli.command("layout")
+@MODEL_ARGUMENT
+@click.option("--seed", type=int, default=0, show_default=True, help="The sample whose layout to write.")
+@click.option("--level", type=int, default=0, show_default=True,
+              help="Which level's grid: 0 is the coarsest (where the big parts are); finer levels give finer control.")
+@SIZE_OPTION
+@click.option("-o", "--output", type=click.Path(path_type=Path), required=True,
+              help="The layout: .vox (MagicaVoxel and other voxel editors) or .npz (an array 'layout').")
+def layout_command(model, seed, level, size, output):
+    """Write a sample's coarse layout, to edit and then sample from with `sample --layout`.
+
+    The layout is the sample's occupancy averaged over one level's grid: where
+    its towers, columns, bays and gaps are. Remove, duplicate, move or add
+    voxels in any voxel editor; `sinrun sample MODEL --seed N --layout FILE`
+    then makes a shape with that structure and the model's detail.
+    """
+    from sinshape.runtime import layout, write
+
+    loaded = open_model(model, threads=None)
+    write.check_writable(output, [loaded.path])
+    shape = layout.export(loaded, seed, output, level, size)
+    click.echo(f"wrote {output} ({'x'.join(map(str, shape))} voxels, level {level})")
 
 
 @cli.command()

@@ -30,7 +30,7 @@ import numpy as np
 
 from .budget import check_memory
 from .errors import InputError
-from .generate import Noise, TriPlane, check_seed, draw_noise, scaled_sizes, triplane
+from .generate import Noise, TriPlane, chain, check_seed, draw_noise, scaled_sizes, triplane
 from .manifest import PLANE_AXES, plane_sizes
 
 # Cells of each level blended on either side of a box's face: the reach of a
@@ -151,18 +151,6 @@ def compose_noise(base: Noise, parts: list, noises: list, sizes: list) -> Noise:
                 merged[k][:, inside] = n.planes[level][k][:, inside]
         planes.append(merged)
     return Noise(z0, planes)
-
-
-def chain(model, sample: Noise, sizes: list) -> list:
-    """Every level's planes of one sample, coarsest first."""
-    levels = []
-
-    def keep(level, planes):
-        levels.append(planes)
-        return planes
-
-    triplane(model, sample, sizes, after_level=keep)
-    return levels
 
 
 def compose(model, seed: int, parts, factors=(1.0, 1.0, 1.0), memory_limit: int | None = None) -> TriPlane:

@@ -170,6 +170,18 @@ def triplane(model, sample: Noise, sizes: list, after_level=None) -> TriPlane:
     return TriPlane(planes, tuple(sizes[-1]))
 
 
+def chain(model, sample: Noise, sizes: list) -> list:
+    """Every level's planes of one sample, coarsest first."""
+    levels = []
+
+    def keep(level, planes):
+        levels.append(planes)
+        return planes
+
+    triplane(model, sample, sizes, after_level=keep)
+    return levels
+
+
 def reconstruction_noise(model, sizes: list) -> Noise:
     """z0* from the manifest's seed and no later noise: the training shape."""
     m = model.manifest

@@ -1,0 +1,255 @@
+"""A sample's coarse layout: read it out, edit it elsewhere, generate from it.
+
+The layout is one level's tri-plane read on that level's own grid and
+thresholded at 0.5 (level 0 by default: where the towers, columns, bays and
+gaps are). Generating from an edited layout takes the seed's planes at that
+level, fits them to the layout by gradient descent through the decoder (a
+two-layer MLP whose gradient is written out below), staying close to where
+they started so that the finer levels receive planes like the ones they
+learnt from, then runs the finer levels with the seed's noise: the layout
+sets the structure, the model and the seed the detail. Every step is fixed
+(a set number of Adam steps from the seed's own planes), so the same
+layout, seed and options give the same shape.
+"""
+
+import io
+import struct
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError
+from .manifest import MAX_LEVEL_SIDE
+from .write import atomic_write
+from .generate import TriPlane, check_seed, draw_noise, sample, scaled_sizes, triplane
+from .query import dense
+
+FIT_STEPS = 60  # at the layout's level
+FINER_STEPS = 30  # at each finer level, which would otherwise bring back what was removed
+FIT_RATE = 0.5  # Adam's step, in plane units (trained planes hold values of about +-2)
+PULL = 0.001  # weight of the squared distance to the seed's own planes, per cell
+TOLERANCE = 0.002  # a fit stops once at most this share of layout cells is on the wrong side of 0.5
+
+
+def check_level(model, level: int) -> int:
+    levels = len(model.manifest.sizes)
+    if not (isinstance(level, (int, np.integer)) and 0 <= level < levels - 1):
+        raise InputError(f"level must be 0 to {levels - 2} (a layout needs a finer level after it), got {level}",
+                         "level")
+    return int(level)
+
+
+def layout(model, seed: int, level: int = 0, factors=(1.0, 1.0, 1.0)) -> np.ndarray:
+    """(X, Y, Z) bool at `level`'s grid: the sample of `seed`, area-averaged
+    to that grid, where it is more than half full."""
+    level = check_level(model, level)
+    sizes = scaled_sizes(model.manifest.sizes, factors)
+    return pool(dense(model, sample(model, check_seed(seed), factors)), sizes[level]) > 0.5
+
+
+def first_layer(model) -> list:
+    """Each plane's block W_P of the decoder's first layer, (C, D), read by
+    running stage decoder_planes (linear, no bias) on one-hot planes."""
+    c = model.manifest.channels
+    eye = np.eye(c, dtype=np.float32)[None, :, None, :]  # (1, C, 1, C): cell j holds channel j
+    return [out[0, 0] for out in model.decoder_planes.run([eye] * 3)]  # (1, 1, C, D) -> (C, D)
+
+
+def area_weights(n_in: int, n_out: int) -> np.ndarray:
+    """(n_out, n_in): cell i of n_out averages the part of the n_in cells it covers."""
+    edges = np.arange(n_out + 1) * (n_in / n_out)
+    cells = np.arange(n_in)
+    overlap = np.clip(np.minimum(edges[1:, None], cells + 1) - np.maximum(edges[:-1, None], cells), 0, None)
+    return (overlap / overlap.sum(axis=1, keepdims=True)).astype(np.float32)
+
+
+def pool(grid: np.ndarray, shape) -> np.ndarray:
+    """Area-average a grid down (or up) to `shape`: what a layout cell holds of it."""
+    out = grid.astype(np.float32)
+    for axis, n in enumerate(shape):
+        out = np.moveaxis(np.tensordot(area_weights(out.shape[axis], n), out, axes=(1, axis)), 0, axis)
+    return out
+
+
+def fit(model, planes: list, target: np.ndarray, steps: int) -> list:
+    """Planes (3 x (C, H, W)) moved so that their occupancy, area-averaged to
+    the layout's grid, matches the layout `target` (binary cross-entropy),
+    pulled toward where they started, until all but TOLERANCE of the layout
+    cells are on the right side of 0.5, or after `steps`: the layout
+    constrains where things are, not their detail."""
+    weights = first_layer(model)
+    head = model.head
+    y = target.astype(np.float32)
+    size = (planes[0].shape[1], planes[0].shape[2], planes[1].shape[2])
+    pools = [area_weights(n, m) for n, m in zip(size, target.shape)]
+    start = [p.astype(np.float32) for p in planes]
+    current = [p.copy() for p in start]
+    moments = [(np.zeros_like(p), np.zeros_like(p)) for p in start]
+    for step in range(1, steps + 1):
+        a_xy, a_xz, a_yz = (np.einsum("chw,cd->hwd", p, w) for p, w in zip(current, weights))
+        pre = a_xy[:, :, None] + a_xz[:, None] + a_yz[None] + head.bias1  # (X, Y, Z, D)
+        active = pre > 0
+        occupancy = 1 / (1 + np.exp(-(np.where(active, pre, 0) @ head.weight2 + head.bias2)))
+        pooled = np.clip(np.einsum("xi,yj,zk,ijk->xyz", *pools, occupancy, optimize=True), 1e-6, 1 - 1e-6)
+        if np.count_nonzero((pooled > 0.5) != target) <= TOLERANCE * target.size:
+            break
+        # Binary cross-entropy of the pooled occupancy, back through the pooling, the sigmoid and the ReLU.
+        d_pooled = (pooled - y) / (pooled * (1 - pooled)) / y.size
+        d_occupancy = np.einsum("xi,yj,zk,xyz->ijk", *pools, d_pooled, optimize=True)
+        d_pre = (d_occupancy * occupancy * (1 - occupancy))[..., None] * head.weight2 * active
+        d_a = [d_pre.sum(axis=2), d_pre.sum(axis=1), d_pre.sum(axis=0)]
+        for k, (p, w, (m, v)) in enumerate(zip(current, weights, moments)):
+            grad = np.einsum("hwd,cd->chw", d_a[k], w) + 2 * PULL / p[0].size * (p - start[k])
+            m += 0.1 * (grad - m)  # Adam, beta1 0.9, beta2 0.999
+            v += 0.001 * (grad * grad - v)
+            p -= FIT_RATE * (m / (1 - 0.9**step)) / (np.sqrt(v / (1 - 0.999**step)) + 1e-8)
+    return current
+
+
+def layout_level(model, shape: tuple, factors=(1.0, 1.0, 1.0), resample: bool = False) -> int:
+    """The level whose grid a layout of `shape` is (level 0 with `resample`,
+    which area-averages a layout of another size to it)."""
+    sizes = scaled_sizes(model.manifest.sizes, factors)[:-1]
+    if tuple(shape) in sizes:
+        return sizes.index(tuple(shape))
+    if resample:
+        return 0
+    grids = ", ".join("x".join(map(str, size)) for size in sizes)
+    raise InputError(f"the layout is {'x'.join(map(str, shape))}, and this sample's levels are {grids}; "
+                     "resample it to level 0's grid, or export one with `layout`", "layout")
+
+
+def from_layout(model, seed: int, target: np.ndarray, factors=(1.0, 1.0, 1.0), resample: bool = False) -> TriPlane:
+    """The sample of `seed` with the structure of the layout `target` (a bool
+    grid of one level's size, found by its shape; any size with `resample`):
+    structure from the layout, detail from the model and the seed."""
+    sizes = scaled_sizes(model.manifest.sizes, factors)
+    target = np.asarray(target) > 0.5
+    level = layout_level(model, target.shape, factors, resample)
+    if target.shape != tuple(sizes[level]):
+        target = pool(target, sizes[level]) > 0.5
+    sample = draw_noise(check_seed(seed), sizes, model.manifest.channels)
+    return triplane(model, sample, sizes, after_level=lambda i, planes: planes if i < level else fit(
+        model, planes, target, FIT_STEPS if i == level else FINER_STEPS))
+
+
+# -- layout files: MagicaVoxel .vox (what voxel artists edit) and .npz --------
+LAYOUT_FORMATS = (".vox", ".npz")
+MAX_LAYOUT_SIDE = 256  # MagicaVoxel's own limit per axis
+MAX_LAYOUT_BYTES = 64 << 20
+VOX_VERSION = 150
+VOX_COLOUR = 1  # palette index the voxels are written with (any non-zero index reads as full)
+
+
+def check_layout_path(path) -> Path:
+    path = Path(path)
+    if path.suffix.lower() not in LAYOUT_FORMATS:
+        raise InputError(f"{path}: a layout is a {' or '.join(LAYOUT_FORMATS)} file, not {path.suffix or 'no extension'}")
+    return path
+
+
+def vox_bytes(grid: np.ndarray) -> bytes:
+    """A MagicaVoxel .vox file of one model: MAIN holding SIZE and XYZI."""
+    x, y, z = np.nonzero(grid)
+    voxels = np.stack([x, y, z, np.full_like(x, VOX_COLOUR)], axis=1).astype(np.uint8).tobytes()
+    size = struct.pack("<3i", *grid.shape)
+    xyzi = struct.pack("<i", len(x)) + voxels
+    children = (b"SIZE" + struct.pack("<2i", len(size), 0) + size
+                + b"XYZI" + struct.pack("<2i", len(xyzi), 0) + xyzi)
+    return b"VOX " + struct.pack("<i", VOX_VERSION) + b"MAIN" + struct.pack("<2i", 0, len(children)) + children
+
+
+def read_vox(data: bytes, path) -> np.ndarray:
+    """The one model of a .vox file as a bool grid; chunks other than SIZE
+    and XYZI (palette, materials, scene graph) are skipped."""
+    def corrupt(why):
+        return InputError(f"{path}: not a readable MagicaVoxel file ({why})")
+
+    if len(data) < 20 or data[:4] != b"VOX " or data[8:12] != b"MAIN":
+        raise corrupt("no 'VOX ' header and MAIN chunk")
+    size, voxels, at = None, None, 20 + struct.unpack_from("<i", data, 12)[0]
+    models = 0
+    while at < len(data):
+        if at + 12 > len(data):
+            raise corrupt("a chunk runs past the end")
+        name = data[at:at + 4]
+        content, children = struct.unpack_from("<2i", data, at + 4)
+        if content < 0 or children < 0 or at + 12 + content + children > len(data):
+            raise corrupt(f"chunk {name!r} runs past the end")
+        body = data[at + 12:at + 12 + content]
+        if name == b"SIZE":
+            models += 1
+            if content < 12:
+                raise corrupt("a SIZE chunk too short")
+            size = struct.unpack_from("<3i", body)
+            if not all(1 <= n <= MAX_LAYOUT_SIDE for n in size):
+                raise InputError(f"{path}: a model of {'x'.join(map(str, size))} voxels; a layout has 1 to "
+                                 f"{MAX_LAYOUT_SIDE} per axis")
+        elif name == b"XYZI":
+            count = struct.unpack_from("<i", body)[0] if content >= 4 else -1
+            if not 0 <= count <= (content - 4) // 4:
+                raise corrupt("an XYZI chunk whose count does not fit it")
+            voxels = np.frombuffer(body, np.uint8, count * 4, 4).reshape(count, 4)
+        at += 12 + content + children
+    if models != 1 or voxels is None:
+        raise InputError(f"{path}: holds {models} models; a layout is one")
+    xyz = voxels[:, :3].astype(int)
+    if (xyz >= np.array(size)).any():
+        raise corrupt("a voxel outside its model's size")
+    grid = np.zeros(size, bool)
+    grid[tuple(xyz.T)] = voxels[:, 3] > 0
+    return grid
+
+
+def write_layout(grid: np.ndarray, path) -> None:
+    """A layout to .vox or .npz (array `layout`), atomically."""
+    path = check_layout_path(path)
+    if path.suffix.lower() == ".vox":
+        if max(grid.shape) > MAX_LAYOUT_SIDE:
+            raise InputError(f"{path}: a {'x'.join(map(str, grid.shape))} layout; .vox holds at most "
+                             f"{MAX_LAYOUT_SIDE} voxels per axis (write .npz)")
+        data = vox_bytes(grid)
+    else:
+        buffer = io.BytesIO()
+        np.savez_compressed(buffer, layout=grid.astype(bool))
+        data = buffer.getvalue()
+    atomic_write(path, lambda f: f.write(data))
+
+
+def read_layout(path) -> np.ndarray:
+    """A layout file as a bool grid, checked: bounded size, one 3-D grid."""
+    path = check_layout_path(path)
+    try:
+        if path.stat().st_size > MAX_LAYOUT_BYTES:
+            raise InputError(f"{path}: {path.stat().st_size >> 20} MB is too large for a layout")
+        data = path.read_bytes()
+    except FileNotFoundError:
+        raise InputError(f"{path}: no such layout file") from None
+    except OSError as error:
+        raise InputError(f"{path}: cannot read ({error.strerror})") from None
+    if path.suffix.lower() == ".vox":
+        return read_vox(data, path)
+    try:
+        with np.load(io.BytesIO(data), allow_pickle=False) as npz:
+            grid = npz["layout"] if "layout" in npz else None
+    except (ValueError, OSError, zipfile.BadZipFile, EOFError):
+        raise InputError(f"{path}: not a readable .npz file") from None
+    if grid is None or grid.ndim != 3 or not all(1 <= n <= MAX_LEVEL_SIDE for n in grid.shape):
+        raise InputError(f"{path}: needs an array 'layout' of 3 axes, 1 to {MAX_LEVEL_SIDE} each")
+    if not (grid.dtype == bool or np.issubdtype(grid.dtype, np.number)):
+        raise InputError(f"{path}: 'layout' holds {grid.dtype}, not occupancy")
+    return np.asarray(grid) > 0.5 if grid.dtype != bool else grid
+
+
+def sample_from_file(model, seed: int, path, factors=(1.0, 1.0, 1.0), resample: bool = False) -> TriPlane:
+    """`from_layout` with the layout read from a .vox or .npz file."""
+    return from_layout(model, seed, read_layout(path), factors, resample)
+
+
+def export(model, seed: int, path, level: int = 0, factors=(1.0, 1.0, 1.0)) -> tuple:
+    """Write the layout of the sample of `seed` at `level` to `path`; its grid size."""
+    check_layout_path(path)
+    grid = layout(model, seed, level, factors)
+    write_layout(grid, path)
+    return grid.shape

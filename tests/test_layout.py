@@ -1,0 +1,145 @@
+"""A sample's coarse layout: written and read as .vox and .npz, edited, and
+followed by the shape generated from it, with the seed still varying detail."""
+
+import struct
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from sinshape import models
+from sinshape.cli.main import cli
+from sinshape.runtime import dense, load_model, sample
+from sinshape.runtime import layout as L
+from sinshape.runtime.errors import InputError
+from test_cli_train import assert_one_line_error
+
+
+@pytest.fixture(scope="module")
+def acropolis():
+    return load_model(models.find("acropolis"), threads=1)
+
+
+@pytest.fixture(scope="module")
+def seed3(acropolis):
+    return L.layout(acropolis, 3)
+
+
+def followed(model, seed, target, before) -> tuple:
+    """The generated shape area-averaged to the layout's grid: its IoU with
+    the layout, and the share of the edited cells (where `target` differs
+    from `before`) that it follows."""
+    pooled = L.pool(dense(model, L.from_layout(model, seed, target)), target.shape) > 0.5
+    edited = target != before
+    return (pooled & target).sum() / (pooled | target).sum(), np.mean(pooled[edited] == target[edited])
+
+
+def edits(layout) -> dict:
+    x = layout.shape[0]
+    removed, duplicated, moved, added = (layout.copy() for _ in range(4))
+    removed[x // 3:x // 2, :, 4:] = False  # a gap through the roof and columns
+    duplicated[x // 2:x // 2 + 8] = layout[4:12]  # a bay copied along x
+    moved[:, :, 4:] = np.roll(layout[:, :, 4:], 5, axis=0)  # everything above the floor shifted
+    added[2:6, 2:6, :] = True  # a new tower at a corner
+    return {"removed": removed, "duplicated": duplicated, "moved": moved, "added": added}
+
+
+@pytest.mark.parametrize("name", ["removed", "duplicated", "moved", "added"])
+def test_an_edited_layout_is_followed(acropolis, seed3, name):
+    target = edits(seed3)[name]
+    assert (target != seed3).sum() >= 20
+    iou, edited = followed(acropolis, 3, target, seed3)
+    assert iou >= 0.9 and edited >= 0.8, (iou, edited)
+
+
+def test_the_seed_varies_the_detail_and_the_same_inputs_give_the_same_shape(acropolis, seed3):
+    target = edits(seed3)["removed"]
+    a, b = (dense(acropolis, L.from_layout(acropolis, s, target)) for s in (3, 5))
+    assert np.sum((a > 0.5) != (b > 0.5)) > 200  # of 64x37x32 voxels
+    assert np.array_equal(a, dense(acropolis, L.from_layout(acropolis, 3, target)))
+
+
+def test_the_layout_is_the_sample_averaged_over_a_level(acropolis):
+    grid = dense(acropolis, sample(acropolis, 4))
+    for level in (0, 1):
+        shape = acropolis.manifest.sizes[level]
+        layout = L.layout(acropolis, 4, level)
+        assert layout.shape == tuple(shape)
+        assert np.array_equal(layout, L.pool(grid, shape) > 0.5)
+    assert L.pool(np.ones((4, 4, 4)), (2, 2, 2)).tolist() == np.ones((2, 2, 2)).tolist()
+    assert L.pool(np.arange(4.0)[:, None, None] * np.ones((4, 1, 1)), (2, 1, 1)).ravel().tolist() == [0.5, 2.5]
+
+
+@pytest.mark.parametrize("suffix", [".vox", ".npz"])
+def test_layout_files_round_trip(tmp_path, seed3, suffix):
+    path = tmp_path / f"l{suffix}"
+    L.write_layout(seed3, path)
+    assert np.array_equal(L.read_layout(path), seed3)
+
+
+def test_vox_files_are_magicavoxel_chunks(tmp_path, seed3):
+    data = L.vox_bytes(seed3)
+    assert data[:8] == b"VOX " + struct.pack("<i", 150) and data[8:12] == b"MAIN"
+    assert struct.unpack_from("<3i", data, 32) == seed3.shape  # SIZE's content
+    assert struct.unpack_from("<i", data, 56)[0] == seed3.sum()  # XYZI's count
+    # A palette chunk after the model, as MagicaVoxel writes, is skipped.
+    rgba = b"RGBA" + struct.pack("<2i", 1024, 0) + bytes(1024)
+    path = tmp_path / "palette.vox"
+    path.write_bytes(data + rgba)
+    assert np.array_equal(L.read_layout(path), seed3)
+
+
+def vox(size=(4, 4, 4), voxels=((0, 0, 0, 1),), models=1) -> bytes:
+    body = b""
+    for _ in range(models):
+        xyzi = struct.pack("<i", len(voxels)) + bytes(v for voxel in voxels for v in voxel)
+        body += b"SIZE" + struct.pack("<2i", 12, 0) + struct.pack("<3i", *size)
+        body += b"XYZI" + struct.pack("<2i", len(xyzi), 0) + xyzi
+    return b"VOX " + struct.pack("<i", 150) + b"MAIN" + struct.pack("<2i", 0, len(body)) + body
+
+
+@pytest.mark.parametrize("name, data, fragment", [
+    ("text.vox", b"hello, not a voxel file", "not a readable MagicaVoxel file"),
+    ("cut.vox", vox()[:-3], "runs past the end"),
+    ("huge.vox", vox(size=(300, 4, 4)), "a layout has 1 to 256"),
+    ("two.vox", vox(models=2), "holds 2 models"),
+    ("outside.vox", vox(voxels=((9, 0, 0, 1),)), "outside its model's size"),
+    ("count.vox", vox()[:-8] + struct.pack("<i", 10**6) + vox()[-4:], "count does not fit"),
+    ("bad.npz", b"PK not a zip", "not a readable .npz"),
+    ("l.txt", b"", "a layout is a .vox or .npz file"),
+])
+def test_bad_layout_files_are_refused_in_one_line(tmp_path, name, data, fragment):
+    path = tmp_path / name
+    path.write_bytes(data)
+    with pytest.raises(InputError, match=fragment):
+        L.read_layout(path)
+    out = tmp_path / "s.ply"
+    assert_one_line_error(CliRunner().invoke(cli, ["sample", "acropolis", "--layout", str(path), "-o", str(out)]),
+                          fragment)
+    assert not out.exists()
+
+
+def test_a_layout_of_another_size_is_refused_or_resampled(acropolis, tmp_path, seed3):
+    path = tmp_path / "big.npz"
+    L.write_layout(np.repeat(seed3, 2, axis=0), path)
+    out = tmp_path / "s.npz"
+    result = CliRunner().invoke(cli, ["sample", "acropolis", "--layout", str(path), "-o", str(out)])
+    assert_one_line_error(result, "the layout is 54x16x15", "27x16x15", "resample")
+    assert not out.exists()
+    result = CliRunner().invoke(cli, ["sample", "acropolis", "--layout", str(path), "--resample-layout",
+                                      "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    assert np.array_equal(np.load(out)["occupancy"], dense(acropolis, L.from_layout(acropolis, 0, seed3)))
+
+
+def test_the_three_commands_of_a_level_designer(tmp_path, acropolis, seed3):
+    vox_path, out = tmp_path / "l.vox", tmp_path / "s.npz"
+    result = CliRunner().invoke(cli, ["layout", "acropolis", "--seed", "3", "-o", str(vox_path)])
+    assert result.exit_code == 0 and "27x16x15 voxels, level 0" in result.output
+    L.write_layout(edits(L.read_layout(vox_path))["removed"], vox_path)  # the edit a user makes elsewhere
+    result = CliRunner().invoke(cli, ["sample", "acropolis", "--seed", "3", "--layout", str(vox_path), "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    expected = dense(acropolis, L.from_layout(acropolis, 3, edits(seed3)["removed"]))
+    assert np.array_equal(np.load(out)["occupancy"], expected)
+    assert_one_line_error(CliRunner().invoke(cli, ["layout", "acropolis", "--level", "3", "-o", str(vox_path)]),
+                          "level must be 0 to 2")
