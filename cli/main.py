@@ -388,6 +388,12 @@ def open_model(model, threads):
                    "as you like); --seed still varies the detail.")
 @click.option("--resample-layout", is_flag=True,
               help="Fit a layout whose grid is not one of the model's levels to level 0's grid.")
+@click.option("--grow", "grow_by", type=SIZE, default=None,
+              help="Grow the sample (of --seed, at --size) by these factors, keeping what it had: 2,1,1 "
+                   "doubles it along x, new ground joining the old without a seam.")
+@click.option("--anchor", type=FRACTIONS, default=None,
+              help="With --grow: where the old sample sits in the new, per axis from 0 (the low side, the "
+                   "default: growing toward +x) to 1 (the high side); 0.5 centres it.")
 @SCALE_OPTION
 @SIZE_OPTION
 @click.option("-o", "--output", type=click.Path(path_type=Path), default=None,
@@ -406,7 +412,7 @@ def open_model(model, threads):
 @click.option("--address", default=None,
               help="With --engine ray: the cluster's address. Default: Ray's own (RAY_ADDRESS, else a "
                    "local Ray on this machine).")
-def sample(model, seed, seeds, recon, keep, layout_file, resample_layout, scale, size, output, smooth, smoother, largest, frame, threads, workers,
+def sample(model, seed, seeds, recon, keep, layout_file, resample_layout, grow_by, anchor, scale, size, output, smooth, smoother, largest, frame, threads, workers,
            engine, address):
     """Generate new shapes from a model and write them as meshes.
 
@@ -420,10 +426,13 @@ def sample(model, seed, seeds, recon, keep, layout_file, resample_layout, scale,
         raise click.UsageError("give one of --seed, --seeds or --recon")
     if not seeds and (workers is not None or engine != "local" or address is not None):
         raise click.UsageError("--workers, --engine and --address are for many samples: give --seeds")
-    if (keep or layout_file) and (seeds or recon):
-        raise click.UsageError("--keep and --layout make one sample: give --seed, not --seeds or --recon")
-    if keep and layout_file:
-        raise click.UsageError("give --keep or --layout, not both")
+    edits = [name for name, given in (("--keep", keep), ("--layout", layout_file), ("--grow", grow_by)) if given]
+    if edits and (seeds or recon):
+        raise click.UsageError(f"{edits[0]} makes one sample: give --seed, not --seeds or --recon")
+    if len(edits) > 1:
+        raise click.UsageError(f"give one of {', '.join(edits)}")
+    if anchor and not grow_by:
+        raise click.UsageError("--anchor is for --grow")
     loaded = open_model(model, threads)
     if output is None:
         output = Path(f"{loaded.path.stem}_recon.ply" if recon else f"{loaded.path.stem}_seed{{seed}}.ply")
@@ -440,6 +449,8 @@ def sample(model, seed, seeds, recon, keep, layout_file, resample_layout, scale,
     write.check_writable(path, [loaded.path] + ([layout_file] if layout_file else []))
     if layout_file:
         triplane = layout.sample_from_file(loaded, first, layout_file, size, resample_layout)
+    elif grow_by:
+        triplane = edit.grow(loaded, first, grow_by, anchor or (0.0, 0.0, 0.0), size)
     else:
         triplane = edit.compose_text(loaded, first, keep, size) if keep else generate.sample(loaded, first, size)
     if scale > 2 and kind == "mesh":

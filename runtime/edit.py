@@ -40,12 +40,15 @@ MARGIN = 4
 
 @dataclass(frozen=True)
 class Part:
-    """The box [low, high] (finest-voxel coordinates of the sample, per axis)
-    of the sample of `seed`."""
+    """The box [low, high] (finest-voxel coordinates of the composed sample,
+    per axis) taken from the sample of `seed` at size `factors` (None: the
+    composed sample's), whose voxel p lands at p + offset."""
 
     seed: int
     low: tuple
     high: tuple
+    offset: tuple = (0, 0, 0)
+    factors: tuple | None = None
 
 
 def parse_part(text: str, manifest, size: tuple) -> Part:
@@ -96,7 +99,10 @@ def check_part(part: Part, size: tuple) -> Part:
         if kept <= 0:
             raise InputError(f"the box is {hi - lo:g} voxels along {name}: a kept box needs more than "
                              f"{2 * MARGIN} (a {MARGIN}-voxel join on each side inside the sample)", "box")
-    return Part(int(part.seed), tuple(float(v) for v in part.low), tuple(float(v) for v in part.high))
+    if not (len(part.offset) == 3 and all(isinstance(v, (int, np.integer)) for v in part.offset)):
+        raise InputError(f"a part's offset must be 3 whole voxels, got {part.offset!r}", "offset")
+    return Part(int(part.seed), tuple(float(v) for v in part.low), tuple(float(v) for v in part.high),
+                tuple(int(v) for v in part.offset), part.factors)
 
 
 def depth(part: Part, finest: tuple, level_size: tuple, plane: int) -> np.ndarray:
@@ -132,45 +138,123 @@ def blend(base: list, made: list, parts: list, sources: list, finest: tuple, lev
     return out
 
 
-def compose_noise(base: Noise, parts: list, noises: list, sizes: list) -> Noise:
+def placement(cells: int, finest: int, source_cells: int, source_finest: int, offset: int) -> tuple:
+    """Where each of `cells` cells of a composed level lies in its source's
+    level: (index below, fraction to the next, nearest index), in exact
+    integer arithmetic, so that a cell on a source cell takes it exactly."""
+    c = np.arange(cells, dtype=np.int64)
+    # source cell = (c (finest - 1) / (cells - 1) - offset) (source_cells - 1) / (source_finest - 1)
+    numerator = (c * (finest - 1) - offset * (cells - 1)) * (source_cells - 1)
+    denominator = max(1, (cells - 1) * (source_finest - 1))
+    numerator = np.clip(numerator, 0, (source_cells - 1) * denominator)
+    low = numerator // denominator
+    nearest = (2 * numerator + denominator) // (2 * denominator)
+    return low, (numerator - low * denominator) / denominator, nearest
+
+
+def interpolation(where: tuple, source_cells: int) -> np.ndarray:
+    """(cells, source_cells) linear interpolation weights from `placement`."""
+    low, frac, _ = where
+    weights = np.zeros((len(low), source_cells), np.float64)
+    rows = np.arange(len(low))
+    np.add.at(weights, (rows, low), 1 - frac)
+    np.add.at(weights, (rows, np.minimum(low + 1, source_cells - 1)), frac)
+    return weights
+
+
+@dataclass
+class Placed:
+    """A part's source sample brought onto the composed sample's grids: each
+    level's planes (interpolated) and noise (nearest cell), and z0."""
+
+    planes: list
+    noise: Noise
+
+
+def place(model, part: Part, sizes: list, factors) -> Placed:
+    """Run the part's sample at its own size and place it at its offset."""
+    source_sizes = sizes if part.factors is None else scaled_sizes(model.manifest.sizes, part.factors)
+    for axis in range(3):
+        if part.low[axis] - part.offset[axis] < 0 or part.high[axis] - part.offset[axis] > source_sizes[-1][axis] - 1:
+            raise InputError(f"the box reaches outside the sample of seed {part.seed} along {'xyz'[axis]}", "box")
+    source_noise = draw_noise(part.seed, source_sizes, model.manifest.channels)
+    levels = chain(model, source_noise, source_sizes)
+    finest, source_finest = sizes[-1], source_sizes[-1]
+    planes, noise_planes = [], [None]
+    for level, (size, source_size) in enumerate(zip(sizes, source_sizes)):
+        where = [placement(size[a], finest[a], source_size[a], source_finest[a], part.offset[a]) for a in range(3)]
+        level_planes, level_noise = [], []
+        for k, (a, b) in enumerate(PLANE_AXES):
+            rows, cols = interpolation(where[a], source_size[a]), interpolation(where[b], source_size[b])
+            level_planes.append((rows @ levels[level][k] @ cols.T).astype(np.float32))
+            if level > 0:
+                level_noise.append(source_noise.planes[level][k][:, where[a][2]][:, :, where[b][2]])
+        planes.append(level_planes)
+        if level > 0:
+            noise_planes.append(level_noise)
+    z0 = source_noise.z0[np.ix_(*(placement(sizes[0][a], finest[a], source_sizes[0][a], source_finest[a],
+                                            part.offset[a])[2] for a in range(3)))]
+    return Placed(planes, Noise(z0, noise_planes))
+
+
+def compose_noise(base: Noise, parts: list, placed: list, sizes: list) -> Noise:
     """The base seed's noise, with each part's inside its box (z0 in 3-D, the rest per plane)."""
     finest = sizes[-1]
     z0 = base.z0.copy()
     box = [slice(None)] * 3
-    for part, n in zip(parts, noises):
+    for part, source in zip(parts, placed):
         for axis in range(3):
             to_level = (sizes[0][axis] - 1) / (finest[axis] - 1) if finest[axis] > 1 else 0.0
             box[axis] = slice(int(np.ceil(part.low[axis] * to_level)), int(np.floor(part.high[axis] * to_level)) + 1)
-        z0[tuple(box)] = n.z0[tuple(box)]
+        z0[tuple(box)] = source.noise.z0[tuple(box)]
     planes = [None]
     for level in range(1, len(sizes)):
         merged = [p.copy() for p in base.planes[level]]
-        for part, n in zip(parts, noises):
+        for part, source in zip(parts, placed):
             for k in range(3):
                 inside = depth(part, finest, sizes[level], k) >= 0
-                merged[k][:, inside] = n.planes[level][k][:, inside]
+                merged[k][:, inside] = source.noise.planes[level][k][:, inside]
         planes.append(merged)
     return Noise(z0, planes)
 
 
 def compose(model, seed: int, parts, factors=(1.0, 1.0, 1.0), memory_limit: int | None = None) -> TriPlane:
-    """The sample of `seed` with each part's box taken from the part's own
-    sample (a later part wins where boxes overlap). Exact inside each box
-    less MARGIN voxels, and away from the boxes and their shadows; see the
-    module's docstring. memory_limit as for `generate.sample`."""
+    """The sample of `seed` at size `factors`, with each part's box taken
+    from the part's own sample (a later part wins where boxes overlap).
+    Exact inside each box less MARGIN voxels, and away from the boxes and
+    their shadows; see the module's docstring. memory_limit as for
+    `generate.sample`."""
     sizes = scaled_sizes(model.manifest.sizes, factors)
     channels = model.manifest.channels
     parts = [check_part(part, sizes[-1]) for part in parts]
     if not parts:
         raise InputError("give at least one part to keep", "parts")
     cells = sum(h * w for size in sizes for h, w in plane_sizes(size))  # every level of a chain is kept
-    check_memory(cells * channels * 4 * (len(parts) + 3), f"composing {len(parts)} parts", memory_limit)
+    check_memory(cells * channels * 4 * 2 * (len(parts) + 2), f"composing {len(parts)} parts", memory_limit)
     base_noise = draw_noise(check_seed(seed), sizes, channels)
-    noises = [draw_noise(part.seed, sizes, channels) for part in parts]
+    placed = [place(model, part, sizes, factors) for part in parts]
     base = chain(model, base_noise, sizes)
-    sources = [chain(model, n, sizes) for n in noises]
-    return triplane(model, compose_noise(base_noise, parts, noises, sizes), sizes, after_level=lambda level, planes: blend(
-        base[level], planes, parts, [s[level] for s in sources], sizes[-1], sizes[level]))
+    return triplane(model, compose_noise(base_noise, parts, placed, sizes), sizes, after_level=lambda level, planes: blend(
+        base[level], planes, parts, [p.planes[level] for p in placed], sizes[-1], sizes[level]))
+
+
+def grow(model, seed: int, by, anchor=(0.0, 0.0, 0.0), factors=(1.0, 1.0, 1.0),
+         memory_limit: int | None = None) -> TriPlane:
+    """The sample of `seed` (at size `factors`) grown `by` times per axis,
+    keeping what it had: it sits at `anchor` of the larger sample (per axis,
+    0 at the low side, 1 at the high side, 0.5 centred) and the new ground
+    around it joins it as `compose` joins a part."""
+    if not (len(by) == 3 and all(isinstance(f, numbers.Real) and 1 <= f < float("inf") for f in by)):
+        raise InputError(f"grow factors must be 3 numbers of at least 1, got {by!r}", "grow")
+    if not (len(anchor) == 3 and all(isinstance(a, numbers.Real) and 0 <= a <= 1 for a in anchor)):
+        raise InputError(f"an anchor is 3 numbers in [0, 1], got {anchor!r}", "anchor")
+    old = scaled_sizes(model.manifest.sizes, factors)[-1]
+    grown = tuple(f * g for f, g in zip(factors, by))
+    new = scaled_sizes(model.manifest.sizes, grown)[-1]
+    offset = tuple(int(round(a * (n - o))) for a, n, o in zip(anchor, new, old))
+    part = Part(seed, tuple(float(v) for v in offset), tuple(float(v + o - 1) for v, o in zip(offset, old)),
+                offset, tuple(factors))
+    return compose(model, seed, [part], grown, memory_limit)
 
 
 def compose_text(model, seed: int, parts: list, factors=(1.0, 1.0, 1.0), memory_limit: int | None = None) -> TriPlane:

@@ -83,9 +83,13 @@ class SampleRequest:
     smooth: int
     format: str
     parts: tuple = ()  # edit.Part boxes kept from other samples, in finest voxels
+    grow: tuple | None = None  # grow the sample by these factors, keeping it at `anchor`
+    anchor: tuple = (0.0, 0.0, 0.0)
 
     def filename(self) -> str:
         tags = [f"seed{self.seed}"] + [f"keep{part.seed}" for part in self.parts]
+        if self.grow:
+            tags.append("grow" + "x".join(f"{f:g}" for f in self.grow))
         if self.size != (1.0, 1.0, 1.0):
             tags.append("size" + "x".join(f"{f:g}" for f in self.size))
         if self.scale != 1:
@@ -117,7 +121,9 @@ def make_sample(model, request: SampleRequest, cancel: threading.Event) -> Sampl
             raise Cancelled
 
     started = time.perf_counter()
-    if request.parts:
+    if request.grow:
+        triplane = edit.grow(model, request.seed, request.grow, request.anchor, request.size)
+    elif request.parts:
         triplane = edit.compose(model, request.seed, request.parts, request.size)
     else:
         triplane = generate.sample(model, request.seed, request.size)
@@ -336,12 +342,20 @@ def create_app(loaded: dict, slots: int | None = None, timeout: float = 60.0,
         keep: Annotated[list[str], Query(max_length=16, description="Parts to keep from other samples, "
                                          "SEED:X0,Y0,Z0:X1,Y1,Z1 (the model's frame, or percentages like 50%); "
                                          "repeat for more. The rest comes from `seed`.")] = [],
+        grow: Annotated[str | None, Query(description="Grow the sample by these factors (one, or sx,sy,sz, "
+                                          "each at least 1), keeping what it had.")] = None,
+        anchor: Annotated[str, Query(description="With grow: where the old sample sits, per axis from 0 "
+                                     "(low side) to 1 (high side).")] = "0",
     ):
         model = find(name)
         factors = generate.parse_size(size)
         finest = generate.scaled_sizes(model.manifest.sizes, factors)[-1]
         parts = tuple(edit.parse_part(text, model.manifest, finest) for text in keep)
-        wanted = SampleRequest(name, seed, factors, scale, smooth, format, parts)
+        if grow and parts:
+            raise InputError("give keep or grow, not both")
+        where = generate.parse_triple(anchor, lambda v: 0 <= v <= 1, "three fractions in [0, 1]", "anchor")
+        wanted = SampleRequest(name, seed, factors, scale, smooth, format, parts,
+                               generate.parse_size(grow) if grow else None, where)
         made, hit = await request.app.state.sampler.get(model, wanted)
         headers = {"ETag": made.etag, "Cache-Control": "no-cache", "X-Cache": "hit" if hit else "miss",
                    "X-Sample-Seconds": f"{made.seconds:.3f}",

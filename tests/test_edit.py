@@ -9,7 +9,7 @@ from click.testing import CliRunner
 from sinshape import models
 from sinshape.cli.main import cli
 from sinshape.runtime import dense, load_model, sample
-from sinshape.runtime.edit import MARGIN, Part, compose, parse_part
+from sinshape.runtime.edit import MARGIN, Part, compose, grow, parse_part
 from sinshape.runtime.errors import InputError
 from test_cli_train import assert_one_line_error
 
@@ -105,3 +105,40 @@ def test_sample_keep_writes_the_composed_shape(acropolis, tmp_path):
     assert result.exit_code == 0, result.output
     expected = compose(acropolis, 7, [parse_part(text, m, m.sizes[-1]) for text in parts])
     assert np.array_equal(np.load(out)["occupancy"], dense(acropolis, expected))
+
+
+@pytest.fixture(scope="module")
+def terrain():
+    return load_model(models.find("terrain"), threads=1)
+
+
+@pytest.mark.parametrize("by, anchor", [((2, 1, 1), (0, 0, 0)), ((1.5, 1.5, 1), (1, 0.5, 0))])
+def test_a_grown_sample_keeps_what_it_had(terrain, by, anchor):
+    old = dense(terrain, sample(terrain, 3))
+    new = dense(terrain, grow(terrain, 3, by, anchor))
+    assert new.shape == tuple(round(n * f) for n, f in zip(old.shape, by))
+    offset = [round(a * (n - o)) for a, n, o in zip(anchor, new.shape, old.shape)]
+    kept = []  # the old sample's voxels, less the join where a face lies inside the new one
+    for lo, n, big in zip(offset, old.shape, new.shape):
+        start = lo + MARGIN if lo > 0 else lo
+        end = lo + n - MARGIN if lo + n < big else lo + n
+        kept.append(slice(start, end))
+    old_kept = tuple(slice(k.start - lo, k.stop - lo) for k, lo in zip(kept, offset))
+    assert np.abs(new[tuple(kept)] - old[old_kept]).max() <= 1e-6
+    outside = np.ones(new.shape, bool)
+    outside[tuple(slice(lo, lo + n) for lo, n in zip(offset, old.shape))] = False
+    assert (new[outside] > 0.5).any()  # new ground where there was none
+
+
+def test_sample_grow_on_the_command_line(terrain, tmp_path):
+    out = tmp_path / "g.npz"
+    result = CliRunner().invoke(cli, ["sample", "terrain", "--seed", "3", "--grow", "2,1,1", "--anchor", "1,0,0",
+                                      "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    assert np.array_equal(np.load(out)["occupancy"], dense(terrain, grow(terrain, 3, (2, 1, 1), (1, 0, 0))))
+    for args, fragment in ((["--grow", "0.5"], "at least 1"), (["--grow", "2", "--anchor", "2"], "fractions"),
+                           (["--anchor", "0"], "--anchor is for --grow"),
+                           (["--grow", "2", "--keep", "3:0%,0%,0%:50%,100%,100%"], "give one of")):
+        result = CliRunner().invoke(cli, ["sample", "terrain", "--seed", "3", *args, "-o", str(tmp_path / "x.ply")])
+        assert result.exit_code != 0 and fragment in result.output, result.output
+        assert not (tmp_path / "x.ply").exists()

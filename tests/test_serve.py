@@ -164,6 +164,12 @@ def test_keep_composes_as_the_command_line_does(server, tmp_path):
     assert result.exit_code == 0 and body == out.read_bytes()
     status, _, body = get(sample_url(base, seed=7, keep="3:0%25,0%25,0%25:150%25,100%25,100%25"))
     assert status == 400 and "leaves the sample" in json.loads(body)["detail"]
+    status, headers, body = get(sample_url(base, seed=7, grow="2,1,1", anchor="0.5,0,0", format="npz"))
+    result = CliRunner().invoke(cli, ["sample", "terrain", "--seed", "7", "--grow", "2,1,1", "--anchor", "0.5,0,0",
+                                      "-o", str(out)])
+    assert status == 200 and "grow2x1x1" in headers["Content-Disposition"] and body == out.read_bytes()
+    status, _, body = get(sample_url(base, seed=7, grow="0.5"))
+    assert status == 400 and "at least 1" in json.loads(body)["detail"]
 
 
 def test_a_sample_is_the_file_sinrun_sample_writes(server, tmp_path):
