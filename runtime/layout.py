@@ -64,12 +64,17 @@ def area_weights(n_in: int, n_out: int) -> np.ndarray:
     return (overlap / overlap.sum(axis=1, keepdims=True)).astype(np.float32)
 
 
+def separable(weights: list, grid: np.ndarray) -> np.ndarray:
+    """One (n_out, n_in) matrix applied along each axis of a 3-D grid."""
+    out = grid.astype(np.float32)
+    for axis, w in enumerate(weights):
+        out = np.moveaxis(np.tensordot(w, out, axes=(1, axis)), 0, axis)
+    return out
+
+
 def pool(grid: np.ndarray, shape) -> np.ndarray:
     """Area-average a grid down (or up) to `shape`: what a layout cell holds of it."""
-    out = grid.astype(np.float32)
-    for axis, n in enumerate(shape):
-        out = np.moveaxis(np.tensordot(area_weights(out.shape[axis], n), out, axes=(1, axis)), 0, axis)
-    return out
+    return separable([area_weights(n, m) for n, m in zip(grid.shape, shape)], grid)
 
 
 def fit(model, planes: list, target: np.ndarray, steps: int) -> list:
@@ -91,12 +96,12 @@ def fit(model, planes: list, target: np.ndarray, steps: int) -> list:
         pre = a_xy[:, :, None] + a_xz[:, None] + a_yz[None] + head.bias1  # (X, Y, Z, D)
         active = pre > 0
         occupancy = 1 / (1 + np.exp(-(np.where(active, pre, 0) @ head.weight2 + head.bias2)))
-        pooled = np.clip(np.einsum("xi,yj,zk,ijk->xyz", *pools, occupancy, optimize=True), 1e-6, 1 - 1e-6)
+        pooled = np.clip(separable(pools, occupancy), 1e-6, 1 - 1e-6)
         if np.count_nonzero((pooled > 0.5) != target) <= TOLERANCE * target.size:
             break
         # Binary cross-entropy of the pooled occupancy, back through the pooling, the sigmoid and the ReLU.
         d_pooled = (pooled - y) / (pooled * (1 - pooled)) / y.size
-        d_occupancy = np.einsum("xi,yj,zk,xyz->ijk", *pools, d_pooled, optimize=True)
+        d_occupancy = separable([w.T for w in pools], d_pooled)
         d_pre = (d_occupancy * occupancy * (1 - occupancy))[..., None] * head.weight2 * active
         d_a = [d_pre.sum(axis=2), d_pre.sum(axis=1), d_pre.sum(axis=0)]
         for k, (p, w, (m, v)) in enumerate(zip(current, weights, moments)):
