@@ -17,7 +17,9 @@ from sinshape.runtime.errors import InputError
 # Library errors name a function's parameter; on the command line it is an option.
 OPTIONS = {"scale": "--scale", "factors": "--size", "smooth": "--smooth", "threads": "--threads",
            "levels": "--levels", "res": "--res", "workers": "--workers", "detail": "--detail",
-           "alpha": "--range", "samples": "--samples"}
+           "alpha": "--range", "samples": "--samples", "zoom": "--zoom", "azimuth": "--azimuth",
+           "elevation": "--elevation", "timeout": "--timeout", "level": "--level", "grow": "--grow",
+           "anchor": "--anchor"}
 # ctx.meta key: {parameter: what set it} where a command's value came from elsewhere than OPTIONS says.
 SOURCES = "sinrun.sources"
 
@@ -238,8 +240,8 @@ class SeedList:
     def __init__(self, ranges: list):
         self.ranges = [r for r in ranges if len(r)]
 
-    def __len__(self) -> int:
-        return sum(len(r) for r in self.ranges)
+    def __len__(self) -> int:  # at most 2**63 seeds a range; len() of a larger count would overflow
+        return min(sum(r.stop - r.start for r in self.ranges), sys.maxsize)
 
     def __iter__(self):
         return itertools.chain.from_iterable(self.ranges)
@@ -270,9 +272,11 @@ class Seeds(click.ParamType):
                 ranges.append(range(int(low), int(high or low) + 1))
         except ValueError:
             self.fail(f"{value!r} is not a seed list like 3, 0-99 or 1,5,9-12", param, ctx)
+        if any(r.start < 0 or r.stop > 2**63 for r in ranges):  # before len(), which overflows past 2**63
+            self.fail(f"{value!r}: seeds are integers in [0, 2**63)", param, ctx)
         seeds = SeedList(ranges)
-        if not len(seeds) or any(r[0] < 0 for r in seeds.ranges):
-            self.fail(f"{value!r} gives no non-negative seeds", param, ctx)
+        if not seeds.ranges:
+            self.fail(f"{value!r} gives no seeds", param, ctx)
         return seeds
 
 
@@ -596,6 +600,7 @@ def warn_if_clamped(model, factors, scale) -> None:
     below the smallest grid it can have: the shape is then not to scale."""
     from sinshape.runtime import generate
 
+    generate.scaled_sizes(model.manifest.sizes, factors)  # refuses what is too large to round
     if any(round(n * f) < generate.MIN_SIDE for size in model.manifest.sizes for n, f in zip(size, factors)):
         click.echo(f"Warning: --size {','.join(f'{f:g}' for f in factors)} shrinks some levels below "
                    f"{generate.MIN_SIDE} voxels; they are clamped, so the shape is not to scale", err=True)
@@ -658,8 +663,7 @@ def render(inputs, output, seeds, recon, scale, size, smooth, views, up, columns
     write.check_writable(output, [Path(item) for item in inputs])
     if views < 1 or columns < 1 or image_size < 16:
         raise click.UsageError("--views and --columns must be at least 1, --image-size at least 16")
-    if zoom < 1:
-        raise InputError(f"--zoom must be 1 or more, got {zoom}")
+    draw.check_view(zoom, azimuth, elevation)
     meshes = [Path(item).is_file() and Path(item).suffix.lower() in write.MESH_FORMATS for item in inputs]
     count = sum(1 if is_mesh else len(seeds) + recon for is_mesh in meshes)
     draw.check_picture(count, (image_size, image_size), views, columns)
@@ -777,10 +781,14 @@ def evaluate(model, reference, samples, first_seed, scale, upsample, json_path, 
                    "another address (0.0.0.0: every interface) exposes the service to the network, "
                    "and it has no authentication.")
 @click.option("--port", type=click.IntRange(0, 65535), default=8000, show_default=True, help="Port to listen on.")
-@click.option("--timeout", type=click.FloatRange(min=0, min_open=True), default=60.0, show_default=True,
+@click.option("--timeout", type=float, default=60.0, show_default=True,
               help="Seconds a sample request may take before it is answered 504.")
+@click.option("--allowed-host", "allowed_host", multiple=True, metavar="NAME",
+              help="A name clients may reach the server by (the Host header), besides the loopback names "
+                   "and --host; repeat for more. Others are answered 400, so that a web page elsewhere "
+                   "cannot reach a local server through a name of its own (DNS rebinding).")
 @THREADS_OPTION
-def serve(model_names, host, port, timeout, threads):
+def serve(model_names, host, port, timeout, allowed_host, threads):
     """Serve models over HTTP: a JSON API and a page to browse samples in 3-D.
 
     MODEL is a .onnx file or the name of a shipped model; without any, every
@@ -789,31 +797,21 @@ def serve(model_names, host, port, timeout, threads):
     address can use it, so it listens on loopback unless --host says otherwise.
     Needs the serve extra: pip install 'sinshape[serve]'.
     """
-    import socket
-
     try:
-        import uvicorn
+        import uvicorn  # noqa: F401 (the serve extra is installed)
 
         from sinshape.serve import app
     except ImportError as error:
         raise click.ClickException(f"serving needs {error.name}, which is not installed: "
                                    "pip install 'sinshape[serve]'") from None
+
+    def ready(url, allowed):
+        reach = "loopback only" if host in app.LOOPBACK else "reachable from the network"
+        click.echo(f"serving {', '.join(loaded)} at {url} (no authentication; {reach}; answering to "
+                   f"{', '.join(allowed)}) - Ctrl-C stops", err=True)
+
     loaded = app.load_models(model_names, threads)
-    try:  # bind here, so a taken port is one line, not a server's traceback
-        family = socket.AF_INET6 if ":" in host else socket.AF_INET
-        sock = socket.socket(family, socket.SOCK_STREAM)
-        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        sock.bind((host, port))
-    except (OSError, OverflowError) as error:
-        raise InputError(f"cannot listen on {host}:{port} ({getattr(error, 'strerror', None) or error})") from None
-    port = sock.getsockname()[1]
-    shown = f"[{host}]" if ":" in host else host
-    click.echo(f"serving {', '.join(loaded)} at http://{shown}:{port}/ (no authentication"
-               f"{'; loopback only' if host in ('127.0.0.1', '::1', 'localhost') else '; reachable from the network'})"
-               " - Ctrl-C stops", err=True)
-    server = uvicorn.Server(uvicorn.Config(app.create_app(loaded, timeout=timeout), log_level="warning",
-                                          timeout_graceful_shutdown=5))
-    server.run(sockets=[sock])
+    app.run(loaded, host, port, timeout, allowed_host, ready)
 
 
 @cli.command(name="export-web")

@@ -23,6 +23,7 @@ from scipy import ndimage
 from sinshape.runtime.budget import check_memory
 from sinshape.runtime.errors import InputError
 from sinshape.runtime.manifest import MAX_LEVEL_SIDE
+from sinshape.runtime.write import check_readable
 
 from . import voxelize
 
@@ -154,8 +155,8 @@ def pyramid_from_h5(path: Path, levels: int | None = None) -> Pyramid:
             check_memory(sum(d.size * (d.dtype.itemsize + 1 + 4) for d in datasets),
                          f"reading {path.name} (its grids, as read, as occupancy and as training targets)")
             grids = [_occupancy(np.asarray(d[()]), f"{path.name}: {d.name.lstrip('/')}") for d in datasets]
-    except OSError as error:
-        raise InputError(f"{path.name}: cannot read as HDF5 ({error})") from None
+    except (OSError, RuntimeError) as error:  # RuntimeError: HDF5's own, for a damaged file
+        raise InputError(f"{path.name}: cannot read as HDF5 ({str(error).splitlines()[0][:200]})") from None
     if grids[0].size > grids[-1].size:  # some files store the finest level first
         grids.reverse()
     if max(grids[-1].shape) < MIN_SIZE:  # a model's res, its finest longest side, is at least that
@@ -181,7 +182,10 @@ def pyramid_from_h5(path: Path, levels: int | None = None) -> Pyramid:
 
 def _h5_datasets(f, name: str) -> list:
     """The scale0 .. scale{n-1} datasets of an open SSG file, n = n_scales,
-    each checked to be a numeric 3-D grid of sides in [MIN_H5_SIDE, MAX_LEVEL_SIDE]."""
+    each checked to be a numeric 3-D grid of sides in [MIN_H5_SIDE, MAX_LEVEL_SIDE]
+    stored in the file itself (no links, external or virtual storage)."""
+    import h5py
+
     count = f.attrs.get("n_scales")
     if count is None:
         raise InputError(f"{name}: not an SSG pyramid (no 'n_scales' attribute)")
@@ -191,14 +195,19 @@ def _h5_datasets(f, name: str) -> list:
     count = int(count)
     datasets = []
     for i in range(count):
-        item = f.get(f"scale{i}")
-        if item is None:
+        link = f.get(f"scale{i}", getlink=True)
+        if link is None:
             raise InputError(f"{name}: n_scales is {count} but scale{i} is missing")
+        if not isinstance(link, h5py.HardLink):  # soft links can loop; external ones read other files
+            raise InputError(f"{name}: scale{i} is a link ({type(link).__name__}); an SSG file holds its grids itself")
+        item = f.get(f"scale{i}")
         if not hasattr(item, "dtype") or item.dtype.kind not in "biuf":
             raise InputError(f"{name}: scale{i} is not a grid of numbers")
         if len(item.shape) != 3 or not all(MIN_H5_SIDE <= n <= MAX_LEVEL_SIDE for n in item.shape):
             raise InputError(f"{name}: scale{i} is not a 3-D grid of {MIN_H5_SIDE} to {MAX_LEVEL_SIDE} voxels a side "
                              f"(shape {item.shape})")
+        if item.external or item.is_virtual:  # raw data kept in other files
+            raise InputError(f"{name}: scale{i} keeps its data in other files; an SSG file holds its grids itself")
         datasets.append(item)
     return datasets
 
@@ -213,7 +222,7 @@ def _occupancy(grid: np.ndarray, name: str) -> np.ndarray:
         if not np.isfinite(grid).all():
             raise InputError(f"{name} holds NaN or infinite values, not occupancy")
         if grid.min() < 0 or grid.max() > 1:
-            raise InputError(f"{name} holds values in [{grid.min():g}, {grid.max():g}], not occupancy in [0, 1]")
+            raise InputError(f"{name} holds values in [{grid.min():.9g}, {grid.max():.9g}], not occupancy in [0, 1]")
         occupied = grid >= 0.5
     if not occupied.any():
         raise InputError(f"{name} is empty")
@@ -225,11 +234,7 @@ def load_pyramid(path, res: int, levels: int | None = None,
     """The pyramid of a mesh file (voxelised at `res`) or of an SSG .h5 file.
     check(sizes), if given, sees the level sizes before a mesh is voxelised,
     after an .h5 file is read."""
-    path = Path(path)
-    if path.is_dir():
-        raise InputError(f"{path}: a directory, not a mesh or .h5 file")
-    if not path.is_file():
-        raise InputError(f"{path}: no such file")
+    path = check_readable(path, "mesh or .h5 file")
     if path.suffix.lower() in PYRAMID_SUFFIXES:
         pyramid = pyramid_from_h5(path, levels)
         if check:

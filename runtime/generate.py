@@ -54,8 +54,10 @@ def scaled_sizes(sizes: list, factors=(1.0, 1.0, 1.0)) -> list:
     if not (isinstance(factors, (tuple, list, np.ndarray)) and len(factors) == 3
             and all(isinstance(f, numbers.Real) and 0 < f < float("inf") for f in factors)):
         raise InputError(f"factors must be 3 positive numbers, got {factors!r}", "factors")
-    out = [tuple(max(MIN_SIDE, round(n * f)) for n, f in zip(size, factors)) for size in sizes]
-    if max(max(size) for size in out) > MAX_GRID_SIDE:
+    longest = max(n * f for size in sizes for n, f in zip(size, factors))
+    out = [] if longest > MAX_GRID_SIDE else [tuple(max(MIN_SIDE, round(n * f)) for n, f in zip(size, factors))
+                                              for size in sizes]  # round() overflows for 1e308
+    if longest > MAX_GRID_SIDE or max(max(size) for size in out) > MAX_GRID_SIDE:
         raise InputError(f"factors {','.join(f'{f:g}' for f in factors)} make a level longer than {MAX_GRID_SIDE} "
                          f"voxels, the most a sample may have per axis", "factors")
     return out

@@ -22,6 +22,7 @@ from google.protobuf.message import DecodeError
 
 from . import manifest as fmt
 from .errors import InputError
+from .write import check_readable
 
 MAX_MODEL_BYTES = 512 * 1024 * 1024
 # onnxruntime starts every thread of every stage's pool up front (a million
@@ -82,10 +83,7 @@ def read_model(path: Path) -> tuple:
     """(bytes, parsed ONNX, sealed): the file's seal checked first, so that a
     corrupt byte anywhere is named corrupt before anything reads it; then
     parsed as ONNX, refusing what could reach beyond the file."""
-    if path.is_dir():
-        raise InputError(f"{path}: a directory, not a model file")
-    if not path.is_file():
-        raise InputError(f"{path}: no such model file")
+    check_readable(path, "model file")
     size = path.stat().st_size
     if size > MAX_MODEL_BYTES:
         raise InputError(f"{path}: {size / 2**20:.0f} MB is too large for a sinshape model")

@@ -3,12 +3,16 @@ this machine, or over a Ray cluster.
 
 Workers load the model once and send back each seed's file bytes and
 figures; only this process writes, atomically, then appends the seed to an
-index file beside the outputs (JSON lines, fsynced, so it is valid after a
-crash). A rerun skips every seed that is in the index and whose file
-exists; Ctrl-C leaves no partial file. Seeds are taken lazily, a few ahead of
-the workers, so a range of any length costs nothing up front.
+index file beside the outputs (JSON lines with the file's size and SHA-256,
+fsynced, so it is valid after a crash). A rerun skips a seed only if its
+file is the one the index recorded (same size and hash): a missing,
+truncated or changed file is made again, and the index is rewritten first
+with one line per seed it still vouches for. Ctrl-C leaves no partial file.
+Seeds are taken lazily, a few ahead of the workers, so a range of any length
+costs nothing up front.
 """
 
+import hashlib
 import json
 import os
 import queue
@@ -33,24 +37,51 @@ def index_path(pattern) -> Path:
     return pattern.with_name(Path(re.sub(r"(seed)?\{seed\}", "index", pattern.name)).stem + ".jsonl")
 
 
-def read_index(path: Path) -> set:
-    """The seeds an index records. A line cut short by a crash is dropped
-    from the file, so that the next line starts clean."""
+def read_index(path: Path) -> dict:
+    """{seed: its last record} of an index. A line cut short by a crash is
+    dropped."""
     if not path.is_file():
-        return set()
+        return {}
     data = path.read_bytes()
-    end = data.rfind(b"\n") + 1
-    if end < len(data):
-        with open(path, "r+b") as f:
-            f.truncate(end)
-    seeds = set()
-    for line in data[:end].splitlines():
+    records = {}
+    for line in data[:data.rfind(b"\n") + 1].splitlines():
         try:
-            seeds.add(int(json.loads(line)["seed"]))
+            record = json.loads(line)
+            records[int(record["seed"])] = record
         except (ValueError, KeyError, TypeError):
             raise InputError(f"{path}: not a sinshape index (a line is not a seed's JSON record); "
                              "move it away or choose another output name") from None
-    return seeds
+    return records
+
+
+def file_digest(path: Path) -> tuple:
+    """(size, SHA-256 hex) of a file, or None if it cannot be read."""
+    digest = hashlib.sha256()
+    try:
+        with open(path, "rb") as f:
+            for block in iter(lambda: f.read(1 << 20), b""):
+                digest.update(block)
+            return f.tell(), digest.hexdigest()
+    except OSError:
+        return None
+
+
+def verified(records: dict, pattern: Path) -> dict:
+    """The records whose file is there and is what they recorded."""
+    kept = {}
+    for seed, record in records.items():
+        path = pattern.with_name(pattern.name.replace(FIELD, str(seed)))
+        if path.is_file() and file_digest(path) == (record.get("bytes"), record.get("sha256")):
+            kept[seed] = record
+    return kept
+
+
+def rewrite_index(path: Path, records: dict) -> None:
+    """The index with one line per seed it vouches for, written atomically."""
+    from .write import atomic_write
+
+    text = "".join(json.dumps(record) + "\n" for record in records.values())
+    atomic_write(path, lambda f: f.write(text.encode()))
 
 
 class Worker:
@@ -173,8 +204,14 @@ class RayActors:
                 where = address or os.environ.get("RAY_ADDRESS") or "a local Ray"
                 raise InputError(f"cannot reach the Ray cluster at {where}: {str(error).splitlines()[0]}",
                                  "address") from None
+        self.actors = []
+        cpus = int(ray.cluster_resources().get("CPU", 0))
         if workers is None:
-            workers = max(1, int(ray.cluster_resources().get("CPU", 1)) // threads)
+            workers = max(1, cpus // threads)
+        if workers * threads > cpus:  # Ray would wait for CPUs it cannot get, for ever
+            self.close()
+            raise InputError(f"workers {workers} of {threads} thread{'s' * (threads > 1)} each need "
+                             f"{workers * threads} CPUs; the Ray cluster has {cpus}", "workers")
         actor = ray.remote(num_cpus=threads)(Worker)
         model = ray.put(Path(model_path).read_bytes())
         self.actors = [actor.remote(model, suffix, threads, options) for _ in range(workers)]
@@ -199,6 +236,22 @@ class RayActors:
             self.ray.kill(actor)
         if self.started:
             self.ray.shutdown()
+
+
+def check_existing_outputs(pattern: Path, inputs) -> None:
+    """Every file already there that the job could replace (a name the
+    pattern makes) is checked before the first seed, not when its turn comes."""
+    from . import write
+
+    name = re.compile(re.escape(pattern.name).replace(re.escape(FIELD), r"\d+"))
+    folder = pattern.parent if str(pattern.parent) else Path(".")
+    try:
+        entries = [Path(folder, e.name) for e in os.scandir(folder) if name.fullmatch(e.name)]
+    except OSError:
+        return  # check_writable has said what is wrong with the folder
+    for path in entries:
+        write.check_replaceable(path)
+        write.check_not_input(path, inputs)
 
 
 def sample_many(model_path, seeds, pattern, engine: str = "local", workers: int | None = None,
@@ -227,12 +280,20 @@ def sample_many(model_path, seeds, pattern, engine: str = "local", workers: int 
         raise InputError(f"threads must be at least 1, got {threads}", "threads")
     write.output_kind(pattern)
     write.check_writable(pattern.with_name(pattern.name.replace(FIELD, "0")), [model_path])
+    check_existing_outputs(pattern, [model_path])
     load_model(model_path, threads=1)  # a bad model is one line here, not one per worker
     index = index_path(pattern)
-    done = read_index(index)
+    found = read_index(index)
+    done = verified(found, pattern)
+    if index.is_file() and (len(done) != len(found) or not index.read_bytes().endswith(b"\n")
+                            or index.read_bytes().count(b"\n") != len(found)):
+        rewrite_index(index, done)
     if engine == "ray":
         pool = RayActors(model_path, pattern.suffix, threads or 1, options, workers, address)
     else:
+        if workers is not None and workers > default_threads():
+            raise InputError(f"workers must be 1 to {default_threads()} (this machine's cores), got {workers}",
+                             "workers")
         workers = default_threads() if workers is None else workers
         threads = threads or max(1, default_threads() // workers)
         pool = (InProcess(model_path, pattern.suffix, threads, options) if workers == 1 else
@@ -247,7 +308,8 @@ def sample_many(model_path, seeds, pattern, engine: str = "local", workers: int 
                 path = pattern.with_name(pattern.name.replace(FIELD, str(record["seed"])))
                 write.check_not_input(path, [model_path])  # never over the model, under any name
                 write.atomic_write(path, lambda f: f.write(data))
-                log.write(json.dumps({"seed": record["seed"], "file": path.name, **record}) + "\n")
+                log.write(json.dumps({"seed": record["seed"], "file": path.name, **record, "bytes": len(data),
+                                      "sha256": hashlib.sha256(data).hexdigest()}) + "\n")
                 log.flush()
                 os.fsync(log.fileno())
                 written += 1
@@ -255,7 +317,7 @@ def sample_many(model_path, seeds, pattern, engine: str = "local", workers: int 
                     progress(record["seed"], record)
 
             for seed in seeds:
-                if seed in done and pattern.with_name(pattern.name.replace(FIELD, str(seed))).is_file():
+                if seed in done:
                     skipped += 1
                     if progress:
                         progress(seed, None)

@@ -11,6 +11,9 @@ Colours are RGB floats in [0, 1]; images are (H, W, 3) uint8; sizes are
 (width, height), as in pillow.
 """
 
+import math
+import numbers
+
 import numpy as np
 import trimesh
 from PIL import Image, ImageDraw, ImageFont
@@ -181,6 +184,15 @@ def save_png(image: np.ndarray, path) -> None:
     """Write a (H, W, 3) uint8 image to `path` as PNG, through a temporary
     file and a rename, so that `path` never holds a half-written picture."""
     atomic_write(path, lambda f: Image.fromarray(image).save(f, format="PNG"))
+
+
+def check_view(zoom: float = 1.0, azimuth: float = 0.0, elevation: float = 0.0) -> None:
+    """A close-up factor of 1 or more and finite camera angles (inf and NaN drew blank pictures)."""
+    if not (isinstance(zoom, numbers.Real) and 1 <= zoom < float("inf")):
+        raise InputError(f"zoom must be 1 or more, got {zoom}", "zoom")
+    for name, angle in (("azimuth", azimuth), ("elevation", elevation)):
+        if not (isinstance(angle, numbers.Real) and math.isfinite(angle)):
+            raise InputError(f"{name} must be a finite angle in degrees, got {angle}", name)
 
 
 def camera_axes(azimuth: float, elevation: float, up: str) -> np.ndarray:

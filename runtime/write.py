@@ -45,12 +45,14 @@ def check_writable(path, inputs=()) -> None:
     through a symbolic or hard link), which writing would destroy."""
     path = Path(path)
     try:
-        _check_replaceable(path)
+        check_replaceable(path)
         folder_exists = path.parent.is_dir()
     except OSError as error:  # a name too long for the file system
         raise InputError(f"{path}: cannot write here ({error.strerror})") from None
     check_not_input(path, inputs)
     if not folder_exists:
+        if path.parent.exists():
+            raise InputError(f"{path}: {path.parent} is a file, not a folder")
         raise InputError(f"{path}: the folder {path.parent} does not exist")
     try:
         tmp, fd = _create_temporary(path)
@@ -58,6 +60,20 @@ def check_writable(path, inputs=()) -> None:
         tmp.unlink()
     except OSError as error:
         raise InputError(f"{path}: cannot write here ({error.strerror})") from None
+
+
+def check_readable(path, what: str = "file") -> Path:
+    """A regular file to read, or one line saying what it is instead."""
+    path = Path(path)
+    if path.is_dir():
+        raise InputError(f"{path}: a directory, not a {what}")
+    if path.is_symlink() and not path.exists():
+        raise InputError(f"{path}: a symbolic link that leads nowhere (or round in a loop)")
+    if path.exists() and not path.is_file():
+        raise InputError(f"{path}: not a regular file (a pipe or a device); give a {what}")
+    if not path.exists():
+        raise InputError(f"{path}: no such {what}")
+    return path
 
 
 def check_not_input(path, inputs) -> None:
@@ -76,7 +92,7 @@ def is_same_file(a, b) -> bool:
         return False
 
 
-def _check_replaceable(path: Path) -> None:
+def check_replaceable(path: Path) -> None:
     """Only a regular file (or nothing) may be replaced by a rename: as root,
     renaming over /dev/full would replace the device."""
     if path.is_dir():
@@ -94,7 +110,7 @@ def atomic_write(path, write) -> None:
     The one writer of every file sinshape makes: samples, models, checkpoints.
     """
     path = Path(path)
-    _check_replaceable(path)
+    check_replaceable(path)
     try:
         tmp, fd = _create_temporary(path)
     except OSError as error:

@@ -37,6 +37,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel
+from starlette.datastructures import Headers, MutableHeaders
 
 from sinshape import models as shipped
 from sinshape.runtime import edit, generate, load, mesh, query, write
@@ -110,7 +111,14 @@ class Sample:
 
 
 class Cancelled(Exception):
-    """Raised inside a sampling thread whose request ran out of time."""
+    """Raised inside a sampling thread whose request ran out of time, or whose clients all left."""
+
+
+class ClientGone(Exception):
+    """The client closed the connection before its sample was made."""
+
+
+DISCONNECT_POLL = 0.25  # seconds between checks that a waiting client is still there
 
 
 def make_sample(model, request: SampleRequest, cancel: threading.Event) -> Sample:
@@ -133,6 +141,8 @@ def make_sample(model, request: SampleRequest, cancel: threading.Event) -> Sampl
         faces = None
     else:
         result = mesh.extract(model, triplane, request.scale, smooth=request.smooth, progress=check_cancel)
+        if not len(result.faces):  # as `sinrun sample` refuses it
+            raise write.no_surface(Path(request.filename()))
         body = write.mesh_bytes(result, f".{request.format}")
         faces = len(result.faces)
     return Sample(body, f'"{hashlib.sha256(body).hexdigest()[:40]}"', faces, time.perf_counter() - started)
@@ -155,9 +165,12 @@ class Sampler:
         self.pending = {}  # SampleRequest -> asyncio.Task
         self.running = self.most_running = 0  # samples being made now, and at most so far
         self.cancels = set()  # one Event per sample being made
+        self.waiting = {}  # SampleRequest -> clients waiting for it
 
-    async def get(self, model, request: SampleRequest) -> tuple:
-        """(Sample, True if it came from the cache)."""
+    async def get(self, model, request: SampleRequest, gone=None) -> tuple:
+        """(Sample, True if it came from the cache). `gone`, an async
+        function, says whether the client has left: when every client
+        waiting for a sample has left, it is stopped (ClientGone)."""
         if request in self.cache:
             self.cache.move_to_end(request)
             return self.cache[request], True
@@ -165,8 +178,22 @@ class Sampler:
         if task is None:
             task = asyncio.ensure_future(self.compute(model, request))
             self.pending[request] = task
-            task.add_done_callback(lambda _: self.pending.pop(request, None))
-        return await asyncio.shield(task), False
+            self.waiting[request] = 0
+            task.add_done_callback(lambda _: (self.pending.pop(request, None), self.waiting.pop(request, None)))
+        self.waiting[request] += 1
+        try:
+            while True:
+                done, _ = await asyncio.wait({task}, timeout=DISCONNECT_POLL)
+                if done:
+                    return task.result(), False
+                if gone is not None and await gone():
+                    raise ClientGone
+        except ClientGone:
+            if request in self.waiting:
+                self.waiting[request] -= 1
+                if self.waiting[request] == 0:  # nobody wants it any more: free the slot
+                    task.cancel()
+            raise
 
     async def compute(self, model, request: SampleRequest) -> Sample:
         loop = asyncio.get_running_loop()
@@ -184,6 +211,9 @@ class Sampler:
         future.add_done_callback(lambda f: self.finished(f, cancel))
         try:
             result = await asyncio.wait_for(asyncio.shield(future), max(0.0, deadline - loop.time()))
+        except asyncio.CancelledError:  # every client has gone
+            cancel.set()
+            raise
         except asyncio.TimeoutError:
             cancel.set()
             raise HTTPException(504, f"sampling took longer than the {self.timeout:g} s limit; "
@@ -258,14 +288,64 @@ def one_line(error: RequestValidationError) -> str:
     return "; ".join(parts)
 
 
+LOOPBACK = ("127.0.0.1", "localhost", "::1")
+ANY_ADDRESS = ("0.0.0.0", "::", "")
+
+
+def host_name(header: str) -> str:
+    """The name in a Host header, without its port: 'localhost:8000' ->
+    'localhost', '[::1]:8000' -> '::1'."""
+    header = header.strip().lower()
+    if header.startswith("["):
+        return header[1:header.find("]")] if "]" in header else header
+    return header.rsplit(":", 1)[0] if header.count(":") == 1 else header
+
+
+def allowed_hosts(host: str, extra=()) -> tuple:
+    """The loopback names, the address listened on (unless it is every
+    address), and `extra`."""
+    return tuple(dict.fromkeys([*LOOPBACK, *([] if host in ANY_ADDRESS else [host.strip("[]")]), *extra]))
+
+
+class HostsAndIsolation:
+    """ASGI middleware: a request whose Host header names none of `allowed`
+    is answered 400; every answer gets the isolation headers. (Plain ASGI,
+    not Starlette's BaseHTTPMiddleware, under which a route cannot see its
+    client leave.)"""
+
+    def __init__(self, app, allowed: set):
+        self.app, self.allowed = app, allowed
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http":
+            return await self.app(scope, receive, send)
+        host = host_name(Headers(scope=scope).get("host", ""))
+        if host not in self.allowed:
+            answer = JSONResponse({"detail": f"this server does not answer to the host {host!r}; it answers to "
+                                             f"{', '.join(sorted(self.allowed))} (allowed_hosts)"}, status_code=400)
+            return await answer(scope, receive, send)
+
+        async def send_isolated(message):
+            if message["type"] == "http.response.start":
+                MutableHeaders(scope=message).update(ISOLATION_HEADERS)
+            await send(message)
+
+        await self.app(scope, receive, send_isolated)
+
+
 def create_app(loaded: dict, slots: int | None = None, timeout: float = 60.0,
-               cache_bytes: int = 256 << 20) -> FastAPI:
+               cache_bytes: int = 256 << 20, allowed_hosts=LOOPBACK) -> FastAPI:
     """The web app serving `loaded` ({name: runtime Model}).
 
     slots: samples made at once (default: the cores); timeout: seconds a
-    request may take; cache_bytes: memory for finished files.
+    request may take; cache_bytes: memory for finished files; allowed_hosts:
+    the names a request's Host header may give (a page elsewhere that points
+    a name of its own at this address, DNS rebinding, is refused).
     """
+    if not (isinstance(timeout, (int, float)) and 0 < timeout < float("inf")):
+        raise InputError(f"timeout must be a positive number of seconds, got {timeout}", "timeout")
     slots = slots or load.default_threads()
+    allowed = {name.lower().strip("[]") for name in allowed_hosts}
     sealed = {name: load.format3_bytes(model) for name, model in loaded.items()}  # never re-read from disk
 
     @asynccontextmanager
@@ -278,11 +358,7 @@ def create_app(loaded: dict, slots: int | None = None, timeout: float = 60.0,
                   description="Sample new 3D shapes from sinshape models. No authentication.",
                   docs_url=None, redoc_url=None)  # their pages load scripts from a CDN; /openapi.json stays
 
-    @app.middleware("http")
-    async def isolate(request, call_next):
-        response = await call_next(request)
-        response.headers.update(ISOLATION_HEADERS)
-        return response
+    app.add_middleware(HostsAndIsolation, allowed=allowed)
 
     @app.exception_handler(RequestValidationError)
     async def invalid(request, error):
@@ -356,7 +432,10 @@ def create_app(loaded: dict, slots: int | None = None, timeout: float = 60.0,
         where = generate.parse_triple(anchor, lambda v: 0 <= v <= 1, "three fractions in [0, 1]", "anchor")
         wanted = SampleRequest(name, seed, factors, scale, smooth, format, parts,
                                generate.parse_size(grow) if grow else None, where)
-        made, hit = await request.app.state.sampler.get(model, wanted)
+        try:
+            made, hit = await request.app.state.sampler.get(model, wanted, request.is_disconnected)
+        except ClientGone:
+            return Response(status_code=499)  # nginx's "client closed request": nobody reads it
         headers = {"ETag": made.etag, "Cache-Control": "no-cache", "X-Cache": "hit" if hit else "miss",
                    "X-Sample-Seconds": f"{made.seconds:.3f}",
                    "Content-Disposition": f'attachment; filename="{wanted.filename()}"'}
@@ -373,3 +452,33 @@ def create_app(loaded: dict, slots: int | None = None, timeout: float = 60.0,
 
     app.mount("/static", StaticFiles(directory=STATIC), name="static")
     return app
+
+
+def bind(host: str, port: int):
+    """A listening socket, bound here so that a taken port is one line, not a server's traceback."""
+    import socket
+
+    try:
+        family = socket.AF_INET6 if ":" in host else socket.AF_INET
+        sock = socket.socket(family, socket.SOCK_STREAM)
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        sock.bind((host, port))
+    except (OSError, OverflowError) as error:
+        raise InputError(f"cannot listen on {host}:{port} ({getattr(error, 'strerror', None) or error})") from None
+    return sock
+
+
+def run(loaded: dict, host: str = "127.0.0.1", port: int = 8000, timeout: float = 60.0, extra_hosts=(),
+        ready=None) -> None:
+    """Serve `loaded` until interrupted. `ready(url, allowed hosts)` is
+    called once the socket listens (with the port it got, for port 0)."""
+    import uvicorn
+
+    allowed = allowed_hosts(host, extra_hosts)
+    application = create_app(loaded, timeout=timeout, allowed_hosts=allowed)
+    sock = bind(host, port)
+    shown = f"[{host}]" if ":" in host else host
+    if ready:
+        ready(f"http://{shown}:{sock.getsockname()[1]}/", allowed)
+    server = uvicorn.Server(uvicorn.Config(application, log_level="warning", timeout_graceful_shutdown=5))
+    server.run(sockets=[sock])

@@ -1,4 +1,4 @@
-"""Many seeds as one resumable job: worker processes, Ray, the index (issue 11)."""
+"""Many seeds as one resumable job: worker processes, Ray, an index that a rerun verifies."""
 
 import json
 import sys
@@ -77,6 +77,25 @@ def test_an_interrupted_job_resumes_without_redoing_seeds(tiny_model, sequential
     assert_same_files(tmp_path, sequential, range(8))
 
 
+def test_a_rerun_redoes_damaged_and_missing_files_and_keeps_one_line_per_seed(tiny_model, sequential, tmp_path,
+                                                                             monkeypatch):
+    many.sample_many(tiny_model, range(6), tmp_path / "{seed}.ply", workers=1, scale=SCALE)
+    records = {json.loads(line)["seed"]: json.loads(line) for line in (tmp_path / "index.jsonl").read_text().splitlines()}
+    assert records[0]["bytes"] == (tmp_path / "0.ply").stat().st_size and len(records[0]["sha256"]) == 64
+    with open(tmp_path / "5.ply", "r+b") as f:  # truncate -s 100
+        f.truncate(100)
+    (tmp_path / "3.ply").unlink()
+    data = bytearray((tmp_path / "1.ply").read_bytes())  # same size, one byte changed
+    data[-1] ^= 1
+    (tmp_path / "1.ply").write_bytes(bytes(data))
+    runs, run = [], many.Worker.run
+    monkeypatch.setattr(many.Worker, "run", lambda self, seed: runs.append(seed) or run(self, seed))
+    result = many.sample_many(tiny_model, range(6), tmp_path / "{seed}.ply", workers=1, scale=SCALE)
+    assert sorted(runs) == [1, 3, 5] and result["skipped"] == 3
+    assert sorted(index_seeds(tmp_path)) == list(range(6))  # one line per seed
+    assert_same_files(tmp_path, sequential, range(6))
+
+
 def test_many_seeds_need_seed_in_the_file_name(tiny_model, tmp_path):
     with pytest.raises(many.InputError, match=r"need \{seed\} in the output file name"):
         many.sample_many(tiny_model, range(2), tmp_path / "out.ply")
@@ -122,3 +141,31 @@ def test_ray_writes_the_sequential_bytes_and_resumes(local_ray, tiny_model, sequ
     assert result["skipped"] == 3 and result["written"] == 5
     assert sorted(index_seeds(tmp_path)) == list(range(8))  # every seed once: none redone
     assert_same_files(tmp_path, sequential, range(8))
+
+
+def test_ray_refuses_more_workers_than_the_cluster_has_cpus(local_ray, tiny_model, tmp_path):
+    result = sinrun("sample", tiny_model, "--seeds", "0-3", "--engine", "ray", "--workers", "3",
+                    "-o", tmp_path / "{seed}.ply")
+    assert_one_line_error(result, "--workers 3 of 1 thread each need 3 CPUs; the Ray cluster has 2")
+    assert not list(tmp_path.glob("*.ply"))
+
+
+def test_more_workers_than_cores_is_refused(tiny_model, tmp_path):
+    result = sinrun("sample", tiny_model, "--seeds", "0-3", "--workers", "100000", "-o", tmp_path / "{seed}.ply")
+    assert_one_line_error(result, "workers must be 1 to")
+    assert not list(tmp_path.glob("*.ply"))
+
+
+def test_outputs_already_there_are_checked_before_the_first_seed(tiny_model, tmp_path):
+    (tmp_path / "s_3.ply").symlink_to(tiny_model)
+    result = sinrun("sample", tiny_model, "--seeds", "2-3", "-o", tmp_path / "s_{seed}.ply")
+    assert_one_line_error(result, "s_3.ply")
+    assert not (tmp_path / "s_2.ply").exists() and tiny_model.read_bytes()[:4] != b"ply\n"
+
+
+@pytest.mark.parametrize("seeds", ["0-99999999999999999999999", "9223372036854775806-9223372036854775809"])
+def test_seed_ranges_past_2_63_are_refused_before_any_file(tiny_model, tmp_path, seeds):
+    result = sinrun("sample", tiny_model, "--seeds", seeds, "-o", tmp_path / "{seed}.ply")
+    assert result.exit_code == 2 and "Traceback" not in result.output  # click's usage error
+    assert result.output.strip().splitlines()[-1].endswith("seeds are integers in [0, 2**63)")
+    assert not list(tmp_path.glob("*.ply"))

@@ -3,14 +3,18 @@
 import re
 import subprocess
 import sys
+from pathlib import Path
 from types import SimpleNamespace
 
 import h5py
 import numpy as np
 import pytest
+from click.testing import CliRunner
 
 from conftest import write_pyramid
 from sinshape.prep import pyramid, shapes
+from sinshape.cli.main import cli
+from sinshape.runtime import load_model
 from sinshape.runtime.errors import InputError
 
 
@@ -81,7 +85,7 @@ def test_bad_h5_files_are_refused(tmp_path):
     for path, message in [(no_attr, "n_scales"), (missing, "scale1"), (empty, "empty"), (garbage, "HDF5")]:
         with pytest.raises(InputError, match=message):
             pyramid.load_pyramid(path, res=64)
-    with pytest.raises(InputError, match="no such file"):
+    with pytest.raises(InputError, match="no such mesh or .h5 file"):
         pyramid.load_pyramid(tmp_path / "nothing.h5", res=64)
 
 
@@ -206,3 +210,45 @@ def test_a_directory_is_named_as_one(tmp_path, name):
     (tmp_path / name).mkdir()
     with pytest.raises(InputError, match="a directory, not a mesh or .h5 file"):
         pyramid.load_pyramid(tmp_path / name, res=64)
+
+
+def ssg_file(path, make) -> Path:
+    with h5py.File(path, "w") as f:
+        f.attrs["n_scales"] = 1
+        make(f)
+    return path
+
+
+def test_h5_files_that_reach_outside_themselves_are_refused(tmp_path):
+    """External links, external raw storage and soft links (which can loop) are never followed."""
+    secret = tmp_path / "secret.bin"
+    secret.write_bytes(bytes(range(256)) * 32)
+    cases = {
+        "external storage": ssg_file(tmp_path / "storage.h5", lambda f: f.create_dataset(
+            "scale0", shape=(16, 16, 32), dtype="u1", external=[(str(secret), 0, 8192)])),
+        "a soft link to itself": ssg_file(tmp_path / "loop.h5", lambda f: f.__setitem__("scale0", h5py.SoftLink("/scale0"))),
+        "an external link": ssg_file(tmp_path / "link.h5", lambda f: f.__setitem__(
+            "scale0", h5py.ExternalLink(str(tmp_path / "storage.h5"), "/scale0"))),
+    }
+    for what, path in cases.items():
+        with pytest.raises(InputError, match="an SSG file holds its grids itself"):
+            pyramid.load_pyramid(path, 32)
+        result = CliRunner().invoke(cli, ["train", str(path), "-o", str(tmp_path / "m.onnx")])
+        assert result.exit_code != 0 and "Traceback" not in result.output and "holds its grids itself" in result.output, what
+
+
+def test_inputs_that_are_not_regular_files_say_what_they_are(tmp_path):
+    import os
+
+    fifo = tmp_path / "x.h5"
+    os.mkfifo(fifo)
+    loop = tmp_path / "loop.onnx"
+    loop.symlink_to(loop)
+    with pytest.raises(InputError, match="not a regular file"):
+        pyramid.load_pyramid(fifo, 32)
+    with pytest.raises(InputError, match="leads nowhere"):
+        load_model(loop)
+    blocker = tmp_path / "model.sha"
+    blocker.write_text("a file")
+    result = CliRunner().invoke(cli, ["sample", "terrain", "-o", str(blocker / "x.ply")])
+    assert result.exit_code != 0 and "model.sha is a file, not a folder" in result.output

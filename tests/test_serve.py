@@ -107,7 +107,7 @@ def test_openapi_describes_every_route(server):
     assert status == 200
     assert {"/health", "/api/models", "/api/models/{name}", "/api/models/{name}/sample"} <= set(paths)
     params = {p["name"] for p in paths["/api/models/{name}/sample"]["get"]["parameters"]}
-    assert params == {"name", "seed", "size", "scale", "smooth", "format"}
+    assert params == {"name", "seed", "size", "scale", "smooth", "format", "keep", "grow", "anchor"}
 
 
 def test_the_page_and_its_offline_scripts(server):
@@ -226,6 +226,7 @@ def test_a_repeated_request_is_a_cache_hit(server):
     ({"size": "abc"}, 400, "give one or three positive factors"),
     ({"size": "1,1"}, 400, "give one or three positive factors"),
     ({"size": "0,1,1"}, 400, "give one or three positive factors"),
+    ({"size": "1e308"}, 400, "the most a sample may have per axis"),
     ({"smooth": "-3"}, 422, "smooth: Input should be greater than or equal to 0"),
     ({"format": "xyz"}, 422, "format: Input should be 'glb', 'ply'"),
     ({"model": "nope"}, 404, "unknown model 'nope'; this server has terrain"),
@@ -271,6 +272,41 @@ def test_a_slow_request_is_cut_off_by_the_time_limit():
             time.sleep(0.02)
         assert time.perf_counter() - started < 1.5
         assert get(f"{base}/api/models/terrain")[0] == 200
+
+
+def test_only_the_allowed_host_names_are_answered(server):
+    base, _ = server
+    port = base.rsplit(":", 1)[1]
+    status, _, body = get(f"{base}/api/models", {"Host": "evil.example.com"})
+    assert status == 400 and "does not answer to the host 'evil.example.com'" in json.loads(body)["detail"]
+    assert get(f"{base}/api/models", {"Host": f"localhost:{port}"})[0] == 200
+    with running_server("terrain", "--allowed-host", "sinshape.test") as (other, _):
+        assert get(f"{other}/api/models", {"Host": "sinshape.test"})[0] == 200
+        assert get(f"{other}/api/models", {"Host": "evil.example.com"})[0] == 400
+
+
+def test_a_client_that_leaves_frees_its_slot():
+    """Requests whose clients give up after 0.5 s stop their samples (terrain
+    at scale 24 takes far longer), so the next request is not kept waiting."""
+    with running_server("terrain", "--timeout", "60") as (base, _):
+        def impatient(seed):
+            try:
+                urllib.request.urlopen(sample_url(base, seed=seed, scale=24), timeout=0.5)
+            except OSError:
+                pass
+
+        with ThreadPoolExecutor(4) as pool:
+            list(pool.map(impatient, range(4)))
+        started = time.perf_counter()
+        while json.loads(get(f"{base}/health")[2])["sampling"]:
+            assert time.perf_counter() - started < 10, "the abandoned samples still run"
+            time.sleep(0.05)
+        assert get(sample_url(base, seed=1))[0] == 200
+
+
+def test_a_timeout_that_is_not_a_positive_number_is_refused():
+    for value in ("nan", "-1", "inf"):
+        assert_one_line_error(CliRunner().invoke(cli, ["serve", "terrain", "--timeout", value]), "timeout must be")
 
 
 def test_serve_help_says_loopback_and_no_authentication():
