@@ -6,6 +6,7 @@ Heavy imports (torch, onnxruntime, trimesh) happen inside the commands, so
 
 import itertools
 import re
+import signal
 import sys
 from pathlib import Path
 
@@ -46,9 +47,9 @@ class Sinrun(click.Group):
             # A command may say that a value came from elsewhere than its option.
             options = {**OPTIONS, **ctx.meta.get(SOURCES, {})}
             raise click.ClickException(command_line_message(error, options)) from None
-        except KeyboardInterrupt:
-            click.echo("interrupted", err=True)
-            sys.exit(130)
+        except KeyboardInterrupt as stop:
+            click.echo("terminated" if isinstance(stop, Terminated) else "interrupted", err=True)
+            sys.exit(143 if isinstance(stop, Terminated) else 130)
 
 
 @click.group(cls=Sinrun, context_settings={"help_option_names": ["-h", "--help"]})
@@ -849,5 +850,15 @@ def list_models():
         click.echo(f"{name}{marker}  {path}")
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where Ctrl-C would be, so that it unwinds the same way:
+    temporary files removed, a training checkpoint saved."""
+
+
+def terminate(signum, frame):
+    raise Terminated
+
+
 def main():
+    signal.signal(signal.SIGTERM, terminate)
     cli(prog_name="sinrun")

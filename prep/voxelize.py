@@ -62,6 +62,7 @@ from __future__ import annotations
 
 import io
 import itertools
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -88,6 +89,10 @@ _CHUNK = 1 << 15
 # Peak bytes per piece a triangle is cut into (measured: about 190, with the
 # temporaries of orienting and splitting), for the memory check.
 PIECE_BYTES = 256
+# Coordinates beyond this overflow the principal-axis check and float32 meshes.
+MAX_COORDINATE = 1e12
+# A mesh this many times wider than where 99% of its points lie has strays far away.
+OUTLIER_RATIO = 1000
 
 
 def load_mesh(path: str | Path, solid: bool = True) -> trimesh.Trimesh:
@@ -115,10 +120,13 @@ def load_mesh(path: str | Path, solid: bool = True) -> trimesh.Trimesh:
         raise InputError(f"{path}: empty file")
     data = _as_text(data, file_type, path)
     try:
-        # Unprocessed, so that faces with NaN coordinates are seen, not dropped.
-        scene = trimesh.load_scene(io.BytesIO(data), file_type=file_type, process=False,
-                                   resolver=trimesh.resolvers.FilePathResolver(str(path)))
-        mesh = scene.to_mesh()
+        # Unprocessed, so that faces with NaN coordinates are seen, not dropped; garbage numbers
+        # are refused below, without numpy's RuntimeWarning lines first.
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            scene = trimesh.load_scene(io.BytesIO(data), file_type=file_type, process=False,
+                                       resolver=trimesh.resolvers.FilePathResolver(str(path)))
+            mesh = scene.to_mesh()
     except Exception as exc:  # trimesh's parsers raise anything on a bad file
         reason = " ".join(str(exc).split()) or type(exc).__name__
         raise InputError(f"{path}: cannot read as .{file_type}: {reason}") from None
@@ -130,11 +138,39 @@ def load_mesh(path: str | Path, solid: bool = True) -> trimesh.Trimesh:
         raise InputError(f"{path}: corrupt mesh: faces refer to vertices it does not have")
     if not np.isfinite(mesh.vertices[mesh.faces]).all():
         raise InputError(f"{path}: NaN or infinite vertex coordinates")
-    mesh.process()  # merges duplicate vertices, as trimesh's default loading does
-    mesh.remove_unreferenced_vertices()
-    if solid:
-        _check_not_flat(mesh.vertices, path)
+    if np.abs(mesh.vertices[mesh.faces]).max() > MAX_COORDINATE:
+        raise InputError(f"{path}: coordinates beyond +-{MAX_COORDINATE:g}; scale the mesh down")
+    with np.errstate(all="ignore"):  # no RuntimeWarning lines: what matters is checked below
+        mesh.process()  # merges duplicate vertices, as trimesh's default loading does
+        mesh.remove_unreferenced_vertices()
+        if solid:
+            _check_solid(mesh, path)
     return mesh
+
+
+def _bulk_extent(mesh: trimesh.Trimesh) -> float:
+    """The widest extent, over the axes, of the middle 99% of the surface
+    (face centres weighted by area): a tiny part far away does not count."""
+    centres, areas = mesh.triangles_center, mesh.area_faces
+    widths = []
+    for axis in range(3):
+        order = np.argsort(centres[:, axis])
+        share = np.cumsum(areas[order]) / areas.sum()
+        low, high = np.searchsorted(share, [0.005, 0.995])
+        widths.append(centres[order[min(high, len(order) - 1)], axis] - centres[order[low], axis])
+    return max(widths)
+
+
+def _check_solid(mesh: trimesh.Trimesh, path: Path) -> None:
+    """A mesh with an inside: no far outliers, not flat, faces with area."""
+    if mesh.area > 0:
+        bulk, whole = _bulk_extent(mesh), np.ptp(mesh.vertices, axis=0).max()
+        if bulk > 0 and whole > OUTLIER_RATIO * bulk:
+            raise InputError(f"{path}: parts of it lie far from the rest ({whole:.3g} across, while 99% of its "
+                             f"surface lies within {bulk:.3g}); remove the stray parts")
+    _check_not_flat(mesh.vertices, path)
+    if not mesh.area > 0:
+        raise InputError(f"{path}: all its faces have zero area, so it has no surface to voxelize")
 
 
 # Formats that are always text, and STL, which is text unless its size fits

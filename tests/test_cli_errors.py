@@ -2,6 +2,9 @@
 (issue 10, class 6)."""
 
 import signal
+import subprocess
+import sys
+import time
 
 from click.testing import CliRunner
 
@@ -105,3 +108,18 @@ def test_render_refuses_an_empty_sample(tiny_model, tmp_path, monkeypatch):
     out = tmp_path / "r.png"
     assert_one_line_error(sinrun("render", tiny_model, "-o", out), "no surface", "nothing drawn")
     assert not out.exists()
+
+
+def test_sigterm_during_a_large_sample_leaves_no_temporary_file(tmp_path):
+    out = tmp_path / "big.ply"
+    process = subprocess.Popen([sys.executable, "-c", "from sinshape.cli.main import main; main()", "sample",
+                                "terrain", "--scale", "12", "--threads", "1", "-o", str(out)],
+                               stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while not list(tmp_path.glob(".big.ply*")):  # the streamed .ply has begun
+        assert time.monotonic() < deadline and process.poll() is None, process.stderr.read()
+        time.sleep(0.02)
+    process.send_signal(signal.SIGTERM)
+    _, err = process.communicate(timeout=60)
+    assert process.returncode == 143 and "terminated" in err and "Traceback" not in err
+    assert list(tmp_path.iterdir()) == []

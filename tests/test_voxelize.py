@@ -8,6 +8,7 @@ independent and hole-tolerant inside test. Grids use slightly different spacings
 an origin off any round number, so that nothing lines up by luck.
 """
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -392,6 +393,13 @@ BAD_FILES = [  # (file name, how to write it or None, part of the message)
     ("garbage.obj", lambda path: path.write_bytes(bytes(range(256)) * 4), "binary data, not .obj text"),
     ("garbage.stl", lambda path: path.write_bytes(bytes(range(256)) * 4), "neither binary STL"),
     ("garbage.off", lambda path: path.write_bytes(b"OFF\n" + bytes(range(256))), "binary data"),
+    # Numbers past what the checks can square (a LinAlgError once), faces without area, far strays.
+    ("huge.obj", lambda path: path.write_text(_cube_obj().replace("v -0.5 -0.5 -0.5", "v -1e300 -0.5 -0.5")),
+     "coordinates beyond"),
+    ("no-area.obj", _write_text("v 0 0 0\nv 1 0 0\nv 2 0 0\nv 0 1 0\nv 0 2 0\nv 0 0 1\nf 1 2 3\nf 1 4 5\nf 1 1 6\n"),
+     "zero area"),
+    ("stray.obj", _export(trimesh.util.concatenate([trimesh.creation.icosphere(3), trimesh.creation.icosphere(
+        1, radius=0.01).apply_translation([1e6, 0, 0])])), "lie far from the rest"),
 ]
 
 
@@ -407,7 +415,8 @@ def test_load_mesh_errors_are_one_line_naming_the_file(tmp_path, name, write, sa
     path = tmp_path / name
     if write is not None:
         write(path)
-    with pytest.raises(InputError) as error:
+    with pytest.raises(InputError) as error, warnings.catch_warnings():
+        warnings.simplefilter("error")  # no warning lines before the error
         load_mesh(path)
     message = str(error.value)
     assert "\n" not in message and name in message and says in message
@@ -427,3 +436,15 @@ def test_a_flat_mesh_loads_when_no_solid_is_needed(tmp_path):
     assert len(load_mesh(path, solid=False).faces) == 2
     with pytest.raises(InputError, match="flat"):
         load_mesh(path)
+
+
+def test_memory_that_grows_with_big_faces_is_refused_up_front():
+    """A million copies of one grid-wide triangle: about 10**9 pieces once cut
+    to voxel size (the kernel killed this at 7 GB for 40 000 faces)."""
+    from sinshape.prep.voxelize import voxelize
+
+    triangle = np.array([[[0.0, 0.0, 0.0], [16.0, 0.0, 0.0], [0.0, 16.0, 16.0]]])
+    mesh = trimesh.Trimesh(vertices=np.repeat(triangle, 10**6, axis=0).reshape(-1, 3),
+                           faces=np.arange(3 * 10**6).reshape(-1, 3), process=False)
+    with pytest.raises(InputError, match="voxelising 1000000 faces on a 16x16x16 grid needs about"):
+        voxelize(mesh, (0, 0, 0), (1, 1, 1), (16, 16, 16))
