@@ -27,7 +27,8 @@ SINRUN = str(Path(sys.executable).with_name("sinrun"))
 SAMPLE_VOXEL = """
 import json, sys, time
 import torch
-from sinshape.runtime import evaluate, noise
+from sinshape.core import noise
+from sinshape.runtime import evaluate
 from sinshape.prep import pyramid
 from sinshape.trainer import train
 checkpoint, reference, samples = sys.argv[1], sys.argv[2], int(sys.argv[3])

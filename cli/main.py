@@ -12,8 +12,9 @@ from pathlib import Path
 
 import click
 
+from sinshape.core import files
+from sinshape.core.errors import InputError
 from sinshape.runtime import __version__
-from sinshape.runtime.errors import InputError
 
 # Library errors name a function's parameter; on the command line it is an option.
 OPTIONS = {"scale": "--scale", "factors": "--size", "smooth": "--smooth", "threads": "--threads",
@@ -451,7 +452,7 @@ def sample(model, seed, seeds, recon, keep, layout_file, resample_layout, grow_b
         return
     path = named_output(output, seed=first) if "{" in output.name else output
     kind = write.output_kind(path)
-    write.check_writable(path, [loaded.path] + ([layout_file] if layout_file else []))
+    files.check_writable(path, [loaded.path] + ([layout_file] if layout_file else []))
     if layout_file:
         triplane = layout.sample_from_file(loaded, first, layout_file, size, resample_layout)
     elif grow_by:
@@ -515,7 +516,7 @@ def layout_command(model, seed, level, size, output):
     from sinshape.runtime import layout, write
 
     loaded = open_model(model, threads=None)
-    write.check_writable(output, [loaded.path])
+    files.check_writable(output, [loaded.path])
     shape = layout.export(loaded, seed, output, level, size)
     click.echo(f"wrote {output} ({'x'.join(map(str, shape))} voxels, level {level})")
 
@@ -559,7 +560,7 @@ def interpolate(model, seeds, steps, alpha_range, scale, size, output, smooth, s
         return named_output(output, step=f"{k:02d}", alpha=f"{alpha(k):+.2f}")
 
     write.output_kind(path(0))
-    write.check_writable(path(0), [loaded.path])
+    files.check_writable(path(0), [loaded.path])
     outputs = ((path(k), generate.interpolate(loaded, seeds[0], seeds[1], alpha(k), size)) for k in range(steps))
     with progress_bar(steps, "interpolating") as bar:
         write.write_samples(loaded, outputs, progress=lambda: bar.update(1), scale=scale, smooth=smooth,
@@ -615,7 +616,7 @@ def warn_if_clamped(model, factors, scale) -> None:
 @MODEL_ARGUMENT
 def info(model):
     """Show how a model was made: levels, sizes, training input, config, time."""
-    from sinshape.runtime.manifest import describe, printable
+    from sinshape.core.manifest import describe, printable
 
     loaded = open_model(model, threads=1)
     click.echo(printable(loaded.path))
@@ -661,7 +662,7 @@ def render(inputs, output, seeds, recon, scale, size, smooth, views, up, columns
 
     if output.suffix.lower() != ".png":
         raise InputError(f"{output}: the picture is written as .png")
-    write.check_writable(output, [Path(item) for item in inputs])
+    files.check_writable(output, [Path(item) for item in inputs])
     if views < 1 or columns < 1 or image_size < 16:
         raise click.UsageError("--views and --columns must be at least 1, --image-size at least 16")
     draw.check_view(zoom, azimuth, elevation)
@@ -710,7 +711,7 @@ def shape(name, output, seed, detail):
     """
     from sinshape.prep import shapes
 
-    from sinshape.runtime.write import check_writable
+    from sinshape.core.files import check_writable
 
     check_writable(output)
     written = shapes.write_shape(name, output, seed=seed, detail=detail)
@@ -755,7 +756,7 @@ def evaluate(model, reference, samples, first_seed, scale, upsample, json_path, 
         raise InputError(f"--scale must be a positive number, got {scale}")
     loaded = open_model(model, threads)
     if json_path:
-        write.check_writable(json_path, [loaded.path, reference])
+        files.check_writable(json_path, [loaded.path, reference])
     source = loaded.manifest.raw.get("source", {})
     if (not force and source.get("sha256") and Path(reference).is_file()
             and file_sha256(Path(reference)) != source["sha256"]):
@@ -772,7 +773,7 @@ def evaluate(model, reference, samples, first_seed, scale, upsample, json_path, 
     click.echo(f"  diversity  {results['diversity']:.3f}")
     click.echo(f"  time       {results['seconds_sampling']:.1f} s sampling, {results['seconds_scoring']:.1f} s scoring")
     if json_path:
-        write.atomic_write(json_path, lambda f: f.write(json.dumps(results, indent=1).encode()))
+        files.atomic_write(json_path, lambda f: f.write(json.dumps(results, indent=1).encode()))
 
 
 @cli.command()
@@ -828,8 +829,6 @@ def export_web(model_names, output):
     seed gives the same shape as `sinrun sample`. Its README.txt says how to
     let WASM use several threads.
     """
-    import importlib.metadata
-
     from sinshape.serve import site
 
     result = site.export_site(model_names, output, __version__)

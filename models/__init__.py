@@ -5,7 +5,7 @@ model loads nothing."""
 from importlib import resources
 from pathlib import Path
 
-from sinshape.runtime.errors import InputError
+from sinshape.core.errors import InputError
 
 DEFAULT = "towerruins"  # what `sinrun sample` uses when no model is named
 

@@ -20,10 +20,10 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
-from sinshape.runtime.budget import check_memory
-from sinshape.runtime.errors import InputError
-from sinshape.runtime.manifest import MAX_LEVEL_SIDE
-from sinshape.runtime.write import check_readable
+from sinshape.core.budget import check_memory
+from sinshape.core.errors import InputError
+from sinshape.core.manifest import MAX_LEVEL_SIDE
+from sinshape.core.files import check_readable
 
 from . import voxelize
 

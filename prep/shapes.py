@@ -24,9 +24,9 @@ import numpy as np
 import trimesh
 from skimage import measure
 
-from sinshape.runtime import write
-from sinshape.runtime.budget import check_memory
-from sinshape.runtime.errors import InputError
+from sinshape.core.files import MESH_FORMATS, atomic_write
+from sinshape.core.budget import check_memory
+from sinshape.core.errors import InputError
 
 # Grid points farther than MARGIN voxels outside a primitive's bounding box
 # are left alone: its distance there exceeds MARGIN voxels, so it cannot
@@ -364,8 +364,9 @@ def write_shape(name: str, path, seed: int = 0, detail: int | None = None) -> tr
     """Make a shape and write it to `path`, in the format its suffix names
     (atomically, as every sample is written); returns the mesh."""
     path = Path(path)
-    if path.suffix.lower() not in write.MESH_FORMATS:
-        raise InputError(f"cannot write a mesh as {path.name!r}; use one of {', '.join(write.MESH_FORMATS)}")
+    if path.suffix.lower() not in MESH_FORMATS:
+        raise InputError(f"cannot write a mesh as {path.name!r}; use one of {', '.join(MESH_FORMATS)}")
     mesh = make_shape(name, seed, detail)
-    write.write_mesh(mesh, path)
+    data = mesh.export(file_type=MESH_FORMATS[path.suffix.lower()])
+    atomic_write(path, lambda f: f.write(data.encode() if isinstance(data, str) else data))
     return mesh

@@ -70,8 +70,8 @@ import scipy.sparse
 import scipy.sparse.csgraph
 import trimesh
 
-from sinshape.runtime.budget import check_memory
-from sinshape.runtime.errors import InputError
+from sinshape.core.budget import check_memory
+from sinshape.core.errors import InputError
 
 # A mesh thinner than this fraction of its size across some direction is
 # flat: it has no inside to fill.

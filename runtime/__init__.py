@@ -14,10 +14,10 @@ composes a sample from boxes of others; many runs them for many seeds on
 worker processes or a Ray cluster.
 
 It imports numpy, scipy, onnx, onnxruntime, trimesh, scikit-image and
-pillow; never torch, and nothing from sinshape.trainer, .cli or .serve: a
-model file and its manifest (docs/FORMAT.md) are all it shares with the
-trainer. Only evaluate.evaluate_model imports sinshape.prep (torch-free),
-for the grid a model is scored against. `__version__` is the installed sinshape distribution's version.
+pillow; never torch. It stands on sinshape.core (errors, the memory budget,
+the model format, the noise, atomic files) and, for evaluation's reference
+grid only, sinshape.prep; never on sinshape.trainer, .cli or .serve: a model
+file and its manifest (docs/FORMAT.md) are all it shares with the trainer. `__version__` is the installed sinshape distribution's version.
 """
 
 import importlib
@@ -26,17 +26,19 @@ from importlib import metadata
 __version__ = metadata.version("sinshape")
 
 # Where each public name lives. They are imported on first use, so that
-# importing a light module (runtime.errors, for the CLI's --help) does not
+# importing a light module (for the CLI's --help) does not
 # pull in onnxruntime, trimesh and scikit-image.
 _EXPORTS = {
-    "InputError": "errors", "MemoryLimitError": "errors", "Model": "load", "load_model": "load", "TriPlane": "generate",
-    "sample": "generate", "interpolate": "generate", "extract": "mesh", "dense": "query", "points": "query",
-    "sample_many": "many", "compose": "edit", "Part": "edit",
+    "InputError": "sinshape.core.errors", "MemoryLimitError": "sinshape.core.errors", "Model": "load",
+    "load_model": "load", "TriPlane": "generate", "sample": "generate", "interpolate": "generate",
+    "extract": "mesh", "dense": "query", "points": "query", "sample_many": "many", "compose": "edit",
+    "Part": "edit",
 }
 __all__ = sorted(_EXPORTS) + ["__version__"]
 
 
 def __getattr__(name):
     if name in _EXPORTS:
-        return getattr(importlib.import_module(f".{_EXPORTS[name]}", __name__), name)
+        module = _EXPORTS[name]
+        return getattr(importlib.import_module(module if "." in module else f".{module}", __name__), name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

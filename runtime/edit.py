@@ -28,10 +28,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .budget import check_memory
-from .errors import InputError
+from sinshape.core.budget import check_memory
+from sinshape.core.errors import InputError
 from .generate import Noise, TriPlane, chain, check_seed, draw_noise, scaled_sizes, triplane
-from .manifest import PLANE_AXES, plane_sizes
+from sinshape.core.manifest import PLANE_AXES, plane_sizes
 
 # Cells of each level blended on either side of a box's face: the reach of a
 # level's generator (four 3x3 convolutions).

@@ -46,7 +46,7 @@ CPU: identical patches, scores equal to float32 precision.
 
 import numpy as np
 
-from .errors import InputError
+from sinshape.core.errors import InputError
 
 REFERENCE_CHUNK = 2048  # reference patches per matrix product: ~30 MB of work arrays
 VOXEL_CHUNK = 1 << 16  # voxels per diversity product: float32 sums of 0/1 stay exact
@@ -214,7 +214,7 @@ def check_evaluation_memory(model, samples: int, scale: float, limit: int | None
     memory available): every sample's grid is kept for diversity, whose
     pairwise overlaps are a few (n, n) float64 matrices and (n, VOXEL_CHUNK)
     float32 chunks; one sample is queried densely at a time."""
-    from .budget import check_memory
+    from sinshape.core.budget import check_memory
     from .query import grid_shape
 
     if samples < 1:

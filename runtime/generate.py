@@ -14,10 +14,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import noise
-from .budget import check_memory
-from .errors import InputError
-from .manifest import plane_sizes
+from sinshape.core import noise
+from sinshape.core.budget import check_memory
+from sinshape.core.errors import InputError
+from sinshape.core.manifest import plane_sizes
 
 # A sample's coarsest grid may not shrink below this many voxels per axis.
 MIN_SIDE = 2

@@ -19,9 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError
-from .manifest import MAX_LEVEL_SIDE
-from .write import atomic_write
+from sinshape.core.errors import InputError
+from sinshape.core.manifest import MAX_LEVEL_SIDE
+from sinshape.core.files import atomic_write
 from .generate import TriPlane, check_seed, draw_noise, sample, scaled_sizes, triplane
 from .query import dense
 

@@ -20,9 +20,9 @@ import onnx
 import onnxruntime as ort
 from google.protobuf.message import DecodeError
 
-from . import manifest as fmt
-from .errors import InputError
-from .write import check_readable
+from sinshape.core import manifest as fmt
+from sinshape.core.errors import InputError
+from sinshape.core.files import check_readable
 
 MAX_MODEL_BYTES = 512 * 1024 * 1024
 # onnxruntime starts every thread of every stage's pool up front (a million

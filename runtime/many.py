@@ -23,7 +23,9 @@ import tempfile
 import time
 from pathlib import Path
 
-from .errors import InputError
+from sinshape.core import files
+from sinshape.core.errors import InputError
+
 from .load import default_threads, load_model
 
 ENGINES = ("local", "ray")
@@ -78,10 +80,8 @@ def verified(records: dict, pattern: Path) -> dict:
 
 def rewrite_index(path: Path, records: dict) -> None:
     """The index with one line per seed it vouches for, written atomically."""
-    from .write import atomic_write
-
     text = "".join(json.dumps(record) + "\n" for record in records.values())
-    atomic_write(path, lambda f: f.write(text.encode()))
+    files.atomic_write(path, lambda f: f.write(text.encode()))
 
 
 class Worker:
@@ -241,8 +241,6 @@ class RayActors:
 def check_existing_outputs(pattern: Path, inputs) -> None:
     """Every file already there that the job could replace (a name the
     pattern makes) is checked before the first seed, not when its turn comes."""
-    from . import write
-
     name = re.compile(re.escape(pattern.name).replace(re.escape(FIELD), r"\d+"))
     folder = pattern.parent if str(pattern.parent) else Path(".")
     try:
@@ -250,8 +248,8 @@ def check_existing_outputs(pattern: Path, inputs) -> None:
     except OSError:
         return  # check_writable has said what is wrong with the folder
     for path in entries:
-        write.check_replaceable(path)
-        write.check_not_input(path, inputs)
+        files.check_replaceable(path)
+        files.check_not_input(path, inputs)
 
 
 def sample_many(model_path, seeds, pattern, engine: str = "local", workers: int | None = None,
@@ -279,7 +277,7 @@ def sample_many(model_path, seeds, pattern, engine: str = "local", workers: int 
     if threads is not None and threads < 1:
         raise InputError(f"threads must be at least 1, got {threads}", "threads")
     write.output_kind(pattern)
-    write.check_writable(pattern.with_name(pattern.name.replace(FIELD, "0")), [model_path])
+    files.check_writable(pattern.with_name(pattern.name.replace(FIELD, "0")), [model_path])
     check_existing_outputs(pattern, [model_path])
     load_model(model_path, threads=1)  # a bad model is one line here, not one per worker
     index = index_path(pattern)
@@ -306,8 +304,8 @@ def sample_many(model_path, seeds, pattern, engine: str = "local", workers: int 
                 data, record = pool.next_result()
                 running -= 1
                 path = pattern.with_name(pattern.name.replace(FIELD, str(record["seed"])))
-                write.check_not_input(path, [model_path])  # never over the model, under any name
-                write.atomic_write(path, lambda f: f.write(data))
+                files.check_not_input(path, [model_path])  # never over the model, under any name
+                files.atomic_write(path, lambda f: f.write(data))
                 log.write(json.dumps({"seed": record["seed"], "file": path.name, **record, "bytes": len(data),
                                       "sha256": hashlib.sha256(data).hexdigest()}) + "\n")
                 log.flush()

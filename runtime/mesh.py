@@ -18,7 +18,7 @@ from threadpoolctl import threadpool_limits
 from skimage import measure
 
 from . import query
-from .errors import InputError
+from sinshape.core.errors import InputError
 from .load import default_threads
 
 SMOOTHERS = ("laplacian", "taubin")

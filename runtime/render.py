@@ -18,9 +18,9 @@ import numpy as np
 import trimesh
 from PIL import Image, ImageDraw, ImageFont
 
-from .budget import check_memory
-from .errors import InputError
-from .write import atomic_write
+from sinshape.core.budget import check_memory
+from sinshape.core.errors import InputError
+from sinshape.core.files import atomic_write
 
 CLAY = (0.86, 0.82, 0.76)
 BACKGROUND = (0.97, 0.97, 0.96)

@@ -2,29 +2,23 @@
 
 Meshes: .ply (binary, written here, streamed slab by slab so that its size
 is bounded by the disk, not the memory) and .obj .stl .off .glb (trimesh's
-exporters, which need the whole mesh in memory). Occupancy grids: .npz. Every file is written to a temporary name beside the target and then
-renamed (`atomic_write`, which the trainer uses for its models and
-checkpoints too), so a crash or Ctrl-C leaves either the old file or the new one;
-mesh_bytes and grid_bytes give the same bytes in memory, to send elsewhere.
+exporters, which need the whole mesh in memory). Occupancy grids: .npz.
+Every file goes through core.files.atomic_write, so a crash or Ctrl-C leaves
+either the old file or the new one; mesh_bytes and grid_bytes give the same
+bytes in memory, to send elsewhere.
 """
 
-import errno
 import io
 import os
-import secrets
 import shutil
 import tempfile
 from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError
-
-MESH_FORMATS = {".ply": "ply", ".obj": "obj", ".stl": "stl", ".off": "off", ".glb": "glb"}
+from sinshape.core.errors import InputError
+from sinshape.core.files import MESH_FORMATS, atomic_write, check_writable
 GRID_FORMATS = {".npz"}
-# Bytes of the target's name kept in its temporary's name: with the bytes
-# added, well under the 255 bytes most file systems allow.
-TEMPORARY_PREFIX = 200
 
 
 def output_kind(path) -> str:
@@ -37,117 +31,6 @@ def output_kind(path) -> str:
     known = ", ".join([*MESH_FORMATS, *GRID_FORMATS])
     raise InputError(f"{path}: unsupported output format {suffix or '(no extension)'!r}; use one of {known}")
 
-
-def check_writable(path, inputs=()) -> None:
-    """Fail before long work, not after it, if `path` cannot be written: it
-    is not a regular file (a folder, a pipe, a device), its folder is
-    missing or read-only, or it is one of `inputs` (the same file, also
-    through a symbolic or hard link), which writing would destroy."""
-    path = Path(path)
-    try:
-        check_replaceable(path)
-        folder_exists = path.parent.is_dir()
-    except OSError as error:  # a name too long for the file system
-        raise InputError(f"{path}: cannot write here ({error.strerror})") from None
-    check_not_input(path, inputs)
-    if not folder_exists:
-        if path.parent.exists():
-            raise InputError(f"{path}: {path.parent} is a file, not a folder")
-        raise InputError(f"{path}: the folder {path.parent} does not exist")
-    try:
-        tmp, fd = _create_temporary(path)
-        os.close(fd)
-        tmp.unlink()
-    except OSError as error:
-        raise InputError(f"{path}: cannot write here ({error.strerror})") from None
-
-
-def check_readable(path, what: str = "file") -> Path:
-    """A regular file to read, or one line saying what it is instead."""
-    path = Path(path)
-    if path.is_dir():
-        raise InputError(f"{path}: a directory, not a {what}")
-    if path.is_symlink() and not path.exists():
-        raise InputError(f"{path}: a symbolic link that leads nowhere (or round in a loop)")
-    if path.exists() and not path.is_file():
-        raise InputError(f"{path}: not a regular file (a pipe or a device); give a {what}")
-    if not path.exists():
-        raise InputError(f"{path}: no such {what}")
-    return path
-
-
-def check_not_input(path, inputs) -> None:
-    """Refuse an output that is one of `inputs` (the same file, also through
-    a symbolic or hard link): writing it would destroy it."""
-    for source in inputs:
-        if source is not None and is_same_file(path, source):
-            raise InputError(f"{path}: is the input {source}; writing it would destroy it, so name another file")
-
-
-def is_same_file(a, b) -> bool:
-    """Whether two paths name one existing file (os.path.samefile: links too)."""
-    try:
-        return os.path.samefile(a, b)
-    except OSError:  # one of them does not exist (yet)
-        return False
-
-
-def check_replaceable(path: Path) -> None:
-    """Only a regular file (or nothing) may be replaced by a rename: as root,
-    renaming over /dev/full would replace the device."""
-    if path.is_dir():
-        raise InputError(f"{path}: is a directory, not a regular file; give a file name")
-    if path.exists() and not path.is_file():
-        raise InputError(f"{path}: exists and is not a regular file (a pipe or device); give a file name")
-
-
-def atomic_write(path, write) -> None:
-    """Call write(file) on a new temporary file beside `path`, fsync it and
-    rename it over `path`: readers see the old file or the new one, never
-    half of one. The temporary's name is unique (O_EXCL), so two writers
-    never share it (the last complete rename wins), and it is removed on
-    every failure (a full disk, Ctrl-C).
-    The one writer of every file sinshape makes: samples, models, checkpoints.
-    """
-    path = Path(path)
-    check_replaceable(path)
-    try:
-        tmp, fd = _create_temporary(path)
-    except OSError as error:
-        raise InputError(f"{path}: cannot write ({error.strerror})") from None
-    try:
-        with os.fdopen(fd, "wb") as f:
-            write(f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except OSError as error:
-        raise InputError(f"{path}: cannot write ({error.strerror})") from None
-    finally:
-        tmp.unlink(missing_ok=True)
-
-
-def temporary_path(path: Path, kind: str = "tmp") -> Path:
-    """A random name `.NAME.RANDOM.KIND` beside `path`, for work renamed into
-    place. NAME is cut to TEMPORARY_PREFIX bytes, so that a valid name of up
-    to 255 bytes (the usual limit) still has a valid temporary."""
-    prefix = os.fsdecode(os.fsencode(path.name)[:TEMPORARY_PREFIX])
-    return path.with_name(f".{prefix}.{secrets.token_hex(4)}.{kind}")
-
-
-def _create_temporary(path: Path) -> tuple:
-    """A new, empty temporary file beside `path` and its descriptor.
-
-    os.open rather than tempfile.mkstemp, whose 0600 mode would survive the
-    rename: the written file gets the usual mode (0666 less the umask).
-    """
-    for _ in range(100):
-        tmp = temporary_path(path)
-        try:
-            return tmp, os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o666)
-        except FileExistsError:
-            continue
-    raise FileExistsError(errno.EEXIST, "no free temporary name", str(path))
 
 
 # A binary PLY face: the vertex count (3) and three int32 indices.

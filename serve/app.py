@@ -41,7 +41,7 @@ from starlette.datastructures import Headers, MutableHeaders
 
 from sinshape import models as shipped
 from sinshape.runtime import edit, generate, load, mesh, query, write
-from sinshape.runtime.errors import InputError, MemoryLimitError
+from sinshape.core.errors import InputError, MemoryLimitError
 
 STATIC = Path(__file__).parent / "static"
 Format = Literal["glb", "ply", "obj", "stl", "off", "npz"]

@@ -19,8 +19,9 @@ import shutil
 from pathlib import Path
 
 from sinshape import models as shipped
-from sinshape.runtime import load, write
-from sinshape.runtime.errors import InputError
+from sinshape.core import files
+from sinshape.runtime import load
+from sinshape.core.errors import InputError
 
 STATIC = Path(__file__).parent / "static"
 MARKER = ".sinshape-site"  # marks a folder this command wrote, so a new export may replace it
@@ -151,7 +152,7 @@ def export_site(names, out, version: str = "") -> dict:
     if not parent.is_dir():
         raise InputError(f"{parent}: no such folder")
     # Unique names of bounded length: two exports to one folder never share them.
-    temporary, old = write.temporary_path(parent / out.name, "partial"), write.temporary_path(parent / out.name, "old")
+    temporary, old = files.temporary_path(parent / out.name, "partial"), files.temporary_path(parent / out.name, "old")
     try:
         temporary.mkdir()
         write_site(temporary, models, version)

@@ -6,8 +6,9 @@ import pytest
 import trimesh
 
 from sinshape.prep import pyramid, shapes
-from sinshape.runtime import budget, mesh, render
-from sinshape.runtime.errors import InputError, MemoryLimitError
+from sinshape.core import budget
+from sinshape.runtime import mesh, render
+from sinshape.core.errors import InputError, MemoryLimitError
 from test_cli_sample import sinrun
 from test_cli_train import assert_one_line_error
 

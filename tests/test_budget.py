@@ -13,7 +13,7 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from sinshape.runtime.errors import InputError  # noqa: E402
+from sinshape.core.errors import InputError  # noqa: E402
 from sinshape.trainer import schedule, train  # noqa: E402
 from sinshape.trainer.config import make_config  # noqa: E402
 

@@ -92,7 +92,7 @@ def test_the_library_names_alpha(tiny_model):
     import pytest
 
     from sinshape.runtime import generate, load_model
-    from sinshape.runtime.errors import InputError
+    from sinshape.core.errors import InputError
 
     with pytest.raises(InputError, match="alpha must be a number in") as error:
         generate.interpolate(load_model(tiny_model, threads=1), 0, 1, float("nan"))

@@ -12,8 +12,8 @@ from click.testing import CliRunner
 
 from sinshape.cli.main import cli
 from sinshape.runtime import load
-from sinshape.runtime import manifest as fmt
-from test_cli_train import BLOCK_TORCH, assert_one_line_error, run_sinrun
+from sinshape.core import manifest as fmt
+from test_cli_train import BLOCK_TORCH, assert_one_line_error
 
 
 def sinrun(*args):
@@ -146,7 +146,7 @@ def test_version_is_the_packages():
 
 def test_library_errors_name_parameters_and_the_cli_names_options():
     from sinshape.cli.main import command_line_message
-    from sinshape.runtime.errors import InputError
+    from sinshape.core.errors import InputError
 
     levels = InputError("t.h5 has 3 levels; levels 5 asks for more", "levels")
     assert command_line_message(levels) == "t.h5 has 3 levels; --levels 5 asks for more"

@@ -15,7 +15,7 @@ from click.testing import CliRunner  # noqa: E402
 
 from sinshape.cli.main import cli  # noqa: E402
 from sinshape.runtime import generate, load, query  # noqa: E402
-from sinshape.runtime.errors import InputError  # noqa: E402
+from sinshape.core.errors import InputError  # noqa: E402
 from sinshape.trainer import device, train  # noqa: E402
 from sinshape.trainer.config import make_config  # noqa: E402
 

@@ -10,7 +10,7 @@ from sinshape import models
 from sinshape.cli.main import cli
 from sinshape.runtime import dense, load_model, sample
 from sinshape.runtime.edit import MARGIN, Part, compose, grow, parse_part
-from sinshape.runtime.errors import InputError
+from sinshape.core.errors import InputError
 from test_cli_train import assert_one_line_error
 
 LOW, HIGH = (12, 0, 0), (40, 20, 31)  # on the acropolis (64x37x32): faces at x 12, 40 and y 20

@@ -6,7 +6,7 @@ import pytest
 from scipy import ndimage
 
 from sinshape.runtime import evaluate
-from sinshape.runtime.errors import InputError
+from sinshape.core.errors import InputError
 from sinshape.runtime.evaluate import diversity, lp_metrics, lp_scores, valid_patches
 
 

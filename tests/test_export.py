@@ -8,7 +8,8 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from sinshape.runtime import generate, load, manifest, query  # noqa: E402
+from sinshape.core import manifest  # noqa: E402
+from sinshape.runtime import generate, load, query  # noqa: E402
 from sinshape.prep import pyramid  # noqa: E402
 from sinshape.trainer import train  # noqa: E402
 

@@ -26,14 +26,14 @@ import numpy as np
 import pytest
 import trimesh
 from click.testing import CliRunner
-from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from conftest import TINY_ONNX
 from sinshape import runtime
 from sinshape.cli.main import SEEDS, cli
-from sinshape.runtime import budget
-from sinshape.runtime.errors import InputError
+from sinshape.core import budget
+from sinshape.core.errors import InputError
 
 EXAMPLES = int(os.environ.get("SINSHAPE_FUZZ_EXAMPLES", "0"))
 LONG = EXAMPLES > 0
@@ -316,7 +316,7 @@ def test_corrupted_models_are_refused_or_work(folder, data):
     import onnx
 
     from sinshape.runtime import load
-    from sinshape.runtime import manifest as fmt
+    from sinshape.core import manifest as fmt
 
     source = data.draw(st.sampled_from([TINY_ONNX, TINY_ONNX.with_name("tiny_v2.onnx")]))
     raw = source.read_bytes()

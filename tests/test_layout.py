@@ -11,7 +11,7 @@ from sinshape import models
 from sinshape.cli.main import cli
 from sinshape.runtime import dense, load_model, sample
 from sinshape.runtime import layout as L
-from sinshape.runtime.errors import InputError
+from sinshape.core.errors import InputError
 from test_cli_train import assert_one_line_error
 
 

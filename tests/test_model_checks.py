@@ -12,8 +12,8 @@ from click.testing import CliRunner
 from sinshape import models
 from sinshape.cli.main import cli
 from sinshape.runtime import load, load_model
-from sinshape.runtime import manifest as fmt
-from sinshape.runtime.errors import InputError
+from sinshape.core import manifest as fmt
+from sinshape.core.errors import InputError
 from test_cli_train import assert_one_line_error
 
 TINY_V1 = Path(__file__).parent / "data" / "tiny_v1.onnx"

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sinshape.runtime import noise
+from sinshape.core import noise
 
 MASK = (1 << 64) - 1
 

@@ -15,7 +15,7 @@ from conftest import write_pyramid
 from sinshape.prep import pyramid, shapes
 from sinshape.cli.main import cli
 from sinshape.runtime import load_model
-from sinshape.runtime.errors import InputError
+from sinshape.core.errors import InputError
 
 
 def test_level_count_gives_a_coarsest_side_of_22_to_33():

@@ -7,7 +7,8 @@ import pytest
 
 from conftest import TINY_ONNX
 from sinshape import runtime
-from sinshape.runtime import budget, generate, query
+from sinshape.core import budget
+from sinshape.runtime import generate, query
 
 
 @pytest.fixture(scope="module")

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from sinshape.runtime.errors import InputError
+from sinshape.core.errors import InputError
 from sinshape.prep import shapes
 
 # Small versions, each made in well under a second.

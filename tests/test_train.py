@@ -8,7 +8,7 @@ torch = pytest.importorskip("torch")
 
 from sinshape.trainer import train  # noqa: E402
 from sinshape.trainer.config import PRESETS, make_config  # noqa: E402
-from sinshape.runtime.errors import InputError  # noqa: E402
+from sinshape.core.errors import InputError  # noqa: E402
 
 
 def test_presets():

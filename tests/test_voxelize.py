@@ -17,7 +17,7 @@ import trimesh
 from scipy import ndimage
 from skimage import measure
 
-from sinshape.runtime.errors import InputError
+from sinshape.core.errors import InputError
 from sinshape.prep import shapes
 from sinshape.prep.voxelize import _add_crossings, _split_to_size, load_mesh, voxelize
 

@@ -22,7 +22,7 @@ from browser import CHROMIUM, WEBGPU_ARGS, http_server_process, launch, open_pag
 from sinshape import models
 from sinshape.cli.main import cli
 from sinshape.runtime import load, mesh, query
-from sinshape.runtime.errors import InputError
+from sinshape.core.errors import InputError
 from sinshape.runtime.generate import sample
 from sinshape.serve import site
 from test_cli_train import assert_one_line_error
@@ -126,7 +126,7 @@ def test_noise_vectors_bit_for_bit(site_page):
     }""", [{**v, "seed": str(v["seed"])} for v in VECTORS])
     assert bits == [v["float32_bits"] for v in VECTORS]
     # Whole blocks too: a 3-D z0 and a tile of a plane stream, bit for bit.
-    from sinshape.runtime import noise
+    from sinshape.core import noise
 
     blocks = page.evaluate("""async () => {
       const { normal } = await import('./static/sinshape/noise.js');

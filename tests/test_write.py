@@ -6,8 +6,8 @@ import stat
 
 import pytest
 
-from sinshape.runtime.errors import InputError
-from sinshape.runtime.write import atomic_write, check_writable
+from sinshape.core.errors import InputError
+from sinshape.core.files import atomic_write, check_writable
 
 
 def temporaries(folder) -> list:

@@ -9,7 +9,7 @@ import dataclasses
 from dataclasses import dataclass
 
 from sinshape.prep.pyramid import LEVEL_FACTOR, MIN_SIZE
-from sinshape.runtime.errors import InputError
+from sinshape.core.errors import InputError
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import torch
 
-from sinshape.runtime.errors import InputError
+from sinshape.core.errors import InputError
 
 DEVICES = ("auto", "cpu", "cuda", "cuda:N")
 PRECISIONS = ("auto", "fp32", "bf16")

@@ -19,8 +19,8 @@ import onnx
 import torch
 from onnx import TensorProto, helper, numpy_helper
 
-from sinshape.runtime import manifest as fmt
-from sinshape.runtime.write import atomic_write
+from sinshape.core import manifest as fmt
+from sinshape.core.files import atomic_write
 
 # ONNX IR 8 / opset 17: read by every onnxruntime since 1.14; newer onnx
 # releases write newer IR versions by default, which older runtimes reject.

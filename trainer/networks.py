@@ -16,7 +16,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from sinshape.runtime.manifest import PLANES, plane_sizes
+from sinshape.core.manifest import PLANES, plane_sizes
 
 
 def plane_stack(channels: int) -> nn.Sequential:

@@ -21,7 +21,7 @@ budget on a simulated clock.
 import math
 import time
 
-from sinshape.runtime.errors import InputError
+from sinshape.core.errors import InputError
 
 
 class Budget:

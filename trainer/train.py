@@ -20,11 +20,11 @@ from pathlib import Path
 import torch
 import torch.nn.functional as F
 
-from sinshape.runtime import noise
-from sinshape.runtime.budget import check_memory
-from sinshape.runtime.errors import InputError
-from sinshape.runtime.manifest import plane_sizes
-from sinshape.runtime.write import atomic_write, check_writable, is_same_file
+from sinshape.core import noise
+from sinshape.core.budget import check_memory
+from sinshape.core.errors import InputError
+from sinshape.core.manifest import plane_sizes
+from sinshape.core.files import atomic_write, check_writable, is_same_file
 
 from . import export, schedule
 from . import device as devices

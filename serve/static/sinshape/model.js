@@ -20,14 +20,14 @@ const MAX_MANIFEST_CHARS = 2 ** 20;
 const MAX_DEPTH = 16;
 const MAX_NOISE_AMP = 100;
 const MAX_COORD = 1e12;
-// runtime/manifest.py's messages print these with Python's '%g'.
+// core/manifest.py's messages print these with Python's '%g'.
 const MAX_COORD_TEXT = '1e+12', SPACING_TEXT = '[1e-09, 2.44141e+08]';
 const ALLOWED_OPS = new Set(['Conv', 'InstanceNormalization', 'LeakyRelu', 'Transpose', 'MatMul', 'Add', 'Relu', 'Sigmoid']);
 
 /** A file refused, or a value out of range: its message is one line for the user. */
 export class InputError extends Error {}
 
-/** Input and output tensor names of every stage (runtime/manifest.py: stage_names). */
+/** Input and output tensor names of every stage (core/manifest.py: stage_names). */
 export function stageNames(levels) {
   const io = (stage) => ({ inputs: PLANES.map((p) => `${stage}.${p}`), outputs: PLANES.map((p) => `${stage}.${p}.out`) });
   return {
@@ -45,7 +45,7 @@ const get = (obj, key, fallback) => (Object.hasOwn(obj, key) ? obj[key] : fallba
 const isObject = (v) => v !== null && typeof v === 'object' && !Array.isArray(v);
 const sameJson = (a, b) => JSON.stringify(a) === JSON.stringify(b);
 
-/** The deepest nesting of brackets outside strings (runtime/manifest.py: _depth). */
+/** The deepest nesting of brackets outside strings (core/manifest.py: _depth). */
 function depth(text) {
   let now = 0, deepest = 0;
   for (const [t] of text.matchAll(/"(?:[^"\\]|\\.)*"|[[{]|[\]}]/g)) {
@@ -65,7 +65,7 @@ function need(ok, message) {
   if (!ok) throw new InputError(`bad model manifest: ${message}`);
 }
 
-/** Check a manifest's JSON text, as runtime/manifest.py's parse: the fields the runtime uses, and raw. */
+/** Check a manifest's JSON text, as core/manifest.py's parse: the fields the runtime uses, and raw. */
 export function parseManifest(textValue) {
   need(typeof textValue === 'string' && textValue.length <= MAX_MANIFEST_CHARS, `not JSON text of at most ${MAX_MANIFEST_CHARS} characters`);
   need(depth(textValue) <= MAX_DEPTH, `JSON nested deeper than ${MAX_DEPTH}`);

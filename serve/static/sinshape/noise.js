@@ -1,5 +1,5 @@
 // Counter-based Gaussian noise (docs/FORMAT.md, "Noise"): the same values as
-// runtime/noise.py, bit for bit. Every value is a pure function of
+// core/noise.py, bit for bit. Every value is a pure function of
 // (seed, stream, position), computed with unsigned 64-bit wrapping arithmetic.
 // Keys (a few per sample) use BigInt; the bulk work uses 32-bit halves, which
 // is about 50 times faster than BigInt per value.
@@ -84,7 +84,7 @@ function checkShape(shape, offset) {
 /**
  * Standard normal noise of one stream over a block of positions.
  * shape, offset: 2 or 3 integers (offset: where the block starts). Returns a
- * Float32Array in C order (the last axis fastest), as runtime/noise.py's normal.
+ * Float32Array in C order (the last axis fastest), as core/noise.py's normal.
  */
 export function normal(seed, stream, shape, offset = null, out = null) {
   offset = offset ?? shape.map(() => 0);

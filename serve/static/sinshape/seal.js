@@ -1,4 +1,4 @@
-// A model file's seal (docs/FORMAT.md, "Seal"), checked as runtime/manifest.py's
+// A model file's seal (docs/FORMAT.md, "Seal"), checked as core/manifest.py's
 // `unseal` checks it: from format 3 a file ends with one more ONNX metadata
 // entry {key: SEAL_KEY, value: the SHA-256 of every byte before it, as hex}.
 

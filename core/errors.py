@@ -25,4 +25,4 @@ class InputError(ValueError):
 class MemoryLimitError(InputError):
     """Work refused up front because it would need more memory than the
     limit (a `memory_limit` parameter, by default the memory available:
-    runtime.budget.check_memory); the message gives the figure."""
+    core.budget.check_memory); the message gives the figure."""

@@ -20,7 +20,7 @@ FORMAT_NAME = "sinshape"
 FORMAT_VERSION = 3
 METADATA_KEY = "sinshape.manifest"  # key of the manifest in the ONNX metadata_props
 SEAL_KEY = "sinshape.sha256"  # key of the last metadata_props entry: the seal (format 3 on)
-NOISE_SCHEME = "splitmix64-boxmuller-v1"  # runtime/noise.py
+NOISE_SCHEME = "splitmix64-boxmuller-v1"  # core/noise.py
 PLANES = ("xy", "xz", "yz")  # plane k drops grid axis 2 - k
 PLANE_AXES = ((0, 1), (0, 2), (1, 2))  # the grid axes each plane keeps, in PLANES order
 # Initializers of stage decoder_head, (D,), (D, 1), (1,): b1, w2, b2.
