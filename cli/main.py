@@ -21,7 +21,9 @@ OPTIONS = {"scale": "--scale", "factors": "--size", "smooth": "--smooth", "threa
            "levels": "--levels", "res": "--res", "workers": "--workers", "detail": "--detail",
            "alpha": "--range", "samples": "--samples", "zoom": "--zoom", "azimuth": "--azimuth",
            "elevation": "--elevation", "timeout": "--timeout", "level": "--level", "grow": "--grow",
-           "anchor": "--anchor"}
+           "anchor": "--anchor", "generator": "--generator", "iters": "--iters", "lr": "--lr",
+           "min_iters": "--min-iters", "minutes": "--minutes", "precision": "--precision", "box": "--box",
+           "seed": "--seed", "focus": "--focus"}
 # ctx.meta key: {parameter: what set it} where a command's value came from elsewhere than OPTIONS says.
 SOURCES = "sinrun.sources"
 

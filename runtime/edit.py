@@ -87,18 +87,18 @@ def check_part(part: Part, size: tuple) -> Part:
     corners = (part.low, part.high)
     if not all(isinstance(c, (tuple, list)) and len(c) == 3 and all(isinstance(v, numbers.Real) and np.isfinite(v)
                                                                     for v in c) for c in corners):
-        raise InputError(f"a box needs two corners of 3 finite numbers, got {part.low!r}, {part.high!r}", "box")
+        raise InputError(f"a box needs two corners of 3 finite numbers, got {part.low!r}, {part.high!r}", "keep")
     for axis, (lo, hi, n) in enumerate(zip(part.low, part.high, size)):
         name = "xyz"[axis]
         if not lo < hi:
-            raise InputError(f"the box is empty or inverted along {name} ({lo:g} to {hi:g})", "box")
+            raise InputError(f"the box is empty or inverted along {name} ({lo:g} to {hi:g})", "keep")
         if lo < 0 or hi > n - 1:
             raise InputError(f"the box ({lo:g} to {hi:g} along {name}) leaves the sample, whose voxels "
-                             f"run 0 to {n - 1} along {name}", "box")
+                             f"run 0 to {n - 1} along {name}", "keep")
         kept = (hi if hi < n - 1 else np.inf) - (lo if lo > 0 else -np.inf) - 2 * MARGIN
         if kept <= 0:
             raise InputError(f"the box is {hi - lo:g} voxels along {name}: a kept box needs more than "
-                             f"{2 * MARGIN} (a {MARGIN}-voxel join on each side inside the sample)", "box")
+                             f"{2 * MARGIN} (a {MARGIN}-voxel join on each side inside the sample)", "keep")
     if not (len(part.offset) == 3 and all(isinstance(v, (int, np.integer)) for v in part.offset)):
         raise InputError(f"a part's offset must be 3 whole voxels, got {part.offset!r}", "offset")
     return Part(int(part.seed), tuple(float(v) for v in part.low), tuple(float(v) for v in part.high),
@@ -176,7 +176,7 @@ def place(model, part: Part, sizes: list, factors) -> Placed:
     source_sizes = sizes if part.factors is None else scaled_sizes(model.manifest.sizes, part.factors)
     for axis in range(3):
         if part.low[axis] - part.offset[axis] < 0 or part.high[axis] - part.offset[axis] > source_sizes[-1][axis] - 1:
-            raise InputError(f"the box reaches outside the sample of seed {part.seed} along {'xyz'[axis]}", "box")
+            raise InputError(f"the box reaches outside the sample of seed {part.seed} along {'xyz'[axis]}", "keep")
     source_noise = draw_noise(part.seed, source_sizes, model.manifest.channels)
     levels = chain(model, source_noise, source_sizes)
     finest, source_finest = sizes[-1], source_sizes[-1]

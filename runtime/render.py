@@ -162,7 +162,7 @@ def crop(mesh: trimesh.Trimesh, zoom: float, focus=(0.5, 0.5, 0.5)) -> trimesh.T
     centre = mesh.bounds[0] + np.asarray(focus) * mesh.extents
     keep = (abs(mesh.triangles_center - centre) <= mesh.extents / (2 * zoom)).all(axis=1)
     if not keep.any():
-        raise InputError(f"no part of the shape lies in the --zoom box at --focus {','.join(map(str, focus))}")
+        raise InputError(f"no part of the shape lies in the zoomed box at focus {','.join(map(str, focus))}", "focus")
     return mesh.submesh([keep.nonzero()[0]], append=True)
 
 

@@ -19,7 +19,7 @@ def test_presets():
     assert make_config("tiny", iters=7).iters == 7
     with pytest.raises(InputError, match="unknown preset"):
         make_config("huge")
-    with pytest.raises(InputError, match="--res"):
+    with pytest.raises(InputError, match="res 8 is below"):
         make_config("default", res=8)
 
 

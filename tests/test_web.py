@@ -42,7 +42,7 @@ SAMPLE_JS = """async ([seed, size, scale, name = 'terrain']) => {
                                             { name: `${name}.onnx` });
   const model = window.models[name];
   const tri = await s.sample(model, seed, size);
-  const grid = await s.grid(model, tri, scale);
+  const grid = await s.dense(model, tri, scale);
   const m = s.surface(grid, tri.size);
   const bytes = new Uint8Array(grid.data.buffer);
   let text = '';

@@ -59,24 +59,26 @@ class TrainConfig:
     recon_seed: int = 1234
 
     def __post_init__(self):
-        checks = [
-            (self.res >= self.min_size, f"--res {self.res} is below the {self.min_size}-voxel minimum of every level"),
-            (self.levels is None or self.levels >= 1, f"--levels must be at least 1, got {self.levels}"),
-            (self.generator in ("triplane", "voxel"), f"--generator must be triplane or voxel, got {self.generator!r}"),
-            (self.iters >= 1, f"--iters must be at least 1, got {self.iters}"),
-            (self.d_steps >= 1 and self.g_steps >= 1, "d_steps and g_steps must be at least 1"),
-            (self.lr > 0, f"lr must be positive, got {self.lr}"),
-            (self.min_iters >= 1, f"--min-iters must be at least 1, got {self.min_iters}"),
-            (self.minutes is None or 0 < self.minutes <= 60 * 24 * 365,
-             f"--minutes must be positive (and at most a year), got {self.minutes}"),
-            (self.precision in ("auto", "fp32", "bf16"), f"--precision must be auto, fp32 or bf16, got {self.precision!r}"),
-            (self.box == 0 or self.box >= 16,
-             f"--box must be 0 (whole grids) or at least 16 voxels (the critic's field is 11), got {self.box}"),
-            (0 <= self.seed < 2**63, f"--seed must be in [0, 2**63), got {self.seed}"),
+        checks = [  # (fine, parameter, message): the command line writes the parameter as its option
+            (self.res >= self.min_size, "res", f"res {self.res} is below the {self.min_size}-voxel minimum of every level"),
+            (self.levels is None or self.levels >= 1, "levels", f"levels must be at least 1, got {self.levels}"),
+            (self.generator in ("triplane", "voxel"), "generator",
+             f"generator must be triplane or voxel, got {self.generator!r}"),
+            (self.iters >= 1, "iters", f"iters must be at least 1, got {self.iters}"),
+            (self.d_steps >= 1 and self.g_steps >= 1, None, "d_steps and g_steps must be at least 1"),
+            (self.lr > 0, "lr", f"lr must be positive, got {self.lr}"),
+            (self.min_iters >= 1, "min_iters", f"min_iters must be at least 1, got {self.min_iters}"),
+            (self.minutes is None or 0 < self.minutes <= 60 * 24 * 365, "minutes",
+             f"minutes must be positive (and at most a year), got {self.minutes}"),
+            (self.precision in ("auto", "fp32", "bf16"), "precision",
+             f"precision must be auto, fp32 or bf16, got {self.precision!r}"),
+            (self.box == 0 or self.box >= 16, "box",
+             f"box must be 0 (whole grids) or at least 16 voxels (the critic's field is 11), got {self.box}"),
+            (0 <= self.seed < 2**63, "seed", f"seed must be in [0, 2**63), got {self.seed}"),
         ]
-        for ok, message in checks:
+        for ok, parameter, message in checks:
             if not ok:
-                raise InputError(message)
+                raise InputError(message, parameter)
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)

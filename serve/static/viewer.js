@@ -219,7 +219,7 @@ async function sampleHere(ticket) {
   const scale = Number(state.scale);
   if (!(scale > 0 && Number.isFinite(scale))) throw new Error(`scale: give a positive number, got '${state.scale}'`);
   const tri = await runtime.sample(model, seed, factors);
-  const grid = await runtime.grid(model, tri, scale);
+  const grid = await runtime.dense(model, tri, scale);
   const steps = Number(state.smooth);
   if (!(Number.isInteger(steps) && steps >= 0 && steps <= 100)) throw new Error(`smooth: give a whole number of steps in 0..100, got '${state.smooth}'`);
   const mesh = runtime.smooth(runtime.surface(grid, tri.size, model.manifest), steps);

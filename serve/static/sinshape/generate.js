@@ -8,7 +8,7 @@ import { planeNoise, z0Noise } from './noise.js';
 import { InputError } from './model.js';
 
 const MIN_SIDE = 2; // a sample's coarsest grid may not shrink below this many voxels per axis
-const MAX_BYTES = 4 * 2 ** 30; // as runtime/generate.py's MEMORY_LIMIT
+const MAX_BYTES = 4 * 2 ** 30; // a WASM memory holds at most 4 GiB: the browser's own bound
 
 /** Plane sizes of a grid (X, Y, Z): [(X, Y), (X, Z), (Y, Z)]. */
 export const planeSizes = ([x, y, z]) => [[x, y], [x, z], [y, z]];

@@ -48,7 +48,7 @@ function finePlane(plane, ma, mb) {
  * Occupancy on every point of a grid `scale` times finer than the tri-plane:
  * { data: Float32Array (Mx, My, Mz) in C order, shape }.
  */
-export function dense(model, proj, scale = 1) {
+export function projectedDense(model, proj, scale = 1) {
   const [mx, my, mz] = gridShape(proj.size, scale);
   if (mx * my * mz * 4 > MAX_BYTES) throw new InputError(`a dense ${mx}x${my}x${mz} occupancy grid needs more memory than a page should take`);
   const d = model.manifest.hidden;

@@ -6,18 +6,18 @@
 //   import * as sinshape from './sinshape/runtime.js';
 //   const model = await sinshape.loadModel(bytes, { name: 'terrain.onnx' });
 //   const tri = await sinshape.sample(model, 3, [1, 1, 1]);
-//   const grid = await sinshape.grid(model, tri, 2);     // { data: Float32Array (X, Y, Z), shape }
+//   const grid = await sinshape.dense(model, tri, 2);    // { data: Float32Array (X, Y, Z), shape }
 //   const mesh = sinshape.surface(grid, tri.size, model.manifest);   // { positions, faces }
 //   sinshape.smooth(mesh, 3);                            // Laplacian steps, as --smooth
-import { project, dense } from './query.js';
+import { project, projectedDense } from './query.js';
 
 export { InputError, loadModel, configure, parseManifest } from './model.js';
 export { sample, scaledSizes } from './generate.js';
 export { normal, streamKey } from './noise.js';
-export { gridShape, project, dense } from './query.js';
+export { gridShape, project, projectedDense } from './query.js';
 export { marchingCubes, massProperties, smooth, surface } from './mesh.js';
 
-/** Occupancy on a grid `scale` times finer than the tri-plane (both stages of the query). */
-export async function grid(model, tri, scale = 1) {
-  return dense(model, await project(model, tri), scale);
+/** Occupancy on a grid `scale` times finer than the tri-plane, as runtime/query.py's dense. */
+export async function dense(model, tri, scale = 1) {
+  return projectedDense(model, await project(model, tri), scale);
 }
