@@ -428,7 +428,7 @@ def sample(model, seed, seeds, recon, keep, layout_file, resample_layout, grow_b
     (`sinrun models` lists them); without it, the default shipped model.
     Needs no torch.
     """
-    from sinshape.runtime import edit, generate, layout, write
+    from sinshape.runtime import edit, generate, write
 
     if sum(x is not None and x is not False for x in (seed, seeds, recon or None)) > 1:
         raise click.UsageError("give one of --seed, --seeds or --recon")
@@ -437,8 +437,6 @@ def sample(model, seed, seeds, recon, keep, layout_file, resample_layout, grow_b
     edits = [name for name, given in (("--keep", keep), ("--layout", layout_file), ("--grow", grow_by)) if given]
     if edits and (seeds or recon):
         raise click.UsageError(f"{edits[0]} makes one sample: give --seed, not --seeds or --recon")
-    if len(edits) > 1:
-        raise click.UsageError(f"give one of {', '.join(edits)}")
     if anchor and not grow_by:
         raise click.UsageError("--anchor is for --grow")
     loaded = open_model(model, threads)
@@ -455,12 +453,7 @@ def sample(model, seed, seeds, recon, keep, layout_file, resample_layout, grow_b
     path = named_output(output, seed=first) if "{" in output.name else output
     kind = write.output_kind(path)
     files.check_writable(path, [loaded.path] + ([layout_file] if layout_file else []))
-    if layout_file:
-        triplane = layout.sample_from_file(loaded, first, layout_file, size, resample_layout)
-    elif grow_by:
-        triplane = edit.grow(loaded, first, grow_by, anchor or (0.0, 0.0, 0.0), size)
-    else:
-        triplane = edit.compose_text(loaded, first, keep, size) if keep else generate.sample(loaded, first, size)
+    triplane = edit.edited(loaded, first, size, keep, layout_file, resample_layout, grow_by, anchor or (0, 0, 0))
     if scale > 2 and kind == "mesh":
         say_how_long(loaded, triplane, scale, 1)
     with SlabProgress() as slabs:

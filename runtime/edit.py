@@ -261,3 +261,23 @@ def compose_text(model, seed: int, parts: list, factors=(1.0, 1.0, 1.0), memory_
     """`compose` with parts in their text form (`parse_part`)."""
     size = scaled_sizes(model.manifest.sizes, factors)[-1]
     return compose(model, seed, [parse_part(text, model.manifest, size) for text in parts], factors, memory_limit)
+
+
+def edited(model, seed: int, factors=(1.0, 1.0, 1.0), keep=(), layout_file=None, resample_layout: bool = False,
+           grow_by=None, anchor=(0.0, 0.0, 0.0)) -> TriPlane:
+    """The tri-plane one request asks for: the sample of `seed`, with parts
+    kept from others (`keep`, their text form), or the structure of a layout
+    file, or grown by `grow_by`; a plain sample when none is given. One of
+    them at most: the command line and the web API both ask here."""
+    from . import generate, layout
+
+    given = [name for name, value in (("keep", keep), ("layout", layout_file), ("grow", grow_by)) if value]
+    if len(given) > 1:
+        raise InputError(f"give one of {', '.join(given)}", given[0])
+    if layout_file:
+        return layout.sample_from_file(model, seed, layout_file, factors, resample_layout)
+    if grow_by:
+        return grow(model, seed, grow_by, anchor, factors)
+    if keep:
+        return compose_text(model, seed, keep, factors)
+    return generate.sample(model, seed, factors)

@@ -129,12 +129,10 @@ def make_sample(model, request: SampleRequest, cancel: threading.Event) -> Sampl
             raise Cancelled
 
     started = time.perf_counter()
-    if request.grow:
-        triplane = edit.grow(model, request.seed, request.grow, request.anchor, request.size)
-    elif request.parts:
+    if request.parts:  # already parsed, so that equal parts make equal requests
         triplane = edit.compose(model, request.seed, request.parts, request.size)
     else:
-        triplane = generate.sample(model, request.seed, request.size)
+        triplane = edit.edited(model, request.seed, request.size, grow_by=request.grow, anchor=request.anchor)
     check_cancel()
     if request.format == "npz":  # the occupancy grid, as `sinrun sample -o x.npz` writes it
         body = write.grid_bytes(query.dense(model, triplane, request.scale), size=triplane.size, scale=request.scale)
