@@ -393,7 +393,8 @@ def open_model(model, threads):
                    "The box less a 4-voxel join is exactly SEED's.")
 @click.option("--layout", "layout_file", type=click.Path(path_type=Path), default=None,
               help="Generate with the structure of this layout (.vox or .npz, from `sinrun layout`, edited "
-                   "as you like); --seed still varies the detail.")
+                   "as you like; or a rough mesh, a few boxes in the model's frame, voxelised on the coarsest "
+                   "level's grid); --seed still varies the detail.")
 @click.option("--resample-layout", is_flag=True,
               help="Fit a layout whose grid is not one of the model's levels to level 0's grid.")
 @click.option("--grow", "grow_by", type=SIZE, default=None,

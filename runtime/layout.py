@@ -21,7 +21,7 @@ import numpy as np
 
 from sinshape.core.errors import InputError
 from sinshape.core.manifest import MAX_LEVEL_SIDE
-from sinshape.core.files import atomic_write
+from sinshape.core.files import MESH_FORMATS, atomic_write
 from .generate import TriPlane, check_seed, draw_noise, sample, scaled_sizes, triplane
 from .query import dense
 
@@ -247,8 +247,28 @@ def read_layout(path) -> np.ndarray:
     return np.asarray(grid) > 0.5 if grid.dtype != bool else grid
 
 
+def mesh_layout(model, path, factors=(1.0, 1.0, 1.0)) -> np.ndarray:
+    """A rough mesh (a few boxes, in the model's frame: the units of its
+    samples' meshes) voxelised on level 0's grid of a sample of `factors`."""
+    from sinshape.prep.voxelize import load_mesh, voxelize
+
+    sizes = scaled_sizes(model.manifest.sizes, factors)
+    coarse, finest = np.array(sizes[0]), np.array(sizes[-1])
+    # Level-0 cell c is centred where finest voxel c (N - 1) / (n - 1) is: align_corners.
+    spacing = np.asarray(model.manifest.spacing) * (finest - 1) / np.maximum(coarse - 1, 1)
+    corner = np.asarray(model.manifest.origin) - spacing / 2
+    grid = voxelize(load_mesh(path), corner, spacing, tuple(coarse))
+    if not grid.any():
+        raise InputError(f"{path}: the mesh lies outside the sample's box (its frame is the model's: "
+                         "the units of its samples' meshes)", "layout")
+    return grid
+
+
 def sample_from_file(model, seed: int, path, factors=(1.0, 1.0, 1.0), resample: bool = False) -> TriPlane:
-    """`from_layout` with the layout read from a .vox or .npz file."""
+    """`from_layout` with the layout read from a .vox or .npz file, or
+    voxelised from a rough mesh in any format trimesh reads."""
+    if Path(path).suffix.lower() in MESH_FORMATS:
+        return from_layout(model, seed, mesh_layout(model, path, factors), factors)
     return from_layout(model, seed, read_layout(path), factors, resample)
 
 

@@ -143,3 +143,28 @@ def test_the_three_commands_of_a_level_designer(tmp_path, acropolis, seed3):
     assert np.array_equal(np.load(out)["occupancy"], expected)
     assert_one_line_error(CliRunner().invoke(cli, ["layout", "acropolis", "--level", "3", "-o", str(vox_path)]),
                           "level must be 0 to 2")
+
+
+def test_a_rough_mesh_is_a_layout(acropolis, tmp_path):
+    """A floor and two towers as boxes in the model's frame, voxelised on level 0's grid, and followed."""
+    import trimesh
+
+    m = acropolis.manifest
+    origin, extent = np.array(m.origin), (np.array(m.sizes[-1]) - 1) * np.array(m.spacing)
+
+    def box(low, high):  # corners as fractions of the sample's extent
+        low, high = origin + np.array(low) * extent, origin + np.array(high) * extent
+        return trimesh.creation.box(bounds=[low, high])
+
+    path = tmp_path / "rough.obj"
+    trimesh.util.concatenate([box((0, 0, 0), (1, 1, 0.15)), box((0.1, 0.3, 0), (0.3, 0.7, 0.9)),
+                              box((0.7, 0.3, 0), (0.9, 0.7, 0.9))]).export(path)
+    target = L.mesh_layout(acropolis, path)
+    assert target.shape == tuple(m.sizes[0]) and 0.2 < target.mean() < 0.5
+    assert target[:, :, 0].all() and not target[13, 8, 10]  # the floor, and air between the towers
+    pooled = L.pool(dense(acropolis, L.sample_from_file(acropolis, 3, path)), target.shape) > 0.5
+    assert (pooled & target).sum() / (pooled | target).sum() >= 0.9
+    far = tmp_path / "far.obj"
+    trimesh.creation.box(bounds=[origin + 10 * extent, origin + 11 * extent]).export(far)
+    with pytest.raises(InputError, match="lies outside the sample's box"):
+        L.mesh_layout(acropolis, far)
