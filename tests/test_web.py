@@ -156,6 +156,39 @@ def test_grid_and_mesh_equal_the_python_runtime(site_page, terrain, name, scale,
     assert js["volume"] == pytest.approx(python.volume, rel=1e-3)  # > 0: faces wound outwards, as Python's
 
 
+EDIT_JS = """async ([how, args]) => {
+  const s = await import('./static/sinshape/runtime.js');
+  window.models ??= {};
+  window.models.terrain ??= await s.loadModel(new Uint8Array(await (await fetch('models/terrain.onnx')).arrayBuffer()),
+                                              { name: 'terrain.onnx' });
+  const model = window.models.terrain;
+  const tri = how === 'compose' ? await s.compose(model, ...args) : await s.grow(model, ...args);
+  const grid = await s.dense(model, tri, 1);
+  const bytes = new Uint8Array(grid.data.buffer);
+  let text = '';
+  for (let i = 0; i < bytes.length; i += 8192) text += String.fromCharCode(...bytes.subarray(i, i + 8192));
+  return { grid: btoa(text), shape: grid.shape };
+}"""
+
+
+def test_composing_and_growing_equal_the_python_runtime(site_page, terrain):
+    """The browser's edit.js against runtime/edit.py: two parts kept, and a sample grown (an anchor of 0.5)."""
+    from sinshape.runtime.edit import Part, compose, grow
+
+    page = site_page
+    if not page.url.startswith(page.base):
+        page.goto(f"{page.base}/README.txt")
+    parts = [Part(3, (0.0, 0.0, 0.0), (30.0, 25.0, 14.0)), Part(5, (35.0, 10.0, 0.0), (63.0, 40.0, 14.0))]
+    cases = [("compose", [7, [{"seed": p.seed, "low": list(p.low), "high": list(p.high)} for p in parts]],
+              compose(terrain, 7, parts)),
+             ("grow", [3, [1.5, 1, 1], [0.5, 0, 0]], grow(terrain, 3, (1.5, 1, 1), (0.5, 0, 0)))]
+    for how, args, triplane in cases:
+        js = page.evaluate(EDIT_JS, [how, args])
+        grid = np.frombuffer(base64.b64decode(js["grid"]), np.float32).reshape(js["shape"])
+        expected = query.dense(terrain, triplane, 1)
+        assert grid.shape == expected.shape and np.abs(grid - expected).max() < 1e-4, how
+
+
 def test_webgpu_gives_the_same_grid(site_page, terrain, playwright):
     """Where the browser has WebGPU the page uses it (here: SwiftShader, about 15 s); same grid within 1e-4."""
     page = site_page  # the fixture's folder, served again for a browser with WebGPU switched on

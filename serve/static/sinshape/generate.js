@@ -104,13 +104,17 @@ export function drawNoise(seed, sizes, channels) {
 const batch = (plane) => ({ data: plane.data, dims: [1, ...plane.dims] });
 const unbatch = (t) => ({ data: t.data, dims: Array.from(t.dims).slice(1) });
 
-/** Chain the levels with the given noise: the final tri-plane { planes, size }. */
-export async function triplane(model, noise, sizes) {
+/**
+ * Chain the levels with the given noise: the final tri-plane { planes, size }.
+ * afterLevel(level, planes), if given, returns the planes the chain goes on
+ * from (editing blends parts in), as runtime/generate.py's after_level.
+ */
+export async function triplane(model, noise, sizes, afterLevel = (level, planes) => planes) {
   const m = model.manifest, amps = m.noiseAmps;
   const z0 = noise.z0.map((v) => Math.fround(amps[0] * v));
   const pooled = adaptivePool(z0, sizes[0], m.poolBins);
   const projected = await model.projection.run(pooled.map(batch));
-  let planes = (await model.levels[0].run(projected)).map(unbatch);
+  let planes = afterLevel(0, (await model.levels[0].run(projected)).map(unbatch));
   for (let level = 1; level < sizes.length; level++) {
     const upsampled = planes.map((p, k) => resizePlane(p, planeSizes(sizes[level])[k]));
     let inputs = upsampled;
@@ -122,12 +126,19 @@ export async function triplane(model, noise, sizes) {
       });
     }
     const residuals = await model.levels[level].run(inputs.map(batch));
-    planes = upsampled.map((u, k) => ({ data: u.data.map((v, i) => v + residuals[k].data[i]), dims: u.dims }));
+    planes = afterLevel(level, upsampled.map((u, k) => ({ data: u.data.map((v, i) => v + residuals[k].data[i]), dims: u.dims })));
   }
   return { planes, size: sizes[sizes.length - 1] };
 }
 
-function checkSeed(seed) {
+/** Every level's planes of one sample, coarsest first. */
+export async function chain(model, noise, sizes) {
+  const levels = [];
+  await triplane(model, noise, sizes, (level, planes) => { levels.push(planes); return planes; });
+  return levels;
+}
+
+export function checkSeed(seed) {
   let value;
   try {
     value = BigInt(seed);

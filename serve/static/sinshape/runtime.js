@@ -9,10 +9,12 @@
 //   const grid = await sinshape.dense(model, tri, 2);    // { data: Float32Array (X, Y, Z), shape }
 //   const mesh = sinshape.surface(grid, tri.size, model.manifest);   // { positions, faces }
 //   sinshape.smooth(mesh, 3);                            // Laplacian steps, as --smooth
+//   const edited = await sinshape.compose(model, 7, [{ seed: 3, low: [0, 0, 0], high: [30, 36, 31] }]);  // as runtime.compose
 import { project, projectedDense } from './query.js';
 
 export { InputError, loadModel, configure, parseManifest } from './model.js';
 export { sample, scaledSizes } from './generate.js';
+export { compose, grow } from './edit.js';
 export { normal, streamKey } from './noise.js';
 export { gridShape, project, projectedDense } from './query.js';
 export { marchingCubes, massProperties, smooth, surface } from './mesh.js';
