@@ -143,6 +143,7 @@ def from_layout(model, seed: int, target: np.ndarray, factors=(1.0, 1.0, 1.0), r
 LAYOUT_FORMATS = (".vox", ".npz")
 MAX_LAYOUT_SIDE = 256  # MagicaVoxel's own limit per axis
 MAX_LAYOUT_BYTES = 64 << 20
+MAX_LAYOUT_CELLS = 512**3  # an .npz layout; a coarse level is far smaller
 VOX_VERSION = 150
 VOX_COLOUR = 1  # palette index the voxels are written with (any non-zero index reads as full)
 
@@ -233,18 +234,36 @@ def read_layout(path) -> np.ndarray:
         raise InputError(f"{path}: no such layout file") from None
     except OSError as error:
         raise InputError(f"{path}: cannot read ({error.strerror})") from None
-    if path.suffix.lower() == ".vox":
-        return read_vox(data, path)
+    return parse_layout(data, path.suffix.lower(), path)
+
+
+def parse_layout(data: bytes, suffix: str, name) -> np.ndarray:
+    """The bytes of a .vox or .npz layout (`suffix`) as a bool grid; `name`
+    says what they are in messages. An .npz array's shape is read from its
+    header first, so a small file cannot unpack into a huge grid."""
+    if len(data) > MAX_LAYOUT_BYTES:
+        raise InputError(f"{name}: {len(data) >> 20} MB is too large for a layout")
+    if suffix == ".vox":
+        return read_vox(data, name)
+    try:
+        with zipfile.ZipFile(io.BytesIO(data)) as archive:
+            with archive.open("layout.npy") as member:
+                major, _ = np.lib.format.read_magic(member)
+                read_header = np.lib.format.read_array_header_1_0 if major == 1 else np.lib.format.read_array_header_2_0
+                shape, _, dtype = read_header(member)
+    except (KeyError, ValueError, OSError, zipfile.BadZipFile, EOFError):
+        raise InputError(f"{name}: not a readable .npz file with an array 'layout'") from None
+    if len(shape) != 3 or not all(1 <= n <= MAX_LEVEL_SIDE for n in shape) or np.prod(shape) > MAX_LAYOUT_CELLS:
+        raise InputError(f"{name}: needs an array 'layout' of 3 axes, 1 to {MAX_LEVEL_SIDE} each and at most "
+                         f"{MAX_LAYOUT_CELLS} cells, got shape {shape}")
+    if not (dtype == bool or np.issubdtype(dtype, np.number)) or dtype.hasobject:
+        raise InputError(f"{name}: 'layout' holds {dtype}, not occupancy")
     try:
         with np.load(io.BytesIO(data), allow_pickle=False) as npz:
-            grid = npz["layout"] if "layout" in npz else None
+            grid = npz["layout"]
     except (ValueError, OSError, zipfile.BadZipFile, EOFError):
-        raise InputError(f"{path}: not a readable .npz file") from None
-    if grid is None or grid.ndim != 3 or not all(1 <= n <= MAX_LEVEL_SIDE for n in grid.shape):
-        raise InputError(f"{path}: needs an array 'layout' of 3 axes, 1 to {MAX_LEVEL_SIDE} each")
-    if not (grid.dtype == bool or np.issubdtype(grid.dtype, np.number)):
-        raise InputError(f"{path}: 'layout' holds {grid.dtype}, not occupancy")
-    return np.asarray(grid) > 0.5 if grid.dtype != bool else grid
+        raise InputError(f"{name}: not a readable .npz file") from None
+    return grid if grid.dtype == bool else np.asarray(grid) > 0.5
 
 
 def mesh_layout(model, path, factors=(1.0, 1.0, 1.0)) -> np.ndarray:

@@ -40,7 +40,7 @@ from pydantic import BaseModel
 from starlette.datastructures import Headers, MutableHeaders
 
 from sinshape import models as shipped
-from sinshape.runtime import edit, generate, load, mesh, query, write
+from sinshape.runtime import edit, generate, layout, load, mesh, query, write
 from sinshape.core.errors import InputError, MemoryLimitError
 
 STATIC = Path(__file__).parent / "static"
@@ -86,11 +86,15 @@ class SampleRequest:
     parts: tuple = ()  # edit.Part boxes kept from other samples, in finest voxels
     grow: tuple | None = None  # grow the sample by these factors, keeping it at `anchor`
     anchor: tuple = (0.0, 0.0, 0.0)
+    layout: bytes = b""  # an uploaded layout (.vox or .npz bytes): equal files, equal requests
+    resample_layout: bool = False
 
     def filename(self) -> str:
         tags = [f"seed{self.seed}"] + [f"keep{part.seed}" for part in self.parts]
         if self.grow:
             tags.append("grow" + "x".join(f"{f:g}" for f in self.grow))
+        if self.layout:
+            tags.append("layout" + hashlib.sha256(self.layout).hexdigest()[:8])
         if self.size != (1.0, 1.0, 1.0):
             tags.append("size" + "x".join(f"{f:g}" for f in self.size))
         if self.scale != 1:
@@ -108,6 +112,18 @@ class Sample:
     etag: str  # strong: the sha256 of the body, quoted
     faces: int | None  # None for an occupancy grid
     seconds: float  # time it took to make
+
+
+MAX_UPLOAD_BYTES = 4 << 20  # a layout of a coarse level is a few kB
+
+
+def layout_suffix(data: bytes) -> str:
+    """.vox or .npz, by the file's first bytes."""
+    if data.startswith(b"VOX "):
+        return ".vox"
+    if data.startswith(b"PK"):
+        return ".npz"
+    raise InputError("the layout is neither a MagicaVoxel .vox nor an .npz file")
 
 
 class Cancelled(Exception):
@@ -129,7 +145,10 @@ def make_sample(model, request: SampleRequest, cancel: threading.Event) -> Sampl
             raise Cancelled
 
     started = time.perf_counter()
-    if request.parts:  # already parsed, so that equal parts make equal requests
+    if request.layout:
+        grid = layout.parse_layout(request.layout, layout_suffix(request.layout), "the layout")
+        triplane = layout.from_layout(model, request.seed, grid, request.size, request.resample_layout)
+    elif request.parts:  # already parsed, so that equal parts make equal requests
         triplane = edit.compose(model, request.seed, request.parts, request.size)
     else:
         triplane = edit.edited(model, request.seed, request.size, grow_by=request.grow, anchor=request.anchor)
@@ -372,6 +391,23 @@ def create_app(loaded: dict, slots: int | None = None, timeout: float = 60.0,
         return JSONResponse({"detail": f"internal error ({type(error).__name__}); see the server's log"},
                             status_code=500)
 
+    async def answer(request: Request, model, wanted: SampleRequest) -> Response:
+        """The file a sample request asks for, from the cache or made, with its headers."""
+        try:
+            made, hit = await request.app.state.sampler.get(model, wanted, request.is_disconnected)
+        except ClientGone:
+            return Response(status_code=499)  # nginx's "client closed request": nobody reads it
+        headers = {"ETag": made.etag, "Cache-Control": "no-cache", "X-Cache": "hit" if hit else "miss",
+                   "X-Sample-Seconds": f"{made.seconds:.3f}",
+                   "Content-Disposition": f'attachment; filename="{wanted.filename()}"'}
+        if made.faces is not None:
+            headers["X-Faces"] = str(made.faces)
+        known = [tag.strip().removeprefix("W/") for tag in request.headers.get("if-none-match", "").split(",")]
+        if made.etag in known:
+            return Response(status_code=304, headers=headers)
+        return Response(made.body, media_type=MEDIA_TYPES.get(wanted.format, "application/octet-stream"),
+                        headers=headers)
+
     def find(name: str):
         if name not in loaded:
             raise HTTPException(404, f"unknown model {name!r}; this server has {', '.join(loaded)}")
@@ -430,19 +466,28 @@ def create_app(loaded: dict, slots: int | None = None, timeout: float = 60.0,
         where = generate.parse_triple(anchor, lambda v: 0 <= v <= 1, "three fractions in [0, 1]", "anchor")
         wanted = SampleRequest(name, seed, factors, scale, smooth, format, parts,
                                generate.parse_size(grow) if grow else None, where)
-        try:
-            made, hit = await request.app.state.sampler.get(model, wanted, request.is_disconnected)
-        except ClientGone:
-            return Response(status_code=499)  # nginx's "client closed request": nobody reads it
-        headers = {"ETag": made.etag, "Cache-Control": "no-cache", "X-Cache": "hit" if hit else "miss",
-                   "X-Sample-Seconds": f"{made.seconds:.3f}",
-                   "Content-Disposition": f'attachment; filename="{wanted.filename()}"'}
-        if made.faces is not None:
-            headers["X-Faces"] = str(made.faces)
-        known = [tag.strip().removeprefix("W/") for tag in request.headers.get("if-none-match", "").split(",")]
-        if made.etag in known:
-            return Response(status_code=304, headers=headers)
-        return Response(made.body, media_type=MEDIA_TYPES.get(format, "application/octet-stream"), headers=headers)
+        return await answer(request, model, wanted)
+
+    @app.post("/api/models/{name}/sample", summary="One sample with the structure of an uploaded layout",
+              response_class=Response, responses=FILE_ANSWERS)
+    async def sample_from_layout(
+        request: Request,
+        name: str,
+        seed: Annotated[int, Query(ge=0, lt=2**63, description="The seed varies the detail.")] = 0,
+        size: Annotated[str, Query(description="Factors of the training size: one, or sx,sy,sz.")] = "1",
+        scale: Annotated[float, Query(gt=0, allow_inf_nan=False,
+                                      description="Query a grid this many times finer per axis.")] = 1.0,
+        smooth: Annotated[int, Query(ge=0, le=MAX_SMOOTH, description="Laplacian smoothing steps.")] = 0,
+        format: Annotated[Format, Query(description="glb ply obj stl off: a mesh; npz: the occupancy grid.")] = "glb",
+        resample_layout: Annotated[bool, Query(description="Fit a layout of another grid size to level 0's.")] = False,
+    ):
+        """The body is the layout file (.vox or .npz, as `sinrun layout` writes it, edited), at most 4 MB."""
+        body = await request.body()
+        if not body or len(body) > MAX_UPLOAD_BYTES:
+            raise InputError(f"send the layout file as the request body (1 byte to {MAX_UPLOAD_BYTES >> 20} MB)")
+        wanted = SampleRequest(name, seed, generate.parse_size(size), scale, smooth, format, layout=body,
+                               resample_layout=resample_layout)
+        return await answer(request, find(name), wanted)
 
     @app.get("/", include_in_schema=False)
     async def page():

@@ -106,6 +106,7 @@ def test_openapi_describes_every_route(server):
     paths = json.loads(body)["paths"]
     assert status == 200
     assert {"/health", "/api/models", "/api/models/{name}", "/api/models/{name}/sample"} <= set(paths)
+    assert "post" in paths["/api/models/{name}/sample"]
     params = {p["name"] for p in paths["/api/models/{name}/sample"]["get"]["parameters"]}
     assert params == {"name", "seed", "size", "scale", "smooth", "format", "keep", "grow", "anchor"}
 
@@ -170,6 +171,30 @@ def test_keep_composes_as_the_command_line_does(server, tmp_path):
     assert status == 200 and "grow2x1x1" in headers["Content-Disposition"] and body == out.read_bytes()
     status, _, body = get(sample_url(base, seed=7, grow="0.5"))
     assert status == 400 and "at least 1" in json.loads(body)["detail"]
+
+
+def post(url: str, body: bytes) -> tuple:
+    request = urllib.request.Request(url, data=body, method="POST",
+                                     headers={"Content-Type": "application/octet-stream"})
+    try:
+        with urllib.request.urlopen(request, timeout=60) as response:
+            return response.status, response.headers, response.read()
+    except urllib.error.HTTPError as error:
+        return error.code, error.headers, error.read()
+
+
+def test_a_layout_uploaded_samples_as_the_command_line_does(server, tmp_path):
+    base, _ = server
+    vox, out = tmp_path / "l.vox", tmp_path / "s.npz"
+    assert CliRunner().invoke(cli, ["layout", "terrain", "--seed", "4", "-o", str(vox)]).exit_code == 0
+    assert CliRunner().invoke(cli, ["sample", "terrain", "--seed", "4", "--layout", str(vox), "-o", str(out)]).exit_code == 0
+    status, headers, body = post(sample_url(base, seed=4, format="npz"), vox.read_bytes())
+    assert status == 200 and "layout" in headers["Content-Disposition"] and body == out.read_bytes()
+    assert post(sample_url(base, seed=4, format="npz"), vox.read_bytes())[1]["X-Cache"] == "hit"
+    status, _, body = post(sample_url(base, seed=4), b"not a layout")
+    assert status == 400 and "neither a MagicaVoxel .vox nor an .npz" in json.loads(body)["detail"]
+    status, _, body = post(sample_url(base, seed=4), vox.read_bytes()[:40])
+    assert status == 400 and "not a readable MagicaVoxel file" in json.loads(body)["detail"]
 
 
 def test_a_sample_is_the_file_sinrun_sample_writes(server, tmp_path):
