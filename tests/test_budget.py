@@ -46,8 +46,8 @@ class SimulatedMachine:
             self.now += self.loads[trainer.level] * COSTS[trainer.level] + (self.startup if first else 0.0)
             return losses
 
-        def time_levels(*args):
-            measured = real_time_levels(*args)
+        def time_levels(*args, **kwargs):
+            measured = real_time_levels(*args, **kwargs)
             self.loads = self.loads_after_measuring  # the machine gets busy once training starts
             return measured
 
@@ -131,6 +131,16 @@ def test_a_budget_too_small_is_refused_before_training(machine, three_levels, tm
     # The same budget with the minimum lowered trains.
     manifest, _ = machine.train(three_levels, out, minutes=0.6, min_iters=2)
     assert manifest["training"]["planned_iterations"][0] == 2
+
+
+def test_a_budget_far_too_small_is_refused_after_the_first_level_is_measured(machine, three_levels, tmp_path):
+    """--minutes 0.05 was refused only after every level was measured (36 s
+    on a 2-core machine); the first level's cost already rules it out."""
+    out = tmp_path / "m.onnx"
+    with pytest.raises(InputError, match="cannot give 5 iterations to each of 3 levels"):
+        machine.train(three_levels, out, minutes=0.05, min_iters=5)
+    assert {level for _, level in machine.started} == {0}  # levels 1 and 2 were never run
+    assert not out.exists()
 
 
 def test_a_too_small_budget_for_a_mesh_names_a_resolution_that_fits():

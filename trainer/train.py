@@ -423,9 +423,12 @@ def train(input_path, output_path, config: TrainConfig | None, *, resume: bool =
             log("every level is trained already; exporting")
     budget = None
     if config.minutes is not None and trainer.level < len(trainer.sizes):
-        budget = schedule.Budget(config.minutes * 60 - trainer.trained_seconds(), clock_started,
-                                 *time_levels(config, pyramid, placement), config.min_iters)
-        if trainer.level == 0 and trainer.iteration == 0:  # once a level has begun, never refuse
+        budget_seconds = config.minutes * 60 - trainer.trained_seconds()
+        fresh = trainer.level == 0 and trainer.iteration == 0  # once a level has begun, never refuse
+        budget = schedule.Budget(budget_seconds, clock_started,
+                                 *time_levels(config, pyramid, placement, seconds=budget_seconds if fresh else None),
+                                 config.min_iters)
+        if fresh:
             budget.refuse_if_too_small(trainer.sizes, pyramid.source_kind == "mesh")
         log(budget.describe(trainer.level))
 
@@ -518,16 +521,28 @@ def check_training_memory(sizes: list, config: TrainConfig, placement) -> None:
                  f"training a level of {'x'.join(map(str, largest))} voxels", limit)
 
 
-def time_levels(config: TrainConfig, pyramid, placement, rounds: int = 3) -> tuple:
+def time_levels(config: TrainConfig, pyramid, placement, rounds: int = 3, seconds: float | None = None) -> tuple:
     """Seconds per iteration at every level, and what a level's start adds,
     measured on a throwaway trainer (untrained weights cost what trained ones
     do). Returns (costs, startups): a cost is the mean of a few warm rounds
     (with boxes, an iteration's cost varies with where its boxes fall); a
     start-up is the level's set-up and first iteration (it allocates and picks
-    kernels) beyond one warm iteration."""
+    kernels) beyond one warm iteration. Given the budget's `seconds`, a budget
+    that the levels measured so far already rule out is refused at once
+    (every level costs at least what the one below it does), not after all
+    levels are measured."""
     trainer = Trainer(config, pyramid, placement)
     costs, startups = [], []
+    began = time.monotonic()
     for level in range(len(trainer.sizes)):
+        if seconds is not None and costs:
+            at_least = time.monotonic() - began + config.min_iters * (
+                sum(costs) + (len(trainer.sizes) - len(costs)) * costs[-1])
+            if at_least > seconds:
+                raise InputError(f"the time budget of {seconds / 60:.3g} min cannot give {config.min_iters} "
+                                 f"iterations to each of {len(trainer.sizes)} levels: they need at least "
+                                 f"{at_least / 60:.2g} min here (the {len(costs)} measured so far cost "
+                                 f"{sum(costs):.2f} s per iteration); give more minutes or lower min_iters")
         started = time.monotonic()
         trainer.level = level
         trainer.begin_level()
