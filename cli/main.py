@@ -182,6 +182,10 @@ class TrainCommand(click.Command):
 @click.option("--lr", type=click.FloatRange(min=0, min_open=True), default=None,
               help="Adam's learning rate for generator and critic. Default: the preset's.")
 @click.option("--seed", type=int, default=None, help="Seed of the training run (weights, noise draws). Default 0.")
+@click.option("--up", type=click.Choice(["y", "z"]), default=None,
+              help="Which axis of the input points up, recorded in the model for viewers and pictures. "
+                   "Default: z for an .h5 pyramid, y for a mesh (most .obj files; the shapes of "
+                   "`sinrun shape` are z-up).")
 @click.option("--generator", type=click.Choice(["triplane", "voxel"]), default=None,
               help="triplane (the method) or voxel: the paper's SinGAN-3D baseline, 3-D convs on voxels, "
                    "for comparisons; it writes a .pt checkpoint (-o baseline.pt), not an .onnx model.")
@@ -191,8 +195,8 @@ class TrainCommand(click.Command):
 @click.option("--checkpoint", type=click.Path(path_type=Path), default=None,
               help="Checkpoint file. Default: MODEL.ckpt.pt beside the output.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress output.")
-def train(input_path, output, preset, res, levels, iters, minutes, min_iters, device, precision, box, lr, seed, generator,
-          resume, checkpoint, quiet):
+def train(input_path, output, preset, res, levels, iters, minutes, min_iters, device, precision, box, lr, seed, up,
+          generator, resume, checkpoint, quiet):
     """Train a model on one example shape and export it as one .onnx file.
 
     INPUT is a mesh (.obj, .ply, .stl, .off, .glb; not necessarily watertight)
@@ -211,7 +215,7 @@ def train(input_path, output, preset, res, levels, iters, minutes, min_iters, de
     if iters is not None and minutes is not None:
         raise click.UsageError("give --iters or --minutes, not both: a time budget plans the iterations")
     overrides = dict(preset=preset, res=res, levels=levels, iters=iters, minutes=minutes, min_iters=min_iters,
-                     precision=precision, box=box, lr=lr, seed=seed, generator=generator)
+                     precision=precision, box=box, lr=lr, seed=seed, up=up, generator=generator)
     given = [f"--{name.replace('_', '-')}" for name, value in overrides.items() if value is not None]
     if resume and given:
         raise click.UsageError(f"--resume continues with the checkpoint's settings; leave out {', '.join(given)}")
@@ -631,8 +635,10 @@ def info(model):
 @click.option("--smooth", type=int, default=0, show_default=True, help=SMOOTH_HELP)
 @click.option("--views", type=int, default=1, show_default=True,
               help="Views per shape, turning around the up axis (a turntable row per shape).")
-@click.option("--up", type=click.Choice(["y", "z"]), default="y", show_default=True,
-              help="Which axis points up: y for most .obj files, z for voxel data and the example shapes.")
+@click.option("--up", type=click.Choice(["y", "z"]), default=None,
+              help="Which axis points up: y for most .obj files, z for voxel data and the example shapes. "
+                   "Default: what the first model input records (models trained from .h5 pyramids: z), "
+                   "else y.")
 @click.option("--columns", type=int, default=4, show_default=True, help="Shapes per row (with one view each).")
 @click.option("--image-size", type=int, default=320, show_default=True, help="Pixels per shape, square.")
 @click.option("--zoom", type=float, default=1.0, show_default=True,
@@ -674,6 +680,7 @@ def render(inputs, output, seeds, recon, scale, size, smooth, views, up, columns
                 labels.append(Path(item).name)
                 continue
             model = open_model(item, threads)
+            up = up or model.manifest.up
             for seed in chosen:
                 triplane = generate.sample(model, seed, size if seed is not None else (1, 1, 1))
                 shapes.append(mesh.extract(model, triplane, scale, smooth=smooth))
@@ -683,7 +690,7 @@ def render(inputs, output, seeds, recon, scale, size, smooth, views, up, columns
                 bar.update(1)
     shapes = [draw.crop(shape, zoom, focus) for shape in shapes]
     with progress_bar(len(shapes) * views, "drawing") as bar:
-        options = dict(up=up, size=(image_size, image_size), progress=lambda: bar.update(1))
+        options = dict(up=up or "y", size=(image_size, image_size), progress=lambda: bar.update(1))
         if views > 1:
             turns = [((azimuth + 360 * k / views) % 360, elevation) for k in range(views)]
             picture = np.concatenate([draw.render_views(s, views=turns, **options) for s in shapes])

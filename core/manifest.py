@@ -21,6 +21,7 @@ FORMAT_VERSION = 3
 METADATA_KEY = "sinshape.manifest"  # key of the manifest in the ONNX metadata_props
 SEAL_KEY = "sinshape.sha256"  # key of the last metadata_props entry: the seal (format 3 on)
 NOISE_SCHEME = "splitmix64-boxmuller-v1"  # core/noise.py
+UP_AXES = ("y", "z")  # manifest `up`: which input-frame axis points up (absent: y)
 PLANES = ("xy", "xz", "yz")  # plane k drops grid axis 2 - k
 PLANE_AXES = ((0, 1), (0, 2), (1, 2))  # the grid axes each plane keeps, in PLANES order
 # Initializers of stage decoder_head, (D,), (D, 1), (1,): b1, w2, b2.
@@ -71,6 +72,7 @@ class Manifest:
     spacing: tuple  # input-frame size of one finest-level voxel, per axis
     stages: dict
     raw: dict
+    up: str = "y"  # the input frame's axis that points up: "y" (most meshes) or "z" (voxel data)
 
 
 def _require(ok: bool, message: str) -> None:
@@ -200,6 +202,7 @@ def parse(text: str) -> Manifest:
         sizes.append(tuple(size))
         amps.append(float(amp))
 
+    _require(raw.get("up", "y") in UP_AXES, f"up must be one of {', '.join(UP_AXES)}")
     frame = raw.get("frame")
     _require(isinstance(frame, dict), "frame is missing")
     origin, spacing = frame.get("origin"), frame.get("spacing")
@@ -237,6 +240,7 @@ def parse(text: str) -> Manifest:
         spacing=tuple(float(v) for v in spacing),
         stages=stages,
         raw=raw,
+        up=raw.get("up", "y"),
     )
 
 
@@ -269,7 +273,7 @@ def describe(raw: dict) -> list:
     origin, spacing = (", ".join(f"{v:.4g}" for v in raw["frame"][k]) for k in ("origin", "spacing"))
     lines += [
         f"networks    {raw['channels']} channels, {raw['pool_bins']} pooling bins, MLP hidden {raw['mlp_hidden']}",
-        f"frame       voxel (0, 0, 0) at ({origin}), voxel size ({spacing})",
+        f"frame       voxel (0, 0, 0) at ({origin}), voxel size ({spacing}); {raw.get('up', 'y')} points up",
         "levels      size          noise amplitude   seconds",
     ]
     seconds = training.get("level_seconds", [])

@@ -291,6 +291,7 @@ def summary(name: str, model) -> dict:
         "training": {key: training[key] for key in ("seconds", "iterations_per_level") if key in training},
         "config": m.get("config", {}),
         "frame": m["frame"],
+        "up": model.manifest.up,
         "format_version": m["format_version"],
     }
 
@@ -423,7 +424,8 @@ def create_app(loaded: dict, slots: int | None = None, timeout: float = 60.0,
     @app.get("/api/models", summary="The models this server samples")
     async def list_models():
         return [{"name": name, "size": list(m.manifest.sizes[-1]), "levels": len(m.manifest.sizes),
-                 "training_input": m.manifest.raw.get("source", {}).get("name")} for name, m in loaded.items()]
+                 "up": m.manifest.up, "training_input": m.manifest.raw.get("source", {}).get("name")}
+                for name, m in loaded.items()]
 
     @app.get("/api/models/{name}", summary="One model's manifest: levels, sizes, training input, config",
              responses=errors(404))

@@ -119,7 +119,8 @@ def write_site(folder: Path, models: dict, version: str) -> None:
     for name, model in models.items():
         (folder / "models" / f"{name}.onnx").write_bytes(load.format3_bytes(model))
         sizes = model.manifest.sizes
-        listing.append({"name": name, "size": list(sizes[-1]), "levels": len(sizes), "file": f"models/{name}.onnx"})
+        listing.append({"name": name, "size": list(sizes[-1]), "levels": len(sizes), "up": model.manifest.up,
+                        "file": f"models/{name}.onnx"})
     (folder / "models.json").write_text(json.dumps(listing, indent=1) + "\n")
     (folder / "serve.py").write_text(SERVE_PY)
     (folder / "_headers").write_text("/*\n" + "".join(f"  {k}: {v}\n" for k, v in HEADERS.items()))

@@ -55,3 +55,14 @@ def test_zoom_box_must_hold_part_of_the_shape(tmp_path):
                           "no part of the shape")
     assert sinrun("render", box, "--zoom", 2, "--focus", "0.5,0.5,1", "-o", tmp_path / "z.png").exit_code == 0
     assert sinrun("render", box, "--focus", "2,0,0", "-o", tmp_path / "z.png").exit_code == 2
+
+
+def test_pictures_stand_the_way_the_model_says(tmp_path):
+    """The acropolis records z as up: drawn so without --up, on its side with --up y."""
+    pictures = {}
+    for up in (None, "z", "y"):
+        out = tmp_path / f"{up}.png"
+        assert sinrun("render", "acropolis", "--seeds", "0", "--image-size", 48,
+                      *(["--up", up] if up else []), "-o", out).exit_code == 0
+        pictures[up] = np.asarray(Image.open(out))
+    assert np.array_equal(pictures[None], pictures["z"]) and not np.array_equal(pictures[None], pictures["y"])

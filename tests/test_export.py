@@ -36,6 +36,7 @@ def test_manifest_says_how_the_model_was_made(tiny_model, tiny_pyramid):
     assert m["config"]["iters"] == 3 and m["config"]["levels"] == 2
     assert len(m["training"]["level_seconds"]) == 2 and m["training"]["seconds"] > 0
     assert m["channels"] == 32 and m["pool_bins"] == 8 and m["recon_seed"] == 1234
+    assert m["up"] == "z"  # voxel data stands on z, unless --up says otherwise
 
 
 @pytest.mark.parametrize("seed, factors", [(None, (1, 1, 1)), (11, (1, 1, 1)), (12, (1.5, 1, 0.7))])

@@ -54,6 +54,10 @@ class TrainConfig:
     # only boxes are decoded, so an iteration costs what its boxes cost.
     box: int = 0
 
+    # Which axis of the input points up, recorded in the model for viewers
+    # and pictures; None: z for an .h5 pyramid (voxel data), y for a mesh.
+    up: str | None = None
+
     # Randomness: the training run, and the fixed reconstruction noise z0*.
     seed: int = 0
     recon_seed: int = 1234
@@ -75,6 +79,7 @@ class TrainConfig:
             (self.box == 0 or self.box >= 16, "box",
              f"box must be 0 (whole grids) or at least 16 voxels (the critic's field is 11), got {self.box}"),
             (0 <= self.seed < 2**63, "seed", f"seed must be in [0, 2**63), got {self.seed}"),
+            (self.up in (None, "y", "z"), "up", f"up must be y or z, got {self.up!r}"),
         ]
         for ok, parameter, message in checks:
             if not ok:

@@ -325,9 +325,11 @@ async function start() {
     for (const m of models) {
       $('model').add(new Option(`${m.name} (${m.size.join('x')})`, m.name));
       const url = STATIC_SITE ? m.file : `api/models/${encodeURIComponent(m.name)}/onnx`;
-      browserModels.set(m.name, { url, file: `${m.name}.onnx` });
+      browserModels.set(m.name, { url, file: `${m.name}.onnx`, up: m.up ?? 'y' });
     }
     if (!models.some((m) => m.name === state.model)) state.model = models[0]?.name ?? '';
+    // Which way is up is the model's (recorded when it was trained), unless the URL says otherwise.
+    if (!new URLSearchParams(location.search).has('up')) state.up = browserModels.get(state.model)?.up ?? 'y';
   } catch (error) {
     report(`cannot list the models: ${error.message}`);
     return;
@@ -337,7 +339,13 @@ async function start() {
   $('prev').addEventListener('click', () => step(-1));
   $('next').addEventListener('click', () => step(+1));
   $('file').addEventListener('change', () => { if ($('file').files.length) openFile($('file').files[0]); });
-  for (const id of ['model', 'where', 'seed', 'sx', 'sy', 'sz', 'scale', 'smooth']) {
+  $('model').addEventListener('change', () => {
+    fromForm();
+    state.up = browserModels.get(state.model)?.up ?? state.up;
+    $('up').value = state.up;
+    load();
+  });
+  for (const id of ['where', 'seed', 'sx', 'sy', 'sz', 'scale', 'smooth']) {
     $(id).addEventListener('change', () => { fromForm(); load(); });
   }
   $('up').addEventListener('change', () => { fromForm(); writeUrl(); orient(state.up); frame(); });
