@@ -4,7 +4,6 @@ Heavy imports (torch, onnxruntime, trimesh) happen inside the commands, so
 `--help` is instant and everything but `train` works without torch.
 """
 
-import itertools
 import re
 import signal
 import sys
@@ -16,6 +15,9 @@ from sinshape.core import files
 from sinshape.core.errors import InputError
 from sinshape.runtime import __version__
 
+from .params import FRACTIONS, SEEDS, SIZE, named_output
+from .progress import SlabProgress, TrainProgress, format_seconds, progress_bar
+
 # Library errors name a function's parameter; on the command line it is an option.
 OPTIONS = {"scale": "--scale", "factors": "--size", "smooth": "--smooth", "threads": "--threads",
            "levels": "--levels", "res": "--res", "workers": "--workers", "detail": "--detail",
@@ -23,7 +25,7 @@ OPTIONS = {"scale": "--scale", "factors": "--size", "smooth": "--smooth", "threa
            "elevation": "--elevation", "timeout": "--timeout", "level": "--level", "grow": "--grow",
            "anchor": "--anchor", "generator": "--generator", "iters": "--iters", "lr": "--lr",
            "min_iters": "--min-iters", "minutes": "--minutes", "precision": "--precision", "box": "--box",
-           "seed": "--seed", "focus": "--focus"}
+           "focus": "--focus", "up": "--up"}
 # ctx.meta key: {parameter: what set it} where a command's value came from elsewhere than OPTIONS says.
 SOURCES = "sinrun.sources"
 
@@ -75,61 +77,8 @@ def require_torch() -> None:
         ) from None
 
 
-class TrainProgress:
-    """One line per level: click's progress bar on a terminal, with the
-    losses beside it; elsewhere (a log file, CI) a line every 10%, where
-    click's bar would print only its label."""
-
-    def __init__(self, stream=sys.stderr):
-        self.stream = stream
-        self.tty = stream.isatty()
-        self.level = None
-        self.bar = None
-        self.started = 0.0
-        self.reported = -1
-
-    def __call__(self, p) -> None:
-        import time
-
-        losses = "  ".join(f"{k} {v:+.4f}" for k, v in p.losses.items())
-        head = f"level {p.level + 1}/{p.levels} {'x'.join(map(str, p.size))}"
-        if p.level != self.level:
-            self.level, self.started, self.reported = p.level, time.monotonic(), -1
-            if self.tty:
-                self.bar = click.progressbar(length=p.iters, label=head, file=self.stream, show_pos=True,
-                                             item_show_func=lambda text: text)
-                self.bar.__enter__()
-        if self.tty:
-            self.bar.update(p.iteration - self.bar.pos, losses)
-            if p.iteration == p.iters:
-                self.close()
-            return
-        if p.iteration * 10 // p.iters != self.reported or p.iteration == p.iters:
-            self.reported = p.iteration * 10 // p.iters
-            left = (time.monotonic() - self.started) / p.iteration * (p.iters - p.iteration)
-            self.stream.write(f"{head} {p.iteration}/{p.iters}  {losses}  {format_seconds(left)} left\n")
-            self.stream.flush()
-
-    def close(self) -> None:
-        """End the bar's line and show the cursor again."""
-        if self.bar is not None:
-            self.bar.__exit__(None, None, None)
-            self.bar = None
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *error) -> None:
-        self.close()  # also after Ctrl-C, before the command says where it saved
-
-
 def raise_interrupt(signum, frame):
     raise KeyboardInterrupt
-
-
-def format_seconds(seconds: float) -> str:
-    seconds = int(seconds)
-    return f"{seconds // 3600}:{seconds // 60 % 60:02d}:{seconds % 60:02d}"
 
 
 class TrainCommand(click.Command):
@@ -239,111 +188,6 @@ def train(input_path, output, preset, res, levels, iters, minutes, min_iters, de
     sizes = ", ".join("x".join(map(str, level["size"])) for level in manifest["levels"])
     click.echo(f"wrote {output} ({len(manifest['levels'])} levels: {sizes}; "
                f"trained in {format_seconds(manifest['training']['seconds'])})")
-
-
-class SeedList:
-    """Seeds such as 1,5,9-12 kept as ranges, so that 0-100000000 costs
-    nothing until it is iterated."""
-
-    def __init__(self, ranges: list):
-        self.ranges = [r for r in ranges if len(r)]
-
-    def __len__(self) -> int:  # at most 2**63 seeds a range; len() of a larger count would overflow
-        return min(sum(r.stop - r.start for r in self.ranges), sys.maxsize)
-
-    def __iter__(self):
-        return itertools.chain.from_iterable(self.ranges)
-
-    @property
-    def first(self) -> int:
-        return self.ranges[0][0]
-
-    @property
-    def last(self) -> int:
-        return self.ranges[-1][-1]
-
-
-class Seeds(click.ParamType):
-    """'3', '0-99' or '1,5,9-12' -> a SeedList."""
-
-    name = "seeds"
-
-    def convert(self, value, param, ctx):
-        if isinstance(value, SeedList):
-            return value
-        try:
-            ranges = []
-            for part in value.split(","):
-                low, _, high = part.strip().partition("-")
-                if high and int(high) < int(low):
-                    self.fail(f"{value!r}: {part.strip()} counts down; write {high}-{low}", param, ctx)
-                ranges.append(range(int(low), int(high or low) + 1))
-        except ValueError:
-            self.fail(f"{value!r} is not a seed list like 3, 0-99 or 1,5,9-12", param, ctx)
-        if any(r.start < 0 or r.stop > 2**63 for r in ranges):  # before len(), which overflows past 2**63
-            self.fail(f"{value!r}: seeds are integers in [0, 2**63)", param, ctx)
-        seeds = SeedList(ranges)
-        if not seeds.ranges:
-            self.fail(f"{value!r} gives no seeds", param, ctx)
-        return seeds
-
-
-class PerAxis(click.ParamType):
-    """One value for all three axes, or 'a,b,c': parsed by the runtime, which
-    reads the same text from the web API."""
-
-    def __init__(self, name: str, parse):
-        self.name, self.parse = name, parse
-
-    def convert(self, value, param, ctx):
-        if isinstance(value, tuple):
-            return value
-        try:
-            return self.parse(value)
-        except InputError as error:
-            self.fail(f"{value!r}: {str(error).split(': ', 1)[1]}", param, ctx)
-
-
-def parse_size(text: str) -> tuple:
-    """'2' or '2,1,1' -> per-axis factors of the training size."""
-    from sinshape.runtime import generate
-
-    return generate.parse_size(text)
-
-
-def parse_fractions(text: str) -> tuple:
-    """'0.5,0.7,1' -> three numbers in [0, 1]."""
-    from sinshape.runtime import generate
-
-    return generate.parse_triple(text, lambda v: 0 <= v <= 1, "three fractions in [0, 1], like 0.5,0.7,1")
-
-
-SEEDS, SIZE, FRACTIONS = Seeds(), PerAxis("size", parse_size), PerAxis("fractions", parse_fractions)
-
-
-def named_output(output: Path, **fields) -> Path:
-    """Fill {seed}-style fields in an output name, or add them before the suffix."""
-    if not output.name:  # '.', '/', ''
-        raise click.BadParameter(f"{str(output)!r} is not a file name")
-    if "{" in output.name:
-        import string
-
-        try:
-            if any(name is not None and (name not in fields or spec or conversion)
-                   for _, name, spec, conversion in string.Formatter().parse(output.name)):
-                raise ValueError("a field other than a plain {name}")
-            return output.with_name(output.name.format(**fields))
-        except (KeyError, IndexError, ValueError):
-            raise click.BadParameter(f"{output.name}: only {', '.join('{' + k + '}' for k in fields)} "
-                                     "can be filled in") from None
-    tag = "_".join(f"{key}{value}" for key, value in fields.items())
-    return output.with_name(f"{output.stem}_{tag}{output.suffix}")
-
-
-def progress_bar(length: int, label: str):
-    """A progress bar on stderr, shown only on a terminal and for more than one step."""
-    return click.progressbar(length=length, label=label, file=sys.stderr,
-                             hidden=length < 2 or not sys.stderr.isatty())
 
 
 MODEL_ARGUMENT = click.argument("model", required=False)
@@ -576,25 +420,6 @@ def say_how_long(model, triplane, scale, count) -> None:
     if seconds > 30:
         click.echo(f"--scale {scale:g}: about {format_seconds(seconds)} (h:mm:ss) "
                    f"for {count} sample{'s' if count > 1 else ''}", err=True)
-
-
-class SlabProgress:
-    """A progress bar over the slabs one sample is meshed in (on a terminal)."""
-
-    def __init__(self):
-        self.bar = None
-
-    def __call__(self, done: int, total: int) -> None:
-        if self.bar is None:
-            self.bar = progress_bar(total, "meshing").__enter__()
-        self.bar.update(done - self.bar.pos)
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *error) -> None:
-        if self.bar is not None:
-            self.bar.__exit__(*error)
 
 
 def warn_if_clamped(model, factors, scale) -> None:

@@ -73,7 +73,7 @@ def test_many_seeds_one_file_each(tiny_model, tmp_path):
 
 def test_a_seed_range_is_lazy():
     """--seeds 0-100000000 must not build a hundred million seeds up front."""
-    from sinshape.cli.main import SEEDS
+    from sinshape.cli.params import SEEDS
 
     seeds = SEEDS.convert("0-100000000,7", None, None)
     assert all(isinstance(r, range) for r in seeds.ranges)

@@ -130,7 +130,7 @@ def progress_of(stream, iterations, iters=20, interrupt=False):
     """What TrainProgress writes for level 1 of 2 up to `iterations`."""
     from types import SimpleNamespace
 
-    from sinshape.cli.main import TrainProgress
+    from sinshape.cli.progress import TrainProgress
 
     try:
         with TrainProgress(stream) as show:

@@ -31,7 +31,8 @@ from hypothesis import strategies as st
 
 from conftest import TINY_ONNX
 from sinshape import runtime
-from sinshape.cli.main import SEEDS, cli
+from sinshape.cli.main import cli
+from sinshape.cli.params import SEEDS
 from sinshape.core import budget
 from sinshape.core.errors import InputError
 

@@ -1,0 +1,108 @@
+"""`sinrun`'s parameter types: seed lists, per-axis values, output names.
+Values are parsed by the runtime where the web API reads the same text."""
+
+import itertools
+import sys
+from pathlib import Path
+
+import click
+
+from sinshape.core.errors import InputError
+
+class SeedList:
+    """Seeds such as 1,5,9-12 kept as ranges, so that 0-100000000 costs
+    nothing until it is iterated."""
+
+    def __init__(self, ranges: list):
+        self.ranges = [r for r in ranges if len(r)]
+
+    def __len__(self) -> int:  # at most 2**63 seeds a range; len() of a larger count would overflow
+        return min(sum(r.stop - r.start for r in self.ranges), sys.maxsize)
+
+    def __iter__(self):
+        return itertools.chain.from_iterable(self.ranges)
+
+    @property
+    def first(self) -> int:
+        return self.ranges[0][0]
+
+    @property
+    def last(self) -> int:
+        return self.ranges[-1][-1]
+
+
+class Seeds(click.ParamType):
+    """'3', '0-99' or '1,5,9-12' -> a SeedList."""
+
+    name = "seeds"
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, SeedList):
+            return value
+        try:
+            ranges = []
+            for part in value.split(","):
+                low, _, high = part.strip().partition("-")
+                if high and int(high) < int(low):
+                    self.fail(f"{value!r}: {part.strip()} counts down; write {high}-{low}", param, ctx)
+                ranges.append(range(int(low), int(high or low) + 1))
+        except ValueError:
+            self.fail(f"{value!r} is not a seed list like 3, 0-99 or 1,5,9-12", param, ctx)
+        if any(r.start < 0 or r.stop > 2**63 for r in ranges):  # before len(), which overflows past 2**63
+            self.fail(f"{value!r}: seeds are integers in [0, 2**63)", param, ctx)
+        seeds = SeedList(ranges)
+        if not seeds.ranges:
+            self.fail(f"{value!r} gives no seeds", param, ctx)
+        return seeds
+
+
+class PerAxis(click.ParamType):
+    """One value for all three axes, or 'a,b,c': parsed by the runtime, which
+    reads the same text from the web API."""
+
+    def __init__(self, name: str, parse):
+        self.name, self.parse = name, parse
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, tuple):
+            return value
+        try:
+            return self.parse(value)
+        except InputError as error:
+            self.fail(f"{value!r}: {str(error).split(': ', 1)[1]}", param, ctx)
+
+
+def parse_size(text: str) -> tuple:
+    """'2' or '2,1,1' -> per-axis factors of the training size."""
+    from sinshape.runtime import generate
+
+    return generate.parse_size(text)
+
+
+def parse_fractions(text: str) -> tuple:
+    """'0.5,0.7,1' -> three numbers in [0, 1]."""
+    from sinshape.runtime import generate
+
+    return generate.parse_triple(text, lambda v: 0 <= v <= 1, "three fractions in [0, 1], like 0.5,0.7,1")
+
+
+SEEDS, SIZE, FRACTIONS = Seeds(), PerAxis("size", parse_size), PerAxis("fractions", parse_fractions)
+
+
+def named_output(output: Path, **fields) -> Path:
+    """Fill {seed}-style fields in an output name, or add them before the suffix."""
+    if not output.name:  # '.', '/', ''
+        raise click.BadParameter(f"{str(output)!r} is not a file name")
+    if "{" in output.name:
+        import string
+
+        try:
+            if any(name is not None and (name not in fields or spec or conversion)
+                   for _, name, spec, conversion in string.Formatter().parse(output.name)):
+                raise ValueError("a field other than a plain {name}")
+            return output.with_name(output.name.format(**fields))
+        except (KeyError, IndexError, ValueError):
+            raise click.BadParameter(f"{output.name}: only {', '.join('{' + k + '}' for k in fields)} "
+                                     "can be filled in") from None
+    tag = "_".join(f"{key}{value}" for key, value in fields.items())
+    return output.with_name(f"{output.stem}_{tag}{output.suffix}")

@@ -1,0 +1,82 @@
+"""What `sinrun` shows while it works: progress bars and times, on stderr."""
+
+import sys
+
+import click
+
+class TrainProgress:
+    """One line per level: click's progress bar on a terminal, with the
+    losses beside it; elsewhere (a log file, CI) a line every 10%, where
+    click's bar would print only its label."""
+
+    def __init__(self, stream=sys.stderr):
+        self.stream = stream
+        self.tty = stream.isatty()
+        self.level = None
+        self.bar = None
+        self.started = 0.0
+        self.reported = -1
+
+    def __call__(self, p) -> None:
+        import time
+
+        losses = "  ".join(f"{k} {v:+.4f}" for k, v in p.losses.items())
+        head = f"level {p.level + 1}/{p.levels} {'x'.join(map(str, p.size))}"
+        if p.level != self.level:
+            self.level, self.started, self.reported = p.level, time.monotonic(), -1
+            if self.tty:
+                self.bar = click.progressbar(length=p.iters, label=head, file=self.stream, show_pos=True,
+                                             item_show_func=lambda text: text)
+                self.bar.__enter__()
+        if self.tty:
+            self.bar.update(p.iteration - self.bar.pos, losses)
+            if p.iteration == p.iters:
+                self.close()
+            return
+        if p.iteration * 10 // p.iters != self.reported or p.iteration == p.iters:
+            self.reported = p.iteration * 10 // p.iters
+            left = (time.monotonic() - self.started) / p.iteration * (p.iters - p.iteration)
+            self.stream.write(f"{head} {p.iteration}/{p.iters}  {losses}  {format_seconds(left)} left\n")
+            self.stream.flush()
+
+    def close(self) -> None:
+        """End the bar's line and show the cursor again."""
+        if self.bar is not None:
+            self.bar.__exit__(None, None, None)
+            self.bar = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *error) -> None:
+        self.close()  # also after Ctrl-C, before the command says where it saved
+
+
+def format_seconds(seconds: float) -> str:
+    seconds = int(seconds)
+    return f"{seconds // 3600}:{seconds // 60 % 60:02d}:{seconds % 60:02d}"
+
+
+def progress_bar(length: int, label: str):
+    """A progress bar on stderr, shown only on a terminal and for more than one step."""
+    return click.progressbar(length=length, label=label, file=sys.stderr,
+                             hidden=length < 2 or not sys.stderr.isatty())
+
+
+class SlabProgress:
+    """A progress bar over the slabs one sample is meshed in (on a terminal)."""
+
+    def __init__(self):
+        self.bar = None
+
+    def __call__(self, done: int, total: int) -> None:
+        if self.bar is None:
+            self.bar = progress_bar(total, "meshing").__enter__()
+        self.bar.update(done - self.bar.pos)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *error) -> None:
+        if self.bar is not None:
+            self.bar.__exit__(*error)
