@@ -16,7 +16,7 @@ from sinshape.core.errors import InputError
 from sinshape.runtime import __version__
 
 from .params import FRACTIONS, SEEDS, SIZE, named_output
-from .progress import SlabProgress, TrainProgress, format_seconds, progress_bar
+from .progress import SlabProgress, StageProgress, TrainProgress, format_seconds, progress_bar
 
 # Library errors name a function's parameter; on the command line it is an option.
 OPTIONS = {"scale": "--scale", "factors": "--size", "smooth": "--smooth", "threads": "--threads",
@@ -482,46 +482,19 @@ def render(inputs, output, seeds, recon, scale, size, smooth, views, up, columns
     picture, e.g. `sinrun render towerruins.obj towerruins --seeds 1-3`
     shows the training mesh beside three samples.
     """
-    import numpy as np
-
-    from sinshape.prep.voxelize import load_mesh
-    from sinshape.runtime import generate, mesh, render as draw, write
+    from sinshape.runtime import render as draw, write
 
     if output.suffix.lower() != ".png":
         raise InputError(f"{output}: the picture is written as .png")
     files.check_writable(output, [Path(item) for item in inputs])
     if views < 1 or columns < 1 or image_size < 16:
         raise click.UsageError("--views and --columns must be at least 1, --image-size at least 16")
-    draw.check_view(zoom, azimuth, elevation)
-    meshes = [Path(item).is_file() and Path(item).suffix.lower() in write.MESH_FORMATS for item in inputs]
-    count = sum(1 if is_mesh else len(seeds) + recon for is_mesh in meshes)
-    draw.check_picture(count, (image_size, image_size), views, columns)
-    chosen = [None, *seeds] if recon else list(seeds)  # as many as fit in the picture
-    shapes, labels = [], []
-    with progress_bar(count - sum(meshes), "sampling") as bar:
-        for item, is_mesh in zip(inputs, meshes):
-            if is_mesh:
-                shapes.append(load_mesh(Path(item), solid=False))
-                labels.append(Path(item).name)
-                continue
-            model = open_model(item, threads)
-            up = up or model.manifest.up
-            for seed in chosen:
-                triplane = generate.sample(model, seed, size if seed is not None else (1, 1, 1))
-                shapes.append(mesh.extract(model, triplane, scale, smooth=smooth))
-                if not len(shapes[-1].faces):
-                    raise InputError(f"{item}: seed {seed} has no surface at this --scale and --size; nothing drawn")
-                labels.append(draw.sample_label(seed, size, scale))
-                bar.update(1)
-    shapes = [draw.crop(shape, zoom, focus) for shape in shapes]
-    with progress_bar(len(shapes) * views, "drawing") as bar:
-        options = dict(up=up or "y", size=(image_size, image_size), progress=lambda: bar.update(1))
-        if views > 1:
-            turns = [((azimuth + 360 * k / views) % 360, elevation) for k in range(views)]
-            picture = np.concatenate([draw.render_views(s, views=turns, **options) for s in shapes])
-        else:
-            picture = draw.render_grid(shapes, labels, min(columns, len(shapes)), azimuth=azimuth,
-                                       elevation=elevation, **options)
+    draw.check_view(zoom, azimuth, elevation)  # before any model is loaded
+    items = [Path(item) if Path(item).is_file() and Path(item).suffix.lower() in write.MESH_FORMATS
+             else open_model(item, threads) for item in inputs]
+    with StageProgress() as show:
+        picture = draw.draw_shapes(items, seeds, recon, size, scale, smooth, views, up, columns, image_size, zoom,
+                                   focus, azimuth, elevation, progress=show)
     draw.save_png(picture, output)
     click.echo(f"wrote {output} ({picture.shape[1]}x{picture.shape[0]})")
 

@@ -80,3 +80,24 @@ class SlabProgress:
     def __exit__(self, *error) -> None:
         if self.bar is not None:
             self.bar.__exit__(*error)
+
+
+class StageProgress:
+    """A bar per stage of work that reports progress(stage, done, total) (on a terminal)."""
+
+    def __init__(self):
+        self.stage, self.bar = None, None
+
+    def __call__(self, stage: str, done: int, total: int) -> None:
+        if stage != self.stage:
+            self.__exit__(None, None, None)
+            self.stage, self.bar = stage, progress_bar(total, stage).__enter__()
+        self.bar.update(done - self.bar.pos)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *error) -> None:
+        if self.bar is not None:
+            self.bar.__exit__(*error)
+            self.bar = None

@@ -13,6 +13,7 @@ Colours are RGB floats in [0, 1]; images are (H, W, 3) uint8; sizes are
 
 import math
 import numbers
+from pathlib import Path
 
 import numpy as np
 import trimesh
@@ -370,3 +371,53 @@ def depth_edges(nearness: np.ndarray, width=1) -> np.ndarray:
         for dx in range(width):
             wide[dy:, dx:] |= edges[:edges.shape[0] - dy, :edges.shape[1] - dx]
     return wide
+
+
+def draw_shapes(items: list, seeds, recon: bool = False, factors=(1.0, 1.0, 1.0), scale: float = 1.0,
+                smooth: int = 0, views: int = 1, up: str | None = None, columns: int = 4, image_size: int = 320,
+                zoom: float = 1.0, focus=(0.5, 0.5, 0.5), azimuth: float = 35.0, elevation: float = 25.0,
+                progress=None) -> np.ndarray:
+    """One picture of `items`: mesh files (Paths, drawn as they are) and
+    loaded models (their samples `seeds`, the reconstruction first with
+    `recon`), as a grid of labelled cells or, with views > 1, a turntable row
+    per shape. `up` None: what the first model records, else y.
+    progress(stage, done, total) follows the sampling, then the drawing."""
+    from sinshape.prep.voxelize import load_mesh
+
+    from .generate import sample
+    from .mesh import extract
+
+    check_view(zoom, azimuth, elevation)
+    chosen = [None, *seeds] if recon else list(seeds)
+    models = [item for item in items if not isinstance(item, Path)]
+    check_picture(len(items) - len(models) + len(models) * len(chosen), (image_size, image_size), views, columns)
+    up = up or (models[0].manifest.up if models else "y")
+    shapes, labels, sampled = [], [], 0
+    for item in items:
+        if isinstance(item, Path):
+            shapes.append(load_mesh(item, solid=False))
+            labels.append(item.name)
+            continue
+        for seed in chosen:
+            shapes.append(extract(item, sample(item, seed, factors if seed is not None else (1, 1, 1)), scale,
+                                  smooth=smooth))
+            if not len(shapes[-1].faces):
+                raise InputError(f"{item.path.name}: seed {seed} has no surface at this scale and size; nothing drawn",
+                                 "scale")
+            labels.append(sample_label(seed, factors, scale))
+            sampled += 1
+            if progress:
+                progress("sampling", sampled, len(models) * len(chosen))
+    shapes = [crop(shape, zoom, focus) for shape in shapes]
+    drawn = [0]
+
+    def step():
+        drawn[0] += 1
+        if progress:
+            progress("drawing", drawn[0], len(shapes) * views)
+
+    options = dict(up=up, size=(image_size, image_size), progress=step)
+    if views > 1:
+        turns = [((azimuth + 360 * k / views) % 360, elevation) for k in range(views)]
+        return np.concatenate([render_views(shape, views=turns, **options) for shape in shapes])
+    return render_grid(shapes, labels, min(columns, len(shapes)), azimuth=azimuth, elevation=elevation, **options)
