@@ -121,7 +121,8 @@ function showMode() {
   const browser = state.where === 'browser';
   $('where-label').hidden = STATIC_SITE;
   $('file-label').hidden = !browser;
-  $('format').disabled = browser; // the browser writes .ply
+  $('format').disabled = browser; // the browser writes .ply, and the box says so
+  $('format').value = browser ? 'ply' : state.format;
   $('backend').hidden = !browser;
 }
 
@@ -280,6 +281,7 @@ async function load() {
   } catch (error) {
     if (ticket !== latest) return;
     $('status').textContent = '';
+    $('download').removeAttribute('href');  // it would fetch the failed request again
     report(error.message);
     document.body.dataset.state = 'error';
   }
@@ -287,8 +289,10 @@ async function load() {
 
 function step(delta) {
   fromForm();
-  const seed = Number.parseInt(state.seed, 10);
-  state.seed = String(Math.max(0, (Number.isFinite(seed) ? seed : 0) + delta));
+  // BigInt: seeds go to 2^63, past what a Number holds exactly (2^53)
+  const seed = /^\d+$/.test(state.seed) ? BigInt(state.seed) : 0n;
+  const next = seed + BigInt(delta);
+  state.seed = String(next < 0n ? 0n : next >= 2n ** 63n ? 2n ** 63n - 1n : next);
   toForm();
   load();
 }
@@ -318,6 +322,7 @@ async function openFile(file) {
 }
 
 async function start() {
+  $('unserved').hidden = true;  // the script runs: the page is served
   readUrl();
   try {
     const response = await fetch(STATIC_SITE ? 'models.json' : 'api/models');
