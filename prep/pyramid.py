@@ -22,8 +22,8 @@ from scipy import ndimage
 
 from sinshape.core.budget import check_memory
 from sinshape.core.errors import InputError
-from sinshape.core.manifest import MAX_LEVEL_SIDE
 from sinshape.core.files import check_readable
+from sinshape.core.manifest import MAX_LEVEL_SIDE
 
 from . import voxelize
 

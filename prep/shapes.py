@@ -24,9 +24,9 @@ import numpy as np
 import trimesh
 from skimage import measure
 
-from sinshape.core.files import MESH_FORMATS, atomic_write
 from sinshape.core.budget import check_memory
 from sinshape.core.errors import InputError
+from sinshape.core.files import MESH_FORMATS, atomic_write
 
 # Grid points farther than MARGIN voxels outside a primitive's bounding box
 # are left alone: its distance there exceeds MARGIN voxels, so it cannot

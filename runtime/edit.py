@@ -30,8 +30,9 @@ import numpy as np
 
 from sinshape.core.budget import check_memory
 from sinshape.core.errors import InputError
-from .generate import Noise, TriPlane, chain, check_seed, draw_noise, scaled_sizes, triplane
 from sinshape.core.manifest import PLANE_AXES, plane_sizes
+
+from .generate import Noise, TriPlane, chain, check_seed, draw_noise, scaled_sizes, triplane
 
 # Cells of each level blended on either side of a box's face: the reach of a
 # level's generator (four 3x3 convolutions).

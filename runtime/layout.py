@@ -20,8 +20,9 @@ from pathlib import Path
 import numpy as np
 
 from sinshape.core.errors import InputError
-from sinshape.core.manifest import MAX_LEVEL_SIDE
 from sinshape.core.files import MESH_FORMATS, atomic_write
+from sinshape.core.manifest import MAX_LEVEL_SIDE
+
 from .generate import TriPlane, check_seed, draw_noise, sample, scaled_sizes, triplane
 from .query import dense
 

@@ -17,8 +17,9 @@ import trimesh
 from threadpoolctl import threadpool_limits
 from skimage import measure
 
-from . import query
 from sinshape.core.errors import InputError
+
+from . import query
 from .load import default_threads
 
 SMOOTHERS = ("laplacian", "taubin")

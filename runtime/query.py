@@ -20,10 +20,11 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import expit
 
-from sinshape.core.errors import InputError
 from sinshape.core.budget import check_memory
-from .generate import MAX_GRID_SIDE, TriPlane, resize_matrix
+from sinshape.core.errors import InputError
 from sinshape.core.manifest import PLANE_AXES
+
+from .generate import MAX_GRID_SIDE, TriPlane, resize_matrix
 
 BLOCK = 16  # cells per block side in the band search; see benchmarks/sample_speed.py
 BOUND_MARGIN = 1e-4  # a block is uniform only if its bound clears 0.5 by this much

@@ -40,8 +40,8 @@ from pydantic import BaseModel
 from starlette.datastructures import Headers, MutableHeaders
 
 from sinshape import models as shipped
-from sinshape.runtime import edit, generate, layout, load, mesh, query, write
 from sinshape.core.errors import InputError, MemoryLimitError
+from sinshape.runtime import edit, generate, layout, load, mesh, query, write
 
 STATIC = Path(__file__).parent / "static"
 Format = Literal["glb", "ply", "obj", "stl", "off", "npz"]

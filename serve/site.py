@@ -20,8 +20,8 @@ from pathlib import Path
 
 from sinshape import models as shipped
 from sinshape.core import files
-from sinshape.runtime import load
 from sinshape.core.errors import InputError
+from sinshape.runtime import load
 
 STATIC = Path(__file__).parent / "static"
 MARKER = ".sinshape-site"  # marks a folder this command wrote, so a new export may replace it

@@ -72,6 +72,7 @@ def test_browse_samples_see_errors_and_download(page, tmp_path):
     assert page.is_visible("#error")
     assert "scale: Input should be greater than 0" in page.text_content("#error")
     assert "scale=0" in page.url
+    assert page.get_attribute("#download", "href") is None  # no link to the failed request
 
     page.fill("#scale", "1")
     page.press("#scale", "Enter")
@@ -95,4 +96,16 @@ def test_the_url_holds_the_state(page):
     assert fields == {"seed": "7", "sx": "1.5", "sy": "1", "sz": "1", "smooth": "2", "up": "z", "format": "obj"}
     href = page.get_attribute("#download", "href")
     assert href.endswith("api/models/terrain/sample?seed=7&size=1.5%2C1%2C1&scale=1&smooth=2&format=obj")
+    assert not page.errors
+
+
+def test_the_model_stands_up_and_seeds_step_exactly_past_2_53(page):
+    """The terrain records z as up, so a URL without `up` shows it so; the next
+    seed after 2^53 + 1 is 2^53 + 2 (a Number would round it)."""
+    page.goto(f"{page.base}/?seed=9007199254740993")
+    wait_ready(page, 9007199254740993)
+    assert page.input_value("#up") == "z" and not page.is_visible("#unserved")
+    page.click("#next")
+    wait_ready(page, 9007199254740994)
+    assert page.input_value("#seed") == "9007199254740994"
     assert not page.errors

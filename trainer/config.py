@@ -8,8 +8,8 @@ plain ints; only `train` reads a config.
 import dataclasses
 from dataclasses import dataclass
 
-from sinshape.prep.pyramid import LEVEL_FACTOR, MIN_SIZE
 from sinshape.core.errors import InputError
+from sinshape.prep.pyramid import LEVEL_FACTOR, MIN_SIZE
 
 
 @dataclass(frozen=True)

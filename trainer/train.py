@@ -23,14 +23,14 @@ import torch.nn.functional as F
 from sinshape.core import noise
 from sinshape.core.budget import check_memory
 from sinshape.core.errors import InputError
-from sinshape.core.manifest import plane_sizes
 from sinshape.core.files import atomic_write, check_writable, is_same_file
+from sinshape.core.manifest import plane_sizes
+from sinshape.prep.pyramid import load_pyramid, training_targets
 
-from . import export, schedule
 from . import device as devices
+from . import export, schedule
 from .config import TrainConfig
 from .networks import Discriminator, make_generator
-from sinshape.prep.pyramid import load_pyramid, training_targets
 
 CHECKPOINT_FORMAT = "sinshape-checkpoint"
 CHECKPOINT_VERSION = 1
