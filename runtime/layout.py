@@ -18,19 +18,23 @@ import zipfile
 from pathlib import Path
 
 import numpy as np
+from scipy.special import expit
 
 from sinshape.core.errors import InputError
 from sinshape.core.files import MESH_FORMATS, atomic_write
-from sinshape.core.manifest import MAX_LEVEL_SIDE
+from sinshape.core.manifest import MAX_LEVEL_SIDE, PLANE_AXES
 
-from .generate import TriPlane, check_seed, draw_noise, sample, scaled_sizes, triplane
+from .generate import TriPlane, chain, check_seed, draw_noise, resize_matrix, scaled_sizes, triplane
+from .generate import sample as generate_sample
 from .query import dense
 
 FIT_STEPS = 60  # at the layout's level
 FINER_STEPS = 30  # at each finer level, which would otherwise bring back what was removed
 FIT_RATE = 0.5  # Adam's step, in plane units (trained planes hold values of about +-2)
-PULL = 0.001  # weight of the squared distance to the seed's own planes, per cell
-TOLERANCE = 0.002  # a fit stops once at most this share of layout cells is on the wrong side of 0.5
+PULL = 0.001  # weight of the change's squared size, per layout cell
+TOLERANCE = 0.002  # a fit stops once at most this share of the edited cells is on the wrong side of 0.5,
+KEEP_TOLERANCE = 0.01  # and at most this share of all cells
+KEEP_WEIGHT = 0.2  # an unedited cell's weight in the fit, against an edited cell's 1
 
 
 def check_level(model, level: int) -> int:
@@ -46,7 +50,7 @@ def layout(model, seed: int, level: int = 0, factors=(1.0, 1.0, 1.0)) -> np.ndar
     to that grid, where it is more than half full."""
     level = check_level(model, level)
     sizes = scaled_sizes(model.manifest.sizes, factors)
-    return pool(dense(model, sample(model, check_seed(seed), factors)), sizes[level]) > 0.5
+    return pool(dense(model, generate_sample(model, check_seed(seed), factors)), sizes[level]) > 0.5
 
 
 def first_layer(model) -> list:
@@ -78,38 +82,50 @@ def pool(grid: np.ndarray, shape) -> np.ndarray:
     return separable([area_weights(n, m) for n, m in zip(grid.shape, shape)], grid)
 
 
-def fit(model, planes: list, target: np.ndarray, steps: int) -> list:
-    """Planes (3 x (C, H, W)) moved so that their occupancy, area-averaged to
-    the layout's grid, matches the layout `target` (binary cross-entropy),
-    pulled toward where they started, until all but TOLERANCE of the layout
-    cells are on the right side of 0.5, or after `steps`: the layout
-    constrains where things are, not their detail."""
+def fit(model, planes: list, target: np.ndarray, steps: int, edited: np.ndarray) -> list:
+    """Planes (3 x (C, H, W)) changed so that their occupancy, area-averaged
+    to the layout's grid, matches the layout `target` (binary cross-entropy)
+    in the `edited` cells (where it differs from the seed's own layout: the
+    rest is left to the model), until all but TOLERANCE of them are on the
+    right side of 0.5, or after `steps`. The change is a field at the layout's own resolution,
+    resized onto each plane (bilinear, align_corners) and pulled toward zero:
+    it moves where things are and leaves the detail to the generators."""
+    if not edited.any():
+        return planes
     weights = first_layer(model)
     head = model.head
     y = target.astype(np.float32)
+    weight = np.where(edited, 1.0, KEEP_WEIGHT).astype(np.float32)
+    weight /= weight.sum()
     size = (planes[0].shape[1], planes[0].shape[2], planes[1].shape[2])
     pools = [area_weights(n, m) for n, m in zip(size, target.shape)]
+    # Per plane, (rows, cols) resize matrices from the layout's cells to the plane's.
+    grow = [(resize_matrix(target.shape[a], size[a]), resize_matrix(target.shape[b], size[b])) for a, b in PLANE_AXES]
     start = [p.astype(np.float32) for p in planes]
-    current = [p.copy() for p in start]
-    moments = [(np.zeros_like(p), np.zeros_like(p)) for p in start]
+    change = [np.zeros((p.shape[0], r.shape[1], c.shape[1]), np.float32) for p, (r, c) in zip(start, grow)]
+    moments = [(np.zeros_like(d), np.zeros_like(d)) for d in change]
+    current = start
     for step in range(1, steps + 1):
+        current = [p + r @ d @ c.T for p, d, (r, c) in zip(start, change, grow)]
         a_xy, a_xz, a_yz = (np.einsum("chw,cd->hwd", p, w) for p, w in zip(current, weights))
         pre = a_xy[:, :, None] + a_xz[:, None] + a_yz[None] + head.bias1  # (X, Y, Z, D)
         active = pre > 0
-        occupancy = 1 / (1 + np.exp(-(np.where(active, pre, 0) @ head.weight2 + head.bias2)))
+        occupancy = expit(np.where(active, pre, 0) @ head.weight2 + head.bias2)
         pooled = np.clip(separable(pools, occupancy), 1e-6, 1 - 1e-6)
-        if np.count_nonzero((pooled > 0.5) != target) <= TOLERANCE * target.size:
+        wrong = (pooled > 0.5) != target
+        if (np.count_nonzero(wrong & edited) <= TOLERANCE * edited.sum()
+                and np.count_nonzero(wrong) <= KEEP_TOLERANCE * target.size):
             break
         # Binary cross-entropy of the pooled occupancy, back through the pooling, the sigmoid and the ReLU.
-        d_pooled = (pooled - y) / (pooled * (1 - pooled)) / y.size
+        d_pooled = (pooled - y) / (pooled * (1 - pooled)) * weight
         d_occupancy = separable([w.T for w in pools], d_pooled)
         d_pre = (d_occupancy * occupancy * (1 - occupancy))[..., None] * head.weight2 * active
         d_a = [d_pre.sum(axis=2), d_pre.sum(axis=1), d_pre.sum(axis=0)]
-        for k, (p, w, (m, v)) in enumerate(zip(current, weights, moments)):
-            grad = np.einsum("hwd,cd->chw", d_a[k], w) + 2 * PULL / p[0].size * (p - start[k])
+        for k, (d, w, (r, c), (m, v)) in enumerate(zip(change, weights, grow, moments)):
+            grad = r.T @ np.einsum("hwd,cd->chw", d_a[k], w) @ c + 2 * PULL / d[0].size * d
             m += 0.1 * (grad - m)  # Adam, beta1 0.9, beta2 0.999
             v += 0.001 * (grad * grad - v)
-            p -= FIT_RATE * (m / (1 - 0.9**step)) / (np.sqrt(v / (1 - 0.999**step)) + 1e-8)
+            d -= FIT_RATE * (m / (1 - 0.9**step)) / (np.sqrt(v / (1 - 0.999**step)) + 1e-8)
     return current
 
 
@@ -135,9 +151,19 @@ def from_layout(model, seed: int, target: np.ndarray, factors=(1.0, 1.0, 1.0), r
     level = layout_level(model, target.shape, factors, resample)
     if target.shape != tuple(sizes[level]):
         target = pool(target, sizes[level]) > 0.5
-    sample = draw_noise(check_seed(seed), sizes, model.manifest.channels)
-    return triplane(model, sample, sizes, after_level=lambda i, planes: planes if i < level else fit(
-        model, planes, target, FIT_STEPS if i == level else FINER_STEPS))
+    noise = draw_noise(check_seed(seed), sizes, model.manifest.channels)
+    # What the seed's own levels hold on the layout's grid: the targets of the
+    # cells the user did not edit, so that each level keeps its own look there.
+    own = [pool(dense(model, TriPlane(planes, size)), target.shape) > 0.5
+           for planes, size in zip(chain(model, noise, sizes), sizes)]
+    edited = target != own[-1]
+
+    def fitted(i, planes):
+        if i < level:
+            return planes
+        return fit(model, planes, np.where(edited, target, own[i]), FIT_STEPS if i == level else FINER_STEPS, edited)
+
+    return triplane(model, noise, sizes, after_level=fitted)
 
 
 # -- layout files: MagicaVoxel .vox (what voxel artists edit) and .npz --------
