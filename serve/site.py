@@ -165,5 +165,5 @@ def export_site(names, out, version: str = "") -> dict:
     finally:
         shutil.rmtree(temporary, ignore_errors=True)
         shutil.rmtree(old, ignore_errors=True)
-    files = [f for f in out.rglob("*") if f.is_file()]
-    return {"path": out, "models": list(models), "bytes": sum(f.stat().st_size for f in files), "files": len(files)}
+    written = [f for f in out.rglob("*") if f.is_file()]
+    return {"path": out, "models": list(models), "bytes": sum(f.stat().st_size for f in written), "files": len(written)}

@@ -252,6 +252,13 @@ def edit_manifest(edit):
 newer_version = edit_manifest(lambda m: m.update(format_version=99))
 
 
+def drop_seal(proto):
+    kept = [(p.key, p.value) for p in proto.metadata_props if p.key != "sinshape.sha256"]
+    del proto.metadata_props[:]
+    for key, value in kept:
+        proto.metadata_props.add(key=key, value=value)
+
+
 def flipped_weight(proto):
     tensor = next(t for t in proto.graph.initializer if t.raw_data)
     data = bytearray(tensor.raw_data)
@@ -312,7 +319,7 @@ def test_files_are_refused_as_the_python_loader_refuses_them(site_page, tmp_path
              altered_terrain(tmp_path / "op.onnx", foreign_op),
              altered_terrain(tmp_path / "flipped.onnx", flipped_weight, seal=False),
              altered_terrain(tmp_path / "sealed.onnx", edit_manifest(lambda m: m.update(seed_note="edited")), seal=False),
-             altered_terrain(tmp_path / "unsealed.onnx", lambda proto: None, seal=False),
+             altered_terrain(tmp_path / "unsealed.onnx", drop_seal, seal=False),
              altered_terrain(tmp_path / "amp.onnx", edit_manifest(lambda m: m["levels"][1].update(noise_amp=1e30))),
              altered_terrain(tmp_path / "origin.onnx", edit_manifest(lambda m: m["frame"].update(origin=[1e300, 0, 0]))),
              altered_terrain(tmp_path / "source.onnx", edit_manifest(lambda m: m.update(source=None))),
