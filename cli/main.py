@@ -368,7 +368,8 @@ def layout_command(model, seed, level, size, output):
 @cli.command()
 @MODEL_ARGUMENT
 @click.option("--seeds", type=int, nargs=2, required=True, help="The two seeds to blend, e.g. --seeds 3 7.")
-@click.option("--steps", type=int, default=9, show_default=True, help="How many shapes along the way.")
+@click.option("--steps", type=click.IntRange(1, 10000), default=9, show_default=True,
+              help="How many shapes along the way (at most 10000: more are indistinguishable, and each is a file).")
 @click.option("--range", "alpha_range", type=float, nargs=2, default=(-0.5, 1.5), show_default=True,
               help="Blend weights from..to; outside 0..1 extrapolates beyond the two seeds.")
 @SCALE_OPTION
@@ -387,8 +388,6 @@ def interpolate(model, seeds, steps, alpha_range, scale, size, output, smooth, s
 
     from sinshape.runtime import generate, write
 
-    if steps < 1:
-        raise click.BadParameter("--steps must be at least 1")
     if not all(np.isfinite(alpha_range)):
         raise click.BadParameter(f"--range must be two finite numbers, got {alpha_range[0]} {alpha_range[1]}")
     low, high = alpha_range
@@ -397,7 +396,7 @@ def interpolate(model, seeds, steps, alpha_range, scale, size, output, smooth, s
     loaded = open_model(model, threads)
     warn_if_clamped(loaded, size, scale)
 
-    def alpha(k):  # computed when needed: --steps 100000000 costs nothing up front
+    def alpha(k):  # computed when needed
         return high if 0 < k == steps - 1 else low + k * (high - low) / max(steps - 1, 1)
 
     def path(k):
