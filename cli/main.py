@@ -16,7 +16,7 @@ from sinshape.core.errors import InputError
 from sinshape.runtime import __version__
 
 from .params import FRACTIONS, SEEDS, SIZE, named_output
-from .progress import SlabProgress, StageProgress, TrainProgress, format_seconds, progress_bar
+from .progress import StageProgress, TrainProgress, format_seconds, progress_bar
 
 # Library errors name a function's parameter; on the command line it is an option.
 OPTIONS = {"scale": "--scale", "factors": "--size", "smooth": "--smooth", "threads": "--threads",
@@ -305,9 +305,9 @@ def sample(model, seed, seeds, recon, keep, layout_file, resample_layout, grow_b
     triplane = edit.edited(loaded, first, size, keep, layout_file, resample_layout, grow_by, anchor or (0, 0, 0))
     if scale > 2 and kind == "mesh":
         say_how_long(loaded, triplane, scale, 1)
-    with SlabProgress() as slabs:
-        write.write_sample(loaded, triplane, path, scale=scale, smooth=smooth, smoother=smoother,
-                           largest=largest, frame=frame, threads=threads, mesh_progress=slabs)
+    with StageProgress() as show:
+        write.write_sample(loaded, triplane, path, scale=scale, smooth=smooth, smoother=smoother, largest=largest,
+                           frame=frame, threads=threads, mesh_progress=lambda done, total: show("meshing", done, total))
     click.echo(f"wrote {path}")
 
 

@@ -63,25 +63,6 @@ def progress_bar(length: int, label: str):
                              hidden=length < 2 or not sys.stderr.isatty())
 
 
-class SlabProgress:
-    """A progress bar over the slabs one sample is meshed in (on a terminal)."""
-
-    def __init__(self):
-        self.bar = None
-
-    def __call__(self, done: int, total: int) -> None:
-        if self.bar is None:
-            self.bar = progress_bar(total, "meshing").__enter__()
-        self.bar.update(done - self.bar.pos)
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *error) -> None:
-        if self.bar is not None:
-            self.bar.__exit__(*error)
-
-
 class StageProgress:
     """A bar per stage of work that reports progress(stage, done, total) (on a terminal)."""
 

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Literal
 
-from fastapi import FastAPI, HTTPException, Query, Request
+from fastapi import Depends, FastAPI, HTTPException, Query, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
@@ -112,6 +112,26 @@ class Sample:
     etag: str  # strong: the sha256 of the body, quoted
     faces: int | None  # None for an occupancy grid
     seconds: float  # time it took to make
+
+
+# The query parameters both sample routes take.
+SeedQuery = Annotated[int, Query(ge=0, lt=2**63, description="The same seed gives the same shape.")]
+SizeQuery = Annotated[str, Query(description="Factors of the training size: one, or sx,sy,sz.")]
+ScaleQuery = Annotated[float, Query(gt=0, allow_inf_nan=False,
+                                    description="Query a grid this many times finer per axis.")]
+SmoothQuery = Annotated[int, Query(ge=0, le=MAX_SMOOTH, description="Laplacian smoothing steps.")]
+FormatQuery = Annotated[Format, Query(description="glb ply obj stl off: a mesh; npz: the occupancy grid.")]
+
+
+@dataclass
+class SampleQuery:
+    """The query parameters both sample routes take."""
+
+    seed: SeedQuery = 0
+    size: SizeQuery = "1"
+    scale: ScaleQuery = 1.0
+    smooth: SmoothQuery = 0
+    format: FormatQuery = "glb"
 
 
 MAX_UPLOAD_BYTES = 4 << 20  # a layout of a coarse level is a few kB
@@ -445,12 +465,7 @@ def create_app(loaded: dict, slots: int | None = None, timeout: float = 60.0,
     async def sample(
         request: Request,
         name: str,
-        seed: Annotated[int, Query(ge=0, lt=2**63, description="The same seed gives the same shape.")] = 0,
-        size: Annotated[str, Query(description="Factors of the training size: one, or sx,sy,sz.")] = "1",
-        scale: Annotated[float, Query(gt=0, allow_inf_nan=False,
-                                      description="Query a grid this many times finer per axis.")] = 1.0,
-        smooth: Annotated[int, Query(ge=0, le=MAX_SMOOTH, description="Laplacian smoothing steps.")] = 0,
-        format: Annotated[Format, Query(description="glb ply obj stl off: a mesh; npz: the occupancy grid.")] = "glb",
+        q: Annotated[SampleQuery, Depends()],
         keep: Annotated[list[str], Query(max_length=16, description="Parts to keep from other samples, "
                                          "SEED:X0,Y0,Z0:X1,Y1,Z1 (the model's frame, or percentages like 50%); "
                                          "repeat for more. The rest comes from `seed`.")] = [],
@@ -460,13 +475,13 @@ def create_app(loaded: dict, slots: int | None = None, timeout: float = 60.0,
                                      "(low side) to 1 (high side).")] = "0",
     ):
         model = find(name)
-        factors = generate.parse_size(size)
+        factors = generate.parse_size(q.size)
         finest = generate.scaled_sizes(model.manifest.sizes, factors)[-1]
         parts = tuple(edit.parse_part(text, model.manifest, finest) for text in keep)
         if grow and parts:
             raise InputError("give keep or grow, not both")
         where = generate.parse_triple(anchor, lambda v: 0 <= v <= 1, "three fractions in [0, 1]", "anchor")
-        wanted = SampleRequest(name, seed, factors, scale, smooth, format, parts,
+        wanted = SampleRequest(name, q.seed, factors, q.scale, q.smooth, q.format, parts,
                                generate.parse_size(grow) if grow else None, where)
         return await answer(request, model, wanted)
 
@@ -475,19 +490,14 @@ def create_app(loaded: dict, slots: int | None = None, timeout: float = 60.0,
     async def sample_from_layout(
         request: Request,
         name: str,
-        seed: Annotated[int, Query(ge=0, lt=2**63, description="The seed varies the detail.")] = 0,
-        size: Annotated[str, Query(description="Factors of the training size: one, or sx,sy,sz.")] = "1",
-        scale: Annotated[float, Query(gt=0, allow_inf_nan=False,
-                                      description="Query a grid this many times finer per axis.")] = 1.0,
-        smooth: Annotated[int, Query(ge=0, le=MAX_SMOOTH, description="Laplacian smoothing steps.")] = 0,
-        format: Annotated[Format, Query(description="glb ply obj stl off: a mesh; npz: the occupancy grid.")] = "glb",
+        q: Annotated[SampleQuery, Depends()],
         resample_layout: Annotated[bool, Query(description="Fit a layout of another grid size to level 0's.")] = False,
     ):
         """The body is the layout file (.vox or .npz, as `sinrun layout` writes it, edited), at most 4 MB."""
         body = await request.body()
         if not body or len(body) > MAX_UPLOAD_BYTES:
             raise InputError(f"send the layout file as the request body (1 byte to {MAX_UPLOAD_BYTES >> 20} MB)")
-        wanted = SampleRequest(name, seed, generate.parse_size(size), scale, smooth, format, layout=body,
+        wanted = SampleRequest(name, q.seed, generate.parse_size(q.size), q.scale, q.smooth, q.format, layout=body,
                                resample_layout=resample_layout)
         return await answer(request, find(name), wanted)
 
