@@ -109,3 +109,21 @@ def test_the_model_stands_up_and_seeds_step_exactly_past_2_53(page):
     wait_ready(page, 9007199254740994)
     assert page.input_value("#seed") == "9007199254740994"
     assert not page.errors
+
+
+# Every mesh in the page's scene, and its material's side (THREE.FrontSide 0, BackSide 1, DoubleSide 2).
+MESH_SIDES_JS = """() => {
+  const sides = [];
+  window.sinshapeView.scene.traverse((node) => { if (node.isMesh) sides.push(node.material.side); });
+  return sides;
+}"""
+
+
+def test_only_front_faces_are_drawn(page):
+    """The meshes are closed and wound outwards: back faces are never drawn
+    (drawn too, they fought the front faces in the depth buffer: dark lines)."""
+    page.goto(f"{page.base}/?seed=5&up=z")
+    wait_ready(page, 5)
+    sides = page.evaluate(MESH_SIDES_JS)
+    assert sides and set(sides) == {0}, f"material sides {sides}: 0 is THREE.FrontSide"
+    assert not page.errors

@@ -107,6 +107,8 @@ def test_the_exported_page_samples_in_the_browser(site_page, terrain, tmp_path):
     # No headers for threads here: the page says it runs on one.
     assert "WASM, 1 thread (the page is not cross-origin isolated" in page.text_content("#backend")
     assert not page.is_visible("#where")  # a static site has no server to switch to
+    sides = page.evaluate("() => { const s = []; window.sinshapeView.scene.traverse((n) => n.isMesh && s.push(n.material.side)); return s; }")
+    assert sides == [0], sides  # the browser's mesh: front faces only (THREE.FrontSide), as the server's
     shot = page.locator("#view canvas").screenshot(path=tmp_path / "seed3.png")
     assert len(shot) > 20_000, f"the view looks blank: {tmp_path / 'seed3.png'}"
     page.click("#next")

@@ -20,17 +20,25 @@ view.appendChild(renderer.domElement);
 const scene = new THREE.Scene();
 scene.background = new THREE.Color(0x20242a);
 const camera = new THREE.PerspectiveCamera(35, 1, 0.01, 1000);
-scene.add(new THREE.HemisphereLight(0xffffff, 0x404048, 1.6));
-const sun = new THREE.DirectionalLight(0xffffff, 2.2);
-sun.position.set(0.5, 1, 0.8);
-camera.add(sun); // the light moves with the camera: every side can be lit
+// Light: a soft sky-and-ground fill, and a key light from above and to the
+// left of the viewer. The key light and its target ride with the camera, so
+// whichever side is turned to the viewer is lit the same way and shaded by its form.
+scene.add(new THREE.HemisphereLight(0xf4f6ff, 0x3a3630, 0.8));
+const key = new THREE.DirectionalLight(0xffffff, 2.8);
+key.position.set(-0.8, 1.2, 0.4);
+key.target.position.set(0, 0, -1);
+camera.add(key, key.target);
 scene.add(camera);
 const controls = new OrbitControls(camera, renderer.domElement);
 controls.addEventListener('change', draw);
-const material = new THREE.MeshStandardMaterial({ color: 0xd8c8a8, roughness: 0.8, side: THREE.DoubleSide });
+// Front faces only: the meshes are closed and wound outwards (normals out), so
+// back faces are never seen from outside; drawing them too (DoubleSide) made
+// dark lines where they fought the front faces in the depth buffer.
+const material = new THREE.MeshStandardMaterial({ color: 0xd8c8a8, roughness: 0.85, side: THREE.FrontSide });
 const holder = new THREE.Group(); // turned so the model's up axis points up on screen
 scene.add(holder);
 const loader = new GLTFLoader();
+window.sinshapeView = { scene, camera, renderer }; // for the tests and the console
 
 function draw() {
   renderer.render(scene, camera);
