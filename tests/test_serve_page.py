@@ -127,3 +127,48 @@ def test_only_front_faces_are_drawn(page):
     sides = page.evaluate(MESH_SIDES_JS)
     assert sides and set(sides) == {0}, f"material sides {sides}: 0 is THREE.FrontSide"
     assert not page.errors
+
+
+LAYOUT_JS = """() => {
+  const box = (el) => { const r = el.getBoundingClientRect(); return [r.left, r.top, r.right, r.bottom]; };
+  const canvas = document.querySelector('#view canvas');
+  return { canvas: box(canvas), controls: box(document.getElementById('controls')),
+           buffer: [canvas.width, canvas.height], ratio: devicePixelRatio,
+           window: [innerWidth, innerHeight], scroll_width: document.documentElement.scrollWidth };
+}"""
+
+
+def overlap(a, b) -> float:
+    """The area two boxes (left, top, right, bottom) share."""
+    return max(0, min(a[2], b[2]) - max(a[0], b[0])) * max(0, min(a[3], b[3]) - max(a[1], b[1]))
+
+
+@pytest.mark.parametrize("width, height", [(390, 844), (1280, 800)])
+def test_the_layout_fits_a_phone_and_a_wide_screen(page, tmp_path, width, height):
+    """A phone: the view takes the whole width, the controls below it; a wide
+    screen: the controls beside it. Never on top of each other, never a page
+    wider than the window, and the shape framed in the view."""
+    page.set_viewport_size({"width": width, "height": height})
+    try:
+        page.goto(f"{page.base}/?seed=3&up=z")
+        wait_ready(page, 3)
+        layout = page.evaluate(LAYOUT_JS)
+        left, top, right, bottom = layout["canvas"]
+        assert overlap(layout["canvas"], layout["controls"]) == 0, layout
+        assert layout["scroll_width"] <= width, layout  # nothing sticks out sideways
+        assert bottom - top >= 300, layout
+        if width < 600:
+            assert right - left >= 0.9 * width and layout["controls"][1] >= bottom, layout  # below the view
+        else:
+            assert right - left >= 0.7 * width and layout["controls"][2] <= left, layout  # beside it
+        # The renderer follows the layout: its buffer is the canvas's size on screen.
+        assert layout["buffer"] == [round((right - left) * layout["ratio"]), round((bottom - top) * layout["ratio"])]
+        pixels = view_pixels(page, tmp_path / f"{width}x{height}.png")
+        assert shape_fraction(pixels) > 0.1, f"the shape is not in view: {tmp_path}"
+        edge = np.concatenate([pixels[:, :2].reshape(-1, 3), pixels[:, -2:].reshape(-1, 3)])
+        assert (np.abs(edge - BACKGROUND).sum(axis=-1) > 30).mean() < 0.01, "the shape is cut off at the sides"
+        page.click("#next")  # the controls are within reach (Playwright scrolls to them, as a thumb would)
+        wait_ready(page, 4)
+        assert not page.errors
+    finally:
+        page.set_viewport_size({"width": 900, "height": 600})

@@ -63,7 +63,10 @@ function frame() {
   if (box.isEmpty()) return draw();
   const centre = box.getCenter(new THREE.Vector3());
   const radius = box.getSize(new THREE.Vector3()).length() / 2;
-  const distance = radius / Math.sin(THREE.MathUtils.degToRad(camera.fov / 2)) * 1.05;
+  // The narrower of the two fields of view: a tall view (a phone) fits the shape's width too.
+  const half = THREE.MathUtils.degToRad(camera.fov / 2);
+  const fit = Math.min(half, Math.atan(Math.tan(half) * camera.aspect));
+  const distance = radius / Math.sin(fit) * 1.05;
   camera.position.copy(centre).add(new THREE.Vector3(0.8, 0.55, 1).normalize().multiplyScalar(distance));
   camera.near = distance / 100;
   camera.far = distance * 10;
