@@ -75,6 +75,13 @@ Cloudflare Pages; for nginx: add_header for both. Without them the page
 works single-threaded and says so. Opening index.html as a file:// URL does
 not work (browsers do not load modules from files).
 
+The files are sent as they are unless the server compresses them; the
+.wasm is 28 MB, 6.7 MB gzipped. Over a network, let the server gzip
+application/wasm and JavaScript (nginx: gzip on; gzip_comp_level 6;
+gzip_types text/javascript application/javascript application/wasm;
+and map .mjs to text/javascript). The sinshape documentation, docs/WEB.md,
+has a whole nginx configuration.
+
 Made by `sinrun export-web` (sinshape {version}).
 """
 

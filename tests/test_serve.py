@@ -1,6 +1,7 @@
 """`sinrun serve`: the HTTP API against a real server on a free loopback port."""
 
 import contextlib
+import gzip
 import io
 import json
 import re
@@ -135,6 +136,29 @@ def test_the_model_file_and_isolation_headers_for_the_browser(server):
         assert get(f"{base}/static/{path}")[0] == 200, path
     status, _, body = get(f"{base}/api/models/nope/onnx")
     assert status == 404 and "unknown model 'nope'" in json.loads(body)["detail"]
+
+
+def test_answers_are_gzip_compressed_for_clients_that_accept_it(server):
+    """The 28 MB WASM and a sample go out gzip-compressed when the client
+    accepts it, as they are when it does not; a compressed sample's ETag is
+    weak and still revalidates."""
+    base, _ = server
+    static = Path(__file__).parents[1] / "serve" / "static"
+    wasm = "vendor/onnxruntime-web/ort-wasm-simd-threaded.jsep.wasm"
+    for path, kind in ((wasm, "application/wasm"), ("vendor/three/three.core.js", "text/javascript")):
+        status, headers, plain = get(f"{base}/static/{path}")
+        assert status == 200 and "Content-Encoding" not in headers and plain == (static / path).read_bytes()
+        status, headers, packed = get(f"{base}/static/{path}", {"Accept-Encoding": "gzip, deflate"})
+        assert status == 200 and headers["Content-Encoding"] == "gzip" and headers["Content-Type"].startswith(kind)
+        assert len(packed) < len(plain) / 3 and gzip.decompress(packed) == plain, path
+        assert "Accept-Encoding" in headers["Vary"] and headers["Cross-Origin-Embedder-Policy"] == "require-corp"
+    url = sample_url(base, seed=21, scale=2)
+    _, plain_headers, plain = get(url)
+    status, headers, packed = get(url, {"Accept-Encoding": "gzip"})
+    assert status == 200 and headers["Content-Encoding"] == "gzip" and gzip.decompress(packed) == plain
+    assert len(packed) < len(plain) and headers["X-Faces"] == plain_headers["X-Faces"]
+    assert headers["ETag"] == f"W/{plain_headers['ETag']}"  # a strong tag would name gzip's bytes as the file's
+    assert get(url, {"Accept-Encoding": "gzip", "If-None-Match": headers["ETag"]})[0] == 304
 
 
 def test_model_files_are_served_as_checked_at_start_sealed_as_format_3(tmp_path):

@@ -79,6 +79,9 @@ def test_browse_samples_see_errors_and_download(page, tmp_path):
     wait_ready(page, 4)
     assert not page.is_visible("#error")
     page.select_option("#format", "ply")
+    encoding = page.evaluate("async (url) => (await fetch(url)).headers.get('content-encoding')",
+                             page.get_attribute("#download", "href"))
+    assert encoding == "gzip"  # the download below comes compressed, and is saved as the mesh
     with page.expect_download() as download:
         page.click("#download")
     assert download.value.suggested_filename == "terrain_seed4.ply"
