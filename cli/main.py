@@ -13,7 +13,6 @@ import click
 
 from sinshape.core import files
 from sinshape.core.errors import InputError
-from sinshape.runtime import __version__
 
 from .params import FRACTIONS, SEEDS, SIZE, named_output
 from .progress import StageProgress, TrainProgress, format_seconds, progress_bar
@@ -58,7 +57,7 @@ class Sinrun(click.Group):
 
 
 @click.group(cls=Sinrun, context_settings={"help_option_names": ["-h", "--help"]})
-@click.version_option(__version__, prog_name="sinrun")
+@click.version_option(package_name="sinshape", prog_name="sinrun")
 def cli():
     """Learn to generate new 3D shapes from one example shape.
 
@@ -303,8 +302,6 @@ def sample(model, seed, seeds, recon, keep, layout_file, resample_layout, grow_b
     kind = write.output_kind(path)
     files.check_writable(path, [loaded.path] + ([layout_file] if layout_file else []))
     triplane = edit.edited(loaded, first, size, keep, layout_file, resample_layout, grow_by, anchor or (0, 0, 0))
-    if scale > 2 and kind == "mesh":
-        say_how_long(loaded, triplane, scale, 1)
     with StageProgress() as show:
         write.write_sample(loaded, triplane, path, scale=scale, smooth=smooth, smoother=smoother, largest=largest,
                            frame=frame, threads=threads, mesh_progress=lambda done, total: show("meshing", done, total))
@@ -630,6 +627,8 @@ def export_web(model_names, output):
     let WASM use several threads.
     """
     from sinshape.serve import site
+
+    from sinshape.runtime import __version__
 
     result = site.export_site(model_names, output, __version__)
     click.echo(f"wrote {output} ({', '.join(result['models'])}; {result['files']} files, "

@@ -21,13 +21,10 @@ file and its manifest (docs/FORMAT.md) are all it shares with the trainer. `__ve
 """
 
 import importlib
-from importlib import metadata
-
-__version__ = metadata.version("sinshape")
 
 # Where each public name lives. They are imported on first use, so that
 # importing a light module (for the CLI's --help) does not
-# pull in onnxruntime, trimesh and scikit-image.
+# pull in onnxruntime and onnx.
 _EXPORTS = {
     "InputError": "sinshape.core.errors", "MemoryLimitError": "sinshape.core.errors", "Model": "load",
     "load_model": "load", "TriPlane": "generate", "sample": "generate", "interpolate": "generate",
@@ -38,6 +35,10 @@ __all__ = sorted(_EXPORTS) + ["__version__"]
 
 
 def __getattr__(name):
+    if name == "__version__":  # importlib.metadata costs more than the rest of an import
+        from importlib import metadata
+
+        return metadata.version("sinshape")
     if name in _EXPORTS:
         module = _EXPORTS[name]
         return getattr(importlib.import_module(module if "." in module else f".{module}", __name__), name)

@@ -18,7 +18,6 @@ import zipfile
 from pathlib import Path
 
 import numpy as np
-from scipy.special import expit
 
 from sinshape.core.errors import InputError
 from sinshape.core.files import MESH_FORMATS, atomic_write
@@ -26,7 +25,7 @@ from sinshape.core.manifest import MAX_LEVEL_SIDE, PLANE_AXES
 
 from .generate import TriPlane, chain, check_seed, draw_noise, resize_matrix, scaled_sizes, triplane
 from .generate import sample as generate_sample
-from .query import dense
+from .query import dense, sigmoid
 
 FIT_STEPS = 60  # at the layout's level
 FINER_STEPS = 30  # at each finer level, which would otherwise bring back what was removed
@@ -110,7 +109,7 @@ def fit(model, planes: list, target: np.ndarray, steps: int, edited: np.ndarray)
         a_xy, a_xz, a_yz = (np.einsum("chw,cd->hwd", p, w) for p, w in zip(current, weights))
         pre = a_xy[:, :, None] + a_xz[:, None] + a_yz[None] + head.bias1  # (X, Y, Z, D)
         active = pre > 0
-        occupancy = expit(np.where(active, pre, 0) @ head.weight2 + head.bias2)
+        occupancy = sigmoid(np.where(active, pre, 0) @ head.weight2 + head.bias2)
         pooled = np.clip(separable(pools, occupancy), 1e-6, 1 - 1e-6)
         wrong = (pooled > 0.5) != target
         if (np.count_nonzero(wrong & edited) <= TOLERANCE * edited.sum()

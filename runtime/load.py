@@ -16,13 +16,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import onnx
 import onnxruntime as ort
-from google.protobuf.message import DecodeError
 
 from sinshape.core import manifest as fmt
 from sinshape.core.errors import InputError
 from sinshape.core.files import check_readable
+
+from . import onnxfile
 
 MAX_MODEL_BYTES = 512 * 1024 * 1024
 # onnxruntime starts every thread of every stage's pool up front (a million
@@ -95,26 +95,25 @@ def read_model(path: Path) -> tuple:
     if sealed and not intact:
         raise InputError(f"{path}: corrupt model: its bytes do not match the SHA-256 sealed at its end")
     try:
-        model = onnx.load_model_from_string(data)
-    except (DecodeError, ValueError, RuntimeError):
+        model = onnxfile.parse(data)
+    except onnxfile.NotText:
+        raise InputError(f"{path}: corrupt model: a name in it is not text (UTF-8)") from None
+    except ValueError:
         raise InputError(f"{path}: not an ONNX file") from None
-    graph = model.graph
-    if len(graph.node) == 0:
+    if len(model.nodes) == 0:
         raise InputError(f"{path}: not a sinshape model (an empty or non-ONNX file)")
-    if any(t.data_location == onnx.TensorProto.EXTERNAL or t.external_data for t in graph.initializer):
+    if any(t.external for t in model.weights.values()):
         raise InputError(f"{path}: refers to external data files; sinshape models are self-contained")
-    if graph.sparse_initializer or model.functions:
+    if model.has_sparse or model.has_functions:
         raise InputError(f"{path}: has sparse initializers or functions, which sinshape models never do")
-    if not all(isinstance(n.op_type, str) and isinstance(n.domain, str) for n in graph.node):
-        raise InputError(f"{path}: corrupt model: an op's name is not text")  # invalid UTF-8 reads as bytes
-    bad_ops = sorted({n.op_type for n in graph.node if n.domain not in ("", "ai.onnx") or n.op_type not in ALLOWED_OPS})
+    bad_ops = sorted({n.op_type for n in model.nodes if n.domain not in ("", "ai.onnx") or n.op_type not in ALLOWED_OPS})
     if bad_ops:
         raise InputError(f"{path}: uses ops a sinshape model never has ({', '.join(bad_ops[:5])})")
     return data, model, sealed
 
 
-def read_manifest(model: onnx.ModelProto, sealed: bool, path: Path) -> fmt.Manifest:
-    props = {p.key: p.value for p in model.metadata_props}
+def read_manifest(model: onnxfile.OnnxModel, sealed: bool, path: Path) -> fmt.Manifest:
+    props = model.metadata
     if fmt.METADATA_KEY not in props:
         raise InputError(f"{path}: an ONNX model, but not a sinshape model (no {fmt.METADATA_KEY} metadata)")
     try:
@@ -128,14 +127,16 @@ def read_manifest(model: onnx.ModelProto, sealed: bool, path: Path) -> fmt.Manif
         raise InputError(f"{path}: corrupt model: format {version} ends with a seal, and this file does not")
     if version < 3 and sealed:
         raise InputError(f"{path}: corrupt model: a seal on a format {version} file")
-    if version == 2 and not checksum_v2_matches(model, manifest.raw):
+    if version == 2 and not checksum_v2_matches(model.data, manifest.raw):
         raise InputError(f"{path}: corrupt model: the checksum of its weights and manifest does not match")
     return manifest
 
 
-def checksum_v2_matches(model: onnx.ModelProto, raw: dict) -> bool:
+def checksum_v2_matches(data: bytes, raw: dict) -> bool:
+    import onnx  # format 2 only
+
     try:
-        weights = [(t.name, onnx.numpy_helper.to_array(t)) for t in model.graph.initializer]
+        weights = [(t.name, onnx.numpy_helper.to_array(t)) for t in onnx.load_model_from_string(data).graph.initializer]
         return fmt.checksum_v2(raw, weights) == raw["checksum"]
     except Exception:  # a weight whose type, shape or name is damaged cannot be read: corrupt
         return False
@@ -144,6 +145,8 @@ def checksum_v2_matches(model: onnx.ModelProto, raw: dict) -> bool:
 def format3_bytes(model: Model) -> bytes:
     """The model as a sealed format-3 file (its own bytes when it is one):
     what the browser reads, which checks seals only."""
+    import onnx  # only to upgrade an older file
+
     if model.manifest.raw["format_version"] >= 3:
         return model.data
     proto = onnx.load_model_from_string(model.data)
@@ -153,48 +156,39 @@ def format3_bytes(model: Model) -> bytes:
     return sealed_bytes(proto)
 
 
-def sealed_bytes(proto: onnx.ModelProto) -> bytes:
-    """A model's bytes with a fresh seal (any old one dropped first)."""
+def sealed_bytes(proto) -> bytes:
+    """An onnx.ModelProto's bytes with a fresh seal (any old one dropped first)."""
+    import onnx
+
     props = [(p.key, p.value) for p in proto.metadata_props if p.key != fmt.SEAL_KEY]
     del proto.metadata_props[:]
     onnx.helper.set_model_props(proto, dict(props))
     return fmt.seal(proto.SerializeToString())
 
 
-def stage_model(model: onnx.ModelProto, inputs: list, outputs: list, path: Path) -> bytes:
+def stage_model(model: onnxfile.OnnxModel, inputs: list, outputs: list, path: Path) -> bytes:
     """The sub-graph computing `outputs` from `inputs`, as a serialized model."""
-    graph = model.graph
-    producer = {out: node for node in graph.node for out in node.output}
-    weights = {t.name: t for t in graph.initializer}
-    graph_inputs = {v.name: v for v in graph.input}
-    graph_outputs = {v.name: v for v in graph.output}
-    missing = [n for n in inputs if n not in graph_inputs] + [n for n in outputs if n not in graph_outputs]
+    producer = {out: node for node in model.nodes for out in node.outputs}
+    missing = [n for n in inputs if n not in model.inputs] + [n for n in outputs if n not in model.outputs]
     if missing:
         raise InputError(f"{path}: the manifest names tensors the graph lacks ({', '.join(missing[:3])})")
 
-    nodes, used, todo, seen = [], set(), list(outputs), set()
+    nodes, used, todo, seen = {}, set(), list(outputs), set()
     while todo:  # walk back from the outputs to the stage's inputs
         name = todo.pop()
         if name in seen or name in inputs:
             continue
         seen.add(name)
-        if name in weights:
+        if name in model.weights:
             used.add(name)
         elif name in producer:
             node = producer[name]
-            if node.name not in {n.name for n in nodes}:
-                nodes.append(node)
-            todo.extend(i for i in node.input if i)
+            nodes[id(node)] = node
+            todo.extend(i for i in node.inputs if i)
         else:
             raise InputError(f"{path}: tensor {name!r} depends on something outside its stage")
-    order = {id(node): i for i, node in enumerate(graph.node)}  # keep the file's topological order
-    nodes.sort(key=lambda node: order[id(node)])
-    sub = onnx.helper.make_graph(
-        nodes, "stage", [graph_inputs[n] for n in inputs], [graph_outputs[n] for n in outputs],
-        [weights[n] for n in sorted(used)],
-    )
-    sub_model = onnx.helper.make_model(sub, opset_imports=model.opset_import, ir_version=model.ir_version)
-    return sub_model.SerializeToString()
+    order = [node for node in model.nodes if id(node) in nodes]  # the file's topological order
+    return onnxfile.stage_bytes(model, order, sorted(used), inputs, outputs)
 
 
 def session(data: bytes, threads: int, path: Path) -> ort.InferenceSession:
@@ -212,12 +206,14 @@ def session(data: bytes, threads: int, path: Path) -> ort.InferenceSession:
         raise InputError(f"{path}: onnxruntime cannot load a stage ({str(error).splitlines()[0][:200]})") from None
 
 
-def read_head(model: onnx.ModelProto, hidden: int, path: Path) -> HeadWeights:
-    weights = {t.name: t for t in model.graph.initializer}
+def read_head(model: onnxfile.OnnxModel, hidden: int, path: Path) -> HeadWeights:
     names = fmt.HEAD_WEIGHTS
-    if any(name not in weights for name in names):
+    if any(name not in model.weights for name in names):
         raise InputError(f"{path}: the decoder head lacks its weights ({', '.join(names)})")
-    b1, w2, b2 = (onnx.numpy_helper.to_array(weights[name]).astype(np.float32) for name in names)
+    try:
+        b1, w2, b2 = (onnxfile.tensor_array(model.weights[name]) for name in names)
+    except ValueError as error:
+        raise InputError(f"{path}: corrupt model: {error}") from None
     if b1.shape != (hidden,) or w2.shape != (hidden, 1) or b2.shape != (1,):
         raise InputError(f"{path}: decoder head weights have shapes {b1.shape}, {w2.shape}, {b2.shape}")
     if not all(np.isfinite(a).all() for a in (b1, w2, b2)):

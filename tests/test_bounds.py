@@ -153,7 +153,7 @@ def test_the_time_estimate_extrapolates_a_measured_run(tiny_model, monkeypatch):
     model = runtime.load_model(tiny_model)
     triplane = runtime.sample(model, 1)
     scales = []
-    monkeypatch.setattr(mesh, "band_mesh", lambda model, triplane, scale: scales.append(scale))
+    monkeypatch.setattr(mesh, "pieces", lambda model, triplane, scale: scales.append(scale) or [])
     ticks = iter([10.0, 11.0])
     monkeypatch.setattr("time.perf_counter", lambda: next(ticks))
     assert mesh.estimate_seconds(model, triplane, 20) == pytest.approx(10**2.2)  # 1 s at scale 2, times 10^2.2

@@ -10,6 +10,8 @@ import pytest
 import trimesh
 from click.testing import CliRunner
 
+from conftest import TINY_ONNX
+
 from sinshape.cli.main import cli
 from sinshape.runtime import load
 from sinshape.core import manifest as fmt
@@ -260,6 +262,23 @@ def test_help_imports_nothing_heavy():
             "assert not heavy, heavy\n")
     result = subprocess.run([sys.executable, "-c", code, "--help"], capture_output=True, text=True)
     assert result.returncode == 0, result.stderr
+
+
+@pytest.mark.parametrize("output, needed", [("s.ply", []), ("s.npz", []), ("s.glb", ["trimesh"])])
+def test_a_sample_imports_only_what_its_output_needs(tmp_path, output, needed):
+    """Start-up is most of a small sample's time: a .ply needs no trimesh, and
+    no command needs scipy, scikit-image or the onnx package to sample (a
+    .glb does need trimesh, which shows the check sees imports)."""
+    code = ("import sys\nfrom sinshape.cli.main import main\n"
+            "try:\n    main()\nexcept SystemExit as done:\n    assert not done.code, done.code\n"
+            "print('imported:', *(m for m in ('trimesh', 'scipy', 'skimage', 'onnx', 'google.protobuf', 'torch', 'h5py', "
+            "'PIL', 'importlib.metadata') if m in sys.modules))\n")
+    result = subprocess.run([sys.executable, "-c", code, "sample", str(TINY_ONNX), "--seed", "3",
+                             "-o", str(tmp_path / output)], capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    imported = result.stdout.splitlines()[-1].split()[1:]
+    assert imported == needed if not needed else set(needed) <= set(imported)
+    assert (tmp_path / output).is_file()
 
 
 def test_a_sample_is_never_written_over_its_model(tiny_model, tmp_path):

@@ -414,7 +414,7 @@ def test_eval_refuses_a_million_samples_up_front(folder):
 def test_a_corrupt_op_name_is_refused(folder):
     """Found by the fuzzer: a flipped bit made an op's name invalid UTF-8,
     which protobuf reads as bytes; sorting it with str names was a TypeError."""
-    for source, message in ((TINY_ONNX.with_name("tiny_v2.onnx"), "corrupt model: an op's name is not text"),
+    for source, message in ((TINY_ONNX.with_name("tiny_v2.onnx"), "corrupt model: a name in it is not text"),
                             (TINY_ONNX, "corrupt model: its bytes do not match the SHA-256")):  # sealed: caught first
         raw = bytearray(source.read_bytes())
         raw[raw.find(b"\x22\x04Conv") + 2] = 0xC3  # a UTF-8 lead byte with no continuation

@@ -59,11 +59,11 @@ def test_seams_weld_across_slabs_as_the_whole_mesh_does(model):
 def test_an_interrupted_stream_leaves_nothing(model, tmp_path, monkeypatch):
     slab_mesh, calls = mesh.slab_mesh, []
 
-    def interrupted(slab, block):
+    def interrupted(slab):
         calls.append(slab.index)
         if len(calls) == 3:
             raise KeyboardInterrupt
-        return slab_mesh(slab, block)
+        return slab_mesh(slab)
 
     monkeypatch.setattr(mesh, "slab_mesh", interrupted)
     with pytest.raises(KeyboardInterrupt):

@@ -19,17 +19,18 @@ def model(tiny_model):
 def band_labels(model, triplane, scale):
     """Inside/outside of every grid point as the band search reports it."""
     shape = query.grid_shape(triplane.size, scale)
-    block = query.BLOCK
+    leaf = query.LEAF
     labels = np.zeros(shape, bool)
     for slab in query.band(model, triplane, scale):
-        padded = np.zeros((block + 1, *(n * block + 1 for n in slab.state.shape)), bool)
+        padded = np.zeros((query.BLOCK + 1, *(n * leaf + 1 for n in slab.state.shape[1:])), bool)
         if slab.values is not None:
             padded[:] = slab.values > 0.5
-        for (by, bz), state in np.ndenumerate(slab.state):
-            if state != 0:  # a uniform block: its label for every point
-                padded[:, by * block:by * block + block + 1, bz * block:bz * block + block + 1] = state > 0
-        for i in range(block + 1):
-            x = slab.index * block + i - 1
+        for (lx, ly, lz), state in np.ndenumerate(slab.state):
+            if state != 0:  # a uniform leaf: its label for every point
+                padded[lx * leaf:lx * leaf + leaf + 1, ly * leaf:ly * leaf + leaf + 1,
+                       lz * leaf:lz * leaf + leaf + 1] = state > 0
+        for i in range(query.BLOCK + 1):
+            x = slab.index * query.BLOCK + i - 1
             if 0 <= x < shape[0]:
                 labels[x] = padded[i, 1:shape[1] + 1, 1:shape[2] + 1]
     return labels
@@ -168,8 +169,9 @@ def test_available_memory_reads_the_machine_or_falls_back(monkeypatch):
 
 @pytest.mark.parametrize("scale", [1, 2.5])
 def test_memory_estimates_count_the_decoders_hidden_width(model, monkeypatch, scale):
-    """dense: the grid and the yz plane of D-vectors; band: the yz plane,
-    three slab buffers and two planes' rows of D-vectors (D = hidden width)."""
+    """dense: the grid and the yz plane of D-vectors; band: the yz plane, a
+    slab's values and cell configurations, two planes' rows of D-vectors and
+    the leaves' buffers (D = hidden width)."""
     needed = {}
     monkeypatch.setattr(query, "check_memory", lambda n, what, limit=None: needed.setdefault(what.split()[0], n))
     triplane = runtime.sample(model, 2)
@@ -179,7 +181,8 @@ def test_memory_estimates_count_the_decoders_hidden_width(model, monkeypatch, sc
     mx, my, mz = query.grid_shape(triplane.size, scale)
     assert needed["a"] == mx * my * mz * 4 + my * mz * d * 4
     py, pz = (-(-(m + 1) // block) * block + 1 for m in (my, mz))
-    assert needed["meshing"] == py * pz * (d + 3 * (block + 1)) * 4 + (block + 1) * (py + pz) * d * 4
+    leaves = 4 * query.LEAVES_AT_ONCE * (query.LEAF + 1) ** 3 * d * 4  # hidden vectors, and the rows gathered for them
+    assert needed["meshing"] == py * pz * (d * 4 + 5 * (block + 1)) + (block + 1) * (py + pz) * d * 4 + leaves
 
 
 def test_the_committed_tiny_model_is_the_tiny_pyramids(tiny_pyramid):
