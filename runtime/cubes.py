@@ -41,8 +41,9 @@ def march(values: np.ndarray, origins: np.ndarray, side: int) -> tuple:
         return np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3), np.int64)
     span = np.arange(side + 1)
     x, y, z = (origins[:, axis, None] + span for axis in range(3))  # (K, side + 1) each
-    below = values[x[:, :, None, None], y[:, None, :, None], z[:, None, None, :]] < LEVEL
-    below = below.view(np.uint8)
+    _, ny, nz = values.shape
+    points = (x * (ny * nz))[:, :, None, None] + (y * nz)[:, None, :, None] + z[:, None, None, :]
+    below = (np.take(values.reshape(-1), points) < LEVEL).view(np.uint8)  # (K, side + 1, side + 1, side + 1)
     config = np.zeros((len(origins), side, side, side), np.uint8)
     for bit, (dx, dy, dz) in enumerate(CORNERS):
         config |= below[:, dx:dx + side, dy:dy + side, dz:dz + side] << np.uint8(bit)

@@ -28,8 +28,8 @@ from .generate import MAX_GRID_SIDE, TriPlane, resize_matrix
 # The band search bounds blocks of BLOCK cells (a slab is one block thick),
 # then the leaves of LEAF cells inside those it could not decide; only
 # undecided leaves are evaluated and meshed (see benchmarks/sample_speed.py).
-BLOCK = 16
-LEAF = 8
+SIDES = (16, 8)
+BLOCK, LEAF = SIDES[0], SIDES[-1]
 BOUND_MARGIN = 1e-4  # a block is uniform only if its logit bound clears 0 by this much of its terms' size
 BOUND_CHUNK = 256  # blocks bounded at once
 LEAVES_AT_ONCE = 32  # leaves evaluated at once: (LEAF + 1)^3 hidden vectors each, 3 MB at D = 32
@@ -230,30 +230,27 @@ def relaxed_head(head, low: np.ndarray, high: np.ndarray) -> tuple:
             lower, (np.where(rising, 0, w) * chord_at_zero).sum(-1) + head.bias2)
 
 
-def logit_bounds(head, planes: tuple) -> tuple:
-    """Lowest and highest logit over blocks, from each plane's candidate
-    samples over each block (K, a, b, D), pre-activations whose sum is the
-    decoder's hidden input (b1 included): (K,) each.
+def logit_bounds(head, ranges: list, samples: list) -> tuple:
+    """Lowest and highest logit over blocks, from each plane's range (low,
+    high) over each block and its candidate samples (K, n, D): pre-activations
+    whose sum over the planes is the decoder's hidden input (b1 included).
+    Returns (K,) each.
 
     Two bounds, the tighter kept: per channel (the sum's per-channel range
     through relu), and linear (`relaxed_head`, then the extremes of the
     linear form over each plane's samples: it keeps the channels' joint
     variation that the per-channel range loses).
     """
-    samples = [p.reshape(len(p), -1, p.shape[-1]) for p in planes]  # (K, n, D)
-    low = sum(s.min(axis=1) for s in samples)
-    high = sum(s.max(axis=1) for s in samples)
+    low, high = sum(r[0] for r in ranges), sum(r[1] for r in ranges)
     rising = head.weight2 > 0
     w, b2 = head.weight2, head.bias2
     top = np.maximum(np.where(rising, high, low), 0) @ w + b2
     bottom = np.maximum(np.where(rising, low, high), 0) @ w + b2
     upper, c_high, lower, c_low = relaxed_head(head, low, high)
-    top = np.minimum(top, sum((s @ upper[:, :, None]).max(axis=(1, 2)) for s in samples)
-                     + c_high)
-    bottom = np.maximum(bottom, sum((s @ lower[:, :, None]).min(axis=(1, 2)) for s in samples)
-                        + c_low)
+    top = np.minimum(top, sum((s @ upper[:, :, None]).max(axis=(1, 2)) for s in samples) + c_high)
+    bottom = np.maximum(bottom, sum((s @ lower[:, :, None]).min(axis=(1, 2)) for s in samples) + c_low)
     # float32 sums of D terms are off by far less than 1e-4 of their size.
-    slack = BOUND_MARGIN * (1 + np.abs(w) @ np.maximum(np.abs(low), np.abs(high)).T)
+    slack = BOUND_MARGIN * (1 + np.maximum(np.abs(low), np.abs(high)) @ np.abs(w))
     return bottom - slack, top + slack
 
 
@@ -298,24 +295,42 @@ class Band:
         self.head = model.head
         self.yz = grid.fine_plane(2)  # (Py, Pz, D) at every padded (y, z), with the
         self.yz += self.head.bias1  # head's first bias added once
-        self.candidates = {side: [grid.candidates(axis, side) for axis in range(3)] for side in (BLOCK, LEAF)}
-        self.padding = {side: tuple(zip(*(grid.padding(axis, side) for axis in range(3)))) for side in (BLOCK, LEAF)}
+        self.candidates = {side: [grid.candidates(axis, side) for axis in range(3)] for side in SIDES}
+        self.padding = {side: tuple(zip(*(grid.padding(axis, side) for axis in range(3)))) for side in SIDES}
+        self.yz_range = {side: self.yz_ranges(side) for side in SIDES}
 
     def __len__(self) -> int:
         return self.grid.blocks[0]
+
+    def yz_ranges(self, side: int) -> tuple:
+        """The yz plane's (low, high) over each (y, z) block's candidates:
+        (nby, nbz, D) each, the same for every slab."""
+        _, cy, cz = self.candidates[side]
+        return tuple(reduce(reduce(self.yz[:, cz], axis=2)[cy], axis=1) for reduce in (np.min, np.max))
 
     def states(self, side: int, blocks: np.ndarray, xy: np.ndarray, xz: np.ndarray, x0: int) -> np.ndarray:
         """+1 (all inside), -1 (all outside) or 0 per block of `side` cells:
         blocks (K, 3) block indices along x, y, z; xy, xz the slab's plane rows
         from padded x = x0."""
         (cx, cy, cz), (any_pad, all_pad) = self.candidates[side], self.padding[side]
+        yz_low, yz_high = self.yz_range[side]
         state = np.zeros(len(blocks), np.int8)
-        for part in np.array_split(np.arange(len(blocks)), -(-len(blocks) // BOUND_CHUNK)):
-            bx, by, bz = blocks[part].T
-            x, y, z = cx[bx] - x0, cy[by], cz[bz]
-            low, high = logit_bounds(self.head, (xy[x[:, :, None], y[:, None]], xz[x[:, :, None], z[:, None]],
-                                                 self.yz[y[:, :, None], z[:, None]]))
-            state[part] = np.where(low > 0, 1, np.where(high < 0, -1, 0))
+        for column in np.unique(blocks[:, 0]):  # blocks at one x: the same x candidates
+            x = cx[column] - x0
+            # Each plane's range over the x candidates first, then over the blocks' own.
+            xy_low, xy_high, xz_low, xz_high = (reduce(p[x], axis=0) for p in (xy, xz) for reduce in (np.min, np.max))
+            here = np.nonzero(blocks[:, 0] == column)[0]
+            for part in np.array_split(here, -(-len(here) // BOUND_CHUNK)):
+                by, bz = blocks[part, 1], blocks[part, 2]
+                y, z = cy[by], cz[bz]
+                ranges = [(xy_low[y].min(axis=1), xy_high[y].max(axis=1)),
+                          (xz_low[z].min(axis=1), xz_high[z].max(axis=1)), (yz_low[by, bz], yz_high[by, bz])]
+                d = xy.shape[-1]
+                samples = [xy[x[None, :, None], y[:, None]].reshape(len(part), -1, d),
+                           xz[x[None, :, None], z[:, None]].reshape(len(part), -1, d),
+                           self.yz[y[:, :, None], z[:, None]].reshape(len(part), -1, d)]
+                low, high = logit_bounds(self.head, ranges, samples)
+                state[part] = np.where(low > 0, 1, np.where(high < 0, -1, 0))
         padded = any_pad[0][blocks[:, 0]] | any_pad[1][blocks[:, 1]] | any_pad[2][blocks[:, 2]]
         state[(state == 1) & padded] = 0  # padding points are empty
         state[all_pad[0][blocks[:, 0]] | all_pad[1][blocks[:, 1]] | all_pad[2][blocks[:, 2]]] = -1
@@ -323,18 +338,19 @@ class Band:
 
     def slab(self, bx: int) -> Slab:
         """The occupancy of x slab bx, before `carry`."""
-        grid, per = self.grid, BLOCK // LEAF
-        leaf_counts = (per,) + tuple(n * per for n in grid.blocks[1:])
+        grid = self.grid
         rows = slice(bx * BLOCK, bx * BLOCK + BLOCK + 1)
         xy, xz = grid.fine_plane(0, rows), grid.fine_plane(1, rows)  # (B+1, Py, D), (B+1, Pz, D)
-        blocks = np.argwhere(np.ones(grid.blocks[1:], bool))
-        blocks = np.column_stack([np.full(len(blocks), bx), blocks])
-        block_state = self.states(BLOCK, blocks, xy, xz, rows.start).reshape(grid.blocks[1:])
-        # Each block's leaves take its state; the undecided ones are bounded again.
-        state = np.repeat(np.repeat(np.repeat(block_state[None], per, 0), per, 1), per, 2)
+        state = np.zeros((1,) + grid.blocks[1:], np.int8)
         undecided = np.argwhere(state == 0)
-        if len(undecided):
-            state[tuple(undecided.T)] = self.states(LEAF, undecided + [bx * per, 0, 0], xy, xz, rows.start)
+        for coarse, side in zip((None,) + SIDES, SIDES):
+            if coarse:  # each block's children take its state; the undecided ones are bounded again
+                per = coarse // side
+                state = np.repeat(np.repeat(np.repeat(state, per, 0), per, 1), per, 2)
+                undecided = np.argwhere(state == 0)
+            if len(undecided) == 0:
+                break
+            state[tuple(undecided.T)] = self.states(side, undecided + [bx * (BLOCK // side), 0, 0], xy, xz, rows.start)
         leaves = np.argwhere(state == 0) * LEAF
         if len(leaves) == 0:
             return Slab(bx, None, state)
@@ -343,14 +359,20 @@ class Band:
                [grid.is_real(axis, np.arange(grid.padded[axis])) for axis in (1, 2)]
         span = np.arange(LEAF + 1)
         buffer = np.empty((LEAVES_AT_ONCE,) + (LEAF + 1,) * 3 + (self.yz.shape[-1],), np.float32)
+        xy_flat = xy.reshape(-1, xy.shape[-1])
+        flat_values, nz = values.reshape(-1), values.shape[2]
+        plane = values.shape[1] * nz
         for part in np.array_split(leaves, -(-len(leaves) // LEAVES_AT_ONCE)):
             x, y, z = (part[:, axis, None] + span for axis in range(3))  # (k, LEAF + 1) each
-            hidden = np.add(xy[x[:, :, None], y[:, None]][:, :, :, None], xz[x[:, :, None], z[:, None]][:, :, None],
-                            out=buffer[:len(part)])  # (k, L+1, L+1, L+1, D)
+            # xy's rows gathered for every z, then the others added: each
+            # operation then runs along whole rows, not D values at a time.
+            rows_xy = np.broadcast_to((x * xy.shape[1])[:, :, None, None] + y[:, None, :, None], buffer[:len(part)].shape[:-1])
+            hidden = np.take(xy_flat, rows_xy, axis=0, out=buffer[:len(part)])  # (k, L+1, L+1, L+1, D)
+            hidden += xz[x[:, :, None], z[:, None]][:, :, None]
             hidden += self.yz[y[:, :, None], z[:, None]][:, None]
             occupancy = biased_head_occupancy(self.head, hidden)
             occupancy *= (real[0][x][:, :, None, None] & real[1][y][:, None, :, None] & real[2][z][:, None, None, :])
-            values[x[:, :, None, None], y[:, None, :, None], z[:, None, None, :]] = occupancy
+            flat_values[(x * plane)[:, :, None, None] + (y * nz)[:, None, :, None] + z[:, None, None, :]] = occupancy
         return Slab(bx, values, state)
 
     def carry(self, slabs):
