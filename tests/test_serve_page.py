@@ -1,6 +1,7 @@
 """The page at / in a real headless browser: Debian's chromium, driven by Playwright."""
 
 import io
+import json
 import re
 import shutil
 
@@ -175,3 +176,35 @@ def test_the_layout_fits_a_phone_and_a_wide_screen(page, tmp_path, width, height
         assert not page.errors
     finally:
         page.set_viewport_size({"width": 900, "height": 600})
+
+
+def test_cancel_gives_up_a_server_sample_and_the_page_goes_on(page):
+    """Cancel aborts the page's request (the server then stops making it),
+    says so, and the next sample is made as usual."""
+    from test_serve import get
+
+    failed = []
+    page.on("requestfailed", lambda request: failed.append(request.url))
+    page.goto(f"{page.base}/?seed=8&size=2,2,1&scale=8&up=z")  # seconds of work for the server
+    page.wait_for_function("document.body.dataset.state === 'loading'", timeout=30_000)
+    assert page.is_visible("#cancel") and page.text_content("#status") == "sampling on the server…"
+    for _ in range(300):  # until the server is making it (at most 30 s)
+        if json.loads(get(f"{page.base}/health")[2])["sampling"]:
+            break
+        page.wait_for_timeout(100)
+    page.click("#cancel")
+    assert page.evaluate("document.body.dataset.state") == "cancelled" and page.text_content("#status") == "cancelled"
+    assert not page.is_visible("#cancel") and not page.is_visible("#error")
+    assert [url for url in failed if "/sample?" in url], "the request was not aborted"
+    for _ in range(300):  # the server stops at its next slab
+        health = json.loads(get(f"{page.base}/health")[2])
+        if not health["sampling"]:
+            break
+        page.wait_for_timeout(100)
+    assert health["sampling"] == 0 and health["in_flight"] == 0, health
+    for field in ("#sx", "#sy", "#scale"):
+        page.fill(field, "1")
+    page.click("#show")
+    wait_ready(page, 8)
+    assert re.fullmatch(r"[\d,]+ faces · \d+\.\d\d s( \(cached\))?", page.text_content("#status"))
+    assert not page.errors

@@ -118,6 +118,27 @@ def test_the_exported_page_samples_in_the_browser(site_page, terrain, tmp_path):
     assert not page.errors and not page.outside
 
 
+def test_a_browser_sample_shows_progress_and_cancel_ends_its_worker(site_page):
+    """The runtime runs in a worker: the page shows how far a long sample is;
+    cancel ends the worker, and the next sample starts a fresh one."""
+    page = site_page
+    page.goto(f"{page.base}/?seed=3&scale=6&up=z")  # seconds of grid and meshing on one thread
+    page.wait_for_function("document.getElementById('progress').value > 0", timeout=60_000)
+    assert re.fullmatch(r"(querying the grid|meshing)… \d+%", page.text_content("#status")), page.text_content("#status")
+    assert page.evaluate("document.body.dataset.state") == "loading" and page.is_visible("#cancel")
+    (worker,) = page.workers
+    assert worker.url.endswith("/static/sinshape/worker.js")
+    with worker.expect_event("close"):  # ended, not left to finish
+        page.click("#cancel")
+    assert page.evaluate("document.body.dataset.state") == "cancelled" and page.text_content("#status") == "cancelled"
+    assert not page.is_visible("#cancel") and page.get_attribute("#download", "href") is None
+    page.fill("#scale", "1")
+    page.press("#scale", "Enter")
+    assert wait_done(page) == "ready", page.text_content("#error")
+    assert page.text_content("#status").startswith("18,124 faces")  # seed 3 at scale 1, made by a fresh worker
+    assert len(page.workers) == 1 and not page.errors and not page.outside
+
+
 def test_noise_vectors_bit_for_bit(site_page):
     page = site_page
     page.goto(f"{page.base}/README.txt")  # any page of the site, without the viewer

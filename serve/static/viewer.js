@@ -156,32 +156,71 @@ function report(error) {
   $('error').hidden = !error;
 }
 
-// ---- sampling in this browser: the runtime is imported on first use, so the
-// server mode never fetches onnxruntime-web's 28 MB of WASM
-let runtime = null;
-const browserModels = new Map(); // name -> { url or bytes, file, loaded: a promise of the loaded model }
+// ---- sampling in this browser: the runtime runs in a module worker
+// (sinshape/worker.js), started on first use, so the server mode never fetches
+// onnxruntime-web's 28 MB of WASM and a sample never freezes the page. Cancel
+// ends the worker; the next sample starts a fresh one, which loads its model again.
+class Cancelled extends Error {
+  constructor() { super('cancelled'); }
+}
+
+const browserModels = new Map(); // name -> { url or bytes, file, up, loaded: a promise of { backend, threads, seconds } in this worker }
+let worker = null;
+const jobs = new Map(); // id -> { resolve, reject, progress }
+let jobIds = 0;
 let downloadUrl = null;
 
+function startWorker() {
+  if (worker) return worker;
+  worker = new Worker(new URL('./sinshape/worker.js', import.meta.url), { type: 'module' });
+  worker.onmessage = ({ data }) => {
+    const job = jobs.get(data.id);
+    if (!job) return;
+    if (data.type === 'progress') return job.progress?.(data.stage, data.fraction);
+    jobs.delete(data.id);
+    if (data.type === 'error') job.reject(new Error(data.message));
+    else job.resolve(data);
+  };
+  worker.onerror = (event) => { // the worker's script did not load or threw outside a job
+    event.preventDefault?.();
+    stopWorker(new Error(`the browser runtime stopped: ${event.message || 'its script did not load'}`));
+  };
+  return worker;
+}
+
+/** End the worker: its jobs fail with `reason`, and every model must be loaded again. */
+function stopWorker(reason) {
+  worker?.terminate();
+  worker = null;
+  for (const job of jobs.values()) job.reject(reason);
+  jobs.clear();
+  for (const entry of browserModels.values()) entry.loaded = null;
+}
+
+function call(message, progress = null) {
+  const id = ++jobIds;
+  return new Promise((resolve, reject) => {
+    jobs.set(id, { resolve, reject, progress });
+    startWorker().postMessage({ id, ...message });
+  });
+}
+
 async function browserModel(name) {
-  runtime ??= await import('./sinshape/runtime.js');
   const entry = browserModels.get(name);
   if (!entry) throw new Error(`unknown model '${name}'`);
   entry.loaded ??= (async () => {
-    let bytes = entry.bytes;
-    if (!bytes) {
+    if (!entry.bytes) {
       const response = await fetch(entry.url);
       if (!response.ok) throw new Error(`cannot fetch ${entry.url}: ${response.status} ${response.statusText}`);
-      bytes = new Uint8Array(await response.arrayBuffer());
+      entry.bytes = new Uint8Array(await response.arrayBuffer()); // kept: a fresh worker loads it again
     }
-    const started = performance.now();
-    const model = await runtime.loadModel(bytes, { name: entry.file });
-    entry.seconds = (performance.now() - started) / 1000;
-    return model;
+    return call({ type: 'load', name, bytes: entry.bytes, file: entry.file });
   })();
+  const loading = entry.loaded;
   try {
-    return await entry.loaded;
+    return await loading;
   } catch (error) {
-    entry.loaded = null; // a later try fetches again
+    if (entry.loaded === loading) entry.loaded = null; // a later try loads again
     throw error;
   }
 }
@@ -223,58 +262,89 @@ function plyBlob({ positions, faces }) {
   return new Blob([header, body], { type: 'application/octet-stream' });
 }
 
+function showProgress(text, fraction = null) {
+  $('status').textContent = fraction === null ? `${text}…` : `${text}… ${Math.floor(fraction * 100)}%`;
+  if (fraction === null) $('progress').removeAttribute('value'); // a bar that says "working", no figure
+  else $('progress').value = fraction;
+}
+
+let running = Promise.resolve(); // the browser's sample in progress: one at a time
+
 async function sampleHere(ticket) {
-  const model = await browserModel(state.model);
-  const started = performance.now(); // the sample's own time, the model's loading apart
+  // Checked here, so a bad value says so before any work.
   const seed = parseSeed(String(state.seed).trim());
   const factors = parseFactors(state.size);
   const scale = Number(state.scale);
   if (!(scale > 0 && Number.isFinite(scale))) throw new Error(`scale: give a positive number, got '${state.scale}'`);
-  const tri = await runtime.sample(model, seed, factors);
-  const grid = await runtime.dense(model, tri, scale);
   const steps = Number(state.smooth);
   if (!(Number.isInteger(steps) && steps >= 0 && steps <= 100)) throw new Error(`smooth: give a whole number of steps in 0..100, got '${state.smooth}'`);
-  const mesh = runtime.smooth(runtime.surface(grid, tri.size, model.manifest), steps);
+  await running.catch(() => {}); // the worker makes one sample at a time; newer requests skip the ones between
+  if (ticket !== latest) return;
+  const name = state.model;
+  const job = (async () => {
+    if (!browserModels.get(name)?.loaded) showProgress('loading the model');
+    const model = await browserModel(name);
+    if (ticket !== latest) throw new Cancelled(); // cancelled while the model loaded
+    return [model, await call({ type: 'sample', name, seed: String(seed), factors, scale, smooth: steps },
+      (stage, fraction) => { if (ticket === latest) showProgress(stage, fraction); })];
+  })();
+  running = job;
+  const [model, mesh] = await job;
   if (ticket !== latest) return;
   showMesh(mesh);
   const faces = (mesh.faces.length / 3).toLocaleString('en');
-  const seconds = ((performance.now() - started) / 1000).toFixed(2);
-  $('status').textContent = `${faces} faces · ${seconds} s · in this browser`;
-  $('backend').textContent = backendText(model, browserModels.get(state.model).seconds);
+  $('status').textContent = `${faces} faces · ${mesh.seconds.toFixed(2)} s · in this browser`;
+  $('backend').textContent = backendText(model, model.seconds);
   if (downloadUrl) URL.revokeObjectURL(downloadUrl);
   downloadUrl = URL.createObjectURL(plyBlob(mesh));
   $('download').href = downloadUrl;
-  $('download').download = `${state.model}_seed${seed}.ply`;
-  report('');
-  document.body.dataset.state = 'ready';
+  $('download').download = `${name}_seed${seed}.ply`;
+  finish('ready');
 }
 
-// ---- fetching a sample: the newest request wins
+// ---- fetching a sample: the newest request wins, and the one it replaces is
+// given up (a server request aborted: the server stops making it)
 let latest = 0;
+let aborter = null;
+
+/** The end of a request: the page's state, the cancel button and the bar put away. */
+function finish(result) {
+  document.body.dataset.state = result;
+  $('working').hidden = true;
+  if (result !== 'error') report('');
+}
+
+function fail(error) {
+  $('status').textContent = '';
+  report(error.message);
+  finish('error');
+}
 
 async function load() {
   const ticket = ++latest;
+  aborter?.abort();
+  aborter = null;
   writeUrl();
   showMode();
   document.body.dataset.state = 'loading';
-  $('status').textContent = 'sampling…';
-  const started = performance.now();
+  $('working').hidden = false;
   if (state.where === 'browser') {
     $('download').removeAttribute('href');
+    showProgress('sampling');
     try {
       await sampleHere(ticket);
     } catch (error) {
-      if (ticket !== latest) return;
-      $('status').textContent = '';
-      report(error.message);
-      document.body.dataset.state = 'error';
+      if (ticket === latest) fail(error);
     }
     return;
   }
+  showProgress('sampling on the server');
+  const started = performance.now();
   $('download').href = sampleUrl(state.format);
   $('download').download = '';
+  const controller = aborter = new AbortController();
   try {
-    const response = await fetch(sampleUrl('glb'));
+    const response = await fetch(sampleUrl('glb'), { signal: controller.signal });
     if (!response.ok) {
       const body = await response.json().catch(() => ({}));
       throw new Error(body.detail || `${response.status} ${response.statusText}`);
@@ -287,15 +357,27 @@ async function load() {
     const seconds = ((performance.now() - started) / 1000).toFixed(2);
     const cached = response.headers.get('X-Cache') === 'hit' ? ' (cached)' : '';
     $('status').textContent = `${faces} faces · ${seconds} s${cached}`;
-    report('');
-    document.body.dataset.state = 'ready';
+    finish('ready');
   } catch (error) {
     if (ticket !== latest) return;
-    $('status').textContent = '';
     $('download').removeAttribute('href');  // it would fetch the failed request again
-    report(error.message);
-    document.body.dataset.state = 'error';
+    fail(error);
+  } finally {
+    if (aborter === controller) aborter = null;
   }
+}
+
+/** Stop the sample being made: abort the server's request, or end the browser's worker. */
+function cancel() {
+  if (document.body.dataset.state !== 'loading') return;
+  latest++; // whatever was under way answers no one now
+  aborter?.abort();
+  aborter = null;
+  if (worker && jobs.size) stopWorker(new Cancelled());
+  running = Promise.resolve();
+  $('download').removeAttribute('href');
+  $('status').textContent = 'cancelled';
+  finish('cancelled');
 }
 
 function step(delta) {
@@ -313,18 +395,21 @@ async function openFile(file) {
   const name = `${file.name.replace(/\.onnx$/i, '')} (file)`;
   const previous = browserModels.get(name);
   browserModels.set(name, { bytes: new Uint8Array(await file.arrayBuffer()), file: file.name });
+  const ticket = ++latest;
+  await running.catch(() => {});
   document.body.dataset.state = 'loading';
-  $('status').textContent = `checking ${file.name}…`;
+  $('working').hidden = false;
+  showProgress(`checking ${file.name}`);
   try {
-    await browserModel(name);
+    running = browserModel(name);
+    await running;
   } catch (error) {
     if (previous) browserModels.set(name, previous);
     else browserModels.delete(name);
-    $('status').textContent = '';
-    report(error.message);
-    document.body.dataset.state = 'error';
+    if (ticket === latest) fail(error);
     return;
   }
+  if (ticket !== latest) return;
   if (![...$('model').options].some((o) => o.value === name)) $('model').add(new Option(name, name));
   fromForm();
   state.model = name;
@@ -352,6 +437,8 @@ async function start() {
   }
   toForm();
   $('controls').addEventListener('submit', (event) => { event.preventDefault(); fromForm(); load(); });
+  $('cancel').addEventListener('click', cancel);
+  document.addEventListener('keydown', (event) => { if (event.key === 'Escape') cancel(); });
   $('prev').addEventListener('click', () => step(-1));
   $('next').addEventListener('click', () => step(+1));
   $('file').addEventListener('change', () => { if ($('file').files.length) openFile($('file').files[0]); });

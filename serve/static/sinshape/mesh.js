@@ -35,7 +35,7 @@ class Growable {
  * Returns { positions: Float32Array (V, 3) in padded grid units (point p of the
  * grid is at p + 1), faces: Uint32Array (F, 3) }, faces wound so normals point out.
  */
-export function marchingCubes(grid, level = 0.5) {
+export function marchingCubes(grid, level = 0.5, progress = null) {
   const [mx, my, mz] = grid.shape, src = grid.data;
   const px = mx + 2, py = my + 2, pz = mz + 2; // padded
   const value = (x, y, z) => (x < 1 || y < 1 || z < 1 || x > mx || y > my || z > mz ? 0
@@ -92,6 +92,7 @@ export function marchingCubes(grid, level = 0.5) {
     }
     // Layer x + 1 becomes the next slab's layer 0.
     [yEdges, zEdges] = [[yEdges[1], yEdges[0].fill(-1)], [zEdges[1], zEdges[0].fill(-1)]];
+    progress?.((x + 1) / (px - 1));
   }
   return { positions: positions.done(), faces: faces.done() };
 }
@@ -100,9 +101,10 @@ export function marchingCubes(grid, level = 0.5) {
  * A grid's mesh in the model's frame (finest training voxels), or the training
  * input's frame when a manifest is given: { positions, faces }.
  * size: the tri-plane's (X, Y, Z); the grid spans it with its own point counts.
+ * progress(fraction), if given, is called after each slab.
  */
-export function surface(grid, size, manifest = null) {
-  const { positions, faces } = marchingCubes(grid);
+export function surface(grid, size, manifest = null, progress = null) {
+  const { positions, faces } = marchingCubes(grid, 0.5, progress);
   const steps = size.map((n, i) => (n - 1) / (grid.shape[i] - 1));
   const origin = manifest ? manifest.origin : [0, 0, 0], spacing = manifest ? manifest.spacing : [1, 1, 1];
   for (let i = 0; i < positions.length; i++) {
@@ -135,9 +137,10 @@ export function massProperties({ positions: p, faces: f }) {
  * Laplacian smoothing as trimesh's filter_laplacian (the Python runtime's
  * --smooth): each step moves every vertex by lamb towards the mean of its
  * neighbours, then rescales about the centre of mass to the initial volume.
- * Changes mesh.positions in place and returns the mesh.
+ * Changes mesh.positions in place and returns the mesh. progress(fraction),
+ * if given, is called after each step.
  */
-export function smooth(mesh, iterations, lamb = 0.5) {
+export function smooth(mesh, iterations, lamb = 0.5, progress = null) {
   const { positions, faces } = mesh;
   const n = positions.length / 3;
   if (!iterations || faces.length === 0) return mesh;
@@ -177,6 +180,7 @@ export function smooth(mesh, iterations, lamb = 0.5) {
       const c = initial.center[i % 3];
       current[i] = (current[i] - c) * scale + c;
     }
+    progress?.((step + 1) / iterations);
   }
   positions.set(current);
   return mesh;

@@ -46,9 +46,10 @@ function finePlane(plane, ma, mb) {
 
 /**
  * Occupancy on every point of a grid `scale` times finer than the tri-plane:
- * { data: Float32Array (Mx, My, Mz) in C order, shape }.
+ * { data: Float32Array (Mx, My, Mz) in C order, shape }. progress(fraction),
+ * if given, is called after each x slice.
  */
-export function projectedDense(model, proj, scale = 1) {
+export function projectedDense(model, proj, scale = 1, progress = null) {
   const [mx, my, mz] = gridShape(proj.size, scale);
   if (mx * my * mz * 4 > MAX_BYTES) throw new InputError(`a dense ${mx}x${my}x${mz} occupancy grid needs more memory than a page should take`);
   const d = model.manifest.hidden;
@@ -72,6 +73,7 @@ export function projectedDense(model, proj, scale = 1) {
         out[(x * my + y) * mz + z] = 1 / (1 + Math.exp(-s));
       }
     }
+    progress?.((x + 1) / mx);
   }
   return { data: out, shape: [mx, my, mz] };
 }

@@ -19,7 +19,8 @@ export { normal, streamKey } from './noise.js';
 export { gridShape, project, projectedDense } from './query.js';
 export { marchingCubes, massProperties, smooth, surface } from './mesh.js';
 
-/** Occupancy on a grid `scale` times finer than the tri-plane, as runtime/query.py's dense. */
-export async function dense(model, tri, scale = 1) {
-  return projectedDense(model, await project(model, tri), scale);
+/** Occupancy on a grid `scale` times finer than the tri-plane, as runtime/query.py's dense
+ * (progress(fraction), if given, after each x slice). */
+export async function dense(model, tri, scale = 1, progress = null) {
+  return projectedDense(model, await project(model, tri), scale, progress);
 }
