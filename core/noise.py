@@ -111,7 +111,6 @@ def z0_noise(seed: int, shape) -> np.ndarray:
 
 def plane_noise(seed: int, level: int, plane: int, channels: int, shape) -> np.ndarray:
     """Noise added to one plane at one level: (channels, H, W) float32."""
-    n = counters(tuple(shape))
-    return np.stack(
-        [bits_to_normal(bits(stream_key(seed, PLANE_STREAM, level, plane, c), n)) for c in range(channels)]
-    )
+    keys = np.array([stream_key(seed, PLANE_STREAM, level, plane, c) for c in range(channels)], np.uint64)
+    with np.errstate(over="ignore"):  # all channels at once: `bits` with one key per channel
+        return bits_to_normal(mix64(keys[:, None, None] + np.uint64(GOLDEN) * (counters(tuple(shape)) + np.uint64(1))))
