@@ -11,6 +11,7 @@ comparing coordinates, and is closed wherever the grid's border is empty.
 import numpy as np
 
 LEVEL = 0.5
+BLOCKS_AT_ONCE = 256  # blocks cut at once: a few MB of per-triangle arrays as a rule, 60 at most
 # Triangles per cube configuration: edge numbers 0-11 as the hex digits 0-b,
 # three per triangle; '-' for none. Bit v of a configuration is set when
 # corner v is below the level (outside). The same string as mesh.js.
@@ -35,10 +36,18 @@ def march(values: np.ndarray, origins: np.ndarray, side: int) -> tuple:
     (F, 3) int64 faces indexing them, wound so normals point to lower values
     (out of the occupied side). Faces come block by block, cell by cell in C
     order, in the table's order within a cell: the same values give the same
-    arrays.
+    arrays. Blocks are cut BLOCKS_AT_ONCE at a time, which bounds the memory
+    of the per-triangle arrays.
     """
-    if len(origins) == 0:
-        return np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3), np.int64)
+    parts = [cut(values, origins[start:start + BLOCKS_AT_ONCE], side)
+             for start in range(0, len(origins), BLOCKS_AT_ONCE)]
+    keys = np.unique(np.concatenate([np.zeros(0, np.int64)] + [k for k, _ in parts]))
+    faces = [np.searchsorted(keys, part_keys)[part_faces] for part_keys, part_faces in parts]
+    return keys, edge_vertices(values, keys), np.concatenate([np.zeros((0, 3), np.int64)] + faces)
+
+
+def cut(values: np.ndarray, origins: np.ndarray, side: int) -> tuple:
+    """march on some blocks: (their crossed edges' sorted keys, (F, 3) faces indexing those)."""
     span = np.arange(side + 1)
     x, y, z = (origins[:, axis, None] + span for axis in range(3))  # (K, side + 1) each
     _, ny, nz = values.shape
@@ -49,11 +58,12 @@ def march(values: np.ndarray, origins: np.ndarray, side: int) -> tuple:
         config |= below[:, dx:dx + side, dy:dy + side, dz:dz + side] << np.uint8(bit)
     block, i, j, k = np.nonzero((config != 0) & (config != 255))
     edges = TRIANGLES[config[block, i, j, k]]  # (n, 15)
-    cell, slot = np.nonzero(edges >= 0)  # in cell order, then table order
+    used = edges >= 0
+    cell = np.repeat(np.arange(len(edges), dtype=np.int32), used.sum(axis=1))  # in cell order, then table order
     corner = edge_key(np.stack([x[block, i], y[block, j], z[block, k]], axis=1), 0, values.shape)
     offset = edge_key(EDGE_START, EDGE_AXIS, values.shape)  # (12,) an edge's key less its cell's
-    keys, inverse = np.unique(corner[cell] + offset[edges[cell, slot]], return_inverse=True)
-    return keys, edge_vertices(values, keys), inverse.reshape(-1, 3).astype(np.int64)
+    keys, inverse = np.unique(corner[cell] + offset[edges[used]], return_inverse=True)
+    return keys, inverse.reshape(-1, 3)
 
 
 def edge_key(start: np.ndarray, axis, shape) -> np.ndarray:

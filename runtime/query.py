@@ -32,7 +32,8 @@ SIDES = (16, 8)
 BLOCK, LEAF = SIDES[0], SIDES[-1]
 BOUND_MARGIN = 1e-4  # a block is uniform only if its logit bound clears 0 by this much of its terms' size
 BOUND_CHUNK = 256  # blocks bounded at once
-LEAVES_AT_ONCE = 32  # leaves evaluated at once: (LEAF + 1)^3 hidden vectors each, 3 MB at D = 32
+FINE_ROWS = 32  # plane rows interpolated at once (a slab's 17 in one product)
+LEAVES_AT_ONCE = 16  # leaves evaluated at once: (LEAF + 1)^3 hidden vectors each, 1.5 MB at D = 32
 
 
 def head_occupancy(head, hidden: np.ndarray) -> np.ndarray:
@@ -142,12 +143,16 @@ class FineGrid:
         """Plane k interpolated to padded points; `rows` selects points along
         the plane's first axis: (r, Pb, D)."""
         a, b = PLANE_AXES[k]
-        partial = np.tensordot(self.weights[a][rows], self.proj.planes[k], axes=(1, 0))  # (r, Nb, D)
-        r, nb, d = partial.shape
-        # One (Pb, Nb) @ (Nb, r D) product: one large product runs at the
-        # machine's rate where r small ones (a batched matmul) do not.
-        fine = self.weights[b] @ partial.transpose(1, 0, 2).reshape(nb, r * d)
-        return np.ascontiguousarray(fine.reshape(-1, r, d).transpose(1, 0, 2))
+        plane, first = self.proj.planes[k], self.weights[a][rows]
+        out = np.empty((len(first), self.padded[b], plane.shape[-1]), np.float32)
+        for start in range(0, len(first), FINE_ROWS):
+            partial = np.tensordot(first[start:start + FINE_ROWS], plane, axes=(1, 0))  # (r, Nb, D)
+            r, nb, d = partial.shape
+            # One (Pb, Nb) @ (Nb, r D) product: one large product runs at the
+            # machine's rate where r small ones (a batched matmul) do not.
+            fine = self.weights[b] @ partial.transpose(1, 0, 2).reshape(nb, r * d)
+            out[start:start + r] = fine.reshape(-1, r, d).transpose(1, 0, 2)
+        return out
 
     @property
     def yz(self) -> np.ndarray:
@@ -230,28 +235,24 @@ def relaxed_head(head, low: np.ndarray, high: np.ndarray) -> tuple:
             lower, (np.where(rising, 0, w) * chord_at_zero).sum(-1) + head.bias2)
 
 
-def logit_bounds(head, ranges: list, samples: list) -> tuple:
-    """Lowest and highest logit over blocks, from each plane's range (low,
-    high) over each block and its candidate samples (K, n, D): pre-activations
-    whose sum over the planes is the decoder's hidden input (b1 included).
-    Returns (K,) each.
-
-    Two bounds, the tighter kept: per channel (the sum's per-channel range
-    through relu), and linear (`relaxed_head`, then the extremes of the
-    linear form over each plane's samples: it keeps the channels' joint
-    variation that the per-channel range loses).
-    """
-    low, high = sum(r[0] for r in ranges), sum(r[1] for r in ranges)
+def interval_logits(head, low: np.ndarray, high: np.ndarray) -> tuple:
+    """Lowest and highest logit where each channel of the hidden input (b1
+    included) ranges over [low, high] (K, D) on its own: (K,) each."""
     rising = head.weight2 > 0
-    w, b2 = head.weight2, head.bias2
-    top = np.maximum(np.where(rising, high, low), 0) @ w + b2
-    bottom = np.maximum(np.where(rising, low, high), 0) @ w + b2
+    top = np.maximum(np.where(rising, high, low), 0) @ head.weight2 + head.bias2
+    bottom = np.maximum(np.where(rising, low, high), 0) @ head.weight2 + head.bias2
+    return bottom, top
+
+
+def linear_logits(head, low: np.ndarray, high: np.ndarray, samples: list) -> tuple:
+    """Lowest and highest logit over blocks from `relaxed_head`'s linear forms,
+    at their extremes over each plane's candidate samples (K, n, D), whose
+    sum over the planes is the hidden input: it keeps the channels' joint
+    variation that `interval_logits` loses. (K,) each."""
     upper, c_high, lower, c_low = relaxed_head(head, low, high)
-    top = np.minimum(top, sum((s @ upper[:, :, None]).max(axis=(1, 2)) for s in samples) + c_high)
-    bottom = np.maximum(bottom, sum((s @ lower[:, :, None]).min(axis=(1, 2)) for s in samples) + c_low)
-    # float32 sums of D terms are off by far less than 1e-4 of their size.
-    slack = BOUND_MARGIN * (1 + np.maximum(np.abs(low), np.abs(high)) @ np.abs(w))
-    return bottom - slack, top + slack
+    top = sum((s @ upper[:, :, None]).max(axis=(1, 2)) for s in samples) + c_high
+    bottom = sum((s @ lower[:, :, None]).min(axis=(1, 2)) for s in samples) + c_low
+    return bottom, top
 
 
 def check_band_memory(size, scale: float, hidden: int, memory_limit: int | None = None,
@@ -278,8 +279,8 @@ class Band:
 
     Between coarse samples each plane is bilinear, so over a block's points it
     takes its extremes at a few candidate points (`FineGrid.candidates`);
-    `logit_bounds` turns the three planes' candidates into exact bounds of
-    the logit. Blocks of BLOCK cells are bounded first, then the leaves of
+    `interval_logits` and `linear_logits` turn the three planes' candidates
+    into exact bounds of the logit. Blocks of BLOCK cells are bounded first, then the leaves of
     those left undecided; leaves whose bounds clear 0 are uniform and never
     evaluated, so the result is the dense result, at a cost that grows with
     the surface's area rather than the volume.
@@ -323,14 +324,22 @@ class Band:
             for part in np.array_split(here, -(-len(here) // BOUND_CHUNK)):
                 by, bz = blocks[part, 1], blocks[part, 2]
                 y, z = cy[by], cz[bz]
-                ranges = [(xy_low[y].min(axis=1), xy_high[y].max(axis=1)),
-                          (xz_low[z].min(axis=1), xz_high[z].max(axis=1)), (yz_low[by, bz], yz_high[by, bz])]
-                d = xy.shape[-1]
-                samples = [xy[x[None, :, None], y[:, None]].reshape(len(part), -1, d),
-                           xz[x[None, :, None], z[:, None]].reshape(len(part), -1, d),
-                           self.yz[y[:, :, None], z[:, None]].reshape(len(part), -1, d)]
-                low, high = logit_bounds(self.head, ranges, samples)
-                state[part] = np.where(low > 0, 1, np.where(high < 0, -1, 0))
+                low = xy_low[y].min(axis=1) + xz_low[z].min(axis=1) + yz_low[by, bz]
+                high = xy_high[y].max(axis=1) + xz_high[z].max(axis=1) + yz_high[by, bz]
+                bottom, top = interval_logits(self.head, low, high)
+                # float32 sums of D terms are off by far less than 1e-4 of their size.
+                slack = BOUND_MARGIN * (1 + np.maximum(np.abs(low), np.abs(high)) @ np.abs(self.head.weight2))
+                # The linear bound, dearer, only where the interval bound leaves the block open.
+                open_ = np.nonzero((bottom <= slack) & (top >= -slack))[0]
+                if len(open_):
+                    y, z, d = y[open_], z[open_], xy.shape[-1]
+                    samples = [xy[x[None, :, None], y[:, None]].reshape(len(open_), -1, d),
+                               xz[x[None, :, None], z[:, None]].reshape(len(open_), -1, d),
+                               self.yz[y[:, :, None], z[:, None]].reshape(len(open_), -1, d)]
+                    linear = linear_logits(self.head, low[open_], high[open_], samples)
+                    bottom[open_] = np.maximum(bottom[open_], linear[0])
+                    top[open_] = np.minimum(top[open_], linear[1])
+                state[part] = np.where(bottom > slack, 1, np.where(top < -slack, -1, 0))
         padded = any_pad[0][blocks[:, 0]] | any_pad[1][blocks[:, 1]] | any_pad[2][blocks[:, 2]]
         state[(state == 1) & padded] = 0  # padding points are empty
         state[all_pad[0][blocks[:, 0]] | all_pad[1][blocks[:, 1]] | all_pad[2][blocks[:, 2]]] = -1
