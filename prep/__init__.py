@@ -11,6 +11,7 @@ model is scored against), shapes (procedural example meshes).
 
 Both the trainer and evaluation prepare their data here, so a model is
 scored against the grid it was trained on. It imports numpy, scipy, h5py,
-trimesh and scikit-image, and from the runtime only its errors and its
-writer; never torch, and nothing from sinshape.trainer, .cli or .serve.
+trimesh and scikit-image, and from sinshape only core (errors, the memory
+budget, the largest level side, atomic files); never torch, and nothing
+from sinshape.runtime, .trainer, .cli or .serve.
 """

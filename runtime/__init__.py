@@ -13,8 +13,11 @@ Stages, one module each: load -> generate -> query -> mesh -> write; edit
 composes a sample from boxes of others; many runs them for many seeds on
 worker processes or a Ray cluster.
 
-It imports numpy, scipy, onnx, onnxruntime, trimesh, scikit-image and
-pillow; never torch. It stands on sinshape.core (errors, the memory budget,
+Sampling imports numpy, onnxruntime and threadpoolctl, and trimesh only
+for a whole mesh in memory (a .ply streams without it); render adds pillow,
+and evaluation and rough-mesh layouts prep's readers (scipy, h5py,
+scikit-image); the onnx package only upgrades format 1 and 2 files. Never
+torch. It stands on sinshape.core (errors, the memory budget,
 the model format, the noise, atomic files) and, for evaluation's reference
 grid only, sinshape.prep; never on sinshape.trainer, .cli or .serve: a model
 file and its manifest (docs/FORMAT.md) are all it shares with the trainer. `__version__` is the installed sinshape distribution's version.
