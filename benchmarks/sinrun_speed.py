@@ -1,7 +1,10 @@
 """What a user waits for: `sinrun sample` wall time and peak memory, this
 checkout against another install (a release), side by side in one run.
 
-    python benchmarks/sinrun_speed.py --before /path/to/release/venv/bin/sinrun [--rounds 3]
+    python benchmarks/sinrun_speed.py --before /path/to/release/venv/bin/sinrun [--now PATH] [--rounds 3]
+
+Install both the same way (`pip install .`, not `-e`: an editable install's
+import hook alone adds about 20 ms to every start).
 
 Each command runs in a fresh process, `before` and `now` alternated (the
 order flips every round, so a machine that slows down during the run does not
@@ -68,9 +71,11 @@ def import_profile(python: str, top: int = 6) -> tuple:
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--before", required=True, help="the other install's sinrun executable")
+    parser.add_argument("--now", default=str(Path(sys.executable).with_name("sinrun")),
+                        help="this checkout's sinrun (default: the one beside this python)")
     parser.add_argument("--rounds", type=int, default=3)
     args = parser.parse_args()
-    installs = {"before": args.before, "now": str(Path(sys.executable).with_name("sinrun"))}
+    installs = {"before": args.before, "now": args.now}
 
     print("| command | before: wall s (each round) | peak MB | now: wall s | peak MB | speed-up | target |")
     print("|---|---|---|---|---|---|---|")

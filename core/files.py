@@ -9,7 +9,6 @@ be read or written.
 
 import errno
 import os
-import secrets
 from pathlib import Path
 
 from .errors import InputError
@@ -116,7 +115,7 @@ def temporary_path(path: Path, kind: str = "tmp") -> Path:
     place. NAME is cut to TEMPORARY_PREFIX bytes, so that a valid name of up
     to 255 bytes (the usual limit) still has a valid temporary."""
     prefix = os.fsdecode(os.fsencode(path.name)[:TEMPORARY_PREFIX])
-    return path.with_name(f".{prefix}.{secrets.token_hex(4)}.{kind}")
+    return path.with_name(f".{prefix}.{os.urandom(4).hex()}.{kind}")
 
 
 def _create_temporary(path: Path) -> tuple:

@@ -41,7 +41,8 @@ def march(values: np.ndarray, origins: np.ndarray, side: int) -> tuple:
     """
     parts = [cut(values, origins[start:start + BLOCKS_AT_ONCE], side)
              for start in range(0, len(origins), BLOCKS_AT_ONCE)]
-    keys = np.unique(np.concatenate([np.zeros(0, np.int64)] + [k for k, _ in parts]))
+    keys = np.sort(np.concatenate([np.zeros(0, np.int64)] + [k for k, _ in parts]))
+    keys = keys[np.append(True, keys[1:] != keys[:-1])] if len(keys) else keys  # unique (np.unique imports numpy.ma)
     faces = [np.searchsorted(keys, part_keys)[part_faces] for part_keys, part_faces in parts]
     return keys, edge_vertices(values, keys), np.concatenate([np.zeros((0, 3), np.int64)] + faces)
 

@@ -9,7 +9,6 @@ points closes the surface at the grid's border.
 
 import numbers
 from collections import deque
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 from threadpoolctl import threadpool_limits
@@ -65,7 +64,11 @@ def pieces(model, triplane, scale: float = 1.0, progress=None, memory_limit: int
     shape = search.grid.shape
     # Padded grid index -> grid index -> model coordinates.
     steps = np.array([(n - 1) / (m - 1) for n, m in zip(triplane.size, shape)])
-    pool = ThreadPoolExecutor(threads) if threads > 1 else None
+    pool = None
+    if threads > 1 and len(search) > threads:  # a few slabs are done before threads pay for themselves
+        from concurrent.futures import ThreadPoolExecutor
+
+        pool = ThreadPoolExecutor(threads)
     # numpy's BLAS would start threads of its own in every product, which then
     # compete with (and spin beside) these: one each, measured faster on any
     # count here, and results that do not depend on the machine's core count.

@@ -316,7 +316,7 @@ class Band:
         (cx, cy, cz), (any_pad, all_pad) = self.candidates[side], self.padding[side]
         yz_low, yz_high = self.yz_range[side]
         state = np.zeros(len(blocks), np.int8)
-        for column in np.unique(blocks[:, 0]):  # blocks at one x: the same x candidates
+        for column in sorted(set(blocks[:, 0].tolist())):  # blocks at one x: the same x candidates
             x = cx[column] - x0
             # Each plane's range over the x candidates first, then over the blocks' own.
             xy_low, xy_high, xz_low, xz_high = (reduce(p[x], axis=0) for p in (xy, xz) for reduce in (np.min, np.max))
