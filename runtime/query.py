@@ -183,9 +183,8 @@ class FineGrid:
     def padding(self, axis: int, side: int) -> tuple:
         """Per block of `side` cells along an axis: (has a padding point, has
         only padding points), (blocks,) bool each."""
-        real = self.is_real(axis, np.arange(self.padded[axis] - 1))
-        real = np.append(real, False).reshape(-1)[:-1]  # the last padded point is never real
-        per_block = np.lib.stride_tricks.sliding_window_view(np.append(real, False), side + 1)[::side]
+        real = self.is_real(axis, np.arange(self.padded[axis]))
+        per_block = np.lib.stride_tricks.sliding_window_view(real, side + 1)[::side]
         return ~per_block.all(axis=1), ~per_block.any(axis=1)
 
 
