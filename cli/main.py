@@ -299,7 +299,6 @@ def sample(model, seed, seeds, recon, keep, layout_file, resample_layout, grow_b
                      smooth=smooth, smoother=smoother, largest=largest, frame=frame)
         return
     path = named_output(output, seed=first) if "{" in output.name else output
-    kind = write.output_kind(path)
     files.check_writable(path, [loaded.path] + ([layout_file] if layout_file else []))
     triplane = edit.edited(loaded, first, size, keep, layout_file, resample_layout, grow_by, anchor or (0, 0, 0))
     with StageProgress() as show:
