@@ -27,6 +27,8 @@ is weak (W/"..."): the bytes sent are gzip's, not the file's.
 import asyncio
 import hashlib
 import importlib.metadata
+import io
+import json
 import logging
 import threading
 import time
@@ -41,6 +43,7 @@ from fastapi import Depends, FastAPI, HTTPException, Query, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
+import numpy as np
 from pydantic import BaseModel
 from starlette.datastructures import Headers, MutableHeaders
 from starlette.middleware.gzip import GZipMiddleware
@@ -51,7 +54,9 @@ from sinshape.runtime import edit, generate, layout, load, mesh, query, write
 
 STATIC = Path(__file__).parent / "static"
 Format = Literal["glb", "ply", "obj", "stl", "off", "npz"]
-MEDIA_TYPES = {"glb": "model/gltf-binary", "obj": "model/obj", "stl": "model/stl"}  # others: octet-stream
+LayoutFormat = Literal["json", "vox", "npz"]
+MEDIA_TYPES = {"glb": "model/gltf-binary", "obj": "model/obj", "stl": "model/stl",
+               "json": "application/json"}  # others: octet-stream
 MAX_SMOOTH = mesh.MAX_SMOOTH  # smoothing cannot be interrupted either; the runtime bounds it
 # Cross-origin isolation: lets the page use SharedArrayBuffer (multi-threaded WASM).
 ISOLATION_HEADERS = {"Cross-Origin-Opener-Policy": "same-origin", "Cross-Origin-Embedder-Policy": "require-corp"}
@@ -96,9 +101,12 @@ class SampleRequest:
     anchor: tuple = (0.0, 0.0, 0.0)
     layout: bytes = b""  # an uploaded layout (.vox or .npz bytes): equal files, equal requests
     resample_layout: bool = False
+    layout_of: int | None = None  # not a sample: its layout at this level (format json, vox or npz)
 
     def filename(self) -> str:
         tags = [f"seed{self.seed}"] + [f"keep{part.seed}" for part in self.parts]
+        if self.layout_of is not None:
+            tags.append(f"layout{self.layout_of}")
         if self.grow:
             tags.append("grow" + "x".join(f"{f:g}" for f in self.grow))
         if self.layout:
@@ -165,6 +173,22 @@ class ClientGone(Exception):
 DISCONNECT_POLL = 0.25  # seconds between checks that a waiting client is still there
 
 
+def layout_file(grid: np.ndarray, level: int, format: str) -> bytes:
+    """A layout as `sinrun layout` writes it (.vox, .npz), or as JSON: {shape,
+    level, occupancy}, occupancy a string of '0' and '1' per cell, x slowest, z fastest."""
+    if format == "vox":
+        if max(grid.shape) > layout.MAX_LAYOUT_SIDE:
+            raise InputError(f"a {'x'.join(map(str, grid.shape))} layout; .vox holds at most "
+                             f"{layout.MAX_LAYOUT_SIDE} voxels per axis (ask for npz)")
+        return layout.vox_bytes(grid)
+    if format == "npz":
+        buffer = io.BytesIO()
+        np.savez_compressed(buffer, layout=grid.astype(bool))
+        return buffer.getvalue()
+    cells = np.where(grid.ravel(), b"1", b"0").tobytes().decode()
+    return json.dumps({"shape": list(grid.shape), "level": level, "occupancy": cells}).encode()
+
+
 def make_sample(model, request: SampleRequest, cancel: threading.Event) -> Sample:
     """The file one request asks for, made by the runtime (runs in a worker thread)."""
 
@@ -173,6 +197,10 @@ def make_sample(model, request: SampleRequest, cancel: threading.Event) -> Sampl
             raise Cancelled
 
     started = time.perf_counter()
+    if request.layout_of is not None:  # a layout, not a sample
+        grid = layout.layout(model, request.seed, request.layout_of, request.size)
+        body = layout_file(grid, request.layout_of, request.format)
+        return Sample(body, f'"{hashlib.sha256(body).hexdigest()[:40]}"', None, time.perf_counter() - started)
     if request.layout:
         grid = layout.parse_layout(request.layout, layout_suffix(request.layout), "the layout")
         triplane = layout.from_layout(model, request.seed, grid, request.size, request.resample_layout)
@@ -515,6 +543,25 @@ def create_app(loaded: dict, slots: int | None = None, timeout: float = 60.0,
         wanted = SampleRequest(name, q.seed, generate.parse_size(q.size), q.scale, q.smooth, q.format, layout=body,
                                resample_layout=resample_layout)
         return await answer(request, find(name), wanted)
+
+    @app.get("/api/models/{name}/layout", summary="A sample's coarse layout, as `sinrun layout` writes it",
+             response_class=Response, responses=FILE_ANSWERS)
+    async def sample_layout(
+        request: Request,
+        name: str,
+        seed: SeedQuery = 0,
+        size: SizeQuery = "1",
+        level: Annotated[int, Query(ge=0, description="The level whose grid the layout is; 0, the coarsest, "
+                                    "by default.")] = 0,
+        format: Annotated[LayoutFormat, Query(description="json: {shape, level, occupancy: '0'/'1' per cell, x "
+                                              "slowest, z fastest}; vox (MagicaVoxel) or npz, as `sinrun layout`.")] = "json",
+    ):
+        """The sample's occupancy averaged over one level's grid, full where more than half is: what
+        POST sample takes back, edited."""
+        model = find(name)
+        wanted = SampleRequest(name, seed, generate.parse_size(size), 1.0, 0, format,
+                               layout_of=layout.check_level(model, level))
+        return await answer(request, model, wanted)
 
     @app.get("/", include_in_schema=False)
     async def page():

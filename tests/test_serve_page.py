@@ -4,6 +4,7 @@ import io
 import json
 import re
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -208,3 +209,296 @@ def test_cancel_gives_up_a_server_sample_and_the_page_goes_on(page):
     wait_ready(page, 8)
     assert re.fullmatch(r"[\d,]+ faces · \d+\.\d\d s( \(cached\))?", page.text_content("#status"))
     assert not page.errors
+
+
+# ---- the editor: keep a box, grow, edit the layout; undo, redo and the URL
+from sinshape import models  # noqa: E402
+from sinshape.runtime import edit, load, mesh  # noqa: E402
+from sinshape.runtime import layout as layouts  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def terrain():
+    return load.load_model(models.find("terrain"), threads=2)
+
+
+def shape(page) -> dict:
+    """The shape in the page's view: faces, vertices, volume and a digest of its bytes."""
+    return page.evaluate("window.sinshapeView.shape()")
+
+
+def python_shape(model, triplane) -> tuple:
+    """What the server's runtime makes of a tri-plane: (faces, volume), in the model's input frame."""
+    made = mesh.extract(model, triplane, 1)
+    return len(made.faces), float(made.volume)
+
+
+def wait_url(page, *fragments) -> None:
+    """Until the page is ready and its URL holds every fragment."""
+    checks = " && ".join(f"location.search.includes({json.dumps(f)})" for f in fragments)
+    page.wait_for_function(f"['ready', 'error'].includes(document.body.dataset.state) && {checks}", timeout=60_000)
+    assert page.evaluate("document.body.dataset.state") == "ready", page.text_content("#error")
+
+
+def change(page, selector, value) -> None:
+    """Type a value into a field and commit it, as a user does (the page reads it on change)."""
+    page.fill(selector, str(value))
+    page.dispatch_event(selector, "change")
+
+
+def assert_same_shape(page, model, triplane) -> dict:
+    shown = shape(page)
+    faces, volume = python_shape(model, triplane)
+    assert shown["faces"] == faces and shown["volume"] == pytest.approx(volume, rel=1e-6), (shown, faces, volume)
+    return shown
+
+
+# Each line segment set in the view (the editor's wireframes): its bounding box, in the holder's frame.
+WIREFRAMES_JS = """() => {
+  const out = [];
+  window.sinshapeView.scene.traverse((node) => {
+    if (node.isLineSegments) {
+      node.geometry.computeBoundingBox();
+      const box = node.geometry.boundingBox.clone().translate(node.position);
+      out.push([box.min.toArray(), box.max.toArray()]);
+    }
+  });
+  return out;
+}"""
+
+
+def test_keep_a_box_undo_redo_and_the_url(page, terrain):
+    """The box of seed 3, the rest from another seed, as runtime.compose; undo
+    shows each earlier shape exactly; the URL replays the edit."""
+    page.goto(f"{page.base}/?seed=3&up=z")
+    wait_ready(page, 3)
+    plain = shape(page)
+    assert page.is_disabled("#undo") and page.is_disabled("#redo")
+    page.select_option("#edit", "keep")  # the box 0..50% along x, the rest from the next seed
+    wait_url(page, "edit=keep", "other=4")
+    first = assert_same_shape(page, terrain, edit.compose_text(terrain, 4, ["3:0%,0%,0%:50%,100%,100%"]))
+    change(page, "#bx1", 60)
+    change(page, "#other", 7)
+    wait_url(page, "box=0%2C0%2C0%2C60%2C100%2C100", "other=7")
+    edited = assert_same_shape(page, terrain, edit.compose_text(terrain, 7, ["3:0%,0%,0%:60%,100%,100%"]))
+    assert len({plain["digest"], first["digest"], edited["digest"]}) == 3
+    # The box is drawn where it is: 0..60% of the sample's 63 voxels along x, all of y and z, in the model's frame.
+    (low, high), = page.evaluate(WIREFRAMES_JS)
+    origin, spacing = np.array(terrain.manifest.origin), np.array(terrain.manifest.spacing)
+    np.testing.assert_allclose(low, origin, atol=1e-5)
+    np.testing.assert_allclose(high, origin + spacing * np.array([0.6 * 63, 40, 14]), atol=1e-5)
+    url = page.url
+
+    # Undo: the steps were the plain sample, keep (50%, seed 4), the box to 60%, the seed to 7.
+    page.click("#undo")
+    wait_url(page, "box=0%2C0%2C0%2C60", "other=4")
+    assert page.input_value("#other") == "4"
+    page.click("#undo")
+    wait_url(page, "box=0%2C0%2C0%2C50", "other=4")
+    assert shape(page)["digest"] == first["digest"]
+    page.click("#undo")
+    page.wait_for_function("document.body.dataset.state === 'ready' && !location.search.includes('edit=')")
+    assert shape(page)["digest"] == plain["digest"]
+    assert page.input_value("#edit") == "" and page.is_disabled("#undo") and not page.evaluate(WIREFRAMES_JS)
+    for _ in range(3):
+        page.click("#redo")
+    wait_url(page, "other=7", "box=0%2C0%2C0%2C60")
+    assert shape(page)["digest"] == edited["digest"] and page.is_disabled("#redo")
+
+    # The URL replays it in a fresh page.
+    page.goto(url)
+    wait_url(page, "other=7")
+    assert shape(page)["digest"] == edited["digest"]
+    assert page.input_value("#edit") == "keep" and page.input_value("#bx1") == "60"
+
+    # A bad box says why, and keeps the last shape's state in the URL for a fix.
+    change(page, "#bx1", 0)
+    page.wait_for_function("document.body.dataset.state === 'error'")
+    assert "along x it runs from 0% to 0%" in page.text_content("#error")
+    change(page, "#bx0", 40)
+    change(page, "#bx1", 45)  # a box too thin to keep inside the sample: the server's own message
+    page.wait_for_function("document.body.dataset.state === 'error' && location.search.includes('40%2C0%2C0%2C45')")
+    assert "a kept box needs more than 8" in page.text_content("#error")
+    assert not page.errors and not page.outside
+
+
+def test_grow_along_an_axis(page, terrain):
+    page.goto(f"{page.base}/?seed=3&up=z")
+    wait_ready(page, 3)
+    page.select_option("#edit", "grow")  # twice as long along x
+    wait_url(page, "edit=grow", "grow=2%2C1%2C1")
+    assert_same_shape(page, terrain, edit.grow(terrain, 3, (2, 1, 1), (0, 0, 0)))
+    change(page, "#gx", 1.5)
+    change(page, "#ax", 0.5)
+    wait_url(page, "grow=1.5%2C1%2C1", "anchor=0.5%2C0%2C0")
+    grown = assert_same_shape(page, terrain, edit.grow(terrain, 3, (1.5, 1, 1), (0.5, 0, 0)))
+    # The old sample's place is drawn: 64 voxels of the 96, centred along x.
+    (low, high), = page.evaluate(WIREFRAMES_JS)
+    origin, spacing = np.array(terrain.manifest.origin), np.array(terrain.manifest.spacing)
+    np.testing.assert_allclose(low, origin + spacing * np.array([16, 0, 0]), atol=1e-5)
+    np.testing.assert_allclose(high, origin + spacing * np.array([79, 40, 14]), atol=1e-5)
+    page.click("#undo")
+    wait_url(page, "grow=1.5%2C1%2C1", "anchor=0%2C0%2C0")
+    page.click("#redo")
+    wait_url(page, "anchor=0.5%2C0%2C0")
+    assert shape(page)["digest"] == grown["digest"]
+    change(page, "#gx", 0.5)
+    page.wait_for_function("document.body.dataset.state === 'error'")
+    assert "at least 1" in page.text_content("#error")
+    assert not page.errors and not page.outside
+
+
+def test_the_layout_route_is_the_librarys(page, terrain):
+    """GET .../layout: the grid of `sinrun layout`, as JSON (what the page reads), .vox or .npz."""
+    from test_serve import get
+
+    status, headers, body = get(f"{page.base}/api/models/terrain/layout?seed=3")
+    assert status == 200 and headers["Content-Type"] == "application/json"
+    answer = json.loads(body)
+    expected = layouts.layout(terrain, 3)
+    assert answer["shape"] == list(expected.shape) == [27, 18, 15] and answer["level"] == 0
+    grid = np.frombuffer(answer["occupancy"].encode(), np.uint8).reshape(answer["shape"]) == ord("1")
+    np.testing.assert_array_equal(grid, expected)
+    assert 0.1 < expected.mean() < 0.9
+    status, headers, body = get(f"{page.base}/api/models/terrain/layout?seed=3&level=1&format=vox")
+    assert status == 200 and body == layouts.vox_bytes(layouts.layout(terrain, 3, level=1))
+    assert headers["Content-Disposition"] == 'attachment; filename="terrain_seed3_layout1.vox"'
+    status, _, body = get(f"{page.base}/api/models/terrain/layout?seed=3&level=3")
+    assert status == 400 and json.loads(body)["detail"] == "level must be 0 to 2 (a layout needs a finer level after it), got 3"
+
+
+# The first full cell whose face `normal` a click in the view picks (that cell and that face), with
+# `room` empty cells beyond the face inside the layout, in none of the columns `skip` ([[i, j], ...]):
+# { cell, x, y } in client coordinates, or null.
+CLICKABLE_JS = """([normal, room, skip = []]) => {
+  const view = window.sinshapeView, layout = view.layout(), [X, Y, Z] = layout.shape;
+  const full = (c) => c.every((v, a) => v >= 0 && v < layout.shape[a]) && layout.grid[(c[0] * Y + c[1]) * Z + c[2]] === 1;
+  const inside = (c) => c.every((v, a) => v >= 0 && v < layout.shape[a]);
+  const rect = document.querySelector('#view canvas').getBoundingClientRect();
+  for (let i = 0; i < X; i++) for (let j = 0; j < Y; j++) for (let k = 0; k < Z; k++) {
+    const cell = [i, j, k];
+    if (!full(cell) || skip.some(([a, b]) => a === i && b === j)) continue;
+    let ok = true;
+    for (let r = 1; r <= room; r++) {
+      const beyond = cell.map((v, a) => v + r * normal[a]);
+      if (!inside(beyond) || full(beyond)) ok = false;
+    }
+    if (!ok) continue;
+    const point = view.facePoint(cell, normal);
+    if (point.x < rect.left + 20 || point.x > rect.right - 20 || point.y < rect.top + 20 || point.y > rect.bottom - 20) continue;
+    const hit = view.pick(point.x, point.y);
+    if (hit && hit.cell.join() === cell.join() && hit.normal.join() === normal.join()) return { cell, ...point };
+  }
+  return null;
+}"""
+
+
+def layout_in_page(page) -> np.ndarray:
+    got = page.evaluate("window.sinshapeView.layout()")
+    return np.array(got["grid"], bool).reshape(got["shape"])
+
+
+def edits_text(grid: np.ndarray, base: np.ndarray) -> str:
+    """The page's text of a layout edit (serve/static/layout.js: encodeEdits)."""
+    return ",".join(f"{'a' if grid[c] else 'r'}{c[0]}.{c[1]}.{c[2]}" for c in map(tuple, np.argwhere(grid != base)))
+
+
+def wait_cells(page, text: str) -> None:
+    page.wait_for_function("([text]) => ['ready', 'error'].includes(document.body.dataset.state) && "
+                           "(new URLSearchParams(location.search).get('cells') ?? '') === text", arg=[text],
+                           timeout=60_000)
+    assert page.evaluate("document.body.dataset.state") == "ready", page.text_content("#error")
+
+
+def test_edit_the_layout_as_blocks(page, terrain, tmp_path):
+    """Remove, add, duplicate and move blocks with the mouse and the buttons;
+    each edit's shape is runtime.layout.from_layout's; undo, export, import and the URL."""
+    page.goto(f"{page.base}/?seed=3&up=z&edit=layout")
+    wait_url(page, "edit=layout")
+    base = layouts.layout(terrain, 3)
+    np.testing.assert_array_equal(layout_in_page(page), base)
+    plain = shape(page)
+    assert page.text_content("#layout-status") == f"27×18×15 cells, {base.sum()} full, 0 edited"
+    expected = base.copy()
+
+    # Remove: a click on a block.
+    target = page.evaluate(CLICKABLE_JS, [[0, 0, 1], 0])
+    page.mouse.click(target["x"], target["y"])
+    expected[tuple(target["cell"])] = False
+    wait_cells(page, edits_text(expected, base))
+    np.testing.assert_array_equal(layout_in_page(page), expected)
+    removed = assert_same_shape(page, terrain, layouts.from_layout(terrain, 3, expected))
+    assert removed["digest"] != plain["digest"]
+
+    # Add: a click on a block's top face adds one above it.
+    page.select_option("#tool", "add")
+    used = [target["cell"][:2]]  # each edit in a column of its own: an add above the removed block would undo it
+    target = page.evaluate(CLICKABLE_JS, [[0, 0, 1], 1, used])
+    page.mouse.click(target["x"], target["y"])
+    i, j, k = target["cell"]
+    used.append([i, j])
+    expected[i, j, k + 1] = True
+    wait_cells(page, edits_text(expected, base))
+    added = assert_same_shape(page, terrain, layouts.from_layout(terrain, 3, expected))
+
+    # Select a block, duplicate it upwards, then move the copy one further up.
+    page.select_option("#tool", "select")
+    target = page.evaluate(CLICKABLE_JS, [[0, 0, 1], 2, used])
+    page.mouse.click(target["x"], target["y"])
+    i, j, k = target["cell"]
+    page.wait_for_function(f"document.getElementById('layout-status').textContent.endsWith('selected {i},{j},{k}')")
+    assert page.url.endswith(edits_text(expected, base).replace(",", "%2C"))  # selecting is not an edit
+    page.select_option("#direction", "+z")
+    page.click("#duplicate")
+    expected[i, j, k + 1] = True
+    wait_cells(page, edits_text(expected, base))
+    duplicated = assert_same_shape(page, terrain, layouts.from_layout(terrain, 3, expected))
+    page.click("#move")
+    expected[i, j, k + 1], expected[i, j, k + 2] = False, True
+    wait_cells(page, edits_text(expected, base))
+    moved = assert_same_shape(page, terrain, layouts.from_layout(terrain, 3, expected))
+    assert page.text_content("#layout-status").endswith(f"selected {i},{j},{k + 2}")
+    digests = [plain["digest"], removed["digest"], added["digest"], duplicated["digest"], moved["digest"]]
+    assert len(set(digests)) == 5, (digests, page.url)
+
+    # Undo restores the shape before the move exactly; redo the move's.
+    page.click("#undo")
+    expected[i, j, k + 1], expected[i, j, k + 2] = True, False
+    wait_cells(page, edits_text(expected, base))
+    assert shape(page)["digest"] == duplicated["digest"]
+    np.testing.assert_array_equal(layout_in_page(page), expected)
+    page.click("#redo")
+    expected[i, j, k + 1], expected[i, j, k + 2] = False, True
+    wait_cells(page, edits_text(expected, base))
+    assert shape(page)["digest"] == moved["digest"]
+
+    # Export: the .vox of the edited layout, as runtime/layout.py writes it.
+    with page.expect_download() as download:
+        page.click("#vox-export")
+    assert download.value.suggested_filename == "terrain_seed3_layout.vox"
+    assert Path(download.value.path()).read_bytes() == layouts.vox_bytes(expected)
+
+    # Import: a layout edited elsewhere (a slab of the top removed), then the URL replays it.
+    imported = base.copy()
+    imported[10:20, :, 6:] = False
+    (tmp_path / "edited.vox").write_bytes(layouts.vox_bytes(imported))
+    page.set_input_files("#vox-file", tmp_path / "edited.vox")
+    wait_cells(page, edits_text(imported, base))
+    shown = assert_same_shape(page, terrain, layouts.from_layout(terrain, 3, imported))
+    page.goto(page.url)
+    wait_cells(page, edits_text(imported, base))
+    np.testing.assert_array_equal(layout_in_page(page), imported)
+    assert shape(page)["digest"] == shown["digest"]
+
+    # Files that are not this sample's layout: a message, nothing changed.
+    (tmp_path / "small.vox").write_bytes(layouts.vox_bytes(np.ones((3, 3, 3), bool)))
+    page.set_input_files("#vox-file", tmp_path / "small.vox")
+    page.wait_for_selector("#error:not([hidden])")
+    assert page.text_content("#error") == ("small.vox: a layout of 3×3×3 cells; this sample's is 27×18×15 "
+                                           "(level 0 of terrain at size 1,1,1)")
+    (tmp_path / "broken.vox").write_bytes(layouts.vox_bytes(imported)[:60])
+    page.set_input_files("#vox-file", tmp_path / "broken.vox")
+    page.wait_for_function("document.getElementById('error').textContent.startsWith('broken.vox')")
+    assert page.text_content("#error") == "broken.vox: not a readable MagicaVoxel file (chunk 'XYZI' runs past the end)"
+    np.testing.assert_array_equal(layout_in_page(page), imported)
+    assert not page.errors and not page.outside

@@ -220,6 +220,55 @@ def test_composing_and_growing_equal_the_python_runtime(site_page, terrain):
         assert grid.shape == expected.shape and np.abs(grid - expected).max() < 1e-4, how
 
 
+def page_shape_like_python(page, model, triplane) -> dict:
+    """The page's shape against the Python runtime's mesh of the same tri-plane (the input's frame)."""
+    shown = page.evaluate("window.sinshapeView.shape()")
+    made = mesh.extract(model, triplane, 1)
+    assert abs(shown["faces"] - len(made.faces)) <= len(made.faces) / 10000, (shown, len(made.faces))
+    assert shown["volume"] == pytest.approx(made.volume, rel=1e-4)
+    return shown
+
+
+def wait_for_url(page, *fragments) -> None:
+    checks = " && ".join(f"location.search.includes({json.dumps(f)})" for f in fragments)
+    page.wait_for_function(f"['ready', 'error'].includes(document.body.dataset.state) && {checks}", timeout=60_000)
+    assert page.evaluate("document.body.dataset.state") == "ready", page.text_content("#error")
+
+
+def test_the_page_keeps_a_box_and_grows_in_the_browser(site_page, terrain):
+    """The editor in browser mode: edit.js in the worker makes runtime.edit's shapes;
+    the URL replays an edit, undo restores a shape exactly; layouts say they need the server."""
+    from sinshape.runtime import edit
+
+    page = site_page
+    page.goto(f"{page.base}/?seed=3&up=z&edit=keep&box=0,0,0,60,100,100&other=7")
+    assert wait_done(page) == "ready", page.text_content("#error")
+    assert page.text_content("#status").endswith("in this browser")
+    kept = page_shape_like_python(page, terrain, edit.compose_text(terrain, 7, ["3:0%,0%,0%:60%,100%,100%"]))
+    page.select_option("#edit", "grow")
+    wait_for_url(page, "edit=grow", "grow=2%2C1%2C1")
+    for field, value in (("#gx", "1.5"), ("#ax", "0.5")):
+        page.fill(field, value)
+        page.dispatch_event(field, "change")
+    wait_for_url(page, "grow=1.5%2C1%2C1", "anchor=0.5%2C0%2C0")
+    page_shape_like_python(page, terrain, edit.grow(terrain, 3, (1.5, 1, 1), (0.5, 0, 0)))
+    for _ in range(3):  # the anchor, the factor, grow itself
+        page.click("#undo")
+    wait_for_url(page, "edit=keep", "other=7")
+    assert page.evaluate("window.sinshapeView.shape()")["digest"] == kept["digest"]
+    assert page.is_disabled("#undo") and not page.is_disabled("#redo")
+    # A bad box: the message, before any work.
+    page.fill("#bx1", "0")
+    page.dispatch_event("#bx1", "change")
+    assert wait_done(page) == "error" and "along x it runs from 0% to 0%" in page.text_content("#error")
+    # Layouts are fitted on the server only, and the page says so.
+    page.select_option("#edit", "layout")
+    assert wait_done(page) == "ready"
+    assert page.is_visible("#layout-note") and "fitted on the server" in page.text_content("#layout-note")
+    assert page.is_disabled("#tool") and page.is_disabled("#duplicate")
+    assert not page.errors and not page.outside
+
+
 def test_webgpu_gives_the_same_grid(site_page, terrain, playwright):
     """Where the browser has WebGPU the page uses it (here: SwiftShader, about 15 s); same grid within 1e-4."""
     page = site_page  # the fixture's folder, served again for a browser with WebGPU switched on

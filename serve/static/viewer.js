@@ -1,5 +1,8 @@
-// The sinshape page: pick a model and a seed, see the sample in 3-D, download it.
-// The state lives in the URL's query string, so a view can be shared.
+// The sinshape page: pick a model and a seed, see the sample in 3-D, download it,
+// and edit it (docs/EDITING.md): keep a box of it and take the rest from another
+// seed, grow it, or edit its coarse layout as blocks (server only). Each change
+// of the shape is a step that undo and redo walk; the state lives in the URL's
+// query string, so a view, edits included, can be shared.
 // A sample is made on the server (its API) or in this browser (the JavaScript
 // runtime in sinshape/, on onnxruntime-web); a static site from
 // `sinrun export-web` (body data-site="static") has no server and samples in
@@ -7,9 +10,17 @@
 import * as THREE from 'three';
 import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
+import * as layouts from './layout.js';
 
 const $ = (id) => document.getElementById(id);
 const FIELDS = ['model', 'where', 'seed', 'size', 'scale', 'smooth', 'up', 'format'];
+// Each edit's fields, in the URL after `edit`: box (6 percentages x0,y0,z0,x1,y1,z1
+// of the sample, from the seed's sample) and other (the seed of the rest); grow
+// and anchor (3 factors, 3 fractions); cells (layout.js's text of the edited cells).
+const EDITS = { keep: ['box', 'other'], grow: ['grow', 'anchor'], layout: ['cells'] };
+const EDIT_DEFAULTS = { edit: '', box: '0,0,0,50,100,100', other: '', grow: '2,1,1', anchor: '0,0,0', cells: '' };
+// What makes the shape: a step of the undo history when one of these changes.
+const SHAPE_FIELDS = ['model', 'seed', 'size', 'scale', 'smooth', 'edit', 'box', 'other', 'grow', 'anchor', 'cells'];
 const STATIC_SITE = document.body.dataset.site === 'static';
 
 // ---- the 3-D view: one scene, one shape at a time, drawn on demand
@@ -36,9 +47,15 @@ controls.addEventListener('change', draw);
 // dark lines where they fought the front faces in the depth buffer.
 const material = new THREE.MeshStandardMaterial({ color: 0xd8c8a8, roughness: 0.85, side: THREE.FrontSide });
 const holder = new THREE.Group(); // turned so the model's up axis points up on screen
+const shapeGroup = new THREE.Group(); // the sample
+const extras = new THREE.Group(); // what the editor draws over it: a box's wireframe, the layout's blocks
+holder.add(shapeGroup, extras);
 scene.add(holder);
 const loader = new GLTFLoader();
-window.sinshapeView = { scene, camera, renderer }; // for the tests and the console
+const boxLines = new THREE.LineBasicMaterial({ color: 0xffd54a });
+const selectLines = new THREE.LineBasicMaterial({ color: 0xff5a36 });
+const blockMaterial = new THREE.MeshStandardMaterial({ color: 0x5d9be0, roughness: 0.7, transparent: true, opacity: 0.55 });
+let framed = ''; // what the camera was last framed for: a new extent frames it again, an edit inside it does not
 
 function draw() {
   renderer.render(scene, camera);
@@ -59,7 +76,7 @@ function orient(up) {
 
 function frame() {
   // Aim at the shape's box from a three-quarter view that fits it.
-  const box = new THREE.Box3().setFromObject(holder);
+  const box = new THREE.Box3().setFromObject(shapeGroup);
   if (box.isEmpty()) return draw();
   const centre = box.getCenter(new THREE.Vector3());
   const radius = box.getSize(new THREE.Vector3()).length() / 2;
@@ -81,40 +98,106 @@ function showMesh({ positions, faces }) {
   geometry.setAttribute('position', new THREE.BufferAttribute(positions, 3));
   geometry.setIndex(new THREE.BufferAttribute(faces, 1));
   geometry.computeVertexNormals();
-  holder.clear();
-  holder.add(new THREE.Mesh(geometry, material));
-  orient(state.up);
-  frame();
+  shapeGroup.clear();
+  shapeGroup.add(new THREE.Mesh(geometry, material));
+  shown();
 }
 
 function show(gltf) {
-  holder.clear();
+  shapeGroup.clear();
   gltf.scene.traverse((node) => {
     if (node.isMesh) {
       if (!node.geometry.attributes.normal) node.geometry.computeVertexNormals();
       node.material = material;
     }
   });
-  holder.add(gltf.scene);
-  orient(state.up);
-  frame();
+  shapeGroup.add(gltf.scene);
+  shown();
 }
+
+/** A new shape is in the view: frame it if its extent is new, else keep the user's camera. */
+function shown() {
+  orient(state.up);
+  const extent = [state.model, state.size, state.edit === 'grow' ? `${state.grow}|${state.anchor}` : '', state.up].join('|');
+  if (extent !== framed) frame();
+  else draw();
+  framed = extent;
+}
+
+/** The shape in view: faces, vertices, volume (the model's frame) and a digest of its
+ * vertices and faces (FNV-1a of their bytes): what the tests compare, before and after an edit. */
+function shapeSummary() {
+  let faces = 0, vertices = 0, volume = 0, hash = 0x811c9dc5;
+  const mix = (bytes) => { for (let i = 0; i < bytes.length; i++) hash = Math.imul(hash ^ bytes[i], 0x01000193) >>> 0; };
+  shapeGroup.traverse((node) => {
+    if (!node.isMesh) return;
+    const p = node.geometry.attributes.position.array, f = node.geometry.index.array;
+    mix(new Uint8Array(Float32Array.from(p).buffer));
+    mix(new Uint8Array(Uint32Array.from(f).buffer));
+    faces += f.length / 3;
+    vertices += p.length / 3;
+    for (let i = 0; i < f.length; i += 3) {
+      const a = 3 * f[i], b = 3 * f[i + 1], c = 3 * f[i + 2];
+      volume += p[a] * (p[b + 1] * p[c + 2] - p[b + 2] * p[c + 1]) - p[a + 1] * (p[b] * p[c + 2] - p[b + 2] * p[c])
+        + p[a + 2] * (p[b] * p[c + 1] - p[b + 1] * p[c]);
+    }
+  });
+  return { faces, vertices, volume: volume / 6, digest: hash.toString(16).padStart(8, '0') };
+}
+
+window.sinshapeView = { scene, camera, renderer, shape: shapeSummary }; // for the tests and the console
 
 // ---- the state: read from the URL, written back to it
 const state = {
   model: '', where: STATIC_SITE ? 'browser' : 'server', seed: 0, size: '1,1,1', scale: '1', smooth: '0', up: 'y', format: 'glb',
+  ...EDIT_DEFAULTS,
 };
 
 function readUrl() {
   const query = new URLSearchParams(location.search);
-  for (const key of FIELDS) if (query.has(key)) state[key] = query.get(key);
+  for (const key of [...FIELDS, ...Object.keys(EDIT_DEFAULTS)]) if (query.has(key)) state[key] = query.get(key);
   if (STATIC_SITE || !['server', 'browser'].includes(state.where)) state.where = STATIC_SITE ? 'browser' : 'server';
+  if (!(state.edit in EDITS)) state.edit = '';
+  if (state.edit === 'keep' && !state.other) state.other = nextSeed(String(state.seed));
 }
 
 function writeUrl() {
   const query = new URLSearchParams();
   for (const key of FIELDS) query.set(key, state[key]);
+  if (state.edit) {
+    query.set('edit', state.edit);
+    for (const key of EDITS[state.edit]) query.set(key, state[key]);
+  }
   history.replaceState(null, '', `${location.pathname}?${query}`);
+}
+
+// ---- undo and redo: every shape the page made, a step; undo shows the previous one again
+const steps = []; // snapshots of the state's SHAPE_FIELDS
+let stepAt = -1;
+const shapeKey = (snapshot) => JSON.stringify(SHAPE_FIELDS.map((key) => String(snapshot[key])));
+
+function record() {
+  const snapshot = Object.fromEntries(SHAPE_FIELDS.map((key) => [key, state[key]]));
+  if (stepAt >= 0 && shapeKey(steps[stepAt]) === shapeKey(snapshot)) return;
+  steps.splice(stepAt + 1);
+  steps.push(snapshot);
+  stepAt = steps.length - 1;
+  showSteps();
+}
+
+function showSteps() {
+  $('undo').disabled = stepAt <= 0;
+  $('redo').disabled = stepAt >= steps.length - 1;
+}
+
+function walk(delta) {
+  const to = stepAt + delta;
+  if (to < 0 || to >= steps.length) return;
+  stepAt = to;
+  Object.assign(state, steps[to]);
+  toForm();
+  showSteps();
+  load({ replay: true });
 }
 
 function toForm() {
@@ -124,7 +207,12 @@ function toForm() {
   $('sx').value = x ?? 1;
   $('sy').value = y ?? x ?? 1;
   $('sz').value = z ?? x ?? 1;
-  for (const key of ['where', 'scale', 'smooth', 'up', 'format']) $(key).value = state[key];
+  for (const key of ['where', 'scale', 'smooth', 'up', 'format', 'edit', 'other']) $(key).value = state[key];
+  const box = String(state.box).split(',');
+  ['bx0', 'by0', 'bz0', 'bx1', 'by1', 'bz1'].forEach((id, i) => { $(id).value = box[i] ?? ''; });
+  const by = String(state.grow).split(','), anchor = String(state.anchor).split(',');
+  ['gx', 'gy', 'gz'].forEach((id, i) => { $(id).value = by[i] ?? by[0] ?? ''; });
+  ['ax', 'ay', 'az'].forEach((id, i) => { $(id).value = anchor[i] ?? anchor[0] ?? ''; });
   showMode();
 }
 
@@ -132,22 +220,65 @@ function showMode() {
   const browser = state.where === 'browser';
   $('where-label').hidden = STATIC_SITE;
   $('file-label').hidden = !browser;
-  $('format').disabled = browser; // the browser writes .ply, and the box says so
-  $('format').value = browser ? 'ply' : state.format;
+  const blob = browser || (state.edit === 'layout' && Boolean(state.cells)); // a download the page made itself
+  $('format').disabled = blob; // the browser writes .ply, a shape from a layout comes as .glb, and the box says so
+  $('format').value = browser ? 'ply' : blob ? 'glb' : state.format;
   $('backend').hidden = !browser;
+  for (const [edit, id] of [['keep', 'keep-controls'], ['grow', 'grow-controls'], ['layout', 'layout-controls']]) {
+    $(id).hidden = state.edit !== edit;
+  }
+  const layoutHere = state.edit === 'layout' && browser;
+  $('layout-note').hidden = !layoutHere;
+  for (const id of ['tool', 'direction', 'duplicate', 'move', 'blocks', 'vox-file']) $(id).disabled = layoutHere;
+  $('vox-import-label').classList.toggle('disabled', layoutHere);
 }
 
 function fromForm() {
   state.model = $('model').value;
   state.seed = $('seed').value.trim();
   state.size = [$('sx').value, $('sy').value, $('sz').value].map((v) => v.trim()).join(',');
-  for (const key of ['where', 'scale', 'smooth', 'up', 'format']) state[key] = $(key).value.trim();
+  for (const key of ['where', 'scale', 'smooth', 'up', 'format', 'edit', 'other']) state[key] = $(key).value.trim();
+  state.box = ['bx0', 'by0', 'bz0', 'bx1', 'by1', 'bz1'].map((id) => $(id).value.trim()).join(',');
+  state.grow = ['gx', 'gy', 'gz'].map((id) => $(id).value.trim()).join(',');
+  state.anchor = ['ax', 'ay', 'az'].map((id) => $(id).value.trim()).join(',');
+  if (state.edit === 'keep' && !state.other) $('other').value = state.other = nextSeed(state.seed);
+}
+
+const nextSeed = (seed) => (/^\d+$/.test(seed) && BigInt(seed) < 2n ** 63n - 1n ? String(BigInt(seed) + 1n) : '1');
+
+/** The box's 6 percentages, checked: [x0, y0, z0, x1, y1, z1] as the strings given (the server parses them itself). */
+function parseBox(text) {
+  const values = String(text).split(',').map((v) => v.trim());
+  const numbers = values.map(Number);
+  if (values.length !== 6 || values.some((v) => v === '') || !numbers.every((v) => Number.isFinite(v) && v >= 0 && v <= 100)) {
+    throw new Error(`box '${text}': give 6 percentages of the sample in 0..100, x0,y0,z0,x1,y1,z1`);
+  }
+  for (let a = 0; a < 3; a++) {
+    if (!(numbers[a] < numbers[a + 3])) throw new Error(`box: along ${'xyz'[a]} it runs from ${values[a]}% to ${values[a + 3]}%; the first must be less`);
+  }
+  return values;
+}
+
+function parseAnchor(text) {
+  const values = String(text).split(',').map(Number);
+  const anchor = values.length === 1 ? [values[0], values[0], values[0]] : values;
+  if (anchor.length !== 3 || !anchor.every((v) => v >= 0 && v <= 1)) throw new Error(`anchor '${text}': give three fractions in [0, 1], like 0.5,0,0`);
+  return anchor;
 }
 
 function sampleUrl(format) {
   const query = new URLSearchParams({
     seed: state.seed, size: state.size, scale: state.scale, smooth: state.smooth, format,
   });
+  if (state.edit === 'keep') {
+    // The box is the seed's; the rest is the other seed's: that seed is the request's base.
+    const box = String(state.box).split(',');
+    query.set('seed', state.other);
+    query.append('keep', `${state.seed}:${box.slice(0, 3).map((v) => `${v}%`).join(',')}:${box.slice(3).map((v) => `${v}%`).join(',')}`);
+  } else if (state.edit === 'grow') {
+    query.set('grow', state.grow);
+    query.set('anchor', state.anchor);
+  }
   return `api/models/${encodeURIComponent(state.model)}/sample?${query}`;
 }
 
@@ -237,14 +368,25 @@ function parseSeed(text) {
   return BigInt(text);
 }
 
-function parseFactors(text) {
-  const values = String(text).split(',').map(Number);
+function parseFactors(text, name = 'size', atLeastOne = false) {
+  const values = String(text).split(',').map((v) => (v.trim() === '' ? NaN : Number(v)));
   const factors = values.length === 1 ? [values[0], values[0], values[0]] : values;
-  if (factors.length !== 3 || !factors.every((v) => v > 0 && Number.isFinite(v))) {
-    throw new Error(`size '${text}': give one or three positive factors, like 2 or 2,1,0.5`);
+  if (factors.length !== 3 || !factors.every((v) => (atLeastOne ? v >= 1 : v > 0) && Number.isFinite(v))) {
+    throw new Error(atLeastOne ? `${name} '${text}': give one or three factors of at least 1, like 2 or 2,1,1`
+      : `${name} '${text}': give one or three positive factors, like 2 or 2,1,0.5`);
   }
   return factors;
 }
+
+// Python's round(): halves go to the even neighbour (as generate.js; the
+// runtime's modules are not imported here, they would fetch onnxruntime-web).
+function roundHalfEven(v) {
+  const r = Math.round(v);
+  return Math.abs(v % 1) === 0.5 && r % 2 !== 0 ? r - 1 : r;
+}
+
+/** The finest grid of a sample `factors` times the training size, as runtime.generate.scaled_sizes. */
+const finestSize = (sizes, factors) => sizes.at(-1).map((n, a) => Math.max(2, roundHalfEven(n * factors[a])));
 
 /** A binary PLY file of a mesh. */
 function plyBlob({ positions, faces }) {
@@ -278,6 +420,10 @@ async function sampleHere(ticket) {
   if (!(scale > 0 && Number.isFinite(scale))) throw new Error(`scale: give a positive number, got '${state.scale}'`);
   const steps = Number(state.smooth);
   if (!(Number.isInteger(steps) && steps >= 0 && steps <= 100)) throw new Error(`smooth: give a whole number of steps in 0..100, got '${state.smooth}'`);
+  // The edits edit.js makes (the layout's fit is the server's: showMode says so, and the plain sample is shown).
+  const keep = state.edit === 'keep' ? { base: String(parseSeed(String(state.other).trim())), box: parseBox(state.box) } : undefined;
+  const grow = state.edit === 'grow' ? { by: parseFactors(state.grow, 'grow', true), anchor: parseAnchor(state.anchor) } : undefined;
+  layoutNow = null;
   await running.catch(() => {}); // the worker makes one sample at a time; newer requests skip the ones between
   if (ticket !== latest) return;
   const name = state.model;
@@ -285,7 +431,8 @@ async function sampleHere(ticket) {
     if (!browserModels.get(name)?.loaded) showProgress('loading the model');
     const model = await browserModel(name);
     if (ticket !== latest) throw new Cancelled(); // cancelled while the model loaded
-    return [model, await call({ type: 'sample', name, seed: String(seed), factors, scale, smooth: steps },
+    drawExtras(model);
+    return [model, await call({ type: 'sample', name, seed: String(seed), factors, scale, smooth: steps, keep, grow },
       (stage, fraction) => { if (ticket === latest) showProgress(stage, fraction); })];
   })();
   running = job;
@@ -298,8 +445,15 @@ async function sampleHere(ticket) {
   if (downloadUrl) URL.revokeObjectURL(downloadUrl);
   downloadUrl = URL.createObjectURL(plyBlob(mesh));
   $('download').href = downloadUrl;
-  $('download').download = `${name}_seed${seed}.ply`;
+  $('download').download = `${fileStem(name)}.ply`;
   finish('ready');
+}
+
+/** A download's name: the model, the seeds and the edit. */
+function fileStem(name) {
+  const tag = { keep: `_keep${state.seed}_rest${state.other}`, grow: `_grow${String(state.grow).replaceAll(',', 'x')}`,
+    layout: state.cells ? '_layout' : '' }[state.edit] ?? '';
+  return `${name}_seed${state.seed}${tag}`;
 }
 
 // ---- fetching a sample: the newest request wins, and the one it replaces is
@@ -320,10 +474,11 @@ function fail(error) {
   finish('error');
 }
 
-async function load() {
+async function load({ replay = false } = {}) {
   const ticket = ++latest;
   aborter?.abort();
   aborter = null;
+  if (!replay) record();
   writeUrl();
   showMode();
   document.body.dataset.state = 'loading';
@@ -340,11 +495,33 @@ async function load() {
   }
   showProgress('sampling on the server');
   const started = performance.now();
-  $('download').href = sampleUrl(state.format);
-  $('download').download = '';
   const controller = aborter = new AbortController();
   try {
-    const response = await fetch(sampleUrl('glb'), { signal: controller.signal });
+    let url = sampleUrl('glb'), options = { signal: controller.signal }, made = false;
+    if (state.edit) {
+      if (state.edit === 'keep') { parseSeed(String(state.other).trim()); parseBox(state.box); }
+      if (state.edit === 'grow') parseAnchor(state.anchor);
+      const info = await modelInfo(state.model);
+      if (ticket !== latest) return;
+      if (state.edit === 'layout') {
+        await showLayout(info);
+        if (ticket !== latest) return;
+        if (layoutNow.edits) { // the shape of the edited layout: the same query, POST with the layout as .vox
+          options = { ...options, method: 'POST', body: layouts.voxBytes(layoutNow.grid, layoutNow.shape),
+                      headers: { 'Content-Type': 'application/octet-stream' } };
+          made = true;
+        }
+      } else {
+        layoutNow = null;
+      }
+      drawExtras(info);
+    } else {
+      layoutNow = null;
+      drawExtras(null);
+    }
+    if (made) $('download').removeAttribute('href'); // a file of the page's own, once it is here
+    else { $('download').href = sampleUrl(state.format); $('download').download = ''; }
+    const response = await fetch(url, options);
     if (!response.ok) {
       const body = await response.json().catch(() => ({}));
       throw new Error(body.detail || `${response.status} ${response.statusText}`);
@@ -353,6 +530,12 @@ async function load() {
     const gltf = await loader.parseAsync(data, '');
     if (ticket !== latest) return;
     show(gltf);
+    if (made) {
+      if (downloadUrl) URL.revokeObjectURL(downloadUrl);
+      downloadUrl = URL.createObjectURL(new Blob([data], { type: 'model/gltf-binary' }));
+      $('download').href = downloadUrl;
+      $('download').download = `${fileStem(state.model)}.glb`;
+    }
     const faces = Number(response.headers.get('X-Faces')).toLocaleString('en');
     const seconds = ((performance.now() - started) / 1000).toFixed(2);
     const cached = response.headers.get('X-Cache') === 'hit' ? ' (cached)' : '';
@@ -364,6 +547,225 @@ async function load() {
     fail(error);
   } finally {
     if (aborter === controller) aborter = null;
+  }
+}
+
+// ---- the editor's drawing: the kept box, where a grown sample's old one sits, the layout's blocks
+const infos = new Map(); // model name -> a promise of { sizes, origin, spacing } from the server
+let currentInfo = null;
+
+async function modelInfo(name) {
+  if (state.where === 'browser') return browserModel(name); // the worker's answer carries them
+  if (!infos.has(name)) {
+    infos.set(name, (async () => {
+      const response = await fetch(`api/models/${encodeURIComponent(name)}`);
+      const body = await response.json().catch(() => ({}));
+      if (!response.ok) throw new Error(body.detail || `${response.status} ${response.statusText}`);
+      return { sizes: body.sizes, origin: body.frame.origin, spacing: body.frame.spacing };
+    })());
+    infos.get(name).catch(() => infos.delete(name));
+  }
+  return infos.get(name);
+}
+
+/** Voxels of the finest grid -> the model's frame, where the meshes are. */
+const toFrame = (info, voxel) => voxel.map((v, a) => info.origin[a] + info.spacing[a] * v);
+
+function wireBox(low, high, lines) {
+  const size = low.map((v, a) => Math.max(high[a] - v, 1e-6));
+  const box = new THREE.LineSegments(new THREE.EdgesGeometry(new THREE.BoxGeometry(...size)), lines);
+  box.position.set(...low.map((v, a) => (v + high[a]) / 2));
+  return box;
+}
+
+/** The editor's drawing over the shape, for the state as it is (nothing where a value is bad: the request says why). */
+function drawExtras(info) {
+  currentInfo = info;
+  extras.clear();
+  blocksMesh = null;
+  try {
+    if (!info || !state.edit) return;
+    const factors = parseFactors(state.size);
+    if (state.edit === 'keep') {
+      const finest = finestSize(info.sizes, factors), box = parseBox(state.box).map(Number);
+      const corner = (at) => [0, 1, 2].map((a) => (box[at + a] / 100) * (finest[a] - 1));
+      extras.add(wireBox(toFrame(info, corner(0)), toFrame(info, corner(3)), boxLines));
+    } else if (state.edit === 'grow') {
+      const by = parseFactors(state.grow, 'grow', true), anchor = parseAnchor(state.anchor);
+      const old = finestSize(info.sizes, factors), grown = finestSize(info.sizes, factors.map((f, a) => f * by[a]));
+      const offset = [0, 1, 2].map((a) => roundHalfEven(anchor[a] * (grown[a] - old[a])));
+      extras.add(wireBox(toFrame(info, offset), toFrame(info, offset.map((v, a) => v + old[a] - 1)), boxLines));
+    } else if (state.edit === 'layout' && layoutNow) {
+      drawBlocks(info, factors);
+    }
+  } catch {
+    extras.clear();
+  } finally {
+    draw();
+  }
+}
+
+// ---- layouts (server mode): the seed's layout from the server, the user's edits on it
+const layoutBases = new Map(); // "model|seed|size" -> a promise of { shape, grid }
+let layoutNow = null; // { base, grid, shape, edits }: the layout in view
+let selected = null; // the selected cell [i, j, k], for duplicate and move
+let blocksMesh = null, blockCells = [];
+const unitBox = new THREE.BoxGeometry(1, 1, 1);
+const raycaster = new THREE.Raycaster();
+let voxUrl = null;
+
+function layoutBase(name, seed, size) {
+  const key = `${name}|${seed}|${size}`;
+  if (!layoutBases.has(key)) {
+    layoutBases.set(key, (async () => {
+      const query = new URLSearchParams({ seed, size });
+      const response = await fetch(`api/models/${encodeURIComponent(name)}/layout?${query}`);
+      const body = await response.json().catch(() => ({}));
+      if (!response.ok) throw new Error(body.detail || `${response.status} ${response.statusText}`);
+      return { shape: body.shape, grid: Uint8Array.from(body.occupancy, (c) => (c === '1' ? 1 : 0)) };
+    })());
+    layoutBases.get(key).catch(() => layoutBases.delete(key));
+  }
+  return layoutBases.get(key);
+}
+
+/** The seed's layout with the state's edits: layoutNow, its status line and its .vox link. */
+async function showLayout() {
+  const base = await layoutBase(state.model, state.seed, state.size);
+  const grid = layouts.applyEdits(base.grid, base.shape, state.cells);
+  const edits = layouts.encodeEdits(grid, base.grid, base.shape);
+  layoutNow = { base: base.grid, grid, shape: base.shape, edits: edits ? edits.split(',').length : 0 };
+  showLayoutStatus();
+  if (voxUrl) URL.revokeObjectURL(voxUrl);
+  voxUrl = URL.createObjectURL(new Blob([layouts.voxBytes(grid, base.shape)], { type: 'application/octet-stream' }));
+  $('vox-export').href = voxUrl;
+  $('vox-export').download = `${fileStem(state.model)}.vox`;
+}
+
+function showLayoutStatus() {
+  if (!layoutNow) return;
+  const { grid, shape, edits } = layoutNow;
+  const full = grid.reduce((n, v) => n + v, 0);
+  const chosen = selected && layouts.inside(shape, selected) ? `; selected ${selected.join(',')}` : '';
+  $('layout-status').textContent = `${shape.join('×')} cells, ${full} full, ${edits} edited${chosen}`;
+}
+
+function drawBlocks(info, factors) {
+  const { grid, shape } = layoutNow;
+  const finest = finestSize(info.sizes, factors);
+  const cells = layouts.fullCells(grid, shape);
+  const mesh = new THREE.InstancedMesh(unitBox, blockMaterial, Math.max(1, cells.length));
+  mesh.count = cells.length;
+  const matrix = new THREE.Matrix4();
+  cells.forEach((cell, n) => {
+    const { low, high } = layouts.cellBox(cell, shape, finest, info.origin, info.spacing);
+    matrix.makeScale(...low.map((v, a) => 0.94 * (high[a] - v))).setPosition(...low.map((v, a) => (v + high[a]) / 2));
+    mesh.setMatrixAt(n, matrix);
+  });
+  mesh.computeBoundingBox();
+  mesh.computeBoundingSphere();
+  mesh.visible = $('blocks').checked;
+  blocksMesh = mesh;
+  blockCells = cells;
+  extras.add(mesh);
+  if (selected && layouts.inside(shape, selected) && grid[layouts.cellIndex(shape, selected)]) {
+    const { low, high } = layouts.cellBox(selected, shape, finest, info.origin, info.spacing);
+    extras.add(wireBox(low, high, selectLines));
+  }
+}
+
+/** The block under a point of the view (client coordinates) and the face hit: { cell, normal }, or null. */
+function pick(x, y) {
+  if (!blocksMesh?.visible) return null;
+  const rect = renderer.domElement.getBoundingClientRect();
+  raycaster.setFromCamera(new THREE.Vector2(((x - rect.left) / rect.width) * 2 - 1, -((y - rect.top) / rect.height) * 2 + 1), camera);
+  const [hit] = raycaster.intersectObject(blocksMesh);
+  if (!hit) return null;
+  const n = hit.face.normal; // the unit box's own axes: the model's, scaled and moved per block
+  return { cell: blockCells[hit.instanceId], normal: [Math.round(n.x), Math.round(n.y), Math.round(n.z)] };
+}
+
+/** Where the centre of a block's face (normal [±1, 0, 0] and so on) is on the screen, for the tests. */
+function facePoint(cell, normal) {
+  if (!layoutNow || !currentInfo) return null;
+  const finest = finestSize(currentInfo.sizes, parseFactors(state.size));
+  const { low, high } = layouts.cellBox(cell, layoutNow.shape, finest, currentInfo.origin, currentInfo.spacing);
+  const point = new THREE.Vector3(...low.map((v, a) => (v + high[a]) / 2 + normal[a] * 0.47 * (high[a] - v)));
+  point.applyMatrix4(holder.matrixWorld).project(camera);
+  const rect = renderer.domElement.getBoundingClientRect();
+  return { x: rect.left + ((point.x + 1) / 2) * rect.width, y: rect.top + ((1 - point.y) / 2) * rect.height };
+}
+
+Object.assign(window.sinshapeView, { pick, facePoint, layout: () => layoutNow && { ...layoutNow, grid: Array.from(layoutNow.grid) } });
+
+/** One edit of the layout: `change(grid, shape)` alters a copy; the result is a step, and its shape is made. */
+function editLayout(change) {
+  if (!layoutNow || state.where !== 'server') return;
+  const grid = Uint8Array.from(layoutNow.grid);
+  try {
+    change(grid, layoutNow.shape);
+  } catch (error) {
+    report(error.message);
+    return;
+  }
+  fromForm();
+  state.cells = layouts.encodeEdits(grid, layoutNow.base, layoutNow.shape);
+  load();
+}
+
+const DIRECTIONS = { '+x': [1, 0, 0], '-x': [-1, 0, 0], '+y': [0, 1, 0], '-y': [0, -1, 0], '+z': [0, 0, 1], '-z': [0, 0, -1] };
+const beside = (cell, step) => cell.map((c, a) => c + step[a]);
+
+function clickBlock({ cell, normal }) {
+  const tool = $('tool').value;
+  if (tool === 'select') {
+    selected = cell;
+    showLayoutStatus();
+    drawExtras(currentInfo);
+    return;
+  }
+  editLayout((grid, shape) => {
+    if (tool === 'remove') {
+      grid[layouts.cellIndex(shape, cell)] = 0;
+      return;
+    }
+    const target = beside(cell, normal);
+    if (!layouts.inside(shape, target)) throw new Error(`no room there: the layout is ${shape.join('×')} cells, and the new block would be at ${target.join(',')}`);
+    grid[layouts.cellIndex(shape, target)] = 1;
+  });
+}
+
+/** Duplicate (keep: true) or move the selected block one cell in the chosen direction; the selection follows. */
+function shiftSelected(keep) {
+  if (!layoutNow) return;
+  const { grid, shape } = layoutNow;
+  if (!selected || !layouts.inside(shape, selected) || !grid[layouts.cellIndex(shape, selected)]) {
+    report('select a block first: set "a click on a block" to "selects it", then click one');
+    return;
+  }
+  const target = beside(selected, DIRECTIONS[$('direction').value]);
+  if (!layouts.inside(shape, target)) {
+    report(`no room there: the layout is ${shape.join('×')} cells, and ${target.join(',')} is outside it`);
+    return;
+  }
+  const from = selected;
+  selected = target;
+  editLayout((edited) => {
+    if (!keep) edited[layouts.cellIndex(shape, from)] = 0;
+    edited[layouts.cellIndex(shape, target)] = 1;
+  });
+}
+
+async function importVox(file) {
+  try {
+    if (!layoutNow) throw new Error('the layout is not here yet: wait for it, then import');
+    const { grid, shape } = layouts.readVox(new Uint8Array(await file.arrayBuffer()), file.name);
+    if (shape.join() !== layoutNow.shape.join()) {
+      throw new Error(`${file.name}: a layout of ${shape.join('×')} cells; this sample's is ${layoutNow.shape.join('×')} (level 0 of ${state.model} at size ${state.size})`);
+    }
+    editLayout((edited) => edited.set(grid));
+  } catch (error) {
+    report(error.message);
   }
 }
 
@@ -448,9 +850,40 @@ async function start() {
     $('up').value = state.up;
     load();
   });
-  for (const id of ['where', 'seed', 'sx', 'sy', 'sz', 'scale', 'smooth']) {
+  for (const id of ['where', 'seed', 'sx', 'sy', 'sz', 'scale', 'smooth', 'edit', 'other',
+    'bx0', 'by0', 'bz0', 'bx1', 'by1', 'bz1', 'gx', 'gy', 'gz', 'ax', 'ay', 'az']) {
     $(id).addEventListener('change', () => { fromForm(); load(); });
   }
+  for (const id of ['bx0', 'by0', 'bz0', 'bx1', 'by1', 'bz1', 'gx', 'gy', 'gz', 'ax', 'ay', 'az']) {
+    $(id).addEventListener('input', () => { fromForm(); drawExtras(currentInfo); }); // the box follows as it is typed
+  }
+  // The editor: undo and redo, the layout's tools.
+  $('undo').addEventListener('click', () => walk(-1));
+  $('redo').addEventListener('click', () => walk(+1));
+  document.addEventListener('keydown', (event) => {
+    if (!(event.ctrlKey || event.metaKey) || event.target.closest?.('input, select, textarea')) return;
+    const key = event.key.toLowerCase();
+    if (key === 'z' || key === 'y') {
+      event.preventDefault();
+      walk(key === 'y' || event.shiftKey ? +1 : -1);
+    }
+  });
+  $('duplicate').addEventListener('click', () => shiftSelected(true));
+  $('move').addEventListener('click', () => shiftSelected(false));
+  $('blocks').addEventListener('change', () => { if (blocksMesh) blocksMesh.visible = $('blocks').checked; draw(); });
+  $('vox-file').addEventListener('change', () => {
+    if ($('vox-file').files.length) importVox($('vox-file').files[0]);
+    $('vox-file').value = ''; // the same file again is a change too
+  });
+  let pressed = null; // a click on a block, not the end of a drag that turned the view
+  renderer.domElement.addEventListener('pointerdown', (event) => { pressed = [event.clientX, event.clientY]; });
+  renderer.domElement.addEventListener('pointerup', (event) => {
+    const near = pressed && Math.hypot(event.clientX - pressed[0], event.clientY - pressed[1]) <= 4;
+    pressed = null;
+    if (!near || state.edit !== 'layout' || state.where !== 'server') return;
+    const hit = pick(event.clientX, event.clientY);
+    if (hit) clickBlock(hit);
+  });
   $('up').addEventListener('change', () => { fromForm(); writeUrl(); orient(state.up); frame(); });
   $('format').addEventListener('change', () => { fromForm(); writeUrl(); $('download').href = sampleUrl(state.format); });
   new ResizeObserver(resize).observe(view);

@@ -5,8 +5,11 @@
 //
 // Messages in, each with an id the answers repeat:
 //   { id, type: 'load', name, bytes, file }  load and check a model (bytes: Uint8Array)
-//     -> { id, type: 'loaded', backend, threads, seconds }
-//   { id, type: 'sample', name, seed, factors, scale, smooth }  seed: digits
+//     -> { id, type: 'loaded', backend, threads, seconds, sizes, origin, spacing }  (the manifest's grids and frame)
+//   { id, type: 'sample', name, seed, factors, scale, smooth, keep, grow }  seed: digits; edits (edit.js), at most one:
+//       keep: { base, box }  the box (6 percentages of the sample, as strings: x0 y0 z0 x1 y1 z1) of the sample
+//             of `seed`, the rest from the sample of seed `base`, as runtime.compose
+//       grow: { by, anchor }  the sample of `seed` grown, as runtime.edit.grow
 //     -> { id, type: 'progress', stage, fraction }  (fraction in [0, 1], or null)
 //     -> { id, type: 'done', positions, faces, seconds }  (the buffers are transferred)
 //   any of them -> { id, type: 'error', message, input }  (input: an InputError, a message for the user)
@@ -20,19 +23,37 @@ async function load({ name, bytes, file }) {
   models.set(name, loading);
   try {
     const model = await loading;
-    return { backend: model.backend, threads: model.threads, seconds: (performance.now() - started) / 1000 };
+    const { sizes, origin, spacing } = model.manifest;
+    return { backend: model.backend, threads: model.threads, seconds: (performance.now() - started) / 1000,
+             sizes, origin, spacing };
   } catch (error) {
     models.delete(name); // a later try loads again
     throw error;
   }
 }
 
-async function sample({ name, seed, factors, scale, smooth }, progress) {
+/** A box given in percentages of a sample of finest size `size`, in its voxels: as runtime/edit.py's parse_part. */
+function boxCorners(box, size) {
+  const values = box.map((p) => Number(p));
+  if (values.length !== 6 || !values.every(Number.isFinite)) throw new sinshape.InputError('a box is 6 percentages: x0,y0,z0,x1,y1,z1');
+  const voxels = (i) => values[i] / 100 * (size[i % 3] - 1);
+  return { low: [0, 1, 2].map(voxels), high: [3, 4, 5].map(voxels) };
+}
+
+async function sample({ name, seed, factors, scale, smooth, keep, grow }, progress) {
   if (!models.has(name)) throw new Error(`the model '${name}' is not loaded in the worker`);
   const model = await models.get(name);
   const started = performance.now();
-  progress('sampling', null);
-  const tri = await sinshape.sample(model, BigInt(seed), factors);
+  progress(keep ? 'composing' : grow ? 'growing' : 'sampling', null);
+  let tri;
+  if (keep) {
+    const size = sinshape.scaledSizes(model.manifest.sizes, factors).at(-1);
+    tri = await sinshape.compose(model, BigInt(keep.base), [{ seed: BigInt(seed), ...boxCorners(keep.box, size) }], factors);
+  } else if (grow) {
+    tri = await sinshape.grow(model, BigInt(seed), grow.by, grow.anchor, factors);
+  } else {
+    tri = await sinshape.sample(model, BigInt(seed), factors);
+  }
   const grid = await sinshape.dense(model, tri, scale, (f) => progress('querying the grid', f));
   const mesh = sinshape.surface(grid, tri.size, model.manifest, (f) => progress('meshing', f));
   sinshape.smooth(mesh, smooth, 0.5, (f) => progress('smoothing', f));
