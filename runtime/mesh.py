@@ -35,12 +35,12 @@ def band_mesh(model, triplane, scale: float = 1.0, progress=None, memory_limit: 
     query.points). progress(done, total) is called after each slab.
     memory_limit: as for query.Band; threads: see `pieces`.
     """
-    import trimesh  # only the whole-mesh path needs it (a .ply streams without)
-
     vertices, faces = [], []
     for v, f in pieces(model, triplane, scale, progress, memory_limit, threads):
         vertices.append(v)
         faces.append(f)
+    import trimesh  # only a whole mesh needs it (a .ply streams without); after the work, which can be cancelled
+
     if not vertices:
         return trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), int), process=False)
     return trimesh.Trimesh(np.concatenate(vertices), np.concatenate(faces), process=False)

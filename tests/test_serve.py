@@ -312,14 +312,15 @@ def test_twenty_concurrent_requests(server):
 
 def test_a_slow_request_is_cut_off_by_the_time_limit():
     """A 504 within the limit, and the cut-off sample stops at its next slab
-    and frees its slot (all of it would take ~2.5 s: terrain at scale 8)."""
+    and frees its slot well before all of it could be done (4-12 s here:
+    terrain at scale 16)."""
     with running_server("terrain", "--timeout", "0.3") as (base, _):
         started = time.perf_counter()
-        status, _, body = get(sample_url(base, seed=1, scale=8))
+        status, _, body = get(sample_url(base, seed=1, scale=16))
         assert status == 504 and "longer than the 0.3 s limit" in json.loads(body)["detail"]
         while json.loads(get(f"{base}/health")[2])["sampling"]:
             time.sleep(0.02)
-        assert time.perf_counter() - started < 1.5
+        assert time.perf_counter() - started < 2.5
         assert get(f"{base}/api/models/terrain")[0] == 200
 
 
