@@ -54,7 +54,7 @@ scene.add(holder);
 const loader = new GLTFLoader();
 const boxLines = new THREE.LineBasicMaterial({ color: 0xffd54a });
 const selectLines = new THREE.LineBasicMaterial({ color: 0xff5a36 });
-const blockMaterial = new THREE.MeshStandardMaterial({ color: 0x5d9be0, roughness: 0.7, transparent: true, opacity: 0.55 });
+const blockMaterial = new THREE.MeshStandardMaterial({ color: 0x7fb0e8, roughness: 0.8 });
 let framed = ''; // what the camera was last framed for: a new extent frames it again, an edit inside it does not
 
 function draw() {
@@ -583,6 +583,7 @@ function drawExtras(info) {
   currentInfo = info;
   extras.clear();
   blocksMesh = null;
+  shapeGroup.visible = true;
   try {
     if (!info || !state.edit) return;
     const factors = parseFactors(state.size);
@@ -665,6 +666,7 @@ function drawBlocks(info, factors) {
   mesh.computeBoundingBox();
   mesh.computeBoundingSphere();
   mesh.visible = $('blocks').checked;
+  shapeGroup.visible = !mesh.visible; // the blocks or the shape: drawn together they hide each other
   blocksMesh = mesh;
   blockCells = cells;
   extras.add(mesh);
@@ -870,7 +872,11 @@ async function start() {
   });
   $('duplicate').addEventListener('click', () => shiftSelected(true));
   $('move').addEventListener('click', () => shiftSelected(false));
-  $('blocks').addEventListener('change', () => { if (blocksMesh) blocksMesh.visible = $('blocks').checked; draw(); });
+  $('blocks').addEventListener('change', () => {
+    if (blocksMesh) blocksMesh.visible = $('blocks').checked;
+    shapeGroup.visible = !blocksMesh?.visible;
+    draw();
+  });
   $('vox-file').addEventListener('change', () => {
     if ($('vox-file').files.length) importVox($('vox-file').files[0]);
     $('vox-file').value = ''; // the same file again is a change too
