@@ -501,4 +501,12 @@ def test_edit_the_layout_as_blocks(page, terrain, tmp_path):
     page.wait_for_function("document.getElementById('error').textContent.startsWith('broken.vox')")
     assert page.text_content("#error") == "broken.vox: not a readable MagicaVoxel file (chunk 'XYZI' runs past the end)"
     np.testing.assert_array_equal(layout_in_page(page), imported)
+
+    # Another seed is another layout: the edits are dropped (a step, which undo takes back).
+    change(page, "#seed", 4)
+    wait_cells(page, "")
+    np.testing.assert_array_equal(layout_in_page(page), layouts.layout(terrain, 4))
+    page.click("#undo")
+    wait_cells(page, edits_text(imported, base))
+    assert "seed=3&" in page.url and shape(page)["digest"] == shown["digest"]
     assert not page.errors and not page.outside

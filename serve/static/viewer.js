@@ -234,6 +234,7 @@ function showMode() {
 }
 
 function fromForm() {
+  const layoutOf = [state.model, state.seed, state.size].join('|');
   state.model = $('model').value;
   state.seed = $('seed').value.trim();
   state.size = [$('sx').value, $('sy').value, $('sz').value].map((v) => v.trim()).join(',');
@@ -242,6 +243,10 @@ function fromForm() {
   state.grow = ['gx', 'gy', 'gz'].map((id) => $(id).value.trim()).join(',');
   state.anchor = ['ax', 'ay', 'az'].map((id) => $(id).value.trim()).join(',');
   if (state.edit === 'keep' && !state.other) $('other').value = state.other = nextSeed(state.seed);
+  if ([state.model, state.seed, state.size].join('|') !== layoutOf) { // another sample: its own layout, unedited
+    state.cells = '';
+    selected = null;
+  }
 }
 
 const nextSeed = (seed) => (/^\d+$/.test(seed) && BigInt(seed) < 2n ** 63n - 1n ? String(BigInt(seed) + 1n) : '1');
