@@ -279,10 +279,11 @@ class Band:
     Between coarse samples each plane is bilinear, so over a block's points it
     takes its extremes at a few candidate points (`FineGrid.candidates`);
     `interval_logits` and `linear_logits` turn the three planes' candidates
-    into exact bounds of the logit. Blocks of BLOCK cells are bounded first, then the leaves of
-    those left undecided; leaves whose bounds clear 0 are uniform and never
-    evaluated, so the result is the dense result, at a cost that grows with
-    the surface's area rather than the volume.
+    into exact bounds of the logit. Blocks of BLOCK cells are bounded first,
+    then the leaves of those left undecided (SIDES); leaves whose bounds
+    clear 0 are uniform and never evaluated, so the result is the dense
+    result, at a cost that grows with the surface's area rather than the
+    volume (docs/METHOD.md, "The band search").
 
     Slabs are independent (`slab` may run on several threads at once);
     `carry` then makes neighbours agree on the plane of points they share.
