@@ -1,4 +1,5 @@
-"""The ASGI app: list models, describe one, sample one as a file, and the page.
+"""The ASGI app: list models, describe one, sample one as a file, give a
+sample's coarse layout (runtime.layout, for the page's layout editor), and the page.
 
 Routes parse typed query values (a wrong type is a 422 with a one-line
 message before any code runs), call the runtime, and answer. Everything a
