@@ -196,6 +196,10 @@ def test_cancel_gives_up_a_server_sample_and_the_page_goes_on(page):
     page.click("#cancel")
     assert page.evaluate("document.body.dataset.state") == "cancelled" and page.text_content("#status") == "cancelled"
     assert not page.is_visible("#cancel") and not page.is_visible("#error")
+    for _ in range(50):  # the browser reports the aborted request when its network stack has let it go
+        if [url for url in failed if "/sample?" in url]:
+            break
+        page.wait_for_timeout(100)
     assert [url for url in failed if "/sample?" in url], "the request was not aborted"
     for _ in range(300):  # the server stops at its next slab
         health = json.loads(get(f"{page.base}/health")[2])
