@@ -74,11 +74,6 @@ def text(data: bytes, span: tuple) -> str:
         raise NotText("a name is not text") from None
 
 
-def spans_of(data: bytes, span: tuple, number: int) -> list:
-    """The (start, end) spans of every length-delimited field `number` in a message."""
-    return [v for n, w, v, _ in fields(data, *span) if n == number and w == 2]
-
-
 @dataclass
 class Node:
     op_type: str
