@@ -398,7 +398,8 @@ class Band:
                 plane, valid = previous
                 slab.values[0][valid] = plane[valid]
             valid = np.zeros(slab.values.shape[1:], bool)
-            for _, y, z in slab.leaves()[slab.leaves()[:, 0] == BLOCK - LEAF]:
+            leaves = slab.leaves()
+            for _, y, z in leaves[leaves[:, 0] == BLOCK - LEAF]:
                 valid[y:y + LEAF + 1, z:z + LEAF + 1] = True
             previous = (slab.values[-1].copy(), valid)
             yield slab
