@@ -27,6 +27,10 @@ OPTIONS = {"scale": "--scale", "factors": "--size", "smooth": "--smooth", "threa
            "focus": "--focus", "up": "--up"}
 # ctx.meta key: {parameter: what set it} where a command's value came from elsewhere than OPTIONS says.
 SOURCES = "sinrun.sources"
+# The extra that installs each optional module (pyproject.toml): a command
+# that needs a missing one says which extra to install.
+EXTRAS = {"torch": "train", "onnx": "train", "scipy": "prep", "h5py": "prep", "skimage": "prep",
+          "fastapi": "serve", "uvicorn": "serve", "starlette": "serve", "ray": "ray"}
 
 
 def command_line_message(error: InputError, options: dict = OPTIONS) -> str:
@@ -51,6 +55,12 @@ class Sinrun(click.Group):
             # A command may say that a value came from elsewhere than its option.
             options = {**OPTIONS, **ctx.meta.get(SOURCES, {})}
             raise click.ClickException(command_line_message(error, options)) from None
+        except ModuleNotFoundError as error:
+            top = (error.name or "").partition(".")[0]
+            if top not in EXTRAS:
+                raise
+            raise click.ClickException(f"this needs {top}, which is not installed: "
+                                       f"pip install 'sinshape[{EXTRAS[top]}]'") from None
         except KeyboardInterrupt as stop:
             click.echo("terminated" if isinstance(stop, Terminated) else "interrupted", err=True)
             sys.exit(143 if isinstance(stop, Terminated) else 130)
@@ -64,16 +74,6 @@ def cli():
     Train a model on one mesh (needs the train extra: pip install
     'sinshape[train]'), then sample new shapes from it anywhere, without torch.
     """
-
-
-def require_torch() -> None:
-    """A one-line explanation of how to get torch, if it is missing."""
-    try:
-        import torch  # noqa: F401
-    except ImportError:
-        raise click.ClickException(
-            "training needs PyTorch, which is not installed: pip install 'sinshape[train]'"
-        ) from None
 
 
 def raise_interrupt(signum, frame):
@@ -153,7 +153,6 @@ def train(input_path, output, preset, res, levels, iters, minutes, min_iters, de
     Checkpoints are written after every level and every 5 minutes; Ctrl-C
     saves one and stops; --resume continues.
     """
-    require_torch()
     import contextlib
     import signal
 
@@ -595,13 +594,9 @@ def serve(model_names, host, port, timeout, allowed_host, threads):
     address can use it, so it listens on loopback unless --host says otherwise.
     Needs the serve extra: pip install 'sinshape[serve]'.
     """
-    try:
-        import uvicorn  # noqa: F401 (the serve extra is installed)
+    import uvicorn  # noqa: F401 (the serve extra is installed)
 
-        from sinshape.serve import app
-    except ImportError as error:
-        raise click.ClickException(f"serving needs {error.name}, which is not installed: "
-                                   "pip install 'sinshape[serve]'") from None
+    from sinshape.serve import app
 
     def ready(url, allowed):
         reach = "loopback only" if host in app.LOOPBACK else "reachable from the network"
