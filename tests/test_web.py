@@ -18,7 +18,8 @@ import pytest
 from click.testing import CliRunner
 from onnx import TensorProto, helper
 
-from browser import CHROMIUM, WEBGPU_ARGS, http_server_process, launch, open_page
+from browser import CHROMIUM, http_server_process, launch, open_page
+from conftest import sealed_bytes
 from sinshape import models
 from sinshape.cli.main import cli
 from sinshape.runtime import cubes, load, mesh, query
@@ -270,23 +271,6 @@ def test_the_page_keeps_a_box_and_grows_in_the_browser(site_page, terrain):
     assert not page.errors and not page.outside
 
 
-def test_webgpu_gives_the_same_grid(site_page, terrain, playwright):
-    """Where the browser has WebGPU the page uses it (here: SwiftShader, about 15 s); same grid within 1e-4."""
-    page = site_page  # the fixture's folder, served again for a browser with WebGPU switched on
-    browser = launch(playwright, WEBGPU_ARGS)
-    try:
-        gpu_page = open_page(browser, page.base)
-        gpu_page.goto(f"{page.base}/README.txt")
-        if not gpu_page.evaluate("async () => Boolean(navigator.gpu && await navigator.gpu.requestAdapter())"):
-            pytest.skip("this chromium offers no WebGPU adapter, not even SwiftShader's")
-        js = gpu_page.evaluate(SAMPLE_JS, [3, [1, 1, 1], 1])
-    finally:
-        browser.close()
-    assert js["backend"] == "webgpu"
-    grid = np.frombuffer(base64.b64decode(js["grid"]), np.float32).reshape(js["shape"])
-    assert np.abs(grid - query.dense(terrain, sample(terrain, 3), 1)).max() < 1e-4
-
-
 def test_smoothing_is_trimeshs_laplacian_filter(site_page, terrain):
     """--smooth in the browser: the filter the Python runtime uses, on the same mesh, to 1e-9."""
     page = site_page
@@ -315,7 +299,7 @@ def altered_terrain(path: Path, change, seal=True) -> Path:
     is checked), or with its old seal, as an editor that knows nothing of seals leaves it."""
     proto = onnx.load(TERRAIN)
     change(proto)
-    path.write_bytes(load.sealed_bytes(proto) if seal else proto.SerializeToString())
+    path.write_bytes(sealed_bytes(proto) if seal else proto.SerializeToString())
     return path
 
 
@@ -468,8 +452,10 @@ def test_export_web_writes_replaces_and_refuses(tmp_path):
     assert {"index.html", "models.json", "serve.py", "_headers", "README.txt"} <= {p.name for p in out.iterdir()}
     assert (out / "models" / "terrain.onnx").read_bytes() == TERRAIN.read_bytes()
     assert 'data-site="static"' in (out / "index.html").read_text()
-    for name in ("ort.min.mjs", "ort-wasm-simd-threaded.jsep.mjs", "ort-wasm-simd-threaded.jsep.wasm", "LICENSE"):
-        assert (out / "static" / "vendor" / "onnxruntime-web" / name).is_file()
+    # onnxruntime-web's WASM-only build, and nothing of the WebGPU (JSEP) build.
+    vendored = {p.name for p in (out / "static" / "vendor" / "onnxruntime-web").iterdir()}
+    assert {"ort.wasm.min.mjs", "ort-wasm-simd-threaded.mjs", "ort-wasm-simd-threaded.wasm", "LICENSE"} <= vendored
+    assert not [name for name in vendored if "jsep" in name or name.startswith("ort.min.")]
     # Its serve.py sends the headers that let WASM use threads, and JavaScript and WASM types.
     port = free_port()
     server = subprocess.Popen([sys.executable, "serve.py", str(port)], cwd=out, stdout=subprocess.DEVNULL)
@@ -478,7 +464,7 @@ def test_export_web_writes_replaces_and_refuses(tmp_path):
             try:
                 answers = {path: urllib.request.urlopen(f"http://127.0.0.1:{port}/{path}", timeout=5).headers
                            for path in ("", "static/sinshape/runtime.js",
-                                        "static/vendor/onnxruntime-web/ort-wasm-simd-threaded.jsep.wasm")}
+                                        "static/vendor/onnxruntime-web/ort-wasm-simd-threaded.wasm")}
                 break
             except OSError:
                 time.sleep(0.1)
@@ -489,7 +475,7 @@ def test_export_web_writes_replaces_and_refuses(tmp_path):
         server.wait(timeout=10)
     assert all(h["Cross-Origin-Embedder-Policy"] == "require-corp" for h in answers.values())
     assert answers["static/sinshape/runtime.js"]["Content-Type"] == "text/javascript"
-    assert answers["static/vendor/onnxruntime-web/ort-wasm-simd-threaded.jsep.wasm"]["Content-Type"] == "application/wasm"
+    assert answers["static/vendor/onnxruntime-web/ort-wasm-simd-threaded.wasm"]["Content-Type"] == "application/wasm"
     # A previous export is replaced; any other folder with files is refused, untouched.
     (out / "stale.txt").write_text("x")
     assert run("export-web", "terrain", "-o", out).exit_code == 0

@@ -364,8 +364,7 @@ async function browserModel(name) {
 function backendText(model, loadSeconds) {
   const threads = model.threads === 1 ? '1 thread' : `${model.threads} threads`;
   const isolation = crossOriginIsolated ? '' : ' (the page is not cross-origin isolated, so WASM runs single-threaded)';
-  const backend = model.backend === 'webgpu' ? 'onnxruntime-web on WebGPU' : `onnxruntime-web on WASM, ${threads}${isolation}`;
-  return `${backend}; model loaded and checked in ${loadSeconds.toFixed(2)} s`;
+  return `onnxruntime-web on WASM, ${threads}${isolation}; model loaded and checked in ${loadSeconds.toFixed(2)} s`;
 }
 
 function parseSeed(text) {

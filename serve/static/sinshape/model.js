@@ -1,7 +1,7 @@
 // Load a sinshape .onnx file in the browser: check it as runtime/load.py does
 // (the same refusals, in one line each), cut it into one onnxruntime-web
 // session per stage, and read the decoder head's weights.
-import * as ort from '../vendor/onnxruntime-web/ort.min.mjs';
+import * as ort from '../vendor/onnxruntime-web/ort.wasm.min.mjs';
 import { unseal } from './seal.js';
 import { FormatError, readModel, stageModel, tensorFloats } from './onnx.js';
 
@@ -234,61 +234,47 @@ export function configure({ threads = null, wasmPaths = null } = {}) {
   return configured;
 }
 
-async function webgpuAvailable() {
-  try {
-    return Boolean(globalThis.navigator?.gpu && await navigator.gpu.requestAdapter());
-  } catch {
-    return false;
-  }
-}
-
 /**
- * Load and check a model from its bytes (Uint8Array). backend: 'auto' (WebGPU
- * where the browser has it, else WASM), 'webgpu' or 'wasm'. Returns
- * { name, manifest, projection, levels, decoderPlanes, decoderHead, head, backend, threads }.
+ * Load and check a model from its bytes (Uint8Array). Its stages run on
+ * onnxruntime-web's WASM backend, on `threads` threads (configure's default
+ * when null). Returns { name, manifest, projection, levels, decoderPlanes,
+ * decoderHead, head, backend: 'wasm', threads }.
  */
-export async function loadModel(bytes, { name = 'model.onnx', backend = 'auto', threads = null } = {}) {
+export async function loadModel(bytes, { name = 'model.onnx', threads = null } = {}) {
   const { model, manifest } = readChecked(bytes, name);
   const head = readHead(model, manifest.hidden, name);
   const setup = configure({ threads });
-  const providers = backend === 'auto' ? (await webgpuAvailable() ? ['webgpu', 'wasm'] : ['wasm']) : [backend];
-
-  let lastError = null;
-  for (const provider of providers) {
-    const sessions = []; // released if this backend fails
+  const sessions = []; // released if a stage fails
+  const make = async (names) => {
+    let data;
     try {
-      const make = async (names) => {
-        let data;
-        try {
-          data = stageModel(model, names.inputs, names.outputs);
-        } catch (error) {
-          if (error instanceof FormatError) throw new InputError(`${name}: ${error.message}`);
-          throw error;
-        }
-        const session = await ort.InferenceSession.create(data, { executionProviders: [provider], graphOptimizationLevel: 'all' });
-        sessions.push(session);
-        return new Stage(session, names.inputs, names.outputs);
-      };
-      const stages = manifest.stages;
-      const loaded = {
-        name, manifest, head, backend: provider, threads: provider === 'wasm' ? setup.threads : null,
-        projection: await make(stages.projection),
-        levels: [],
-        decoderPlanes: await make(stages.decoder_planes),
-        decoderHead: await make(stages.decoder_head),
-      };
-      for (const names of stages.levels) loaded.levels.push(await make(names));
-      await checkStages(loaded);
-      return loaded;
+      data = stageModel(model, names.inputs, names.outputs);
     } catch (error) {
-      await Promise.allSettled(sessions.map((session) => session.release()));
-      // A stage WebGPU cannot run falls back to WASM; on the last backend a refusal stands.
-      if (error instanceof InputError && provider === providers[providers.length - 1]) throw error;
-      lastError = error;
+      if (error instanceof FormatError) throw new InputError(`${name}: ${error.message}`);
+      throw error;
     }
+    const session = await ort.InferenceSession.create(data, { executionProviders: ['wasm'], graphOptimizationLevel: 'all' });
+    sessions.push(session);
+    return new Stage(session, names.inputs, names.outputs);
+  };
+  try {
+    const stages = manifest.stages;
+    const loaded = {
+      name, manifest, head, backend: 'wasm', threads: setup.threads,
+      projection: await make(stages.projection),
+      levels: [],
+      decoderPlanes: await make(stages.decoder_planes),
+      decoderHead: await make(stages.decoder_head),
+    };
+    for (const names of stages.levels) loaded.levels.push(await make(names));
+    await checkStages(loaded);
+    return loaded;
+  } catch (error) {
+    await Promise.allSettled(sessions.map((session) => session.release()));
+    if (error instanceof InputError) throw error;
+    const message = String(error?.message ?? error).split('\n')[0].slice(0, 200);
+    throw new InputError(`${name}: onnxruntime cannot load a stage (${message})`);
   }
-  const message = String(lastError?.message ?? lastError).split('\n')[0].slice(0, 200);
-  throw new InputError(`${name}: onnxruntime cannot load a stage (${message})`);
 }
 
 /** Run every stage once on a small input: the file is coherent, or refused (runtime/load.py: check_stages). */
