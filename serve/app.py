@@ -19,10 +19,14 @@ Every answer carries the cross-origin isolation headers (COOP/COEP), so the
 page's in-browser sampling may run onnxruntime-web's WASM on several threads
 (SharedArrayBuffer needs them); the page loads nothing from elsewhere.
 
-Answers of 1 kB and more are gzip-compressed for clients that accept gzip
-(Starlette's GZipMiddleware): the page's scripts, onnxruntime-web's 28 MB
-of WASM (6.7 MB sent), samples and model files. A compressed answer's ETag
-is weak (W/"..."): the bytes sent are gzip's, not the file's.
+Answers of 1 kB and more are gzip-compressed for clients that accept gzip.
+The page's static files (its scripts, onnxruntime-web's 14 MB of WASM,
+3.7 MB sent) are compressed once, on their first request, and kept in
+memory (about 4 MB in all: StaticFiles); samples, JSON and model files are
+compressed as they go out (Starlette's GZipMiddleware). A compressed
+answer's ETag is weak (W/"..."): the bytes sent are gzip's, not the file's.
+Static files say Cache-Control: no-cache: their names are not versioned, so
+a browser keeps them and revalidates them (304) rather than reuse them unasked.
 """
 
 import asyncio
@@ -43,7 +47,7 @@ from typing import Annotated, Literal
 from fastapi import Depends, FastAPI, HTTPException, Query, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, JSONResponse, Response
-from fastapi.staticfiles import StaticFiles
+from fastapi.staticfiles import StaticFiles as StarletteStaticFiles
 import numpy as np
 import trimesh  # noqa: F401  a service makes whole meshes: imported at start-up, not in its first request
 from pydantic import BaseModel
@@ -53,6 +57,7 @@ from starlette.middleware.gzip import GZipMiddleware
 from sinshape import models as shipped
 from sinshape.core.errors import InputError, MemoryLimitError
 from sinshape.runtime import edit, generate, layout, load, mesh, query, write
+from sinshape.serve import compress
 
 STATIC = Path(__file__).parent / "static"
 Format = Literal["glb", "ply", "obj", "stl", "off", "npz"]
@@ -62,7 +67,8 @@ MEDIA_TYPES = {"glb": "model/gltf-binary", "obj": "model/obj", "stl": "model/stl
 MAX_SMOOTH = mesh.MAX_SMOOTH  # smoothing cannot be interrupted either; the runtime bounds it
 # Cross-origin isolation: lets the page use SharedArrayBuffer (multi-threaded WASM).
 ISOLATION_HEADERS = {"Cross-Origin-Opener-Policy": "same-origin", "Cross-Origin-Embedder-Policy": "require-corp"}
-# gzip level 6 (zlib's default): the WASM in 1.2 s of CPU to 6.7 MB; level 9 takes twice that for 1% less.
+# Samples, JSON and model files: gzip level 6 (zlib's default) as they go out; level 9 takes twice
+# as long for 1% less. The page's files are compressed once, at compress.LEVEL (StaticFiles).
 GZIP_LEVEL, GZIP_MINIMUM = 6, 1024
 log = logging.getLogger("sinshape.serve")
 
@@ -320,6 +326,60 @@ class Sampler:
         self.pool.shutdown(wait=False, cancel_futures=True)
 
 
+class StaticFiles(StarletteStaticFiles):
+    """The page's files, each with Cache-Control: no-cache, and gzipped for
+    clients that accept it: each file worth it (compress.py) once, on its
+    first such request, in a worker thread; kept in memory for the server's
+    life (about 4 MB) and made again only if the file changes. Range
+    requests, and clients that do not accept gzip, get the file itself."""
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.packed = {}  # Path -> ((mtime_ns, size), a future of gzip's bytes or None)
+
+    async def get_response(self, path: str, scope) -> Response:
+        response = await super().get_response(path, scope)
+        response.headers["Cache-Control"] = "no-cache"
+        if not (isinstance(response, FileResponse) and response.status_code == 200 and response.stat_result):
+            return response  # 304, redirects, errors
+        file, stat = Path(response.path), response.stat_result
+        if not compress.worth_trying(file, stat.st_size):
+            return response
+        response.headers["Vary"] = "Accept-Encoding"
+        request = Headers(scope=scope)
+        if scope["method"] != "GET" or "range" in request or not compress.accepts_gzip(request.get("accept-encoding", "")):
+            return response
+        body = await self.gzipped(file, (stat.st_mtime_ns, stat.st_size))
+        if body is None:
+            return response
+        headers = {key: value for key, value in response.headers.items() if key not in ("content-length", "accept-ranges")}
+        return Response(body, headers={**headers, "Content-Encoding": "gzip"})
+
+    async def gzipped(self, file: Path, key: tuple) -> bytes | None:
+        """The file's gzip (None: not worth it); requests that ask at once share one compression."""
+        known = self.packed.get(file)
+        if known is not None and known[0] == key and known[1].done() and not known[1].exception():
+            return known[1].result()
+        if known is None or known[0] != key:
+            future = asyncio.get_running_loop().run_in_executor(None, lambda: compress.packed(file.read_bytes()))
+            known = self.packed[file] = (key, future)
+        try:
+            return await asyncio.shield(known[1])  # a client that leaves does not cancel it for the others
+        except OSError:
+            self.packed.pop(file, None)
+            return None
+
+
+class AnswerGZip(GZipMiddleware):
+    """Starlette's GZipMiddleware for every answer but the page's files
+    ("/" and /static/), which StaticFiles compresses once."""
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] == "http" and (scope["path"] == "/" or scope["path"].startswith("/static/")):
+            return await self.app(scope, receive, send)
+        await super().__call__(scope, receive, send)
+
+
 def load_models(names, threads: int | None = None) -> dict:
     """Shipped model names or .onnx paths -> {name: loaded model}; none: every shipped model."""
     paths = {}
@@ -440,7 +500,7 @@ def create_app(loaded: dict, slots: int | None = None, timeout: float = 60.0,
                   docs_url=None, redoc_url=None)  # their pages load scripts from a CDN; /openapi.json stays
 
     # Outermost last: HostsAndIsolation sees the compressed answer's headers.
-    app.add_middleware(GZipMiddleware, minimum_size=GZIP_MINIMUM, compresslevel=GZIP_LEVEL)
+    app.add_middleware(AnswerGZip, minimum_size=GZIP_MINIMUM, compresslevel=GZIP_LEVEL)
     app.add_middleware(HostsAndIsolation, allowed=allowed)
 
     @app.exception_handler(RequestValidationError)
@@ -565,11 +625,13 @@ def create_app(loaded: dict, slots: int | None = None, timeout: float = 60.0,
                                layout_of=layout.check_level(model, level))
         return await answer(request, model, wanted)
 
-    @app.get("/", include_in_schema=False)
-    async def page():
-        return FileResponse(STATIC / "index.html")
+    static = StaticFiles(directory=STATIC)
 
-    app.mount("/static", StaticFiles(directory=STATIC), name="static")
+    @app.get("/", include_in_schema=False)
+    async def page(request: Request):
+        return await static.get_response("index.html", request.scope)
+
+    app.mount("/static", static, name="static")
     return app
 
 

@@ -131,27 +131,35 @@ def test_the_model_file_and_isolation_headers_for_the_browser(server):
         status, headers, _ = get(url)
         assert status == 200 and headers["Cross-Origin-Opener-Policy"] == "same-origin"
         assert headers["Cross-Origin-Embedder-Policy"] == "require-corp"
-    for path in ("sinshape/model.js", "vendor/onnxruntime-web/ort.min.mjs",
-                 "vendor/onnxruntime-web/ort-wasm-simd-threaded.jsep.wasm", "vendor/onnxruntime-web/LICENSE"):
+    for path in ("sinshape/model.js", "vendor/onnxruntime-web/ort.wasm.min.mjs",
+                 "vendor/onnxruntime-web/ort-wasm-simd-threaded.wasm", "vendor/onnxruntime-web/LICENSE"):
         assert get(f"{base}/static/{path}")[0] == 200, path
     status, _, body = get(f"{base}/api/models/nope/onnx")
     assert status == 404 and "unknown model 'nope'" in json.loads(body)["detail"]
 
 
 def test_answers_are_gzip_compressed_for_clients_that_accept_it(server):
-    """The 28 MB WASM and a sample go out gzip-compressed when the client
-    accepts it, as they are when it does not; a compressed sample's ETag is
-    weak and still revalidates."""
+    """The 14 MB WASM and a sample go out gzip-compressed when the client
+    accepts it, as they are when it does not; a compressed answer's ETag is
+    weak and still revalidates; static files say Cache-Control: no-cache."""
     base, _ = server
     static = Path(__file__).parents[1] / "serve" / "static"
-    wasm = "vendor/onnxruntime-web/ort-wasm-simd-threaded.jsep.wasm"
-    for path, kind in ((wasm, "application/wasm"), ("vendor/three/three.core.js", "text/javascript")):
+    wasm = "vendor/onnxruntime-web/ort-wasm-simd-threaded.wasm"
+    for path, kind in ((wasm, "application/wasm"), ("vendor/three/three.core.js", "text/javascript"),
+                       ("vendor/onnxruntime-web/ort.wasm.min.mjs", "text/javascript")):
         status, headers, plain = get(f"{base}/static/{path}")
         assert status == 200 and "Content-Encoding" not in headers and plain == (static / path).read_bytes()
+        assert headers["Cache-Control"] == "no-cache" and "Accept-Encoding" in headers["Vary"]
         status, headers, packed = get(f"{base}/static/{path}", {"Accept-Encoding": "gzip, deflate"})
         assert status == 200 and headers["Content-Encoding"] == "gzip" and headers["Content-Type"].startswith(kind)
         assert len(packed) < len(plain) / 3 and gzip.decompress(packed) == plain, path
         assert "Accept-Encoding" in headers["Vary"] and headers["Cross-Origin-Embedder-Policy"] == "require-corp"
+        assert headers["Cache-Control"] == "no-cache" and headers["ETag"].startswith("W/")
+        again = get(f"{base}/static/{path}", {"Accept-Encoding": "gzip", "If-None-Match": headers["ETag"]})
+        assert again[0] == 304 and again[1]["Cache-Control"] == "no-cache" and not again[2]
+    status, headers, _ = get(f"{base}/", {"Accept-Encoding": "gzip"})
+    assert status == 200 and headers["Content-Encoding"] == "gzip" and headers["Cache-Control"] == "no-cache"
+    assert get(f"{base}/static/{wasm}", {"Accept-Encoding": "gzip;q=0"})[1].get("Content-Encoding") is None
     url = sample_url(base, seed=21, scale=2)
     _, plain_headers, plain = get(url)
     status, headers, packed = get(url, {"Accept-Encoding": "gzip"})
@@ -159,6 +167,58 @@ def test_answers_are_gzip_compressed_for_clients_that_accept_it(server):
     assert len(packed) < len(plain) and headers["X-Faces"] == plain_headers["X-Faces"]
     assert headers["ETag"] == f"W/{plain_headers['ETag']}"  # a strong tag would name gzip's bytes as the file's
     assert get(url, {"Accept-Encoding": "gzip", "If-None-Match": headers["ETag"]})[0] == 304
+
+
+def asgi_get(app, path: str, headers=None) -> tuple:
+    """(status, headers, body) of a GET answered by the ASGI `app` itself, on the running loop."""
+    async def run():
+        sent = []
+        scope = {"type": "http", "asgi": {"version": "3.0", "spec_version": "2.4"}, "http_version": "1.1",
+                 "method": "GET", "scheme": "http", "path": path, "raw_path": path.encode(), "query_string": b"",
+                 "root_path": "", "client": ("127.0.0.1", 1), "server": ("127.0.0.1", 80),
+                 "headers": [(b"host", b"127.0.0.1"), *((k.lower().encode(), v.encode()) for k, v in (headers or {}).items())]}
+
+        async def receive():
+            return {"type": "http.request", "body": b"", "more_body": False}
+
+        async def send(message):
+            sent.append(message)
+
+        await app(scope, receive, send)
+        start = next(m for m in sent if m["type"] == "http.response.start")
+        answer = {k.decode().lower(): v.decode() for k, v in start["headers"]}
+        return start["status"], answer, b"".join(m.get("body", b"") for m in sent if m["type"] == "http.response.body")
+    return run()
+
+
+def test_static_files_are_gzipped_once_and_kept(monkeypatch):
+    """The WASM is compressed on its first request only: later ones, and a
+    client asking at the same time, are given the same bytes from memory."""
+    import asyncio
+
+    from sinshape.runtime import load_model
+    from sinshape.serve import app as served, compress
+
+    made = []
+    real = compress.packed
+    monkeypatch.setattr(compress, "packed", lambda data: made.append(len(data)) or real(data))
+    application = served.create_app({"terrain": load_model(models.find("terrain"), threads=1)}, slots=1)
+    wasm = "/static/vendor/onnxruntime-web/ort-wasm-simd-threaded.wasm"
+    plain = (Path(served.STATIC) / wasm.removeprefix("/static/")).read_bytes()
+
+    async def requests():
+        together = await asyncio.gather(*(asgi_get(application, wasm, {"Accept-Encoding": "gzip"}) for _ in range(3)))
+        later = await asgi_get(application, wasm, {"Accept-Encoding": "gzip"})
+        return [*together, later, await asgi_get(application, wasm)]
+
+    *packed, asked_plainly = asyncio.run(requests())
+    assert made == [len(plain)]  # one compression of the WASM for four requests that accept gzip
+    for status, headers, data in packed:
+        assert status == 200 and headers["content-encoding"] == "gzip" and headers["cache-control"] == "no-cache"
+        assert headers["content-type"] == "application/wasm" and int(headers["content-length"]) == len(data)
+        assert data == packed[0][2] and gzip.decompress(data) == plain
+    status, headers, body = asked_plainly
+    assert status == 200 and "content-encoding" not in headers and body == plain
 
 
 def test_model_files_are_served_as_checked_at_start_sealed_as_format_3(tmp_path):
