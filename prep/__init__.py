@@ -11,7 +11,8 @@ model is scored against), shapes (procedural example meshes).
 
 Both the trainer and evaluation prepare their data here, so a model is
 scored against the grid it was trained on. It imports numpy, scipy, h5py,
-trimesh and scikit-image, and from sinshape only core (errors, the memory
+trimesh and scikit-image (the prep extra installs all but numpy and
+trimesh, which the runtime has), and from sinshape only core (errors, the memory
 budget, the largest level side, atomic files); never torch, and nothing
 from sinshape.runtime, .trainer, .cli or .serve.
 """

@@ -1,7 +1,8 @@
 """Load a triangle mesh and turn it into a solid occupancy grid.
 
 Numpy, scipy and trimesh only (no torch): the torch-free evaluation code
-voxelizes meshes too.
+voxelizes meshes too. Loading a mesh needs trimesh alone (`sinrun render`
+of a mesh works without the prep extra); voxelizing needs scipy.
 
 Method
 ------
@@ -66,8 +67,6 @@ import warnings
 from pathlib import Path
 
 import numpy as np
-import scipy.sparse
-import scipy.sparse.csgraph
 import trimesh
 
 from sinshape.core.budget import check_memory
@@ -279,6 +278,8 @@ def _orient_bodies(triangles: np.ndarray) -> np.ndarray:
     The signed volume is taken about the body's centroid, so that an open
     body (one with a hole) is judged by its shape, not by where it sits.
     """
+    import scipy.sparse.csgraph  # the prep extra's; loading a mesh needs none of it
+
     if len(triangles) == 0:
         return triangles
     # Weld by exact position: seam duplicates are bit-identical copies.

@@ -127,43 +127,28 @@ def read_manifest(model: onnxfile.OnnxModel, sealed: bool, path: Path) -> fmt.Ma
         raise InputError(f"{path}: corrupt model: format {version} ends with a seal, and this file does not")
     if version < 3 and sealed:
         raise InputError(f"{path}: corrupt model: a seal on a format {version} file")
-    if version == 2 and not checksum_v2_matches(model.data, manifest.raw):
+    if version == 2 and not checksum_v2_matches(model, manifest.raw):
         raise InputError(f"{path}: corrupt model: the checksum of its weights and manifest does not match")
     return manifest
 
 
-def checksum_v2_matches(data: bytes, raw: dict) -> bool:
-    import onnx  # format 2 only
-
+def checksum_v2_matches(model: onnxfile.OnnxModel, raw: dict) -> bool:
     try:
-        weights = [(t.name, onnx.numpy_helper.to_array(t)) for t in onnx.load_model_from_string(data).graph.initializer]
+        weights = [(name, onnxfile.tensor_array(tensor)) for name, tensor in model.weights.items()]
         return fmt.checksum_v2(raw, weights) == raw["checksum"]
-    except Exception:  # a weight whose type, shape or name is damaged cannot be read: corrupt
+    except ValueError:  # a weight whose type, shape or name is damaged cannot be read: corrupt
         return False
 
 
 def format3_bytes(model: Model) -> bytes:
     """The model as a sealed format-3 file (its own bytes when it is one):
     what the browser reads, which checks seals only."""
-    import onnx  # only to upgrade an older file
-
     if model.manifest.raw["format_version"] >= 3:
         return model.data
-    proto = onnx.load_model_from_string(model.data)
     manifest = {k: v for k, v in model.manifest.raw.items() if k != "checksum"}
     manifest["format_version"] = fmt.FORMAT_VERSION
-    next(p for p in proto.metadata_props if p.key == fmt.METADATA_KEY).value = json.dumps(manifest, indent=1)
-    return sealed_bytes(proto)
-
-
-def sealed_bytes(proto) -> bytes:
-    """An onnx.ModelProto's bytes with a fresh seal (any old one dropped first)."""
-    import onnx
-
-    props = [(p.key, p.value) for p in proto.metadata_props if p.key != fmt.SEAL_KEY]
-    del proto.metadata_props[:]
-    onnx.helper.set_model_props(proto, dict(props))
-    return fmt.seal(proto.SerializeToString())
+    props = {**onnxfile.parse(model.data).metadata, fmt.METADATA_KEY: json.dumps(manifest, indent=1)}
+    return fmt.seal(onnxfile.with_metadata(model.data, props))
 
 
 def stage_model(model: onnxfile.OnnxModel, inputs: list, outputs: list, path: Path) -> bytes:

@@ -192,14 +192,82 @@ def finish(mesh, smooth: int = 0, smoother: str = "laplacian", largest: bool = F
     if smoother not in SMOOTHERS:
         raise InputError(f"unknown smoother {smoother!r}; choose {' or '.join(SMOOTHERS)}", "smoother")
     if largest and len(mesh.faces):
-        parts = mesh.split(only_watertight=False)
-        mesh = max(parts, key=lambda part: len(part.faces))
+        mesh = largest_part(mesh)
     if smooth and len(mesh.faces):
-        import trimesh
-
-        # The paper smooths with 3 Laplacian iterations; Taubin keeps the volume.
-        if smoother == "laplacian":
-            trimesh.smoothing.filter_laplacian(mesh, iterations=smooth)
-        else:
-            trimesh.smoothing.filter_taubin(mesh, iterations=smooth)
+        mesh.vertices = smoothed(mesh.vertices, mesh.faces, smooth, smoother)
     return mesh
+
+
+# The clean-up below is trimesh's split, filter_laplacian and filter_taubin
+# (default arguments) in plain numpy: trimesh's need scipy or networkx, which
+# the runtime does without. mesh.js's smooth is the same Laplacian.
+
+def largest_part(mesh):
+    """The connected part with the most faces (faces joined by a shared
+    edge, as trimesh's split joins them; a tie goes to the part holding the
+    lowest face index), with its vertices in their old order."""
+    import trimesh
+
+    faces = np.asarray(mesh.faces)
+    pairs = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1).astype(np.int64)
+    key = pairs[:, 0] * len(mesh.vertices) + pairs[:, 1]
+    order = np.argsort(key, kind="stable")
+    shared = key[order[1:]] == key[order[:-1]]  # consecutive sides of one edge
+    part = connected_parts(order[:-1][shared] // 3, order[1:][shared] // 3, len(faces))
+    kept = faces[part == np.argmax(np.bincount(part))]
+    used = np.bincount(kept.ravel(), minlength=len(mesh.vertices)) > 0
+    return trimesh.Trimesh(np.asarray(mesh.vertices)[used], (np.cumsum(used) - 1)[kept], process=False)
+
+
+def connected_parts(a: np.ndarray, b: np.ndarray, count: int) -> np.ndarray:
+    """Each of `count` nodes labelled by the lowest node of its part, joined
+    by the edges a[i]-b[i]: every round hooks each edge's higher root under
+    the lower one, then jumps pointers until every node points at a root."""
+    label = np.arange(count)
+    while True:
+        low = np.minimum(label[a], label[b])
+        hooked = label.copy()
+        np.minimum.at(hooked, label[a], low)
+        np.minimum.at(hooked, label[b], low)
+        while not np.array_equal(hooked, hooked[hooked]):
+            hooked = hooked[hooked]
+        if np.array_equal(hooked, label):
+            return label
+        label = hooked
+
+
+def smoothed(vertices: np.ndarray, faces: np.ndarray, iterations: int, smoother: str = "laplacian",
+             lamb: float = 0.5, nu: float = 0.5) -> np.ndarray:
+    """The vertices after `iterations` steps that each move every vertex by
+    lamb towards the mean of its neighbours. Laplacian then rescales about
+    the centre of mass to the first volume; Taubin alternates the step with
+    one back by nu instead, which keeps the volume without rescaling."""
+    count = len(vertices)
+    pairs = np.sort(np.asarray(faces)[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1).astype(np.int64)
+    edge = np.sort(pairs[:, 0] * count + pairs[:, 1])
+    edge = edge[np.append(True, edge[1:] != edge[:-1])]  # each edge once (np.unique is far slower)
+    # Both directions of every edge, by their first vertex: a vertex's
+    # neighbours are one run of `neighbour` (every vertex has some: it is on a face).
+    first, neighbour = np.concatenate([edge // count, edge % count]), np.concatenate([edge % count, edge // count])
+    order = np.argsort(first, kind="stable")
+    neighbour, starts = neighbour[order], np.searchsorted(first[order], np.arange(count))
+    degree = np.diff(np.append(starts, len(neighbour)))[:, None]
+    current = np.array(vertices, dtype=np.float64)
+    volume, center = mass_properties(current, faces) if smoother == "laplacian" else (None, None)
+    for step in range(iterations):
+        towards = np.add.reduceat(current[neighbour], starts) / degree - current
+        if smoother == "taubin":
+            current += lamb * towards if step % 2 == 0 else -nu * towards
+            continue
+        current += lamb * towards
+        current = (current - center) * np.cbrt(volume / mass_properties(current, faces)[0]) + center
+    return current
+
+
+def mass_properties(vertices: np.ndarray, faces: np.ndarray) -> tuple:
+    """(volume, centre of mass) of a closed mesh, by the divergence theorem."""
+    x0, x1, x2 = (vertices[faces[:, k]] for k in range(3))
+    cross = np.cross(x1 - x0, x2 - x0)
+    f1 = x0 + x1 + x2
+    volume = (cross[:, 0] * f1[:, 0]).sum() / 6
+    return volume, (cross * (x0 * x0 + x1 * x1 + x0 * x1 + x2 * f1)).sum(axis=0) / 24 / volume

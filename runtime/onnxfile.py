@@ -198,6 +198,14 @@ def encode_varint(value: int) -> bytes:
             return bytes(out)
 
 
+def with_metadata(data: bytes, props: dict) -> bytes:
+    """The model's bytes with its metadata_props replaced by `props` (str -> str),
+    every other field copied as it is."""
+    kept = b"".join(data[first:last] for number, _, _, (first, last) in fields(data) if number != MODEL_METADATA)
+    return kept + b"".join(entry(MODEL_METADATA, entry(1, key.encode()) + entry(2, value.encode()))
+                           for key, value in props.items())
+
+
 def stage_bytes(model: OnnxModel, nodes: list, weights: list, inputs: list, outputs: list) -> bytes:
     """A model of the given nodes, weights and graph inputs and outputs (names),
     with the file's IR version and opsets: entries copied as they are."""

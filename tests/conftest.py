@@ -26,6 +26,17 @@ def tiny_pyramid(tmp_path_factory):
     return write_pyramid(tmp_path_factory.mktemp("data") / "terrain.h5", [(15, 15, 15), (20, 18, 15)])
 
 
+def sealed_bytes(proto) -> bytes:
+    """An onnx.ModelProto's bytes sealed afresh (any old seal dropped), as if the
+    trainer had written it: the checks after the seal's are what a test reaches."""
+    from sinshape.core import manifest as fmt
+    from sinshape.runtime import onnxfile
+
+    data = proto.SerializeToString()
+    props = {key: value for key, value in onnxfile.parse(data).metadata.items() if key != fmt.SEAL_KEY}
+    return fmt.seal(onnxfile.with_metadata(data, props))
+
+
 # The same model as tiny_model trains, made once with
 #   sinrun train terrain.h5 -o tiny.onnx --preset tiny --iters 3
 # on write_pyramid's terrain.h5 (sizes as in tiny_pyramid): where torch is not

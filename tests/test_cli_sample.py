@@ -10,7 +10,7 @@ import pytest
 import trimesh
 from click.testing import CliRunner
 
-from conftest import TINY_ONNX
+from conftest import TINY_ONNX, sealed_bytes
 
 from sinshape.cli.main import cli
 from sinshape.runtime import load
@@ -171,7 +171,7 @@ def rewrite_manifest(source, target, change):
             manifest = json.loads(prop.value)
             change(manifest)
             prop.value = json.dumps(manifest)
-    target.write_bytes(load.sealed_bytes(model))
+    target.write_bytes(sealed_bytes(model))
     return target
 
 
@@ -189,7 +189,7 @@ def external_data_model(source, path):
     tensor.data_location = onnx.TensorProto.EXTERNAL
     entry = tensor.external_data.add()
     entry.key, entry.value = "location", "weights.bin"
-    path.write_bytes(load.sealed_bytes(model))  # onnx.save would try to write the data file
+    path.write_bytes(sealed_bytes(model))  # onnx.save would try to write the data file
     (path.parent / "weights.bin").write_bytes(b"\0" * 1024)
     return path
 

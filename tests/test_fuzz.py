@@ -29,7 +29,7 @@ from click.testing import CliRunner
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from conftest import TINY_ONNX
+from conftest import TINY_ONNX, sealed_bytes
 from sinshape import runtime
 from sinshape.cli.main import cli
 from sinshape.cli.params import SEEDS
@@ -335,7 +335,7 @@ def test_corrupted_models_are_refused_or_work(folder, data):
             weights = [(t.name, onnx.numpy_helper.to_array(t)) for t in proto.graph.initializer]
             manifest["checksum"] = fmt.checksum_v2(manifest, weights)
         entry.value = json.dumps(manifest)
-        raw = load.sealed_bytes(proto) if reseal and source == TINY_ONNX else proto.SerializeToString()
+        raw = sealed_bytes(proto) if reseal and source == TINY_ONNX else proto.SerializeToString()
     else:
         raw = corrupt(raw, data.draw)
     path = folder / "bad.onnx"

@@ -9,6 +9,7 @@ import onnx
 import pytest
 from click.testing import CliRunner
 
+from conftest import sealed_bytes
 from sinshape import models
 from sinshape.cli.main import cli
 from sinshape.runtime import load, load_model
@@ -34,7 +35,7 @@ def altered(source, target: Path, change, seal=True) -> Path:
     its old seal kept, as an editor that knows nothing of seals leaves it."""
     model = onnx.load(source)
     change(model)
-    target.write_bytes(load.sealed_bytes(model) if seal else model.SerializeToString())
+    target.write_bytes(sealed_bytes(model) if seal else model.SerializeToString())
     return target
 
 

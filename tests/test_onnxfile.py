@@ -33,6 +33,15 @@ def test_a_stage_cut_from_the_file_is_a_model_onnx_accepts():
     assert stage.opset_import[0].version == onnx.load(TINY_ONNX).opset_import[0].version
 
 
+def test_new_metadata_replaces_the_old_and_leaves_the_graph_as_it_was():
+    data = TINY_ONNX.read_bytes()
+    changed = onnxfile.with_metadata(data, {"a": "1", "sinshape": "{}"})
+    theirs, before = onnx.load_model_from_string(changed), onnx.load_model_from_string(data)
+    assert {p.key: p.value for p in theirs.metadata_props} == {"a": "1", "sinshape": "{}"}
+    assert theirs.graph.SerializeToString() == before.graph.SerializeToString()
+    assert list(theirs.opset_import) == list(before.opset_import) and theirs.ir_version == before.ir_version
+
+
 def test_float_data_weights_read_as_raw_ones():
     values = np.arange(6, dtype=np.float32).reshape(2, 3)
     tensor = onnx.helper.make_tensor("w", onnx.TensorProto.FLOAT, [2, 3], values.ravel().tolist())
