@@ -11,6 +11,12 @@ runs single-threaded and says so. The folder says how to send them: its
 serve.py (Python's file server plus the headers), a `_headers` file (the
 format of Netlify and Cloudflare Pages) and README.txt.
 
+Beside every file that gzip shrinks by a fifth or more (the .wasm, the
+scripts) lies FILE.gz, made once (compress.py), which serve.py sends to
+clients that accept gzip, as nginx's gzip_static does. Every answer says
+Cache-Control: no-cache (names are not versioned: a browser keeps files and
+revalidates them, 304).
+
 Needs no FastAPI: only the runtime (to check the models) and the files.
 """
 
@@ -22,33 +28,111 @@ from sinshape import models as shipped
 from sinshape.core import files
 from sinshape.core.errors import InputError
 from sinshape.runtime import load
+from sinshape.serve import compress
 
 STATIC = Path(__file__).parent / "static"
 MARKER = ".sinshape-site"  # marks a folder this command wrote, so a new export may replace it
-HEADERS = {"Cross-Origin-Opener-Policy": "same-origin", "Cross-Origin-Embedder-Policy": "require-corp"}
+# Every answer, from serve.py and (through _headers) from Netlify or Cloudflare Pages.
+HEADERS = {"Cross-Origin-Opener-Policy": "same-origin", "Cross-Origin-Embedder-Policy": "require-corp",
+           "Cache-Control": "no-cache"}
 
-SERVE_PY = '''"""Serve this folder with the cross-origin isolation headers that let
-onnxruntime-web run WASM on several threads:  python serve.py [PORT]
-(`python -m http.server` works too, single-threaded.)"""
+SERVE_PY = '''"""Serve this folder:  python serve.py [PORT]   (Python 3.8 or newer, nothing else)
 
+Sends what `python -m http.server` does not: the cross-origin isolation
+headers that let onnxruntime-web run WASM on several threads; FILE.gz in
+place of FILE to a client that accepts gzip (Content-Encoding: gzip, the
+type of FILE); and Cache-Control: no-cache with an ETag and Last-Modified,
+so a browser keeps what it fetched and checks it with a short request (304)
+on each visit: the files' names are not versioned, so nothing may be reused
+without asking.
+"""
+
+import email.utils
 import functools
 import http.server
+import os
 import sys
-from pathlib import Path
+
+TYPES = {".html": "text/html; charset=utf-8", ".js": "text/javascript", ".mjs": "text/javascript",
+         ".wasm": "application/wasm", ".json": "application/json", ".css": "text/css",
+         ".onnx": "application/octet-stream", ".gz": "application/gzip"}
+
+
+def accepts_gzip(header):
+    """'gzip, br' yes; 'gzip;q=0' and 'identity' no; '*' yes."""
+    for item in header.split(","):
+        name, _, parameters = item.partition(";")
+        if name.strip().lower() in ("gzip", "x-gzip", "*"):
+            quality = parameters.strip().lower().replace(" ", "")
+            try:
+                return not (quality.startswith("q=") and float(quality[2:]) == 0)
+            except ValueError:
+                return False
+    return False
 
 
 class Handler(http.server.SimpleHTTPRequestHandler):
-    extensions_map = {**http.server.SimpleHTTPRequestHandler.extensions_map,
-                      ".js": "text/javascript", ".mjs": "text/javascript", ".wasm": "application/wasm"}
+    protocol_version = "HTTP/1.1"  # keep-alive: a visit's requests share connections
+    extensions_map = {**http.server.SimpleHTTPRequestHandler.extensions_map, **TYPES}
 
     def end_headers(self):
         self.send_header("Cross-Origin-Opener-Policy", "same-origin")
         self.send_header("Cross-Origin-Embedder-Policy", "require-corp")
         super().end_headers()
 
+    def send_head(self):
+        path = self.translate_path(self.path)
+        if self.path.split("?", 1)[0].split("#", 1)[0].endswith("/"):
+            path = os.path.join(path, "index.html")
+        if not os.path.isfile(path):
+            return super().send_head()  # folders, missing files: as http.server answers them
+        packed = path + ".gz"
+        has_packed = os.path.isfile(packed)
+        chosen = packed if has_packed and accepts_gzip(self.headers.get("Accept-Encoding", "")) else path
+        try:
+            file = open(chosen, "rb")
+        except OSError:
+            self.send_error(404, "File not found")
+            return None
+        stat = os.fstat(file.fileno())
+        etag = '"%x-%x%s"' % (stat.st_size, stat.st_mtime_ns, "-gzip" if chosen == packed else "")
+        if self.unchanged(etag, int(stat.st_mtime)):
+            file.close()
+            self.send_response(304)
+            self.send_validators(etag, stat, has_packed)
+            self.end_headers()
+            return None
+        self.send_response(200)
+        self.send_header("Content-Type", self.guess_type(path))
+        if chosen == packed:
+            self.send_header("Content-Encoding", "gzip")
+        self.send_header("Content-Length", str(stat.st_size))
+        self.send_validators(etag, stat, has_packed)
+        self.end_headers()
+        return file
+
+    def unchanged(self, etag, modified):
+        """If-None-Match names this tag, or (without it) If-Modified-Since is not before the file's time."""
+        tags = self.headers.get("If-None-Match")
+        if tags is not None:
+            return any(tag.strip() in (etag, "W/" + etag, "*") for tag in tags.split(","))
+        since = self.headers.get("If-Modified-Since")
+        try:
+            return since is not None and modified <= email.utils.parsedate_to_datetime(since).timestamp()
+        except (TypeError, ValueError, IndexError, OverflowError):
+            return False
+
+    def send_validators(self, etag, stat, has_packed):
+        self.send_header("Cache-Control", "no-cache")
+        self.send_header("ETag", etag)
+        self.send_header("Last-Modified", self.date_time_string(stat.st_mtime))
+        if has_packed:  # on both answers, so that no cache gives gzip to a client that did not ask
+            self.send_header("Vary", "Accept-Encoding")
+
 
 port = int(sys.argv[1]) if len(sys.argv) > 1 else 8000
-server = http.server.ThreadingHTTPServer(("127.0.0.1", port), functools.partial(Handler, directory=Path(__file__).parent))
+folder = os.path.dirname(os.path.abspath(__file__))
+server = http.server.ThreadingHTTPServer(("127.0.0.1", port), functools.partial(Handler, directory=folder))
 print(f"serving on http://127.0.0.1:{port}/ (Ctrl-C stops)")
 try:
     server.serve_forever()
@@ -60,9 +144,10 @@ README = """sinshape in the browser: {names}
 
 Open index.html through any static file server; samples are made in the
 browser (onnxruntime-web), nothing runs on the server, nothing is fetched
-from elsewhere. For example:
+from elsewhere. For example, in this folder:
 
-    python -m http.server -d .        then open http://localhost:8000/
+    python serve.py                   then open http://127.0.0.1:8000/
+    python -m http.server             (or this: single-threaded, uncompressed)
 
 WASM runs on several threads only when the page is cross-origin isolated,
 which needs these two headers on every file:
@@ -75,12 +160,13 @@ Cloudflare Pages; for nginx: add_header for both. Without them the page
 works single-threaded and says so. Opening index.html as a file:// URL does
 not work (browsers do not load modules from files).
 
-The files are sent as they are unless the server compresses them; the
-.wasm is 28 MB, 6.7 MB gzipped. Over a network, let the server gzip
-application/wasm and JavaScript (nginx: gzip on; gzip_comp_level 6;
-gzip_types text/javascript application/javascript application/wasm;
-and map .mjs to text/javascript). The sinshape documentation, docs/WEB.md,
-has a whole nginx configuration.
+FILE.gz beside a file is that file gzipped (level 9): serve.py sends it,
+with Content-Encoding: gzip, to browsers that accept gzip, so the 14 MB
+.wasm travels as 3.7 MB; nginx does the same with `gzip_static on;`.
+Netlify and Cloudflare Pages compress on their own. Files are sent with
+Cache-Control: no-cache: browsers keep them and revalidate (304), since
+their names do not change when their contents do. The sinshape
+documentation, docs/WEB.md, has a whole nginx configuration.
 
 Made by `sinrun export-web` (sinshape {version}).
 """
@@ -132,6 +218,7 @@ def write_site(folder: Path, models: dict, version: str) -> None:
     (folder / "serve.py").write_text(SERVE_PY)
     (folder / "_headers").write_text("/*\n" + "".join(f"  {k}: {v}\n" for k, v in HEADERS.items()))
     (folder / "README.txt").write_text(README.format(names=", ".join(models), version=version))
+    compress.write_beside(folder)
     (folder / MARKER).write_text(json.dumps({"sinshape": version, "models": list(models)}) + "\n")
 
 

@@ -36,14 +36,13 @@ class Handler(http.server.SimpleHTTPRequestHandler):
 
 
 @contextlib.contextmanager
-def http_server_process(folder: Path):
-    """`python -m http.server -d FOLDER` itself, in a child process on a free
-    loopback port, as a user would run it: yields the base URL."""
+def server_process(command, folder: Path, what: str):
+    """`command` (its last argument the port) run in `folder`, a child process
+    on a free loopback port: yields the base URL once it answers."""
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))
         port = probe.getsockname()[1]
-    process = subprocess.Popen([sys.executable, "-m", "http.server", "-d", str(folder), "--bind", "127.0.0.1",
-                                str(port)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    process = subprocess.Popen([*command, str(port)], cwd=folder, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     base = f"http://127.0.0.1:{port}"
     try:
         for _ in range(100):
@@ -52,11 +51,21 @@ def http_server_process(folder: Path):
                 break
             time.sleep(0.1)
         else:
-            raise AssertionError("python -m http.server did not answer within 10 s")
+            raise AssertionError(f"{what} did not answer within 10 s")
         yield base
     finally:
         process.terminate()
         process.wait(timeout=10)
+
+
+def http_server_process(folder: Path):
+    """`python -m http.server` in FOLDER itself, as a user would run it: yields the base URL."""
+    return server_process([sys.executable, "-m", "http.server", "--bind", "127.0.0.1"], folder, "python -m http.server")
+
+
+def site_server_process(folder: Path):
+    """`python serve.py` of a folder `sinrun export-web` wrote, as its README says: yields the base URL."""
+    return server_process([sys.executable, "-I", "-S", "serve.py"], folder, "the site's serve.py")  # the standard library only
 
 
 @contextlib.contextmanager

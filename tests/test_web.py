@@ -5,11 +5,6 @@ Debian's headless chromium against the Python runtime, on a site written by
 import base64
 import json
 import re
-import socket
-import subprocess
-import sys
-import time
-import urllib.request
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +13,7 @@ import pytest
 from click.testing import CliRunner
 from onnx import TensorProto, helper
 
-from browser import CHROMIUM, http_server_process, launch, open_page
+from browser import CHROMIUM, http_server_process, launch, open_page, site_server_process
 from conftest import sealed_bytes
 from sinshape import models
 from sinshape.cli.main import cli
@@ -82,12 +77,14 @@ def browser(playwright):
 
 @pytest.fixture(scope="module")
 def site_page(tmp_path_factory, browser):
-    """`sinrun export-web terrain -o site && python -m http.server -d site`, in chromium."""
+    """`sinrun export-web terrain -o site && cd site && python serve.py`, in chromium
+    (page.answers: the headers of every answer the page and its worker got, by path)."""
     folder = tmp_path_factory.mktemp("web") / "site"
     site.export_site(["terrain", "towerruins"], folder)
-    with http_server_process(folder) as base:
+    with site_server_process(folder) as base:
         page = open_page(browser, base)
-        page.base, page.folder = base, folder
+        page.base, page.folder, page.answers = base, folder, {}
+        page.on("response", lambda answer: page.answers.setdefault(answer.url.removeprefix(base), answer.headers))
         yield page
         page.close()
 
@@ -105,8 +102,12 @@ def test_the_exported_page_samples_in_the_browser(site_page, terrain, tmp_path):
     assert re.fullmatch(r"[\d,]+ faces · \d+\.\d\d s · in this browser", status), status
     python_faces = len(mesh.band_mesh(terrain, sample(terrain, 3), 1).faces)
     assert abs(int(status.split()[0].replace(",", "")) - python_faces) <= python_faces / 1000
-    # No headers for threads here: the page says it runs on one.
-    assert "WASM, 1 thread (the page is not cross-origin isolated" in page.text_content("#backend")
+    # serve.py sends the isolation headers (WASM on threads) and the .gz copies, which the browser unpacks.
+    assert page.evaluate("crossOriginIsolated")
+    assert re.search(r"on WASM, \d+ threads?; model loaded", page.text_content("#backend"))
+    wasm = page.answers["/static/vendor/onnxruntime-web/ort-wasm-simd-threaded.wasm"]
+    assert wasm["content-encoding"] == "gzip" and wasm["content-type"] == "application/wasm"
+    assert page.answers["/static/vendor/onnxruntime-web/ort.wasm.min.mjs"]["content-encoding"] == "gzip"
     assert not page.is_visible("#where")  # a static site has no server to switch to
     sides = page.evaluate("() => { const s = []; window.sinshapeView.scene.traverse((n) => n.isMesh && s.push(n.material.side)); return s; }")
     assert sides == [0], sides  # the browser's mesh: front faces only (THREE.FrontSide), as the server's
@@ -119,6 +120,20 @@ def test_the_exported_page_samples_in_the_browser(site_page, terrain, tmp_path):
     assert not page.errors and not page.outside
 
 
+def test_without_the_isolation_headers_the_page_runs_on_one_thread(site_page):
+    """`python -m http.server` sends no COOP/COEP: the page samples on one thread and says why."""
+    with http_server_process(site_page.folder) as base:
+        page = open_page(site_page.context.browser, base)
+        try:
+            page.goto(f"{base}/?seed=3&up=z")
+            assert wait_done(page) == "ready", page.text_content("#error")
+            assert not page.evaluate("crossOriginIsolated")
+            assert "WASM, 1 thread (the page is not cross-origin isolated" in page.text_content("#backend")
+            assert not page.errors and not page.outside
+        finally:
+            page.close()
+
+
 def test_a_browser_sample_shows_progress_and_cancel_ends_its_worker(site_page):
     """The runtime runs in a worker: the page shows how far a long sample is;
     cancel ends the worker, and the next sample starts a fresh one."""
@@ -127,8 +142,9 @@ def test_a_browser_sample_shows_progress_and_cancel_ends_its_worker(site_page):
     page.wait_for_function("document.getElementById('progress').value > 0", timeout=60_000)
     assert re.fullmatch(r"(querying the grid|meshing)… \d+%", page.text_content("#status")), page.text_content("#status")
     assert page.evaluate("document.body.dataset.state") == "loading" and page.is_visible("#cancel")
-    (worker,) = page.workers
-    assert worker.url.endswith("/static/sinshape/worker.js")
+    # The runtime's worker; onnxruntime-web's own threads are workers too, started by it.
+    runtime_workers = lambda: [w for w in page.workers if w.url.endswith("/static/sinshape/worker.js")]  # noqa: E731
+    (worker,) = runtime_workers()
     with worker.expect_event("close"):  # ended, not left to finish
         page.click("#cancel")
     assert page.evaluate("document.body.dataset.state") == "cancelled" and page.text_content("#status") == "cancelled"
@@ -137,7 +153,7 @@ def test_a_browser_sample_shows_progress_and_cancel_ends_its_worker(site_page):
     page.press("#scale", "Enter")
     assert wait_done(page) == "ready", page.text_content("#error")
     assert page.text_content("#status").startswith("18,124 faces")  # seed 3 at scale 1, made by a fresh worker
-    assert len(page.workers) == 1 and not page.errors and not page.outside
+    assert len(runtime_workers()) == 1 and not page.errors and not page.outside
 
 
 def test_noise_vectors_bit_for_bit(site_page):
@@ -434,12 +450,6 @@ def test_the_serve_page_switches_to_the_browser(browser):
         assert not page.errors and not page.outside
 
 
-def free_port() -> int:
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        return probe.getsockname()[1]
-
-
 def run(*args):
     return CliRunner().invoke(cli, [str(a) for a in args])
 
@@ -456,26 +466,6 @@ def test_export_web_writes_replaces_and_refuses(tmp_path):
     vendored = {p.name for p in (out / "static" / "vendor" / "onnxruntime-web").iterdir()}
     assert {"ort.wasm.min.mjs", "ort-wasm-simd-threaded.mjs", "ort-wasm-simd-threaded.wasm", "LICENSE"} <= vendored
     assert not [name for name in vendored if "jsep" in name or name.startswith("ort.min.")]
-    # Its serve.py sends the headers that let WASM use threads, and JavaScript and WASM types.
-    port = free_port()
-    server = subprocess.Popen([sys.executable, "serve.py", str(port)], cwd=out, stdout=subprocess.DEVNULL)
-    try:
-        for _ in range(100):
-            try:
-                answers = {path: urllib.request.urlopen(f"http://127.0.0.1:{port}/{path}", timeout=5).headers
-                           for path in ("", "static/sinshape/runtime.js",
-                                        "static/vendor/onnxruntime-web/ort-wasm-simd-threaded.wasm")}
-                break
-            except OSError:
-                time.sleep(0.1)
-        else:
-            raise AssertionError("serve.py did not answer")
-    finally:
-        server.terminate()
-        server.wait(timeout=10)
-    assert all(h["Cross-Origin-Embedder-Policy"] == "require-corp" for h in answers.values())
-    assert answers["static/sinshape/runtime.js"]["Content-Type"] == "text/javascript"
-    assert answers["static/vendor/onnxruntime-web/ort-wasm-simd-threaded.wasm"]["Content-Type"] == "application/wasm"
     # A previous export is replaced; any other folder with files is refused, untouched.
     (out / "stale.txt").write_text("x")
     assert run("export-web", "terrain", "-o", out).exit_code == 0
