@@ -2,10 +2,11 @@
 (no extras) package by package, for this checkout and another commit, side
 by side in one run.
 
-    python benchmarks/install_size.py [--before GIT_REF] [--extras prep,train]
+    python benchmarks/install_size.py [--before GIT_REF] [--now GIT_REF] [--extras prep,train]
 
-Each side is built into a wheel (`pip wheel --no-deps`) and installed into
-a fresh venv; sizes are what the files take on disk (`du`), without pip and
+Each side is a commit (`now`: HEAD), taken with `git archive` so that nothing
+untracked or stale (an old build/ folder) slips in, built into a wheel
+(`pip wheel --no-deps`) and installed into a fresh venv; sizes are what the files take on disk (`du`), without pip and
 setuptools, which every venv has. Needs the network or a pip cache for the
 dependencies, like any install.
 """
@@ -47,20 +48,20 @@ def measure(source: Path, work: Path, extras: str) -> dict:
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--before", default=None, help="a git commit to compare with (default: none)")
+    parser.add_argument("--now", default="HEAD", help="the git commit to measure (default: HEAD)")
     parser.add_argument("--extras", default="", help="extras to install on both sides, e.g. prep")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        sides = {"now": ROOT}
-        if args.before:
-            (tmp / "before-src").mkdir()
-            archive = subprocess.run(["git", "-C", str(ROOT), "archive", args.before], capture_output=True, check=True)
-            subprocess.run(["tar", "-x", "-C", str(tmp / "before-src")], input=archive.stdout, check=True)
-            sides = {"before": tmp / "before-src", **sides}
+        sides = {"before": args.before, "now": args.now} if args.before else {"now": args.now}
+        for side, ref in sides.items():
+            (tmp / f"{side}-src").mkdir()
+            archive = subprocess.run(["git", "-C", str(ROOT), "archive", ref], capture_output=True, check=True)
+            subprocess.run(["tar", "-x", "-C", str(tmp / f"{side}-src")], input=archive.stdout, check=True)
         results = {}
-        for side, source in sides.items():
+        for side in sides:
             (tmp / side).mkdir()
-            results[side] = measure(source, tmp / side, args.extras)
+            results[side] = measure(tmp / f"{side}-src", tmp / side, args.extras)
     mb = 1e6
     print(f"extras: {args.extras or 'none'}")
     print(f"{'':24}" + "".join(f"{side:>12}" for side in results))
