@@ -488,6 +488,7 @@ def create_app(loaded: dict, slots: int | None = None, timeout: float = 60.0,
     slots = slots or load.default_threads()
     allowed = {name.lower().strip("[]") for name in allowed_hosts}
     sealed = {name: load.format3_bytes(model) for name, model in loaded.items()}  # never re-read from disk
+    sealed_tags = {name: f'"{hashlib.sha256(data).hexdigest()[:40]}"' for name, data in sealed.items()}
 
     @asynccontextmanager
     async def lifespan(app):
@@ -559,11 +560,16 @@ def create_app(loaded: dict, slots: int | None = None, timeout: float = 60.0,
 
     @app.get("/api/models/{name}/onnx", summary="The model file, as loaded and checked at start-up, sealed "
              "as format 3 (what the browser reads)", response_class=Response,
-             responses={200: {"content": {"application/octet-stream": {}}}, **errors(404)})
-    async def model_file(name: str):
+             responses={200: {"content": {"application/octet-stream": {}}},
+                        304: {"description": "Not modified: If-None-Match named its ETag"}, **errors(404)})
+    async def model_file(request: Request, name: str):
         find(name)
-        return Response(sealed[name], media_type="application/octet-stream",
-                        headers={"Content-Disposition": f'attachment; filename="{name}.onnx"'})
+        headers = {"ETag": sealed_tags[name], "Cache-Control": "no-cache",
+                   "Content-Disposition": f'attachment; filename="{name}.onnx"'}
+        known = [tag.strip().removeprefix("W/") for tag in request.headers.get("if-none-match", "").split(",")]
+        if sealed_tags[name] in known:  # the browser has it: a page's second visit fetches no model again
+            return Response(status_code=304, headers=headers)
+        return Response(sealed[name], media_type="application/octet-stream", headers=headers)
 
     @app.get("/api/models/{name}/sample", summary="One sample as a file",
              response_class=Response, responses=FILE_ANSWERS)

@@ -127,6 +127,11 @@ def test_the_model_file_and_isolation_headers_for_the_browser(server):
     base, _ = server
     status, headers, body = get(f"{base}/api/models/terrain/onnx")
     assert status == 200 and body == models.find("terrain").read_bytes()
+    assert headers["Cache-Control"] == "no-cache" and headers["ETag"].startswith('"')
+    assert get(f"{base}/api/models/terrain/onnx", {"If-None-Match": headers["ETag"]})[:3:2] == (304, b"")
+    status, packed, _ = get(f"{base}/api/models/terrain/onnx", {"Accept-Encoding": "gzip"})
+    assert status == 200 and packed["ETag"] == f"W/{headers['ETag']}"  # the browser's copy, gzipped, revalidates too
+    assert get(f"{base}/api/models/terrain/onnx", {"Accept-Encoding": "gzip", "If-None-Match": packed["ETag"]})[0] == 304
     for url in (f"{base}/", f"{base}/static/sinshape/runtime.js", f"{base}/api/models"):
         status, headers, _ = get(url)
         assert status == 200 and headers["Cross-Origin-Opener-Policy"] == "same-origin"
