@@ -4,6 +4,7 @@ Heavy imports (torch, onnxruntime, trimesh) happen inside the commands, so
 `--help` is instant and everything but `train` works without torch.
 """
 
+import math
 import re
 import signal
 import sys
@@ -12,9 +13,9 @@ from pathlib import Path
 import click
 
 from sinshape.core import files
-from sinshape.core.errors import InputError
+from sinshape.core.errors import ConflictError, InputError
 
-from .params import FRACTIONS, SEEDS, SIZE, named_output
+from .params import FRACTIONS, SEEDS, SIZE, check_sample_options, named_output
 from .progress import StageProgress, TrainProgress, format_seconds, progress_bar
 
 # Library errors name a function's parameter; on the command line it is an option.
@@ -34,15 +35,17 @@ EXTRAS = {"torch": "train", "onnx": "train", "scipy": "prep", "h5py": "prep", "s
 
 
 def command_line_message(error: InputError, options: dict = OPTIONS) -> str:
-    """The error's message with its parameter written as the option that sets it."""
+    """The error's message with its parameter (each, for a tuple) written as the option that sets it."""
     message = str(error)
-    if error.parameter not in options:
-        return message
-    words = list(re.finditer(rf"\b{error.parameter}\b", message))
-    if not words:
-        return message
-    last = words[-1]
-    return message[:last.start()] + options[error.parameter] + message[last.end():]
+    names = error.parameter if isinstance(error.parameter, tuple) else (error.parameter,)
+    lasts = []
+    for name in names:
+        words = list(re.finditer(rf"\b{name}\b", message)) if name in options else []
+        if words:
+            lasts.append((words[-1], options[name]))
+    for last, option in sorted(lasts, key=lambda found: found[0].start(), reverse=True):  # later words first
+        message = message[:last.start()] + option + message[last.end():]
+    return message
 
 
 class Sinrun(click.Group):
@@ -76,11 +79,26 @@ def cli():
     """
 
 
+class Command(click.Command):
+    """A sinrun command: parameters the library refuses together
+    (ConflictError) are a misuse of the command, reported with its usage."""
+
+    def invoke(self, ctx):
+        try:
+            return super().invoke(ctx)
+        except ConflictError as error:
+            options = {name: "--" + name.replace("_", "-") for name in error.parameter}
+            raise click.UsageError(command_line_message(error, {**options, **OPTIONS}), ctx) from None
+
+
+cli.command_class = Command
+
+
 def raise_interrupt(signum, frame):
     raise KeyboardInterrupt
 
 
-class TrainCommand(click.Command):
+class TrainCommand(Command):
     """`sinrun train --help` ends with what --device auto and --precision auto
     pick on this machine, and why (it imports torch only then)."""
 
@@ -153,31 +171,18 @@ def train(input_path, output, preset, res, levels, iters, minutes, min_iters, de
     Checkpoints are written after every level and every 5 minutes; Ctrl-C
     saves one and stops; --resume continues.
     """
-    import contextlib
-    import signal
+    from sinshape.trainer import config as configs, train as training
 
-    from sinshape.trainer import config as configs
-    from sinshape.trainer import train as training
-
-    if iters is not None and minutes is not None:
-        raise click.UsageError("give --iters or --minutes, not both: a time budget plans the iterations")
-    overrides = dict(preset=preset, res=res, levels=levels, iters=iters, minutes=minutes, min_iters=min_iters,
-                     precision=precision, box=box, lr=lr, seed=seed, up=up, generator=generator)
-    given = [f"--{name.replace('_', '-')}" for name, value in overrides.items() if value is not None]
-    if resume and given:
-        raise click.UsageError(f"--resume continues with the checkpoint's settings; leave out {', '.join(given)}")
-    config = None if resume else configs.make_config(**{**overrides, "preset": preset or "default"})
+    config = configs.make_config(preset, resume, res=res, levels=levels, iters=iters, minutes=minutes, min_iters=min_iters,
+                                 precision=precision, box=box, lr=lr, seed=seed, up=up, generator=generator)
     if levels is None:  # an .h5 file with fewer levels blames where the count came from
         click.get_current_context().meta[SOURCES] = {
             "levels": "the checkpoint's levels" if resume else f"the {preset or 'default'} preset's levels"}
-    report = (lambda message: None) if quiet else (lambda message: click.echo(message, err=True))
     signal.signal(signal.SIGTERM, raise_interrupt)  # `kill` saves a checkpoint too, like Ctrl-C
     try:
-        with contextlib.nullcontext() if quiet else TrainProgress() as progress:
-            manifest = training.train(
-                input_path, output, config, resume=resume, device=device, checkpoint_path=checkpoint,
-                progress=progress, log=report,
-            )
+        with TrainProgress(quiet=quiet) as progress:
+            manifest = training.train(input_path, output, config, resume=resume, device=device,
+                                      checkpoint_path=checkpoint, progress=progress, log=progress.log)
     except training.Interrupted as error:
         click.echo(str(error), err=True)
         sys.exit(130)
@@ -275,43 +280,33 @@ def sample(model, seed, seeds, recon, keep, layout_file, resample_layout, grow_b
     (`sinrun models` lists them); without it, the default shipped model.
     Needs no torch.
     """
-    from sinshape.runtime import edit, generate, write
+    from sinshape.runtime import write
 
-    if sum(x is not None and x is not False for x in (seed, seeds, recon or None)) > 1:
-        raise click.UsageError("give one of --seed, --seeds or --recon")
-    if not seeds and (workers is not None or engine != "local" or address is not None):
-        raise click.UsageError("--workers, --engine and --address are for many samples: give --seeds")
-    edits = [name for name, given in (("--keep", keep), ("--layout", layout_file), ("--grow", grow_by)) if given]
-    if edits and (seeds or recon):
-        raise click.UsageError(f"{edits[0]} makes one sample: give --seed, not --seeds or --recon")
-    if anchor and not grow_by:
-        raise click.UsageError("--anchor is for --grow")
+    check_sample_options(seed, seeds, recon, keep, layout_file, grow_by, anchor, workers, engine, address)
     loaded = open_model(model, threads)
     if output is None:
         output = Path(f"{loaded.path.stem}_recon.ply" if recon else f"{loaded.path.stem}_seed{{seed}}.ply")
     warn_if_clamped(loaded, size, scale)
-    first = seeds.first if seeds else None if recon else 0 if seed is None else seed
+    options = dict(scale=scale, smooth=smooth, smoother=smoother, largest=largest, frame=frame)
     if seeds:
-        if scale > 2 and write.output_kind(output) == "mesh":
-            say_how_long(loaded, generate.sample(loaded, first, size), scale, len(seeds))
-        sample_seeds(loaded.path, seeds, output, engine, workers, threads, address, size=size, scale=scale,
-                     smooth=smooth, smoother=smoother, largest=largest, frame=frame)
+        sample_seeds(loaded, seeds, output, engine, workers, threads, address, size=size, **options)
         return
+    first = None if recon else seed or 0
     path = named_output(output, seed=first) if "{" in output.name else output
-    files.check_writable(path, [loaded.path] + ([layout_file] if layout_file else []))
-    triplane = edit.edited(loaded, first, size, keep, layout_file, resample_layout, grow_by, anchor or (0, 0, 0))
     with StageProgress() as show:
-        write.write_sample(loaded, triplane, path, scale=scale, smooth=smooth, smoother=smoother, largest=largest,
-                           frame=frame, threads=threads, mesh_progress=lambda done, total: show("meshing", done, total))
+        write.write_edited(loaded, path, first, size, keep, layout_file, resample_layout, grow_by, anchor,
+                           threads=threads, mesh_progress=lambda done, total: show("meshing", done, total), **options)
     click.echo(f"wrote {path}")
 
 
-def sample_seeds(model_path, seeds, output, engine, workers, threads, address, **options) -> None:
+def sample_seeds(model, seeds, output, engine, workers, threads, address, **options) -> None:
     """`sinrun sample --seeds`: one resumable job, one progress bar."""
     import time
 
-    from sinshape.runtime import many
+    from sinshape.runtime import many, write
 
+    if options["scale"] > 2 and write.output_kind(output) == "mesh":
+        say_how_long(model, seeds, options["size"], options["scale"])
     if "{" in output.name:
         named_output(output, seed=0)  # only {seed} may be filled in
         pattern = output
@@ -329,7 +324,7 @@ def sample_seeds(model_path, seeds, output, engine, workers, threads, address, *
             made[0] += record is not None
             bar.update(1, seed)
 
-        result = many.sample_many(model_path, iter(seeds), pattern, engine, workers, threads, address,
+        result = many.sample_many(model.path, iter(seeds), pattern, engine, workers, threads, address,
                                   progress=progress, **options)
     skipped = f", {result['skipped']} already done" if result["skipped"] else ""
     click.echo(f"wrote {result['written']} files{skipped}: {named_output(pattern, seed=seeds.first)} .. "
@@ -352,7 +347,7 @@ def layout_command(model, seed, level, size, output):
     voxels in any voxel editor; `sinrun sample MODEL --seed N --layout FILE`
     then makes a shape with that structure and the model's detail.
     """
-    from sinshape.runtime import layout, write
+    from sinshape.runtime import layout
 
     loaded = open_model(model, threads=None)
     files.check_writable(output, [loaded.path])
@@ -379,38 +374,29 @@ def interpolate(model, seeds, steps, alpha_range, scale, size, output, smooth, s
     The input noise is (1 - a) z0(A) + a z0(B); the finer levels' noise of
     seed A is held fixed, so the shapes change smoothly.
     """
-    import numpy as np
-
     from sinshape.runtime import generate, write
 
-    if not all(np.isfinite(alpha_range)):
+    if not all(map(math.isfinite, alpha_range)):
         raise click.BadParameter(f"--range must be two finite numbers, got {alpha_range[0]} {alpha_range[1]}")
-    low, high = alpha_range
-    generate.check_alpha(low)  # before a name is made from it
-    generate.check_alpha(high)
+    alpha = generate.blend_weights(*alpha_range, steps)  # refused before a name is made from them
     loaded = open_model(model, threads)
     warn_if_clamped(loaded, size, scale)
-
-    def alpha(k):  # computed when needed
-        return high if 0 < k == steps - 1 else low + k * (high - low) / max(steps - 1, 1)
 
     def path(k):
         return named_output(output, step=f"{k:02d}", alpha=f"{alpha(k):+.2f}")
 
-    write.output_kind(path(0))
-    files.check_writable(path(0), [loaded.path])
-    outputs = ((path(k), generate.interpolate(loaded, seeds[0], seeds[1], alpha(k), size)) for k in range(steps))
     with progress_bar(steps, "interpolating") as bar:
-        write.write_samples(loaded, outputs, progress=lambda: bar.update(1), scale=scale, smooth=smooth,
-                            smoother=smoother, largest=largest, frame=frame)
+        write.write_interpolation(loaded, *seeds, alpha, steps, path, size, progress=lambda: bar.update(1),
+                                  scale=scale, smooth=smooth, smoother=smoother, largest=largest, frame=frame)
     click.echo(f"wrote {steps} files: {path(0)} .. {path(steps - 1)}")
 
 
-def say_how_long(model, triplane, scale, count) -> None:
-    """'about N minutes' on stderr before a long sampling run."""
-    from sinshape.runtime import mesh
+def say_how_long(model, seeds, factors, scale) -> None:
+    """'about N minutes' on stderr before a long sampling run, measured on the first seed."""
+    from sinshape.runtime import generate, mesh
 
-    seconds = mesh.estimate_seconds(model, triplane, scale) * count
+    count = len(seeds)
+    seconds = mesh.estimate_seconds(model, generate.sample(model, seeds.first, factors), scale) * count
     if seconds > 30:
         click.echo(f"--scale {scale:g}: about {format_seconds(seconds)} (h:mm:ss) "
                    f"for {count} sample{'s' if count > 1 else ''}", err=True)
@@ -539,36 +525,24 @@ def evaluate(model, reference, samples, first_seed, scale, upsample, json_path, 
     match some patch of the reference with IoU / F-score above 0.95 (local
     plausibility); diversity: mean 1 - IoU between samples. Needs no torch.
     """
-    import json
-
-    from sinshape.prep.pyramid import file_sha256
-    from sinshape.runtime import write
     from sinshape.runtime.evaluate import evaluate_model
 
     if samples < 2:
         raise click.UsageError("--samples must be at least 2 (diversity compares samples)")
-    if not 0 < scale < float("inf"):
-        raise InputError(f"--scale must be a positive number, got {scale}")
     loaded = open_model(model, threads)
-    if json_path:
-        files.check_writable(json_path, [loaded.path, reference])
-    source = loaded.manifest.raw.get("source", {})
-    if (not force and source.get("sha256") and Path(reference).is_file()
-            and file_sha256(Path(reference)) != source["sha256"]):
-        click.echo(f"Warning: {Path(reference).name} is not the file {loaded.path.name} was trained on "
-                   f"({source.get('name', '?')}, sha256 {source['sha256'][:12]}...): the scores compare "
-                   "with another shape (--force silences this)", err=True)
-    with progress_bar(samples, "sampling") as bar:
-        results = evaluate_model(loaded, reference, samples, first_seed, scale, upsample,
-                                 progress=lambda: bar.update(1))
+
+    def warn(message):
+        click.echo(f"Warning: {message} (--force silences this)", err=True)
+
+    with StageProgress() as show:
+        results = evaluate_model(loaded, reference, samples, first_seed, scale, upsample, progress=show,
+                                 json_path=json_path, warn=None if force else warn)
     click.echo(f"{loaded.path.name} against {Path(reference).name}: {samples} samples of "
                f"{'x'.join(map(str, results['sample_size']))}, reference {'x'.join(map(str, results['reference_size']))}")
     click.echo(f"  LP-IoU     {results['lp_iou']:.3f}")
     click.echo(f"  LP-F       {results['lp_f']:.3f}")
     click.echo(f"  diversity  {results['diversity']:.3f}")
     click.echo(f"  time       {results['seconds_sampling']:.1f} s sampling, {results['seconds_scoring']:.1f} s scoring")
-    if json_path:
-        files.atomic_write(json_path, lambda f: f.write(json.dumps(results, indent=1).encode()))
 
 
 @cli.command()

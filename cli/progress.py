@@ -7,10 +7,12 @@ import click
 class TrainProgress:
     """One line per level: click's progress bar on a terminal, with the
     losses beside it; elsewhere (a log file, CI) a line every 10%, where
-    click's bar would print only its label."""
+    click's bar would print only its label. `log` prints the trainer's other
+    lines (the plan, level starts, checkpoints); quiet shows nothing."""
 
-    def __init__(self, stream=sys.stderr):
+    def __init__(self, stream=sys.stderr, quiet: bool = False):
         self.stream = stream
+        self.quiet = quiet
         self.tty = stream.isatty()
         self.level = None
         self.bar = None
@@ -20,6 +22,8 @@ class TrainProgress:
     def __call__(self, p) -> None:
         import time
 
+        if self.quiet:
+            return
         losses = "  ".join(f"{k} {v:+.4f}" for k, v in p.losses.items())
         head = f"level {p.level + 1}/{p.levels} {'x'.join(map(str, p.size))}"
         if p.level != self.level:
@@ -38,6 +42,10 @@ class TrainProgress:
             left = (time.monotonic() - self.started) / p.iteration * (p.iters - p.iteration)
             self.stream.write(f"{head} {p.iteration}/{p.iters}  {losses}  {format_seconds(left)} left\n")
             self.stream.flush()
+
+    def log(self, message: str) -> None:
+        if not self.quiet:
+            click.echo(message, err=True)
 
     def close(self) -> None:
         """End the bar's line and show the cursor again."""

@@ -9,15 +9,17 @@ A message about one parameter calls it by the library's name for it
 (`scale must be a positive number`) and sets `parameter`, so that a front
 end can say it its own way (the CLI writes `--scale`). Where the name is
 also an ordinary word of the message, the parameter is its last occurrence
-(`x.h5 has 3 levels; levels 5 asks for more`).
+(`x.h5 has 3 levels; levels 5 asks for more`). Parameters that cannot be
+given together raise `ConflictError`, whose `parameter` names them all.
 """
 
 
 class InputError(ValueError):
     """Bad user input, reported as one line without a traceback; `parameter`
-    names the function parameter at fault, where there is one."""
+    names the function parameter at fault, where there is one (a tuple: each
+    of several)."""
 
-    def __init__(self, message: str, parameter: str | None = None):
+    def __init__(self, message: str, parameter: str | tuple | None = None):
         super().__init__(message)
         self.parameter = parameter
 
@@ -26,3 +28,9 @@ class MemoryLimitError(InputError):
     """Work refused up front because it would need more memory than the
     limit (a `memory_limit` parameter, by default the memory available:
     core.budget.check_memory); the message gives the figure."""
+
+
+class ConflictError(InputError):
+    """Parameters given together that cannot be (or one given without another
+    it needs): `parameter` is the tuple of them all. A command line reports it
+    as a misuse of the command, with its usage."""

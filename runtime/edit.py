@@ -264,11 +264,12 @@ def compose_text(model, seed: int, parts: list, factors=(1.0, 1.0, 1.0), memory_
     return compose(model, seed, [parse_part(text, model.manifest, size) for text in parts], factors, memory_limit)
 
 
-def edited(model, seed: int, factors=(1.0, 1.0, 1.0), keep=(), layout_file=None, resample_layout: bool = False,
-           grow_by=None, anchor=(0.0, 0.0, 0.0)) -> TriPlane:
+def edited(model, seed: int | None, factors=(1.0, 1.0, 1.0), keep=(), layout_file=None, resample_layout: bool = False,
+           grow_by=None, anchor=None) -> TriPlane:
     """The tri-plane one request asks for: the sample of `seed`, with parts
     kept from others (`keep`, their text form), or the structure of a layout
-    file, or grown by `grow_by`; a plain sample when none is given. One of
+    file, or grown by `grow_by` (placed at `anchor`, None: the low side); a
+    plain sample when none is given (seed None: the training shape). One of
     them at most: the command line and the web API both ask here."""
     from . import generate, layout
 
@@ -278,7 +279,7 @@ def edited(model, seed: int, factors=(1.0, 1.0, 1.0), keep=(), layout_file=None,
     if layout_file:
         return layout.sample_from_file(model, seed, layout_file, factors, resample_layout)
     if grow_by:
-        return grow(model, seed, grow_by, anchor, factors)
+        return grow(model, seed, grow_by, (0.0, 0.0, 0.0) if anchor is None else anchor, factors)
     if keep:
         return compose_text(model, seed, keep, factors)
     return generate.sample(model, seed, factors)

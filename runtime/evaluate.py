@@ -225,27 +225,45 @@ def check_evaluation_memory(model, samples: int, scale: float, limit: int | None
 
 
 def evaluate_model(model, reference, samples: int = 100, first_seed: int = 0, scale: float = 1.0,
-                   upsample: bool = False, progress=None) -> dict:
+                   upsample: bool = False, progress=None, json_path=None, warn=None) -> dict:
     """Score a loaded model as the paper does, against its training input.
 
     reference : the mesh or SSG .h5 file it was trained on, voxelised with
     the model's own settings (prep.pyramid.reference_grid). Samples are seeds
     first_seed .. first_seed + samples - 1 at `scale`, queried from the
-    tri-planes or (upsample) trilinearly upsampled from scale 1; `progress`
-    is called once per sample. Returns what `sinrun eval --json` writes:
+    tri-planes or (upsample) trilinearly upsampled from scale 1.
+    progress("sampling", done, samples) is called once the request is checked
+    and after each sample. warn(message), when given, is told first if the
+    reference is not the file the model was trained on. Returns what
+    `sinrun eval --json` writes, also to json_path when given (checked first):
     the means, sizes, timings and per-sample scores.
     """
+    import itertools
+    import json
     import time
 
+    from sinshape.core.files import atomic_write, check_writable
     from sinshape.prep.pyramid import reference_grid
 
+    from .query import check_scale
+
+    check_scale(scale)
+    if json_path:
+        check_writable(json_path, [model.path, reference])
+    unlike = not_training_input(model, reference) if warn else None
+    if unlike:
+        warn(unlike)
     check_evaluation_memory(model, samples, scale)
+    done = itertools.count()
+    step = (lambda: progress("sampling", next(done), samples)) if progress else None
+    if step:
+        step()  # the bar shows while the reference is made
     truth = reference_grid(reference, model.manifest, scale)
     started = time.perf_counter()
-    volumes = sample_volumes(model, range(first_seed, first_seed + samples), scale, upsample, progress)
+    volumes = sample_volumes(model, range(first_seed, first_seed + samples), scale, upsample, step)
     sampled = time.perf_counter()
     lp = lp_metrics(volumes, truth)
-    return {
+    results = {
         "model": str(model.path), "reference": str(reference), "samples": samples, "scale": scale,
         "query": "trilinear upsampling of scale 1" if upsample else "tri-plane",
         "reference_size": list(truth.shape), "sample_size": list(volumes[0].shape),
@@ -253,3 +271,20 @@ def evaluate_model(model, reference, samples: int = 100, first_seed: int = 0, sc
         "seconds_sampling": round(sampled - started, 2), "seconds_scoring": round(time.perf_counter() - sampled, 2),
         "per_sample": lp["per_sample"],
     }
+    if json_path:
+        atomic_write(json_path, lambda f: f.write(json.dumps(results, indent=1).encode()))
+    return results
+
+
+def not_training_input(model, reference) -> str | None:
+    """What is wrong when `reference` is a file, but not the one whose SHA-256
+    the model's manifest records as its training input; else None."""
+    from pathlib import Path
+
+    from sinshape.prep.pyramid import file_sha256
+
+    source = model.manifest.raw.get("source", {})
+    if not source.get("sha256") or not Path(reference).is_file() or file_sha256(Path(reference)) == source["sha256"]:
+        return None
+    return (f"{Path(reference).name} is not the file {model.path.name} was trained on "
+            f"({source.get('name', '?')}, sha256 {source['sha256'][:12]}...): the scores compare with another shape")

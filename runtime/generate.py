@@ -224,6 +224,15 @@ def check_alpha(alpha: float) -> None:
         raise InputError(f"alpha must be a number in [-{MAX_ALPHA}, {MAX_ALPHA}], got {alpha}", "alpha")
 
 
+def blend_weights(low: float, high: float, steps: int):
+    """alpha(k): the blend weight of shape k of `steps`, evenly spaced from
+    low to high (the last exactly high), both checked first. A function, not
+    a list, so that any number of steps costs nothing up front."""
+    check_alpha(low)
+    check_alpha(high)
+    return lambda k: high if 0 < k == steps - 1 else low + k * (high - low) / max(steps - 1, 1)
+
+
 def interpolate(model, seed_a: int, seed_b: int, alpha: float, factors=(1.0, 1.0, 1.0),
                 memory_limit: int | None = None) -> TriPlane:
     """Blend two samples: z0 = (1 - alpha) z0_A + alpha z0_B, later noise of seed A held fixed.

@@ -132,6 +132,18 @@ def write_sample(model, triplane, path, scale: float = 1.0, smooth: int = 0, smo
     atomic_write(path, write)
 
 
+def write_edited(model, path, seed: int | None, factors=(1.0, 1.0, 1.0), keep=(), layout_file=None,
+                 resample_layout: bool = False, grow_by=None, anchor=None, **options) -> None:
+    """The sample `edit.edited` makes of these arguments, written to `path`
+    with `write_sample(**options)`. The path is checked first, against the
+    layout file too, so that a bad one costs no work."""
+    from . import edit
+
+    check_writable(path, [model.path] + ([layout_file] if layout_file else []))
+    triplane = edit.edited(model, seed, factors, keep, layout_file, resample_layout, grow_by, anchor)
+    write_sample(model, triplane, path, **options)
+
+
 def sample_bytes(model, triplane, path, scale: float = 1.0, smooth: int = 0, smoother: str = "laplacian",
                  largest: bool = False, frame: str = "input", threads: int | None = None,
                  mesh_progress=None) -> tuple:
@@ -158,8 +170,23 @@ def write_samples(model, outputs, progress=None, **options) -> None:
     """Write each (path, tri-plane) of `outputs` with `write_sample(**options)`,
     then call progress(). `outputs` is consumed lazily, so a generator that
     makes each tri-plane when asked keeps one sample in memory at a time:
-    `sinrun interpolate` is this loop (`sample --seeds` is runtime.many)."""
+    `write_interpolation` is this loop (`sample --seeds` is runtime.many)."""
     for path, triplane in outputs:
         write_sample(model, triplane, path, **options)
         if progress:
             progress()
+
+
+def write_interpolation(model, seed_a: int, seed_b: int, alpha, steps: int, path, factors=(1.0, 1.0, 1.0),
+                        progress=None, **options) -> None:
+    """Write `steps` blends of two seeds (`generate.interpolate` at weight
+    alpha(k), as `generate.blend_weights` makes it) to path(k), each made
+    when its turn comes, with `write_samples`. The first path is checked
+    before any work."""
+    from .generate import interpolate
+
+    first = path(0)
+    output_kind(first)
+    check_writable(first, [model.path])
+    outputs = ((path(k), interpolate(model, seed_a, seed_b, alpha(k), factors)) for k in range(steps))
+    write_samples(model, outputs, progress, **options)

@@ -8,7 +8,7 @@ plain ints; only `train` reads a config.
 import dataclasses
 from dataclasses import dataclass
 
-from sinshape.core.errors import InputError
+from sinshape.core.errors import ConflictError, InputError
 from sinshape.prep.pyramid import LEVEL_FACTOR, MIN_SIZE
 
 
@@ -111,9 +111,22 @@ PRESETS = {
 }
 
 
-def make_config(preset: str = "default", **overrides) -> TrainConfig:
-    """A preset with the given fields replaced; None values are ignored."""
+def make_config(preset: str | None = None, resume: bool = False, **overrides) -> TrainConfig | None:
+    """A preset (None: default) with the given fields replaced; None values
+    are ignored. With resume, None: a resumed run takes its checkpoint's
+    config, so neither a preset nor a field may be given. iters and minutes
+    both say how long to train: give one. Either rule broken is a
+    ConflictError naming what was given."""
+    changes = {k: v for k, v in overrides.items() if v is not None}
+    if "iters" in changes and "minutes" in changes:
+        raise ConflictError("give iters or minutes, not both: a time budget plans the iterations", ("iters", "minutes"))
+    if resume:
+        given = ([] if preset is None else ["preset"]) + list(changes)
+        if given:
+            raise ConflictError(f"resume continues with the checkpoint's settings; leave out {', '.join(given)}",
+                                ("resume", *given))
+        return None
+    preset = "default" if preset is None else preset
     if preset not in PRESETS:
         raise InputError(f"unknown preset {preset!r}; choose one of {', '.join(PRESETS)}")
-    changes = {k: v for k, v in overrides.items() if v is not None}
     return dataclasses.replace(PRESETS[preset], **changes)
