@@ -1,0 +1,116 @@
+"""Commands are thin: each parses, calls the library, and reports. The rules
+and the work live in the library, which names its parameters; the CLI says
+them as options."""
+
+import ast
+import json
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+from sinshape.cli.main import cli, command_line_message
+from sinshape.core.errors import ConflictError, InputError
+
+MAIN = Path(__file__).resolve().parent.parent / "cli" / "main.py"
+MOST_LINES = 20
+
+
+def command_bodies(source: str) -> dict:
+    """{function name: lines of its body} for every function a click
+    decorator (`@cli.command`, `@click.group`, ...) makes a command: the
+    lines from its first statement after the docstring to its last."""
+    bodies = {}
+    for node in ast.parse(source).body:
+        if not isinstance(node, ast.FunctionDef):
+            continue
+        decorators = [d.func if isinstance(d, ast.Call) else d for d in node.decorator_list]
+        if not any(isinstance(d, ast.Attribute) and d.attr in ("command", "group") for d in decorators):
+            continue
+        body = node.body
+        if body and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant):
+            body = body[1:]  # the docstring is the help, not the body
+        bodies[node.name] = body[-1].end_lineno - body[0].lineno + 1 if body else 0
+    return bodies
+
+
+def test_every_command_body_is_at_most_20_lines():
+    bodies = command_bodies(MAIN.read_text())
+    assert {command.callback.__name__ for command in cli.commands.values()} <= set(bodies)  # none is missed
+    long = {name: lines for name, lines in bodies.items() if lines > MOST_LINES}
+    assert not long, f"command bodies over {MOST_LINES} lines (move the work into the library): {long}"
+
+
+def test_the_measure_counts_from_the_first_statement_to_the_last():
+    source = ('@cli.command()\n@click.option("-n")\ndef c(n):\n    """Help."""\n    a = 1\n\n'
+              '    if a:\n        b = (1,\n             2)\n')
+    assert command_bodies(source) == {"c": 5}
+    assert command_bodies("def helper():\n    a = 1\n    b = 2\n") == {}
+
+
+def test_parameters_given_together_are_named_each_as_its_option():
+    error = ConflictError("resume continues with the checkpoint's settings; leave out iters, min_iters",
+                          ("resume", "iters", "min_iters"))
+    assert command_line_message(error, {"resume": "--resume", "iters": "--iters", "min_iters": "--min-iters"}) == (
+        "--resume continues with the checkpoint's settings; leave out --iters, --min-iters")
+    assert command_line_message(InputError("give iters", ("iters", "minutes"))) == "give --iters"
+
+
+def test_the_training_config_refuses_what_contradicts_itself():
+    from sinshape.trainer.config import make_config
+
+    with pytest.raises(ConflictError, match="give iters or minutes, not both") as both:
+        make_config("tiny", iters=5, minutes=2.0)
+    assert both.value.parameter == ("iters", "minutes")
+    with pytest.raises(ConflictError, match="leave out preset, seed") as resumed:
+        make_config("tiny", resume=True, seed=3, lr=None)
+    assert resumed.value.parameter == ("resume", "preset", "seed")
+    assert make_config(resume=True) is None
+    assert make_config(iters=5) == make_config("default", iters=5)
+
+
+def test_a_conflict_is_a_usage_error_naming_options(tmp_path):
+    result = CliRunner().invoke(cli, ["train", str(tmp_path / "x.obj"), "-o", str(tmp_path / "m.onnx"), "--resume",
+                                      "--seed", "3", "--min-iters", "2"])
+    assert result.exit_code == 2 and "Usage:" in result.output
+    assert "Error: --resume continues with the checkpoint's settings; leave out --min-iters, --seed" in result.output
+
+
+def test_blend_weights_span_the_range_and_are_checked_first():
+    from sinshape.runtime import generate
+
+    alpha = generate.blend_weights(-0.5, 1.5, 5)
+    assert [alpha(k) for k in range(5)] == [-0.5, 0.0, 0.5, 1.0, 1.5]
+    assert generate.blend_weights(0.25, 0.75, 1)(0) == 0.25
+    with pytest.raises(InputError, match="alpha must be a number") as refused:
+        generate.blend_weights(0, 1e308, 3)
+    assert refused.value.parameter == "alpha"
+
+
+def test_evaluation_checks_warns_and_writes_its_json(tiny_model, tiny_pyramid, tmp_path):
+    from conftest import write_pyramid
+
+    from sinshape.runtime import evaluate, load
+
+    model, out, told, shown = load.load_model(tiny_model), tmp_path / "e.json", [], []
+    other = write_pyramid(tmp_path / "other.h5", [(20, 18, 14), (20, 18, 15)])
+    with pytest.raises(InputError, match="scale must be a positive number") as refused:
+        evaluate.evaluate_model(model, other, 2, scale=0.0, json_path=out, warn=told.append)
+    assert refused.value.parameter == "scale" and not told and not out.exists()
+    results = evaluate.evaluate_model(model, other, 2, json_path=out, warn=told.append,
+                                      progress=lambda *shown_now: shown.append(shown_now))
+    assert len(told) == 1 and told[0].startswith("other.h5 is not the file") and "--force" not in told[0]
+    assert shown == [("sampling", 0, 2), ("sampling", 1, 2), ("sampling", 2, 2)]
+    assert json.loads(out.read_text()) == results
+    assert evaluate.not_training_input(model, tiny_pyramid) is None
+
+
+def test_one_edited_sample_never_overwrites_its_layout(tiny_model, tmp_path):
+    from sinshape.runtime import layout, load, write
+
+    model, vox = load.load_model(tiny_model), tmp_path / "l.vox"
+    layout.export(model, 3, vox)
+    with pytest.raises(InputError, match="is the input"):
+        write.write_edited(model, vox, 4, layout_file=vox)
+    write.write_edited(model, tmp_path / "e.npz", 4, layout_file=vox)
+    assert (tmp_path / "e.npz").is_file()
