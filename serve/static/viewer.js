@@ -294,7 +294,7 @@ function report(error) {
 
 // ---- sampling in this browser: the runtime runs in a module worker
 // (sinshape/worker.js), started on first use, so the server mode never fetches
-// onnxruntime-web's 28 MB of WASM and a sample never freezes the page. Cancel
+// onnxruntime-web's 14 MB of WASM and a sample never freezes the page. Cancel
 // ends the worker; the next sample starts a fresh one, which loads its model again.
 class Cancelled extends Error {
   constructor() { super('cancelled'); }
