@@ -6,11 +6,11 @@ another install (a release).
 
 Each case is a fresh headless chromium (empty cache) opening the page: the
 served page samples on the server (its default) or in the browser
-(`where=browser`: onnxruntime-web's files come from `sinrun serve`), the
-exported site in the browser, served two ways: by `python -m http.server`, which compresses
-nothing and sends no isolation headers (WASM on one thread), and by the
-site's own `serve.py` (isolation headers, so WASM on threads; the .gz
-copies where the export wrote them). Bytes are the response bodies as sent
+(`where=browser`: onnxruntime-web's files come from `sinrun serve`); the
+exported site samples in the browser, served two ways: by `python -m
+http.server`, which compresses nothing and sends no isolation headers (WASM
+on one thread), and by the site's own `serve.py` (isolation headers, so
+WASM on threads; the .gz copies where the export wrote them). Bytes are the response bodies as sent
 (compressed where the server compressed them); time runs from navigation to
 the status line's face count. "again" is a second load of the same page in
 the same browser: what its cache saves (revalidations answered 304 carry no
@@ -54,7 +54,7 @@ def first_load(base: str, path: str = "/") -> list:
                                    timeout=120000)
             seconds = time.perf_counter() - started
             page.wait_for_timeout(500)  # late requests (the WASM's worker files) finish
-            loads.append((sum(sent) / 2**20, seconds))
+            loads.append((sum(sent) / 1e6, seconds))  # MB of 10^6 bytes, as the docs give file sizes
         return loads
 
 
