@@ -134,6 +134,65 @@ def test_only_front_faces_are_drawn(page):
     assert not page.errors
 
 
+# Orbit the camera about the shape's box, as the page's OrbitControls would (the near and far planes
+# stay as the page framed them): `azimuth` and `elevation` in radians, `closer` a fraction of the framed
+# distance; with `side`, set every mesh's material's side first. Then draw, as the page does.
+ORBIT_JS = """([azimuth, elevation, closer, side]) => {
+  const view = window.sinshapeView, meshes = [];
+  view.scene.traverse((node) => { if (node.isMesh) meshes.push(node); });
+  if (side !== null) for (const mesh of meshes) { mesh.material.side = side; mesh.material.needsUpdate = true; }
+  meshes[0].geometry.computeBoundingBox();
+  const box = meshes[0].geometry.boundingBox.clone().applyMatrix4(meshes[0].matrixWorld);
+  const centre = box.min.clone().add(box.max).multiplyScalar(0.5);
+  view.framedForTests ??= view.camera.position.distanceTo(centre);
+  const way = centre.clone().set(Math.cos(elevation) * Math.sin(azimuth), Math.sin(elevation),
+                                 Math.cos(elevation) * Math.cos(azimuth));
+  view.camera.position.copy(centre).addScaledVector(way, view.framedForTests * closer);
+  view.camera.lookAt(centre);
+  view.renderer.render(view.scene, view.camera);
+}"""
+
+
+def dark_lines(pixels: np.ndarray, darker: float = 0.15) -> float:
+    """Thin dark lines across the shape: pixels at least `darker` (a fraction) darker than
+    both of their neighbours on opposite sides of them (left and right, above and below, or
+    along a diagonal), counted where the pixel and its 8 neighbours are all shape. Relative,
+    so a dimmer or brighter light leaves it alone; a crease or a shadow wider than a pixel
+    is not darker than both sides. Returns such pixels per thousand pixels inside the shape."""
+    luma = pixels @ np.array([0.299, 0.587, 0.114])
+    solid = np.abs(pixels - BACKGROUND).sum(axis=-1) > 30
+    height, width = luma.shape
+    middle = (slice(1, height - 1), slice(1, width - 1))
+    at = lambda grid, dy, dx: grid[1 + dy:height - 1 + dy, 1 + dx:width - 1 + dx]  # noqa: E731
+    inside = np.logical_and.reduce([at(solid, dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1)])
+    line = np.zeros_like(inside)
+    for dy, dx in ((0, 1), (1, 0), (1, 1), (1, -1)):
+        line |= luma[middle] <= (1 - darker) * np.minimum(at(luma, dy, dx), at(luma, -dy, -dx))
+    return 1000 * (line & inside).sum() / max(inside.sum(), 1)
+
+
+def test_no_dark_lines_in_the_rendered_shape(page, tmp_path):
+    """From the pixels: a close, low view across the terrain's ridges, where ridges hide the
+    ground behind them. Drawn as the page draws it (front faces only) it has no dark lines;
+    the same view with back faces drawn too (THREE.DoubleSide, as the page once did) has
+    dotted dark lines along every ridge (the back faces show through at the contours:
+    docs/dark-lines-front.png and docs/dark-lines-double.png), and the measure sees them,
+    so it would see them come back. Under SwiftShader: about 0.04 and 3.2 per 1000."""
+    page.goto(f"{page.base}/?seed=3&up=z")
+    wait_ready(page, 3)
+    view = [0.8, 0.2, 0.5]  # low over the ridges, at half the framed distance
+    page.evaluate(ORBIT_JS, [*view, None])  # the page's own material
+    front = dark_lines(view_pixels(page, tmp_path / "front.png"))
+    try:
+        page.evaluate(ORBIT_JS, [*view, 2])  # THREE.DoubleSide
+        double = dark_lines(view_pixels(page, tmp_path / "double.png"))
+    finally:
+        page.evaluate(ORBIT_JS, [*view, 0])
+    assert front < 0.25, f"{front:.2f} dark-line pixels per 1000 with front faces only: {tmp_path / 'front.png'}"
+    assert double > 1.0, f"the measure no longer sees DoubleSide's dark lines ({double:.2f} per 1000): {tmp_path}"
+    assert not page.errors
+
+
 LAYOUT_JS = """() => {
   const box = (el) => { const r = el.getBoundingClientRect(); return [r.left, r.top, r.right, r.bottom]; };
   const canvas = document.querySelector('#view canvas');
