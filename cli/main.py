@@ -590,7 +590,7 @@ def export_web(model_names, output):
 
     MODEL is a .onnx file or the name of a shipped model. The folder holds the
     page, the JavaScript runtime, onnxruntime-web and the models; any static
-    file server serves it, offline (python -m http.server -d DIR). The same
+    file server serves it, offline (python DIR/serve.py compresses). The same
     seed gives the same shape as `sinrun sample`. Its README.txt says how to
     let WASM use several threads.
     """
@@ -600,7 +600,7 @@ def export_web(model_names, output):
 
     result = site.export_site(model_names, output, __version__)
     click.echo(f"wrote {output} ({', '.join(result['models'])}; {result['files']} files, "
-               f"{result['bytes'] / 2**20:.1f} MB): python -m http.server -d {output}")
+               f"{result['bytes'] / 2**20:.1f} MB): python {output / 'serve.py'}")
 
 
 @cli.command(name="models")

@@ -20,6 +20,7 @@ revalidates them, 304).
 Needs no FastAPI: only the runtime (to check the models) and the files.
 """
 
+import inspect
 import json
 import shutil
 from pathlib import Path
@@ -58,17 +59,7 @@ TYPES = {".html": "text/html; charset=utf-8", ".js": "text/javascript", ".mjs": 
          ".onnx": "application/octet-stream", ".gz": "application/gzip"}
 
 
-def accepts_gzip(header):
-    """'gzip, br' yes; 'gzip;q=0' and 'identity' no; '*' yes."""
-    for item in header.split(","):
-        name, _, parameters = item.partition(";")
-        if name.strip().lower() in ("gzip", "x-gzip", "*"):
-            quality = parameters.strip().lower().replace(" ", "")
-            try:
-                return not (quality.startswith("q=") and float(quality[2:]) == 0)
-            except ValueError:
-                return False
-    return False
+ACCEPTS_GZIP
 
 
 class Handler(http.server.SimpleHTTPRequestHandler):
@@ -138,7 +129,7 @@ try:
     server.serve_forever()
 except KeyboardInterrupt:
     pass
-'''
+'''.replace("ACCEPTS_GZIP\n", inspect.getsource(compress.accepts_gzip))  # the script stands alone: a copy, made here
 
 README = """sinshape in the browser: {names}
 

@@ -458,7 +458,7 @@ def test_export_web_writes_replaces_and_refuses(tmp_path):
     out = tmp_path / "site"
     result = run("export-web", "terrain", "-o", out)
     assert result.exit_code == 0, result.output
-    assert "python -m http.server -d" in result.output
+    assert f"python {out / 'serve.py'}" in result.output
     assert {"index.html", "models.json", "serve.py", "_headers", "README.txt"} <= {p.name for p in out.iterdir()}
     assert (out / "models" / "terrain.onnx").read_bytes() == TERRAIN.read_bytes()
     assert 'data-site="static"' in (out / "index.html").read_text()
