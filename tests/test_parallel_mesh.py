@@ -1,4 +1,6 @@
-"""Meshing on several threads, and the streamed PLY writer (issue 11)."""
+"""Meshing on several threads, and the streamed PLY writer."""
+
+import threading
 
 import numpy as np
 import pytest
@@ -13,14 +15,32 @@ def model(tiny_model):
     return runtime.load_model(tiny_model, threads=1)
 
 
+@pytest.fixture(autouse=True)
+def pool_at_any_size(monkeypatch):
+    """The tiny model's grids are below the size where meshing starts a pool."""
+    monkeypatch.setattr(mesh, "POOL_POINTS", 0)
+
+
 @pytest.mark.parametrize("scale", [1, 2, 2.5])
-def test_threads_give_the_same_bytes(model, tmp_path, scale):
+def test_threads_give_the_same_bytes(model, tmp_path, scale, monkeypatch):
+    slab_mesh, meshed_on = mesh.slab_mesh, set()
+    monkeypatch.setattr(mesh, "slab_mesh", lambda slab: meshed_on.add(threading.get_ident()) or slab_mesh(slab))
     triplane = runtime.sample(model, 3)
     for suffix in (".ply", ".glb"):  # streamed, and the whole mesh in memory
         one, three = tmp_path / f"one{suffix}", tmp_path / f"three{suffix}"
         write.write_sample(model, triplane, one, scale, threads=1)
+        meshed_on.clear()
         write.write_sample(model, triplane, three, scale, threads=3)
+        assert len(meshed_on) > 1 or len(query.Band(model, triplane, scale)) <= 3  # a pool, where slabs allow
         assert one.read_bytes() == three.read_bytes()
+
+
+def test_small_grids_are_meshed_without_a_pool(model, monkeypatch):
+    monkeypatch.setattr(mesh, "POOL_POINTS", 10**9)
+    slab_mesh, meshed_on = mesh.slab_mesh, set()
+    monkeypatch.setattr(mesh, "slab_mesh", lambda slab: meshed_on.add(threading.get_ident()) or slab_mesh(slab))
+    list(mesh.pieces(model, runtime.sample(model, 3), 2.5, threads=3))
+    assert meshed_on == {threading.get_ident()}
 
 
 def test_streamed_ply_is_trimesh_export_of_the_same_mesh(model, tmp_path):
