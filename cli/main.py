@@ -5,6 +5,7 @@ Heavy imports (torch, onnxruntime, trimesh) happen inside the commands, so
 """
 
 import math
+import os
 import re
 import signal
 import sys
@@ -627,4 +628,15 @@ def terminate(signum, frame):
 
 def main():
     signal.signal(signal.SIGTERM, terminate)
-    cli(prog_name="sinrun")
+    try:
+        cli(prog_name="sinrun")
+    except SystemExit as done:
+        if done.code or "torch" in sys.modules or "ray" in sys.modules:
+            raise
+        # A command that succeeded has closed its files (every write is atomic):
+        # ending here skips the interpreter's teardown, freeing onnxruntime's
+        # sessions and every module one by one, about 80 ms of a 0.45 s sample.
+        # Not after training or Ray, whose exit handlers may still have work.
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(0)

@@ -25,8 +25,8 @@ def sinrun(*args):
 def sample_in_a_process(model, out, check, block_torch: bool) -> dict:
     """Run `sinrun sample` in a fresh process; its exit code and the modules it imported."""
     code = ((BLOCK_TORCH if block_torch else "") + "import json, sys\n"
-            "from sinshape.cli.main import main\n"
-            "try:\n    main()\nexcept SystemExit as e:\n    code = e.code\n"
+            "from sinshape.cli.main import cli\n"  # not main(), which ends the process on success
+            "try:\n    cli(prog_name='sinrun')\nexcept SystemExit as e:\n    code = e.code\n"
             f"json.dump({{'code': code, 'modules': sorted(sys.modules)}}, open({str(check)!r}, 'w'))\n")
     result = subprocess.run([sys.executable, "-c", code, "sample", str(model), "--seed", "3",
                              "--scale", "2", "-o", str(out)], capture_output=True, text=True)
@@ -256,8 +256,8 @@ def test_models_lists_shipped_models(monkeypatch):
 
 def test_help_imports_nothing_heavy():
     """--help must stay instant: no onnxruntime, trimesh or torch behind it."""
-    code = ("import sys\nfrom sinshape.cli.main import main\n"
-            "try:\n    main()\nexcept SystemExit:\n    pass\n"
+    code = ("import sys\nfrom sinshape.cli.main import cli\n"
+            "try:\n    cli(prog_name='sinrun')\nexcept SystemExit:\n    pass\n"
             "heavy = [m for m in ('torch', 'onnxruntime', 'trimesh', 'skimage') if m in sys.modules]\n"
             "assert not heavy, heavy\n")
     result = subprocess.run([sys.executable, "-c", code, "--help"], capture_output=True, text=True)
@@ -269,8 +269,8 @@ def test_a_sample_imports_only_what_its_output_needs(tmp_path, output, needed):
     """Start-up is most of a small sample's time: a .ply needs no trimesh, and
     no command needs scipy, scikit-image or the onnx package to sample (a
     .glb does need trimesh, which shows the check sees imports)."""
-    code = ("import sys\nfrom sinshape.cli.main import main\n"
-            "try:\n    main()\nexcept SystemExit as done:\n    assert not done.code, done.code\n"
+    code = ("import sys\nfrom sinshape.cli.main import cli\n"
+            "try:\n    cli(prog_name='sinrun')\nexcept SystemExit as done:\n    assert not done.code, done.code\n"
             "print('imported:', *(m for m in ('trimesh', 'scipy', 'skimage', 'onnx', 'google.protobuf', 'torch', 'h5py', "
             "'PIL', 'importlib.metadata') if m in sys.modules))\n")
     result = subprocess.run([sys.executable, "-c", code, "sample", str(TINY_ONNX), "--seed", "3",
@@ -279,6 +279,20 @@ def test_a_sample_imports_only_what_its_output_needs(tmp_path, output, needed):
     imported = result.stdout.splitlines()[-1].split()[1:]
     assert imported == needed if not needed else set(needed) <= set(imported)
     assert (tmp_path / output).is_file()
+
+
+def test_a_finished_command_ends_at_once_with_its_output_whole(tmp_path):
+    """main() ends a successful command without the interpreter's teardown:
+    what it printed and wrote is all there; a failure still exits as usual."""
+    code = ("import atexit\natexit.register(print, 'teardown ran')\n"
+            "from sinshape.cli.main import main\nmain()\n")
+    done = subprocess.run([sys.executable, "-c", code, "sample", str(TINY_ONNX), "--seed", "3", "--scale", "2",
+                           "-o", str(tmp_path / "s.ply")], capture_output=True, text=True)
+    assert done.returncode == 0 and done.stdout == f"wrote {tmp_path / 's.ply'}\n"
+    assert trimesh.load(tmp_path / "s.ply").is_watertight
+    failed = subprocess.run([sys.executable, "-c", code, "sample", str(TINY_ONNX), "--scale", "0"],
+                            capture_output=True, text=True)
+    assert failed.returncode != 0 and failed.stdout == "teardown ran\n"
 
 
 def test_a_sample_is_never_written_over_its_model(tiny_model, tmp_path):
