@@ -70,6 +70,7 @@ def test_the_training_config_refuses_what_contradicts_itself():
 
 
 def test_a_conflict_is_a_usage_error_naming_options(tmp_path):
+    pytest.importorskip("torch")  # without it, `train` says how to install it first
     result = CliRunner().invoke(cli, ["train", str(tmp_path / "x.obj"), "-o", str(tmp_path / "m.onnx"), "--resume",
                                       "--seed", "3", "--min-iters", "2"])
     assert result.exit_code == 2 and "Usage:" in result.output
