@@ -184,9 +184,13 @@ def session(data: bytes, threads: int, path: Path) -> ort.InferenceSession:
     # a 2-core machine they then starve the numpy work between stage runs
     # (a small matrix product took 50 ms instead of 0.3 ms right after a run).
     options.add_session_config_entry("session.intra_op.allow_spinning", "0")
-    options.log_severity_level = 3  # errors only: warnings are not the user's business
+    # Fatal only: a stage that fails raises, and the exception is what we word;
+    # at 3 (errors) onnxruntime also wrote its own line to stderr first.
+    options.log_severity_level = 4
     try:
-        return ort.InferenceSession(data, options, providers=["CPUExecutionProvider"])
+        # No fallback: it would print four "EP Error" lines to stdout and
+        # retry on the same CPU provider (a model's damaged name did that).
+        return ort.InferenceSession(data, options, providers=["CPUExecutionProvider"], enable_fallback=0)
     except Exception as error:  # onnxruntime raises its own exception types
         raise InputError(f"{path}: onnxruntime cannot load a stage ({str(error).splitlines()[0][:200]})") from None
 
@@ -223,8 +227,9 @@ def check_stages(model: Model) -> None:
             raise InputError(f"{model.path}: stage {stage.inputs[0].split('.')[0]} does not run "
                              f"({str(error).splitlines()[0][:200]})") from None
         name = stage.inputs[0].split(".")[0]
-        if any(o.shape != shape for o in outputs):
-            raise InputError(f"{model.path}: stage {name} gives shape {outputs[0].shape}, expected {shape}")
+        wrong = [o.shape for o in outputs if o.shape != shape]
+        if wrong:  # the first wrong one: another output's shape would read as a match
+            raise InputError(f"{model.path}: stage {name} gives shape {wrong[0]}, expected {shape}")
         if not all(np.isfinite(o).all() for o in outputs):
             raise InputError(f"{model.path}: stage {name} gives NaN or infinite values (bad weights)")
     # The numpy head must be the graph's head.

@@ -19,6 +19,8 @@ import io
 import os
 import signal
 import struct
+import sys
+import tempfile
 from datetime import timedelta
 from pathlib import Path
 
@@ -372,6 +374,125 @@ def test_corrupted_meshes_are_refused_or_work(folder, data, suffix):
         path.unlink()
 
 
+# -- graph attributes ------------------------------------------------------
+NODE_ATTRIBUTE = 5  # NodeProto.attribute (onnx.proto)
+SEAL_REFUSAL = "corrupt model: its bytes do not match the SHA-256 sealed at its end"
+
+
+def attribute_spans(data: bytes) -> list:
+    """(start, end) of every node attribute entry in a model's graph (the
+    LeakyRelu slopes, Conv kernel shapes, pads and strides, InstanceNormalization
+    epsilons, Transpose perms), read with the runtime's own protobuf reader."""
+    from sinshape.runtime import onnxfile as of
+
+    spans = []
+    for number, wire, graph, _ in of.fields(data):
+        if number == of.MODEL_GRAPH and wire == 2:
+            for n, w, node, _ in of.fields(data, *graph):
+                if n == of.GRAPH_NODE and w == 2:
+                    spans += [entry for a, aw, _, entry in of.fields(data, *node) if a == NODE_ATTRIBUTE and aw == 2]
+    return spans
+
+
+ATTRIBUTE_SOURCES = {"sealed": TINY_ONNX, "resealed": TINY_ONNX, "format 2": TINY_ONNX.with_name("tiny_v2.onnx"),
+                     "format 1": TINY_ONNX.with_name("tiny_v1.onnx")}
+
+
+def test_the_attribute_spans_are_the_graphs_attributes():
+    """The property below flips bits where onnx itself finds the attributes."""
+    import onnx
+
+    from sinshape.runtime import onnxfile
+
+    for source in set(ATTRIBUTE_SOURCES.values()):
+        data = source.read_bytes()
+        nodes = onnx.load_from_string(data).graph.node
+        found = []
+        for start, end in attribute_spans(data):
+            ((number, _, (first, last), _),) = onnxfile.fields(data, start, end)
+            assert number == NODE_ATTRIBUTE
+            found.append(onnx.AttributeProto.FromString(data[first:last]))
+        assert found == [attribute for node in nodes for attribute in node.attribute] and len(found) == 90
+        assert {a.name for a in found} == {"alpha", "epsilon", "kernel_shape", "pads", "perm"}
+
+
+@contextlib.contextmanager
+def file_descriptors():
+    """What is written to file descriptors 1 and 2 meanwhile, past CliRunner
+    (onnxruntime's C++ logger writes there): a list that holds the text after."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = [os.dup(1), os.dup(2)]
+    written = []
+    with tempfile.TemporaryFile() as sink:
+        os.dup2(sink.fileno(), 1)
+        os.dup2(sink.fileno(), 2)
+        try:
+            yield written
+        finally:
+            os.dup2(saved[0], 1)
+            os.dup2(saved[1], 2)
+            for fd in saved:
+                os.close(fd)
+            sink.seek(0)
+            written.append(sink.read().decode(errors="replace"))
+
+
+@pytest.fixture(scope="module")
+def intact_grid(folder):
+    """Seed 1's occupancy grid from the intact model, as `sample -o s.npz` writes it."""
+    model = runtime.load_model(TINY_ONNX, threads=1)
+    return runtime.dense(model, runtime.sample(model, 1), 1.0)
+
+
+@FUZZ
+@given(data=st.data(), kind=st.sampled_from(sorted(ATTRIBUTE_SOURCES)))
+def test_flipped_graph_attributes_are_refused(folder, tmp_path, intact_grid, data, kind):
+    """Bits flipped inside the graph's node attributes, nowhere else. A sealed
+    file is refused as corrupt, in one line, before anything reads it. Where
+    nothing vouches for the graph (the file resealed afterwards, as a careful
+    editor would; formats 2 and 1, whose checks cover only weights and
+    manifest), the checks behind the seal read the damage: one line, or a
+    sample of finite values of the manifest's shape (then maybe a different
+    one: nothing can tell), and never a word from onnxruntime itself."""
+    from hypothesis import event
+
+    from sinshape.core import manifest as fmt
+
+    raw = bytearray(ATTRIBUTE_SOURCES[kind].read_bytes())
+    where = st.sampled_from(attribute_spans(bytes(raw))).flatmap(lambda span: st.integers(span[0], span[1] - 1))
+    for at, bit in data.draw(st.lists(st.tuples(where, st.integers(0, 7)), min_size=1, max_size=8, unique=True),
+                             label="flips (byte, bit)"):
+        raw[at] ^= 1 << bit
+    raw = bytes(raw)
+    if kind == "resealed":
+        raw = fmt.seal(fmt.unseal(raw)[0])
+    (folder / "bad.onnx").write_bytes(raw)
+    out = tmp_path / "s.npz"
+    try:
+        with file_descriptors() as written:
+            result = run_cli(folder, ["sample", "bad.onnx", "--seed", 1, "--threads", 1, "-o", out])
+        assert written == [""], written  # nothing past click: onnxruntime said nothing of its own
+        lines = result.output.splitlines()
+        if kind == "sealed":
+            assert result.exit_code == 1 and lines == [f"Error: bad.onnx: {SEAL_REFUSAL}"], result.output
+            with pytest.raises(InputError, match=SEAL_REFUSAL):
+                runtime.load_model(folder / "bad.onnx", 1)
+        if result.exit_code == 1:
+            assert len(lines) == 1 and lines[0].startswith("Error: bad.onnx: "), result.output
+            assert not out.exists()
+            event(f"{kind}: refused: {lines[0].split(': ')[2][:40]}")
+            return
+        assert result.exit_code == 0, result.output
+        with np.load(out) as saved:
+            grid = saved["occupancy"]
+        assert grid.shape == intact_grid.shape and np.isfinite(grid).all() and (0 <= grid).all() and (grid <= 1).all()
+        event(f"{kind}: sampled, {'the same' if np.array_equal(grid, intact_grid) else 'a different'} grid")
+    finally:
+        (folder / "bad.onnx").unlink()
+        out.unlink(missing_ok=True)
+
+
 def test_the_case_bound_stops_a_hang():
     with pytest.raises(Hang), bounded(0.2):
         while True:
@@ -424,6 +545,50 @@ def test_a_corrupt_op_name_is_refused(folder):
                 runtime.load_model(folder / "bad.onnx", 1)
         finally:
             (folder / "bad.onnx").unlink()
+
+
+def attribute_set(node: str, **values):
+    """tiny.onnx with attributes of `node` set to `values`, sealed afresh: a
+    change that only the checks behind the seal can see."""
+    def make() -> bytes:
+        import onnx
+
+        proto = onnx.load(TINY_ONNX)
+        (target,) = [n for n in proto.graph.node if n.name == node]
+        for attribute in target.attribute:
+            if attribute.name in values:
+                attribute.ints[:] = values[attribute.name]
+        return sealed_bytes(proto)
+    return make
+
+
+def attribute_name_not_text() -> bytes:
+    """The format-2 copy (its checksum does not cover the graph) with the first
+    attribute named b"\\xc3lpha": a UTF-8 lead byte with no continuation."""
+    raw = TINY_ONNX.with_name("tiny_v2.onnx").read_bytes()
+    at = raw.index(b"alpha")
+    return raw[:at] + b"\xc3" + raw[at + 1:]
+
+
+@pytest.mark.parametrize("make, fragment", [
+    # onnxruntime could not word its error (bytes that are not UTF-8), and its Python
+    # fallback printed four "EP Error" lines to stdout and tried the same provider again
+    (attribute_name_not_text, "onnxruntime cannot load a stage ('utf-8' codec can't decode byte 0xc3"),
+    # a kernel of 3x7 for 3x3 weights: onnxruntime logged its own error line to stderr first
+    (attribute_set("Conv_53", kernel_shape=[3, 7]), "stage level1 does not run"),
+    # a pad of 33: the message gave the first output's shape, which was right, (1, 32, 4, 5)
+    (attribute_set("Conv_60", pads=[33, 1, 1, 1]), "stage level1 gives shape (1, 32, 36, 5), expected (1, 32, 4, 5)"),
+])
+def test_damaged_graph_attributes_found_by_the_fuzzer(folder, tmp_path, make, fragment):
+    (folder / "bad.onnx").write_bytes(make())
+    try:
+        with file_descriptors() as written:
+            result = run_cli(folder, ["sample", "bad.onnx", "--threads", 1, "-o", tmp_path / "s.npz"])
+        lines = result.output.splitlines()
+        assert written == [""] and result.exit_code == 1, (written, result.output)
+        assert len(lines) == 1 and lines[0].startswith(f"Error: bad.onnx: {fragment}"), result.output
+    finally:
+        (folder / "bad.onnx").unlink()
 
 
 def test_a_figure_past_what_a_float_holds():
