@@ -26,7 +26,7 @@ OPTIONS = {"scale": "--scale", "factors": "--size", "smooth": "--smooth", "threa
            "elevation": "--elevation", "timeout": "--timeout", "level": "--level", "grow": "--grow",
            "anchor": "--anchor", "generator": "--generator", "iters": "--iters", "lr": "--lr",
            "min_iters": "--min-iters", "minutes": "--minutes", "precision": "--precision", "box": "--box",
-           "focus": "--focus", "up": "--up"}
+           "focus": "--focus", "up": "--up", "resume": "--resume"}
 # ctx.meta key: {parameter: what set it} where a command's value came from elsewhere than OPTIONS says.
 SOURCES = "sinrun.sources"
 # The extra that installs each optional module (pyproject.toml): a command
@@ -35,8 +35,9 @@ EXTRAS = {"torch": "train", "onnx": "train", "scipy": "prep", "h5py": "prep", "s
           "fastapi": "serve", "uvicorn": "serve", "starlette": "serve", "ray": "ray"}
 
 
-def command_line_message(error: InputError, options: dict = OPTIONS) -> str:
-    """The error's message with its parameter (each, for a tuple) written as the option that sets it."""
+def command_line_message(error: Exception, options: dict = OPTIONS) -> str:
+    """The error's message with its parameter (each, for a tuple) written as the option that sets it:
+    an InputError's, or any other's that names one the same way (training's stops)."""
     message = str(error)
     names = error.parameter if isinstance(error.parameter, tuple) else (error.parameter,)
     lasts = []
@@ -185,10 +186,10 @@ def train(input_path, output, preset, res, levels, iters, minutes, min_iters, de
             manifest = training.train(input_path, output, config, resume=resume, device=device,
                                       checkpoint_path=checkpoint, progress=progress, log=progress.log)
     except training.Interrupted as error:
-        click.echo(str(error), err=True)
+        click.echo(command_line_message(error), err=True)
         sys.exit(130)
-    except training.TrainingDiverged as error:
-        raise click.ClickException(str(error)) from None
+    except training.TrainingDiverged as error:  # OPTIONS has no seed: sample's come from --seed, --seeds, --keep
+        raise click.ClickException(command_line_message(error, {"seed": "--seed"})) from None
     sizes = ", ".join("x".join(map(str, level["size"])) for level in manifest["levels"])
     click.echo(f"wrote {output} ({len(manifest['levels'])} levels: {sizes}; "
                f"trained in {format_seconds(manifest['training']['seconds'])})")

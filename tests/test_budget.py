@@ -13,6 +13,7 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
+from sinshape.cli.main import command_line_message  # noqa: E402
 from sinshape.core.errors import InputError  # noqa: E402
 from sinshape.trainer import schedule, train  # noqa: E402
 from sinshape.trainer.config import make_config  # noqa: E402
@@ -124,8 +125,9 @@ def test_a_budget_too_small_is_refused_before_training(machine, three_levels, tm
     message = str(refused.value)
     # (36 s - measuring 4 x 5.5 s - reserve 2 s) / 5.5 s per round: 2 iterations
     assert "gives 2 iterations per level" in message
-    assert "--minutes 0.9 gives 5 iterations per level" in message  # 22 + 2 + 5 x 5.5 = 51.5 s
-    assert "--min-iters 2 trains with the 2 that fit" in message
+    assert "minutes 0.9 gives 5 iterations per level" in message  # 22 + 2 + 5 x 5.5 = 51.5 s
+    assert "min_iters 2 trains with the 2 that fit" in message
+    assert "--" not in message  # the library names parameters; the command line writes options
     assert not out.exists() and not train.default_checkpoint_path(out).exists()
     assert not any(line.startswith("level ") for line in machine.log)
     # The same budget with the minimum lowered trains.
@@ -146,11 +148,23 @@ def test_a_budget_far_too_small_is_refused_after_the_first_level_is_measured(mac
 def test_a_too_small_budget_for_a_mesh_names_a_resolution_that_fits():
     # 98 s for 5.5 s per round of all levels gives 17; without the finest, 65.
     budget = schedule.Budget(100.0, train.time.monotonic(), [0.5, 1.0, 4.0], [0.0] * 3, min_iters=20)
-    with pytest.raises(InputError, match=r"gives 17 iterations.*--res 31 \(about 2 levels\) fits"):
+    with pytest.raises(InputError, match=r"gives 17 iterations.*; res 31 \(about 2 levels\) fits") as refused:
         budget.refuse_if_too_small([(15, 15, 15), (31, 20, 20), (64, 40, 40)], from_mesh=True)
+    assert "; --res 31 (about 2 levels) fits" in command_line_message(refused.value)
     with pytest.raises(InputError) as refused:
         budget.refuse_if_too_small([(15, 15, 15), (31, 20, 20), (64, 40, 40)], from_mesh=False)
-    assert "--res" not in str(refused.value)  # an .h5 pyramid has its resolution
+    assert " res " not in str(refused.value)  # an .h5 pyramid has its resolution
+
+
+def test_the_command_line_writes_the_refusal_in_options(machine, three_levels, tmp_path):
+    from click.testing import CliRunner
+
+    from sinshape.cli.main import cli
+
+    result = CliRunner().invoke(cli, ["train", str(three_levels), "-o", str(tmp_path / "m.onnx"), "--preset", "tiny",
+                                      "--levels", "3", "--minutes", "0.6", "--min-iters", "5", "--quiet"])
+    assert result.exit_code == 1
+    assert "; --minutes 0.9 gives 5 iterations per level; --min-iters 2 trains with the 2 that fit" in result.output
 
 
 def test_the_plan_and_what_was_done_are_in_the_model(machine, three_levels, tmp_path):

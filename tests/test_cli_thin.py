@@ -4,6 +4,7 @@ them as options."""
 
 import ast
 import json
+import re
 from pathlib import Path
 
 import pytest
@@ -12,8 +13,11 @@ from click.testing import CliRunner
 from sinshape.cli.main import cli, command_line_message
 from sinshape.core.errors import ConflictError, InputError
 
-MAIN = Path(__file__).resolve().parent.parent / "cli" / "main.py"
+ROOT = Path(__file__).resolve().parent.parent
+MAIN = ROOT / "cli" / "main.py"
 MOST_LINES = 20
+LIBRARY = ("core", "prep", "runtime", "trainer", "models", "serve")  # every package but the CLI
+OPTION = re.compile(r"(?<![\w-])--[a-z]")
 
 
 def command_bodies(source: str) -> dict:
@@ -46,6 +50,32 @@ def test_the_measure_counts_from_the_first_statement_to_the_last():
               '    if a:\n        b = (1,\n             2)\n')
     assert command_bodies(source) == {"c": 5}
     assert command_bodies("def helper():\n    a = 1\n    b = 2\n") == {}
+
+
+def strings_naming_options(source: str) -> list:
+    """The strings of a module that name a command-line option (`--seed`),
+    docstrings left out: they may say what the command line does."""
+    tree = ast.parse(source)
+    docstrings = {id(node.body[0].value) for node in ast.walk(tree)
+                  if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef))
+                  and node.body and isinstance(node.body[0], ast.Expr) and isinstance(node.body[0].value, ast.Constant)}
+    return [node.value for node in ast.walk(tree) if isinstance(node, ast.Constant) and isinstance(node.value, str)
+            and id(node) not in docstrings and OPTION.search(node.value)]
+
+
+def test_library_messages_name_parameters_not_options():
+    found = {}
+    for package in LIBRARY:
+        for path in sorted((ROOT / package).rglob("*.py")):
+            if strings := strings_naming_options(path.read_text()):
+                found[str(path.relative_to(ROOT))] = strings
+    assert not found, f"library strings that name options (name the parameter; the CLI writes its option): {found}"
+
+
+def test_the_search_finds_options_in_messages_not_in_docstrings():
+    source = 'def f(seed):\n    """As `sinrun sample --seed`."""\n    raise InputError(f"{seed}: try --seed 3")\n'
+    assert strings_naming_options(source) == [": try --seed 3"]
+    assert strings_naming_options('x = "a-b--c, -1, 2--3"\n') == []
 
 
 def test_parameters_given_together_are_named_each_as_its_option():

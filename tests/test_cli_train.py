@@ -118,7 +118,7 @@ def test_ctrl_c_saves_a_checkpoint_and_says_how_to_resume(tiny_pyramid, tmp_path
     process.send_signal(signal.SIGINT)
     _, rest = process.communicate(timeout=60)
     assert process.returncode == 130
-    assert "--resume" in rest and "Traceback" not in rest
+    assert "; --resume continues from it" in rest and "Traceback" not in rest
     assert train_checkpoint(out).exists() and not out.exists()
 
 

@@ -13,7 +13,7 @@ torch = pytest.importorskip("torch")
 
 from click.testing import CliRunner  # noqa: E402
 
-from sinshape.cli.main import cli  # noqa: E402
+from sinshape.cli.main import cli, command_line_message  # noqa: E402
 from sinshape.runtime import generate, load, query  # noqa: E402
 from sinshape.core.errors import InputError  # noqa: E402
 from sinshape.trainer import device, train  # noqa: E402
@@ -37,8 +37,9 @@ def test_cpu_precision_follows_native_bf16(monkeypatch):
     assert device.choose("cpu").precision == "bf16"
     monkeypatch.setattr(device, "native_bf16", lambda: False)
     assert device.choose("cpu").precision == "fp32"
-    with pytest.raises(InputError, match="no native bf16"):
+    with pytest.raises(InputError, match="no native bf16") as refused:
         device.choose("cpu", "bf16")
+    assert command_line_message(refused.value).endswith("; use --precision fp32 or auto")
 
 
 @pytest.mark.parametrize("name", ["tpu", "cuda:x", "", "cpu:0:1"])

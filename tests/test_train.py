@@ -34,7 +34,7 @@ def interrupt_at(level, iteration):
 def test_interrupt_saves_and_resume_skips_finished_levels(tmp_path, tiny_pyramid):
     out = tmp_path / "m.onnx"
     ckpt = train.default_checkpoint_path(out)
-    with pytest.raises(train.Interrupted, match="--resume"):
+    with pytest.raises(train.Interrupted, match="; resume continues from it$"):
         train.train(tiny_pyramid, out, make_config("tiny", iters=3), progress=interrupt_at(1, 2))
     assert not out.exists() and ckpt.exists()
     saved = torch.load(ckpt, weights_only=True)
@@ -70,11 +70,19 @@ def test_divergence_stops_and_keeps_the_last_good_checkpoint(tmp_path, tiny_pyra
 
     monkeypatch.setattr(train.Trainer, "iterate", iterate)
     out = tmp_path / "m.onnx"
-    with pytest.raises(train.TrainingDiverged, match="level 2, iteration 1.*D loss nan"):
+    with pytest.raises(train.TrainingDiverged, match="level 2, iteration 1.*D loss nan.*; try another seed$"):
         train.train(tiny_pyramid, out, make_config("tiny", iters=2))
     assert not out.exists()
     saved = torch.load(train.default_checkpoint_path(out), weights_only=True)
     assert (saved["level"], saved["iteration"]) == (1, 0)  # level 1 finished, nothing after
+
+    from click.testing import CliRunner
+
+    from sinshape.cli.main import cli
+
+    result = CliRunner().invoke(cli, ["train", str(tiny_pyramid), "-o", str(tmp_path / "c.onnx"), "--preset", "tiny",
+                                      "--iters", "2", "--quiet"])
+    assert result.exit_code == 1 and result.output.rstrip().endswith("; try another --seed")
 
 
 def test_periodic_checkpoints(tmp_path, tiny_pyramid):

@@ -72,23 +72,24 @@ class Budget:
 
     def refuse_if_too_small(self, sizes: list, from_mesh: bool) -> None:
         """Before training: refuse a budget that gives fewer than `min_iters`
-        iterations per level, naming what would fit."""
+        iterations per level, naming what would fit by the parameters that
+        set it, each once (a front end writes them its own way)."""
         count = self.affordable(0)
         if count >= self.min_iters:
             return
         per_round = sum(self.costs)
         needed = time.monotonic() - self.started + self.RESERVE + sum(self.startups) + self.min_iters * per_round
-        options = [f"--minutes {math.ceil(needed / 6) / 10:g} gives {self.min_iters} iterations per level"]
+        options = [f"minutes {math.ceil(needed / 6) / 10:g} gives {self.min_iters} iterations per level"]
         if from_mesh:
             for levels in range(len(sizes) - 1, 0, -1):  # drop the finest levels until it fits
                 if self.affordable(0, levels) >= self.min_iters:
-                    options.append(f"--res {max(sizes[levels - 1])} (about {levels} levels) fits")
+                    options.append(f"res {max(sizes[levels - 1])} (about {levels} levels) fits")
                     break
         if count >= 1:
-            options.append(f"--min-iters {count} trains with the {count} that fit")
+            options.append(f"min_iters {count} trains with the {count} that fit")
         raise InputError(f"the time budget gives {count} iterations per level (all {len(sizes)} levels take "
-                         f"{per_round:.1f} s per iteration here), fewer than --min-iters {self.min_iters}; "
-                         + "; ".join(options))
+                         f"{per_round:.1f} s per iteration here), fewer than the minimum of {self.min_iters}; "
+                         + "; ".join(options), ("minutes", "res", "min_iters"))
 
     def start_level(self, level: int) -> int:
         """The iteration count of a level that is starting (at least 1)."""

@@ -49,11 +49,17 @@ LEVEL_BYTES = 17 << 20  # what a level adds whatever its size
 
 
 class TrainingDiverged(RuntimeError):
-    """A loss became NaN or exploded; the last good checkpoint is kept."""
+    """A loss became NaN or exploded; the last good checkpoint is kept.
+    `parameter`, as in InputError, names what the message suggests changing."""
+
+    parameter = "seed"
 
 
 class Interrupted(RuntimeError):
-    """Ctrl-C during training; a checkpoint was saved first."""
+    """Ctrl-C during training; a checkpoint was saved first. `parameter`, as
+    in InputError, names what the message says continues it."""
+
+    parameter = "resume"
 
 
 @dataclass
@@ -458,7 +464,7 @@ def train(input_path, output_path, config: TrainConfig | None, *, resume: bool =
                     raise TrainingDiverged(
                         f"training diverged at level {level + 1}, iteration {trainer.iteration + 1} "
                         f"({', '.join(f'{k} loss {losses[k]:.3g}' for k in bad)}); "
-                        f"the last good checkpoint is {checkpoint_path}; try another --seed"
+                        f"the last good checkpoint is {checkpoint_path}; try another seed"
                     )
                 trainer.iteration += 1
                 done_here += 1
@@ -481,7 +487,7 @@ def train(input_path, output_path, config: TrainConfig | None, *, resume: bool =
             log(f"level {level + 1} done in {trainer.seconds[-1]:.0f} s; checkpoint {checkpoint_path}")
     except KeyboardInterrupt:
         atomic_save(trainer.state(), checkpoint_path)
-        raise Interrupted(f"interrupted; progress saved to {checkpoint_path}; continue with --resume") from None
+        raise Interrupted(f"interrupted; progress saved to {checkpoint_path}; resume continues from it") from None
 
     if config.minutes is not None:  # the plan is part of how the model was made
         config = dataclasses.replace(config, level_iters=tuple(trainer.plan))
@@ -542,7 +548,8 @@ def time_levels(config: TrainConfig, pyramid, placement, rounds: int = 3, second
                 raise InputError(f"the time budget of {seconds / 60:.3g} min cannot give {config.min_iters} "
                                  f"iterations to each of {len(trainer.sizes)} levels: they need at least "
                                  f"{at_least / 60:.2g} min here (the {len(costs)} measured so far cost "
-                                 f"{sum(costs):.2f} s per iteration); give more minutes or lower min_iters")
+                                 f"{sum(costs):.2f} s per iteration); give more minutes or lower min_iters",
+                                 ("minutes", "min_iters"))
         started = time.monotonic()
         trainer.level = level
         trainer.begin_level()
