@@ -15,6 +15,7 @@ fixed at 2 GiB, so that what is refused does not depend on the machine.
 """
 
 import contextlib
+import hashlib
 import io
 import os
 import signal
@@ -491,6 +492,110 @@ def test_flipped_graph_attributes_are_refused(folder, tmp_path, intact_grid, dat
     finally:
         (folder / "bad.onnx").unlink()
         out.unlink(missing_ok=True)
+
+
+# -- a resumed job ---------------------------------------------------------
+JOB = 6  # the first run makes seeds 0-5; a rerun may ask for up to 2 more
+DAMAGES = ("truncate", "flip", "append", "another seed's file", "delete", "unindexed")
+
+
+def sinrun_job(root: Path, last: int):
+    """`sinrun sample tiny.onnx --seeds 0-LAST --scale 0.5 -o job/{seed}.ply` in this process, one worker."""
+    with bounded():
+        return CliRunner().invoke(cli, ["sample", str(TINY_ONNX), "--seeds", f"0-{last}", "--workers", "1",
+                                        "--threads", "1", "--scale", "0.5", "-o", str(root / "job" / "{seed}.ply")])
+
+
+@pytest.fixture(scope="module")
+def finished_job(tmp_path_factory):
+    """A job of seeds 0-5 run to the end (its folder, index included), and
+    every seed's file as a run of 0-7 makes it."""
+    root = tmp_path_factory.mktemp("jobs")
+    (root / "job").mkdir()
+    assert sinrun_job(root, JOB + 1).exit_code == 0
+    reference = {seed: (root / "job" / f"{seed}.ply").read_bytes() for seed in range(JOB + 2)}
+    for path in (root / "job").iterdir():
+        path.unlink()
+    assert sinrun_job(root, JOB - 1).exit_code == 0
+    return root / "job", reference
+
+
+@settings(FUZZ, max_examples=EXAMPLES or 20)  # a case runs sinrun once or twice: 0.3 s
+@given(damages=st.dictionaries(st.integers(0, JOB - 1), st.sampled_from(DAMAGES), max_size=JOB),
+       data=st.data(), crash=st.sampled_from([None, "a line cut short", "a line twice"]), more=st.integers(0, 2),
+       stop=st.one_of(st.none(), st.integers(1, JOB + 2)))
+def test_a_resumed_job_redoes_exactly_its_damaged_seeds(finished_job, tmp_path_factory, damages, data, crash,
+                                                       more, stop):
+    """Outputs of a finished job truncated, changed (a bit, bytes added,
+    another seed's file in their place), deleted, or dropped from the index;
+    the index perhaps cut short or holding a line twice. A rerun, over the
+    same seeds or more, perhaps interrupted (Ctrl-C) and run again, makes
+    exactly the damaged and the new seeds, each once, and ends with every
+    file whole and one index line per seed that vouches for it."""
+    import json
+    import shutil
+
+    from sinshape.runtime import many
+
+    job, reference = finished_job
+    root = tmp_path_factory.mktemp("resumed")
+    folder = root / "job"
+    shutil.copytree(job, folder)
+    lines = (folder / "index.jsonl").read_text().splitlines(keepends=True)
+    for seed, damage in damages.items():
+        path = folder / f"{seed}.ply"
+        raw = bytearray(reference[seed])
+        if damage == "truncate":
+            path.write_bytes(raw[:data.draw(st.integers(0, len(raw) - 1), label=f"{seed}: keep")])
+        elif damage == "flip":
+            raw[data.draw(st.integers(0, len(raw) - 1), label=f"{seed}: at")] ^= 1 << data.draw(st.integers(0, 7))
+            path.write_bytes(raw)
+        elif damage == "append":
+            path.write_bytes(raw + data.draw(st.binary(min_size=1, max_size=16), label=f"{seed}: added"))
+        elif damage == "another seed's file":
+            path.write_bytes(reference[data.draw(st.sampled_from([s for s in range(JOB) if s != seed]))])
+        elif damage == "delete":
+            path.unlink()
+        else:
+            lines = [line for line in lines if json.loads(line)["seed"] != seed]
+    if crash == "a line twice" and lines:
+        lines.append(lines[data.draw(st.integers(0, len(lines) - 1))])
+    elif crash == "a line cut short" and lines:
+        line = lines[data.draw(st.integers(0, len(lines) - 1))]
+        lines.append(line[:data.draw(st.integers(1, len(line) - 2))])  # no newline: a crash mid-write
+    (folder / "index.jsonl").write_text("".join(lines))
+
+    made, run = [], many.Worker.run
+
+    def counted(self, seed):
+        if stop is not None and len(made) + 1 == stop:
+            raise KeyboardInterrupt  # Ctrl-C before this seed's sample is made
+        result = run(self, seed)
+        made.append(seed)
+        return result
+
+    try:
+        with pytest.MonkeyPatch.context() as patch:
+            patch.setattr(many.Worker, "run", counted)
+            result = sinrun_job(root, JOB - 1 + more)
+            expected = sorted(damages) + list(range(JOB, JOB + more))
+            if stop is not None and stop <= len(expected):
+                assert result.exit_code == 130 and result.output.splitlines()[-1] == "interrupted", result.output
+                assert not [p for p in folder.iterdir() if p.name.startswith(".")]  # no temporary left
+                stop = None
+                result = sinrun_job(root, JOB - 1 + more)
+        assert result.exit_code == 0, result.output
+        assert sorted(made) == expected  # each damaged or new seed made once, none other
+        seeds = range(JOB + more)
+        assert sorted(p.name for p in folder.iterdir()) == sorted([f"{s}.ply" for s in seeds] + ["index.jsonl"])
+        records = [json.loads(line) for line in (folder / "index.jsonl").read_text().splitlines()]
+        assert sorted(r["seed"] for r in records) == list(seeds)  # one line per seed
+        for record in records:
+            whole = reference[record["seed"]]
+            assert (folder / record["file"]).read_bytes() == whole, record
+            assert (record["bytes"], record["sha256"]) == (len(whole), hashlib.sha256(whole).hexdigest())
+    finally:
+        shutil.rmtree(root)
 
 
 def test_the_case_bound_stops_a_hang():
