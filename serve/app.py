@@ -138,7 +138,7 @@ class Sample:
     seconds: float  # time it took to make
 
 
-# The query parameters both sample routes take.
+# The query parameters of a sample (the layout route takes seed and size too).
 SeedQuery = Annotated[int, Query(ge=0, lt=2**63, description="The same seed gives the same shape.")]
 SizeQuery = Annotated[str, Query(description="Factors of the training size: one, or sx,sy,sz.")]
 ScaleQuery = Annotated[float, Query(gt=0, allow_inf_nan=False,
@@ -149,8 +149,10 @@ FormatQuery = Annotated[Format, Query(description="glb ply obj stl off: a mesh; 
 
 @dataclass
 class SampleQuery:
-    """The query parameters both sample routes take."""
+    """What both sample routes take: the model's name (the path's) and the
+    query parameters of a sample."""
 
+    name: str
     seed: SeedQuery = 0
     size: SizeQuery = "1"
     scale: ScaleQuery = 1.0
@@ -575,7 +577,6 @@ def create_app(loaded: dict, slots: int | None = None, timeout: float = 60.0,
              response_class=Response, responses=FILE_ANSWERS)
     async def sample(
         request: Request,
-        name: str,
         q: Annotated[SampleQuery, Depends()],
         keep: Annotated[list[str], Query(max_length=16, description="Parts to keep from other samples, "
                                          "SEED:X0,Y0,Z0:X1,Y1,Z1 (the model's frame, or percentages like 50%); "
@@ -585,14 +586,14 @@ def create_app(loaded: dict, slots: int | None = None, timeout: float = 60.0,
         anchor: Annotated[str, Query(description="With grow: where the old sample sits, per axis from 0 "
                                      "(low side) to 1 (high side).")] = "0",
     ):
-        model = find(name)
+        model = find(q.name)
         factors = generate.parse_size(q.size)
         finest = generate.scaled_sizes(model.manifest.sizes, factors)[-1]
         parts = tuple(edit.parse_part(text, model.manifest, finest) for text in keep)
         if grow and parts:
             raise InputError("give keep or grow, not both")
         where = generate.parse_triple(anchor, lambda v: 0 <= v <= 1, "three fractions in [0, 1]", "anchor")
-        wanted = SampleRequest(name, q.seed, factors, q.scale, q.smooth, q.format, parts,
+        wanted = SampleRequest(q.name, q.seed, factors, q.scale, q.smooth, q.format, parts,
                                generate.parse_size(grow) if grow else None, where)
         return await answer(request, model, wanted)
 
@@ -600,7 +601,6 @@ def create_app(loaded: dict, slots: int | None = None, timeout: float = 60.0,
               response_class=Response, responses=FILE_ANSWERS)
     async def sample_from_layout(
         request: Request,
-        name: str,
         q: Annotated[SampleQuery, Depends()],
         resample_layout: Annotated[bool, Query(description="Fit a layout of another grid size to level 0's.")] = False,
     ):
@@ -608,9 +608,9 @@ def create_app(loaded: dict, slots: int | None = None, timeout: float = 60.0,
         body = await request.body()
         if not body or len(body) > MAX_UPLOAD_BYTES:
             raise InputError(f"send the layout file as the request body (1 byte to {MAX_UPLOAD_BYTES >> 20} MB)")
-        wanted = SampleRequest(name, q.seed, generate.parse_size(q.size), q.scale, q.smooth, q.format, layout=body,
+        wanted = SampleRequest(q.name, q.seed, generate.parse_size(q.size), q.scale, q.smooth, q.format, layout=body,
                                resample_layout=resample_layout)
-        return await answer(request, find(name), wanted)
+        return await answer(request, find(q.name), wanted)
 
     @app.get("/api/models/{name}/layout", summary="A sample's coarse layout, as `sinrun layout` writes it",
              response_class=Response, responses=FILE_ANSWERS)

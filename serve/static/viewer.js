@@ -13,6 +13,17 @@ import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
 import * as layouts from './layout.js';
 
 const $ = (id) => document.getElementById(id);
+// An x,y,z row of the page (class xyz) holds its x input; the y and z inputs
+// are copies of it, with x in their id, name and title turned to their axis.
+for (const x of document.querySelectorAll('.xyz > input')) {
+  for (const axis of ['z', 'y']) {
+    const input = x.cloneNode();
+    input.id = x.id.replace('x', axis);
+    if (x.name) input.name = x.name.replace('x', axis);
+    input.title = x.title.replace(/\bx\b/g, axis);
+    x.after(input);
+  }
+}
 const FIELDS = ['model', 'where', 'seed', 'size', 'scale', 'smooth', 'up', 'format'];
 // Each edit's fields, in the URL after `edit`: box (6 percentages x0,y0,z0,x1,y1,z1
 // of the sample, from the seed's sample) and other (the seed of the rest); grow
