@@ -1,6 +1,8 @@
-"""Property-based fuzzing of every command and the runtime's API, and of
-corrupted model and mesh files: no traceback, no hang, no partial or
-foreign file touched (docs/RELIABILITY.md, "The fuzz test").
+"""Property-based fuzzing of every command and the runtime's API, of
+corrupted model and mesh files (bits flipped in the graph's attributes
+among them), of a resumed job whose outputs were damaged, and of HTTP
+clients that leave: no traceback, no hang, no partial or foreign file
+touched (docs/RELIABILITY.md, "The fuzz test").
 
 CI runs a bounded, derandomised pass (the same cases every run, no example
 database). A longer run draws new cases each time:
@@ -22,6 +24,7 @@ import signal
 import struct
 import sys
 import tempfile
+import time
 from datetime import timedelta
 from pathlib import Path
 
@@ -596,6 +599,130 @@ def test_a_resumed_job_redoes_exactly_its_damaged_seeds(finished_job, tmp_path_f
             assert (record["bytes"], record["sha256"]) == (len(whole), hashlib.sha256(whole).hexdigest())
     finally:
         shutil.rmtree(root)
+
+
+# -- clients that leave -----------------------------------------------------
+SETTLE_SECONDS = 8  # a sample at scale 24 that nobody stops runs 15 s here
+LOG_ALARMS = ("Traceback", "ERROR", "Exception")
+
+
+@pytest.fixture(scope="module")
+def tiny_server():
+    """`sinrun serve tiny.onnx` in a child process on a free port: (base URL,
+    the lines it has printed so far, as they come)."""
+    import subprocess
+    import threading
+
+    pytest.importorskip("fastapi", reason="needs the serve extra: pip install 'sinshape[serve]'")
+    pytest.importorskip("uvicorn", reason="needs the serve extra: pip install 'sinshape[serve]'")
+    from test_serve import free_port, get
+
+    port = free_port()
+    process = subprocess.Popen([sys.executable, "-c", "from sinshape.cli.main import main; main()", "serve",
+                                str(TINY_ONNX), "--threads", "1", "--timeout", "20", "--port", str(port)],
+                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    printed = []
+    reader = threading.Thread(target=lambda: printed.extend(process.stdout), daemon=True)
+    reader.start()
+    base = f"http://127.0.0.1:{port}"
+    try:
+        for _ in range(300):
+            assert process.poll() is None, "".join(printed)
+            with contextlib.suppress(OSError):
+                if get(f"{base}/health")[0] == 200:
+                    break
+            time.sleep(0.1)
+        yield base, printed
+    finally:
+        process.terminate()
+        process.wait(20)
+        reader.join(5)
+    assert not [line for line in printed if any(word in line for word in LOG_ALARMS)], "".join(printed)
+
+
+def http_request(kind: str, seed: int, scale: int, format: str) -> tuple:
+    """(the request's bytes, how many of them are its head)."""
+    body = b""
+    if kind == "sample":
+        target = f"GET /api/models/tiny/sample?seed={seed}&scale={scale}&format={format}"
+    elif kind == "layout":  # a body that is no layout: answered 400 when it all arrives
+        target, body = f"POST /api/models/tiny/sample?seed={seed}", bytes(range(256)) * 8
+    else:
+        target = {"model file": "GET /api/models/tiny/onnx", "page": "GET /", "health": "GET /health"}[kind]
+    head = (f"{target} HTTP/1.1\r\nHost: 127.0.0.1\r\nAccept-Encoding: gzip\r\n"
+            + (f"Content-Length: {len(body)}\r\n" if body else "") + "\r\n").encode()
+    return head + body, len(head)
+
+
+@settings(FUZZ, max_examples=EXAMPLES or 15)  # a case waits for the server to settle: 0.1 to 1 s
+@given(kind=st.sampled_from(["sample", "sample", "layout", "model file", "page", "health"]),
+       seed=st.integers(0, 3), scale=st.sampled_from([1, 2, 24]), format=st.sampled_from(["glb", "ply", "npz"]),
+       data=st.data(), wait=st.floats(0, 0.3), read=st.integers(0, 1 << 16), reset=st.booleans())
+def test_a_client_that_leaves_at_any_moment(tiny_server, kind, seed, scale, format, data, wait, read, reset):
+    """A client sends all of a request or part of it, waits, perhaps reads
+    part of the answer, and leaves (FIN, or RST). The server frees what the
+    request held within SETTLE_SECONDS (nothing in flight, no sample being
+    made), logs no error or traceback, and answers the next request."""
+    import json
+    import socket
+
+    from test_serve import get
+
+    base, printed = tiny_server
+    port = int(base.rsplit(":", 1)[1])
+    request, head = http_request(kind, seed, scale, format)
+    # A layout's body cut short is left out: the server logs a traceback for it, a
+    # known fault (test_a_client_that_leaves_in_the_middle_of_a_layout_upload).
+    cut = data.draw(st.integers(0, head) | st.just(len(request)) if kind == "layout" else
+                    st.integers(0, len(request)), label="bytes sent")
+    before = len(printed)
+    with socket.create_connection(("127.0.0.1", port), timeout=5) as client:
+        client.sendall(request[:cut])
+        ends = time.perf_counter() + wait
+        with contextlib.suppress(OSError):
+            while read > 0 and time.perf_counter() < ends:
+                client.settimeout(max(0.001, ends - time.perf_counter()))
+                got = client.recv(min(read, 65536))
+                if not got:
+                    break
+                read -= len(got)
+        time.sleep(max(0.0, ends - time.perf_counter()))
+        if reset:
+            client.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+    started = time.perf_counter()
+    while True:
+        status, _, body = get(f"{base}/health")
+        health = json.loads(body)
+        if status == 200 and health["in_flight"] == health["sampling"] == 0:
+            break
+        assert time.perf_counter() - started < SETTLE_SECONDS, f"still busy after the client left: {health}"
+        time.sleep(0.05)
+    assert get(f"{base}/api/models/tiny/sample?seed=0&format=npz")[0] == 200
+    time.sleep(0.05)  # what the server logs reaches the reader
+    alarms = [line for line in printed[before:] if any(word in line for word in LOG_ALARMS)]
+    assert not alarms, "".join(printed[before:])
+
+
+@pytest.mark.xfail(strict=True, reason="serve/app.py reads a layout's body with request.body(), which raises "
+                   "ClientDisconnect when its client leaves: logged as a 500 with two tracebacks")
+def test_a_client_that_leaves_in_the_middle_of_a_layout_upload(tiny_server):
+    import socket
+
+    from test_serve import get
+
+    base, printed = tiny_server
+    request, head = http_request("layout", 1, 1, "glb")
+    before = len(printed)
+    with socket.create_connection(("127.0.0.1", int(base.rsplit(":", 1)[1])), timeout=5) as client:
+        client.sendall(request[:head + 100])
+        time.sleep(0.1)
+    get(f"{base}/health")
+    started = time.perf_counter()  # the two tracebacks end in this line, or nothing comes
+    while sum("ClientDisconnect" in line for line in printed[before:]) < 2 and time.perf_counter() - started < 3:
+        time.sleep(0.05)
+    tracebacks = [line for line in printed[before:] if any(word in line for word in LOG_ALARMS)]
+    del printed[before:]  # known: not for the module's last check
+    assert not tracebacks
 
 
 def test_the_case_bound_stops_a_hang():
