@@ -23,17 +23,17 @@ from sinshape.core.errors import InputError
 from sinshape.core.files import MESH_FORMATS, atomic_write
 from sinshape.core.manifest import MAX_LEVEL_SIDE, PLANE_AXES
 
-from .generate import TriPlane, chain, check_seed, draw_noise, resize_matrix, scaled_sizes, triplane
+from .generate import TriPlane, check_seed, draw_noise, resize_matrix, scaled_sizes, triplane
 from .generate import sample as generate_sample
 from .query import dense, sigmoid
 
 FIT_STEPS = 60  # at the layout's level
 FINER_STEPS = 30  # at each finer level, which would otherwise bring back what was removed
 FIT_RATE = 0.5  # Adam's step, in plane units (trained planes hold values of about +-2)
-PULL = 0.001  # weight of the change's squared size, per layout cell
-TOLERANCE = 0.002  # a fit stops once at most this share of the edited cells is on the wrong side of 0.5,
-KEEP_TOLERANCE = 0.01  # and at most this share of all cells
-KEEP_WEIGHT = 0.2  # an unedited cell's weight in the fit, against an edited cell's 1
+PULL = 0.001  # weight of the change's mean square
+MARGIN = 0.1  # an edited cell is fitted until its occupancy is this far past 0.5, on the layout's side
+KEEP_WEIGHT = 0.2  # an unedited cell's weight, against an edited cell's 1, once it has crossed 0.5
+SHARE = 0.4  # a plane cell may change where more than this share of the cells on its line were edited
 
 
 def check_level(model, level: int) -> int:
@@ -81,47 +81,73 @@ def pool(grid: np.ndarray, shape) -> np.ndarray:
     return separable([area_weights(n, m) for n, m in zip(grid.shape, shape)], grid)
 
 
+def plane_masks(edited: np.ndarray) -> list:
+    """Per plane, where a fit may change it, at the layout's resolution.
+
+    A plane cell is read by every voxel on a line through the volume, so
+    changing it for an edit changes that whole line. A plane may change a
+    cell where more than SHARE of its line was edited, and each edited cell
+    may also use the plane where its line is most edited; then one cell
+    more around. A slab removed along x thus changes the xy and xz planes
+    there and leaves yz, which every x reads, alone."""
+    shares = [edited.mean(axis=2 - k) for k in range(3)]  # plane k drops axis 2 - k
+    on_grid = [shares[0][:, :, None], shares[1][:, None, :], shares[2][None]]
+    best = np.argmax(np.stack([np.broadcast_to(a, edited.shape) for a in on_grid]), axis=0)
+    masks = []
+    for k in range(3):
+        mask = (shares[k] > SHARE) | (edited & (best == k)).any(axis=2 - k)
+        grown = mask.copy()
+        grown[1:] |= mask[:-1]
+        grown[:-1] |= mask[1:]
+        grown[:, 1:] |= mask[:, :-1]
+        grown[:, :-1] |= mask[:, 1:]
+        masks.append(grown)
+    return masks
+
+
 def fit(model, planes: list, target: np.ndarray, steps: int, edited: np.ndarray) -> list:
     """Planes (3 x (C, H, W)) changed so that their occupancy, area-averaged
-    to the layout's grid, matches the layout `target` (binary cross-entropy)
-    in the `edited` cells (where it differs from the seed's own layout: the
-    rest is left to the model), until all but TOLERANCE of them are on the
-    right side of 0.5, or after `steps`. The change is a field at the layout's own resolution,
-    resized onto each plane (bilinear, align_corners) and pulled toward zero:
-    it moves where things are and leaves the detail to the generators."""
+    to the layout's grid, is on the layout `target`'s side of 0.5 (by MARGIN)
+    in the `edited` cells, and stays on its own side in the others, after at
+    most `steps`. A hinge, not a cross-entropy: a cell already right adds
+    nothing, so partly full cells keep their detail instead of being pushed
+    to full or empty. The change is a field at the layout's own resolution,
+    resized onto each plane (bilinear, align_corners), only where
+    `plane_masks` allows it, and pulled toward zero: it moves where things
+    are and leaves the detail to the generators."""
     if not edited.any():
         return planes
     weights = first_layer(model)
     head = model.head
-    y = target.astype(np.float32)
-    weight = np.where(edited, 1.0, KEEP_WEIGHT).astype(np.float32)
-    weight /= weight.sum()
     size = (planes[0].shape[1], planes[0].shape[2], planes[1].shape[2])
     pools = [area_weights(n, m) for n, m in zip(size, target.shape)]
     # Per plane, (rows, cols) resize matrices from the layout's cells to the plane's.
     grow = [(resize_matrix(target.shape[a], size[a]), resize_matrix(target.shape[b], size[b])) for a, b in PLANE_AXES]
+    masks = [(r @ m.astype(np.float32) @ c.T > 0).astype(np.float32) for m, (r, c) in zip(plane_masks(edited), grow)]
     start = [p.astype(np.float32) for p in planes]
     change = [np.zeros((p.shape[0], r.shape[1], c.shape[1]), np.float32) for p, (r, c) in zip(start, grow)]
     moments = [(np.zeros_like(d), np.zeros_like(d)) for d in change]
-    current = start
+    current, side, need, weight = start, None, None, None
     for step in range(1, steps + 1):
-        current = [p + r @ d @ c.T for p, d, (r, c) in zip(start, change, grow)]
+        current = [p + mask * (r @ d @ c.T) for p, mask, d, (r, c) in zip(start, masks, change, grow)]
         a_xy, a_xz, a_yz = (np.einsum("chw,cd->hwd", p, w) for p, w in zip(current, weights))
         pre = a_xy[:, :, None] + a_xz[:, None] + a_yz[None] + head.bias1  # (X, Y, Z, D)
         active = pre > 0
         occupancy = sigmoid(np.where(active, pre, 0) @ head.weight2 + head.bias2)
-        pooled = np.clip(separable(pools, occupancy), 1e-6, 1 - 1e-6)
-        wrong = (pooled > 0.5) != target
-        if (np.count_nonzero(wrong & edited) <= TOLERANCE * edited.sum()
-                and np.count_nonzero(wrong) <= KEEP_TOLERANCE * target.size):
+        pooled = separable(pools, occupancy)
+        if side is None:  # the unedited cells keep the side these planes put them on
+            side = np.where(edited, target, pooled > 0.5).astype(np.float32) * 2 - 1
+            need = np.where(edited, MARGIN, 0).astype(np.float32)
+            weight = np.where(edited, 1.0, KEEP_WEIGHT).astype(np.float32) / edited.sum()
+        short = need - side * (pooled - 0.5) > 0
+        if not short.any():
             break
-        # Binary cross-entropy of the pooled occupancy, back through the pooling, the sigmoid and the ReLU.
-        d_pooled = (pooled - y) / (pooled * (1 - pooled)) * weight
-        d_occupancy = separable([w.T for w in pools], d_pooled)
+        # The hinge's gradient, back through the pooling, the sigmoid and the ReLU.
+        d_occupancy = separable([w.T for w in pools], np.where(short, -side * weight, 0))
         d_pre = (d_occupancy * occupancy * (1 - occupancy))[..., None] * head.weight2 * active
         d_a = [d_pre.sum(axis=2), d_pre.sum(axis=1), d_pre.sum(axis=0)]
-        for k, (d, w, (r, c), (m, v)) in enumerate(zip(change, weights, grow, moments)):
-            grad = r.T @ np.einsum("hwd,cd->chw", d_a[k], w) @ c + 2 * PULL / d[0].size * d
+        for k, (d, w, mask, (r, c), (m, v)) in enumerate(zip(change, weights, masks, grow, moments)):
+            grad = r.T @ (mask * np.einsum("hwd,cd->chw", d_a[k], w)) @ c + 2 * PULL / d.size * d
             m += 0.1 * (grad - m)  # Adam, beta1 0.9, beta2 0.999
             v += 0.001 * (grad * grad - v)
             d -= FIT_RATE * (m / (1 - 0.9**step)) / (np.sqrt(v / (1 - 0.999**step)) + 1e-8)
@@ -151,16 +177,14 @@ def from_layout(model, seed: int, target: np.ndarray, factors=(1.0, 1.0, 1.0), r
     if target.shape != tuple(sizes[level]):
         target = pool(target, sizes[level]) > 0.5
     noise = draw_noise(check_seed(seed), sizes, model.manifest.channels)
-    # What the seed's own levels hold on the layout's grid: the targets of the
-    # cells the user did not edit, so that each level keeps its own look there.
-    own = [pool(dense(model, TriPlane(planes, size)), target.shape) > 0.5
-           for planes, size in zip(chain(model, noise, sizes), sizes)]
-    edited = target != own[-1]
+    # The cells the user edited: where the layout differs from the seed's own.
+    own = pool(dense(model, triplane(model, noise, sizes)), target.shape) > 0.5
+    edited = target != own
 
     def fitted(i, planes):
         if i < level:
             return planes
-        return fit(model, planes, np.where(edited, target, own[i]), FIT_STEPS if i == level else FINER_STEPS, edited)
+        return fit(model, planes, target, FIT_STEPS if i == level else FINER_STEPS, edited)
 
     return triplane(model, noise, sizes, after_level=fitted)
 

@@ -52,6 +52,28 @@ def test_an_edited_layout_is_followed(acropolis, seed3, name):
     assert iou >= 0.9 and edited >= 0.8, (iou, edited)
 
 
+def test_an_edit_changes_only_the_plane_cells_its_cells_need(acropolis, seed3):
+    """A gap cut along x changes the xy and xz planes over the gap: the yz
+    plane, which every x reads, stays the seed's, and so does the shape away
+    from the gap, but for the few voxels the finer levels' instance norms
+    pass the change to (they normalise each plane as a whole)."""
+    target = edits(seed3)["removed"]
+    masks = L.plane_masks(target != seed3)
+    x = seed3.shape[0]
+    assert not masks[2].any()
+    assert masks[0][x // 3:x // 2].any() and not masks[0][:x // 3 - 1].any() and not masks[0][x // 2 + 1:].any()
+    single = np.zeros_like(seed3)
+    single[5, 5, 5] = True
+    assert sum(m.sum() for m in L.plane_masks(single)) == 5  # one plane: the cell and its four neighbours
+
+    edited, own = L.from_layout(acropolis, 3, target), sample(acropolis, 3)
+    assert np.array_equal(edited.planes[2], own.planes[2])
+    a, b = dense(acropolis, edited), dense(acropolis, own)
+    far = np.zeros(a.shape, bool)
+    far[:a.shape[0] // 4] = far[a.shape[0] * 3 // 4:] = True
+    assert np.mean((a > 0.5)[far] != (b > 0.5)[far]) < 0.01 and np.abs(a - b).max() > 0.5
+
+
 def test_the_seed_varies_the_detail_and_the_same_inputs_give_the_same_shape(acropolis, seed3):
     target = edits(seed3)["removed"]
     a, b = (dense(acropolis, L.from_layout(acropolis, s, target)) for s in (3, 5))
@@ -163,7 +185,7 @@ def test_a_rough_mesh_is_a_layout(acropolis, tmp_path):
     assert target.shape == tuple(m.sizes[0]) and 0.2 < target.mean() < 0.5
     assert target[:, :, 0].all() and not target[13, 8, 10]  # the floor, and air between the towers
     pooled = L.pool(dense(acropolis, L.sample_from_file(acropolis, 3, path)), target.shape) > 0.5
-    assert (pooled & target).sum() / (pooled | target).sum() >= 0.9
+    assert np.mean(pooled == target) >= 0.9 and (pooled & target).sum() / (pooled | target).sum() >= 0.8
     far = tmp_path / "far.obj"
     trimesh.creation.box(bounds=[origin + 10 * extent, origin + 11 * extent]).export(far)
     with pytest.raises(InputError, match="lies outside the sample's box"):
