@@ -78,3 +78,9 @@ export function projectedDense(model, proj, scale = 1, progress = null) {
   return { data: out, shape: [mx, my, mz] };
 }
 
+
+/** Occupancy on a grid `scale` times finer than the tri-plane, as runtime/query.py's dense
+ * (progress(fraction), if given, after each x slice). */
+export async function dense(model, tri, scale = 1, progress = null) {
+  return projectedDense(model, await project(model, tri), scale, progress);
+}

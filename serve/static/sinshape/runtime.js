@@ -10,17 +10,12 @@
 //   const mesh = sinshape.surface(grid, tri.size, model.manifest);   // { positions, faces }
 //   sinshape.smooth(mesh, 3);                            // Laplacian steps, as --smooth
 //   const edited = await sinshape.compose(model, 7, [{ seed: 3, low: [0, 0, 0], high: [30, 36, 31] }]);  // as runtime.compose
-import { project, projectedDense } from './query.js';
-
+//   const laid = await sinshape.layout(model, 3);                        // { grid, shape }: level 0's layout, as runtime.layout.layout
+//   const fitted = await sinshape.fromLayout(model, 3, laid.grid, laid.shape);  // as runtime.layout.from_layout
 export { InputError, loadModel, configure, parseManifest } from './model.js';
 export { sample, scaledSizes } from './generate.js';
 export { compose, grow } from './edit.js';
 export { normal, streamKey } from './noise.js';
-export { gridShape, project, projectedDense } from './query.js';
+export { dense, gridShape, project, projectedDense } from './query.js';
+export { fromLayout, layout } from './layout.js';
 export { marchingCubes, massProperties, smooth, surface } from './mesh.js';
-
-/** Occupancy on a grid `scale` times finer than the tri-plane, as runtime/query.py's dense
- * (progress(fraction), if given, after each x slice). */
-export async function dense(model, tri, scale = 1, progress = null) {
-  return projectedDense(model, await project(model, tri), scale, progress);
-}

@@ -1,0 +1,260 @@
+// Layouts, as runtime/layout.py (docs/EDITING.md, "Layouts"): a sample's
+// occupancy area-averaged to one level's grid, and generating from an edited
+// one: the planes of the layout's level and of every finer level are fitted
+// to it by gradient descent through the decoder (a hinge, Adam), each plane
+// only where its lines were edited. The steps are runtime/layout.py's, in
+// the same order; sums run in float64 where numpy's run in float32.
+//
+// Grids are Float32Array or Uint8Array (a layout: 1 full, 0 empty) in C
+// order (x slowest, z fastest), with their shape.
+import { InputError } from './model.js';
+import { checkSeed, drawNoise, resizeWeights, sample, scaledSizes, triplane } from './generate.js';
+import { dense } from './query.js';
+
+// The fit's constants: they mirror runtime/layout.py's (which says why each is what it is).
+const FIT_STEPS = 60; // at the layout's level
+const FINER_STEPS = 30; // at each finer level
+const FIT_RATE = 0.5; // Adam's step, in plane units
+const PULL = 0.001; // weight of the change's mean square
+const MARGIN = 0.1; // how far past 0.5 an edited cell is fitted, on the layout's side
+const KEEP_WEIGHT = 0.2; // an unedited cell's weight, against an edited cell's 1
+const SHARE = 0.4; // a plane cell may change where more than this share of its line was edited
+const PLANE_AXES = [[0, 1], [0, 2], [1, 2]];
+
+const product = (shape) => shape.reduce((a, b) => a * b, 1);
+
+/** (nOut, nIn) as { data, rows, cols }: cell i of nOut averages the part of the nIn cells it covers, as area_weights. */
+export function areaWeights(nIn, nOut) {
+  const data = new Float32Array(nOut * nIn), overlap = new Float64Array(nIn), step = nIn / nOut;
+  for (let i = 0; i < nOut; i++) {
+    let total = 0;
+    for (let c = 0; c < nIn; c++) {
+      overlap[c] = Math.max(0, Math.min((i + 1) * step, c + 1) - Math.max(i * step, c));
+      total += overlap[c];
+    }
+    for (let c = 0; c < nIn; c++) data[i * nIn + c] = overlap[c] / total;
+  }
+  return { data, rows: nOut, cols: nIn };
+}
+
+/** (nOut, nIn) linear interpolation, align_corners, as generate.py's resize_matrix. */
+function resizeMatrix(nIn, nOut) {
+  const { low, high, wLow, wHigh } = resizeWeights(nIn, nOut);
+  const data = new Float32Array(nOut * nIn);
+  for (let i = 0; i < nOut; i++) {
+    data[i * nIn + low[i]] += wLow[i];
+    data[i * nIn + high[i]] += wHigh[i];
+  }
+  return { data, rows: nOut, cols: nIn };
+}
+
+function transpose({ data, rows, cols }) {
+  const out = new Float32Array(data.length);
+  for (let i = 0; i < rows; i++) for (let j = 0; j < cols; j++) out[j * rows + i] = data[i * cols + j];
+  return { data: out, rows: cols, cols: rows };
+}
+
+/** A grid times an (nOut, nIn) matrix along `axis`: { data, shape }. */
+function along(grid, shape, axis, { data: w, rows, cols }) {
+  const outer = product(shape.slice(0, axis)), inner = product(shape.slice(axis + 1));
+  const out = new Float32Array(outer * rows * inner), sum = new Float64Array(inner);
+  for (let o = 0; o < outer; o++) {
+    for (let i = 0; i < rows; i++) {
+      sum.fill(0);
+      for (let c = 0; c < cols; c++) {
+        const weight = w[i * cols + c], from = (o * cols + c) * inner;
+        if (weight !== 0) for (let t = 0; t < inner; t++) sum[t] += weight * grid[from + t];
+      }
+      out.set(sum, (o * rows + i) * inner);
+    }
+  }
+  return { data: out, shape: shape.with(axis, rows) };
+}
+
+/** One matrix applied along each axis of a grid, as separable: { data, shape }. */
+const separable = (weights, grid, shape) => weights.reduce((g, w, axis) => along(g.data, g.shape, axis, w), { data: grid, shape });
+
+/** A grid area-averaged down (or up) to shape `to`, as pool: Float32Array. */
+export const pool = (grid, shape, to) => separable(shape.map((n, a) => areaWeights(n, to[a])), grid, shape).data;
+
+const threshold = (grid) => Uint8Array.from(grid, (v) => (v > 0.5 ? 1 : 0));
+
+function checkLevel(model, level) {
+  const levels = model.manifest.sizes.length;
+  if (!(Number.isInteger(level) && level >= 0 && level < levels - 1)) {
+    throw new InputError(`level must be 0 to ${levels - 2} (a layout needs a finer level after it), got ${level}`);
+  }
+  return level;
+}
+
+/** The layout of the sample of `seed` at `level`: { grid: Uint8Array, shape }, as layout.layout. */
+export async function layout(model, seed, level = 0, factors = [1, 1, 1]) {
+  checkLevel(model, level);
+  const shape = scaledSizes(model.manifest.sizes, factors)[level];
+  const grid = await dense(model, await sample(model, checkSeed(seed), factors));
+  return { grid: threshold(pool(grid.data, grid.shape, shape)), shape };
+}
+
+/** Each plane's block of the decoder's first layer, (C, D) Float32Array: stage decoder_planes on one-hot planes, as first_layer. */
+export async function firstLayer(model) {
+  const c = model.manifest.channels, eye = new Float32Array(c * c);
+  for (let j = 0; j < c; j++) eye[j * c + j] = 1; // (1, C, 1, C): cell j holds channel j
+  const outputs = await model.decoderPlanes.run([0, 1, 2].map(() => ({ data: eye, dims: [1, c, 1, c] })));
+  return outputs.map((o) => o.data); // (1, 1, C, D)
+}
+
+/** Per plane, where a fit may change it, at the layout's resolution: 3 x Uint8Array (H, W), as plane_masks. */
+export function planeMasks(edited, shape) {
+  const [x, y, z] = shape;
+  const dims = PLANE_AXES.map(([a, b]) => [shape[a], shape[b]]);
+  const line = [(i, j) => i * y + j, (i, j, k) => i * z + k, (i, j, k) => j * z + k]; // plane k's cell of voxel (i, j, k)
+  const counts = dims.map(([h, w]) => new Float64Array(h * w));
+  const each = (visit) => { for (let i = 0; i < x; i++) for (let j = 0; j < y; j++) for (let k = 0; k < z; k++) visit(i, j, k, (i * y + j) * z + k); };
+  each((i, j, k, n) => { if (edited[n]) line.forEach((at, p) => { counts[p][at(i, j, k)] += 1; }); });
+  const shares = counts.map((c, p) => c.map((v) => v / shape[2 - p])); // plane p drops axis 2 - p
+  const masks = dims.map(([h, w], p) => Uint8Array.from(shares[p], (s) => (s > SHARE ? 1 : 0)));
+  each((i, j, k, n) => {
+    if (!edited[n]) return;
+    const lines = line.map((at, p) => shares[p][at(i, j, k)]);
+    const best = lines.indexOf(Math.max(...lines)); // the plane of the most edited line through the cell (the first of equals)
+    masks[best][line[best](i, j, k)] = 1;
+  });
+  return masks.map((mask, p) => { // then one cell more around
+    const [h, w] = dims[p], grown = Uint8Array.from(mask);
+    for (let a = 0; a < h; a++) for (let b = 0; b < w; b++) {
+      if (!mask[a * w + b]) continue;
+      if (a > 0) grown[(a - 1) * w + b] = 1;
+      if (a < h - 1) grown[(a + 1) * w + b] = 1;
+      if (b > 0) grown[a * w + b - 1] = 1;
+      if (b < w - 1) grown[a * w + b + 1] = 1;
+    }
+    return grown;
+  });
+}
+
+/** A (C, h, w) field of the layout's resolution resized onto a plane's cells by [rows, cols] matrices: rows @ d @ cols.T. */
+function onPlane(field, dims, [rows, cols]) {
+  const tall = along(field, dims, 1, rows);
+  return along(tall.data, tall.shape, 2, cols).data;
+}
+
+/**
+ * Planes (3 x { data, dims: [C, H, W] }) changed so that their occupancy,
+ * area-averaged to the layout's grid, is on the layout's side of 0.5 (by
+ * MARGIN) in the `edited` cells and stays on its own side in the others,
+ * after at most `steps`, as runtime/layout.py's fit (`weights`: firstLayer's).
+ */
+export function fit(model, weights, planes, target, shape, steps, edited) {
+  if (!edited.some((e) => e)) return planes;
+  const { bias1, weight2, bias2 } = model.head;
+  const c = planes[0].dims[0], d = bias1.length;
+  const size = [planes[0].dims[1], planes[0].dims[2], planes[1].dims[2]], [x, y, z] = size;
+  const pools = size.map((n, a) => areaWeights(n, shape[a]));
+  const back = pools.map(transpose);
+  const grow = PLANE_AXES.map(([a, b]) => [resizeMatrix(shape[a], size[a]), resizeMatrix(shape[b], size[b])]);
+  const shrink = grow.map((matrices) => matrices.map(transpose));
+  const fieldDims = PLANE_AXES.map(([a, b]) => [c, shape[a], shape[b]]);
+  const masks = planeMasks(edited, shape).map((m, p) => Uint8Array.from(onPlane(m, fieldDims[p].with(0, 1), grow[p]), (v) => (v > 0 ? 1 : 0)));
+  const change = fieldDims.map((dims) => new Float32Array(product(dims)));
+  const moments = change.map((field) => [new Float32Array(field.length), new Float32Array(field.length)]);
+  const cells = x * y * z, pre = new Float32Array(cells * d), occupancy = new Float32Array(cells);
+  const count = edited.reduce((n, e) => n + e, 0);
+  let current = planes, side = null, need = null, weight = null;
+  for (let step = 1; step <= steps; step++) {
+    current = planes.map((p, k) => {
+      const moved = onPlane(change[k], fieldDims[k], grow[k]), area = p.dims[1] * p.dims[2];
+      return { data: p.data.map((v, i) => v + masks[k][i % area] * moved[i]), dims: p.dims };
+    });
+    const [axy, axz, ayz] = current.map((p, k) => { // einsum chw,cd->hwd
+      const area = p.dims[1] * p.dims[2], out = new Float64Array(area * d);
+      for (let ch = 0; ch < c; ch++) for (let i = 0; i < area; i++) {
+        const value = p.data[ch * area + i];
+        for (let e = 0; e < d; e++) out[i * d + e] += value * weights[k][ch * d + e];
+      }
+      return out;
+    });
+    for (let i = 0; i < x; i++) for (let j = 0; j < y; j++) for (let k = 0; k < z; k++) {
+      const n = (i * y + j) * z + k, a = (i * y + j) * d, b = (i * z + k) * d, e = (j * z + k) * d;
+      let s = bias2;
+      for (let h = 0; h < d; h++) {
+        const v = pre[n * d + h] = axy[a + h] + axz[b + h] + ayz[e + h] + bias1[h];
+        if (v > 0) s += v * weight2[h];
+      }
+      occupancy[n] = 1 / (1 + Math.exp(-s));
+    }
+    const pooled = pool(occupancy, size, shape);
+    if (side === null) { // the unedited cells keep the side these planes put them on
+      side = Float32Array.from(pooled, (v, n) => ((edited[n] ? target[n] : v > 0.5) ? 1 : -1));
+      need = Float32Array.from(edited, (e) => (e ? MARGIN : 0));
+      weight = Float32Array.from(edited, (e) => (e ? 1 : KEEP_WEIGHT) / count);
+    }
+    const hinge = new Float32Array(target.length); // its gradient in the cells short of their side
+    let short = false;
+    for (let n = 0; n < target.length; n++) {
+      if (need[n] - side[n] * (pooled[n] - 0.5) > 0) [hinge[n], short] = [-side[n] * weight[n], true];
+    }
+    if (!short) break;
+    // The hinge's gradient, back through the pooling, the sigmoid and the ReLU.
+    const dOccupancy = separable(back, hinge, shape).data;
+    const dA = [x * y, x * z, y * z].map((area) => new Float64Array(area * d));
+    for (let i = 0; i < x; i++) for (let j = 0; j < y; j++) for (let k = 0; k < z; k++) {
+      const n = (i * y + j) * z + k, o = occupancy[n], g = dOccupancy[n] * o * (1 - o);
+      if (g === 0) continue;
+      const a = (i * y + j) * d, b = (i * z + k) * d, e = (j * z + k) * d;
+      for (let h = 0; h < d; h++) {
+        if (pre[n * d + h] <= 0) continue;
+        const v = g * weight2[h];
+        dA[0][a + h] += v;
+        dA[1][b + h] += v;
+        dA[2][e + h] += v;
+      }
+    }
+    change.forEach((field, k) => {
+      const [, h, w] = current[k].dims, area = h * w, onCells = new Float32Array(c * area); // mask * einsum hwd,cd->chw
+      for (let ch = 0; ch < c; ch++) for (let i = 0; i < area; i++) {
+        if (!masks[k][i]) continue;
+        let s = 0;
+        for (let e = 0; e < d; e++) s += dA[k][i * d + e] * weights[k][ch * d + e];
+        onCells[ch * area + i] = s;
+      }
+      const grad = onPlane(onCells, [c, h, w], shrink[k]), [m, v] = moments[k];
+      for (let i = 0; i < field.length; i++) {
+        const g = grad[i] + (2 * PULL / field.length) * field[i];
+        m[i] += 0.1 * (g - m[i]); // Adam, beta1 0.9, beta2 0.999
+        v[i] += 0.001 * (g * g - v[i]);
+        field[i] -= FIT_RATE * (m[i] / (1 - 0.9 ** step)) / (Math.sqrt(v[i] / (1 - 0.999 ** step)) + 1e-8);
+      }
+    });
+  }
+  return current;
+}
+
+/** The level whose grid a layout of `shape` is. */
+function layoutLevel(sizes, shape) {
+  const level = sizes.slice(0, -1).findIndex((size) => size.join() === shape.join());
+  if (level < 0) {
+    const grids = sizes.slice(0, -1).map((size) => size.join('x')).join(', ');
+    throw new InputError(`the layout is ${shape.join('x')}, and this sample's levels are ${grids}; resample it to level 0's grid, or export one with \`layout\``);
+  }
+  return level;
+}
+
+/**
+ * The tri-plane of the sample of `seed` with the structure of the layout
+ * `target` (0/1 of one level's `shape`, found by its shape), as
+ * layout.from_layout: structure from the layout, detail from the model and the seed.
+ */
+export async function fromLayout(model, seed, target, shape, factors = [1, 1, 1]) {
+  const sizes = scaledSizes(model.manifest.sizes, factors);
+  const level = layoutLevel(sizes, shape);
+  if (target.length !== product(shape)) throw new InputError(`a layout of ${shape.join('x')} cells needs ${product(shape)} values, got ${target.length}`);
+  const wanted = threshold(target);
+  const noise = drawNoise(checkSeed(seed), sizes, model.manifest.channels);
+  // The cells the user edited: where the layout differs from the seed's own.
+  const grid = await dense(model, await triplane(model, noise, sizes));
+  const own = threshold(pool(grid.data, grid.shape, shape));
+  const edited = wanted.map((v, n) => (v !== own[n] ? 1 : 0));
+  const weights = await firstLayer(model);
+  return triplane(model, noise, sizes, (i, planes) => (i < level ? planes
+    : fit(model, weights, planes, wanted, shape, i === level ? FIT_STEPS : FINER_STEPS, edited)));
+}
