@@ -15,6 +15,8 @@ import time
 import urllib.request
 from pathlib import Path
 
+import numpy as np
+
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 # WebGL without a GPU: chromium's software renderer (as tests/test_serve_page.py).
 ARGS = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"]
@@ -109,3 +111,47 @@ def open_page(browser, base: str):
     page.route("**/*", lambda route: route.continue_() if route.request.url.startswith(base)
                else (page.outside.append(route.request.url), route.abort()))
     return page
+
+
+# ---- the page's layout editor (tests/test_serve_page.py on the server, tests/test_web.py in the browser)
+# The first full cell whose face `normal` a click in the view picks (that cell and that face), with
+# `room` empty cells beyond the face inside the layout, in none of the columns `skip` ([[i, j], ...]):
+# { cell, x, y } in client coordinates, or null.
+CLICKABLE_JS = """([normal, room, skip = []]) => {
+  const view = window.sinshapeView, layout = view.layout(), [X, Y, Z] = layout.shape;
+  const full = (c) => c.every((v, a) => v >= 0 && v < layout.shape[a]) && layout.grid[(c[0] * Y + c[1]) * Z + c[2]] === 1;
+  const inside = (c) => c.every((v, a) => v >= 0 && v < layout.shape[a]);
+  const rect = document.querySelector('#view canvas').getBoundingClientRect();
+  for (let i = 0; i < X; i++) for (let j = 0; j < Y; j++) for (let k = 0; k < Z; k++) {
+    const cell = [i, j, k];
+    if (!full(cell) || skip.some(([a, b]) => a === i && b === j)) continue;
+    let ok = true;
+    for (let r = 1; r <= room; r++) {
+      const beyond = cell.map((v, a) => v + r * normal[a]);
+      if (!inside(beyond) || full(beyond)) ok = false;
+    }
+    if (!ok) continue;
+    const point = view.facePoint(cell, normal);
+    if (point.x < rect.left + 20 || point.x > rect.right - 20 || point.y < rect.top + 20 || point.y > rect.bottom - 20) continue;
+    const hit = view.pick(point.x, point.y);
+    if (hit && hit.cell.join() === cell.join() && hit.normal.join() === normal.join()) return { cell, ...point };
+  }
+  return null;
+}"""
+
+
+def layout_in_page(page) -> np.ndarray:
+    got = page.evaluate("window.sinshapeView.layout()")
+    return np.array(got["grid"], bool).reshape(got["shape"])
+
+
+def edits_text(grid: np.ndarray, base: np.ndarray) -> str:
+    """The page's text of a layout edit (serve/static/layout.js: encodeEdits)."""
+    return ",".join(f"{'a' if grid[c] else 'r'}{c[0]}.{c[1]}.{c[2]}" for c in map(tuple, np.argwhere(grid != base)))
+
+
+def wait_cells(page, text: str) -> None:
+    page.wait_for_function("([text]) => ['ready', 'error'].includes(document.body.dataset.state) && "
+                           "(new URLSearchParams(location.search).get('cells') ?? '') === text", arg=[text],
+                           timeout=60_000)
+    assert page.evaluate("document.body.dataset.state") == "ready", page.text_content("#error")

@@ -11,6 +11,7 @@ import pytest
 import trimesh
 from PIL import Image
 
+from browser import CLICKABLE_JS, edits_text, layout_in_page, wait_cells
 from test_serve import running_server
 
 sync_api = pytest.importorskip("playwright.sync_api", reason="needs playwright (the test extra)")
@@ -428,49 +429,6 @@ def test_the_layout_route_is_the_librarys(page, terrain):
     assert headers["Content-Disposition"] == 'attachment; filename="terrain_seed3_layout1.vox"'
     status, _, body = get(f"{page.base}/api/models/terrain/layout?seed=3&level=3")
     assert status == 400 and json.loads(body)["detail"] == "level must be 0 to 2 (a layout needs a finer level after it), got 3"
-
-
-# The first full cell whose face `normal` a click in the view picks (that cell and that face), with
-# `room` empty cells beyond the face inside the layout, in none of the columns `skip` ([[i, j], ...]):
-# { cell, x, y } in client coordinates, or null.
-CLICKABLE_JS = """([normal, room, skip = []]) => {
-  const view = window.sinshapeView, layout = view.layout(), [X, Y, Z] = layout.shape;
-  const full = (c) => c.every((v, a) => v >= 0 && v < layout.shape[a]) && layout.grid[(c[0] * Y + c[1]) * Z + c[2]] === 1;
-  const inside = (c) => c.every((v, a) => v >= 0 && v < layout.shape[a]);
-  const rect = document.querySelector('#view canvas').getBoundingClientRect();
-  for (let i = 0; i < X; i++) for (let j = 0; j < Y; j++) for (let k = 0; k < Z; k++) {
-    const cell = [i, j, k];
-    if (!full(cell) || skip.some(([a, b]) => a === i && b === j)) continue;
-    let ok = true;
-    for (let r = 1; r <= room; r++) {
-      const beyond = cell.map((v, a) => v + r * normal[a]);
-      if (!inside(beyond) || full(beyond)) ok = false;
-    }
-    if (!ok) continue;
-    const point = view.facePoint(cell, normal);
-    if (point.x < rect.left + 20 || point.x > rect.right - 20 || point.y < rect.top + 20 || point.y > rect.bottom - 20) continue;
-    const hit = view.pick(point.x, point.y);
-    if (hit && hit.cell.join() === cell.join() && hit.normal.join() === normal.join()) return { cell, ...point };
-  }
-  return null;
-}"""
-
-
-def layout_in_page(page) -> np.ndarray:
-    got = page.evaluate("window.sinshapeView.layout()")
-    return np.array(got["grid"], bool).reshape(got["shape"])
-
-
-def edits_text(grid: np.ndarray, base: np.ndarray) -> str:
-    """The page's text of a layout edit (serve/static/layout.js: encodeEdits)."""
-    return ",".join(f"{'a' if grid[c] else 'r'}{c[0]}.{c[1]}.{c[2]}" for c in map(tuple, np.argwhere(grid != base)))
-
-
-def wait_cells(page, text: str) -> None:
-    page.wait_for_function("([text]) => ['ready', 'error'].includes(document.body.dataset.state) && "
-                           "(new URLSearchParams(location.search).get('cells') ?? '') === text", arg=[text],
-                           timeout=60_000)
-    assert page.evaluate("document.body.dataset.state") == "ready", page.text_content("#error")
 
 
 def test_edit_the_layout_as_blocks(page, terrain, tmp_path):

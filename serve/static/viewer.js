@@ -1,6 +1,6 @@
 // The sinshape page: pick a model and a seed, see the sample in 3-D, download it,
 // and edit it (docs/EDITING.md): keep a box of it and take the rest from another
-// seed, grow it, or edit its coarse layout as blocks (server only). Each change
+// seed, grow it, or edit its coarse layout as blocks. Each change
 // of the shape is a step that undo and redo walk; the state lives in the URL's
 // query string, so a view, edits included, can be shared.
 // A sample is made on the server (its API) or in this browser (the JavaScript
@@ -238,10 +238,6 @@ function showMode() {
   for (const [edit, id] of [['keep', 'keep-controls'], ['grow', 'grow-controls'], ['layout', 'layout-controls']]) {
     $(id).hidden = state.edit !== edit;
   }
-  const layoutHere = state.edit === 'layout' && browser;
-  $('layout-note').hidden = !layoutHere;
-  for (const id of ['tool', 'direction', 'duplicate', 'move', 'blocks', 'vox-file']) $(id).disabled = layoutHere;
-  $('vox-import-label').classList.toggle('disabled', layoutHere);
 }
 
 function fromForm() {
@@ -435,10 +431,10 @@ async function sampleHere(ticket) {
   if (!(scale > 0 && Number.isFinite(scale))) throw new Error(`scale: give a positive number, got '${state.scale}'`);
   const steps = Number(state.smooth);
   if (!(Number.isInteger(steps) && steps >= 0 && steps <= 100)) throw new Error(`smooth: give a whole number of steps in 0..100, got '${state.smooth}'`);
-  // The edits edit.js makes (the layout's fit is the server's: showMode says so, and the plain sample is shown).
+  // The edits edit.js makes; a layout's (layout.js) once the worker has made the seed's layout.
   const keep = state.edit === 'keep' ? { base: String(parseSeed(String(state.other).trim())), box: parseBox(state.box) } : undefined;
   const grow = state.edit === 'grow' ? { by: parseFactors(state.grow, 'grow', true), anchor: parseAnchor(state.anchor) } : undefined;
-  layoutNow = null;
+  if (state.edit !== 'layout') layoutNow = null;
   await running.catch(() => {}); // the worker makes one sample at a time; newer requests skip the ones between
   if (ticket !== latest) return;
   const name = state.model;
@@ -446,8 +442,11 @@ async function sampleHere(ticket) {
     if (!browserModels.get(name)?.loaded) showProgress('loading the model');
     const model = await browserModel(name);
     if (ticket !== latest) throw new Cancelled(); // cancelled while the model loaded
+    if (state.edit === 'layout') await showLayout();
+    if (ticket !== latest) throw new Cancelled();
     drawExtras(model);
-    return [model, await call({ type: 'sample', name, seed: String(seed), factors, scale, smooth: steps, keep, grow },
+    const layout = layoutNow?.edits ? { grid: layoutNow.grid, shape: layoutNow.shape } : undefined;
+    return [model, await call({ type: 'sample', name, seed: String(seed), factors, scale, smooth: steps, keep, grow, layout },
       (stage, fraction) => { if (ticket === latest) showProgress(stage, fraction); })];
   })();
   running = job;
@@ -621,8 +620,8 @@ function drawExtras(info) {
   }
 }
 
-// ---- layouts (server mode): the seed's layout from the server, the user's edits on it
-const layoutBases = new Map(); // "model|seed|size" -> a promise of { shape, grid }
+// ---- layouts: the seed's layout (from the server, or the worker's), the user's edits on it
+const layoutBases = new Map(); // "where|model|seed|size" -> a promise of { shape, grid }
 let layoutNow = null; // { base, grid, shape, edits }: the layout in view
 let selected = null; // the selected cell [i, j, k], for duplicate and move
 let blocksMesh = null, blockCells = [];
@@ -631,9 +630,14 @@ const raycaster = new THREE.Raycaster();
 let voxUrl = null;
 
 function layoutBase(name, seed, size) {
-  const key = `${name}|${seed}|${size}`;
+  const key = `${state.where}|${name}|${seed}|${size}`;
   if (!layoutBases.has(key)) {
     layoutBases.set(key, (async () => {
+      if (state.where === 'browser') { // the worker's runtime.layout.layout (layout.js)
+        await browserModel(name);
+        const { shape, grid } = await call({ type: 'layout', name, seed: String(parseSeed(seed)), factors: parseFactors(size) });
+        return { shape, grid };
+      }
       const query = new URLSearchParams({ seed, size });
       const response = await fetch(`api/models/${encodeURIComponent(name)}/layout?${query}`);
       const body = await response.json().catch(() => ({}));
@@ -717,7 +721,7 @@ Object.assign(window.sinshapeView, { pick, facePoint, layout: () => layoutNow &&
 
 /** One edit of the layout: `change(grid, shape)` alters a copy; the result is a step, and its shape is made. */
 function editLayout(change) {
-  if (!layoutNow || state.where !== 'server') return;
+  if (!layoutNow) return;
   const grid = Uint8Array.from(layoutNow.grid);
   try {
     change(grid, layoutNow.shape);
@@ -901,7 +905,7 @@ async function start() {
   renderer.domElement.addEventListener('pointerup', (event) => {
     const near = pressed && Math.hypot(event.clientX - pressed[0], event.clientY - pressed[1]) <= 4;
     pressed = null;
-    if (!near || state.edit !== 'layout' || state.where !== 'server') return;
+    if (!near || state.edit !== 'layout') return;
     const hit = pick(event.clientX, event.clientY);
     if (hit) clickBlock(hit);
   });

@@ -6,12 +6,15 @@
 // Messages in, each with an id the answers repeat:
 //   { id, type: 'load', name, bytes, file }  load and check a model (bytes: Uint8Array)
 //     -> { id, type: 'loaded', backend, threads, seconds, sizes, origin, spacing }  (the manifest's grids and frame)
-//   { id, type: 'sample', name, seed, factors, scale, smooth, keep, grow }  seed: digits; edits (edit.js), at most one:
+//   { id, type: 'sample', name, seed, factors, scale, smooth, keep, grow, layout }  seed: digits; edits, at most one:
 //       keep: { base, box }  the box (6 percentages of the sample, as strings: x0 y0 z0 x1 y1 z1) of the sample
-//             of `seed`, the rest from the sample of seed `base`, as runtime.compose
-//       grow: { by, anchor }  the sample of `seed` grown, as runtime.edit.grow
+//             of `seed`, the rest from the sample of seed `base`, as runtime.compose (edit.js)
+//       grow: { by, anchor }  the sample of `seed` grown, as runtime.edit.grow (edit.js)
+//       layout: { grid, shape }  the sample of `seed` made from this layout, as runtime.layout.from_layout (layout.js)
 //     -> { id, type: 'progress', stage, fraction }  (fraction in [0, 1], or null)
 //     -> { id, type: 'done', positions, faces, seconds }  (the buffers are transferred)
+//   { id, type: 'layout', name, seed, factors }  the level-0 layout of the sample of `seed`, as runtime.layout.layout
+//     -> { id, type: 'done', grid, shape }  (grid: Uint8Array in C order, 1 full)
 //   any of them -> { id, type: 'error', message, input }  (input: an InputError, a message for the user)
 import * as sinshape from './runtime.js';
 
@@ -40,17 +43,23 @@ function boxCorners(box, size) {
   return { low: [0, 1, 2].map(voxels), high: [3, 4, 5].map(voxels) };
 }
 
-async function sample({ name, seed, factors, scale, smooth, keep, grow }, progress) {
+async function loaded(name) {
   if (!models.has(name)) throw new Error(`the model '${name}' is not loaded in the worker`);
-  const model = await models.get(name);
+  return models.get(name);
+}
+
+async function sample({ name, seed, factors, scale, smooth, keep, grow, layout }, progress) {
+  const model = await loaded(name);
   const started = performance.now();
-  progress(keep ? 'composing' : grow ? 'growing' : 'sampling', null);
+  progress(keep ? 'composing' : grow ? 'growing' : layout ? 'fitting the layout' : 'sampling', null);
   let tri;
   if (keep) {
     const size = sinshape.scaledSizes(model.manifest.sizes, factors).at(-1);
     tri = await sinshape.compose(model, BigInt(keep.base), [{ seed: BigInt(seed), ...boxCorners(keep.box, size) }], factors);
   } else if (grow) {
     tri = await sinshape.grow(model, BigInt(seed), grow.by, grow.anchor, factors);
+  } else if (layout) {
+    tri = await sinshape.fromLayout(model, BigInt(seed), layout.grid, layout.shape, factors);
   } else {
     tri = await sinshape.sample(model, BigInt(seed), factors);
   }
@@ -71,6 +80,9 @@ self.onmessage = async ({ data: job }) => {
   try {
     if (job.type === 'load') {
       self.postMessage({ id, type: 'loaded', ...(await load(job)) });
+    } else if (job.type === 'layout') {
+      const { grid, shape } = await sinshape.layout(await loaded(job.name), BigInt(job.seed), 0, job.factors);
+      self.postMessage({ id, type: 'done', grid, shape }, [grid.buffer]);
     } else if (job.type === 'sample') {
       const result = await sample(job, progress);
       self.postMessage({ id, type: 'done', ...result }, [result.positions.buffer, result.faces.buffer]);
