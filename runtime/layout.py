@@ -105,6 +105,24 @@ def plane_masks(edited: np.ndarray) -> list:
     return masks
 
 
+def reach(masks: list, pools: list) -> tuple:
+    """The layout cells and voxels a fit can change, per axis a slice each:
+    every voxel reading a masked plane cell, grown to whole layout cells (so
+    that each cell's average is over all it covers). The fit decodes only
+    these; the rest cannot move."""
+    xy, xz, yz = (m > 0 for m in masks)
+    touched = [xy.any(axis=1) | xz.any(axis=1) | yz.any(),  # along x
+               xy.any(axis=0) | yz.any(axis=1) | xz.any(),  # along y
+               xz.any(axis=0) | yz.any(axis=0) | xy.any()]  # along z
+    cells, voxels = [], []
+    for weights, hit in zip(pools, touched):
+        cell = np.flatnonzero(weights[:, hit].any(axis=1))
+        voxel = np.flatnonzero(weights[cell[0]:cell[-1] + 1].any(axis=0))
+        cells.append(slice(cell[0], cell[-1] + 1))
+        voxels.append(slice(voxel[0], voxel[-1] + 1))
+    return tuple(cells), tuple(voxels)
+
+
 def fit(model, planes: list, target: np.ndarray, steps: int, edited: np.ndarray) -> list:
     """Planes (3 x (C, H, W)) changed so that their occupancy, area-averaged
     to the layout's grid, is on the layout `target`'s side of 0.5 (by MARGIN)
@@ -124,14 +142,18 @@ def fit(model, planes: list, target: np.ndarray, steps: int, edited: np.ndarray)
     # Per plane, (rows, cols) resize matrices from the layout's cells to the plane's.
     grow = [(resize_matrix(target.shape[a], size[a]), resize_matrix(target.shape[b], size[b])) for a, b in PLANE_AXES]
     masks = [(r @ m.astype(np.float32) @ c.T > 0).astype(np.float32) for m, (r, c) in zip(plane_masks(edited), grow)]
+    cells, voxels = reach(masks, pools)
+    pools = [w[c, v] for w, c, v in zip(pools, cells, voxels)]
+    target, edited = target[cells], edited[cells]
     start = [p.astype(np.float32) for p in planes]
     change = [np.zeros((p.shape[0], r.shape[1], c.shape[1]), np.float32) for p, (r, c) in zip(start, grow)]
     moments = [(np.zeros_like(d), np.zeros_like(d)) for d in change]
     current, side, need, weight = start, None, None, None
     for step in range(1, steps + 1):
         current = [p + mask * (r @ d @ c.T) for p, mask, d, (r, c) in zip(start, masks, change, grow)]
-        a_xy, a_xz, a_yz = (np.einsum("chw,cd->hwd", p, w) for p, w in zip(current, weights))
-        pre = a_xy[:, :, None] + a_xz[:, None] + a_yz[None] + head.bias1  # (X, Y, Z, D)
+        a_xy, a_xz, a_yz = (np.einsum("chw,cd->hwd", p[:, voxels[a], voxels[b]], w)
+                            for p, w, (a, b) in zip(current, weights, PLANE_AXES))
+        pre = a_xy[:, :, None] + a_xz[:, None] + a_yz[None] + head.bias1  # (X, Y, Z, D) within reach
         active = pre > 0
         occupancy = sigmoid(np.where(active, pre, 0) @ head.weight2 + head.bias2)
         pooled = separable(pools, occupancy)
@@ -146,8 +168,11 @@ def fit(model, planes: list, target: np.ndarray, steps: int, edited: np.ndarray)
         d_occupancy = separable([w.T for w in pools], np.where(short, -side * weight, 0))
         d_pre = (d_occupancy * occupancy * (1 - occupancy))[..., None] * head.weight2 * active
         d_a = [d_pre.sum(axis=2), d_pre.sum(axis=1), d_pre.sum(axis=0)]
-        for k, (d, w, mask, (r, c), (m, v)) in enumerate(zip(change, weights, masks, grow, moments)):
-            grad = r.T @ (mask * np.einsum("hwd,cd->chw", d_a[k], w)) @ c + 2 * PULL / d.size * d
+        for k, (d, w, mask, (r, c), (m, v), (a, b)) in enumerate(zip(change, weights, masks, grow, moments,
+                                                                      PLANE_AXES)):
+            d_plane = np.zeros_like(mask, shape=(len(w), *mask.shape))
+            d_plane[:, voxels[a], voxels[b]] = np.einsum("hwd,cd->chw", d_a[k], w)
+            grad = r.T @ (mask * d_plane) @ c + 2 * PULL / d.size * d
             m += 0.1 * (grad - m)  # Adam, beta1 0.9, beta2 0.999
             v += 0.001 * (grad * grad - v)
             d -= FIT_RATE * (m / (1 - 0.9**step)) / (np.sqrt(v / (1 - 0.999**step)) + 1e-8)
