@@ -606,6 +606,19 @@ SETTLE_SECONDS = 8  # a sample at scale 24 that nobody stops runs 15 s here
 LOG_ALARMS = ("Traceback", "ERROR", "Exception")
 
 
+def alarms(lines: list) -> list:
+    """The lines of a server's output that report an error, unless every
+    traceback in them is the known fault's: ClientDisconnect raised in
+    sample_from_layout when a layout's client leaves before its body is read
+    (test_a_client_that_leaves_during_a_layout_upload). Drop this exception
+    when that test passes."""
+    text = "".join(lines)
+    tracebacks = text.count("Traceback (most recent call last)")
+    if tracebacks == text.count("\nstarlette.requests.ClientDisconnect") == text.count("in sample_from_layout") > 0:
+        return []
+    return [line for line in lines if any(word in line for word in LOG_ALARMS)]
+
+
 @pytest.fixture(scope="module")
 def tiny_server():
     """`sinrun serve tiny.onnx` in a child process on a free port: (base URL,
@@ -637,7 +650,7 @@ def tiny_server():
         process.terminate()
         process.wait(20)
         reader.join(5)
-    assert not [line for line in printed if any(word in line for word in LOG_ALARMS)], "".join(printed)
+    assert not alarms(printed), "".join(printed)
 
 
 def http_request(kind: str, seed: int, scale: int, format: str) -> tuple:
@@ -671,10 +684,7 @@ def test_a_client_that_leaves_at_any_moment(tiny_server, kind, seed, scale, form
     base, printed = tiny_server
     port = int(base.rsplit(":", 1)[1])
     request, head = http_request(kind, seed, scale, format)
-    # A layout's body cut short is left out: the server logs a traceback for it, a
-    # known fault (test_a_client_that_leaves_in_the_middle_of_a_layout_upload).
-    cut = data.draw(st.integers(0, head) | st.just(len(request)) if kind == "layout" else
-                    st.integers(0, len(request)), label="bytes sent")
+    cut = data.draw(st.integers(0, len(request)), label="bytes sent")
     before = len(printed)
     with socket.create_connection(("127.0.0.1", port), timeout=5) as client:
         client.sendall(request[:cut])
@@ -699,13 +709,17 @@ def test_a_client_that_leaves_at_any_moment(tiny_server, kind, seed, scale, form
         time.sleep(0.05)
     assert get(f"{base}/api/models/tiny/sample?seed=0&format=npz")[0] == 200
     time.sleep(0.05)  # what the server logs reaches the reader
-    alarms = [line for line in printed[before:] if any(word in line for word in LOG_ALARMS)]
-    assert not alarms, "".join(printed[before:])
+    assert not alarms(printed[before:]), "".join(printed[before:])
+    if kind == "layout" and "ClientDisconnect" in "".join(printed[before:]):
+        from hypothesis import event
+
+        event("a layout's client left before its body was read: the known fault logged")
 
 
 @pytest.mark.xfail(strict=True, reason="serve/app.py reads a layout's body with request.body(), which raises "
-                   "ClientDisconnect when its client leaves: logged as a 500 with two tracebacks")
-def test_a_client_that_leaves_in_the_middle_of_a_layout_upload(tiny_server):
+                   "ClientDisconnect when its client has left: logged as a 500 with two tracebacks")
+def test_a_client_that_leaves_during_a_layout_upload(tiny_server):
+    """Half of the body sent (or all of it, and gone at once: the fuzzer's case)."""
     import socket
 
     from test_serve import get
@@ -713,16 +727,18 @@ def test_a_client_that_leaves_in_the_middle_of_a_layout_upload(tiny_server):
     base, printed = tiny_server
     request, head = http_request("layout", 1, 1, "glb")
     before = len(printed)
-    with socket.create_connection(("127.0.0.1", int(base.rsplit(":", 1)[1])), timeout=5) as client:
-        client.sendall(request[:head + 100])
-        time.sleep(0.1)
+    for sent in (head + 100, len(request)):
+        with socket.create_connection(("127.0.0.1", int(base.rsplit(":", 1)[1])), timeout=5) as client:
+            client.sendall(request[:sent])
+            time.sleep(0.1 if sent < len(request) else 0)
     get(f"{base}/health")
-    started = time.perf_counter()  # the two tracebacks end in this line, or nothing comes
-    while sum("ClientDisconnect" in line for line in printed[before:]) < 2 and time.perf_counter() - started < 3:
+    started = time.perf_counter()  # two tracebacks a request end in this line, or nothing comes
+    while sum("ClientDisconnect" in line for line in printed[before:]) < 4 and time.perf_counter() - started < 3:
         time.sleep(0.05)
     tracebacks = [line for line in printed[before:] if any(word in line for word in LOG_ALARMS)]
+    counted = sum("ClientDisconnect" in line for line in printed[before:])
     del printed[before:]  # known: not for the module's last check
-    assert not tracebacks
+    assert not tracebacks, f"{counted} lines name ClientDisconnect"
 
 
 def test_the_case_bound_stops_a_hang():
