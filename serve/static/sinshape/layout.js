@@ -138,6 +138,45 @@ function onPlane(field, dims, [rows, cols]) {
   return along(tall.data, tall.shape, 2, cols).data;
 }
 
+/** Rows [r0, r1) and columns [c0, c1) of a matrix. */
+function submatrix({ data, cols }, [r0, r1], [c0, c1]) {
+  const out = new Float32Array((r1 - r0) * (c1 - c0));
+  for (let i = r0; i < r1; i++) out.set(data.subarray(i * cols + c0, i * cols + c1), (i - r0) * (c1 - c0));
+  return { data: out, rows: r1 - r0, cols: c1 - c0 };
+}
+
+/** The box [lo, hi) per axis of a 3-D grid. */
+function crop(grid, shape, ranges) {
+  const [[x0, x1], [y0, y1], [z0, z1]] = ranges, out = new grid.constructor((x1 - x0) * (y1 - y0) * (z1 - z0));
+  let n = 0;
+  for (let i = x0; i < x1; i++) for (let j = y0; j < y1; j++) for (let k = z0; k < z1; k++) out[n++] = grid[(i * shape[1] + j) * shape[2] + k];
+  return out;
+}
+
+/**
+ * The layout cells and voxels a fit can change, [lo, hi) per axis each, as
+ * reach: every voxel reading a masked plane cell (masks on the planes'
+ * cells), grown to whole layout cells. The fit decodes only these; the rest cannot move.
+ */
+function reach(masks, pools, size) {
+  const touched = size.map((n) => new Uint8Array(n));
+  PLANE_AXES.forEach(([a, b], k) => {
+    const w = size[b];
+    masks[k].forEach((on, i) => { if (on) [touched[a][Math.floor(i / w)], touched[b][i % w]] = [1, 1]; });
+    if (masks[k].some((on) => on)) touched[3 - a - b].fill(1); // every voxel along the axis the plane drops reads it
+  });
+  const cells = [], voxels = [];
+  pools.forEach(({ data, rows, cols }, a) => {
+    const hit = [], read = [];
+    for (let r = 0; r < rows; r++) if (touched[a].some((on, v) => on && data[r * cols + v] !== 0)) hit.push(r);
+    const [r0, r1] = [hit[0], hit.at(-1) + 1]; // the cells covering a touched voxel, first to last
+    for (let v = 0; v < cols; v++) for (let r = r0; r < r1; r++) if (data[r * cols + v] !== 0) { read.push(v); break; }
+    cells.push([r0, r1]);
+    voxels.push([read[0], read.at(-1) + 1]); // every voxel those cells cover
+  });
+  return { cells, voxels };
+}
+
 /**
  * Planes (3 x { data, dims: [C, H, W] }) changed so that their occupancy,
  * area-averaged to the layout's grid, is on the layout's side of 0.5 (by
@@ -148,16 +187,21 @@ export function fit(model, weights, planes, target, shape, steps, edited) {
   if (!edited.some((e) => e)) return planes;
   const { bias1, weight2, bias2 } = model.head;
   const c = planes[0].dims[0], d = bias1.length;
-  const size = [planes[0].dims[1], planes[0].dims[2], planes[1].dims[2]], [x, y, z] = size;
-  const pools = size.map((n, a) => areaWeights(n, shape[a]));
-  const back = pools.map(transpose);
+  const size = [planes[0].dims[1], planes[0].dims[2], planes[1].dims[2]];
   const grow = PLANE_AXES.map(([a, b]) => [resizeMatrix(shape[a], size[a]), resizeMatrix(shape[b], size[b])]);
   const shrink = grow.map((matrices) => matrices.map(transpose));
   const fieldDims = PLANE_AXES.map(([a, b]) => [c, shape[a], shape[b]]);
   const masks = planeMasks(edited, shape).map((m, p) => Uint8Array.from(onPlane(m, fieldDims[p].with(0, 1), grow[p]), (v) => (v > 0 ? 1 : 0)));
+  // Within reach: cells (the layout's) and voxels (x, y, z from `low`); a voxel's plane cells by plane.
+  const fullPools = size.map((n, a) => areaWeights(n, shape[a]));
+  const { cells, voxels } = reach(masks, fullPools, size);
+  const pools = fullPools.map((w, a) => submatrix(w, cells[a], voxels[a])), back = pools.map(transpose);
+  const box = cells.map(([lo, hi]) => hi - lo), low = voxels.map(([lo]) => lo), [x, y, z] = voxels.map(([lo, hi]) => hi - lo);
+  [target, edited] = [crop(target, shape, cells), crop(edited, shape, cells)];
+  const planeCell = PLANE_AXES.map(([a, b]) => (i, j) => (low[a] + i) * size[b] + low[b] + j);
   const change = fieldDims.map((dims) => new Float32Array(product(dims)));
   const moments = change.map((field) => [new Float32Array(field.length), new Float32Array(field.length)]);
-  const cells = x * y * z, pre = new Float32Array(cells * d), occupancy = new Float32Array(cells);
+  const pre = new Float32Array(x * y * z * d), occupancy = new Float32Array(x * y * z);
   const count = edited.reduce((n, e) => n + e, 0);
   let current = planes, side = null, need = null, weight = null;
   for (let step = 1; step <= steps; step++) {
@@ -165,11 +209,12 @@ export function fit(model, weights, planes, target, shape, steps, edited) {
       const moved = onPlane(change[k], fieldDims[k], grow[k]), area = p.dims[1] * p.dims[2];
       return { data: p.data.map((v, i) => v + masks[k][i % area] * moved[i]), dims: p.dims };
     });
-    const [axy, axz, ayz] = current.map((p, k) => { // einsum chw,cd->hwd
-      const area = p.dims[1] * p.dims[2], out = new Float64Array(area * d);
-      for (let ch = 0; ch < c; ch++) for (let i = 0; i < area; i++) {
-        const value = p.data[ch * area + i];
-        for (let e = 0; e < d; e++) out[i * d + e] += value * weights[k][ch * d + e];
+    const [axy, axz, ayz] = current.map((p, k) => { // einsum chw,cd->hwd over the voxels in reach
+      const [a, b] = PLANE_AXES[k], [h, w] = [[x, y, z][a], [x, y, z][b]], area = p.dims[1] * p.dims[2];
+      const out = new Float64Array(h * w * d);
+      for (let ch = 0; ch < c; ch++) for (let i = 0; i < h; i++) for (let j = 0; j < w; j++) {
+        const value = p.data[ch * area + planeCell[k](i, j)], at = (i * w + j) * d;
+        for (let e = 0; e < d; e++) out[at + e] += value * weights[k][ch * d + e];
       }
       return out;
     });
@@ -182,7 +227,7 @@ export function fit(model, weights, planes, target, shape, steps, edited) {
       }
       occupancy[n] = 1 / (1 + Math.exp(-s));
     }
-    const pooled = pool(occupancy, size, shape);
+    const pooled = separable(pools, occupancy, [x, y, z]).data;
     if (side === null) { // the unedited cells keep the side these planes put them on
       side = Float32Array.from(pooled, (v, n) => ((edited[n] ? target[n] : v > 0.5) ? 1 : -1));
       need = Float32Array.from(edited, (e) => (e ? MARGIN : 0));
@@ -195,7 +240,7 @@ export function fit(model, weights, planes, target, shape, steps, edited) {
     }
     if (!short) break;
     // The hinge's gradient, back through the pooling, the sigmoid and the ReLU.
-    const dOccupancy = separable(back, hinge, shape).data;
+    const dOccupancy = separable(back, hinge, box).data;
     const dA = [x * y, x * z, y * z].map((area) => new Float64Array(area * d));
     for (let i = 0; i < x; i++) for (let j = 0; j < y; j++) for (let k = 0; k < z; k++) {
       const n = (i * y + j) * z + k, o = occupancy[n], g = dOccupancy[n] * o * (1 - o);
@@ -210,14 +255,18 @@ export function fit(model, weights, planes, target, shape, steps, edited) {
       }
     }
     change.forEach((field, k) => {
-      const [, h, w] = current[k].dims, area = h * w, onCells = new Float32Array(c * area); // mask * einsum hwd,cd->chw
-      for (let ch = 0; ch < c; ch++) for (let i = 0; i < area; i++) {
-        if (!masks[k][i]) continue;
-        let s = 0;
-        for (let e = 0; e < d; e++) s += dA[k][i * d + e] * weights[k][ch * d + e];
-        onCells[ch * area + i] = s;
+      const [a, b] = PLANE_AXES[k], [h, w] = [[x, y, z][a], [x, y, z][b]];
+      const area = current[k].dims[1] * current[k].dims[2], onCells = new Float32Array(c * area); // mask * einsum hwd,cd->chw
+      for (let i = 0; i < h; i++) for (let j = 0; j < w; j++) {
+        const cell = planeCell[k](i, j), at = (i * w + j) * d;
+        if (!masks[k][cell]) continue;
+        for (let ch = 0; ch < c; ch++) {
+          let s = 0;
+          for (let e = 0; e < d; e++) s += dA[k][at + e] * weights[k][ch * d + e];
+          onCells[ch * area + cell] = s;
+        }
       }
-      const grad = onPlane(onCells, [c, h, w], shrink[k]), [m, v] = moments[k];
+      const grad = onPlane(onCells, current[k].dims, shrink[k]), [m, v] = moments[k];
       for (let i = 0; i < field.length; i++) {
         const g = grad[i] + (2 * PULL / field.length) * field[i];
         m[i] += 0.1 * (g - m[i]); // Adam, beta1 0.9, beta2 0.999
