@@ -52,6 +52,7 @@ import numpy as np
 import trimesh  # noqa: F401  a service makes whole meshes: imported at start-up, not in its first request
 from pydantic import BaseModel
 from starlette.datastructures import Headers, MutableHeaders
+from starlette.requests import ClientDisconnect
 from starlette.middleware.gzip import GZipMiddleware
 
 from sinshape import models as shipped
@@ -605,7 +606,10 @@ def create_app(loaded: dict, slots: int | None = None, timeout: float = 60.0,
         resample_layout: Annotated[bool, Query(description="Fit a layout of another grid size to level 0's.")] = False,
     ):
         """The body is the layout file (.vox or .npz, as `sinrun layout` writes it, edited), at most 4 MB."""
-        body = await request.body()
+        try:
+            body = await request.body()
+        except ClientDisconnect:  # gone before its layout arrived: nobody reads an answer
+            return Response(status_code=499)
         if not body or len(body) > MAX_UPLOAD_BYTES:
             raise InputError(f"send the layout file as the request body (1 byte to {MAX_UPLOAD_BYTES >> 20} MB)")
         wanted = SampleRequest(q.name, q.seed, generate.parse_size(q.size), q.scale, q.smooth, q.format, layout=body,
