@@ -123,11 +123,13 @@ def reach(masks: list, pools: list) -> tuple:
     return tuple(cells), tuple(voxels)
 
 
-def fit(model, planes: list, target: np.ndarray, steps: int, edited: np.ndarray) -> list:
+def fit(model, planes: list, target: np.ndarray, steps: int, edited: np.ndarray, hold: bool = False) -> list:
     """Planes (3 x (C, H, W)) changed so that their occupancy, area-averaged
     to the layout's grid, is on the layout `target`'s side of 0.5 (by MARGIN)
-    in the `edited` cells, and stays on its own side in the others, after at
-    most `steps`. A hinge, not a cross-entropy: a cell already right adds
+    in the `edited` cells, and stays on its own side in the others (with
+    `hold`, on the layout's: at the last level, whose occupancy is the
+    result, an unedited cell a finer level moved across is moved back), after
+    at most `steps`. A hinge, not a cross-entropy: a cell already right adds
     nothing, so partly full cells keep their detail instead of being pushed
     to full or empty. The change is a field at the layout's own resolution,
     resized onto each plane (bilinear, align_corners), only where
@@ -157,8 +159,8 @@ def fit(model, planes: list, target: np.ndarray, steps: int, edited: np.ndarray)
         active = pre > 0
         occupancy = sigmoid(np.where(active, pre, 0) @ head.weight2 + head.bias2)
         pooled = separable(pools, occupancy)
-        if side is None:  # the unedited cells keep the side these planes put them on
-            side = np.where(edited, target, pooled > 0.5).astype(np.float32) * 2 - 1
+        if side is None:  # the unedited cells keep the side these planes put them on (with hold, the layout's)
+            side = np.where(edited | hold, target, pooled > 0.5).astype(np.float32) * 2 - 1
             need = np.where(edited, MARGIN, 0).astype(np.float32)
             weight = np.where(edited, 1.0, KEEP_WEIGHT).astype(np.float32) / edited.sum()
         short = need - side * (pooled - 0.5) > 0
@@ -209,7 +211,7 @@ def from_layout(model, seed: int, target: np.ndarray, factors=(1.0, 1.0, 1.0), r
     def fitted(i, planes):
         if i < level:
             return planes
-        return fit(model, planes, target, FIT_STEPS if i == level else FINER_STEPS, edited)
+        return fit(model, planes, target, FIT_STEPS if i == level else FINER_STEPS, edited, i == len(sizes) - 1)
 
     return triplane(model, noise, sizes, after_level=fitted)
 

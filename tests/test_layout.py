@@ -49,7 +49,9 @@ def test_an_edited_layout_is_followed(acropolis, seed3, name):
     target = edits(seed3)[name]
     assert (target != seed3).sum() >= 20
     iou, edited = followed(acropolis, 3, target, seed3)
-    assert iou >= 0.9 and edited >= 0.8, (iou, edited)
+    # The unedited cells too: without the last level's hold, cells beside an
+    # edit that the finer levels moved across 0.5 stay there (IoU 0.90-0.97).
+    assert iou >= 0.97 and edited >= 0.95, (iou, edited)
 
 
 def test_an_edit_changes_only_the_plane_cells_its_cells_need(acropolis, seed3):

