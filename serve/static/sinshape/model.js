@@ -293,8 +293,10 @@ async function checkStages(model) {
     } catch (error) {
       throw new InputError(`${model.name}: stage ${stage.inputs[0].split('.')[0]} does not run (${String(error.message ?? error).split('\n')[0].slice(0, 200)})`);
     }
-    if (outputs.some((o) => !sameJson(Array.from(o.dims), shape))) {
-      throw new InputError(`${model.name}: stage ${stage.inputs[0].split('.')[0]} gives shape (${outputs[0].dims}), expected (${shape})`);
+    // The first wrong output: another output's shape would read as a match.
+    const wrong = outputs.find((o) => !sameJson(Array.from(o.dims), shape));
+    if (wrong) {
+      throw new InputError(`${model.name}: stage ${stage.inputs[0].split('.')[0]} gives shape (${wrong.dims}), expected (${shape})`);
     }
   }
   // The head evaluated here must be the graph's head.
