@@ -50,13 +50,14 @@ def acropolis_pyramid(path: Path) -> Path:
     return path
 
 
-def model_iterations(sinrun: str, model: Path) -> list:
-    """Iterations per level as trained, from the model's manifest (read with
+def model_training(sinrun: str, model: Path) -> tuple:
+    """Iterations and learning rate per level as trained (rates None from
+    versions that did not record them), from the model's manifest (read with
     the sinrun that wrote it, whose Python has onnx)."""
     script = ("import json, sys, onnx; m = json.loads({p.key: p.value for p in "
               "onnx.load(sys.argv[1]).metadata_props}['sinshape.manifest']); "
               "t = m['training']; n = t['iterations_per_level']; "
-              "print(json.dumps(n if isinstance(n, list) else [n] * len(m['levels'])))")
+              "print(json.dumps([n if isinstance(n, list) else [n] * len(m['levels']), t.get('learning_rates')]))")
     python = Path(sinrun).with_name("python")
     return json.loads(subprocess.run([str(python), "-c", script, str(model)], check=True, capture_output=True,
                                      text=True).stdout)
@@ -99,8 +100,9 @@ def main():
             run([args.sinrun, "eval", str(model), "--reference", str(pyramid), "-n", "100",
                  "--json", str(scores)])
             summary = json.loads(scores.read_text())
-            iterations = model_iterations(args.sinrun, model)
-            row = {"label": label, "shape": pyramid.stem, "seed": seed, "iterations_per_level": iterations, flag.strip("-"): float(value), "train_args": args.train_args,
+            iterations, rates = model_training(args.sinrun, model)
+            row = {"label": label, "shape": pyramid.stem, "seed": seed, "iterations_per_level": iterations,
+                   "learning_rates": rates, flag.strip("-"): float(value), "train_args": args.train_args,
                    "wall_seconds": round(wall, 1), **{k: summary[k] for k in ("lp_iou", "lp_f", "diversity")}}
             with open(results, "a") as f:
                 f.write(json.dumps(row) + "\n")

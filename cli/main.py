@@ -148,9 +148,11 @@ class TrainCommand(Command):
                    "side instead of the whole grid, so an iteration costs what a box costs. 0: whole "
                    "grids, as the paper. Default: the preset's.")
 @click.option("--lr", type=click.FloatRange(min=0, min_open=True), default=None,
-              help="Adam's learning rate for generator and critic. Default: the preset's (1e-4 in "
-                   "all). 1e-3 gives more quality in a short budget (up to about 250 iterations "
-                   "per level); with more, the samples become copies of the example.")
+              help="Adam's learning rate for generator and critic, the same at every level. Default: "
+                   "the paper preset's 1e-4; the default preset sets each level's rate from its "
+                   "iterations (0.2 / iterations, from 1e-4 to 1e-3: 2e-4 at 1000, 1e-3 in a short "
+                   "budget). A fixed 1e-3 over more than about 400 iterations per level makes copies "
+                   "of the example.")
 @click.option("--seed", type=int, default=None, help="Seed of the training run (weights, noise draws). Default 0.")
 @click.option("--up", type=click.Choice(["y", "z"]), default=None,
               help="Which axis of the input points up, recorded in the model for viewers and pictures. "

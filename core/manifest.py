@@ -274,11 +274,15 @@ def describe(raw: dict) -> list:
     lines += [
         f"networks    {raw['channels']} channels, {raw['pool_bins']} pooling bins, MLP hidden {raw['mlp_hidden']}",
         f"frame       voxel (0, 0, 0) at ({origin}), voxel size ({spacing}); {raw.get('up', 'y')} points up",
-        "levels      size          noise amplitude   seconds",
+        "levels      size          noise amplitude   learning rate   seconds",
     ]
     seconds = training.get("level_seconds", [])
+    # models from before per-level rates trained every level at config lr
+    rates = training.get("learning_rates") or [config.get("lr")] * len(raw["levels"])
+    rates = rates if isinstance(rates, list) else []
     for i, level in enumerate(raw["levels"]):
         took = f"{seconds[i]:.0f}" if i < len(seconds) else ""
-        lines.append(f"  {i:<8}  {'x'.join(map(str, level['size'])):<12}  {level['noise_amp']:<16.4g}  {took}")
+        rate = f"{rates[i]:.3g}" if i < len(rates) and _is_number(rates[i]) else "?"
+        lines.append(f"  {i:<8}  {'x'.join(map(str, level['size'])):<12}  {level['noise_amp']:<16.4g}  {rate:<14}  {took}")
     lines.append("config      " + printable(json.dumps(config, sort_keys=True)))
     return lines

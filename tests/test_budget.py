@@ -169,10 +169,12 @@ def test_the_command_line_writes_the_refusal_in_options(machine, three_levels, t
 
 def test_the_plan_and_what_was_done_are_in_the_model(machine, three_levels, tmp_path):
     out = tmp_path / "m.onnx"
-    manifest, _ = machine.train(three_levels, out, minutes=1)
+    manifest, _ = machine.train(three_levels, out, minutes=1, lr_total=1.0, lr_max=1.0)
     training = manifest["training"]
     assert training["measured_seconds_per_iteration"] == pytest.approx(COSTS, abs=1e-3)
     assert len(training["planned_iterations"]) == 3
+    # each level's rate comes from the count it was planned when it started
+    assert training["learning_rates"] == pytest.approx([1 / n for n in training["planned_iterations"]])
     assert list(manifest["config"]["level_iters"]) == training["iterations_per_level"]
     from click.testing import CliRunner
 
@@ -181,3 +183,4 @@ def test_the_plan_and_what_was_done_are_in_the_model(machine, three_levels, tmp_
     shown = CliRunner().invoke(cli, ["info", str(out)]).output
     assert f"planned {training['planned_iterations']}" in shown
     assert "budget      1 min" in shown
+    assert f"  {1 / training['planned_iterations'][2]:<14.3g}  " in shown  # the last level's rate

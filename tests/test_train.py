@@ -16,8 +16,12 @@ def test_presets():
     assert (paper.iters, paper.d_steps, paper.g_steps, paper.lr) == (2000, 3, 3, 1e-4)
     assert (paper.gp_weight, paper.rec_weight, paper.noise_ratio) == (0.1, 10.0, 0.1)
     assert PRESETS["default"].res == 64
-    # 1e-3 at the default's 1000 iterations gave copies (LP-IoU 1.000, diversity 0.000)
-    assert PRESETS["default"].lr == paper.lr
+    assert paper.level_lr(100) == paper.lr  # the paper's rate is fixed
+    # The default's rate follows the iterations: a fixed 1e-3 at its 1000 gave
+    # copies (LP-IoU 1.000, diversity 0.000); 2000 get the paper's rate.
+    default = PRESETS["default"]
+    assert [default.level_lr(n) for n in (100, 200, 1000, 2000, 9000)] == pytest.approx([1e-3, 1e-3, 2e-4, 1e-4, 1e-4])
+    assert make_config(lr=1e-3).level_lr(1000) == 1e-3  # a rate given is used as it is
     assert make_config("tiny", iters=7).iters == 7
     with pytest.raises(InputError, match="unknown preset"):
         make_config("huge")
@@ -51,6 +55,25 @@ def test_interrupt_saves_and_resume_skips_finished_levels(tmp_path, tiny_pyramid
     for key, value in saved["generator"].items():
         if key.startswith("levels.0.") or key.startswith("projection."):
             assert torch.equal(final["generator"][key], value), key  # frozen levels untouched
+
+
+def test_each_level_learns_at_the_rate_its_iterations_set(tmp_path, tiny_pyramid, monkeypatch):
+    rates = []
+    real_adam = torch.optim.Adam
+
+    def adam(params, lr, **options):
+        rates.append(lr)
+        return real_adam(params, lr=lr, **options)
+
+    monkeypatch.setattr(torch.optim, "Adam", adam)
+    out = tmp_path / "m.onnx"
+    config = make_config("tiny", level_iters=(2, 5), lr_total=0.004, lr_max=1e-2)
+    with pytest.raises(train.Interrupted):
+        train.train(tiny_pyramid, out, config, progress=interrupt_at(1, 2))
+    manifest = train.train(tiny_pyramid, out, None, resume=True)
+    # G and D of level 1, of level 2, and of level 2 again on resume
+    assert rates == pytest.approx([2e-3] * 2 + [8e-4] * 4)
+    assert manifest["training"]["learning_rates"] == pytest.approx([2e-3, 8e-4])
 
 
 def test_resume_refuses_another_input(tmp_path, tiny_pyramid):

@@ -130,6 +130,7 @@ class Trainer:
         # Every random draw comes from this CPU generator, then moves to the device.
         self.rng = torch.Generator().manual_seed(seeded(config.seed, 1))
         self.noise_amps = []  # sigma_i per level; sigma_0 = 1 is the std of z0
+        self.lrs = []  # Adam's learning rate per level, set from its plan as it starts
         self.level = 0  # the level being trained
         self.iteration = 0  # iterations done at that level
         self.seconds = []  # wall time per finished level
@@ -140,13 +141,16 @@ class Trainer:
 
     # -- levels ------------------------------------------------------------
     def begin_level(self) -> None:
-        """Add G_level, set its noise amplitude, create fresh optimisers."""
+        """Add G_level, set its noise amplitude and learning rate (from its
+        planned iterations), create fresh optimisers."""
         level = self.level
         with torch.random.fork_rng():
             torch.manual_seed(seeded(self.config.seed, 2, level))
             self.generator.add_level().to(self.device)
         if len(self.noise_amps) == level:
             self.noise_amps.append(1.0 if level == 0 else self.initial_noise_amp(level))
+        del self.lrs[level:]
+        self.lrs.append(self.config.level_lr(self.plan[level]))
         self.make_optimizers()
 
     def initial_noise_amp(self, level: int) -> float:
@@ -161,8 +165,9 @@ class Trainer:
         params = [p for module in self.generator.trained_modules(self.level) for p in module.parameters()]
         # fused: one kernel for all of a step's tensors (measured 15% of an iteration
         # at the coarsest level, where Adam's per-tensor overhead shows)
-        self.opt_g = torch.optim.Adam(params, lr=c.lr, betas=(c.beta1, c.beta2), fused=True)
-        self.opt_d = torch.optim.Adam(self.critic.parameters(), lr=c.lr, betas=(c.beta1, c.beta2), fused=True)
+        lr = self.lrs[self.level]
+        self.opt_g = torch.optim.Adam(params, lr=lr, betas=(c.beta1, c.beta2), fused=True)
+        self.opt_d = torch.optim.Adam(self.critic.parameters(), lr=lr, betas=(c.beta1, c.beta2), fused=True)
 
     # -- sampling ------------------------------------------------------------
     def random_noises(self, upto: int) -> tuple:
@@ -316,6 +321,7 @@ class Trainer:
             "level": self.level,
             "iteration": self.iteration,
             "noise_amps": list(self.noise_amps),
+            "lrs": list(self.lrs),
             "plan": list(self.plan),
             "seconds": list(self.seconds),
             "level_seconds": self.level_seconds,
@@ -332,6 +338,7 @@ class Trainer:
         self.noise_amps, self.seconds = list(state["noise_amps"]), list(state["seconds"])
         self.level_seconds = state["level_seconds"]
         self.plan = list(state.get("plan") or self.plan)  # checkpoints before budgets had none
+        self.lrs = list(state.get("lrs") or [self.config.lr] * len(self.noise_amps))  # older: one fixed rate
         started = count_levels(state["generator"])
         for _ in range(started):
             with torch.random.fork_rng():
@@ -441,15 +448,15 @@ def train(input_path, output_path, config: TrainConfig | None, *, resume: bool =
     last_save = time.monotonic()
     try:
         while trainer.level < len(trainer.sizes):
-            if len(trainer.generator.levels) == trainer.level:
-                trainer.begin_level()
             level = trainer.level
             if budget and trainer.iteration == 0:
                 trainer.plan[level] = budget.start_level(level)
+            if len(trainer.generator.levels) == level:
+                trainer.begin_level()  # its learning rate follows the plan
             iters = trainer.plan[level]
             stop_at = budget.level_end(level, iters - trainer.iteration) if budget else math.inf
             log(f"level {level + 1}/{len(trainer.sizes)}: grid {trainer.sizes[level]}, "
-                f"noise amplitude {trainer.noise_amps[level]:.4g}, {iters} iterations")
+                f"noise amplitude {trainer.noise_amps[level]:.4g}, {iters} iterations at lr {trainer.lrs[level]:.3g}")
             recon_inputs = trainer.recon_inputs()
             last = level == len(trainer.sizes) - 1
             done_here = 0  # iterations in this run of the level (its first one allocates)
@@ -492,7 +499,7 @@ def train(input_path, output_path, config: TrainConfig | None, *, resume: bool =
     if config.minutes is not None:  # the plan is part of how the model was made
         config = dataclasses.replace(config, level_iters=tuple(trainer.plan))
     # Recorded beside the times: where training ran and, under a budget, its plan.
-    ran_on = {"device": placement.device.type, "precision": placement.precision}
+    ran_on = {"device": placement.device.type, "precision": placement.precision, "learning_rates": trainer.lrs}
     if budget:
         ran_on["planned_iterations"] = budget.planned
         ran_on["measured_seconds_per_iteration"] = [round(c, 4) for c in budget.costs]
