@@ -150,9 +150,9 @@ class TrainCommand(Command):
 @click.option("--lr", type=click.FloatRange(min=0, min_open=True), default=None,
               help="Adam's learning rate for generator and critic, the same at every level. Default: "
                    "the paper preset's 1e-4; the default preset sets each level's rate from its "
-                   "iterations (0.2 / iterations, from 1e-4 to 1e-3: 2e-4 at 1000, 1e-3 in a short "
-                   "budget). A fixed 1e-3 over more than about 400 iterations per level makes copies "
-                   "of the example.")
+                   "iterations (0.1 / iterations, from 1e-4 to 1e-3: 1e-4 at its 1000, up to 1e-3 in "
+                   "a short --minutes budget). A fixed 1e-3 over more than about 400 iterations per "
+                   "level makes copies of the example.")
 @click.option("--seed", type=int, default=None, help="Seed of the training run (weights, noise draws). Default 0.")
 @click.option("--up", type=click.Choice(["y", "z"]), default=None,
               help="Which axis of the input points up, recorded in the model for viewers and pictures. "
