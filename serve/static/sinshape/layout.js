@@ -57,15 +57,23 @@ function transpose({ data, rows, cols }) {
 /** A grid times an (nOut, nIn) matrix along `axis`: { data, shape }. */
 function along(grid, shape, axis, { data: w, rows, cols }) {
   const outer = product(shape.slice(0, axis)), inner = product(shape.slice(axis + 1));
-  const out = new Float32Array(outer * rows * inner), sum = new Float64Array(inner);
+  const out = new Float32Array(outer * rows * inner);
+  // Each row's nonzero weights (the matrices are resizes and area averages, a few per row), in column order.
+  const first = new Int32Array(rows + 1), at = [], weight = [];
+  for (let i = 0; i < rows; i++) {
+    for (let c = 0; c < cols; c++) {
+      if (w[i * cols + c] !== 0) { at.push(c); weight.push(w[i * cols + c]); }
+    }
+    first[i + 1] = at.length;
+  }
   for (let o = 0; o < outer; o++) {
     for (let i = 0; i < rows; i++) {
-      sum.fill(0);
-      for (let c = 0; c < cols; c++) {
-        const weight = w[i * cols + c], from = (o * cols + c) * inner;
-        if (weight !== 0) for (let t = 0; t < inner; t++) sum[t] += weight * grid[from + t];
+      const to = (o * rows + i) * inner;
+      for (let t = 0; t < inner; t++) {
+        let sum = 0; // a double: numpy's float32 sums round more often; the order is the columns'
+        for (let n = first[i]; n < first[i + 1]; n++) sum += weight[n] * grid[(o * cols + at[n]) * inner + t];
+        out[to + t] = sum;
       }
-      out.set(sum, (o * rows + i) * inner);
     }
   }
   return { data: out, shape: shape.with(axis, rows) };
@@ -199,28 +207,47 @@ export function fit(model, weights, planes, target, shape, steps, edited, hold =
   const pools = fullPools.map((w, a) => submatrix(w, cells[a], voxels[a])), back = pools.map(transpose);
   const box = cells.map(([lo, hi]) => hi - lo), low = voxels.map(([lo]) => lo), [x, y, z] = voxels.map(([lo, hi]) => hi - lo);
   [target, edited] = [crop(target, shape, cells), crop(edited, shape, cells)];
-  const planeCell = PLANE_AXES.map(([a, b]) => (i, j) => (low[a] + i) * size[b] + low[b] + j);
+  const planeCell = PLANE_AXES.map(([a, b]) => (i, j) => (low[a] + i) * size[b] + low[b] + j); // (i, j) of the reach
   const change = fieldDims.map((dims) => new Float32Array(product(dims)));
   const moments = change.map((field) => [new Float32Array(field.length), new Float32Array(field.length)]);
+  // Only masked plane cells move, so only the voxels reading one change: the rest keep their first step's values.
+  const planeDims = PLANE_AXES.map(([a, b]) => [[x, y, z][a], [x, y, z][b]]);
+  const moving = planeDims.map(([h, w], k) => {
+    const out = new Uint8Array(h * w);
+    for (let i = 0; i < h; i++) for (let j = 0; j < w; j++) out[i * w + j] = masks[k][planeCell[k](i, j)];
+    return out;
+  });
+  const live = new Uint8Array(x * y * z);
+  for (let i = 0; i < x; i++) for (let j = 0; j < y; j++) for (let k = 0; k < z; k++) {
+    live[(i * y + j) * z + k] = moving[0][i * y + j] | moving[1][i * z + k] | moving[2][j * z + k];
+  }
+  const sums = planeDims.map(([h, w]) => new Float64Array(h * w * d)); // the planes' first-layer terms
   const pre = new Float32Array(x * y * z * d), occupancy = new Float32Array(x * y * z);
   const count = edited.reduce((n, e) => n + e, 0);
   let current = planes, side = null, need = null, weight = null;
   for (let step = 1; step <= steps; step++) {
     current = planes.map((p, k) => {
-      const moved = onPlane(change[k], fieldDims[k], grow[k]), area = p.dims[1] * p.dims[2];
-      return { data: p.data.map((v, i) => v + masks[k][i % area] * moved[i]), dims: p.dims };
+      const moved = onPlane(change[k], fieldDims[k], grow[k]), area = p.dims[1] * p.dims[2], mask = masks[k];
+      const data = new Float32Array(p.data.length);
+      for (let i = 0; i < data.length; i++) data[i] = p.data[i] + mask[i % area] * moved[i];
+      return { data, dims: p.dims };
     });
     const [axy, axz, ayz] = current.map((p, k) => { // einsum chw,cd->hwd over the voxels in reach
-      const [a, b] = PLANE_AXES[k], [h, w] = [[x, y, z][a], [x, y, z][b]], area = p.dims[1] * p.dims[2];
-      const out = new Float64Array(h * w * d);
-      for (let ch = 0; ch < c; ch++) for (let i = 0; i < h; i++) for (let j = 0; j < w; j++) {
-        const value = p.data[ch * area + planeCell[k](i, j)], at = (i * w + j) * d;
-        for (let e = 0; e < d; e++) out[at + e] += value * weights[k][ch * d + e];
+      const [h, w] = planeDims[k], area = p.dims[1] * p.dims[2], out = sums[k], plane = p.data, first = weights[k];
+      for (let i = 0; i < h; i++) for (let j = 0; j < w; j++) {
+        if (step > 1 && !moving[k][i * w + j]) continue;
+        const cell = planeCell[k](i, j), at = (i * w + j) * d;
+        out.fill(0, at, at + d);
+        for (let ch = 0; ch < c; ch++) {
+          const value = plane[ch * area + cell];
+          for (let e = 0; e < d; e++) out[at + e] += value * first[ch * d + e];
+        }
       }
       return out;
     });
     for (let i = 0; i < x; i++) for (let j = 0; j < y; j++) for (let k = 0; k < z; k++) {
       const n = (i * y + j) * z + k, a = (i * y + j) * d, b = (i * z + k) * d, e = (j * z + k) * d;
+      if (step > 1 && !live[n]) continue;
       let s = bias2;
       for (let h = 0; h < d; h++) {
         const v = pre[n * d + h] = axy[a + h] + axz[b + h] + ayz[e + h] + bias1[h];
@@ -245,7 +272,7 @@ export function fit(model, weights, planes, target, shape, steps, edited, hold =
     const dA = [x * y, x * z, y * z].map((area) => new Float64Array(area * d));
     for (let i = 0; i < x; i++) for (let j = 0; j < y; j++) for (let k = 0; k < z; k++) {
       const n = (i * y + j) * z + k, o = occupancy[n], g = dOccupancy[n] * o * (1 - o);
-      if (g === 0) continue;
+      if (g === 0 || !live[n]) continue; // a voxel reading no masked cell moves nothing
       const a = (i * y + j) * d, b = (i * z + k) * d, e = (j * z + k) * d;
       for (let h = 0; h < d; h++) {
         if (pre[n * d + h] <= 0) continue;
@@ -256,7 +283,7 @@ export function fit(model, weights, planes, target, shape, steps, edited, hold =
       }
     }
     change.forEach((field, k) => {
-      const [a, b] = PLANE_AXES[k], [h, w] = [[x, y, z][a], [x, y, z][b]];
+      const [h, w] = planeDims[k];
       const area = current[k].dims[1] * current[k].dims[2], onCells = new Float32Array(c * area); // mask * einsum hwd,cd->chw
       for (let i = 0; i < h; i++) for (let j = 0; j < w; j++) {
         const cell = planeCell[k](i, j), at = (i * w + j) * d;
