@@ -63,6 +63,14 @@ def model_training(sinrun: str, model: Path) -> tuple:
                                      text=True).stdout)
 
 
+def rate_range(rates) -> str:
+    """The levels' learning rates as one figure or a range ("?" for models that predate them)."""
+    if not rates:
+        return "?"
+    low, high = f"{min(rates):.1e}", f"{max(rates):.1e}"
+    return low if low == high else f"{low} to {high}"
+
+
 def run(command: list) -> float:
     started = time.perf_counter()
     subprocess.run(command, check=True, stdout=subprocess.DEVNULL)
@@ -89,8 +97,9 @@ def main():
     label = args.label or args.preset
 
     budgets = [("--iters", str(n)) for n in args.iters] + [("--minutes", str(m)) for m in args.minutes]
-    print("| run | shape | seed | budget | training wall | iterations per level | LP-IoU | LP-F | diversity |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("| run | shape | seed | budget | training wall | iterations per level | learning rate "
+          "| LP-IoU | LP-F | diversity |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for flag, value in budgets:
         for seed in args.seeds:
             name = f"{label}_{pyramid.stem}_{flag.strip('-')}{value}_seed{seed}"
@@ -107,7 +116,7 @@ def main():
             with open(results, "a") as f:
                 f.write(json.dumps(row) + "\n")
             print(f"| {label} | {pyramid.stem} | {seed} | {flag} {value} | {wall / 60:.1f} min | "
-                  f"{', '.join(map(str, iterations))} | {row['lp_iou']:.3f} "
+                  f"{', '.join(map(str, iterations))} | {rate_range(rates)} | {row['lp_iou']:.3f} "
                   f"| {row['lp_f']:.3f} | {row['diversity']:.3f} |", flush=True)
 
 

@@ -11,7 +11,7 @@ paper's exact method against the default, side by side.
 An iteration is 3 critic steps, then 3 generator steps, at level i of a
 pyramid with the given level sizes (frozen levels below, noise injection).
 "paper" is `--preset paper`, "default" the default preset (the same step
-with another learning rate, so the same speed), "box N" the default with
+with other learning rates, so the same speed), "box N" the default with
 `--box N` (only boxes of at most N voxels per side decoded and judged at
 large levels); all in the precision `sinrun train` picks here. The straightforward port (--port)
 does what the authors' code does, in float32: the decoder concatenates the
@@ -181,8 +181,10 @@ def main():
     print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, CPU capability "
           f"{torch.backends.cpu.get_cpu_capability()}, native bf16: {device.native_bf16()}")
     print(f"sinshape picked: {picked.describe()}; allocator keeps freed memory: {device.keep_freed_memory()}")
-    print(f"default preset: box {make_config('default').box}, lr {make_config('default').lr:g}; "
-          f"paper preset: box {make_config('paper').box}, lr {make_config('paper').lr:g}")
+    print("; ".join(f"{name} preset: box {config.box}, " + (
+        f"lr {config.lr:g}" if config.lr_total is None else
+        f"lr {config.lr_total:g} / iterations, {config.lr:g} to {config.lr_max:g}")
+        for name, config in (("default", make_config("default")), ("paper", make_config("paper")))))
     # (name, straightforward, precision, preset, options) of each trainer in the table
     runs = [("paper", False, picked.precision, "paper", {}), ("default", False, picked.precision, "default", {})]
     runs += [(f"box {side}", False, picked.precision, "default", {"box": side}) for side in args.box]
