@@ -66,14 +66,26 @@ function along(grid, shape, axis, { data: w, rows, cols }) {
     }
     first[i + 1] = at.length;
   }
+  // Sums in doubles, in the columns' order (numpy's float32 sums round more often); by rows of the
+  // inner axes where they are long, element by element where they are short.
+  const sum = new Float64Array(inner);
   for (let o = 0; o < outer; o++) {
     for (let i = 0; i < rows; i++) {
       const to = (o * rows + i) * inner;
-      for (let t = 0; t < inner; t++) {
-        let sum = 0; // a double: numpy's float32 sums round more often; the order is the columns'
-        for (let n = first[i]; n < first[i + 1]; n++) sum += weight[n] * grid[(o * cols + at[n]) * inner + t];
-        out[to + t] = sum;
+      if (inner < 16) {
+        for (let t = 0; t < inner; t++) {
+          let total = 0;
+          for (let n = first[i]; n < first[i + 1]; n++) total += weight[n] * grid[(o * cols + at[n]) * inner + t];
+          out[to + t] = total;
+        }
+        continue;
       }
+      sum.fill(0);
+      for (let n = first[i]; n < first[i + 1]; n++) {
+        const from = (o * cols + at[n]) * inner, by = weight[n];
+        for (let t = 0; t < inner; t++) sum[t] += by * grid[from + t];
+      }
+      out.set(sum, to);
     }
   }
   return { data: out, shape: shape.with(axis, rows) };
@@ -229,7 +241,9 @@ export function fit(model, weights, planes, target, shape, steps, edited, hold =
     current = planes.map((p, k) => {
       const moved = onPlane(change[k], fieldDims[k], grow[k]), area = p.dims[1] * p.dims[2], mask = masks[k];
       const data = new Float32Array(p.data.length);
-      for (let i = 0; i < data.length; i++) data[i] = p.data[i] + mask[i % area] * moved[i];
+      for (let at = 0; at < data.length; at += area) {
+        for (let i = 0; i < area; i++) data[at + i] = p.data[at + i] + mask[i] * moved[at + i];
+      }
       return { data, dims: p.dims };
     });
     const [axy, axz, ayz] = current.map((p, k) => { // einsum chw,cd->hwd over the voxels in reach
