@@ -40,7 +40,7 @@ BROWSER_JS = """async ([file, seed, scale, repeats]) => {
     const t0 = performance.now();
     const tri = await s.sample(model, seed, [1, 1, 1]);
     const t1 = performance.now();
-    const grid = await s.grid(model, tri, scale);
+    const grid = await s.dense(model, tri, scale);
     const t2 = performance.now();
     const m = s.surface(grid, tri.size);
     const t3 = performance.now();
