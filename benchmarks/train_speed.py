@@ -7,6 +7,7 @@ paper's exact method against the default, side by side.
     python benchmarks/train_speed.py --port          # also a straightforward port of the authors' step
     python benchmarks/train_speed.py --rounds 9 --levels 5 6
     python benchmarks/train_speed.py --full MESH     # also: the whole default preset on MESH
+    python benchmarks/train_speed.py --device cuda   # the same table on a CUDA GPU
 
 An iteration is 3 critic steps, then 3 generator steps, at level i of a
 pyramid with the given level sizes (frozen levels below, noise injection).
@@ -25,9 +26,11 @@ Each trainer has its own process per level (sinshape's with the switches
 round after round, so a busy machine slows them alike, and the mean of the
 rounds is reported (with boxes an iteration's cost varies with where its
 boxes fall). Peak memory is the level's process's peak resident memory less
-what it held before it built the trainer: what training that level takes.
-The last column says how the critic's batch-1 and batch-2 convolutions run
-at each level in the paper trainer (trainer/networks.py).
+what it held before it built the trainer: what training that level takes
+(on CUDA: the peak of what torch allocated on the GPU, less what it held
+before). On a CPU, the last column says how the critic's batch-1 and
+batch-2 convolutions run at each level in the paper trainer
+(trainer/networks.py); on CUDA they are cuDNN's.
 """
 
 import argparse
@@ -87,7 +90,7 @@ class StraightforwardTrainer(train.Trainer):
         for _ in range(c.d_steps):
             z0, noises = self.random_noises(level)
             fake = self.fake(self.inputs(z0, noises), noises[level] if level else None)[None, None]
-            alpha = torch.rand(1, generator=self.rng)
+            alpha = self.draw(torch.rand, 1)
             loss_d = self.critic(fake.detach()).mean() - self.critic(real).mean() \
                 + c.gp_weight * self.gradient_penalty(real, fake.detach(), alpha)
             self.opt_d.zero_grad()
@@ -120,12 +123,19 @@ def trainer_at(trainer_class, sizes: list, level: int, placement, preset: str = 
 
 
 def timed_iteration(trainer, recon_inputs) -> float:
+    synchronize(trainer.placement.device)
     started = time.perf_counter()
     trainer.iterate(recon_inputs)
+    synchronize(trainer.placement.device)  # a GPU runs behind the host: wait for the last kernel
     return time.perf_counter() - started
 
 
-def serve_iterations(connection, straightforward: bool, sizes: list, level: int, precision: str,
+def synchronize(on: torch.device) -> None:
+    if on.type == "cuda":
+        torch.cuda.synchronize(on)
+
+
+def serve_iterations(connection, straightforward: bool, sizes: list, level: int, where: str, precision: str,
                      preset: str, options: dict) -> None:
     """A worker process: one trainer, one timed iteration per request, then
     its peak memory.
@@ -134,16 +144,19 @@ def serve_iterations(connection, straightforward: bool, sizes: list, level: int,
     straightforward port with the C library's default allocator, as the
     authors' code runs; sinshape with the switches `train` sets.
     """
-    placement = device.choose("cpu", precision)
-    if not straightforward:
-        placement.activate()
-    before = resident_bytes()
+    placement = device.choose(where, precision)
+    if not straightforward or placement.device.type == "cuda":  # on CUDA the port too gets cuDNN's autotuner
+        placement.activate(shapes_vary=bool(options.get("box")))
+    on_gpu = placement.device.type == "cuda"
+    before = torch.cuda.memory_allocated(placement.device) if on_gpu else resident_bytes()
     trainer = trainer_at(StraightforwardTrainer if straightforward else train.Trainer, sizes, level,
                          placement, preset, **options)
     connection.send("ready")
     while connection.recv():
         connection.send(timed_iteration(*trainer))
-    connection.send(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024 - before)
+    peak = (torch.cuda.max_memory_allocated(placement.device) if on_gpu
+            else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024)
+    connection.send(peak - before)
 
 
 def resident_bytes() -> int:
@@ -174,20 +187,22 @@ def main():
     parser.add_argument("--box", type=int, nargs="*", default=[], help="also the default with --box N")
     parser.add_argument("--port", action="store_true", help="also the straightforward port (float32)")
     parser.add_argument("--full", type=Path, help="also train the default preset on this mesh, end to end")
+    parser.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N (default: cpu)")
     args = parser.parse_args()
 
     sizes = SIZES[args.sizes]
-    picked = device.choose("cpu")
+    picked = device.choose(args.device)
     print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, CPU capability "
-          f"{torch.backends.cpu.get_cpu_capability()}, native bf16: {device.native_bf16()}")
+          f"{torch.backends.cpu.get_cpu_capability()}, native bf16: {device.native_bf16()}"
+          + (f", GPU {torch.cuda.get_device_name(picked.device)}" if picked.device.type == "cuda" else ""))
     print(f"sinshape picked: {picked.describe()}; allocator keeps freed memory: {device.keep_freed_memory()}")
     print("; ".join(f"{name} preset: box {config.box}, " + (
         f"lr {config.lr:g}" if config.lr_total is None else
         f"lr {config.lr_total:g} / iterations, {config.lr:g} to {config.lr_max:g}")
         for name, config in (("default", make_config("default")), ("paper", make_config("paper")))))
     # (name, straightforward, precision, preset, options) of each trainer in the table
-    runs = [("paper", False, picked.precision, "paper", {}), ("default", False, picked.precision, "default", {})]
-    runs += [(f"box {side}", False, picked.precision, "default", {"box": side}) for side in args.box]
+    runs = [("paper", False, "auto", "paper", {}), ("default", False, "auto", "default", {})]
+    runs += [(f"box {side}", False, "auto", "default", {"box": side}) for side in args.box]
     if args.port:
         runs = [("straightforward", True, "fp32", "paper", {}), ("paper fp32", False, "fp32", "paper", {})] + runs
     names = [name for name, *_ in runs]
@@ -203,8 +218,8 @@ def main():
         workers = []
         for _, straightforward, precision, preset, options in runs:
             ours, theirs = context.Pipe()
-            process = context.Process(target=serve_iterations,
-                                      args=(theirs, straightforward, sizes, level, precision, preset, options))
+            process = context.Process(target=serve_iterations, args=(theirs, straightforward, sizes, level,
+                                                                     args.device, precision, preset, options))
             process.start()
             workers.append((process, ours))
         for _, connection in workers:
@@ -223,7 +238,8 @@ def main():
         sums += means
         print(f"| {level} | {'x'.join(map(str, sizes[level]))} | " + " | ".join(f"{s:.3f}" for s in means)
               + " | " + " | ".join(f"{means[base] / means[i]:.2f}x" for i in faster) + " | "
-              + " | ".join(f"{p / 2**20:.0f}" for p in peaks) + f" | {critic_methods(sizes[level])} |", flush=True)
+              + " | ".join(f"{p / 2**20:.0f}" for p in peaks) + " | "
+              + (critic_methods(sizes[level]) if picked.device.type == "cpu" else "cuDNN") + " |", flush=True)
     print("| sum | | " + " | ".join(f"{s:.2f}" for s in sums) + " | "
           + " | ".join(f"{sums[base] / sums[i]:.2f}x" for i in faster) + " |")
     print("\n2000 iterations per level at these sizes: "
@@ -232,7 +248,7 @@ def main():
     if args.full:
         with tempfile.TemporaryDirectory() as tmp:
             started = time.perf_counter()
-            manifest = train.train(args.full, Path(tmp) / "model.onnx", make_config("default"))
+            manifest = train.train(args.full, Path(tmp) / "model.onnx", make_config("default"), device=args.device)
             wall = time.perf_counter() - started
         print(f"\ndefault preset on {args.full.name}: {wall / 60:.1f} min wall time")
         print("| level | grid | s/iter |")

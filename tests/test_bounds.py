@@ -41,11 +41,18 @@ def test_training_memory_grows_with_the_level_and_shrinks_with_a_box():
     assert level_memory((64, 64, 64), make_config("default", channels=64)) > 1.9 * large - (40 << 20)
 
 
-def test_train_refuses_a_pyramid_too_large_before_any_level_trains(tiny_pyramid, tmp_path, monkeypatch):
-    pytest.importorskip("torch")
-    monkeypatch.setattr(budget, "available_memory", lambda: 10 << 20)
+@pytest.mark.parametrize("where", ["cpu", pytest.param("cuda", marks=pytest.mark.cuda)])
+def test_train_refuses_a_pyramid_too_large_before_any_level_trains(tiny_pyramid, tmp_path, monkeypatch, where):
+    """The limit is the memory available on the CPU, the GPU's free memory on CUDA."""
+    torch = pytest.importorskip("torch")
+    if where == "cuda":
+        if not torch.cuda.is_available():
+            pytest.skip("torch sees no CUDA GPU")
+        monkeypatch.setattr(torch.cuda, "mem_get_info", lambda device=None: (10 << 20, 80 << 30))
+    else:
+        monkeypatch.setattr(budget, "available_memory", lambda: 10 << 20)
     out = tmp_path / "m.onnx"
-    result = sinrun("train", tiny_pyramid, "-o", out, "--preset", "tiny")
+    result = sinrun("train", tiny_pyramid, "-o", out, "--preset", "tiny", "--device", where)
     assert_one_line_error(result, "training a level of 20x18x15 voxels needs about", "(limit 0.0 GiB)")
     assert list(tmp_path.iterdir()) == []  # no model, no checkpoint
 

@@ -170,3 +170,23 @@ def test_training_keeps_freed_memory_instead_of_faulting_it_in_again():
     kept, default, tuned = result.stdout.split()
     assert kept == "True"
     assert float(default) > 10_000 and float(tuned) < 1_000
+
+
+def test_cudnn_autotunes_only_where_shapes_stay_fixed(monkeypatch):
+    """Boxes clipped at the grid's edge change shape: the autotuner would
+    time every kernel again for each new one (5.5 s an iteration on an H100)."""
+    for name in ("benchmark", "allow_tf32"):  # restored after the test (the matmul switch acts only on a GPU)
+        monkeypatch.setattr(torch.backends.cudnn, name, getattr(torch.backends.cudnn, name))
+    placement = device.Placement(torch.device("cuda"), "tf32", "a flag test: sets switches, runs nothing")
+    placement.activate()
+    assert torch.backends.cudnn.benchmark
+    placement.activate(shapes_vary=True)
+    assert not torch.backends.cudnn.benchmark
+
+
+@pytest.mark.parametrize("box, varies", [(0, False), (16, True)])
+def test_training_tells_the_placement_whether_shapes_vary(tmp_path, tiny_pyramid, monkeypatch, box, varies):
+    seen = []
+    monkeypatch.setattr(device.Placement, "activate", lambda self, shapes_vary=False: seen.append(shapes_vary))
+    train.train(tiny_pyramid, tmp_path / "m.onnx", make_config("tiny", iters=1, box=box), device="cpu")
+    assert seen == [varies]

@@ -417,7 +417,7 @@ def train(input_path, output_path, config: TrainConfig | None, *, resume: bool =
         config = TrainConfig.from_dict(state["config"])
     check_outputs(input_path, output_path, checkpoint_path, config.generator)
     placement = devices.choose(device, config.precision)
-    placement.activate()
+    placement.activate(shapes_vary=bool(config.box))
     first = state["level"] if state else 0  # the levels still to train
     pyramid = load_pyramid(input_path, config.res, config.levels, config.level_factor, config.min_size,
                            check=lambda sizes: check_training_memory(sizes[first:], config, placement))
