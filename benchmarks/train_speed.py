@@ -46,6 +46,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from sinshape.core.errors import InputError
 from sinshape.trainer import device, networks, train
 from sinshape.trainer.config import make_config
 from sinshape.trainer.networks import Discriminator, TriplaneGenerator
@@ -145,9 +146,9 @@ def serve_iterations(connection, straightforward: bool, sizes: list, level: int,
     authors' code runs; sinshape with the switches `train` sets.
     """
     placement = device.choose(where, precision)
-    if not straightforward or placement.device.type == "cuda":  # on CUDA the port too gets cuDNN's autotuner
-        placement.activate(shapes_vary=bool(options.get("box")))
     on_gpu = placement.device.type == "cuda"
+    if not straightforward or on_gpu:  # on CUDA the port too gets cuDNN's autotuner
+        placement.activate(shapes_vary=bool(options.get("box")))
     before = torch.cuda.memory_allocated(placement.device) if on_gpu else resident_bytes()
     trainer = trainer_at(StraightforwardTrainer if straightforward else train.Trainer, sizes, level,
                          placement, preset, **options)
@@ -191,7 +192,10 @@ def main():
     args = parser.parse_args()
 
     sizes = SIZES[args.sizes]
-    picked = device.choose(args.device)
+    try:
+        picked = device.choose(args.device)
+    except InputError as error:
+        parser.error(str(error))
     print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, CPU capability "
           f"{torch.backends.cpu.get_cpu_capability()}, native bf16: {device.native_bf16()}"
           + (f", GPU {torch.cuda.get_device_name(picked.device)}" if picked.device.type == "cuda" else ""))
