@@ -8,8 +8,11 @@ harness, tests/browser.py) on a site written by `sinrun export-web`, WASM on
 one thread, and in the Python runtime (one thread), the median of
 `--repeats` after one warm-up. The edits are benchmarks/edit.py's: seed 0
 plain; seed 0 with the box BOX kept from seed 1000; seed 0 grown 1.5x along
-x; and seed 0's level-0 layout edited four ways (removed, duplicated,
-moved, added), generated from with seed 0.
+x; seed 0's level-0 layout edited four ways (removed, duplicated,
+moved, added), generated from with seed 0; and the page's own unit of
+editing, a click: one block on top of the layout, the one nearest its
+centre, removed or with a block added on it; the nearest with room beside
+it moved one cell along x; and the five nearest removed (five clicks: each regenerates from all of them).
 """
 
 import argparse
@@ -18,6 +21,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
@@ -49,6 +54,22 @@ BROWSER_JS = """async ([file, edits, repeats]) => {
 }"""
 
 
+def block_edits(layout) -> dict:
+    """What clicks on the page's blocks make: (X, Y, Z) bool layouts, by label."""
+    centre = (np.array(layout.shape) - 1) / 2
+    tops = [tuple(p) for p in np.argwhere(layout[:, :, :-1] & ~layout[:, :, 1:])]  # full, empty above
+    tops.sort(key=lambda p: (np.abs(np.array(p) - centre).sum(), p))
+    (i, j, k), out = tops[0], {}
+    a, b, c = next(p for p in tops if p[0] + 1 < layout.shape[0] and not layout[p[0] + 1, p[1], p[2]])
+    for label, cells in (("1 block removed", {(i, j, k): False}), ("1 block added", {(i, j, k + 1): True}),
+                         ("1 block moved", {(a, b, c): False, (a + 1, b, c): True}),
+                         ("5 blocks removed", dict.fromkeys(tops[:5], False))):
+        out[label] = layout.copy()
+        for cell, full in cells.items():
+            out[label][cell] = full
+    return out
+
+
 def edits(model) -> list:
     """(label, runtime.js function, its arguments, the Python runtime's same edit) for each edit."""
     part = parse_part(f"1000:{BOX}", model.manifest, model.manifest.sizes[-1])
@@ -56,7 +77,8 @@ def edits(model) -> list:
     rows = [("plain sample", "sample", [0], lambda: sample(model, 0)),
             ("a box kept", "compose", [0, [box]], lambda: compose(model, 0, [part])),
             ("grown 1.5x", "grow", [0, [1.5, 1, 1], [0.5, 0, 0]], lambda: grow(model, 0, (1.5, 1, 1), (0.5, 0, 0)))]
-    for edit, target in edited_layouts(layouts.layout(model, 0)).items():
+    own = layouts.layout(model, 0)
+    for edit, target in {**edited_layouts(own), **block_edits(own)}.items():
         rows.append((f"layout: {edit}", "fromLayout", [0, target.ravel().astype(int).tolist(), list(target.shape)],
                      lambda target=target: layouts.from_layout(model, 0, target)))
     return rows

@@ -12,12 +12,14 @@ import { checkSeed, drawNoise, resizeWeights, sample, scaledSizes, triplane } fr
 import { dense } from './query.js';
 
 // The fit's constants: they mirror runtime/layout.py's (which says why each is what it is).
-const FIT_STEPS = 60; // at the layout's level
-const FINER_STEPS = 30; // at each finer level
+const FIT_STEPS = 30; // at the layout's level
+const FINER_STEPS = 10; // at each finer level
+const HOLD_STEPS = 20; // at the last level
 const FIT_RATE = 0.5; // Adam's step, in plane units
 const PULL = 0.001; // weight of the change's mean square
 const MARGIN = 0.1; // how far past 0.5 an edited cell is fitted, on the layout's side
 const KEEP_WEIGHT = 0.2; // an unedited cell's weight, against an edited cell's 1
+const SLOPE_FLOOR = 0.1; // the sigmoid's slope in the fit's gradient, at least
 const SHARE = 0.4; // a plane cell may change where more than this share of its line was edited
 const PLANE_AXES = [[0, 1], [0, 2], [1, 2]];
 
@@ -197,6 +199,43 @@ function reach(masks, pools, size) {
   return { cells, voxels };
 }
 
+/** An (n, C) matrix times a (C, m) one: (n, m), summed in doubles. */
+function times(left, right, n, c, m) {
+  const out = new Float32Array(n * m), sum = new Float64Array(m);
+  for (let i = 0; i < n; i++) {
+    sum.fill(0);
+    for (let k = 0; k < c; k++) {
+      const by = left[i * c + k], row = k * m;
+      if (by !== 0) for (let j = 0; j < m; j++) sum[j] += by * right[row + j];
+    }
+    out.set(sum, i * m);
+  }
+  return out;
+}
+
+/** times(left, right) where only the columns `used` of `right` (C, m) may be nonzero: the rest of the product is 0. */
+function timesOn(left, right, n, c, m, used) {
+  const k = used.length, packed = new Float32Array(c * k), out = new Float32Array(n * m);
+  for (let r = 0; r < c; r++) for (let u = 0; u < k; u++) packed[r * k + u] = right[r * m + used[u]];
+  const product = times(left, packed, n, c, k);
+  for (let r = 0; r < n; r++) for (let u = 0; u < k; u++) out[r * m + used[u]] = product[r * k + u];
+  return out;
+}
+
+/** The cells of a (h, w) field that rows @ field @ cols.T carries onto a `mask`ed cell: Int32Array. */
+function feeding(mask, { data: rows, rows: hIn, cols: h }, { data: cols, rows: wIn, cols: w }) {
+  const used = [];
+  for (let u = 0; u < h; u++) for (let v = 0; v < w; v++) {
+    let hit = false;
+    for (let i = 0; i < hIn && !hit; i++) {
+      if (rows[i * h + u] === 0) continue;
+      for (let j = 0; j < wIn && !hit; j++) hit = mask[i * wIn + j] === 1 && cols[j * w + v] !== 0;
+    }
+    if (hit) used.push(u * w + v);
+  }
+  return Int32Array.from(used);
+}
+
 /**
  * Planes (3 x { data, dims: [C, H, W] }) changed so that their occupancy,
  * area-averaged to the layout's grid, is on the layout's side of 0.5 (by
@@ -210,7 +249,6 @@ export function fit(model, weights, planes, target, shape, steps, edited, hold =
   const c = planes[0].dims[0], d = bias1.length;
   const size = [planes[0].dims[1], planes[0].dims[2], planes[1].dims[2]];
   const grow = PLANE_AXES.map(([a, b]) => [resizeMatrix(shape[a], size[a]), resizeMatrix(shape[b], size[b])]);
-  const shrink = grow.map((matrices) => matrices.map(transpose));
   const fieldDims = PLANE_AXES.map(([a, b]) => [c, shape[a], shape[b]]);
   const masks = planeMasks(edited, shape).map((m, p) => Uint8Array.from(onPlane(m, fieldDims[p].with(0, 1), grow[p]), (v) => (v > 0 ? 1 : 0)));
   // Within reach: cells (the layout's) and voxels (x, y, z from `low`); a voxel's plane cells by plane.
@@ -220,52 +258,55 @@ export function fit(model, weights, planes, target, shape, steps, edited, hold =
   const box = cells.map(([lo, hi]) => hi - lo), low = voxels.map(([lo]) => lo), [x, y, z] = voxels.map(([lo, hi]) => hi - lo);
   [target, edited] = [crop(target, shape, cells), crop(edited, shape, cells)];
   const planeCell = PLANE_AXES.map(([a, b]) => (i, j) => (low[a] + i) * size[b] + low[b] + j); // (i, j) of the reach
-  const change = fieldDims.map((dims) => new Float32Array(product(dims)));
-  const moments = change.map((field) => [new Float32Array(field.length), new Float32Array(field.length)]);
-  // Only masked plane cells move, so only the voxels reading one change: the rest keep their first step's values.
   const planeDims = PLANE_AXES.map(([a, b]) => [[x, y, z][a], [x, y, z][b]]);
-  const moving = planeDims.map(([h, w], k) => {
+  // The first layer is linear, so a plane's term is its start's plus the mask
+  // times the change's term resized: the change goes through the layer at the
+  // layout's resolution (several times fewer cells than a plane's), and so does its gradient.
+  const growIn = PLANE_AXES.map(([a, b], k) => [submatrix(grow[k][0], voxels[a], [0, shape[a]]), submatrix(grow[k][1], voxels[b], [0, shape[b]])]);
+  const shrinkIn = growIn.map((matrices) => matrices.map(transpose));
+  const moving = planeDims.map(([h, w], k) => { // the mask within reach
     const out = new Uint8Array(h * w);
     for (let i = 0; i < h; i++) for (let j = 0; j < w; j++) out[i * w + j] = masks[k][planeCell[k](i, j)];
     return out;
   });
+  // Only the change's cells that reach a masked cell move (the others' gradient is 0), so only those go through the layer.
+  const used = moving.map((mask, k) => feeding(mask, ...growIn[k]));
+  const start = planes.map((p, k) => { // einsum chw,cd->hwd over the voxels in reach: (h * w, D)
+    const [h, w] = planeDims[k], area = p.dims[1] * p.dims[2], cells = new Float32Array(h * w * c);
+    for (let i = 0; i < h; i++) for (let j = 0; j < w; j++) {
+      for (let ch = 0; ch < c; ch++) cells[(i * w + j) * c + ch] = p.data[ch * area + planeCell[k](i, j)];
+    }
+    return times(cells, weights[k], h * w, c, d);
+  });
+  const weightsT = weights.map((w) => transpose({ data: w, rows: c, cols: d }).data); // (D, C)
   const live = new Uint8Array(x * y * z);
   for (let i = 0; i < x; i++) for (let j = 0; j < y; j++) for (let k = 0; k < z; k++) {
     live[(i * y + j) * z + k] = moving[0][i * y + j] | moving[1][i * z + k] | moving[2][j * z + k];
   }
-  const sums = planeDims.map(([h, w]) => new Float64Array(h * w * d)); // the planes' first-layer terms
-  const pre = new Float32Array(x * y * z * d), occupancy = new Float32Array(x * y * z);
+  const change = fieldDims.map((dims) => new Float32Array(product(dims)));
+  const moments = change.map((field) => [new Float32Array(field.length), new Float32Array(field.length)]);
+  const terms = start.map((s) => Float32Array.from(s)); // the planes' first-layer terms, (h * w, D)
+  const occupancy = new Float32Array(x * y * z), halfWeight2 = weight2.map((w) => w / 2);
   const count = edited.reduce((n, e) => n + e, 0);
-  let current = planes, side = null, need = null, weight = null;
+  let side = null, need = null, weight = null;
   for (let step = 1; step <= steps; step++) {
-    current = planes.map((p, k) => {
-      const moved = onPlane(change[k], fieldDims[k], grow[k]), area = p.dims[1] * p.dims[2], mask = masks[k];
-      const data = new Float32Array(p.data.length);
-      for (let at = 0; at < data.length; at += area) {
-        for (let i = 0; i < area; i++) data[at + i] = p.data[at + i] + mask[i] * moved[at + i];
+    const [axy, axz, ayz] = terms.map((term, k) => {
+      if (step === 1) return term; // no change yet
+      const [, h, w] = fieldDims[k], [hIn, wIn] = planeDims[k], area = hIn * wIn;
+      const moved = onPlane(timesOn(weightsT[k], change[k], d, c, h * w, used[k]), [d, h, w], growIn[k]); // (D, h, w) of the reach
+      for (let n = 0; n < area; n++) {
+        if (!moving[k][n]) continue;
+        for (let e = 0; e < d; e++) term[n * d + e] = start[k][n * d + e] + moved[e * area + n];
       }
-      return { data, dims: p.dims };
-    });
-    const [axy, axz, ayz] = current.map((p, k) => { // einsum chw,cd->hwd over the voxels in reach
-      const [h, w] = planeDims[k], area = p.dims[1] * p.dims[2], out = sums[k], plane = p.data, first = weights[k];
-      for (let i = 0; i < h; i++) for (let j = 0; j < w; j++) {
-        if (step > 1 && !moving[k][i * w + j]) continue;
-        const cell = planeCell[k](i, j), at = (i * w + j) * d;
-        out.fill(0, at, at + d);
-        for (let ch = 0; ch < c; ch++) {
-          const value = plane[ch * area + cell];
-          for (let e = 0; e < d; e++) out[at + e] += value * first[ch * d + e];
-        }
-      }
-      return out;
+      return term;
     });
     for (let i = 0; i < x; i++) for (let j = 0; j < y; j++) for (let k = 0; k < z; k++) {
       const n = (i * y + j) * z + k, a = (i * y + j) * d, b = (i * z + k) * d, e = (j * z + k) * d;
       if (step > 1 && !live[n]) continue;
       let s = bias2;
-      for (let h = 0; h < d; h++) {
-        const v = pre[n * d + h] = axy[a + h] + axz[b + h] + ayz[e + h] + bias1[h];
-        if (v > 0) s += v * weight2[h];
+      for (let h = 0; h < d; h++) { // the ReLU without a branch: (v + |v|) / 2 is v or 0, exactly
+        const v = axy[a + h] + axz[b + h] + ayz[e + h] + bias1[h];
+        s += (v + Math.abs(v)) * halfWeight2[h];
       }
       occupancy[n] = 1 / (1 + Math.exp(-s));
     }
@@ -280,16 +321,16 @@ export function fit(model, weights, planes, target, shape, steps, edited, hold =
     for (let n = 0; n < target.length; n++) {
       if (need[n] - side[n] * (pooled[n] - 0.5) > 0) [hinge[n], short] = [-side[n] * weight[n], true];
     }
-    if (!short) break;
+    if (!short || step === steps) break;
     // The hinge's gradient, back through the pooling, the sigmoid and the ReLU.
     const dOccupancy = separable(back, hinge, box).data;
-    const dA = [x * y, x * z, y * z].map((area) => new Float64Array(area * d));
+    const dA = planeDims.map(([h, w]) => new Float64Array(h * w * d)); // (h * w, D)
     for (let i = 0; i < x; i++) for (let j = 0; j < y; j++) for (let k = 0; k < z; k++) {
-      const n = (i * y + j) * z + k, o = occupancy[n], g = dOccupancy[n] * o * (1 - o);
+      const n = (i * y + j) * z + k, o = occupancy[n], g = dOccupancy[n] * Math.max(o * (1 - o), SLOPE_FLOOR);
       if (g === 0 || !live[n]) continue; // a voxel reading no masked cell moves nothing
       const a = (i * y + j) * d, b = (i * z + k) * d, e = (j * z + k) * d;
       for (let h = 0; h < d; h++) {
-        if (pre[n * d + h] <= 0) continue;
+        if (axy[a + h] + axz[b + h] + ayz[e + h] + bias1[h] <= 0) continue;
         const v = g * weight2[h];
         dA[0][a + h] += v;
         dA[1][b + h] += v;
@@ -297,18 +338,11 @@ export function fit(model, weights, planes, target, shape, steps, edited, hold =
       }
     }
     change.forEach((field, k) => {
-      const [h, w] = planeDims[k];
-      const area = current[k].dims[1] * current[k].dims[2], onCells = new Float32Array(c * area); // mask * einsum hwd,cd->chw
-      for (let i = 0; i < h; i++) for (let j = 0; j < w; j++) {
-        const cell = planeCell[k](i, j), at = (i * w + j) * d;
-        if (!masks[k][cell]) continue;
-        for (let ch = 0; ch < c; ch++) {
-          let s = 0;
-          for (let e = 0; e < d; e++) s += dA[k][at + e] * weights[k][ch * d + e];
-          onCells[ch * area + cell] = s;
-        }
-      }
-      const grad = onPlane(onCells, current[k].dims, shrink[k]), [m, v] = moments[k];
+      const [, h, w] = fieldDims[k], [hIn, wIn] = planeDims[k], area = hIn * wIn;
+      const masked = new Float32Array(d * area); // (D, h, w) of the reach: mask * dA
+      for (let n = 0; n < area; n++) if (moving[k][n]) for (let e = 0; e < d; e++) masked[e * area + n] = dA[k][n * d + e];
+      const onLayout = onPlane(masked, [d, hIn, wIn], shrinkIn[k]); // (D, h, w) of the layout
+      const grad = timesOn(weights[k], onLayout, c, d, h * w, used[k]), [m, v] = moments[k]; // einsum hwd,cd->chw
       for (let i = 0; i < field.length; i++) {
         const g = grad[i] + (2 * PULL / field.length) * field[i];
         m[i] += 0.1 * (g - m[i]); // Adam, beta1 0.9, beta2 0.999
@@ -317,7 +351,14 @@ export function fit(model, weights, planes, target, shape, steps, edited, hold =
       }
     });
   }
-  return current;
+  return planes.map((p, k) => { // the start plus the mask times the change resized
+    const moved = onPlane(change[k], fieldDims[k], grow[k]), area = p.dims[1] * p.dims[2], mask = masks[k];
+    const data = new Float32Array(p.data.length);
+    for (let at = 0; at < data.length; at += area) {
+      for (let i = 0; i < area; i++) data[at + i] = p.data[at + i] + mask[i] * moved[at + i];
+    }
+    return { data, dims: p.dims };
+  });
 }
 
 /** The level whose grid a layout of `shape` is. */
@@ -346,6 +387,7 @@ export async function fromLayout(model, seed, target, shape, factors = [1, 1, 1]
   const own = threshold(pool(grid.data, grid.shape, shape));
   const edited = wanted.map((v, n) => (v !== own[n] ? 1 : 0));
   const weights = await firstLayer(model);
+  const last = sizes.length - 1;
   return triplane(model, noise, sizes, (i, planes) => (i < level ? planes
-    : fit(model, weights, planes, wanted, shape, i === level ? FIT_STEPS : FINER_STEPS, edited, i === sizes.length - 1)));
+    : fit(model, weights, planes, wanted, shape, i === level ? FIT_STEPS : i === last ? HOLD_STEPS : FINER_STEPS, edited, i === last)));
 }
