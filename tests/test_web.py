@@ -242,8 +242,9 @@ def test_composing_and_growing_equal_the_python_runtime(site_page, terrain):
 
 
 def test_layouts_equal_the_python_runtime(site_page, terrain):
-    """The browser's sinshape/layout.js against runtime/layout.py: the seed's
-    layout exactly, and the shape of an edited one (a block removed, one
+    """The browser's sinshape/layout.js against runtime/layout.py: a seed's
+    layout exactly (also when kept from an earlier call, beside another
+    seed's), and the shape of an edited one (a block removed, one
     added): every edited cell as the layout says, the rest close to
     from_layout's, the same on every run."""
     from sinshape.runtime import layout
@@ -254,11 +255,13 @@ def test_layouts_equal_the_python_runtime(site_page, terrain):
     shown = page.evaluate("""async () => {
       const s = await import('./static/sinshape/runtime.js');
       const model = await s.loadModel(new Uint8Array(await (await fetch('models/terrain.onnx')).arrayBuffer()), { name: 'terrain.onnx' });
-      const { grid, shape } = await s.layout(model, 3);
-      return { grid: Array.from(grid), shape };
+      const made = [];  // seed 3's, another seed's, then seed 3's again: kept from the first time
+      for (const seed of [3, 4, 3]) made.push(await s.layout(model, seed));
+      return made.map(({ grid, shape }) => ({ grid: Array.from(grid), shape }));
     }""")
     base = layout.layout(terrain, 3)
-    np.testing.assert_array_equal(np.array(shown["grid"], bool).reshape(shown["shape"]), base)
+    for seed, made in zip([3, 4, 3], shown):
+        np.testing.assert_array_equal(np.array(made["grid"], bool).reshape(made["shape"]), layout.layout(terrain, seed))
     target = base.copy()
     target[10:14, 6:10, 5:] = False  # a tower's top cut off
     target[3, 3, 9] = True

@@ -109,12 +109,28 @@ function checkLevel(model, level) {
   return level;
 }
 
+// A seed's own layouts, per model, the last few: the page makes one to show
+// the blocks, and every edit of them needs it again (a sample's worth of work).
+const OWN_KEPT = 8;
+const ownLayouts = new WeakMap();
+
+/** The sample of `seed` (BigInt) area-averaged to `shape` and thresholded: Uint8Array, kept for the next call. */
+async function own(model, seed, factors, shape, make) {
+  const kept = ownLayouts.get(model) ?? new Map(), key = `${seed} ${factors} ${shape}`;
+  ownLayouts.set(model, kept);
+  if (!kept.has(key)) {
+    const grid = await dense(model, await make());
+    kept.set(key, threshold(pool(grid.data, grid.shape, shape)));
+    if (kept.size > OWN_KEPT) kept.delete(kept.keys().next().value);
+  }
+  return kept.get(key);
+}
+
 /** The layout of the sample of `seed` at `level`: { grid: Uint8Array, shape }, as layout.layout. */
 export async function layout(model, seed, level = 0, factors = [1, 1, 1]) {
   checkLevel(model, level);
-  const shape = scaledSizes(model.manifest.sizes, factors)[level];
-  const grid = await dense(model, await sample(model, checkSeed(seed), factors));
-  return { grid: threshold(pool(grid.data, grid.shape, shape)), shape };
+  const shape = scaledSizes(model.manifest.sizes, factors)[level], value = checkSeed(seed);
+  return { grid: Uint8Array.from(await own(model, value, factors, shape, () => sample(model, value, factors))), shape };
 }
 
 /** Each plane's block of the decoder's first layer, (C, D) Float32Array: stage decoder_planes on one-hot planes, as first_layer. */
@@ -381,11 +397,10 @@ export async function fromLayout(model, seed, target, shape, factors = [1, 1, 1]
   const level = layoutLevel(sizes, shape);
   if (target.length !== product(shape)) throw new InputError(`a layout of ${shape.join('x')} cells needs ${product(shape)} values, got ${target.length}`);
   const wanted = threshold(target);
-  const noise = drawNoise(checkSeed(seed), sizes, model.manifest.channels);
+  const value = checkSeed(seed), noise = drawNoise(value, sizes, model.manifest.channels);
   // The cells the user edited: where the layout differs from the seed's own.
-  const grid = await dense(model, await triplane(model, noise, sizes));
-  const own = threshold(pool(grid.data, grid.shape, shape));
-  const edited = wanted.map((v, n) => (v !== own[n] ? 1 : 0));
+  const seeds = await own(model, value, factors, shape, () => triplane(model, noise, sizes));
+  const edited = wanted.map((v, n) => (v !== seeds[n] ? 1 : 0));
   const weights = await firstLayer(model);
   const last = sizes.length - 1;
   return triplane(model, noise, sizes, (i, planes) => (i < level ? planes
