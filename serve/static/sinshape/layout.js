@@ -3,13 +3,15 @@
 // one: the planes of the layout's level and of every finer level are fitted
 // to it by gradient descent through the decoder (a hinge, Adam), each plane
 // only where its lines were edited. The steps are runtime/layout.py's, in
-// the same order; sums run in float64 where numpy's run in float32.
+// the same order; the hidden layer's sums run in float32, 4 at a time
+// (decode.wat), the others in float64 where numpy's run in float32.
 //
 // Grids are Float32Array or Uint8Array (a layout: 1 full, 0 empty) in C
 // order (x slowest, z fastest), with their shape.
 import { InputError } from './model.js';
 import { checkSeed, drawNoise, resizeWeights, sample, scaledSizes, triplane } from './generate.js';
 import { dense } from './query.js';
+import { DECODE_WASM } from './decode-wasm.js';
 
 // The fit's constants: they mirror runtime/layout.py's (which says why each is what it is).
 const FIT_STEPS = 30; // at the layout's level
@@ -252,6 +254,40 @@ function feeding(mask, { data: rows, rows: hIn, cols: h }, { data: cols, rows: w
   return Int32Array.from(used);
 }
 
+let decodeModule = null; // decode.wat, compiled once; an instance per fit, with a memory sized to it
+
+/**
+ * The decoder's hidden layer for the voxels of an (x, y, z) reach, in
+ * WebAssembly (decode.wat; six times the plain loop): the planes' terms, 3 x
+ * (cells, stride) Float32Array in its memory, stride a multiple of 4 that
+ * holds the D units; `live`, the voxels to decode; decode(all) -> each
+ * voxel's logit less bias2 (Float32Array, where live or all).
+ */
+function decoder(model, planeDims, [x, y, z]) {
+  decodeModule ??= new WebAssembly.Module(Uint8Array.from(atob(DECODE_WASM), (ch) => ch.charCodeAt(0)));
+  const { bias1, weight2 } = model.head, stride = Math.ceil(bias1.length / 4) * 4, voxels = x * y * z;
+  const floats = [...planeDims.map(([h, w]) => h * w * stride), stride, stride, voxels];
+  const memory = new WebAssembly.Memory({ initial: Math.ceil((floats.reduce((a, b) => a + b) * 4 + voxels) / 65536) });
+  let at = 0;
+  const [xy, xz, yz, bias, w2, logits] = floats.map((n) => {
+    const view = new Float32Array(memory.buffer, at, n);
+    at += n * 4;
+    return view;
+  });
+  const live = new Uint8Array(memory.buffer, at, voxels);
+  bias.set(bias1);
+  w2.set(weight2);
+  const { decode } = new WebAssembly.Instance(decodeModule, { env: { memory } }).exports;
+  return {
+    stride, terms: [xy, xz, yz], live,
+    decode(all) {
+      decode(xy.byteOffset, xz.byteOffset, yz.byteOffset, bias.byteOffset, w2.byteOffset, live.byteOffset, all ? 1 : 0,
+        logits.byteOffset, x, y, z, stride);
+      return logits;
+    },
+  };
+}
+
 /**
  * Planes (3 x { data, dims: [C, H, W] }) changed so that their occupancy,
  * area-averaged to the layout's grid, is on the layout's side of 0.5 (by
@@ -295,14 +331,14 @@ export function fit(model, weights, planes, target, shape, steps, edited, hold =
     return times(cells, weights[k], h * w, c, d);
   });
   const weightsT = weights.map((w) => transpose({ data: w, rows: c, cols: d }).data); // (D, C)
-  const live = new Uint8Array(x * y * z);
+  const { stride, terms, live, decode } = decoder(model, planeDims, [x, y, z]); // terms: (h * w, stride)
+  terms.forEach((term, k) => { for (let n = 0; n < term.length / stride; n++) term.set(start[k].subarray(n * d, n * d + d), n * stride); });
   for (let i = 0; i < x; i++) for (let j = 0; j < y; j++) for (let k = 0; k < z; k++) {
     live[(i * y + j) * z + k] = moving[0][i * y + j] | moving[1][i * z + k] | moving[2][j * z + k];
   }
   const change = fieldDims.map((dims) => new Float32Array(product(dims)));
   const moments = change.map((field) => [new Float32Array(field.length), new Float32Array(field.length)]);
-  const terms = start.map((s) => Float32Array.from(s)); // the planes' first-layer terms, (h * w, D)
-  const occupancy = new Float32Array(x * y * z), halfWeight2 = weight2.map((w) => w / 2);
+  const occupancy = new Float32Array(x * y * z);
   const count = edited.reduce((n, e) => n + e, 0);
   let side = null, need = null, weight = null;
   for (let step = 1; step <= steps; step++) {
@@ -312,20 +348,12 @@ export function fit(model, weights, planes, target, shape, steps, edited, hold =
       const moved = onPlane(timesOn(weightsT[k], change[k], d, c, h * w, used[k]), [d, h, w], growIn[k]); // (D, h, w) of the reach
       for (let n = 0; n < area; n++) {
         if (!moving[k][n]) continue;
-        for (let e = 0; e < d; e++) term[n * d + e] = start[k][n * d + e] + moved[e * area + n];
+        for (let e = 0; e < d; e++) term[n * stride + e] = start[k][n * d + e] + moved[e * area + n];
       }
       return term;
     });
-    for (let i = 0; i < x; i++) for (let j = 0; j < y; j++) for (let k = 0; k < z; k++) {
-      const n = (i * y + j) * z + k, a = (i * y + j) * d, b = (i * z + k) * d, e = (j * z + k) * d;
-      if (step > 1 && !live[n]) continue;
-      let s = bias2;
-      for (let h = 0; h < d; h++) { // the ReLU without a branch: (v + |v|) / 2 is v or 0, exactly
-        const v = axy[a + h] + axz[b + h] + ayz[e + h] + bias1[h];
-        s += (v + Math.abs(v)) * halfWeight2[h];
-      }
-      occupancy[n] = 1 / (1 + Math.exp(-s));
-    }
+    const logits = decode(step === 1);
+    for (let n = 0; n < occupancy.length; n++) if (step === 1 || live[n]) occupancy[n] = 1 / (1 + Math.exp(-(bias2 + logits[n])));
     const pooled = separable(pools, occupancy, [x, y, z]).data;
     if (side === null) { // the unedited cells keep the side these planes put them on (with hold, the layout's)
       side = Float32Array.from(pooled, (v, n) => ((edited[n] || hold ? target[n] : v > 0.5) ? 1 : -1));
@@ -340,11 +368,11 @@ export function fit(model, weights, planes, target, shape, steps, edited, hold =
     if (!short || step === steps) break;
     // The hinge's gradient, back through the pooling, the sigmoid and the ReLU.
     const dOccupancy = separable(back, hinge, box).data;
-    const dA = planeDims.map(([h, w]) => new Float64Array(h * w * d)); // (h * w, D)
+    const dA = planeDims.map(([h, w]) => new Float64Array(h * w * stride)); // (h * w, stride)
     for (let i = 0; i < x; i++) for (let j = 0; j < y; j++) for (let k = 0; k < z; k++) {
       const n = (i * y + j) * z + k, o = occupancy[n], g = dOccupancy[n] * Math.max(o * (1 - o), SLOPE_FLOOR);
       if (g === 0 || !live[n]) continue; // a voxel reading no masked cell moves nothing
-      const a = (i * y + j) * d, b = (i * z + k) * d, e = (j * z + k) * d;
+      const a = (i * y + j) * stride, b = (i * z + k) * stride, e = (j * z + k) * stride;
       for (let h = 0; h < d; h++) {
         if (axy[a + h] + axz[b + h] + ayz[e + h] + bias1[h] <= 0) continue;
         const v = g * weight2[h];
@@ -356,7 +384,7 @@ export function fit(model, weights, planes, target, shape, steps, edited, hold =
     change.forEach((field, k) => {
       const [, h, w] = fieldDims[k], [hIn, wIn] = planeDims[k], area = hIn * wIn;
       const masked = new Float32Array(d * area); // (D, h, w) of the reach: mask * dA
-      for (let n = 0; n < area; n++) if (moving[k][n]) for (let e = 0; e < d; e++) masked[e * area + n] = dA[k][n * d + e];
+      for (let n = 0; n < area; n++) if (moving[k][n]) for (let e = 0; e < d; e++) masked[e * area + n] = dA[k][n * stride + e];
       const onLayout = onPlane(masked, [d, hIn, wIn], shrinkIn[k]); // (D, h, w) of the layout
       const grad = timesOn(weights[k], onLayout, c, d, h * w, used[k]), [m, v] = moments[k]; // einsum hwd,cd->chw
       for (let i = 0; i < field.length; i++) {
