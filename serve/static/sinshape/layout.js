@@ -258,18 +258,21 @@ let decodeModule = null; // decode.wat, compiled once; an instance per fit, with
 
 /**
  * The decoder's hidden layer for the voxels of an (x, y, z) reach, in
- * WebAssembly (decode.wat; six times the plain loop): the planes' terms, 3 x
- * (cells, stride) Float32Array in its memory, stride a multiple of 4 that
- * holds the D units; `live`, the voxels to decode; decode(all) -> each
- * voxel's logit less bias2 (Float32Array, where live or all).
+ * WebAssembly (decode.wat; six times the plain loop), as Float32Arrays in its
+ * memory: the planes' terms and their gradients, 3 x (cells, stride) with
+ * stride a multiple of 4 that holds the D units; `live`, the voxels to
+ * decode; `g`, each voxel's gradient at the hidden layer's output.
+ * decode(all) -> each voxel's logit less bias2 (where live, or all);
+ * backward() -> the terms' gradients from `g`.
  */
 function decoder(model, planeDims, [x, y, z]) {
   decodeModule ??= new WebAssembly.Module(Uint8Array.from(atob(DECODE_WASM), (ch) => ch.charCodeAt(0)));
   const { bias1, weight2 } = model.head, stride = Math.ceil(bias1.length / 4) * 4, voxels = x * y * z;
-  const floats = [...planeDims.map(([h, w]) => h * w * stride), stride, stride, voxels];
+  const cells = planeDims.map(([h, w]) => h * w * stride);
+  const floats = [...cells, ...cells, stride, stride, voxels, voxels];
   const memory = new WebAssembly.Memory({ initial: Math.ceil((floats.reduce((a, b) => a + b) * 4 + voxels) / 65536) });
   let at = 0;
-  const [xy, xz, yz, bias, w2, logits] = floats.map((n) => {
+  const [xy, xz, yz, dxy, dxz, dyz, bias, w2, logits, g] = floats.map((n) => {
     const view = new Float32Array(memory.buffer, at, n);
     at += n * 4;
     return view;
@@ -277,13 +280,19 @@ function decoder(model, planeDims, [x, y, z]) {
   const live = new Uint8Array(memory.buffer, at, voxels);
   bias.set(bias1);
   w2.set(weight2);
-  const { decode } = new WebAssembly.Instance(decodeModule, { env: { memory } }).exports;
+  const kernels = new WebAssembly.Instance(decodeModule, { env: { memory } }).exports;
+  const terms = [xy, xz, yz], gradients = [dxy, dxz, dyz], [pxy, pxz, pyz] = terms.map((t) => t.byteOffset);
   return {
-    stride, terms: [xy, xz, yz], live,
+    stride, terms, live, g,
     decode(all) {
-      decode(xy.byteOffset, xz.byteOffset, yz.byteOffset, bias.byteOffset, w2.byteOffset, live.byteOffset, all ? 1 : 0,
-        logits.byteOffset, x, y, z, stride);
+      kernels.decode(pxy, pxz, pyz, bias.byteOffset, w2.byteOffset, live.byteOffset, all ? 1 : 0, logits.byteOffset, x, y, z, stride);
       return logits;
+    },
+    backward() {
+      gradients.forEach((d) => d.fill(0));
+      kernels.backward(pxy, pxz, pyz, bias.byteOffset, w2.byteOffset, g.byteOffset, dxy.byteOffset, dxz.byteOffset,
+        dyz.byteOffset, x, y, z, stride);
+      return gradients;
     },
   };
 }
@@ -297,7 +306,7 @@ function decoder(model, planeDims, [x, y, z]) {
  */
 export function fit(model, weights, planes, target, shape, steps, edited, hold = false) {
   if (!edited.some((e) => e)) return planes;
-  const { bias1, weight2, bias2 } = model.head;
+  const { bias1, bias2 } = model.head;
   const c = planes[0].dims[0], d = bias1.length;
   const size = [planes[0].dims[1], planes[0].dims[2], planes[1].dims[2]];
   const grow = PLANE_AXES.map(([a, b]) => [resizeMatrix(shape[a], size[a]), resizeMatrix(shape[b], size[b])]);
@@ -331,7 +340,7 @@ export function fit(model, weights, planes, target, shape, steps, edited, hold =
     return times(cells, weights[k], h * w, c, d);
   });
   const weightsT = weights.map((w) => transpose({ data: w, rows: c, cols: d }).data); // (D, C)
-  const { stride, terms, live, decode } = decoder(model, planeDims, [x, y, z]); // terms: (h * w, stride)
+  const { stride, terms, live, g, decode, backward } = decoder(model, planeDims, [x, y, z]); // terms: (h * w, stride)
   terms.forEach((term, k) => { for (let n = 0; n < term.length / stride; n++) term.set(start[k].subarray(n * d, n * d + d), n * stride); });
   for (let i = 0; i < x; i++) for (let j = 0; j < y; j++) for (let k = 0; k < z; k++) {
     live[(i * y + j) * z + k] = moving[0][i * y + j] | moving[1][i * z + k] | moving[2][j * z + k];
@@ -342,15 +351,13 @@ export function fit(model, weights, planes, target, shape, steps, edited, hold =
   const count = edited.reduce((n, e) => n + e, 0);
   let side = null, need = null, weight = null;
   for (let step = 1; step <= steps; step++) {
-    const [axy, axz, ayz] = terms.map((term, k) => {
-      if (step === 1) return term; // no change yet
+    if (step > 1) terms.forEach((term, k) => { // step 1: no change yet
       const [, h, w] = fieldDims[k], [hIn, wIn] = planeDims[k], area = hIn * wIn;
       const moved = onPlane(timesOn(weightsT[k], change[k], d, c, h * w, used[k]), [d, h, w], growIn[k]); // (D, h, w) of the reach
       for (let n = 0; n < area; n++) {
         if (!moving[k][n]) continue;
         for (let e = 0; e < d; e++) term[n * stride + e] = start[k][n * d + e] + moved[e * area + n];
       }
-      return term;
     });
     const logits = decode(step === 1);
     for (let n = 0; n < occupancy.length; n++) if (step === 1 || live[n]) occupancy[n] = 1 / (1 + Math.exp(-(bias2 + logits[n])));
@@ -368,19 +375,10 @@ export function fit(model, weights, planes, target, shape, steps, edited, hold =
     if (!short || step === steps) break;
     // The hinge's gradient, back through the pooling, the sigmoid and the ReLU.
     const dOccupancy = separable(back, hinge, box).data;
-    const dA = planeDims.map(([h, w]) => new Float64Array(h * w * stride)); // (h * w, stride)
-    for (let i = 0; i < x; i++) for (let j = 0; j < y; j++) for (let k = 0; k < z; k++) {
-      const n = (i * y + j) * z + k, o = occupancy[n], g = dOccupancy[n] * Math.max(o * (1 - o), SLOPE_FLOOR);
-      if (g === 0 || !live[n]) continue; // a voxel reading no masked cell moves nothing
-      const a = (i * y + j) * stride, b = (i * z + k) * stride, e = (j * z + k) * stride;
-      for (let h = 0; h < d; h++) {
-        if (axy[a + h] + axz[b + h] + ayz[e + h] + bias1[h] <= 0) continue;
-        const v = g * weight2[h];
-        dA[0][a + h] += v;
-        dA[1][b + h] += v;
-        dA[2][e + h] += v;
-      }
+    for (let n = 0; n < g.length; n++) { // a voxel reading no masked cell moves nothing
+      g[n] = live[n] ? dOccupancy[n] * Math.max(occupancy[n] * (1 - occupancy[n]), SLOPE_FLOOR) : 0;
     }
+    const dA = backward(); // (h * w, stride) per plane
     change.forEach((field, k) => {
       const [, h, w] = fieldDims[k], [hIn, wIn] = planeDims[k], area = hIn * wIn;
       const masked = new Float32Array(d * area); // (D, h, w) of the reach: mask * dA
