@@ -352,6 +352,7 @@ export function fit(model, weights, planes, target, shape, steps, edited, hold =
   let side = null, need = null, weight = null;
   for (let step = 1; step <= steps; step++) {
     if (step > 1) terms.forEach((term, k) => { // step 1: no change yet
+      if (!used[k].length) return; // a plane the fit may not change
       const [, h, w] = fieldDims[k], [hIn, wIn] = planeDims[k], area = hIn * wIn;
       const moved = onPlane(timesOn(weightsT[k], change[k], d, c, h * w, used[k]), [d, h, w], growIn[k]); // (D, h, w) of the reach
       for (let n = 0; n < area; n++) {
@@ -380,6 +381,7 @@ export function fit(model, weights, planes, target, shape, steps, edited, hold =
     }
     const dA = backward(); // (h * w, stride) per plane
     change.forEach((field, k) => {
+      if (!used[k].length) return; // its gradient is 0: it stays 0
       const [, h, w] = fieldDims[k], [hIn, wIn] = planeDims[k], area = hIn * wIn;
       const masked = new Float32Array(d * area); // (D, h, w) of the reach: mask * dA
       for (let n = 0; n < area; n++) if (moving[k][n]) for (let e = 0; e < d; e++) masked[e * area + n] = dA[k][n * stride + e];
@@ -425,8 +427,8 @@ export async function fromLayout(model, seed, target, shape, factors = [1, 1, 1]
   const wanted = threshold(target);
   const value = checkSeed(seed), noise = drawNoise(value, sizes, model.manifest.channels);
   // The cells the user edited: where the layout differs from the seed's own.
-  const seeds = await own(model, value, factors, shape, () => triplane(model, noise, sizes));
-  const edited = wanted.map((v, n) => (v !== seeds[n] ? 1 : 0));
+  const seedLayout = await own(model, value, factors, shape, () => triplane(model, noise, sizes));
+  const edited = wanted.map((v, n) => (v !== seedLayout[n] ? 1 : 0));
   const weights = await firstLayer(model);
   const last = sizes.length - 1;
   return triplane(model, noise, sizes, (i, planes) => (i < level ? planes
