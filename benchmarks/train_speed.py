@@ -86,6 +86,12 @@ class StraightforwardTrainer(train.Trainer):
         planes = gen.levels[0](inputs) if self.level == 0 else gen.step(inputs, self.level, self.sizes[self.level], noise_planes)
         return concat_decode(gen.decoder, planes)
 
+    def gradient_penalty(self, real, fake, alpha):
+        """The authors' penalty: the whole grid, padded by the critic itself."""
+        mixed = (alpha * real + (1 - alpha) * fake).requires_grad_(True)
+        (grad,) = torch.autograd.grad(self.critic(mixed).sum(), mixed, create_graph=True)
+        return ((grad.abs() - 1) ** 2).mean()
+
     def iterate(self, recon_inputs):
         c, level, real = self.config, self.level, self.targets[self.level]
         for _ in range(c.d_steps):

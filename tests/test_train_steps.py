@@ -8,7 +8,7 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from sinshape.trainer import device, train  # noqa: E402
-from sinshape.trainer.networks import TriplaneGenerator  # noqa: E402
+from sinshape.trainer.networks import Discriminator, TriplaneGenerator  # noqa: E402
 from sinshape.trainer.config import make_config  # noqa: E402
 from sinshape.prep.pyramid import Pyramid, load_pyramid  # noqa: E402
 
@@ -81,18 +81,41 @@ def test_a_box_decodes_what_the_whole_grid_has_there():
 
 
 def test_the_critic_compares_the_same_box_of_real_and_fake(tiny_pyramid, monkeypatch):
-    """Every critic step sees a box of the real grid beside a fake of the same
-    size; the reconstruction is scored in a box of the real grid too."""
+    """Every critic step sees a box of the real grid, with the voxel around it
+    (zeros only beyond the grid's faces), beside a fake of the same size; the
+    reconstruction is scored in a box of the real grid too."""
     trainer = trainer_at_level(train.Trainer, load_pyramid(tiny_pyramid, 32), 1, box=16)
     boxes = iter([(slice(i, i + 16), slice(1, 17), slice(0, 15)) for i in range(4)] * 3)
     monkeypatch.setattr(trainer, "draw_box", lambda: next(boxes))
     shown = []
     critic_forward = trainer.critic.forward
-    monkeypatch.setattr(trainer.critic, "forward", lambda volume: shown.append(volume.detach()) or critic_forward(volume))
+    monkeypatch.setattr(trainer.critic, "forward",
+                        lambda volume, framed: shown.append(volume.detach()) or critic_forward(volume, framed))
     trainer.iterate(trainer.recon_inputs())
     real = trainer.targets[1][0, 0]
+    assert real.shape[2] == 15  # so the z box reaches both of the grid's faces
+    padded = torch.nn.functional.pad(real, (1,) * 6)  # the whole grid as the critic reads it
     pairs = [v for v in shown if v.shape[0] == 2]
     assert len(pairs) == 3  # one per critic step (the gradient penalty's mix is a batch of one)
     for step, pair in enumerate(pairs):
-        torch.testing.assert_close(pair[0, 0], real[step:step + 16, 1:17, 0:15])
+        torch.testing.assert_close(pair[0, 0], padded[step:step + 18, 1:19, 0:17])
         assert not torch.equal(pair[1, 0], pair[0, 0])
+
+
+def test_a_framed_box_scores_as_the_whole_grid_does_there():
+    """With the instance norms out of the way (they see only the box, by
+    design), the critic scores a framed box as it scores the whole grid
+    there; a box padded with zeros instead differs at its faces inside the
+    grid, where it looks like the grid's own faces."""
+    critic = Discriminator(4)
+    critic.net[1] = critic.net[4] = torch.nn.Identity()
+    grid = torch.rand(1, 1, 24, 20, 18)
+    box = (slice(4, 20), slice(0, 12), slice(2, 18))  # even starts keep the stride-2 patches aligned
+    taken, pad = train.framed(box, grid.shape[2:])
+    with torch.no_grad():
+        whole = critic(grid)
+        scores = critic(torch.nn.functional.pad(grid[(..., *taken)], pad), framed=True)
+        unframed = critic(grid[(..., *box)])
+    there = whole[(..., *[slice(s.start // 2, s.start // 2 + n) for s, n in zip(box, scores.shape[2:])])]
+    torch.testing.assert_close(scores, there)
+    assert (unframed - there).abs().max() > 1e-3

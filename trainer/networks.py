@@ -355,10 +355,12 @@ class Discriminator(nn.Module):
             nn.Conv3d(channels, 1, 3),
         )
 
-    def forward(self, volume: torch.Tensor) -> torch.Tensor:
-        """volume : (B, 1, X, Y, Z) -> (B, 1, x, y, z) scores."""
+    def forward(self, volume: torch.Tensor, framed: bool = False) -> torch.Tensor:
+        """volume : (B, 1, X, Y, Z) -> (B, 1, x, y, z) scores. framed: the
+        volume carries the one voxel around it that the first layer reads
+        (zeros where that is outside the grid), so it is not padded again."""
         first, norm1, act1, middle, norm2, act2, last = self.net
-        volume = act1(norm1(first(volume)))
+        volume = act1(norm1(F.conv3d(volume, first.weight, stride=2) if framed else first(volume)))
         volume = act2(norm2(valid_conv(middle, volume)))
         return valid_conv(last, volume).float()  # the WGAN losses are small differences of large scores
 

@@ -105,6 +105,25 @@ def seeded(seed: int, *ids: int) -> int:
     return noise.stream_key(seed, *ids) >> 1  # torch seeds must fit in int64
 
 
+def framed(box: tuple | None, size) -> tuple:
+    """What the critic reads for a box (None: the whole grid): the box and
+    the voxel around it on every side, which the critic's first layer reads.
+
+    Returns (slices of the grid to take, F.pad's zero padding). The frame is
+    the grid's own voxels where the box lies inside the grid and zeros only
+    beyond the grid's faces, as for the whole grid. Padded with zeros on
+    every side instead, a box cut through solid looks to the critic like
+    solid meeting the grid's face, which the example shows rarely: trained so,
+    the generator filled the grid's faces, and samples came out with flat
+    caps.
+    """
+    if box is None:
+        return None, (1,) * 6
+    taken = tuple(slice(max(s.start - 1, 0), min(s.stop + 1, n)) for s, n in zip(box, size))
+    pad = [(int(s.start == 0), int(s.stop == n)) for s, n in zip(box, size)]
+    return taken, tuple(side for low_high in reversed(pad) for side in low_high)  # F.pad: last axis first
+
+
 def atomic_save(obj, path: Path) -> None:
     """torch.save through the runtime's atomic writer: never a half-written
     checkpoint, and no temporary file left behind."""
@@ -249,26 +268,29 @@ class Trainer:
         box of the real and the fake (a paired comparison: where the box falls
         moves both scores alike), and the reconstruction is measured in
         another box; only boxes are decoded. Each is an unbiased estimate of
-        its whole-grid term, at the cost of its box.
+        its whole-grid term, at the cost of its box. The critic sees a box
+        with its frame (`framed`), so a box's faces inside the grid do not
+        look like the grid's own.
         """
         c, level, real = self.config, self.level, self.targets[self.level][0, 0]
-        critic = self.critic
-        d_draws = [(*self.random_noises(level), self.draw(torch.rand, 1), self.draw_box())
+        critic, size = self.critic, self.sizes[level]
+        d_draws = [(*self.random_noises(level), self.draw(torch.rand, 1), framed(self.draw_box(), size))
                    for _ in range(c.d_steps)]
-        g_draws = [(*self.random_noises(level), self.draw_box(), self.draw_box()) for _ in range(c.g_steps)]
+        g_draws = [(*self.random_noises(level), framed(self.draw_box(), size), self.draw_box())
+                   for _ in range(c.g_steps)]
         z0, noises = cat_draws([draw[:2] for draw in d_draws] + [draw[:2] for draw in g_draws])
         noise = noises[level]  # (d_steps + g_steps) samples; None at level 0
         with torch.no_grad():
             inputs = self.inputs(z0, noises)
             fakes = self.fake(take(inputs, slice(0, c.d_steps)), take(noise, slice(0, c.d_steps)),
-                              [draw[3] for draw in d_draws])
+                              [draw[3][0] for draw in d_draws])
 
         # (1) Update D: minimise D(fake) - D(real) + gp_weight * GP.
         critic.requires_grad_(True)
-        for fake, (_, _, alpha, box) in zip(fakes, d_draws):
-            seen_real = (real if box is None else real[box])[None, None]
-            seen_fake = fake[None, None]
-            scores = critic(torch.cat([seen_real, seen_fake]))
+        for fake, (_, _, alpha, (box, pad)) in zip(fakes, d_draws):
+            seen_real = F.pad((real if box is None else real[box])[None, None], pad)
+            seen_fake = F.pad(fake[None, None], pad)
+            scores = critic(torch.cat([seen_real, seen_fake]), framed=True)
             d_real, d_fake = scores[0].mean(), scores[1].mean()
             loss_d = d_fake - d_real + c.gp_weight * self.gradient_penalty(seen_real, seen_fake, alpha)
             self.opt_d.zero_grad(set_to_none=True)
@@ -277,7 +299,7 @@ class Trainer:
 
         # (2) Update G: minimise -D(fake) + rec_weight * MSE(rec, real).
         critic.requires_grad_(False)
-        for i, (_, _, box, rec_box) in zip(range(c.d_steps, c.d_steps + c.g_steps), g_draws):
+        for i, (_, _, (box, pad), rec_box) in zip(range(c.d_steps, c.d_steps + c.g_steps), g_draws):
             one = slice(i, i + 1)
             if level == 0:  # P trains with G_0: both samples start from their z0
                 fake, rec = self.fake(self.inputs(torch.cat([z0[one], self.z0_recon]), None), None, [box, rec_box])
@@ -285,7 +307,7 @@ class Trainer:
                 pair = cat_batch([take(inputs, one), recon_inputs])
                 fake, rec = self.fake(pair, [torch.cat([n[one], torch.zeros_like(n[one])]) for n in noise],
                                       [box, rec_box])
-            loss_adv = -critic(fake[None, None]).mean()
+            loss_adv = -critic(F.pad(fake[None, None], pad), framed=True).mean()
             loss_rec = F.mse_loss(rec, real if rec_box is None else real[rec_box])
             loss_g = loss_adv + c.rec_weight * loss_rec
             self.opt_g.zero_grad(set_to_none=True)
@@ -295,15 +317,15 @@ class Trainer:
         return {"D": loss_d.item(), "G": loss_adv.item(), "rec": loss_rec.item()}
 
     def gradient_penalty(self, real, fake, alpha) -> torch.Tensor:
-        """WGAN-GP on the mix alpha * real + (1 - alpha) * fake.
+        """WGAN-GP on the mix alpha * real + (1 - alpha) * fake (both framed).
 
         As the authors' code does, the norm is taken over the channel axis,
         which has size 1: the penalty is mean((|dD/dx| - 1)^2) per voxel, of
         the gradient of the score map's sum.
         """
         mixed = (alpha * real + (1 - alpha) * fake).requires_grad_(True)
-        (grad,) = torch.autograd.grad(self.critic(mixed).sum(), mixed, create_graph=True)
-        return ((grad.abs() - 1) ** 2).mean()
+        (grad,) = torch.autograd.grad(self.critic(mixed, framed=True).sum(), mixed, create_graph=True)
+        return ((grad[..., 1:-1, 1:-1, 1:-1].abs() - 1) ** 2).mean()  # the grid's voxels, not the frame
 
     # -- checkpoints ---------------------------------------------------------
     def trained_seconds(self) -> float:
