@@ -113,9 +113,7 @@ def framed(box: tuple | None, size) -> tuple:
     the grid's own voxels where the box lies inside the grid and zeros only
     beyond the grid's faces, as for the whole grid. Padded with zeros on
     every side instead, a box cut through solid looks to the critic like
-    solid meeting the grid's face, which the example shows rarely: trained so,
-    the generator filled the grid's faces, and samples came out with flat
-    caps.
+    solid meeting the grid's face, which the example shows rarely.
     """
     if box is None:
         return None, (1,) * 6
