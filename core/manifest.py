@@ -270,6 +270,11 @@ def describe(raw: dict) -> list:
         measured = ", ".join(f"{c:.2f}" for c in training.get("measured_seconds_per_iteration", []))
         lines.append(f"budget      {config['minutes']:g} min; planned {printable(training.get('planned_iterations', '?'))}"
                      f" iterations per level from measured s/iteration {measured or '?'}")
+    rewinds = training.get("rewinds")
+    for rewind in rewinds if isinstance(rewinds, list) else []:
+        if isinstance(rewind, dict) and all(_is_number(rewind.get(k)) for k in ("level", "at", "to", "lr")):
+            lines.append(f"diverged    level {rewind['level']:g} at iteration {rewind['at']:g}; went back to "
+                         f"iteration {rewind['to']:g} and on at rate {rewind['lr']:.3g}")
     origin, spacing = (", ".join(f"{v:.4g}" for v in raw["frame"][k]) for k in ("origin", "spacing"))
     lines += [
         f"networks    {raw['channels']} channels, {raw['pool_bins']} pooling bins, MLP hidden {raw['mlp_hidden']}",

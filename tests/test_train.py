@@ -1,4 +1,5 @@
-"""Long training behaves: resume skips finished levels, Ctrl-C saves, NaN stops."""
+"""Long training behaves: resume skips finished levels, Ctrl-C saves, a
+diverging level goes back at half its rate, and stops the run if it keeps diverging."""
 
 import math
 
@@ -86,17 +87,66 @@ def test_resume_refuses_another_input(tmp_path, tiny_pyramid):
         train.train(other, out, None, resume=True)
 
 
-def test_divergence_stops_and_keeps_the_last_good_checkpoint(tmp_path, tiny_pyramid, monkeypatch):
-    real_iterate = train.Trainer.iterate
+def test_a_rewind_restores_the_kept_networks_at_half_the_rate(tiny_pyramid):
+    trainer = train.Trainer(make_config("tiny"), train.load_pyramid(tiny_pyramid, 32))
+    trainer.begin_level()
+    recon_inputs = trainer.recon_inputs()
+    trainer.iterate(recon_inputs)
+    trainer.iteration = 1
+    kept = trainer.keep()
+    before = {k: v.clone() for k, v in trainer.critic.state_dict().items()}
+    for _ in range(2):
+        trainer.iterate(recon_inputs)
+        trainer.iteration += 1
+    assert any(not torch.equal(before[k], v) for k, v in trainer.critic.state_dict().items())
+    trainer.rewind(kept)
+    assert trainer.iteration == 1
+    assert all(torch.equal(before[k], v) for k, v in trainer.critic.state_dict().items())
+    assert all(torch.equal(kept["generator"][k], v) for k, v in trainer.generator.state_dict().items())
+    assert trainer.opt_d.state_dict()["state"][0]["step"] == 1  # Adam's moments went back too
+    lr = make_config("tiny").level_lr(10) / 2
+    assert trainer.lrs == [lr] and trainer.rewinds == [{"level": 0, "at": 4, "to": 1, "lr": lr}]
+    assert {g["lr"] for opt in (trainer.opt_g, trainer.opt_d) for g in opt.param_groups} == {lr}
+
+
+def diverge_at(monkeypatch, level, when):
+    """Make Trainer.iterate report a NaN critic loss at `level` on the calls when(n) says (n from 0)."""
+    real_iterate, calls = train.Trainer.iterate, []
 
     def iterate(self, recon_inputs):
         losses = real_iterate(self, recon_inputs)
-        return {**losses, "D": math.nan} if self.level == 1 else losses
+        if self.level != level:
+            return losses
+        calls.append(self.iteration)
+        return {**losses, "D": math.nan} if when(len(calls) - 1) else losses
 
     monkeypatch.setattr(train.Trainer, "iterate", iterate)
+    return calls
+
+
+def test_a_diverging_level_goes_back_and_ends_with_a_model(tmp_path, tiny_pyramid, monkeypatch):
+    calls = diverge_at(monkeypatch, 1, lambda n: n == 3)
+    logged = []
+    manifest = train.train(tiny_pyramid, tmp_path / "m.onnx", make_config("tiny", iters=5), log=logged.append)
+    assert calls == [0, 1, 2, 3, 0, 1, 2, 3, 4]  # back to iteration 0 (the latest kept copy), then all 5
+    lr = make_config("tiny", iters=5).level_lr(5)
+    assert manifest["training"]["learning_rates"] == pytest.approx([lr, lr / 2])
+    assert manifest["training"]["rewinds"] == [{"level": 1, "at": 4, "to": 0, "lr": pytest.approx(lr / 2)}]
+    assert any(line.startswith("level 2 diverged at iteration 4 (D loss nan); going on from iteration 0")
+               for line in logged)
+    from sinshape.core.manifest import describe
+
+    assert f"diverged    level 1 at iteration 4; went back to iteration 0 and on at rate {lr / 2:.3g}" \
+        in describe(manifest)
+
+
+def test_a_level_that_keeps_diverging_stops_and_keeps_the_last_good_checkpoint(tmp_path, tiny_pyramid, monkeypatch):
+    calls = diverge_at(monkeypatch, 1, lambda n: True)
     out = tmp_path / "m.onnx"
-    with pytest.raises(train.TrainingDiverged, match="level 2, iteration 1.*D loss nan.*; try another seed$"):
+    with pytest.raises(train.TrainingDiverged,
+                       match="level 2, iteration 1.*D loss nan.*after 2 halvings.*; try another seed$"):
         train.train(tiny_pyramid, out, make_config("tiny", iters=2))
+    assert calls == [0, 0, 0]  # twice back at half the rate, then stopped
     assert not out.exists()
     saved = torch.load(train.default_checkpoint_path(out), weights_only=True)
     assert (saved["level"], saved["iteration"]) == (1, 0)  # level 1 finished, nothing after

@@ -11,6 +11,7 @@ few minutes; `resume=True` continues from it without redoing finished levels.
 Ctrl-C saves one before it stops.
 """
 
+import copy
 import dataclasses
 import math
 import time
@@ -35,6 +36,11 @@ from .networks import Discriminator, make_generator
 CHECKPOINT_FORMAT = "sinshape-checkpoint"
 CHECKPOINT_VERSION = 1
 LOSS_LIMIT = 1e6  # a loss beyond this (or NaN) means training has diverged
+# A level that diverges goes back to a copy of its networks kept in memory,
+# 20 to 40 iterations earlier (the latest copy may already be on the way
+# out), and goes on at half its rate; the third time it stops the run.
+KEEP_EVERY = 20
+REWINDS = 2
 
 # Peak memory one iteration adds, with 32 channels and 3 + 3 steps in float32:
 # per voxel the generator decodes (a batch of samples) and the critic sees
@@ -49,7 +55,8 @@ LEVEL_BYTES = 17 << 20  # what a level adds whatever its size
 
 
 class TrainingDiverged(RuntimeError):
-    """A loss became NaN or exploded; the last good checkpoint is kept.
+    """A level's losses exploded even at a quarter of its rate; the last
+    good checkpoint is kept.
     `parameter`, as in InputError, names what the message suggests changing."""
 
     parameter = "seed"
@@ -153,6 +160,7 @@ class Trainer:
         self.seconds = []  # wall time per finished level
         self.level_seconds = 0.0  # wall time so far at the current level
         self.opt_g = self.opt_d = None
+        self.rewinds = []  # {level, at, to, lr}: where a level diverged and went back
         # Iterations per level; under a time budget each level's is planned as it starts.
         self.plan = list(config.level_iters or [0 if config.minutes else config.iters] * len(self.sizes))
 
@@ -325,6 +333,26 @@ class Trainer:
         (grad,) = torch.autograd.grad(self.critic(mixed, framed=True).sum(), mixed, create_graph=True)
         return ((grad[..., 1:-1, 1:-1, 1:-1].abs() - 1) ** 2).mean()  # the grid's voxels, not the frame
 
+    # -- going back after a divergence -----------------------------------------
+    def keep(self) -> dict:
+        """An in-memory copy of what this level's steps change."""
+        return copy.deepcopy({"iteration": self.iteration, "generator": self.generator.state_dict(),
+                              "critic": self.critic.state_dict(), "opt_g": self.opt_g.state_dict(),
+                              "opt_d": self.opt_d.state_dict()})
+
+    def rewind(self, kept: dict) -> None:
+        """Go back to `kept` and halve this level's learning rate."""
+        self.rewinds.append({"level": self.level, "at": self.iteration + 1, "to": kept["iteration"],
+                             "lr": self.lrs[self.level] / 2})
+        self.iteration = kept["iteration"]
+        self.lrs[self.level] /= 2
+        self.generator.load_state_dict(kept["generator"])
+        self.critic.load_state_dict(kept["critic"])
+        for optimizer, state in ((self.opt_g, kept["opt_g"]), (self.opt_d, kept["opt_d"])):
+            optimizer.load_state_dict(state)
+            for group in optimizer.param_groups:
+                group["lr"] = self.lrs[self.level]
+
     # -- checkpoints ---------------------------------------------------------
     def trained_seconds(self) -> float:
         """Training time so far, over every run of this model."""
@@ -342,6 +370,7 @@ class Trainer:
             "iteration": self.iteration,
             "noise_amps": list(self.noise_amps),
             "lrs": list(self.lrs),
+            "rewinds": list(self.rewinds),
             "plan": list(self.plan),
             "seconds": list(self.seconds),
             "level_seconds": self.level_seconds,
@@ -359,6 +388,7 @@ class Trainer:
         self.level_seconds = state["level_seconds"]
         self.plan = list(state.get("plan") or self.plan)  # checkpoints before budgets had none
         self.lrs = list(state.get("lrs") or [self.config.lr] * len(self.noise_amps))  # older: one fixed rate
+        self.rewinds = list(state.get("rewinds", []))
         started = count_levels(state["generator"])
         for _ in range(started):
             with torch.random.fork_rng():
@@ -480,23 +510,33 @@ def train(input_path, output_path, config: TrainConfig | None, *, resume: bool =
             recon_inputs = trainer.recon_inputs()
             last = level == len(trainer.sizes) - 1
             done_here = 0  # iterations in this run of the level (its first one allocates)
+            kept = [trainer.keep()] * 2  # the older copy is the one to go back to
             while trainer.iteration < iters or (budget and last and budget.another_fits(level, stop_at)):
                 if budget and trainer.iteration and not budget.another_fits(level, stop_at):
                     log(f"level {level + 1} used its share of the budget after {trainer.iteration} iterations")
                     break  # slower than planned: keep to the budget
                 started = time.monotonic()
                 losses = trainer.iterate(recon_inputs)
-                bad = [k for k, v in losses.items() if not math.isfinite(v) or abs(v) > LOSS_LIMIT]
-                if bad:
-                    raise TrainingDiverged(
-                        f"training diverged at level {level + 1}, iteration {trainer.iteration + 1} "
-                        f"({', '.join(f'{k} loss {losses[k]:.3g}' for k in bad)}); "
-                        f"the last good checkpoint is {checkpoint_path}; try another seed"
-                    )
-                trainer.iteration += 1
-                done_here += 1
                 took = time.monotonic() - started
                 trainer.level_seconds += took
+                bad = ", ".join(f"{k} loss {v:.3g}" for k, v in losses.items()
+                                if not math.isfinite(v) or abs(v) > LOSS_LIMIT)
+                if bad and sum(r["level"] == level for r in trainer.rewinds) == REWINDS:
+                    raise TrainingDiverged(
+                        f"training diverged at level {level + 1}, iteration {trainer.iteration + 1} ({bad}) "
+                        f"after {REWINDS} halvings of its learning rate; "
+                        f"the last good checkpoint is {checkpoint_path}; try another seed"
+                    )
+                if bad:
+                    trainer.rewind(kept[0])
+                    kept = [kept[0]] * 2
+                    log(f"level {level + 1} diverged at iteration {trainer.rewinds[-1]['at']} ({bad}); going on "
+                        f"from iteration {trainer.iteration} at half the rate, {trainer.lrs[level]:.3g}")
+                    continue
+                trainer.iteration += 1
+                done_here += 1
+                if trainer.iteration % KEEP_EVERY == 0:
+                    kept = [kept[1], trainer.keep()]
                 if budget:
                     budget.observe(level, done_here, took)
                 if progress:
@@ -520,6 +560,8 @@ def train(input_path, output_path, config: TrainConfig | None, *, resume: bool =
         config = dataclasses.replace(config, level_iters=tuple(trainer.plan))
     # Recorded beside the times: where training ran and, under a budget, its plan.
     ran_on = {"device": placement.device.type, "precision": placement.precision, "learning_rates": trainer.lrs}
+    if trainer.rewinds:
+        ran_on["rewinds"] = trainer.rewinds
     if budget:
         ran_on["planned_iterations"] = budget.planned
         ran_on["measured_seconds_per_iteration"] = [round(c, 4) for c in budget.costs]
