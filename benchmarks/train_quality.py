@@ -5,11 +5,13 @@
     python benchmarks/train_quality.py --minutes 10 --seeds 0 1 --pyramid NaturalArch_r128s7.h5
     python benchmarks/train_quality.py --iters 150 --seeds 0 1 --label box32 -- --box 32
     python benchmarks/train_quality.py --minutes 40 --sinrun OTHER/.venv/bin/sinrun --label before
+    python benchmarks/train_quality.py --minutes 10 --mesh towerruins.obj --res 128
 
 The example is an SSG .h5 pyramid (--pyramid), by default the procedural
 acropolis voxelised at the six level sizes of one of the paper's res-128
-pyramids (31x15x15 .. 128x36x60), written once so that any sinshape version
-(--sinrun) trains on exactly the same grids. Each run trains in a fresh
+pyramids (31x15x15 .. 128x36x60), or a mesh voxelised as `sinrun train`
+does (--mesh, --res), written once so that any sinshape version (--sinrun)
+trains on exactly the same grids. Each run trains in a fresh
 process (`sinrun train PYRAMID --preset P --minutes M` or `--iters N`),
 then `sinrun eval` scores 100 samples against the pyramid's finest level
 (LP-IoU, LP-F, diversity). Arguments after `--` go to `sinrun train`. One
@@ -50,6 +52,25 @@ def acropolis_pyramid(path: Path) -> Path:
     return path
 
 
+def mesh_pyramid(mesh: Path, res: int, path: Path) -> Path:
+    """A mesh voxelised as `sinrun train MESH --res RES` does, written once as an
+    SSG pyramid so that every run trains on exactly the same grids."""
+    import h5py
+
+    from sinshape.prep.pyramid import pyramid_from_mesh
+
+    if path.exists():
+        return path
+    levels = pyramid_from_mesh(mesh, res).levels
+    tmp = path.with_name(path.name + ".part")
+    with h5py.File(tmp, "w") as f:
+        f.attrs["n_scales"] = len(levels)
+        for i, level in enumerate(levels):
+            f[f"scale{i}"] = level
+    tmp.rename(path)
+    return path
+
+
 def model_training(sinrun: str, model: Path) -> tuple:
     """Iterations and learning rate per level as trained (rates None from
     versions that did not record them), from the model's manifest (read with
@@ -85,6 +106,9 @@ def main():
     parser.add_argument("--preset", default="default", help="the sinrun train preset (default, paper)")
     parser.add_argument("--pyramid", type=Path, default=None, help="an SSG .h5 pyramid (default: the acropolis "
                         "at the paper's level sizes)")
+    parser.add_argument("--mesh", type=Path, default=None, help="a mesh instead: voxelised at --res as sinrun "
+                        "train does, into WORK/NAME_rRES.h5")
+    parser.add_argument("--res", type=int, default=128, help="with --mesh: the finest level's longest side")
     parser.add_argument("--sinrun", default=str(Path(sys.executable).with_name("sinrun")))
     parser.add_argument("--label", default=None, help="default: the preset's name")
     parser.add_argument("--work", type=Path, default=Path("train_quality"))
@@ -93,7 +117,10 @@ def main():
     args = parser.parse_args()
     args.work.mkdir(parents=True, exist_ok=True)
     results = args.results or args.work / "results.jsonl"
-    pyramid = args.pyramid or acropolis_pyramid(args.work / "acropolis_paper_sizes.h5")
+    if args.mesh:
+        pyramid = mesh_pyramid(args.mesh, args.res, args.work / f"{args.mesh.stem}_r{args.res}.h5")
+    else:
+        pyramid = args.pyramid or acropolis_pyramid(args.work / "acropolis_paper_sizes.h5")
     label = args.label or args.preset
 
     budgets = [("--iters", str(n)) for n in args.iters] + [("--minutes", str(m)) for m in args.minutes]

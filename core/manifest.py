@@ -272,9 +272,10 @@ def describe(raw: dict) -> list:
                      f" iterations per level from measured s/iteration {measured or '?'}")
     rewinds = training.get("rewinds")
     for rewind in rewinds if isinstance(rewinds, list) else []:
-        if isinstance(rewind, dict) and all(_is_number(rewind.get(k)) for k in ("level", "at", "to", "lr")):
-            lines.append(f"diverged    level {rewind['level']:g} at iteration {rewind['at']:g}; went back to "
-                         f"iteration {rewind['to']:g} and on at rate {rewind['lr']:.3g}")
+        if isinstance(rewind, list) and len(rewind) == 4 and all(_is_number(v) for v in rewind):
+            level, at, to, lr = rewind
+            lines.append(f"diverged    level {level:g} at iteration {at:g}; went back to iteration {to:g} "
+                         f"and on at rate {lr:.3g}")
     origin, spacing = (", ".join(f"{v:.4g}" for v in raw["frame"][k]) for k in ("origin", "spacing"))
     lines += [
         f"networks    {raw['channels']} channels, {raw['pool_bins']} pooling bins, MLP hidden {raw['mlp_hidden']}",

@@ -103,9 +103,9 @@ def test_a_rewind_restores_the_kept_networks_at_half_the_rate(tiny_pyramid):
     assert trainer.iteration == 1
     assert all(torch.equal(before[k], v) for k, v in trainer.critic.state_dict().items())
     assert all(torch.equal(kept["generator"][k], v) for k, v in trainer.generator.state_dict().items())
-    assert trainer.opt_d.state_dict()["state"][0]["step"] == 1  # Adam's moments went back too
+    assert trainer.opt_d.state_dict()["state"][0]["step"] == 3  # one iteration's 3 critic steps: Adam went back too
     lr = make_config("tiny").level_lr(10) / 2
-    assert trainer.lrs == [lr] and trainer.rewinds == [{"level": 0, "at": 4, "to": 1, "lr": lr}]
+    assert trainer.lrs == [lr] and trainer.rewinds == [[0, 4, 1, lr]]
     assert {g["lr"] for opt in (trainer.opt_g, trainer.opt_d) for g in opt.param_groups} == {lr}
 
 
@@ -131,7 +131,7 @@ def test_a_diverging_level_goes_back_and_ends_with_a_model(tmp_path, tiny_pyrami
     assert calls == [0, 1, 2, 3, 0, 1, 2, 3, 4]  # back to iteration 0 (the latest kept copy), then all 5
     lr = make_config("tiny", iters=5).level_lr(5)
     assert manifest["training"]["learning_rates"] == pytest.approx([lr, lr / 2])
-    assert manifest["training"]["rewinds"] == [{"level": 1, "at": 4, "to": 0, "lr": pytest.approx(lr / 2)}]
+    assert manifest["training"]["rewinds"] == [[1, 4, 0, pytest.approx(lr / 2)]]
     assert any(line.startswith("level 2 diverged at iteration 4 (D loss nan); going on from iteration 0")
                for line in logged)
     from sinshape.core.manifest import describe

@@ -160,7 +160,7 @@ class Trainer:
         self.seconds = []  # wall time per finished level
         self.level_seconds = 0.0  # wall time so far at the current level
         self.opt_g = self.opt_d = None
-        self.rewinds = []  # {level, at, to, lr}: where a level diverged and went back
+        self.rewinds = []  # [level, at, to, lr]: where a level diverged, where it went back, its new rate
         # Iterations per level; under a time budget each level's is planned as it starts.
         self.plan = list(config.level_iters or [0 if config.minutes else config.iters] * len(self.sizes))
 
@@ -342,8 +342,7 @@ class Trainer:
 
     def rewind(self, kept: dict) -> None:
         """Go back to `kept` and halve this level's learning rate."""
-        self.rewinds.append({"level": self.level, "at": self.iteration + 1, "to": kept["iteration"],
-                             "lr": self.lrs[self.level] / 2})
+        self.rewinds.append([self.level, self.iteration + 1, kept["iteration"], self.lrs[self.level] / 2])
         self.iteration = kept["iteration"]
         self.lrs[self.level] /= 2
         self.generator.load_state_dict(kept["generator"])
@@ -521,7 +520,7 @@ def train(input_path, output_path, config: TrainConfig | None, *, resume: bool =
                 trainer.level_seconds += took
                 bad = ", ".join(f"{k} loss {v:.3g}" for k, v in losses.items()
                                 if not math.isfinite(v) or abs(v) > LOSS_LIMIT)
-                if bad and sum(r["level"] == level for r in trainer.rewinds) == REWINDS:
+                if bad and sum(r[0] == level for r in trainer.rewinds) == REWINDS:
                     raise TrainingDiverged(
                         f"training diverged at level {level + 1}, iteration {trainer.iteration + 1} ({bad}) "
                         f"after {REWINDS} halvings of its learning rate; "
@@ -530,7 +529,7 @@ def train(input_path, output_path, config: TrainConfig | None, *, resume: bool =
                 if bad:
                     trainer.rewind(kept[0])
                     kept = [kept[0]] * 2
-                    log(f"level {level + 1} diverged at iteration {trainer.rewinds[-1]['at']} ({bad}); going on "
+                    log(f"level {level + 1} diverged at iteration {trainer.rewinds[-1][1]} ({bad}); going on "
                         f"from iteration {trainer.iteration} at half the rate, {trainer.lrs[level]:.3g}")
                     continue
                 trainer.iteration += 1
