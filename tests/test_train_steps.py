@@ -72,6 +72,24 @@ def test_boxes_fall_anywhere_and_reach_the_edges():
     assert whole.draw_box() is None and torch.equal(whole.rng.get_state(), state)
 
 
+def test_the_critic_is_not_shown_a_box_where_the_example_is_all_one():
+    """A floor under empty air: many boxes are all air, and the
+    critic's boxes (which its instance norms would blow up on) never are;
+    the reconstruction's boxes still may be."""
+    grid = torch.zeros(48, 40, 40)
+    grid[:, :, :10] = 1
+    pyramid = Pyramid([grid.numpy() > 0], (0.0,) * 3, (1.0,) * 3, "x", "0" * 64, "pyramid")
+    trainer = train.Trainer(make_config("tiny", levels=1, box=16), pyramid, FP32)
+    real = trainer.targets[0][0, 0]
+
+    def share(box):
+        return float(real[box].mean())
+
+    shares = [share(trainer.draw_box()) for _ in range(100)]
+    assert min(shares) == 0.0
+    assert all(0.01 <= share(trainer.critic_box()) <= 0.99 for _ in range(100))
+
+
 def test_a_box_decodes_what_the_whole_grid_has_there():
     generator = TriplaneGenerator(8, 4, 8)
     planes = [torch.randn(1, 8, *size) for size in ((20, 12), (20, 14), (12, 14))]
