@@ -28,40 +28,16 @@ from pathlib import Path
 
 import numpy as np
 
+from sinshape.core.errors import InputError
+
 # The level sizes of one of the paper's res-128 pyramids.
 PAPER_SIZES = [(31, 15, 15), (41, 15, 19), (54, 16, 26), (72, 20, 34), (96, 28, 44), (128, 36, 60)]
 
 
-def acropolis_pyramid(path: Path) -> Path:
-    """The acropolis voxelised at each of PAPER_SIZES (its box fills every grid)."""
+def write_pyramid(path: Path, levels: list) -> Path:
+    """Grids (coarsest first) as an SSG .h5 pyramid, through a temporary file."""
     import h5py
 
-    from sinshape.prep import shapes, voxelize
-
-    if path.exists():
-        return path
-    mesh = shapes.make_shape("acropolis")
-    low, high = mesh.bounds
-    tmp = path.with_name(path.name + ".part")
-    with h5py.File(tmp, "w") as f:
-        f.attrs["n_scales"] = len(PAPER_SIZES)
-        for i, size in enumerate(PAPER_SIZES):
-            spacing = (high - low) / np.array(size)
-            f[f"scale{i}"] = voxelize.voxelize(mesh, low, spacing, size)
-    tmp.rename(path)
-    return path
-
-
-def mesh_pyramid(mesh: Path, res: int, path: Path) -> Path:
-    """A mesh voxelised as `sinrun train MESH --res RES` does, written once as an
-    SSG pyramid so that every run trains on exactly the same grids."""
-    import h5py
-
-    from sinshape.prep.pyramid import pyramid_from_mesh
-
-    if path.exists():
-        return path
-    levels = pyramid_from_mesh(mesh, res).levels
     tmp = path.with_name(path.name + ".part")
     with h5py.File(tmp, "w") as f:
         f.attrs["n_scales"] = len(levels)
@@ -69,6 +45,28 @@ def mesh_pyramid(mesh: Path, res: int, path: Path) -> Path:
             f[f"scale{i}"] = level
     tmp.rename(path)
     return path
+
+
+def acropolis_pyramid(path: Path) -> Path:
+    """The acropolis voxelised at each of PAPER_SIZES (its box fills every grid)."""
+    from sinshape.prep import shapes, voxelize
+
+    if path.exists():
+        return path
+    mesh = shapes.make_shape("acropolis")
+    low, high = mesh.bounds
+    return write_pyramid(path, [voxelize.voxelize(mesh, low, (high - low) / np.array(size), size)
+                                for size in PAPER_SIZES])
+
+
+def mesh_pyramid(mesh: Path, res: int, path: Path) -> Path:
+    """A mesh voxelised as `sinrun train MESH --res RES` does, written once so
+    that every run trains on exactly the same grids."""
+    from sinshape.prep.pyramid import pyramid_from_mesh
+
+    if path.exists():
+        return path
+    return write_pyramid(path, pyramid_from_mesh(mesh, res).levels)
 
 
 def model_training(sinrun: str, model: Path) -> tuple:
@@ -93,8 +91,12 @@ def rate_range(rates) -> str:
 
 
 def run(command: list) -> float:
+    """Seconds the command took; if it fails, its own one-line error (on
+    stderr) is the last word and this script exits with its status."""
     started = time.perf_counter()
-    subprocess.run(command, check=True, stdout=subprocess.DEVNULL)
+    code = subprocess.run(command, stdout=subprocess.DEVNULL).returncode
+    if code:
+        sys.exit(code)
     return time.perf_counter() - started
 
 
@@ -118,7 +120,10 @@ def main():
     args.work.mkdir(parents=True, exist_ok=True)
     results = args.results or args.work / "results.jsonl"
     if args.mesh:
-        pyramid = mesh_pyramid(args.mesh, args.res, args.work / f"{args.mesh.stem}_r{args.res}.h5")
+        try:
+            pyramid = mesh_pyramid(args.mesh, args.res, args.work / f"{args.mesh.stem}_r{args.res}.h5")
+        except InputError as error:
+            sys.exit(f"Error: {error}")
     else:
         pyramid = args.pyramid or acropolis_pyramid(args.work / "acropolis_paper_sizes.h5")
     label = args.label or args.preset
