@@ -82,7 +82,7 @@ class StraightforwardTrainer(train.Trainer):
     def fake(self, inputs, noise_planes):
         gen = self.generator
         if not isinstance(gen, TriplaneGenerator):  # the voxel baseline: no decoder
-            return super().fake(inputs, noise_planes, [None])[0]
+            return super().fake(inputs, [noise_planes], [None])[0]
         planes = gen.levels[0](inputs) if self.level == 0 else gen.step(inputs, self.level, self.sizes[self.level], noise_planes)
         return concat_decode(gen.decoder, planes)
 

@@ -26,7 +26,7 @@ OPTIONS = {"scale": "--scale", "factors": "--size", "smooth": "--smooth", "threa
            "elevation": "--elevation", "timeout": "--timeout", "level": "--level", "grow": "--grow",
            "anchor": "--anchor", "generator": "--generator", "iters": "--iters", "lr": "--lr",
            "min_iters": "--min-iters", "minutes": "--minutes", "precision": "--precision", "box": "--box",
-           "focus": "--focus", "up": "--up", "resume": "--resume"}
+           "train_depth": "--train-depth", "focus": "--focus", "up": "--up", "resume": "--resume"}
 # ctx.meta key: {parameter: what set it} where a command's value came from elsewhere than OPTIONS says.
 SOURCES = "sinrun.sources"
 # The extra that installs each optional module (pyproject.toml): a command
@@ -147,6 +147,10 @@ class TrainCommand(Command):
               help="At levels larger than this many voxels per side, each step sees random boxes of this "
                    "side instead of the whole grid, so an iteration costs what a box costs. 0: whole "
                    "grids, as the paper. Default: the preset's.")
+@click.option("--train-depth", type=click.IntRange(min=1), default=None,
+              help="Levels trained at once: the newest at the level's rate, each older one at a tenth "
+                   "of the next (as ConSinGAN). Default: the preset's (1, one level at a time with the "
+                   "older ones frozen, as the paper).")
 @click.option("--lr", type=click.FloatRange(min=0, min_open=True), default=None,
               help="Adam's learning rate for generator and critic, the same at every level. Default: "
                    "the paper preset's 1e-4; the default preset sets each level's rate from its "
@@ -167,8 +171,8 @@ class TrainCommand(Command):
 @click.option("--checkpoint", type=click.Path(path_type=Path), default=None,
               help="Checkpoint file. Default: MODEL.ckpt.pt beside the output.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress output.")
-def train(input_path, output, preset, res, levels, iters, minutes, min_iters, device, precision, box, lr, seed, up,
-          generator, resume, checkpoint, quiet):
+def train(input_path, output, preset, res, levels, iters, minutes, min_iters, device, precision, box, train_depth, lr,
+          seed, up, generator, resume, checkpoint, quiet):
     """Train a model on one example shape and export it as one .onnx file.
 
     INPUT is a mesh (.obj, .ply, .stl, .off, .glb; not necessarily watertight)
@@ -180,7 +184,8 @@ def train(input_path, output, preset, res, levels, iters, minutes, min_iters, de
     from sinshape.trainer import config as configs, train as training
 
     config = configs.make_config(preset, resume, res=res, levels=levels, iters=iters, minutes=minutes, min_iters=min_iters,
-                                 precision=precision, box=box, lr=lr, seed=seed, up=up, generator=generator)
+                                 precision=precision, box=box, train_depth=train_depth, lr=lr, seed=seed, up=up,
+                                 generator=generator)
     if levels is None:  # an .h5 file with fewer levels blames where the count came from
         click.get_current_context().meta[SOURCES] = {
             "levels": "the checkpoint's levels" if resume else f"the {preset or 'default'} preset's levels"}

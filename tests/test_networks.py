@@ -96,9 +96,9 @@ def test_a_batch_gives_each_sample_as_alone(kind):
     z0 = torch.randn(3, 1, *sizes[0])
     noise = [torch.randn(3, *shape[1:]) for shape in gen.noise_shapes(sizes[1])]
     with torch.no_grad():
-        batch = torch.stack(gen.output(gen.inputs(z0, [None, noise], sizes, 1), 1, sizes[1], noise, [None] * 3))
-        alone = [gen.output(gen.inputs(z0[i:i + 1], [None, [n[i:i + 1] for n in noise]], sizes, 1), 1,
-                            sizes[1], [n[i:i + 1] for n in noise], [None])[0][None] for i in range(3)]
+        batch = torch.stack(gen.output(gen.inputs(z0, [None, noise], sizes, 1), 1, 1, sizes, [noise], [None] * 3))
+        alone = [gen.output(gen.inputs(z0[i:i + 1], [None, [n[i:i + 1] for n in noise]], sizes, 1), 1, 1,
+                            sizes, [[n[i:i + 1] for n in noise]], [None])[0][None] for i in range(3)]
     assert batch.shape == (3, *sizes[1])
     np.testing.assert_allclose(batch.numpy(), torch.cat(alone).numpy(), atol=1e-5)
     assert (batch[0] - batch[1]).abs().max() > 1e-3  # the samples differ

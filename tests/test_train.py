@@ -1,6 +1,7 @@
 """Long training behaves: resume skips finished levels, Ctrl-C saves, a
 diverging level goes back at half its rate, and stops the run if it keeps diverging."""
 
+import copy
 import math
 
 import pytest
@@ -107,6 +108,36 @@ def test_a_rewind_restores_the_kept_networks_at_half_the_rate(tiny_pyramid):
     lr = make_config("tiny").level_lr(10) / 2
     assert trainer.lrs == [lr] and trainer.rewinds == [[0, 4, 1, lr]]
     assert {g["lr"] for opt in (trainer.opt_g, trainer.opt_d) for g in opt.param_groups} == {lr}
+
+
+def test_older_levels_train_alongside_at_a_tenth_of_the_rate(tiny_pyramid):
+    """--train-depth 2 at level 1: G_1 and G_0 (with P) both learn, G_0 at a
+    tenth of the rate (Adam moves a weight by about its rate a step, however
+    large its gradient, so the largest move is a tenth of G_1's); depth 1
+    leaves G_0 exactly as it was. The shares survive a rewind and a checkpoint."""
+    pyramid = train.load_pyramid(tiny_pyramid, 32)
+    moved = {}
+    for depth in (1, 2):
+        trainer = train.Trainer(make_config("tiny", train_depth=depth), pyramid)
+        trainer.begin_level()
+        trainer.level = 1
+        trainer.begin_level()
+        before = copy.deepcopy(trainer.generator)
+        kept = trainer.keep()
+        trainer.iterate(trainer.recon_inputs())
+        moved[depth] = [max((a - b).abs().max().item() for a, b in zip(now.parameters(), then.parameters()))
+                        for now, then in ((trainer.generator.levels[0], before.levels[0]),
+                                          (trainer.generator.projection, before.projection),
+                                          (trainer.generator.levels[1], before.levels[1]))]
+    lr = trainer.lrs[1]
+    assert moved[1][:2] == [0.0, 0.0] and moved[1][2] > 2 * lr  # 3 steps of about lr
+    assert moved[2][0] == pytest.approx(moved[2][2] / 10, rel=0.1)
+    assert moved[2][1] == pytest.approx(moved[2][2] / 10, rel=0.1)
+    trainer.rewind(kept)
+    assert [g["lr"] for g in trainer.opt_g.param_groups] == pytest.approx([lr / 2, lr / 20])
+    resumed = train.Trainer(make_config("tiny", train_depth=2), pyramid)
+    resumed.restore(trainer.state())
+    assert [g["lr"] for g in resumed.opt_g.param_groups] == pytest.approx([lr / 2, lr / 20])
 
 
 def diverge_at(monkeypatch, level, when):

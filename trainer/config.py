@@ -43,6 +43,11 @@ class TrainConfig:
     lr_max: float = 1e-3
     beta1: float = 0.5
     beta2: float = 0.999
+    # Levels trained at once (as ConSinGAN, and the authors' `train_depth`):
+    # the newest at the level's rate, each older one at lr_scale times the
+    # next. 1, one level at a time with the older ones frozen, is the paper's.
+    train_depth: int = 1
+    lr_scale: float = 0.1
     gp_weight: float = 0.1
     rec_weight: float = 10.0
     noise_ratio: float = 0.1  # sigma_i = noise_ratio * RMSE(upsampled rec_(i-1), real_i)
@@ -77,6 +82,8 @@ class TrainConfig:
              f"generator must be triplane or voxel, got {self.generator!r}"),
             (self.iters >= 1, "iters", f"iters must be at least 1, got {self.iters}"),
             (self.d_steps >= 1 and self.g_steps >= 1, None, "d_steps and g_steps must be at least 1"),
+            (self.train_depth >= 1, "train_depth", f"train_depth must be at least 1, got {self.train_depth}"),
+            (0 < self.lr_scale <= 1, None, f"lr_scale must be in (0, 1], got {self.lr_scale}"),
             (self.lr > 0, "lr", f"lr must be positive, got {self.lr}"),
             (self.lr_total is None or self.lr_total > 0, None, f"lr_total must be positive, got {self.lr_total}"),
             (self.lr_total is None or self.lr_max >= self.lr, None, f"lr_max {self.lr_max} is below lr {self.lr}"),

@@ -235,24 +235,31 @@ class TriplaneGenerator(nn.Module):
         """Shapes of one sample's noise at a level: a C-channel map per plane."""
         return [(1, self.channels, *s) for s in plane_sizes(size)]
 
-    def inputs(self, z0: torch.Tensor, noises: list, sizes: list, level: int) -> list:
-        """What level `level` builds on: P(z0) at level 0 (P trains with it),
-        else the frozen levels' tri-plane, computed without gradients."""
-        if level == 0:
+    def inputs(self, z0: torch.Tensor, noises: list, sizes: list, first: int) -> list:
+        """What the trained levels, `first` on, build on: P(z0) when level 0
+        trains (P trains with it), else the frozen levels' tri-plane,
+        computed without gradients."""
+        if first == 0:
             return self.projection(z0)
         with torch.no_grad():
-            return self.planes(z0, noises, sizes, upto=level - 1)
+            return self.planes(z0, noises, sizes, upto=first - 1)
 
-    def output(self, inputs: list, level: int, size: tuple, noise: list | None, boxes: list) -> list:
-        """Level `level`'s occupancy from its inputs and scaled noise: for
-        sample b of the batch, the box boxes[b] of its grid (None: all of it),
-        decoded alone."""
-        planes = self.level_planes(inputs, level, size, noise)
+    def output(self, inputs: list, first: int, level: int, sizes: list, noises: list, boxes: list) -> list:
+        """The occupancy of `level` from the trained levels' inputs and their
+        scaled noises (noises[k] for level first + k): for sample b of the
+        batch, the box boxes[b] of its grid (None: all of it), decoded alone."""
+        planes = inputs
+        for at, noise in zip(range(first, level + 1), noises):
+            planes = self.level_planes(planes, at, sizes[at], noise)
         return [self.decoder.grid([p[b:b + 1] for p in planes], box)[0] for b, box in enumerate(boxes)]
+
+    def level_modules(self, level: int) -> list:
+        """G_level's own modules (and P's at level 0)."""
+        return [self.levels[level]] + ([self.projection] if level == 0 else [])
 
     def trained_modules(self, level: int) -> list:
         """What trains at a level: G_level and the shared decoder (and P at level 0)."""
-        return [self.levels[level], self.decoder] + ([self.projection] if level == 0 else [])
+        return self.level_modules(level) + [self.decoder]
 
 
 class VoxelLevel(nn.Module):
@@ -312,22 +319,25 @@ class VoxelGenerator(nn.Module):
     def forward(self, z0, noises, sizes, upto: int | None = None) -> torch.Tensor:
         return self.volume(z0, noises, sizes, len(self.levels) - 1 if upto is None else upto)[:, 0]
 
-    def inputs(self, z0, noises, sizes, level: int):
-        """z0 at level 0, else the frozen levels' volume (no gradients)."""
-        if level == 0:
+    def inputs(self, z0, noises, sizes, first: int):
+        """z0 when level 0 trains, else the frozen levels' volume (no gradients)."""
+        if first == 0:
             return z0
         with torch.no_grad():
-            return self.volume(z0, noises, sizes, level - 1)
+            return self.volume(z0, noises, sizes, first - 1)
 
-    def output(self, inputs, level: int, size: tuple, noise, boxes: list) -> list:
-        if level == 0:
-            volume = self.levels[0](inputs, torch.zeros_like(inputs))[:, 0]
-        else:
-            volume = self.output_volume(inputs, level, size, noise)[:, 0]
-        return [volume[b] if box is None else volume[b][box] for b, box in enumerate(boxes)]
+    def output(self, inputs, first: int, level: int, sizes: list, noises: list, boxes: list) -> list:
+        volume = inputs
+        for at, noise in zip(range(first, level + 1), noises):
+            volume = (self.levels[0](volume, torch.zeros_like(volume)) if at == 0
+                      else self.output_volume(volume, at, sizes[at], noise))
+        return [volume[b, 0] if box is None else volume[b, 0][box] for b, box in enumerate(boxes)]
+
+    def level_modules(self, level: int) -> list:
+        return [self.levels[level]]
 
     def trained_modules(self, level: int) -> list:
-        return [self.levels[level]]
+        return self.level_modules(level)
 
 
 def make_generator(kind: str, channels: int, bins: int, hidden: int) -> nn.Module:

@@ -189,14 +189,31 @@ class Trainer:
             up = F.interpolate(rec[None, None], size=self.sizes[level], mode="trilinear", align_corners=False)
             return self.config.noise_ratio * math.sqrt(F.mse_loss(up, self.targets[level]).item())
 
+    def first_trained(self) -> int:
+        """The oldest level that trains with the current one (train_depth)."""
+        return max(0, self.level - self.config.train_depth + 1)
+
     def make_optimizers(self) -> None:
-        c = self.config
-        params = [p for module in self.generator.trained_modules(self.level) for p in module.parameters()]
+        """Adam for the critic and for the trained levels, one parameter group
+        per level; a group's `scale` is its share of the level's rate."""
+        c, level, lr = self.config, self.level, self.lrs[self.level]
+
+        def group(modules, scale):
+            return {"params": [p for m in modules for p in m.parameters()], "scale": scale, "lr": lr * scale}
+
+        groups = [group(self.generator.trained_modules(level), 1.0)]
+        groups += [group(self.generator.level_modules(older), c.lr_scale ** (level - older))
+                   for older in range(self.first_trained(), level)]
         # fused: one kernel for all of a step's tensors (measured 15% of an iteration
         # at the coarsest level, where Adam's per-tensor overhead shows)
-        lr = self.lrs[self.level]
-        self.opt_g = torch.optim.Adam(params, lr=lr, betas=(c.beta1, c.beta2), fused=True)
-        self.opt_d = torch.optim.Adam(self.critic.parameters(), lr=lr, betas=(c.beta1, c.beta2), fused=True)
+        self.opt_g = torch.optim.Adam(groups, lr=lr, betas=(c.beta1, c.beta2), fused=True)
+        self.opt_d = torch.optim.Adam([group([self.critic], 1.0)], lr=lr, betas=(c.beta1, c.beta2), fused=True)
+
+    def set_rates(self) -> None:
+        """Every parameter group at its share of the level's rate (after a rewind)."""
+        for optimizer in (self.opt_g, self.opt_d):
+            for group in optimizer.param_groups:
+                group["lr"] = self.lrs[self.level] * group["scale"]
 
     # -- sampling ------------------------------------------------------------
     def random_noises(self, upto: int) -> tuple:
@@ -216,7 +233,7 @@ class Trainer:
     def recon_inputs(self):
         """The frozen levels' output for the reconstruction (None at level 0,
         where P trains): constant through a level, so computed once."""
-        if self.level == 0:
+        if self.first_trained() == 0:
             return None
         with self.placement.autocast():
             return self.inputs(self.z0_recon, [None] * (self.level + 1))
@@ -226,12 +243,13 @@ class Trainer:
         return self.generator(self.z0_recon, [None] * (level + 1), self.sizes, upto=level)[0]
 
     def inputs(self, z0, noises):
-        """What the trained level builds on (frozen levels: no gradients)."""
-        return self.generator.inputs(z0, noises, self.sizes, self.level)
+        """What the trained levels build on (frozen levels: no gradients)."""
+        return self.generator.inputs(z0, noises, self.sizes, self.first_trained())
 
-    def fake(self, inputs, noise, boxes: list) -> list:
-        """This level's occupancy, sample b in the box boxes[b] (None: whole)."""
-        return self.generator.output(inputs, self.level, self.sizes[self.level], noise, boxes)
+    def fake(self, inputs, noises, boxes: list) -> list:
+        """This level's occupancy, sample b in the box boxes[b] (None: whole);
+        noises: the trained levels' scaled noises."""
+        return self.generator.output(inputs, self.first_trained(), self.level, self.sizes, noises, boxes)
 
     def draw_box(self) -> tuple | None:
         """Where a step looks at this level: None for the whole grid, or
@@ -308,10 +326,11 @@ class Trainer:
         g_draws = [(*self.random_noises(level), framed(self.critic_box(), size), self.draw_box())
                    for _ in range(c.g_steps)]
         z0, noises = cat_draws([draw[:2] for draw in d_draws] + [draw[:2] for draw in g_draws])
-        noise = noises[level]  # (d_steps + g_steps) samples; None at level 0
+        trained = noises[self.first_trained():level + 1]  # (d_steps + g_steps) samples; None at level 0
         with torch.no_grad():
             inputs = self.inputs(z0, noises)
-            fakes = self.fake(take(inputs, slice(0, c.d_steps)), take(noise, slice(0, c.d_steps)),
+            d_steps = slice(0, c.d_steps)
+            fakes = self.fake(take(inputs, d_steps), [take(noise, d_steps) for noise in trained],
                               [draw[3][0] for draw in d_draws])
 
         # (1) Update D: minimise D(fake) - D(real) + gp_weight * GP.
@@ -330,12 +349,13 @@ class Trainer:
         critic.requires_grad_(False)
         for i, (_, _, (box, pad), rec_box) in zip(range(c.d_steps, c.d_steps + c.g_steps), g_draws):
             one = slice(i, i + 1)
-            if level == 0:  # P trains with G_0: both samples start from their z0
-                fake, rec = self.fake(self.inputs(torch.cat([z0[one], self.z0_recon]), None), None, [box, rec_box])
-            else:  # the reconstruction's frozen input is cached, its noise is zero
+            if recon_inputs is None:  # P trains with G_0: both samples start from their z0
+                pair = self.inputs(torch.cat([z0[one], self.z0_recon]), None)
+            else:  # the reconstruction's frozen input is cached
                 pair = cat_batch([take(inputs, one), recon_inputs])
-                fake, rec = self.fake(pair, [torch.cat([n[one], torch.zeros_like(n[one])]) for n in noise],
-                                      [box, rec_box])
+            pair_noises = [None if noise is None else [torch.cat([n[one], torch.zeros_like(n[one])]) for n in noise]
+                           for noise in trained]  # the reconstruction's noise is zero
+            fake, rec = self.fake(pair, pair_noises, [box, rec_box])
             loss_adv = -critic(F.pad(fake[None, None], pad), framed=True).mean()
             loss_rec = F.mse_loss(rec, real if rec_box is None else real[rec_box])
             loss_g = loss_adv + c.rec_weight * loss_rec
@@ -370,10 +390,9 @@ class Trainer:
         self.lrs[self.level] /= 2
         self.generator.load_state_dict(kept["generator"])
         self.critic.load_state_dict(kept["critic"])
-        for optimizer, state in ((self.opt_g, kept["opt_g"]), (self.opt_d, kept["opt_d"])):
-            optimizer.load_state_dict(state)
-            for group in optimizer.param_groups:
-                group["lr"] = self.lrs[self.level]
+        self.opt_g.load_state_dict(kept["opt_g"])
+        self.opt_d.load_state_dict(kept["opt_d"])
+        self.set_rates()
 
     # -- checkpoints ---------------------------------------------------------
     def trained_seconds(self) -> float:
@@ -422,6 +441,9 @@ class Trainer:
             self.make_optimizers()
             self.opt_g.load_state_dict(state["opt_g"])
             self.opt_d.load_state_dict(state["opt_d"])
+            for optimizer in (self.opt_g, self.opt_d):  # older checkpoints: one group each, at the full rate
+                for group in optimizer.param_groups:
+                    group.setdefault("scale", 1.0)
 
 
 def cat_batch(items: list):
