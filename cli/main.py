@@ -149,8 +149,9 @@ class TrainCommand(Command):
                    "grids, as the paper. Default: the preset's.")
 @click.option("--train-depth", type=click.IntRange(min=1), default=None,
               help="Levels trained at once: the newest at the level's rate, each older one at a tenth "
-                   "of the next (as ConSinGAN). Default: the preset's (1, one level at a time with the "
-                   "older ones frozen, as the paper).")
+                   "of the next (as ConSinGAN). Default: the preset's, 1: one at a time with the older "
+                   "ones frozen, as the paper. More fits the example faster and varies less: 3 made "
+                   "copies of a rock arch in 10 minutes.")
 @click.option("--lr", type=click.FloatRange(min=0, min_open=True), default=None,
               help="Adam's learning rate for generator and critic, the same at every level. Default: "
                    "the paper preset's 1e-4; the default preset sets each level's rate from its "
@@ -184,8 +185,7 @@ def train(input_path, output, preset, res, levels, iters, minutes, min_iters, de
     from sinshape.trainer import config as configs, train as training
 
     config = configs.make_config(preset, resume, res=res, levels=levels, iters=iters, minutes=minutes, min_iters=min_iters,
-                                 precision=precision, box=box, train_depth=train_depth, lr=lr, seed=seed, up=up,
-                                 generator=generator)
+                                 precision=precision, box=box, train_depth=train_depth, lr=lr, seed=seed, up=up, generator=generator)
     if levels is None:  # an .h5 file with fewer levels blames where the count came from
         click.get_current_context().meta[SOURCES] = {
             "levels": "the checkpoint's levels" if resume else f"the {preset or 'default'} preset's levels"}
