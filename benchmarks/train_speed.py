@@ -4,6 +4,7 @@ paper's exact method against the default, side by side.
     python benchmarks/train_speed.py                 # a seven-level 128^3 pyramid (24^3 .. 128^3)
     python benchmarks/train_speed.py --sizes paper   # the six level sizes of a paper res-128 pyramid
     python benchmarks/train_speed.py --box 48 64     # also the default with boxes of these sides
+    python benchmarks/train_speed.py --train-depth 2 3  # also the default with levels trained together
     python benchmarks/train_speed.py --port          # also a straightforward port of the authors' step
     python benchmarks/train_speed.py --rounds 9 --levels 5 6
     python benchmarks/train_speed.py --full MESH     # also: the whole default preset on MESH
@@ -14,7 +15,8 @@ pyramid with the given level sizes (frozen levels below, noise injection).
 "paper" is `--preset paper`, "default" the default preset (the same step
 with other learning rates, so the same speed), "box N" the default with
 `--box N` (only boxes of at most N voxels per side decoded and judged at
-large levels); all in the precision `sinrun train` picks here. The straightforward port (--port)
+large levels), "depth N" the default with `--train-depth N`; all in the
+precision `sinrun train` picks here. The straightforward port (--port)
 does what the authors' code does, in float32: the decoder concatenates the
 three plane features of every voxel into a (X, Y, Z, 96) tensor and runs
 the whole MLP under autograd; every sample goes through the networks on its
@@ -192,6 +194,8 @@ def main():
     parser.add_argument("--rounds", type=int, default=5, help="iterations each trainer runs per level")
     parser.add_argument("--levels", type=int, nargs="+", default=None, help="which levels to time (default: all)")
     parser.add_argument("--box", type=int, nargs="*", default=[], help="also the default with --box N")
+    parser.add_argument("--train-depth", type=int, nargs="*", default=[],
+                        help="also the default with --train-depth N")
     parser.add_argument("--port", action="store_true", help="also the straightforward port (float32)")
     parser.add_argument("--full", type=Path, help="also train the default preset on this mesh, end to end")
     parser.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N (default: cpu)")
@@ -213,6 +217,7 @@ def main():
     # (name, straightforward, precision, preset, options) of each trainer in the table
     runs = [("paper", False, "auto", "paper", {}), ("default", False, "auto", "default", {})]
     runs += [(f"box {side}", False, "auto", "default", {"box": side}) for side in args.box]
+    runs += [(f"depth {n}", False, "auto", "default", {"train_depth": n}) for n in args.train_depth]
     if args.port:
         runs = [("straightforward", True, "fp32", "paper", {}), ("paper fp32", False, "fp32", "paper", {})] + runs
     names = [name for name, *_ in runs]
