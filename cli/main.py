@@ -16,7 +16,7 @@ import click
 from sinshape.core import files
 from sinshape.core.errors import ConflictError, InputError
 
-from .params import FRACTIONS, SEEDS, SIZE, check_sample_options, named_output
+from .params import FRACTIONS, SEEDS, SIZE, named_output
 from .progress import StageProgress, TrainProgress, format_seconds, progress_bar
 
 # Library errors name a function's parameter; on the command line it is an option.
@@ -26,7 +26,8 @@ OPTIONS = {"scale": "--scale", "factors": "--size", "smooth": "--smooth", "threa
            "elevation": "--elevation", "timeout": "--timeout", "level": "--level", "grow": "--grow",
            "anchor": "--anchor", "generator": "--generator", "iters": "--iters", "lr": "--lr",
            "min_iters": "--min-iters", "minutes": "--minutes", "precision": "--precision", "box": "--box",
-           "train_depth": "--train-depth", "focus": "--focus", "up": "--up", "resume": "--resume"}
+           "train_depth": "--train-depth", "focus": "--focus", "up": "--up", "resume": "--resume",
+           "size": "--size", "keep": "--keep", "layout": "--layout", "recon": "--recon"}
 # ctx.meta key: {parameter: what set it} where a command's value came from elsewhere than OPTIONS says.
 SOURCES = "sinrun.sources"
 # The extra that installs each optional module (pyproject.toml): a command
@@ -291,33 +292,35 @@ def sample(model, seed, seeds, recon, keep, layout_file, resample_layout, grow_b
     (`sinrun models` lists them); without it, the default shipped model.
     Needs no torch.
     """
-    from sinshape.runtime import write
+    from sinshape.runtime import layout, write
+    from sinshape.runtime.request import Layout, SampleRequest
 
-    check_sample_options(seed, seeds, recon, keep, layout_file, grow_by, anchor, workers, engine, address)
+    if seeds is None and (workers is not None or engine != "local" or address is not None):
+        raise ConflictError("workers, engine and address are for many samples: give seeds",
+                            ("workers", "engine", "address", "seeds"))
     loaded = open_model(model, threads)
-    if output is None:
-        output = Path(f"{loaded.path.stem}_recon.ply" if recon else f"{loaded.path.stem}_seed{{seed}}.ply")
-    warn_if_clamped(loaded, size, scale)
-    options = dict(scale=scale, smooth=smooth, smoother=smoother, largest=largest, frame=frame)
+    laid_out = Layout.of(layout.read_any(loaded, layout_file, size), resample_layout) if layout_file else None
+    request = SampleRequest(seed, recon, size, scale, smooth, smoother, largest, frame, keep, grow_by, anchor,
+                            laid_out)
+    show_warnings(loaded, request)
+    output = output or Path(f"{loaded.path.stem}_{'recon' if recon else 'seed{seed}'}.ply")
     if seeds:
-        sample_seeds(loaded, seeds, output, engine, workers, threads, address, size=size, **options)
-        return
-    first = None if recon else seed or 0
-    path = named_output(output, seed=first) if "{" in output.name else output
+        return sample_seeds(loaded, seeds, output, engine, workers, threads, address, request)
+    path = named_output(output, seed=request.sample_seed) if "{" in output.name else output
     with StageProgress() as show:
-        write.write_edited(loaded, path, first, size, keep, layout_file, resample_layout, grow_by, anchor,
-                           threads=threads, mesh_progress=lambda done, total: show("meshing", done, total), **options)
+        write.write_request(loaded, request, path, [layout_file] if layout_file else [], threads,
+                            lambda done, total: show("meshing", done, total))
     click.echo(f"wrote {path}")
 
 
-def sample_seeds(model, seeds, output, engine, workers, threads, address, **options) -> None:
+def sample_seeds(model, seeds, output, engine, workers, threads, address, request) -> None:
     """`sinrun sample --seeds`: one resumable job, one progress bar."""
     import time
 
     from sinshape.runtime import many, write
 
-    if options["scale"] > 2 and write.output_kind(output) == "mesh":
-        say_how_long(model, seeds, options["size"], options["scale"])
+    if request.scale > 2 and write.output_kind(output) == "mesh":
+        say_how_long(model, seeds, request)
     if "{" in output.name:
         named_output(output, seed=0)  # only {seed} may be filled in
         pattern = output
@@ -336,7 +339,7 @@ def sample_seeds(model, seeds, output, engine, workers, threads, address, **opti
             bar.update(1, seed)
 
         result = many.sample_many(model.path, iter(seeds), pattern, engine, workers, threads, address,
-                                  progress=progress, **options)
+                                  progress=progress, request=request)
     skipped = f", {result['skipped']} already done" if result["skipped"] else ""
     click.echo(f"wrote {result['written']} files{skipped}: {named_output(pattern, seed=seeds.first)} .. "
                f"{named_output(pattern, seed=seeds.last)}; index {result['index']}")
@@ -386,12 +389,13 @@ def interpolate(model, seeds, steps, alpha_range, scale, size, output, smooth, s
     seed A is held fixed, so the shapes change smoothly.
     """
     from sinshape.runtime import generate, write
+    from sinshape.runtime.request import SampleRequest
 
     if not all(map(math.isfinite, alpha_range)):
         raise click.BadParameter(f"--range must be two finite numbers, got {alpha_range[0]} {alpha_range[1]}")
     alpha = generate.blend_weights(*alpha_range, steps)  # refused before a name is made from them
     loaded = open_model(model, threads)
-    warn_if_clamped(loaded, size, scale)
+    show_warnings(loaded, SampleRequest(size=size, scale=scale))
 
     def path(k):
         return named_output(output, step=f"{k:02d}", alpha=f"{alpha(k):+.2f}")
@@ -402,30 +406,24 @@ def interpolate(model, seeds, steps, alpha_range, scale, size, output, smooth, s
     click.echo(f"wrote {steps} files: {path(0)} .. {path(steps - 1)}")
 
 
-def say_how_long(model, seeds, factors, scale) -> None:
+def say_how_long(model, seeds, request) -> None:
     """'about N minutes' on stderr before a long sampling run, measured on the first seed."""
-    from sinshape.runtime import generate, mesh
+    from sinshape.runtime import mesh
+    from sinshape.runtime.request import make
 
     count = len(seeds)
-    seconds = mesh.estimate_seconds(model, generate.sample(model, seeds.first, factors), scale) * count
+    seconds = mesh.estimate_seconds(model, make(model, request.with_seed(seeds.first)), request.scale) * count
     if seconds > 30:
-        click.echo(f"--scale {scale:g}: about {format_seconds(seconds)} (h:mm:ss) "
+        click.echo(f"--scale {request.scale:g}: about {format_seconds(seconds)} (h:mm:ss) "
                    f"for {count} sample{'s' if count > 1 else ''}", err=True)
 
 
-def warn_if_clamped(model, factors, scale) -> None:
-    """Warnings when --size shrinks some level, or --scale the final grid,
-    below the smallest grid it can have: the shape is then not to scale."""
-    from sinshape.runtime import generate
+def show_warnings(model, request) -> None:
+    """The runtime's warnings about a request (a size or scale clamped), each on a line of stderr."""
+    from sinshape.runtime.request import warnings
 
-    generate.scaled_sizes(model.manifest.sizes, factors)  # refuses what is too large to round
-    if any(round(n * f) < generate.MIN_SIDE for size in model.manifest.sizes for n, f in zip(size, factors)):
-        click.echo(f"Warning: --size {','.join(f'{f:g}' for f in factors)} shrinks some levels below "
-                   f"{generate.MIN_SIDE} voxels; they are clamped, so the shape is not to scale", err=True)
-    final = [max(generate.MIN_SIDE, round(n * f)) for n, f in zip(model.manifest.sizes[-1], factors)]
-    if 0 < scale and any(n * scale < 1.5 for n in final):  # round() below 2, without round()'s overflow
-        click.echo(f"Warning: --scale {scale:g} leaves under 2 grid points on an axis; the grid is clamped "
-                   "to 2 and the shape barely resolved", err=True)
+    for said in warnings(model, request):
+        click.echo(f"Warning: {command_line_message(said)}", err=True)
 
 
 @cli.command()

@@ -1,6 +1,5 @@
-"""`sinrun`'s parameter types: seed lists, per-axis values, output names;
-and which of `sample`'s options go together. Values are parsed by the
-runtime where the web API reads the same text."""
+"""`sinrun`'s parameter types: seed lists, per-axis values, output names.
+Values are parsed by the runtime where the web API reads the same text."""
 
 import itertools
 import sys
@@ -107,18 +106,3 @@ def named_output(output: Path, **fields) -> Path:
                                      "can be filled in") from None
     tag = "_".join(f"{key}{value}" for key, value in fields.items())
     return output.with_name(f"{output.stem}_{tag}{output.suffix}")
-
-
-def check_sample_options(seed, seeds, recon, keep, layout, grow, anchor, workers, engine, address) -> None:
-    """`sinrun sample`'s options that do not go together: one of --seed,
-    --seeds and --recon; the job's options only with --seeds; an edit only of
-    one sample; --anchor only with --grow."""
-    if sum(x is not None and x is not False for x in (seed, seeds, recon or None)) > 1:
-        raise click.UsageError("give one of --seed, --seeds or --recon")
-    if not seeds and (workers is not None or engine != "local" or address is not None):
-        raise click.UsageError("--workers, --engine and --address are for many samples: give --seeds")
-    edits = [name for name, given in (("--keep", keep), ("--layout", layout), ("--grow", grow)) if given]
-    if edits and (seeds or recon):
-        raise click.UsageError(f"{edits[0]} makes one sample: give --seed, not --seeds or --recon")
-    if anchor and not grow:
-        raise click.UsageError("--anchor is for --grow")

@@ -4,14 +4,17 @@
 
     model = runtime.load_model("towerruins.onnx")    # once: checks and prepares the file
     triplane = runtime.sample(model, seed=3)          # a new shape (seed None: the training shape)
+    request = runtime.SampleRequest(3, size=(2, 1, 1), scale=4, grow=(1.5, 1, 1))  # what every front end asks
+    triplane = runtime.make(model, request)           # ... made: a plain sample, or its one edit
     edited = runtime.compose(model, 7, [runtime.Part(3, (0, 0, 0), (30, 36, 31))])  # that box of seed 3 in seed 7
     mesh = runtime.extract(model, triplane, scale=4)  # trimesh.Trimesh, in the input mesh's frame
     grid = runtime.dense(model, triplane, scale=1)    # (X, Y, Z) occupancy in [0, 1]
     runtime.sample_many("towerruins.onnx", range(1000), "out/{seed}.glb")  # a resumable job on all cores
 
 Stages, one module each: load -> generate -> query -> mesh -> write; edit
-composes a sample from boxes of others; many runs them for many seeds on
-worker processes or a Ray cluster.
+composes a sample from boxes of others; request is the one sample request
+(its checks, and `make`, which picks the plain sample or its edit); many
+runs requests for many seeds on worker processes or a Ray cluster.
 
 Sampling imports numpy, onnxruntime and threadpoolctl, and trimesh only
 for a whole mesh in memory (a .ply streams without it); render adds pillow,
@@ -32,7 +35,7 @@ _EXPORTS = {
     "InputError": "sinshape.core.errors", "MemoryLimitError": "sinshape.core.errors", "Model": "load",
     "load_model": "load", "TriPlane": "generate", "sample": "generate", "interpolate": "generate",
     "extract": "mesh", "dense": "query", "points": "query", "sample_many": "many", "compose": "edit",
-    "Part": "edit",
+    "Part": "edit", "SampleRequest": "request", "Layout": "request", "make": "request",
 }
 __all__ = sorted(_EXPORTS) + ["__version__"]
 

@@ -256,30 +256,3 @@ def grow(model, seed: int, by, anchor=(0.0, 0.0, 0.0), factors=(1.0, 1.0, 1.0),
     part = Part(seed, tuple(float(v) for v in offset), tuple(float(v + o - 1) for v, o in zip(offset, old)),
                 offset, tuple(factors))
     return compose(model, seed, [part], grown, memory_limit)
-
-
-def compose_text(model, seed: int, parts: list, factors=(1.0, 1.0, 1.0), memory_limit: int | None = None) -> TriPlane:
-    """`compose` with parts in their text form (`parse_part`)."""
-    size = scaled_sizes(model.manifest.sizes, factors)[-1]
-    return compose(model, seed, [parse_part(text, model.manifest, size) for text in parts], factors, memory_limit)
-
-
-def edited(model, seed: int | None, factors=(1.0, 1.0, 1.0), keep=(), layout_file=None, resample_layout: bool = False,
-           grow_by=None, anchor=None) -> TriPlane:
-    """The tri-plane one request asks for: the sample of `seed`, with parts
-    kept from others (`keep`, their text form), or the structure of a layout
-    file, or grown by `grow_by` (placed at `anchor`, None: the low side); a
-    plain sample when none is given (seed None: the training shape). One of
-    them at most: the command line and the web API both ask here."""
-    from . import generate, layout
-
-    given = [name for name, value in (("keep", keep), ("layout", layout_file), ("grow", grow_by)) if value]
-    if len(given) > 1:
-        raise InputError(f"give one of {', '.join(given)}", given[0])
-    if layout_file:
-        return layout.sample_from_file(model, seed, layout_file, factors, resample_layout)
-    if grow_by:
-        return grow(model, seed, grow_by, (0.0, 0.0, 0.0) if anchor is None else anchor, factors)
-    if keep:
-        return compose_text(model, seed, keep, factors)
-    return generate.sample(model, seed, factors)

@@ -378,12 +378,12 @@ def mesh_layout(model, path, factors=(1.0, 1.0, 1.0)) -> np.ndarray:
     return grid
 
 
-def sample_from_file(model, seed: int, path, factors=(1.0, 1.0, 1.0), resample: bool = False) -> TriPlane:
-    """`from_layout` with the layout read from a .vox or .npz file, or
-    voxelised from a rough mesh in any format trimesh reads."""
+def read_any(model, path, factors=(1.0, 1.0, 1.0)) -> np.ndarray:
+    """A layout from a file: a .vox or .npz layout as it is, or a rough mesh
+    in any format trimesh reads, voxelised on level 0's grid (`mesh_layout`)."""
     if Path(path).suffix.lower() in MESH_FORMATS:
-        return from_layout(model, seed, mesh_layout(model, path, factors), factors)
-    return from_layout(model, seed, read_layout(path), factors, resample)
+        return mesh_layout(model, path, factors)
+    return read_layout(path)
 
 
 def export(model, seed: int, path, level: int = 0, factors=(1.0, 1.0, 1.0)) -> tuple:

@@ -12,6 +12,7 @@ Seeds are taken lazily, a few ahead of the workers, so a range of any length
 costs nothing up front.
 """
 
+import dataclasses
 import hashlib
 import json
 import os
@@ -24,7 +25,7 @@ import time
 from pathlib import Path
 
 from sinshape.core import files
-from sinshape.core.errors import InputError
+from sinshape.core.errors import ConflictError, InputError
 
 from .load import default_threads, load_model
 
@@ -85,9 +86,9 @@ def rewrite_index(path: Path, records: dict) -> None:
 
 
 class Worker:
-    """One worker's model, loaded once, and the recipe for a seed's file."""
+    """One worker's model, loaded once, and the request each seed's file is made by."""
 
-    def __init__(self, model, suffix: str, threads: int, options: dict):
+    def __init__(self, model, suffix: str, threads: int, request):
         if isinstance(model, bytes):  # sent over the network (Ray): load it from a local copy
             with tempfile.NamedTemporaryFile(suffix=".onnx") as f:
                 f.write(model)
@@ -95,17 +96,15 @@ class Worker:
                 self.model = load_model(f.name, threads=threads)
         else:
             self.model = load_model(model, threads=threads)
-        self.suffix, self.threads, self.options = suffix, threads, dict(options)
+        self.suffix, self.threads, self.request = suffix, threads, request
 
     def run(self, seed: int) -> tuple:
         """(file bytes, index record without the file name) of one seed."""
-        from . import generate, write
+        from . import write
 
         started = time.perf_counter()
-        options = dict(self.options)
-        triplane = generate.sample(self.model, seed, options.pop("size", (1.0, 1.0, 1.0)))
-        data, mesh = write.sample_bytes(self.model, triplane, f"seed{seed}{self.suffix}",
-                                        threads=self.threads, **options)
+        data, mesh = write.request_bytes(self.model, self.request.with_seed(seed), f"seed{seed}{self.suffix}",
+                                         self.threads)
         record = {"seed": seed, "vertices": None, "faces": None, "watertight": None, "volume": None}
         if mesh is not None:
             record.update(vertices=len(mesh.vertices), faces=len(mesh.faces),
@@ -130,8 +129,8 @@ def _run_in_process(seed: int) -> tuple:
 class InProcess:
     """One worker: this process."""
 
-    def __init__(self, model_path, suffix, threads, options):
-        self.worker, self.done = Worker(model_path, suffix, threads, options), []
+    def __init__(self, model_path, suffix, threads, request):
+        self.worker, self.done = Worker(model_path, suffix, threads, request), []
 
     slots = 1
 
@@ -148,11 +147,11 @@ class InProcess:
 class Processes:
     """Worker processes on this machine (multiprocessing, spawned)."""
 
-    def __init__(self, model_path, suffix, threads, options, workers: int):
+    def __init__(self, model_path, suffix, threads, request, workers: int):
         import multiprocessing
 
         self.pool = multiprocessing.get_context("spawn").Pool(
-            workers, initializer=_start_process, initargs=(str(model_path), suffix, threads, options))
+            workers, initializer=_start_process, initargs=(str(model_path), suffix, threads, request))
         self.results = queue.Queue()
         self.slots = 2 * workers  # one running and one waiting per worker
 
@@ -188,7 +187,7 @@ class RayActors:
     """Ray actors, each holding a Worker; Ray's own default cluster unless
     `address` names one."""
 
-    def __init__(self, model_path, suffix, threads, options, workers: int | None, address: str | None):
+    def __init__(self, model_path, suffix, threads, request, workers: int | None, address: str | None):
         try:
             import ray
         except ImportError:
@@ -214,7 +213,7 @@ class RayActors:
                              f"{workers * threads} CPUs; the Ray cluster has {cpus}", "workers")
         actor = ray.remote(num_cpus=threads)(Worker)
         model = ray.put(Path(model_path).read_bytes())
-        self.actors = [actor.remote(model, suffix, threads, options) for _ in range(workers)]
+        self.actors = [actor.remote(model, suffix, threads, request) for _ in range(workers)]
         self.free = self.actors * 2  # one running and one waiting per actor
         self.slots = len(self.free)
         self.pending = {}  # object ref -> actor
@@ -253,20 +252,27 @@ def check_existing_outputs(pattern: Path, inputs) -> None:
 
 
 def sample_many(model_path, seeds, pattern, engine: str = "local", workers: int | None = None,
-                threads: int | None = None, address: str | None = None, progress=None, **options) -> dict:
-    """Write one file per seed, `pattern` with {seed} filled in, resumably.
+                threads: int | None = None, address: str | None = None, progress=None, request=None,
+                **fields) -> dict:
+    """Write one file per seed, `pattern` with {seed} filled in, resumably:
+    the sample `request` (a request.SampleRequest with no seed; None: the
+    plain one), with `fields` of SampleRequest replaced, for each seed.
 
     seeds: any iterable of seeds, read lazily. engine 'local': `workers`
     processes (None: one per core; 1: this process), or 'ray': Ray actors
     (None: one per CPU of the cluster) on the cluster at `address` (None:
     Ray's default). threads: per worker (None: the cores divided among the
-    local workers; 1 on Ray). options: size, scale, smooth, smoother,
-    largest, frame, as for write.write_sample; each sample is made in
-    memory. progress(seed, record or None if skipped) after each seed.
+    local workers; 1 on Ray). Each sample is made in memory.
+    progress(seed, record or None if skipped) after each seed.
     Returns {"written", "skipped", "index"}.
     """
     from . import write
+    from .request import SampleRequest
 
+    request = dataclasses.replace(request or SampleRequest(), **fields)
+    if request.seed is not None or request.recon:
+        one = "recon" if request.recon else "seed"
+        raise ConflictError(f"give seeds or {one}, not both", ("seeds", one))
     pattern = Path(pattern)
     if FIELD not in pattern.name:
         raise InputError(f"{pattern.name}: many seeds need {FIELD} in the output file name", "pattern")
@@ -287,15 +293,15 @@ def sample_many(model_path, seeds, pattern, engine: str = "local", workers: int 
                             or index.read_bytes().count(b"\n") != len(found)):
         rewrite_index(index, done)
     if engine == "ray":
-        pool = RayActors(model_path, pattern.suffix, threads or 1, options, workers, address)
+        pool = RayActors(model_path, pattern.suffix, threads or 1, request, workers, address)
     else:
         if workers is not None and workers > default_threads():
             raise InputError(f"workers must be 1 to {default_threads()} (this machine's cores), got {workers}",
                              "workers")
         workers = default_threads() if workers is None else workers
         threads = threads or max(1, default_threads() // workers)
-        pool = (InProcess(model_path, pattern.suffix, threads, options) if workers == 1 else
-                Processes(model_path, pattern.suffix, threads, options, workers))
+        pool = (InProcess(model_path, pattern.suffix, threads, request) if workers == 1 else
+                Processes(model_path, pattern.suffix, threads, request, workers))
     written = skipped = running = 0
     try:
         with open(index, "a") as log:

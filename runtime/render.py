@@ -102,11 +102,11 @@ def check_picture(count: int, size, views: int = 1, columns: int = 4, supersampl
     drawing needs more than memory_limit bytes (None: the memory available)."""
     if min(count, views, columns, *size) < 1:
         raise InputError(f"a picture needs at least one shape, view, column and pixel; got {count} shapes, "
-                         f"{views} views, {columns} columns, size {tuple(size)}", "size")
+                         f"{views} views, {columns} columns, size {tuple(size)}", "image_size")
     width, height = picture_size(count, size, views, columns)
     if width * height > MAX_PICTURE_PIXELS:
         raise InputError(f"a {width}x{height} picture has more than {MAX_PICTURE_PIXELS} pixels, which image "
-                         "readers refuse to open; draw fewer shapes or views, or smaller ones", "size")
+                         "readers refuse to open; draw fewer shapes or views, or smaller ones", "image_size")
     drawn = size[0] * size[1] * supersample**2
     check_memory(RENDER_BYTES_PER_PIXEL * drawn + PICTURE_BYTES_PER_PIXEL * width * height,
                  f"a {width}x{height} picture", memory_limit)

@@ -132,16 +132,24 @@ def write_sample(model, triplane, path, scale: float = 1.0, smooth: int = 0, smo
     atomic_write(path, write)
 
 
-def write_edited(model, path, seed: int | None, factors=(1.0, 1.0, 1.0), keep=(), layout_file=None,
-                 resample_layout: bool = False, grow_by=None, anchor=None, **options) -> None:
-    """The sample `edit.edited` makes of these arguments, written to `path`
-    with `write_sample(**options)`. The path is checked first, against the
-    layout file too, so that a bad one costs no work."""
-    from . import edit
+def write_request(model, request, path, inputs=(), threads: int | None = None, mesh_progress=None) -> None:
+    """The sample a request.SampleRequest asks for, made by `request.make`
+    and written to `path` with `write_sample`. The path is checked first,
+    against the model and `inputs` (a layout's file) too, so that a bad one
+    costs no work."""
+    from .request import make
 
-    check_writable(path, [model.path] + ([layout_file] if layout_file else []))
-    triplane = edit.edited(model, seed, factors, keep, layout_file, resample_layout, grow_by, anchor)
-    write_sample(model, triplane, path, **options)
+    check_writable(path, [model.path, *inputs])
+    write_sample(model, make(model, request), path, threads=threads, mesh_progress=mesh_progress,
+                 **request.mesh_options())
+
+
+def request_bytes(model, request, name, threads: int | None = None, mesh_progress=None) -> tuple:
+    """`sample_bytes` of the sample a request asks for: the file `name` names, in memory, and its mesh."""
+    from .request import make
+
+    return sample_bytes(model, make(model, request), name, threads=threads, mesh_progress=mesh_progress,
+                        **request.mesh_options())
 
 
 def sample_bytes(model, triplane, path, scale: float = 1.0, smooth: int = 0, smoother: str = "laplacian",

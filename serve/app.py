@@ -52,12 +52,14 @@ import numpy as np
 import trimesh  # noqa: F401  a service makes whole meshes: imported at start-up, not in its first request
 from pydantic import BaseModel
 from starlette.datastructures import Headers, MutableHeaders
+from starlette.concurrency import run_in_threadpool
 from starlette.requests import ClientDisconnect
 from starlette.middleware.gzip import GZipMiddleware
 
 from sinshape import models as shipped
 from sinshape.core.errors import InputError, MemoryLimitError
-from sinshape.runtime import edit, generate, layout, load, mesh, query, write
+from sinshape.runtime import generate, layout, load, mesh, write
+from sinshape.runtime.request import Layout, SampleRequest, make, resolved
 from sinshape.serve import compress
 
 STATIC = Path(__file__).parent / "static"
@@ -96,36 +98,31 @@ FILE_ANSWERS = {
 
 
 @dataclass(frozen=True)
-class SampleRequest:
-    """A normalised sample request: equal requests give equal bytes."""
+class Job:
+    """One file a route asks for, normalised (the runtime's request with its
+    parts resolved), so that equal jobs give equal bytes: the cache's key.
+    layout_of: not the sample but its layout at this level (format json, vox or npz)."""
 
     model: str
-    seed: int
-    size: tuple  # (sx, sy, sz) factors of the training size
-    scale: float
-    smooth: int
+    request: SampleRequest
     format: str
-    parts: tuple = ()  # edit.Part boxes kept from other samples, in finest voxels
-    grow: tuple | None = None  # grow the sample by these factors, keeping it at `anchor`
-    anchor: tuple = (0.0, 0.0, 0.0)
-    layout: bytes = b""  # an uploaded layout (.vox or .npz bytes): equal files, equal requests
-    resample_layout: bool = False
-    layout_of: int | None = None  # not a sample: its layout at this level (format json, vox or npz)
+    layout_of: int | None = None
 
     def filename(self) -> str:
-        tags = [f"seed{self.seed}"] + [f"keep{part.seed}" for part in self.parts]
+        request = self.request
+        tags = [f"seed{request.seed}"] + [f"keep{part.seed}" for part in request.keep]
         if self.layout_of is not None:
             tags.append(f"layout{self.layout_of}")
-        if self.grow:
-            tags.append("grow" + "x".join(f"{f:g}" for f in self.grow))
-        if self.layout:
-            tags.append("layout" + hashlib.sha256(self.layout).hexdigest()[:8])
-        if self.size != (1.0, 1.0, 1.0):
-            tags.append("size" + "x".join(f"{f:g}" for f in self.size))
-        if self.scale != 1:
-            tags.append(f"scale{self.scale:g}")
-        if self.smooth and self.format != "npz":
-            tags.append(f"smooth{self.smooth}")
+        if request.grow:
+            tags.append("grow" + "x".join(f"{f:g}" for f in request.grow))
+        if request.layout:
+            tags.append("layout" + hashlib.sha256(request.layout.bits).hexdigest()[:8])
+        if request.size != (1.0, 1.0, 1.0):
+            tags.append("size" + "x".join(f"{f:g}" for f in request.size))
+        if request.scale != 1:
+            tags.append(f"scale{request.scale:g}")
+        if request.smooth and self.format != "npz":
+            tags.append(f"smooth{request.smooth}")
         return f"{self.model}_{'_'.join(tags)}.{self.format}"
 
 
@@ -200,35 +197,23 @@ def layout_file(grid: np.ndarray, level: int, format: str) -> bytes:
     return json.dumps({"shape": list(grid.shape), "level": level, "occupancy": cells}).encode()
 
 
-def make_sample(model, request: SampleRequest, cancel: threading.Event) -> Sample:
-    """The file one request asks for, made by the runtime (runs in a worker thread)."""
+def make_sample(model, job: Job, cancel: threading.Event) -> Sample:
+    """The file one job asks for, made by the runtime (runs in a worker thread)."""
 
     def check_cancel(*_):
         if cancel.is_set():
             raise Cancelled
 
     started = time.perf_counter()
-    if request.layout_of is not None:  # a layout, not a sample
-        grid = layout.layout(model, request.seed, request.layout_of, request.size)
-        body = layout_file(grid, request.layout_of, request.format)
-        return Sample(body, f'"{hashlib.sha256(body).hexdigest()[:40]}"', None, time.perf_counter() - started)
-    if request.layout:
-        grid = layout.parse_layout(request.layout, layout_suffix(request.layout), "the layout")
-        triplane = layout.from_layout(model, request.seed, grid, request.size, request.resample_layout)
-    elif request.parts:  # already parsed, so that equal parts make equal requests
-        triplane = edit.compose(model, request.seed, request.parts, request.size)
+    if job.layout_of is not None:  # a layout, not a sample
+        grid = layout.layout(model, job.request.sample_seed, job.layout_of, job.request.size)
+        body, faces = layout_file(grid, job.layout_of, job.format), None
     else:
-        triplane = edit.edited(model, request.seed, request.size, grow_by=request.grow, anchor=request.anchor)
-    check_cancel()
-    if request.format == "npz":  # the occupancy grid, as `sinrun sample -o x.npz` writes it
-        body = write.grid_bytes(query.dense(model, triplane, request.scale), size=triplane.size, scale=request.scale)
-        faces = None
-    else:
-        result = mesh.extract(model, triplane, request.scale, smooth=request.smooth, progress=check_cancel)
-        if not len(result.faces):  # as `sinrun sample` refuses it
-            raise write.no_surface(Path(request.filename()))
-        body = write.mesh_bytes(result, f".{request.format}")
-        faces = len(result.faces)
+        triplane = make(model, job.request)
+        check_cancel()
+        body, result = write.sample_bytes(model, triplane, job.filename(), mesh_progress=check_cancel,
+                                          **job.request.mesh_options())
+        faces = None if result is None else len(result.faces)
     return Sample(body, f'"{hashlib.sha256(body).hexdigest()[:40]}"', faces, time.perf_counter() - started)
 
 
@@ -244,14 +229,14 @@ class Sampler:
         self.slots = asyncio.Semaphore(slots)
         self.pool = ThreadPoolExecutor(max_workers=slots, thread_name_prefix="sample")
         self.timeout = timeout
-        self.cache = OrderedDict()  # SampleRequest -> Sample, least recently used first
+        self.cache = OrderedDict()  # Job -> Sample, least recently used first
         self.cache_bytes, self.cache_entries, self.cached_bytes = cache_bytes, cache_entries, 0
-        self.pending = {}  # SampleRequest -> asyncio.Task
+        self.pending = {}  # Job -> asyncio.Task
         self.running = self.most_running = 0  # samples being made now, and at most so far
         self.cancels = set()  # one Event per sample being made
-        self.waiting = {}  # SampleRequest -> clients waiting for it
+        self.waiting = {}  # Job -> clients waiting for it
 
-    async def get(self, model, request: SampleRequest, gone=None) -> tuple:
+    async def get(self, model, request: Job, gone=None) -> tuple:
         """(Sample, True if it came from the cache). `gone`, an async
         function, says whether the client has left: when every client
         waiting for a sample has left, it is stopped (ClientGone)."""
@@ -279,7 +264,7 @@ class Sampler:
                     task.cancel()
             raise
 
-    async def compute(self, model, request: SampleRequest) -> Sample:
+    async def compute(self, model, request: Job) -> Sample:
         loop = asyncio.get_running_loop()
         deadline = loop.time() + self.timeout
         try:
@@ -313,7 +298,7 @@ class Sampler:
         if not future.cancelled():
             future.exception()  # retrieved, so a cut-off request's Cancelled is not logged as lost
 
-    def store(self, request: SampleRequest, result: Sample) -> None:
+    def store(self, request: Job, result: Sample) -> None:
         if len(result.body) > self.cache_bytes // 4:
             return  # a few huge files would flush everything else
         self.cache[request] = result
@@ -521,7 +506,7 @@ def create_app(loaded: dict, slots: int | None = None, timeout: float = 60.0,
         return JSONResponse({"detail": f"internal error ({type(error).__name__}); see the server's log"},
                             status_code=500)
 
-    async def answer(request: Request, model, wanted: SampleRequest) -> Response:
+    async def answer(request: Request, model, wanted: Job) -> Response:
         """The file a sample request asks for, from the cache or made, with its headers."""
         try:
             made, hit = await request.app.state.sampler.get(model, wanted, request.is_disconnected)
@@ -588,15 +573,11 @@ def create_app(loaded: dict, slots: int | None = None, timeout: float = 60.0,
                                      "(low side) to 1 (high side).")] = "0",
     ):
         model = find(q.name)
-        factors = generate.parse_size(q.size)
-        finest = generate.scaled_sizes(model.manifest.sizes, factors)[-1]
-        parts = tuple(edit.parse_part(text, model.manifest, finest) for text in keep)
-        if grow and parts:
-            raise InputError("give keep or grow, not both")
         where = generate.parse_triple(anchor, lambda v: 0 <= v <= 1, "three fractions in [0, 1]", "anchor")
-        wanted = SampleRequest(q.name, q.seed, factors, q.scale, q.smooth, q.format, parts,
-                               generate.parse_size(grow) if grow else None, where)
-        return await answer(request, model, wanted)
+        wanted = SampleRequest(q.seed, size=generate.parse_size(q.size), scale=q.scale, smooth=q.smooth,
+                               keep=tuple(keep), grow=generate.parse_size(grow) if grow else None,
+                               anchor=where if grow else None)  # the anchor's default is not a choice
+        return await answer(request, model, Job(q.name, resolved(model, wanted), q.format))
 
     @app.post("/api/models/{name}/sample", summary="One sample with the structure of an uploaded layout",
               response_class=Response, responses=FILE_ANSWERS)
@@ -612,9 +593,11 @@ def create_app(loaded: dict, slots: int | None = None, timeout: float = 60.0,
             return Response(status_code=499)
         if not body or len(body) > MAX_UPLOAD_BYTES:
             raise InputError(f"send the layout file as the request body (1 byte to {MAX_UPLOAD_BYTES >> 20} MB)")
-        wanted = SampleRequest(q.name, q.seed, generate.parse_size(q.size), q.scale, q.smooth, q.format, layout=body,
-                               resample_layout=resample_layout)
-        return await answer(request, find(q.name), wanted)
+        model = find(q.name)
+        grid = await run_in_threadpool(layout.parse_layout, body, layout_suffix(body), "the layout")
+        wanted = SampleRequest(q.seed, size=generate.parse_size(q.size), scale=q.scale, smooth=q.smooth,
+                               layout=Layout.of(grid, resample_layout))
+        return await answer(request, model, Job(q.name, wanted, q.format))
 
     @app.get("/api/models/{name}/layout", summary="A sample's coarse layout, as `sinrun layout` writes it",
              response_class=Response, responses=FILE_ANSWERS)
@@ -631,8 +614,7 @@ def create_app(loaded: dict, slots: int | None = None, timeout: float = 60.0,
         """The sample's occupancy averaged over one level's grid, full where more than half is: what
         POST sample takes back, edited."""
         model = find(name)
-        wanted = SampleRequest(name, seed, generate.parse_size(size), 1.0, 0, format,
-                               layout_of=layout.check_level(model, level))
+        wanted = Job(name, SampleRequest(seed, size=generate.parse_size(size)), format, layout.check_level(model, level))
         return await answer(request, model, wanted)
 
     static = StaticFiles(directory=STATIC)

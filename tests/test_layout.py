@@ -186,7 +186,7 @@ def test_a_rough_mesh_is_a_layout(acropolis, tmp_path):
     target = L.mesh_layout(acropolis, path)
     assert target.shape == tuple(m.sizes[0]) and 0.2 < target.mean() < 0.5
     assert target[:, :, 0].all() and not target[13, 8, 10]  # the floor, and air between the towers
-    pooled = L.pool(dense(acropolis, L.sample_from_file(acropolis, 3, path)), target.shape) > 0.5
+    pooled = L.pool(dense(acropolis, L.from_layout(acropolis, 3, L.read_any(acropolis, path))), target.shape) > 0.5
     assert np.mean(pooled == target) >= 0.9 and (pooled & target).sum() / (pooled | target).sum() >= 0.8
     far = tmp_path / "far.obj"
     trimesh.creation.box(bounds=[origin + 10 * extent, origin + 11 * extent]).export(far)

@@ -262,6 +262,11 @@ def test_keep_composes_as_the_command_line_does(server, tmp_path):
     assert status == 400 and "at least 1" in json.loads(body)["detail"]
 
 
+def test_edits_that_do_not_go_together_are_a_400_saying_so(server):
+    status, _, body = get(sample_url(server[0], seed=7, grow="2", keep="3:0%25,0%25,0%25:50%25,100%25,100%25"))
+    assert status == 400 and json.loads(body)["detail"] == "give one of keep, grow"
+
+
 def post(url: str, body: bytes) -> tuple:
     request = urllib.request.Request(url, data=body, method="POST",
                                      headers={"Content-Type": "application/octet-stream"})

@@ -279,6 +279,7 @@ def test_cancel_gives_up_a_server_sample_and_the_page_goes_on(page):
 from sinshape import models  # noqa: E402
 from sinshape.runtime import edit, load, mesh  # noqa: E402
 from sinshape.runtime import layout as layouts  # noqa: E402
+from sinshape.runtime.request import SampleRequest, make  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -340,11 +341,11 @@ def test_keep_a_box_undo_redo_and_the_url(page, terrain):
     assert page.is_disabled("#undo") and page.is_disabled("#redo")
     page.select_option("#edit", "keep")  # the box 0..50% along x, the rest from the next seed
     wait_url(page, "edit=keep", "other=4")
-    first = assert_same_shape(page, terrain, edit.compose_text(terrain, 4, ["3:0%,0%,0%:50%,100%,100%"]))
+    first = assert_same_shape(page, terrain, make(terrain, SampleRequest(4, keep=("3:0%,0%,0%:50%,100%,100%",))))
     change(page, "#bx1", 60)
     change(page, "#other", 7)
     wait_url(page, "box=0%2C0%2C0%2C60%2C100%2C100", "other=7")
-    edited = assert_same_shape(page, terrain, edit.compose_text(terrain, 7, ["3:0%,0%,0%:60%,100%,100%"]))
+    edited = assert_same_shape(page, terrain, make(terrain, SampleRequest(7, keep=("3:0%,0%,0%:60%,100%,100%",))))
     assert len({plain["digest"], first["digest"], edited["digest"]}) == 3
     # The box is drawn where it is: 0..60% of the sample's 63 voxels along x, all of y and z, in the model's frame.
     (low, high), = page.evaluate(WIREFRAMES_JS)

@@ -21,6 +21,7 @@ from sinshape.cli.main import cli
 from sinshape.runtime import cubes, load, mesh, query
 from sinshape.core.errors import InputError
 from sinshape.runtime.generate import sample
+from sinshape.runtime.request import SampleRequest, make
 from sinshape.serve import site
 from test_cli_train import assert_one_line_error
 
@@ -306,7 +307,7 @@ def test_the_page_keeps_a_box_and_grows_in_the_browser(site_page, terrain):
     page.goto(f"{page.base}/?seed=3&up=z&edit=keep&box=0,0,0,60,100,100&other=7")
     assert wait_done(page) == "ready", page.text_content("#error")
     assert page.text_content("#status").endswith("in this browser")
-    kept = page_shape_like_python(page, terrain, edit.compose_text(terrain, 7, ["3:0%,0%,0%:60%,100%,100%"]))
+    kept = page_shape_like_python(page, terrain, make(terrain, SampleRequest(7, keep=("3:0%,0%,0%:60%,100%,100%",))))
     page.select_option("#edit", "grow")
     wait_for_url(page, "edit=grow", "grow=2%2C1%2C1")
     for field, value in (("#gx", "1.5"), ("#ax", "0.5")):

@@ -1,0 +1,214 @@
+"""One sample request: what every front end asks the runtime to make.
+
+A `SampleRequest` is a small frozen value: which sample (a seed, or the
+training shape), its size, how its surface is made (scale, smoothing, frame)
+and at most one edit (parts kept from other samples, a grown extent, or a
+coarse layout). Making one checks it: a bad value raises InputError naming
+its field, values that do not go together raise ConflictError naming them
+all. These are the only rules of a sample request; the command line, the
+HTTP routes, batch and Ray jobs and the Blender extension build this value
+and hand it to `make` (or to the writers in `write`, which call it), and the
+browser runtime's request.js mirrors it field for field.
+
+What needs the model (a kept box inside the sample, a layout's grid size,
+the memory a size needs) is checked by `resolved` and `make`, which take it.
+"""
+
+import dataclasses
+import numbers
+from dataclasses import dataclass
+
+import numpy as np
+
+from sinshape.core.errors import ConflictError, InputError
+
+from .edit import Part
+from .mesh import MAX_SMOOTH, SMOOTHERS
+
+FRAMES = ("input", "model")
+MAX_PARTS = 16  # boxes kept in one sample: each runs a whole chain of its own
+EDITS = ("keep", "grow", "layout")
+
+
+@dataclass(frozen=True)
+class Layout:
+    """A coarse layout to generate from: an (X, Y, Z) occupancy grid of one
+    of the sample's level sizes (any size with `resample`, fitted to level
+    0's), held as packed bits so that a request stays a hashable value
+    (equal layouts, equal requests)."""
+
+    shape: tuple
+    bits: bytes
+    resample: bool = False
+
+    @classmethod
+    def of(cls, grid, resample: bool = False) -> "Layout":
+        grid = np.asarray(grid)
+        if grid.ndim != 3 or 0 in grid.shape:
+            raise InputError(f"a layout is a 3-D grid, got shape {grid.shape}", "layout")
+        return cls(tuple(int(n) for n in grid.shape), np.packbits(grid.ravel() > 0.5).tobytes(), bool(resample))
+
+    def grid(self) -> np.ndarray:
+        """(X, Y, Z) bool."""
+        count = int(np.prod(self.shape))
+        return np.unpackbits(np.frombuffer(self.bits, np.uint8), count=count).astype(bool).reshape(self.shape)
+
+
+def per_axis(value, field: str, valid, wanted: str):
+    """One number for all three axes, or three: a tuple of floats passing `valid`."""
+    values = (value,) * 3 if isinstance(value, numbers.Real) else value
+    try:
+        values = tuple(values)
+    except TypeError:
+        values = ()
+    if not (len(values) == 3 and all(isinstance(v, numbers.Real) and not isinstance(v, bool) and valid(v)
+                                     for v in values)):
+        raise InputError(f"{field} must be {wanted}, got {value!r}", field)
+    return tuple(float(v) for v in values)
+
+
+@dataclass(frozen=True)
+class SampleRequest:
+    """One sample and how to make it.
+
+    seed: the sample's seed, an integer in [0, 2**63) (None: 0, unless
+      `recon`); recon: the training shape itself (the reconstruction),
+      which has no seed, no other size and no edits.
+    size: factors of the training size, one or per axis (any size and aspect ratio).
+    scale: the surface is queried on a grid this many times finer per axis.
+    smooth, smoother: smoothing iterations (0 to MAX_SMOOTH) and which (SMOOTHERS);
+    largest: keep only the largest connected piece; frame: the vertices'
+      frame ('input': the training mesh's, 'model': finest voxels).
+    At most one edit:
+    keep: parts taken from other samples (edit.Part, or their text form
+      'SEED:X0,Y0,Z0:X1,Y1,Z1', read against the model by `resolved`);
+    grow: factors (each at least 1) the sample grows by, keeping what it
+      had; anchor: where it sits in the grown one (per axis, 0 low to 1 high);
+    layout: a Layout, the structure to generate with.
+    """
+
+    seed: int | None = None
+    recon: bool = False
+    size: tuple = (1.0, 1.0, 1.0)
+    scale: float = 1.0
+    smooth: int = 0
+    smoother: str = "laplacian"
+    largest: bool = False
+    frame: str = "input"
+    keep: tuple = ()
+    grow: tuple | None = None
+    anchor: tuple | None = None
+    layout: Layout | None = None
+
+    def __post_init__(self):
+        def set_field(name, value):
+            object.__setattr__(self, name, value)
+
+        if self.seed is not None and not (isinstance(self.seed, (int, np.integer)) and not isinstance(self.seed, bool)
+                                          and 0 <= self.seed < 2**63):
+            raise InputError(f"a seed must be an integer in [0, 2**63), got {self.seed!r}", "seed")
+        set_field("seed", None if self.seed is None else int(self.seed))
+        set_field("size", per_axis(self.size, "size", lambda f: 0 < f < float("inf"), "one or three positive factors"))
+        if not (isinstance(self.scale, numbers.Real) and 0 < self.scale < float("inf")):
+            raise InputError(f"scale must be a positive number, got {self.scale}", "scale")
+        if not (isinstance(self.smooth, numbers.Integral) and 0 <= self.smooth <= MAX_SMOOTH):
+            raise InputError(f"smooth must be 0 to {MAX_SMOOTH} iterations, got {self.smooth}", "smooth")
+        if self.smoother not in SMOOTHERS:
+            raise InputError(f"unknown smoother {self.smoother!r}; choose {' or '.join(SMOOTHERS)}", "smoother")
+        if self.frame not in FRAMES:
+            raise InputError(f"unknown frame {self.frame!r}; choose {' or '.join(FRAMES)}", "frame")
+        keep = (self.keep,) if isinstance(self.keep, (str, Part)) else tuple(self.keep)
+        if len(keep) > MAX_PARTS or not all(isinstance(part, (str, Part)) for part in keep):
+            raise InputError(f"keep takes at most {MAX_PARTS} parts, each a Part or its text "
+                             f"SEED:X0,Y0,Z0:X1,Y1,Z1", "keep")
+        set_field("keep", keep)
+        if self.grow is not None:
+            set_field("grow", per_axis(self.grow, "grow", lambda f: 1 <= f < float("inf"),
+                                       "one or three factors of at least 1"))
+        if self.anchor is not None:
+            set_field("anchor", per_axis(self.anchor, "anchor", lambda a: 0 <= a <= 1, "three fractions in [0, 1]"))
+        if self.layout is not None and not isinstance(self.layout, Layout):
+            raise InputError("layout must be a request.Layout (Layout.of(grid))", "layout")
+        self.check_together()
+
+    def check_together(self) -> None:
+        """The rules of which fields go together."""
+        given = self.edits()
+        if len(given) > 1:
+            raise ConflictError(f"give one of {', '.join(given)}", tuple(given))
+        if self.anchor is not None and self.grow is None:
+            raise ConflictError("anchor is for grow", ("anchor", "grow"))
+        if self.recon:
+            if self.seed is not None:
+                raise ConflictError("give seed or recon, not both", ("seed", "recon"))
+            if given:
+                raise ConflictError(f"{given[0]} edits a new sample, and recon is the training shape: "
+                                    "give seed, not recon", (given[0], "recon", "seed"))
+            if self.size != (1.0, 1.0, 1.0):
+                raise InputError("the reconstruction exists only at the training size; drop size", "size")
+
+    def edits(self) -> list:
+        """The names of the edits given."""
+        return [name for name, value in (("keep", self.keep), ("grow", self.grow), ("layout", self.layout)) if value]
+
+    @property
+    def sample_seed(self) -> int | None:
+        """The seed whose noise makes the sample (None: the training shape)."""
+        return None if self.recon else self.seed or 0
+
+    def mesh_options(self) -> dict:
+        """How the surface is made: keyword arguments of mesh.extract and write.write_sample."""
+        return dict(scale=self.scale, smooth=self.smooth, smoother=self.smoother, largest=self.largest,
+                    frame=self.frame)
+
+    def with_seed(self, seed: int) -> "SampleRequest":
+        """The same request for another seed (a batch job's samples)."""
+        return dataclasses.replace(self, seed=seed)
+
+
+def resolved(model, request: SampleRequest) -> SampleRequest:
+    """The request with its kept parts read against the model (text to
+    edit.Part, in finest voxels, checked inside the sample): equal parts,
+    however written, then make equal requests. A resolved request is
+    returned as it is."""
+    from . import edit, generate
+
+    finest = generate.scaled_sizes(model.manifest.sizes, request.size)[-1]
+    parts = tuple(edit.parse_part(part, model.manifest, finest) if isinstance(part, str) else edit.check_part(part, finest)
+                  for part in request.keep)
+    return request if parts == request.keep else dataclasses.replace(request, keep=parts)
+
+
+def make(model, request: SampleRequest, memory_limit: int | None = None):
+    """The tri-plane (generate.TriPlane) of the sample the request asks for.
+    Work needing more than memory_limit bytes (None: the memory available
+    now) is refused up front with MemoryLimitError."""
+    from . import edit, generate, layout
+
+    request = resolved(model, request)
+    seed, size = request.sample_seed, request.size
+    if request.layout is not None:
+        return layout.from_layout(model, seed, request.layout.grid(), size, request.layout.resample)
+    if request.grow is not None:
+        return edit.grow(model, seed, request.grow, request.anchor or (0.0, 0.0, 0.0), size, memory_limit)
+    if request.keep:
+        return edit.compose(model, seed, list(request.keep), size, memory_limit)
+    return generate.sample(model, seed, size, memory_limit)
+
+
+def warnings(model, request: SampleRequest) -> list:
+    """What is worth a warning before the work, as InputError values (not
+    raised; each names its field): a size that shrinks some level, or a
+    scale that shrinks the final grid, below the smallest grid it can have
+    (clamped, so the shape is not to scale)."""
+    from . import generate
+
+    sizes = generate.scaled_sizes(model.manifest.sizes, request.size)  # refuses what is too large to round
+    said = []
+    if any(round(n * f) < generate.MIN_SIDE for size in model.manifest.sizes for n, f in zip(size, request.size)):
+        said.append(InputError(f"size {','.join(f'{f:g}' for f in request.size)} shrinks some levels below "
+                               f"{generate.MIN_SIDE} voxels; they are clamped, so the shape is not to scale", "size"))
+    if any(n * request.scale < 1.5 for n in sizes[-1]):  # a side that rounds below 2 points
+        said.append(InputError(f"scale {request.scale:g} leaves under 2 grid points on an axis; the grid is "
+                               "clamped to 2 and the shape barely resolved", "scale"))
+    return said
