@@ -27,7 +27,8 @@ OPTIONS = {"scale": "--scale", "factors": "--size", "smooth": "--smooth", "threa
            "anchor": "--anchor", "generator": "--generator", "iters": "--iters", "lr": "--lr",
            "min_iters": "--min-iters", "minutes": "--minutes", "precision": "--precision", "box": "--box",
            "train_depth": "--train-depth", "focus": "--focus", "up": "--up", "resume": "--resume",
-           "size": "--size", "keep": "--keep", "layout": "--layout", "recon": "--recon"}
+           "size": "--size", "keep": "--keep", "layout": "--layout", "recon": "--recon",
+           "output": "--output"}
 # ctx.meta key: {parameter: what set it} where a command's value came from elsewhere than OPTIONS says.
 SOURCES = "sinrun.sources"
 # The extra that installs each optional module (pyproject.toml): a command
@@ -162,8 +163,9 @@ class TrainCommand(Command):
 @click.option("--seed", type=int, default=None, help="Seed of the training run (weights, noise draws). Default 0.")
 @click.option("--up", type=click.Choice(["y", "z"]), default=None,
               help="Which axis of the input points up, recorded in the model for viewers and pictures. "
-                   "Default: z for an .h5 pyramid, y for a mesh (most .obj files; the shapes of "
-                   "`sinrun shape` are z-up).")
+                   "Default: y for a mesh (most .obj files; the shapes of `sinrun shape` are z-up); for "
+                   "an .h5 pyramid y (SSG's convention), or z where its lowest z slice is solid ground "
+                   "and its lowest y slice is not. `sinrun orient` changes it later, without retraining.")
 @click.option("--generator", type=click.Choice(["triplane", "voxel"]), default=None,
               help="triplane (the method) or voxel: the paper's SinGAN-3D baseline, 3-D convs on voxels, "
                    "for comparisons; it writes a .pt checkpoint (-o baseline.pt), not an .onnx model.")
@@ -436,6 +438,28 @@ def info(model):
     click.echo(printable(loaded.path))
     for line in describe(loaded.manifest.raw):
         click.echo("  " + line)
+
+
+@cli.command()
+@MODEL_ARGUMENT
+@click.option("--up", type=click.Choice(["y", "z"]), required=True,
+              help="The axis of the model's training input that points up.")
+@click.option("-o", "--output", type=click.Path(path_type=Path), default=None,
+              help="Where to write the changed model (.onnx). Default: the model's own file, changed in "
+                   "place (never a shipped model's).")
+def orient(model, up, output):
+    """Record which axis of a model points up, without retraining.
+
+    Viewers, pictures, the page and Blender stand a model's samples on that
+    axis. Samples themselves do not change: the same seed gives the same
+    shape, in the same coordinates.
+    """
+    from sinshape import models
+    from sinshape.runtime import load
+
+    target = models.own_file(model, output)
+    load.write_oriented(open_model(model, threads=1), up, target)
+    click.echo(f"wrote {target} ({up} points up)")
 
 
 @cli.command()

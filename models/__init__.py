@@ -32,3 +32,15 @@ def find(name_or_path: str | None) -> Path:
         return shipped[name_or_path]
     names = ", ".join(sorted(shipped)) or "none installed"
     raise InputError(f"{name_or_path}: neither a model file nor a shipped model ({names})")
+
+
+def own_file(name_or_path: str | None, output) -> Path:
+    """Where a change to a model goes: `output`, or the model's own file,
+    unless it is a shipped one (the installed package is not the user's to change)."""
+    if output is not None:
+        return Path(output)
+    path = find(name_or_path)
+    if path in available().values():
+        raise InputError(f"{path.stem} is a shipped model: write the change to a file of your own with output",
+                         "output")
+    return path

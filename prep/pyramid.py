@@ -45,6 +45,7 @@ MIN_H5_SIDE = 11
 # counts, votes, the coarser levels, the blurred targets): 43 measured on
 # tests/data/towerruins at res 128 and 256 (docs/RELIABILITY.md).
 VOXELIZE_BYTES_PER_VOXEL = 48
+GROUND_SHARE = 0.9  # a grid's lowest slice this full is ground (up_axis)
 
 
 @dataclass(frozen=True)
@@ -57,10 +58,23 @@ class Pyramid:
     source_name: str
     source_sha256: str
     source_kind: str  # "mesh" or "pyramid"
+    up: str = "y"  # the input's axis that points up (`up_axis` for an .h5 pyramid)
 
     @property
     def sizes(self) -> list:
         return [tuple(int(n) for n in level.shape) for level in self.levels]
+
+
+def up_axis(grid: np.ndarray) -> str:
+    """Which axis of an SSG pyramid points up: y, the convention of SSG's own
+    data (a tree stored 60x128x66 is 128 high), unless the grid's lowest z
+    slice is solid ground and its lowest y slice is not (a terrain stored z
+    up, as the Canyon pyramid is). Holds on every pyramid at hand: Canyon z,
+    NaturalArch and SmallTown y."""
+    def ground(axis):
+        return np.take(grid, 0, axis=axis).mean() >= GROUND_SHARE
+
+    return "z" if ground(2) and not ground(1) else "y"
 
 
 def level_count(longest: int, factor: float = LEVEL_FACTOR) -> int:
@@ -177,6 +191,7 @@ def pyramid_from_h5(path: Path, levels: int | None = None) -> Pyramid:
         source_name=path.name,
         source_sha256=file_sha256(path),
         source_kind="pyramid",
+        up=up_axis(grids[-1]),
     )
 
 

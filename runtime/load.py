@@ -20,7 +20,7 @@ import onnxruntime as ort
 
 from sinshape.core import manifest as fmt
 from sinshape.core.errors import InputError
-from sinshape.core.files import check_readable
+from sinshape.core.files import atomic_write, check_readable, check_writable
 
 from . import onnxfile
 
@@ -140,15 +140,31 @@ def checksum_v2_matches(model: onnxfile.OnnxModel, raw: dict) -> bool:
         return False
 
 
-def format3_bytes(model: Model) -> bytes:
-    """The model as a sealed format-3 file (its own bytes when it is one):
-    what the browser reads, which checks seals only."""
-    if model.manifest.raw["format_version"] >= 3:
+def format3_bytes(model: Model, **changes) -> bytes:
+    """The model as a sealed format-3 file (its own bytes when it is one and
+    nothing changes): what the browser reads, which checks seals only.
+    `changes` replace manifest fields that do not change how the model is run (`up`)."""
+    if model.manifest.raw["format_version"] >= 3 and not changes:
         return model.data
     manifest = {k: v for k, v in model.manifest.raw.items() if k != "checksum"}
-    manifest["format_version"] = fmt.FORMAT_VERSION
+    manifest.update(changes, format_version=max(fmt.FORMAT_VERSION, manifest["format_version"]))
+    fmt.parse(json.dumps(manifest))  # the changed manifest is checked as any other
     props = {**onnxfile.parse(model.data).metadata, fmt.METADATA_KEY: json.dumps(manifest, indent=1)}
     return fmt.seal(onnxfile.with_metadata(model.data, props))
+
+
+def write_oriented(model: Model, up: str, path) -> None:
+    """The model with `up` recorded as the input's up axis (y or z), written
+    to `path` (its own file too: atomically, so a crash leaves the old one).
+    How the model runs does not change: only viewers, pictures and worlds read `up`."""
+    if up not in fmt.UP_AXES:
+        raise InputError(f"up must be one of {', '.join(fmt.UP_AXES)}, got {up!r}", "up")
+    path = Path(path)
+    if path.suffix.lower() != ".onnx":
+        raise InputError(f"{path}: a model is written as .onnx")
+    check_writable(path)
+    data = format3_bytes(model, up=up)
+    atomic_write(path, lambda f: f.write(data))
 
 
 def stage_model(model: onnxfile.OnnxModel, inputs: list, outputs: list, path: Path) -> bytes:

@@ -67,7 +67,7 @@ class TrainConfig:
     box: int = 0
 
     # Which axis of the input points up, recorded in the model for viewers
-    # and pictures; None: z for an .h5 pyramid (voxel data), y for a mesh.
+    # and pictures; None: the input's own (prep.pyramid.up_axis for .h5, y for a mesh).
     up: str | None = None
 
     # Randomness: the training run, and the fixed reconstruction noise z0*.

@@ -151,7 +151,7 @@ def make_manifest(generator, *, sizes, noise_amps, config, pyramid, seconds, ran
         "recon_seed": config.recon_seed,
         "noise": fmt.NOISE_SCHEME,
         "frame": {"origin": list(pyramid.origin), "spacing": list(pyramid.spacing)},
-        "up": config.up or ("z" if pyramid.source_kind == "pyramid" else "y"),
+        "up": config.up or pyramid.up,
         "stages": fmt.stage_names(len(sizes)),
         "source": {"name": pyramid.source_name, "sha256": pyramid.source_sha256, "kind": pyramid.source_kind},
         "config": config.to_dict(),

@@ -1,0 +1,77 @@
+"""Which way is up: read from an .h5 pyramid by SSG's convention and the
+data, recorded in the model, and changed later without retraining."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from sinshape.cli.main import cli
+from sinshape.core import manifest as fmt
+from sinshape.prep.pyramid import load_pyramid, up_axis
+from sinshape.runtime import dense, load_model, sample
+from conftest import write_pyramid
+from test_cli_train import assert_one_line_error
+
+
+def grid_with_floor(axis=None, shape=(20, 24, 16)):
+    """A column of solid in the middle, standing on a full floor across `axis` (None: no floor)."""
+    grid = np.zeros(shape, bool)
+    grid[8:12, :, 6:10] = True
+    if axis is not None:
+        index = [slice(None)] * 3
+        index[axis] = 0
+        grid[tuple(index)] = True
+    return grid
+
+
+@pytest.mark.parametrize("floor, up", [(None, "y"), (1, "y"), (2, "z"), (0, "y")])
+def test_up_is_y_by_convention_and_z_over_a_z_floor(floor, up):
+    assert up_axis(grid_with_floor(floor)) == up
+
+
+def test_a_floor_on_both_low_sides_keeps_the_convention():
+    grid = grid_with_floor(1)
+    grid[:, :, 0] = True
+    assert up_axis(grid) == "y"
+
+
+def test_an_h5_terrain_stored_z_up_is_read_z_up(tmp_path):
+    path = write_pyramid(tmp_path / "t.h5", [(15, 15, 15), (20, 18, 15)])  # z < a wave: ground at z = 0
+    assert load_pyramid(path, res=32).up == "z"
+
+
+def test_orient_changes_up_and_nothing_else(tiny_model, tmp_path):
+    out = tmp_path / "o.onnx"
+    before = load_model(tiny_model, threads=1)
+    turned = "y" if before.manifest.up == "z" else "z"
+    result = CliRunner().invoke(cli, ["orient", str(tiny_model), "--up", turned, "-o", str(out)])
+    assert result.exit_code == 0 and result.output == f"wrote {out} ({turned} points up)\n", result.output
+    after = load_model(out, threads=1)
+    assert after.manifest.up == turned and after.manifest.raw["format_version"] == fmt.FORMAT_VERSION
+    assert {k: v for k, v in after.manifest.raw.items() if k != "up"} == \
+        {k: v for k, v in before.manifest.raw.items() if k != "up"}
+    assert np.array_equal(dense(after, sample(after, 5)), dense(before, sample(before, 5)))
+    assert CliRunner().invoke(cli, ["orient", str(out), "--up", before.manifest.up]).exit_code == 0  # in place
+    assert load_model(out, threads=1).manifest.up == before.manifest.up
+
+
+def test_orient_upgrades_an_old_format_and_seals_it(tmp_path):
+    old = tmp_path / "v1.onnx"
+    old.write_bytes((Path(__file__).parent / "data" / "tiny_v1.onnx").read_bytes())
+    assert CliRunner().invoke(cli, ["orient", str(old), "--up", "z"]).exit_code == 0
+    model = load_model(old, threads=1)
+    assert model.manifest.up == "z" and model.manifest.raw["format_version"] == fmt.FORMAT_VERSION
+    assert fmt.unseal(old.read_bytes())[1:] == (True, True)
+
+
+def test_orient_refuses_what_it_cannot_change(tiny_model, tmp_path):
+    assert_one_line_error(CliRunner().invoke(cli, ["orient", "towerruins", "--up", "z"]),
+                          "towerruins is a shipped model", "with --output")
+    assert_one_line_error(CliRunner().invoke(cli, ["orient", str(tiny_model), "--up", "z", "-o",
+                                                   str(tmp_path / "x.ply")]), "written as .onnx")
+    assert_one_line_error(CliRunner().invoke(cli, ["orient", str(tmp_path / "none.onnx"), "--up", "z"]),
+                          "no such model file")
+    assert CliRunner().invoke(cli, ["orient", str(tiny_model), "--up", "x"]).exit_code == 2
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
