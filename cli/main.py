@@ -16,7 +16,7 @@ import click
 from sinshape.core import files
 from sinshape.core.errors import ConflictError, InputError
 
-from .params import FRACTIONS, SEEDS, SIZE, named_output
+from .params import FRACTIONS, SEEDS, SIZE, TILES, named_output
 from .progress import StageProgress, TrainProgress, format_seconds, progress_bar
 
 # Library errors name a function's parameter; on the command line it is an option.
@@ -28,7 +28,7 @@ OPTIONS = {"scale": "--scale", "factors": "--size", "smooth": "--smooth", "threa
            "min_iters": "--min-iters", "minutes": "--minutes", "precision": "--precision", "box": "--box",
            "train_depth": "--train-depth", "focus": "--focus", "up": "--up", "resume": "--resume",
            "size": "--size", "keep": "--keep", "layout": "--layout", "recon": "--recon",
-           "output": "--output"}
+           "output": "--output", "tile": "--tiles", "frame": "--frame"}
 # ctx.meta key: {parameter: what set it} where a command's value came from elsewhere than OPTIONS says.
 SOURCES = "sinrun.sources"
 # The extra that installs each optional module (pyproject.toml): a command
@@ -317,8 +317,6 @@ def sample(model, seed, seeds, recon, keep, layout_file, resample_layout, grow_b
 
 def sample_seeds(model, seeds, output, engine, workers, threads, address, request) -> None:
     """`sinrun sample --seeds`: one resumable job, one progress bar."""
-    import time
-
     from sinshape.runtime import many, write
 
     if request.scale > 2 and write.output_kind(output) == "mesh":
@@ -328,23 +326,74 @@ def sample_seeds(model, seeds, output, engine, workers, threads, address, reques
         pattern = output
     else:
         pattern = output.with_name(f"{output.stem}_seed{{seed}}{output.suffix}")
+    run_job(lambda progress: many.sample_many(model.path, iter(seeds), pattern, engine, workers, threads, address,
+                                              progress=progress, request=request),
+            seeds, "seeds", lambda seed: named_output(pattern, seed=seed))
+
+
+def run_job(job, items, unit: str, name) -> None:
+    """Run a resumable job of many files, `job(progress)`, under one progress
+    bar counting `items` (with a rate of `unit` per second); then say what
+    it wrote, `name(item)` for the first and last."""
+    import time
+
     started, made = time.monotonic(), [0]
 
     def rate(_):
         seconds = time.monotonic() - started
-        return f"{made[0] / seconds:.2f} seeds/s" if made[0] and seconds > 0 else ""
+        return f"{made[0] / seconds:.2f} {unit}/s" if made[0] and seconds > 0 else ""
 
-    with click.progressbar(length=len(seeds), label="sampling", file=sys.stderr, show_pos=True,
-                           item_show_func=rate, hidden=len(seeds) < 2 or not sys.stderr.isatty()) as bar:
-        def progress(seed, record):
+    with click.progressbar(length=len(items), label="sampling", file=sys.stderr, show_pos=True,
+                           item_show_func=rate, hidden=len(items) < 2 or not sys.stderr.isatty()) as bar:
+        def progress(item, record):
             made[0] += record is not None
-            bar.update(1, seed)
+            bar.update(1, item)
 
-        result = many.sample_many(model.path, iter(seeds), pattern, engine, workers, threads, address,
-                                  progress=progress, request=request)
+        result = job(progress)
     skipped = f", {result['skipped']} already done" if result["skipped"] else ""
-    click.echo(f"wrote {result['written']} files{skipped}: {named_output(pattern, seed=seeds.first)} .. "
-               f"{named_output(pattern, seed=seeds.last)}; index {result['index']}")
+    click.echo(f"wrote {result['written']} files{skipped}: {name(items.first)} .. {name(items.last)}; "
+               f"index {result['index']}")
+
+
+@cli.command()
+@MODEL_ARGUMENT
+@click.option("--seed", type=int, default=0, show_default=True, help="The world's seed: the same seed, the same world.")
+@click.option("--tiles", type=TILES, required=True, metavar="I0:I1,J0:J1",
+              help="The tiles to write, both ends included: -8:8,-8:8 is 17 x 17 tiles around the origin; 3,4 "
+                   "is one. A tile is half the training extent along each horizontal axis.")
+@click.option("-o", "--output", type=click.Path(path_type=Path), default=None,
+              help="A folder (made if missing) for TILE_I_J files of --format, or a file name holding {tile} "
+                   "(world/{tile}.glb). An index (JSON lines) beside them makes a rerun skip what is done. "
+                   "Default: MODEL_world_seedN/.")
+@click.option("--format", "suffix", type=click.Choice(["ply", "glb", "obj", "stl", "off", "npz"]), default="ply",
+              show_default=True, help="The tiles' format, for a folder: a mesh, or npz for the occupancy grid.")
+@SCALE_OPTION
+@click.option("--frame", type=click.Choice(["input", "model", "tile"]), default="input", show_default=True,
+              help="Vertex coordinates: the training mesh's frame or finest voxels, placed where the tile lies "
+                   "in the world (near the origin: float32 cannot place tiles far out), or 'tile': the "
+                   "input's units from each tile's own corner (any tile; the index gives the corner).")
+@THREADS_OPTION
+@click.option("--workers", type=int, default=None, help="Worker processes (default: one per core) or Ray actors.")
+@click.option("--engine", type=click.Choice(["local", "ray"]), default="local", show_default=True,
+              help="This machine's cores, or a Ray cluster (pip install 'sinshape[ray]').")
+@click.option("--address", default=None, help="With --engine ray: the cluster's address.")
+def world(model, seed, tiles, output, suffix, scale, frame, threads, workers, engine, address):
+    """Write tiles of an endless world: any tile on its own, seamless with its neighbours.
+
+    The world spreads along the model's two horizontal axes (the two that are
+    not its up axis: `sinrun info` names it). Every tile depends only on the
+    model, the seed and its place, so tiles join without a crack whatever
+    was made before, and a tile a billion tiles away costs what tile 0,0 costs.
+    """
+    from sinshape.runtime import world as worlds
+    from sinshape.runtime.request import SampleRequest
+
+    loaded = open_model(model, threads)
+    output = output or Path(f"{loaded.path.stem}_world_seed{seed}")
+    pattern = output if "{tile}" in output.name else output / f"tile_{{tile}}.{suffix}"
+    run_job(lambda progress: worlds.write_tiles(loaded.path, iter(tiles), pattern, SampleRequest(seed, scale=scale,
+                                                frame=frame), engine, workers, threads, address, progress),
+            tiles, "tiles", lambda tile: pattern.with_name(pattern.name.replace("{tile}", f"{tile[0]}_{tile[1]}")))
 
 
 @cli.command("layout")

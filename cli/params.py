@@ -86,7 +86,57 @@ def parse_fractions(text: str) -> tuple:
     return generate.parse_triple(text, lambda v: 0 <= v <= 1, "three fractions in [0, 1], like 0.5,0.7,1")
 
 
+class TileBlock:
+    """The tiles I0..I1 x J0..J1 (both ends included), row by row, made as
+    they are iterated."""
+
+    def __init__(self, rows: range, columns: range):
+        self.rows, self.columns = rows, columns
+
+    def __len__(self) -> int:
+        return len(self.rows) * len(self.columns)
+
+    def __iter__(self):
+        return ((i, j) for i in self.rows for j in self.columns)
+
+    @property
+    def first(self) -> tuple:
+        return self.rows[0], self.columns[0]
+
+    @property
+    def last(self) -> tuple:
+        return self.rows[-1], self.columns[-1]
+
+
+class Tiles(click.ParamType):
+    """'-8:8,-8:8' (I0:I1,J0:J1, both ends included) or '3,4' (one tile) -> a TileBlock."""
+
+    name = "tiles"
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, TileBlock):
+            return value
+        from sinshape.runtime.world import check_tile
+
+        try:
+            ends = [tuple(int(v) for v in part.split(":")) for part in value.split(",")]
+            if len(ends) != 2 or not all(len(e) in (1, 2) for e in ends):
+                raise ValueError
+        except ValueError:
+            self.fail(f"{value!r} is not a block of tiles like -8:8,-8:8 or 3,4", param, ctx)
+        ends = [(e[0], e[-1]) for e in ends]
+        if any(high < low for low, high in ends):
+            self.fail(f"{value!r}: a range counts down; write LOW:HIGH", param, ctx)
+        try:
+            check_tile((ends[0][0], ends[1][0]))
+            check_tile((ends[0][1], ends[1][1]))
+        except InputError as error:
+            self.fail(f"{value!r}: {error}", param, ctx)
+        return TileBlock(*(range(low, high + 1) for low, high in ends))
+
+
 SEEDS, SIZE, FRACTIONS = Seeds(), PerAxis("size", parse_size), PerAxis("fractions", parse_fractions)
+TILES = Tiles()
 
 
 def named_output(output: Path, **fields) -> Path:

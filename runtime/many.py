@@ -1,5 +1,5 @@
-"""Many samples as one resumable job: seeds spread over worker processes on
-this machine, or over a Ray cluster.
+"""Many samples as one resumable job: seeds (or the tiles of a world) spread
+over worker processes on this machine, or over a Ray cluster.
 
 Workers load the model once and send back each seed's file bytes and
 figures; only this process writes, atomically, then appends the seed to an
@@ -22,7 +22,9 @@ import signal
 import socket
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 from sinshape.core import files
 from sinshape.core.errors import ConflictError, InputError
@@ -30,18 +32,54 @@ from sinshape.core.errors import ConflictError, InputError
 from .load import default_threads, load_model
 
 ENGINES = ("local", "ray")
-FIELD = "{seed}"
 
 
-def index_path(pattern) -> Path:
+@dataclass(frozen=True)
+class Varying:
+    """What each item of a job sets: a field of the request (seed, or tile),
+    spelled {field} in the output names and recorded under its name in the index."""
+
+    field: str
+    name_pattern: str  # a regular expression matching an item's text in a file name
+    text: Callable  # item -> its text in file names
+    item: Callable  # an index record's value -> the item, checked
+
+    @property
+    def placeholder(self) -> str:
+        return "{" + self.field + "}"
+
+    def path(self, pattern: Path, item) -> Path:
+        return pattern.with_name(pattern.name.replace(self.placeholder, self.text(item)))
+
+
+def record_seed(value) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ValueError("a seed is an integer")
+    return value
+
+
+def record_tile(value) -> tuple:
+    from .world import check_tile
+
+    if not isinstance(value, list):
+        raise ValueError("a tile is a list")
+    return check_tile(tuple(value))
+
+
+SEEDS = Varying("seed", r"\d+", str, record_seed)
+TILES = Varying("tile", r"-?\d+_-?\d+", lambda tile: f"{tile[0]}_{tile[1]}", record_tile)
+
+
+def index_path(pattern, varying: Varying = SEEDS) -> Path:
     """The index beside the outputs: out/{seed}.glb -> out/index.jsonl,
-    out/tower_seed{seed}.ply -> out/tower_index.jsonl."""
+    out/tower_seed{seed}.ply -> out/tower_index.jsonl (the same for {tile})."""
     pattern = Path(pattern)
-    return pattern.with_name(Path(re.sub(r"(seed)?\{seed\}", "index", pattern.name)).stem + ".jsonl")
+    field = re.escape(varying.field)
+    return pattern.with_name(Path(re.sub(rf"({field})?\{{{field}\}}", "index", pattern.name)).stem + ".jsonl")
 
 
-def read_index(path: Path) -> dict:
-    """{seed: its last record} of an index. A line cut short by a crash is
+def read_index(path: Path, varying: Varying = SEEDS) -> dict:
+    """{item: its last record} of an index. A line cut short by a crash is
     dropped."""
     if not path.is_file():
         return {}
@@ -50,9 +88,9 @@ def read_index(path: Path) -> dict:
     for line in data[:data.rfind(b"\n") + 1].splitlines():
         try:
             record = json.loads(line)
-            records[int(record["seed"])] = record
-        except (ValueError, KeyError, TypeError):
-            raise InputError(f"{path}: not a sinshape index (a line is not a seed's JSON record); "
+            records[varying.item(record[varying.field])] = record
+        except (ValueError, KeyError, TypeError, InputError):
+            raise InputError(f"{path}: not a sinshape index (a line is not a {varying.field}'s JSON record); "
                              "move it away or choose another output name") from None
     return records
 
@@ -69,26 +107,27 @@ def file_digest(path: Path) -> tuple:
         return None
 
 
-def verified(records: dict, pattern: Path) -> dict:
+def verified(records: dict, pattern: Path, varying: Varying = SEEDS) -> dict:
     """The records whose file is there and is what they recorded."""
     kept = {}
-    for seed, record in records.items():
-        path = pattern.with_name(pattern.name.replace(FIELD, str(seed)))
+    for item, record in records.items():
+        path = varying.path(pattern, item)
         if path.is_file() and file_digest(path) == (record.get("bytes"), record.get("sha256")):
-            kept[seed] = record
+            kept[item] = record
     return kept
 
 
 def rewrite_index(path: Path, records: dict) -> None:
-    """The index with one line per seed it vouches for, written atomically."""
+    """The index with one line per item it vouches for, written atomically."""
     text = "".join(json.dumps(record) + "\n" for record in records.values())
     files.atomic_write(path, lambda f: f.write(text.encode()))
 
 
 class Worker:
-    """One worker's model, loaded once, and the request each seed's file is made by."""
+    """One worker's model, loaded once, and the request each item's file is
+    made by, with the item in its `field`."""
 
-    def __init__(self, model, suffix: str, threads: int, request):
+    def __init__(self, model, suffix: str, threads: int, request, field: str = "seed"):
         if isinstance(model, bytes):  # sent over the network (Ray): load it from a local copy
             with tempfile.NamedTemporaryFile(suffix=".onnx") as f:
                 f.write(model)
@@ -96,16 +135,20 @@ class Worker:
                 self.model = load_model(f.name, threads=threads)
         else:
             self.model = load_model(model, threads=threads)
-        self.suffix, self.threads, self.request = suffix, threads, request
+        self.suffix, self.threads, self.request, self.field = suffix, threads, request, field
 
-    def run(self, seed: int) -> tuple:
-        """(file bytes, index record without the file name) of one seed."""
+    def run(self, item) -> tuple:
+        """(file bytes, index record without the file name) of one item."""
         from . import write
 
         started = time.perf_counter()
-        data, mesh = write.request_bytes(self.model, self.request.with_seed(seed), f"seed{seed}{self.suffix}",
-                                         self.threads)
-        record = {"seed": seed, "vertices": None, "faces": None, "watertight": None, "volume": None}
+        request = dataclasses.replace(self.request, **{self.field: item})
+        data, mesh = write.request_bytes(self.model, request, f"{self.field}{self.suffix}", self.threads)
+        record = {self.field: item, "vertices": None, "faces": None, "watertight": None, "volume": None}
+        if self.field == "tile":  # where the tile lies: its files may hold it in its own frame
+            from .world import tile_corner
+
+            record["corner"] = tile_corner(self.model, item)
         if mesh is not None:
             record.update(vertices=len(mesh.vertices), faces=len(mesh.faces),
                           watertight=bool(mesh.is_watertight), volume=round(float(mesh.volume), 6))
@@ -122,20 +165,20 @@ def _start_process(*args) -> None:
     _worker = Worker(*args)
 
 
-def _run_in_process(seed: int) -> tuple:
-    return _worker.run(seed)
+def _run_in_process(item) -> tuple:
+    return _worker.run(item)
 
 
 class InProcess:
     """One worker: this process."""
 
-    def __init__(self, model_path, suffix, threads, request):
-        self.worker, self.done = Worker(model_path, suffix, threads, request), []
+    def __init__(self, model_path, suffix, threads, request, field):
+        self.worker, self.done = Worker(model_path, suffix, threads, request, field), []
 
     slots = 1
 
-    def submit(self, seed: int) -> None:
-        self.done.append(self.worker.run(seed))
+    def submit(self, item) -> None:
+        self.done.append(self.worker.run(item))
 
     def next_result(self) -> tuple:
         return self.done.pop(0)
@@ -147,16 +190,16 @@ class InProcess:
 class Processes:
     """Worker processes on this machine (multiprocessing, spawned)."""
 
-    def __init__(self, model_path, suffix, threads, request, workers: int):
+    def __init__(self, model_path, suffix, threads, request, field, workers: int):
         import multiprocessing
 
         self.pool = multiprocessing.get_context("spawn").Pool(
-            workers, initializer=_start_process, initargs=(str(model_path), suffix, threads, request))
+            workers, initializer=_start_process, initargs=(str(model_path), suffix, threads, request, field))
         self.results = queue.Queue()
         self.slots = 2 * workers  # one running and one waiting per worker
 
-    def submit(self, seed: int) -> None:
-        self.pool.apply_async(_run_in_process, (seed,), callback=self.results.put,
+    def submit(self, item) -> None:
+        self.pool.apply_async(_run_in_process, (item,), callback=self.results.put,
                               error_callback=self.results.put)
 
     def next_result(self) -> tuple:
@@ -187,7 +230,7 @@ class RayActors:
     """Ray actors, each holding a Worker; Ray's own default cluster unless
     `address` names one."""
 
-    def __init__(self, model_path, suffix, threads, request, workers: int | None, address: str | None):
+    def __init__(self, model_path, suffix, threads, request, field, workers: int | None, address: str | None):
         try:
             import ray
         except ImportError:
@@ -213,14 +256,14 @@ class RayActors:
                              f"{workers * threads} CPUs; the Ray cluster has {cpus}", "workers")
         actor = ray.remote(num_cpus=threads)(Worker)
         model = ray.put(Path(model_path).read_bytes())
-        self.actors = [actor.remote(model, suffix, threads, request) for _ in range(workers)]
+        self.actors = [actor.remote(model, suffix, threads, request, field) for _ in range(workers)]
         self.free = self.actors * 2  # one running and one waiting per actor
         self.slots = len(self.free)
         self.pending = {}  # object ref -> actor
 
-    def submit(self, seed: int) -> None:
+    def submit(self, item) -> None:
         actor = self.free.pop()
-        self.pending[actor.run.remote(seed)] = actor
+        self.pending[actor.run.remote(item)] = actor
 
     def next_result(self) -> tuple:
         (ready,), _ = self.ray.wait(list(self.pending), num_returns=1)
@@ -228,7 +271,7 @@ class RayActors:
         try:
             return self.ray.get(ready)
         except self.ray.exceptions.RayTaskError as error:
-            raise error.cause from None  # an InputError of the seed, say, rather than Ray's report
+            raise error.cause from None  # an InputError of the item, say, rather than Ray's report
 
     def close(self) -> None:
         for actor in self.actors:
@@ -237,10 +280,32 @@ class RayActors:
             self.ray.shutdown()
 
 
-def check_existing_outputs(pattern: Path, inputs) -> None:
+class Appender:
+    """The index, opened for appending when the first record comes: a job
+    that fails before its first file leaves no index behind."""
+
+    def __init__(self, path: Path):
+        self.path, self.file = path, None
+
+    def __enter__(self):
+        return self
+
+    def write(self, text: str) -> None:
+        if self.file is None:
+            self.file = open(self.path, "a")
+        self.file.write(text)
+        self.file.flush()
+        os.fsync(self.file.fileno())
+
+    def __exit__(self, *_):
+        if self.file is not None:
+            self.file.close()
+
+
+def check_existing_outputs(pattern: Path, inputs, varying: Varying = SEEDS) -> None:
     """Every file already there that the job could replace (a name the
-    pattern makes) is checked before the first seed, not when its turn comes."""
-    name = re.compile(re.escape(pattern.name).replace(re.escape(FIELD), r"\d+"))
+    pattern makes) is checked before the first item, not when its turn comes."""
+    name = re.compile(re.escape(pattern.name).replace(re.escape(varying.placeholder), varying.name_pattern))
     folder = pattern.parent if str(pattern.parent) else Path(".")
     try:
         entries = [Path(folder, e.name) for e in os.scandir(folder) if name.fullmatch(e.name)]
@@ -266,16 +331,27 @@ def sample_many(model_path, seeds, pattern, engine: str = "local", workers: int 
     progress(seed, record or None if skipped) after each seed.
     Returns {"written", "skipped", "index"}.
     """
-    from . import write
     from .request import SampleRequest
 
     request = dataclasses.replace(request or SampleRequest(), **fields)
     if request.seed is not None or request.recon:
         one = "recon" if request.recon else "seed"
         raise ConflictError(f"give seeds or {one}, not both", ("seeds", one))
+    return run_job(model_path, seeds, pattern, SEEDS, request, engine, workers, threads, address, progress)
+
+
+def run_job(model_path, items, pattern, varying: Varying, request, engine: str = "local",
+            workers: int | None = None, threads: int | None = None, address: str | None = None,
+            progress=None) -> dict:
+    """One file per item (`varying` says which field of `request` each item
+    sets, and how it is named), resumably, on the engine asked for: the
+    job `sample_many` and world.write_tiles run."""
+    from . import write
+
     pattern = Path(pattern)
-    if FIELD not in pattern.name:
-        raise InputError(f"{pattern.name}: many seeds need {FIELD} in the output file name", "pattern")
+    if varying.placeholder not in pattern.name:
+        raise InputError(f"{pattern.name}: many {varying.field}s need {varying.placeholder} in the output file "
+                         "name", "pattern")
     if engine not in ENGINES:
         raise InputError(f"unknown engine {engine!r}; choose {' or '.join(ENGINES)}", "engine")
     if workers is not None and workers < 1:
@@ -283,52 +359,51 @@ def sample_many(model_path, seeds, pattern, engine: str = "local", workers: int 
     if threads is not None and threads < 1:
         raise InputError(f"threads must be at least 1, got {threads}", "threads")
     write.output_kind(pattern)
-    files.check_writable(pattern.with_name(pattern.name.replace(FIELD, "0")), [model_path])
-    check_existing_outputs(pattern, [model_path])
+    files.check_writable(pattern.with_name(pattern.name.replace(varying.placeholder, "0")), [model_path])
+    check_existing_outputs(pattern, [model_path], varying)
     load_model(model_path, threads=1)  # a bad model is one line here, not one per worker
-    index = index_path(pattern)
-    found = read_index(index)
-    done = verified(found, pattern)
+    index = index_path(pattern, varying)
+    found = read_index(index, varying)
+    done = verified(found, pattern, varying)
     if index.is_file() and (len(done) != len(found) or not index.read_bytes().endswith(b"\n")
                             or index.read_bytes().count(b"\n") != len(found)):
         rewrite_index(index, done)
+    job = (model_path, pattern.suffix, threads or 1, request, varying.field)
     if engine == "ray":
-        pool = RayActors(model_path, pattern.suffix, threads or 1, request, workers, address)
+        pool = RayActors(*job, workers, address)
     else:
         if workers is not None and workers > default_threads():
             raise InputError(f"workers must be 1 to {default_threads()} (this machine's cores), got {workers}",
                              "workers")
         workers = default_threads() if workers is None else workers
-        threads = threads or max(1, default_threads() // workers)
-        pool = (InProcess(model_path, pattern.suffix, threads, request) if workers == 1 else
-                Processes(model_path, pattern.suffix, threads, request, workers))
+        job = (model_path, pattern.suffix, threads or max(1, default_threads() // workers), request, varying.field)
+        pool = InProcess(*job) if workers == 1 else Processes(*job, workers)
     written = skipped = running = 0
     try:
-        with open(index, "a") as log:
+        with Appender(index) as log:
             def finish():
                 nonlocal written, running
                 data, record = pool.next_result()
                 running -= 1
-                path = pattern.with_name(pattern.name.replace(FIELD, str(record["seed"])))
+                item = record[varying.field]
+                path = varying.path(pattern, item)
                 files.check_not_input(path, [model_path])  # never over the model, under any name
                 files.atomic_write(path, lambda f: f.write(data))
-                log.write(json.dumps({"seed": record["seed"], "file": path.name, **record, "bytes": len(data),
+                log.write(json.dumps({varying.field: item, "file": path.name, **record, "bytes": len(data),
                                       "sha256": hashlib.sha256(data).hexdigest()}) + "\n")
-                log.flush()
-                os.fsync(log.fileno())
                 written += 1
                 if progress:
-                    progress(record["seed"], record)
+                    progress(item, record)
 
-            for seed in seeds:
-                if seed in done:
+            for item in items:
+                if item in done:
                     skipped += 1
                     if progress:
-                        progress(seed, None)
+                        progress(item, None)
                     continue
                 if running == pool.slots:
                     finish()
-                pool.submit(seed)
+                pool.submit(item)
                 running += 1
             while running:
                 finish()

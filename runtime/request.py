@@ -24,8 +24,9 @@ from sinshape.core.errors import ConflictError, InputError
 
 from .edit import Part
 from .mesh import MAX_SMOOTH, SMOOTHERS
+from .world import check_tile
 
-FRAMES = ("input", "model")
+FRAMES = ("input", "model", "tile")
 MAX_PARTS = 16  # boxes kept in one sample: each runs a whole chain of its own
 EDITS = ("keep", "grow", "layout")
 
@@ -78,7 +79,11 @@ class SampleRequest:
     scale: the surface is queried on a grid this many times finer per axis.
     smooth, smoother: smoothing iterations (0 to MAX_SMOOTH) and which (SMOOTHERS);
     largest: keep only the largest connected piece; frame: the vertices'
-      frame ('input': the training mesh's, 'model': finest voxels).
+      frame ('input': the training mesh's, 'model': finest voxels; for a
+      tile, 'tile': the input's units from the tile's lowest corner, precise
+      at any distance from the world's origin).
+    tile: (i, j), a tile of the endless world of `seed` (world.py) instead
+      of a sample: no size, edits or clean-up, which would break its seams.
     At most one edit:
     keep: parts taken from other samples (edit.Part, or their text form
       'SEED:X0,Y0,Z0:X1,Y1,Z1', read against the model by `resolved`);
@@ -99,6 +104,7 @@ class SampleRequest:
     grow: tuple | None = None
     anchor: tuple | None = None
     layout: Layout | None = None
+    tile: tuple | None = None
 
     def __post_init__(self):
         def set_field(name, value):
@@ -129,6 +135,8 @@ class SampleRequest:
             set_field("anchor", per_axis(self.anchor, "anchor", lambda a: 0 <= a <= 1, "three fractions in [0, 1]"))
         if self.layout is not None and not isinstance(self.layout, Layout):
             raise InputError("layout must be a request.Layout (Layout.of(grid))", "layout")
+        if self.tile is not None:
+            set_field("tile", check_tile(self.tile))
         self.check_together()
 
     def check_together(self) -> None:
@@ -146,6 +154,15 @@ class SampleRequest:
                                     "give seed, not recon", (given[0], "recon", "seed"))
             if self.size != (1.0, 1.0, 1.0):
                 raise InputError("the reconstruction exists only at the training size; drop size", "size")
+        if self.tile is not None:
+            kept = [name for name, value in (("recon", self.recon), *((edit, True) for edit in given),
+                                             ("size", self.size != (1.0, 1.0, 1.0)), ("smooth", self.smooth),
+                                             ("largest", self.largest)) if value]
+            if kept:
+                raise ConflictError(f"a tile shares its border with its neighbours, which {kept[0]} would break: "
+                                    f"give tile or {', '.join(kept)}", ("tile", *kept))
+        elif self.frame == "tile":
+            raise ConflictError("frame tile is for a tile of a world", ("frame", "tile"))
 
     def edits(self) -> list:
         """The names of the edits given."""

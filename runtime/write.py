@@ -140,14 +140,23 @@ def write_request(model, request, path, inputs=(), threads: int | None = None, m
     from .request import make
 
     check_writable(path, [model.path, *inputs])
+    if request.tile is not None:
+        data, _ = request_bytes(model, request, path)
+        atomic_write(path, lambda f: f.write(data))
+        return
     write_sample(model, make(model, request), path, threads=threads, mesh_progress=mesh_progress,
                  **request.mesh_options())
 
 
 def request_bytes(model, request, name, threads: int | None = None, mesh_progress=None) -> tuple:
-    """`sample_bytes` of the sample a request asks for: the file `name` names, in memory, and its mesh."""
+    """`sample_bytes` of the sample a request asks for: the file `name` names,
+    in memory, and its mesh; a tile of a world (world.tile_bytes) likewise."""
     from .request import make
 
+    if request.tile is not None:
+        from .world import tile_bytes
+
+        return tile_bytes(model, request, name)
     return sample_bytes(model, make(model, request), name, threads=threads, mesh_progress=mesh_progress,
                         **request.mesh_options())
 

@@ -1,0 +1,337 @@
+"""Endless worlds: any tile of an unbounded world of a seed, on its own,
+seamless with its neighbours, at the same cost anywhere.
+
+The world spreads along the model's two horizontal axes (the two that are
+not `up`). It is covered by windows: ordinary samples of the training
+extent (2S + 1 voxels along each horizontal axis, S the stride, the model's
+height along up), one per point (a, b) of a lattice of stride S, each with
+its own noise, keyed by (seed, a, b). A point of the world lies in four
+windows; its occupancy is the decoder's head applied to the four windows'
+hidden vectors (the first layer's pre-activations, which are linear in the
+planes) blended with weights that sum to one: per axis, the window whose
+lattice point lies behind the point by a fraction f of S weighs
+smoothstep(f), the one before it 1 - smoothstep(f). A window's weight falls
+to zero at its edges, where its content is least like the example.
+
+Why this holds:
+- A tile (i, j) is the world between lattice points i, i + 1 and j, j + 1:
+  its occupancy depends on its four windows only, which depend on (model,
+  seed, a, b) only. No state, no order, and no cost that grows with the
+  distance: a window's noise is drawn at its own positions under its own key.
+- Seams: two neighbouring tiles evaluate the points of their shared face
+  with the same window at weight exactly 1 and the others at exactly 0,
+  by the same element-wise arithmetic (no matrix products, whose rounding
+  may depend on an array's shape), so the values there are equal to the
+  bit, and marching cubes cuts the same border vertices from both sides.
+  The faces along the horizontal axes are left open (not padded), so the
+  union of any block of tiles is one surface.
+- The blend does not repeat: every window has its own noise.
+
+What it costs in quality: where two windows overlap, the shape is a blend
+of two independent samples' features, not a sample the generator made;
+the decoder keeps it sharp (it sees one hidden vector), but a structure
+that is in one window and not the other thins out across the overlap.
+A tile's cost is four windows' chains (a sample's) and the decoding of its
+points, the same for every (i, j).
+"""
+
+import itertools
+import math
+from collections import OrderedDict
+from dataclasses import dataclass
+
+import numpy as np
+
+from sinshape.core import noise
+from sinshape.core.budget import check_memory
+from sinshape.core.errors import InputError
+from sinshape.core.manifest import PLANE_AXES
+
+from . import cubes
+from .generate import draw_noise, scaled_sizes, triplane
+from .query import check_scale, project, sigmoid
+
+WORLD_STREAM = 2  # (WORLD_STREAM, a, b): the key of window (a, b)'s noise, absorbed after the world's seed
+MAX_TILE = 1 << 62  # |i|, |j| below this: a window index and its neighbour fit in 64 bits in every runtime
+MIN_STRIDE = 4  # voxels: a window of fewer than 2 * 4 + 1 along an axis has no room to blend
+UP_AXIS = {"y": 1, "z": 2}
+BLEND = 0.5  # the share of a stride, around its middle, over which one window gives way to the next
+
+
+@dataclass(frozen=True)
+class Layout:
+    """How a model's world is cut: which axes are horizontal, the stride S
+    per axis (None along up), the windows' size factors."""
+
+    horizontal: tuple  # the two horizontal axes, ascending
+    up: int
+    stride: tuple  # (3,) voxels per tile along each axis; the up axis's entry is its whole height - 1
+    factors: tuple  # a window's size, as factors of the training size
+
+
+def world_layout(model) -> Layout:
+    """The world's cut for a model: refused where a world means nothing."""
+    finest = model.manifest.sizes[-1]
+    up = UP_AXIS[model.manifest.up]
+    horizontal = tuple(a for a in range(3) if a != up)
+    stride = [0, 0, 0]
+    for axis in horizontal:
+        stride[axis] = (finest[axis] - 1) // 2
+        if stride[axis] < MIN_STRIDE:
+            raise InputError(f"the model is {finest[axis]} voxels along {'xyz'[axis]}, a horizontal axis: a world "
+                             f"needs windows of at least {2 * MIN_STRIDE + 1} to blend")
+    stride[up] = finest[up] - 1
+    factors = tuple((2 * stride[a] + 1) / finest[a] if a != up else 1.0 for a in range(3))
+    return Layout(horizontal, up, tuple(stride), factors)
+
+
+def check_tile(tile) -> tuple:
+    """(i, j): two integers of magnitude below MAX_TILE."""
+    if not (isinstance(tile, (tuple, list)) and len(tile) == 2
+            and all(isinstance(t, (int, np.integer)) and not isinstance(t, bool) and -MAX_TILE < t < MAX_TILE
+                    for t in tile)):
+        raise InputError(f"a tile is two integers (i, j) of magnitude below 2**62, got {tile!r}", "tile")
+    return int(tile[0]), int(tile[1])
+
+
+def window_seed(seed: int, a: int, b: int) -> int:
+    """The noise seed of window (a, b) of the world of `seed`: a 64-bit key."""
+    mask = (1 << 64) - 1
+    return noise.stream_key(seed, WORLD_STREAM, a & mask, b & mask)
+
+
+# Windows kept for the next tiles (a tile shares each of its four with a
+# neighbour): the last few made, whatever asked for them. A cache, not state:
+# a window is the same array whether it is made or found.
+WINDOWS_KEPT = 16
+_windows = OrderedDict()  # (id(model), seed, a, b) -> (model, planes)
+
+
+def window(model, layout: Layout, seed: int, a: int, b: int) -> list:
+    """Window (a, b)'s final planes times the decoder's first layer: 3 x (H, W, D)."""
+    key = (id(model), seed, a, b)
+    if key in _windows:
+        _windows.move_to_end(key)
+        return _windows[key][1]
+    sizes = scaled_sizes(model.manifest.sizes, layout.factors)
+    planes = project(model, triplane(model, draw_noise(window_seed(seed, a, b), sizes, model.manifest.channels),
+                                     sizes)).planes
+    _windows[key] = (model, planes)  # the model is held, so its id names it while the entry lives
+    while len(_windows) > WINDOWS_KEPT:
+        _windows.popitem(last=False)
+    return planes
+
+
+def smoothstep(f: np.ndarray) -> np.ndarray:
+    return f * f * (3 - 2 * f)
+
+
+@dataclass(frozen=True)
+class Axis:
+    """A tile's grid along one axis: `points` positions, and for the tile's
+    two windows along a horizontal axis (the one before, the one behind)
+    their cell positions and weights; along up, one window spanning it all."""
+
+    points: int
+    cells: tuple  # per window: (points,) float64 positions in the window's cells
+    weights: tuple  # per window: (points,) float32
+
+
+def tile_axis(layout: Layout, axis: int, scale: float) -> Axis:
+    """Tile-local grid along `axis`: m + 1 points over the stride S (m = S
+    scale, rounded), point p at p S / m, the same for every tile."""
+    stride = layout.stride[axis]
+    if axis == layout.up:
+        m = max(2, round((stride + 1) * scale))  # as a sample's grid: m points over the height
+        return Axis(m, (np.arange(m) * (stride / (m - 1)),), (np.ones(m, np.float32),))
+    m = max(1, round(stride * scale))
+    p = np.arange(m + 1)
+    behind = smoothstep(np.clip((p / m - 0.5) / BLEND + 0.5, 0, 1)).astype(np.float32)  # window i (p = 0 at its start)
+    before = (np.float32(1) - behind).astype(np.float32)  # window i - 1: exactly 1 - behind
+    return Axis(m + 1, ((m + p) * stride / m, p * stride / m), (before, behind))
+
+
+def interpolate(plane: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """A (H, W, D) plane at every (row, col) of two position lists, element-wise
+    (bilinear, align_corners): (len(rows), len(cols), D) float32. Two tiles
+    asking for the same position get the same bits."""
+    def along(values, positions, axis):
+        n = values.shape[axis]
+        low = np.clip(np.floor(positions).astype(np.int64), 0, max(n - 2, 0))
+        high = np.minimum(low + 1, n - 1)
+        frac = (positions - low).astype(np.float32)
+        shape = [1] * values.ndim
+        shape[axis] = len(positions)
+        frac = frac.reshape(shape)
+        return np.take(values, low, axis) * (np.float32(1) - frac) + np.take(values, high, axis) * frac
+
+    return along(along(plane, rows, 0), cols, 1)
+
+
+def check_world_scale(layout: Layout, scale: float, hidden: int, memory_limit: int | None) -> None:
+    check_scale(scale)
+    points = [tile_axis(layout, a, scale).points for a in range(3)]
+    if max(points) > 1 << 14:
+        raise InputError(f"scale {scale:g} makes a tile of {'x'.join(map(str, points))} points; at most "
+                         f"{1 << 14} per axis", "scale")
+    h0, h1 = layout.horizontal
+    # The grid, a row of four windows' hidden sums, and the interpolated planes.
+    row = points[h1] * points[layout.up] * hidden * 4 * 3
+    planes = 4 * hidden * 4 * sum(points[a] * points[b] for a, b in PLANE_AXES)
+    check_memory(math.prod(points) * 4 * 2 + row + planes, f"a {'x'.join(map(str, points))} tile", memory_limit)
+
+
+def tile_occupancy(model, seed: int, tile, scale: float = 1.0, memory_limit: int | None = None) -> np.ndarray:
+    """Occupancy on tile (i, j)'s grid: (X, Y, Z) float32, its points along
+    each horizontal axis from the tile's lattice point to the next (both
+    included: the faces it shares), along up the model's height."""
+    from .generate import check_seed
+
+    check_seed(seed)
+    i, j = check_tile(tile)
+    layout = world_layout(model)
+    check_world_scale(layout, scale, model.manifest.hidden, memory_limit)
+    axes = [tile_axis(layout, a, scale) for a in range(3)]
+    h0, h1 = layout.horizontal
+    sources = []  # per window, in a fixed order (the sum's): its interpolated planes and weights
+    for a, b in [(a, b) for a in (i - 1, i) for b in (j - 1, j)]:
+        index = {h0: a - i + 1, h1: b - j + 1, layout.up: 0}  # which of the axis's windows this is
+        cells = [axes[axis].cells[index[axis]] for axis in range(3)]
+        planes = [interpolate(plane, cells[r], cells[c])
+                  for plane, (r, c) in zip(window(model, layout, seed, a, b), PLANE_AXES)]
+        sources.append((planes, [axes[axis].weights[index[axis]] for axis in range(3)]))
+    out = np.empty([a.points for a in axes], np.float32)
+    rows = max(1, (1 << 22) // (out.shape[1] * out.shape[2] * model.manifest.hidden))  # ~16 MB of sums
+    for x0 in range(0, out.shape[0], rows):
+        x = slice(x0, min(x0 + rows, out.shape[0]))
+        total = None
+        for (xy, xz, yz), (wx, wy, wz) in sources:
+            hidden = xy[x, :, None] + xz[x, None, :] + yz[None]  # (r, Y, Z, D)
+            weight = (wx[x, None, None] * wy[None, :, None] * wz[None, None, :])[..., None]
+            total = weight * hidden if total is None else total + weight * hidden
+        out[x] = head(model.head, total)
+    return out
+
+
+def head(weights, hidden: np.ndarray) -> np.ndarray:
+    """sigmoid(w2 . relu(hidden + b1) + b2) element-wise over the hidden
+    width, in a fixed order: (..., D) -> (...) float32."""
+    biased = np.maximum(hidden + weights.bias1, 0)
+    logits = np.full(hidden.shape[:-1], np.float32(weights.bias2), np.float32)
+    for d in range(hidden.shape[-1]):
+        logits += biased[..., d] * weights.weight2[d]
+    return sigmoid(logits)
+
+
+def tile_mesh(model, seed: int, tile, scale: float = 1.0, memory_limit: int | None = None) -> tuple:
+    """Tile (i, j)'s surface: (vertices (V, 3) float64 in model units
+    relative to the tile's lowest corner, faces (F, 3) int64). Closed at the
+    top and bottom, open on the four sides it shares with its neighbours,
+    whose border vertices it shares exactly."""
+    values = tile_occupancy(model, seed, tile, scale, memory_limit)
+    layout = world_layout(model)
+    pad = [(0, 0)] * 3
+    pad[layout.up] = (1, 1)
+    padded = np.pad(values, pad)
+    corners = np.stack([padded[dx:padded.shape[0] - 1 + dx, dy:padded.shape[1] - 1 + dy, dz:padded.shape[2] - 1 + dz]
+                        < cubes.LEVEL for dx in (0, 1) for dy in (0, 1) for dz in (0, 1)])
+    crossing = np.argwhere(corners.any(axis=0) & ~corners.all(axis=0))
+    _, vertices, faces = cubes.march(padded, crossing, 1)
+    vertices[:, layout.up] -= 1
+    for axis in range(3):
+        stride, points = layout.stride[axis], values.shape[axis]
+        intervals = points - 1
+        vertices[:, axis] = vertices[:, axis] * stride / intervals  # exact at the faces: m S / m = S
+    return vertices, faces
+
+
+def tile_corner(model, tile) -> tuple:
+    """Tile (i, j)'s lowest corner in model units (exact integers, for any tile)."""
+    i, j = check_tile(tile)
+    layout = world_layout(model)
+    corner = [0, 0, 0]
+    corner[layout.horizontal[0]], corner[layout.horizontal[1]] = i * layout.stride[layout.horizontal[0]], \
+        j * layout.stride[layout.horizontal[1]]
+    return tuple(corner)
+
+
+# Beyond this many voxels from the world's origin, absolute float32
+# coordinates keep less than 1/64 of a voxel: a tile there is written in its
+# own frame ('tile').
+MAX_ABSOLUTE = 1 << 18
+
+
+def check_placement(model, tile, frame: str) -> None:
+    """A tile far from the world's origin is written in its own frame only."""
+    far = max(abs(c) for c in tile_corner(model, tile))
+    if frame != "tile" and far > MAX_ABSOLUTE:
+        raise InputError(f"tile {tuple(tile)} lies {far} voxels from the world's origin, where float32 "
+                         "coordinates lose the shape's detail: give frame tile (coordinates from the tile's "
+                         "corner)", "frame")
+
+
+def placed(model, tile, vertices: np.ndarray, frame: str) -> np.ndarray:
+    """Tile-relative model units -> the request's frame: 'tile' (input units
+    from the tile's corner), 'model' (voxels) or 'input' (the training mesh's
+    frame), the last two from the world's origin."""
+    manifest = model.manifest
+    check_placement(model, tile, frame)
+    if frame == "tile":
+        return vertices * np.asarray(manifest.spacing)
+    absolute = np.array(tile_corner(model, tile), np.float64) + vertices  # exact on shared borders: integers plus the same offsets
+    return absolute if frame == "model" else np.asarray(manifest.origin) + absolute * np.asarray(manifest.spacing)
+
+
+def tile_bytes(model, request, name) -> tuple:
+    """A tile request (request.SampleRequest with `tile`) as the bytes of the
+    file `name` names, and its mesh (None for an .npz grid)."""
+    from pathlib import Path
+
+    from . import write
+
+    suffix = Path(name).suffix.lower()
+    if write.output_kind(name) == "grid":
+        values = tile_occupancy(model, request.sample_seed, request.tile, request.scale)
+        return write.grid_bytes(values, tile=request.tile, corner=tile_corner(model, request.tile),
+                                scale=request.scale), None
+    import trimesh
+
+    vertices, faces = tile_mesh(model, request.sample_seed, request.tile, request.scale)
+    if not len(faces):
+        raise write.no_surface(Path(name))
+    mesh = trimesh.Trimesh(placed(model, request.tile, vertices, request.frame), faces, process=False)
+    return write.mesh_bytes(mesh, suffix), mesh
+
+
+def write_tiles(model_path, tiles, pattern, request, engine: str = "local", workers: int | None = None,
+                threads: int | None = None, address: str | None = None, progress=None) -> dict:
+    """Write one file per tile of `tiles` ((i, j) pairs, read lazily), `pattern`
+    with {tile} filled in as I_J: the world of `request` (a
+    request.SampleRequest with a seed and no tile), resumably, on the cores
+    or a Ray cluster as runtime.many's jobs. Returns {"written", "skipped", "index"}."""
+    import dataclasses
+
+    from . import many
+
+    from pathlib import Path
+
+    from .load import load_model
+
+    if request.tile is not None:
+        raise InputError("give the tiles to write, not one tile in the request", "tile")
+    tiles = iter(tiles)
+    first = next(tiles, None)
+    if first is None:
+        raise InputError("no tiles to write", "tile")
+    dataclasses.replace(request, tile=first)  # what a tile refuses, refused before the first is made
+    if request.frame != "tile":
+        check_placement(load_model(model_path, threads=1), first, request.frame)
+    tiles = itertools.chain([first], tiles)
+    folder = Path(pattern).parent
+    if not folder.exists():
+        try:
+            folder.mkdir(parents=True)
+        except OSError as error:
+            raise InputError(f"{folder}: cannot make the folder ({error.strerror})") from None
+    return many.run_job(model_path, tiles, pattern, many.TILES, request, engine, workers, threads, address,
+                        progress)

@@ -1,0 +1,175 @@
+"""Endless worlds: a tile is a pure function of (model, seed, i, j), its
+shared faces are equal to the bit, the union of a block is one surface, and
+a far tile costs what a near one does."""
+
+import json
+import time
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from sinshape.cli.main import cli
+from sinshape.core.errors import InputError, MemoryLimitError
+from sinshape.runtime import load_model, world, write
+from sinshape.runtime.request import SampleRequest
+from test_cli_train import assert_one_line_error
+
+
+@pytest.fixture(scope="module")
+def model(tiny_model):
+    return load_model(tiny_model, threads=1)
+
+
+@pytest.fixture
+def fresh():
+    """No window kept from earlier tiles."""
+    world._windows.clear()
+    yield
+    world._windows.clear()
+
+
+@pytest.mark.parametrize("scale", [1, 2.5])
+def test_neighbours_agree_on_their_shared_faces_to_the_bit(model, scale):
+    h0, h1 = world.world_layout(model).horizontal
+    grids = {(i, j): world.tile_occupancy(model, 7, (i, j), scale) for i in (2, 3) for j in (-1, 0)}
+    for (i, j), grid in grids.items():
+        if (i + 1, j) in grids:
+            assert np.array_equal(np.take(grid, -1, h0), np.take(grids[i + 1, j], 0, h0))
+        if (i, j + 1) in grids:
+            assert np.array_equal(np.take(grid, -1, h1), np.take(grids[i, j + 1], 0, h1))
+    assert not np.array_equal(grids[2, -1], grids[3, 0])  # and they are not the same tile
+
+
+def block_mesh(model, seed, tiles, scale=1.0):
+    """Tiles' meshes put together by their exact corners: (vertices, faces) with shared vertices merged."""
+    vertices, faces = [], []
+    count = 0
+    for tile in tiles:
+        v, f = world.tile_mesh(model, seed, tile, scale)
+        vertices.append(v + np.array(world.tile_corner(model, tile)))
+        faces.append(f + count)
+        count += len(v)
+    vertices = np.concatenate(vertices)
+    unique, index = np.unique(vertices, axis=0, return_inverse=True)  # exact coordinates: a shared vertex is one
+    return unique, index.reshape(-1)[np.concatenate(faces)]
+
+
+def test_a_block_of_tiles_is_one_surface_open_only_on_its_outer_sides(model):
+    layout = world.world_layout(model)
+    h0, h1 = layout.horizontal
+    vertices, faces = block_mesh(model, 5, [(i, j) for i in range(3) for j in range(3)], scale=1.5)
+    edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    unique, counts = np.unique(edges, axis=0, return_counts=True)
+    assert counts.max() == 2  # a manifold: no edge in three faces (no doubled border)
+    open_edges = unique[counts == 1]
+    ends = vertices[open_edges]  # (E, 2, 3)
+    outer = [(axis, side * 3 * layout.stride[axis]) for axis in (h0, h1) for side in (0, 1)]
+    on_outer_side = np.zeros(len(open_edges), bool)
+    for axis, at in outer:
+        on_outer_side |= (ends[:, :, axis] == at).all(axis=1)
+    assert len(open_edges) and on_outer_side.all()  # every crack-free inside, open only where the block ends
+
+
+def test_a_tile_is_the_same_whatever_was_made_before(model, fresh):
+    alone = write.request_bytes(model, SampleRequest(11, tile=(5, 3)), "t.ply")[0]
+    for tile in [(4, 3), (5, 2), (6, 4), (-70, 9)]:
+        world.tile_mesh(model, 11, tile)
+    assert write.request_bytes(model, SampleRequest(11, tile=(5, 3)), "t.ply")[0] == alone
+    world._windows.clear()
+    assert write.request_bytes(model, SampleRequest(11, tile=(5, 3)), "t.ply")[0] == alone
+
+
+def test_a_far_tile_costs_what_a_near_one_costs(model, fresh, monkeypatch):
+    """The same work, counted (the noise drawn, the stages run), and about the
+    same seconds, measured alternately: at most 3x, a margin for a busy machine."""
+    far = (10**9, -10**9)
+    counted = {}
+
+    def counting(name, run):
+        def counted_run(*args, **kwargs):
+            counted[name] = counted.get(name, 0) + sum(np.asarray(a).size for a in args[1:2] if a is not None)
+            return run(*args, **kwargs)
+        return counted_run
+
+    monkeypatch.setattr(world, "draw_noise", counting("noise", world.draw_noise))
+    work = []
+    for tile in ((0, 0), far):
+        counted.clear()
+        world._windows.clear()
+        grid = world.tile_occupancy(model, 3, tile)
+        work.append(dict(counted))
+        assert np.isfinite(grid).all() and 0 < grid.mean() < 1
+    assert work[0] == work[1]
+    seconds = {(0, 0): [], far: []}
+    for _ in range(3):
+        for tile in seconds:
+            world._windows.clear()
+            started = time.perf_counter()
+            world.tile_occupancy(model, 3, tile)
+            seconds[tile].append(time.perf_counter() - started)
+    assert min(seconds[far]) < 3 * min(seconds[(0, 0)])
+
+
+def test_no_two_windows_share_their_noise(model):
+    seeds = {world.window_seed(3, a, b) for a in range(-3, 4) for b in range(-3, 4)}
+    seeds |= {world.window_seed(4, 0, 0), world.window_seed(3, 2**62, -2**62)}
+    assert len(seeds) == 51
+
+
+def test_bad_tiles_are_refused_in_one_line(model, tmp_path):
+    for tile in [(2**62, 0), (0, -2**62), (1.5, 0), (1,), "3,4", (True, 0)]:
+        with pytest.raises(InputError) as refused:
+            world.tile_occupancy(model, 0, tile)
+        assert refused.value.parameter == "tile"
+    with pytest.raises(MemoryLimitError):
+        world.check_world_scale(world.world_layout(model), 200, model.manifest.hidden, 1 << 20)
+    with pytest.raises(InputError, match="give frame tile"):
+        write.request_bytes(model, SampleRequest(0, tile=(10**9, 0)), "far.ply")
+    assert write.request_bytes(model, SampleRequest(0, tile=(10**9, 0), frame="tile"), "far.ply")[0]
+
+
+def test_a_world_needs_room_to_blend_along_its_horizontal_axes(model):
+    narrow = load_model(model.path, threads=1)
+    narrow.manifest = type(narrow.manifest)(**{**narrow.manifest.__dict__,
+                                               "sizes": [(s[0], 8, s[2]) for s in narrow.manifest.sizes]})
+    with pytest.raises(InputError, match="a world needs windows of at least 9"):
+        world.world_layout(narrow)
+
+
+def test_world_writes_a_resumable_folder_of_tiles(tiny_model, model, tmp_path):
+    out = tmp_path / "w"
+    result = CliRunner().invoke(cli, ["world", str(tiny_model), "--seed", "4", "--tiles", "-1:0,2", "-o", str(out),
+                                      "--workers", "1"])
+    assert result.exit_code == 0, result.output
+    assert sorted(p.name for p in out.iterdir()) == ["tile_-1_2.ply", "tile_0_2.ply", "tile_index.jsonl"]
+    records = [json.loads(line) for line in (out / "tile_index.jsonl").read_text().splitlines()]
+    assert [r["tile"] for r in records] == [[-1, 2], [0, 2]]
+    assert records[0]["corner"] == list(world.tile_corner(model, (-1, 2)))
+    assert (out / "tile_0_2.ply").read_bytes() == write.request_bytes(model, SampleRequest(4, tile=(0, 2)), "x.ply")[0]
+    again = CliRunner().invoke(cli, ["world", str(tiny_model), "--seed", "4", "--tiles", "-1:0,2", "-o", str(out),
+                                     "--workers", "1"])
+    assert again.exit_code == 0 and "2 already done" in again.output
+    grid = CliRunner().invoke(cli, ["world", str(tiny_model), "--tiles", "0,0", "-o", str(tmp_path / "g"),
+                                    "--format", "npz", "--workers", "1"])
+    assert grid.exit_code == 0, grid.output
+    with np.load(tmp_path / "g" / "tile_0_0.npz") as npz:
+        assert np.array_equal(npz["occupancy"], world.tile_occupancy(model, 0, (0, 0)))
+        assert tuple(npz["tile"]) == (0, 0)
+
+
+@pytest.mark.parametrize("options, says", [
+    (["--tiles", "0:1"], "is not a block of tiles"),
+    (["--tiles", "3:1,0"], "counts down"),
+    (["--tiles", f"0,{2**62}"], "magnitude below 2**62"),
+])
+def test_world_refuses_bad_tiles_as_usage_errors(tiny_model, tmp_path, options, says):
+    result = CliRunner().invoke(cli, ["world", str(tiny_model), *options, "-o", str(tmp_path / "w")])
+    assert result.exit_code == 2 and says in result.output
+    assert not (tmp_path / "w").exists()
+
+
+def test_world_refuses_far_tiles_in_absolute_coordinates_in_one_line(tiny_model, tmp_path):
+    assert_one_line_error(CliRunner().invoke(cli, ["world", str(tiny_model), "--tiles", "1000000000,0", "-o",
+                                                   str(tmp_path / "w"), "--workers", "1"]), "give --frame tile")
+    assert not list((tmp_path / "w").glob("*.ply"))
