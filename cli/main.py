@@ -363,8 +363,9 @@ def run_job(job, items, unit: str, name) -> None:
                    "is one. A tile is half the training extent along each horizontal axis.")
 @click.option("-o", "--output", type=click.Path(path_type=Path), default=None,
               help="A folder (made if missing) for TILE_I_J files of --format, or a file name holding {tile} "
-                   "(world/{tile}.glb). An index (JSON lines) beside them makes a rerun skip what is done. "
-                   "Default: MODEL_world_seedN/.")
+                   "(world/{tile}.glb); an index (JSON lines) beside them makes a rerun skip what is done. Or "
+                   "one mesh file (block.ply): the block as one surface, placed in the world. Default: "
+                   "MODEL_world_seedN/.")
 @click.option("--format", "suffix", type=click.Choice(["ply", "glb", "obj", "stl", "off", "npz"]), default="ply",
               show_default=True, help="The tiles' format, for a folder: a mesh, or npz for the occupancy grid.")
 @SCALE_OPTION
@@ -385,11 +386,16 @@ def world(model, seed, tiles, output, suffix, scale, frame, threads, workers, en
     model, the seed and its place, so tiles join without a crack whatever
     was made before, and a tile a billion tiles away costs what tile 0,0 costs.
     """
-    from sinshape.runtime import world as worlds
+    from sinshape.runtime import world as worlds, write
     from sinshape.runtime.request import SampleRequest
 
     loaded = open_model(model, threads)
     output = output or Path(f"{loaded.path.stem}_world_seed{seed}")
+    if output.suffix.lower() in files.MESH_FORMATS and "{tile}" not in output.name:  # one mesh of the block
+        with StageProgress() as show:
+            write.write_block(loaded, SampleRequest(seed, scale=scale, frame=frame), tiles, output,
+                              lambda done, total: show("tiles", done, total))
+        return click.echo(f"wrote {output} ({len(tiles)} tiles)")
     pattern = output if "{tile}" in output.name else output / f"tile_{{tile}}.{suffix}"
     run_job(lambda progress: worlds.write_tiles(loaded.path, iter(tiles), pattern, SampleRequest(seed, scale=scale,
                                                 frame=frame), engine, workers, threads, address, progress),

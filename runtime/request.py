@@ -162,7 +162,8 @@ class SampleRequest:
                 raise ConflictError(f"a tile shares its border with its neighbours, which {kept[0]} would break: "
                                     f"give tile or {', '.join(kept)}", ("tile", *kept))
         elif self.frame == "tile":
-            raise ConflictError("frame tile is for a tile of a world", ("frame", "tile"))
+            raise ConflictError("frame tile (coordinates from a tile's corner) is for one tile of a world",
+                                ("frame",))  # the word tile is also the frame's value
 
     def edits(self) -> list:
         """The names of the edits given."""

@@ -55,7 +55,7 @@ WORLD_STREAM = 2  # (WORLD_STREAM, a, b): the key of window (a, b)'s noise, abso
 MAX_TILE = 1 << 62  # |i|, |j| below this: a window index and its neighbour fit in 64 bits in every runtime
 MIN_STRIDE = 4  # voxels: a window of fewer than 2 * 4 + 1 along an axis has no room to blend
 UP_AXIS = {"y": 1, "z": 2}
-BLEND = 0.5  # the share of a stride, around its middle, over which one window gives way to the next
+BLEND = 1.0  # the share of a stride, around its middle, over which one window gives way to the next
 
 
 @dataclass(frozen=True)
@@ -223,25 +223,29 @@ def head(weights, hidden: np.ndarray) -> np.ndarray:
     return sigmoid(logits)
 
 
-def tile_mesh(model, seed: int, tile, scale: float = 1.0, memory_limit: int | None = None) -> tuple:
+def tile_mesh(model, seed: int, tile, scale: float = 1.0, memory_limit: int | None = None,
+              closed: tuple = ()) -> tuple:
     """Tile (i, j)'s surface: (vertices (V, 3) float64 in model units
     relative to the tile's lowest corner, faces (F, 3) int64). Closed at the
     top and bottom, open on the four sides it shares with its neighbours,
-    whose border vertices it shares exactly."""
+    whose border vertices it shares exactly, except the sides in `closed`
+    ((axis, 0 or 1) pairs: the low or high side along a horizontal axis),
+    closed as a sample's sides are (where a block of tiles ends)."""
     values = tile_occupancy(model, seed, tile, scale, memory_limit)
     layout = world_layout(model)
-    pad = [(0, 0)] * 3
-    pad[layout.up] = (1, 1)
+    pad = [[0, 0], [0, 0], [0, 0]]
+    pad[layout.up] = [1, 1]
+    for axis, side in closed:
+        pad[axis][side] = 1
     padded = np.pad(values, pad)
     corners = np.stack([padded[dx:padded.shape[0] - 1 + dx, dy:padded.shape[1] - 1 + dy, dz:padded.shape[2] - 1 + dz]
                         < cubes.LEVEL for dx in (0, 1) for dy in (0, 1) for dz in (0, 1)])
     crossing = np.argwhere(corners.any(axis=0) & ~corners.all(axis=0))
     _, vertices, faces = cubes.march(padded, crossing, 1)
-    vertices[:, layout.up] -= 1
     for axis in range(3):
-        stride, points = layout.stride[axis], values.shape[axis]
-        intervals = points - 1
-        vertices[:, axis] = vertices[:, axis] * stride / intervals  # exact at the faces: m S / m = S
+        vertices[:, axis] -= pad[axis][0]
+        intervals = values.shape[axis] - 1
+        vertices[:, axis] = vertices[:, axis] * layout.stride[axis] / intervals  # exact at the faces: m S / m = S
     return vertices, faces
 
 
@@ -335,3 +339,39 @@ def write_tiles(model_path, tiles, pattern, request, engine: str = "local", work
             raise InputError(f"{folder}: cannot make the folder ({error.strerror})") from None
     return many.run_job(model_path, tiles, pattern, many.TILES, request, engine, workers, threads, address,
                         progress)
+
+
+MAX_BLOCK_TILES = 4096  # tiles written as one mesh; more is a folder of tiles (write_tiles)
+
+
+def block_mesh(model, request, tiles, progress=None):
+    """A block of tiles (a rectangle of them) as one trimesh mesh in the
+    request's frame ('input' or 'model': placed in the world), shared border
+    vertices welded and the block's outer sides closed: one closed surface.
+    progress(done, total) after each tile."""
+    import trimesh
+
+    tiles = list(tiles)
+    if not 0 < len(tiles) <= MAX_BLOCK_TILES:
+        raise InputError(f"a block is 1 to {MAX_BLOCK_TILES} tiles, got {len(tiles)}; write more as a folder "
+                         "of tiles", "tile")
+    if request.frame == "tile":
+        raise InputError("a block is placed in the world: give frame input or model", "frame")
+    h0, h1 = world_layout(model).horizontal
+    low, high = np.min(tiles, axis=0), np.max(tiles, axis=0)
+    vertices, faces, count = [], [], 0
+    for done, tile in enumerate(tiles, 1):
+        check_placement(model, tile, request.frame)
+        ends = [(axis, side) for n, axis in enumerate((h0, h1)) for side, end in enumerate((low, high))
+                if tile[n] == end[n]]
+        v, f = tile_mesh(model, request.sample_seed, tile, request.scale, closed=ends)
+        vertices.append(np.array(tile_corner(model, tile), np.float64) + v)  # exact on shared borders
+        faces.append(f + count)
+        count += len(v)
+        if progress:
+            progress(done, len(tiles))
+    unique, index = np.unique(np.concatenate(vertices), axis=0, return_inverse=True)
+    faces = index.reshape(-1)[np.concatenate(faces)]
+    if request.frame == "input":
+        unique = np.asarray(model.manifest.origin) + unique * np.asarray(model.manifest.spacing)
+    return trimesh.Trimesh(unique, faces, process=False)

@@ -207,3 +207,17 @@ def write_interpolation(model, seed_a: int, seed_b: int, alpha, steps: int, path
     check_writable(first, [model.path])
     outputs = ((path(k), interpolate(model, seed_a, seed_b, alpha(k), factors)) for k in range(steps))
     write_samples(model, outputs, progress, **options)
+
+
+def write_block(model, request, tiles, path, progress=None) -> None:
+    """A block of tiles of the world of `request` (world.block_mesh) as one
+    mesh file, checked before any work."""
+    from .world import block_mesh
+
+    if output_kind(path) != "mesh":
+        raise InputError(f"{path}: a block is written as a mesh ({', '.join(MESH_FORMATS)})")
+    check_writable(path, [model.path])
+    mesh = block_mesh(model, request, tiles, progress)
+    if not len(mesh.faces):
+        raise no_surface(Path(path))
+    write_mesh(mesh, path)

@@ -173,3 +173,21 @@ def test_world_refuses_far_tiles_in_absolute_coordinates_in_one_line(tiny_model,
     assert_one_line_error(CliRunner().invoke(cli, ["world", str(tiny_model), "--tiles", "1000000000,0", "-o",
                                                    str(tmp_path / "w"), "--workers", "1"]), "give --frame tile")
     assert not list((tmp_path / "w").glob("*.ply"))
+
+
+def test_a_block_written_as_one_mesh_is_closed_and_placed(tiny_model, model, tmp_path):
+    import trimesh
+
+    out = tmp_path / "block.ply"
+    result = CliRunner().invoke(cli, ["world", str(tiny_model), "--seed", "2", "--tiles", "-1:1,0:1", "-o", str(out),
+                                      "--frame", "model"])
+    assert result.exit_code == 0 and "(6 tiles)" in result.output, result.output
+    block = trimesh.load(out)
+    assert block.is_watertight and block.volume > 0
+    layout = world.world_layout(model)
+    h0, h1 = layout.horizontal
+    assert block.bounds[0][h0] < -layout.stride[h0] + 1 and block.bounds[1][h1] > 2 * layout.stride[h1] - 1
+    tile_frame = CliRunner().invoke(cli, ["world", str(tiny_model), "--tiles", "0,0", "-o", str(tmp_path / "b.ply"),
+                                          "--frame", "tile"])
+    assert tile_frame.exit_code == 2 and "--frame tile (coordinates from a tile's corner) is for one tile" in \
+        tile_frame.output and not (tmp_path / "b.ply").exists()

@@ -1,0 +1,212 @@
+"""Endless worlds, measured: seams, cost at any distance, and quality.
+
+    python benchmarks/world.py [--models terrain acropolis towerruins] [--block 4] [--windows 100]
+                               [--sections seams cost quality] [--blend 1.0]
+
+Seams: a block of tiles at scale 1 and 2: the largest occupancy difference
+on shared faces, border vertices matched, and whether the block's union is
+closed everywhere but its outer sides. Cost: seconds and peak traced memory
+per tile at 0, 10^3, 10^6 and 10^9 tiles from the origin (each measured
+alternately, best of 3, no window kept between tiles), and tiles per second
+of a `sinrun world` job on all cores. Quality: LP-IoU, LP-F and diversity
+(runtime/evaluate.py) of windows the size of an ordinary sample cut at
+random places of the worlds of 10 seeds (most straddle tile borders),
+beside ordinary samples; and the autocorrelation of the height field along
+each horizontal axis of a long strip of tiles, at the tile period and around it.
+--blend sets world.BLEND (the share of a stride over which one window gives
+way to the next) for a comparison.
+"""
+
+import argparse
+import subprocess
+import sys
+import tempfile
+import time
+import tracemalloc
+from pathlib import Path
+
+import numpy as np
+
+from sinshape import models
+from sinshape.prep import shapes
+from sinshape.prep.pyramid import reference_grid
+from sinshape.runtime import evaluate, load_model, world
+from sinshape.runtime.generate import sample
+from sinshape.runtime.query import dense
+
+ROOT = Path(__file__).resolve().parent.parent
+LARGE = (2.5, 2.5, 1.0)  # horizontal factors of the ordinary samples windows are also cut from
+STRIP = 24  # tiles along the axis whose autocorrelation is measured
+TRAINING_INPUTS = {"terrain": "shape", "acropolis": "shape", "towerruins": ROOT / "tests/data/towerruins/towerruins.obj"}
+
+
+def world_grid(model, seed: int, rows: range, columns: range, scale: float = 1.0) -> np.ndarray:
+    """Occupancy of a block of tiles as one grid (each shared face once)."""
+    h0, h1 = world.world_layout(model).horizontal
+    strips = []
+    for i in rows:
+        row = [world.tile_occupancy(model, seed, (i, j), scale) for j in columns]
+        row = [np.take(t, range(0 if k == 0 else 1, t.shape[h1]), axis=h1) for k, t in enumerate(row)]
+        strips.append(np.concatenate(row, axis=h1))
+    strips = [np.take(s, range(0 if k == 0 else 1, s.shape[h0]), axis=h0) for k, s in enumerate(strips)]
+    return np.concatenate(strips, axis=h0)
+
+
+def seams(model, block: int) -> dict:
+    layout = world.world_layout(model)
+    h0, h1 = layout.horizontal
+    out = {}
+    for scale in (1.0, 2.0):
+        grids = {(i, j): world.tile_occupancy(model, 3, (i, j), scale) for i in range(block) for j in range(block)}
+        worst = 0.0
+        for (i, j), grid in grids.items():
+            for di, dj, axis in ((1, 0, h0), (0, 1, h1)):
+                if (i + di, j + dj) in grids:
+                    other = grids[i + di, j + dj]
+                    worst = max(worst, float(np.abs(np.take(grid, -1, axis) - np.take(other, 0, axis)).max()))
+        out[f"face difference, scale {scale:g}"] = worst
+    matched = total = 0
+    for i in range(block - 1):
+        a, b = (world.tile_mesh(model, 3, (i, 0))[0], world.tile_mesh(model, 3, (i + 1, 0))[0])
+        on_a = {tuple(v) for v in a[a[:, h0] == layout.stride[h0]] - np.eye(3)[h0] * layout.stride[h0]}
+        on_b = {tuple(v) for v in b[b[:, h0] == 0]}
+        matched, total = matched + len(on_a & on_b), total + len(on_a | on_b)
+    out["border vertices matched"] = f"{matched} of {total}"
+    vertices, faces = [], []
+    count = 0
+    for i in range(block):
+        for j in range(block):
+            v, f = world.tile_mesh(model, 3, (i, j))
+            vertices.append(v + np.array(world.tile_corner(model, (i, j))))
+            faces.append(f + count)
+            count += len(v)
+    unique, index = np.unique(np.concatenate(vertices), axis=0, return_inverse=True)
+    faces = index.reshape(-1)[np.concatenate(faces)]
+    edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    edge, counts = np.unique(edges, axis=0, return_counts=True)
+    ends = unique[edge[counts == 1]]
+    outer = np.zeros(len(ends), bool)
+    for axis in (h0, h1):
+        for at in (0, block * layout.stride[axis]):
+            outer |= (ends[:, :, axis] == at).all(axis=1)
+    out[f"{block}x{block} union"] = ("closed but for its outer sides" if outer.all() and counts.max() == 2
+                                     else f"{int((~outer).sum())} open edges inside, {int((counts > 2).sum())} non-manifold")
+    return out
+
+
+def cost(model, name: str) -> dict:
+    out = {}
+    distances = [0, 10**3, 10**6, 10**9]
+    best = {d: (np.inf, 0) for d in distances}
+    for _ in range(3):
+        for d in distances:
+            world._windows.clear()
+            tracemalloc.start()
+            started = time.perf_counter()
+            world.tile_mesh(model, 3, (d, -d))
+            seconds = time.perf_counter() - started
+            peak = tracemalloc.get_traced_memory()[1]
+            tracemalloc.stop()
+            best[d] = (min(best[d][0], seconds), max(best[d][1], peak))
+    for d in distances:
+        out[f"tile at {d:g}: s / MB"] = f"{best[d][0]:.3f} / {best[d][1] / 2**20:.1f}"
+    with tempfile.TemporaryDirectory() as folder:
+        started = time.perf_counter()
+        subprocess.run([str(Path(sys.executable).with_name("sinrun")), "world", name, "--tiles", "0:5,0:5", "-o",
+                        folder], check=True, capture_output=True)
+        out["tiles/s, sinrun world (36 tiles, all cores)"] = f"{36 / (time.perf_counter() - started):.2f}"
+    return out
+
+
+def reference_of(name: str, model, folder: Path) -> np.ndarray:
+    source = TRAINING_INPUTS[name]
+    if source == "shape":
+        source = folder / f"{name}.obj"
+        shapes.write_shape(name, source)
+    return reference_grid(source, model.manifest)
+
+
+def height_autocorrelation(grid: np.ndarray, up: int, axis: int, lags: list) -> list:
+    """The height field's (occupied voxels per column) autocorrelation along `axis` at `lags`."""
+    height = (grid > 0.5).sum(axis=up).astype(np.float64)
+    along = 0 if axis < up else axis - 1  # the axis's index once `up` is summed away
+    height = np.moveaxis(height, along, 0)
+    height -= height.mean(axis=0)
+    variance = (height ** 2).mean()
+    return [float((height[:-lag] * height[lag:]).mean() / variance) for lag in lags]
+
+
+def quality(model, name: str, windows: int) -> dict:
+    layout = world.world_layout(model)
+    h0, h1 = layout.horizontal
+    finest = model.manifest.sizes[-1]
+    rng = np.random.default_rng(0)
+    with tempfile.TemporaryDirectory() as folder:
+        reference = reference_of(name, model, Path(folder))
+    cut = []
+    per_world = max(1, windows // 10)
+    for seed in range(10):
+        grid = world_grid(model, seed, range(4), range(4)) > 0.5
+        for _ in range(per_world):
+            start = [0, 0, 0]
+            for axis in (h0, h1):
+                start[axis] = int(rng.integers(0, grid.shape[axis] - finest[axis] + 1))
+            cut.append(grid[tuple(slice(s, s + n) for s, n in zip(start, finest))])
+    samples = [dense(model, sample(model, seed)) > 0.5 for seed in range(len(cut))]
+    crops = []  # the same cut from large ordinary samples: what a window of any large sample scores
+    for seed in range(10):
+        large = [1.0, 1.0, 1.0]
+        for axis in (h0, h1):
+            large[axis] = LARGE[0]
+        grid = dense(model, sample(model, seed, tuple(large))) > 0.5
+        for _ in range(per_world):
+            start = [int(rng.integers(0, grid.shape[a] - finest[a] + 1)) for a in range(3)]
+            crops.append(grid[tuple(slice(s, s + n) for s, n in zip(start, finest))])
+    out = {}
+    for label, volumes in (("world windows: LP-IoU / LP-F / diversity", cut),
+                           ("ordinary samples", samples),
+                           (f"windows of ordinary samples {LARGE[0]:g} times as large along each horizontal axis", crops)):
+        lp = evaluate.lp_metrics(volumes, reference)
+        out[label] = f"{lp['lp_iou']:.3f} / {lp['lp_f']:.3f} / {evaluate.diversity(volumes):.3f}"
+    for axis, other in ((h0, h1), (h1, h0)):
+        period = layout.stride[axis]
+        lags = [period - 2, period - 1, period, period + 1, period + 2, 2 * period]
+        block = {axis: range(STRIP), other: range(3)}
+        strip = world_grid(model, 7, block[h0], block[h1])
+        factors = [1.0, 1.0, 1.0]
+        for a in (h0, h1):
+            factors[a] = strip.shape[a] / finest[a]
+        ordinary = dense(model, sample(model, 7, tuple(factors)))
+        for label, grid in (("world", strip), ("an ordinary sample as long", ordinary)):
+            values = height_autocorrelation(grid, layout.up, axis, lags)
+            out[f"height autocorrelation along {'xyz'[axis]}, {label}, lags {lags}"] = \
+                " ".join(f"{v:+.3f}" for v in values)
+    return out
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--models", nargs="+", default=["terrain", "acropolis", "towerruins"])
+    parser.add_argument("--block", type=int, default=4)
+    parser.add_argument("--windows", type=int, default=100)
+    parser.add_argument("--sections", nargs="+", default=["seams", "cost", "quality"])
+    parser.add_argument("--blend", type=float, default=None)
+    args = parser.parse_args()
+    if args.blend is not None:
+        world.BLEND = args.blend
+    print(f"world.BLEND = {world.BLEND}")
+    for name in args.models:
+        model = load_model(models.find(name))
+        layout = world.world_layout(model)
+        print(f"\n## {name}: up {model.manifest.up}, tiles of {layout.stride[layout.horizontal[0]]} x "
+              f"{layout.stride[layout.horizontal[1]]} voxels, windows {'x'.join(map(str, model.manifest.sizes[-1]))}\n")
+        print("| measure | value |\n|---|---|")
+        for section in args.sections:
+            figures = {"seams": lambda: seams(model, args.block), "cost": lambda: cost(model, name),
+                       "quality": lambda: quality(model, name, args.windows)}[section]()
+            for key, value in figures.items():
+                print(f"| {key} | {value} |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
