@@ -24,4 +24,10 @@ sinrun render towerruins --seeds 5 --size 2,1,2 --scale 2 --image-size 384 -o to
 # Resolution: the same sample queried at scale 1 and at scale 8, close up.
 sinrun render towerruins --seeds 3 --scale 1 --zoom 3 --focus 0.5,0.8,1 --image-size 384 -o closeup_scale1.png
 sinrun render towerruins --seeds 3 --scale 8 --zoom 3 --focus 0.5,0.8,1 --image-size 384 -o closeup_scale8.png
+
+# Endless worlds: an 8 x 8 block of terrain tiles, a row of 8 x 2 temple tiles (docs/WORLDS.md).
+sinrun world terrain --seed 3 --tiles 0:7,0:7 --scale 2 -o "$work/terrain_world.ply"
+sinrun render "$work/terrain_world.ply" --up z --image-size 640 --elevation 40 --azimuth 30 -o world_terrain.png
+sinrun world acropolis --seed 3 --tiles 0:7,0:1 --scale 2 -o "$work/acropolis_world.ply"
+sinrun render "$work/acropolis_world.ply" --up z --image-size 640 --elevation 25 --azimuth 25 -o world_acropolis.png
 rm -r "$work"
