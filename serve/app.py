@@ -75,8 +75,6 @@ FILE_ANSWERS = {
 }
 
 
-
-
 # The query parameters of a sample (the layout route takes seed and size too).
 SeedQuery = Annotated[int, Query(ge=0, lt=2**63, description="The same seed gives the same shape.")]
 SizeQuery = Annotated[str, Query(description="Factors of the training size: one, or sx,sy,sz.")]
