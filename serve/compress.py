@@ -12,6 +12,8 @@ which is not worth a second copy of the model on disk or in memory.
 import gzip
 from pathlib import Path
 
+from sinshape.core import files
+
 LEVEL = 9  # the .wasm: 3.65 MB in 1 s of CPU, once; level 6 gives 3.67 MB
 SUFFIXES = frozenset({".html", ".js", ".mjs", ".css", ".json", ".wasm", ".onnx"})  # what the page fetches
 MIN_BYTES = 1024  # smaller files gain a few hundred bytes at most
@@ -29,21 +31,6 @@ def packed(data: bytes) -> bytes | None:
     return out if len(out) <= WORTH * len(data) else None
 
 
-def accepts_gzip(header: str) -> bool:
-    """Whether an Accept-Encoding header accepts gzip: 'gzip, br' yes,
-    'gzip;q=0' and 'identity' no, '*' yes."""
-    for item in header.split(","):
-        name, _, parameters = item.partition(";")
-        if name.strip().lower() not in ("gzip", "x-gzip", "*"):
-            continue
-        quality = parameters.strip().lower().replace(" ", "")
-        try:
-            return not (quality.startswith("q=") and float(quality[2:]) == 0)
-        except ValueError:
-            return False
-    return False
-
-
 def write_beside(folder: Path) -> list:
     """Write FILE.gz beside every file under `folder` worth compressing;
     returns the copies written, in a fixed order."""
@@ -51,6 +38,6 @@ def write_beside(folder: Path) -> list:
     for path in sorted(p for p in folder.rglob("*") if p.is_file()):
         if worth_trying(path, path.stat().st_size) and (data := packed(path.read_bytes())) is not None:
             target = path.with_name(path.name + ".gz")
-            target.write_bytes(data)
+            files.atomic_write(target, lambda f: f.write(data))
             written.append(target)
     return written

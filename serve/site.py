@@ -8,8 +8,9 @@ static file server serves it, offline; nothing runs on the server.
 onnxruntime-web runs WASM on several threads only in a cross-origin isolated
 page, which needs two response headers (COOP/COEP). Without them the page
 runs single-threaded and says so. The folder says how to send them: its
-serve.py (Python's file server plus the headers), a `_headers` file (the
-format of Netlify and Cloudflare Pages) and README.txt.
+serve.py (Python's file server plus the headers: site_server.py, copied as
+it is), a `_headers` file (the format of Netlify and Cloudflare Pages) and
+README.txt.
 
 Beside every file that gzip shrinks by a fifth or more (the .wasm, the
 scripts) lies FILE.gz, made once (compress.py), which serve.py sends to
@@ -18,118 +19,23 @@ Cache-Control: no-cache (names are not versioned: a browser keeps files and
 revalidates them, 304).
 
 Needs no FastAPI: only the runtime (to check the models) and the files.
+Every file is written through core.files.atomic_write.
 """
 
-import inspect
 import json
 import shutil
 from pathlib import Path
 
-from sinshape import models as shipped
 from sinshape.core import files
 from sinshape.core.errors import InputError
 from sinshape.runtime import load
-from sinshape.serve import compress
+from sinshape.serve import catalog, compress, site_server
 
 STATIC = Path(__file__).parent / "static"
 MARKER = ".sinshape-site"  # marks a folder this command wrote, so a new export may replace it
 # Every answer, from serve.py and (through _headers) from Netlify or Cloudflare Pages.
-HEADERS = {"Cross-Origin-Opener-Policy": "same-origin", "Cross-Origin-Embedder-Policy": "require-corp",
-           "Cache-Control": "no-cache"}
-
-SERVE_PY = '''"""Serve this folder:  python serve.py [PORT]   (Python 3.8 or newer, nothing else)
-
-Sends what `python -m http.server` does not: the cross-origin isolation
-headers that let onnxruntime-web run WASM on several threads; FILE.gz in
-place of FILE to a client that accepts gzip (Content-Encoding: gzip, the
-type of FILE); and Cache-Control: no-cache with an ETag and Last-Modified,
-so a browser keeps what it fetched and checks it with a short request (304)
-on each visit: the files' names are not versioned, so nothing may be reused
-without asking.
-"""
-
-import email.utils
-import functools
-import http.server
-import os
-import sys
-
-TYPES = {".html": "text/html; charset=utf-8", ".js": "text/javascript", ".mjs": "text/javascript",
-         ".wasm": "application/wasm", ".json": "application/json", ".css": "text/css",
-         ".onnx": "application/octet-stream", ".gz": "application/gzip"}
-
-
-ACCEPTS_GZIP
-
-
-class Handler(http.server.SimpleHTTPRequestHandler):
-    protocol_version = "HTTP/1.1"  # keep-alive: a visit's requests share connections
-    extensions_map = {**http.server.SimpleHTTPRequestHandler.extensions_map, **TYPES}
-
-    def end_headers(self):
-        self.send_header("Cross-Origin-Opener-Policy", "same-origin")
-        self.send_header("Cross-Origin-Embedder-Policy", "require-corp")
-        super().end_headers()
-
-    def send_head(self):
-        path = self.translate_path(self.path)
-        if self.path.split("?", 1)[0].split("#", 1)[0].endswith("/"):
-            path = os.path.join(path, "index.html")
-        if not os.path.isfile(path):
-            return super().send_head()  # folders, missing files: as http.server answers them
-        packed = path + ".gz"
-        has_packed = os.path.isfile(packed)
-        chosen = packed if has_packed and accepts_gzip(self.headers.get("Accept-Encoding", "")) else path
-        try:
-            file = open(chosen, "rb")
-        except OSError:
-            self.send_error(404, "File not found")
-            return None
-        stat = os.fstat(file.fileno())
-        etag = '"%x-%x%s"' % (stat.st_size, stat.st_mtime_ns, "-gzip" if chosen == packed else "")
-        if self.unchanged(etag, int(stat.st_mtime)):
-            file.close()
-            self.send_response(304)
-            self.send_validators(etag, stat, has_packed)
-            self.end_headers()
-            return None
-        self.send_response(200)
-        self.send_header("Content-Type", self.guess_type(path))
-        if chosen == packed:
-            self.send_header("Content-Encoding", "gzip")
-        self.send_header("Content-Length", str(stat.st_size))
-        self.send_validators(etag, stat, has_packed)
-        self.end_headers()
-        return file
-
-    def unchanged(self, etag, modified):
-        """If-None-Match names this tag, or (without it) If-Modified-Since is not before the file's time."""
-        tags = self.headers.get("If-None-Match")
-        if tags is not None:
-            return any(tag.strip() in (etag, "W/" + etag, "*") for tag in tags.split(","))
-        since = self.headers.get("If-Modified-Since")
-        try:
-            return since is not None and modified <= email.utils.parsedate_to_datetime(since).timestamp()
-        except (TypeError, ValueError, IndexError, OverflowError):
-            return False
-
-    def send_validators(self, etag, stat, has_packed):
-        self.send_header("Cache-Control", "no-cache")
-        self.send_header("ETag", etag)
-        self.send_header("Last-Modified", self.date_time_string(stat.st_mtime))
-        if has_packed:  # on both answers, so that no cache gives gzip to a client that did not ask
-            self.send_header("Vary", "Accept-Encoding")
-
-
-port = int(sys.argv[1]) if len(sys.argv) > 1 else 8000
-folder = os.path.dirname(os.path.abspath(__file__))
-server = http.server.ThreadingHTTPServer(("127.0.0.1", port), functools.partial(Handler, directory=folder))
-print(f"serving on http://127.0.0.1:{port}/ (Ctrl-C stops)")
-try:
-    server.serve_forever()
-except KeyboardInterrupt:
-    pass
-'''.replace("ACCEPTS_GZIP\n", inspect.getsource(compress.accepts_gzip))  # the script stands alone: a copy, made here
+HEADERS = {**site_server.ISOLATION_HEADERS, "Cache-Control": "no-cache"}
+SERVER = Path(site_server.__file__)  # the site's serve.py
 
 README = """sinshape in the browser: {names}
 
@@ -165,17 +71,11 @@ Made by `sinrun export-web` (sinshape {version}).
 
 def resolve(names) -> dict:
     """Shipped model names or .onnx paths -> {name: loaded model}, each checked
-    by the Python loader (the same refusals as `sinrun sample`)."""
-    models = {}
-    for item in names:
-        path = shipped.find(item)
-        name = item if item in shipped.available() and not Path(item).is_file() else path.stem
-        if name in models:
-            raise InputError(f"two models are called {name!r}; rename one file")
-        models[name] = load.load_model(path, threads=1)
-    if not models:
+    by the Python loader (the same refusals as `sinrun sample`) and named as
+    `sinrun serve` names it."""
+    if not names:
         raise InputError("name at least one model (a shipped name or a .onnx file)")
-    return models
+    return catalog.load_models(names, threads=1)
 
 
 def page_html() -> str:
@@ -193,28 +93,30 @@ def page_html() -> str:
     return html
 
 
+def put(path: Path, data) -> None:
+    """One file of the site, text or bytes, through atomic_write."""
+    data = data.encode() if isinstance(data, str) else data
+    path.parent.mkdir(parents=True, exist_ok=True)
+    files.atomic_write(path, lambda f: f.write(data))
+
+
 def write_site(folder: Path, models: dict, version: str) -> None:
     """Every file of the site, into an empty `folder`; models as sealed
     format-3 files (older ones rewritten), which is what the browser reads."""
-    shutil.copytree(STATIC, folder / "static", ignore=shutil.ignore_patterns("index.html", "__pycache__"))
-    (folder / "index.html").write_text(page_html())
-    (folder / "models").mkdir()
+    for source in sorted(STATIC.rglob("*")):
+        if source.is_file() and source.name != "index.html" and "__pycache__" not in source.parts:
+            put(folder / "static" / source.relative_to(STATIC), source.read_bytes())
+    put(folder / "index.html", page_html())
     listing = []
     for name, model in models.items():
-        (folder / "models" / f"{name}.onnx").write_bytes(load.format3_bytes(model))
-        sizes = model.manifest.sizes
-        listing.append({"name": name, "size": list(sizes[-1]), "levels": len(sizes), "up": model.manifest.up,
-                        "file": f"models/{name}.onnx"})
-    (folder / "models.json").write_text(json.dumps(listing, indent=1) + "\n")
-    (folder / "serve.py").write_text(SERVE_PY)
-    (folder / "_headers").write_text("/*\n" + "".join(f"  {k}: {v}\n" for k, v in HEADERS.items()))
-    (folder / "README.txt").write_text(README.format(names=", ".join(models), version=version))
+        put(folder / "models" / f"{name}.onnx", load.format3_bytes(model))
+        listing.append({**catalog.entry(name, model), "file": f"models/{name}.onnx"})
+    put(folder / "models.json", json.dumps(listing, indent=1) + "\n")
+    put(folder / "serve.py", SERVER.read_bytes())
+    put(folder / "_headers", "/*\n" + "".join(f"  {k}: {v}\n" for k, v in HEADERS.items()))
+    put(folder / "README.txt", README.format(names=", ".join(models), version=version))
     compress.write_beside(folder)
-    (folder / MARKER).write_text(json.dumps({"sinshape": version, "models": list(models)}) + "\n")
-
-
-def folder_bytes(folder: Path) -> int:
-    return sum(f.stat().st_size for f in folder.rglob("*") if f.is_file())
+    put(folder / MARKER, json.dumps({"sinshape": version, "models": list(models)}) + "\n")
 
 
 def export_site(names, out, version: str = "") -> dict:

@@ -3,13 +3,17 @@
 sends (gzip or plain, types, cache headers, 304). No browser needed: the
 page itself is tested in test_web.py."""
 
+import ast
 import gzip
 import http.client
+import sys
 from pathlib import Path
+
+import pytest
 
 from browser import site_server_process
 from sinshape import models
-from sinshape.serve import site
+from sinshape.serve import site, site_server
 
 TERRAIN = models.find("terrain")
 
@@ -82,3 +86,30 @@ def test_the_sites_serve_py_sends_gzip_types_and_cache_headers(tmp_path):
         assert status == 200 and body == TERRAIN.read_bytes() and "Content-Encoding" not in answer
         assert answer["Content-Type"] == "application/octet-stream" and answer["Cache-Control"] == "no-cache"
         assert fetch(base, "static")[0] == 301 and fetch(base, "nope.js")[0] == 404
+
+
+def test_the_sites_serve_py_is_site_server_standing_alone(tmp_path):
+    """serve.py is serve/site_server.py as it is: Python 3.8's grammar and
+    the standard library only, since a site is served where sinshape is not
+    installed (test_the_sites_serve_py_sends_... runs it with python -I -S)."""
+    site.export_site(["terrain"], tmp_path / "site")
+    source = Path(site_server.__file__).read_bytes()
+    assert (tmp_path / "site" / "serve.py").read_bytes() == source
+    tree = ast.parse(source, feature_version=(3, 8))
+    imported = {alias.name.split(".")[0] for node in ast.walk(tree) if isinstance(node, ast.Import) for alias in node.names}
+    imported |= {node.module.split(".")[0] for node in ast.walk(tree) if isinstance(node, ast.ImportFrom)}
+    assert imported and imported <= sys.stdlib_module_names, imported - sys.stdlib_module_names
+    newer = {"removeprefix", "removesuffix"}  # str methods of 3.9
+    assert not {node.attr for node in ast.walk(tree) if isinstance(node, ast.Attribute)} & newer
+
+
+@pytest.mark.parametrize("header, gzip_please", [
+    ("gzip, deflate, br", True), ("GZIP", True), ("x-gzip", True), ("*", True), ("br, gzip;q=0.5", True),
+    ("gzip;q=0", False), ("gzip; q=0.0", False), ("identity", False), ("", False), ("gzip;q=nope", False),
+])
+def test_accept_encoding_is_read_as_the_service_reads_it(header, gzip_please):
+    """One reading of Accept-Encoding for serve.py and `sinrun serve`'s static files."""
+    from sinshape.serve import http
+
+    assert site_server.accepts_gzip(header) is gzip_please
+    assert http.accepts_gzip is site_server.accepts_gzip

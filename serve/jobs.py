@@ -1,0 +1,88 @@
+"""What a job makes: one file a route asks for (a sample in a mesh format
+or as a grid, or a sample's coarse layout), normalised so that equal jobs
+give equal bytes, and made by the runtime in a worker thread of the sampler.
+"""
+
+import hashlib
+import io
+import json
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from sinshape.core.errors import InputError
+from sinshape.runtime import layout, write
+from sinshape.runtime.request import SampleRequest, make
+from sinshape.serve.http import entity_tag
+
+
+@dataclass(frozen=True)
+class Job:
+    """One file a route asks for, normalised (the runtime's request with its
+    parts resolved), so that equal jobs give equal bytes: the cache's key.
+    layout_of: not the sample but its layout at this level (format json, vox or npz)."""
+
+    model: str
+    request: SampleRequest
+    format: str
+    layout_of: int | None = None
+
+    def filename(self) -> str:
+        request = self.request
+        tags = [f"seed{request.seed}"] + [f"keep{part.seed}" for part in request.keep]
+        if self.layout_of is not None:
+            tags.append(f"layout{self.layout_of}")
+        if request.grow:
+            tags.append("grow" + "x".join(f"{f:g}" for f in request.grow))
+        if request.layout:
+            tags.append("layout" + hashlib.sha256(request.layout.bits).hexdigest()[:8])
+        if request.size != (1.0, 1.0, 1.0):
+            tags.append("size" + "x".join(f"{f:g}" for f in request.size))
+        if request.scale != 1:
+            tags.append(f"scale{request.scale:g}")
+        if request.smooth and self.format != "npz":
+            tags.append(f"smooth{request.smooth}")
+        return f"{self.model}_{'_'.join(tags)}.{self.format}"
+
+
+@dataclass(frozen=True)
+class Sample:
+    """A finished file."""
+
+    body: bytes
+    etag: str  # strong: names these bytes
+    faces: int | None  # None for an occupancy grid or a layout
+    seconds: float  # time it took to make
+
+
+def layout_file(grid: np.ndarray, level: int, format: str) -> bytes:
+    """A layout as `sinrun layout` writes it (.vox, .npz), or as JSON: {shape,
+    level, occupancy}, occupancy a string of '0' and '1' per cell, x slowest, z fastest."""
+    if format == "vox":
+        if max(grid.shape) > layout.MAX_LAYOUT_SIDE:
+            raise InputError(f"a {'x'.join(map(str, grid.shape))} layout; .vox holds at most "
+                             f"{layout.MAX_LAYOUT_SIDE} voxels per axis (ask for npz)")
+        return layout.vox_bytes(grid)
+    if format == "npz":
+        buffer = io.BytesIO()
+        np.savez_compressed(buffer, layout=grid.astype(bool))
+        return buffer.getvalue()
+    cells = np.where(grid.ravel(), b"1", b"0").tobytes().decode()
+    return json.dumps({"shape": list(grid.shape), "level": level, "occupancy": cells}).encode()
+
+
+def make_sample(model, job: Job, checkpoint) -> Sample:
+    """The file one job asks for, made by the runtime (in a worker thread);
+    checkpoint() raises once the job is given up (the sampler's Cancelled)."""
+    started = time.perf_counter()
+    if job.layout_of is not None:  # a layout, not a sample
+        grid = layout.layout(model, job.request.sample_seed, job.layout_of, job.request.size)
+        body, faces = layout_file(grid, job.layout_of, job.format), None
+    else:
+        triplane = make(model, job.request)
+        checkpoint()
+        body, result = write.sample_bytes(model, triplane, job.filename(), mesh_progress=checkpoint,
+                                          **job.request.mesh_options())
+        faces = None if result is None else len(result.faces)
+    return Sample(body, entity_tag(body), faces, time.perf_counter() - started)
