@@ -35,7 +35,7 @@ from starlette.concurrency import run_in_threadpool
 from starlette.requests import ClientDisconnect
 
 from sinshape.core.errors import InputError, MemoryLimitError
-from sinshape.runtime import generate, layout, load, mesh
+from sinshape.runtime import generate, layout, load, mesh, world
 from sinshape.runtime.request import Layout, SampleRequest, resolved
 from sinshape.serve import catalog, http
 from sinshape.serve.catalog import load_models  # noqa: F401  the API: app.load_models, app.create_app, app.run
@@ -227,6 +227,31 @@ async def sample_layout(
     model = find(request, name)
     wanted = Job(name, SampleRequest(seed, size=generate.parse_size(size)), format, layout.check_level(model, level))
     return await answer(request, model, wanted)
+
+
+TileQuery = Annotated[int, Query(gt=-2**62, lt=2**62, description="A tile index along one horizontal axis.")]
+
+
+@routes.get("/api/models/{name}/tile", summary="One tile of a model's endless world as a file",
+            response_class=Response, responses=FILE_ANSWERS)
+async def tile(
+    request: Request,
+    name: str,
+    i: TileQuery,
+    j: TileQuery,
+    seed: SeedQuery = 0,
+    scale: ScaleQuery = 1.0,
+    format: FormatQuery = "glb",
+    frame: Annotated[Literal["tile", "input", "model"], Query(
+        description="tile: the training mesh's units from the tile's own corner (any tile; X-Tile-Corner "
+                    "gives the corner in voxels); input or model: placed in the world, near its origin.")] = "tile",
+):
+    """Tile (i, j) of the world of `seed`: it joins its neighbours without a seam, whatever else was asked."""
+    model = find(request, name)
+    job = Job(name, SampleRequest(seed, scale=scale, frame=frame, tile=(i, j)), format)
+    response = await answer(request, model, job)
+    response.headers["X-Tile-Corner"] = ",".join(map(str, world.tile_corner(model, (i, j))))
+    return response
 
 
 @routes.get("/", include_in_schema=False)

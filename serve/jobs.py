@@ -31,6 +31,8 @@ class Job:
     def filename(self) -> str:
         request = self.request
         tags = [f"seed{request.seed}"] + [f"keep{part.seed}" for part in request.keep]
+        if request.tile is not None:
+            tags.append(f"tile{request.tile[0]}_{request.tile[1]}")
         if self.layout_of is not None:
             tags.append(f"layout{self.layout_of}")
         if request.grow:
@@ -79,6 +81,9 @@ def make_sample(model, job: Job, checkpoint) -> Sample:
     if job.layout_of is not None:  # a layout, not a sample
         grid = layout.layout(model, job.request.sample_seed, job.layout_of, job.request.size)
         body, faces = layout_file(grid, job.layout_of, job.format), None
+    elif job.request.tile is not None:  # a tile of a world: small, made at once
+        body, result = write.request_bytes(model, job.request, job.filename())
+        faces = None if result is None else len(result.faces)
     else:
         triplane = make(model, job.request)
         checkpoint()

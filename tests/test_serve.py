@@ -469,3 +469,25 @@ def test_the_runtime_knows_nothing_about_http():
     web = re.compile(r"^\s*(from|import)\s+(fastapi|starlette|uvicorn|http|urllib|sinshape\.serve)\b", re.M)
     sources = list(runtime.glob("*.py"))
     assert sources and not [source.name for source in sources if web.search(source.read_text())]
+
+
+def test_a_tile_is_the_runtimes_tile_with_its_corner_and_etag(server):
+    from sinshape import models
+    from sinshape.runtime import load_model, world, write
+    from sinshape.runtime.request import SampleRequest
+
+    base, _ = server
+    terrain = load_model(models.find("terrain"), threads=1)
+    url = f"{base}/api/models/terrain/tile?seed=4&i=-3&j=7&format=ply"
+    status, headers, body = get(url)
+    assert status == 200 and headers["X-Tile-Corner"] == ",".join(map(str, world.tile_corner(terrain, (-3, 7))))
+    assert body == write.request_bytes(terrain, SampleRequest(4, tile=(-3, 7), frame="tile"), "t.ply")[0]
+    assert headers["Content-Disposition"] == 'attachment; filename="terrain_seed4_tile-3_7.ply"'
+    assert get(url, {"If-None-Match": headers["ETag"]})[0] == 304
+    params = {p["name"] for p in json.loads(get(f"{base}/openapi.json")[2])["paths"]["/api/models/{name}/tile"]["get"]
+              ["parameters"]}
+    assert params == {"name", "i", "j", "seed", "scale", "format", "frame"}
+    for query, code, says in (("i=0", 422, "j: Field required"), (f"i={2**62}&j=0", 422, "i: Input should be less"),
+                              ("i=100000000&j=0&frame=input", 400, "give frame tile")):
+        status, _, body = get(f"{base}/api/models/terrain/tile?{query}")
+        assert status == code and says in json.loads(body)["detail"], body
