@@ -407,6 +407,25 @@ def test_gpu_memory_stays_flat_over_many_samples(page):
     assert not page.errors
 
 
+def test_server_mode_loads_no_browser_runtime(page):
+    """The page shares the browser runtime's sizes, parts and request checks (generate.js, edit.js,
+    request.js), but on the server it fetches neither onnxruntime-web nor the model loader, nor a worker."""
+    requested = []
+
+    def seen(request):
+        requested.append(request.url.removeprefix(page.base))
+
+    page.on("request", seen)
+    try:
+        page.goto(f"{page.base}/?seed=3&up=z&edit=keep")
+        wait_url(page, "edit=keep")
+    finally:
+        page.remove_listener("request", seen)
+    scripts = [url for url in requested if url.startswith("/static/")]
+    assert "/static/sinshape/request.js" in scripts and "/static/viewer/scene.js" in scripts
+    assert not [url for url in scripts if "onnxruntime-web" in url or url.endswith(("/model.js", "/worker.js"))], scripts
+
+
 def test_grow_along_an_axis(page, terrain):
     page.goto(f"{page.base}/?seed=3&up=z")
     wait_ready(page, 3)

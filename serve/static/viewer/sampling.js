@@ -14,7 +14,7 @@ import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
 import { voxBytes } from './layout-cells.js';
 
 /** A request given up: nothing to report. */
-export class Cancelled extends Error {
+class Cancelled extends Error {
   constructor() { super('cancelled'); }
 }
 
@@ -40,12 +40,14 @@ async function answer(response) {
  * The server's request for a sample request, as a file of `format`: { url,
  * init } for fetch. The sample route's query; a layout goes as the body of
  * a POST to it, written as .vox. The route has no recon, smoother, largest
- * or frame: a request that needs them is refused here, not sent without them.
+ * or frame, and takes kept parts as text: a request that needs more is
+ * refused here, not sent without it.
  */
 export function serverRequest(name, request, format) {
-  const missing = ['recon', 'largest'].filter((field) => request[field])
-    .concat(request.smoother !== 'laplacian' ? ['smoother'] : [], request.frame !== 'input' ? ['frame'] : []);
-  if (missing.length) throw new Error(`the server's sample route takes no ${missing.join(', ')}`);
+  const unsent = { recon: request.recon, largest: request.largest, smoother: request.smoother !== 'laplacian',
+    frame: request.frame !== 'input', keep: request.keep.some((part) => typeof part !== 'string') };
+  const missing = Object.keys(unsent).filter((field) => unsent[field]);
+  if (missing.length) throw new Error(`the sample route cannot take this request's ${missing.join(', ')}`);
   const query = new URLSearchParams({ seed: request.seed ?? 0n, size: request.size, scale: request.scale, smooth: request.smooth, format });
   for (const part of request.keep) query.append('keep', part);
   if (request.grow) {
