@@ -27,7 +27,6 @@ const MAX_COORD = 1e12;
 const MAX_COORD_TEXT = '1e+12', SPACING_TEXT = '[1e-09, 2.44141e+08]';
 const ALLOWED_OPS = new Set(['Conv', 'InstanceNormalization', 'LeakyRelu', 'Transpose', 'MatMul', 'Add', 'Relu', 'Sigmoid']);
 
-
 /** Input and output tensor names of every stage (core/manifest.py: stage_names). */
 export function stageNames(levels) {
   const io = (stage) => ({ inputs: PLANES.map((p) => `${stage}.${p}`), outputs: PLANES.map((p) => `${stage}.${p}.out`) });

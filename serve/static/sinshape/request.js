@@ -13,10 +13,10 @@ import { sample, scaledSizes } from './generate.js';
 import { checkPart, compose, grow, parsePart } from './edit.js';
 import { fromLayout } from './layout.js';
 
-export const MAX_SMOOTH = 100; // mesh.MAX_SMOOTH
-export const SMOOTHERS = ['laplacian', 'taubin']; // mesh.SMOOTHERS; the browser's mesh.js has the first only
-export const FRAMES = ['input', 'model'];
-export const MAX_PARTS = 16; // boxes kept in one sample: each runs a whole chain of its own
+const MAX_SMOOTH = 100; // mesh.MAX_SMOOTH
+const SMOOTHERS = ['laplacian', 'taubin']; // mesh.SMOOTHERS; the browser's mesh.js has the first only
+const FRAMES = ['input', 'model'];
+const MAX_PARTS = 16; // boxes kept in one sample: each runs a whole chain of its own
 const DEFAULTS = {
   seed: null, recon: false, size: [1, 1, 1], scale: 1, smooth: 0, smoother: 'laplacian', largest: false, frame: 'input',
   keep: [], grow: null, anchor: null, layout: null,
@@ -47,7 +47,7 @@ function perAxis(value, field, valid, wanted) {
 }
 
 /** The names of the edits a request gives. */
-export const edits = (request) => ['keep', 'grow', 'layout'].filter((name) => (name === 'keep' ? request.keep.length : request[name] !== null));
+const edits = (request) => ['keep', 'grow', 'layout'].filter((name) => (name === 'keep' ? request.keep.length : request[name] !== null));
 
 /**
  * The request of `fields` (any of DEFAULTS' names; seed a BigInt or an
@@ -104,7 +104,7 @@ function checkTogether(request) {
 }
 
 /** The seed whose noise makes the sample (null: the training shape). */
-export const sampleSeed = (request) => (request.recon ? null : request.seed ?? 0n);
+const sampleSeed = (request) => (request.recon ? null : request.seed ?? 0n);
 
 /**
  * The tri-plane of the sample the request asks for, as request.make: the

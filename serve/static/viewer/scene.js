@@ -37,7 +37,7 @@ const raycaster = new THREE.Raycaster();
 let framed = ''; // what the camera was last framed for: a new extent frames it again, an edit inside it does not
 
 /** Draw the scene: the page's one render call, made whenever something in view changes. */
-export function render() {
+function render() {
   renderer.render(scene, camera);
 }
 

@@ -9,7 +9,7 @@ import { grownPart, readPart } from '../sinshape/edit.js';
 export const finestSize = (info, factors) => scaledSizes(info.sizes, factors).at(-1);
 
 /** Voxels of the finest grid -> the model's frame, where the meshes are. */
-export const toFrame = (info, voxel) => voxel.map((v, a) => info.origin[a] + info.spacing[a] * v);
+const toFrame = (info, voxel) => voxel.map((v, a) => info.origin[a] + info.spacing[a] * v);
 
 /**
  * The boxes an edit keeps, in the model's frame ([{ low, high }]): each kept
