@@ -146,7 +146,7 @@ def layout_in_page(page) -> np.ndarray:
 
 
 def edits_text(grid: np.ndarray, base: np.ndarray) -> str:
-    """The page's text of a layout edit (serve/static/layout.js: encodeEdits)."""
+    """The page's text of a layout edit (serve/static/viewer/layout-cells.js: encodeEdits)."""
     return ",".join(f"{'a' if grid[c] else 'r'}{c[0]}.{c[1]}.{c[2]}" for c in map(tuple, np.argwhere(grid != base)))
 
 

@@ -3,6 +3,7 @@ the runtime's own functions give, for every front end that builds it."""
 
 import dataclasses
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -49,6 +50,33 @@ def test_values_that_do_not_go_together_are_one_conflict_naming_them_all(fields,
     with pytest.raises(ConflictError) as refused:
         SampleRequest(**fields)
     assert refused.value.parameter == names
+
+
+# Fields and what Python makes of them, or why it refuses them: the browser's request.js
+# meets the same table (tests/test_web.py). A layout is given as {shape, cells}.
+REQUEST_CASES = json.loads((Path(__file__).parent / "data" / "sample_requests.json").read_text())
+
+
+def outcome(fields: dict) -> dict:
+    """What a request of `fields` is, in the table's form: {"request": its fields} or {"refused": why}."""
+    fields = dict(fields)
+    try:
+        if isinstance(fields.get("layout"), dict):
+            fields["layout"] = Layout.of(np.reshape(fields["layout"]["cells"], fields["layout"]["shape"]))
+        request = SampleRequest(**fields)
+    except InputError as error:
+        names = list(error.parameter) if isinstance(error, ConflictError) else [error.parameter]
+        return {"refused": {"error": type(error).__name__, "fields": names, "message": str(error)}}
+    made = {field.name: getattr(request, field.name) for field in dataclasses.fields(request)}
+    made.update({name: list(made[name]) for name in ("size", "keep", "grow", "anchor") if made[name] is not None})
+    if request.layout:
+        made["layout"] = {"shape": list(request.layout.shape), "cells": request.layout.grid().ravel().astype(int).tolist()}
+    return {"request": made}
+
+
+@pytest.mark.parametrize("case", REQUEST_CASES, ids=lambda case: json.dumps(case["fields"])[:60])
+def test_the_shared_table_of_requests(case):
+    assert outcome(case["fields"]) == {key: value for key, value in case.items() if key != "fields"}
 
 
 def test_the_reconstruction_has_only_the_training_size():

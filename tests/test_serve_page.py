@@ -19,7 +19,7 @@ CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 if not shutil.which(CHROMIUM):
     pytest.skip("needs Debian's chromium (apt-get install chromium; .ci/run does)", allow_module_level=True)
 
-BACKGROUND = np.array([0x20, 0x24, 0x2A])  # the view's background colour (serve/static/viewer.js)
+BACKGROUND = np.array([0x20, 0x24, 0x2A])  # the view's background colour (serve/static/viewer/scene.js)
 # WebGL without a GPU: chromium's software renderer.
 ARGS = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"]
 
@@ -73,7 +73,7 @@ def test_browse_samples_see_errors_and_download(page, tmp_path):
     page.press("#scale", "Enter")
     page.wait_for_function("document.body.dataset.state === 'error'", timeout=30_000)
     assert page.is_visible("#error")
-    assert "scale: Input should be greater than 0" in page.text_content("#error")
+    assert page.text_content("#error") == "scale must be a positive number, got 0"  # the request's check, before any work
     assert "scale=0" in page.url
     assert page.get_attribute("#download", "href") is None  # no link to the failed request
 
@@ -385,6 +385,45 @@ def test_keep_a_box_undo_redo_and_the_url(page, terrain):
     page.wait_for_function("document.body.dataset.state === 'error' && location.search.includes('40%2C0%2C0%2C45')")
     assert "a kept box needs more than 8" in page.text_content("#error")
     assert not page.errors and not page.outside
+
+
+def test_gpu_memory_stays_flat_over_many_samples(page):
+    """Each sample replaces the shape and the kept box's wireframe: what they held on the GPU
+    is disposed, so three.js counts as many geometries and textures after 23 samples as after 3."""
+    page.goto(f"{page.base}/?seed=3&up=z&edit=keep&other=4")
+    wait_url(page, "edit=keep")
+
+    def samples(count):
+        for _ in range(count):
+            seed = int(page.input_value("#seed")) + 1
+            page.click("#next")
+            wait_url(page, f"seed={seed}&")
+        assert len(page.evaluate(WIREFRAMES_JS)) == 1
+        return page.evaluate("window.sinshapeView.memory()")
+
+    after_three = samples(2)
+    assert after_three["geometries"] >= 2  # the shape and the box, at least
+    assert samples(20) == after_three
+    assert not page.errors
+
+
+def test_server_mode_loads_no_browser_runtime(page):
+    """The page shares the browser runtime's sizes, parts and request checks (generate.js, edit.js,
+    request.js), but on the server it fetches neither onnxruntime-web nor the model loader, nor a worker."""
+    requested = []
+
+    def seen(request):
+        requested.append(request.url.removeprefix(page.base))
+
+    page.on("request", seen)
+    try:
+        page.goto(f"{page.base}/?seed=3&up=z&edit=keep")
+        wait_url(page, "edit=keep")
+    finally:
+        page.remove_listener("request", seen)
+    scripts = [url for url in requested if url.startswith("/static/")]
+    assert "/static/sinshape/request.js" in scripts and "/static/viewer/scene.js" in scripts
+    assert not [url for url in scripts if "onnxruntime-web" in url or url.endswith(("/model.js", "/worker.js"))], scripts
 
 
 def test_grow_along_an_axis(page, terrain):

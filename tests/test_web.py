@@ -283,6 +283,73 @@ def test_layouts_equal_the_python_runtime(site_page, terrain):
     np.testing.assert_array_equal(edited_in_page(page, "fromLayout", args), grid)  # deterministic
 
 
+# Runs in the page: each case of the shared table (its JSON text, whose integers past 2^53 are read
+# exactly) made into a request by request.js, in the table's form.
+REQUESTS_JS = """async (text) => {
+  const { Layout, sampleRequest } = await import('./static/sinshape/request.js');
+  const exact = (key, value, { source }) => (/^-?\\d+$/.test(source ?? '') && !Number.isSafeInteger(value) ? BigInt(source) : value);
+  return JSON.parse(text, exact).map(({ fields }) => {
+    try {
+      const given = { ...fields };
+      if (given.layout?.cells) given.layout = Layout.of(given.layout.cells, given.layout.shape);
+      const made = sampleRequest(given);
+      const layout = made.layout && { shape: made.layout.shape, cells: Array.from(made.layout.grid) };
+      return { request: { ...made, seed: made.seed === null ? null : String(made.seed), layout } };
+    } catch (error) {
+      return { refused: { error: error.constructor.name, fields: error.fields ?? [error.field], message: error.message } };
+    }
+  });
+}"""
+
+
+def test_requests_are_checked_as_python_checks_them(site_page):
+    """request.js against runtime/request.py on the table both meet (tests/data/sample_requests.json):
+    the same request from the same fields, the same refusals naming the same fields in the same words."""
+    page = site_page
+    if not page.url.startswith(page.base):
+        page.goto(f"{page.base}/README.txt")
+    text = (Path(__file__).parent / "data" / "sample_requests.json").read_text()
+    cases = json.loads(text)
+    made = page.evaluate(REQUESTS_JS, text)
+    assert len(made) == len(cases) and sum("refused" in case for case in cases) > 30
+    for case, got in zip(cases, made):
+        expected = {key: value for key, value in case.items() if key != "fields"}
+        if "request" in expected and expected["request"]["seed"] is not None:
+            expected["request"]["seed"] = str(expected["request"]["seed"])
+        assert got == expected, case["fields"]
+
+
+@pytest.mark.parametrize("text", ["3:0%,0%,0%:50%,100%,100%", "3: 1.5,0,0 :4,2.5,0.75", "+3:0%,0%,0%:100%,100%,100%",
+                                  "3:0%,0%,0%:0%,100%,100%", "3:0%,0%,0%:5%,100%,100%", "3:0%,0%,0%:150%,100%,100%",
+                                  "x:0,0,0:1,1,1", "3:0,0:1,1,1", "3:a,0,0:1,1,1", "3:0,0,0", "-1:0%,0%,0%:50%,100%,100%"])
+def test_parts_are_read_as_python_reads_them(site_page, terrain, text):
+    """The page's kept boxes are text, read in the worker by edit.js's parsePart as edit.parse_part
+    reads them on the server: the same box in voxels, or the same message."""
+    from sinshape.runtime.edit import parse_part
+    from sinshape.runtime.generate import scaled_sizes
+
+    page = site_page
+    if not page.url.startswith(page.base):
+        page.goto(f"{page.base}/README.txt")
+    manifest, size = terrain.manifest, scaled_sizes(terrain.manifest.sizes)[-1]
+    got = page.evaluate("""async ([text, manifest, size]) => {
+      const { parsePart } = await import('./static/sinshape/edit.js');
+      try {
+        const { seed, low, high } = parsePart(text, manifest, size);
+        return { seed: String(seed), low, high };
+      } catch (error) {
+        return { message: error.message, field: error.field };
+      }
+    }""", [text, {"origin": list(manifest.origin), "spacing": list(manifest.spacing)}, list(size)])
+    try:
+        part = parse_part(text, manifest, size)
+    except InputError as error:
+        assert got == {"message": str(error), "field": error.parameter}
+    else:
+        assert got["seed"] == str(part.seed)
+        np.testing.assert_allclose([got["low"], got["high"]], [part.low, part.high], rtol=1e-12)
+
+
 def page_shape_like_python(page, model, triplane) -> dict:
     """The page's shape against the Python runtime's mesh of the same tri-plane (the input's frame)."""
     shown = page.evaluate("window.sinshapeView.shape()")

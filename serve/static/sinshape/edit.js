@@ -3,25 +3,57 @@
 // planes take each part's planes deeper than MARGIN cells inside the box's
 // rectangle, the base's further than MARGIN outside, and keep their own in
 // between (the join); the noise is the part's inside the rectangle.
-import { InputError } from './model.js';
-import { chain, checkSeed, drawNoise, planeSizes, roundHalfEven, scaledSizes, triplane } from './generate.js';
+import { InputError, formatG, pyRepr } from './errors.js';
+import { chain, checkSeed, drawNoise, parseNumber, planeSizes, roundHalfEven, scaledSizes, triplane } from './generate.js';
 
 export const MARGIN = 4;
 const PLANE_AXES = [[0, 1], [0, 2], [1, 2]];
 
-/** Check a part { seed, low, high, offset, factors } against a sample of finest size `size`. */
+/**
+ * 'SEED:X0,Y0,Z0:X1,Y1,Z1' -> a part of a sample of finest size `size`, as
+ * edit.parse_part: corners in the model's frame (manifest's origin and
+ * spacing), or percentages of the sample's extent ('50%').
+ */
+export const parsePart = (text, manifest, size) => checkPart(readPart(text, manifest, size), size);
+
+/** parsePart's reading of the text, { seed, low, high }, before its box is checked (the page draws it as typed). */
+export function readPart(text, manifest, size) {
+  const pieces = text.split(':');
+  if (pieces.length !== 3) throw new InputError(`part ${pyRepr(text)}: give SEED:X0,Y0,Z0:X1,Y1,Z1, like 3:0%,0%,0%:50%,100%,100%`, 'keep');
+  if (!/^\s*[+-]?\d+\s*$/.test(pieces[0])) throw new InputError(`part ${pyRepr(text)}: the seed ${pyRepr(pieces[0])} is not an integer`, 'keep');
+  const [low, high] = pieces.slice(1).map((corner) => {
+    const values = corner.split(',');
+    if (values.length !== 3) throw new InputError(`part ${pyRepr(text)}: a corner needs 3 values, got ${pyRepr(corner)}`, 'keep');
+    return values.map((value, axis) => {
+      const percent = value.trim().endsWith('%');
+      const number = parseNumber(percent ? value.trim().slice(0, -1) : value);
+      if (number === null) throw new InputError(`part ${pyRepr(text)}: ${pyRepr(value)} is not a number or a percentage`, 'keep');
+      return percent ? (number / 100) * (size[axis] - 1) : (number - manifest.origin[axis]) / manifest.spacing[axis];
+    });
+  });
+  return { seed: BigInt(pieces[0].trim()), low, high };
+}
+
+/** Check a part { seed, low, high, offset, factors } against a sample of finest size `size`, as edit.check_part. */
 export function checkPart(part, size) {
   checkSeed(part.seed);
-  const offset = part.offset ?? [0, 0, 0];
+  const corners = [part.low, part.high];
+  if (!corners.every((c) => Array.isArray(c) && c.length === 3 && c.every(Number.isFinite))) {
+    throw new InputError(`a box needs two corners of 3 finite numbers, got ${pyRepr(part.low)}, ${pyRepr(part.high)}`, 'keep');
+  }
   for (let axis = 0; axis < 3; axis++) {
     const [lo, hi, n, name] = [part.low[axis], part.high[axis], size[axis], 'xyz'[axis]];
-    if (!(Number.isFinite(lo) && Number.isFinite(hi))) throw new InputError('a box needs two corners of 3 finite numbers');
-    if (!(lo < hi)) throw new InputError(`the box is empty or inverted along ${name}`);
-    if (lo < 0 || hi > n - 1) throw new InputError(`the box leaves the sample along ${name}`);
+    if (!(lo < hi)) throw new InputError(`the box is empty or inverted along ${name} (${formatG(lo)} to ${formatG(hi)})`, 'keep');
+    if (lo < 0 || hi > n - 1) {
+      throw new InputError(`the box (${formatG(lo)} to ${formatG(hi)} along ${name}) leaves the sample, whose voxels run 0 to ${n - 1} along ${name}`, 'keep');
+    }
     const kept = (hi < n - 1 ? hi : Infinity) - (lo > 0 ? lo : -Infinity) - 2 * MARGIN;
-    if (!(kept > 0)) throw new InputError(`the box is ${hi - lo} voxels along ${name}: a kept box needs more than ${2 * MARGIN}`);
+    if (!(kept > 0)) {
+      throw new InputError(`the box is ${formatG(hi - lo)} voxels along ${name}: a kept box needs more than ${2 * MARGIN} `
+        + `(a ${MARGIN}-voxel join on each side inside the sample)`, 'keep');
+    }
   }
-  return { seed: part.seed, low: part.low, high: part.high, offset, factors: part.factors ?? null };
+  return { seed: part.seed, low: part.low, high: part.high, offset: part.offset ?? [0, 0, 0], factors: part.factors ?? null };
 }
 
 /** (H, W) level cells inside the box's rectangle on plane k (negative outside); edges of the sample are infinitely far. */
@@ -171,13 +203,22 @@ export async function compose(model, seed, parts, factors = [1, 1, 1]) {
     base[level], planes, checked, placed.map((p) => p.planes[level]), finest, sizes[level]));
 }
 
-/** The sample of `seed` grown `by` times, keeping what it had at `anchor`, as runtime.edit.grow. */
-export async function grow(model, seed, by, anchor = [0, 0, 0], factors = [1, 1, 1]) {
-  if (!(by.length === 3 && by.every((f) => f >= 1 && Number.isFinite(f)))) throw new InputError('grow factors must be 3 numbers of at least 1');
-  if (!(anchor.length === 3 && anchor.every((a) => a >= 0 && a <= 1))) throw new InputError('an anchor is 3 numbers in [0, 1]');
-  const sizes = model.manifest.sizes;
+/**
+ * The part `grow` keeps: the sample of `seed` at size `factors`, placed at
+ * `anchor` of the sample `by` times larger ({ part, grown }: grown, that
+ * sample's factors), as edit.grow places it. The page draws its box.
+ */
+export function grownPart(sizes, seed, by, anchor = [0, 0, 0], factors = [1, 1, 1]) {
+  if (!(by.length === 3 && by.every((f) => f >= 1 && f < Infinity))) throw new InputError(`grow factors must be 3 numbers of at least 1, got ${pyRepr(by)}`, 'grow');
+  if (!(anchor.length === 3 && anchor.every((a) => a >= 0 && a <= 1))) throw new InputError(`an anchor is 3 numbers in [0, 1], got ${pyRepr(anchor)}`, 'anchor');
   const old = scaledSizes(sizes, factors).at(-1), grown = factors.map((f, a) => f * by[a]);
   const size = scaledSizes(sizes, grown).at(-1);
   const offset = anchor.map((a, i) => roundHalfEven(a * (size[i] - old[i])));  // Python's round()
-  return compose(model, seed, [{ seed, low: offset, high: offset.map((v, i) => v + old[i] - 1), offset, factors }], grown);
+  return { part: { seed, low: offset, high: offset.map((v, i) => v + old[i] - 1), offset, factors }, grown };
+}
+
+/** The sample of `seed` grown `by` times, keeping what it had at `anchor`, as runtime.edit.grow. */
+export async function grow(model, seed, by, anchor = [0, 0, 0], factors = [1, 1, 1]) {
+  const { part, grown } = grownPart(model.manifest.sizes, seed, by, anchor, factors);
+  return compose(model, seed, [part], grown);
 }

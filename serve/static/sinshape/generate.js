@@ -5,7 +5,7 @@
 // Planes are { data: Float32Array (C, H, W), dims: [C, H, W] }, in the order
 // xy (X, Y), xz (X, Z), yz (Y, Z).
 import { planeNoise, z0Noise } from './noise.js';
-import { InputError } from './model.js';
+import { InputError, pyRepr } from './errors.js';
 
 const MIN_SIDE = 2; // a sample's coarsest grid may not shrink below this many voxels per axis
 const MAX_BYTES = 4 * 2 ** 30; // a WASM memory holds at most 4 GiB: the browser's own bound
@@ -18,6 +18,29 @@ export function roundHalfEven(v) {
   const r = Math.round(v);
   return Math.abs(v % 1) === 0.5 && r % 2 !== 0 ? r - 1 : r;
 }
+
+// A number as Python's float() reads text: digits, a point, an exponent, inf or nan, spaces around.
+const FLOAT_TEXT = /^[+-]?(?:(?:\d+\.?\d*|\.\d+)(?:e[+-]?\d+)?|inf|infinity|nan)$/i;
+
+/** Text as Python's float() reads it: a number, or null where float() refuses it. */
+export function parseNumber(text) {
+  const t = String(text).trim();
+  if (!FLOAT_TEXT.test(t)) return null;
+  return /nan/i.test(t) ? NaN : /inf/i.test(t) ? (t.startsWith('-') ? -Infinity : Infinity) : Number(t);
+}
+
+/** 'a,b,c', or one value for all three axes -> three numbers passing `valid`, as generate.parse_triple.
+ * The text form of per-axis values, shared by the page and the web API. */
+export function parseTriple(text, valid, example, name = 'size') {
+  let values = String(text).split(',').map(parseNumber);
+  if (values.includes(null)) values = [];
+  if (values.length === 1) values = [values[0], values[0], values[0]];
+  if (values.length !== 3 || !values.every(valid)) throw new InputError(`${name} ${pyRepr(text)}: give ${example}`);
+  return values;
+}
+
+/** '2' or '2,1,0.5' -> three finite positive size factors, one per axis, as generate.parse_size. */
+export const parseSize = (text) => parseTriple(text, (f) => f > 0 && f < Infinity, 'one or three positive factors, like 2 or 2,1,0.5');
 
 /** Every level's grid for a sample `factors` times the training size per axis. */
 export function scaledSizes(sizes, factors = [1, 1, 1]) {
@@ -145,7 +168,7 @@ export function checkSeed(seed) {
   } catch {
     value = -1n;
   }
-  if (value < 0n || value >= 2n ** 63n) throw new InputError(`a seed must be an integer in [0, 2**63), got ${seed}`);
+  if (value < 0n || value >= 2n ** 63n) throw new InputError(`a seed must be an integer in [0, 2**63), got ${seed}`, 'seed');
   return value;
 }
 

@@ -8,7 +8,7 @@
 //
 // Grids are Float32Array or Uint8Array (a layout: 1 full, 0 empty) in C
 // order (x slowest, z fastest), with their shape.
-import { InputError } from './model.js';
+import { InputError } from './errors.js';
 import { checkSeed, drawNoise, resizeWeights, sample, scaledSizes, triplane } from './generate.js';
 import { dense } from './query.js';
 import { DECODE_WASM } from './decode-wasm.js';

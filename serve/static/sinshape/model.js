@@ -4,6 +4,9 @@
 import * as ort from '../vendor/onnxruntime-web/ort.wasm.min.mjs';
 import { unseal } from './seal.js';
 import { FormatError, readModel, stageModel, tensorFloats } from './onnx.js';
+import { InputError } from './errors.js';
+
+export { InputError };
 
 export const FORMAT_NAME = 'sinshape';
 export const FORMAT_VERSION = 3;  // 3 seals the file's bytes (seal.js); the page reads no older one
@@ -23,9 +26,6 @@ const MAX_COORD = 1e12;
 // core/manifest.py's messages print these with Python's '%g'.
 const MAX_COORD_TEXT = '1e+12', SPACING_TEXT = '[1e-09, 2.44141e+08]';
 const ALLOWED_OPS = new Set(['Conv', 'InstanceNormalization', 'LeakyRelu', 'Transpose', 'MatMul', 'Add', 'Relu', 'Sigmoid']);
-
-/** A file refused, or a value out of range: its message is one line for the user. */
-export class InputError extends Error {}
 
 /** Input and output tensor names of every stage (core/manifest.py: stage_names). */
 export function stageNames(levels) {

@@ -2,7 +2,7 @@
 // decoder's first layer is applied to each plane once (stage decoder_planes),
 // bilinear interpolation commutes with it, so a grid point costs three vector
 // adds, a ReLU and a dot product.
-import { InputError } from './model.js';
+import { InputError } from './errors.js';
 import { resizeWeights, roundHalfEven } from './generate.js';
 
 const MAX_GRID_SIDE = 1 << 16;

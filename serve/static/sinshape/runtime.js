@@ -12,9 +12,12 @@
 //   const edited = await sinshape.compose(model, 7, [{ seed: 3, low: [0, 0, 0], high: [30, 36, 31] }]);  // as runtime.compose
 //   const laid = await sinshape.layout(model, 3);                        // { grid, shape }: level 0's layout, as runtime.layout.layout
 //   const fitted = await sinshape.fromLayout(model, 3, laid.grid, laid.shape);  // as runtime.layout.from_layout
-export { InputError, loadModel, configure, parseManifest } from './model.js';
-export { sample, scaledSizes } from './generate.js';
-export { compose, grow } from './edit.js';
+//   const tri2 = await sinshape.make(model, sinshape.sampleRequest({ seed: 3n, grow: [2, 1, 1] }));  // as runtime.request.make
+export { ConflictError, InputError } from './errors.js';
+export { loadModel, configure, parseManifest } from './model.js';
+export { parseSize, parseTriple, sample, scaledSizes } from './generate.js';
+export { compose, grow, parsePart } from './edit.js';
+export { Layout, make, sampleRequest } from './request.js';
 export { normal, streamKey } from './noise.js';
 export { dense, gridShape, project, projectedDense } from './query.js';
 export { fromLayout, layout } from './layout.js';

@@ -1,4 +1,4 @@
-// The page's layouts (docs/EDITING.md, "Layouts"): a grid of cells, a
+// A layout on the page (docs/EDITING.md, "Layouts"): a grid of cells, a
 // Uint8Array in C order (x slowest, z fastest) with its shape; MagicaVoxel
 // .vox files as runtime/layout.py writes and reads them; and the text of an
 // edit kept in the URL: the cells that differ from the seed's own layout,

@@ -1,0 +1,133 @@
+// One sample request, as runtime/request.py: which sample (a seed, or the
+// training shape), its size, how its surface is made and at most one edit
+// (parts kept from other samples, a grown extent, or a layout). Making one
+// checks it, field for field as Python's SampleRequest does, with the same
+// messages: a bad value is an InputError naming its field, values that do
+// not go together a ConflictError naming them all. The page builds one for
+// either back end; the worker makes it with `make`.
+//
+//   const request = sampleRequest({ seed: 7n, size: [2, 1, 1], keep: ['3:0%,0%,0%:50%,100%,100%'] });
+//   const tri = await make(model, request);                          // as request.make
+import { ConflictError, InputError, pyRepr, pyStr } from './errors.js';
+import { sample, scaledSizes } from './generate.js';
+import { checkPart, compose, grow, parsePart } from './edit.js';
+import { fromLayout } from './layout.js';
+
+const MAX_SMOOTH = 100; // mesh.MAX_SMOOTH
+const SMOOTHERS = ['laplacian', 'taubin']; // mesh.SMOOTHERS; the browser's mesh.js has the first only
+const FRAMES = ['input', 'model'];
+const MAX_PARTS = 16; // boxes kept in one sample: each runs a whole chain of its own
+const DEFAULTS = {
+  seed: null, recon: false, size: [1, 1, 1], scale: 1, smooth: 0, smoother: 'laplacian', largest: false, frame: 'input',
+  keep: [], grow: null, anchor: null, layout: null,
+};
+const isNumber = (v) => typeof v === 'number';
+
+/** A coarse layout to generate from: a grid (0/1, C order) of `shape`, as request.Layout.of. */
+export const Layout = {
+  of(grid, shape, resample = false) {
+    if (!(Array.isArray(shape) && shape.length === 3 && shape.every((n) => Number.isInteger(n) && n > 0))) {
+      const tuple = Array.isArray(shape) ? `(${shape.map(pyRepr).join(', ')}${shape.length === 1 ? ',' : ''})` : pyRepr(shape);
+      throw new InputError(`a layout is a 3-D grid, got shape ${tuple}`, 'layout');
+    }
+    if (grid?.length !== shape[0] * shape[1] * shape[2]) {
+      throw new InputError(`a layout of ${shape.join('x')} cells needs ${shape[0] * shape[1] * shape[2]} values, got ${grid?.length}`, 'layout');
+    }
+    return Object.freeze({ shape: [...shape], grid: Uint8Array.from(grid, (v) => (v > 0.5 ? 1 : 0)), resample: Boolean(resample) });
+  },
+};
+
+/** One number for all three axes, or three: numbers passing `valid`, as request.per_axis. */
+function perAxis(value, field, valid, wanted) {
+  const values = isNumber(value) ? [value, value, value] : value;
+  if (!(Array.isArray(values) && values.length === 3 && values.every((v) => isNumber(v) && valid(v)))) {
+    throw new InputError(`${field} must be ${wanted}, got ${pyRepr(value)}`, field);
+  }
+  return Object.freeze([...values]);
+}
+
+/** The names of the edits a request gives. */
+const edits = (request) => ['keep', 'grow', 'layout'].filter((name) => (name === 'keep' ? request.keep.length : request[name] !== null));
+
+/**
+ * The request of `fields` (any of DEFAULTS' names; seed a BigInt or an
+ * integer Number, keep a part's text or { seed, low, high }, or a list of
+ * them, layout Layout.of's value), checked: a frozen plain object with every
+ * field, in request.SampleRequest's form (seed a BigInt or null, size, grow
+ * and anchor three numbers).
+ */
+export function sampleRequest(fields = {}) {
+  for (const name of Object.keys(fields)) if (!(name in DEFAULTS)) throw new TypeError(`a sample request has no field '${name}'`);
+  const given = { ...DEFAULTS, ...Object.fromEntries(Object.entries(fields).filter(([, v]) => v !== undefined)) };
+  let { seed, scale, smooth, keep, layout } = given;
+  if (seed !== null) {
+    const whole = typeof seed === 'bigint' || Number.isInteger(seed);
+    if (!(whole && BigInt(seed) >= 0n && BigInt(seed) < 2n ** 63n)) throw new InputError(`a seed must be an integer in [0, 2**63), got ${pyRepr(seed)}`, 'seed');
+    seed = BigInt(seed);
+  }
+  const size = perAxis(given.size, 'size', (f) => f > 0 && f < Infinity, 'one or three positive factors');
+  if (!(isNumber(scale) && scale > 0 && scale < Infinity)) throw new InputError(`scale must be a positive number, got ${pyStr(scale)}`, 'scale');
+  if (!(Number.isInteger(smooth) && smooth >= 0 && smooth <= MAX_SMOOTH)) throw new InputError(`smooth must be 0 to ${MAX_SMOOTH} iterations, got ${pyStr(smooth)}`, 'smooth');
+  if (!SMOOTHERS.includes(given.smoother)) throw new InputError(`unknown smoother ${pyRepr(given.smoother)}; choose ${SMOOTHERS.join(' or ')}`, 'smoother');
+  if (!FRAMES.includes(given.frame)) throw new InputError(`unknown frame ${pyRepr(given.frame)}; choose ${FRAMES.join(' or ')}`, 'frame');
+  const isPart = (part) => typeof part === 'string' || (part !== null && typeof part === 'object' && 'low' in part && 'high' in part);
+  keep = isPart(keep) ? [keep] : keep;
+  if (!(Array.isArray(keep) && keep.length <= MAX_PARTS && keep.every(isPart))) {
+    throw new InputError(`keep takes at most ${MAX_PARTS} parts, each a Part or its text SEED:X0,Y0,Z0:X1,Y1,Z1`, 'keep');
+  }
+  const grown = given.grow === null ? null : perAxis(given.grow, 'grow', (f) => f >= 1 && f < Infinity, 'one or three factors of at least 1');
+  const anchor = given.anchor === null ? null : perAxis(given.anchor, 'anchor', (a) => a >= 0 && a <= 1, 'three fractions in [0, 1]');
+  if (layout !== null) {
+    if (!(typeof layout === 'object' && 'grid' in layout && 'shape' in layout)) throw new InputError('layout must be a request.Layout (Layout.of(grid))', 'layout');
+    layout = Layout.of(layout.grid, layout.shape, layout.resample);
+  }
+  const request = Object.freeze({
+    seed, recon: Boolean(given.recon), size, scale, smooth, smoother: given.smoother, largest: Boolean(given.largest),
+    frame: given.frame, keep: Object.freeze([...keep]), grow: grown, anchor, layout,
+  });
+  checkTogether(request);
+  return request;
+}
+
+/** The rules of which fields go together, as SampleRequest.check_together. */
+function checkTogether(request) {
+  const given = edits(request);
+  if (given.length > 1) throw new ConflictError(`give one of ${given.join(', ')}`, given);
+  if (request.anchor !== null && request.grow === null) throw new ConflictError('anchor is for grow', ['anchor', 'grow']);
+  if (request.recon) {
+    if (request.seed !== null) throw new ConflictError('give seed or recon, not both', ['seed', 'recon']);
+    if (given.length) {
+      throw new ConflictError(`${given[0]} edits a new sample, and recon is the training shape: give seed, not recon`, [given[0], 'recon', 'seed']);
+    }
+    if (request.size.some((f) => f !== 1)) throw new InputError('the reconstruction exists only at the training size; drop size', 'size');
+  }
+}
+
+/** The seed whose noise makes the sample (null: the training shape). */
+const sampleSeed = (request) => (request.recon ? null : request.seed ?? 0n);
+
+/**
+ * The tri-plane of the sample the request asks for, as request.make: the
+ * plain sample, compose (keep), grow or fromLayout. progress(stage, null),
+ * if given, names the work as it starts.
+ */
+export async function make(model, request, progress = null) {
+  const seed = sampleSeed(request), { size, layout } = request;
+  if (layout) {
+    if (layout.resample) throw new InputError('the browser fits a layout of one level\'s own size only; resample it with sinrun', 'layout');
+    progress?.('fitting the layout', null);
+    return fromLayout(model, seed, layout.grid, layout.shape, size);
+  }
+  if (request.grow) {
+    progress?.('growing', null);
+    return grow(model, seed, request.grow, request.anchor ?? [0, 0, 0], size);
+  }
+  if (request.keep.length) {
+    progress?.('composing', null);
+    const finest = scaledSizes(model.manifest.sizes, size).at(-1);
+    const parts = request.keep.map((part) => (typeof part === 'string' ? parsePart(part, model.manifest, finest) : checkPart(part, finest)));
+    return compose(model, seed, parts, size);
+  }
+  progress?.('sampling', null);
+  return sample(model, seed, size);
+}

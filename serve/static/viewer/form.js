@@ -1,0 +1,91 @@
+// The controls: the state shown in them and read back from them, which of
+// them the state calls for, and the status line under them.
+import { STATIC_SITE, nextSeed, state } from './state.js';
+
+export const $ = (id) => document.getElementById(id);
+
+// An x,y,z row of the page (class xyz) holds its x input; the y and z inputs
+// are copies of it, with x in their id, name and title turned to their axis.
+for (const x of document.querySelectorAll('.xyz > input')) {
+  for (const axis of ['z', 'y']) {
+    const input = x.cloneNode();
+    input.id = x.id.replace('x', axis);
+    if (x.name) input.name = x.name.replace('x', axis);
+    input.title = x.title.replace(/\bx\b/g, axis);
+    x.after(input);
+  }
+}
+const PLAIN = ['where', 'scale', 'smooth', 'up', 'format', 'edit', 'other']; // one control each, as they are
+const TRIPLES = { box: ['bx0', 'by0', 'bz0', 'bx1', 'by1', 'bz1'], grow: ['gx', 'gy', 'gz'], anchor: ['ax', 'ay', 'az'] };
+
+export function toForm() {
+  $('model').value = state.model;
+  $('seed').value = state.seed;
+  const [x, y, z] = String(state.size).split(',');
+  $('sx').value = x ?? 1;
+  $('sy').value = y ?? x ?? 1;
+  $('sz').value = z ?? x ?? 1;
+  for (const key of PLAIN) $(key).value = state[key];
+  for (const [key, ids] of Object.entries(TRIPLES)) {
+    const values = String(state[key]).split(',');
+    ids.forEach((id, i) => { $(id).value = values[i] ?? (key === 'box' ? '' : values[0] ?? ''); });
+  }
+  showMode();
+}
+
+/** Read the controls into the state: true when they name another sample (model, seed or size), whose layout edits are dropped. */
+export function fromForm() {
+  const sample = [state.model, state.seed, state.size].join('|');
+  state.model = $('model').value;
+  state.seed = $('seed').value.trim();
+  state.size = [$('sx').value, $('sy').value, $('sz').value].map((v) => v.trim()).join(',');
+  for (const key of PLAIN) state[key] = $(key).value.trim();
+  for (const [key, ids] of Object.entries(TRIPLES)) state[key] = ids.map((id) => $(id).value.trim()).join(',');
+  if (state.edit === 'keep' && !state.other) $('other').value = state.other = nextSeed(state.seed);
+  const another = [state.model, state.seed, state.size].join('|') !== sample;
+  if (another) state.cells = '';
+  return another;
+}
+
+/** Show the controls the state calls for: the browser's, the edit's, a download format the page can give. */
+export function showMode() {
+  const browser = state.where === 'browser';
+  $('where-label').hidden = STATIC_SITE;
+  $('file-label').hidden = !browser;
+  const blob = browser || (state.edit === 'layout' && Boolean(state.cells)); // a download the page made itself
+  $('format').disabled = blob; // the browser writes .ply, a shape from a layout comes as .glb, and the box says so
+  $('format').value = browser ? 'ply' : blob ? 'glb' : state.format;
+  $('backend').hidden = !browser;
+  for (const edit of ['keep', 'grow', 'layout']) $(`${edit}-controls`).hidden = state.edit !== edit;
+}
+
+export function report(error) {
+  $('error').textContent = error;
+  $('error').hidden = !error;
+}
+
+export function showProgress(text, fraction = null) {
+  $('status').textContent = fraction === null ? `${text}…` : `${text}… ${Math.floor(fraction * 100)}%`;
+  if (fraction === null) $('progress').removeAttribute('value'); // a bar that says "working", no figure
+  else $('progress').value = fraction;
+}
+
+/** The page is working on a request: its bar, and the cancel button. */
+export function working(text) {
+  document.body.dataset.state = 'loading';
+  $('working').hidden = false;
+  showProgress(text);
+}
+
+/** The end of a request: the page's state, the cancel button and the bar put away. */
+export function finish(result) {
+  document.body.dataset.state = result;
+  $('working').hidden = true;
+  if (result !== 'error') report('');
+}
+
+export function fail(error) {
+  $('status').textContent = '';
+  report(error.message);
+  finish('error');
+}

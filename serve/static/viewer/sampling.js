@@ -1,0 +1,248 @@
+// Making a sample, behind one call for both back ends:
+//
+//   sample(where, name, request, { progress, signal }) -> { positions, faces, status, file, ... }
+//
+// where 'server' asks the server's HTTP API (the Python runtime), 'browser'
+// this browser's runtime (sinshape/, in a module worker started on first
+// use, so the server mode never fetches onnxruntime-web's 14 MB of WASM and
+// a sample never freezes the page). `info` and `layout` give what the editor
+// draws from the same place: a model's grids and frame, a seed's layout.
+// An aborted `signal` gives up a request (the server stops making it); in
+// the browser a request waits for the one before it, and is skipped if a
+// newer one aborted it meanwhile. `stop` ends the worker (cancel).
+import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
+import { voxBytes } from './layout-cells.js';
+
+/** A request given up: nothing to report. */
+class Cancelled extends Error {
+  constructor() { super('cancelled'); }
+}
+
+const models = new Map(); // name -> { url or bytes, file, loaded: a promise of the worker's { backend, threads, seconds, sizes, origin, spacing } }
+
+/** A model the browser may load: from `url`, or the bytes of a file opened on the page. */
+export function addModel(name, { url = null, bytes = null, file }) {
+  models.set(name, { url, bytes, file });
+}
+
+// ---- the server: its routes (docs/SERVE.md)
+const loader = new GLTFLoader();
+const infos = new Map(); // model name -> a promise of { sizes, origin, spacing }
+const modelRoute = (name) => `api/models/${encodeURIComponent(name)}`;
+
+async function answer(response) {
+  if (response.ok) return response;
+  const body = await response.json().catch(() => ({}));
+  throw new Error(body.detail || `${response.status} ${response.statusText}`);
+}
+
+/**
+ * The server's request for a sample request, as a file of `format`: { url,
+ * init } for fetch. The sample route's query; a layout goes as the body of
+ * a POST to it, written as .vox. The route has no recon, smoother, largest
+ * or frame, and takes kept parts as text: a request that needs more is
+ * refused here, not sent without it.
+ */
+export function serverRequest(name, request, format) {
+  const unsent = { recon: request.recon, largest: request.largest, smoother: request.smoother !== 'laplacian',
+    frame: request.frame !== 'input', keep: request.keep.some((part) => typeof part !== 'string') };
+  const missing = Object.keys(unsent).filter((field) => unsent[field]);
+  if (missing.length) throw new Error(`the sample route cannot take this request's ${missing.join(', ')}`);
+  const query = new URLSearchParams({ seed: request.seed ?? 0n, size: request.size, scale: request.scale, smooth: request.smooth, format });
+  for (const part of request.keep) query.append('keep', part);
+  if (request.grow) {
+    query.set('grow', request.grow);
+    query.set('anchor', request.anchor ?? [0, 0, 0]);
+  }
+  if (request.layout?.resample) query.set('resample_layout', 'true');
+  const url = `${modelRoute(name)}/sample?${query}`;
+  if (!request.layout) return { url, init: {} };
+  const body = voxBytes(request.layout.grid, request.layout.shape);
+  return { url, init: { method: 'POST', body, headers: { 'Content-Type': 'application/octet-stream' } } };
+}
+
+const server = {
+  info(name) {
+    if (!infos.has(name)) {
+      infos.set(name, (async () => {
+        const body = await (await answer(await fetch(modelRoute(name)))).json();
+        return { sizes: body.sizes, origin: body.frame.origin, spacing: body.frame.spacing };
+      })());
+      infos.get(name).catch(() => infos.delete(name));
+    }
+    return infos.get(name);
+  },
+
+  async layout(name, seed, size) {
+    const query = new URLSearchParams({ seed, size });
+    const body = await (await answer(await fetch(`${modelRoute(name)}/layout?${query}`))).json();
+    return { shape: body.shape, grid: Uint8Array.from(body.occupancy, (c) => (c === '1' ? 1 : 0)) };
+  },
+
+  async sample(name, request, { signal }) {
+    const started = performance.now();
+    const { url, init } = serverRequest(name, request, 'glb');
+    const response = await answer(await fetch(url, { ...init, signal }));
+    const data = await response.arrayBuffer();
+    let geometry = null; // the one mesh trimesh writes: positions and faces, no normals, no transform
+    (await loader.parseAsync(data, '')).scene.traverse((node) => { if (node.isMesh) geometry ??= node.geometry; });
+    const seconds = ((performance.now() - started) / 1000).toFixed(2);
+    const cached = response.headers.get('X-Cache') === 'hit' ? ' (cached)' : '';
+    return {
+      positions: geometry?.attributes.position.array ?? new Float32Array(), faces: geometry?.index.array ?? new Uint32Array(),
+      status: `${Number(response.headers.get('X-Faces')).toLocaleString('en')} faces · ${seconds} s${cached}`,
+      file: request.layout ? new Blob([data], { type: 'model/gltf-binary' }) : null, // else the route is the link
+      extension: 'glb',
+    };
+  },
+};
+
+// ---- this browser: the runtime in a module worker (sinshape/worker.js; its header gives the messages)
+let worker = null;
+const jobs = new Map(); // id -> { resolve, reject, progress }
+let jobIds = 0;
+let running = Promise.resolve(); // the worker's work in progress: one thing at a time
+
+function startWorker() {
+  if (worker) return worker;
+  worker = new Worker(new URL('../sinshape/worker.js', import.meta.url), { type: 'module' });
+  worker.onmessage = ({ data }) => {
+    const job = jobs.get(data.id);
+    if (!job) return;
+    if (data.type === 'progress') return job.progress?.(data.stage, data.fraction);
+    jobs.delete(data.id);
+    if (data.type === 'error') job.reject(new Error(data.message));
+    else job.resolve(data);
+  };
+  worker.onerror = (event) => { // the worker's script did not load or threw outside a job
+    event.preventDefault?.();
+    stopWorker(new Error(`the browser runtime stopped: ${event.message || 'its script did not load'}`));
+  };
+  return worker;
+}
+
+/** End the worker: its jobs fail with `reason`, and every model must be loaded again. */
+function stopWorker(reason) {
+  worker?.terminate();
+  worker = null;
+  for (const job of jobs.values()) job.reject(reason);
+  jobs.clear();
+  for (const entry of models.values()) entry.loaded = null;
+}
+
+function call(message, progress = null) {
+  const id = ++jobIds;
+  return new Promise((resolve, reject) => {
+    jobs.set(id, { resolve, reject, progress });
+    startWorker().postMessage({ id, ...message });
+  });
+}
+
+/** `work()` once the worker's earlier work is done, unless `signal` was aborted by then. */
+function inTurn(signal, work) {
+  const turn = running.catch(() => {}).then(() => {
+    if (signal?.aborted) throw new Cancelled();
+    return work();
+  });
+  running = turn;
+  return turn;
+}
+
+/** The model loaded and checked in the worker (once; its bytes are fetched once and kept for a fresh worker). */
+async function loaded(name, progress = null) {
+  const entry = models.get(name);
+  if (!entry) throw new Error(`unknown model '${name}'`);
+  if (!entry.loaded) progress?.('loading the model', null);
+  entry.loaded ??= (async () => {
+    if (!entry.bytes) {
+      const response = await fetch(entry.url);
+      if (!response.ok) throw new Error(`cannot fetch ${entry.url}: ${response.status} ${response.statusText}`);
+      entry.bytes = new Uint8Array(await response.arrayBuffer());
+    }
+    return call({ type: 'load', name, bytes: entry.bytes, file: entry.file });
+  })();
+  const loading = entry.loaded;
+  try {
+    return await loading;
+  } catch (error) {
+    if (entry.loaded === loading) entry.loaded = null; // a later try loads again
+    throw error;
+  }
+}
+
+/** A binary PLY file of a mesh. */
+function plyBlob({ positions, faces }) {
+  const header = `ply\nformat binary_little_endian 1.0\nelement vertex ${positions.length / 3}\n`
+    + 'property float x\nproperty float y\nproperty float z\n'
+    + `element face ${faces.length / 3}\nproperty list uchar int vertex_indices\nend_header\n`;
+  const body = new DataView(new ArrayBuffer(positions.length * 4 + (faces.length / 3) * 13));
+  positions.forEach((v, i) => body.setFloat32(4 * i, v, true));
+  let at = positions.length * 4;
+  for (let f = 0; f < faces.length; f += 3) {
+    body.setUint8(at, 3);
+    for (let k = 0; k < 3; k++) body.setInt32(at + 1 + 4 * k, faces[f + k], true);
+    at += 13;
+  }
+  return new Blob([header, body], { type: 'application/octet-stream' });
+}
+
+const browser = {
+  info: (name, { progress, signal } = {}) => inTurn(signal, () => loaded(name, progress)),
+
+  layout: (name, seed, size, { signal } = {}) => inTurn(signal, async () => {
+    await loaded(name);
+    const { shape, grid } = await call({ type: 'layout', name, seed: String(seed), factors: size });
+    return { shape, grid };
+  }),
+
+  sample: (name, request, { progress, signal }) => inTurn(signal, async () => {
+    const model = await loaded(name, progress);
+    const mesh = await call({ type: 'sample', name, request }, (stage, fraction) => { if (!signal?.aborted) progress?.(stage, fraction); });
+    const faces = (mesh.faces.length / 3).toLocaleString('en');
+    const threads = model.threads === 1 ? '1 thread' : `${model.threads} threads`;
+    const isolation = crossOriginIsolated ? '' : ' (the page is not cross-origin isolated, so WASM runs single-threaded)';
+    return {
+      ...mesh, status: `${faces} faces · ${mesh.seconds.toFixed(2)} s · in this browser`, file: plyBlob(mesh), extension: 'ply',
+      backend: `onnxruntime-web on WASM, ${threads}${isolation}; model loaded and checked in ${model.seconds.toFixed(2)} s`,
+    };
+  }),
+};
+
+/** Open a model file in the browser: checked in the worker, then listed; a refused file leaves the list as it was. */
+export async function openFile(name, bytes, file, signal) {
+  const previous = models.get(name);
+  addModel(name, { bytes, file });
+  try {
+    await inTurn(signal, () => loaded(name));
+  } catch (error) {
+    if (previous) models.set(name, previous);
+    else models.delete(name);
+    throw error;
+  }
+}
+
+/** Stop the browser's work: the worker ends with its jobs, and the next request starts a fresh one. */
+export function stop() {
+  if (worker && jobs.size) stopWorker(new Cancelled());
+  running = Promise.resolve();
+}
+
+const backends = { server, browser };
+const layouts = new Map(); // "where|model|seed|size" -> a promise of a seed's layout { shape, grid }
+
+/** A model's grids and frame: { sizes, origin, spacing }. */
+export const info = (where, name, options) => backends[where].info(name, options);
+
+/** The sample of a request: { positions, faces, status, file (a Blob to download, or null), extension,
+ * backend (how the browser ran it) }. */
+export const sample = (where, name, request, options) => backends[where].sample(name, request, options);
+
+/** The seed's own layout (level 0 at `size`): { shape, grid }, kept once made. */
+export function layout(where, name, seed, size, options) {
+  const key = `${where}|${name}|${seed}|${size}`;
+  if (!layouts.has(key)) {
+    layouts.set(key, backends[where].layout(name, seed, size, options));
+    layouts.get(key).catch(() => layouts.delete(key));
+  }
+  return layouts.get(key);
+}

@@ -1,0 +1,148 @@
+// The 3-D view: one scene, one shape at a time and what the editor draws
+// over it, drawn on demand by `render`. What a new shape or overlay
+// replaces is disposed, so the GPU holds one shape's buffers however many
+// samples the page shows.
+import * as THREE from 'three';
+import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
+
+const view = document.getElementById('view');
+export const renderer = new THREE.WebGLRenderer({ antialias: true, preserveDrawingBuffer: true });
+renderer.setPixelRatio(window.devicePixelRatio);
+view.appendChild(renderer.domElement);
+export const scene = new THREE.Scene();
+scene.background = new THREE.Color(0x20242a);
+export const camera = new THREE.PerspectiveCamera(35, 1, 0.01, 1000);
+// Light: a soft sky-and-ground fill, and a key light from above and to the
+// left of the viewer. The key light and its target ride with the camera, so
+// whichever side is turned to the viewer is lit the same way and shaded by its form.
+scene.add(new THREE.HemisphereLight(0xf4f6ff, 0x3a3630, 0.8));
+const key = new THREE.DirectionalLight(0xffffff, 2.8);
+key.position.set(-0.8, 1.2, 0.4);
+key.target.position.set(0, 0, -1);
+camera.add(key, key.target);
+scene.add(camera);
+const controls = new OrbitControls(camera, renderer.domElement);
+controls.addEventListener('change', render);
+// Front faces only: the meshes are closed and wound outwards (normals out), so
+// back faces are never seen from outside; drawing them too (DoubleSide) made
+// dark lines where they fought the front faces in the depth buffer.
+// Materials are made once and shared by every shape and overlay: none is replaced.
+const material = new THREE.MeshStandardMaterial({ color: 0xd8c8a8, roughness: 0.85, side: THREE.FrontSide });
+const holder = new THREE.Group(); // turned so the model's up axis points up on screen
+const shape = new THREE.Group(); // the sample
+const overlay = new THREE.Group(); // what the editor draws over it: a box's wireframe, the layout's blocks
+holder.add(shape, overlay);
+scene.add(holder);
+const raycaster = new THREE.Raycaster();
+let framed = ''; // what the camera was last framed for: a new extent frames it again, an edit inside it does not
+
+/** Draw the scene: the page's one render call, made whenever something in view changes. */
+function render() {
+  renderer.render(scene, camera);
+}
+
+function resize() {
+  const { clientWidth: w, clientHeight: h } = view;
+  renderer.setSize(w, h, false);
+  camera.aspect = w / h;
+  camera.updateProjectionMatrix();
+  render();
+}
+new ResizeObserver(resize).observe(view);
+
+/** Turn the model so that its `up` axis ('y' or 'z') points up on screen. */
+export function orient(up) {
+  holder.rotation.set(up === 'z' ? -Math.PI / 2 : 0, 0, 0);
+  holder.updateMatrixWorld(true);
+}
+
+/** Aim at the shape's box from a three-quarter view that fits it. */
+export function frame() {
+  const box = new THREE.Box3().setFromObject(shape);
+  if (box.isEmpty()) return render();
+  const centre = box.getCenter(new THREE.Vector3());
+  const radius = box.getSize(new THREE.Vector3()).length() / 2;
+  // The narrower of the two fields of view: a tall view (a phone) fits the shape's width too.
+  const half = THREE.MathUtils.degToRad(camera.fov / 2);
+  const fit = Math.min(half, Math.atan(Math.tan(half) * camera.aspect));
+  const distance = radius / Math.sin(fit) * 1.05;
+  camera.position.copy(centre).add(new THREE.Vector3(0.8, 0.55, 1).normalize().multiplyScalar(distance));
+  camera.near = distance / 100;
+  camera.far = distance * 10;
+  camera.updateProjectionMatrix();
+  controls.target.copy(centre);
+  controls.update();
+  render();
+}
+
+/** Empty a group, disposing what its children hold on the GPU (not the shared materials, nor a shared geometry). */
+function clear(group) {
+  for (const node of group.children) {
+    if (node.isInstancedMesh) node.dispose(); // its instance buffers; the unit box it instances is shared
+    else node.geometry?.dispose();
+  }
+  group.clear();
+}
+
+/**
+ * Show a mesh { positions, faces } (the model's frame) in place of the last,
+ * with `up` up; frame it when `extent` (what sets its size) is new, else keep the user's camera.
+ */
+export function showMesh({ positions, faces }, up, extent) {
+  const geometry = new THREE.BufferGeometry();
+  geometry.setAttribute('position', new THREE.BufferAttribute(positions, 3));
+  geometry.setIndex(new THREE.BufferAttribute(faces, 1));
+  geometry.computeVertexNormals();
+  clear(shape);
+  shape.add(new THREE.Mesh(geometry, material));
+  orient(up);
+  if (extent !== framed) frame();
+  else render();
+  framed = extent;
+}
+
+/** The editor's drawing, in place of the last (nothing: none); `showShape` false hides the shape under it. */
+export function setOverlay(objects = [], showShape = true) {
+  clear(overlay);
+  if (objects.length) overlay.add(...objects);
+  shape.visible = showShape;
+  render();
+}
+
+/** The first hit of `object` (in the overlay) under a point of the view (client coordinates), or undefined. */
+export function hitAt(object, x, y) {
+  const rect = renderer.domElement.getBoundingClientRect();
+  raycaster.setFromCamera(new THREE.Vector2(((x - rect.left) / rect.width) * 2 - 1, -((y - rect.top) / rect.height) * 2 + 1), camera);
+  return raycaster.intersectObject(object)[0];
+}
+
+/** Where a point of the model's frame is on the screen: { x, y } in client coordinates. */
+export function onScreen([px, py, pz]) {
+  const point = new THREE.Vector3(px, py, pz).applyMatrix4(holder.matrixWorld).project(camera);
+  const rect = renderer.domElement.getBoundingClientRect();
+  return { x: rect.left + ((point.x + 1) / 2) * rect.width, y: rect.top + ((1 - point.y) / 2) * rect.height };
+}
+
+/** The shape in view: faces, vertices, volume (the model's frame) and a digest of its
+ * vertices and faces (FNV-1a of their bytes): what the tests compare, before and after an edit. */
+export function summary() {
+  let faces = 0, vertices = 0, volume = 0, hash = 0x811c9dc5;
+  const mix = (bytes) => { for (let i = 0; i < bytes.length; i++) hash = Math.imul(hash ^ bytes[i], 0x01000193) >>> 0; };
+  shape.traverse((node) => {
+    if (!node.isMesh) return;
+    const p = node.geometry.attributes.position.array, f = node.geometry.index.array;
+    mix(new Uint8Array(Float32Array.from(p).buffer));
+    mix(new Uint8Array(Uint32Array.from(f).buffer));
+    faces += f.length / 3;
+    vertices += p.length / 3;
+    for (let i = 0; i < f.length; i += 3) {
+      const a = 3 * f[i], b = 3 * f[i + 1], c = 3 * f[i + 2];
+      volume += p[a] * (p[b + 1] * p[c + 2] - p[b + 2] * p[c + 1]) - p[a + 1] * (p[b] * p[c + 2] - p[b + 2] * p[c])
+        + p[a + 2] * (p[b] * p[c + 1] - p[b + 1] * p[c]);
+    }
+  });
+  return { faces, vertices, volume: volume / 6, digest: hash.toString(16).padStart(8, '0') };
+}
+
+/** What the GPU holds: three.js's count of geometries and textures, flat however many samples were shown. */
+export const memory = () => ({ geometries: renderer.info.memory.geometries, textures: renderer.info.memory.textures });
