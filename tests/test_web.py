@@ -294,7 +294,8 @@ REQUESTS_JS = """async (text) => {
       if (given.layout?.cells) given.layout = Layout.of(given.layout.cells, given.layout.shape);
       const made = sampleRequest(given);
       const layout = made.layout && { shape: made.layout.shape, cells: Array.from(made.layout.grid) };
-      return { request: { ...made, seed: made.seed === null ? null : String(made.seed), layout } };
+      const tile = made.tile && made.tile.map(String);
+      return { request: { ...made, seed: made.seed === null ? null : String(made.seed), layout, tile } };
     } catch (error) {
       return { refused: { error: error.constructor.name, fields: error.fields ?? [error.field], message: error.message } };
     }
@@ -316,6 +317,8 @@ def test_requests_are_checked_as_python_checks_them(site_page):
         expected = {key: value for key, value in case.items() if key != "fields"}
         if "request" in expected and expected["request"]["seed"] is not None:
             expected["request"]["seed"] = str(expected["request"]["seed"])
+        if "request" in expected and expected["request"]["tile"] is not None:
+            expected["request"]["tile"] = [str(t) for t in expected["request"]["tile"]]
         assert got == expected, case["fields"]
 
 

@@ -15,11 +15,12 @@ import { fromLayout } from './layout.js';
 
 const MAX_SMOOTH = 100; // mesh.MAX_SMOOTH
 const SMOOTHERS = ['laplacian', 'taubin']; // mesh.SMOOTHERS; the browser's mesh.js has the first only
-const FRAMES = ['input', 'model'];
+const FRAMES = ['input', 'model', 'tile'];
+const MAX_TILE = 2n ** 62n; // world.MAX_TILE: |i|, |j| below it
 const MAX_PARTS = 16; // boxes kept in one sample: each runs a whole chain of its own
 const DEFAULTS = {
   seed: null, recon: false, size: [1, 1, 1], scale: 1, smooth: 0, smoother: 'laplacian', largest: false, frame: 'input',
-  keep: [], grow: null, anchor: null, layout: null,
+  keep: [], grow: null, anchor: null, layout: null, tile: null,
 };
 const isNumber = (v) => typeof v === 'number';
 
@@ -81,12 +82,22 @@ export function sampleRequest(fields = {}) {
     if (!(typeof layout === 'object' && 'grid' in layout && 'shape' in layout)) throw new InputError('layout must be a request.Layout (Layout.of(grid))', 'layout');
     layout = Layout.of(layout.grid, layout.shape, layout.resample);
   }
+  const tile = given.tile === null ? null : checkTile(given.tile);
   const request = Object.freeze({
     seed, recon: Boolean(given.recon), size, scale, smooth, smoother: given.smoother, largest: Boolean(given.largest),
-    frame: given.frame, keep: Object.freeze([...keep]), grow: grown, anchor, layout,
+    frame: given.frame, keep: Object.freeze([...keep]), grow: grown, anchor, layout, tile,
   });
   checkTogether(request);
   return request;
+}
+
+/** A tile of a world, (i, j): two integers of magnitude below 2**62, as world.check_tile; BigInts. */
+export function checkTile(tile) {
+  const whole = (t) => typeof t === 'bigint' || Number.isInteger(t);
+  if (!(Array.isArray(tile) && tile.length === 2 && tile.every((t) => whole(t) && -MAX_TILE < BigInt(t) && BigInt(t) < MAX_TILE))) {
+    throw new InputError(`a tile is two integers (i, j) of magnitude below 2**62, got ${pyRepr(tile)}`, 'tile');
+  }
+  return Object.freeze(tile.map(BigInt));
 }
 
 /** The rules of which fields go together, as SampleRequest.check_together. */
@@ -100,6 +111,15 @@ function checkTogether(request) {
       throw new ConflictError(`${given[0]} edits a new sample, and recon is the training shape: give seed, not recon`, [given[0], 'recon', 'seed']);
     }
     if (request.size.some((f) => f !== 1)) throw new InputError('the reconstruction exists only at the training size; drop size', 'size');
+  }
+  if (request.tile !== null) {
+    const kept = [['recon', request.recon], ...given.map((edit) => [edit, true]), ['size', request.size.some((f) => f !== 1)],
+      ['smooth', request.smooth], ['largest', request.largest]].filter(([, value]) => value).map(([name]) => name);
+    if (kept.length) {
+      throw new ConflictError(`a tile shares its border with its neighbours, which ${kept[0]} would break: give tile or ${kept.join(', ')}`, ['tile', ...kept]);
+    }
+  } else if (request.frame === 'tile') {
+    throw new ConflictError("frame tile (coordinates from a tile's corner) is for one tile of a world", ['frame']);
   }
 }
 
