@@ -30,10 +30,10 @@ import torch
 from sinshape.core import noise
 from sinshape.runtime import evaluate
 from sinshape.prep import pyramid
-from sinshape.trainer import train
+from sinshape.trainer.checkpoint import load_generator
 checkpoint, reference, samples = sys.argv[1], sys.argv[2], int(sys.argv[3])
 torch.set_num_threads(2)
-generator, sizes, amps = train.load_generator(checkpoint)
+generator, sizes, amps = load_generator(checkpoint)
 truth = pyramid.load_pyramid(reference, res=max(sizes[-1]), levels=1).levels[-1]
 started = time.perf_counter()
 volumes = []

@@ -44,10 +44,10 @@ import json, resource, sys, time
 import numpy as np, torch, trimesh
 from skimage import measure
 from sinshape.runtime import generate, load
-from sinshape.trainer import train
+from sinshape.trainer import checkpoint
 model_path, seed, scale, threads = sys.argv[1], int(sys.argv[2]), float(sys.argv[3]), int(sys.argv[4])
 torch.set_num_threads(threads)
-generator, sizes, amps = train.load_generator(train.default_checkpoint_path(__import__("pathlib").Path(model_path)))
+generator, sizes, amps = checkpoint.load_generator(checkpoint.default_checkpoint_path(__import__("pathlib").Path(model_path)))
 sample = generate.draw_noise(seed, sizes, generator.channels)
 z0 = torch.from_numpy(sample.z0)[None, None]
 noises = [None] + [[amps[i] * torch.from_numpy(p)[None] for p in planes] for i, planes in enumerate(sample.planes) if i]

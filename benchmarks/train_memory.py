@@ -1,5 +1,5 @@
 """Training memory: the peak of one iteration per level size, against the
-estimate `sinrun train` refuses work with (trainer/train.py, level_memory).
+estimate `sinrun train` refuses work with (trainer/memory.py, level_memory).
 
     python benchmarks/train_memory.py             # the table in docs/RELIABILITY.md
     python benchmarks/train_memory.py --box 16    # with --box 16
@@ -37,7 +37,7 @@ def measure(size, box) -> int:
     trainer = train.Trainer(config, pyramid, device.choose("cpu", "fp32"))
     trainer.begin_level()
     trainer.iterate(trainer.recon_inputs())
-    trainer.level = 1
+    trainer.finish_level()
     trainer.begin_level()
     with open("/proc/self/statm") as f:
         before = int(f.read().split()[1]) * resource.getpagesize()
@@ -56,7 +56,7 @@ def main():
         print(measure(tuple(json.loads(args.child)), args.box))
         return
     from sinshape.trainer.config import make_config
-    from sinshape.trainer.train import level_memory
+    from sinshape.trainer.memory import level_memory
 
     config = make_config("tiny", box=args.box)
     print("| level size | voxels | measured MiB | estimate MiB |")

@@ -124,7 +124,9 @@ def trainer_at(trainer_class, sizes: list, level: int, placement, preset: str = 
     pyramid = Pyramid([wavy_terrain(size) for size in sizes[:level + 1]], (0.0,) * 3, (1.0,) * 3,
                       "terrain", "0" * 64, "pyramid")
     trainer = trainer_class(make_config(preset, levels=level + 1, **options), pyramid, placement)
-    for trainer.level in range(level + 1):
+    trainer.begin_level()
+    for _ in range(level):
+        trainer.finish_level()
         trainer.begin_level()
     recon_inputs = trainer.recon_inputs()
     trainer.iterate(recon_inputs)  # warm-up: first calls allocate and pick kernels

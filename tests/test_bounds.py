@@ -28,7 +28,7 @@ def test_the_refusal_gives_the_figure_and_the_limit():
 def test_training_memory_grows_with_the_level_and_shrinks_with_a_box():
     pytest.importorskip("torch")
     from sinshape.trainer.config import make_config
-    from sinshape.trainer.train import level_memory
+    from sinshape.trainer.memory import level_memory
 
     config = make_config("default")
     small, large = level_memory((32, 32, 32), config), level_memory((64, 64, 64), config)

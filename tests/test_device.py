@@ -16,7 +16,7 @@ from click.testing import CliRunner  # noqa: E402
 from sinshape.cli.main import cli, command_line_message  # noqa: E402
 from sinshape.runtime import generate, load, query  # noqa: E402
 from sinshape.core.errors import InputError  # noqa: E402
-from sinshape.trainer import device, train  # noqa: E402
+from sinshape.trainer import checkpoint, device, train  # noqa: E402
 from sinshape.trainer.config import make_config  # noqa: E402
 
 HAS_CUDA = torch.cuda.is_available()
@@ -107,7 +107,7 @@ def train_tiny(path, tiny_pyramid, **options):
 
 def assert_runtime_matches_torch(model_path):
     """The exported model samples what the checkpoint's torch generator does."""
-    generator, sizes, amps = train.load_generator(train.default_checkpoint_path(model_path))
+    generator, sizes, amps = checkpoint.load_generator(train.default_checkpoint_path(model_path))
     model = load.load_model(model_path)
     sample = generate.reconstruction_noise(model, sizes)
     ours = query.dense(model, generate.triplane(model, sample, sizes), 1.0)

@@ -11,7 +11,7 @@ torch = pytest.importorskip("torch")
 from sinshape.core import manifest  # noqa: E402
 from sinshape.runtime import generate, load, query  # noqa: E402
 from sinshape.prep import pyramid  # noqa: E402
-from sinshape.trainer import train  # noqa: E402
+from sinshape.trainer import checkpoint, train  # noqa: E402
 
 
 def test_file_is_valid_onnx_with_the_promised_ops(tiny_model):
@@ -43,7 +43,7 @@ def test_manifest_says_how_the_model_was_made(tiny_model, tiny_pyramid):
 def test_onnxruntime_equals_torch(tiny_model, seed, factors):
     """Parity: reconstruction (seed None) and random draws, at the training size
     and another, the same noise fed to both."""
-    generator, sizes, amps = train.load_generator(train.default_checkpoint_path(tiny_model))
+    generator, sizes, amps = checkpoint.load_generator(train.default_checkpoint_path(tiny_model))
     model = load.load_model(tiny_model)
     sizes = generate.scaled_sizes(sizes, factors)
     if seed is None:

@@ -8,7 +8,7 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from sinshape.trainer import train  # noqa: E402
+from sinshape.trainer import checkpoint, train  # noqa: E402
 from sinshape.trainer.config import PRESETS, make_config  # noqa: E402
 from sinshape.core.errors import InputError  # noqa: E402
 
@@ -93,12 +93,12 @@ def test_a_rewind_restores_the_kept_networks_at_half_the_rate(tiny_pyramid):
     trainer.begin_level()
     recon_inputs = trainer.recon_inputs()
     trainer.iterate(recon_inputs)
-    trainer.iteration = 1
+    trainer.count_iteration()
     kept = trainer.keep()
     before = {k: v.clone() for k, v in trainer.critic.state_dict().items()}
     for _ in range(2):
         trainer.iterate(recon_inputs)
-        trainer.iteration += 1
+        trainer.count_iteration()
     assert any(not torch.equal(before[k], v) for k, v in trainer.critic.state_dict().items())
     trainer.rewind(kept)
     assert trainer.iteration == 1
@@ -120,7 +120,7 @@ def test_older_levels_train_alongside_at_a_tenth_of_the_rate(tiny_pyramid):
     for depth in (1, 2):
         trainer = train.Trainer(make_config("tiny", train_depth=depth), pyramid)
         trainer.begin_level()
-        trainer.level = 1
+        trainer.finish_level()
         trainer.begin_level()
         before = copy.deepcopy(trainer.generator)
         kept = trainer.keep()
@@ -212,7 +212,7 @@ def test_voxel_baseline_trains_and_resumes(tmp_path, tiny_pyramid):
         train.train(tiny_pyramid, out, make_config("tiny", iters=2, generator="voxel"), progress=interrupt_at(1, 1))
     summary = train.train(tiny_pyramid, out, None, resume=True)
     assert len(summary["levels"]) == 2 and not list(tmp_path.glob("*.onnx"))
-    generator, sizes, amps = train.load_generator(out)
+    generator, sizes, amps = checkpoint.load_generator(out)
     assert type(generator).__name__ == "VoxelGenerator" and len(generator.levels) == 2
     noises = [None, [amps[1] * torch.randn(1, 1, *sizes[1])]]
     with torch.no_grad():

@@ -7,7 +7,7 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from sinshape.trainer import device, train  # noqa: E402
+from sinshape.trainer import device, steps, train  # noqa: E402
 from sinshape.trainer.networks import Discriminator, TriplaneGenerator  # noqa: E402
 from sinshape.trainer.config import make_config  # noqa: E402
 from sinshape.prep.pyramid import Pyramid, load_pyramid  # noqa: E402
@@ -20,7 +20,9 @@ FP32 = device.Placement(torch.device("cpu"), "fp32", "test")
 
 def trainer_at_level(cls, pyramid, level, **overrides):
     trainer = cls(make_config("tiny", **overrides), pyramid, FP32)
-    for trainer.level in range(level + 1):
+    trainer.begin_level()
+    for _ in range(level):
+        trainer.finish_level()
         trainer.begin_level()
     return trainer
 
@@ -129,7 +131,7 @@ def test_a_framed_box_scores_as_the_whole_grid_does_there():
     critic.net[1] = critic.net[4] = torch.nn.Identity()
     grid = torch.rand(1, 1, 24, 20, 18)
     box = (slice(4, 20), slice(0, 12), slice(2, 18))  # even starts keep the stride-2 patches aligned
-    taken, pad = train.framed(box, grid.shape[2:])
+    taken, pad = steps.framed(box, grid.shape[2:])
     with torch.no_grad():
         whole = critic(grid)
         scores = critic(torch.nn.functional.pad(grid[(..., *taken)], pad), framed=True)

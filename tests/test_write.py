@@ -83,7 +83,7 @@ def test_the_written_file_has_the_usual_mode(tmp_path):
 
 def test_a_failed_checkpoint_save_leaves_no_temporary(tmp_path):
     pytest.importorskip("torch")
-    from sinshape.trainer.train import atomic_save
+    from sinshape.trainer.checkpoint import atomic_save
 
     target = tmp_path / "m.ckpt.pt"
     target.write_bytes(b"old")

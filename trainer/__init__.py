@@ -7,8 +7,10 @@ shape and export it as one .onnx file (needs the train extra, PyTorch).
     train.train("mymesh.obj", "mymesh.onnx", make_config("default"))
 
 Modules: config (the frozen settings and presets), networks, device,
-train (the level loop, checkpoints), schedule (a time budget turned into
-iterations per level), export (the .onnx file). The input
+steps (the Trainer: a run's state and one iteration), train (the run, a
+loop over levels), schedule (a time budget turned into iterations per
+level), rewind (going back when a level diverges), checkpoint (saving and
+resuming), memory (what a level needs), export (the .onnx file). The input
 becomes voxel levels in sinshape.prep, which evaluation shares.
 
 It may import torch, numpy, scipy, h5py, onnx, trimesh and scikit-image,

@@ -2,7 +2,7 @@
 
 A config is built once (from a preset plus command-line overrides), saved
 into the checkpoint and the exported model, and never mutated. Networks take
-plain ints; only `train` reads a config.
+plain ints; only the run (`train` and the parts it calls) reads a config.
 """
 
 import dataclasses

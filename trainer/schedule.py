@@ -127,3 +127,38 @@ class Budget:
         costs = ", ".join(f"{c:.2f}" for c in self.costs)
         return (f"plan: {self.affordable(first_level)} iterations per level for levels {first_level + 1}-"
                 f"{len(self.costs)} in {self.left() / 60:.1f} min; measured s/iteration per level: {costs}")
+
+    def record(self) -> dict:
+        """What a model records of its plan: each level's count as it started, and the measured costs."""
+        return {"planned_iterations": self.planned,
+                "measured_seconds_per_iteration": [round(c, 4) for c in self.costs]}
+
+
+class LevelPlan:
+    """How long one level runs: its planned iterations; under a budget, also
+    until the next iteration would overrun the level's share of the time,
+    and at the last level, on while iterations still fit the budget."""
+
+    def __init__(self, budget: Budget | None, level: int, iters: int, done: int):
+        self.budget, self.level, self.iters = budget, level, iters
+        self.end = budget.level_end(level, iters - done) if budget else math.inf
+        self.last = budget is not None and level == len(budget.costs) - 1
+        self.count = 0  # iterations in this run of the level (its first one allocates)
+        self.cut = False  # whether the budget ended the level before its plan did
+
+    def goes_on(self, iteration: int) -> bool:
+        """Whether the level runs another iteration after `iteration`."""
+        if iteration >= self.iters and not (self.last and self.fits()):
+            return False
+        self.cut = self.budget is not None and iteration > 0 and not self.fits()  # slower than planned
+        return not self.cut
+
+    def fits(self) -> bool:
+        """Whether one more iteration ends by the level's end."""
+        return self.budget.another_fits(self.level, self.end)
+
+    def observe(self, seconds: float) -> None:
+        """An iteration that counted took `seconds`."""
+        self.count += 1
+        if self.budget:
+            self.budget.observe(self.level, self.count, seconds)

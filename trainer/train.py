@@ -1,69 +1,34 @@
-"""Progressive training, coarse to fine, with checkpoints that survive a crash.
+"""A training run, level after level, coarse to fine, with checkpoints that
+survive a crash.
 
-At level i only G_i (plus P at level 0) and the shared decoder train; lower
-levels are frozen. One iteration is `d_steps` critic updates (WGAN-GP) then
-`g_steps` generator updates (adversarial + 10 x reconstruction MSE). The
-discriminator is shared by all levels and keeps training across them; the
-optimisers are created anew per level.
+`train` opens the run (the input, or the checkpoint a resumed run continues
+from), plans a time budget (schedule.py, from costs measured here), trains
+each level in turn and exports the model. A level is started, stepped and
+finished by its `Trainer` (steps.py); beside it run the parts with one job
+each: when the level ends (`schedule.LevelPlan`), going back when it
+diverges (rewind.py) and when to save (checkpoint.py).
 
 A checkpoint (weights-only loadable) is written after every level and every
 few minutes; `resume=True` continues from it without redoing finished levels.
 Ctrl-C saves one before it stops.
 """
 
-import copy
 import dataclasses
-import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
-import torch
-import torch.nn.functional as F
-
-from sinshape.core import noise
-from sinshape.core.budget import check_memory
 from sinshape.core.errors import InputError
-from sinshape.core.files import atomic_write, check_writable, is_same_file
-from sinshape.core.manifest import plane_sizes
-from sinshape.prep.pyramid import load_pyramid, training_targets
+from sinshape.core.files import check_writable, is_same_file
+from sinshape.prep.pyramid import load_pyramid
 
 from . import device as devices
 from . import export, schedule
+from .checkpoint import Checkpoints, default_checkpoint_path, load_checkpoint
 from .config import TrainConfig
-from .networks import Discriminator, make_generator
-
-CHECKPOINT_FORMAT = "sinshape-checkpoint"
-CHECKPOINT_VERSION = 1
-LOSS_LIMIT = 1e6  # a loss beyond this (or NaN) means training has diverged
-# A level that diverges goes back to a copy of its networks kept in memory,
-# 20 to 40 iterations earlier (the latest copy may already be on the way
-# out), and goes on at half its rate; the third time it stops the run.
-KEEP_EVERY = 20
-REWINDS = 2
-# A box the critic judges holds at least this share of the example inside
-# and as much outside (Trainer.critic_box), found in at most so many draws.
-MIXED_SHARE = 0.01
-CRITIC_BOX_DRAWS = 50
-
-# Peak memory one iteration adds, with 32 channels and 3 + 3 steps in float32:
-# per voxel the generator decodes (a batch of samples) and the critic sees
-# (with its gradient penalty's double backward), the whole level or its
-# boxes; per cell of the three planes, the generator's convolutions (the
-# planes are whole either way). Fitted to the peaks benchmarks/train_speed.py
-# measures (24^3 to 128^3 levels, whole and in boxes; docs/RELIABILITY.md).
-GENERATOR_BYTES_PER_VOXEL = 364
-CRITIC_BYTES_PER_VOXEL = 230
-PLANE_BYTES_PER_CELL = 12_500
-LEVEL_BYTES = 17 << 20  # what a level adds whatever its size
-
-
-class TrainingDiverged(RuntimeError):
-    """A level's losses exploded even at a quarter of its rate; the last
-    good checkpoint is kept.
-    `parameter`, as in InputError, names what the message suggests changing."""
-
-    parameter = "seed"
+from .memory import check_training_memory
+from .rewind import Rewinds, TrainingDiverged  # TrainingDiverged: one of the errors train raises
+from .steps import Trainer
 
 
 class Interrupted(RuntimeError):
@@ -84,408 +49,12 @@ class Progress:
     size: tuple
     losses: dict
 
-
-def default_checkpoint_path(output: Path) -> Path:
-    """model.onnx -> model.ckpt.pt, beside the model. A .pt output (the voxel
-    baseline, which has no .onnx form) is its own checkpoint."""
-    output = Path(output)
-    return output if output.suffix.lower() == ".pt" else output.with_name(output.stem + ".ckpt.pt")
-
-
-def check_outputs(input_path, output_path: Path, checkpoint_path: Path, generator: str) -> None:
-    """Refuse, before any work, outputs that would be lost or destroy a file:
-    the wrong kind of model file, a model and checkpoint that are one file
-    (but for the voxel baseline, whose checkpoint is its model), and an
-    output or checkpoint that is the training input."""
-    for path in (output_path, checkpoint_path):
-        check_writable(path, [input_path])
-    suffix = ".pt" if generator == "voxel" else ".onnx"
-    if output_path.suffix.lower() != suffix:
-        raise InputError(f"{output_path}: the triplane generator writes a .onnx model, the voxel baseline "
-                         "a .pt checkpoint")
-    same = checkpoint_path.absolute() == output_path.absolute() or is_same_file(checkpoint_path, output_path)
-    if suffix == ".onnx" and same:
-        raise InputError(f"{checkpoint_path}: the checkpoint would overwrite the model; name another file")
-    if suffix == ".pt" and not same:
-        raise InputError(f"{checkpoint_path}: the voxel baseline's checkpoint is its model {output_path}; "
-                         "give one of them")
-
-
-def seeded(seed: int, *ids: int) -> int:
-    """A torch seed for one purpose, derived from the run's seed."""
-    return noise.stream_key(seed, *ids) >> 1  # torch seeds must fit in int64
-
-
-def framed(box: tuple | None, size) -> tuple:
-    """What the critic reads for a box (None: the whole grid): the box and
-    the voxel around it on every side, which the critic's first layer reads.
-
-    Returns (slices of the grid to take, F.pad's zero padding). The frame is
-    the grid's own voxels where the box lies inside the grid and zeros only
-    beyond the grid's faces, as for the whole grid. Padded with zeros on
-    every side instead, a box cut through solid looks to the critic like
-    solid meeting the grid's face, which the example shows rarely.
-    """
-    if box is None:
-        return None, (1,) * 6
-    taken = tuple(slice(max(s.start - 1, 0), min(s.stop + 1, n)) for s, n in zip(box, size))
-    pad = [(int(s.start == 0), int(s.stop == n)) for s, n in zip(box, size)]
-    return taken, tuple(side for low_high in reversed(pad) for side in low_high)  # F.pad: last axis first
-
-
-def atomic_save(obj, path: Path) -> None:
-    """torch.save through the runtime's atomic writer: never a half-written
-    checkpoint, and no temporary file left behind."""
-    atomic_write(path, lambda f: torch.save(obj, f))
-
-
-class Trainer:
-    """The state of one training run: data, networks, optimisers, position."""
-
-    def __init__(self, config: TrainConfig, pyramid, placement: devices.Placement | None = None):
-        self.config = config
-        self.pyramid = pyramid
-        self.sizes = pyramid.sizes
-        self.placement = placement or devices.choose("cpu", "fp32")
-        self.device = device = self.placement.device
-        self.targets = [torch.from_numpy(t)[None, None].to(device) for t in training_targets(pyramid, config.blur_sigma)]
-        self.z0_recon = torch.from_numpy(noise.z0_noise(config.recon_seed, self.sizes[0]))[None, None].to(device)
-        with torch.random.fork_rng():  # weights are initialised on the CPU: the same on every device
-            torch.manual_seed(seeded(config.seed, 0))
-            self.generator = make_generator(config.generator, config.channels, config.pool_bins,
-                                            config.mlp_hidden).to(device)
-            self.critic = Discriminator(config.channels).to(device)
-        # Every random draw comes from this CPU generator, then moves to the device.
-        self.rng = torch.Generator().manual_seed(seeded(config.seed, 1))
-        self.noise_amps = []  # sigma_i per level; sigma_0 = 1 is the std of z0
-        self.lrs = []  # Adam's learning rate per level, set from its plan as it starts
-        self.level = 0  # the level being trained
-        self.iteration = 0  # iterations done at that level
-        self.seconds = []  # wall time per finished level
-        self.level_seconds = 0.0  # wall time so far at the current level
-        self.opt_g = self.opt_d = None
-        self.rewinds = []  # [level, at, to, lr]: where a level diverged, where it went back, its new rate
-        # Iterations per level; under a time budget each level's is planned as it starts.
-        self.plan = list(config.level_iters or [0 if config.minutes else config.iters] * len(self.sizes))
-
-    # -- levels ------------------------------------------------------------
-    def begin_level(self) -> None:
-        """Add G_level, set its noise amplitude and learning rate (from its
-        planned iterations), create fresh optimisers."""
-        level = self.level
-        with torch.random.fork_rng():
-            torch.manual_seed(seeded(self.config.seed, 2, level))
-            self.generator.add_level().to(self.device)
-        if len(self.noise_amps) == level:
-            self.noise_amps.append(1.0 if level == 0 else self.initial_noise_amp(level))
-        del self.lrs[level:]
-        self.lrs.append(self.config.level_lr(self.plan[level]))
-        self.make_optimizers()
-
-    def initial_noise_amp(self, level: int) -> float:
-        """sigma_i = ratio * RMSE(trilinear upsample of rec_(i-1), real_i)."""
-        with torch.no_grad():
-            rec = self.reconstruct(level - 1)
-            up = F.interpolate(rec[None, None], size=self.sizes[level], mode="trilinear", align_corners=False)
-            return self.config.noise_ratio * math.sqrt(F.mse_loss(up, self.targets[level]).item())
-
-    def first_trained(self) -> int:
-        """The oldest level that trains with the current one (train_depth)."""
-        return max(0, self.level - self.config.train_depth + 1)
-
-    def make_optimizers(self) -> None:
-        """Adam for the critic and for the trained levels, one parameter group
-        per level; a group's `scale` is its share of the level's rate."""
-        c, level, lr = self.config, self.level, self.lrs[self.level]
-
-        def group(modules, scale):
-            return {"params": [p for m in modules for p in m.parameters()], "scale": scale, "lr": lr * scale}
-
-        groups = [group(self.generator.trained_modules(level), 1.0)]
-        groups += [group(self.generator.level_modules(older), c.lr_scale ** (level - older))
-                   for older in range(self.first_trained(), level)]
-        # fused: one kernel for all of a step's tensors (measured 15% of an iteration
-        # at the coarsest level, where Adam's per-tensor overhead shows)
-        self.opt_g = torch.optim.Adam(groups, lr=lr, betas=(c.beta1, c.beta2), fused=True)
-        self.opt_d = torch.optim.Adam([group([self.critic], 1.0)], lr=lr, betas=(c.beta1, c.beta2), fused=True)
-
-    def set_rates(self) -> None:
-        """Every parameter group at its share of the level's rate (after a rewind)."""
-        for optimizer in (self.opt_g, self.opt_d):
-            for group in optimizer.param_groups:
-                group["lr"] = self.lrs[self.level] * group["scale"]
-
-    # -- sampling ------------------------------------------------------------
-    def random_noises(self, upto: int) -> tuple:
-        """A fresh z0 and scaled per-level plane noises for levels 1..upto."""
-        z0 = self.draw(torch.randn, (1, 1, *self.sizes[0]))
-        noises = [None]
-        for level in range(1, upto + 1):
-            amp = self.noise_amps[level]
-            noises.append([amp * self.draw(torch.randn, shape)
-                           for shape in self.generator.noise_shapes(self.sizes[level])])
-        return z0, noises
-
-    def draw(self, sampler, shape) -> torch.Tensor:
-        """A draw from the run's CPU generator, on the training device."""
-        return sampler(shape, generator=self.rng).to(self.device)
-
-    def recon_inputs(self):
-        """The frozen levels' output for the reconstruction (None at level 0,
-        where P trains): constant through a level, so computed once."""
-        if self.first_trained() == 0:
-            return None
-        with self.placement.autocast():
-            return self.inputs(self.z0_recon, [None] * (self.level + 1))
-
-    def reconstruct(self, level: int) -> torch.Tensor:
-        """Occupancy (X, Y, Z) at `level` for z0* and zero later noise."""
-        return self.generator(self.z0_recon, [None] * (level + 1), self.sizes, upto=level)[0]
-
-    def inputs(self, z0, noises):
-        """What the trained levels build on (frozen levels: no gradients)."""
-        return self.generator.inputs(z0, noises, self.sizes, self.first_trained())
-
-    def fake(self, inputs, noises, boxes: list) -> list:
-        """This level's occupancy, sample b in the box boxes[b] (None: whole);
-        noises: the trained levels' scaled noises."""
-        return self.generator.output(inputs, self.first_trained(), self.level, self.sizes, noises, boxes)
-
-    def draw_box(self) -> tuple | None:
-        """Where a step looks at this level: None for the whole grid, or
-        with `box`, slices of a box of at most that side at a random
-        place, drawn from the run's generator (nothing is drawn at a level
-        that fits in the box, so such levels train as the paper's do).
-
-        Boxes may hang over the grid's edge by up to half their side and are
-        clipped there. Boxes kept inside would see a voxel at the edge of a
-        128-voxel axis 1/81 as often as one in the middle (48-voxel boxes):
-        the example's outer parts would hardly be judged. Clipped ones see it
-        at least half as often, and the smallest box still holds 16 voxels
-        per axis, room for the critic's 11.
-        """
-        side, size = self.config.box, self.sizes[self.level]
-        if not side or max(size) <= side:
-            return None
-        inside = min(side, max(side // 2, 16))  # the least of a box that stays in the grid
-        box = []
-        for n in size:
-            if n <= side:
-                box.append(slice(0, n))
-                continue
-            start = int(torch.randint(inside - side, n - inside + 1, (1,), generator=self.rng))
-            box.append(slice(max(start, 0), min(start + side, n)))
-        return tuple(box)
-
-    def critic_box(self) -> tuple | None:
-        """A box for the critic: `draw_box`'s, drawn again (up to
-        CRITIC_BOX_DRAWS times) while the example is all but empty or all but
-        solid in it. The critic's instance norms divide by the spread of
-        what they see: on a box of constant real, a fake's faint noise is
-        blown up, and the gradient penalty with it. On a hollow 93x128x92
-        tower in boxes of 64 the critic's loss reached 1e10 within 100
-        iterations of the finest level, each time on a box with no solid in
-        it. Boxes that touch the shape at all are kept, so only the
-        example's empty (or solid) corners are judged less often."""
-        real = self.targets[self.level][0, 0]
-        for _ in range(CRITIC_BOX_DRAWS):
-            box = self.draw_box()
-            if box is None or MIXED_SHARE <= float(real[box].mean()) <= 1 - MIXED_SHARE:
-                break
-        return box
-
-    # -- one iteration -------------------------------------------------------
-    def iterate(self, recon_inputs) -> dict:
-        """One iteration, in the precision of the run's placement."""
-        with self.placement.autocast():
-            return self.update_steps(recon_inputs)
-
-    def update_steps(self, recon_inputs) -> dict:
-        """(1) update D `d_steps` times, (2) update G `g_steps` times.
-
-        Samples that go through the same network state share one batch (the
-        same values, fewer and larger kernel calls): the frozen levels' output
-        for every draw of the iteration, the critic steps' fakes (G does not
-        change during them), and each generator step's fake with the
-        reconstruction. Random draws are made in the order they are used.
-
-        With `box`, every step shows the critic one box of the grid, the same
-        box of the real and the fake (a paired comparison: where the box falls
-        moves both scores alike), and the reconstruction is measured in
-        another box; only boxes are decoded. Each is an unbiased estimate of
-        its whole-grid term, at the cost of its box, except that the critic
-        is not shown boxes where the example is all one (`critic_box`).
-        The critic sees a box
-        with its frame (`framed`), so a box's faces inside the grid do not
-        look like the grid's own.
-        """
-        c, level, real = self.config, self.level, self.targets[self.level][0, 0]
-        critic, size = self.critic, self.sizes[level]
-        d_draws = [(*self.random_noises(level), self.draw(torch.rand, 1), framed(self.critic_box(), size))
-                   for _ in range(c.d_steps)]
-        g_draws = [(*self.random_noises(level), framed(self.critic_box(), size), self.draw_box())
-                   for _ in range(c.g_steps)]
-        z0, noises = cat_draws([draw[:2] for draw in d_draws] + [draw[:2] for draw in g_draws])
-        trained = noises[self.first_trained():level + 1]  # (d_steps + g_steps) samples; None at level 0
-        with torch.no_grad():
-            inputs = self.inputs(z0, noises)
-            d_steps = slice(0, c.d_steps)
-            fakes = self.fake(take(inputs, d_steps), [take(noise, d_steps) for noise in trained],
-                              [draw[3][0] for draw in d_draws])
-
-        # (1) Update D: minimise D(fake) - D(real) + gp_weight * GP.
-        critic.requires_grad_(True)
-        for fake, (_, _, alpha, (box, pad)) in zip(fakes, d_draws):
-            seen_real = F.pad((real if box is None else real[box])[None, None], pad)
-            seen_fake = F.pad(fake[None, None], pad)
-            scores = critic(torch.cat([seen_real, seen_fake]), framed=True)
-            d_real, d_fake = scores[0].mean(), scores[1].mean()
-            loss_d = d_fake - d_real + c.gp_weight * self.gradient_penalty(seen_real, seen_fake, alpha)
-            self.opt_d.zero_grad(set_to_none=True)
-            loss_d.backward()
-            self.opt_d.step()
-
-        # (2) Update G: minimise -D(fake) + rec_weight * MSE(rec, real).
-        critic.requires_grad_(False)
-        for i, (_, _, (box, pad), rec_box) in zip(range(c.d_steps, c.d_steps + c.g_steps), g_draws):
-            one = slice(i, i + 1)
-            if recon_inputs is None:  # P trains with G_0: both samples start from their z0
-                pair = self.inputs(torch.cat([z0[one], self.z0_recon]), None)
-            else:  # the reconstruction's frozen input is cached
-                pair = cat_batch([take(inputs, one), recon_inputs])
-            pair_noises = [None if noise is None else [torch.cat([n[one], torch.zeros_like(n[one])]) for n in noise]
-                           for noise in trained]  # the reconstruction's noise is zero
-            fake, rec = self.fake(pair, pair_noises, [box, rec_box])
-            loss_adv = -critic(F.pad(fake[None, None], pad), framed=True).mean()
-            loss_rec = F.mse_loss(rec, real if rec_box is None else real[rec_box])
-            loss_g = loss_adv + c.rec_weight * loss_rec
-            self.opt_g.zero_grad(set_to_none=True)
-            loss_g.backward()
-            self.opt_g.step()
-        critic.requires_grad_(True)
-        return {"D": loss_d.item(), "G": loss_adv.item(), "rec": loss_rec.item()}
-
-    def gradient_penalty(self, real, fake, alpha) -> torch.Tensor:
-        """WGAN-GP on the mix alpha * real + (1 - alpha) * fake (both framed).
-
-        As the authors' code does, the norm is taken over the channel axis,
-        which has size 1: the penalty is mean((|dD/dx| - 1)^2) per voxel, of
-        the gradient of the score map's sum.
-        """
-        mixed = (alpha * real + (1 - alpha) * fake).requires_grad_(True)
-        (grad,) = torch.autograd.grad(self.critic(mixed, framed=True).sum(), mixed, create_graph=True)
-        return ((grad[..., 1:-1, 1:-1, 1:-1].abs() - 1) ** 2).mean()  # the grid's voxels, not the frame
-
-    # -- going back after a divergence -----------------------------------------
-    def keep(self) -> dict:
-        """An in-memory copy of what this level's steps change."""
-        return copy.deepcopy({"iteration": self.iteration, "generator": self.generator.state_dict(),
-                              "critic": self.critic.state_dict(), "opt_g": self.opt_g.state_dict(),
-                              "opt_d": self.opt_d.state_dict()})
-
-    def rewind(self, kept: dict) -> None:
-        """Go back to `kept` and halve this level's learning rate."""
-        self.rewinds.append([self.level, self.iteration + 1, kept["iteration"], self.lrs[self.level] / 2])
-        self.iteration = kept["iteration"]
-        self.lrs[self.level] /= 2
-        self.generator.load_state_dict(kept["generator"])
-        self.critic.load_state_dict(kept["critic"])
-        self.opt_g.load_state_dict(kept["opt_g"])
-        self.opt_d.load_state_dict(kept["opt_d"])
-        self.set_rates()
-
-    # -- checkpoints ---------------------------------------------------------
-    def trained_seconds(self) -> float:
-        """Training time so far, over every run of this model."""
-        return sum(self.seconds) + self.level_seconds
-
-    def state(self) -> dict:
-        p = self.pyramid
-        return {
-            "format": CHECKPOINT_FORMAT,
-            "version": CHECKPOINT_VERSION,
-            "config": self.config.to_dict(),
-            "source": {"name": p.source_name, "sha256": p.source_sha256, "kind": p.source_kind},
-            "sizes": [list(s) for s in self.sizes],
-            "level": self.level,
-            "iteration": self.iteration,
-            "noise_amps": list(self.noise_amps),
-            "lrs": list(self.lrs),
-            "rewinds": list(self.rewinds),
-            "plan": list(self.plan),
-            "seconds": list(self.seconds),
-            "level_seconds": self.level_seconds,
-            "generator": self.generator.state_dict(),
-            "critic": self.critic.state_dict(),
-            "opt_g": self.opt_g.state_dict() if self.opt_g else None,
-            "opt_d": self.opt_d.state_dict() if self.opt_d else None,
-            "rng": self.rng.get_state(),
-        }
-
-    def restore(self, state: dict) -> None:
-        """Load a checkpoint made by `state()` for the same source and config."""
-        self.level, self.iteration = state["level"], state["iteration"]
-        self.noise_amps, self.seconds = list(state["noise_amps"]), list(state["seconds"])
-        self.level_seconds = state["level_seconds"]
-        self.plan = list(state.get("plan") or self.plan)  # checkpoints before budgets had none
-        self.lrs = list(state.get("lrs") or [self.config.lr] * len(self.noise_amps))  # older: one fixed rate
-        self.rewinds = list(state.get("rewinds", []))
-        started = count_levels(state["generator"])
-        for _ in range(started):
-            with torch.random.fork_rng():
-                self.generator.add_level().to(self.device)
-        self.generator.load_state_dict(state["generator"])
-        self.critic.load_state_dict(state["critic"])
-        self.rng.set_state(state["rng"])
-        if state["opt_g"] is not None and started == self.level + 1:
-            self.make_optimizers()
-            self.opt_g.load_state_dict(state["opt_g"])
-            self.opt_d.load_state_dict(state["opt_d"])
-            for optimizer in (self.opt_g, self.opt_d):  # older checkpoints: one group each, at the full rate
-                for group in optimizer.param_groups:
-                    group.setdefault("scale", 1.0)
-
-
-def cat_batch(items: list):
-    """Samples joined along the batch axis: tensors, or tri-planes (lists of 3)."""
-    if isinstance(items[0], torch.Tensor):
-        return torch.cat(items)
-    return [torch.cat(planes) for planes in zip(*items)]
-
-
-def take(batch, index: slice):
-    """Some samples of a batch: a tensor, tri-planes (a list of 3), or None."""
-    if batch is None or isinstance(batch, torch.Tensor):
-        return None if batch is None else batch[index]
-    return [planes[index] for planes in batch]
-
-
-def cat_draws(draws: list) -> tuple:
-    """[(z0, noises)] of single samples -> one (z0, noises) batch."""
-    z0 = torch.cat([z0 for z0, _ in draws])
-    noises = [None if level[0] is None else cat_batch(list(level))
-              for level in zip(*(noises for _, noises in draws))]
-    return z0, noises
-
-
-def count_levels(generator_state: dict) -> int:
-    """How many level generators a TriplaneGenerator state dict holds."""
-    return len({key.split(".")[1] for key in generator_state if key.startswith("levels.")})
-
-
-def load_checkpoint(path: Path) -> dict:
-    """Read a checkpoint and check that it is one of ours."""
-    if not path.is_file():
-        raise InputError(f"{path}: no checkpoint to resume from")
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as error:  # torch raises many kinds for a bad file
-        raise InputError(f"{path}: not a readable checkpoint ({type(error).__name__})") from None
-    if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT:
-        raise InputError(f"{path}: not a sinshape checkpoint")
-    if state.get("version") != CHECKPOINT_VERSION:
-        raise InputError(f"{path}: checkpoint version {state.get('version')} is not {CHECKPOINT_VERSION}")
-    return state
+    @classmethod
+    def of(cls, trainer: Trainer, losses: dict) -> "Progress":
+        """Where `trainer` stands after an iteration with these losses; under
+        a budget the last level may run past its plan, and `iters` with it."""
+        level, done = trainer.level, trainer.iteration
+        return cls(level, len(trainer.sizes), done, max(trainer.plan[level], done), trainer.sizes[level], losses)
 
 
 def train(input_path, output_path, config: TrainConfig | None, *, resume: bool = False, device: str = "auto",
@@ -502,6 +71,22 @@ def train(input_path, output_path, config: TrainConfig | None, *, resume: bool =
     log = log or (lambda message: None)
     output_path = Path(output_path)
     checkpoint_path = Path(checkpoint_path) if checkpoint_path else default_checkpoint_path(output_path)
+    trainer = open_run(input_path, output_path, config, resume, device, checkpoint_path, log)
+    budget = plan_budget(trainer, clock_started, log)
+    checkpoints = Checkpoints(checkpoint_path, checkpoint_every)
+    try:
+        while trainer.level < len(trainer.sizes):
+            train_level(trainer, budget, checkpoints, progress, log)
+    except KeyboardInterrupt:
+        checkpoints.save(trainer)
+        raise Interrupted(f"interrupted; progress saved to {checkpoint_path}; resume continues from it") from None
+    return export_run(trainer, budget, output_path)
+
+
+def open_run(input_path, output_path: Path, config: TrainConfig | None, resume: bool, device: str,
+             checkpoint_path: Path, log) -> Trainer:
+    """The trainer of a new run, or of a resumed one at its checkpoint (whose
+    config it takes), once every check that needs no training has passed."""
     if (config is None) != resume:
         raise ValueError("pass a config to start training, or resume=True without one")
     state = None
@@ -528,116 +113,92 @@ def train(input_path, output_path, config: TrainConfig | None, *, resume: bool =
             log(f"resuming at level {trainer.level + 1}/{len(trainer.sizes)}, iteration {trainer.iteration}")
         else:
             log("every level is trained already; exporting")
-    budget = None
-    if config.minutes is not None and trainer.level < len(trainer.sizes):
-        budget_seconds = config.minutes * 60 - trainer.trained_seconds()
-        fresh = trainer.level == 0 and trainer.iteration == 0  # once a level has begun, never refuse
-        budget = schedule.Budget(budget_seconds, clock_started,
-                                 *time_levels(config, pyramid, placement, seconds=budget_seconds if fresh else None),
-                                 config.min_iters)
-        if fresh:
-            budget.refuse_if_too_small(trainer.sizes, pyramid.source_kind == "mesh")
-        log(budget.describe(trainer.level))
+    return trainer
 
-    last_save = time.monotonic()
-    try:
-        while trainer.level < len(trainer.sizes):
-            level = trainer.level
-            if budget and trainer.iteration == 0:
-                trainer.plan[level] = budget.start_level(level)
-            if len(trainer.generator.levels) == level:
-                trainer.begin_level()  # its learning rate follows the plan
-            iters = trainer.plan[level]
-            stop_at = budget.level_end(level, iters - trainer.iteration) if budget else math.inf
-            log(f"level {level + 1}/{len(trainer.sizes)}: grid {trainer.sizes[level]}, "
-                f"noise amplitude {trainer.noise_amps[level]:.4g}, {iters} iterations at lr {trainer.lrs[level]:.3g}")
-            recon_inputs = trainer.recon_inputs()
-            last = level == len(trainer.sizes) - 1
-            done_here = 0  # iterations in this run of the level (its first one allocates)
-            kept = [trainer.keep()] * 2  # the older copy is the one to go back to
-            while trainer.iteration < iters or (budget and last and budget.another_fits(level, stop_at)):
-                if budget and trainer.iteration and not budget.another_fits(level, stop_at):
-                    log(f"level {level + 1} used its share of the budget after {trainer.iteration} iterations")
-                    break  # slower than planned: keep to the budget
-                started = time.monotonic()
-                losses = trainer.iterate(recon_inputs)
-                took = time.monotonic() - started
-                trainer.level_seconds += took
-                bad = ", ".join(f"{k} loss {v:.3g}" for k, v in losses.items()
-                                if not math.isfinite(v) or abs(v) > LOSS_LIMIT)
-                if bad and sum(r[0] == level for r in trainer.rewinds) == REWINDS:
-                    raise TrainingDiverged(
-                        f"training diverged at level {level + 1}, iteration {trainer.iteration + 1} ({bad}) "
-                        f"after {REWINDS} halvings of its learning rate; "
-                        f"the last good checkpoint is {checkpoint_path}; try another seed"
-                    )
-                if bad:
-                    trainer.rewind(kept[0])
-                    kept = [kept[0]] * 2
-                    log(f"level {level + 1} diverged at iteration {trainer.rewinds[-1][1]} ({bad}); going on "
-                        f"from iteration {trainer.iteration} at half the rate, {trainer.lrs[level]:.3g}")
-                    continue
-                trainer.iteration += 1
-                done_here += 1
-                if trainer.iteration % KEEP_EVERY == 0:
-                    kept = [kept[1], trainer.keep()]
-                if budget:
-                    budget.observe(level, done_here, took)
-                if progress:
-                    progress(Progress(level, len(trainer.sizes), trainer.iteration, max(iters, trainer.iteration),
-                                      trainer.sizes[level], losses))
-                if time.monotonic() - last_save > checkpoint_every:
-                    atomic_save(trainer.state(), checkpoint_path)
-                    last_save = time.monotonic()
-            trainer.plan[level] = trainer.iteration  # a budget may have cut or extended the level
-            trainer.seconds.append(trainer.level_seconds)
-            trainer.level, trainer.iteration, trainer.level_seconds = level + 1, 0, 0.0
-            trainer.opt_g = trainer.opt_d = None
-            atomic_save(trainer.state(), checkpoint_path)
-            last_save = time.monotonic()
-            log(f"level {level + 1} done in {trainer.seconds[-1]:.0f} s; checkpoint {checkpoint_path}")
-    except KeyboardInterrupt:
-        atomic_save(trainer.state(), checkpoint_path)
-        raise Interrupted(f"interrupted; progress saved to {checkpoint_path}; resume continues from it") from None
 
+def check_outputs(input_path, output_path: Path, checkpoint_path: Path, generator: str) -> None:
+    """Refuse, before any work, outputs that would be lost or destroy a file:
+    the wrong kind of model file, a model and checkpoint that are one file
+    (but for the voxel baseline, whose checkpoint is its model), and an
+    output or checkpoint that is the training input."""
+    for path in (output_path, checkpoint_path):
+        check_writable(path, [input_path])
+    suffix = ".pt" if generator == "voxel" else ".onnx"
+    if output_path.suffix.lower() != suffix:
+        raise InputError(f"{output_path}: the triplane generator writes a .onnx model, the voxel baseline "
+                         "a .pt checkpoint")
+    same = checkpoint_path.absolute() == output_path.absolute() or is_same_file(checkpoint_path, output_path)
+    if suffix == ".onnx" and same:
+        raise InputError(f"{checkpoint_path}: the checkpoint would overwrite the model; name another file")
+    if suffix == ".pt" and not same:
+        raise InputError(f"{checkpoint_path}: the voxel baseline's checkpoint is its model {output_path}; "
+                         "give one of them")
+
+
+def plan_budget(trainer: Trainer, clock_started: float, log) -> schedule.Budget | None:
+    """Under a time budget (`minutes`), its plan for the levels still to
+    train, from their costs measured here; None without one. Before the
+    first level, a budget too small is refused; once a level has begun, never."""
+    config = trainer.config
+    if config.minutes is None or trainer.level == len(trainer.sizes):
+        return None
+    seconds = config.minutes * 60 - trainer.trained_seconds()
+    fresh = trainer.level == 0 and trainer.iteration == 0
+    budget = schedule.Budget(seconds, clock_started,
+                             *time_levels(config, trainer.pyramid, trainer.placement, seconds=seconds if fresh else None),
+                             config.min_iters)
+    if fresh:
+        budget.refuse_if_too_small(trainer.sizes, trainer.pyramid.source_kind == "mesh")
+    log(budget.describe(trainer.level))
+    return budget
+
+
+def train_level(trainer: Trainer, budget: schedule.Budget | None, checkpoints: Checkpoints, progress, log) -> None:
+    """Train the current level to its end (from where a resumed run
+    stopped), then save a checkpoint."""
+    level = trainer.level
+    trainer.start_level(budget.start_level(level) if budget and trainer.iteration == 0 else None)
+    plan = schedule.LevelPlan(budget, level, trainer.plan[level], trainer.iteration)
+    log(f"level {level + 1}/{len(trainer.sizes)}: grid {trainer.sizes[level]}, noise amplitude "
+        f"{trainer.noise_amps[level]:.4g}, {plan.iters} iterations at lr {trainer.lrs[level]:.3g}")
+    recon_inputs = trainer.recon_inputs()
+    rewinds = Rewinds(trainer, checkpoints.path, log)
+    while plan.goes_on(trainer.iteration):
+        losses, seconds = trainer.step(recon_inputs)
+        if rewinds.went_back(losses):
+            continue
+        trainer.count_iteration()
+        rewinds.counted()
+        plan.observe(seconds)
+        if progress:
+            progress(Progress.of(trainer, losses))
+        checkpoints.save_if_due(trainer)
+    if plan.cut:
+        log(f"level {level + 1} used its share of the budget after {trainer.iteration} iterations")
+    trainer.finish_level()
+    checkpoints.save(trainer)
+    log(f"level {level + 1} done in {trainer.seconds[-1]:.0f} s; checkpoint {checkpoints.path}")
+
+
+def export_run(trainer: Trainer, budget: schedule.Budget | None, output_path: Path) -> dict:
+    """Write the trained model with how it was made; returns its manifest
+    (the voxel baseline has no .onnx form: its checkpoint is the model)."""
+    config = trainer.config
     if config.minutes is not None:  # the plan is part of how the model was made
         config = dataclasses.replace(config, level_iters=tuple(trainer.plan))
     # Recorded beside the times: where training ran and, under a budget, its plan.
+    placement = trainer.placement
     ran_on = {"device": placement.device.type, "precision": placement.precision, "learning_rates": trainer.lrs}
     if trainer.rewinds:
         ran_on["rewinds"] = trainer.rewinds
     if budget:
-        ran_on["planned_iterations"] = budget.planned
-        ran_on["measured_seconds_per_iteration"] = [round(c, 4) for c in budget.costs]
-    if config.generator == "voxel":  # the baseline has no .onnx form: its checkpoint is the model
+        ran_on.update(budget.record())
+    if config.generator == "voxel":
         return {"levels": [{"size": list(s)} for s in trainer.sizes],
                 "training": {"seconds": sum(trainer.seconds), "level_seconds": trainer.seconds, **ran_on}}
     return export.export_model(trainer.generator, sizes=trainer.sizes, noise_amps=trainer.noise_amps,
-                               config=config, pyramid=pyramid, seconds=trainer.seconds, ran_on=ran_on,
+                               config=config, pyramid=trainer.pyramid, seconds=trainer.seconds, ran_on=ran_on,
                                path=output_path)
-
-
-def level_memory(size, config: TrainConfig) -> int:
-    """Bytes one training iteration at a level of `size` (X, Y, Z) needs
-    beyond the data and the networks. Activations grow with the channels.
-    With boxes, only the voxels of a box are decoded and judged; the planes
-    are whole either way."""
-    box = config.box or max(size)
-    seen = math.prod(min(n, box) for n in size)
-    cells = sum(math.prod(plane) for plane in plane_sizes(size))
-    activations = (GENERATOR_BYTES_PER_VOXEL + CRITIC_BYTES_PER_VOXEL) * seen + PLANE_BYTES_PER_CELL * cells
-    return LEVEL_BYTES + activations * config.channels // 32
-
-
-def check_training_memory(sizes: list, config: TrainConfig, placement) -> None:
-    """Refuse, before any level trains, a pyramid whose largest level would
-    not fit: in the GPU's free memory on CUDA, else in the memory available."""
-    if not sizes:
-        return
-    largest = max(sizes, key=math.prod)
-    limit = torch.cuda.mem_get_info(placement.device)[0] if placement.device.type == "cuda" else None
-    check_memory(level_memory(largest, config),
-                 f"training a level of {'x'.join(map(str, largest))} voxels", limit)
 
 
 def time_levels(config: TrainConfig, pyramid, placement, rounds: int = 3, seconds: float | None = None) -> tuple:
@@ -653,7 +214,7 @@ def time_levels(config: TrainConfig, pyramid, placement, rounds: int = 3, second
     trainer = Trainer(config, pyramid, placement)
     costs, startups = [], []
     began = time.monotonic()
-    for level in range(len(trainer.sizes)):
+    for _ in trainer.sizes:
         if seconds is not None and costs:
             at_least = time.monotonic() - began + config.min_iters * (
                 sum(costs) + (len(trainer.sizes) - len(costs)) * costs[-1])
@@ -664,7 +225,6 @@ def time_levels(config: TrainConfig, pyramid, placement, rounds: int = 3, second
                                  f"{sum(costs):.2f} s per iteration); give more minutes or lower min_iters",
                                  ("minutes", "min_iters"))
         started = time.monotonic()
-        trainer.level = level
         trainer.begin_level()
         recon_inputs = trainer.recon_inputs()
         trainer.iterate(recon_inputs)
@@ -673,16 +233,5 @@ def time_levels(config: TrainConfig, pyramid, placement, rounds: int = 3, second
             trainer.iterate(recon_inputs)
         costs.append((time.monotonic() - warm) / rounds)
         startups.append(max(warm - started - costs[-1], 0.0))
+        trainer.finish_level()
     return costs, startups
-
-
-def load_generator(checkpoint_path) -> tuple:
-    """The trained generator of a checkpoint, with its level sizes and noise
-    amplitudes: for sampling with torch (tests, benchmarks)."""
-    state = load_checkpoint(Path(checkpoint_path))
-    config = TrainConfig.from_dict(state["config"])
-    generator = make_generator(config.generator, config.channels, config.pool_bins, config.mlp_hidden)
-    for _ in range(count_levels(state["generator"])):
-        generator.add_level()
-    generator.load_state_dict(state["generator"])
-    return generator.eval(), [tuple(s) for s in state["sizes"]], list(state["noise_amps"])
