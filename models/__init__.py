@@ -1,5 +1,5 @@
 """Models shipped with sinshape: every NAME.onnx in this folder, with its
-card NAME.md beside it. It imports only the runtime's errors: finding a
+card NAME.md beside it. It imports only sinshape.core's errors: finding a
 model loads nothing."""
 
 from importlib import resources

@@ -19,8 +19,8 @@ runs requests for many seeds on worker processes or a Ray cluster.
 Sampling imports numpy, onnxruntime and threadpoolctl, and trimesh only
 for a whole mesh in memory (a .ply streams without it); render adds pillow,
 and evaluation and rough-mesh layouts prep's readers (scipy, h5py,
-scikit-image); the onnx package only upgrades format 1 and 2 files. Never
-torch. It stands on sinshape.core (errors, the memory budget,
+scikit-image). It reads ONNX itself (onnxfile), format 1 and 2 files
+included, and never imports the onnx package, nor torch. It stands on sinshape.core (errors, the memory budget,
 the model format, the noise, atomic files) and, for evaluation's reference
 grid only, sinshape.prep; never on sinshape.trainer, .cli or .serve: a model
 file and its manifest (docs/FORMAT.md) are all it shares with the trainer. `__version__` is the installed sinshape distribution's version.

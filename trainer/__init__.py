@@ -13,10 +13,10 @@ level), rewind (going back when a level diverges), checkpoint (saving and
 resuming), memory (what a level needs), export (the .onnx file). The input
 becomes voxel levels in sinshape.prep, which evaluation shares.
 
-It may import torch, numpy, scipy, h5py, onnx, trimesh and scikit-image,
-sinshape.prep, and from the runtime only what defines the shared contract:
-its errors, the manifest format, the noise and the writers. Never the CLI
-or serve.
+It imports torch, onnx and numpy, sinshape.prep (the voxel levels, with
+their readers) and sinshape.core (the errors, the manifest format, the
+noise, atomic files: the contract it shares with the runtime). Never the
+runtime, the CLI or serve (docs/ARCHITECTURE.md's import rules, tested).
 The method is described in docs/METHOD.md, the file it writes in
 docs/FORMAT.md.
 """
