@@ -77,13 +77,21 @@ def test_a_clamped_grid_is_written_with_a_warning(tiny_model, tmp_path):
 
 
 def test_ctrl_c_exits_130(tiny_model, tmp_path, monkeypatch):
+    """The real signal, in this process. A shell starts a background job
+    with Ctrl-C ignored, and Python keeps it so: pytest started that way
+    never sees the SIGINT, and the mock returns None. Python's own handler
+    is given for the test, as a terminal's foreground job has it."""
     from sinshape.runtime import generate
 
     def interrupted(*args, **kwargs):
         signal.raise_signal(signal.SIGINT)
 
     monkeypatch.setattr(generate, "sample", interrupted)
-    result = sinrun("sample", tiny_model, "-o", tmp_path / "s.ply")
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        result = sinrun("sample", tiny_model, "-o", tmp_path / "s.ply")
+    finally:
+        signal.signal(signal.SIGINT, previous)
     assert result.exit_code == 130 and "Traceback" not in result.output and "interrupted" in result.output
     assert not (tmp_path / "s.ply").exists()
 
