@@ -76,12 +76,20 @@ def server():
         yield running
 
 
-def peak_rss_mb(pid: int) -> float:
-    """The process's peak resident memory so far (VmHWM), in MB."""
+def memory_mb(pid: int, field: str) -> float:
+    """A memory figure of a process from /proc (VmHWM: its peak resident memory), in MB."""
     for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmHWM:"):
+        if line.startswith(field + ":"):
             return int(line.split()[1]) / 1024
-    raise AssertionError("no VmHWM in /proc")
+    raise AssertionError(f"no {field} in /proc")
+
+
+def peak_mb(pid: int, work) -> float:
+    """The process's peak resident memory while work() runs (its peak reset
+    first: /proc/PID/clear_refs), in MB."""
+    Path(f"/proc/{pid}/clear_refs").write_text("5")
+    work()
+    return memory_mb(pid, "VmHWM")
 
 
 def sample_url(base, model="terrain", **query) -> str:
@@ -361,37 +369,50 @@ def test_bad_values_are_4xx_with_one_line(server, query, status, fragment):
 
 def test_twenty_concurrent_requests(server):
     """All answered, correctly: the same seed gives the same bytes, different
-    seeds different meshes. Peak memory stays bounded: the server (models
-    loaded, ~250 MB) plus at most 2 samples in flight (slots = cores; one
-    terrain sample at scale 2 peaks near 100 MB) plus the cache (these files
-    are ~1 MB each) stays well under 1 GB over the server's whole life."""
+    seeds different meshes. Memory stays bounded by the slots (2 here): the
+    server's peak with twenty requests for ten seeds at once is at most 1.5
+    times its peak with two at once, measured side by side (the server
+    holds ~250 MB; a terrain sample at scale 2 peaks near 50 MB more;
+    unbounded, ten samples in flight would double it)."""
     base, process = server
     seeds = [200 + i % 10 for i in range(20)]
     with ThreadPoolExecutor(20) as pool:
-        answers = list(pool.map(lambda s: get(sample_url(base, seed=s, scale=2)), seeds))
+        two = peak_mb(process.pid, lambda: list(pool.map(lambda s: get(sample_url(base, seed=s, scale=2)), [190, 191])))
+        answers = []
+        twenty = peak_mb(process.pid, lambda: answers.extend(
+            pool.map(lambda s: get(sample_url(base, seed=s, scale=2)), seeds)))
     assert [status for status, _, _ in answers] == [200] * 20
     bodies = {}
     for seed, (_, headers, body) in zip(seeds, answers):
         assert bodies.setdefault(seed, body) == body
     meshes = [trimesh.load(io.BytesIO(body), file_type="glb", force="mesh") for body in bodies.values()]
     assert len({len(m.faces) for m in meshes}) > 5 and all(len(m.faces) > 1000 for m in meshes)
-    assert peak_rss_mb(process.pid) < 600
+    assert twenty <= 1.5 * two, (twenty, two)
     health = json.loads(get(f"{base}/health")[2])
     assert health["in_flight"] == health["sampling"] == 0 and 1 <= health["most_sampling"] <= health["slots"]
 
 
 def test_a_slow_request_is_cut_off_by_the_time_limit():
-    """A 504 within the limit, and the cut-off sample stops at its next slab
-    and frees its slot well before all of it could be done (4-12 s here:
-    terrain at scale 16)."""
+    """A 504 within the limit, and the cut-off sample stops instead of
+    finishing unseen (4-12 s here: terrain at scale 16): its slot comes
+    free, and the same request again is cut off too, where a sample that
+    had finished would be a cache hit. No clock is compared: a busy
+    machine only makes the wait longer."""
     with running_server("terrain", "--timeout", "0.3") as (base, _):
-        started = time.perf_counter()
-        status, _, body = get(sample_url(base, seed=1, scale=16))
-        assert status == 504 and "longer than the 0.3 s limit" in json.loads(body)["detail"]
-        while json.loads(get(f"{base}/health")[2])["sampling"]:
-            time.sleep(0.02)
-        assert time.perf_counter() - started < 2.5
+        for _ in range(2):
+            status, headers, body = get(sample_url(base, seed=1, scale=16))
+            assert status == 504 and "longer than the 0.3 s limit" in json.loads(body)["detail"]
+            assert headers.get("X-Cache") != "hit"
+            wait_until_idle(base)
         assert get(f"{base}/api/models/terrain")[0] == 200
+
+
+def wait_until_idle(base) -> None:
+    """Until no sample is being made (a hang guard only: minutes)."""
+    deadline = time.monotonic() + 300
+    while json.loads(get(f"{base}/health")[2])["sampling"]:
+        assert time.monotonic() < deadline, "the samples never stopped"
+        time.sleep(0.05)
 
 
 def test_only_the_allowed_host_names_are_answered(server):
@@ -407,7 +428,9 @@ def test_only_the_allowed_host_names_are_answered(server):
 
 def test_a_client_that_leaves_frees_its_slot():
     """Requests whose clients give up after 0.5 s stop their samples (terrain
-    at scale 24 takes far longer), so the next request is not kept waiting."""
+    at scale 24 takes far longer), so the next request is not kept waiting;
+    a stopped sample is not cached, as a finished one would be. No clock is
+    compared but a client's patience, which a busy machine cannot fail."""
     with running_server("terrain", "--timeout", "60") as (base, _):
         def impatient(seed):
             try:
@@ -417,11 +440,10 @@ def test_a_client_that_leaves_frees_its_slot():
 
         with ThreadPoolExecutor(4) as pool:
             list(pool.map(impatient, range(4)))
-        started = time.perf_counter()
-        while json.loads(get(f"{base}/health")[2])["sampling"]:
-            assert time.perf_counter() - started < 10, "the abandoned samples still run"
-            time.sleep(0.05)
+        wait_until_idle(base)
         assert get(sample_url(base, seed=1))[0] == 200
+        with pytest.raises(OSError):  # seed 0 was stopped, not finished and cached: no quick answer
+            urllib.request.urlopen(sample_url(base, seed=0, scale=24), timeout=2)
 
 
 def test_a_timeout_that_is_not_a_positive_number_is_refused():
