@@ -134,6 +134,9 @@ def signals_deferred(*signums):
     where they are handled), and the processes it starts hold them back until
     they let them in: a worker still starting would print Ctrl-C's
     traceback, or, its driver gone before sending it its work, an EOFError's."""
+    from multiprocessing import resource_tracker
+
+    resource_tracker.ensure_running()  # first: starting, it lets SIGINT and SIGTERM in again
     came, handlers = [], {}
     if threading.current_thread() is threading.main_thread():
         handlers = {signum: signal.signal(signum, lambda signum, frame: came.append(signum)) for signum in signums}

@@ -65,9 +65,10 @@ def stop(process, signum) -> str:
     return err.strip().splitlines()[-1]
 
 
-def has_children(process):
-    """Ready once the command has started processes of its own (workers, which are still importing)."""
-    return lambda: Path(f"/proc/{process.pid}/task/{process.pid}/children").read_text().strip() != ""
+def starting_workers(process):
+    """Ready once the command has started a worker (its second child, after
+    multiprocessing's resource tracker), which is still importing."""
+    return lambda: len(Path(f"/proc/{process.pid}/task/{process.pid}/children").read_text().split()) >= 2
 
 
 def lines_in(path):
@@ -102,7 +103,7 @@ def test_many_samples_on_worker_processes(tmp_path, signum):
     while they start (the signal comes then)."""
     with running(["sample", "terrain", "--seeds", "0-999", "--scale", 4, "--workers", 2, "-o", "{seed}.ply"],
                  tmp_path) as process:
-        wait_for(process, has_children(process), "started workers")
+        wait_for(process, starting_workers(process), "started workers")
         assert stop(process, signum) == ENDINGS[signum][1]
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temporary file
 
