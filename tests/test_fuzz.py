@@ -25,7 +25,6 @@ import struct
 import sys
 import tempfile
 import time
-import urllib.request
 from datetime import timedelta
 from pathlib import Path
 
@@ -603,7 +602,7 @@ def test_a_resumed_job_redoes_exactly_its_damaged_seeds(finished_job, tmp_path_f
 
 
 # -- clients that leave -----------------------------------------------------
-HANG_SECONDS = 25  # a hang guard only, inside hypothesis's deadline: a sample at scale 24 runs 15 s here
+HANG_SECONDS = 25  # a hang guard only, inside hypothesis's deadline (a scale-24 sample left running: 15 s here)
 LOG_ALARMS = ("Traceback", "ERROR", "Exception")
 
 
@@ -668,10 +667,9 @@ def test_a_client_that_leaves_at_any_moment(tiny_server, kind, seed, scale, form
     """A client sends all of a request or part of it, waits, perhaps reads
     part of the answer, and leaves (FIN, or RST). The server frees what the
     request held (nothing in flight, no sample being made), logs no error or
-    traceback, and answers the next request. A sample at scale 24 takes far
-    longer than the client stays: it is stopped, so not cached, and the
-    same request again is no quick answer. No clock is compared but a
-    client's patience, which a busy machine cannot fail."""
+    traceback, and answers the next request. That a left sample stops at its
+    next slab rather than running on is measured, in CPU time, by
+    test_serve.py's test_a_client_that_leaves_frees_its_slot."""
     import json
     import socket
 
@@ -703,10 +701,6 @@ def test_a_client_that_leaves_at_any_moment(tiny_server, kind, seed, scale, form
             break
         assert time.perf_counter() - started < HANG_SECONDS, f"still busy after the client left: {health}"
         time.sleep(0.05)
-    if kind == "sample" and scale == 24:
-        with pytest.raises(OSError):
-            urllib.request.urlopen(f"{base}/api/models/tiny/sample?seed={seed}&scale={scale}&format={format}",
-                                   timeout=1)
     assert get(f"{base}/api/models/tiny/sample?seed=0&format=npz")[0] == 200
     time.sleep(0.05)  # what the server logs reaches the reader
     assert not alarms(printed[before:]), "".join(printed[before:])
