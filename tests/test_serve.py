@@ -325,17 +325,21 @@ def test_every_format_loads(server, fmt):
 
 
 def test_a_repeated_request_is_a_cache_hit(server):
+    """The hit is not made again: the fastest of three hits takes under a
+    third of the miss, measured one after the other (a busy machine would
+    have to stall all three)."""
     url = sample_url(server[0], seed=11, scale=2)
     started = time.perf_counter()
     status, first, body = get(url)
-    missed = time.perf_counter() - started
-    started = time.perf_counter()
-    status2, second, body2 = get(url.replace("scale=2", "scale=2.0"))  # the same request, normalised
-    hit = time.perf_counter() - started
+    missed, hits = time.perf_counter() - started, []
+    for _ in range(3):
+        started = time.perf_counter()
+        status2, second, body2 = get(url.replace("scale=2", "scale=2.0"))  # the same request, normalised
+        hits.append(time.perf_counter() - started)
     assert status == status2 == 200 and body == body2
     assert first["X-Cache"] == "miss" and second["X-Cache"] == "hit"
     assert first["ETag"] == second["ETag"] and first["ETag"].startswith('"')  # strong: no W/
-    assert hit < missed / 3, (hit, missed)
+    assert min(hits) < missed / 3, (hits, missed)
     status, headers, body = get(url, {"If-None-Match": first["ETag"]})
     assert status == 304 and body == b"" and headers["ETag"] == first["ETag"]
     other = get(sample_url(server[0], seed=12, scale=2))[1]
