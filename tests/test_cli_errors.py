@@ -131,3 +131,18 @@ def test_sigterm_during_a_large_sample_leaves_no_temporary_file(tmp_path):
     _, err = process.communicate(timeout=60)
     assert process.returncode == 143 and "terminated" in err and "Traceback" not in err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_signal_while_a_compiled_module_loads_is_still_the_signal(tiny_model, tmp_path, monkeypatch):
+    """onnxruntime's import turns a KeyboardInterrupt raised as it loads into
+    ImportError("initialization failed"): Ctrl-C or `kill` in a command's
+    first second ended in that traceback, exit 1."""
+    from sinshape.cli.main import Terminated
+    from sinshape.runtime import generate
+
+    def loading(*args, **kwargs):
+        raise ImportError("initialization failed") from Terminated()
+
+    monkeypatch.setattr(generate, "sample", loading)
+    result = sinrun("sample", tiny_model, "-o", tmp_path / "s.ply")
+    assert result.exit_code == 143 and result.output.strip() == "terminated", result.output
