@@ -68,9 +68,19 @@ class Sinrun(click.Group):
                 raise
             raise click.ClickException(f"this needs {top}, which is not installed: "
                                        f"pip install 'sinshape[{EXTRAS[top]}]'") from None
+        except ImportError as error:  # a signal while a compiled module (onnxruntime) initialises
+            if not isinstance(error.__cause__ or error.__context__, KeyboardInterrupt):
+                raise
+            exit_stopped(error.__cause__ or error.__context__)
         except KeyboardInterrupt as stop:
-            click.echo("terminated" if isinstance(stop, Terminated) else "interrupted", err=True)
-            sys.exit(143 if isinstance(stop, Terminated) else 130)
+            exit_stopped(stop)
+
+
+def exit_stopped(stop: BaseException, message: str | None = None) -> None:
+    """Exit as a shell reports the signal: 143 after SIGTERM (Terminated), 130 after Ctrl-C."""
+    terminated = isinstance(stop, Terminated) or Terminated.seen
+    click.echo(message or ("terminated" if terminated else "interrupted"), err=True)
+    sys.exit(143 if terminated else 130)
 
 
 @click.group(cls=Sinrun, context_settings={"help_option_names": ["-h", "--help"]})
@@ -96,10 +106,6 @@ class Command(click.Command):
 
 
 cli.command_class = Command
-
-
-def raise_interrupt(signum, frame):
-    raise KeyboardInterrupt
 
 
 class TrainCommand(Command):
@@ -192,14 +198,12 @@ def train(input_path, output, preset, res, levels, iters, minutes, min_iters, de
     if levels is None:  # an .h5 file with fewer levels blames where the count came from
         click.get_current_context().meta[SOURCES] = {
             "levels": "the checkpoint's levels" if resume else f"the {preset or 'default'} preset's levels"}
-    signal.signal(signal.SIGTERM, raise_interrupt)  # `kill` saves a checkpoint too, like Ctrl-C
     try:
         with TrainProgress(quiet=quiet) as progress:
             manifest = training.train(input_path, output, config, resume=resume, device=device,
                                       checkpoint_path=checkpoint, progress=progress, log=progress.log)
-    except training.Interrupted as error:
-        click.echo(command_line_message(error), err=True)
-        sys.exit(130)
+    except training.Interrupted as error:  # Ctrl-C or `kill` (Terminated): a checkpoint was saved
+        exit_stopped(error.__context__, command_line_message(error))
     except training.TrainingDiverged as error:  # OPTIONS has no seed: sample's come from --seed, --seeds, --keep
         raise click.ClickException(command_line_message(error, {"seed": "--seed"})) from None
     sizes = ", ".join("x".join(map(str, level["size"])) for level in manifest["levels"])
@@ -706,10 +710,14 @@ def list_models():
 
 class Terminated(KeyboardInterrupt):
     """SIGTERM, raised where Ctrl-C would be, so that it unwinds the same way:
-    temporary files removed, a training checkpoint saved."""
+    temporary files removed, a training checkpoint saved. `seen` stays set
+    where a library turns it into a plain KeyboardInterrupt (Ray's wait)."""
+
+    seen = False
 
 
 def terminate(signum, frame):
+    Terminated.seen = True
     raise Terminated
 
 

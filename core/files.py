@@ -130,4 +130,7 @@ def _create_temporary(path: Path) -> tuple:
             return tmp, os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o666)
         except FileExistsError:
             continue
+        except BaseException:  # a signal handled as open returned: the file is made, and ours
+            tmp.unlink(missing_ok=True)
+            raise
     raise FileExistsError(errno.EEXIST, "no free temporary name", str(path))

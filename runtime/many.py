@@ -12,6 +12,7 @@ Seeds are taken lazily, a few ahead of the workers, so a range of any length
 costs nothing up front.
 """
 
+import contextlib
 import dataclasses
 import hashlib
 import json
@@ -21,6 +22,7 @@ import re
 import signal
 import socket
 import tempfile
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -161,12 +163,49 @@ _worker = None  # a pool process's Worker
 
 def _start_process(*args) -> None:
     global _worker
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the driver's to handle
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGTERM})  # Ctrl-C stays held: the driver's to handle
     _worker = Worker(*args)
 
 
 def _run_in_process(item) -> tuple:
     return _worker.run(item)
+
+
+@contextlib.contextmanager
+def signals_deferred(*signums):
+    """Signals that come during the block act after it (in the main thread,
+    where they are handled), and the processes it starts hold them back until
+    they let them in: a worker still starting would print Ctrl-C's
+    traceback, or, its driver gone before sending it its work, an EOFError's."""
+    from multiprocessing import resource_tracker
+
+    resource_tracker.ensure_running()  # first: starting, it lets SIGINT and SIGTERM in again
+    came, handlers = [], {}
+    if threading.current_thread() is threading.main_thread():
+        handlers = {signum: signal.signal(signum, lambda signum, frame: came.append(signum)) for signum in signums}
+    mask = signal.pthread_sigmask(signal.SIG_BLOCK, signums)  # what started processes inherit
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
+        for signum, handler in handlers.items():
+            signal.signal(signum, handler)
+        for signum in came[:1]:
+            signal.raise_signal(signum)
+
+
+@contextlib.contextmanager
+def handler_kept(signum: int):
+    """The handler of `signum` after the block as before it (in the main
+    thread: elsewhere signals are not this thread's to set)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.getsignal(signum)
+    try:
+        yield
+    finally:
+        signal.signal(signum, previous)
 
 
 class InProcess:
@@ -193,8 +232,9 @@ class Processes:
     def __init__(self, model_path, suffix, threads, request, field, workers: int):
         import multiprocessing
 
-        self.pool = multiprocessing.get_context("spawn").Pool(
-            workers, initializer=_start_process, initargs=(str(model_path), suffix, threads, request, field))
+        with signals_deferred(signal.SIGINT, signal.SIGTERM):
+            self.pool = multiprocessing.get_context("spawn").Pool(
+                workers, initializer=_start_process, initargs=(str(model_path), suffix, threads, request, field))
         self.results = queue.Queue()
         self.slots = 2 * workers  # one running and one waiting per worker
 
@@ -240,8 +280,9 @@ class RayActors:
         if self.started:
             check_reachable(address)
             try:
-                ray.init(address=address, include_dashboard=False, logging_level="ERROR",
-                         log_to_driver=False)
+                with handler_kept(signal.SIGTERM):  # not Ray's handler: it exits 1 with a stack dump
+                    ray.init(address=address, include_dashboard=False, logging_level="ERROR",
+                             log_to_driver=False)
             except (ConnectionError, RuntimeError, ValueError) as error:
                 where = address or os.environ.get("RAY_ADDRESS") or "a local Ray"
                 raise InputError(f"cannot reach the Ray cluster at {where}: {str(error).splitlines()[0]}",

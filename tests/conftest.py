@@ -4,11 +4,30 @@ Tests need nothing outside the checkout: inputs are made here, by
 prep/shapes.py, or read from tests/data (see its README for licences).
 """
 
+import signal
 from pathlib import Path
 
 import h5py
 import numpy as np
 import pytest
+
+
+# How this process takes each signal when the session starts.
+SESSION_HANDLERS = {signum: signal.getsignal(signum) for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGALRM)}
+
+
+@pytest.fixture(autouse=True)
+def no_signal_handler_left_behind(request):
+    """A test (or a fixture of it) that changes how this process takes a
+    signal puts it back: a handler left behind (Ray's SIGTERM exit, an
+    ignored Ctrl-C) changes what every later test sees, and only in the
+    full suite. The handler is restored and the test fails in its teardown."""
+    yield
+    left = {signum.name: signal.getsignal(signum) for signum, handler in SESSION_HANDLERS.items()
+            if signal.getsignal(signum) != handler}
+    for signum, handler in SESSION_HANDLERS.items():
+        signal.signal(signum, handler)
+    assert not left, f"{request.node.nodeid} left signal handlers behind: {left}"
 
 
 def write_pyramid(path, sizes):

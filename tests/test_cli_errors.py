@@ -77,13 +77,21 @@ def test_a_clamped_grid_is_written_with_a_warning(tiny_model, tmp_path):
 
 
 def test_ctrl_c_exits_130(tiny_model, tmp_path, monkeypatch):
+    """The real signal, in this process. A shell starts a background job
+    with Ctrl-C ignored, and Python keeps it so: pytest started that way
+    never sees the SIGINT, and the mock returns None. Python's own handler
+    is given for the test, as a terminal's foreground job has it."""
     from sinshape.runtime import generate
 
     def interrupted(*args, **kwargs):
         signal.raise_signal(signal.SIGINT)
 
     monkeypatch.setattr(generate, "sample", interrupted)
-    result = sinrun("sample", tiny_model, "-o", tmp_path / "s.ply")
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        result = sinrun("sample", tiny_model, "-o", tmp_path / "s.ply")
+    finally:
+        signal.signal(signal.SIGINT, previous)
     assert result.exit_code == 130 and "Traceback" not in result.output and "interrupted" in result.output
     assert not (tmp_path / "s.ply").exists()
 
@@ -123,3 +131,18 @@ def test_sigterm_during_a_large_sample_leaves_no_temporary_file(tmp_path):
     _, err = process.communicate(timeout=60)
     assert process.returncode == 143 and "terminated" in err and "Traceback" not in err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_signal_while_a_compiled_module_loads_is_still_the_signal(tiny_model, tmp_path, monkeypatch):
+    """onnxruntime's import turns a KeyboardInterrupt raised as it loads into
+    ImportError("initialization failed"): Ctrl-C or `kill` in a command's
+    first second ended in that traceback, exit 1."""
+    from sinshape.cli.main import Terminated
+    from sinshape.runtime import generate
+
+    def loading(*args, **kwargs):
+        raise ImportError("initialization failed") from Terminated()
+
+    monkeypatch.setattr(generate, "sample", loading)
+    result = sinrun("sample", tiny_model, "-o", tmp_path / "s.ply")
+    assert result.exit_code == 143 and result.output.strip() == "terminated", result.output

@@ -602,7 +602,7 @@ def test_a_resumed_job_redoes_exactly_its_damaged_seeds(finished_job, tmp_path_f
 
 
 # -- clients that leave -----------------------------------------------------
-SETTLE_SECONDS = 8  # a sample at scale 24 that nobody stops runs 15 s here
+HANG_SECONDS = 25  # a hang guard only, inside hypothesis's deadline (a scale-24 sample left running: 15 s here)
 LOG_ALARMS = ("Traceback", "ERROR", "Exception")
 
 
@@ -666,8 +666,10 @@ def http_request(kind: str, seed: int, scale: int, format: str) -> tuple:
 def test_a_client_that_leaves_at_any_moment(tiny_server, kind, seed, scale, format, data, wait, read, reset):
     """A client sends all of a request or part of it, waits, perhaps reads
     part of the answer, and leaves (FIN, or RST). The server frees what the
-    request held within SETTLE_SECONDS (nothing in flight, no sample being
-    made), logs no error or traceback, and answers the next request."""
+    request held (nothing in flight, no sample being made), logs no error or
+    traceback, and answers the next request. That a left sample stops at its
+    next slab rather than running on is measured, in CPU time, by
+    test_serve.py's test_a_client_that_leaves_frees_its_slot."""
     import json
     import socket
 
@@ -697,7 +699,7 @@ def test_a_client_that_leaves_at_any_moment(tiny_server, kind, seed, scale, form
         health = json.loads(body)
         if status == 200 and health["in_flight"] == health["sampling"] == 0:
             break
-        assert time.perf_counter() - started < SETTLE_SECONDS, f"still busy after the client left: {health}"
+        assert time.perf_counter() - started < HANG_SECONDS, f"still busy after the client left: {health}"
         time.sleep(0.05)
     assert get(f"{base}/api/models/tiny/sample?seed=0&format=npz")[0] == 200
     time.sleep(0.05)  # what the server logs reaches the reader

@@ -1,6 +1,7 @@
 """Many seeds as one resumable job: worker processes, Ray, an index that a rerun verifies."""
 
 import json
+import signal
 import sys
 
 import pytest
@@ -118,7 +119,8 @@ def test_a_world_size_sample_that_does_not_fit_is_refused(tmp_path):
 @pytest.fixture(scope="module")
 def local_ray():
     ray = pytest.importorskip("ray", reason="the ray extra is not installed: pip install 'sinshape[ray]'")
-    ray.init(num_cpus=2, include_dashboard=False, logging_level="ERROR", log_to_driver=False)
+    with many.handler_kept(signal.SIGTERM):  # Ray's own would outlive the fixture
+        ray.init(num_cpus=2, include_dashboard=False, logging_level="ERROR", log_to_driver=False)
     yield ray
     ray.shutdown()
 

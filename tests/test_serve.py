@@ -4,6 +4,7 @@ import contextlib
 import gzip
 import io
 import json
+import os
 import re
 import socket
 import subprocess
@@ -76,12 +77,20 @@ def server():
         yield running
 
 
-def peak_rss_mb(pid: int) -> float:
-    """The process's peak resident memory so far (VmHWM), in MB."""
+def memory_mb(pid: int, field: str) -> float:
+    """A memory figure of a process from /proc (VmHWM: its peak resident memory), in MB."""
     for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmHWM:"):
+        if line.startswith(field + ":"):
             return int(line.split()[1]) / 1024
-    raise AssertionError("no VmHWM in /proc")
+    raise AssertionError(f"no {field} in /proc")
+
+
+def peak_mb(pid: int, work) -> float:
+    """The process's peak resident memory while work() runs (its peak reset
+    first: /proc/PID/clear_refs), in MB."""
+    Path(f"/proc/{pid}/clear_refs").write_text("5")
+    work()
+    return memory_mb(pid, "VmHWM")
 
 
 def sample_url(base, model="terrain", **query) -> str:
@@ -316,17 +325,21 @@ def test_every_format_loads(server, fmt):
 
 
 def test_a_repeated_request_is_a_cache_hit(server):
+    """The hit is not made again: the fastest of three hits takes under a
+    third of the miss, measured one after the other (a busy machine would
+    have to stall all three)."""
     url = sample_url(server[0], seed=11, scale=2)
     started = time.perf_counter()
     status, first, body = get(url)
-    missed = time.perf_counter() - started
-    started = time.perf_counter()
-    status2, second, body2 = get(url.replace("scale=2", "scale=2.0"))  # the same request, normalised
-    hit = time.perf_counter() - started
+    missed, hits = time.perf_counter() - started, []
+    for _ in range(3):
+        started = time.perf_counter()
+        status2, second, body2 = get(url.replace("scale=2", "scale=2.0"))  # the same request, normalised
+        hits.append(time.perf_counter() - started)
     assert status == status2 == 200 and body == body2
     assert first["X-Cache"] == "miss" and second["X-Cache"] == "hit"
     assert first["ETag"] == second["ETag"] and first["ETag"].startswith('"')  # strong: no W/
-    assert hit < missed / 3, (hit, missed)
+    assert min(hits) < missed / 3, (hits, missed)
     status, headers, body = get(url, {"If-None-Match": first["ETag"]})
     assert status == 304 and body == b"" and headers["ETag"] == first["ETag"]
     other = get(sample_url(server[0], seed=12, scale=2))[1]
@@ -361,36 +374,70 @@ def test_bad_values_are_4xx_with_one_line(server, query, status, fragment):
 
 def test_twenty_concurrent_requests(server):
     """All answered, correctly: the same seed gives the same bytes, different
-    seeds different meshes. Peak memory stays bounded: the server (models
-    loaded, ~250 MB) plus at most 2 samples in flight (slots = cores; one
-    terrain sample at scale 2 peaks near 100 MB) plus the cache (these files
-    are ~1 MB each) stays well under 1 GB over the server's whole life."""
+    seeds different meshes. Memory stays bounded by the slots (2 here): the
+    server's peak with twenty requests for ten seeds at once is at most 1.5
+    times its peak with two at once, measured side by side (the server
+    holds ~250 MB; a terrain sample at scale 2 peaks near 50 MB more;
+    unbounded, ten samples in flight would double it)."""
     base, process = server
     seeds = [200 + i % 10 for i in range(20)]
     with ThreadPoolExecutor(20) as pool:
-        answers = list(pool.map(lambda s: get(sample_url(base, seed=s, scale=2)), seeds))
+        two = peak_mb(process.pid, lambda: list(pool.map(lambda s: get(sample_url(base, seed=s, scale=2)), [190, 191])))
+        answers = []
+        twenty = peak_mb(process.pid, lambda: answers.extend(
+            pool.map(lambda s: get(sample_url(base, seed=s, scale=2)), seeds)))
     assert [status for status, _, _ in answers] == [200] * 20
     bodies = {}
     for seed, (_, headers, body) in zip(seeds, answers):
         assert bodies.setdefault(seed, body) == body
     meshes = [trimesh.load(io.BytesIO(body), file_type="glb", force="mesh") for body in bodies.values()]
     assert len({len(m.faces) for m in meshes}) > 5 and all(len(m.faces) > 1000 for m in meshes)
-    assert peak_rss_mb(process.pid) < 600
+    assert twenty <= 1.5 * two, (twenty, two)
     health = json.loads(get(f"{base}/health")[2])
     assert health["in_flight"] == health["sampling"] == 0 and 1 <= health["most_sampling"] <= health["slots"]
 
 
+def cpu_seconds(pid: int) -> float:
+    """The CPU time a process has used (user and system, all its threads), from /proc."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def a_smaller_sample_cpu_seconds() -> float:
+    """The CPU time of one whole terrain sample at scale 8 in this process,
+    an eighth of the points of one at scale 16: the yardstick that work
+    left running after a request ends is measured by, side by side."""
+    from sinshape.runtime import load_model, write
+    from sinshape.runtime.request import SampleRequest
+
+    model = load_model(models.find("terrain"), threads=2)
+    started = time.process_time()
+    write.request_bytes(model, SampleRequest(1, scale=8), "yardstick.glb", threads=2)
+    return time.process_time() - started
+
+
+def wait_until_idle(base) -> None:
+    """Until no sample is being made (a hang guard only: minutes)."""
+    deadline = time.monotonic() + 300
+    while json.loads(get(f"{base}/health")[2])["sampling"]:
+        assert time.monotonic() < deadline, "the samples never stopped"
+        time.sleep(0.05)
+
+
 def test_a_slow_request_is_cut_off_by_the_time_limit():
-    """A 504 within the limit, and the cut-off sample stops at its next slab
-    and frees its slot well before all of it could be done (4-12 s here:
-    terrain at scale 16)."""
-    with running_server("terrain", "--timeout", "0.3") as (base, _):
-        started = time.perf_counter()
+    """A 504 within the limit, and the cut-off sample stops at its next
+    slab: the server's CPU time from the 504 until its slot is free is less
+    than a whole sample at scale 8 costs (measured beside it; 0.3 times
+    here), where going on to the end costs 3.6 times (terrain at scale 16).
+    CPU time, not the clock: a busy machine stretches the wait, not the work."""
+    with running_server("terrain", "--timeout", "0.3") as (base, process):
         status, _, body = get(sample_url(base, seed=1, scale=16))
+        cut = cpu_seconds(process.pid)
         assert status == 504 and "longer than the 0.3 s limit" in json.loads(body)["detail"]
-        while json.loads(get(f"{base}/health")[2])["sampling"]:
-            time.sleep(0.02)
-        assert time.perf_counter() - started < 2.5
+        wait_until_idle(base)
+        after = cpu_seconds(process.pid) - cut
+        yardstick = a_smaller_sample_cpu_seconds()
+        assert after < yardstick, (after, yardstick)
         assert get(f"{base}/api/models/terrain")[0] == 200
 
 
@@ -407,8 +454,11 @@ def test_only_the_allowed_host_names_are_answered(server):
 
 def test_a_client_that_leaves_frees_its_slot():
     """Requests whose clients give up after 0.5 s stop their samples (terrain
-    at scale 24 takes far longer), so the next request is not kept waiting."""
-    with running_server("terrain", "--timeout", "60") as (base, _):
+    at scale 24 takes far longer), so the next request is not kept waiting:
+    the server's CPU time after the clients left is less than six times a
+    whole sample at scale 8 costs (measured beside it; 1.4-2.2 times here),
+    where the samples going on cost twenty times. CPU time, not the clock."""
+    with running_server("terrain", "--timeout", "60") as (base, process):
         def impatient(seed):
             try:
                 urllib.request.urlopen(sample_url(base, seed=seed, scale=24), timeout=0.5)
@@ -417,10 +467,11 @@ def test_a_client_that_leaves_frees_its_slot():
 
         with ThreadPoolExecutor(4) as pool:
             list(pool.map(impatient, range(4)))
-        started = time.perf_counter()
-        while json.loads(get(f"{base}/health")[2])["sampling"]:
-            assert time.perf_counter() - started < 10, "the abandoned samples still run"
-            time.sleep(0.05)
+        left = cpu_seconds(process.pid)
+        wait_until_idle(base)
+        after = cpu_seconds(process.pid) - left
+        yardstick = a_smaller_sample_cpu_seconds()
+        assert after < 6 * yardstick, (after, yardstick)
         assert get(sample_url(base, seed=1))[0] == 200
 
 
@@ -453,7 +504,6 @@ def test_serve_without_the_extra_says_how_to_get_it(monkeypatch):
 
 
 def test_models_by_name_or_path_and_every_shipped_one_by_default(tmp_path):
-    from sinshape import models
     from sinshape.serve import app
 
     assert list(app.load_models([])) == sorted(models.available())

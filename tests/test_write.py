@@ -51,6 +51,22 @@ def test_a_failing_write_keeps_the_old_file_and_leaves_no_temporary(tmp_path, fa
     assert os.listdir(tmp_path) == ["model.onnx"]
 
 
+def test_a_signal_as_the_temporary_is_made_leaves_no_temporary(tmp_path, monkeypatch):
+    """Python runs a signal's handler as soon as os.open returns: the file
+    is made, its descriptor never handed back (a loaded machine, SIGTERM
+    sent on seeing the file, hit it)."""
+    opened = os.open
+
+    def open_then_terminated(*args):
+        opened(*args)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(os, "open", open_then_terminated)
+    with pytest.raises(KeyboardInterrupt):
+        atomic_write(tmp_path / "s.ply", lambda f: f.write(b"never"))
+    assert os.listdir(tmp_path) == []
+
+
 def test_a_full_disk_is_one_line_naming_the_file(tmp_path):
     def full(f):
         raise OSError(errno.ENOSPC, "No space left on device")

@@ -1,0 +1,141 @@
+"""A stopped command ends the same way whichever it is: exit 130 after Ctrl-C
+(SIGINT, sent to the whole process group as a terminal does) and 143 after
+SIGTERM (`kill`, sent to the command alone), with one line on stderr, no
+traceback, and no partial output file. Each command runs as a real process
+and is signalled once its work is under way. Commands that finish at once
+(info, models, layout, shape, export-web) have no work to stop; they share
+the handler in cli.main.Sinrun with the ones tested here."""
+
+import contextlib
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+pytestmark = pytest.mark.skipif(not os.path.isdir("/proc/self"), reason="reads /proc/PID/maps")
+
+SINRUN = [sys.executable, "-c", "from sinshape.cli.main import main; main()"]
+ENDINGS = {signal.SIGINT: (130, "interrupted"), signal.SIGTERM: (143, "terminated")}
+
+
+@contextlib.contextmanager
+def running(args, folder):
+    """sinrun ARGS in `folder`, in a process group of its own, with Ctrl-C
+    acting as in a terminal (a shell's background job would ignore it)."""
+    process = subprocess.Popen(SINRUN + [str(a) for a in args], cwd=folder, stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True, start_new_session=True,
+                               preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    try:
+        yield process
+    finally:
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
+            process.communicate()
+
+
+def wait_for(process, ready, what: str) -> None:
+    deadline = time.monotonic() + 300  # a hang guard only: the work is minutes long
+    while not ready():
+        if process.poll() is not None or time.monotonic() > deadline:
+            raise AssertionError(f"never {what}: {process.communicate()}")
+        time.sleep(0.05)
+
+
+def loaded(process, library="onnxruntime"):
+    """Ready once the command's body has begun: it imports its library there."""
+    def ready():
+        with open(f"/proc/{process.pid}/maps") as maps:
+            return library in maps.read()
+    return ready
+
+
+def stop(process, signum) -> str:
+    """Send the signal as it comes in use; assert the exit status; returns stderr's last line."""
+    if signum == signal.SIGINT:
+        os.killpg(process.pid, signum)
+    else:
+        process.send_signal(signum)
+    _, err = process.communicate(timeout=120)
+    assert process.returncode == ENDINGS[signum][0] and "Traceback" not in err, err
+    return err.strip().splitlines()[-1]
+
+
+def starting_workers(process):
+    """Ready once the command has started a worker (its second child, after
+    multiprocessing's resource tracker), which is still importing."""
+    return lambda: len(Path(f"/proc/{process.pid}/task/{process.pid}/children").read_text().split()) >= 2
+
+
+def lines_in(path):
+    return lambda: path.is_file() and path.read_bytes().count(b"\n") > 0
+
+
+# Each runs for minutes unless stopped; the signal comes once onnxruntime is loaded.
+COMMANDS = {
+    "sample": ["sample", "terrain", "--scale", 12, "--threads", 1, "-o", "out.ply"],
+    "interpolate": ["interpolate", "terrain", "--seeds", 0, 1, "--steps", 50, "--scale", 8, "-o", "out.ply"],
+    "render": ["render", "terrain", "--seeds", "0-99", "--scale", 6, "-o", "out.png"],
+    "eval": ["eval", "terrain", "--reference", "box.obj", "-n", 1000, "--json", "out.json"],
+}
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+@pytest.mark.parametrize("command", COMMANDS)
+def test_a_command_stopped_at_work(tmp_path, command, signum):
+    import trimesh
+
+    trimesh.creation.box((2, 1, 1)).export(tmp_path / "box.obj")
+    with running(COMMANDS[command], tmp_path) as process:
+        wait_for(process, loaded(process), "loaded onnxruntime")
+        assert stop(process, signum) == ENDINGS[signum][1]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["box.obj"]
+
+
+@pytest.mark.skipif((os.cpu_count() or 1) < 2, reason="two worker processes need two cores")
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_many_samples_on_worker_processes(tmp_path, signum):
+    """Ctrl-C reaches the workers too: they leave it to the command, even
+    while they start (the signal comes then)."""
+    with running(["sample", "terrain", "--seeds", "0-999", "--scale", 4, "--workers", 2, "-o", "{seed}.ply"],
+                 tmp_path) as process:
+        wait_for(process, starting_workers(process), "started workers")
+        assert stop(process, signum) == ENDINGS[signum][1]
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temporary file
+
+
+def test_many_samples_on_ray(tmp_path):
+    """Ray's driver has its own SIGTERM handler (exit 1 and a stack dump): the command's stays."""
+    pytest.importorskip("ray", reason="the ray extra is not installed: pip install 'sinshape[ray]'")
+    with running(["sample", "terrain", "--seeds", "0-999", "--scale", 4, "--engine", "ray", "-o", "{seed}.ply"],
+                 tmp_path) as process:
+        wait_for(process, lines_in(tmp_path / "index.jsonl"), "wrote a sample")
+        assert stop(process, signal.SIGTERM) == "terminated"
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_serve(tmp_path, signum):
+    pytest.importorskip("uvicorn", reason="the serve extra is not installed")
+    with socket.socket() as free:
+        free.bind(("127.0.0.1", 0))
+        port = free.getsockname()[1]
+    with running(["serve", "terrain", "--port", port], tmp_path) as process:
+        assert "Ctrl-C stops" in process.stderr.readline()  # listening
+        assert stop(process, signum) == ENDINGS[signum][1]
+
+
+def test_train_terminated_saves_a_checkpoint(tmp_path, tiny_pyramid):
+    """As Ctrl-C does (tests/test_cli_train.py), with the exit status of SIGTERM."""
+    pytest.importorskip("torch")
+    out = tmp_path / "m.onnx"
+    with running(["train", tiny_pyramid, "-o", out, "--preset", "tiny", "--iters", 100000], tmp_path) as process:
+        for line in process.stderr:  # training is under way
+            if "level 1/2" in line and "/100000" in line:
+                break
+        assert stop(process, signal.SIGTERM).endswith("; --resume continues from it")
+    assert out.with_name("m.ckpt.pt").exists() and not out.exists()
