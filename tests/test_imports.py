@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-PACKAGES = ("core", "prep", "runtime", "trainer", "models", "serve", "cli")
+PACKAGES = ("core", "prep", "runtime", "trainer", "models", "serve", "cli", "blender")
 
 
 def rules() -> dict:
