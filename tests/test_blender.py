@@ -5,7 +5,6 @@ cannot be imported (it exists for Python 3.11 only: the blender extra).
 Saving, reopening and the built zip: tests/test_blender_files.py."""
 
 import importlib.util
-import sys
 import threading
 from pathlib import Path
 
@@ -18,36 +17,6 @@ HAS_BPY = importlib.util.find_spec("bpy") is not None
 pytestmark = [pytest.mark.blender,
               pytest.mark.skipif(not HAS_BPY, reason="needs bpy, Blender as a Python module: "
                                                      "pip install 'sinshape[blender]' (Python 3.11)")]
-
-
-@pytest.fixture(scope="module")
-def addon():
-    """The add-on, registered in this process's Blender (bpy), on an empty scene."""
-    import bpy
-
-    sys.path.insert(0, str(ROOT))
-    import blender
-
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    blender.register()
-    yield blender
-    blender.unregister()
-    sys.path.remove(str(ROOT))
-
-
-@pytest.fixture
-def scene(addon):
-    """An empty scene for each test."""
-    import bpy
-
-    for obj in list(bpy.data.objects):
-        bpy.data.objects.remove(obj)
-    for mesh in list(bpy.data.meshes):
-        bpy.data.meshes.remove(mesh)
-    for collection in list(bpy.data.collections):
-        bpy.data.collections.remove(collection)
-    addon.live.MADE.clear()
-    return bpy.context.scene
 
 
 def add(model, **options):
