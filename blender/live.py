@@ -7,7 +7,10 @@ the main thread is what must touch Blender data or is quick (the model's
 check and load, the request); the sample itself goes to work.WORKER.
 """
 
+import contextlib
 import dataclasses
+import sys
+import types
 from pathlib import Path
 
 import bpy
@@ -215,7 +218,23 @@ def variation_pool(model_path: Path, request, count: int):
     threads = max(1, default_threads() // workers)
     if workers == 1:
         return many.InProcess(model_path, ".ply", threads, request)
-    return many.Processes(model_path, ".ply", threads, request, workers)
+    with plain_main():
+        return many.Processes(model_path, ".ply", threads, request, workers)
+
+
+@contextlib.contextmanager
+def plain_main():
+    """Worker processes started inside this block do not run the program
+    that started this Python again (multiprocessing's spawn re-imports
+    __main__ in each): in them bpy cannot be imported, so a script that
+    imports it (`blender --python`, a benchmark) would end each worker as
+    it starts, and the pool would start another, for ever."""
+    main = sys.modules["__main__"]
+    sys.modules["__main__"] = types.ModuleType("__main__")
+    try:
+        yield
+    finally:
+        sys.modules["__main__"] = main
 
 
 def variations(context, obj, seeds, arrange: str, collection_name: str) -> None:

@@ -128,3 +128,25 @@ def test_the_built_zip_installs_in_blender_and_samples_from_its_own_wheels(tmp_p
     extensions = str(tmp_path / "user" / "extensions")
     assert all(extensions in module for module in result["modules"])
     assert result["vertices"] == result["expected"] > 0 and result["faces"] == result["expected_faces"]
+
+
+SCRIPT = """
+import sys
+sys.path.insert(0, {root!r})
+import bpy, blender
+blender.register()
+bpy.ops.sinshape.add_sample(model={model!r}, seed=1)
+bpy.ops.sinshape.variations(count=2, first_seed=5)
+print("MADE", sorted(o.sinshape.seed for o in bpy.data.objects if o.sinshape.active))
+"""
+
+
+def test_variations_start_their_workers_from_a_script_that_imports_bpy(tmp_path, tiny_model):
+    """Worker processes re-import __main__ when they start; where that is a
+    script importing bpy (`blender --python`, here a file run by Python) they
+    must not, or each would die as it starts, and be started again."""
+    script = tmp_path / "script.py"
+    script.write_text(SCRIPT.format(root=str(ROOT), model=str(tiny_model)))
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert "MADE [1, 5, 6]" in done.stdout

@@ -1,0 +1,205 @@
+"""The Blender extension against the runtime alone, side by side in one run.
+
+    python benchmarks/blender_speed.py [--repeats 5] [--big-repeats 3] [--variations 20]
+
+Needs bpy (pip install 'sinshape[blender]'); runs headless, in background
+mode, where each operator finishes before it returns. Prints four tables:
+
+1. The same shape as the command line: each object's mesh against the .ply
+   `sinrun sample` writes for the same settings (write.write_request, what
+   the command calls): vertex and face counts, the largest difference of a
+   vertex in the model's frame. The shipped models at scale 1 and 4, a kept
+   box and a layout edited by moving cubes.
+2. Regenerating an object (settings -> request -> make -> extract -> the
+   turn to Z up -> the bpy mesh) against the runtime's make + extract with
+   the model loaded, alternated, median of --repeats: towerruins at scale 1
+   and 8, and the budget 1.2 x runtime + 50 ms.
+3. --variations seeds of towerruins: the Variations operator (many's worker
+   processes, objects made) against `runtime.many.sample_many` writing .ply
+   files, and against two threads of this process.
+4. Responsiveness: while a scale-8 sample is made on the add-on's worker
+   thread, the main thread runs a 10 ms timer loop that, as Blender's event
+   loop runs bpy.app.timers, calls the add-on's timer function; the longest
+   gap between ticks while the sample is computed, and the time the main
+   thread spends putting the finished mesh into Blender (which only it may).
+   Background mode has no event loop of its own: this loop stands in for it.
+"""
+
+import argparse
+import statistics
+import sys
+import tempfile
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import bpy  # noqa: E402
+
+import blender  # noqa: E402
+from blender import convert, live, work  # noqa: E402
+from sinshape import models  # noqa: E402
+from sinshape.runtime import load, many, write  # noqa: E402
+from sinshape.runtime.load import default_threads  # noqa: E402
+from sinshape.runtime.request import SampleRequest  # noqa: E402
+
+
+def add(**options):
+    bpy.ops.sinshape.add_sample(**options)
+    return bpy.context.active_object
+
+
+def difference(obj, model, request, folder: Path) -> tuple:
+    """(same counts, largest vertex difference) of an object's mesh and the command line's .ply."""
+    path = folder / "cli.ply"
+    write.write_request(model, request, path)
+    expected = convert.ply_arrays(path.read_bytes())
+    vertices, faces = convert.mesh_arrays(obj.data)
+    vertices = convert.to_model(vertices, model.manifest.up)
+    same = vertices.shape == expected[0].shape and np.array_equal(faces, expected[1])
+    return same, len(vertices), len(faces), float(np.abs(vertices - expected[0]).max()) if same else float("nan")
+
+
+def equality_table(folder: Path) -> None:
+    print("\n### The same shape as the command line\n")
+    print("| object | vertices | faces | counts and faces equal | largest vertex difference |")
+    print("|---|---|---|---|---|")
+    rows = []
+    for name in sorted(models.available()):
+        for scale in (1, 4):
+            obj = add(model=name, seed=3, scale=scale)
+            rows.append((f"{name}, seed 3, scale {scale}", obj))
+    obj = add(model="towerruins", seed=7)
+    bpy.ops.sinshape.keep_box_add()
+    rows.append((f"towerruins seed 7 keeping `{obj.sinshape.keep_part.split(':')[0]}:...` (a keep box)", obj))
+    obj = add(model="towerruins", seed=3)
+    bpy.ops.sinshape.layout_show()
+    cubes = obj.sinshape.layout_object
+    vertices = convert.mesh_vertices(cubes.data)
+    moved = vertices[:, 0] > np.median(vertices[:, 0])  # cubes past the middle along x, moved a cell along y
+    vertices[moved, 1] += np.ptp(vertices[:8, 1])
+    cubes.data.vertices.foreach_set("co", vertices.ravel())
+    bpy.context.view_layer.objects.active = obj
+    bpy.ops.sinshape.layout_apply()
+    rows.append(("towerruins seed 3, half its layout's cubes moved a cell", obj))
+    for label, obj in rows:
+        model = live.load_model(obj.sinshape)
+        same, n, f, largest = difference(obj, model, live.request_of(obj, model), folder)
+        print(f"| {label} | {n} | {f} | {'yes' if same else 'NO'} | {largest:.1e} |", flush=True)
+
+
+def timed(function) -> float:
+    started = time.perf_counter()
+    function()
+    return time.perf_counter() - started
+
+
+def speed_table(repeats: int, big_repeats: int) -> None:
+    print("\n### Regenerating an object, towerruins (median seconds)\n")
+    print("| scale | runtime: make + extract | the add-on: regenerate | ratio | budget 1.2 x + 50 ms | within |")
+    print("|---|---|---|---|---|---|")
+    model = load.load_model(models.find("towerruins"))
+    for scale, runs in ((1, repeats), (8, big_repeats)):
+        obj = add(model="towerruins", seed=3, scale=scale)
+        request = live.request_of(obj, model)
+        alone, addon = [], []
+        for _ in range(runs):  # alternated, so that a busy moment falls on both
+            alone.append(timed(lambda: live.make_mesh(model, request)))
+            addon.append(timed(lambda: live.regenerate(obj, force=True)))
+        a, b = statistics.median(alone), statistics.median(addon)
+        budget = 1.2 * a + 0.05
+        print(f"| {scale} | {a:.3f} | {b:.3f} | {b / a:.2f} | {budget:.3f} | {'yes' if b <= budget else 'NO'} |",
+              flush=True)
+
+
+def many_of_this_script(*args, **options):
+    """sample_many, its workers not importing this script (and bpy) again: live.plain_main."""
+    with live.plain_main():
+        return many.sample_many(*args, **options)
+
+
+def variations_table(count: int, folder: Path) -> None:
+    cores = default_threads()
+    print(f"\n### {count} variations of towerruins at scale 1 ({cores} cores; seconds, start-up included)\n")
+    print("| how | seconds | seeds/s |")
+    print("|---|---|---|")
+    path = models.find("towerruins")
+    obj = add(model="towerruins", seed=0)
+    model = live.load_model(obj.sinshape)
+    runs = [
+        ("the add-on's Variations (many's worker processes, objects made)",
+         lambda: bpy.ops.sinshape.variations(count=count, first_seed=1, arrange="GRID")),
+        ("runtime alone: many.sample_many to .ply files, one worker per core",
+         lambda: many_of_this_script(path, range(1, count + 1), folder / "many" / "{seed}.ply")),
+        ("runtime alone: sample_many, one worker", lambda: many.sample_many(
+            path, range(1, count + 1), folder / "one" / "{seed}.ply", workers=1)),
+        (f"{cores} threads of this process, make + extract each",
+         lambda: list(ThreadPoolExecutor(cores).map(
+             lambda seed: live.make_mesh(model, SampleRequest(seed), None), range(1, count + 1)))),
+    ]
+    for label, run in runs:
+        (folder / "many").mkdir(exist_ok=True)
+        (folder / "one").mkdir(exist_ok=True)
+        seconds = timed(run)
+        print(f"| {label} | {seconds:.2f} | {count / seconds:.2f} |", flush=True)
+
+
+def responsiveness_table(scale: float) -> None:
+    print(f"\n### The main thread while towerruins at scale {scale:g} is made (milliseconds)\n")
+    print("| while | ticks | longest gap between 10 ms ticks | 99th percentile | putting the mesh into Blender |")
+    print("|---|---|---|---|---|")
+    obj = add(model="towerruins", seed=3)
+    with live.suspended():
+        obj.sinshape.scale = scale
+    model = live.load_model(obj.sinshape)
+    request = live.request_of(obj, model)
+    worker = work.Worker(synchronous=False)
+    applying = []
+
+    def apply(arrays):
+        applying.append(timed(lambda: live.set_mesh(obj, arrays, request)))
+
+    def ticks(until) -> list:
+        gaps, last = [], time.perf_counter()
+        while not until():
+            time.sleep(0.01)
+            gaps.append(time.perf_counter() - last)
+            worker.poll()
+            last = time.perf_counter()  # the timer function's own time (putting the mesh in) counts apart
+        return gaps
+
+    started = time.perf_counter()
+    idle = ticks(lambda: time.perf_counter() - started > 2)
+    job = work.Job(obj.name, "scale 8", lambda j: j.deliver(live.make_mesh(model, request, j.progress)), apply,
+                   print)
+    worker.submit(job)
+    busy = ticks(lambda: not worker.busy())
+    for label, gaps, put in (("idle", idle, None), ("making the sample", busy, applying[0])):
+        gaps = np.array(gaps) * 1000
+        print(f"| {label} | {len(gaps)} | {gaps.max():.0f} | {np.percentile(gaps, 99):.0f} | "
+              f"{'-' if put is None else f'{put * 1000:.0f} ({len(obj.data.vertices)} vertices)'} |", flush=True)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--big-repeats", type=int, default=3)
+    parser.add_argument("--variations", type=int, default=20)
+    args = parser.parse_args()
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    blender.register()
+    print(f"bpy {bpy.app.version_string} (background), {default_threads()} cores, numpy {np.__version__}")
+    with tempfile.TemporaryDirectory() as folder:
+        folder = Path(folder)
+        equality_table(folder)
+        speed_table(args.repeats, args.big_repeats)
+        variations_table(args.variations, folder)
+        responsiveness_table(8)
+
+
+if __name__ == "__main__":
+    main()
