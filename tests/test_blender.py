@@ -305,3 +305,24 @@ def test_bad_input_is_one_reported_line_and_nothing_half_made(scene, tiny_model,
     with pytest.raises(RuntimeError, match=said):
         bpy.ops.sinshape.regenerate()
     assert "Traceback" not in capfd.readouterr().err
+
+
+def test_arrays_make_a_valid_mesh_in_bulk_and_come_back_the_same(addon):
+    import bpy
+
+    from blender import convert
+
+    mesh = bpy.data.meshes.new("arrays")
+    vertices = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
+    triangles = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    convert.fill_mesh(mesh, vertices, triangles, smooth_shading=True)
+    assert not mesh.validate()  # nothing to correct
+    assert len(mesh.edges) == 6 and all(p.use_smooth for p in mesh.polygons)
+    back = convert.mesh_arrays(mesh)
+    assert np.array_equal(back[0], vertices.astype(np.float32)) and np.array_equal(back[1], triangles)
+    convert.fill_mesh(mesh, convert.CUBE_CORNERS, convert.CUBE_FACES)  # quads, flat
+    assert not mesh.validate() and len(mesh.polygons) == 6 and not any(p.use_smooth for p in mesh.polygons)
+    assert all(np.dot(p.normal, np.array(p.center) - 0.5) > 0 for p in mesh.polygons)  # every face looks out
+    convert.fill_mesh(mesh, np.zeros((0, 3)), np.zeros((0, 3), int))
+    assert len(mesh.vertices) == len(mesh.polygons) == 0
+    bpy.data.meshes.remove(mesh)

@@ -139,7 +139,7 @@ def build(output: Path, platforms: list, cache: Path = CACHE, offline: bool = Fa
         if offline:
             wheels += [installed_wheel(name, scratch) for name in BUNDLED]
         else:
-            wheels += sorted({w for p in platforms for w in downloaded_wheels(p, cache)})
+            wheels += {w.name: w for p in platforms for w in downloaded_wheels(p, cache)}.values()  # each once
         partial = output.with_name(output.name + ".partial")
         with zipfile.ZipFile(partial, "w", zipfile.ZIP_DEFLATED) as archive:
             for source in sorted(ADDON.glob("*.py")):
