@@ -173,12 +173,32 @@ def cubes_layout(vertices, edges, manifest, factors) -> np.ndarray:
     return grid
 
 
-def fill_mesh(mesh, vertices, faces, smooth_shading: bool = False) -> None:
+def triangle_edges(faces) -> tuple:
+    """(edges (e, 2), each corner's edge (3m,)) of (m, 3) triangles, the
+    edges numbered by their lower vertex then their higher: what Blender's
+    calc_edges makes, computed in numpy where it may run off the main thread
+    (twice as fast as calc_edges here besides, docs/BLENDER.md)."""
+    faces = np.asarray(faces, np.int64)
+    count = int(faces.max()) + 1 if faces.size else 0
+    a, b = faces.ravel(), faces[:, [1, 2, 0]].ravel()
+    key = np.minimum(a, b) * count + np.maximum(a, b)
+    order = np.argsort(key, kind="stable")
+    ordered = key[order]
+    first = np.ones(len(ordered), bool)
+    np.not_equal(ordered[1:], ordered[:-1], out=first[1:])
+    corner_edges = np.empty(len(key), np.int32)
+    corner_edges[order] = np.cumsum(first) - 1
+    edges = ordered[first]
+    return np.stack([edges // count, edges % count], axis=1).astype(np.int32), corner_edges
+
+
+def fill_mesh(mesh, vertices, faces, smooth_shading: bool = False, edges: tuple | None = None) -> None:
     """Replace a bpy Mesh's geometry with (n, 3) vertices and (m, k) faces
-    of k corners each, in bulk. Positions and corners go through the mesh's
-    attributes ('position', '.corner_vert'), which take a whole array at
-    once; vertices.co and loops.vertex_index set one item at a time, about
-    40 times slower (measured in docs/BLENDER.md)."""
+    of k corners each, in bulk; `edges` as `triangle_edges` gives them
+    (None: Blender computes them). Everything goes through the mesh's
+    attributes ('position', '.corner_vert', ...), which take a whole array
+    at once; vertices.co and loops.vertex_index set one item at a time,
+    about 40 times slower."""
     vertices = np.ascontiguousarray(vertices, np.float32).reshape(-1, 3)
     faces = np.ascontiguousarray(faces, np.int32)
     count, corners = faces.shape if faces.size else (0, 3)
@@ -186,16 +206,21 @@ def fill_mesh(mesh, vertices, faces, smooth_shading: bool = False) -> None:
     mesh.vertices.add(len(vertices))
     mesh.loops.add(count * corners)
     mesh.polygons.add(count)
+    attributes = mesh.attributes
     if len(vertices):
-        mesh.attributes["position"].data.foreach_set("vector", vertices.ravel())
+        attributes["position"].data.foreach_set("vector", vertices.ravel())
     if count:
-        mesh.attributes[".corner_vert"].data.foreach_set("value", faces.ravel())
+        attributes[".corner_vert"].data.foreach_set("value", faces.ravel())
         mesh.polygons.foreach_set("loop_start", np.arange(0, count * corners, corners, dtype=np.int32))
-    mesh.update(calc_edges=True)
-    if smooth_shading:
-        mesh.shade_smooth()
+    if edges is None or not count:
+        mesh.update(calc_edges=True)
     else:
-        mesh.shade_flat()
+        mesh.edges.add(len(edges[0]))
+        attributes[".edge_verts"].data.foreach_set("value", np.ascontiguousarray(edges[0], np.int32).ravel())
+        attributes[".corner_edge"].data.foreach_set("value", np.ascontiguousarray(edges[1], np.int32))
+        mesh.update()
+    if count and not smooth_shading:  # faces are smooth unless marked sharp (Blender 4.1 on)
+        attributes.new("sharp_face", "BOOLEAN", "FACE").data.foreach_set("value", np.ones(count, bool))
 
 
 def mesh_vertices(mesh) -> np.ndarray:

@@ -109,13 +109,19 @@ def request_of(obj, model) -> requests.SampleRequest:
 
 
 def make_mesh(model, request, progress=None) -> tuple:
-    """(vertices along Blender's axes, triangles) of the sample a request
-    asks for: request.make and mesh.extract, then the turn to Z up."""
+    """(vertices along Blender's axes, triangles, their edges) of the sample
+    a request asks for: request.make and mesh.extract, then the turn to Z up."""
     triplane = requests.make(model, request)
     result = mesh.extract(model, triplane, progress=progress, **request.mesh_options())
     if not len(result.faces):
         raise InputError("the sample has no surface at this size and scale; the mesh is left as it was")
-    return convert.to_blender(result.vertices, model.manifest.up), np.asarray(result.faces)
+    return blender_arrays(result.vertices, result.faces, model.manifest.up)
+
+
+def blender_arrays(vertices, faces, up: str) -> tuple:
+    """A sample's mesh in the model's frame -> what set_mesh puts into Blender."""
+    faces = np.asarray(faces)
+    return convert.to_blender(vertices, up), faces, convert.triangle_edges(faces)
 
 
 class suspended:
@@ -129,7 +135,9 @@ class suspended:
 
 
 def set_mesh(obj, arrays, request=None) -> None:
-    convert.fill_mesh(obj.data, *arrays, smooth_shading=obj.sinshape.shade_smooth)
+    """Put (vertices, faces, edges) into an object's mesh; the request it was made from is remembered."""
+    vertices, faces, edges = arrays
+    convert.fill_mesh(obj.data, vertices, faces, obj.sinshape.shade_smooth, edges)
     obj.sinshape.error = ""
     MADE[obj.name] = request
 
@@ -267,17 +275,15 @@ def variations(context, obj, seeds, arrange: str, collection_name: str) -> None:
                     running += 1
                 data, record = pool.next_result()
                 running -= 1
-                vertices, faces = convert.ply_arrays(data)
-                job.deliver((record["seed"], convert.to_blender(vertices, up), faces))
+                job.deliver((record["seed"], blender_arrays(*convert.ply_arrays(data), up)))
                 job.progress(done + 1, len(seeds))
         finally:
             pool.close()
 
     def apply(result):
-        seed, vertices, faces = result
+        seed, arrays = result
         index = seeds.index(seed)
-        made = new_object(context, f"{name} seed {seed}", (vertices, faces), {**base, "seed": seed},
-                          request.with_seed(seed))
+        made = new_object(context, f"{name} seed {seed}", arrays, {**base, "seed": seed}, request.with_seed(seed))
         for collection_of in list(made.users_collection):
             collection_of.objects.unlink(made)
         collection.objects.link(made)

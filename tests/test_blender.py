@@ -320,6 +320,10 @@ def test_arrays_make_a_valid_mesh_in_bulk_and_come_back_the_same(addon):
     assert len(mesh.edges) == 6 and all(p.use_smooth for p in mesh.polygons)
     back = convert.mesh_arrays(mesh)
     assert np.array_equal(back[0], vertices.astype(np.float32)) and np.array_equal(back[1], triangles)
+    blenders = {tuple(sorted(e.vertices)) for e in mesh.edges}
+    convert.fill_mesh(mesh, vertices, triangles, edges=convert.triangle_edges(triangles))  # edges made in numpy
+    assert not mesh.validate() and {tuple(e.vertices) for e in mesh.edges} == blenders
+    assert not any(p.use_smooth for p in mesh.polygons)
     convert.fill_mesh(mesh, convert.CUBE_CORNERS, convert.CUBE_FACES)  # quads, flat
     assert not mesh.validate() and len(mesh.polygons) == 6 and not any(p.use_smooth for p in mesh.polygons)
     assert all(np.dot(p.normal, np.array(p.center) - 0.5) > 0 for p in mesh.polygons)  # every face looks out
