@@ -15,7 +15,6 @@ import numpy as np
 
 from sinshape import models
 from sinshape.core.errors import InputError
-from sinshape.core.files import check_readable
 from sinshape.runtime import layout, write
 from sinshape.runtime.generate import scaled_sizes
 from sinshape.runtime.mesh import connected_parts
@@ -70,7 +69,6 @@ def model_path(reference: str) -> Path:
 
 
 def file_sha256(path: Path) -> str:
-    check_readable(path, "model file")
     digest = hashlib.sha256()
     with open(path, "rb") as f:
         for block in iter(lambda: f.read(1 << 20), b""):
@@ -78,16 +76,12 @@ def file_sha256(path: Path) -> str:
     return digest.hexdigest()
 
 
-def check_model_file(reference: str, recorded: str) -> tuple:
-    """(path, SHA-256) of the model a setting names. A file given by path
-    must still be the one recorded (when one was): a changed file is refused,
-    never used in its place."""
-    path = model_path(reference)
-    digest = file_sha256(path)
-    if reference not in models.available() and recorded and digest != recorded:
+def check_unchanged(path: Path, digest: str, recorded: str) -> None:
+    """A model file given by path must still be the one recorded when it was
+    chosen (when one was): a changed file is refused, never used in its place."""
+    if recorded and digest != recorded:
         raise InputError(f"{path}: the model file has changed since this object was made from it (SHA-256 "
                          f"{recorded[:12]}..., now {digest[:12]}...); choose the file again to use it as it is", "model")
-    return path, digest
 
 
 def sample_request(values: dict, up: str) -> SampleRequest:

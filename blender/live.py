@@ -18,6 +18,7 @@ import numpy as np
 
 from sinshape import models
 from sinshape.core.errors import InputError
+from sinshape.core.files import check_readable
 from sinshape.runtime import layout, load, many, mesh
 from sinshape.runtime import request as requests
 from sinshape.runtime.load import default_threads
@@ -33,20 +34,17 @@ MADE = {}  # object name -> the request its mesh was last made from
 
 def model_file(reference: str, recorded: str = "") -> tuple:
     """(path, SHA-256) of the model a setting names ('//' relative to the
-    .blend), checked: a file is there and is the one `recorded`, if any
-    (convert.check_model_file); hashed again only when it changed."""
+    .blend), checked: a file is there and, given by path, is the one
+    `recorded` (convert.check_unchanged); hashed again only when it changed."""
     if reference.startswith("//"):
         reference = bpy.path.abspath(reference)
-    path = convert.model_path(reference)
-    try:
-        stat = path.stat()
-    except OSError:
-        return convert.check_model_file(reference, recorded)  # says what is wrong with the path
+    path = check_readable(convert.model_path(reference), "model file")
+    stat = path.stat()
     key = (str(path), stat.st_size, stat.st_mtime_ns)
     if key not in DIGESTS:
         DIGESTS[key] = convert.file_sha256(path)
-    if reference not in models.available() and recorded and DIGESTS[key] != recorded:
-        return convert.check_model_file(reference, recorded)  # refuses it, with both digests
+    if reference not in models.available():
+        convert.check_unchanged(path, DIGESTS[key], recorded)
     return path, DIGESTS[key]
 
 
@@ -124,13 +122,13 @@ def blender_arrays(vertices, faces, up: str) -> tuple:
     return convert.to_blender(vertices, up), faces, convert.triangle_edges(faces)
 
 
-class suspended:
+@contextlib.contextmanager
+def suspended():
     """Settings written inside this block regenerate nothing."""
-
-    def __enter__(self):
-        SUSPENDED.append(True)
-
-    def __exit__(self, *exc):
+    SUSPENDED.append(True)
+    try:
+        yield
+    finally:
         SUSPENDED.pop()
 
 
@@ -151,11 +149,16 @@ def failed(name: str, error: InputError) -> None:
 
 
 def report_later(message: str, kind: str = "ERROR") -> None:
-    """A report from outside an operator (a property's update, a timer)."""
+    """A report from outside an operator (a property's update, a timer):
+    the report operator's, run by a timer; printed in background mode."""
     if bpy.app.background:
         print(f"sinshape: {message}")
         return
-    bpy.app.timers.register(lambda: bpy.ops.sinshape.report(kind=kind, message=message) and None)
+
+    def report():
+        bpy.ops.sinshape.report(kind=kind, message=message)
+
+    bpy.app.timers.register(report)
 
 
 def regenerate(obj, force: bool = False) -> None:
@@ -201,15 +204,15 @@ def changed(settings, context) -> None:
         report_later(f"{obj.name}: {error}")
 
 
-def new_object(context, name: str, arrays, settings: dict, request=None):
-    """A new sample object in the active collection, its settings filled in."""
+def new_object(collection, name: str, arrays, settings: dict, request=None):
+    """A new sample object in `collection`, its settings filled in."""
     obj = bpy.data.objects.new(name, bpy.data.meshes.new(name))
     with suspended():
         for key, value in settings.items():
             setattr(obj.sinshape, key, value)
         obj.sinshape.active = True
     set_mesh(obj, arrays, request)
-    context.collection.objects.link(obj)
+    collection.objects.link(obj)
     return obj
 
 
@@ -283,10 +286,8 @@ def variations(context, obj, seeds, arrange: str, collection_name: str) -> None:
     def apply(result):
         seed, arrays = result
         index = seeds.index(seed)
-        made = new_object(context, f"{name} seed {seed}", arrays, {**base, "seed": seed}, request.with_seed(seed))
-        for collection_of in list(made.users_collection):
-            collection_of.objects.unlink(made)
-        collection.objects.link(made)
+        made = new_object(collection, f"{name} seed {seed}", arrays, {**base, "seed": seed},
+                          request.with_seed(seed))
         made.matrix_world = origin
         if arrange == "GRID":
             row, column = divmod(index + 1, columns)
@@ -296,7 +297,7 @@ def variations(context, obj, seeds, arrange: str, collection_name: str) -> None:
                                 lambda error: failed(name, error)))
 
 
-def show_layout(context, obj):
+def show_layout(obj):
     """The coarse layout of an object's sample as a cube object (its
     applied layout, or its seed's own), placed over the sample."""
     settings = obj.sinshape

@@ -53,8 +53,8 @@ class SINSHAPE_OT_add_sample(bpy.types.Operator):
             self.report({"ERROR"}, str(error))
             return {"CANCELLED"}
         recorded = "" if self.model in models.available() else digest
-        obj = live.new_object(context, f"sinshape {model.path.stem}", arrays, {**settings, "model_sha256": recorded},
-                              request)
+        obj = live.new_object(context.collection, f"sinshape {model.path.stem}", arrays,
+                              {**settings, "model_sha256": recorded}, request)
         obj.location = context.scene.cursor.location
         for other in context.selected_objects:
             other.select_set(False)
@@ -152,7 +152,7 @@ class SINSHAPE_OT_layout_show(SampleOperator):
     bl_label = "Show Layout"
 
     def execute(self, context):
-        return reported(self, live.show_layout, context, sample_object(context))
+        return reported(self, live.show_layout, sample_object(context))
 
 
 class SINSHAPE_OT_layout_apply(SampleOperator):

@@ -40,7 +40,7 @@ def samples(model: str, count: int, smooth: int):
     bpy.ops.sinshape.variations(count=count - 1, first_seed=1, arrange="GRID")
     made = [first, *bpy.data.collections[f"{first.name} variations"].objects]
     stone = [material(f"stone {k}", colour, 0.85) for k, colour in
-             enumerate([(0.62, 0.56, 0.48), (0.55, 0.52, 0.47), (0.66, 0.6, 0.5)])]
+             enumerate([(0.42, 0.36, 0.3), (0.36, 0.34, 0.31), (0.45, 0.39, 0.32)])]
     for k, obj in enumerate(made):
         obj.data.materials.append(stone[k % len(stone)])
         obj.location.z -= min(corner[2] for corner in obj.bound_box)  # stand on the ground
@@ -53,13 +53,13 @@ def stage(objects, width: int, height: int, samples_per_pixel: int) -> None:
     centre, extent = (low + high) / 2, high - low
     bpy.ops.mesh.primitive_plane_add(size=1, location=(centre[0], centre[1], 0))
     ground = bpy.context.active_object
-    ground.scale = (extent[0] * 4, extent[1] * 4, 1)
-    ground.data.materials.append(material("ground", (0.32, 0.3, 0.26), 0.95))
+    ground.scale = (extent[0] * 30, extent[1] * 30, 1)
+    ground.data.materials.append(material("ground", (0.16, 0.15, 0.13), 0.95))
 
     sun = bpy.data.objects.new("sun", bpy.data.lights.new("sun", "SUN"))
-    sun.data.energy = 3.5
+    sun.data.energy = 2.5
     sun.data.angle = math.radians(4)
-    sun.rotation_euler = (math.radians(50), 0, math.radians(35))
+    sun.rotation_euler = (math.radians(50), 0, math.radians(30))
     bpy.context.scene.collection.objects.link(sun)
     world = bpy.data.worlds.new("sky")
     world.use_nodes = True
@@ -72,9 +72,9 @@ def stage(objects, width: int, height: int, samples_per_pixel: int) -> None:
     camera.data.lens = 50
     bpy.context.scene.collection.objects.link(camera)
     bpy.context.scene.camera = camera
-    direction = Vector((0.55, -1.0, 0.55)).normalized()
+    direction = Vector((0.5, -1.0, 0.62)).normalized()
     target = Vector(centre)
-    camera.location = target + direction * float(np.linalg.norm(extent)) * 1.45
+    camera.location = target + direction * float(np.linalg.norm(extent)) * 2.1
     camera.rotation_euler = (target - camera.location).to_track_quat("-Z", "Y").to_euler()
 
     scene = bpy.context.scene
@@ -85,13 +85,14 @@ def stage(objects, width: int, height: int, samples_per_pixel: int) -> None:
     scene.render.resolution_x, scene.render.resolution_y = width, height
     scene.view_settings.view_transform = "AgX"
     scene.view_settings.look = "AgX - Medium High Contrast"
+    scene.view_settings.exposure = -1.3
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--model", default="towerruins")
     parser.add_argument("--count", type=int, default=6)
-    parser.add_argument("--smooth", type=int, default=2)
+    parser.add_argument("--smooth", type=int, default=1)
     parser.add_argument("--samples", type=int, default=64)
     parser.add_argument("--size", type=int, nargs=2, default=(1280, 640))
     parser.add_argument("-o", "--output", type=Path, default=ROOT / "docs" / "blender.png")
