@@ -102,6 +102,10 @@ def main() -> None:
     stage(samples(args.model, args.count, args.smooth), *args.size, args.samples)
     bpy.context.scene.render.filepath = str(args.output.resolve())
     bpy.ops.render.render(write_still=True)
+    from PIL import Image  # 256 colours, dithered: a third of the bytes, the same picture to the eye
+
+    picture = Image.open(args.output).convert("RGB")
+    picture.quantize(256, Image.Quantize.MEDIANCUT, dither=Image.Dither.FLOYDSTEINBERG).save(args.output, optimize=True)
     print(f"wrote {args.output}")
 
 
