@@ -7,7 +7,6 @@ tested on its own; the operators only gather values and call them.
 """
 
 import base64
-import hashlib
 import re
 from pathlib import Path
 
@@ -66,14 +65,6 @@ def model_path(reference: str) -> Path:
         raise InputError(f"no model chosen: name a shipped model ({', '.join(sorted(models.available()))}) "
                          "or a .onnx file", "model")
     return models.find(reference)
-
-
-def file_sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 def check_unchanged(path: Path, digest: str, recorded: str) -> None:

@@ -42,7 +42,10 @@ def model_file(reference: str, recorded: str = "") -> tuple:
     stat = path.stat()
     key = (str(path), stat.st_size, stat.st_mtime_ns)
     if key not in DIGESTS:
-        DIGESTS[key] = convert.file_sha256(path)
+        digest = many.file_digest(path)
+        if digest is None:
+            raise InputError(f"{path}: cannot read the model file")
+        DIGESTS[key] = digest[1]
     if reference not in models.available():
         convert.check_unchanged(path, DIGESTS[key], recorded)
     return path, DIGESTS[key]
