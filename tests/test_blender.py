@@ -330,3 +330,15 @@ def test_arrays_make_a_valid_mesh_in_bulk_and_come_back_the_same(addon):
     convert.fill_mesh(mesh, np.zeros((0, 3)), np.zeros((0, 3), int))
     assert len(mesh.vertices) == len(mesh.polygons) == 0
     bpy.data.meshes.remove(mesh)
+
+
+def test_blenders_axes_turn_into_the_models_and_back(addon):
+    from blender import convert
+
+    points = np.random.default_rng(0).random((4, 3))
+    for up in ("y", "z"):
+        assert np.array_equal(convert.to_model(convert.to_blender(points, up), up), points)
+    assert np.array_equal(convert.to_blender([[1.0, 2.0, 3.0]], "y"), [[1.0, -3.0, 2.0]])  # y up -> Blender's z
+    assert convert.factors_to_model((2, 3, 4), "y") == (2.0, 4.0, 3.0)
+    assert convert.fractions_to_model((0.1, 0.25, 0.5), "y") == (0.1, 0.5, 0.75)  # Blender's y is the model's -z
+    assert convert.fractions_to_model((0.1, 0.25, 0.5), "z") == (0.1, 0.25, 0.5)
