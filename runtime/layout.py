@@ -361,17 +361,25 @@ def parse_layout(data: bytes, suffix: str, name) -> np.ndarray:
     return grid if grid.dtype == bool else np.asarray(grid) > 0.5
 
 
+def cells(manifest, factors=(1.0, 1.0, 1.0)) -> tuple:
+    """Where level 0's cells of a sample of `factors` lie in the model's
+    frame (the units of its meshes): (the low corner of cell (0, 0, 0), a
+    cell's size, the grid's shape). Cell c spans corner + c * size to
+    corner + (c + 1) * size, centred where finest voxel c (N - 1) / (n - 1)
+    is (align_corners)."""
+    sizes = scaled_sizes(manifest.sizes, factors)
+    coarse, finest = np.array(sizes[0]), np.array(sizes[-1])
+    spacing = np.asarray(manifest.spacing) * (finest - 1) / np.maximum(coarse - 1, 1)
+    return np.asarray(manifest.origin) - spacing / 2, spacing, tuple(sizes[0])
+
+
 def mesh_layout(model, path, factors=(1.0, 1.0, 1.0)) -> np.ndarray:
     """A rough mesh (a few boxes, in the model's frame: the units of its
     samples' meshes) voxelised on level 0's grid of a sample of `factors`."""
     from sinshape.prep.voxelize import load_mesh, voxelize
 
-    sizes = scaled_sizes(model.manifest.sizes, factors)
-    coarse, finest = np.array(sizes[0]), np.array(sizes[-1])
-    # Level-0 cell c is centred where finest voxel c (N - 1) / (n - 1) is: align_corners.
-    spacing = np.asarray(model.manifest.spacing) * (finest - 1) / np.maximum(coarse - 1, 1)
-    corner = np.asarray(model.manifest.origin) - spacing / 2
-    grid = voxelize(load_mesh(path), corner, spacing, tuple(coarse))
+    corner, spacing, shape = cells(model.manifest, factors)
+    grid = voxelize(load_mesh(path), corner, spacing, shape)
     if not grid.any():
         raise InputError(f"{path}: the mesh lies outside the sample's box (its frame is the model's: "
                          "the units of its samples' meshes)", "layout")

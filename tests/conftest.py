@@ -78,3 +78,34 @@ def tiny_model(tmp_path_factory, tiny_pyramid):
     out = tmp_path_factory.mktemp("model") / "tiny.onnx"
     train.train(tiny_pyramid, out, make_config("tiny", iters=3))
     return out
+
+
+@pytest.fixture(scope="session")
+def addon():
+    """The Blender extension (blender/), registered in this process's Blender
+    (bpy, headless) on an empty scene; for tests marked `blender`."""
+    import sys
+
+    import bpy
+
+    root = str(Path(__file__).resolve().parents[1])
+    sys.path.insert(0, root)
+    import blender
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    blender.register()
+    yield blender
+    blender.unregister()
+    sys.path.remove(root)
+
+
+@pytest.fixture
+def scene(addon):
+    """addon's scene, emptied for each test."""
+    import bpy
+
+    for data in (bpy.data.objects, bpy.data.meshes, bpy.data.collections):
+        for item in list(data):
+            data.remove(item)
+    addon.live.MADE.clear()
+    return bpy.context.scene

@@ -71,7 +71,9 @@ def test_the_largest_part_is_trimeshs():
     expected = max(whole.split(only_watertight=False), key=lambda part: len(part.faces))
     ours = mesh.largest_part(whole)
     np.testing.assert_array_equal(ours.vertices, expected.vertices)
-    np.testing.assert_array_equal(ours.faces, expected.faces)
+    # The same faces; trimesh orders them with numpy's unstable sort, whose
+    # order differs between numpy 1.x (Blender's, in the blender extra) and 2.x.
+    assert sorted(map(tuple, ours.faces.tolist())) == sorted(map(tuple, expected.faces.tolist()))
 
 
 def test_parts_joined_through_a_long_chain_get_one_label():

@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-PACKAGES = ("core", "prep", "runtime", "trainer", "models", "serve", "cli")
+PACKAGES = ("core", "prep", "runtime", "trainer", "models", "serve", "cli", "blender")
 UNREADABLE = "an import_module of sinshape whose package the source does not spell out"
 
 

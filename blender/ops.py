@@ -1,0 +1,184 @@
+"""The operators: add a sample, regenerate, variations, a keep box, the
+layout shown as cubes and applied. Each reports bad input Blender's way
+(one line, {'CANCELLED'}, nothing half made) and leaves the work to live."""
+
+import bpy
+import numpy as np
+from bpy.props import EnumProperty, FloatVectorProperty, IntProperty, StringProperty
+
+from sinshape import models
+from sinshape.core.errors import InputError
+from sinshape.runtime.mesh import MAX_SMOOTH
+
+from . import convert, live
+from .props import SEED_MAX, model_names
+
+
+def sample_object(context):
+    obj = context.active_object
+    return obj if obj is not None and obj.sinshape.active else None
+
+
+class SampleOperator(bpy.types.Operator):
+    """An operator on the active sinshape object."""
+
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        return sample_object(context) is not None
+
+
+class SINSHAPE_OT_add_sample(bpy.types.Operator):
+    """Add a sinshape sample: a mesh object with a model and a seed, made again when they change"""
+
+    bl_idname = "sinshape.add_sample"
+    bl_label = "sinshape sample"
+    bl_options = {"REGISTER", "UNDO"}
+
+    model: StringProperty(name="Model", default=models.DEFAULT, search=model_names,
+                          description="A shipped model's name, or a .onnx file")
+    seed: IntProperty(name="Seed", min=0, max=SEED_MAX)
+    size: FloatVectorProperty(name="Size", size=3, default=(1.0, 1.0, 1.0), min=0.01, soft_max=4.0, subtype="XYZ")
+    scale: bpy.props.FloatProperty(name="Scale", default=1.0, min=0.01, soft_max=16.0)
+    smooth: IntProperty(name="Smooth", min=0, max=MAX_SMOOTH, soft_max=20)
+
+    def execute(self, context):
+        settings = dict(model=self.model, seed=self.seed, size=tuple(self.size), scale=self.scale, smooth=self.smooth)
+        try:
+            model, digest = live.load_file(self.model)
+            request = convert.sample_request(settings, model.manifest.up)
+            arrays = live.make_mesh(model, request)  # at once, as any Add: later changes are made off the main thread
+        except InputError as error:
+            self.report({"ERROR"}, str(error))
+            return {"CANCELLED"}
+        recorded = "" if self.model in models.available() else digest
+        obj = live.new_object(context.collection, f"sinshape {model.path.stem}", arrays,
+                              {**settings, "model_sha256": recorded}, request)
+        obj.location = context.scene.cursor.location
+        for other in context.selected_objects:
+            other.select_set(False)
+        obj.select_set(True)
+        context.view_layer.objects.active = obj
+        return {"FINISHED"}
+
+
+class SINSHAPE_OT_regenerate(bpy.types.Operator):
+    """Make the selected sinshape samples again from their settings and model files"""
+
+    bl_idname = "sinshape.regenerate"
+    bl_label = "Regenerate"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        return any(obj.sinshape.active for obj in context.selected_objects) or sample_object(context) is not None
+
+    def execute(self, context):
+        chosen = {obj.name: obj for obj in [*context.selected_objects, context.active_object]
+                  if obj is not None and obj.sinshape.active}
+        failures = []
+        for obj in chosen.values():
+            try:
+                live.regenerate(obj, force=True)
+            except InputError as error:
+                failures.append(f"{obj.name}: {error}")
+        if failures:
+            self.report({"ERROR"}, failures[0] + (f" (and {len(failures) - 1} more)" if len(failures) > 1 else ""))
+            return {"CANCELLED"}
+        return {"FINISHED"}
+
+
+class SINSHAPE_OT_variations(SampleOperator):
+    """Make new samples of other seeds with this one's settings, as objects in a new collection, on every core"""
+
+    bl_idname = "sinshape.variations"
+    bl_label = "Variations"
+
+    count: IntProperty(name="Count", default=8, min=1, soft_max=64)
+    first_seed: IntProperty(name="First seed", min=0, max=SEED_MAX,
+                            description="The seeds are this one and those after it (default: after the sample's)")
+    arrange: EnumProperty(name="Arrange", items=[("GRID", "Grid", "In a grid beside the sample"),
+                                                 ("PLACE", "In place", "Where the sample is")])
+
+    def execute(self, context):
+        obj = sample_object(context)
+        first = self.first_seed if self.properties.is_property_set("first_seed") else obj.sinshape.seed + 1
+        seeds = range(first, min(first + self.count, SEED_MAX + 1))
+        return reported(self, live.variations, context, obj, seeds, self.arrange, f"{obj.name} variations")
+
+
+class SINSHAPE_OT_keep_box_add(SampleOperator):
+    """Add a box over half of the sample: what it holds of another seed's sample is kept; move and scale it"""
+
+    bl_idname = "sinshape.keep_box_add"
+    bl_label = "Add Keep Box"
+
+    def execute(self, context):
+        obj = sample_object(context)
+        corners = np.array([tuple(corner) for corner in obj.bound_box])
+        low, high = corners.min(axis=0), corners.max(axis=0)
+        high[0] = (low[0] + high[0]) / 2  # the lower half along X
+        name = f"{obj.name} keep box"
+        box = bpy.data.objects.new(name, bpy.data.meshes.new(name))
+        convert.fill_mesh(box.data, convert.CUBE_CORNERS * 2 - 1, convert.CUBE_FACES)
+        box.display_type = "WIRE"
+        box.hide_render = True
+        for collection in obj.users_collection:
+            collection.objects.link(box)
+        box.parent = obj
+        box.location = (low + high) / 2
+        box.scale = (high - low) / 2
+        settings = obj.sinshape
+        with live.suspended():
+            settings.keep_box, settings.keep_seed, settings.edit = box, settings.seed + 1, "KEEP"
+        return reported(self, live.regenerate, obj)
+
+
+def reported(operator, function, *args) -> set:
+    """function(*args), its InputError reported as one line: {'FINISHED'} or {'CANCELLED'}."""
+    try:
+        function(*args)
+    except InputError as error:
+        operator.report({"ERROR"}, str(error))
+        return {"CANCELLED"}
+    return {"FINISHED"}
+
+
+class SINSHAPE_OT_layout_show(SampleOperator):
+    """Show the sample's coarse layout as cubes, one per full cell: delete, duplicate, move or extrude them, then apply"""
+
+    bl_idname = "sinshape.layout_show"
+    bl_label = "Show Layout"
+
+    def execute(self, context):
+        return reported(self, live.show_layout, sample_object(context))
+
+
+class SINSHAPE_OT_layout_apply(SampleOperator):
+    """Make the sample from the edited layout cubes: their structure, the model's detail"""
+
+    bl_idname = "sinshape.layout_apply"
+    bl_label = "Apply Layout"
+
+    def execute(self, context):
+        return reported(self, live.apply_layout, sample_object(context))
+
+
+class SINSHAPE_OT_report(bpy.types.Operator):
+    """Report a message of work that finished outside an operator"""
+
+    bl_idname = "sinshape.report"
+    bl_label = "sinshape report"
+    bl_options = {"INTERNAL"}
+
+    kind: EnumProperty(items=[("ERROR", "Error", ""), ("WARNING", "Warning", ""), ("INFO", "Info", "")])
+    message: StringProperty()
+
+    def execute(self, context):
+        self.report({self.kind}, self.message)
+        return {"FINISHED"}
+
+
+CLASSES = (SINSHAPE_OT_add_sample, SINSHAPE_OT_regenerate, SINSHAPE_OT_variations, SINSHAPE_OT_keep_box_add,
+           SINSHAPE_OT_layout_show, SINSHAPE_OT_layout_apply, SINSHAPE_OT_report)

@@ -1,0 +1,81 @@
+"""A sinshape object's settings: a PropertyGroup on every Object, saved
+with the .blend. Changing one that shapes the sample regenerates the mesh
+(live.changed); the rest are records (the model file's SHA-256, the applied
+layout, the last error)."""
+
+import bpy
+from bpy.props import (BoolProperty, EnumProperty, FloatProperty, FloatVectorProperty, IntProperty,
+                       IntVectorProperty, PointerProperty, StringProperty)
+
+from sinshape import models
+from sinshape.runtime.mesh import MAX_SMOOTH
+
+from . import live
+
+SEED_MAX = 2**31 - 1  # a Blender integer property; the runtime takes seeds up to 2**63
+
+
+def model_names(settings, context, text):
+    """The model field's suggestions: the shipped models."""
+    return sorted(models.available())
+
+
+def model_changed(settings, context):
+    settings.model_sha256 = ""  # a file chosen (again) is taken as it is now
+    live.changed(settings, context)
+
+
+class SinshapeSettings(bpy.types.PropertyGroup):
+    active: BoolProperty(name="sinshape sample", description="This object's mesh is a sinshape sample",
+                         default=False)
+    model: StringProperty(name="Model", default=models.DEFAULT, search=model_names, update=model_changed,
+                          description="A shipped model's name, or a .onnx file (// is the .blend's folder)")
+    model_sha256: StringProperty(name="Model SHA-256", description="The model file's SHA-256 when it was chosen")
+    seed: IntProperty(name="Seed", min=0, max=SEED_MAX, update=live.changed,
+                      description="The same seed gives the same shape")
+    size: FloatVectorProperty(name="Size", size=3, default=(1.0, 1.0, 1.0), min=0.01, soft_min=0.25, soft_max=4.0,
+                              subtype="XYZ", update=live.changed,
+                              description="Factors of the training size along Blender's X, Y and Z")
+    scale: FloatProperty(name="Scale", default=1.0, min=0.01, soft_min=0.25, soft_max=16.0, update=live.changed,
+                         description="Query the surface on a grid this many times finer per axis")
+    smooth: IntProperty(name="Smooth", min=0, max=MAX_SMOOTH, soft_max=20, update=live.changed,
+                        description="Laplacian smoothing iterations")
+    shade_smooth: BoolProperty(name="Shade smooth", default=True, update=live.changed,
+                               description="Smooth shading on the faces")
+    edit: EnumProperty(name="Edit", update=live.changed, items=[
+        ("NONE", "None", "The plain sample", 0),
+        ("KEEP", "Keep", "Keep what a box holds of another seed's sample, the rest from this seed", 1),
+        ("GROW", "Grow", "Grow the sample, keeping what it had", 2),
+        ("LAYOUT", "Layout", "The structure of an edited coarse layout, the detail from the model", 3)])
+    keep_seed: IntProperty(name="Kept seed", min=0, max=SEED_MAX, default=1, update=live.changed,
+                           description="The seed whose sample the box keeps")
+    keep_box: PointerProperty(name="Box", type=bpy.types.Object, update=live.changed,
+                              description="An object whose bounds are the kept box")
+    keep_part: StringProperty(name="Kept part", description="The kept box as the request reads it "
+                                                            "(SEED:X0,Y0,Z0:X1,Y1,Z1, the model's frame)")
+    grow: FloatVectorProperty(name="Grow by", size=3, default=(1.5, 1.0, 1.0), min=1.0, soft_max=4.0,
+                              subtype="XYZ", update=live.changed,
+                              description="Factors along Blender's X, Y and Z, each at least 1")
+    anchor: FloatVectorProperty(name="Anchor", size=3, default=(0.0, 0.0, 0.0), min=0.0, max=1.0, subtype="XYZ",
+                                update=live.changed,
+                                description="Where the old sample sits in the grown one, per axis: 0 low, 1 high")
+    layout_object: PointerProperty(name="Layout object", type=bpy.types.Object,
+                                   description="The cubes of the coarse layout, to edit and apply")
+    layout_shape: IntVectorProperty(name="Layout grid", size=3)
+    layout_bits: StringProperty(name="Layout", description="The applied layout, packed")
+    error: StringProperty(name="Error", description="Why the last regeneration failed")
+
+
+CLASSES = (SinshapeSettings,)
+
+
+def register() -> None:
+    for cls in CLASSES:
+        bpy.utils.register_class(cls)
+    bpy.types.Object.sinshape = PointerProperty(type=SinshapeSettings)
+
+
+def unregister() -> None:
+    del bpy.types.Object.sinshape
+    for cls in reversed(CLASSES):
+        bpy.utils.unregister_class(cls)
