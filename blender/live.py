@@ -233,7 +233,7 @@ def variation_pool(model_path: Path, request, count: int):
     if workers == 1:
         return many.InProcess(model_path, ".ply", threads, request)
     with plain_main():
-        return many.Processes(model_path, ".ply", threads, request, workers)
+        return many.Processes(model_path, ".ply", threads, request, "seed", workers)
 
 
 @contextlib.contextmanager

@@ -203,6 +203,9 @@ def make(model, request: SampleRequest, memory_limit: int | None = None):
     now) is refused up front with MemoryLimitError."""
     from . import edit, generate, layout
 
+    if request.tile is not None:
+        raise InputError("a tile of a world has no tri-plane of its own: make its mesh with world.tile_mesh, or "
+                         "its file with write.request_bytes", "tile")
     request = resolved(model, request)
     seed, size = request.sample_seed, request.size
     if request.layout is not None:

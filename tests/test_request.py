@@ -164,3 +164,9 @@ def test_a_request_is_what_a_replaced_seed_makes():
     assert grown.with_seed(9) == dataclasses.replace(grown, seed=9) and grown.with_seed(9).smooth == 3
     assert json.dumps(grown.mesh_options()) == json.dumps(
         {"scale": 1.0, "smooth": 3, "smoother": "laplacian", "largest": False, "frame": "input"})
+
+
+def test_make_refuses_a_tile_it_has_no_tri_plane_for(model):
+    with pytest.raises(InputError, match="no tri-plane of its own") as refused:
+        make(model, SampleRequest(3, tile=(0, 0)))
+    assert refused.value.parameter == "tile"
