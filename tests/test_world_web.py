@@ -11,6 +11,7 @@ import pytest
 
 from sinshape import models
 from sinshape.runtime import load, world
+from browser import wait_world
 from test_web import browser, playwright, site_page, terrain, wait_done  # noqa: F401 (the fixtures of the browser's tests)
 
 # Runs in the page: each tile's occupancy grid and mesh, made by world.js (its windows dropped first when
@@ -156,14 +157,6 @@ def test_a_far_tile_costs_what_a_near_one_does(site_page):
 
 # ---- the page's world mode, tiles made in its worker
 
-def wait_world(page, timeout=120_000) -> dict:
-    """Until every tile in reach of the camera is made: the world's status."""
-    page.wait_for_function("(() => { const s = window.sinshapeView.world.status(); return s && "
-                           "!/to make/.test(document.getElementById('status').textContent) && "
-                           "document.body.dataset.state === 'ready'; })()", timeout=timeout)
-    return page.evaluate("window.sinshapeView.world.status()")
-
-
 def memory(page) -> dict:
     return page.evaluate("window.sinshapeView.memory()")
 
@@ -183,7 +176,7 @@ def test_the_page_flies_over_a_far_world_nearest_first_in_bounded_memory(site_pa
     page.select_option("#reach", "1")
     status = wait_world(page)
     first = status["made"]
-    assert "edit=world&at=1000000000%2C-1000000000&move=fly&reach=1" in page.url
+    assert "edit=world&at=1000000000%2C-1000000000&travel=fly&reach=1" in page.url
     assert status["at"] == ["1000000000", "-1000000000"] and len(status["tiles"]) == 9
     # Each tile is the Python runtime's (its values within 1e-5: the same faces within a few).
     for i, j, faces, _ in status["tiles"]:
@@ -251,3 +244,45 @@ def test_keys_and_the_mouse_move_the_camera(site_page):
     looked = camera_pose(page)
     assert looked["position"] == turned["position"] and looked["forward"][1] < turned["forward"][1]  # dragged down: looks down
     assert not page.errors and not page.outside
+
+
+def test_on_a_phone_fingers_look_and_move_and_walking_keeps_to_the_ground(site_page):
+    """Touch, as a phone's browser sends it (chromium's own touch events): one finger turns the view,
+    two move the camera forward (dragged up the screen); walking, it stays just above the ground."""
+    context = site_page.context.browser.new_context(viewport={"width": 390, "height": 844}, has_touch=True, is_mobile=True)
+    page = context.new_page()
+    try:
+        page.goto(f"{site_page.base}/?seed=3&up=z&edit=world&reach=1")
+        wait_world(page)
+        touch = context.new_cdp_session(page)
+        box = page.locator("#view canvas").bounding_box()
+        x, y = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
+
+        def swipe(fingers, dx, dy):
+            points = lambda k: [{"x": fx + dx * k / 5, "y": y + dy * k / 5, "id": n} for n, fx in enumerate(fingers)]  # noqa: E731
+            touch.send("Input.dispatchTouchEvent", {"type": "touchStart", "touchPoints": points(0)})
+            for k in range(1, 6):
+                touch.send("Input.dispatchTouchEvent", {"type": "touchMove", "touchPoints": points(k)})
+            touch.send("Input.dispatchTouchEvent", {"type": "touchEnd", "touchPoints": []})
+            page.wait_for_timeout(100)
+            return camera_pose(page)
+
+        start = camera_pose(page)
+        turned = swipe([x], 60, 0)
+        assert turned["position"] == start["position"] and turned["quaternion"] != start["quaternion"]
+        moved = swipe([x - 40, x + 40], 0, -100)
+        step = np.subtract(moved["position"], turned["position"])
+        assert moved["at"] == turned["at"] and np.dot(step, turned["forward"]) > 0.5 * np.linalg.norm(step) > 0
+        page.select_option("#travel", "walk")
+        page.wait_for_function("location.search.includes('travel=walk')")
+        walked = swipe([x - 40, x + 40], 0, -60)
+        above = page.evaluate("""async () => {  // the camera's height over the tiles right under it
+          const THREE = await import('three'), { camera, scene } = window.sinshapeView, tiles = [];
+          scene.traverse((node) => { if (node.isMesh && node.parent.visible && /^-?\\d+,-?\\d+$/.test(node.name)) tiles.push(node); });
+          const [hit] = new THREE.Raycaster(camera.position.clone().setY(1e3), new THREE.Vector3(0, -1, 0)).intersectObjects(tiles, false);
+          return camera.position.y - hit.point.y;
+        }""")
+        side = min(page.evaluate("window.sinshapeView.world.status().size"))
+        assert walked["position"][1] < moved["position"][1] and 0 < above < 0.1 * side  # down from the air, a step over the ground
+    finally:
+        context.close()

@@ -209,7 +209,7 @@ async function start() {
     load();
   });
   const boxes = ['bx0', 'by0', 'bz0', 'bx1', 'by1', 'bz1', 'gx', 'gy', 'gz', 'ax', 'ay', 'az'];
-  for (const id of ['where', 'seed', 'sx', 'sy', 'sz', 'scale', 'smooth', 'edit', 'other', 'at', 'move', 'reach', ...boxes]) {
+  for (const id of ['where', 'seed', 'sx', 'sy', 'sz', 'scale', 'smooth', 'edit', 'other', 'at', 'travel', 'reach', ...boxes]) {
     $(id).addEventListener('change', () => { readForm(); load(); });
   }
   for (const id of boxes) { // the box follows as it is typed

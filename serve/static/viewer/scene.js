@@ -11,7 +11,8 @@ renderer.setPixelRatio(window.devicePixelRatio);
 view.appendChild(renderer.domElement);
 export const scene = new THREE.Scene();
 scene.background = new THREE.Color(0x20242a);
-export const camera = new THREE.PerspectiveCamera(35, 1, 0.01, 1000);
+const FOV = 35; // degrees, vertically
+export const camera = new THREE.PerspectiveCamera(FOV, 1, 0.01, 1000);
 // Light: a soft sky-and-ground fill, and a key light from above and to the
 // left of the viewer. The key light and its target ride with the camera, so
 // whichever side is turned to the viewer is lit the same way and shaded by its form.
@@ -106,6 +107,8 @@ export function showMesh({ positions, faces }, up, extent) {
 export function worldView(on) {
   controls.enabled = !on;
   holder.visible = !on;
+  camera.fov = on ? 60 : FOV; // a wider view to fly with, as a game's
+  camera.updateProjectionMatrix();
   if (!on) frame();
 }
 

@@ -11,9 +11,9 @@ const FIELDS = ['model', 'where', 'seed', 'size', 'scale', 'smooth', 'up', 'form
 // of the sample, from the seed's sample) and other (the seed of the rest); grow
 // and anchor (3 factors, 3 fractions); cells (layout-cells.js's text of the edited cells).
 // The world mode's too (not an edit: the world of the seed, flown over): at (the
-// camera's tile i,j), move (fly or walk) and reach (tiles made on each side).
-const EDITS = { keep: ['box', 'other'], grow: ['grow', 'anchor'], layout: ['cells'], world: ['at', 'move', 'reach'] };
-const EDIT_DEFAULTS = { edit: '', box: '0,0,0,50,100,100', other: '', grow: '2,1,1', anchor: '0,0,0', cells: '', at: '0,0', move: 'fly', reach: '3' };
+// camera's tile i,j), travel (fly or walk) and reach (tiles made on each side).
+const EDITS = { keep: ['box', 'other'], grow: ['grow', 'anchor'], layout: ['cells'], world: ['at', 'travel', 'reach'] };
+const EDIT_DEFAULTS = { edit: '', box: '0,0,0,50,100,100', other: '', grow: '2,1,1', anchor: '0,0,0', cells: '', at: '0,0', travel: 'fly', reach: '3' };
 // What makes the shape: a step of the undo history when one of these changes.
 const SHAPE_FIELDS = ['model', 'seed', 'size', 'scale', 'smooth', 'edit', 'box', 'other', 'grow', 'anchor', 'cells'];
 
@@ -114,8 +114,8 @@ export function requestOf(layout = null) {
 export function worldOptions() {
   const reach = Number(state.reach);
   if (!(Number.isInteger(reach) && reach >= 1 && reach <= 8)) throw new Error(`reach '${state.reach}': give 1 to 8 tiles`);
-  if (!['fly', 'walk'].includes(state.move)) throw new Error(`move '${state.move}': give fly or walk`);
-  return { reach, walk: state.move === 'walk' };
+  if (!['fly', 'walk'].includes(state.travel)) throw new Error(`travel '${state.travel}': give fly or walk`);
+  return { reach, walk: state.travel === 'walk' };
 }
 
 /** A download's name: the model, the seeds and the edit. */
