@@ -215,20 +215,35 @@ def camera_pose(page) -> dict:
                          " quaternion: window.sinshapeView.camera.quaternion.toArray() })")
 
 
+def hold(page, key, ms) -> dict:
+    """Hold a key down for `ms`: the camera's pose after, its position in the world's frame of the start."""
+    before = camera_pose(page)
+    page.keyboard.down(key)
+    page.wait_for_timeout(ms)
+    page.keyboard.up(key)
+    after = camera_pose(page)
+    size = page.evaluate("window.sinshapeView.world.status().size")
+    # Crossing into another tile moves the scene's origin with the camera (the terrain's up is z: the
+    # view's x is the model's x, its z the model's -y).
+    after["position"][0] += (int(after["at"][0]) - int(before["at"][0])) * size[0]
+    after["position"][2] -= (int(after["at"][1]) - int(before["at"][1])) * size[1]
+    return after
+
+
 def test_keys_and_the_mouse_move_the_camera(site_page):
-    """W flies along the view, A sideways, the arrows turn; dragging the mouse looks around."""
+    """W flies forward and A to the left, level, the way the view looks; the arrows turn; dragging
+    the mouse looks around."""
     page = site_page
     page.goto(f"{page.base}/?seed=3&up=z&edit=world&reach=1")
     wait_world(page)
     start = camera_pose(page)
-    page.keyboard.down("w")
-    page.wait_for_timeout(400)
-    page.keyboard.up("w")
-    moved = camera_pose(page)
+    moved = hold(page, "w", 400)
     step = np.subtract(moved["position"], start["position"])
-    if moved["at"] != start["at"]:  # crossed into the next tile: the origin moved with it
-        step[0] += (int(moved["at"][0]) - int(start["at"][0])) * page.evaluate("window.sinshapeView.world.status().size[0]")
-    assert np.dot(step, start["forward"]) > 0.5 * np.linalg.norm(step) > 0  # along the view
+    level = np.array(start["forward"]) * [1, 0, 1]
+    assert step[1] == 0 and np.dot(step, level) > 0.99 * np.linalg.norm(step) * np.linalg.norm(level) > 0
+    left = np.subtract(hold(page, "a", 300)["position"], moved["position"])
+    assert left[1] == 0 and abs(np.dot(left, level)) < 1e-6 * np.linalg.norm(left) and np.cross(level, left)[1] > 0
+    moved = camera_pose(page)
     page.keyboard.down("ArrowLeft")
     page.wait_for_timeout(300)
     page.keyboard.up("ArrowLeft")
@@ -272,7 +287,8 @@ def test_on_a_phone_fingers_look_and_move_and_walking_keeps_to_the_ground(site_p
         assert turned["position"] == start["position"] and turned["quaternion"] != start["quaternion"]
         moved = swipe([x - 40, x + 40], 0, -100)
         step = np.subtract(moved["position"], turned["position"])
-        assert moved["at"] == turned["at"] and np.dot(step, turned["forward"]) > 0.5 * np.linalg.norm(step) > 0
+        level = np.array(turned["forward"]) * [1, 0, 1]
+        assert moved["at"] == turned["at"] and np.dot(step, level) > 0.99 * np.linalg.norm(step) * np.linalg.norm(level) > 0
         page.select_option("#travel", "walk")
         page.wait_for_function("location.search.includes('travel=walk')")
         walked = swipe([x - 40, x + 40], 0, -60)

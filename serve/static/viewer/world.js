@@ -5,41 +5,28 @@
 // stays bounded however far one goes. The origin floats: the scene's
 // origin is the lowest corner of the camera's tile, every tile is placed
 // relative to it and the camera stays within its tile, so a tile a billion
-// tiles out is drawn as precisely as tile (0, 0).
+// tiles out is drawn as precisely as tile (0, 0). The camera's motion is
+// viewer/flight.js's.
 //
 //   show({ where, name, seed, scale, tile, info, reach, walk }, report)  the world from `tile`; report(status) as it changes
 //   stop()                                                               drop it all, and give the view back to the shape
 import * as THREE from 'three';
 import { sampleRequest } from '../sinshape/request.js';
 import { worldLayout } from '../sinshape/world.js';
+import { aim, settle, steer, wake } from './flight.js';
 import * as sampling from './sampling.js';
-import { camera, material, render, renderer, scene, worldView } from './scene.js';
+import { camera, material, scene, worldView } from './scene.js';
 
 const SLOTS = { server: 2, browser: 1 }; // tiles asked for at once: the worker makes one at a time
 const HOLD = 1; // tiles kept this far past the reach before they are dropped: a step back makes none again
-const KEYS = { // key -> [forward, right, up] per second, in units of the speed
-  w: [1, 0, 0], arrowup: [1, 0, 0], s: [-1, 0, 0], arrowdown: [-1, 0, 0], a: [0, -1, 0], d: [0, 1, 0],
-  e: [0, 0, 1], ' ': [0, 0, 1], q: [0, 0, -1], c: [0, 0, -1],
-};
-const TURNS = { arrowleft: 1, arrowright: -1 }; // radians per second of yaw
-const LOOK = 0.005; // radians of turn per pixel dragged
 const sky = new THREE.Color(0xaab8c4); // a haze the far tiles fade into, as the background
 let background = null; // the shape's, while the world is shown
 
 const group = new THREE.Group(); // the world's tiles, turned so the model's up points up on screen
 group.visible = false;
 scene.add(group);
-const raycaster = new THREE.Raycaster();
-const down = new THREE.Vector3(0, -1, 0);
 let run = null; // the world in view
-let pose = { yaw: 0, pitch: 0 };
-let speed = 1; // the wheel's factor on the speeds below
-const held = new Set(); // movement keys down
-const pointers = new Map(); // pointer id -> its last { x, y }, while pressed on the view
-let looping = false, last = 0;
-
-/** The tile (di, dj) from the camera's tile: its key and its centre's distance from the camera (squared, view units). */
-const keyOf = (i, j) => `${i},${j}`;
+const keyOf = (i, j) => `${i},${j}`; // a tile's name
 
 /**
  * Fly over the world of `seed` (a BigInt) of model `name`, made `where`
@@ -66,6 +53,7 @@ export function show({ where, name, seed, scale, tile, info, reach, walk }, repo
     group.updateMatrixWorld(true);
   }
   Object.assign(run, { reach, walk, report });
+  steer({ side: Math.min(...run.size), height: run.height, walk, ground: group, moved: rebase });
   worldView(true);
   group.visible = true;
   const far = (reach + 0.5) * Math.min(...run.size) + run.height;
@@ -89,8 +77,7 @@ function place(tile) {
   start.setComponent(run.layout.up, run.height + Math.min(...run.size));
   camera.position.copy(group.localToWorld(start));
   const along = new THREE.Vector3().setComponent(run.layout.horizontal[0], 1).applyQuaternion(group.quaternion);
-  pose = { yaw: Math.atan2(-along.x, -along.z), pitch: -0.5 };
-  turn(0, 0);
+  aim(Math.atan2(-along.x, -along.z), -0.5);
 }
 
 /** Drop the world: its tiles and their GPU buffers, and any tile being made; `giveBack` shows the shape again. */
@@ -101,8 +88,7 @@ export function stop(giveBack = true) {
   group.visible = false;
   scene.fog = null;
   scene.background = background;
-  held.clear();
-  pointers.clear();
+  steer(null);
   if (giveBack) worldView(false);
 }
 
@@ -264,107 +250,6 @@ function tell() {
   });
 }
 
-// ---- the camera: keys, the mouse and touch move it; a frame loop runs while it moves
-
-function turn(yaw, pitch) {
-  pose.yaw += yaw;
-  pose.pitch = Math.min(1.5, Math.max(-1.5, pose.pitch + pitch));
-  camera.quaternion.setFromEuler(new THREE.Euler(pose.pitch, pose.yaw, 0, 'YXZ'));
-}
-
-/** Move by [forward, right, up] in the input's units: along the view (flying), or over the ground (walking). */
-function move([forward, right, up]) {
-  const { yaw, pitch } = pose;
-  const ahead = run.walk ? new THREE.Vector3(-Math.sin(yaw), 0, -Math.cos(yaw))
-    : new THREE.Vector3(-Math.sin(yaw) * Math.cos(pitch), Math.sin(pitch), -Math.cos(yaw) * Math.cos(pitch));
-  camera.position.addScaledVector(ahead, forward).addScaledVector(new THREE.Vector3(Math.cos(yaw), 0, -Math.sin(yaw)), right);
-  if (!run.walk) camera.position.y = Math.min(run.height + 40 * Math.max(...run.size), Math.max(-run.height, camera.position.y + up));
-  rebase();
-  if (run.walk) ground();
-}
-
-/** Walking: the eyes a little above the ground under the camera (where its tile is there). */
-function ground() {
-  const top = camera.position.clone().setY(run.height * 2 + 1);
-  raycaster.set(top, down);
-  const [hit] = raycaster.intersectObjects(group.children, false);
-  if (hit) camera.position.y = hit.point.y + Math.min(...run.size) * 0.08;
-}
-
-function loop(now) {
-  if (!run) {
-    looping = false;
-    return;
-  }
-  const seconds = Math.min(0.1, (now - last) / 1000);
-  last = now;
-  const step = [0, 0, 0];
-  let yaw = 0;
-  for (const key of held) {
-    (KEYS[key] ?? [0, 0, 0]).forEach((v, a) => { step[a] += v; });
-    yaw += TURNS[key] ?? 0;
-  }
-  if (yaw) turn(yaw * seconds, 0);
-  const fast = held.has('shift') ? 4 : 1;
-  const unit = Math.min(...run.size) * (run.walk ? 0.4 : 1) * speed * fast * seconds; // a tile a second, flying
-  if (step.some((v) => v)) move(step.map((v) => v * unit));
-  render();
-  if (held.size) requestAnimationFrame(loop);
-  else looping = false;
-}
-
-/** Draw the next frame, and go on drawing while the camera moves. */
-function wake() {
-  if (looping || !run) return;
-  looping = true;
-  last = performance.now();
-  requestAnimationFrame(loop);
-}
-
-const typing = (event) => event.target.closest?.('input, select, textarea');
-
-document.addEventListener('keydown', (event) => {
-  const key = event.key.toLowerCase();
-  if (!run || typing(event) || event.ctrlKey || event.metaKey || !(key in KEYS || key in TURNS || key === 'shift')) return;
-  event.preventDefault();
-  held.add(key);
-  wake();
-});
-document.addEventListener('keyup', (event) => held.delete(event.key.toLowerCase()));
-window.addEventListener('blur', () => held.clear());
-
-// The mouse, or one finger: drag to look around. Two fingers: drag to move (up the screen is
-// forward), pinch to rise or sink (walking: to move forward and back).
-const canvas = renderer.domElement;
-canvas.addEventListener('pointerdown', (event) => {
-  if (!run) return;
-  canvas.setPointerCapture(event.pointerId);
-  pointers.set(event.pointerId, { x: event.clientX, y: event.clientY });
-});
-canvas.addEventListener('pointermove', (event) => {
-  const before = pointers.get(event.pointerId);
-  if (!run || !before) return;
-  const [first, second] = [...pointers.values()];
-  const spread = second ? Math.hypot(first.x - second.x, first.y - second.y) : 0;
-  pointers.set(event.pointerId, { x: event.clientX, y: event.clientY });
-  const dx = event.clientX - before.x, dy = event.clientY - before.y;
-  if (pointers.size === 1) {
-    turn(-dx * LOOK, -dy * LOOK);
-  } else {
-    const [a, b] = [...pointers.values()];
-    const pinch = Math.hypot(a.x - b.x, a.y - b.y) - spread;
-    const unit = (Math.min(...run.size) / canvas.clientHeight) * 2 * speed; // a full swipe: two tiles
-    move(run.walk ? [(pinch - dy / 2) * unit, (-dx / 2) * unit, 0] : [(-dy / 2) * unit, (-dx / 2) * unit, pinch * unit]);
-  }
-  wake();
-});
-for (const type of ['pointerup', 'pointercancel']) canvas.addEventListener(type, (event) => pointers.delete(event.pointerId));
-canvas.addEventListener('wheel', (event) => {
-  if (!run) return;
-  event.preventDefault();
-  speed = Math.min(16, Math.max(1 / 16, speed * (event.deltaY < 0 ? 1.25 : 0.8)));
-}, { passive: false });
-
 /**
  * For the tests and the console: the world in view (the camera's tile, the tiles made as [i, j,
  * faces, the order they were made in], the camera's place and the farthest tile's from the
@@ -380,7 +265,6 @@ export const view = {
     const shift = new THREE.Vector3().setComponent(run.layout.horizontal[0], d0 * run.size[0]).setComponent(run.layout.horizontal[1], d1 * run.size[1]);
     camera.position.add(shift.applyQuaternion(group.quaternion));
     rebase();
-    if (run.walk) ground();
-    wake();
+    settle();
   },
 };
