@@ -57,7 +57,8 @@ export function showMode() {
   $('format').value = browser ? 'ply' : blob ? 'glb' : state.format;
   $('backend').hidden = !browser;
   for (const edit of ['keep', 'grow', 'layout', 'world']) $(`${edit}-controls`).hidden = state.edit !== edit;
-  for (const id of ['size-label', 'smooth-label', 'up-label']) $(id).hidden = state.edit === 'world'; // a world has no size nor smoothing, and its own up
+  // A world has no size nor smoothing, its own up, and the world's controls, not orbiting.
+  for (const id of ['size-label', 'smooth-label', 'up-label', 'orbit-help']) $(id).hidden = state.edit === 'world';
 }
 
 export function report(error) {
