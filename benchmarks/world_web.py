@@ -2,7 +2,7 @@
 and the frame rate while flying, in headless chromium (WebGL drawn by its
 software renderer, SwiftShader: no GPU), with the Python runtime beside it.
 
-    python benchmarks/world_web.py [MODEL] [--reach 3] [--seconds 10] [--repeats 5] [--seed 3] [--shots DIR]
+    python benchmarks/world_web.py [MODEL] [--reach 3] [--seconds 10] [--repeats 5] [--seed 3] [--shots PNG]
 
 Exports MODEL (default: the shipped terrain) with `sinrun export-web`, serves
 it with the site's own serve.py (cross-origin isolated: WASM on threads) and
@@ -11,8 +11,9 @@ opens it in headless chromium (the tests' harness, tests/browser.py):
 - The worker: a worker of its own (static/sinshape/worker.js, as the page
   starts it) makes tiles with no window kept (far apart: four new windows
   each), along a row (two new windows each, the two it shares kept) and
-  again (none new: the decoding and the mesh only); the median of
-  `--repeats` each, after a warm-up.
+  again (none new: the decoding and the mesh only), and, to compare,
+  samples of the training size; the median of `--repeats` each, after a
+  warm-up.
 - The page: world mode at `--reach` tiles around the camera's, from choosing
   it (the model already loaded) until every tile of the ring is made.
 - Flying: the frame intervals (requestAnimationFrame) for `--seconds` while
@@ -20,12 +21,14 @@ opens it in headless chromium (the tests' harness, tests/browser.py):
   and dropped behind), then, every tile made, while it turns in place.
 - The Python runtime makes the same ring, in the same order, on one thread.
 
-With --shots DIR, the page in world mode at 1280x800 and at a phone's
-390x844 is saved there (world-page.png, world-phone.png).
+With --shots PNG, the page in world mode at 1100x700 and, beside it, at a
+phone's 390x844 is saved as one picture (docs/world-page.png).
 """
 
 import argparse
+import io
 import math
+import os
 import statistics
 import sys
 import tempfile
@@ -63,13 +66,18 @@ WORKER_JS = """async ([file, seed, repeats]) => {
     return performance.now() - started;
   };
   await tile(-7777, 0);  // the warm-up: the JIT, onnxruntime's first runs
-  const cold = [], row = [], warm = [];
+  const cold = [], row = [], warm = [], sample = [];
+  for (let k = 1; k <= repeats; k++) {
+    const started = performance.now();
+    await call({ type: 'sample', name: 'model', request: sampleRequest({ seed: BigInt(seed + k) }) });
+    sample.push(performance.now() - started);
+  }
   for (let k = 1; k <= repeats; k++) cold.push(await tile(1000 * k, 0));
   await tile(50000, 0);
   for (let k = 1; k <= repeats; k++) row.push(await tile(50000 + k, 0));
   for (let k = 1; k <= repeats; k++) warm.push(await tile(50000 + repeats, 0));
   worker.terminate();
-  return { cold, row, warm, threads: loaded.threads };
+  return { cold, row, warm, sample, threads: loaded.threads };
 }"""
 
 # Frame times (requestAnimationFrame) while `recording` is set.
@@ -112,16 +120,25 @@ def python_ring(path: Path, seed: int, reach: int) -> float:
     return time.perf_counter() - started
 
 
-def shots(browser, base: str, seed: int, folder: Path) -> None:
-    folder.mkdir(parents=True, exist_ok=True)
-    for name, viewport in (("world-page.png", {"width": 1280, "height": 800}), ("world-phone.png", {"width": 390, "height": 844})):
-        context = browser.new_context(viewport=viewport, device_scale_factor=1, has_touch=viewport["width"] < 600)
+def shots(browser, base: str, seed: int, path: Path) -> None:
+    """The page in world mode on a wide screen and, beside it, a phone's: one picture."""
+    from PIL import Image
+
+    pictures = []
+    for viewport in ({"width": 1100, "height": 700}, {"width": 390, "height": 844}):
+        context = browser.new_context(viewport=viewport, has_touch=viewport["width"] < 600)
         page = context.new_page()
         page.goto(f"{base}/?seed={seed}&edit=world&reach=3")
         wait_world(page, timeout=600_000)
         page.wait_for_timeout(500)
-        page.screenshot(path=folder / name)
+        pictures.append(Image.open(io.BytesIO(page.screenshot())).convert("RGB"))
         context.close()
+    wide, phone = pictures
+    phone = phone.resize((round(phone.width * wide.height / phone.height), wide.height), Image.LANCZOS)
+    both = Image.new("RGB", (wide.width + 16 + phone.width, wide.height), "white")
+    both.paste(wide, (0, 0))
+    both.paste(phone, (wide.width + 16, 0))
+    both.quantize(256, dither=Image.Dither.NONE).save(path, optimize=True)
 
 
 def main():
@@ -135,6 +152,7 @@ def main():
     args = parser.parse_args()
 
     path = models.find(args.model)
+    load_before = os.getloadavg()[0]
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp) / "site"
         site.export_site([args.model], folder)
@@ -162,12 +180,13 @@ def main():
 
     row = lambda ms: f"{statistics.median(ms):.0f} ms, {1000 / statistics.median(ms):.1f} tiles/s"  # noqa: E731
     print(f"{args.model}, seed {args.seed}: headless chromium, WebGL on SwiftShader (software), "
-          f"WASM on {worker['threads']} threads\n")
+          f"WASM on {worker['threads']} threads; load average {load_before:.1f} before, {os.getloadavg()[0]:.1f} after\n")
     print("| the browser's worker, a tile | median | ")
     print("|---|---|")
     print(f"| no window kept (4 made) | {row(worker['cold'])} |")
     print(f"| along a row (2 made) | {row(worker['row'])} |")
     print(f"| every window kept (the decoding and the mesh) | {row(worker['warm'])} |")
+    print(f"| a sample at the training size, for comparison | {statistics.median(worker['sample']):.0f} ms |")
     print(f"\nthe page's world mode, reach {args.reach}: {tiles} tiles in {filled:.1f} s, {tiles / filled:.1f} tiles/s "
           f"(the Python runtime, 1 thread, the same ring: {python:.1f} s, {tiles / python:.1f} tiles/s)")
     print(f"flying {args.seconds:g} s: {flying['fps']:.1f} frames/s, interval median {flying['median']:.0f} ms, "

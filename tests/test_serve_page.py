@@ -578,17 +578,10 @@ def test_the_world_mode_takes_its_tiles_from_the_tile_route(page, terrain):
     browser runtime is loaded, and the download link is the camera's tile, following it."""
     from sinshape.runtime import world
 
-    requested = []
-
-    def seen(request):
-        requested.append(request.url.removeprefix(page.base))
-
-    page.on("request", seen)
-    try:
-        page.goto(f"{page.base}/?seed=3&up=z&edit=world&at=-3,7&reach=1")
-        status = wait_world(page)
-    finally:
-        page.remove_listener("request", seen)
+    page.goto(f"{page.base}/?seed=3&up=z&edit=world&at=-3,7&reach=1")
+    status = wait_world(page)
+    requested = [url.removeprefix(page.base) for url in
+                 page.evaluate("performance.getEntriesByType('resource').map((entry) => entry.name)")]
     tiles = [url for url in requested if url.startswith("/api/models/terrain/tile?")]
     assert len(tiles) == 9 and "/api/models/terrain/tile?i=-3&j=7&seed=3&scale=1&format=glb&frame=tile" in tiles
     assert not [url for url in requested if "onnxruntime-web" in url or url.endswith(("/model.js", "/worker.js"))]

@@ -115,6 +115,46 @@ def test_a_tile_does_not_depend_on_what_was_made_before(site_page):
             assert made.tobytes() == expected.tobytes()
 
 
+# Runs in the page: a tile request made by request.js's makeTile, in each frame; its vertices, or the refusal.
+MAKE_TILE_JS = """async ([tile, frames]) => {
+  const s = await import('./static/sinshape/runtime.js');
+  window.models ??= {};
+  window.models.terrain ??= await s.loadModel(new Uint8Array(await (await fetch('models/terrain.onnx')).arrayBuffer()), { name: 'terrain.onnx' });
+  const out = {};
+  for (const frame of frames) {
+    try {
+      const made = await s.makeTile(window.models.terrain, s.sampleRequest({ seed: 3n, tile: tile.map(BigInt), frame }));
+      out[frame] = { positions: Array.from(made.positions), corner: made.corner.map(String) };
+    } catch (error) {
+      out[frame] = { message: error.message, field: error.field };
+    }
+  }
+  return out;
+}"""
+
+
+def test_a_tile_request_is_placed_in_its_frame_as_python_places_it(site_page, terrain):  # noqa: F811
+    """makeTile: the tile's mesh from its corner in the input's units ('tile'), or placed in the
+    world ('model', 'input'), as world.placed places it; far out, only 'tile', with Python's message."""
+    from sinshape.core.errors import InputError
+
+    page = site_page
+    if not page.url.startswith(page.base):
+        page.goto(f"{page.base}/README.txt")
+    made = page.evaluate(MAKE_TILE_JS, [["2", "-1"], ["tile", "model", "input"]])
+    vertices, _ = world.tile_mesh(terrain, 3, (2, -1))
+    for frame, got in made.items():
+        expected = world.placed(terrain, (2, -1), vertices, frame)
+        positions = np.reshape(got["positions"], (-1, 3))
+        assert got["corner"] == [str(c) for c in world.tile_corner(terrain, (2, -1))] and len(positions) == len(expected)
+        assert np.abs(np.sort(positions, axis=0) - np.sort(expected, axis=0)).max() < 1e-4, frame
+    far = page.evaluate(MAKE_TILE_JS, [["1000000000", "0"], ["input", "tile"]])
+    with pytest.raises(InputError) as python:
+        world.check_placement(terrain, (10**9, 0), "input")
+    assert far["input"] == {"message": str(python.value), "field": "frame"}
+    assert len(far["tile"]["positions"]) > 1000
+
+
 # Runs in the page: tiles made with no window kept, near and far in turn, each stage run counted with
 # the numbers it was given (the noise among them), and timed.
 COST_JS = """async ([tiles, rounds]) => {

@@ -110,10 +110,12 @@ export function requestOf(layout = null) {
   return sampleRequest(fields);
 }
 
+const MAX_REACH = 5; // tiles on each side of the camera's: 11 x 11 of them, as the page's choices go
+
 /** The world mode's view: { reach: tiles made on each side of the camera's, walk }. */
 export function worldOptions() {
   const reach = Number(state.reach);
-  if (!(Number.isInteger(reach) && reach >= 1 && reach <= 8)) throw new Error(`reach '${state.reach}': give 1 to 8 tiles`);
+  if (!(Number.isInteger(reach) && reach >= 1 && reach <= MAX_REACH)) throw new Error(`reach '${state.reach}': give 1 to ${MAX_REACH} tiles`);
   if (!['fly', 'walk'].includes(state.travel)) throw new Error(`travel '${state.travel}': give fly or walk`);
   return { reach, walk: state.travel === 'walk' };
 }
