@@ -13,7 +13,8 @@
 //   viewer/sampling.js  the two back ends behind one call, sample(where, name, request)
 //   viewer/scene.js     the 3-D view: renderer, camera, controls, the shape, framing
 //   viewer/editor.js    the kept box, the grown box, the layout's blocks and their edits
-//   viewer/world.js     the world mode: tiles made around the camera and dropped behind it, flying and walking
+//   viewer/world.js     the world mode: tiles made around the camera and dropped behind it
+//   viewer/flight.js    the world mode's camera: keys, the mouse and fingers fly it or walk it
 //   viewer/sizes.js, viewer/layout-cells.js   pure helpers: where an edit lies, a layout's cells and files
 import * as editor from './viewer/editor.js';
 import { $, fail, finish, fromForm, report, showMode, showProgress, toForm, working } from './viewer/form.js';

@@ -18,8 +18,8 @@ import { marchingCubes } from './mesh.js';
 import { streamKey } from './noise.js';
 import { project } from './query.js';
 
-export const WORLD_STREAM = 2; // world.WORLD_STREAM: (WORLD_STREAM, a, b) keys window (a, b)'s noise, after the seed
-export const MAX_TILE = 2n ** 62n; // world.MAX_TILE: |i|, |j| below it
+const WORLD_STREAM = 2; // world.WORLD_STREAM: (WORLD_STREAM, a, b) keys window (a, b)'s noise, after the seed
+const MAX_TILE = 2n ** 62n; // world.MAX_TILE: |i|, |j| below it
 const MIN_STRIDE = 4; // voxels: a window of fewer than 2 * 4 + 1 along an axis has no room to blend
 const UP_AXIS = { y: 1, z: 2 };
 const BLEND = 1.0; // world.BLEND
@@ -58,7 +58,7 @@ export function windowSeed(seed, a, b) {
 // neighbour; a view of 7 x 7 tiles made nearest first, or a row of them
 // made as the view moves, reuses all it can with 64). A cache, not state:
 // a window is the same array whether it is made or found.
-export const WINDOWS_KEPT = 64;
+const WINDOWS_KEPT = 64;
 let modelCount = 0;
 const windows = new Map(); // "model|seed|a|b" -> a promise of the window's planes, oldest use first
 const modelIds = new WeakMap(); // model -> a number naming it in the keys
@@ -99,7 +99,7 @@ const smoothstep = (f) => f * f * (3 - 2 * f);
  * at p S / m, and for the tile's two windows (the one before, the one behind)
  * their cell positions and weights; along up, one window spanning it all.
  */
-export function tileAxis(layout, axis, scale) {
+function tileAxis(layout, axis, scale) {
   const stride = layout.stride[axis];
   if (axis === layout.up) {
     const m = Math.max(2, roundHalfEven((stride + 1) * scale)); // as a sample's grid: m points over the height
@@ -132,7 +132,7 @@ function taps(positions, n) {
  * (bilinear, align_corners), as world.interpolate: (rows, cols, D)
  * Float32Array. Two tiles asking for the same position get the same bits.
  */
-export function interpolate(plane, rows, cols) {
+function interpolate(plane, rows, cols) {
   const [h, w, d] = plane.dims, src = plane.data;
   const r = taps(rows, h), c = taps(cols, w);
   const along = new Float32Array(rows.length * w * d); // along the rows first: (rows, W, D)
@@ -223,16 +223,13 @@ export async function tileOccupancy(model, seed, tile, scale = 1) {
  * Tile (i, j)'s surface, as world.tile_mesh: { positions: Float32Array (V, 3)
  * in voxels from the tile's lowest corner, faces: Uint32Array (F, 3) }.
  * Closed at the top and bottom, open on the four sides it shares with its
- * neighbours, whose border vertices it shares exactly, except the sides in
- * `closed` ([axis, 0 or 1] pairs: the low or high side along a horizontal
- * axis), closed as a sample's sides are.
+ * neighbours, whose border vertices it shares exactly.
  */
-export async function tileMesh(model, seed, tile, scale = 1, closed = []) {
+export async function tileMesh(model, seed, tile, scale = 1) {
   const grid = await tileOccupancy(model, seed, tile, scale);
   const layout = worldLayout(model.manifest);
   const pad = [[0, 0], [0, 0], [0, 0]];
   pad[layout.up] = [1, 1];
-  for (const [axis, side] of closed) pad[axis][side] = 1;
   const { positions, faces } = marchingCubes(grid, 0.5, null, pad);
   for (let v = 0; v < positions.length; v += 3) {
     for (let axis = 0; axis < 3; axis++) {
