@@ -9,10 +9,10 @@ import math
 import numpy as np
 import pytest
 
-from sinshape import models
-from sinshape.runtime import load, world
 from browser import wait_world
 from test_web import browser, playwright, site_page, terrain, wait_done  # noqa: F401 (the fixtures of the browser's tests)
+from sinshape import models
+from sinshape.runtime import load, world
 
 # Runs in the page: each tile's occupancy grid and mesh, made by world.js (its windows dropped first when
 # `fresh`), as base64 of their bytes; and the keys of the tile's four windows.
