@@ -155,3 +155,12 @@ def wait_cells(page, text: str) -> None:
                            "(new URLSearchParams(location.search).get('cells') ?? '') === text", arg=[text],
                            timeout=60_000)
     assert page.evaluate("document.body.dataset.state") == "ready", page.text_content("#error")
+
+
+# ---- the page's world mode (tests/test_world_web.py in the browser, tests/test_serve_page.py on the server)
+def wait_world(page, timeout=120_000) -> dict:
+    """Until every tile within reach of the camera is made and the page is ready: the world's status."""
+    page.wait_for_function("(() => { const s = window.sinshapeView.world.status(); return s && "
+                           "!/to make/.test(document.getElementById('status').textContent) && "
+                           "document.body.dataset.state === 'ready'; })()", timeout=timeout)
+    return page.evaluate("window.sinshapeView.world.status()")

@@ -11,7 +11,7 @@ import pytest
 import trimesh
 from PIL import Image
 
-from browser import CLICKABLE_JS, edits_text, layout_in_page, wait_cells
+from browser import CLICKABLE_JS, edits_text, layout_in_page, wait_cells, wait_world
 from test_serve import running_server
 
 sync_api = pytest.importorskip("playwright.sync_api", reason="needs playwright (the test extra)")
@@ -570,4 +570,30 @@ def test_edit_the_layout_as_blocks(page, terrain, tmp_path):
     page.click("#undo")
     wait_cells(page, edits_text(imported, base))
     assert "seed=3&" in page.url and shape(page)["digest"] == shown["digest"]
+    assert not page.errors and not page.outside
+
+
+def test_the_world_mode_takes_its_tiles_from_the_tile_route(page, terrain):
+    """World mode on the server: each tile is the tile route's (the Python runtime's own mesh), no
+    browser runtime is loaded, and the download link is the camera's tile, following it."""
+    from sinshape.runtime import world
+
+    page.goto(f"{page.base}/?seed=3&up=z&edit=world&at=-3,7&reach=1")
+    status = wait_world(page)
+    requested = [url.removeprefix(page.base) for url in
+                 page.evaluate("performance.getEntriesByType('resource').map((entry) => entry.name)")]
+    tiles = [url for url in requested if url.startswith("/api/models/terrain/tile?")]
+    assert len(tiles) == 9 and "/api/models/terrain/tile?i=-3&j=7&seed=3&scale=1&format=glb&frame=tile" in tiles
+    assert not [url for url in requested if "onnxruntime-web" in url or url.endswith(("/model.js", "/worker.js"))]
+    assert sorted((int(i), int(j)) for i, j, _, _ in status["tiles"]) == [(i, j) for i in (-4, -3, -2) for j in (6, 7, 8)]
+    for i, j, faces, _ in status["tiles"]:
+        assert faces == len(world.tile_mesh(terrain, 3, (int(i), int(j)))[1])
+    assert page.get_attribute("#download", "href").endswith("tile?i=-3&j=7&seed=3&scale=1&format=glb&frame=tile")
+    page.evaluate("window.sinshapeView.world.moveBy(0, -1)")
+    status = wait_world(page)
+    assert status["at"] == ["-3", "6"] and "at=-3%2C6" in page.url
+    assert page.get_attribute("#download", "href").endswith("tile?i=-3&j=6&seed=3&scale=1&format=glb&frame=tile")
+    page.goto(f"{page.base}/?seed=3&up=z&edit=world&at=4611686018427387904,0")  # 2**62: the request's own message
+    page.wait_for_function("document.body.dataset.state === 'error'")
+    assert page.text_content("#error") == "a tile is two integers (i, j) of magnitude below 2**62, got [4611686018427387904, 0]"
     assert not page.errors and not page.outside

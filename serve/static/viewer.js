@@ -5,23 +5,27 @@
 // A sample is made on the server (its API) or in this browser (the JavaScript
 // runtime in sinshape/, on onnxruntime-web); a static site from
 // `sinrun export-web` (body data-site="static") has no server and samples in
-// the browser only. This module wires the page's jobs together, one module each:
+// the browser only. The world mode flies over the endless world of the model
+// and seed instead. This module wires the page's jobs together, one module each:
 //
 //   viewer/state.js     the state: the URL, undo and redo, the sample request it stands for
 //   viewer/form.js      the controls and the status line
 //   viewer/sampling.js  the two back ends behind one call, sample(where, name, request)
 //   viewer/scene.js     the 3-D view: renderer, camera, controls, the shape, framing
 //   viewer/editor.js    the kept box, the grown box, the layout's blocks and their edits
+//   viewer/world.js     the world mode: tiles made around the camera and dropped behind it
+//   viewer/flight.js    the world mode's camera: keys, the mouse and fingers fly it or walk it
 //   viewer/sizes.js, viewer/layout-cells.js   pure helpers: where an edit lies, a layout's cells and files
 import * as editor from './viewer/editor.js';
 import { $, fail, finish, fromForm, report, showMode, showProgress, toForm, working } from './viewer/form.js';
 import * as sampling from './viewer/sampling.js';
 import { camera, frame, memory, orient, renderer, scene, showMesh, summary } from './viewer/scene.js';
-import { STATIC_SITE, canWalk, fileStem, readUrl, record, requestOf, state, walk, writeUrl } from './viewer/state.js';
+import { STATIC_SITE, canWalk, fileStem, readUrl, record, requestOf, state, walk, worldOptions, writeUrl } from './viewer/state.js';
+import * as world from './viewer/world.js';
 
 window.sinshapeView = { // for the tests and the console
   scene, camera, renderer, shape: summary, memory, pick: editor.pick, facePoint: editor.facePoint,
-  layout: () => editor.layout() && { ...editor.layout(), grid: Array.from(editor.layout().grid) },
+  layout: () => editor.layout() && { ...editor.layout(), grid: Array.from(editor.layout().grid) }, world: world.view,
 };
 
 const ups = new Map(); // model name -> its up axis, recorded when it was trained
@@ -64,6 +68,11 @@ async function load({ replay = false } = {}) {
   const progress = (stage, fraction) => { if (ticket === latest) showProgress(stage, fraction); };
   try {
     let request = requestOf(); // checked before any work: a bad value says so at once
+    if (state.edit === 'world') {
+      await showWorld(request, ticket, { progress, signal });
+      return;
+    }
+    world.stop();
     const info = state.edit ? await sampling.info(where, name, { progress, signal }) : null;
     if (ticket !== latest) return;
     if (state.edit === 'layout') {
@@ -92,12 +101,40 @@ async function load({ replay = false } = {}) {
   }
 }
 
+/** The world of the state's model and seed, flown over from the request's tile (viewer/world.js). */
+async function showWorld(request, ticket, options) {
+  const { reach, walk: walking } = worldOptions();
+  editor.dropLayout();
+  const info = await sampling.info(state.where, state.model, options);
+  if (ticket !== latest) return;
+  if (document.activeElement === $('edit')) $('edit').blur(); // the keys fly now, not pick another mode
+  world.show({ where: state.where, name: state.model, seed: request.seed ?? 0n, scale: request.scale, tile: request.tile, info, reach, walk: walking },
+    (status) => showWorldStatus(status, ticket));
+}
+
+/** The world's work so far: the camera's tile in the controls and the URL, what is shown and made. */
+function showWorldStatus({ at, shown, waiting, made, complete, error }, ticket) {
+  const here = at.join(',');
+  if (state.at !== here) {
+    state.at = $('at').value = here;
+    writeUrl();
+  }
+  if (state.where === 'server') offer(sampling.serverRequest(state.model, requestOf(), state.format).url); // the camera's tile
+  $('status').textContent = `tile ${at.join(', ')} · ${shown} tiles shown · ${made} made${waiting ? `, ${waiting} to make` : ''}`;
+  if (error) report(`a tile failed: ${error.message}`);
+  if (ticket === latest && document.body.dataset.state === 'loading') {
+    $('progress').value = made / (made + waiting);
+    if (complete) finish('ready');
+  }
+}
+
 /** Stop the sample being made: abort the server's request, or end the browser's worker. */
 function cancel() {
   if (document.body.dataset.state !== 'loading') return;
   latest++; // whatever was under way answers no one now
   aborter?.abort();
   aborter = null;
+  world.stop();
   sampling.stop();
   $('download').removeAttribute('href');
   $('status').textContent = 'cancelled';
@@ -173,7 +210,7 @@ async function start() {
     load();
   });
   const boxes = ['bx0', 'by0', 'bz0', 'bx1', 'by1', 'bz1', 'gx', 'gy', 'gz', 'ax', 'ay', 'az'];
-  for (const id of ['where', 'seed', 'sx', 'sy', 'sz', 'scale', 'smooth', 'edit', 'other', ...boxes]) {
+  for (const id of ['where', 'seed', 'sx', 'sy', 'sz', 'scale', 'smooth', 'edit', 'other', 'at', 'travel', 'reach', ...boxes]) {
     $(id).addEventListener('change', () => { readForm(); load(); });
   }
   for (const id of boxes) { // the box follows as it is typed

@@ -5,7 +5,7 @@
 // differently, so face counts may differ by a few per ten thousand.
 //
 // The grid is padded with one empty point on every side, so surfaces close at
-// its border, as runtime/mesh.py does.
+// its border, as runtime/mesh.py does (a world's tile leaves its shared sides open).
 
 // Triangles per cube configuration: edge numbers 0-11 as the letters 0-9, a, b,
 // three per triangle; '-' for none. Bit v of a configuration is set when corner
@@ -34,12 +34,15 @@ class Growable {
  * The 0.5 surface of an occupancy grid { data: (Mx, My, Mz) Float32Array, shape }.
  * Returns { positions: Float32Array (V, 3) in padded grid units (point p of the
  * grid is at p + 1), faces: Uint32Array (F, 3) }, faces wound so normals point out.
+ * pad: empty points added per axis, [low, high] (a world's tile, 0 on the
+ * sides it shares with its neighbours, is open there; point p is at p + low).
  */
-export function marchingCubes(grid, level = 0.5, progress = null) {
+export function marchingCubes(grid, level = 0.5, progress = null, pad = [[1, 1], [1, 1], [1, 1]]) {
   const [mx, my, mz] = grid.shape, src = grid.data;
-  const px = mx + 2, py = my + 2, pz = mz + 2; // padded
-  const value = (x, y, z) => (x < 1 || y < 1 || z < 1 || x > mx || y > my || z > mz ? 0
-    : src[((x - 1) * my + (y - 1)) * mz + (z - 1)]);
+  const [[lx, hx], [ly, hy], [lz, hz]] = pad;
+  const px = mx + lx + hx, py = my + ly + hy, pz = mz + lz + hz; // padded
+  const value = (x, y, z) => (x < lx || y < ly || z < lz || x >= lx + mx || y >= ly + my || z >= lz + mz ? 0
+    : src[((x - lx) * my + (y - ly)) * mz + (z - lz)]);
   const positions = new Growable(Float32Array), faces = new Growable(Uint32Array);
   let vertices = 0;
   // Vertex index of each crossed edge, -1 if none yet: x-edges of the current

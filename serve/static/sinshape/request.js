@@ -8,15 +8,16 @@
 //
 //   const request = sampleRequest({ seed: 7n, size: [2, 1, 1], keep: ['3:0%,0%,0%:50%,100%,100%'] });
 //   const tri = await make(model, request);                          // as request.make
+//   const tile = await makeTile(model, sampleRequest({ seed: 7n, tile: [5n, -2n], frame: 'tile' }));  // a world's tile: a mesh
 import { ConflictError, InputError, pyRepr, pyStr } from './errors.js';
 import { sample, scaledSizes } from './generate.js';
 import { checkPart, compose, grow, parsePart } from './edit.js';
 import { fromLayout } from './layout.js';
+import { checkPlacement, checkTile, placed, tileCorner, tileMesh, worldLayout } from './world.js';
 
 const MAX_SMOOTH = 100; // mesh.MAX_SMOOTH
 const SMOOTHERS = ['laplacian', 'taubin']; // mesh.SMOOTHERS; the browser's mesh.js has the first only
 const FRAMES = ['input', 'model', 'tile'];
-const MAX_TILE = 2n ** 62n; // world.MAX_TILE: |i|, |j| below it
 const MAX_PARTS = 16; // boxes kept in one sample: each runs a whole chain of its own
 const DEFAULTS = {
   seed: null, recon: false, size: [1, 1, 1], scale: 1, smooth: 0, smoother: 'laplacian', largest: false, frame: 'input',
@@ -91,15 +92,6 @@ export function sampleRequest(fields = {}) {
   return request;
 }
 
-/** A tile of a world, (i, j): two integers of magnitude below 2**62, as world.check_tile; BigInts. */
-export function checkTile(tile) {
-  const whole = (t) => typeof t === 'bigint' || Number.isInteger(t);
-  if (!(Array.isArray(tile) && tile.length === 2 && tile.every((t) => whole(t) && -MAX_TILE < BigInt(t) && BigInt(t) < MAX_TILE))) {
-    throw new InputError(`a tile is two integers (i, j) of magnitude below 2**62, got ${pyRepr(tile)}`, 'tile');
-  }
-  return Object.freeze(tile.map(BigInt));
-}
-
 /** The rules of which fields go together, as SampleRequest.check_together. */
 function checkTogether(request) {
   const given = edits(request);
@@ -132,6 +124,7 @@ const sampleSeed = (request) => (request.recon ? null : request.seed ?? 0n);
  * if given, names the work as it starts.
  */
 export async function make(model, request, progress = null) {
+  if (request.tile !== null) throw new InputError('a tile is a mesh of its own, not a tri-plane: make it with makeTile', 'tile');
   const seed = sampleSeed(request), { size, layout } = request;
   if (layout) {
     if (layout.resample) throw new InputError('the browser fits a layout of one level\'s own size only; resample it with sinrun', 'layout');
@@ -150,4 +143,17 @@ export async function make(model, request, progress = null) {
   }
   progress?.('sampling', null);
   return sample(model, seed, size);
+}
+
+/**
+ * The mesh of a tile request (`tile` given), as world.tile_bytes makes it:
+ * { positions: Float32Array (V, 3) in the request's frame, faces, corner:
+ * the tile's lowest corner in voxels (BigInts) }.
+ */
+export async function makeTile(model, request, progress = null) {
+  checkPlacement(model.manifest, request.tile, request.frame); // refused before the work, not after
+  progress?.('making the tile', null);
+  const { positions, faces } = await tileMesh(model, sampleSeed(request), request.tile, request.scale);
+  return { positions: placed(model.manifest, request.tile, positions, request.frame), faces,
+           corner: tileCorner(worldLayout(model.manifest), request.tile) };
 }

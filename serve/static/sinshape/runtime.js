@@ -13,11 +13,13 @@
 //   const laid = await sinshape.layout(model, 3);                        // { grid, shape }: level 0's layout, as runtime.layout.layout
 //   const fitted = await sinshape.fromLayout(model, 3, laid.grid, laid.shape);  // as runtime.layout.from_layout
 //   const tri2 = await sinshape.make(model, sinshape.sampleRequest({ seed: 3n, grow: [2, 1, 1] }));  // as runtime.request.make
+//   const tile = await sinshape.tileMesh(model, 3n, [5n, -2n]);          // a world's tile, as runtime.world.tile_mesh
 export { ConflictError, InputError } from './errors.js';
 export { loadModel, configure, parseManifest } from './model.js';
 export { parseSize, parseTriple, sample, scaledSizes } from './generate.js';
 export { compose, grow, parsePart } from './edit.js';
-export { Layout, make, sampleRequest } from './request.js';
+export { Layout, make, makeTile, sampleRequest } from './request.js';
+export { tileCorner, tileMesh, tileOccupancy, windowSeed, worldLayout } from './world.js';
 export { normal, streamKey } from './noise.js';
 export { dense, gridShape, project, projectedDense } from './query.js';
 export { fromLayout, layout } from './layout.js';

@@ -5,16 +5,18 @@
 //
 // Messages in, each with an id the answers repeat:
 //   { id, type: 'load', name, bytes, file }  load and check a model (bytes: Uint8Array)
-//     -> { id, type: 'loaded', backend, threads, seconds, sizes, origin, spacing }  (the manifest's grids and frame)
+//     -> { id, type: 'loaded', backend, threads, seconds, sizes, origin, spacing, up }  (the manifest's grids and frame)
 //   { id, type: 'sample', name, request }  request: a sample request (request.js: sampleRequest, or a
-//       structured clone of one), made as runtime.request.make makes it (request.js: make)
+//       structured clone of one), made as runtime.request.make makes it (request.js: make), or
+//       with a tile, that tile of the world (request.js: makeTile; docs/WORLDS.md)
 //     -> { id, type: 'progress', stage, fraction }  (fraction in [0, 1], or null)
-//     -> { id, type: 'done', positions, faces, seconds }  (the buffers are transferred)
+//     -> { id, type: 'done', positions, faces, seconds }  (the buffers are transferred; a tile's
+//        corner too, in voxels, as digit strings)
 //   { id, type: 'layout', name, seed, factors }  the level-0 layout of the sample of `seed`, as runtime.layout.layout
 //     -> { id, type: 'done', grid, shape }  (grid: Uint8Array in C order, 1 full)
 //   any of them -> { id, type: 'error', message, input }  (input: an InputError, a message for the user)
 import * as sinshape from './runtime.js';
-import { make, sampleRequest } from './request.js';
+import { make, makeTile, sampleRequest } from './request.js';
 
 const models = new Map(); // name -> a promise of the loaded model
 
@@ -24,9 +26,9 @@ async function load({ name, bytes, file }) {
   models.set(name, loading);
   try {
     const model = await loading;
-    const { sizes, origin, spacing } = model.manifest;
+    const { sizes, origin, spacing, up } = model.manifest;
     return { backend: model.backend, threads: model.threads, seconds: (performance.now() - started) / 1000,
-             sizes, origin, spacing };
+             sizes, origin, spacing, up };
   } catch (error) {
     models.delete(name); // a later try loads again
     throw error;
@@ -45,6 +47,10 @@ async function sample({ name, request }, progress) {
   const model = await loaded(name);
   const started = performance.now();
   const wanted = sampleRequest(request); // a clone has lost its freezing: checked again, as cheap as it is
+  if (wanted.tile !== null) { // a tile takes none of the surface options it could not keep seamless (the request says so)
+    const { positions, faces, corner } = await makeTile(model, wanted, progress);
+    return { positions, faces, corner: corner.map(String), seconds: (performance.now() - started) / 1000 };
+  }
   for (const [field, value] of Object.entries(BROWSER_SURFACE)) {
     if (wanted[field] !== value) throw new sinshape.InputError(`the browser runtime makes ${field} ${value} only`, field);
   }

@@ -15,7 +15,7 @@ for (const x of document.querySelectorAll('.xyz > input')) {
     x.after(input);
   }
 }
-const PLAIN = ['where', 'scale', 'smooth', 'up', 'format', 'edit', 'other']; // one control each, as they are
+const PLAIN = ['where', 'scale', 'smooth', 'up', 'format', 'edit', 'other', 'at', 'travel', 'reach']; // one control each, as they are
 const TRIPLES = { box: ['bx0', 'by0', 'bz0', 'bx1', 'by1', 'bz1'], grow: ['gx', 'gy', 'gz'], anchor: ['ax', 'ay', 'az'] };
 
 export function toForm() {
@@ -56,7 +56,9 @@ export function showMode() {
   $('format').disabled = blob; // the browser writes .ply, a shape from a layout comes as .glb, and the box says so
   $('format').value = browser ? 'ply' : blob ? 'glb' : state.format;
   $('backend').hidden = !browser;
-  for (const edit of ['keep', 'grow', 'layout']) $(`${edit}-controls`).hidden = state.edit !== edit;
+  for (const edit of ['keep', 'grow', 'layout', 'world']) $(`${edit}-controls`).hidden = state.edit !== edit;
+  // A world has no size nor smoothing, its own up, and the world's controls, not orbiting.
+  for (const id of ['size-label', 'smooth-label', 'up-label', 'orbit-help']) $(id).hidden = state.edit === 'world';
 }
 
 export function report(error) {

@@ -6,7 +6,8 @@
 // this browser's runtime (sinshape/, in a module worker started on first
 // use, so the server mode never fetches onnxruntime-web's 14 MB of WASM and
 // a sample never freezes the page). `info` and `layout` give what the editor
-// draws from the same place: a model's grids and frame, a seed's layout.
+// draws from the same place: a model's grids, frame and up axis, a seed's
+// layout; `tile` a tile of a world, for the world mode (viewer/world.js).
 // An aborted `signal` gives up a request (the server stops making it); in
 // the browser a request waits for the one before it, and is skipped if a
 // newer one aborted it meanwhile. `stop` ends the worker (cancel).
@@ -18,7 +19,7 @@ class Cancelled extends Error {
   constructor() { super('cancelled'); }
 }
 
-const models = new Map(); // name -> { url or bytes, file, loaded: a promise of the worker's { backend, threads, seconds, sizes, origin, spacing } }
+const models = new Map(); // name -> { url or bytes, file, loaded: a promise of the worker's { backend, threads, seconds, sizes, origin, spacing, up } }
 
 /** A model the browser may load: from `url`, or the bytes of a file opened on the page. */
 export function addModel(name, { url = null, bytes = null, file }) {
@@ -27,7 +28,7 @@ export function addModel(name, { url = null, bytes = null, file }) {
 
 // ---- the server: its routes (docs/SERVE.md)
 const loader = new GLTFLoader();
-const infos = new Map(); // model name -> a promise of { sizes, origin, spacing }
+const infos = new Map(); // model name -> a promise of { sizes, origin, spacing, up }
 const modelRoute = (name) => `api/models/${encodeURIComponent(name)}`;
 
 async function answer(response) {
@@ -39,11 +40,16 @@ async function answer(response) {
 /**
  * The server's request for a sample request, as a file of `format`: { url,
  * init } for fetch. The sample route's query; a layout goes as the body of
- * a POST to it, written as .vox. The route has no recon, smoother, largest
- * or frame, and takes kept parts as text: a request that needs more is
- * refused here, not sent without it.
+ * a POST to it, written as .vox; a tile, the tile route's query. The sample
+ * route has no recon, smoother, largest or frame, and takes kept parts as
+ * text: a request that needs more is refused here, not sent without it.
  */
 export function serverRequest(name, request, format) {
+  if (request.tile) {
+    const [i, j] = request.tile;
+    const query = new URLSearchParams({ i, j, seed: request.seed ?? 0n, scale: request.scale, format, frame: request.frame });
+    return { url: `${modelRoute(name)}/tile?${query}`, init: {} };
+  }
   const unsent = { recon: request.recon, largest: request.largest, smoother: request.smoother !== 'laplacian',
     frame: request.frame !== 'input', keep: request.keep.some((part) => typeof part !== 'string') };
   const missing = Object.keys(unsent).filter((field) => unsent[field]);
@@ -61,12 +67,19 @@ export function serverRequest(name, request, format) {
   return { url, init: { method: 'POST', body, headers: { 'Content-Type': 'application/octet-stream' } } };
 }
 
+/** The one mesh of a .glb file trimesh wrote: { positions, faces } (no normals, no transform). */
+async function glbMesh(data) {
+  let geometry = null;
+  (await loader.parseAsync(data, '')).scene.traverse((node) => { if (node.isMesh) geometry ??= node.geometry; });
+  return { positions: geometry?.attributes.position.array ?? new Float32Array(), faces: geometry?.index.array ?? new Uint32Array() };
+}
+
 const server = {
   info(name) {
     if (!infos.has(name)) {
       infos.set(name, (async () => {
         const body = await (await answer(await fetch(modelRoute(name)))).json();
-        return { sizes: body.sizes, origin: body.frame.origin, spacing: body.frame.spacing };
+        return { sizes: body.sizes, origin: body.frame.origin, spacing: body.frame.spacing, up: body.up };
       })());
       infos.get(name).catch(() => infos.delete(name));
     }
@@ -84,16 +97,23 @@ const server = {
     const { url, init } = serverRequest(name, request, 'glb');
     const response = await answer(await fetch(url, { ...init, signal }));
     const data = await response.arrayBuffer();
-    let geometry = null; // the one mesh trimesh writes: positions and faces, no normals, no transform
-    (await loader.parseAsync(data, '')).scene.traverse((node) => { if (node.isMesh) geometry ??= node.geometry; });
     const seconds = ((performance.now() - started) / 1000).toFixed(2);
     const cached = response.headers.get('X-Cache') === 'hit' ? ' (cached)' : '';
     return {
-      positions: geometry?.attributes.position.array ?? new Float32Array(), faces: geometry?.index.array ?? new Uint32Array(),
+      ...await glbMesh(data),
       status: `${Number(response.headers.get('X-Faces')).toLocaleString('en')} faces · ${seconds} s${cached}`,
       file: request.layout ? new Blob([data], { type: 'model/gltf-binary' }) : null, // else the route is the link
       extension: 'glb',
     };
+  },
+
+  async tile(name, request, { signal }) {
+    const response = await fetch(serverRequest(name, request, 'glb').url, { signal });
+    // A tile with no surface (all empty or all full there) is refused as a file: here it is nothing to show.
+    if (response.status === 400 && / has no surface /.test((await response.clone().json().catch(() => ({}))).detail)) {
+      return { positions: new Float32Array(), faces: new Uint32Array() };
+    }
+    return glbMesh(await (await answer(response)).arrayBuffer());
   },
 };
 
@@ -206,6 +226,11 @@ const browser = {
       backend: `onnxruntime-web on WASM, ${threads}${isolation}; model loaded and checked in ${model.seconds.toFixed(2)} s`,
     };
   }),
+
+  tile: (name, request, { signal }) => inTurn(signal, async () => {
+    await loaded(name);
+    return call({ type: 'sample', name, request });
+  }),
 };
 
 /** Open a model file in the browser: checked in the worker, then listed; a refused file leaves the list as it was. */
@@ -230,12 +255,15 @@ export function stop() {
 const backends = { server, browser };
 const layouts = new Map(); // "where|model|seed|size" -> a promise of a seed's layout { shape, grid }
 
-/** A model's grids and frame: { sizes, origin, spacing }. */
+/** A model's grids, frame and up axis: { sizes, origin, spacing, up }. */
 export const info = (where, name, options) => backends[where].info(name, options);
 
 /** The sample of a request: { positions, faces, status, file (a Blob to download, or null), extension,
  * backend (how the browser ran it) }. */
 export const sample = (where, name, request, options) => backends[where].sample(name, request, options);
+
+/** The tile of a tile request (frame 'tile'): { positions, faces }, none where the tile has no surface. */
+export const tile = (where, name, request, options) => backends[where].tile(name, request, options);
 
 /** The seed's own layout (level 0 at `size`): { shape, grid }, kept once made. */
 export function layout(where, name, seed, size, options) {

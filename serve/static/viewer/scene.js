@@ -11,7 +11,8 @@ renderer.setPixelRatio(window.devicePixelRatio);
 view.appendChild(renderer.domElement);
 export const scene = new THREE.Scene();
 scene.background = new THREE.Color(0x20242a);
-export const camera = new THREE.PerspectiveCamera(35, 1, 0.01, 1000);
+const FOV = 35; // degrees, vertically
+export const camera = new THREE.PerspectiveCamera(FOV, 1, 0.01, 1000);
 // Light: a soft sky-and-ground fill, and a key light from above and to the
 // left of the viewer. The key light and its target ride with the camera, so
 // whichever side is turned to the viewer is lit the same way and shaded by its form.
@@ -27,7 +28,7 @@ controls.addEventListener('change', render);
 // back faces are never seen from outside; drawing them too (DoubleSide) made
 // dark lines where they fought the front faces in the depth buffer.
 // Materials are made once and shared by every shape and overlay: none is replaced.
-const material = new THREE.MeshStandardMaterial({ color: 0xd8c8a8, roughness: 0.85, side: THREE.FrontSide });
+export const material = new THREE.MeshStandardMaterial({ color: 0xd8c8a8, roughness: 0.85, side: THREE.FrontSide });
 const holder = new THREE.Group(); // turned so the model's up axis points up on screen
 const shape = new THREE.Group(); // the sample
 const overlay = new THREE.Group(); // what the editor draws over it: a box's wireframe, the layout's blocks
@@ -37,7 +38,7 @@ const raycaster = new THREE.Raycaster();
 let framed = ''; // what the camera was last framed for: a new extent frames it again, an edit inside it does not
 
 /** Draw the scene: the page's one render call, made whenever something in view changes. */
-function render() {
+export function render() {
   renderer.render(scene, camera);
 }
 
@@ -99,6 +100,16 @@ export function showMesh({ positions, faces }, up, extent) {
   if (extent !== framed) frame();
   else render();
   framed = extent;
+}
+
+/** The world mode's view (viewer/world.js) in place of the shape's, or (false) the shape again, framed:
+ * the world flies the camera itself, so orbiting is off and the shape and its overlay are hidden. */
+export function worldView(on) {
+  controls.enabled = !on;
+  holder.visible = !on;
+  camera.fov = on ? 60 : FOV; // a wider view to fly with, as a game's
+  camera.updateProjectionMatrix();
+  if (!on) frame();
 }
 
 /** The editor's drawing, in place of the last (nothing: none); `showShape` false hides the shape under it. */

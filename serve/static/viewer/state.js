@@ -10,8 +10,10 @@ const FIELDS = ['model', 'where', 'seed', 'size', 'scale', 'smooth', 'up', 'form
 // Each edit's fields, in the URL after `edit`: box (6 percentages x0,y0,z0,x1,y1,z1
 // of the sample, from the seed's sample) and other (the seed of the rest); grow
 // and anchor (3 factors, 3 fractions); cells (layout-cells.js's text of the edited cells).
-const EDITS = { keep: ['box', 'other'], grow: ['grow', 'anchor'], layout: ['cells'] };
-const EDIT_DEFAULTS = { edit: '', box: '0,0,0,50,100,100', other: '', grow: '2,1,1', anchor: '0,0,0', cells: '' };
+// The world mode's too (not an edit: the world of the seed, flown over): at (the
+// camera's tile i,j), travel (fly or walk) and reach (tiles made on each side).
+const EDITS = { keep: ['box', 'other'], grow: ['grow', 'anchor'], layout: ['cells'], world: ['at', 'travel', 'reach'] };
+const EDIT_DEFAULTS = { edit: '', box: '0,0,0,50,100,100', other: '', grow: '2,1,1', anchor: '0,0,0', cells: '', at: '0,0', travel: 'fly', reach: '3' };
 // What makes the shape: a step of the undo history when one of these changes.
 const SHAPE_FIELDS = ['model', 'seed', 'size', 'scale', 'smooth', 'edit', 'box', 'other', 'grow', 'anchor', 'cells'];
 
@@ -91,6 +93,10 @@ const numberOf = (text) => parseNumber(text) ?? String(text);
  * The box kept is the seed's, the rest the other seed's: that seed is the request's.
  */
 export function requestOf(layout = null) {
+  if (state.edit === 'world') { // the tile under the camera, as the tile route takes it
+    const tile = String(state.at).split(',').map((t) => (/^\s*-?\d+\s*$/.test(t) ? BigInt(t) : t));
+    return sampleRequest({ seed: seedOf(state.seed), scale: numberOf(state.scale), tile, frame: 'tile' });
+  }
   const fields = { seed: seedOf(state.seed), size: parseSize(state.size), scale: numberOf(state.scale), smooth: numberOf(state.smooth) };
   if (state.edit === 'keep') {
     const box = parseBox(state.box).map((v) => `${v}%`);
@@ -102,6 +108,16 @@ export function requestOf(layout = null) {
     fields.layout = Layout.of(layout.grid, layout.shape);
   }
   return sampleRequest(fields);
+}
+
+const MAX_REACH = 5; // tiles on each side of the camera's: 11 x 11 of them, as the page's choices go
+
+/** The world mode's view: { reach: tiles made on each side of the camera's, walk }. */
+export function worldOptions() {
+  const reach = Number(state.reach);
+  if (!(Number.isInteger(reach) && reach >= 1 && reach <= MAX_REACH)) throw new Error(`reach '${state.reach}': give 1 to ${MAX_REACH} tiles`);
+  if (!['fly', 'walk'].includes(state.travel)) throw new Error(`travel '${state.travel}': give fly or walk`);
+  return { reach, walk: state.travel === 'walk' };
 }
 
 /** A download's name: the model, the seeds and the edit. */
