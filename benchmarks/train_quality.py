@@ -1,25 +1,29 @@
-"""Training quality per budget: train, sample 100, score.
+"""Training quality per budget on real shapes: train, sample 100, score.
 
-    python benchmarks/train_quality.py --minutes 10 20 40                  # the default trainer
+    python benchmarks/train_quality.py                     # the real set, 10 and 30 min, seeds 0 and 1
+    python benchmarks/train_quality.py --shapes NaturalArch towerruins --minutes 10 --seeds 0
     python benchmarks/train_quality.py --minutes 10 20 40 --preset paper   # the paper's exact method
-    python benchmarks/train_quality.py --minutes 10 --seeds 0 1 --pyramid NaturalArch_r128s7.h5
     python benchmarks/train_quality.py --iters 150 --seeds 0 1 --label box32 -- --box 32
     python benchmarks/train_quality.py --minutes 40 --sinrun OTHER/.venv/bin/sinrun --label before
-    python benchmarks/train_quality.py --minutes 10 --mesh towerruins.obj --res 128
 
-The example is an SSG .h5 pyramid (--pyramid), by default the procedural
-acropolis voxelised at the six level sizes of one of the paper's res-128
-pyramids (31x15x15 .. 128x36x60), or a mesh voxelised as `sinrun train`
-does (--mesh, --res), written once so that any sinshape version (--sinrun)
-trains on exactly the same grids. Each run trains in a fresh
-process (`sinrun train PYRAMID --preset P --minutes M` or `--iters N`),
-then `sinrun eval` scores 100 samples against the pyramid's finest level
-(LP-IoU, LP-F, diversity). Arguments after `--` go to `sinrun train`. One
-JSON line per run goes to --results. Runs are one after another: a run
-beside other work gets fewer iterations for its minutes.
+By default every run of the real set: the SSG pyramids Canyon, NaturalArch
+and SmallTown (DATA/pyramids), the tower ruin mesh voxelised at res 128 as
+`sinrun train` does (DATA/meshes/towerruins), and, as one row among them,
+the procedural acropolis voxelised at the six level sizes of one of the
+paper's res-128 pyramids (31x15x15 .. 128x36x60). Meshes are written once as
+.h5 pyramids under WORK, so that any sinshape version (--sinrun) trains on
+exactly the same grids; --pyramid or --mesh (with --res) adds a shape of
+your own. Each run trains in a fresh process (`sinrun train PYRAMID --preset
+P --minutes M` or `--iters N`), then `sinrun eval` scores 100 samples
+against the pyramid's finest level (LP-IoU, LP-F, diversity), and the table
+shows the iterations each level got. Arguments after `--` go to `sinrun
+train`. One JSON line per run goes to --results. Runs are one after another:
+a run beside other work gets fewer iterations for its minutes. The whole
+default set is 5 shapes x 2 budgets x 2 seeds: about 7 hours.
 """
 
 import argparse
+import itertools
 import json
 import subprocess
 import sys
@@ -69,6 +73,21 @@ def mesh_pyramid(mesh: Path, res: int, path: Path) -> Path:
     return write_pyramid(path, pyramid_from_mesh(mesh, res).levels)
 
 
+REAL_PYRAMIDS = {"Canyon": "Canyon_r128s6.h5", "NaturalArch": "NaturalArch_r128s7.h5",
+                 "SmallTown": "SmallTown_r128s6.h5"}
+REAL_MESHES = {"towerruins": "towerruins/towerruins.obj"}
+SHAPES = [*REAL_PYRAMIDS, *REAL_MESHES, "acropolis"]
+
+
+def shape_pyramid(name: str, data: Path, work: Path, res: int) -> Path:
+    """The .h5 pyramid a shape of the default set trains on."""
+    if name in REAL_PYRAMIDS:
+        return data / "pyramids" / REAL_PYRAMIDS[name]
+    if name in REAL_MESHES:
+        return mesh_pyramid(data / "meshes" / REAL_MESHES[name], res, work / f"{name}_r{res}.h5")
+    return acropolis_pyramid(work / "acropolis_paper_sizes.h5")
+
+
 def model_training(sinrun: str, model: Path) -> tuple:
     """Iterations and learning rate per level as trained (rates None from
     versions that did not record them), from the model's manifest (read with
@@ -103,14 +122,18 @@ def run(command: list) -> float:
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--iters", type=int, nargs="*", default=[], help="iterations per level, one run each")
-    parser.add_argument("--minutes", type=float, nargs="*", default=[], help="time budgets, one run each")
-    parser.add_argument("--seeds", type=int, nargs="+", default=[0])
+    parser.add_argument("--minutes", type=float, nargs="*", default=None,
+                        help="time budgets, one run each (default: 10 30, unless --iters is given)")
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
+    parser.add_argument("--shapes", nargs="*", choices=SHAPES, default=None,
+                        help="shapes of the default set (default: all, unless --pyramid or --mesh is given)")
+    parser.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[2] / "shared" / "data",
+                        help="where the real shapes are: DATA/pyramids/*.h5, DATA/meshes/towerruins")
     parser.add_argument("--preset", default="default", help="the sinrun train preset (default, paper)")
-    parser.add_argument("--pyramid", type=Path, default=None, help="an SSG .h5 pyramid (default: the acropolis "
-                        "at the paper's level sizes)")
-    parser.add_argument("--mesh", type=Path, default=None, help="a mesh instead: voxelised at --res as sinrun "
-                        "train does, into WORK/NAME_rRES.h5")
-    parser.add_argument("--res", type=int, default=128, help="with --mesh: the finest level's longest side")
+    parser.add_argument("--pyramid", type=Path, default=None, help="an SSG .h5 pyramid of your own")
+    parser.add_argument("--mesh", type=Path, default=None, help="a mesh of your own: voxelised at --res as "
+                        "sinrun train does, into WORK/NAME_rRES.h5")
+    parser.add_argument("--res", type=int, default=128, help="meshes' finest level's longest side")
     parser.add_argument("--sinrun", default=str(Path(sys.executable).with_name("sinrun")))
     parser.add_argument("--label", default=None, help="default: the preset's name")
     parser.add_argument("--work", type=Path, default=Path("train_quality"))
@@ -119,37 +142,42 @@ def main():
     args = parser.parse_args()
     args.work.mkdir(parents=True, exist_ok=True)
     results = args.results or args.work / "results.jsonl"
-    if args.mesh:
-        try:
-            pyramid = mesh_pyramid(args.mesh, args.res, args.work / f"{args.mesh.stem}_r{args.res}.h5")
-        except InputError as error:
-            sys.exit(f"Error: {error}")
-    else:
-        pyramid = args.pyramid or acropolis_pyramid(args.work / "acropolis_paper_sizes.h5")
+    own = args.pyramid or args.mesh
+    shapes = args.shapes if args.shapes is not None else ([] if own else SHAPES)
+    try:
+        pyramids = [shape_pyramid(name, args.data, args.work, args.res) for name in shapes]
+        if args.mesh:
+            pyramids.append(mesh_pyramid(args.mesh, args.res, args.work / f"{args.mesh.stem}_r{args.res}.h5"))
+    except InputError as error:
+        sys.exit(f"Error: {error}")
+    pyramids += [args.pyramid] if args.pyramid else []
+    missing = [str(p) for p in pyramids if not p.is_file()]
+    if missing:
+        sys.exit(f"Error: no such file: {', '.join(missing)} (give --data, or choose --shapes)")
     label = args.label or args.preset
+    minutes = args.minutes if args.minutes is not None else ([] if args.iters else [10, 30])
 
-    budgets = [("--iters", str(n)) for n in args.iters] + [("--minutes", str(m)) for m in args.minutes]
+    budgets = [("--iters", str(n)) for n in args.iters] + [("--minutes", f"{m:g}") for m in minutes]
     print("| run | shape | seed | budget | training wall | iterations per level | learning rate "
           "| LP-IoU | LP-F | diversity |")
     print("|---|---|---|---|---|---|---|---|---|---|")
-    for flag, value in budgets:
-        for seed in args.seeds:
-            name = f"{label}_{pyramid.stem}_{flag.strip('-')}{value}_seed{seed}"
-            model, scores = args.work / f"{name}.onnx", args.work / f"{name}.json"
-            wall = run([args.sinrun, "train", str(pyramid), "-o", str(model), "--preset", args.preset, flag, value,
-                        "--seed", str(seed), "--quiet", *args.train_args])
-            run([args.sinrun, "eval", str(model), "--reference", str(pyramid), "-n", "100",
-                 "--json", str(scores)])
-            summary = json.loads(scores.read_text())
-            iterations, rates = model_training(args.sinrun, model)
-            row = {"label": label, "shape": pyramid.stem, "seed": seed, "iterations_per_level": iterations,
-                   "learning_rates": rates, flag.strip("-"): float(value), "train_args": args.train_args,
-                   "wall_seconds": round(wall, 1), **{k: summary[k] for k in ("lp_iou", "lp_f", "diversity")}}
-            with open(results, "a") as f:
-                f.write(json.dumps(row) + "\n")
-            print(f"| {label} | {pyramid.stem} | {seed} | {flag} {value} | {wall / 60:.1f} min | "
-                  f"{', '.join(map(str, iterations))} | {rate_range(rates)} | {row['lp_iou']:.3f} "
-                  f"| {row['lp_f']:.3f} | {row['diversity']:.3f} |", flush=True)
+    for pyramid, (flag, value), seed in itertools.product(pyramids, budgets, args.seeds):
+        name = f"{label}_{pyramid.stem}_{flag.strip('-')}{value}_seed{seed}"
+        model, scores = args.work / f"{name}.onnx", args.work / f"{name}.json"
+        wall = run([args.sinrun, "train", str(pyramid), "-o", str(model), "--preset", args.preset, flag, value,
+                    "--seed", str(seed), "--quiet", *args.train_args])
+        run([args.sinrun, "eval", str(model), "--reference", str(pyramid), "-n", "100",
+             "--json", str(scores)])
+        summary = json.loads(scores.read_text())
+        iterations, rates = model_training(args.sinrun, model)
+        row = {"label": label, "shape": pyramid.stem, "seed": seed, "iterations_per_level": iterations,
+               "learning_rates": rates, flag.strip("-"): float(value), "train_args": args.train_args,
+               "wall_seconds": round(wall, 1), **{k: summary[k] for k in ("lp_iou", "lp_f", "diversity")}}
+        with open(results, "a") as f:
+            f.write(json.dumps(row) + "\n")
+        print(f"| {label} | {pyramid.stem} | {seed} | {flag} {value} | {wall / 60:.1f} min | "
+              f"{', '.join(map(str, iterations))} | {rate_range(rates)} | {row['lp_iou']:.3f} "
+              f"| {row['lp_f']:.3f} | {row['diversity']:.3f} |", flush=True)
 
 
 if __name__ == "__main__":

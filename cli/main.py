@@ -139,10 +139,12 @@ class TrainCommand(Command):
 @click.option("--iters", type=int, default=None, help="Training iterations per level (3 D + 3 G steps each).")
 @click.option("--minutes", type=float, default=None,
               help="A time budget for the whole run instead of --iters: the seconds per iteration of "
-                   "every level are measured first, then each level gets the same number of iterations "
-                   "so that training ends within the budget (a busy machine gives fewer iterations). A "
-                   "budget too small for --min-iters per level is refused before training, with what "
-                   "would fit. The plan and what was done are printed and saved in the model.")
+                   "the coarse levels are measured first (2% of the budget, at least 20 s) and the large "
+                   "ones estimated from them, then each level gets the same number of iterations so that "
+                   "training ends within the budget (a busy machine gives fewer iterations). A budget too "
+                   "small for --min-iters per level is refused before training, with what would fit; one "
+                   "that gives fewer than 300 per level, which real shapes need, is warned about. The plan "
+                   "and what was done are printed and saved in the model (sinrun info).")
 @click.option("--min-iters", type=click.IntRange(min=1), default=None,
               help="With --minutes: the fewest iterations per level worth training (default 50).")
 @click.option("--device", default="auto", show_default=True,

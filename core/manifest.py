@@ -267,9 +267,14 @@ def describe(raw: dict) -> list:
         f"{printable(training.get('iterations_per_level', '?'))} iterations per level",
     ]
     if config.get("minutes") is not None:
-        measured = ", ".join(f"{c:.2f}" for c in training.get("measured_seconds_per_iteration", []))
+        guessed, costs = (training.get(key) for key in ("estimated_levels", "measured_seconds_per_iteration"))
+        guessed = guessed if isinstance(guessed, list) else []
+        costs = costs if isinstance(costs, list) else []
+        measured = ", ".join(("~" if i in guessed else "") + (f"{c:.2f}" if _is_number(c) else "?")
+                             for i, c in enumerate(costs))
         lines.append(f"budget      {config['minutes']:g} min; planned {printable(training.get('planned_iterations', '?'))}"
-                     f" iterations per level from measured s/iteration {measured or '?'}")
+                     f" iterations per level from s/iteration {measured or '?'}"
+                     + (" (~ estimated)" if guessed else ""))
     rewinds = training.get("rewinds")
     for rewind in rewinds if isinstance(rewinds, list) else []:
         if isinstance(rewind, list) and len(rewind) == 4 and all(_is_number(v) for v in rewind):
@@ -280,15 +285,19 @@ def describe(raw: dict) -> list:
     lines += [
         f"networks    {raw['channels']} channels, {raw['pool_bins']} pooling bins, MLP hidden {raw['mlp_hidden']}",
         f"frame       voxel (0, 0, 0) at ({origin}), voxel size ({spacing}); {raw.get('up', 'y')} points up",
-        "levels      size          noise amplitude   learning rate   seconds",
+        "levels      size          noise amplitude   learning rate   iterations   seconds",
     ]
     seconds = training.get("level_seconds", [])
+    done = training.get("iterations_per_level")
+    done = done if isinstance(done, list) else [done] * len(raw["levels"])
     # models from before per-level rates trained every level at config lr
     rates = training.get("learning_rates") or [config.get("lr")] * len(raw["levels"])
     rates = rates if isinstance(rates, list) else []
     for i, level in enumerate(raw["levels"]):
         took = f"{seconds[i]:.0f}" if i < len(seconds) else ""
         rate = f"{rates[i]:.3g}" if i < len(rates) and _is_number(rates[i]) else "?"
-        lines.append(f"  {i:<8}  {'x'.join(map(str, level['size'])):<12}  {level['noise_amp']:<16.4g}  {rate:<14}  {took}")
+        count = f"{done[i]:g}" if i < len(done) and _is_number(done[i]) else "?"
+        lines.append(f"  {i:<8}  {'x'.join(map(str, level['size'])):<12}  {level['noise_amp']:<16.4g}  {rate:<14}  "
+                     f"{count:<11}  {took}")
     lines.append("config      " + printable(json.dumps(config, sort_keys=True)))
     return lines

@@ -34,17 +34,20 @@ class SimulatedMachine:
     iteration of each level of each trainer (the measurement's too)."""
 
     def __init__(self, monkeypatch, startup=0.0):
-        self.now, self.startup = 1000.0, startup
+        self.now, self.startup, self.costs = 1000.0, startup, COSTS
         self.loads = self.loads_after_measuring = [1.0] * len(COSTS)  # per level
         self.started = set()
         monkeypatch.setattr(train.time, "monotonic", lambda: self.now)  # one module: schedule's clock too
+        # Every level is measured (as when a budget is large beside them);
+        # the tests of estimated levels lower it.
+        monkeypatch.setattr(schedule, "MEASURING_SECONDS", 1e9)
         real_iterate, real_time_levels = train.Trainer.iterate, train.time_levels
 
         def iterate(trainer, recon_inputs):
             losses = real_iterate(trainer, recon_inputs)
             first = (id(trainer), trainer.level) not in self.started
             self.started.add((id(trainer), trainer.level))
-            self.now += self.loads[trainer.level] * COSTS[trainer.level] + (self.startup if first else 0.0)
+            self.now += self.loads[trainer.level] * self.costs[trainer.level] + (self.startup if first else 0.0)
             return losses
 
         def time_levels(*args, **kwargs):
@@ -74,7 +77,7 @@ def machine(monkeypatch):
 def test_measured_costs_leave_out_start_up(machine, three_levels, tmp_path):
     machine.startup = 7.0
     costs, startups = train.time_levels(make_config("tiny", levels=3), train.load_pyramid(three_levels, 32),
-                                        train.devices.choose("cpu", "fp32"))
+                                        train.devices.choose("cpu", "fp32"), seconds=6000)
     assert costs == pytest.approx(COSTS)
     assert startups == pytest.approx([7.0] * 3)
 
@@ -183,4 +186,56 @@ def test_the_plan_and_what_was_done_are_in_the_model(machine, three_levels, tmp_
     shown = CliRunner().invoke(cli, ["info", str(out)]).output
     assert f"planned {training['planned_iterations']}" in shown
     assert "budget      1 min" in shown
+    assert f"  {training['iterations_per_level'][1]:<11}  " in shown  # what a level got
     assert f"  {1 / training['planned_iterations'][2]:<14.3g}  " in shown  # the last level's rate
+
+
+def test_large_levels_are_estimated_from_the_small_ones_and_refused_in_seconds(machine, tmp_path, monkeypatch):
+    """A finest level whose measurement alone would take minutes is not
+    measured: its cost, estimated from the coarse levels (linear in the work
+    a level holds), already shows the budget too small, within the seconds
+    the coarse levels took."""
+    monkeypatch.setattr(schedule, "MEASURING_SECONDS", 20.0)
+    sizes = [(15, 15, 15), (17, 16, 15), (84, 84, 84)]
+    pyramid = write_pyramid(tmp_path / "large.h5", sizes)
+    machine.costs = [1e-4 * schedule.level_work(size, None) for size in sizes]  # 0.6, 0.7, 68 s
+    started = machine.now
+    with pytest.raises(InputError) as refused:
+        machine.train(pyramid, tmp_path / "m.onnx", minutes=5, min_iters=5)
+    assert {level for _, level in machine.started} == {0, 1}  # the 84^3 level never ran
+    assert machine.now - started < 20
+    message = str(refused.value)
+    assert f"about {sum(machine.costs):.1f} s per iteration here, the largest 1 estimated from the smaller)" in message
+    # 5 x 69.7 s + the 5.3 s spent measuring + the 2 s reserve: 5.9 min
+    assert "minutes 5.9 gives 5 iterations per level" in message
+
+
+def test_an_estimate_is_refined_by_each_level_that_trains(monkeypatch):
+    """Levels 2 and 3 are estimated from levels 0 and 1; once level 2 has
+    trained at its real pace, level 3 is estimated again from levels 1 and 2."""
+    now = [0.0]
+    monkeypatch.setattr(schedule.time, "monotonic", lambda: now[0])
+    works = [100, 200, 400, 800]
+    budget = schedule.Budget(1000.0, 0.0, [1.0, 2.0, None, None], [0.5, 0.5, None, None], works=works)
+    assert budget.costs == pytest.approx([1.0, 2.0, 4.0, 8.0])  # the line through (100, 1) and (200, 2)
+    assert budget.startups == pytest.approx([0.5, 0.5, 1.0, 2.0])  # scaled with the work
+    assert budget.estimated_levels == [2, 3]
+    assert "~4.00, ~8.00 (~ estimated, refined as training runs)" in budget.describe(0)
+    for level, seconds in ((0, 1.0), (1, 2.0), (2, 7.0)):  # level 2 costs 7 s, not 4
+        for iteration in (1, 2, 3):
+            budget.observe(level, iteration, seconds)
+    budget.start_level(3)
+    assert budget.costs[2] == pytest.approx(7.0)
+    assert budget.costs[3] == pytest.approx(7.0 + 5.0 / 200 * 400)  # the line through (200, 2) and (400, 7)
+    assert budget.record()["measured_seconds_per_iteration"] == pytest.approx([1.0, 2.0, 4.0, 8.0])
+    assert budget.record()["estimated_levels"] == [2, 3]
+
+
+def test_a_short_plan_says_what_budget_reaches_enough_iterations(machine, three_levels, tmp_path):
+    machine.train(three_levels, tmp_path / "m.onnx", minutes=2)
+    warning = [line for line in machine.log if line.startswith("warning: ")]
+    # 120 s gives 17 per level; 300 need 4 x 5.5 s measuring + 2 s reserve + 300 x 5.5 s = 1674 s
+    assert warning == ["warning: 17 iterations per level is short of the 300 below which real shapes lose most "
+                       "of their quality; minutes 27.9 would give them"]
+    enough = schedule.Budget(300 * 5.5 + schedule.Budget.RESERVE, train.time.monotonic(), COSTS, [0.0] * 3)
+    assert enough.affordable(0) == 300 and enough.shortfall() is None

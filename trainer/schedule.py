@@ -1,11 +1,15 @@
 """A time budget turned into iterations per level, kept to as training runs.
 
 Every level gets the same number of iterations, as in the paper, planned
-from the seconds per iteration measured at every level before training,
-warm, and apart from what a level's start costs (its set-up and its first
-iteration, which allocates and picks kernels). Each level
-re-plans what is left when it starts, with the measured costs scaled by how
-fast the machine has actually been since (the drift). A level that runs
+from the seconds per iteration measured before training, warm, and apart
+from what a level's start costs (its set-up and its first iteration, which
+allocates and picks kernels). Measuring is kept to a small share of the
+budget: the coarse levels are measured, and the large ones, whose
+measurement alone could take minutes, are estimated from them (an
+iteration's cost grows linearly with the work a level holds, `level_work`)
+and re-estimated from each level that has trained. Each level re-plans what
+is left when it starts, with the costs scaled by how fast the machine has
+actually been since (the drift). A level that runs
 slower than planned stops at the end of its share of the time, and the last
 level runs to the deadline at its own pace, so the run ends within an
 iteration of the budget on a machine that slows down or speeds up.
@@ -22,19 +26,64 @@ import math
 import time
 
 from sinshape.core.errors import InputError
+from sinshape.core.manifest import plane_sizes
+
+# Seconds a budget may spend measuring the levels before training: this
+# share of it, and at least MEASURING_SECONDS. Levels beyond it are estimated.
+MEASURING_SHARE = 0.02
+MEASURING_SECONDS = 20.0
+# A plane cell costs about as much as this many voxels in an iteration
+# (fitted to the whole-grid and boxed costs in docs/BENCHMARKS.md, "Training").
+PLANE_CELL_WORK = 4
+# Iterations per level below which real shapes lose most of their quality
+# (docs/EVALUATION.md, "What a budget gives on real shapes").
+ENOUGH_ITERATIONS = 300
+
+
+def level_work(size, box: int | None) -> int:
+    """What an iteration at a level of `size` processes, in voxels: the
+    voxels decoded and judged (a box's, with boxes) and the planes' cells."""
+    box = box or max(size)
+    seen = math.prod(min(n, box) for n in size)
+    return seen + PLANE_CELL_WORK * sum(math.prod(plane) for plane in plane_sizes(size))
+
+
+def measuring_allowance(seconds: float) -> float:
+    """Seconds a budget of `seconds` may spend measuring levels."""
+    return max(MEASURING_SECONDS, MEASURING_SHARE * seconds)
+
+
+def extrapolated(work: int, known: list) -> float:
+    """Seconds per iteration of a level holding `work`, from (work, seconds)
+    of levels measured: the line through the two largest (at least 2 known),
+    never cheaper than the largest; where that line falls, proportional to it."""
+    (w1, c1), (w2, c2) = sorted(known)[-2:]
+    slope = (c2 - c1) / (w2 - w1) if w2 > w1 else 0.0
+    if slope <= 0:
+        slope = c2 / w2
+    return max(c2, c2 + slope * (work - w2))
 
 
 class Budget:
     RESERVE = 2.0  # seconds kept for the export and the last checkpoint
 
-    def __init__(self, seconds: float, clock_started: float, costs: list, startups: list, min_iters: int = 1):
+    def __init__(self, seconds: float, clock_started: float, costs: list, startups: list, min_iters: int = 1,
+                 works: list | None = None):
         self.started, self.deadline = clock_started, clock_started + seconds
-        self.costs = list(costs)  # measured seconds per (warm) iteration, per level
-        self.startups = list(startups)  # measured seconds a level's start adds, per level
+        self.costs = list(costs)  # seconds per (warm) iteration, per level: measured or estimated
+        self.startups = list(startups)  # seconds a level's start adds, per level
         self.min_iters = min_iters
         self.steady = {}  # level -> [seconds, iterations] of its iterations after the first, this run
         self.first = {}  # level -> seconds of its first iteration in this run
         self.planned = [None] * len(costs)  # the count each level was given when it started
+        # Each level's work (level_work), given where the finest costs are estimates.
+        self.works = works
+        self.estimated = [False] * len(costs) if works is None else [c is None for c in costs]
+        if works is not None:
+            self.reestimate()
+        # What the plan began from, for the record.
+        self.planned_costs = list(self.costs)
+        self.estimated_levels = [level for level, guessed in enumerate(self.estimated) if guessed]
 
     def left(self) -> float:
         """Seconds left for training (the reserve already kept back)."""
@@ -48,10 +97,29 @@ class Budget:
         kernels) and the work between iterations (a level's set-up, the
         checkpoints). Summed over levels, so the largest level finished weighs
         most: a small level's start-up never sets the pace of the large ones.
+        A level whose cost was estimated counts once it has trained and
+        `reestimate` has made its cost a measured one.
         """
-        spent = sum(seconds for seconds, _ in self.steady.values())
-        predicted = sum(count * self.costs[level] for level, (_, count) in self.steady.items())
+        measured = {level: record for level, record in self.steady.items() if not self.estimated[level]}
+        spent = sum(seconds for seconds, _ in measured.values())
+        predicted = sum(count * self.costs[level] for level, (_, count) in measured.items())
         return spent / predicted if predicted > 0 else 1.0
+
+    def reestimate(self) -> None:
+        """Turn each estimated level that has trained into a measured one (its
+        own pace, less the drift) and estimate the rest again from the
+        largest measured levels; their start-ups scale with their work."""
+        drift = self.drift()
+        for level, (seconds, count) in self.steady.items():
+            if self.estimated[level]:
+                self.costs[level], self.estimated[level] = seconds / count / drift, False
+        measured = [level for level, e in enumerate(self.estimated) if not e]
+        known = [(self.works[level], self.costs[level]) for level in measured]
+        largest = max(measured, key=lambda level: self.works[level])
+        for level, work in enumerate(self.works):
+            if self.estimated[level]:
+                self.costs[level] = extrapolated(work, known)
+                self.startups[level] = self.startups[largest] * work / self.works[largest]
 
     def observe(self, level: int, iteration: int, seconds: float) -> None:
         """Record that iteration number `iteration` (from 1) of `level` took `seconds`."""
@@ -77,9 +145,7 @@ class Budget:
         count = self.affordable(0)
         if count >= self.min_iters:
             return
-        per_round = sum(self.costs)
-        needed = time.monotonic() - self.started + self.RESERVE + sum(self.startups) + self.min_iters * per_round
-        options = [f"minutes {math.ceil(needed / 6) / 10:g} gives {self.min_iters} iterations per level"]
+        options = [f"minutes {self.minutes_for(self.min_iters):g} gives {self.min_iters} iterations per level"]
         if from_mesh:
             for levels in range(len(sizes) - 1, 0, -1):  # drop the finest levels until it fits
                 if self.affordable(0, levels) >= self.min_iters:
@@ -88,11 +154,26 @@ class Budget:
         if count >= 1:
             options.append(f"min_iters {count} trains with the {count} that fit")
         raise InputError(f"the time budget gives {count} iterations per level (all {len(sizes)} levels take "
-                         f"{per_round:.1f} s per iteration here), fewer than the minimum of {self.min_iters}; "
+                         f"{self.per_round()}), fewer than the minimum of {self.min_iters}; "
                          + "; ".join(options), ("minutes", "res", "min_iters"))
+
+    def minutes_for(self, iterations: int) -> float:
+        """The budget, in minutes rounded up to a tenth, that gives every
+        level `iterations` (a run that has not started a level yet)."""
+        needed = (time.monotonic() - self.started + self.RESERVE + sum(self.startups)
+                  + iterations * sum(self.costs))
+        return math.ceil(needed / 6) / 10
+
+    def per_round(self) -> str:
+        """An iteration of every level, in seconds, saying which are estimates."""
+        guessed = sum(self.estimated)
+        return (f"about {sum(self.costs):.1f} s per iteration here, the largest {guessed} estimated from the "
+                "smaller" if guessed else f"{sum(self.costs):.1f} s per iteration here")
 
     def start_level(self, level: int) -> int:
         """The iteration count of a level that is starting (at least 1)."""
+        if self.works is not None:
+            self.reestimate()
         count = max(1, self.affordable(level))
         self.planned[level] = count
         return count
@@ -124,14 +205,25 @@ class Budget:
         return time.monotonic() + self.pace(level) <= end
 
     def describe(self, first_level: int) -> str:
-        costs = ", ".join(f"{c:.2f}" for c in self.costs)
+        costs = ", ".join(("~" if e else "") + f"{c:.2f}" for c, e in zip(self.costs, self.estimated))
+        note = " (~ estimated, refined as training runs)" if any(self.estimated) else ""
         return (f"plan: {self.affordable(first_level)} iterations per level for levels {first_level + 1}-"
-                f"{len(self.costs)} in {self.left() / 60:.1f} min; measured s/iteration per level: {costs}")
+                f"{len(self.costs)} in {self.left() / 60:.1f} min; s/iteration per level: {costs}{note}")
+
+    def shortfall(self) -> str | None:
+        """Before the first level: a warning if the plan gives fewer than
+        ENOUGH_ITERATIONS per level, with the budget that would give them."""
+        count = self.affordable(0)
+        if count >= ENOUGH_ITERATIONS:
+            return None
+        return (f"{count} iterations per level is short of the {ENOUGH_ITERATIONS} below which real shapes "
+                f"lose most of their quality; minutes {self.minutes_for(ENOUGH_ITERATIONS):g} would give them")
 
     def record(self) -> dict:
         """What a model records of its plan: each level's count as it started, and the measured costs."""
         return {"planned_iterations": self.planned,
-                "measured_seconds_per_iteration": [round(c, 4) for c in self.costs]}
+                "measured_seconds_per_iteration": [round(c, 4) for c in self.planned_costs],
+                "estimated_levels": self.estimated_levels}
 
 
 class LevelPlan:

@@ -144,12 +144,14 @@ def plan_budget(trainer: Trainer, clock_started: float, log) -> schedule.Budget 
         return None
     seconds = config.minutes * 60 - trainer.trained_seconds()
     fresh = trainer.level == 0 and trainer.iteration == 0
-    budget = schedule.Budget(seconds, clock_started,
-                             *time_levels(config, trainer.pyramid, trainer.placement, seconds=seconds if fresh else None),
-                             config.min_iters)
+    costs, startups = time_levels(config, trainer.pyramid, trainer.placement, seconds, refuse=fresh)
+    budget = schedule.Budget(seconds, clock_started, costs, startups, config.min_iters,
+                             works=[schedule.level_work(size, config.box) for size in trainer.sizes])
     if fresh:
         budget.refuse_if_too_small(trainer.sizes, trainer.pyramid.source_kind == "mesh")
     log(budget.describe(trainer.level))
+    if fresh and budget.shortfall():
+        log("warning: " + budget.shortfall())
     return budget
 
 
@@ -201,21 +203,27 @@ def export_run(trainer: Trainer, budget: schedule.Budget | None, output_path: Pa
                                path=output_path)
 
 
-def time_levels(config: TrainConfig, pyramid, placement, rounds: int = 3, seconds: float | None = None) -> tuple:
-    """Seconds per iteration at every level, and what a level's start adds,
-    measured on a throwaway trainer (untrained weights cost what trained ones
-    do). Returns (costs, startups): a cost is the mean of a few warm rounds
-    (with boxes, an iteration's cost varies with where its boxes fall); a
-    start-up is the level's set-up and first iteration (it allocates and picks
-    kernels) beyond one warm iteration. Given the budget's `seconds`, a budget
-    that the levels measured so far already rule out is refused at once
-    (every level costs at least what the one below it does), not after all
-    levels are measured."""
+def time_levels(config: TrainConfig, pyramid, placement, seconds: float, refuse: bool = False,
+                rounds: int = 3) -> tuple:
+    """Seconds per iteration at the levels worth measuring within the
+    budget's `seconds` (schedule.measuring_allowance), and what a level's
+    start adds, on a throwaway trainer (untrained weights cost what trained
+    ones do). Returns (costs, startups), None for a level left to estimate: a
+    cost is the mean of a few warm rounds (with boxes, an iteration's cost
+    varies with where its boxes fall); a start-up is the level's set-up and
+    first iteration (it allocates and picks kernels) beyond one warm
+    iteration. The two coarsest levels are always measured; a larger one only
+    if its measurement, estimated from those before it, fits the allowance.
+    With `refuse`, a budget that the levels measured so far already rule out
+    is refused at once (every level costs at least what the one below it
+    does), not after all levels are measured."""
     trainer = Trainer(config, pyramid, placement)
+    works = [schedule.level_work(size, config.box) for size in trainer.sizes]
+    allowance = schedule.measuring_allowance(seconds)
     costs, startups = [], []
     began = time.monotonic()
-    for _ in trainer.sizes:
-        if seconds is not None and costs:
+    for level in range(len(trainer.sizes)):
+        if refuse and costs:
             at_least = time.monotonic() - began + config.min_iters * (
                 sum(costs) + (len(trainer.sizes) - len(costs)) * costs[-1])
             if at_least > seconds:
@@ -224,6 +232,10 @@ def time_levels(config: TrainConfig, pyramid, placement, rounds: int = 3, second
                                  f"{at_least / 60:.2g} min here (the {len(costs)} measured so far cost "
                                  f"{sum(costs):.2f} s per iteration); give more minutes or lower min_iters",
                                  ("minutes", "min_iters"))
+        if level >= 2:
+            cost = schedule.extrapolated(works[level], list(zip(works, costs)))
+            if time.monotonic() - began + (rounds + 1) * cost + startups[-1] > allowance:
+                break
         started = time.monotonic()
         trainer.begin_level()
         recon_inputs = trainer.recon_inputs()
@@ -234,4 +246,5 @@ def time_levels(config: TrainConfig, pyramid, placement, rounds: int = 3, second
         costs.append((time.monotonic() - warm) / rounds)
         startups.append(max(warm - started - costs[-1], 0.0))
         trainer.finish_level()
-    return costs, startups
+    unmeasured = [None] * (len(trainer.sizes) - len(costs))
+    return costs + unmeasured, startups + unmeasured
