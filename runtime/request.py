@@ -161,9 +161,6 @@ class SampleRequest:
             if kept:
                 raise ConflictError(f"a tile shares its border with its neighbours, which {kept[0]} would break: "
                                     f"give tile or {', '.join(kept)}", ("tile", *kept))
-        elif self.frame == "tile":
-            raise ConflictError("frame tile (coordinates from a tile's corner) is for one tile of a world",
-                                ("frame",))  # the word tile is also the frame's value
 
     def edits(self) -> list:
         """The names of the edits given."""
@@ -206,6 +203,9 @@ def make(model, request: SampleRequest, memory_limit: int | None = None):
     if request.tile is not None:
         raise InputError("a tile of a world has no tri-plane of its own: make its mesh with world.tile_mesh, or "
                          "its file with write.request_bytes", "tile")
+    if request.frame == "tile":
+        raise InputError("frame tile (coordinates from a tile's corner) is for the tiles of a world; a sample "
+                         "is placed in frame input or model", "frame")
     request = resolved(model, request)
     seed, size = request.sample_seed, request.size
     if request.layout is not None:

@@ -170,3 +170,6 @@ def test_make_refuses_a_tile_it_has_no_tri_plane_for(model):
     with pytest.raises(InputError, match="no tri-plane of its own") as refused:
         make(model, SampleRequest(3, tile=(0, 0)))
     assert refused.value.parameter == "tile"
+    with pytest.raises(InputError, match="frame tile .* is for the tiles of a world") as refused:
+        make(model, SampleRequest(3, frame="tile"))
+    assert refused.value.parameter == "frame"

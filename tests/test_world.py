@@ -189,5 +189,18 @@ def test_a_block_written_as_one_mesh_is_closed_and_placed(tiny_model, model, tmp
     assert block.bounds[0][h0] < -layout.stride[h0] + 1 and block.bounds[1][h1] > 2 * layout.stride[h1] - 1
     tile_frame = CliRunner().invoke(cli, ["world", str(tiny_model), "--tiles", "0,0", "-o", str(tmp_path / "b.ply"),
                                           "--frame", "tile"])
-    assert tile_frame.exit_code == 2 and "--frame tile (coordinates from a tile's corner) is for one tile" in \
+    assert tile_frame.exit_code == 1 and "a block is placed in the world: give --frame input or model" in \
         tile_frame.output and not (tmp_path / "b.ply").exists()
+
+
+def test_a_folder_of_tiles_in_the_tile_frame_holds_each_tile_as_made_alone(tiny_model, model, tmp_path):
+    import trimesh
+
+    result = CliRunner().invoke(cli, ["world", str(tiny_model), "--seed", "2", "--tiles", "0:1,5", "-o",
+                                      str(tmp_path / "w"), "--frame", "tile", "--workers", "1"])
+    assert result.exit_code == 0, result.output
+    for i in (0, 1):
+        written = trimesh.load(tmp_path / "w" / f"tile_{i}_5.ply", process=False)
+        expected = write.request_bytes(model, SampleRequest(2, tile=(i, 5), frame="tile"), "t.ply")[0]
+        assert np.array_equal(written.vertices, trimesh.load(trimesh.util.wrap_as_stream(expected),
+                                                             file_type="ply", process=False).vertices)

@@ -110,8 +110,6 @@ function checkTogether(request) {
     if (kept.length) {
       throw new ConflictError(`a tile shares its border with its neighbours, which ${kept[0]} would break: give tile or ${kept.join(', ')}`, ['tile', ...kept]);
     }
-  } else if (request.frame === 'tile') {
-    throw new ConflictError("frame tile (coordinates from a tile's corner) is for one tile of a world", ['frame']);
   }
 }
 
@@ -125,6 +123,9 @@ const sampleSeed = (request) => (request.recon ? null : request.seed ?? 0n);
  */
 export async function make(model, request, progress = null) {
   if (request.tile !== null) throw new InputError('a tile is a mesh of its own, not a tri-plane: make it with makeTile', 'tile');
+  if (request.frame === 'tile') {
+    throw new InputError("frame tile (coordinates from a tile's corner) is for the tiles of a world; a sample is placed in frame input or model", 'frame');
+  }
   const seed = sampleSeed(request), { size, layout } = request;
   if (layout) {
     if (layout.resample) throw new InputError('the browser fits a layout of one level\'s own size only; resample it with sinrun', 'layout');
