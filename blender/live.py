@@ -29,7 +29,7 @@ MODELS = {}  # (path, SHA-256) -> a loaded model, the few last used
 DIGESTS = {}  # (path, size, mtime) -> SHA-256: a file is hashed again only when it changed
 KEEP_MODELS = 4
 SUSPENDED = []  # non-empty while settings are filled in by the add-on itself: no regeneration
-MADE = {}  # object name -> the request its mesh was last made from
+MADE = {}  # object name -> what its mesh (a world: its tiles) was last asked for
 
 
 def model_file(reference: str, recorded: str = "") -> tuple:
@@ -64,11 +64,17 @@ def load_file(reference: str, recorded: str = "") -> tuple:
 
 def load_model(settings):
     """The model an object's settings name; a file's SHA-256 is recorded the first time."""
+    return load_settings(settings)[0]
+
+
+def load_settings(settings) -> tuple:
+    """(the model, its file's SHA-256) that settings (a sample's or a
+    world's) name; a file's SHA-256 is recorded the first time."""
     model, digest = load_file(settings.model, settings.model_sha256)
     if settings.model not in models.available() and not settings.model_sha256:
         with suspended():
             settings.model_sha256 = digest
-    return model
+    return model, digest
 
 
 def model_factors(settings, up: str) -> tuple:
