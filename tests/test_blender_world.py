@@ -87,6 +87,10 @@ def test_a_world_fills_the_tiles_around_the_cursor_as_sinrun_world_makes_them(sc
     assert sum(len(child.data.polygons) for child in tiles_of(obj).values()) > 0
     assert obj.sinshape_world.error == ""
     assert_tiles_are_the_command_lines(obj, tmp_path, tiny_model, 4)
+    scene.cursor.location = (-30.0, 12.0, 0.0)  # the cursor moved: the scene's update moves the world on
+    scene.view_layers[0].update()
+    ci, cj = tile_at(tiny_model, (-30.0, 12.0, 0.0))
+    assert set(tiles_of(obj)) == {(ci + di, cj + dj) for di in (-1, 0, 1) for dj in (-1, 0, 1)}
 
 
 def test_tiles_follow_an_object_and_those_left_behind_are_dropped(scene, tiny_model, tmp_path):
