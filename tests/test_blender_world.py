@@ -12,11 +12,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from test_blender import HAS_BPY, ROOT
-
-pytestmark = [pytest.mark.blender,
-              pytest.mark.skipif(not HAS_BPY, reason="needs bpy, Blender as a Python module: "
-                                                     "pip install 'sinshape[blender]' (Python 3.11)")]
+from test_blender import ROOT, pytestmark  # noqa: F401 (marked and skipped as the Blender tests are)
 
 
 def add_world(model, **options):
