@@ -49,7 +49,7 @@ from sinshape.core.manifest import PLANE_AXES
 
 from . import cubes
 from .generate import draw_noise, scaled_sizes, triplane
-from .query import check_scale, project, sigmoid
+from .query import bilinear, check_scale, head_colour, project, sigmoid
 
 WORLD_STREAM = 2  # (WORLD_STREAM, a, b): the key of window (a, b)'s noise, absorbed after the world's seed
 MAX_TILE = 1 << 62  # |i|, |j| below this: a window index and its neighbour fit in 64 bits in every runtime
@@ -247,6 +247,32 @@ def tile_mesh(model, seed: int, tile, scale: float = 1.0, memory_limit: int | No
         intervals = values.shape[axis] - 1
         vertices[:, axis] = vertices[:, axis] * layout.stride[axis] / intervals  # exact at the faces: m S / m = S
     return vertices, faces
+
+
+def tile_colours(model, seed: int, tile, vertices) -> np.ndarray:
+    """A coloured model's sRGB colour at a tile's mesh vertices (tile_mesh's:
+    voxels from the tile's corner): the four windows' hidden vectors blended
+    at each vertex with the weights the tile's grid gives there, then the
+    colour head. A vertex on a shared face takes one window at weight
+    exactly 1, so neighbours agree on its colour. (V, 3) float32 in [0, 1]."""
+    from .generate import check_seed
+
+    check_seed(seed)
+    i, j = check_tile(tile)
+    layout = world_layout(model)
+    h0, h1 = layout.horizontal
+    at = np.asarray(vertices, np.float64).reshape(-1, 3)
+    total = np.zeros((len(at), model.manifest.hidden), np.float32)
+    for a, b in [(a, b) for a in (i - 1, i) for b in (j - 1, j)]:
+        cells, weight = at.copy(), np.ones(len(at), np.float32)
+        cells[:, layout.up] = np.clip(at[:, layout.up], 0, layout.stride[layout.up])  # the closed top and bottom reach beyond
+        for axis, behind in ((h0, a == i), (h1, b == j)):
+            w = smoothstep(np.clip((at[:, axis] / layout.stride[axis] - 0.5) / BLEND + 0.5, 0, 1)).astype(np.float32)
+            weight *= w if behind else np.float32(1) - w
+            cells[:, axis] = at[:, axis] + (0 if behind else layout.stride[axis])
+        total += weight[:, None] * sum(bilinear(plane, cells[:, r], cells[:, c])
+                                       for plane, (r, c) in zip(window(model, layout, seed, a, b), PLANE_AXES))
+    return head_colour(model.head, total)
 
 
 def tile_corner(model, tile) -> tuple:
