@@ -50,6 +50,12 @@ def biased_head_occupancy(head, biased: np.ndarray) -> np.ndarray:
     return sigmoid(logits)
 
 
+def head_colour(head, hidden: np.ndarray) -> np.ndarray:
+    """sigmoid(relu(hidden + b1) @ w_colour + b_colour): (..., D) pre-activations
+    -> (..., 3) float32 sRGB, the colour head of a coloured model."""
+    return sigmoid(np.maximum(hidden + head.bias1, 0) @ head.weight_colour + head.bias_colour)
+
+
 @dataclass
 class Projected:
     """The final tri-plane times the decoder's first layer: 3 x (H, W, D)."""
