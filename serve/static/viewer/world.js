@@ -252,14 +252,15 @@ function tell() {
 
 /**
  * For the tests and the console: the world in view (the camera's tile, the tiles made as [i, j,
- * faces, the order they were made in], the camera's place and the farthest tile's from the
- * scene's origin), and the camera moved by whole tiles (a scripted flight).
+ * faces, the order they were made in], the camera's place, the farthest tile's from the
+ * scene's origin and how many tiles show vertex colours), and the camera moved by whole tiles (a scripted flight).
  */
 export const view = {
   status: () => run && {
     at: run.origin.map(String), made: run.made, dropped: run.dropped, size: run.size,
     tiles: [...run.tiles.values()].filter((e) => e.state === 'done').map((e) => [String(e.i), String(e.j), e.mesh ? e.mesh.geometry.index.count / 3 : 0, e.order]),
     camera: camera.position.toArray(), farthest: Math.max(0, ...group.children.map((m) => m.position.length())),
+    coloured: group.children.filter((m) => m.geometry.attributes.color && m.material.vertexColors).length,
   },
   moveBy(d0, d1) {
     const shift = new THREE.Vector3().setComponent(run.layout.horizontal[0], d0 * run.size[0]).setComponent(run.layout.horizontal[1], d1 * run.size[1]);
