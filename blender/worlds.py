@@ -105,7 +105,8 @@ def submit(name: str, model, made: str, seed: int, scale: float, tiles: list) ->
         for done, tile in enumerate(tiles):
             job.progress(done, len(tiles))
             vertices, faces = world.tile_mesh(model, seed, tile, scale)
-            job.deliver((tile, live.blender_arrays(world.placed(model, tile, vertices, "tile"), faces, up)))
+            colours = world.tile_colours(model, seed, tile, vertices) if model.manifest.colour else None
+            job.deliver((tile, live.blender_arrays(world.placed(model, tile, vertices, "tile"), faces, up, colours)))
 
     def fail(error):
         obj = bpy.data.objects.get(name)
@@ -133,8 +134,7 @@ def apply_tile(name: str, model, made: str, tile: tuple, arrays) -> None:
         manifest = model.manifest
         corner = np.asarray(manifest.origin) + np.array(world.tile_corner(model, tile)) * np.asarray(manifest.spacing)
         child.location = convert.to_blender([corner], manifest.up)[0]
-    vertices, faces, edges = arrays
-    convert.fill_mesh(child.data, vertices, faces, True, edges)
+    live.put_mesh(child.data, arrays, True)
     child[MADE] = made
 
 
