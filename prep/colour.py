@@ -232,7 +232,7 @@ def surface_colour(scene, path: Path, data: bytes, voxel: float, seed: int = 0) 
     points per voxel face of size `voxel` (input units); None when no part
     of it has colour. A part without colour beside coloured parts, or a
     texture that cannot be read, is an InputError: colour is never dropped
-    silently (`--no-colour` trains geometry alone)."""
+    silently (`colour=False`, `--no-colour`, trains geometry alone)."""
     suffix = path.suffix.lower()
     if suffix in GLTF_SUFFIXES:
         gltf_textures_readable(data, path)
@@ -258,8 +258,7 @@ def surface_colour(scene, path: Path, data: bytes, voxel: float, seed: int = 0) 
     if not points:
         return None
     if uncoloured:
-        raise InputError(f"{path.name}: part {uncoloured[0]} has no colour while others have; "
-                         "give it colour, or train geometry only (--no-colour)")
+        raise InputError(f"{path.name}: part {uncoloured[0]} has no colour while others have")
     rgb = np.concatenate(colours)
     if not np.isfinite(rgb).all():
         raise InputError(f"{path.name}: NaN or infinite colours")
