@@ -77,23 +77,44 @@ def points(model, triplane: TriPlane, coords: np.ndarray, chunk: int = 1 << 16) 
     (i, j, k) of the sample at scale 1 is at (i, j, k); the sample spans
     [0, N - 1] per axis. Points outside count as empty. Returns (n,) float32.
     """
+    coords = point_array(coords)
+    size = np.array(triplane.size)
+    out = np.zeros(len(coords), np.float32)
+    inside = np.nonzero(np.all((coords >= 0) & (coords <= size - 1), axis=1))[0]
+    proj = project(model, triplane)
+    for start in range(0, len(inside), chunk):
+        index = inside[start:start + chunk]
+        out[index] = head_occupancy(model.head, hidden_at(proj, coords[index]))
+    return out
+
+
+def colours(model, triplane: TriPlane, coords: np.ndarray, chunk: int = 1 << 16) -> np.ndarray:
+    """A coloured model's sRGB colour at arbitrary points (coords as in
+    `points`); a point outside the tri-plane takes the colour of the nearest
+    point inside (a mesh's vertices reach half a voxel beyond it, where the
+    surface closes). Returns (n, 3) float32 in [0, 1]."""
+    coords = np.clip(point_array(coords), 0, np.array(triplane.size) - 1)
+    proj = project(model, triplane)
+    out = np.empty((len(coords), 3), np.float32)
+    for start in range(0, len(coords), chunk):
+        out[start:start + chunk] = head_colour(model.head, hidden_at(proj, coords[start:start + chunk]))
+    return out
+
+
+def point_array(coords) -> np.ndarray:
     try:
         coords = np.asarray(coords, dtype=np.float64)
     except (TypeError, ValueError):
         raise InputError("points must be an (n, 3) array of numbers", "coords") from None
     if coords.ndim != 2 or coords.shape[1] != 3:
         raise InputError(f"points must be an (n, 3) array, got shape {coords.shape}", "coords")
-    proj = project(model, triplane)
-    size = np.array(triplane.size)
-    out = np.zeros(len(coords), np.float32)
-    inside = np.all((coords >= 0) & (coords <= size - 1), axis=1)
-    where = np.nonzero(inside)[0]
-    for start in range(0, len(where), chunk):
-        index = where[start:start + chunk]
-        c = coords[index]
-        hidden = sum(bilinear(plane, c[:, a], c[:, b]) for plane, (a, b) in zip(proj.planes, PLANE_AXES))
-        out[index] = head_occupancy(model.head, hidden)
-    return out
+    return coords
+
+
+def hidden_at(proj: Projected, coords: np.ndarray) -> np.ndarray:
+    """The decoder's hidden pre-activations (b1 not added) at points inside
+    the tri-plane: the sum of the three projected planes, interpolated. (n, D)."""
+    return sum(bilinear(plane, coords[:, a], coords[:, b]) for plane, (a, b) in zip(proj.planes, PLANE_AXES))
 
 
 def bilinear(plane: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
