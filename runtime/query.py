@@ -443,23 +443,37 @@ def band(model, triplane: TriPlane, scale: float, memory_limit: int | None = Non
     return search.carry(search.slab(bx) for bx in range(len(search)))
 
 
-def dense(model, triplane: TriPlane, scale: float = 1.0, memory_limit: int | None = None) -> np.ndarray:
+def dense(model, triplane: TriPlane, scale: float = 1.0, memory_limit: int | None = None,
+          colour: bool = False):
     """Occupancy on every point of a grid `scale` times finer: (Mx, My, Mz)
-    float32. Refused up front if it needs more than memory_limit bytes (None:
-    the memory available)."""
+    float32. With `colour` (a coloured model), also its colour there:
+    (occupancy, (Mx, My, Mz, 3) uint8 sRGB). Refused up front if it needs
+    more than memory_limit bytes (None: the memory available)."""
     mx, my, mz = grid_shape(triplane.size, scale)
     hidden = model.manifest.hidden  # the decoder's hidden width D
-    # The grid, and the yz plane at every (y, z).
-    check_memory(mx * my * mz * 4 + my * mz * hidden * 4,
+    # The grid (and its colours), and the yz plane at every (y, z).
+    check_memory(mx * my * mz * (4 + 3 * colour) + my * mz * hidden * 4,
                  f"a dense {mx}x{my}x{mz} occupancy grid (a mesh output streams instead)", memory_limit)
     proj = project(model, triplane)
     grid = FineGrid(proj, scale)
     out = np.empty(grid.shape, np.float32)
+    colours = np.empty((*grid.shape, 3), np.uint8) if colour else None
     yz = grid.yz[1:my + 1, 1:mz + 1]
     rows_per_slab = max(1, (1 << 22) // (my * mz * yz.shape[-1]))  # ~16 MB of hidden sums
     for x0 in range(0, mx, rows_per_slab):
         rows = slice(x0 + 1, min(x0 + rows_per_slab, mx) + 1)
         xy = grid.fine_plane(0, rows)[:, 1:my + 1]
         xz = grid.fine_plane(1, rows)[:, 1:mz + 1]
-        out[rows.start - 1:rows.stop - 1] = head_occupancy(model.head, xy[:, :, None] + xz[:, None] + yz[None])
-    return out
+        sums = xy[:, :, None] + xz[:, None] + yz[None]
+        out[rows.start - 1:rows.stop - 1] = head_occupancy(model.head, sums)
+        if colour:
+            colours[rows.start - 1:rows.stop - 1] = np.round(head_colour(model.head, sums) * 255)
+    return (out, colours) if colour else out
+
+
+def dense_grids(model, triplane: TriPlane, scale: float = 1.0) -> dict:
+    """What an .npz sample holds: {"occupancy"}, and a coloured model's {"colour"}."""
+    if not model.manifest.colour:
+        return {"occupancy": dense(model, triplane, scale)}
+    occupancy, colour = dense(model, triplane, scale, colour=True)
+    return {"occupancy": occupancy, "colour": colour}
