@@ -84,7 +84,7 @@ def points(model, triplane: TriPlane, coords: np.ndarray, chunk: int = 1 << 16) 
     proj = project(model, triplane)
     for start in range(0, len(inside), chunk):
         index = inside[start:start + chunk]
-        out[index] = head_occupancy(model.head, hidden_at(proj, coords[index]))
+        out[index] = head_occupancy(model.head, hidden_at(proj.planes, coords[index]))
     return out
 
 
@@ -97,7 +97,7 @@ def colours(model, triplane: TriPlane, coords: np.ndarray, chunk: int = 1 << 16)
     proj = project(model, triplane)
     out = np.empty((len(coords), 3), np.float32)
     for start in range(0, len(coords), chunk):
-        out[start:start + chunk] = head_colour(model.head, hidden_at(proj, coords[start:start + chunk]))
+        out[start:start + chunk] = head_colour(model.head, hidden_at(proj.planes, coords[start:start + chunk]))
     return out
 
 
@@ -111,10 +111,11 @@ def point_array(coords) -> np.ndarray:
     return coords
 
 
-def hidden_at(proj: Projected, coords: np.ndarray) -> np.ndarray:
+def hidden_at(planes: list, coords: np.ndarray) -> np.ndarray:
     """The decoder's hidden pre-activations (b1 not added) at points inside
-    the tri-plane: the sum of the three projected planes, interpolated. (n, D)."""
-    return sum(bilinear(plane, coords[:, a], coords[:, b]) for plane, (a, b) in zip(proj.planes, PLANE_AXES))
+    a tri-plane: the sum of its three projected planes (`Projected.planes`),
+    interpolated. (n, D)."""
+    return sum(bilinear(plane, coords[:, a], coords[:, b]) for plane, (a, b) in zip(planes, PLANE_AXES))
 
 
 def bilinear(plane: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:

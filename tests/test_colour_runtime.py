@@ -146,3 +146,37 @@ def test_geometry_only_outputs_have_no_colour(tiny_model, tmp_path):
     data = (tmp_path / "s.glb").read_bytes()
     meta = json.loads(data[20:20 + struct.unpack_from("<I", data, 12)[0]])
     assert all("COLOR_0" not in p["attributes"] for mesh in meta["meshes"] for p in mesh["primitives"])
+
+
+def test_world_tiles_are_coloured_seamlessly(model, tmp_path):
+    from sinshape.runtime import world
+
+    # tile_colours at the tile grid's own points is the grid's colour, made the other way.
+    occupancy, grid = world.tile_occupancy(model, 3, (0, 1), colour=True)
+    layout = world.world_layout(model)
+    points = np.argwhere(occupancy > -1)[::29].astype(np.float64)
+    positions = points * np.array(layout.stride) / (np.array(occupancy.shape) - 1)
+    np.testing.assert_allclose(world.tile_colours(model, 3, (0, 1), positions)[:, :3].astype(int),
+                               grid[tuple(points.astype(int).T)].astype(int), atol=1)
+    # Neighbours give the vertices of the face they share the same colour.
+    h0 = layout.horizontal[0]
+    a, _ = world.tile_mesh(model, 3, (0, 0))
+    b, _ = world.tile_mesh(model, 3, (1, 0))
+    on_a = a[np.isclose(a[:, h0], layout.stride[h0])]
+    on_b = b[np.isclose(b[:, h0], 0)]
+    assert len(on_a) > 3
+    shift = np.zeros(3)
+    shift[h0] = layout.stride[h0]
+    np.testing.assert_array_equal(world.tile_colours(model, 3, (0, 0), on_a),
+                                  world.tile_colours(model, 3, (1, 0), on_a - shift))
+    assert len(on_b) == len(on_a)
+    # A block, a tile file: coloured with those colours.
+    sinrun("world", model.path, "--seed", 3, "--tiles", "0:1,0:0", "--frame", "model", "-o", tmp_path / "b.ply")
+    sinrun("world", model.path, "--seed", 3, "--tiles", "0:0,0:0", "--frame", "model", "-o", tmp_path / "t/")
+    block, block_colours = read_ply(tmp_path / "b.ply")
+    tile, tile_colours = read_ply(tmp_path / "t" / "tile_0_0.ply")
+    assert block_colours is not None and tile_colours is not None
+    tree = cKDTree(block)
+    distance, index = tree.query(tile[tile[:, h0] < layout.stride[h0] - 1])
+    assert distance.max() < 1e-4
+    np.testing.assert_array_equal(block_colours[index], tile_colours[tile[:, h0] < layout.stride[h0] - 1])
