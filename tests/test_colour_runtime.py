@@ -180,3 +180,24 @@ def test_world_tiles_are_coloured_seamlessly(model, tmp_path):
     distance, index = tree.query(tile[tile[:, h0] < layout.stride[h0] - 1])
     assert distance.max() < 1e-4
     np.testing.assert_array_equal(block_colours[index], tile_colours[tile[:, h0] < layout.stride[h0] - 1])
+
+
+def test_batch_jobs_write_the_coloured_sample_itself(model, tmp_path):
+    sinrun("sample", model.path, "--seeds", "1-2", "--workers", 1, "-o", tmp_path / "{seed}.ply")
+    sinrun("sample", model.path, "--seed", 2, "-o", tmp_path / "one.ply")
+    assert (tmp_path / "2.ply").read_bytes() == (tmp_path / "one.ply").read_bytes()
+    assert read_ply(tmp_path / "1.ply")[1] is not None
+
+
+def test_render_draws_a_coloured_mesh_in_its_colours(tmp_path):
+    from sinshape.runtime.render import CLAY, render
+
+    box = trimesh.creation.box(extents=(2, 1, 1))
+    plain = render(box, size=(64, 64), outline=False)
+    red = box.copy()
+    red.visual.vertex_colors = np.tile([230, 20, 20, 255], (len(box.vertices), 1)).astype(np.uint8)
+    drawn = render(red, size=(64, 64), outline=False)
+    solid = (plain != plain[0, 0]).any(axis=2)
+    assert solid.mean() > 0.2
+    assert (drawn[solid][:, 0] > 3 * drawn[solid][:, 1]).mean() > 0.9  # red where the box is (its edges blend)
+    assert np.array_equal(render(box, size=(64, 64), outline=False, color=CLAY), plain)
