@@ -12,6 +12,8 @@ import math
 import re
 from dataclasses import dataclass
 
+import numpy as np
+
 from .errors import InputError
 
 FORMAT_NAME = "sinshape"
@@ -43,6 +45,19 @@ MAX_COORD = 1e12  # |origin| and spacing: any more and the mesh's coordinates ov
 # step at the origin's magnitude) every vertex of a mesh lands on one point.
 MIN_SPACING = 1e-9
 CHECKSUM_RE = re.compile(r"sha256:[0-9a-f]{64}")
+
+
+def linear_to_srgb(linear):
+    """The sRGB transfer function (IEC 61966-2-1) of `colour`'s space, on
+    numpy arrays of values in [0, 1] (glTF's colours are linear)."""
+    linear = np.clip(linear, 0, 1)
+    return np.where(linear <= 0.0031308, 12.92 * linear, 1.055 * np.power(linear, 1 / 2.4) - 0.055)
+
+
+def srgb_to_linear(srgb):
+    """linear_to_srgb undone."""
+    srgb = np.clip(srgb, 0, 1)
+    return np.where(srgb <= 0.04045, srgb / 12.92, np.power((srgb + 0.055) / 1.055, 2.4))
 
 
 def plane_sizes(size) -> list:

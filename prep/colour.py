@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from sinshape.core.errors import InputError
+from sinshape.core.manifest import linear_to_srgb, srgb_to_linear
 
 # A texture larger than this is refused before it is decoded: 16k a side is
 # the largest in common use; 2^27 pixels (16k x 8k) keeps its float copy
@@ -56,17 +57,6 @@ class SurfaceColour:
 
     points: np.ndarray  # (n, 3) float64
     rgb: np.ndarray  # (n, 3) float32 in [0, 1]
-
-
-def linear_to_srgb(linear: np.ndarray) -> np.ndarray:
-    """The sRGB transfer function (IEC 61966-2-1), values in [0, 1]."""
-    linear = np.clip(linear, 0, 1)
-    return np.where(linear <= 0.0031308, 12.92 * linear, 1.055 * np.power(linear, 1 / 2.4) - 0.055)
-
-
-def srgb_to_linear(srgb: np.ndarray) -> np.ndarray:
-    srgb = np.clip(srgb, 0, 1)
-    return np.where(srgb <= 0.04045, srgb / 12.92, np.power((srgb + 0.055) / 1.055, 2.4))
 
 
 def texture_array(image, name: str) -> np.ndarray:
@@ -232,7 +222,7 @@ def surface_colour(scene, path: Path, data: bytes, voxel: float, seed: int = 0) 
     points per voxel face of size `voxel` (input units); None when no part
     of it has colour. A part without colour beside coloured parts, or a
     texture that cannot be read, is an InputError: colour is never dropped
-    silently (`--no-colour` trains geometry alone)."""
+    silently (`colour=False`, `--no-colour`, trains geometry alone)."""
     suffix = path.suffix.lower()
     if suffix in GLTF_SUFFIXES:
         gltf_textures_readable(data, path)
@@ -258,8 +248,7 @@ def surface_colour(scene, path: Path, data: bytes, voxel: float, seed: int = 0) 
     if not points:
         return None
     if uncoloured:
-        raise InputError(f"{path.name}: part {uncoloured[0]} has no colour while others have; "
-                         "give it colour, or train geometry only (--no-colour)")
+        raise InputError(f"{path.name}: part {uncoloured[0]} has no colour while others have")
     rgb = np.concatenate(colours)
     if not np.isfinite(rgb).all():
         raise InputError(f"{path.name}: NaN or infinite colours")

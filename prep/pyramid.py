@@ -151,7 +151,10 @@ def pyramid_from_mesh(path: Path, res: int, levels: int | None = None,
                  f"voxelising a {'x'.join(map(str, sizes[-1]))} grid")
     if check:
         check(sizes)
-    surface = colours.surface_colour(scene, path, data, voxel) if colour else None
+    try:
+        surface = colours.surface_colour(scene, path, data, voxel) if colour else None
+    except InputError as error:  # what to do about it, where it is raised
+        raise InputError(f"{error} (no_colour trains geometry only)", "no_colour") from None
     if surface:
         check_memory(colours.BYTES_PER_VOXEL * sum(math.prod(size) for size in sizes),
                      f"colouring the levels of a {'x'.join(map(str, sizes[-1]))} grid")

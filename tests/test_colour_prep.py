@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import trimesh
 
+from sinshape.core import manifest as fmt
 from sinshape.core.errors import InputError
 from sinshape.prep import colour, shapes
 from sinshape.prep.pyramid import load_pyramid
@@ -64,7 +65,7 @@ def test_texture_lookup_repeats_outside_the_unit_square():
 
 def test_srgb_round_trip():
     values = np.linspace(0, 1, 101)
-    np.testing.assert_allclose(colour.srgb_to_linear(colour.linear_to_srgb(values)), values, atol=1e-6)
+    np.testing.assert_allclose(fmt.srgb_to_linear(fmt.linear_to_srgb(values)), values, atol=1e-6)
 
 
 def test_a_mesh_without_colour_and_an_h5_pyramid_have_none(tiny_pyramid, tmp_path):

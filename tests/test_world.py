@@ -191,33 +191,3 @@ def test_a_block_written_as_one_mesh_is_closed_and_placed(tiny_model, model, tmp
                                           "--frame", "tile"])
     assert tile_frame.exit_code == 2 and "--frame tile (coordinates from a tile's corner) is for one tile" in \
         tile_frame.output and not (tmp_path / "b.ply").exists()
-
-
-def test_a_tiles_colour_is_its_blend_of_windows_where_the_occupancy_is(model):
-    """A colour head that repeats the occupancy head (each channel w2, b2) makes each channel
-    of a tile's colour, at its grid points, the tile's occupancy there: the colour blends the
-    same windows with the same weights at the same places. Off the grid, neighbours give their
-    shared border vertices one colour, to the bit."""
-    import dataclasses
-
-    head = model.head
-    grey = dataclasses.replace(model, head=dataclasses.replace(
-        head, weight_colour=np.repeat(head.weight2[:, None], 3, axis=1), bias_colour=np.full(3, head.bias2, np.float32)))
-    layout = world.world_layout(model)
-    axes = [world.tile_axis(layout, axis, 1.0) for axis in range(3)]
-    positions = [np.arange(a.points) * (layout.stride[n] / (a.points - 1)) for n, a in enumerate(axes)]
-    points = np.stack(np.meshgrid(*positions, indexing="ij"), axis=-1).reshape(-1, 3)
-    colours = world.tile_colours(grey, 4, (2, -1), points)
-    occupancy = world.tile_occupancy(model, 4, (2, -1)).reshape(-1)
-    assert np.abs(colours - occupancy[:, None]).max() < 1e-5
-    assert np.abs(colours[::-1] - occupancy[:, None]).max() > 0.1  # a colour from the wrong place shows
-
-    h0 = layout.horizontal[0]
-    (a, _), (b, _) = world.tile_mesh(model, 4, (0, 0)), world.tile_mesh(model, 4, (1, 0))
-    left, right = a[a[:, h0] == layout.stride[h0]], b[b[:, h0] == 0]
-    shifted = left.copy()
-    shifted[:, h0] = 0
-    assert len(left) > 5 and np.array_equal(np.sort(shifted, axis=0), np.sort(right, axis=0))
-    order_left, order_right = np.lexsort(shifted.T), np.lexsort(right.T)
-    assert np.array_equal(world.tile_colours(grey, 4, (0, 0), left)[order_left],
-                          world.tile_colours(grey, 4, (1, 0), right)[order_right])
