@@ -253,6 +253,11 @@ def mesh_arrays(mesh) -> tuple:
     return mesh_vertices(mesh), corners.reshape(-1, 3)
 
 
+def byte_colours(rgba) -> np.ndarray:
+    """The runtime's 8-bit sRGB(A) vertex colours (what its files hold) -> (n, 3) float32 sRGB in [0, 1]."""
+    return np.asarray(rgba)[:, :3] / np.float32(255)
+
+
 def srgb_to_linear(values: np.ndarray) -> np.ndarray:
     """sRGB-encoded values in [0, 1] -> linear (IEC 61966-2-1), float32."""
     values = np.asarray(values, np.float32)
@@ -296,6 +301,6 @@ def ply_arrays(data: bytes) -> tuple:
                        re.findall(rb"property (\w+) (\w+)", vertex_part)])
     table = np.frombuffer(body, fields, vertices)
     points = np.stack([table[axis] for axis in "xyz"], axis=1).astype(np.float32)
-    colours = (np.stack([table[c] for c in ("red", "green", "blue")], axis=1) / np.float32(255)
+    colours = (byte_colours(np.stack([table[c] for c in ("red", "green", "blue")], axis=1))
                if "red" in fields.names else None)
     return points, np.frombuffer(body, write.PLY_FACE, faces, vertices * fields.itemsize)["indices"], colours

@@ -19,7 +19,7 @@ import numpy as np
 from sinshape import models
 from sinshape.core.errors import InputError
 from sinshape.core.files import check_readable
-from sinshape.runtime import layout, load, many, mesh, query
+from sinshape.runtime import layout, load, many, mesh
 from sinshape.runtime import request as requests
 from sinshape.runtime.load import default_threads
 
@@ -118,18 +118,14 @@ def request_of(obj, model) -> requests.SampleRequest:
 def make_mesh(model, request, progress=None) -> tuple:
     """(vertices along Blender's axes, triangles, their edges, a coloured
     model's sRGB colours or None) of the sample a request asks for:
-    request.make and mesh.extract (and query.colours at the vertices),
+    request.make and mesh.extract (which colours a coloured model's mesh),
     then the turn to Z up."""
     triplane = requests.make(model, request)
     result = mesh.extract(model, triplane, progress=progress, **request.mesh_options())
     if not len(result.faces):
         raise InputError("the sample has no surface at this size and scale; the mesh is left as it was")
-    colours = None
-    if model.manifest.colour:
-        manifest = model.manifest
-        voxels = (result.vertices - np.asarray(manifest.origin)) / np.asarray(manifest.spacing)  # frame 'input' -> 'model'
-        colours = query.colours(model, triplane, voxels)
-    return blender_arrays(result.vertices, result.faces, model.manifest.up, colours)
+    return blender_arrays(result.vertices, result.faces, model.manifest.up,
+                          convert.byte_colours(result.visual.vertex_colors) if model.manifest.colour else None)
 
 
 def blender_arrays(vertices, faces, up: str, colours=None) -> tuple:

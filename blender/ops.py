@@ -233,5 +233,5 @@ class SINSHAPE_OT_report(bpy.types.Operator):
         return {"FINISHED"}
 
 
-CLASSES = (SINSHAPE_OT_add_sample, SINSHAPE_OT_add_world, SINSHAPE_OT_regenerate, SINSHAPE_OT_variations, SINSHAPE_OT_keep_box_add,
-           SINSHAPE_OT_layout_show, SINSHAPE_OT_layout_apply, SINSHAPE_OT_report)
+CLASSES = (SINSHAPE_OT_add_sample, SINSHAPE_OT_add_world, SINSHAPE_OT_regenerate, SINSHAPE_OT_variations,
+           SINSHAPE_OT_keep_box_add, SINSHAPE_OT_layout_show, SINSHAPE_OT_layout_apply, SINSHAPE_OT_report)

@@ -105,7 +105,9 @@ def submit(name: str, model, made: str, seed: int, scale: float, tiles: list) ->
         for done, tile in enumerate(tiles):
             job.progress(done, len(tiles))
             vertices, faces = world.tile_mesh(model, seed, tile, scale)
-            colours = world.tile_colours(model, seed, tile, vertices) if model.manifest.colour else None
+            colours = None
+            if model.manifest.colour:
+                colours = convert.byte_colours(world.tile_colours(model, seed, tile, vertices))
             job.deliver((tile, live.blender_arrays(world.placed(model, tile, vertices, "tile"), faces, up, colours)))
 
     def fail(error):

@@ -1,5 +1,6 @@
 """A coloured model's objects in Blender (bpy, headless): the mesh carries
-the runtime's colours at its vertices as the point colour attribute `Col`,
+the runtime's colours at its vertices (those `sinrun sample` writes) as the
+point colour attribute `Col`,
 shown by a material; a grey model's carries neither. For a sample and for a
 world's tiles. Marked `blender`; skipped where bpy cannot be imported."""
 
@@ -8,11 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from test_blender import add, pytestmark  # noqa: F401 (marked and skipped as the Blender tests are)
+from test_blender import add, pytestmark, sinrun_sample  # noqa: F401 (marked and skipped as the Blender tests are)
 from test_blender_world import add_world, tiles_of
 
 COLOUR_ONNX = Path(__file__).parent / "data" / "tiny_colour.onnx"
-TOLERANCE = 1e-5  # Blender keeps float colour linear: sRGB in and out again
+TOLERANCE = 1e-5  # Blender keeps float colour linear: the runtime's sRGB bytes in, and out again
 
 
 def assert_shows_its_colours(obj_mesh, expected) -> None:
@@ -30,18 +31,13 @@ def assert_shows_its_colours(obj_mesh, expected) -> None:
     assert ("ShaderNodeAttribute", convert.COLOUR, "Base Color") in links
 
 
-def test_a_coloured_samples_vertices_carry_the_runtimes_colours(scene, tiny_model):
+def test_a_coloured_samples_vertices_carry_the_command_lines_colours(scene, tiny_model, tmp_path):
     from blender import convert
-    from sinshape.runtime import query
-    from sinshape.runtime.generate import sample
-    from sinshape.runtime.load import load_model
 
-    model = load_model(COLOUR_ONNX, threads=1)
-    obj = add(COLOUR_ONNX, seed=3)
-    vertices, _ = convert.mesh_arrays(obj.data)
-    voxels = (convert.to_model(vertices, model.manifest.up) - np.asarray(model.manifest.origin)) \
-        / np.asarray(model.manifest.spacing)
-    assert_shows_its_colours(obj.data, query.colours(model, sample(model, 3), voxels))
+    obj = add(COLOUR_ONNX, seed=3, smooth=1)
+    vertices, faces, colours = sinrun_sample(tmp_path, COLOUR_ONNX, "--seed", 3, "--smooth", 1)
+    assert len(convert.mesh_vertices(obj.data)) == len(vertices)  # the same vertices, in the same order
+    assert_shows_its_colours(obj.data, colours)
     obj.sinshape.model = str(tiny_model)  # a grey model: no colour, no colour material
     assert convert.mesh_colours(obj.data) is None and len(obj.data.materials) == 0
 
@@ -60,4 +56,4 @@ def test_a_coloured_worlds_tiles_carry_the_runtimes_colours(scene):
         vertices, _ = world.tile_mesh(model, 4, tile)
         if len(vertices):
             assert len(convert.mesh_vertices(child.data)) == len(vertices)
-            assert_shows_its_colours(child.data, world.tile_colours(model, 4, tile, vertices))
+            assert_shows_its_colours(child.data, convert.byte_colours(world.tile_colours(model, 4, tile, vertices)))

@@ -249,7 +249,7 @@ const behindWeight = (f) => smoothstep(Math.min(Math.max((f - 0.5) / BLEND + 0.5
  * four windows' hidden vectors blended at each vertex with the weights the
  * tile's grid gives there, then the colour head. A vertex on a shared face
  * takes one window at weight exactly 1, so neighbours agree on its colour.
- * Returns Float32Array (V, 3) in [0, 1].
+ * Returns Float32Array (V, 3) in [0, 1] (Python's gives them as bytes).
  */
 export async function tileColours(model, seed, tile, positions) {
   seed = checkSeed(seed);
@@ -264,7 +264,7 @@ export async function tileColours(model, seed, tile, positions) {
   const at = [0, 0, 0], cell = [0, 0, 0];
   for (let v = 0; v < n; v++) {
     for (let axis = 0; axis < 3; axis++) at[axis] = positions[3 * v + axis];
-    cell[up] = Math.min(Math.max(at[up], 0), stride[up]); // the closed top and bottom reach beyond the height
+    cell[up] = at[up];
     total.fill(0);
     for (const { behind, planes } of windows) {
       let weight = 1;
