@@ -128,3 +128,27 @@ def test_world_tiles_in_the_page_carry_colour(colour_page):
     status = wait_world(page)
     made = [t for t in status["tiles"] if t[2] > 0]
     assert made and status["coloured"] == len(made)
+
+
+COLOURS_SHOWN_JS = """() => { let c = null; window.sinshapeView.scene.traverse((n) => { if (n.isMesh && n.geometry.attributes.color)
+  c = Array.from(n.geometry.attributes.color.array); }); return c; }"""
+
+
+def test_on_sinrun_serve_the_servers_glb_colours_reach_the_page_as_the_browsers_do(browser):  # noqa: F811
+    """The server's .glb carries COLOR_0 (linear); the page reads it back and shows it as the
+    browser's own sample shows its colours: the same mean colour over the shape."""
+    pytest.importorskip("fastapi")
+    from test_serve import running_server
+
+    with running_server(COLOUR_ONNX) as (base, _):
+        page = open_page(browser, base)
+        shown = {}
+        for where in ("server", "browser"):
+            page.goto(f"{base}/?model={NAME}&seed=3&up=z&where={where}")
+            assert wait_done(page) == "ready", page.text_content("#error")
+            colours = page.evaluate(COLOURS_SHOWN_JS)
+            assert colours, f"no vertex colours shown from the {where}"
+            shown[where] = np.array(colours).reshape(-1, 3)
+        assert np.abs(shown["server"].mean(axis=0) - shown["browser"].mean(axis=0)).max() < 2e-3
+        assert shown["server"].std(axis=0).max() > 0.005
+        page.close()
