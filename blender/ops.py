@@ -31,18 +31,32 @@ class SampleOperator(bpy.types.Operator):
         return sample_object(context) is not None
 
 
-class SINSHAPE_OT_add_sample(bpy.types.Operator):
-    """Add a sinshape sample: a mesh object with a model and a seed, made again when they change"""
+class AddOperator:
+    """What Add > Mesh's sinshape entries share: a model, a seed and a scale
+    in their redo panel, and the new object selected alone and active."""
 
-    bl_idname = "sinshape.add_sample"
-    bl_label = "sinshape sample"
     bl_options = {"REGISTER", "UNDO"}
 
     model: StringProperty(name="Model", default=models.DEFAULT, search=model_names,
                           description="A shipped model's name, or a .onnx file")
     seed: IntProperty(name="Seed", min=0, max=SEED_MAX)
-    size: FloatVectorProperty(name="Size", size=3, default=(1.0, 1.0, 1.0), min=0.01, soft_max=4.0, subtype="XYZ")
     scale: bpy.props.FloatProperty(name="Scale", default=1.0, min=0.01, soft_max=16.0)
+
+    @staticmethod
+    def select(context, obj) -> None:
+        for other in context.selected_objects:
+            other.select_set(False)
+        obj.select_set(True)
+        context.view_layer.objects.active = obj
+
+
+class SINSHAPE_OT_add_sample(AddOperator, bpy.types.Operator):
+    """Add a sinshape sample: a mesh object with a model and a seed, made again when they change"""
+
+    bl_idname = "sinshape.add_sample"
+    bl_label = "sinshape sample"
+
+    size: FloatVectorProperty(name="Size", size=3, default=(1.0, 1.0, 1.0), min=0.01, soft_max=4.0, subtype="XYZ")
     smooth: IntProperty(name="Smooth", min=0, max=MAX_SMOOTH, soft_max=20)
 
     def execute(self, context):
@@ -58,24 +72,16 @@ class SINSHAPE_OT_add_sample(bpy.types.Operator):
         obj = live.new_object(context.collection, f"sinshape {model.path.stem}", arrays,
                               {**settings, "model_sha256": recorded}, request)
         obj.location = context.scene.cursor.location
-        for other in context.selected_objects:
-            other.select_set(False)
-        obj.select_set(True)
-        context.view_layer.objects.active = obj
+        self.select(context, obj)
         return {"FINISHED"}
 
 
-class SINSHAPE_OT_add_world(bpy.types.Operator):
+class SINSHAPE_OT_add_world(AddOperator, bpy.types.Operator):
     """Add a sinshape world: the tiles of an endless world around the 3D cursor (or an object it follows)"""
 
     bl_idname = "sinshape.add_world"
     bl_label = "sinshape world"
-    bl_options = {"REGISTER", "UNDO"}
 
-    model: StringProperty(name="Model", default=models.DEFAULT, search=model_names,
-                          description="A shipped model's name, or a .onnx file")
-    seed: IntProperty(name="Seed", min=0, max=SEED_MAX)
-    scale: bpy.props.FloatProperty(name="Scale", default=1.0, min=0.01, soft_max=8.0)
     radius: IntProperty(name="Radius", default=2, min=0, max=32, soft_max=8,
                         description="Tiles kept on each side of the followed point's tile")
 
@@ -98,10 +104,7 @@ class SINSHAPE_OT_add_world(bpy.types.Operator):
             bpy.data.objects.remove(obj)  # nothing half made
             self.report({"ERROR"}, str(error))
             return {"CANCELLED"}
-        for other in context.selected_objects:
-            other.select_set(False)
-        obj.select_set(True)
-        context.view_layer.objects.active = obj
+        self.select(context, obj)
         return {"FINISHED"}
 
 
