@@ -1,6 +1,7 @@
 """sinshape in Blender: a sample is a live object with a model and a seed.
 
-Add > Mesh > sinshape sample makes one; its settings (the object's
+Add > Mesh > sinshape sample makes one (sinshape world, the tiles of an
+endless world around a point); its settings (the object's
 `sinshape` properties, saved with the .blend) make its mesh again when they
 change, off the main thread. The add-on converts and calls the torch-free
 runtime (bundled as wheels by tools/build_blender.py); how it works:
@@ -12,7 +13,7 @@ from bpy.app.handlers import persistent
 
 from sinshape.core.errors import InputError
 
-from . import live, ops, props, ui
+from . import live, ops, props, ui, worlds
 
 
 @persistent
@@ -23,16 +24,21 @@ def opening(*_):
 @persistent
 def opened(*_):
     live.check_models()
+    worlds.opened()
 
 
 @persistent
 def moved(scene, depsgraph):
     """A keep box (or its sample) moved: regenerate that sample; one whose
-    kept part did not change makes nothing (live.regenerate)."""
+    kept part did not change makes nothing (live.regenerate). A world
+    fills the tiles around its followed point (worlds.follow). The updates
+    are read first: a world's refresh removes objects they name."""
     if live.SUSPENDED:
         return
     names = {update.id.original.name for update in depsgraph.updates
              if isinstance(update.id, bpy.types.Object) and update.is_updated_transform}
+    scene_changed = any(isinstance(update.id, bpy.types.Scene) for update in depsgraph.updates)
+    worlds.follow(scene, names, scene_changed)
     for obj in scene.objects if names else ():
         settings = obj.sinshape
         if settings.active and settings.edit == "KEEP" and settings.keep_box is not None \

@@ -190,13 +190,18 @@ def triangle_edges(faces) -> tuple:
     return np.stack([low[kept], high[kept]], axis=1), corner_edges
 
 
-def fill_mesh(mesh, vertices, faces, smooth_shading: bool = False, edges: tuple | None = None) -> None:
+COLOUR = "Col"  # a coloured model's colour attribute: float RGBA on the points
+
+
+def fill_mesh(mesh, vertices, faces, smooth_shading: bool = False, edges: tuple | None = None,
+              colours=None) -> None:
     """Replace a bpy Mesh's geometry with (n, 3) vertices and (m, k) faces
     of k corners each, in bulk; `edges` as `triangle_edges` gives them
-    (None: Blender computes them). Everything goes through the mesh's
-    attributes ('position', '.corner_vert', ...), which take a whole array
-    at once; vertices.co and loops.vertex_index set one item at a time,
-    about 40 times slower."""
+    (None: Blender computes them); `colours`, (n, 3) sRGB in [0, 1] (a
+    coloured model's), as the point colour attribute COLOUR. Everything
+    goes through the mesh's attributes ('position', '.corner_vert', ...),
+    which take a whole array at once; vertices.co and loops.vertex_index set
+    one item at a time, about 40 times slower."""
     vertices = np.ascontiguousarray(vertices, np.float32).reshape(-1, 3)
     faces = np.ascontiguousarray(faces, np.int32)
     count, corners = faces.shape if faces.size else (0, 3)
@@ -219,6 +224,17 @@ def fill_mesh(mesh, vertices, faces, smooth_shading: bool = False, edges: tuple 
         mesh.update()
     if count and not smooth_shading:  # faces are smooth unless marked sharp (Blender 4.1 on)
         attributes.new("sharp_face", "BOOLEAN", "FACE").data.foreach_set("value", np.ones(count, bool))
+    old = mesh.color_attributes.get(COLOUR)  # clear_geometry keeps colour attributes
+    if old is not None:
+        mesh.color_attributes.remove(old)
+    if colours is not None and len(vertices):
+        # Blender keeps float colour linear; its own sRGB conversion (color_srgb) is good to 1e-4 only.
+        rgba = np.ones((len(vertices), 4), np.float32)
+        rgba[:, :3] = srgb_to_linear(np.asarray(colours, np.float32).reshape(-1, 3))
+        colour = mesh.color_attributes.new(COLOUR, "FLOAT_COLOR", "POINT")
+        colour.data.foreach_set("color", rgba.ravel())
+        mesh.color_attributes.active_color = colour
+        mesh.color_attributes.render_color_index = mesh.color_attributes.active_color_index
 
 
 def mesh_vertices(mesh) -> np.ndarray:
@@ -237,16 +253,54 @@ def mesh_arrays(mesh) -> tuple:
     return mesh_vertices(mesh), corners.reshape(-1, 3)
 
 
+def byte_colours(rgba) -> np.ndarray:
+    """The runtime's 8-bit sRGB(A) vertex colours (what its files hold) -> (n, 3) float32 sRGB in [0, 1]."""
+    return np.asarray(rgba)[:, :3] / np.float32(255)
+
+
+def srgb_to_linear(values: np.ndarray) -> np.ndarray:
+    """sRGB-encoded values in [0, 1] -> linear (IEC 61966-2-1), float32."""
+    values = np.asarray(values, np.float32)
+    return np.where(values <= 0.04045, values / np.float32(12.92),
+                    ((values + np.float32(0.055)) / np.float32(1.055)) ** np.float32(2.4)).astype(np.float32)
+
+
+def linear_to_srgb(values: np.ndarray) -> np.ndarray:
+    values = np.asarray(values, np.float32)
+    return np.where(values <= 0.0031308, values * np.float32(12.92),
+                    np.float32(1.055) * values ** np.float32(1 / 2.4) - np.float32(0.055)).astype(np.float32)
+
+
+def mesh_colours(mesh) -> np.ndarray | None:
+    """(n, 3) float32 sRGB of a mesh's COLOUR attribute, or None where it has none."""
+    colour = mesh.color_attributes.get(COLOUR)
+    if colour is None:
+        return None
+    rgba = np.empty(len(colour.data) * 4, np.float32)
+    colour.data.foreach_get("color", rgba)
+    return linear_to_srgb(rgba.reshape(-1, 4)[:, :3])
+
+
 def mesh_edges(mesh) -> np.ndarray:
     edges = np.empty(len(mesh.edges) * 2, np.int32)
     mesh.edges.foreach_get("vertices", edges)
     return edges.reshape(-1, 2)
 
 
+PLY_TYPES = {b"float": "<f4", b"double": "<f8", b"uchar": "u1", b"int": "<i4", b"uint": "<u4"}
+
+
 def ply_arrays(data: bytes) -> tuple:
-    """(vertices, faces) of a binary PLY as the runtime writes it
-    (write.mesh_bytes): how a worker process's sample comes back."""
+    """(vertices, faces, sRGB colours or None) of a binary PLY as the
+    runtime writes it (write.mesh_bytes): how a worker process's sample
+    comes back; a coloured model's vertex colours are bytes (/ 255)."""
     header, _, body = data.partition(b"end_header\n")
     vertices, faces = (int(re.search(rb"element %s (\d+)" % name, header)[1]) for name in (b"vertex", b"face"))
-    points = np.frombuffer(body, "<f4", vertices * 3).reshape(-1, 3)
-    return points, np.frombuffer(body, write.PLY_FACE, faces, vertices * 12)["indices"]
+    vertex_part = header.split(b"element vertex", 1)[1].split(b"element face", 1)[0]
+    fields = np.dtype([(name.decode(), PLY_TYPES[kind]) for kind, name in
+                       re.findall(rb"property (\w+) (\w+)", vertex_part)])
+    table = np.frombuffer(body, fields, vertices)
+    points = np.stack([table[axis] for axis in "xyz"], axis=1).astype(np.float32)
+    colours = (byte_colours(np.stack([table[c] for c in ("red", "green", "blue")], axis=1))
+               if "red" in fields.names else None)
+    return points, np.frombuffer(body, write.PLY_FACE, faces, vertices * fields.itemsize)["indices"], colours

@@ -29,7 +29,7 @@ MODELS = {}  # (path, SHA-256) -> a loaded model, the few last used
 DIGESTS = {}  # (path, size, mtime) -> SHA-256: a file is hashed again only when it changed
 KEEP_MODELS = 4
 SUSPENDED = []  # non-empty while settings are filled in by the add-on itself: no regeneration
-MADE = {}  # object name -> the request its mesh was last made from
+MADE = {}  # object name -> what its mesh was made from, (model setting, request) (a world: its tiles' asking)
 
 
 def model_file(reference: str, recorded: str = "") -> tuple:
@@ -64,11 +64,17 @@ def load_file(reference: str, recorded: str = "") -> tuple:
 
 def load_model(settings):
     """The model an object's settings name; a file's SHA-256 is recorded the first time."""
+    return load_settings(settings)[0]
+
+
+def load_settings(settings) -> tuple:
+    """(the model, its file's SHA-256) that settings (a sample's or a
+    world's) name; a file's SHA-256 is recorded the first time."""
     model, digest = load_file(settings.model, settings.model_sha256)
     if settings.model not in models.available() and not settings.model_sha256:
         with suspended():
             settings.model_sha256 = digest
-    return model
+    return model, digest
 
 
 def model_factors(settings, up: str) -> tuple:
@@ -110,19 +116,54 @@ def request_of(obj, model) -> requests.SampleRequest:
 
 
 def make_mesh(model, request, progress=None) -> tuple:
-    """(vertices along Blender's axes, triangles, their edges) of the sample
-    a request asks for: request.make and mesh.extract, then the turn to Z up."""
+    """(vertices along Blender's axes, triangles, their edges, a coloured
+    model's sRGB colours or None) of the sample a request asks for:
+    request.make and mesh.extract (which colours a coloured model's mesh),
+    then the turn to Z up."""
     triplane = requests.make(model, request)
     result = mesh.extract(model, triplane, progress=progress, **request.mesh_options())
     if not len(result.faces):
         raise InputError("the sample has no surface at this size and scale; the mesh is left as it was")
-    return blender_arrays(result.vertices, result.faces, model.manifest.up)
+    return blender_arrays(result.vertices, result.faces, model.manifest.up,
+                          convert.byte_colours(result.visual.vertex_colors) if model.manifest.colour else None)
 
 
-def blender_arrays(vertices, faces, up: str) -> tuple:
-    """A sample's mesh in the model's frame -> what set_mesh puts into Blender."""
+def blender_arrays(vertices, faces, up: str, colours=None) -> tuple:
+    """A sample's mesh in the model's frame (and its colours) -> what set_mesh puts into Blender."""
     faces = np.asarray(faces)
-    return convert.to_blender(vertices, up), faces, convert.triangle_edges(faces)
+    return convert.to_blender(vertices, up), faces, convert.triangle_edges(faces), colours
+
+
+COLOUR_MATERIAL = "sinshape colour"
+
+
+def colour_material():
+    """The material that shows a mesh's colour attribute (convert.COLOUR) as
+    its base colour: made once per file, shared by every coloured object."""
+    material = bpy.data.materials.get(COLOUR_MATERIAL)
+    if material is None:
+        material = bpy.data.materials.new(COLOUR_MATERIAL)
+        if material.node_tree is None:  # Blender before 5.0 makes a material without nodes
+            material.use_nodes = True
+        nodes = material.node_tree.nodes
+        shader = nodes.get("Principled BSDF") or nodes.new("ShaderNodeBsdfPrincipled")
+        attribute = nodes.new("ShaderNodeAttribute")
+        attribute.attribute_name = convert.COLOUR
+        attribute.location = (shader.location.x - 300, shader.location.y)
+        material.node_tree.links.new(attribute.outputs["Color"], shader.inputs["Base Color"])
+    return material
+
+
+def put_mesh(mesh, arrays, smooth_shading: bool) -> None:
+    """(vertices, faces, edges, colours) into a bpy Mesh; a coloured one
+    wears colour_material, a grey one none of it."""
+    vertices, faces, edges, colours = arrays
+    convert.fill_mesh(mesh, vertices, faces, smooth_shading, edges, colours)
+    material = bpy.data.materials.get(COLOUR_MATERIAL)
+    if colours is not None and COLOUR_MATERIAL not in mesh.materials:
+        mesh.materials.append(colour_material())
+    elif colours is None and material is not None and material.name in mesh.materials:
+        mesh.materials.pop(index=mesh.materials.find(material.name))
 
 
 @contextlib.contextmanager
@@ -136,11 +177,10 @@ def suspended():
 
 
 def set_mesh(obj, arrays, request=None) -> None:
-    """Put (vertices, faces, edges) into an object's mesh; the request it was made from is remembered."""
-    vertices, faces, edges = arrays
-    convert.fill_mesh(obj.data, vertices, faces, obj.sinshape.shade_smooth, edges)
+    """Put (vertices, faces, edges, colours) into an object's mesh; the request it was made from is remembered."""
+    put_mesh(obj.data, arrays, obj.sinshape.shade_smooth)
     obj.sinshape.error = ""
-    MADE[obj.name] = request
+    MADE[obj.name] = (obj.sinshape.model, request)
 
 
 def failed(name: str, error: InputError) -> None:
@@ -169,15 +209,15 @@ def regenerate(obj, force: bool = False) -> None:
     else off the main thread (work.WORKER). What is wrong before the work
     (the model, the request) raises InputError here, and in background mode
     the work's own errors too; each is also recorded on the object. The
-    mesh is replaced only by a finished sample. Unless `force`, a request
-    equal to the one the mesh was made from makes nothing."""
+    mesh is replaced only by a finished sample. Unless `force`, the model
+    and request the mesh was made from make nothing again."""
     settings = obj.sinshape
     try:
         if obj.mode == "EDIT":
             raise InputError(f"{obj.name} is in edit mode: leave it to regenerate the sample")
         model = load_model(settings)
         request = request_of(obj, model)
-        if not force and MADE.get(obj.name) == request:
+        if not force and MADE.get(obj.name) == (settings.model, request):
             return
         name = obj.name
         job = work.Job(name, f"{name} (seed {request.seed})",
@@ -281,7 +321,8 @@ def variations(context, obj, seeds, arrange: str, collection_name: str) -> None:
                     running += 1
                 data, record = pool.next_result()
                 running -= 1
-                job.deliver((record["seed"], blender_arrays(*convert.ply_arrays(data), up)))
+                points, faces, colours = convert.ply_arrays(data)
+                job.deliver((record["seed"], blender_arrays(points, faces, up, colours)))
                 job.progress(done + 1, len(seeds))
         finally:
             pool.close()

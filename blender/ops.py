@@ -1,6 +1,8 @@
-"""The operators: add a sample, regenerate, variations, a keep box, the
+"""The operators: add a sample or a world, regenerate, variations, a keep box, the
 layout shown as cubes and applied. Each reports bad input Blender's way
 (one line, {'CANCELLED'}, nothing half made) and leaves the work to live."""
+
+from pathlib import Path
 
 import bpy
 import numpy as np
@@ -10,7 +12,7 @@ from sinshape import models
 from sinshape.core.errors import InputError
 from sinshape.runtime.mesh import MAX_SMOOTH
 
-from . import convert, live
+from . import convert, live, worlds
 from .props import SEED_MAX, model_names
 
 
@@ -29,18 +31,32 @@ class SampleOperator(bpy.types.Operator):
         return sample_object(context) is not None
 
 
-class SINSHAPE_OT_add_sample(bpy.types.Operator):
-    """Add a sinshape sample: a mesh object with a model and a seed, made again when they change"""
+class AddOperator:
+    """What Add > Mesh's sinshape entries share: a model, a seed and a scale
+    in their redo panel, and the new object selected alone and active."""
 
-    bl_idname = "sinshape.add_sample"
-    bl_label = "sinshape sample"
     bl_options = {"REGISTER", "UNDO"}
 
     model: StringProperty(name="Model", default=models.DEFAULT, search=model_names,
                           description="A shipped model's name, or a .onnx file")
     seed: IntProperty(name="Seed", min=0, max=SEED_MAX)
-    size: FloatVectorProperty(name="Size", size=3, default=(1.0, 1.0, 1.0), min=0.01, soft_max=4.0, subtype="XYZ")
     scale: bpy.props.FloatProperty(name="Scale", default=1.0, min=0.01, soft_max=16.0)
+
+    @staticmethod
+    def select(context, obj) -> None:
+        for other in context.selected_objects:
+            other.select_set(False)
+        obj.select_set(True)
+        context.view_layer.objects.active = obj
+
+
+class SINSHAPE_OT_add_sample(AddOperator, bpy.types.Operator):
+    """Add a sinshape sample: a mesh object with a model and a seed, made again when they change"""
+
+    bl_idname = "sinshape.add_sample"
+    bl_label = "sinshape sample"
+
+    size: FloatVectorProperty(name="Size", size=3, default=(1.0, 1.0, 1.0), min=0.01, soft_max=4.0, subtype="XYZ")
     smooth: IntProperty(name="Smooth", min=0, max=MAX_SMOOTH, soft_max=20)
 
     def execute(self, context):
@@ -56,15 +72,54 @@ class SINSHAPE_OT_add_sample(bpy.types.Operator):
         obj = live.new_object(context.collection, f"sinshape {model.path.stem}", arrays,
                               {**settings, "model_sha256": recorded}, request)
         obj.location = context.scene.cursor.location
-        for other in context.selected_objects:
-            other.select_set(False)
-        obj.select_set(True)
-        context.view_layer.objects.active = obj
+        self.select(context, obj)
         return {"FINISHED"}
 
 
+class SINSHAPE_OT_add_world(AddOperator, bpy.types.Operator):
+    """Add a sinshape world: the tiles of an endless world around the 3D cursor (or an object it follows)"""
+
+    bl_idname = "sinshape.add_world"
+    bl_label = "sinshape world"
+
+    radius: IntProperty(name="Radius", default=2, min=0, max=32, soft_max=8,
+                        description="Tiles kept on each side of the followed point's tile")
+
+    def execute(self, context):
+        name = f"sinshape world {Path(self.model).stem}"
+        obj = bpy.data.objects.new(name, None)
+        obj.empty_display_type = "PLAIN_AXES"
+        obj.location = context.scene.cursor.location
+        context.collection.objects.link(obj)
+        context.view_layer.update()  # its matrix, which places the followed point in the world
+        with live.suspended():
+            for key in ("model", "seed", "scale", "radius"):
+                setattr(obj.sinshape_world, key, getattr(self, key))
+            obj.sinshape_world.active = True
+        try:
+            worlds.refresh(obj, context.scene)
+        except InputError as error:
+            for child in list(obj.children):
+                worlds.remove(child)
+            bpy.data.objects.remove(obj)  # nothing half made
+            self.report({"ERROR"}, str(error))
+            return {"CANCELLED"}
+        self.select(context, obj)
+        return {"FINISHED"}
+
+
+def live_objects(context) -> dict:
+    """The selected and active samples and worlds (a tile stands for its world), by name."""
+    chosen = {}
+    for obj in [*context.selected_objects, context.active_object]:
+        obj = worlds.world_of(obj) or (obj if obj is not None and obj.sinshape.active else None)
+        if obj is not None:
+            chosen[obj.name] = obj
+    return chosen
+
+
 class SINSHAPE_OT_regenerate(bpy.types.Operator):
-    """Make the selected sinshape samples again from their settings and model files"""
+    """Make the selected sinshape samples and worlds again from their settings and model files"""
 
     bl_idname = "sinshape.regenerate"
     bl_label = "Regenerate"
@@ -72,15 +127,16 @@ class SINSHAPE_OT_regenerate(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return any(obj.sinshape.active for obj in context.selected_objects) or sample_object(context) is not None
+        return bool(live_objects(context))
 
     def execute(self, context):
-        chosen = {obj.name: obj for obj in [*context.selected_objects, context.active_object]
-                  if obj is not None and obj.sinshape.active}
         failures = []
-        for obj in chosen.values():
+        for obj in live_objects(context).values():
             try:
-                live.regenerate(obj, force=True)
+                if obj.sinshape_world.active:
+                    worlds.refresh(obj, context.scene, force=True)
+                else:
+                    live.regenerate(obj, force=True)
             except InputError as error:
                 failures.append(f"{obj.name}: {error}")
         if failures:
@@ -180,5 +236,5 @@ class SINSHAPE_OT_report(bpy.types.Operator):
         return {"FINISHED"}
 
 
-CLASSES = (SINSHAPE_OT_add_sample, SINSHAPE_OT_regenerate, SINSHAPE_OT_variations, SINSHAPE_OT_keep_box_add,
-           SINSHAPE_OT_layout_show, SINSHAPE_OT_layout_apply, SINSHAPE_OT_report)
+CLASSES = (SINSHAPE_OT_add_sample, SINSHAPE_OT_add_world, SINSHAPE_OT_regenerate, SINSHAPE_OT_variations,
+           SINSHAPE_OT_keep_box_add, SINSHAPE_OT_layout_show, SINSHAPE_OT_layout_apply, SINSHAPE_OT_report)

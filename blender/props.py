@@ -1,7 +1,8 @@
-"""A sinshape object's settings: a PropertyGroup on every Object, saved
-with the .blend. Changing one that shapes the sample regenerates the mesh
-(live.changed); the rest are records (the model file's SHA-256, the applied
-layout, the last error)."""
+"""A sinshape object's settings: PropertyGroups on every Object (a
+sample's, a world's), saved with the .blend. Changing one that shapes the
+sample regenerates the mesh (live.changed; a world's tiles, worlds.changed);
+the rest are records (the model file's SHA-256, the applied layout, the
+last error)."""
 
 import bpy
 from bpy.props import (BoolProperty, EnumProperty, FloatProperty, FloatVectorProperty, IntProperty,
@@ -10,7 +11,7 @@ from bpy.props import (BoolProperty, EnumProperty, FloatProperty, FloatVectorPro
 from sinshape import models
 from sinshape.runtime.mesh import MAX_SMOOTH
 
-from . import live
+from . import live, worlds
 
 SEED_MAX = 2**31 - 1  # a Blender integer property; the runtime takes seeds up to 2**63
 
@@ -23,6 +24,11 @@ def model_names(settings, context, text):
 def model_changed(settings, context):
     settings.model_sha256 = ""  # a file chosen (again) is taken as it is now
     live.changed(settings, context)
+
+
+def world_model_changed(settings, context):
+    settings.model_sha256 = ""
+    worlds.changed(settings, context)
 
 
 class SinshapeSettings(bpy.types.PropertyGroup):
@@ -66,16 +72,38 @@ class SinshapeSettings(bpy.types.PropertyGroup):
     error: StringProperty(name="Error", description="Why the last regeneration failed")
 
 
-CLASSES = (SinshapeSettings,)
+class SinshapeWorld(bpy.types.PropertyGroup):
+    """A world object's settings (worlds.py): its tiles are its children."""
+
+    active: BoolProperty(name="sinshape world", description="This object's children are tiles of a sinshape world",
+                         default=False)
+    model: StringProperty(name="Model", default=models.DEFAULT, search=model_names, update=world_model_changed,
+                          description="A shipped model's name, or a .onnx file (// is the .blend's folder)")
+    model_sha256: StringProperty(name="Model SHA-256", description="The model file's SHA-256 when it was chosen")
+    seed: IntProperty(name="Seed", min=0, max=SEED_MAX, update=worlds.changed,
+                      description="The same seed gives the same world")
+    scale: FloatProperty(name="Scale", default=1.0, min=0.01, soft_min=0.25, soft_max=8.0, update=worlds.changed,
+                         description="Query the surface on a grid this many times finer per axis")
+    radius: IntProperty(name="Radius", default=2, min=0, max=32, soft_max=8, update=worlds.changed,
+                        description="Tiles kept on each side of the followed point's tile")
+    follow: PointerProperty(name="Follow", type=bpy.types.Object, update=worlds.changed,
+                            description="The object whose place the tiles fill around (the camera, say); "
+                                        "none: the 3D cursor")
+    error: StringProperty(name="Error", description="Why the last fill failed")
+
+
+CLASSES = (SinshapeSettings, SinshapeWorld)
 
 
 def register() -> None:
     for cls in CLASSES:
         bpy.utils.register_class(cls)
     bpy.types.Object.sinshape = PointerProperty(type=SinshapeSettings)
+    bpy.types.Object.sinshape_world = PointerProperty(type=SinshapeWorld)
 
 
 def unregister() -> None:
+    del bpy.types.Object.sinshape_world
     del bpy.types.Object.sinshape
     for cls in reversed(CLASSES):
         bpy.utils.unregister_class(cls)

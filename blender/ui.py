@@ -1,9 +1,9 @@
-"""The sidebar panel (View3D > Sidebar > sinshape), Add > Mesh's entry,
+"""The sidebar panel (View3D > Sidebar > sinshape), Add > Mesh's entries,
 and the status bar's progress."""
 
 import bpy
 
-from . import work
+from . import work, worlds
 
 
 class VIEW3D_PT_sinshape(bpy.types.Panel):
@@ -15,18 +15,22 @@ class VIEW3D_PT_sinshape(bpy.types.Panel):
     def draw(self, context):
         layout = self.layout
         obj = context.active_object
+        world = worlds.world_of(obj)
+        if world is not None:
+            settings = world.sinshape_world
+            self.draw_state(settings)
+            column = layout.column()
+            for name in ("model", "seed", "scale", "radius", "follow"):
+                column.prop(settings, name)
+            layout.operator("sinshape.regenerate", icon="FILE_REFRESH")
+            return
         if obj is None or not obj.sinshape.active:
             layout.label(text="Not a sinshape sample")
             layout.operator("sinshape.add_sample", icon="ADD")
+            layout.operator("sinshape.add_world", icon="WORLD")
             return
         settings = obj.sinshape
-        if settings.error:
-            box = layout.box()
-            box.alert = True
-            box.label(text=settings.error, icon="ERROR")
-        status = work.WORKER.status()
-        if status:
-            layout.progress(factor=status[1], text=status[0])
+        self.draw_state(settings)
         column = layout.column()
         for name in ("model", "seed", "size", "scale", "smooth", "shade_smooth"):
             column.prop(settings, name)
@@ -46,8 +50,21 @@ class VIEW3D_PT_sinshape(bpy.types.Panel):
         row.operator("sinshape.layout_apply", icon="CHECKMARK")
 
 
+    def draw_state(self, settings):
+        """The last error, and the running work's progress."""
+        layout = self.layout
+        if settings.error:
+            box = layout.box()
+            box.alert = True
+            box.label(text=settings.error, icon="ERROR")
+        status = work.WORKER.status()
+        if status:
+            layout.progress(factor=status[1], text=status[0])
+
+
 def add_menu(menu, context):
     menu.layout.operator("sinshape.add_sample", icon="OUTLINER_OB_MESH")
+    menu.layout.operator("sinshape.add_world", icon="WORLD")
 
 
 CLASSES = (VIEW3D_PT_sinshape,)

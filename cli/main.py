@@ -28,7 +28,8 @@ OPTIONS = {"scale": "--scale", "factors": "--size", "smooth": "--smooth", "threa
            "min_iters": "--min-iters", "minutes": "--minutes", "precision": "--precision", "box": "--box",
            "train_depth": "--train-depth", "focus": "--focus", "up": "--up", "resume": "--resume",
            "size": "--size", "keep": "--keep", "layout": "--layout", "recon": "--recon",
-           "output": "--output", "tile": "--tiles", "frame": "--frame"}
+           "output": "--output", "tile": "--tiles", "frame": "--frame",
+           "no_colour": "--no-colour"}
 # ctx.meta key: {parameter: what set it} where a command's value came from elsewhere than OPTIONS says.
 SOURCES = "sinrun.sources"
 # The extra that installs each optional module (pyproject.toml): a command
@@ -177,6 +178,10 @@ class TrainCommand(Command):
 @click.option("--generator", type=click.Choice(["triplane", "voxel"]), default=None,
               help="triplane (the method) or voxel: the paper's SinGAN-3D baseline, 3-D convs on voxels, "
                    "for comparisons; it writes a .pt checkpoint (-o baseline.pt), not an .onnx model.")
+@click.option("--no-colour", "no_colour", is_flag=True,
+              help="Train geometry only, reading no colour. By default a mesh with colour (vertex colours, "
+                   "or a base-colour texture of a .glb/.gltf, or of an .obj with its .mtl and image) "
+                   "trains a coloured model, and colour that cannot be read is an error.")
 @click.option("--resume", is_flag=True,
               help="Continue an interrupted run from its checkpoint, skipping finished levels, "
                    "with the checkpoint's settings.")
@@ -184,7 +189,7 @@ class TrainCommand(Command):
               help="Checkpoint file. Default: MODEL.ckpt.pt beside the output.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress output.")
 def train(input_path, output, preset, res, levels, iters, minutes, min_iters, device, precision, box, train_depth, lr,
-          seed, up, generator, resume, checkpoint, quiet):
+          seed, up, generator, no_colour, resume, checkpoint, quiet):
     """Train a model on one example shape and export it as one .onnx file.
 
     INPUT is a mesh (.obj, .ply, .stl, .off, .glb; not necessarily watertight)
@@ -202,14 +207,14 @@ def train(input_path, output, preset, res, levels, iters, minutes, min_iters, de
             "levels": "the checkpoint's levels" if resume else f"the {preset or 'default'} preset's levels"}
     try:
         with TrainProgress(quiet=quiet) as progress:
-            manifest = training.train(input_path, output, config, resume=resume, device=device,
+            manifest = training.train(input_path, output, config, resume=resume, device=device, colour=not no_colour,
                                       checkpoint_path=checkpoint, progress=progress, log=progress.log)
     except training.Interrupted as error:  # Ctrl-C or `kill` (Terminated): a checkpoint was saved
         exit_stopped(error.__context__, command_line_message(error))
     except training.TrainingDiverged as error:  # OPTIONS has no seed: sample's come from --seed, --seeds, --keep
         raise click.ClickException(command_line_message(error, {"seed": "--seed"})) from None
     sizes = ", ".join("x".join(map(str, level["size"])) for level in manifest["levels"])
-    click.echo(f"wrote {output} ({len(manifest['levels'])} levels: {sizes}; "
+    click.echo(f"wrote {output} ({'coloured, ' * ('colour' in manifest)}{len(manifest['levels'])} levels: {sizes}; "
                f"trained in {format_seconds(manifest['training']['seconds'])})")
 
 

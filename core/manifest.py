@@ -12,12 +12,18 @@ import math
 import re
 from dataclasses import dataclass
 
+import numpy as np
+
 from .errors import InputError
 
 FORMAT_NAME = "sinshape"
 # 3 seals the file's bytes with a SHA-256 at its end; 2 had a `checksum`
-# field over the weights and manifest only; 1 had none. All three load.
+# field over the weights and manifest only; 1 had none. 4 is 3 with a colour
+# head (`colour`); a geometry-only model is still written as 3. All four load.
 FORMAT_VERSION = 3
+COLOUR_VERSION = 4
+READ_VERSION = COLOUR_VERSION  # the newest version this code reads
+COLOUR_SPACE = {"space": "srgb"}  # manifest `colour`: values are sRGB-encoded in [0, 1]
 METADATA_KEY = "sinshape.manifest"  # key of the manifest in the ONNX metadata_props
 SEAL_KEY = "sinshape.sha256"  # key of the last metadata_props entry: the seal (format 3 on)
 NOISE_SCHEME = "splitmix64-boxmuller-v1"  # core/noise.py
@@ -26,6 +32,8 @@ PLANES = ("xy", "xz", "yz")  # plane k drops grid axis 2 - k
 PLANE_AXES = ((0, 1), (0, 2), (1, 2))  # the grid axes each plane keeps, in PLANES order
 # Initializers of stage decoder_head, (D,), (D, 1), (1,): b1, w2, b2.
 HEAD_WEIGHTS = ("decoder_head.bias1", "decoder_head.weight2", "decoder_head.bias2")
+# Initializers of a coloured model's colour head, (D, 3), (3,): RGB = sigmoid(h @ w + b).
+COLOUR_WEIGHTS = ("decoder_head.weight_colour", "decoder_head.bias_colour")
 MAX_LEVELS = 64
 MIN_LEVEL_SIDE = 8  # a level's side in voxels: trained levels have 15 or more
 MAX_LEVEL_SIDE = 4096  # far above anything trainable
@@ -39,13 +47,27 @@ MIN_SPACING = 1e-9
 CHECKSUM_RE = re.compile(r"sha256:[0-9a-f]{64}")
 
 
+def linear_to_srgb(linear):
+    """The sRGB transfer function (IEC 61966-2-1) of `colour`'s space, on
+    numpy arrays of values in [0, 1] (glTF's colours are linear)."""
+    linear = np.clip(linear, 0, 1)
+    return np.where(linear <= 0.0031308, 12.92 * linear, 1.055 * np.power(linear, 1 / 2.4) - 0.055)
+
+
+def srgb_to_linear(srgb):
+    """linear_to_srgb undone."""
+    srgb = np.clip(srgb, 0, 1)
+    return np.where(srgb <= 0.04045, srgb / 12.92, np.power((srgb + 0.055) / 1.055, 2.4))
+
+
 def plane_sizes(size) -> list:
     """Plane sizes of a grid (X, Y, Z), in PLANES order: [(X, Y), (X, Z), (Y, Z)]."""
     return [(size[a], size[b]) for a, b in PLANE_AXES]
 
 
-def stage_names(levels: int) -> dict:
-    """Input and output tensor names of every stage, as the trainer writes them."""
+def stage_names(levels: int, colour: bool = False) -> dict:
+    """Input and output tensor names of every stage, as the trainer writes
+    them; a coloured model's head has a second output, its RGB."""
 
     def io(stage):
         return {"inputs": [f"{stage}.{p}" for p in PLANES], "outputs": [f"{stage}.{p}.out" for p in PLANES]}
@@ -54,7 +76,8 @@ def stage_names(levels: int) -> dict:
         "projection": io("projection"),
         "levels": [io(f"level{i}") for i in range(levels)],
         "decoder_planes": io("decoder_planes"),
-        "decoder_head": {"inputs": [f"decoder_head.{p}" for p in PLANES], "outputs": ["decoder_head.occupancy"]},
+        "decoder_head": {"inputs": [f"decoder_head.{p}" for p in PLANES],
+                         "outputs": ["decoder_head.occupancy"] + ["decoder_head.colour"] * colour},
     }
 
 
@@ -73,6 +96,7 @@ class Manifest:
     stages: dict
     raw: dict
     up: str = "y"  # the input frame's axis that points up: "y" (most meshes) or "z" (voxel data)
+    colour: bool = False  # the decoder also gives sRGB colour (format 4)
 
 
 def _require(ok: bool, message: str) -> None:
@@ -173,10 +197,13 @@ def parse(text: str) -> Manifest:
     _require(raw.get("format") == FORMAT_NAME, f"format is {raw.get('format')!r}, not {FORMAT_NAME!r}")
     version = raw.get("format_version")
     _require(_is_int(version, 1, 10**6), f"format_version {version!r} is not a positive integer")
-    if version > FORMAT_VERSION:
+    if version > READ_VERSION:
         raise InputError(
-            f"model format version {version} is newer than this sinshape reads ({FORMAT_VERSION}); upgrade sinshape"
+            f"model format version {version} is newer than this sinshape reads ({READ_VERSION}); upgrade sinshape"
         )
+    colour = version >= COLOUR_VERSION
+    _require(raw.get("colour") == (COLOUR_SPACE if colour else None),
+             f"colour must be {json.dumps(COLOUR_SPACE)} in format {COLOUR_VERSION} and absent before it")
     if version == 2:
         _require(isinstance(raw.get("checksum"), str) and CHECKSUM_RE.fullmatch(raw["checksum"]) is not None,
                  "checksum must be 'sha256:' and 64 hex digits")
@@ -228,7 +255,7 @@ def parse(text: str) -> Manifest:
              and all(_is_number(s) for s in level_seconds), "training seconds must be numbers")
 
     stages = raw.get("stages")
-    _require(stages == stage_names(len(levels)), "stages do not name the standard tensors for this level count")
+    _require(stages == stage_names(len(levels), colour), "stages do not name the standard tensors for this level count")
     return Manifest(
         sizes=sizes,
         noise_amps=amps,
@@ -241,6 +268,7 @@ def parse(text: str) -> Manifest:
         stages=stages,
         raw=raw,
         up=raw.get("up", "y"),
+        colour=colour,
     )
 
 
@@ -282,6 +310,8 @@ def describe(raw: dict) -> list:
             lines.append(f"diverged    level {level:g} at iteration {at:g}; went back to iteration {to:g} "
                          f"and on at rate {lr:.3g}")
     origin, spacing = (", ".join(f"{v:.4g}" for v in raw["frame"][k]) for k in ("origin", "spacing"))
+    if raw.get("colour"):
+        lines.append(f"colour      {printable(raw['colour'].get('space'))} RGB beside occupancy")
     lines += [
         f"networks    {raw['channels']} channels, {raw['pool_bins']} pooling bins, MLP hidden {raw['mlp_hidden']}",
         f"frame       voxel (0, 0, 0) at ({origin}), voxel size ({spacing}); {raw.get('up', 'y')} points up",

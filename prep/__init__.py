@@ -7,7 +7,8 @@
 
 Modules: voxelize (a mesh file -> a solid occupancy grid), pyramid (a mesh
 or an SSG .h5 file -> the levels a model is trained on, and the reference a
-model is scored against), shapes (procedural example meshes).
+model is scored against), colour (a coloured mesh's colour field per
+level), shapes (procedural example meshes).
 
 Both the trainer and evaluation prepare their data here, so a model is
 scored against the grid it was trained on. It imports numpy, scipy, h5py,

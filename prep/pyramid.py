@@ -25,6 +25,7 @@ from sinshape.core.errors import InputError
 from sinshape.core.files import check_readable
 from sinshape.core.manifest import MAX_LEVEL_SIDE
 
+from . import colour as colours
 from . import voxelize
 
 # The coarsest level's longest side should be 2-3x the discriminator's
@@ -59,6 +60,11 @@ class Pyramid:
     source_sha256: str
     source_kind: str  # "mesh" or "pyramid"
     up: str = "y"  # the input's axis that points up (`up_axis` for an .h5 pyramid)
+    # A coloured mesh's colour field per level (prep/colour.py), or None:
+    # (3, X_i, Y_i, Z_i) float32 sRGB of the nearest surface point, and
+    # (X_i, Y_i, Z_i) float32 weights of the colour loss (the surface band).
+    colours: list | None = None
+    bands: list | None = None
 
     @property
     def sizes(self) -> list:
@@ -119,11 +125,15 @@ def file_sha256(path: Path) -> str:
 
 
 def pyramid_from_mesh(path: Path, res: int, levels: int | None = None,
-                      factor: float = LEVEL_FACTOR, min_size: int = MIN_SIZE, check=None) -> Pyramid:
+                      factor: float = LEVEL_FACTOR, min_size: int = MIN_SIZE, check=None,
+                      colour: bool = True) -> Pyramid:
     """Voxelise a mesh file at every level of its pyramid. check(sizes), if
     given, sees the level sizes before any is voxelised (to refuse work up
-    front); voxelising that would not fit in memory is refused too."""
-    mesh = voxelize.load_mesh(path)
+    front); voxelising that would not fit in memory is refused too. With
+    `colour`, a mesh that has colour gets its colour field at every level;
+    without, its colour is not read at all."""
+    scene, data = voxelize.read_scene(path)
+    mesh = voxelize.scene_mesh(scene, path)
     corners = mesh.vertices[mesh.faces.reshape(-1)]
     low, high = corners.min(axis=0), corners.max(axis=0)
     extent = high - low
@@ -141,10 +151,18 @@ def pyramid_from_mesh(path: Path, res: int, levels: int | None = None,
                  f"voxelising a {'x'.join(map(str, sizes[-1]))} grid")
     if check:
         check(sizes)
+    try:
+        surface = colours.surface_colour(scene, path, data, voxel) if colour else None
+    except InputError as error:  # what to do about it, where it is raised
+        raise InputError(f"{error} (no_colour trains geometry only)", "no_colour") from None
+    if surface:
+        check_memory(colours.BYTES_PER_VOXEL * sum(math.prod(size) for size in sizes),
+                     f"colouring the levels of a {'x'.join(map(str, sizes[-1]))} grid")
     grids = [voxelize.voxelize(mesh, box_low, box / np.array(size), size) for size in sizes]
     for size, grid in zip(sizes, grids):
         if not grid.any():
             raise InputError(f"{path.name}: the mesh gives an empty {size} grid; is it a closed solid?")
+    fields = [colours.colour_grid(surface, box_low, box / np.array(size), size) for size in sizes] if surface else None
     spacing = box / np.array(sizes[-1])
     return Pyramid(
         levels=grids,
@@ -153,6 +171,8 @@ def pyramid_from_mesh(path: Path, res: int, levels: int | None = None,
         source_name=path.name,
         source_sha256=file_sha256(path),
         source_kind="mesh",
+        colours=[rgb for rgb, _ in fields] if fields else None,
+        bands=[colours.band(distance) for _, distance in fields] if fields else None,
     )
 
 
@@ -245,17 +265,18 @@ def _occupancy(grid: np.ndarray, name: str) -> np.ndarray:
 
 
 def load_pyramid(path, res: int, levels: int | None = None,
-                 factor: float = LEVEL_FACTOR, min_size: int = MIN_SIZE, check=None) -> Pyramid:
-    """The pyramid of a mesh file (voxelised at `res`) or of an SSG .h5 file.
-    check(sizes), if given, sees the level sizes before a mesh is voxelised,
-    after an .h5 file is read."""
+                 factor: float = LEVEL_FACTOR, min_size: int = MIN_SIZE, check=None, colour: bool = True) -> Pyramid:
+    """The pyramid of a mesh file (voxelised at `res`) or of an SSG .h5 file
+    (which has no colour). check(sizes), if given, sees the level sizes
+    before a mesh is voxelised, after an .h5 file is read. `colour`: read a
+    mesh's colour, if it has any."""
     path = check_readable(path, "mesh or .h5 file")
     if path.suffix.lower() in PYRAMID_SUFFIXES:
         pyramid = pyramid_from_h5(path, levels)
         if check:
             check(pyramid.sizes)
         return pyramid
-    return pyramid_from_mesh(path, res, levels, factor, min_size, check)
+    return pyramid_from_mesh(path, res, levels, factor, min_size, check, colour)
 
 
 def reference_grid(path, manifest, scale: float = 1.0) -> np.ndarray:
@@ -271,4 +292,4 @@ def reference_grid(path, manifest, scale: float = 1.0) -> np.ndarray:
         raise InputError("scale needs a mesh reference: an .h5 pyramid has one resolution", "scale")
     res = round(config.get("res", max(manifest.sizes[-1])) * scale)
     return load_pyramid(path, res=res, levels=1, factor=config.get("level_factor", LEVEL_FACTOR),
-                        min_size=config.get("min_size", MIN_SIZE)).levels[-1]
+                        min_size=config.get("min_size", MIN_SIZE), colour=False).levels[-1]

@@ -1,4 +1,5 @@
-"""Deterministic procedural example shapes: terrain, acropolis, stairs, wall, cheese.
+"""Deterministic procedural example shapes: terrain, acropolis, stairs, wall,
+cheese, and painted_terrain, the terrain with vertex colours.
 
 The shipped demo models and the tests need example shapes that anyone can
 regenerate bit for bit, without downloading meshes. Each shape is a function
@@ -197,6 +198,31 @@ def terrain(seed: int = 0, detail: int = 128) -> trimesh.Trimesh:
     return solid.mesh()
 
 
+# painted_terrain's colours, sRGB: grass on gentle low ground, rock on
+# slopes (and the block's sides and bottom), snow on high gentle ground.
+GRASS, ROCK, SNOW = (0.28, 0.46, 0.16), (0.45, 0.41, 0.37), (0.94, 0.95, 0.97)
+
+
+def _smoothstep(low: float, high: float, x: np.ndarray) -> np.ndarray:
+    t = np.clip((x - low) / (high - low), 0, 1)
+    return t * t * (3 - 2 * t)
+
+
+def painted_terrain(seed: int = 0, detail: int = 128) -> trimesh.Trimesh:
+    """`terrain` with per-vertex colours by height and slope: grass below,
+    rock where the ground is steep, snow on the tops. An example with colour
+    that anyone can make, free of any licence."""
+    mesh = terrain(seed, detail)
+    up = mesh.vertex_normals[:, 2]  # 1 on flat ground, 0 on a cliff, -1 underneath
+    height = (mesh.vertices[:, 2] - mesh.vertices[:, 2].min()) / np.ptp(mesh.vertices[:, 2])
+    rock = 1 - _smoothstep(0.5, 0.65, up)
+    snow = _smoothstep(0.6, 0.7, height) * (1 - rock)
+    rgb = (np.array(GRASS) * (1 - rock - snow)[:, None] + np.array(ROCK) * rock[:, None]
+           + np.array(SNOW) * snow[:, None])
+    colours = np.concatenate([np.round(rgb * 255), np.full((len(rgb), 1), 255)], axis=1).astype(np.uint8)
+    return trimesh.Trimesh(mesh.vertices, mesh.faces, vertex_colors=colours, process=False)
+
+
 def acropolis(seed: int = 0, detail: int = 8) -> trimesh.Trimesh:
     """A ruined colonnade: `detail` columns along the long side, about half as many across.
 
@@ -340,6 +366,7 @@ def cheese(seed: int = 0, detail: int = 112) -> trimesh.Trimesh:
 
 SHAPES: dict[str, Callable[..., trimesh.Trimesh]] = {
     "terrain": terrain,
+    "painted_terrain": painted_terrain,
     "acropolis": acropolis,
     "stairs": stairs,
     "wall": wall,

@@ -104,6 +104,13 @@ def load_mesh(path: str | Path, solid: bool = True) -> trimesh.Trimesh:
     picture of one is fine).
     """
     path = Path(path)
+    return scene_mesh(read_scene(path)[0], path, solid)
+
+
+def read_scene(path: Path) -> tuple:
+    """(scene, bytes) of a mesh file as trimesh reads it, unprocessed, its
+    parts and their materials kept (prep.colour reads them); a file it
+    cannot read is an InputError."""
     formats = sorted(trimesh.exchange.load.mesh_formats())
     if not path.exists():
         raise InputError(f"{path}: no such file")
@@ -125,10 +132,21 @@ def load_mesh(path: str | Path, solid: bool = True) -> trimesh.Trimesh:
             warnings.simplefilter("ignore", RuntimeWarning)
             scene = trimesh.load_scene(io.BytesIO(data), file_type=file_type, process=False,
                                        resolver=trimesh.resolvers.FilePathResolver(str(path)))
-            mesh = scene.to_mesh()
     except Exception as exc:  # trimesh's parsers raise anything on a bad file
         reason = " ".join(str(exc).split()) or type(exc).__name__
         raise InputError(f"{path}: cannot read as .{file_type}: {reason}") from None
+    return scene, data
+
+
+def scene_mesh(scene, path: Path, solid: bool = True) -> trimesh.Trimesh:
+    """A scene's parts as one checked triangle mesh (see `load_mesh`)."""
+    try:
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            mesh = scene.to_mesh()
+    except Exception as exc:  # trimesh's parsers raise anything on a bad file
+        reason = " ".join(str(exc).split()) or type(exc).__name__
+        raise InputError(f"{path}: cannot read as {path.suffix.lower()}: {reason}") from None
     if len(mesh.faces) == 0:
         raise InputError(f"{path}: no triangles (an empty mesh, a point cloud or lines)")
     if mesh.vertices.shape[1] != 3:

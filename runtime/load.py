@@ -54,6 +54,8 @@ class HeadWeights:
     bias1: np.ndarray  # (D,)
     weight2: np.ndarray  # (D,)
     bias2: float
+    weight_colour: np.ndarray | None = None  # (D, 3) in a coloured model (format 4), else None
+    bias_colour: np.ndarray | None = None  # (3,)
 
 
 @dataclass
@@ -211,19 +213,26 @@ def session(data: bytes, threads: int, path: Path) -> ort.InferenceSession:
         raise InputError(f"{path}: onnxruntime cannot load a stage ({str(error).splitlines()[0][:200]})") from None
 
 
-def read_head(model: onnxfile.OnnxModel, hidden: int, path: Path) -> HeadWeights:
-    names = fmt.HEAD_WEIGHTS
+def read_weights(model: onnxfile.OnnxModel, names: tuple, shapes: list, path: Path) -> list:
+    """Initializers by name, each checked for its shape and finite values."""
     if any(name not in model.weights for name in names):
         raise InputError(f"{path}: the decoder head lacks its weights ({', '.join(names)})")
     try:
-        b1, w2, b2 = (onnxfile.tensor_array(model.weights[name]) for name in names)
+        arrays = [onnxfile.tensor_array(model.weights[name]) for name in names]
     except ValueError as error:
         raise InputError(f"{path}: corrupt model: {error}") from None
-    if b1.shape != (hidden,) or w2.shape != (hidden, 1) or b2.shape != (1,):
-        raise InputError(f"{path}: decoder head weights have shapes {b1.shape}, {w2.shape}, {b2.shape}")
-    if not all(np.isfinite(a).all() for a in (b1, w2, b2)):
+    if any(a.shape != shape for a, shape in zip(arrays, shapes)):
+        raise InputError(f"{path}: decoder head weights have shapes {', '.join(str(a.shape) for a in arrays)}")
+    if not all(np.isfinite(a).all() for a in arrays):
         raise InputError(f"{path}: decoder head weights are not finite")
-    return HeadWeights(b1, w2[:, 0], float(b2[0]))
+    return arrays
+
+
+def read_head(model: onnxfile.OnnxModel, manifest: fmt.Manifest, path: Path) -> HeadWeights:
+    hidden = manifest.hidden
+    b1, w2, b2 = read_weights(model, fmt.HEAD_WEIGHTS, [(hidden,), (hidden, 1), (1,)], path)
+    colour = read_weights(model, fmt.COLOUR_WEIGHTS, [(hidden, 3), (3,)], path) if manifest.colour else (None, None)
+    return HeadWeights(b1, w2[:, 0], float(b2[0]), *colour)
 
 
 def check_stages(model: Model) -> None:
@@ -237,25 +246,29 @@ def check_stages(model: Model) -> None:
         (model.decoder_head, [np.zeros((2, 1, 1, h), np.float32)] * 3, (2, 1, 1, 1)),
     ]
     for stage, arrays, shape in probes:
+        shapes = [shape] * len(stage.outputs) if stage is not model.decoder_head else [shape, (2, 1, 1, 3)]
         try:
             outputs = stage.run(arrays)
         except Exception as error:  # onnxruntime's own exception types
             raise InputError(f"{model.path}: stage {stage.inputs[0].split('.')[0]} does not run "
                              f"({str(error).splitlines()[0][:200]})") from None
         name = stage.inputs[0].split(".")[0]
-        wrong = [o.shape for o in outputs if o.shape != shape]
+        wrong = [(o.shape, want) for o, want in zip(outputs, shapes) if o.shape != want]
         if wrong:  # the first wrong one: another output's shape would read as a match
-            raise InputError(f"{model.path}: stage {name} gives shape {wrong[0]}, expected {shape}")
+            raise InputError(f"{model.path}: stage {name} gives shape {wrong[0][0]}, expected {wrong[0][1]}")
         if not all(np.isfinite(o).all() for o in outputs):
             raise InputError(f"{model.path}: stage {name} gives NaN or infinite values (bad weights)")
     # The numpy head must be the graph's head.
-    from .query import head_occupancy
+    from .query import head_colour, head_occupancy
 
     hidden = (2 * np.cos(np.arange(3 * 64 * h).reshape(3, 64, 1, 1, h) * 0.7)).astype(np.float32)  # varied values
-    (graph,) = model.decoder_head.run(list(hidden))
-    if not np.isfinite(graph).all():
+    graph = model.decoder_head.run(list(hidden))
+    if not all(np.isfinite(g).all() for g in graph):
         raise InputError(f"{model.path}: stage decoder_head gives NaN or infinite values (bad weights)")
-    if np.abs(graph[..., 0] - head_occupancy(model.head, hidden.sum(axis=0))).max() > 1e-5:
+    numpy = [head_occupancy(model.head, hidden.sum(axis=0))[..., None]]
+    if m.colour:
+        numpy.append(head_colour(model.head, hidden.sum(axis=0)))
+    if any(np.abs(g - n).max() > 1e-5 for g, n in zip(graph, numpy)):
         raise InputError(f"{model.path}: the decoder head graph does not match its weights")
 
 
@@ -283,7 +296,7 @@ def load_model(path, threads: int | None = None) -> Model:
         levels=[make(names) for names in stages["levels"]],
         decoder_planes=make(stages["decoder_planes"]),
         decoder_head=make(stages["decoder_head"]),
-        head=read_head(proto, manifest.hidden, path),
+        head=read_head(proto, manifest, path),
     )
     check_stages(model)
     return model

@@ -171,7 +171,23 @@ def extract(model, triplane, scale: float = 1.0, smooth: int = 0, smoother: str 
     check_frame(frame)
     mesh = finish(band_mesh(model, triplane, scale, progress=progress, memory_limit=memory_limit, threads=threads),
                   smooth, smoother, largest)
+    paint(mesh, model, triplane)
     return to_frame(mesh, model.manifest) if frame == "input" else mesh
+
+
+def paint(mesh, model, triplane) -> None:
+    """Give a mesh in model coordinates a coloured model's colour at its
+    vertices (their final places, after smoothing), as 8-bit sRGB vertex
+    colours; a geometry-only model's mesh is left as it is."""
+    if model.manifest.colour and len(mesh.vertices):
+        mesh.visual.vertex_colors = colour_bytes(query.colours(model, triplane, mesh.vertices))
+
+
+def colour_bytes(rgb: np.ndarray) -> np.ndarray:
+    """(n, 3) sRGB in [0, 1] -> (n, 4) uint8 RGBA, opaque."""
+    out = np.full((len(rgb), 4), 255, np.uint8)
+    out[:, :3] = np.round(np.clip(rgb, 0, 1) * 255)
+    return out
 
 
 def check_frame(frame: str) -> None:

@@ -50,6 +50,12 @@ def biased_head_occupancy(head, biased: np.ndarray) -> np.ndarray:
     return sigmoid(logits)
 
 
+def head_colour(head, hidden: np.ndarray) -> np.ndarray:
+    """sigmoid(relu(hidden + b1) @ w_colour + b_colour): (..., D) pre-activations
+    -> (..., 3) float32 sRGB, the colour head of a coloured model."""
+    return sigmoid(np.maximum(hidden + head.bias1, 0) @ head.weight_colour + head.bias_colour)
+
+
 @dataclass
 class Projected:
     """The final tri-plane times the decoder's first layer: 3 x (H, W, D)."""
@@ -71,23 +77,45 @@ def points(model, triplane: TriPlane, coords: np.ndarray, chunk: int = 1 << 16) 
     (i, j, k) of the sample at scale 1 is at (i, j, k); the sample spans
     [0, N - 1] per axis. Points outside count as empty. Returns (n,) float32.
     """
+    coords = point_array(coords)
+    size = np.array(triplane.size)
+    out = np.zeros(len(coords), np.float32)
+    inside = np.nonzero(np.all((coords >= 0) & (coords <= size - 1), axis=1))[0]
+    proj = project(model, triplane)
+    for start in range(0, len(inside), chunk):
+        index = inside[start:start + chunk]
+        out[index] = head_occupancy(model.head, hidden_at(proj.planes, coords[index]))
+    return out
+
+
+def colours(model, triplane: TriPlane, coords: np.ndarray, chunk: int = 1 << 16) -> np.ndarray:
+    """A coloured model's sRGB colour at arbitrary points (coords as in
+    `points`); a point outside the tri-plane takes the colour of the nearest
+    point inside (a mesh's vertices reach half a voxel beyond it, where the
+    surface closes). Returns (n, 3) float32 in [0, 1]."""
+    coords = np.clip(point_array(coords), 0, np.array(triplane.size) - 1)
+    proj = project(model, triplane)
+    out = np.empty((len(coords), 3), np.float32)
+    for start in range(0, len(coords), chunk):
+        out[start:start + chunk] = head_colour(model.head, hidden_at(proj.planes, coords[start:start + chunk]))
+    return out
+
+
+def point_array(coords) -> np.ndarray:
     try:
         coords = np.asarray(coords, dtype=np.float64)
     except (TypeError, ValueError):
         raise InputError("points must be an (n, 3) array of numbers", "coords") from None
     if coords.ndim != 2 or coords.shape[1] != 3:
         raise InputError(f"points must be an (n, 3) array, got shape {coords.shape}", "coords")
-    proj = project(model, triplane)
-    size = np.array(triplane.size)
-    out = np.zeros(len(coords), np.float32)
-    inside = np.all((coords >= 0) & (coords <= size - 1), axis=1)
-    where = np.nonzero(inside)[0]
-    for start in range(0, len(where), chunk):
-        index = where[start:start + chunk]
-        c = coords[index]
-        hidden = sum(bilinear(plane, c[:, a], c[:, b]) for plane, (a, b) in zip(proj.planes, PLANE_AXES))
-        out[index] = head_occupancy(model.head, hidden)
-    return out
+    return coords
+
+
+def hidden_at(planes: list, coords: np.ndarray) -> np.ndarray:
+    """The decoder's hidden pre-activations (b1 not added) at points inside
+    a tri-plane: the sum of its three projected planes (`Projected.planes`),
+    interpolated. (n, D)."""
+    return sum(bilinear(plane, coords[:, a], coords[:, b]) for plane, (a, b) in zip(planes, PLANE_AXES))
 
 
 def bilinear(plane: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -416,23 +444,37 @@ def band(model, triplane: TriPlane, scale: float, memory_limit: int | None = Non
     return search.carry(search.slab(bx) for bx in range(len(search)))
 
 
-def dense(model, triplane: TriPlane, scale: float = 1.0, memory_limit: int | None = None) -> np.ndarray:
+def dense(model, triplane: TriPlane, scale: float = 1.0, memory_limit: int | None = None,
+          colour: bool = False):
     """Occupancy on every point of a grid `scale` times finer: (Mx, My, Mz)
-    float32. Refused up front if it needs more than memory_limit bytes (None:
-    the memory available)."""
+    float32. With `colour` (a coloured model), also its colour there:
+    (occupancy, (Mx, My, Mz, 3) uint8 sRGB). Refused up front if it needs
+    more than memory_limit bytes (None: the memory available)."""
     mx, my, mz = grid_shape(triplane.size, scale)
     hidden = model.manifest.hidden  # the decoder's hidden width D
-    # The grid, and the yz plane at every (y, z).
-    check_memory(mx * my * mz * 4 + my * mz * hidden * 4,
+    # The grid (and its colours), and the yz plane at every (y, z).
+    check_memory(mx * my * mz * (4 + 3 * colour) + my * mz * hidden * 4,
                  f"a dense {mx}x{my}x{mz} occupancy grid (a mesh output streams instead)", memory_limit)
     proj = project(model, triplane)
     grid = FineGrid(proj, scale)
     out = np.empty(grid.shape, np.float32)
+    colours = np.empty((*grid.shape, 3), np.uint8) if colour else None
     yz = grid.yz[1:my + 1, 1:mz + 1]
     rows_per_slab = max(1, (1 << 22) // (my * mz * yz.shape[-1]))  # ~16 MB of hidden sums
     for x0 in range(0, mx, rows_per_slab):
         rows = slice(x0 + 1, min(x0 + rows_per_slab, mx) + 1)
         xy = grid.fine_plane(0, rows)[:, 1:my + 1]
         xz = grid.fine_plane(1, rows)[:, 1:mz + 1]
-        out[rows.start - 1:rows.stop - 1] = head_occupancy(model.head, xy[:, :, None] + xz[:, None] + yz[None])
-    return out
+        sums = xy[:, :, None] + xz[:, None] + yz[None]
+        out[rows.start - 1:rows.stop - 1] = head_occupancy(model.head, sums)
+        if colour:
+            colours[rows.start - 1:rows.stop - 1] = np.round(head_colour(model.head, sums) * 255)
+    return (out, colours) if colour else out
+
+
+def dense_grids(model, triplane: TriPlane, scale: float = 1.0) -> dict:
+    """What an .npz sample holds: {"occupancy"}, and a coloured model's {"colour"}."""
+    if not model.manifest.colour:
+        return {"occupancy": dense(model, triplane, scale)}
+    occupancy, colour = dense(model, triplane, scale, colour=True)
+    return {"occupancy": occupancy, "colour": colour}

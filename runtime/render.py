@@ -67,7 +67,8 @@ def render(mesh: trimesh.Trimesh, size=(512, 512), azimuth=35.0, elevation=25.0,
     positive azimuths turn it towards +x, positive elevations raise it.
     `projection` is "perspective" or "orthographic". Either way the mesh
     fills the picture less a small margin. Drawing `supersample` times larger
-    and averaging smooths jagged edges; 1 is faster.
+    and averaging smooths jagged edges; 1 is faster. A mesh with vertex
+    colours (a coloured model's samples) is drawn in them, else in `color`.
     """
     width, height = size
     s = supersample
@@ -77,12 +78,20 @@ def render(mesh: trimesh.Trimesh, size=(512, 512), azimuth=35.0, elevation=25.0,
     corners, nearness = project(camera, (width * s, height * s), projection)
     face, depth = rasterise(corners, nearness, (width * s, height * s))
     # One colour per face, then the background last, where face -1 picks it.
-    palette = np.vstack([lambert(camera, corners)[:, None] * color, background]).astype(np.float32)
+    palette = np.vstack([lambert(camera, corners)[:, None] * face_colours(mesh, color), background]).astype(np.float32)
     image = palette[face]
     if outline:
         image[depth_edges(depth, s)] = OUTLINE
     image = image.reshape(height, s, width, s, 3).mean(axis=(1, 3))
     return np.round(np.clip(image, 0, 1) * 255).astype(np.uint8)
+
+
+def face_colours(mesh: trimesh.Trimesh, color) -> np.ndarray:
+    """Each face's colour, the mean of its corners' vertex colours (sRGB in
+    [0, 1]), or `color` for a mesh without vertex colours: (m, 3) or (3,)."""
+    if mesh.visual.kind != "vertex":
+        return np.asarray(color)
+    return np.asarray(mesh.visual.vertex_colors, np.float32)[np.asarray(mesh.faces), :3].mean(axis=1) / 255
 
 
 def picture_size(count: int, size, views: int = 1, columns: int = 4) -> tuple:

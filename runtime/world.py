@@ -49,7 +49,7 @@ from sinshape.core.manifest import PLANE_AXES
 
 from . import cubes
 from .generate import draw_noise, scaled_sizes, triplane
-from .query import check_scale, project, sigmoid
+from .query import check_scale, head_colour, hidden_at, project, sigmoid
 
 WORLD_STREAM = 2  # (WORLD_STREAM, a, b): the key of window (a, b)'s noise, absorbed after the world's seed
 MAX_TILE = 1 << 62  # |i|, |j| below this: a window index and its neighbour fit in 64 bits in every runtime
@@ -181,10 +181,13 @@ def check_world_scale(layout: Layout, scale: float, hidden: int, memory_limit: i
     check_memory(math.prod(points) * 4 * 2 + row + planes, f"a {'x'.join(map(str, points))} tile", memory_limit)
 
 
-def tile_occupancy(model, seed: int, tile, scale: float = 1.0, memory_limit: int | None = None) -> np.ndarray:
+def tile_occupancy(model, seed: int, tile, scale: float = 1.0, memory_limit: int | None = None,
+                   colour: bool = False):
     """Occupancy on tile (i, j)'s grid: (X, Y, Z) float32, its points along
     each horizontal axis from the tile's lattice point to the next (both
-    included: the faces it shares), along up the model's height."""
+    included: the faces it shares), along up the model's height. With
+    `colour` (a coloured model), also its colour there: (occupancy,
+    (X, Y, Z, 3) uint8 sRGB)."""
     from .generate import check_seed
 
     check_seed(seed)
@@ -201,6 +204,7 @@ def tile_occupancy(model, seed: int, tile, scale: float = 1.0, memory_limit: int
                   for plane, (r, c) in zip(window(model, layout, seed, a, b), PLANE_AXES)]
         sources.append((planes, [axes[axis].weights[index[axis]] for axis in range(3)]))
     out = np.empty([a.points for a in axes], np.float32)
+    colours = np.empty((*out.shape, 3), np.uint8) if colour else None
     rows = max(1, (1 << 22) // (out.shape[1] * out.shape[2] * model.manifest.hidden))  # ~16 MB of sums
     for x0 in range(0, out.shape[0], rows):
         x = slice(x0, min(x0 + rows, out.shape[0]))
@@ -210,7 +214,34 @@ def tile_occupancy(model, seed: int, tile, scale: float = 1.0, memory_limit: int
             weight = (wx[x, None, None] * wy[None, :, None] * wz[None, None, :])[..., None]
             total = weight * hidden if total is None else total + weight * hidden
         out[x] = head(model.head, total)
-    return out
+        if colour:
+            colours[x] = np.round(head_colour(model.head, total) * 255)
+    return (out, colours) if colour else out
+
+
+def tile_colours(model, seed: int, tile, vertices: np.ndarray) -> np.ndarray:
+    """A coloured model's colour at tile (i, j)'s vertices (model units from
+    the tile's corner, as tile_mesh gives them): the four windows' hidden
+    sums at the vertices, blended with the weights the tile's grid has
+    there (`tile_axis`, continued between its points), then the colour head.
+    A vertex on a face two tiles share gets the same colour from both.
+    Returns (n, 4) uint8 RGBA."""
+    from .mesh import colour_bytes
+
+    i, j = check_tile(tile)
+    layout = world_layout(model)
+    h0, h1 = layout.horizontal
+    total = 0
+    for a, b in [(a, b) for a in (i - 1, i) for b in (j - 1, j)]:
+        cells, weight = [None] * 3, np.ones(len(vertices))
+        for axis, before in ((h0, a < i), (h1, b < j)):  # before: the window i - 1 along the axis
+            t, stride = vertices[:, axis], layout.stride[axis]
+            behind = smoothstep(np.clip((t / stride - 0.5) / BLEND + 0.5, 0, 1))
+            cells[axis] = t + stride if before else t
+            weight = weight * (1 - behind if before else behind)
+        cells[layout.up] = vertices[:, layout.up]
+        total = total + weight[:, None] * hidden_at(window(model, layout, seed, a, b), np.stack(cells, axis=1))
+    return colour_bytes(head_colour(model.head, total))
 
 
 def head(weights, hidden: np.ndarray) -> np.ndarray:
@@ -295,8 +326,9 @@ def tile_bytes(model, request, name) -> tuple:
 
     suffix = Path(name).suffix.lower()
     if write.output_kind(name) == "grid":
-        values = tile_occupancy(model, request.sample_seed, request.tile, request.scale)
-        return write.grid_bytes(values, tile=request.tile, corner=tile_corner(model, request.tile),
+        grids = tile_occupancy(model, request.sample_seed, request.tile, request.scale, colour=model.manifest.colour)
+        grids = dict(zip(("occupancy", "colour"), grids)) if model.manifest.colour else {"occupancy": grids}
+        return write.grid_bytes(**grids, tile=request.tile, corner=tile_corner(model, request.tile),
                                 scale=request.scale), None
     import trimesh
 
@@ -304,6 +336,8 @@ def tile_bytes(model, request, name) -> tuple:
     if not len(faces):
         raise write.no_surface(Path(name))
     mesh = trimesh.Trimesh(placed(model, request.tile, vertices, request.frame), faces, process=False)
+    if model.manifest.colour:
+        mesh.visual.vertex_colors = tile_colours(model, request.sample_seed, request.tile, vertices)
     return write.mesh_bytes(mesh, suffix), mesh
 
 
@@ -359,12 +393,14 @@ def block_mesh(model, request, tiles, progress=None):
         raise InputError("a block is placed in the world: give frame input or model", "frame")
     h0, h1 = world_layout(model).horizontal
     low, high = np.min(tiles, axis=0), np.max(tiles, axis=0)
-    vertices, faces, count = [], [], 0
+    vertices, faces, colours, count = [], [], [], 0
     for done, tile in enumerate(tiles, 1):
         check_placement(model, tile, request.frame)
         ends = [(axis, side) for n, axis in enumerate((h0, h1)) for side, end in enumerate((low, high))
                 if tile[n] == end[n]]
         v, f = tile_mesh(model, request.sample_seed, tile, request.scale, closed=ends)
+        if model.manifest.colour:
+            colours.append(tile_colours(model, request.sample_seed, tile, v))
         vertices.append(np.array(tile_corner(model, tile), np.float64) + v)  # exact on shared borders
         faces.append(f + count)
         count += len(v)
@@ -374,4 +410,9 @@ def block_mesh(model, request, tiles, progress=None):
     faces = index.reshape(-1)[np.concatenate(faces)]
     if request.frame == "input":
         unique = np.asarray(model.manifest.origin) + unique * np.asarray(model.manifest.spacing)
-    return trimesh.Trimesh(unique, faces, process=False)
+    mesh = trimesh.Trimesh(unique, faces, process=False)
+    if colours:  # a welded vertex's tiles gave it the same colour
+        welded = np.empty((len(unique), 4), np.uint8)
+        welded[index.reshape(-1)] = np.concatenate(colours)
+        mesh.visual.vertex_colors = welded
+    return mesh

@@ -3,6 +3,9 @@
 Meshes: .ply (binary, written here, streamed slab by slab so that its size
 is bounded by the disk, not the memory) and .obj .stl .off .glb (trimesh's
 exporters, which need the whole mesh in memory). Occupancy grids: .npz.
+A coloured model's meshes carry vertex colours: 8-bit sRGB in .ply (uchar
+red, green, blue) and .obj (`v x y z r g b`), linear in .glb's COLOR_0, as
+glTF says; .stl and .off have none. Its .npz grids carry a colour grid.
 Every file goes through core.files.atomic_write, so a crash or Ctrl-C leaves
 either the old file or the new one; mesh_bytes and grid_bytes give the same
 bytes in memory, to send elsewhere.
@@ -18,6 +21,7 @@ import numpy as np
 
 from sinshape.core.errors import InputError
 from sinshape.core.files import MESH_FORMATS, atomic_write, check_writable
+from sinshape.core.manifest import srgb_to_linear
 GRID_FORMATS = {".npz"}
 
 
@@ -38,12 +42,28 @@ PLY_FACE = np.dtype([("count", "u1"), ("indices", "<i4", (3,))])
 PLY_COUNT_DIGITS = 10  # counts are zero-padded to a fixed width, so the header can be patched in place
 
 
-def ply_header(vertices: int, faces: int) -> bytes:
+# A coloured PLY vertex: float32 x, y, z and 8-bit sRGB.
+PLY_COLOURED_VERTEX = np.dtype([("position", "<f4", (3,)), ("colour", "u1", (3,))])
+
+
+def ply_header(vertices: int, faces: int, colour: bool = False) -> bytes:
     return (f"ply\nformat binary_little_endian 1.0\ncomment made by sinshape\n"
             f"element vertex {vertices:0{PLY_COUNT_DIGITS}d}\n"
             "property float x\nproperty float y\nproperty float z\n"
+            + "property uchar red\nproperty uchar green\nproperty uchar blue\n" * colour +
             f"element face {faces:0{PLY_COUNT_DIGITS}d}\n"
             "property list uchar int vertex_indices\nend_header\n").encode()
+
+
+def ply_vertices(vertices: np.ndarray, colours: np.ndarray | None = None) -> bytes:
+    """Vertices as PLY's binary records: float32 positions, and with
+    colours ((n, 3) or (n, 4) uint8) their red, green and blue."""
+    if colours is None:
+        return np.asarray(vertices, "<f4").tobytes()  # float32, as trimesh writes PLY
+    records = np.empty(len(vertices), PLY_COLOURED_VERTEX)
+    records["position"] = vertices
+    records["colour"] = np.asarray(colours)[:, :3]
+    return records.tobytes()
 
 
 def ply_faces(faces: np.ndarray) -> bytes:
@@ -55,9 +75,10 @@ def ply_faces(faces: np.ndarray) -> bytes:
     return records.tobytes()
 
 
-def write_ply_pieces(file, pieces, folder) -> tuple:
+def write_ply_pieces(file, pieces, folder, colour: bool = False) -> tuple:
     """Write (vertices, faces) pieces (mesh.pieces: new vertices, global face
-    indices) to a binary file as one PLY, holding one piece at a time.
+    indices) to a binary file as one PLY, holding one piece at a time; with
+    `colour`, (vertices, faces, colours) pieces (uint8 sRGB per vertex).
     folder: where the temporary faces go (None: the system's).
 
     PLY puts all vertices before all faces, so faces wait in an unnamed
@@ -66,33 +87,40 @@ def write_ply_pieces(file, pieces, folder) -> tuple:
     Returns (vertices, faces) counts.
     """
     counts = [0, 0]
-    file.write(ply_header(0, 0))
+    file.write(ply_header(0, 0, colour))
     with tempfile.TemporaryFile(dir=folder) as faces_file:
-        for vertices, faces in pieces:
-            file.write(np.asarray(vertices, "<f4").tobytes())  # float32, as trimesh writes PLY
+        for vertices, faces, *colours in pieces:
+            file.write(ply_vertices(vertices, *colours))
             faces_file.write(ply_faces(faces))
             counts[0] += len(vertices)
             counts[1] += len(faces)
         faces_file.seek(0)
         shutil.copyfileobj(faces_file, file, 1 << 22)
     file.seek(0)
-    file.write(ply_header(*counts))
+    file.write(ply_header(*counts, colour))
     file.seek(0, os.SEEK_END)
     return tuple(counts)
 
 
 def mesh_bytes(mesh, suffix: str) -> bytes:
-    """A trimesh mesh as the file bytes of a mesh format ('.ply', '.glb', ...)."""
+    """A trimesh mesh as the file bytes of a mesh format ('.ply', '.glb', ...),
+    with its vertex colours where it has them (8-bit sRGB, see the top)."""
+    colours = mesh.visual.vertex_colors if mesh.visual.kind == "vertex" else None
     if suffix.lower() == ".ply":  # the bytes a streamed write (write_ply_pieces) makes of the same mesh
-        return (ply_header(len(mesh.vertices), len(mesh.faces)) + np.asarray(mesh.vertices, "<f4").tobytes()
-                + ply_faces(mesh.faces))
+        return (ply_header(len(mesh.vertices), len(mesh.faces), colours is not None)
+                + ply_vertices(mesh.vertices, colours) + ply_faces(mesh.faces))
+    if colours is not None and suffix.lower() == ".glb":  # glTF's COLOR_0 is linear
+        mesh = mesh.copy()
+        linear = srgb_to_linear(np.asarray(colours[:, :3], np.float64) / 255)
+        mesh.visual.vertex_colors = np.concatenate([np.round(linear * 255), colours[:, 3:]], axis=1).astype(np.uint8)
     data = mesh.export(file_type=MESH_FORMATS[suffix.lower()])
     return data.encode() if isinstance(data, str) else data
 
 
 
 def grid_bytes(occupancy: np.ndarray, **fields) -> bytes:
-    """An occupancy grid (and small metadata arrays) as compressed .npz bytes."""
+    """An occupancy grid (and small metadata arrays: a coloured model's
+    `colour` grid among them) as compressed .npz bytes."""
     buffer = io.BytesIO()
     np.savez_compressed(buffer, occupancy=occupancy, **{k: np.asarray(v) for k, v in fields.items()})
     return buffer.getvalue()
@@ -122,11 +150,16 @@ def write_sample(model, triplane, path, scale: float = 1.0, smooth: int = 0, smo
         return
     mesh.check_frame(frame)
     pieces = mesh.pieces(model, triplane, scale, progress=mesh_progress, threads=threads)
+    colour = model.manifest.colour
+    if colour:  # each piece's new vertices coloured as they come: the cost is per vertex
+        from .query import colours
+
+        pieces = ((v, f, mesh.colour_bytes(colours(model, triplane, v))) for v, f in pieces)
     if frame == "input":
-        pieces = ((mesh.in_frame(v, model.manifest), f) for v, f in pieces)
+        pieces = ((mesh.in_frame(v, model.manifest), *rest) for v, *rest in pieces)
 
     def write(file):
-        if not write_ply_pieces(file, pieces, path.parent)[1]:
+        if not write_ply_pieces(file, pieces, path.parent, colour)[1]:
             raise no_surface(path)
 
     atomic_write(path, write)
@@ -171,7 +204,7 @@ def sample_bytes(model, triplane, path, scale: float = 1.0, smooth: int = 0, smo
 
     path = Path(path)
     if output_kind(path) == "grid":
-        return grid_bytes(query.dense(model, triplane, scale), size=triplane.size, scale=scale), None
+        return grid_bytes(**query.dense_grids(model, triplane, scale), size=triplane.size, scale=scale), None
     result = mesh.extract(model, triplane, scale, smooth, smoother, largest, frame, progress=mesh_progress,
                           threads=threads)
     if not len(result.faces):

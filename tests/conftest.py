@@ -80,6 +80,29 @@ def tiny_model(tmp_path_factory, tiny_pyramid):
     return out
 
 
+# A coloured model (format 4), made by the real trainer once with
+#   sinrun train tests/data/colour/box_vertex.ply -o tiny_colour.onnx --preset tiny --iters 3
+# on the box painted red above and blue below (tests/data/colour).
+TINY_COLOUR_ONNX = Path(__file__).parent / "data" / "tiny_colour.onnx"
+PAINTED_BOX = Path(__file__).parent / "data" / "colour" / "box_vertex.ply"
+
+
+@pytest.fixture(scope="session")
+def tiny_colour_model(tmp_path_factory):
+    """tiny_model's coloured counterpart: trained here on the painted box
+    where torch is installed, else the committed copy."""
+    try:
+        import torch  # noqa: F401
+    except ImportError:
+        return TINY_COLOUR_ONNX
+    from sinshape.trainer import train
+    from sinshape.trainer.config import make_config
+
+    out = tmp_path_factory.mktemp("model") / "tiny_colour.onnx"
+    train.train(PAINTED_BOX, out, make_config("tiny", iters=3))
+    return out
+
+
 @pytest.fixture(scope="session")
 def addon():
     """The Blender extension (blender/), registered in this process's Blender

@@ -39,10 +39,23 @@ def test_manifest_says_how_the_model_was_made(tiny_model, tiny_pyramid):
     assert m["up"] == "z"  # voxel data stands on z, unless --up says otherwise
 
 
+def test_a_coloured_model_is_format_4_and_a_plain_one_format_3(tiny_model, tiny_colour_model):
+    plain, coloured = (json.loads({p.key: p.value for p in onnx.load(path).metadata_props}[manifest.METADATA_KEY])
+                       for path in (tiny_model, tiny_colour_model))
+    assert plain["format_version"] == 3 and "colour" not in plain
+    assert coloured["format_version"] == 4 and coloured["colour"] == {"space": "srgb"}
+    assert coloured["stages"]["decoder_head"]["outputs"] == ["decoder_head.occupancy", "decoder_head.colour"]
+    weights = {t.name: onnx.numpy_helper.to_array(t) for t in onnx.load(tiny_colour_model).graph.initializer}
+    assert weights["decoder_head.weight_colour"].shape == (32, 3) and weights["decoder_head.bias_colour"].shape == (3,)
+
+
 @pytest.mark.parametrize("seed, factors", [(None, (1, 1, 1)), (11, (1, 1, 1)), (12, (1.5, 1, 0.7))])
-def test_onnxruntime_equals_torch(tiny_model, seed, factors):
+@pytest.mark.parametrize("coloured", [False, True])
+def test_onnxruntime_equals_torch(tiny_model, tiny_colour_model, seed, factors, coloured):
     """Parity: reconstruction (seed None) and random draws, at the training size
-    and another, the same noise fed to both."""
+    and another, the same noise fed to both; occupancy and, for a coloured
+    model, the colour at every voxel."""
+    tiny_model = tiny_colour_model if coloured else tiny_model
     generator, sizes, amps = checkpoint.load_generator(train.default_checkpoint_path(tiny_model))
     model = load.load_model(tiny_model)
     sizes = generate.scaled_sizes(sizes, factors)
@@ -50,13 +63,19 @@ def test_onnxruntime_equals_torch(tiny_model, seed, factors):
         sample = generate.reconstruction_noise(model, sizes)
     else:
         sample = generate.draw_noise(seed, sizes, model.manifest.channels)
-    ours = query.dense(model, generate.triplane(model, sample, sizes), 1.0)
+    triplane = generate.triplane(model, sample, sizes)
+    ours = query.dense(model, triplane, 1.0)
 
     z0 = torch.from_numpy(sample.z0)[None, None]
     noises = [None if planes is None else [amps[i] * torch.from_numpy(p)[None] for p in planes]
               for i, planes in enumerate(sample.planes)]
     with torch.no_grad():
         reference = generator(z0, noises, sizes)[0].numpy()
+    if coloured:
+        index = np.argwhere(np.ones(sizes[-1], bool))[::7]
+        colour = query.colours(model, triplane, index.astype(float))
+        np.testing.assert_allclose(colour, reference[1:][(slice(None), *index.T)].T, atol=1e-4)
+        reference = reference[0]
     assert ours.shape == reference.shape == sizes[-1]
     assert np.abs(ours - reference).max() < 1e-4
-    assert 0.05 < (ours > 0.5).mean() < 0.95  # a shape, not an empty or full grid
+    assert 0.05 < (ours > 0.5).mean() < (1 if coloured else 0.95)  # a shape (the box fills most of its grid)

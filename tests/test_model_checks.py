@@ -247,6 +247,12 @@ NONSENSE = {
     "last_level_2": (set_field(lambda m: m["levels"][1].update(size=[2, 2, 2])), "level 1 size"),
     "levels_shrink": (set_field(lambda m: m["levels"][1].update(size=m["levels"][0]["size"][:2] + [8])),
                       "levels grow"),
+    # colour: only in format 4, always there, and only sRGB
+    "colour_in_v3": (set_field(lambda m: m.update(colour={"space": "srgb"})), "colour must be"),
+    "v4_without_colour": (set_field(lambda m: m.update(format_version=4)), "colour must be"),
+    "v4_linear": (set_field(lambda m: m.update(format_version=4, colour={"space": "linear"})), "colour must be"),
+    "v4_without_colour_output": (set_field(lambda m: m.update(format_version=4, colour={"space": "srgb"})),
+                                 "stages"),
 }
 
 

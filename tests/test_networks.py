@@ -160,3 +160,35 @@ def test_batch_one_calls_leave_the_slow_kernel():
 def test_the_critic_keeps_pytorchs_kernels_under_autocast():
     with torch.autocast("cpu", dtype=torch.bfloat16):
         assert networks.valid_conv_method(networks.Discriminator(8).net[6], torch.empty(1, 8, 40, 40, 40)) == "conv"
+
+def test_wide_grid_head_gradients_are_exact(monkeypatch):
+    # Occupancy and colour from one hidden layer: (K, hidden) weights, K = 4.
+    monkeypatch.setattr(networks.GridHead, "SLAB_FLOATS", 40)
+    gen = torch.Generator().manual_seed(0)
+    shapes = [(5, 4, 3), (5, 6, 3), (4, 6, 3), (4, 3), (4,)]
+    inputs = [torch.randn(s, generator=gen, dtype=torch.float64, requires_grad=True) for s in shapes]
+    assert torch.autograd.gradcheck(networks.WideGridHead.apply, inputs)
+
+
+def test_a_coloured_decoder_gives_occupancy_and_colour_from_one_hidden_layer():
+    torch.manual_seed(0)
+    plain, coloured = networks.Decoder(32, 32), networks.Decoder(32, 32, colour=True)
+    coloured.fc1.load_state_dict(plain.fc1.state_dict())
+    coloured.fc2.load_state_dict(plain.fc2.state_dict())
+    planes = [torch.randn(1, 32, *s) for s in networks.plane_sizes((9, 7, 5))]
+    with torch.no_grad():
+        grid, occupancy = coloured.grid(planes)[0], plain.grid(planes)[0]
+        axes = [torch.linspace(-1, 1, n) for n in (9, 7, 5)]
+        coords = torch.stack(torch.meshgrid(*axes, indexing="ij"), dim=-1).reshape(-1, 3)
+        points = coloured.points(planes, coords).T.reshape(4, 9, 7, 5)
+    assert grid.shape == (4, 9, 7, 5)
+    np.testing.assert_allclose(grid[0].numpy(), occupancy.numpy(), atol=1e-6)  # the occupancy is unchanged
+    np.testing.assert_allclose(grid.numpy(), points.numpy(), atol=1e-5)  # and the colour is the MLP's
+
+
+def test_the_critic_sees_colour_only_where_there_is_solid():
+    grid = torch.rand(4, 6, 5, 4)
+    seen = networks.critic_input(grid)
+    assert seen.shape == (1, 4, 6, 5, 4)
+    np.testing.assert_allclose(seen[0, 1:].numpy(), (grid[:1] * grid[1:]).numpy())
+    assert networks.critic_input(grid[0]).shape == (1, 1, 6, 5, 4)

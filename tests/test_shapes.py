@@ -8,7 +8,7 @@ from sinshape.core.errors import InputError
 from sinshape.prep import shapes
 
 # Small versions, each made in well under a second.
-SMALL = {"terrain": 32, "acropolis": 4, "stairs": 6, "wall": 6, "cheese": 40}
+SMALL = {"terrain": 32, "painted_terrain": 32, "acropolis": 4, "stairs": 6, "wall": 6, "cheese": 40}
 
 
 def test_every_shape_has_a_small_detail():
@@ -37,6 +37,7 @@ def test_same_seed_gives_the_same_mesh_and_other_seeds_differ(name):
     "name, check",
     [
         ("terrain", lambda x, y, z: z < 0.5 * min(x, y)),  # wide and flat
+        ("painted_terrain", lambda x, y, z: z < 0.5 * min(x, y)),
         ("acropolis", lambda x, y, z: x > y and x > z),
         ("stairs", lambda x, y, z: x > y and z > y),  # a narrow flight climbing along x
         ("wall", lambda x, y, z: x > 4 * y and z > y),  # long and thin

@@ -60,7 +60,8 @@ def load_generator(checkpoint_path) -> tuple:
     amplitudes: for sampling with torch (tests, benchmarks)."""
     state = load_checkpoint(Path(checkpoint_path))
     config = TrainConfig.from_dict(state["config"])
-    generator = make_generator(config.generator, config.channels, config.pool_bins, config.mlp_hidden)
+    generator = make_generator(config.generator, config.channels, config.pool_bins, config.mlp_hidden,
+                               state.get("colour", False))
     for _ in range(count_levels(state["generator"])):
         generator.add_level()
     generator.load_state_dict(state["generator"])

@@ -92,7 +92,8 @@ def add_decoder(g: GraphBuilder, decoder, plane_names: dict, head_names: dict) -
     """The MLP split at its first layer (docs/METHOD.md, "The decoder's first layer").
 
     decoder_planes: each plane (1, C, H, W) -> (1, H, W, hidden) = plane^T W_k^T.
-    decoder_head: three broadcastable (..., hidden) -> sigmoid(w2 relu(sum + b1) + b2).
+    decoder_head: three broadcastable (..., hidden) -> sigmoid(w2 relu(sum + b1) + b2),
+    and with colour a second output sigmoid(relu(sum + b1) w_colour + b_colour).
     """
     hidden = decoder.fc1.out_features
     blocks = decoder.fc1.weight.split(decoder.channels, dim=1)
@@ -104,12 +105,19 @@ def add_decoder(g: GraphBuilder, decoder, plane_names: dict, head_names: dict) -
     a, b, c = (g.input(x, symbolic(x, {3: hidden})) for x in head_names["inputs"])
     h = g.node("Add", [g.node("Add", [a, b]), c])
     bias1, weight2, bias2 = fmt.HEAD_WEIGHTS
-    h = g.node("Relu", [g.node("Add", [h, g.weight(bias1, decoder.fc1.bias)])])
-    h = g.node("MatMul", [h, g.weight(weight2, decoder.fc2.weight.T)])
+    hidden = g.node("Relu", [g.node("Add", [h, g.weight(bias1, decoder.fc1.bias)])])
+    h = g.node("MatMul", [hidden, g.weight(weight2, decoder.fc2.weight.T)])
     h = g.node("Add", [h, g.weight(bias2, decoder.fc2.bias)])
-    (y,) = head_names["outputs"]
+    y = head_names["outputs"][0]
     g.node("Sigmoid", [h], y)
     g.output(y, ["head_d0", "head_d1", "head_d2", 1])
+    if decoder.fc_colour is not None:
+        weight, bias = fmt.COLOUR_WEIGHTS
+        h = g.node("MatMul", [hidden, g.weight(weight, decoder.fc_colour.weight.T)])
+        h = g.node("Add", [h, g.weight(bias, decoder.fc_colour.bias)])
+        y = head_names["outputs"][1]
+        g.node("Sigmoid", [h], y)
+        g.output(y, ["head_d0", "head_d1", "head_d2", 3])
 
 
 def build_model(generator, manifest: dict) -> onnx.ModelProto:
@@ -138,10 +146,12 @@ def build_model(generator, manifest: dict) -> onnx.ModelProto:
 
 
 def make_manifest(generator, *, sizes, noise_amps, config, pyramid, seconds, ran_on: dict) -> dict:
-    """The manifest dict (build_model checks it)."""
+    """The manifest dict (build_model checks it): format 4 with `colour`
+    for a coloured decoder, else format 3, as before colour."""
+    colour = generator.decoder.fc_colour is not None
     manifest = {
         "format": fmt.FORMAT_NAME,
-        "format_version": fmt.FORMAT_VERSION,
+        "format_version": fmt.COLOUR_VERSION if colour else fmt.FORMAT_VERSION,
         "created_by": f"sinshape {importlib.metadata.version('sinshape')}, torch {torch.__version__}",
         "planes": list(fmt.PLANES),
         "channels": generator.channels,
@@ -152,7 +162,7 @@ def make_manifest(generator, *, sizes, noise_amps, config, pyramid, seconds, ran
         "noise": fmt.NOISE_SCHEME,
         "frame": {"origin": list(pyramid.origin), "spacing": list(pyramid.spacing)},
         "up": config.up or pyramid.up,
-        "stages": fmt.stage_names(len(sizes)),
+        "stages": fmt.stage_names(len(sizes), colour),
         "source": {"name": pyramid.source_name, "sha256": pyramid.source_sha256, "kind": pyramid.source_kind},
         "config": config.to_dict(),
         "training": {
@@ -162,6 +172,8 @@ def make_manifest(generator, *, sizes, noise_amps, config, pyramid, seconds, ran
             **ran_on,
         },
     }
+    if colour:
+        manifest["colour"] = fmt.COLOUR_SPACE
     return manifest
 
 

@@ -5,7 +5,8 @@ Conventions shared with the runtime (docs/FORMAT.md):
 - A level's grid is (X, Y, Z). Its planes, in this order, are xy (X, Y),
   xz (X, Z) and yz (Y, Z); plane k drops axis 2 - k.
 - Plane tensors are (B, C, H, W); occupancy grids are (B, X, Y, Z), volumes
-  (B, 1, X, Y, Z). Training batches independent samples (the critic steps'
+  (B, 1, X, Y, Z). A coloured decoder's grids are (B, 4, X, Y, Z):
+  occupancy, then sRGB. Training batches independent samples (the critic steps'
   fakes, a fake with the reconstruction); export and sampling use B = 1.
 - The decoder's feature of a point concatenates its xy, xz, yz features.
 
@@ -16,6 +17,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from sinshape.core.errors import InputError
 from sinshape.core.manifest import PLANES, plane_sizes
 
 
@@ -70,7 +72,9 @@ class Projection(nn.Module):
 
 
 class Decoder(nn.Module):
-    """Shared MLP: Linear(3C, H) -> ReLU -> Linear(H, 1) -> sigmoid.
+    """Shared MLP: Linear(3C, H) -> ReLU -> Linear(H, 1) -> sigmoid. With
+    `colour`, a wider last layer: Linear(H, 3) -> sigmoid beside it, the
+    colour head (sRGB), on the same hidden layer.
 
     The first layer is linear in the concatenated features, so it is applied
     to each plane before the planes are combined (docs/METHOD.md):
@@ -79,11 +83,12 @@ class Decoder(nn.Module):
     backward pass never holds a (voxels, 3C) tensor.
     """
 
-    def __init__(self, channels: int, hidden: int):
+    def __init__(self, channels: int, hidden: int, colour: bool = False):
         super().__init__()
         self.channels = channels
         self.fc1 = nn.Linear(3 * channels, hidden)
         self.fc2 = nn.Linear(hidden, 1)
+        self.fc_colour = nn.Linear(hidden, 3) if colour else None
 
     def project_planes(self, planes: list) -> list:
         """[(B, C, H, W)] * 3 -> [(B, H, W, hidden)] * 3: each plane times its W_k."""
@@ -94,13 +99,18 @@ class Decoder(nn.Module):
         """Occupancy at the planes' own resolution: voxel (x, y, z) reads plane
         cells xy[x, y], xz[x, z], yz[y, z]. Returns (B, X, Y, Z), or with a
         box (slices along x, y, z) only that part of the grid: a box costs
-        what its voxels cost, whatever the size of the planes."""
+        what its voxels cost, whatever the size of the planes. A coloured
+        decoder returns (B, 4, X, Y, Z): occupancy and RGB."""
         if box is not None:
             sx, sy, sz = box
             planes = [planes[0][..., sx, sy], planes[1][..., sx, sz], planes[2][..., sy, sz]]
         with torch.autocast(planes[0].device.type, enabled=False):  # occupancy is always float32
             pxy, pxz, pyz = self.project_planes([plane.float() for plane in planes])
         pxy = pxy + self.fc1.bias
+        if self.fc_colour is not None:
+            weight = torch.cat([self.fc2.weight, self.fc_colour.weight])
+            bias = torch.cat([self.fc2.bias, self.fc_colour.bias])
+            return torch.stack([WideGridHead.apply(pxy[b], pxz[b], pyz[b], weight, bias) for b in range(len(pxy))])
         return torch.stack([GridHead.apply(pxy[b], pxz[b], pyz[b], self.fc2.weight, self.fc2.bias)
                             for b in range(len(pxy))])
 
@@ -109,14 +119,17 @@ class Decoder(nn.Module):
         plane bilinearly (align_corners=True) and run the whole MLP.
 
         planes of one sample (B = 1); coords : (n, 3) in [-1, 1] (grid corner
-        to corner) -> (n,) occupancy.
+        to corner) -> (n,) occupancy, or (n, 4) occupancy and RGB when coloured.
         """
         features = []
         for plane, (a, b) in zip(planes, ((0, 1), (0, 2), (1, 2))):
             # grid_sample's grid is (x=width, y=height): width is the plane's last axis.
             grid = coords[:, [b, a]].view(1, 1, -1, 2)
             features.append(F.grid_sample(plane, grid, align_corners=True)[0, :, 0].T)  # (n, C)
-        return torch.sigmoid(self.fc2(F.relu(self.fc1(torch.cat(features, dim=1)))))[:, 0]
+        hidden = F.relu(self.fc1(torch.cat(features, dim=1)))
+        if self.fc_colour is not None:
+            return torch.sigmoid(torch.cat([self.fc2(hidden), self.fc_colour(hidden)], dim=1))
+        return torch.sigmoid(self.fc2(hidden))[:, 0]
 
 
 class GridHead(torch.autograd.Function):
@@ -173,6 +186,40 @@ class GridHead(torch.autograd.Function):
         return grad_xy, grad_xz, grad_yz, grad_w[None], grad_b
 
 
+class WideGridHead(GridHead):
+    """GridHead with K outputs instead of one (occupancy and colour): the
+    same hidden layer read by the rows of w (K, hidden), each through a
+    sigmoid. Returns (K, X, Y, Z). The hidden sum is made once per slab for
+    all K, which is why colour costs little more than occupancy alone."""
+
+    @staticmethod
+    def forward(ctx, pxy, pxz, pyz, w, b):
+        ctx.save_for_backward(pxy, pxz, pyz, w, b)
+        out = pxy.new_empty(pxy.shape[0], *pyz.shape[:2], len(w))
+        for start, end in GridHead.slabs(pxy, pyz):
+            torch.matmul(GridHead.hidden(pxy, pxz, pyz, start, end), w.T, out=out[start:end])
+        return (out + b).sigmoid_().permute(3, 0, 1, 2)
+
+    @staticmethod
+    def backward(ctx, grad_out):
+        pxy, pxz, pyz, w, b = ctx.saved_tensors
+        grad_out = grad_out.permute(1, 2, 3, 0)  # (X, Y, Z, K)
+        grad_xy, grad_xz = torch.empty_like(pxy), torch.empty_like(pxz)
+        grad_yz, grad_w, grad_b = torch.zeros_like(pyz), torch.zeros_like(w), torch.zeros_like(b)
+        for start, end in GridHead.slabs(pxy, pyz):
+            h = GridHead.hidden(pxy, pxz, pyz, start, end)  # (n, Y, Z, H), >= 0
+            out = (torch.matmul(h, w.T) + b).sigmoid_()
+            grad_logit = grad_out[start:end] * out * (1 - out)  # (n, Y, Z, K)
+            flat = grad_logit.reshape(-1, len(w))
+            grad_w += flat.T @ h.reshape(-1, h.shape[-1])
+            grad_b += flat.sum(0)
+            grad_h = torch.matmul(grad_logit, w).mul_(h.sign_())  # d/dh of relu(h) w^T: w where h > 0
+            grad_xy[start:end] = grad_h.sum(2)
+            grad_xz[start:end] = grad_h.sum(1)
+            grad_yz += grad_h.sum(0)
+        return grad_xy, grad_xz, grad_yz, grad_w, grad_b
+
+
 def resize_planes(planes: list, size: tuple) -> list:
     """Bilinear resize (align_corners=True) of tri-planes to a grid size."""
     return [
@@ -188,12 +235,12 @@ class TriplaneGenerator(nn.Module):
     T_i = U + G_i(U + sigma_i * n_i). Levels are appended as training grows.
     """
 
-    def __init__(self, channels: int = 32, bins: int = 8, hidden: int = 32):
+    def __init__(self, channels: int = 32, bins: int = 8, hidden: int = 32, colour: bool = False):
         super().__init__()
         self.channels = channels
         self.projection = Projection(bins, channels)
         self.levels = nn.ModuleList()
-        self.decoder = Decoder(channels, hidden)
+        self.decoder = Decoder(channels, hidden, colour)
 
     def add_level(self) -> LevelGenerator:
         level = LevelGenerator(self.channels)
@@ -223,7 +270,8 @@ class TriplaneGenerator(nn.Module):
         return planes
 
     def forward(self, z0: torch.Tensor, noises: list, sizes: list, upto: int | None = None) -> torch.Tensor:
-        """Occupancy (B, X, Y, Z) of level `upto`'s grid (default: the last level)."""
+        """Occupancy (B, X, Y, Z) of level `upto`'s grid (default: the last
+        level); with colour (B, 4, X, Y, Z)."""
         return self.decoder.grid(self.planes(z0, noises, sizes, upto))
 
     def level_planes(self, inputs: list, level: int, size: tuple, noise: list | None) -> list:
@@ -340,10 +388,13 @@ class VoxelGenerator(nn.Module):
         return self.level_modules(level)
 
 
-def make_generator(kind: str, channels: int, bins: int, hidden: int) -> nn.Module:
-    """The generator a config names: the paper's tri-planes or the voxel baseline."""
+def make_generator(kind: str, channels: int, bins: int, hidden: int, colour: bool = False) -> nn.Module:
+    """The generator a config names: the paper's tri-planes (with a colour
+    head for a coloured example) or the voxel baseline (geometry only)."""
     if kind == "triplane":
-        return TriplaneGenerator(channels, bins, hidden)
+        return TriplaneGenerator(channels, bins, hidden, colour)
+    if kind == "voxel" and colour:
+        raise InputError("the voxel baseline learns geometry only; train it with no_colour", "no_colour")
     if kind == "voxel":
         return VoxelGenerator(channels)
     raise ValueError(f"unknown generator {kind!r}; choose triplane or voxel")
@@ -351,12 +402,13 @@ def make_generator(kind: str, channels: int, bins: int, hidden: int) -> nn.Modul
 
 class Discriminator(nn.Module):
     """Patch critic with an 11^3 receptive field. It returns its score map;
-    the WGAN losses use the map's mean, the gradient penalty its sum."""
+    the WGAN losses use the map's mean, the gradient penalty its sum.
+    `inputs` channels: 1 (occupancy), or 4 for colour (`critic_input`)."""
 
-    def __init__(self, channels: int = 32):
+    def __init__(self, channels: int = 32, inputs: int = 1):
         super().__init__()
         self.net = nn.Sequential(
-            nn.Conv3d(1, channels, 3, stride=2, padding=1, bias=False),
+            nn.Conv3d(inputs, channels, 3, stride=2, padding=1, bias=False),
             nn.InstanceNorm3d(channels),
             nn.LeakyReLU(0.2),
             nn.Conv3d(channels, channels, 3, bias=False),
@@ -373,6 +425,16 @@ class Discriminator(nn.Module):
         volume = act1(norm1(F.conv3d(volume, first.weight, stride=2) if framed else first(volume)))
         volume = act2(norm2(valid_conv(middle, volume)))
         return valid_conv(last, volume).float()  # the WGAN losses are small differences of large scores
+
+
+def critic_input(volume: torch.Tensor) -> torch.Tensor:
+    """What the critic sees of one grid: (1, 1, X, Y, Z) occupancy, or for a
+    coloured grid (4, X, Y, Z) (1, 4, X, Y, Z) occupancy and occupancy x RGB,
+    so that colour counts where there is solid, and the critic judges shape
+    and colour together (snow on tops, not anywhere)."""
+    if volume.dim() == 3:
+        return volume[None, None]
+    return torch.cat([volume[:1], volume[:1] * volume[1:]])[None]
 
 
 # PyTorch (aten's use_mkldnn rule) runs a batch-1 float32 convolution with

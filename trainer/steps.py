@@ -3,7 +3,10 @@
 At level i only G_i (plus P at level 0) and the shared decoder train; lower
 levels are frozen (with `train_depth`, the newest levels train together).
 One iteration is `d_steps` critic updates (WGAN-GP) then `g_steps`
-generator updates (adversarial + 10 x reconstruction MSE). The
+generator updates (adversarial + 10 x reconstruction MSE). A coloured
+example adds colour: the critic sees occupancy and occupancy x RGB
+(`networks.critic_input`), and the reconstruction's colour error counts in
+the band around the surface (`colour_error`). The
 discriminator is shared by all levels and keeps training across them; the
 optimisers are created anew per level.
 
@@ -25,7 +28,7 @@ from sinshape.prep.pyramid import training_targets
 from . import device as devices
 from .checkpoint import CHECKPOINT_FORMAT, CHECKPOINT_VERSION, count_levels
 from .config import TrainConfig
-from .networks import Discriminator, make_generator
+from .networks import Discriminator, critic_input, make_generator
 
 # A box the critic judges holds at least this share of the example inside
 # and as much outside (Trainer.critic_box), found in at most so many draws.
@@ -67,12 +70,20 @@ class Trainer:
         self.placement = placement or devices.choose("cpu", "fp32")
         self.device = device = self.placement.device
         self.targets = [torch.from_numpy(t)[None, None].to(device) for t in training_targets(pyramid, config.blur_sigma)]
+        self.colour = pyramid.colours is not None
+        # What the steps compare with, per level: occupancy (X, Y, Z), with
+        # colour (4, X, Y, Z) occupancy and RGB; and the colour loss's weights.
+        self.reals, self.bands = [t[0, 0] for t in self.targets], None
+        if self.colour:
+            self.reals = [torch.cat([t[0], torch.from_numpy(rgb).to(device)])
+                          for t, rgb in zip(self.targets, pyramid.colours)]
+            self.bands = [torch.from_numpy(band).to(device) for band in pyramid.bands]
         self.z0_recon = torch.from_numpy(noise.z0_noise(config.recon_seed, self.sizes[0]))[None, None].to(device)
         with torch.random.fork_rng():  # weights are initialised on the CPU: the same on every device
             torch.manual_seed(seeded(config.seed, 0))
             self.generator = make_generator(config.generator, config.channels, config.pool_bins,
-                                            config.mlp_hidden).to(device)
-            self.critic = Discriminator(config.channels).to(device)
+                                            config.mlp_hidden, self.colour).to(device)
+            self.critic = Discriminator(config.channels, 4 if self.colour else 1).to(device)
         # Every random draw comes from this CPU generator, then moves to the device.
         self.rng = torch.Generator().manual_seed(seeded(config.seed, 1))
         self.noise_amps = []  # sigma_i per level; sigma_0 = 1 is the std of z0
@@ -121,7 +132,7 @@ class Trainer:
     def initial_noise_amp(self, level: int) -> float:
         """sigma_i = ratio * RMSE(trilinear upsample of rec_(i-1), real_i)."""
         with torch.no_grad():
-            rec = self.reconstruct(level - 1)
+            rec = occupancy(self.reconstruct(level - 1))
             up = F.interpolate(rec[None, None], size=self.sizes[level], mode="trilinear", align_corners=False)
             return self.config.noise_ratio * math.sqrt(F.mse_loss(up, self.targets[level]).item())
 
@@ -175,7 +186,8 @@ class Trainer:
             return self.inputs(self.z0_recon, [None] * (self.level + 1))
 
     def reconstruct(self, level: int) -> torch.Tensor:
-        """Occupancy (X, Y, Z) at `level` for z0* and zero later noise."""
+        """Occupancy (X, Y, Z) at `level` for z0* and zero later noise
+        (with colour (4, X, Y, Z))."""
         return self.generator(self.z0_recon, [None] * (level + 1), self.sizes, upto=level)[0]
 
     def inputs(self, z0, noises):
@@ -268,7 +280,7 @@ class Trainer:
         with its frame (`framed`), so a box's faces inside the grid do not
         look like the grid's own.
         """
-        c, level, real = self.config, self.level, self.targets[self.level][0, 0]
+        c, level, real = self.config, self.level, self.reals[self.level]
         critic, size = self.critic, self.sizes[level]
         d_draws = [(*self.random_noises(level), self.draw(torch.rand, 1), framed(self.critic_box(), size))
                    for _ in range(c.d_steps)]
@@ -285,8 +297,8 @@ class Trainer:
         # (1) Update D: minimise D(fake) - D(real) + gp_weight * GP.
         critic.requires_grad_(True)
         for fake, (_, _, alpha, (box, pad)) in zip(fakes, d_draws):
-            seen_real = F.pad((real if box is None else real[box])[None, None], pad)
-            seen_fake = F.pad(fake[None, None], pad)
+            seen_real = F.pad(critic_input(crop(real, box)), pad)
+            seen_fake = F.pad(critic_input(fake), pad)
             scores = critic(torch.cat([seen_real, seen_fake]), framed=True)
             d_real, d_fake = scores[0].mean(), scores[1].mean()
             loss_d = d_fake - d_real + c.gp_weight * self.gradient_penalty(seen_real, seen_fake, alpha)
@@ -305,8 +317,8 @@ class Trainer:
             pair_noises = [None if noise is None else [torch.cat([n[one], torch.zeros_like(n[one])]) for n in noise]
                            for noise in trained]  # the reconstruction's noise is zero
             fake, rec = self.fake(pair, pair_noises, [box, rec_box])
-            loss_adv = -critic(F.pad(fake[None, None], pad), framed=True).mean()
-            loss_rec = F.mse_loss(rec, real if rec_box is None else real[rec_box])
+            loss_adv = -critic(F.pad(critic_input(fake), pad), framed=True).mean()
+            loss_rec = self.reconstruction_error(rec, rec_box)
             loss_g = loss_adv + c.rec_weight * loss_rec
             self.opt_g.zero_grad(set_to_none=True)
             loss_g.backward()
@@ -314,16 +326,32 @@ class Trainer:
         critic.requires_grad_(True)
         return {"D": loss_d.item(), "G": loss_adv.item(), "rec": loss_rec.item()}
 
+    def reconstruction_error(self, rec, box) -> torch.Tensor:
+        """MSE of the reconstruction's occupancy in `box` (None: the whole
+        grid); with colour, plus its colour's squared error weighted by the
+        surface band, over the band's share of the whole level, so that a
+        box's error estimates the level's, and the colour inside a solid
+        (which no vertex shows) does not count."""
+        real = crop(self.reals[self.level], box)
+        if not self.colour:
+            return F.mse_loss(rec, real)
+        band, share = crop(self.bands[self.level], box), self.bands[self.level].mean()
+        colour_error = (band * (rec[1:] - real[1:]).square().mean(0)).mean() / share
+        return F.mse_loss(rec[0], real[0]) + colour_error
+
     def gradient_penalty(self, real, fake, alpha) -> torch.Tensor:
         """WGAN-GP on the mix alpha * real + (1 - alpha) * fake (both framed).
 
         As the authors' code does, the norm is taken over the channel axis,
         which has size 1: the penalty is mean((|dD/dx| - 1)^2) per voxel, of
-        the gradient of the score map's sum.
+        the gradient of the score map's sum. With colour the channel axis
+        holds 4, and the norm is over them.
         """
         mixed = (alpha * real + (1 - alpha) * fake).requires_grad_(True)
         (grad,) = torch.autograd.grad(self.critic(mixed, framed=True).sum(), mixed, create_graph=True)
-        return ((grad[..., 1:-1, 1:-1, 1:-1].abs() - 1) ** 2).mean()  # the grid's voxels, not the frame
+        grad = grad[..., 1:-1, 1:-1, 1:-1]  # the grid's voxels, not the frame
+        norm = grad.abs() if grad.shape[1] == 1 else grad.norm(dim=1)
+        return ((norm - 1) ** 2).mean()
 
     # -- going back after a divergence -----------------------------------------
     def keep(self) -> dict:
@@ -354,6 +382,7 @@ class Trainer:
             "format": CHECKPOINT_FORMAT,
             "version": CHECKPOINT_VERSION,
             "config": self.config.to_dict(),
+            "colour": self.colour,
             "source": {"name": p.source_name, "sha256": p.source_sha256, "kind": p.source_kind},
             "sizes": [list(s) for s in self.sizes],
             "level": self.level,
@@ -393,6 +422,16 @@ class Trainer:
             for optimizer in (self.opt_g, self.opt_d):  # older checkpoints: one group each, at the full rate
                 for group in optimizer.param_groups:
                     group.setdefault("scale", 1.0)
+
+
+def occupancy(grid: torch.Tensor) -> torch.Tensor:
+    """The occupancy (X, Y, Z) of a decoded grid, coloured (4, X, Y, Z) or not."""
+    return grid if grid.dim() == 3 else grid[0]
+
+
+def crop(grid: torch.Tensor, box: tuple | None) -> torch.Tensor:
+    """A box (slices along x, y, z; None: all) of a grid (..., X, Y, Z)."""
+    return grid if box is None else grid[(Ellipsis, *box)]
 
 
 def cat_batch(items: list):

@@ -58,8 +58,11 @@ class Progress:
 
 
 def train(input_path, output_path, config: TrainConfig | None, *, resume: bool = False, device: str = "auto",
-          checkpoint_path=None, checkpoint_every: float = 300.0, progress=None, log=None):
+          checkpoint_path=None, checkpoint_every: float = 300.0, progress=None, log=None, colour: bool = True):
     """Train on a mesh or SSG pyramid and export the model to `output_path`.
+
+    A mesh with colour trains a coloured model (format 4) unless `colour` is
+    False, which reads no colour at all (a resumed run keeps its checkpoint's).
 
     With resume, `config` must be None: the checkpoint's config is used (the
     device may differ from the one the run started on). `progress(Progress)`
@@ -71,7 +74,7 @@ def train(input_path, output_path, config: TrainConfig | None, *, resume: bool =
     log = log or (lambda message: None)
     output_path = Path(output_path)
     checkpoint_path = Path(checkpoint_path) if checkpoint_path else default_checkpoint_path(output_path)
-    trainer = open_run(input_path, output_path, config, resume, device, checkpoint_path, log)
+    trainer = open_run(input_path, output_path, config, resume, device, checkpoint_path, log, colour)
     budget = plan_budget(trainer, clock_started, log)
     checkpoints = Checkpoints(checkpoint_path, checkpoint_every)
     try:
@@ -84,7 +87,7 @@ def train(input_path, output_path, config: TrainConfig | None, *, resume: bool =
 
 
 def open_run(input_path, output_path: Path, config: TrainConfig | None, resume: bool, device: str,
-             checkpoint_path: Path, log) -> Trainer:
+             checkpoint_path: Path, log, colour: bool = True) -> Trainer:
     """The trainer of a new run, or of a resumed one at its checkpoint (whose
     config it takes), once every check that needs no training has passed."""
     if (config is None) != resume:
@@ -94,12 +97,14 @@ def open_run(input_path, output_path: Path, config: TrainConfig | None, resume: 
         # The checkpoint says how the pyramid was made; the hash, of what file.
         state = load_checkpoint(checkpoint_path)
         config = TrainConfig.from_dict(state["config"])
+        colour = state.get("colour", False)  # checkpoints from before colour had none
     check_outputs(input_path, output_path, checkpoint_path, config.generator)
     placement = devices.choose(device, config.precision)
     placement.activate(shapes_vary=bool(config.box))
     first = state["level"] if state else 0  # the levels still to train
     pyramid = load_pyramid(input_path, config.res, config.levels, config.level_factor, config.min_size,
-                           check=lambda sizes: check_training_memory(sizes[first:], config, placement))
+                           check=lambda sizes: check_training_memory(sizes[first:], config, placement),
+                           colour=colour)
     if resume and pyramid.source_sha256 != state["source"]["sha256"]:
         raise InputError(f"{checkpoint_path}: this checkpoint was trained on another file ({state['source']['name']})")
     # Record what was actually used: an .h5 pyramid fixes res and levels.

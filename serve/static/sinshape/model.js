@@ -10,10 +10,16 @@ export { InputError };
 
 export const FORMAT_NAME = 'sinshape';
 export const FORMAT_VERSION = 3;  // 3 seals the file's bytes (seal.js); the page reads no older one
+export const COLOUR_VERSION = 4;  // 3 with a colour head (manifest `colour`)
+const READ_VERSION = COLOUR_VERSION; // the newest version this code reads
+const COLOUR_SPACE = { space: 'srgb' }; // manifest `colour`: values are sRGB-encoded in [0, 1]
 export const METADATA_KEY = 'sinshape.manifest';
 export const NOISE_SCHEME = 'splitmix64-boxmuller-v1';
 export const PLANES = ['xy', 'xz', 'yz'];
+export const PLANE_AXES = [[0, 1], [0, 2], [1, 2]]; // the grid axes each plane keeps, in PLANES order
 export const HEAD_WEIGHTS = ['decoder_head.bias1', 'decoder_head.weight2', 'decoder_head.bias2'];
+// A coloured model's colour head, (D, 3), (3,): RGB = sigmoid(relu(h + b1) @ w + b).
+export const COLOUR_WEIGHTS = ['decoder_head.weight_colour', 'decoder_head.bias_colour'];
 const MAX_LEVELS = 64;
 const MIN_LEVEL_SIDE = 8;
 const MAX_LEVEL_SIDE = 4096;
@@ -27,14 +33,14 @@ const MAX_COORD = 1e12;
 const MAX_COORD_TEXT = '1e+12', SPACING_TEXT = '[1e-09, 2.44141e+08]';
 const ALLOWED_OPS = new Set(['Conv', 'InstanceNormalization', 'LeakyRelu', 'Transpose', 'MatMul', 'Add', 'Relu', 'Sigmoid']);
 
-/** Input and output tensor names of every stage (core/manifest.py: stage_names). */
-export function stageNames(levels) {
+/** Input and output tensor names of every stage (core/manifest.py: stage_names); a coloured model's head has a second output. */
+export function stageNames(levels, colour = false) {
   const io = (stage) => ({ inputs: PLANES.map((p) => `${stage}.${p}`), outputs: PLANES.map((p) => `${stage}.${p}.out`) });
   return {
     projection: io('projection'),
     levels: Array.from({ length: levels }, (_, i) => io(`level${i}`)),
     decoder_planes: io('decoder_planes'),
-    decoder_head: { inputs: PLANES.map((p) => `decoder_head.${p}`), outputs: ['decoder_head.occupancy'] },
+    decoder_head: { inputs: PLANES.map((p) => `decoder_head.${p}`), outputs: ['decoder_head.occupancy', ...(colour ? ['decoder_head.colour'] : [])] },
   };
 }
 
@@ -79,9 +85,12 @@ export function parseManifest(textValue) {
   need(raw.format === FORMAT_NAME, `format is ${JSON.stringify(raw.format ?? null)}, not '${FORMAT_NAME}'`);
   const version = raw.format_version;
   need(isInt(version, 1, 1e6), `format_version ${JSON.stringify(version ?? null)} is not a positive integer`);
-  if (version > FORMAT_VERSION) {
-    throw new InputError(`model format version ${version} is newer than this sinshape reads (${FORMAT_VERSION}); upgrade sinshape`);
+  if (version > READ_VERSION) {
+    throw new InputError(`model format version ${version} is newer than this sinshape reads (${READ_VERSION}); upgrade sinshape`);
   }
+  const colour = version >= COLOUR_VERSION;
+  need(colour ? sameJson(get(raw, 'colour', null), COLOUR_SPACE) : get(raw, 'colour', null) === null,
+    `colour must be {"space": "srgb"} in format ${COLOUR_VERSION} and absent before it`);
   if (version === 2) {
     need(typeof raw.checksum === 'string' && /^sha256:[0-9a-f]{64}$/.test(raw.checksum), "checksum must be 'sha256:' and 64 hex digits");
   }
@@ -129,10 +138,10 @@ export function parseManifest(textValue) {
   const levelSeconds = get(training, 'level_seconds', null) || [];
   need(isNumber(get(training, 'seconds', 0)) && Array.isArray(levelSeconds) && levelSeconds.every(isNumber),
     'training seconds must be numbers');
-  need(sameJson(raw.stages, stageNames(levels.length)), 'stages do not name the standard tensors for this level count');
+  need(sameJson(raw.stages, stageNames(levels.length, colour)), 'stages do not name the standard tensors for this level count');
   return {
     sizes, noiseAmps: amps, channels: raw.channels, poolBins: raw.pool_bins, hidden: raw.mlp_hidden,
-    reconSeed: BigInt(seedText), origin: frame.origin, spacing: frame.spacing, stages: raw.stages, up: raw.up ?? 'y', raw,
+    reconSeed: BigInt(seedText), origin: frame.origin, spacing: frame.spacing, stages: raw.stages, up: raw.up ?? 'y', colour, raw,
   };
 }
 
@@ -174,22 +183,30 @@ export function readChecked(bytes, name) {
   if (version >= 3 && !sealed) throw new InputError(`${name}: corrupt model: format ${version} ends with a seal, and this file does not`);
   if (version < 3 && sealed) throw new InputError(`${name}: corrupt model: a seal on a format ${version} file`);
   if (version < 3) {
-    throw new InputError(`${name}: a format ${version} model; the browser reads format 3, which \`sinrun serve\` `
+    throw new InputError(`${name}: a format ${version} model; the browser reads formats 3 and 4, which \`sinrun serve\` `
       + 'and `sinrun export-web` write from it');
   }
   return { model, manifest };
 }
 
-function readHead(model, hidden, name) {
-  const weights = new Map(model.graph.initializers.map((t) => [t.name, t]));
-  if (HEAD_WEIGHTS.some((n) => !weights.has(n))) throw new InputError(`${name}: the decoder head lacks its weights (${HEAD_WEIGHTS.join(', ')})`);
-  const [b1, w2, b2] = HEAD_WEIGHTS.map((n) => weights.get(n));
-  if (!sameJson(b1.dims, [hidden]) || !sameJson(w2.dims, [hidden, 1]) || !sameJson(b2.dims, [1])) {
-    throw new InputError(`${name}: decoder head weights have shapes (${b1.dims}), (${w2.dims}), (${b2.dims})`);
+/** Initializers by name, each checked for its shape and finite values (runtime/load.py: read_weights). */
+function readWeights(weights, names, shapes, name) {
+  if (names.some((n) => !weights.has(n))) throw new InputError(`${name}: the decoder head lacks its weights (${names.join(', ')})`);
+  const tensors = names.map((n) => weights.get(n));
+  if (tensors.some((t, k) => !sameJson(t.dims, shapes[k]))) {
+    throw new InputError(`${name}: decoder head weights have shapes ${tensors.map((t) => `(${t.dims})`).join(', ')}`);
   }
-  const [bias1, weight2, bias2] = [b1, w2, b2].map(tensorFloats);
-  if (![bias1, weight2, bias2].every((a) => a.every(Number.isFinite))) throw new InputError(`${name}: decoder head weights are not finite`);
-  return { bias1, weight2, bias2: bias2[0] };
+  const arrays = tensors.map(tensorFloats);
+  if (!arrays.every((a) => a.every(Number.isFinite))) throw new InputError(`${name}: decoder head weights are not finite`);
+  return arrays;
+}
+
+function readHead(model, manifest, name) {
+  const weights = new Map(model.graph.initializers.map((t) => [t.name, t]));
+  const hidden = manifest.hidden;
+  const [bias1, weight2, bias2] = readWeights(weights, HEAD_WEIGHTS, [[hidden], [hidden, 1], [1]], name);
+  const [weightColour, biasColour] = manifest.colour ? readWeights(weights, COLOUR_WEIGHTS, [[hidden, 3], [3]], name) : [null, null];
+  return { bias1, weight2, bias2: bias2[0], weightColour, biasColour };
 }
 
 /** One runnable stage: a session and its tensor names, in plane order. */
@@ -205,6 +222,21 @@ export class Stage {
     const results = await this.session.run(feeds);
     return this.outputs.map((name) => ({ data: results[name].data, dims: results[name].dims }));
   }
+}
+
+/** A coloured model's colour head (runtime/query.py: head_colour): sigmoid(relu(h + b1) @ w_colour + b_colour)
+ * of one pre-activation vector, its sRGB into out[outAt..outAt + 2]. */
+export function headColour(head, hidden, at = 0, out = new Float32Array(3), outAt = 0) {
+  const { bias1, weightColour: w, biasColour: b } = head;
+  let r = b[0], g = b[1], bl = b[2];
+  for (let c = 0; c < bias1.length; c++) {
+    const h = hidden[at + c] + bias1[c];
+    if (h > 0) { r += h * w[3 * c]; g += h * w[3 * c + 1]; bl += h * w[3 * c + 2]; }
+  }
+  out[outAt] = 1 / (1 + Math.exp(-r));
+  out[outAt + 1] = 1 / (1 + Math.exp(-g));
+  out[outAt + 2] = 1 / (1 + Math.exp(-bl));
+  return out;
 }
 
 /** The numpy head of runtime/query.py: sigmoid(w2 . relu(h + b1) + b2) for one pre-activation vector. */
@@ -242,7 +274,7 @@ export function configure({ threads = null, wasmPaths = null } = {}) {
  */
 export async function loadModel(bytes, { name = 'model.onnx', threads = null } = {}) {
   const { model, manifest } = readChecked(bytes, name);
-  const head = readHead(model, manifest.hidden, name);
+  const head = readHead(model, manifest, name);
   const setup = configure({ threads });
   const sessions = []; // released if a stage fails
   const make = async (names) => {
@@ -301,10 +333,13 @@ async function checkStages(model) {
   }
   // The head evaluated here must be the graph's head.
   const n = 16, hidden = Array.from({ length: 3 }, (_, k) => Float32Array.from({ length: n * h }, (_, i) => Math.sin(i * 1.7 + k)));
-  const [graph] = await model.decoderHead.run(hidden.map((data) => ({ data, dims: [n, 1, 1, h] })));
+  const [graph, colour] = await model.decoderHead.run(hidden.map((data) => ({ data, dims: [n, 1, 1, h] })));
   const sum = new Float32Array(n * h).map((_, i) => hidden[0][i] + hidden[1][i] + hidden[2][i]);
+  const rgb = new Float32Array(3);
   for (let i = 0; i < n; i++) {
-    if (Math.abs(graph.data[i] - headValue(model.head, sum, i * h)) > 1e-5) {
+    const colourWrong = model.manifest.colour && (!sameJson(Array.from(colour.dims), [n, 1, 1, 3])
+      || headColour(model.head, sum, i * h, rgb).some((v, k) => !(Math.abs(colour.data[3 * i + k] - v) <= 1e-5)));
+    if (Math.abs(graph.data[i] - headValue(model.head, sum, i * h)) > 1e-5 || colourWrong) {
       throw new InputError(`${model.name}: the decoder head graph does not match its weights`);
     }
   }

@@ -13,7 +13,7 @@ import { ConflictError, InputError, pyRepr, pyStr } from './errors.js';
 import { sample, scaledSizes } from './generate.js';
 import { checkPart, compose, grow, parsePart } from './edit.js';
 import { fromLayout } from './layout.js';
-import { checkPlacement, checkTile, placed, tileCorner, tileMesh, worldLayout } from './world.js';
+import { checkPlacement, checkTile, placed, tileColours, tileCorner, tileMesh, worldLayout } from './world.js';
 
 const MAX_SMOOTH = 100; // mesh.MAX_SMOOTH
 const SMOOTHERS = ['laplacian', 'taubin']; // mesh.SMOOTHERS; the browser's mesh.js has the first only
@@ -154,7 +154,9 @@ export async function make(model, request, progress = null) {
 export async function makeTile(model, request, progress = null) {
   checkPlacement(model.manifest, request.tile, request.frame); // refused before the work, not after
   progress?.('making the tile', null);
-  const { positions, faces } = await tileMesh(model, sampleSeed(request), request.tile, request.scale);
-  return { positions: placed(model.manifest, request.tile, positions, request.frame), faces,
+  const seed = sampleSeed(request);
+  const { positions, faces } = await tileMesh(model, seed, request.tile, request.scale);
+  const colours = model.manifest.colour ? await tileColours(model, seed, request.tile, positions) : null;
+  return { positions: placed(model.manifest, request.tile, positions, request.frame), faces, colours,
            corner: tileCorner(worldLayout(model.manifest), request.tile) };
 }

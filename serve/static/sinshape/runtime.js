@@ -9,6 +9,7 @@
 //   const grid = await sinshape.dense(model, tri, 2);    // { data: Float32Array (X, Y, Z), shape }
 //   const mesh = sinshape.surface(grid, tri.size, model.manifest);   // { positions, faces }
 //   sinshape.smooth(mesh, 3);                            // Laplacian steps, as --smooth
+//   const rgb = await sinshape.vertexColours(model, tri, mesh.positions);  // a coloured model's sRGB at the vertices
 //   const edited = await sinshape.compose(model, 7, [{ seed: 3, low: [0, 0, 0], high: [30, 36, 31] }]);  // as runtime.compose
 //   const laid = await sinshape.layout(model, 3);                        // { grid, shape }: level 0's layout, as runtime.layout.layout
 //   const fitted = await sinshape.fromLayout(model, 3, laid.grid, laid.shape);  // as runtime.layout.from_layout
@@ -19,8 +20,8 @@ export { loadModel, configure, parseManifest } from './model.js';
 export { parseSize, parseTriple, sample, scaledSizes } from './generate.js';
 export { compose, grow, parsePart } from './edit.js';
 export { Layout, make, makeTile, sampleRequest } from './request.js';
-export { tileCorner, tileMesh, tileOccupancy, windowSeed, worldLayout } from './world.js';
+export { tileColours, tileCorner, tileMesh, tileOccupancy, windowSeed, worldLayout } from './world.js';
 export { normal, streamKey } from './noise.js';
-export { dense, gridShape, project, projectedDense } from './query.js';
+export { dense, gridShape, project, projectedColours, projectedDense, vertexColours } from './query.js';
 export { fromLayout, layout } from './layout.js';
 export { marchingCubes, massProperties, smooth, surface } from './mesh.js';

@@ -10,7 +10,8 @@
 //       structured clone of one), made as runtime.request.make makes it (request.js: make), or
 //       with a tile, that tile of the world (request.js: makeTile; docs/WORLDS.md)
 //     -> { id, type: 'progress', stage, fraction }  (fraction in [0, 1], or null)
-//     -> { id, type: 'done', positions, faces, seconds }  (the buffers are transferred; a tile's
+//     -> { id, type: 'done', positions, faces, colours, seconds }  (the buffers are transferred;
+//        colours: a coloured model's sRGB per vertex, Float32Array (V, 3), else null; a tile's
 //        corner too, in voxels, as digit strings)
 //   { id, type: 'layout', name, seed, factors }  the level-0 layout of the sample of `seed`, as runtime.layout.layout
 //     -> { id, type: 'done', grid, shape }  (grid: Uint8Array in C order, 1 full)
@@ -48,8 +49,8 @@ async function sample({ name, request }, progress) {
   const started = performance.now();
   const wanted = sampleRequest(request); // a clone has lost its freezing: checked again, as cheap as it is
   if (wanted.tile !== null) { // a tile takes none of the surface options it could not keep seamless (the request says so)
-    const { positions, faces, corner } = await makeTile(model, wanted, progress);
-    return { positions, faces, corner: corner.map(String), seconds: (performance.now() - started) / 1000 };
+    const { positions, faces, colours, corner } = await makeTile(model, wanted, progress);
+    return { positions, faces, colours, corner: corner.map(String), seconds: (performance.now() - started) / 1000 };
   }
   for (const [field, value] of Object.entries(BROWSER_SURFACE)) {
     if (wanted[field] !== value) throw new sinshape.InputError(`the browser runtime makes ${field} ${value} only`, field);
@@ -58,7 +59,8 @@ async function sample({ name, request }, progress) {
   const grid = await sinshape.dense(model, tri, wanted.scale, (f) => progress('querying the grid', f));
   const mesh = sinshape.surface(grid, tri.size, model.manifest, (f) => progress('meshing', f));
   sinshape.smooth(mesh, wanted.smooth, 0.5, (f) => progress('smoothing', f));
-  return { positions: mesh.positions, faces: mesh.faces, seconds: (performance.now() - started) / 1000 };
+  const colours = model.manifest.colour ? await sinshape.vertexColours(model, tri, mesh.positions) : null;
+  return { positions: mesh.positions, faces: mesh.faces, colours, seconds: (performance.now() - started) / 1000 };
 }
 
 self.onmessage = async ({ data: job }) => {
@@ -77,7 +79,8 @@ self.onmessage = async ({ data: job }) => {
       self.postMessage({ id, type: 'done', grid, shape }, [grid.buffer]);
     } else if (job.type === 'sample') {
       const result = await sample(job, progress);
-      self.postMessage({ id, type: 'done', ...result }, [result.positions.buffer, result.faces.buffer]);
+      const buffers = [result.positions, result.faces, result.colours].filter(Boolean).map((array) => array.buffer);
+      self.postMessage({ id, type: 'done', ...result }, buffers);
     } else {
       throw new Error(`unknown job type '${job.type}'`);
     }

@@ -12,11 +12,13 @@
 //   const layout = worldLayout(model.manifest);             // horizontal axes, up, stride S per axis
 //   const grid = await tileOccupancy(model, 3n, [5n, -2n]);  // { data: Float32Array (X, Y, Z), shape }
 //   const mesh = await tileMesh(model, 3n, [5n, -2n]);       // { positions (voxels from the corner), faces }
+//   const rgb = await tileColours(model, 3n, [5n, -2n], mesh.positions);  // a coloured model's sRGB at its vertices
 import { InputError, formatG, pyRepr } from './errors.js';
 import { checkSeed, drawNoise, roundHalfEven, scaledSizes, triplane } from './generate.js';
 import { marchingCubes } from './mesh.js';
 import { streamKey } from './noise.js';
-import { project } from './query.js';
+import { PLANE_AXES, headColour } from './model.js';
+import { addBilinear, project } from './query.js';
 
 const WORLD_STREAM = 2; // world.WORLD_STREAM: (WORLD_STREAM, a, b) keys window (a, b)'s noise, after the seed
 const MAX_TILE = 2n ** 62n; // world.MAX_TILE: |i|, |j| below it
@@ -26,7 +28,6 @@ const BLEND = 1.0; // world.BLEND
 const MAX_POINTS = 1 << 14; // per axis of a tile, as world.check_world_scale
 const MAX_BYTES = 2 * 2 ** 30; // a tile's grid and interpolated planes in a browser tab
 const MAX_ABSOLUTE = 2n ** 18n; // world.MAX_ABSOLUTE: voxels from the origin that float32 still places to 1/64
-const PLANE_AXES = [[0, 1], [0, 2], [1, 2]];
 
 /**
  * The world's cut for a model's manifest ({ sizes, up }), as world.world_layout:
@@ -237,6 +238,49 @@ export async function tileMesh(model, seed, tile, scale = 1) {
     }
   }
   return { positions, faces };
+}
+
+/** A window's weight along a horizontal axis at a fraction f of the stride from its lattice point, as tileAxis's `behind`. */
+const behindWeight = (f) => smoothstep(Math.min(Math.max((f - 0.5) / BLEND + 0.5, 0), 1));
+
+/**
+ * A coloured model's sRGB colour at a tile's mesh vertices (tileMesh's
+ * positions, voxels from the tile's corner), as world.tile_colours: the
+ * four windows' hidden vectors blended at each vertex with the weights the
+ * tile's grid gives there, then the colour head. A vertex on a shared face
+ * takes one window at weight exactly 1, so neighbours agree on its colour.
+ * Returns Float32Array (V, 3) in [0, 1] (Python's gives them as bytes).
+ */
+export async function tileColours(model, seed, tile, positions) {
+  seed = checkSeed(seed);
+  const [i, j] = checkTile(tile);
+  const { hidden: d } = model.manifest;
+  const layout = worldLayout(model.manifest), { stride, up } = layout, [h0, h1] = layout.horizontal;
+  const windows = [];
+  for (const [a, b] of [[i - 1n, j - 1n], [i - 1n, j], [i, j - 1n], [i, j]]) {
+    windows.push({ behind: [a === i, b === j], planes: await windowPlanes(model, layout, seed, a, b) });
+  }
+  const n = positions.length / 3, out = new Float32Array(3 * n), total = new Float64Array(d), part = new Float64Array(d);
+  const at = [0, 0, 0], cell = [0, 0, 0];
+  for (let v = 0; v < n; v++) {
+    for (let axis = 0; axis < 3; axis++) at[axis] = positions[3 * v + axis];
+    cell[up] = at[up];
+    total.fill(0);
+    for (const { behind, planes } of windows) {
+      let weight = 1;
+      [h0, h1].forEach((axis, k) => {
+        const w = behindWeight(at[axis] / stride[axis]);
+        weight *= behind[k] ? w : 1 - w;
+        cell[axis] = behind[k] ? at[axis] : at[axis] + stride[axis];
+      });
+      if (weight === 0) continue;
+      part.fill(0);
+      PLANE_AXES.forEach(([a, b], k) => addBilinear(planes[k], cell[a], cell[b], part));
+      for (let c = 0; c < d; c++) total[c] += weight * part[c];
+    }
+    headColour(model.head, total, 0, out, 3 * v);
+  }
+  return out;
 }
 
 /** Tile (i, j)'s lowest corner in voxels, as world.tile_corner: three BigInts (exact for any tile). */

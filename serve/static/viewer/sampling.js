@@ -67,11 +67,15 @@ export function serverRequest(name, request, format) {
   return { url, init: { method: 'POST', body, headers: { 'Content-Type': 'application/octet-stream' } } };
 }
 
-/** The one mesh of a .glb file trimesh wrote: { positions, faces } (no normals, no transform). */
+/** The one mesh of a .glb file trimesh wrote: { positions, faces, colours } (no normals, no
+ * transform); colours, where it has COLOR_0 (linear, as glTF says), turned back to sRGB, else null. */
 async function glbMesh(data) {
   let geometry = null;
   (await loader.parseAsync(data, '')).scene.traverse((node) => { if (node.isMesh) geometry ??= node.geometry; });
-  return { positions: geometry?.attributes.position.array ?? new Float32Array(), faces: geometry?.index.array ?? new Uint32Array() };
+  const color = geometry?.attributes.color;
+  const srgb = (c) => (c <= 0.0031308 ? c * 12.92 : 1.055 * c ** (1 / 2.4) - 0.055);
+  const colours = color ? Float32Array.from({ length: 3 * color.count }, (_, i) => srgb(color.getComponent(Math.floor(i / 3), i % 3))) : null;
+  return { positions: geometry?.attributes.position.array ?? new Float32Array(), faces: geometry?.index.array ?? new Uint32Array(), colours };
 }
 
 const server = {
@@ -111,7 +115,7 @@ const server = {
     const response = await fetch(serverRequest(name, request, 'glb').url, { signal });
     // A tile with no surface (all empty or all full there) is refused as a file: here it is nothing to show.
     if (response.status === 400 && / has no surface /.test((await response.clone().json().catch(() => ({}))).detail)) {
-      return { positions: new Float32Array(), faces: new Uint32Array() };
+      return { positions: new Float32Array(), faces: new Uint32Array(), colours: null };
     }
     return glbMesh(await (await answer(response)).arrayBuffer());
   },
@@ -190,14 +194,19 @@ async function loaded(name, progress = null) {
   }
 }
 
-/** A binary PLY file of a mesh. */
-function plyBlob({ positions, faces }) {
-  const header = `ply\nformat binary_little_endian 1.0\nelement vertex ${positions.length / 3}\n`
+/** A binary PLY file of a mesh, with a coloured model's vertex colours as sRGB bytes (as the Python runtime writes them). */
+function plyBlob({ positions, faces, colours = null }) {
+  const vertices = positions.length / 3, stride = colours ? 15 : 12;
+  const header = `ply\nformat binary_little_endian 1.0\nelement vertex ${vertices}\n`
     + 'property float x\nproperty float y\nproperty float z\n'
+    + (colours ? 'property uchar red\nproperty uchar green\nproperty uchar blue\n' : '')
     + `element face ${faces.length / 3}\nproperty list uchar int vertex_indices\nend_header\n`;
-  const body = new DataView(new ArrayBuffer(positions.length * 4 + (faces.length / 3) * 13));
-  positions.forEach((v, i) => body.setFloat32(4 * i, v, true));
-  let at = positions.length * 4;
+  const body = new DataView(new ArrayBuffer(vertices * stride + (faces.length / 3) * 13));
+  for (let v = 0; v < vertices; v++) {
+    for (let k = 0; k < 3; k++) body.setFloat32(v * stride + 4 * k, positions[3 * v + k], true);
+    if (colours) for (let k = 0; k < 3; k++) body.setUint8(v * stride + 12 + k, Math.round(Math.min(Math.max(colours[3 * v + k], 0), 1) * 255));
+  }
+  let at = vertices * stride;
   for (let f = 0; f < faces.length; f += 3) {
     body.setUint8(at, 3);
     for (let k = 0; k < 3; k++) body.setInt32(at + 1 + 4 * k, faces[f + k], true);
@@ -262,7 +271,7 @@ export const info = (where, name, options) => backends[where].info(name, options
  * backend (how the browser ran it) }. */
 export const sample = (where, name, request, options) => backends[where].sample(name, request, options);
 
-/** The tile of a tile request (frame 'tile'): { positions, faces }, none where the tile has no surface. */
+/** The tile of a tile request (frame 'tile'): { positions, faces, colours }, none where the tile has no surface. */
 export const tile = (where, name, request, options) => backends[where].tile(name, request, options);
 
 /** The seed's own layout (level 0 at `size`): { shape, grid }, kept once made. */

@@ -29,6 +29,17 @@ controls.addEventListener('change', render);
 // dark lines where they fought the front faces in the depth buffer.
 // Materials are made once and shared by every shape and overlay: none is replaced.
 export const material = new THREE.MeshStandardMaterial({ color: 0xd8c8a8, roughness: 0.85, side: THREE.FrontSide });
+// A coloured model's shapes: white lit by each vertex's colour.
+export const colouredMaterial = new THREE.MeshStandardMaterial({ vertexColors: true, roughness: 0.85, side: THREE.FrontSide });
+
+/** A mesh's material and, for a coloured model's, its 'color' attribute: the runtime's sRGB turned
+ * linear, which three.js's colour management expects of vertex colours. colours: Float32Array (V, 3) or null. */
+export function paint(geometry, colours) {
+  if (!colours) return material;
+  const linear = colours.map((c) => (c <= 0.04045 ? c / 12.92 : ((c + 0.055) / 1.055) ** 2.4));
+  geometry.setAttribute('color', new THREE.BufferAttribute(linear, 3));
+  return colouredMaterial;
+}
 const holder = new THREE.Group(); // turned so the model's up axis points up on screen
 const shape = new THREE.Group(); // the sample
 const overlay = new THREE.Group(); // what the editor draws over it: a box's wireframe, the layout's blocks
@@ -86,16 +97,17 @@ function clear(group) {
 }
 
 /**
- * Show a mesh { positions, faces } (the model's frame) in place of the last,
- * with `up` up; frame it when `extent` (what sets its size) is new, else keep the user's camera.
+ * Show a mesh { positions, faces, colours } (the model's frame; colours, a coloured model's sRGB per
+ * vertex, or none) in place of the last, with `up` up; frame it when `extent` (what sets its size)
+ * is new, else keep the user's camera.
  */
-export function showMesh({ positions, faces }, up, extent) {
+export function showMesh({ positions, faces, colours = null }, up, extent) {
   const geometry = new THREE.BufferGeometry();
   geometry.setAttribute('position', new THREE.BufferAttribute(positions, 3));
   geometry.setIndex(new THREE.BufferAttribute(faces, 1));
   geometry.computeVertexNormals();
   clear(shape);
-  shape.add(new THREE.Mesh(geometry, material));
+  shape.add(new THREE.Mesh(geometry, paint(geometry, colours)));
   orient(up);
   if (extent !== framed) frame();
   else render();

@@ -15,7 +15,7 @@ import { sampleRequest } from '../sinshape/request.js';
 import { worldLayout } from '../sinshape/world.js';
 import { aim, settle, steer, wake } from './flight.js';
 import * as sampling from './sampling.js';
-import { camera, material, scene, worldView } from './scene.js';
+import { camera, paint, scene, worldView } from './scene.js';
 
 const SLOTS = { server: 2, browser: 1 }; // tiles asked for at once: the worker makes one at a time
 const HOLD = 1; // tiles kept this far past the reach before they are dropped: a step back makes none again
@@ -147,7 +147,7 @@ async function make(r, entry) {
   entry.controller = new AbortController();
   try {
     const request = sampleRequest({ seed: r.seed, scale: r.scale, tile: [entry.i, entry.j], frame: 'tile' });
-    const { positions, faces } = await sampling.tile(r.where, r.name, request, { signal: entry.controller.signal });
+    const { positions, faces, colours } = await sampling.tile(r.where, r.name, request, { signal: entry.controller.signal });
     if (r.tiles.get(entry.key) !== entry) return; // dropped meanwhile
     entry.state = 'done';
     entry.order = ++r.made;
@@ -156,7 +156,7 @@ async function make(r, entry) {
       geometry.setAttribute('position', new THREE.BufferAttribute(positions, 3));
       geometry.setAttribute('normal', new THREE.BufferAttribute(new Float32Array(positions.length), 3));
       geometry.setIndex(new THREE.BufferAttribute(faces, 1));
-      entry.mesh = new THREE.Mesh(geometry, material);
+      entry.mesh = new THREE.Mesh(geometry, paint(geometry, colours));
       entry.mesh.name = entry.key;
       shade(r, entry);
       put(r, entry);
@@ -252,14 +252,15 @@ function tell() {
 
 /**
  * For the tests and the console: the world in view (the camera's tile, the tiles made as [i, j,
- * faces, the order they were made in], the camera's place and the farthest tile's from the
- * scene's origin), and the camera moved by whole tiles (a scripted flight).
+ * faces, the order they were made in], the camera's place, the farthest tile's from the
+ * scene's origin and how many tiles show vertex colours), and the camera moved by whole tiles (a scripted flight).
  */
 export const view = {
   status: () => run && {
     at: run.origin.map(String), made: run.made, dropped: run.dropped, size: run.size,
     tiles: [...run.tiles.values()].filter((e) => e.state === 'done').map((e) => [String(e.i), String(e.j), e.mesh ? e.mesh.geometry.index.count / 3 : 0, e.order]),
     camera: camera.position.toArray(), farthest: Math.max(0, ...group.children.map((m) => m.position.length())),
+    coloured: group.children.filter((m) => m.geometry.attributes.color && m.material.vertexColors).length,
   },
   moveBy(d0, d1) {
     const shift = new THREE.Vector3().setComponent(run.layout.horizontal[0], d0 * run.size[0]).setComponent(run.layout.horizontal[1], d1 * run.size[1]);

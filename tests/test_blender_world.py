@@ -1,0 +1,181 @@
+"""The Blender extension's world object, in real Blender (bpy, headless):
+its tiles are `sinrun world`'s, around the point it follows, those left
+behind dropped; a changed setting remakes them; bad input is one reported
+line and nothing half made; a saved file reopens and makes the same tiles.
+Marked `blender`; skipped where bpy cannot be imported."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from test_blender import ROOT, pytestmark  # noqa: F401 (marked and skipped as the Blender tests are)
+
+
+def add_world(model, **options):
+    import bpy
+
+    assert bpy.ops.sinshape.add_world(model=str(model), **options) == {"FINISHED"}
+    return bpy.context.active_object
+
+
+def sinrun_world(tmp_path, model, seed, tiles, frame) -> dict:
+    """`sinrun world` for `tiles` (a list of (i, j)) in `frame`, read back: (i, j) -> (vertices, faces)."""
+    from blender import convert
+    from sinshape.cli.main import cli
+
+    out = tmp_path / f"world_{frame}_{seed}"
+    (i0, j0), (i1, j1) = np.min(tiles, axis=0), np.max(tiles, axis=0)
+    result = CliRunner().invoke(cli, ["world", str(model), "--seed", str(seed), "--tiles", f"{i0}:{i1},{j0}:{j1}",
+                                      "--frame", frame, "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    return {tuple(tile): convert.ply_arrays((out / f"tile_{tile[0]}_{tile[1]}.ply").read_bytes()) for tile in tiles}
+
+
+def tiles_of(obj) -> dict:
+    from blender import worlds
+
+    return worlds.tile_objects(obj)
+
+
+def tile_at(model_path, point) -> tuple:
+    """The tile holding a point of Blender's space (a world object at the origin)."""
+    from blender import worlds
+    from sinshape.runtime import world
+    from sinshape.runtime.load import load_model
+
+    model = load_model(model_path, threads=1)
+    return worlds.centre_tile(model, world.world_layout(model), point)
+
+
+def assert_tiles_are_the_command_lines(obj, tmp_path, model_path, seed) -> None:
+    """Each tile object's mesh is runtime.world's tile mesh from the tile's
+    corner (frame 'tile'), in the model's frame (Z up turned back); placed
+    at the tile's corner, in the world's space it is `sinrun world`'s."""
+    from blender import convert
+    from sinshape.runtime import world
+    from sinshape.runtime.load import load_model
+
+    model = load_model(model_path, threads=1)
+    tiles = tiles_of(obj)
+    placed = sinrun_world(tmp_path, model_path, seed, list(tiles), "input")
+    for tile, child in tiles.items():
+        vertices, faces = convert.mesh_arrays(child.data)
+        expected, expected_faces = world.tile_mesh(model, seed, tile)
+        assert vertices.shape == expected.shape and np.array_equal(faces, expected_faces)
+        assert np.abs(convert.to_model(vertices, "z") - world.placed(model, tile, expected, "tile")).max() < 1e-5
+        in_world = vertices @ np.array(child.matrix_parent_inverse)[:3, :3].T + np.array(child.location)
+        assert np.array_equal(faces, placed[tile][1])
+        assert np.abs(convert.to_model(in_world, "z") - placed[tile][0]).max() < 1e-4
+
+
+def test_a_world_fills_the_tiles_around_the_cursor_as_sinrun_world_makes_them(scene, tiny_model, tmp_path):
+    scene.cursor.location = (30.0, -12.0, 0.0)
+    obj = add_world(tiny_model, seed=4, radius=1)
+    obj.location = (0, 0, 0)  # the world at the origin, the cursor where it was
+    scene.view_layers[0].update()
+    ci, cj = tile_at(tiny_model, (30.0, -12.0, 0.0))
+    assert (ci, cj) != (0, 0)
+    assert set(tiles_of(obj)) == {(ci + di, cj + dj) for di in (-1, 0, 1) for dj in (-1, 0, 1)}
+    assert sum(len(child.data.polygons) for child in tiles_of(obj).values()) > 0
+    assert obj.sinshape_world.error == ""
+    assert_tiles_are_the_command_lines(obj, tmp_path, tiny_model, 4)
+    scene.cursor.location = (-30.0, 12.0, 0.0)  # the cursor moved: the scene's update moves the world on
+    scene.view_layers[0].update()
+    ci, cj = tile_at(tiny_model, (-30.0, 12.0, 0.0))
+    assert set(tiles_of(obj)) == {(ci + di, cj + dj) for di in (-1, 0, 1) for dj in (-1, 0, 1)}
+
+
+def test_tiles_follow_an_object_and_those_left_behind_are_dropped(scene, tiny_model, tmp_path):
+    import bpy
+
+    scene.cursor.location = (0, 0, 0)
+    obj = add_world(tiny_model, seed=2, radius=1)
+    camera = bpy.data.objects.new("camera", None)
+    scene.collection.objects.link(camera)
+    obj.sinshape_world.follow = camera  # at the origin too: the same tiles, none made again
+    before = {tile: child.as_pointer() for tile, child in tiles_of(obj).items()}
+    centre = tile_at(tiny_model, (0, 0, 0))
+    while tile_at(tiny_model, tuple(camera.location))[0] < centre[0] + 2:
+        camera.location.x += 0.25
+    bpy.context.view_layer.update()  # the depsgraph's update moves the world on
+    moved = tile_at(tiny_model, tuple(camera.location))
+    after = tiles_of(obj)
+    assert set(after) == {(moved[0] + di, moved[1] + dj) for di in (-1, 0, 1) for dj in (-1, 0, 1)}
+    kept = set(before) & set(after)
+    assert kept and all(after[tile].as_pointer() == before[tile] for tile in kept)  # not made again
+    assert len([o for o in bpy.data.objects if o.parent == obj]) == 9  # the rest were dropped
+    assert_tiles_are_the_command_lines(obj, tmp_path, tiny_model, 2)
+
+
+def test_a_changed_seed_remakes_every_tile(scene, tiny_model, tmp_path):
+    scene.cursor.location = (0, 0, 0)
+    obj = add_world(tiny_model, seed=1, radius=1)
+    first = {tile: len(child.data.vertices) for tile, child in tiles_of(obj).items()}
+    obj.sinshape_world.seed = 9  # background mode: made before the assignment returns
+    assert {tile: child["sinshape_made"].split(":")[1] for tile, child in tiles_of(obj).items()} == \
+        {tile: "9" for tile in first}
+    assert_tiles_are_the_command_lines(obj, tmp_path, tiny_model, 9)
+
+
+@pytest.mark.parametrize("options, said", [({"model": "missing.onnx"}, "no such model file"),
+                                            ({"scale": 3000.0}, "scale")])
+def test_bad_world_input_is_one_reported_line_and_nothing_half_made(scene, tiny_model, tmp_path, capfd,
+                                                                    options, said):
+    import bpy
+
+    values = {"model": str(tiny_model), **options}
+    if options.get("model"):
+        values["model"] = str(tmp_path / options["model"])
+    with pytest.raises(RuntimeError, match=said) as raised:
+        bpy.ops.sinshape.add_world(**values)
+    assert len(str(raised.value).strip().splitlines()) == 1
+    assert len(bpy.data.objects) == 0 and len(bpy.data.meshes) == 0
+    obj = add_world(tiny_model, seed=1, radius=0)
+    before = {tile: len(child.data.vertices) for tile, child in tiles_of(obj).items()}
+    for key, value in values.items():
+        if key in options:
+            setattr(obj.sinshape_world, key, value)
+    assert said in obj.sinshape_world.error and "\n" not in obj.sinshape_world.error
+    assert {tile: len(child.data.vertices) for tile, child in tiles_of(obj).items()} == before  # as it was
+    assert "Traceback" not in capfd.readouterr().err
+
+
+REOPEN = """
+import json, sys
+import numpy as np
+sys.path.insert(0, {root!r})
+import bpy, blender
+from blender import convert, worlds
+blender.register()
+bpy.ops.wm.open_mainfile(filepath={blend!r})
+(obj,) = [o for o in bpy.data.objects if o.sinshape_world.active]
+saved = {{t: convert.mesh_arrays(c.data) for t, c in worlds.tile_objects(obj).items()}}
+for other in bpy.data.objects:
+    other.select_set(other == obj)
+bpy.context.view_layer.objects.active = obj
+bpy.ops.sinshape.regenerate()
+made = {{t: convert.mesh_arrays(c.data) for t, c in worlds.tile_objects(obj).items()}}
+print("RESULT" + json.dumps(dict(error=obj.sinshape_world.error, tiles=sorted(map(list, made)),
+                                 saved=sorted(map(list, saved)),
+                                 same=all(np.array_equal(saved[t][0], made[t][0]) and np.array_equal(saved[t][1], made[t][1])
+                                          for t in made))))
+"""
+
+
+def test_a_saved_world_reopens_and_makes_the_same_tiles(scene, tiny_model, tmp_path):
+    import bpy
+
+    scene.cursor.location = (0, 0, 0)
+    obj = add_world(tiny_model, seed=6, radius=1)
+    tiles = sorted(map(list, tiles_of(obj)))
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "world.blend"))
+    script = REOPEN.format(root=str(ROOT), blend=str(tmp_path / "world.blend"))
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert "Traceback" not in done.stderr
+    result = json.loads(done.stdout.split("RESULT", 1)[1])
+    assert result == dict(error="", tiles=tiles, saved=tiles, same=True)

@@ -1,0 +1,203 @@
+"""A coloured model's samples carry colour in every output format, each
+vertex's colour the decoder's at that vertex, through edits too; a
+geometry-only model's outputs are as they were."""
+
+import json
+import struct
+
+import numpy as np
+import pytest
+import trimesh
+from click.testing import CliRunner
+from scipy.spatial import cKDTree
+
+from sinshape.cli.main import cli
+from sinshape.core import manifest as fmt
+from sinshape.runtime import edit, generate, load_model, query
+from sinshape.runtime.request import SampleRequest, make
+
+
+def sinrun(*args):
+    result = CliRunner().invoke(cli, [str(a) for a in args])
+    assert result.exit_code == 0, result.output
+    return result
+
+
+@pytest.fixture(scope="module")
+def model(tiny_colour_model):
+    return load_model(tiny_colour_model, threads=1)
+
+
+def read_ply(path) -> tuple:
+    """(vertices float32 (n, 3), colours uint8 (n, 3) or None) of a binary PLY as sinshape writes it."""
+    data = path.read_bytes()
+    header, body = data.split(b"end_header\n", 1)
+    count = int(header.split(b"element vertex ")[1].split()[0])
+    if b"property uchar red" not in header:
+        return np.frombuffer(body, "<f4", count * 3).reshape(-1, 3), None
+    records = np.frombuffer(body, np.dtype([("p", "<f4", (3,)), ("c", "u1", (3,))]), count)
+    return records["p"], records["c"]
+
+
+def decoder_colour(model, triplane, points: np.ndarray) -> np.ndarray:
+    """The decoder's colour at points (model coordinates), worked out apart
+    from the runtime's query: each projected plane interpolated by hand,
+    then the graph's own head stage (onnxruntime), not its numpy copy."""
+    planes = query.project(model, triplane).planes
+    hidden = []
+    for plane, (a, b) in zip(planes, fmt.PLANE_AXES):
+        u = np.clip(points[:, a], 0, plane.shape[0] - 1)
+        v = np.clip(points[:, b], 0, plane.shape[1] - 1)
+        u0, v0 = np.minimum(np.floor(u).astype(int), plane.shape[0] - 2), np.minimum(np.floor(v).astype(int), plane.shape[1] - 2)
+        fu, fv = (u - u0)[:, None], (v - v0)[:, None]
+        hidden.append((plane[u0, v0] * (1 - fu) * (1 - fv) + plane[u0 + 1, v0] * fu * (1 - fv)
+                       + plane[u0, v0 + 1] * (1 - fu) * fv + plane[u0 + 1, v0 + 1] * fu * fv)[:, None, None])
+    _, colour = model.decoder_head.run(hidden)
+    return colour[:, 0, 0]
+
+
+def model_coordinates(model, vertices: np.ndarray) -> np.ndarray:
+    return (vertices - np.asarray(model.manifest.origin)) / np.asarray(model.manifest.spacing)
+
+
+@pytest.mark.parametrize("options", [(), ("--scale", 1.7), ("--smooth", 3), ("--size", "1.3,1,0.8")])
+def test_each_vertex_has_the_decoders_colour_at_that_vertex(model, tmp_path, options):
+    # The streamed .ply, a finer grid, smoothed vertices (coloured where they
+    # end up), another size: every vertex's 8-bit colour is the decoder's there.
+    out = tmp_path / "s.ply"
+    sinrun("sample", model.path, "--seed", 5, *options, "-o", out)
+    vertices, colours = read_ply(out)
+    assert colours is not None and len(colours) == len(vertices) > 100
+    factors = (1.3, 1, 0.8) if "--size" in options else (1.0, 1.0, 1.0)
+    triplane = generate.sample(model, 5, factors)
+    expected = decoder_colour(model, triplane, model_coordinates(model, vertices.astype(np.float64)))
+    assert np.abs(colours / 255 - expected).max() <= 0.6 / 255 + 1e-3  # float32 positions in the file
+    # The colours differ over the shape: not one colour everywhere.
+    assert np.ptp(colours.astype(int), axis=0).max() > 3
+
+
+def test_every_mesh_format_and_the_grid_carry_the_same_colours(model, tmp_path):
+    for suffix in (".ply", ".obj", ".glb", ".npz"):
+        sinrun("sample", model.path, "--seed", 2, "-o", tmp_path / f"s{suffix}")
+    vertices, colours = read_ply(tmp_path / "s.ply")
+    obj = np.loadtxt(tmp_path / "s.obj", comments=("#", "f", "o", "mtllib", "usemtl"), usecols=(1, 2, 3, 4, 5, 6))
+    tree = cKDTree(vertices)
+
+    def ply_colour_at(points):  # the .ply's colour of the vertex at each point
+        distance, index = tree.query(points)
+        assert distance.max() < 1e-4
+        return colours[index]
+
+    assert np.abs(obj[:, 3:] * 255 - ply_colour_at(obj[:, :3])).max() <= 0.5
+    # GLB: COLOR_0 holds linear values, as glTF says.
+    (glb,) = trimesh.load_scene(tmp_path / "s.glb", process=False).geometry.values()
+    linear = glb.visual.vertex_colors[:, :3] / 255
+    np.testing.assert_allclose(linear, fmt.srgb_to_linear(ply_colour_at(glb.vertices) / 255), atol=1 / 255)
+    # The grid's colours are the decoder's at its points.
+    grid = np.load(tmp_path / "s.npz")
+    assert grid["colour"].shape == grid["occupancy"].shape + (3,) and grid["colour"].dtype == np.uint8
+    triplane = generate.sample(model, 2)
+    index = np.argwhere(grid["occupancy"] > -1)[::37]
+    np.testing.assert_allclose(grid["colour"][tuple(index.T)] / 255,
+                               decoder_colour(model, triplane, index.astype(float)), atol=0.6 / 255)
+
+
+def test_the_streamed_ply_is_the_whole_mesh_ply(model, tmp_path):
+    from sinshape.runtime.write import sample_bytes
+
+    sinrun("sample", model.path, "--seed", 4, "-o", tmp_path / "s.ply")
+    data, _ = sample_bytes(model, generate.sample(model, 4), tmp_path / "t.ply")
+    assert (tmp_path / "s.ply").read_bytes() == data
+
+
+def test_a_kept_box_keeps_the_other_seeds_colours(model, tmp_path):
+    out = tmp_path / "k.ply"
+    sinrun("sample", model.path, "--seed", 7, "--keep", "3:0%,0%,0%:60%,100%,100%", "--frame", "model", "-o", out)
+    vertices, colours = read_ply(out)
+    size = np.array(model.manifest.sizes[-1])
+    deep = vertices[:, 0] < 0.6 * (size[0] - 1) - 2 * edit.MARGIN - 2  # well inside the kept box
+    far = vertices[:, 0] > 0.6 * (size[0] - 1) + 2 * edit.MARGIN + 2
+    assert deep.sum() > 50 and far.sum() > 50
+    kept = generate.sample(model, 3)
+    points = vertices.astype(np.float64)
+    np.testing.assert_allclose(colours[deep] / 255, query.colours(model, kept, points[deep]), atol=0.6 / 255)
+    # ...and elsewhere not the kept seed's: the colour came from the box, not from anywhere.
+    assert np.abs(colours[far] / 255 - query.colours(model, kept, points[far])).max() > 2 / 255
+
+
+@pytest.mark.parametrize("edit_options", [("--grow", "1.5,1,1"), ("--keep", "3:0%,0%,0%:50%,100%,100%")])
+def test_edits_are_coloured_by_their_own_triplane(model, tmp_path, edit_options):
+    out = tmp_path / "e.ply"
+    sinrun("sample", model.path, "--seed", 7, *edit_options, "--frame", "model", "-o", out)
+    vertices, colours = read_ply(out)
+    request = SampleRequest(seed=7, **({"grow": (1.5, 1.0, 1.0)} if edit_options[0] == "--grow" else
+                                       {"keep": (edit.parse_part(edit_options[1], model.manifest,
+                                                                 model.manifest.sizes[-1]),)}))
+    expected = decoder_colour(model, make(model, request), vertices.astype(np.float64))
+    assert np.abs(colours / 255 - expected).max() <= 0.6 / 255 + 1e-3
+
+
+def test_geometry_only_outputs_have_no_colour(tiny_model, tmp_path):
+    for suffix in (".ply", ".obj", ".glb", ".npz"):
+        sinrun("sample", tiny_model, "--seed", 2, "-o", tmp_path / f"s{suffix}")
+    assert b"red" not in (tmp_path / "s.ply").read_bytes()[:400]
+    assert all(len(line.split()) == 4 for line in (tmp_path / "s.obj").read_text().splitlines() if line.startswith("v "))
+    assert "colour" not in np.load(tmp_path / "s.npz")
+    data = (tmp_path / "s.glb").read_bytes()
+    meta = json.loads(data[20:20 + struct.unpack_from("<I", data, 12)[0]])
+    assert all("COLOR_0" not in p["attributes"] for mesh in meta["meshes"] for p in mesh["primitives"])
+
+
+def test_world_tiles_are_coloured_seamlessly(model, tmp_path):
+    from sinshape.runtime import world
+
+    # tile_colours at the tile grid's own points is the grid's colour, made the other way.
+    occupancy, grid = world.tile_occupancy(model, 3, (0, 1), colour=True)
+    layout = world.world_layout(model)
+    points = np.argwhere(occupancy > -1)[::29].astype(np.float64)
+    positions = points * np.array(layout.stride) / (np.array(occupancy.shape) - 1)
+    np.testing.assert_allclose(world.tile_colours(model, 3, (0, 1), positions)[:, :3].astype(int),
+                               grid[tuple(points.astype(int).T)].astype(int), atol=1)
+    # Neighbours give the vertices of the face they share the same colour.
+    h0 = layout.horizontal[0]
+    a, _ = world.tile_mesh(model, 3, (0, 0))
+    b, _ = world.tile_mesh(model, 3, (1, 0))
+    on_a = a[np.isclose(a[:, h0], layout.stride[h0])]
+    on_b = b[np.isclose(b[:, h0], 0)]
+    assert len(on_a) > 3
+    shift = np.zeros(3)
+    shift[h0] = layout.stride[h0]
+    np.testing.assert_array_equal(world.tile_colours(model, 3, (0, 0), on_a),
+                                  world.tile_colours(model, 3, (1, 0), on_a - shift))
+    assert len(on_b) == len(on_a)
+    # A block, a tile file: coloured with those colours.
+    sinrun("world", model.path, "--seed", 3, "--tiles", "0:1,0:0", "--frame", "model", "-o", tmp_path / "b.ply")
+    sinrun("world", model.path, "--seed", 3, "--tiles", "0:0,0:0", "--frame", "model", "-o", tmp_path / "t/")
+    block, block_colours = read_ply(tmp_path / "b.ply")
+    tile, tile_colours = read_ply(tmp_path / "t" / "tile_0_0.ply")
+    assert block_colours is not None and tile_colours is not None
+    tree = cKDTree(block)
+    distance, index = tree.query(tile[tile[:, h0] < layout.stride[h0] - 1])
+    assert distance.max() < 1e-4
+    np.testing.assert_array_equal(block_colours[index], tile_colours[tile[:, h0] < layout.stride[h0] - 1])
+
+
+def test_batch_jobs_write_the_coloured_sample_itself(model, tmp_path):
+    sinrun("sample", model.path, "--seeds", "1-2", "--workers", 1, "-o", tmp_path / "{seed}.ply")
+    sinrun("sample", model.path, "--seed", 2, "-o", tmp_path / "one.ply")
+    assert (tmp_path / "2.ply").read_bytes() == (tmp_path / "one.ply").read_bytes()
+    assert read_ply(tmp_path / "1.ply")[1] is not None
+
+
+def test_render_draws_a_coloured_mesh_in_its_colours(tmp_path):
+    from sinshape.runtime.render import CLAY, render
+
+    box = trimesh.creation.box(extents=(2, 1, 1))
+    plain = render(box, size=(64, 64), outline=False)
+    red = box.copy()
+    red.visual.vertex_colors = np.tile([230, 20, 20, 255], (len(box.vertices), 1)).astype(np.uint8)
+    drawn = render(red, size=(64, 64), outline=False)
+    solid = (plain != plain[0, 0]).any(axis=2)
+    assert solid.mean() > 0.2
+    assert (drawn[solid][:, 0] > 3 * drawn[solid][:, 1]).mean() > 0.9  # red where the box is (its edges blend)
+    assert np.array_equal(render(box, size=(64, 64), outline=False, color=CLAY), plain)
