@@ -28,7 +28,7 @@ OPTIONS = {"scale": "--scale", "factors": "--size", "smooth": "--smooth", "threa
            "min_iters": "--min-iters", "minutes": "--minutes", "precision": "--precision", "box": "--box",
            "train_depth": "--train-depth", "focus": "--focus", "up": "--up", "resume": "--resume",
            "size": "--size", "keep": "--keep", "layout": "--layout", "recon": "--recon",
-           "output": "--output", "tile": "--tiles", "frame": "--frame"}
+           "output": "--output", "tile": "--tiles", "frame": "--frame", "force": "--force"}
 # ctx.meta key: {parameter: what set it} where a command's value came from elsewhere than OPTIONS says.
 SOURCES = "sinrun.sources"
 # The extra that installs each optional module (pyproject.toml): a command
@@ -676,8 +676,10 @@ def serve(model_names, host, port, timeout, allowed_host, threads):
 @cli.command(name="export-web")
 @click.argument("model_names", metavar="MODEL...", nargs=-1, required=True)
 @click.option("-o", "--output", type=click.Path(path_type=Path), required=True,
-              help="The folder to write: new, empty, or one export-web wrote before (it is replaced).")
-def export_web(model_names, output):
+              help="The folder to write: new, empty, or one export-web wrote before (its files are replaced).")
+@click.option("--force", is_flag=True,
+              help="Write into a folder that holds other files too: they stay, export-web's own are replaced.")
+def export_web(model_names, output, force):
     """Write a static web site that samples models in the browser, with no server.
 
     MODEL is a .onnx file or the name of a shipped model. The folder holds the
@@ -690,7 +692,7 @@ def export_web(model_names, output):
 
     from sinshape.runtime import __version__
 
-    result = site.export_site(model_names, output, __version__)
+    result = site.export_site(model_names, output, __version__, force)
     click.echo(f"wrote {output} ({', '.join(result['models'])}; {result['files']} files, "
                f"{result['bytes'] / 2**20:.1f} MB): python {output / 'serve.py'}")
 

@@ -218,7 +218,7 @@ def _h5_datasets(f, name: str) -> list:
         item = f.get(f"scale{i}")
         if not hasattr(item, "dtype") or item.dtype.kind not in "biuf":
             raise InputError(f"{name}: scale{i} is not a grid of numbers")
-        if len(item.shape) != 3 or not all(MIN_H5_SIDE <= n <= MAX_LEVEL_SIDE for n in item.shape):
+        if item.shape is None or len(item.shape) != 3 or not all(MIN_H5_SIDE <= n <= MAX_LEVEL_SIDE for n in item.shape):
             raise InputError(f"{name}: scale{i} is not a 3-D grid of {MIN_H5_SIDE} to {MAX_LEVEL_SIDE} voxels a side "
                              f"(shape {item.shape})")
         if item.external or item.is_virtual:  # raw data kept in other files

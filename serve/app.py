@@ -176,7 +176,7 @@ async def model_file(request: Request, name: str):
 async def sample(
     request: Request,
     q: Annotated[SampleQuery, Depends()],
-    keep: Annotated[list[str], Query(max_length=16, description="Parts to keep from other samples, "
+    keep: Annotated[list[str], Query(description="Parts to keep from other samples, "
                                      "SEED:X0,Y0,Z0:X1,Y1,Z1 (the model's frame, or percentages like 50%); "
                                      "repeat for more. The rest comes from `seed`.")] = [],
     grow: Annotated[str | None, Query(description="Grow the sample by these factors (one, or sx,sy,sz, "
@@ -225,7 +225,9 @@ async def sample_layout(
     """The sample's occupancy averaged over one level's grid, full where more than half is: what
     POST sample takes back, edited."""
     model = find(request, name)
-    wanted = Job(name, SampleRequest(seed, size=generate.parse_size(size)), format, layout.check_level(model, level))
+    factors = generate.parse_size(size)
+    layout.check_fits(layout.grid_size(model, level, factors), format, "the layout")  # before making it
+    wanted = Job(name, SampleRequest(seed, size=factors), format, layout.check_level(model, level))
     return await answer(request, model, wanted)
 
 
