@@ -4,6 +4,9 @@ every HTTP error one line of JSON, and the same rules on every front end."""
 
 import io
 import json
+import os
+import re
+import struct
 import tracemalloc
 import zipfile
 
@@ -17,6 +20,7 @@ from sinshape.core.errors import InputError, MemoryLimitError
 from sinshape.runtime import edit, load_model
 from sinshape.runtime import layout as L
 from sinshape.runtime.request import MAX_PARTS, SampleRequest
+from conftest import TINY_ONNX as TINY
 from test_cli_train import assert_one_line_error
 
 
@@ -112,3 +116,157 @@ def test_a_layout_too_large_for_its_format_is_refused_from_the_arguments(tmp_pat
     assert_one_line_error(run("layout", "terrain", "--size", "10,10,1", "-o", tmp_path / "l.vox"),
                           "a 270x180x15 layout; .vox holds at most 256 voxels per axis")
     assert not (tmp_path / "l.vox").exists()
+
+
+# -- 2. binary and structured readers never trace back -------------------------
+
+def vox(main_content=0, main_children=None, size=(4, 4, 4), count=1, extra=b"") -> bytes:
+    """A .vox of one model with MAIN's sizes and the chunks' fields of our choosing."""
+    size_chunk = b"SIZE" + struct.pack("<2i3i", 12, 0, *size)
+    xyzi = b"XYZI" + struct.pack("<2ii", 8, 0, count) + bytes([1, 1, 1, 1])
+    children = size_chunk + xyzi + extra
+    main_children = len(children) if main_children is None else main_children
+    return b"VOX " + struct.pack("<i", 150) + b"MAIN" + struct.pack("<2i", main_content, main_children) + children
+
+
+@pytest.mark.parametrize("data, fragment", [
+    (vox(main_content=-100), "MAIN declares -100"),  # was a 46-line struct.error traceback
+    (vox(main_content=-20), "MAIN declares -20"),
+    (vox(main_children=-1), "MAIN declares 0 and -1"),
+    (vox(main_children=2**31 - 1), "runs past the end"),
+    (vox(extra=b"nTRN" + struct.pack("<2i", -5, 0)), "declares -5"),
+    (vox(count=-1), "count does not fit"),
+    (vox(size=(0, 4, 4)), "a layout has 1 to 256"),
+])
+def test_a_vox_with_hostile_sizes_is_one_line(tmp_path, data, fragment):
+    path = tmp_path / "l.vox"
+    path.write_bytes(data)
+    with pytest.raises(InputError, match=re.escape(fragment)):
+        L.read_layout(path)
+    assert_one_line_error(run("sample", "terrain", "--layout", path, "-o", tmp_path / "s.ply"), fragment)
+
+
+def test_an_h5_level_that_is_a_null_or_odd_dataset_is_refused(tmp_path):
+    h5py = pytest.importorskip("h5py")
+    from sinshape.prep import pyramid
+
+    cases = {"null": h5py.Empty("f4"), "strings": np.array([[[b"ab"] * 15] * 15] * 15),
+             "compound": np.zeros((15, 15, 15), [("a", "f4"), ("b", "i2")])}
+    for name, value in cases.items():
+        path = tmp_path / f"{name}.h5"
+        with h5py.File(path, "w") as f:
+            f.attrs["n_scales"] = 1
+            f.create_dataset("scale0", data=value)
+        with pytest.raises(InputError, match="scale0 is not"):
+            pyramid.load_pyramid(path, res=64)
+    null = tmp_path / "null_count.h5"
+    with h5py.File(null, "w") as f:
+        f.attrs["n_scales"] = h5py.Empty("i4")
+    with pytest.raises(InputError, match="n_scales must be a whole number"):
+        pyramid.load_pyramid(null, res=64)
+
+
+@pytest.mark.parametrize("seed", ["1" + "0" * 400, "-1", "1e400", "3.0", '"3"', "[3]", "null", "true"])
+def test_a_batch_index_with_a_hostile_seed_is_one_line_on_resume(tmp_path, seed):
+    """A seed of 10**400 made a file name too long to look up: OSError."""
+    out = tmp_path / "s{seed}.npz"
+    assert run("sample", TINY, "--seeds", "0-1", "-o", out, "--workers", 1).exit_code == 0
+    index = tmp_path / "sindex.jsonl"
+    index.write_text(index.read_text() + f'{{"seed": {seed}, "file": "x", "bytes": 1, "sha256": "a"}}\n')
+    assert_one_line_error(run("sample", TINY, "--seeds", "0-2", "-o", out, "--workers", 1),
+                          "line 3 is not a seed's JSON record")
+
+
+@pytest.mark.parametrize("line", ['{"seed": 2, "bytes": -1}', '{"seed": 2, "sha256": 7}', '"' + "x" * 5000 + '"',
+                                  "[" * 3000 + "]" * 3000, '{"seed": 2, "bytes": 1e400}'])
+def test_a_batch_index_with_hostile_fields_is_one_line(tmp_path, line):
+    from sinshape.runtime import many
+
+    index = tmp_path / "index.jsonl"
+    index.write_text(line + "\n")
+    with pytest.raises(InputError, match="line 1 is not a seed's JSON record"):
+        many.read_index(index)
+
+
+def test_a_mesh_is_read_within_its_folder_and_its_memory(tmp_path, monkeypatch):
+    trimesh = pytest.importorskip("trimesh")
+    from sinshape.core import budget
+    from sinshape.prep import voxelize
+
+    trimesh.creation.box().export(tmp_path / "box.gltf")
+    for buffer in tmp_path.glob("*.bin"):
+        buffer.unlink()
+    with pytest.raises(InputError, match="refers to 'gltf_buffer_0.bin', which is not there"):
+        voxelize.load_mesh(tmp_path / "box.gltf")
+    gltf = json.loads((tmp_path / "box.gltf").read_text())
+    gltf["buffers"][0]["uri"] = "../../etc/passwd"
+    (tmp_path / "out.gltf").write_text(json.dumps(gltf))
+    with pytest.raises(InputError, match="refers to '../../etc/passwd', outside its folder"):
+        voxelize.load_mesh(tmp_path / "out.gltf")
+    trimesh.creation.icosphere().export(tmp_path / "ball.stl")  # 64 kB, 1.5 MB to load
+    monkeypatch.setattr(budget, "available_memory", lambda: 1 << 20)
+    with pytest.raises(MemoryLimitError, match="loading the mesh ball.stl needs about"):
+        voxelize.load_mesh(tmp_path / "ball.stl")
+
+
+@pytest.fixture(scope="module")
+def checkpoint(tmp_path_factory, tiny_pyramid):
+    pytest.importorskip("torch")
+    folder = tmp_path_factory.mktemp("ckpt")
+    result = run("train", tiny_pyramid, "-o", folder / "m.onnx", "--preset", "tiny", "--iters", 1)
+    assert result.exit_code == 0, result.output
+    return folder / "m.ckpt.pt"
+
+
+@pytest.mark.parametrize("field, value, fragment", [
+    ("level", -1, "level must be"), ("level", 99, "level must be"), ("iteration", "x", "iteration"),
+    ("sizes", [[15, 15, -15]], "sizes must be"), ("noise_amps", [float("nan")], "noise_amps"),
+    ("seconds", "fast", "seconds must be"), ("config", {"res": "big"}, "its config"),
+    ("config", {"res": 1}, "its config: res 1 is below"), ("generator", {"levels.0.w": 3}, "tables of tensors"),
+    ("source", {"name": 1}, "source must"), ("rng", [1, 2], "rng must be"), ("level_seconds", float("inf"), "level_seconds"),
+])
+def test_a_checkpoint_with_hostile_fields_is_refused_before_it_is_used(checkpoint, tmp_path, field, value, fragment):
+    import torch
+
+    from sinshape.trainer.checkpoint import load_checkpoint
+
+    state = torch.load(checkpoint, weights_only=True)
+    state[field] = value
+    bad = tmp_path / "bad.ckpt.pt"
+    torch.save(state, bad)
+    with pytest.raises(InputError, match=f"a damaged checkpoint .*{re.escape(fragment)}"):
+        load_checkpoint(bad)
+
+
+def test_a_checkpoint_holding_a_pickled_object_is_never_unpickled(checkpoint, tmp_path):
+    import torch
+
+    from sinshape.trainer.checkpoint import load_checkpoint
+
+    state = torch.load(checkpoint, weights_only=True)
+    state["config"] = Exploit()
+    bad = tmp_path / "evil.ckpt.pt"
+    torch.save(state, bad)
+    with pytest.raises(InputError, match="not a readable checkpoint"):
+        load_checkpoint(bad)
+    assert not (tmp_path / "pwned").exists()
+
+
+def test_a_checkpoint_whose_tensors_do_not_fit_is_one_line(checkpoint, tmp_path, tiny_pyramid):
+    import torch
+
+    state = torch.load(checkpoint, weights_only=True)
+    name = next(k for k in state["generator"] if k.endswith("weight"))
+    state["generator"][name] = torch.zeros(1)
+    state["level"] = 0
+    torch.save(state, tmp_path / "m.ckpt.pt")
+    result = run("train", tiny_pyramid, "-o", tmp_path / "m.onnx", "--resume")
+    last = result.output.strip().splitlines()[-1]
+    assert result.exit_code == 1 and "Traceback" not in result.output
+    assert last.startswith("Error: ") and "a checkpoint whose state does not fit its networks (Error(s) in " \
+        "loading state_dict for TriplaneGenerator: size mismatch" in last
+
+
+class Exploit:
+    def __reduce__(self):
+        return (os.system, ("touch pwned",))

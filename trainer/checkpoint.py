@@ -64,9 +64,15 @@ def whole(value, low: int = 0, high: int = 2**63) -> bool:
     return isinstance(value, int) and not isinstance(value, bool) and low <= value < high
 
 
-def numbers_list(value, count: int | None = None) -> bool:
-    return (isinstance(value, list) and (count is None or len(value) == count)
-            and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value))
+def finite(value) -> bool:
+    """A plain finite number (an integer of at most 63 bits: a float's range, and no 10**400)."""
+    if isinstance(value, bool):
+        return False
+    return whole(value, -2**63) or isinstance(value, float) and math.isfinite(value)
+
+
+def numbers_list(value) -> bool:
+    return isinstance(value, list) and all(finite(v) for v in value)
 
 
 def tensors(value) -> bool:
@@ -97,7 +103,7 @@ def check_fields(state: dict) -> str | None:
     for name in ("lrs", "rewinds", "plan"):
         if state.get(name) is not None and not numbers_list(state[name]):
             return f"{name} must be a list of finite numbers"
-    if not (isinstance(state.get("level_seconds"), (int, float)) and math.isfinite(state["level_seconds"])):
+    if not finite(state.get("level_seconds")):
         return "level_seconds must be a finite number"
     if not (tensors(state.get("generator")) and tensors(state.get("critic"))):
         return "generator and critic must be tables of tensors"

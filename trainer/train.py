@@ -111,7 +111,7 @@ def open_run(input_path, output_path: Path, config: TrainConfig | None, resume: 
         try:
             trainer.restore(state)
         except (RuntimeError, KeyError, ValueError, IndexError) as error:  # tensors whose shapes do not fit
-            why = str(error).strip().splitlines()[0][:200] if str(error).strip() else type(error).__name__
+            why = " ".join(str(error).split())[:200] or type(error).__name__
             raise InputError(f"{checkpoint_path}: a checkpoint whose state does not fit its networks ({why})") from None
         if trainer.level < len(trainer.sizes):
             log(f"resuming at level {trainer.level + 1}/{len(trainer.sizes)}, iteration {trainer.iteration}")
