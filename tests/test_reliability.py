@@ -270,3 +270,61 @@ def test_a_checkpoint_whose_tensors_do_not_fit_is_one_line(checkpoint, tmp_path,
 class Exploit:
     def __reduce__(self):
         return (os.system, ("touch pwned",))
+
+
+# -- 3. nothing the user made is deleted ----------------------------------------
+
+def tree(folder) -> dict:
+    return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def test_export_web_again_keeps_what_the_user_added(tmp_path):
+    """The folder's files and the user's notes: a second export refuses to
+    run over the notes (naming them) unless --force, which keeps them."""
+    out = tmp_path / "site"
+    assert run("export-web", "terrain", "towerruins", "-o", out).exit_code == 0
+    (out / "notes.txt").write_text("mine")
+    (out / "models" / "mine.csv").write_text("1,2")
+    (out / "index.html").write_text(before := (out / "index.html").read_text() + "<!-- my edit -->")
+    snapshot = tree(out)
+    assert_one_line_error(run("export-web", "terrain", "-o", out),
+                          "holds files export-web did not write (index.html, models/mine.csv, notes.txt)", "--force")
+    assert tree(out) == snapshot
+    result = run("export-web", "terrain", "-o", out, "--force")
+    assert result.exit_code == 0, result.output
+    after = tree(out)
+    assert after["notes.txt"] == b"mine" and after["models/mine.csv"] == b"1,2"
+    assert after["index.html"].decode() != before  # the command's own file, replaced as asked
+    assert "models/towerruins.onnx" not in after and "models/terrain.onnx" in after  # its own, no longer listed
+    assert run("export-web", "terrain", "-o", out).exit_code != 0  # the user's files are still in the way
+    (out / "notes.txt").unlink()
+    (out / "models" / "mine.csv").unlink()
+    assert run("export-web", "terrain", "-o", out).exit_code == 0  # only its own files: replaced, no question
+
+
+def test_export_web_names_a_link_or_other_thing_in_the_way(tmp_path):
+    out = tmp_path / "site"
+    assert run("export-web", "terrain", "-o", out).exit_code == 0
+    (out / "data").symlink_to(tmp_path)
+    assert_one_line_error(run("export-web", "terrain", "-o", out), "did not write (data)")
+
+
+def test_a_symbolic_link_output_is_written_through_by_every_command(tmp_path):
+    """One policy: the file a link leads to is replaced, atomically; the link stays."""
+    real, link = tmp_path / "real", tmp_path / "link"
+    for suffix, args in [(".npz", ["sample", TINY, "--seed", 1]), (".npz", ["layout", TINY]),
+                         (".png", ["render", TINY, "--seeds", "0", "--image-size", 64])]:
+        target, name = real.with_suffix(suffix), link.with_suffix(suffix)
+        target.write_bytes(b"old")
+        name.unlink(missing_ok=True)
+        name.symlink_to(target)
+        result = run(*args, "-o", name)
+        assert result.exit_code == 0, result.output
+        assert name.is_symlink() and target.read_bytes() != b"old", args
+    folder = tmp_path / "real_site"
+    folder.mkdir()
+    (tmp_path / "site").symlink_to(folder)
+    assert run("export-web", TINY, "-o", tmp_path / "site").exit_code == 0
+    assert (tmp_path / "site").is_symlink() and (folder / "index.html").is_file()
+    (tmp_path / "loop").symlink_to(tmp_path / "loop")
+    assert_one_line_error(run("sample", TINY, "-o", tmp_path / "loop"), "goes round in a loop")
