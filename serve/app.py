@@ -348,5 +348,6 @@ def run(loaded: dict, host: str = "127.0.0.1", port: int = 8000, timeout: float 
     shown = f"[{host}]" if ":" in host else host
     if ready:
         ready(f"http://{shown}:{sock.getsockname()[1]}/", allowed)
-    server = uvicorn.Server(uvicorn.Config(application, log_level="warning", timeout_graceful_shutdown=5))
+    server = uvicorn.Server(uvicorn.Config(application, log_level="warning", timeout_graceful_shutdown=5,
+                                           http=http.json_400_protocol()))
     server.run(sockets=[sock])

@@ -6,6 +6,7 @@ import io
 import json
 import os
 import re
+import socket
 import struct
 import tracemalloc
 import zipfile
@@ -328,3 +329,80 @@ def test_a_symbolic_link_output_is_written_through_by_every_command(tmp_path):
     assert (tmp_path / "site").is_symlink() and (folder / "index.html").is_file()
     (tmp_path / "loop").symlink_to(tmp_path / "loop")
     assert_one_line_error(run("sample", TINY, "-o", tmp_path / "loop"), "goes round in a loop")
+
+
+# -- 4. every error over HTTP is JSON, from every layer ------------------------
+
+@pytest.fixture(scope="module")
+def server():
+    pytest.importorskip("uvicorn")
+    from test_serve import running_server
+
+    with running_server("terrain", "--threads", 2) as (base, _):
+        yield base
+
+
+def raw(base: str, request: bytes) -> tuple:
+    """(status, headers, body) of bytes sent as they are, on one connection that the server closes or we read to its length."""
+    host, port = base.removeprefix("http://").split(":")
+    with socket.create_connection((host, int(port)), timeout=30) as connection:
+        connection.sendall(request)
+        data = b""
+        while b"\r\n\r\n" not in data:
+            data += connection.recv(65536) or b"\r\n\r\n"
+        head, body = data.split(b"\r\n\r\n", 1)
+        lines = head.decode("latin-1").split("\r\n")
+        headers = {k.strip().lower(): v.strip() for k, v in (line.split(":", 1) for line in lines[1:] if ":" in line)}
+        length = int(headers.get("content-length", 0)) if not request.startswith(b"HEAD") else 0
+        while len(body) < length:
+            more = connection.recv(65536)
+            if not more:
+                break
+            body += more
+    return int(lines[0].split()[1]), headers, body
+
+
+def ask(method: str, path: str, *headers: str, body: bytes = b"") -> bytes:
+    lines = [f"{method} {path} HTTP/1.1", "Host: 127.0.0.1", "Connection: close", *headers]
+    return ("\r\n".join(lines) + "\r\n\r\n").encode() + body
+
+
+def assert_json_error(answer, status, fragment=""):
+    got, headers, body = answer
+    assert got == status and headers["content-type"] == "application/json", answer
+    detail = json.loads(body)["detail"]
+    assert isinstance(detail, str) and "\n" not in detail and fragment in detail, detail
+
+
+@pytest.mark.parametrize("request_bytes, status, fragment", [
+    (ask("GET", "/static/viewer.js", "Range: bytes=abc"), 400, "Range header"),
+    (ask("GET", "/static/viewer.js", "Range: bytes=99999999-"), 416, "Range Not Satisfiable"),
+    (ask("POST", "/api/models/terrain/sample", "Content-Length: -5"), 400, "Invalid HTTP request"),
+    (b"GARBAGE\r\n\r\n", 400, "Invalid HTTP request"),
+    (ask("GET", "/nowhere"), 404, "Not Found"),
+    (ask("GET", "/static/nothing.js"), 404, "Not Found"),
+    (ask("DELETE", "/health"), 405, "Method Not Allowed"),
+    (ask("GET", "/api/models/terrain/sample?" + "&".join(["keep=3:0%,0%,0%:50%,100%,100%"] * 17)), 400,
+     "keep takes at most 16 parts"),
+    (ask("POST", "/api/models/terrain/sample", "Content-Length: 60",
+         body=b"VOX \x96\x00\x00\x00MAIN\x9c\xff\xff\xff" + bytes(44)), 400, "MAIN declares -100"),
+])
+def test_every_http_error_is_one_line_of_json(server, request_bytes, status, fragment):
+    assert_json_error(raw(server, request_bytes), status, fragment)
+
+
+@pytest.mark.parametrize("path", ["/health", "/api/models/terrain", "/api/models/terrain/onnx", "/static/viewer.js",
+                                  "/", "/api/models/terrain/sample?seed=2&format=npz"])
+def test_head_answers_wherever_get_does(server, path):
+    status, headers, body = raw(server, ask("GET", path))
+    head_status, head_headers, head_body = raw(server, ask("HEAD", path))
+    assert status == head_status == 200 and head_body == b""
+    assert head_headers.get("etag") == headers.get("etag") and head_headers["content-type"] == headers["content-type"]
+
+
+@pytest.mark.parametrize("path", ["/api/models/terrain/onnx", "/static/viewer.js", "/api/models/terrain/sample?seed=2",
+                                  "/health"])
+def test_if_none_match_star_is_304_where_the_resource_exists(server, path):
+    status, headers, body = raw(server, ask("GET", path, "If-None-Match: *"))
+    assert status == 304 and body == b"", (status, body[:200])
+    assert_json_error(raw(server, ask("GET", "/api/models/nothing/onnx", "If-None-Match: *")), 404, "unknown model")
