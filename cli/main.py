@@ -49,7 +49,7 @@ def command_line_message(error: Exception, options: dict = OPTIONS) -> str:
             lasts.append((words[-1], options[name]))
     for last, option in sorted(lasts, key=lambda found: found[0].start(), reverse=True):  # later words first
         message = message[:last.start()] + option + message[last.end():]
-    return message
+    return message.replace("\r", "\\r").replace("\n", "\\n")  # one line, whatever a value held
 
 
 class Sinrun(click.Group):
@@ -312,7 +312,7 @@ def sample(model, seed, seeds, recon, keep, layout_file, resample_layout, grow_b
     output = output or Path(f"{loaded.path.stem}_{'recon' if recon else 'seed{seed}'}.ply")
     if seeds:
         return sample_seeds(loaded, seeds, output, engine, workers, threads, address, request)
-    path = named_output(output, seed=request.sample_seed) if "{" in output.name else output
+    path = named_output(output, seed=request.sample_seed) if "{" in str(output) else output
     with StageProgress() as show:
         write.write_request(loaded, request, path, [layout_file] if layout_file else [], threads,
                             lambda done, total: show("meshing", done, total))

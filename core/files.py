@@ -30,13 +30,13 @@ def check_writable(path, inputs=()) -> None:
     is not a regular file (a folder, a pipe, a device), its folder is
     missing or read-only, or it is one of `inputs` (the same file, also
     through a symbolic or hard link), which writing would destroy."""
+    check_not_input(path, inputs)  # named as given, a link too
     path = written_path(path)
     try:
         check_replaceable(path)
         folder_exists = path.parent.is_dir()
     except OSError as error:  # a name too long for the file system
         raise InputError(f"{path}: cannot write here ({error.strerror})") from None
-    check_not_input(path, inputs)
     if not folder_exists:
         if path.parent.exists():
             raise InputError(f"{path}: {path.parent} is a file, not a folder")

@@ -206,7 +206,8 @@ def _h5_datasets(f, name: str) -> list:
         raise InputError(f"{name}: not an SSG pyramid (no 'n_scales' attribute)")
     if not (isinstance(count, (int, np.integer)) and not isinstance(count, (bool, np.bool_))
             and 1 <= count <= MAX_LEVELS):
-        raise InputError(f"{name}: n_scales must be a whole number of levels in [1, {MAX_LEVELS}], got {count}")
+        shown = count if isinstance(count, (int, float, np.number)) else repr(count)[:60]
+        raise InputError(f"{name}: n_scales must be a whole number of levels in [1, {MAX_LEVELS}], got {shown}")
     count = int(count)
     datasets = []
     for i in range(count):

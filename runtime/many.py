@@ -403,6 +403,9 @@ def run_job(model_path, items, pattern, varying: Varying, request, engine: str =
     from . import write
 
     pattern = Path(pattern)
+    if varying.placeholder in str(pattern.parent):
+        raise InputError(f"{pattern}: {varying.placeholder} fills in the file's name, not its folder "
+                         f"{pattern.parent}", "pattern")
     if varying.placeholder not in pattern.name:
         raise InputError(f"{pattern.name}: many {varying.field}s need {varying.placeholder} in the output file "
                          "name", "pattern")

@@ -181,14 +181,14 @@ async def sample(
                                      "repeat for more. The rest comes from `seed`.")] = [],
     grow: Annotated[str | None, Query(description="Grow the sample by these factors (one, or sx,sy,sz, "
                                       "each at least 1), keeping what it had.")] = None,
-    anchor: Annotated[str, Query(description="With grow: where the old sample sits, per axis from 0 "
-                                 "(low side) to 1 (high side).")] = "0",
+    anchor: Annotated[str | None, Query(description="With grow: where the old sample sits, per axis from 0 "
+                                        "(low side, the default) to 1 (high side).")] = None,
 ):
     model = find(request, q.name)
-    where = generate.parse_triple(anchor, lambda v: 0 <= v <= 1, "three fractions in [0, 1]", "anchor")
+    where = None if anchor is None else generate.parse_triple(anchor, lambda v: 0 <= v <= 1,
+                                                              "three fractions in [0, 1]", "anchor")
     wanted = SampleRequest(q.seed, size=generate.parse_size(q.size), scale=q.scale, smooth=q.smooth,
-                           keep=tuple(keep), grow=generate.parse_size(grow) if grow else None,
-                           anchor=where if grow else None)  # the anchor's default is not a choice
+                           keep=tuple(keep), grow=generate.parse_size(grow) if grow else None, anchor=where)
     return await answer(request, model, Job(q.name, resolved(model, wanted), q.format))
 
 

@@ -20,7 +20,7 @@ from sinshape.cli.main import cli
 from sinshape.core.errors import InputError, MemoryLimitError
 from sinshape.runtime import edit, load_model
 from sinshape.runtime import layout as L
-from sinshape.runtime.request import MAX_PARTS, SampleRequest
+from sinshape.runtime.request import MAX_PARTS, Layout, SampleRequest
 from conftest import TINY_ONNX as TINY
 from test_cli_train import assert_one_line_error
 
@@ -406,3 +406,83 @@ def test_if_none_match_star_is_304_where_the_resource_exists(server, path):
     status, headers, body = raw(server, ask("GET", path, "If-None-Match: *"))
     assert status == 304 and body == b"", (status, body[:200])
     assert_json_error(raw(server, ask("GET", "/api/models/nothing/onnx", "If-None-Match: *")), 404, "unknown model")
+
+
+# -- 5. the same rules on every front end, and messages that say what is wrong --
+
+def test_anchor_without_grow_is_refused_over_http_as_on_the_command_line(server):
+    result = run("sample", TINY, "--anchor", "0.5,0,0", "-o", "x.npz")
+    assert result.exit_code == 2 and result.output.strip().endswith("Error: --anchor is for --grow")
+    assert_json_error(raw(server, ask("GET", "/api/models/terrain/sample?seed=1&anchor=0.5,0,0")), 400,
+                      "anchor is for grow")
+
+
+def test_an_all_nan_layout_is_refused_not_read_as_empty(tmp_path):
+    path = tmp_path / "l.npz"
+    np.savez(path, layout=np.full((27, 18, 15), np.nan))
+    assert_one_line_error(run("sample", "terrain", "--layout", path, "-o", tmp_path / "s.ply"), "NaN or infinite")
+    with pytest.raises(InputError, match="not NaN"):
+        SampleRequest(1, layout=Layout.of(np.full((4, 4, 4), np.inf)))
+    assert not (tmp_path / "s.ply").exists()
+
+
+def test_a_truncated_model_says_truncated_or_corrupt(tmp_path):
+    path = tmp_path / "cut.onnx"
+    path.write_bytes(TINY.read_bytes()[:len(TINY.read_bytes()) // 2])
+    assert_one_line_error(run("sample", path, "-o", tmp_path / "s.npz"), "cut.onnx: not an ONNX file (truncated or corrupt)")
+
+
+def varint(n: int) -> bytes:
+    out = b""
+    while True:
+        out += bytes([(n & 0x7F) | (0x80 if n > 0x7F else 0)])
+        n >>= 7
+        if not n:
+            return out
+
+
+def test_a_sealed_model_with_two_manifests_is_refused(tmp_path):
+    """Which manifest would be the model's? Neither: refused, sealed or not."""
+    from sinshape.core import manifest as fmt
+    from sinshape.runtime import onnxfile
+
+    body, sealed, intact = fmt.unseal(TINY.read_bytes())
+    assert sealed and intact
+    text = json.loads(onnxfile.parse(body).metadata[fmt.METADATA_KEY])
+    text["levels"][0]["noise_amp"] = 2.0
+    entry = b"\x0a" + varint(len(fmt.METADATA_KEY)) + fmt.METADATA_KEY.encode()
+    value = json.dumps(text).encode()
+    entry += b"\x12" + varint(len(value)) + value
+    path = tmp_path / "two.onnx"
+    path.write_bytes(fmt.seal(body + b"\x72" + varint(len(entry)) + entry))
+    assert_one_line_error(run("info", path), "corrupt model: it holds sinshape.manifest twice")
+
+
+def test_a_box_in_percent_is_refused_in_percent_too(terrain):
+    with pytest.raises(InputError, match=re.escape("the box is 3.15 (5%) voxels along x: a kept box needs more than "
+                                                   "8 (12.6984%)")):
+        edit.parse_part("3:40%,0%,0%:45%,100%,100%", terrain.manifest, (64, 41, 15))
+    with pytest.raises(InputError, match=re.escape("the box is 3.99994 (0.5) voxels along x: a kept box needs more than 8 (1.00002)")):
+        edit.parse_part("3:1,0%,0%:1.5,100%,100%", terrain.manifest, (64, 41, 15))  # the model's frame
+    with pytest.raises(InputError, match=re.escape("94.5 (150%) voxels along x) leaves the sample, whose voxels run 0 to 63 (100%)")):
+        edit.parse_part("3:0%,0%,0%:150%,100%,100%", terrain.manifest, (64, 41, 15))
+
+
+def test_seed_in_a_folder_name_is_refused_not_taken_literally(tmp_path):
+    (tmp_path / "d_{seed}").mkdir()
+    for args in (["--seeds", "0-1"], ["--seed", "1"]):
+        result = run("sample", TINY, *args, "-o", tmp_path / "d_{seed}" / "s.npz")
+        assert result.exit_code in (1, 2) and "{seed} fills in the file's name, not its folder" in result.output
+        assert "Traceback" not in result.output
+    assert not any((tmp_path / "d_{seed}").iterdir())
+    from sinshape.runtime import many
+
+    with pytest.raises(InputError, match="fills in the file's name"):
+        many.sample_many(TINY, [0], tmp_path / "d_{seed}" / "s{seed}.npz")
+
+
+@pytest.mark.parametrize("name", ["a\nError: fake.npz", "a\rb.npz", "tab\there.npz"])
+def test_an_output_name_with_a_control_character_is_refused_in_one_line(tmp_path, name):
+    result = run("sample", TINY, "-o", tmp_path / name)
+    assert_one_line_error(result, "a file name with a control character")
+    assert list(tmp_path.iterdir()) == []

@@ -50,10 +50,10 @@ def load_checkpoint(path: Path) -> dict:
         state = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as error:  # torch raises many kinds for a bad file
         raise InputError(f"{path}: not a readable checkpoint ({type(error).__name__})") from None
-    if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT:
+    if not (isinstance(state, dict) and isinstance(state.get("format"), str) and state["format"] == CHECKPOINT_FORMAT):
         raise InputError(f"{path}: not a sinshape checkpoint")
-    if state.get("version") != CHECKPOINT_VERSION:
-        raise InputError(f"{path}: checkpoint version {state.get('version')!r} is not {CHECKPOINT_VERSION}")
+    if not (whole(state.get("version")) and state["version"] == CHECKPOINT_VERSION):
+        raise InputError(f"{path}: checkpoint version {str(state.get('version'))[:20]!r} is not {CHECKPOINT_VERSION}")
     why = check_fields(state)
     if why:
         raise InputError(f"{path}: a damaged checkpoint ({why})")
