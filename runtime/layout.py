@@ -365,7 +365,9 @@ def parse_layout(data: bytes, suffix: str, name) -> np.ndarray:
 
 def read_npz(data: bytes, name) -> np.ndarray:
     """The array `layout` of an .npz archive, read member first, header
-    second, data last, each bounded by what came before."""
+    second, data last, each bounded by what came before: deflate is read a
+    bounded piece at a time, so at most the bytes the header declares (at
+    most MAX_LAYOUT_BYTES) are ever decompressed."""
     def unreadable(why):
         return InputError(f"{name}: not a readable .npz layout ({why})")
 
@@ -375,6 +377,9 @@ def read_npz(data: bytes, name) -> np.ndarray:
             if [m.filename for m in members] != ["layout.npy"]:
                 listed = ", ".join(repr(m.filename) for m in members[:4]) + (", ..." if len(members) > 4 else "")
                 raise unreadable(f"it must hold one array, layout.npy, and holds {listed or 'nothing'}")
+            if members[0].compress_type not in (zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED):
+                # bzip2 and LZMA decompress a chunk whole: a few bytes could unpack into gigabytes at once
+                raise unreadable("compressed other than as NumPy writes it, stored or deflated")
             with archive.open(members[0]) as member:
                 major, _ = np.lib.format.read_magic(member)
                 if major not in (1, 2):

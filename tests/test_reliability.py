@@ -88,6 +88,17 @@ def test_an_npz_layout_is_bounded_before_its_data_is_decompressed():
         L.parse_layout(short, ".npz", "l.npz")
 
 
+def test_an_npz_layout_compressed_to_unpack_at_once_is_refused():
+    """bzip2 unpacks a chunk whole (zipfile gives it no bound): 261 bytes
+    hold 16 MB of layout, and a few kB gigabytes."""
+    out = io.BytesIO()
+    with zipfile.ZipFile(out, "w", zipfile.ZIP_BZIP2) as archive:
+        archive.writestr("layout.npy", npy(np.zeros((256, 256, 256), bool)))
+    assert len(out.getvalue()) < 400
+    with pytest.raises(InputError, match="compressed other than as NumPy writes it"):
+        L.parse_layout(out.getvalue(), ".npz", "l.npz")
+
+
 def test_grow_is_refused_up_front_with_the_figure_that_it_needs(terrain, monkeypatch):
     """grow 40,40,1 of the terrain holds about 15 GiB at its peak (16,16,1
     measured 2.15 GB, this estimate 2.66): refused before any work where
