@@ -109,7 +109,7 @@ def test_h5_fields(tmp_path_factory, count, levels):
         try:
             f.attrs["n_scales"] = count
         except (TypeError, ValueError, OverflowError):
-            f.attrs["n_scales"] = str(count)
+            f.attrs["n_scales"] = repr(count)  # HDF5 holds no NUL in a string
         for i, (dtype, shape, value) in enumerate(levels):
             if dtype == "null":
                 f.create_dataset(f"scale{i}", data=h5py.Empty("f4"))
