@@ -177,17 +177,10 @@ def test_mesh_fields(tmp_path_factory, vertices, faces, refs, triangles, binary)
 
 
 @pytest.fixture(scope="module")
-def checkpoint_state(tmp_path_factory, tiny_pyramid):
+def checkpoint_state(tiny_model):
+    """The state of the session's tiny model's checkpoint (conftest trains it beside the model)."""
     torch = pytest.importorskip("torch")
-    from click.testing import CliRunner
-
-    from sinshape.cli.main import cli
-
-    folder = tmp_path_factory.mktemp("ckpt")
-    result = CliRunner().invoke(cli, ["train", str(tiny_pyramid), "-o", str(folder / "m.onnx"), "--preset", "tiny",
-                                      "--iters", "1"])
-    assert result.exit_code == 0, result.output
-    return torch.load(folder / "m.ckpt.pt", weights_only=True)
+    return torch.load(tiny_model.with_name("tiny.ckpt.pt"), weights_only=True)
 
 
 FIELDS = ["format", "version", "config", "source", "sizes", "level", "iteration", "noise_amps", "lrs", "rewinds",

@@ -222,12 +222,10 @@ def test_a_mesh_is_read_within_its_folder_and_its_memory(tmp_path, monkeypatch):
 
 
 @pytest.fixture(scope="module")
-def checkpoint(tmp_path_factory, tiny_pyramid):
+def checkpoint(tiny_model):
+    """The session's tiny model's checkpoint, which conftest's training leaves beside it."""
     pytest.importorskip("torch")
-    folder = tmp_path_factory.mktemp("ckpt")
-    result = run("train", tiny_pyramid, "-o", folder / "m.onnx", "--preset", "tiny", "--iters", 1)
-    assert result.exit_code == 0, result.output
-    return folder / "m.ckpt.pt"
+    return tiny_model.with_name("tiny.ckpt.pt")
 
 
 @pytest.mark.parametrize("field, value, fragment", [
