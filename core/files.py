@@ -96,7 +96,10 @@ def written_path(path) -> Path:
     path = Path(path)
     if any(ord(c) < 32 or ord(c) == 127 for c in str(path)):
         raise InputError(f"{str(path)!r}: a file name with a control character (a newline, a tab); name another")
-    if not path.is_symlink():
+    try:
+        if not path.is_symlink():
+            return path
+    except OSError:  # a name too long to look up: writing it says so
         return path
     try:
         return Path(os.path.realpath(path, strict=True))
