@@ -28,7 +28,7 @@ OPTIONS = {"scale": "--scale", "factors": "--size", "smooth": "--smooth", "threa
            "min_iters": "--min-iters", "minutes": "--minutes", "precision": "--precision", "box": "--box",
            "train_depth": "--train-depth", "focus": "--focus", "up": "--up", "resume": "--resume",
            "size": "--size", "keep": "--keep", "layout": "--layout", "recon": "--recon",
-           "output": "--output", "tile": "--tiles", "frame": "--frame",
+           "output": "--output", "tile": "--tiles", "frame": "--frame", "force": "--force",
            "no_colour": "--no-colour"}
 # ctx.meta key: {parameter: what set it} where a command's value came from elsewhere than OPTIONS says.
 SOURCES = "sinrun.sources"
@@ -50,7 +50,7 @@ def command_line_message(error: Exception, options: dict = OPTIONS) -> str:
             lasts.append((words[-1], options[name]))
     for last, option in sorted(lasts, key=lambda found: found[0].start(), reverse=True):  # later words first
         message = message[:last.start()] + option + message[last.end():]
-    return message
+    return message.replace("\r", "\\r").replace("\n", "\\n")  # one line, whatever a value held
 
 
 class Sinrun(click.Group):
@@ -319,7 +319,7 @@ def sample(model, seed, seeds, recon, keep, layout_file, resample_layout, grow_b
     output = output or Path(f"{loaded.path.stem}_{'recon' if recon else 'seed{seed}'}.ply")
     if seeds:
         return sample_seeds(loaded, seeds, output, engine, workers, threads, address, request)
-    path = named_output(output, seed=request.sample_seed) if "{" in output.name else output
+    path = named_output(output, seed=request.sample_seed) if "{" in str(output) else output
     with StageProgress() as show:
         write.write_request(loaded, request, path, [layout_file] if layout_file else [], threads,
                             lambda done, total: show("meshing", done, total))
@@ -683,8 +683,10 @@ def serve(model_names, host, port, timeout, allowed_host, threads):
 @cli.command(name="export-web")
 @click.argument("model_names", metavar="MODEL...", nargs=-1, required=True)
 @click.option("-o", "--output", type=click.Path(path_type=Path), required=True,
-              help="The folder to write: new, empty, or one export-web wrote before (it is replaced).")
-def export_web(model_names, output):
+              help="The folder to write: new, empty, or one export-web wrote before (its files are replaced).")
+@click.option("--force", is_flag=True,
+              help="Write into a folder that holds other files too: they stay, export-web's own are replaced.")
+def export_web(model_names, output, force):
     """Write a static web site that samples models in the browser, with no server.
 
     MODEL is a .onnx file or the name of a shipped model. The folder holds the
@@ -697,7 +699,7 @@ def export_web(model_names, output):
 
     from sinshape.runtime import __version__
 
-    result = site.export_site(model_names, output, __version__)
+    result = site.export_site(model_names, output, __version__, force)
     click.echo(f"wrote {output} ({', '.join(result['models'])}; {result['files']} files, "
                f"{result['bytes'] / 2**20:.1f} MB): python {output / 'serve.py'}")
 

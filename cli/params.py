@@ -143,6 +143,9 @@ def named_output(output: Path, **fields) -> Path:
     """Fill {seed}-style fields in an output name, or add them before the suffix."""
     if not output.name:  # '.', '/', ''
         raise click.BadParameter(f"{str(output)!r} is not a file name")
+    if any("{" + key + "}" in str(output.parent) for key in fields):
+        raise click.BadParameter(f"{output}: {', '.join('{' + k + '}' for k in fields)} fills in the file's name, "
+                                 f"not its folder {output.parent}")
     if "{" in output.name:
         import string
 

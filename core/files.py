@@ -5,6 +5,10 @@ through `atomic_write`: a temporary of a unique name beside the target,
 fsynced and renamed into place, so a crash or Ctrl-C leaves the old file or
 the new one. The checks before long work say, in one line, why a path cannot
 be read or written.
+
+An output path that is a symbolic link is written through: the file it
+points to is replaced (atomically, as any other) and the link stays, in
+every command alike (`written_path`).
 """
 
 import errno
@@ -26,13 +30,13 @@ def check_writable(path, inputs=()) -> None:
     is not a regular file (a folder, a pipe, a device), its folder is
     missing or read-only, or it is one of `inputs` (the same file, also
     through a symbolic or hard link), which writing would destroy."""
-    path = Path(path)
+    check_not_input(path, inputs)  # named as given, a link too
+    path = written_path(path)
     try:
         check_replaceable(path)
         folder_exists = path.parent.is_dir()
     except OSError as error:  # a name too long for the file system
         raise InputError(f"{path}: cannot write here ({error.strerror})") from None
-    check_not_input(path, inputs)
     if not folder_exists:
         if path.parent.exists():
             raise InputError(f"{path}: {path.parent} is a file, not a folder")
@@ -84,6 +88,29 @@ def check_replaceable(path: Path) -> None:
         raise InputError(f"{path}: exists and is not a regular file (a pipe or device); give a file name")
 
 
+def written_path(path) -> Path:
+    """Where writing `path` lands: the path itself, or for a symbolic link
+    the file it leads to (made if the link leads to a name not there yet),
+    so that writing keeps the link. A name with a control character (a
+    newline could print a line that looks like another message) is refused."""
+    path = Path(path)
+    if any(ord(c) < 32 or ord(c) == 127 for c in str(path)):
+        raise InputError(f"{str(path)!r}: a file name with a control character (a newline, a tab); name another")
+    try:
+        if not path.is_symlink():
+            return path
+    except OSError:  # a name too long to look up: writing it says so
+        return path
+    try:
+        return Path(os.path.realpath(path, strict=True))
+    except FileNotFoundError:
+        return Path(os.path.realpath(path))
+    except OSError as error:
+        if error.errno == errno.ELOOP:
+            raise InputError(f"{path}: a symbolic link that goes round in a loop") from None
+        raise InputError(f"{path}: cannot write here ({error.strerror})") from None
+
+
 def atomic_write(path, write) -> None:
     """Call write(file) on a new temporary file beside `path`, fsync it and
     rename it over `path`: readers see the old file or the new one, never
@@ -92,7 +119,7 @@ def atomic_write(path, write) -> None:
     every failure (a full disk, Ctrl-C).
     The one writer of every file sinshape makes: samples, models, checkpoints.
     """
-    path = Path(path)
+    path = written_path(path)
     check_replaceable(path)
     try:
         tmp, fd = _create_temporary(path)

@@ -226,7 +226,8 @@ def _h5_datasets(f, name: str) -> list:
         raise InputError(f"{name}: not an SSG pyramid (no 'n_scales' attribute)")
     if not (isinstance(count, (int, np.integer)) and not isinstance(count, (bool, np.bool_))
             and 1 <= count <= MAX_LEVELS):
-        raise InputError(f"{name}: n_scales must be a whole number of levels in [1, {MAX_LEVELS}], got {count}")
+        shown = count if isinstance(count, (int, float, np.number)) else repr(count)[:60]
+        raise InputError(f"{name}: n_scales must be a whole number of levels in [1, {MAX_LEVELS}], got {shown}")
     count = int(count)
     datasets = []
     for i in range(count):
@@ -238,7 +239,7 @@ def _h5_datasets(f, name: str) -> list:
         item = f.get(f"scale{i}")
         if not hasattr(item, "dtype") or item.dtype.kind not in "biuf":
             raise InputError(f"{name}: scale{i} is not a grid of numbers")
-        if len(item.shape) != 3 or not all(MIN_H5_SIDE <= n <= MAX_LEVEL_SIDE for n in item.shape):
+        if item.shape is None or len(item.shape) != 3 or not all(MIN_H5_SIDE <= n <= MAX_LEVEL_SIDE for n in item.shape):
             raise InputError(f"{name}: scale{i} is not a 3-D grid of {MIN_H5_SIDE} to {MAX_LEVEL_SIDE} voxels a side "
                              f"(shape {item.shape})")
         if item.external or item.is_virtual:  # raw data kept in other files

@@ -263,21 +263,28 @@ def vox_bytes(grid: np.ndarray) -> bytes:
 
 def read_vox(data: bytes, path) -> np.ndarray:
     """The one model of a .vox file as a bool grid; chunks other than SIZE
-    and XYZI (palette, materials, scene graph) are skipped."""
+    and XYZI (palette, materials, scene graph) are skipped. Every size a
+    chunk declares is checked (sign, and that it fits what is left of its
+    parent) before it is used."""
     def corrupt(why):
         return InputError(f"{path}: not a readable MagicaVoxel file ({why})")
 
     if len(data) < 20 or data[:4] != b"VOX " or data[8:12] != b"MAIN":
         raise corrupt("no 'VOX ' header and MAIN chunk")
-    size, voxels, at = None, None, 20 + struct.unpack_from("<i", data, 12)[0]
+    content, children = struct.unpack_from("<2i", data, 12)
+    if not (0 <= content and 0 <= children and 20 + content + children <= len(data)):
+        raise corrupt(f"MAIN declares {content} and {children} bytes, and runs past the end of the "
+                      f"{len(data) - 20} after it")
+    end = 20 + content + children
+    size, voxels, at = None, None, 20 + content
     models = 0
-    while at < len(data):
-        if at + 12 > len(data):
+    while at < end:
+        if at + 12 > end:
             raise corrupt("a chunk runs past the end")
         name = data[at:at + 4]
         content, children = struct.unpack_from("<2i", data, at + 4)
-        if content < 0 or children < 0 or at + 12 + content + children > len(data):
-            raise corrupt(f"chunk {name!r} runs past the end")
+        if content < 0 or children < 0 or at + 12 + content + children > end:
+            raise corrupt(f"chunk {name!r} declares {content} and {children} bytes, past the end")
         body = data[at + 12:at + 12 + content]
         if name == b"SIZE":
             models += 1
@@ -293,7 +300,7 @@ def read_vox(data: bytes, path) -> np.ndarray:
                 raise corrupt("an XYZI chunk whose count does not fit it")
             voxels = np.frombuffer(body, np.uint8, count * 4, 4).reshape(count, 4)
         at += 12 + content + children
-    if models != 1 or voxels is None:
+    if models != 1 or voxels is None or size is None:
         raise InputError(f"{path}: holds {models} models; a layout is one")
     xyz = voxels[:, :3].astype(int)
     if (xyz >= np.array(size)).any():
@@ -303,13 +310,24 @@ def read_vox(data: bytes, path) -> np.ndarray:
     return grid
 
 
+def check_fits(shape: tuple, suffix: str, name) -> None:
+    """A layout of `shape` fits a `suffix` file (.vox: MagicaVoxel's 256 a
+    side): checked from the level's size, before the layout is made."""
+    if suffix.lower().lstrip(".") == "vox" and max(shape) > MAX_LAYOUT_SIDE:
+        raise InputError(f"{name}: a {'x'.join(map(str, shape))} layout; .vox holds at most "
+                         f"{MAX_LAYOUT_SIDE} voxels per axis (write .npz)")
+
+
+def grid_size(model, level: int = 0, factors=(1.0, 1.0, 1.0)) -> tuple:
+    """The shape of the layout of `level` of a sample of `factors`, from the arguments alone."""
+    return tuple(scaled_sizes(model.manifest.sizes, factors)[check_level(model, level)])
+
+
 def write_layout(grid: np.ndarray, path) -> None:
     """A layout to .vox or .npz (array `layout`), atomically."""
     path = check_layout_path(path)
+    check_fits(grid.shape, path.suffix, path)
     if path.suffix.lower() == ".vox":
-        if max(grid.shape) > MAX_LAYOUT_SIDE:
-            raise InputError(f"{path}: a {'x'.join(map(str, grid.shape))} layout; .vox holds at most "
-                             f"{MAX_LAYOUT_SIDE} voxels per axis (write .npz)")
         data = vox_bytes(grid)
     else:
         buffer = io.BytesIO()
@@ -334,31 +352,70 @@ def read_layout(path) -> np.ndarray:
 
 def parse_layout(data: bytes, suffix: str, name) -> np.ndarray:
     """The bytes of a .vox or .npz layout (`suffix`) as a bool grid; `name`
-    says what they are in messages. An .npz array's shape is read from its
-    header first, so a small file cannot unpack into a huge grid."""
+    says what they are in messages. Bounds come from what is read: an .npz
+    must hold the one member `layout.npy` (np.load would read a member named
+    plain `layout` first), whose header is checked before its data, and at
+    most the bytes that header declares are decompressed."""
     if len(data) > MAX_LAYOUT_BYTES:
         raise InputError(f"{name}: {len(data) >> 20} MB is too large for a layout")
     if suffix == ".vox":
         return read_vox(data, name)
+    return read_npz(data, name)
+
+
+def read_npz(data: bytes, name) -> np.ndarray:
+    """The array `layout` of an .npz archive, read member first, header
+    second, data last, each bounded by what came before: deflate is read a
+    bounded piece at a time, so at most the bytes the header declares (at
+    most MAX_LAYOUT_BYTES) are ever decompressed."""
+    def unreadable(why):
+        return InputError(f"{name}: not a readable .npz layout ({why})")
+
     try:
         with zipfile.ZipFile(io.BytesIO(data)) as archive:
-            with archive.open("layout.npy") as member:
+            members = archive.infolist()
+            if [m.filename for m in members] != ["layout.npy"]:
+                listed = ", ".join(repr(m.filename) for m in members[:4]) + (", ..." if len(members) > 4 else "")
+                raise unreadable(f"it must hold one array, layout.npy, and holds {listed or 'nothing'}")
+            if members[0].compress_type not in (zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED):
+                # bzip2 and LZMA decompress a chunk whole: a few bytes could unpack into gigabytes at once
+                raise unreadable("compressed other than as NumPy writes it, stored or deflated")
+            with archive.open(members[0]) as member:
                 major, _ = np.lib.format.read_magic(member)
+                if major not in (1, 2):
+                    raise unreadable(f"NPY format version {major}")
                 read_header = np.lib.format.read_array_header_1_0 if major == 1 else np.lib.format.read_array_header_2_0
-                shape, _, dtype = read_header(member)
-    except (KeyError, ValueError, OSError, zipfile.BadZipFile, EOFError):
-        raise InputError(f"{name}: not a readable .npz file with an array 'layout'") from None
-    if len(shape) != 3 or not all(1 <= n <= MAX_LEVEL_SIDE for n in shape) or np.prod(shape) > MAX_LAYOUT_CELLS:
+                shape, fortran, dtype = read_header(member, max_header_size=10000)
+                check_npz_header(shape, dtype, name)
+                needed = int(np.prod(shape)) * dtype.itemsize
+                if needed > MAX_LAYOUT_BYTES:
+                    raise InputError(f"{name}: its layout of shape {shape} holds {needed >> 20} MB; a layout "
+                                     f"holds at most {MAX_LAYOUT_BYTES >> 20} MB")
+                body = member.read(needed + 1)  # at most what the header declares, and one byte to see more
+    except InputError:
+        raise
+    except (ValueError, OSError, zipfile.BadZipFile, EOFError, NotImplementedError, SyntaxError, TypeError) as error:
+        raise unreadable(type(error).__name__) from None
+    if len(body) != needed:
+        raise unreadable(f"its data is {len(body)} bytes and its header declares {needed}")
+    grid = np.frombuffer(body, dtype).reshape(shape, order="F" if fortran else "C")
+    if grid.dtype == bool:
+        return grid.copy()
+    if not np.isfinite(grid).all():
+        raise InputError(f"{name}: 'layout' holds NaN or infinite values, not occupancy in [0, 1]")
+    return grid > 0.5
+
+
+def check_npz_header(shape: tuple, dtype, name) -> None:
+    """An .npz layout's header, before a byte of its data is read: 3 bounded
+    axes of booleans or real numbers."""
+    if not (isinstance(shape, tuple) and len(shape) == 3 and all(isinstance(n, int) for n in shape)
+            and all(1 <= n <= MAX_LEVEL_SIDE for n in shape) and np.prod(shape, dtype=object) <= MAX_LAYOUT_CELLS):
         raise InputError(f"{name}: needs an array 'layout' of 3 axes, 1 to {MAX_LEVEL_SIDE} each and at most "
                          f"{MAX_LAYOUT_CELLS} cells, got shape {shape}")
-    if not (dtype == bool or np.issubdtype(dtype, np.number)) or dtype.hasobject:
+    if not (dtype == bool or np.issubdtype(dtype, np.integer) or np.issubdtype(dtype, np.floating)) \
+            or dtype.hasobject or dtype.itemsize > 8:
         raise InputError(f"{name}: 'layout' holds {dtype}, not occupancy")
-    try:
-        with np.load(io.BytesIO(data), allow_pickle=False) as npz:
-            grid = npz["layout"]
-    except (ValueError, OSError, zipfile.BadZipFile, EOFError):
-        raise InputError(f"{name}: not a readable .npz file") from None
-    return grid if grid.dtype == bool else np.asarray(grid) > 0.5
 
 
 def cells(manifest, factors=(1.0, 1.0, 1.0)) -> tuple:
@@ -396,7 +453,7 @@ def read_any(model, path, factors=(1.0, 1.0, 1.0)) -> np.ndarray:
 
 def export(model, seed: int, path, level: int = 0, factors=(1.0, 1.0, 1.0)) -> tuple:
     """Write the layout of the sample of `seed` at `level` to `path`; its grid size."""
-    check_layout_path(path)
+    check_fits(grid_size(model, level, factors), check_layout_path(path).suffix, path)
     grid = layout(model, seed, level, factors)
     write_layout(grid, path)
     return grid.shape

@@ -101,7 +101,7 @@ def read_model(path: Path) -> tuple:
     except onnxfile.NotText:
         raise InputError(f"{path}: corrupt model: a name in it is not text (UTF-8)") from None
     except ValueError:
-        raise InputError(f"{path}: not an ONNX file") from None
+        raise InputError(f"{path}: not an ONNX file (truncated or corrupt)") from None
     if len(model.nodes) == 0:
         raise InputError(f"{path}: not a sinshape model (an empty or non-ONNX file)")
     if any(t.external for t in model.weights.values()):
@@ -116,6 +116,8 @@ def read_model(path: Path) -> tuple:
 
 def read_manifest(model: onnxfile.OnnxModel, sealed: bool, path: Path) -> fmt.Manifest:
     props = model.metadata
+    if fmt.METADATA_KEY in model.repeated:  # which one is the manifest? neither
+        raise InputError(f"{path}: corrupt model: it holds {fmt.METADATA_KEY} twice")
     if fmt.METADATA_KEY not in props:
         raise InputError(f"{path}: an ONNX model, but not a sinshape model (no {fmt.METADATA_KEY} metadata)")
     try:

@@ -55,8 +55,8 @@ class Varying:
 
 
 def record_seed(value) -> int:
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise ValueError("a seed is an integer")
+    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value < 2**63:
+        raise ValueError("a seed is an integer in [0, 2**63)")
     return value
 
 
@@ -80,19 +80,32 @@ def index_path(pattern, varying: Varying = SEEDS) -> Path:
     return pattern.with_name(Path(re.sub(rf"({field})?\{{{field}\}}", "index", pattern.name)).stem + ".jsonl")
 
 
+MAX_INDEX_LINE = 4096  # bytes of one record: a seed or tile, a file name, a size and a hash
+
+
 def read_index(path: Path, varying: Varying = SEEDS) -> dict:
-    """{item: its last record} of an index. A line cut short by a crash is
+    """{item: its last record} of an index, each field it is read by checked
+    (the item, the file's size and hash). A line cut short by a crash is
     dropped."""
     if not path.is_file():
         return {}
     data = path.read_bytes()
     records = {}
-    for line in data[:data.rfind(b"\n") + 1].splitlines():
+    for number, line in enumerate(data[:data.rfind(b"\n") + 1].splitlines(), 1):
         try:
+            if len(line) > MAX_INDEX_LINE:
+                raise ValueError(f"longer than {MAX_INDEX_LINE} bytes")
             record = json.loads(line)
-            records[varying.item(record[varying.field])] = record
-        except (ValueError, KeyError, TypeError, InputError):
-            raise InputError(f"{path}: not a sinshape index (a line is not a {varying.field}'s JSON record); "
+            if not isinstance(record, dict):
+                raise ValueError("not a JSON object")
+            item = varying.item(record[varying.field])
+            size, digest = record.get("bytes"), record.get("sha256")
+            if not (size is None or isinstance(size, int) and not isinstance(size, bool) and size >= 0) \
+                    or not (digest is None or isinstance(digest, str)):
+                raise ValueError("a file size or hash of the wrong type")
+            records[item] = record
+        except (ValueError, KeyError, TypeError, RecursionError, InputError):
+            raise InputError(f"{path}: not a sinshape index (line {number} is not a {varying.field}'s JSON record); "
                              "move it away or choose another output name") from None
     return records
 
@@ -390,6 +403,9 @@ def run_job(model_path, items, pattern, varying: Varying, request, engine: str =
     from . import write
 
     pattern = Path(pattern)
+    if varying.placeholder in str(pattern.parent):
+        raise InputError(f"{pattern}: {varying.placeholder} fills in the file's name, not its folder "
+                         f"{pattern.parent}", "pattern")
     if varying.placeholder not in pattern.name:
         raise InputError(f"{pattern.name}: many {varying.field}s need {varying.placeholder} in the output file "
                          "name", "pattern")

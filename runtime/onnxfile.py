@@ -100,6 +100,7 @@ class OnnxModel:
     ir_version: int = 0
     opsets: list = field(default_factory=list)  # raw opset_import entries
     metadata: dict = field(default_factory=dict)
+    repeated: set = field(default_factory=set)  # metadata keys given more than once (the last one is kept)
     has_functions: bool = False
     nodes: list = field(default_factory=list)
     weights: dict = field(default_factory=dict)  # name -> Tensor
@@ -119,7 +120,10 @@ def parse(data: bytes) -> OnnxModel:
             model.opsets.append(data[first:last])
         elif number == MODEL_METADATA and wire == 2:
             entry = {n: text(data, v) for n, w, v, _ in fields(data, *value) if w == 2 and n in (1, 2)}
-            model.metadata[entry.get(1, "")] = entry.get(2, "")
+            key = entry.get(1, "")
+            if key in model.metadata:
+                model.repeated.add(key)
+            model.metadata[key] = entry.get(2, "")
         elif number == MODEL_FUNCTIONS:
             model.has_functions = True
         elif number == MODEL_GRAPH and wire == 2:

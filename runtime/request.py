@@ -47,6 +47,9 @@ class Layout:
         grid = np.asarray(grid)
         if grid.ndim != 3 or 0 in grid.shape:
             raise InputError(f"a layout is a 3-D grid, got shape {grid.shape}", "layout")
+        if not (grid.dtype == bool or np.issubdtype(grid.dtype, np.number) and np.isfinite(grid).all()):
+            raise InputError("a layout holds occupancy, numbers in [0, 1]: not NaN, infinities or other things",
+                             "layout")
         return cls(tuple(int(n) for n in grid.shape), np.packbits(grid.ravel() > 0.5).tobytes(), bool(resample))
 
     def grid(self) -> np.ndarray:

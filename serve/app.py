@@ -176,19 +176,19 @@ async def model_file(request: Request, name: str):
 async def sample(
     request: Request,
     q: Annotated[SampleQuery, Depends()],
-    keep: Annotated[list[str], Query(max_length=16, description="Parts to keep from other samples, "
+    keep: Annotated[list[str], Query(description="Parts to keep from other samples, "
                                      "SEED:X0,Y0,Z0:X1,Y1,Z1 (the model's frame, or percentages like 50%); "
                                      "repeat for more. The rest comes from `seed`.")] = [],
     grow: Annotated[str | None, Query(description="Grow the sample by these factors (one, or sx,sy,sz, "
                                       "each at least 1), keeping what it had.")] = None,
-    anchor: Annotated[str, Query(description="With grow: where the old sample sits, per axis from 0 "
-                                 "(low side) to 1 (high side).")] = "0",
+    anchor: Annotated[str | None, Query(description="With grow: where the old sample sits, per axis from 0 "
+                                        "(low side, the default) to 1 (high side).")] = None,
 ):
     model = find(request, q.name)
-    where = generate.parse_triple(anchor, lambda v: 0 <= v <= 1, "three fractions in [0, 1]", "anchor")
+    where = None if anchor is None else generate.parse_triple(anchor, lambda v: 0 <= v <= 1,
+                                                              "three fractions in [0, 1]", "anchor")
     wanted = SampleRequest(q.seed, size=generate.parse_size(q.size), scale=q.scale, smooth=q.smooth,
-                           keep=tuple(keep), grow=generate.parse_size(grow) if grow else None,
-                           anchor=where if grow else None)  # the anchor's default is not a choice
+                           keep=tuple(keep), grow=generate.parse_size(grow) if grow else None, anchor=where)
     return await answer(request, model, Job(q.name, resolved(model, wanted), q.format))
 
 
@@ -225,7 +225,9 @@ async def sample_layout(
     """The sample's occupancy averaged over one level's grid, full where more than half is: what
     POST sample takes back, edited."""
     model = find(request, name)
-    wanted = Job(name, SampleRequest(seed, size=generate.parse_size(size)), format, layout.check_level(model, level))
+    factors = generate.parse_size(size)
+    layout.check_fits(layout.grid_size(model, level, factors), format, "the layout")  # before making it
+    wanted = Job(name, SampleRequest(seed, size=factors), format, layout.check_level(model, level))
     return await answer(request, model, wanted)
 
 
@@ -346,5 +348,6 @@ def run(loaded: dict, host: str = "127.0.0.1", port: int = 8000, timeout: float 
     shown = f"[{host}]" if ":" in host else host
     if ready:
         ready(f"http://{shown}:{sock.getsockname()[1]}/", allowed)
-    server = uvicorn.Server(uvicorn.Config(application, log_level="warning", timeout_graceful_shutdown=5))
+    server = uvicorn.Server(uvicorn.Config(application, log_level="warning", timeout_graceful_shutdown=5,
+                                           http=http.json_400_protocol()))
     server.run(sockets=[sock])

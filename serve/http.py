@@ -19,12 +19,23 @@ check, the isolation headers, gzip, and entity tags.
   so a browser keeps them and revalidates them (304, Starlette's ETag)
   rather than reuse them unasked.
 
+- Every 4xx and 5xx answer is one line of JSON, {"detail": "..."}, whoever
+  made it: the routes, Starlette's layers under them (a malformed Range, an
+  unknown path, a method not allowed: JSONErrors) and uvicorn's parser
+  under those (a request it cannot parse, a negative Content-Length:
+  JSONH11Protocol).
+- HEAD is answered wherever GET is, with GET's headers and no body, and
+  `If-None-Match: *` by HTTP's rule: 304 for a GET or HEAD of a resource
+  that exists, 412 for another method.
+
 The isolation headers and the reading of Accept-Encoding are the exported
 site's server's (site_server.py, which stands alone), imported from there.
 """
 
 import asyncio
 import hashlib
+import json
+from http import HTTPStatus
 from pathlib import Path
 
 from fastapi.responses import FileResponse, JSONResponse, Response
@@ -54,7 +65,7 @@ def file_answer(request, body: bytes, tag: str, media_type: str, headers: dict) 
     (weak or strong: a gzipped answer's tag is the same one made weak)."""
     headers = {"ETag": tag, "Cache-Control": "no-cache", **headers}
     known = [item.strip().removeprefix("W/") for item in request.headers.get("if-none-match", "").split(",")]
-    if tag in known:
+    if tag in known or "*" in known:
         return Response(status_code=304, headers=headers)
     return Response(body, media_type=media_type, headers=headers)
 
@@ -160,8 +171,97 @@ class AnswerGZip(GZipMiddleware):
         await super().__call__(scope, receive, send)
 
 
+def error_body(status: int, text: bytes) -> bytes:
+    """{"detail": one line} of an error answer: its text, else the status's phrase."""
+    detail = " ".join(text.decode("utf-8", "replace").split())[:500]
+    if not detail:
+        try:
+            detail = HTTPStatus(status).phrase
+        except ValueError:
+            detail = f"status {status}"
+    return json.dumps({"detail": detail}).encode()
+
+
+class JSONErrors:
+    """ASGI middleware, innermost: an error answer that is not JSON (Starlette's
+    plain-text ones) is rewritten as {"detail": its text}; HEAD is routed as
+    GET and answered without the body; `If-None-Match: *` answers 304 (GET,
+    HEAD) or 412 (others) where the answer would have been a success."""
+
+    def __init__(self, app):
+        self.app = app
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http":
+            return await self.app(scope, receive, send)
+        head = scope["method"] == "HEAD"
+        if head:
+            scope = {**scope, "method": "GET"}
+        any_tag = "*" in [t.strip() for t in Headers(scope=scope).get("if-none-match", "").split(",")]
+        state = {"start": None, "body": [], "mode": "pass"}
+
+        async def send_checked(message):
+            if message["type"] == "http.response.start":
+                status = message["status"]
+                headers = Headers(raw=message.get("headers", []))
+                if status >= 400 and not headers.get("content-type", "").startswith("application/json"):
+                    state["start"], state["mode"] = message, "error"
+                    return
+                if any_tag and 200 <= status < 300:
+                    state["mode"] = "drop"
+                    if scope["method"] == "GET":
+                        kept = [(k, v) for k, v in message.get("headers", []) if k.lower() not in
+                                (b"content-length", b"content-type", b"content-encoding")]
+                        return await send({**message, "status": 304, "headers": kept})
+                    state["start"], state["mode"] = {**message, "status": 412, "headers": []}, "error"
+                    state["body"] = [b"the resource exists, and If-None-Match: * asks that it does not"]
+                    return
+                if head:
+                    state["mode"] = "head"
+                return await send(message)
+            if state["mode"] == "error":
+                if state["start"]["status"] != 412:
+                    state["body"].append(message.get("body", b""))
+                if message.get("more_body"):
+                    return
+                body = error_body(state["start"]["status"], b"".join(state["body"]))
+                headers = MutableHeaders(raw=[(k, v) for k, v in state["start"].get("headers", []) if k.lower() not in
+                                              (b"content-length", b"content-type", b"content-encoding")])
+                headers["content-type"], headers["content-length"] = "application/json", str(len(body))
+                await send({**state["start"], "headers": headers.raw})
+                return await send({"type": "http.response.body", "body": b"" if head else body})
+            if state["mode"] in ("drop", "head"):  # a 304, or HEAD: no body
+                if not message.get("more_body"):
+                    await send({"type": "http.response.body", "body": b""})
+                return
+            await send(message)
+
+        await self.app(scope, receive, send_checked)
+
+
+def json_400_protocol():
+    """uvicorn's HTTP/1.1 protocol (h11) whose own 400, for a request it
+    cannot parse, is JSON like every other error (uvicorn's is plain text)."""
+    from uvicorn.protocols.http.h11_impl import H11Protocol
+
+    class JSONH11Protocol(H11Protocol):
+        def send_400_response(self, msg: str) -> None:
+            import h11
+
+            body = error_body(400, msg.encode())
+            headers = [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode()),
+                       (b"connection", b"close")]
+            for event in (h11.Response(status_code=400, headers=headers, reason=b"Bad Request"), h11.Data(data=body),
+                          h11.EndOfMessage()):
+                self.transport.write(self.conn.send(event))
+            self.transport.close()
+
+    return JSONH11Protocol
+
+
 def add_middleware(app, allowed: set) -> None:
-    """The Host check, the isolation headers and gzip, on every answer of `app`."""
+    """The Host check, the isolation headers, gzip and JSON errors, on every answer of `app`."""
     # Outermost last: HostsAndIsolation sees the compressed answer's headers.
+    app.add_middleware(JSONErrors)
     app.add_middleware(AnswerGZip, minimum_size=GZIP_MINIMUM, compresslevel=GZIP_LEVEL)
     app.add_middleware(HostsAndIsolation, allowed=allowed)

@@ -11,7 +11,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sinshape.core.errors import InputError
 from sinshape.runtime import layout, write
 from sinshape.runtime.request import SampleRequest, make
 from sinshape.serve.http import entity_tag
@@ -62,9 +61,7 @@ def layout_file(grid: np.ndarray, level: int, format: str) -> bytes:
     """A layout as `sinrun layout` writes it (.vox, .npz), or as JSON: {shape,
     level, occupancy}, occupancy a string of '0' and '1' per cell, x slowest, z fastest."""
     if format == "vox":
-        if max(grid.shape) > layout.MAX_LAYOUT_SIDE:
-            raise InputError(f"a {'x'.join(map(str, grid.shape))} layout; .vox holds at most "
-                             f"{layout.MAX_LAYOUT_SIDE} voxels per axis (ask for npz)")
+        layout.check_fits(grid.shape, format, "the layout")
         return layout.vox_bytes(grid)
     if format == "npz":
         buffer = io.BytesIO()

@@ -20,9 +20,17 @@ revalidates them, 304).
 
 Needs no FastAPI: only the runtime (to check the models) and the files.
 Every file is written through core.files.atomic_write.
+
+Nothing the user put in the folder is deleted: the folder's `.sinshape-site`
+lists every file the command wrote, with its SHA-256, and a new export
+replaces only those (a listed file the user changed is theirs now). A
+folder holding anything else is refused, naming what is in the way, unless
+`force`, which keeps those files and replaces the command's own.
 """
 
+import hashlib
 import json
+import os
 import shutil
 from pathlib import Path
 
@@ -32,7 +40,9 @@ from sinshape.runtime import load
 from sinshape.serve import catalog, compress, site_server
 
 STATIC = Path(__file__).parent / "static"
-MARKER = ".sinshape-site"  # marks a folder this command wrote, so a new export may replace it
+MARKER = ".sinshape-site"  # the files this command wrote in a folder, with their SHA-256: what a new export may replace
+MAX_MARKER_BYTES = 1 << 20
+SHOWN = 5  # files in the way named in a refusal
 # Every answer, from serve.py and (through _headers) from Netlify or Cloudflare Pages.
 HEADERS = {**site_server.ISOLATION_HEADERS, "Cache-Control": "no-cache"}
 SERVER = Path(site_server.__file__)  # the site's serve.py
@@ -116,22 +126,94 @@ def write_site(folder: Path, models: dict, version: str) -> None:
     put(folder / "_headers", "/*\n" + "".join(f"  {k}: {v}\n" for k, v in HEADERS.items()))
     put(folder / "README.txt", README.format(names=", ".join(models), version=version))
     compress.write_beside(folder)
-    put(folder / MARKER, json.dumps({"sinshape": version, "models": list(models)}) + "\n")
+    listing = {rel: [digest(folder / rel)] for rel in entries(folder)[0]}
+    put(folder / MARKER, json.dumps({"sinshape": version, "models": list(models), "files": listing}) + "\n")
 
 
-def export_site(names, out, version: str = "") -> dict:
+def digest(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def entries(folder: Path) -> tuple:
+    """(regular files, everything else: links, pipes, ...) under `folder`, as
+    relative POSIX paths, the marker left out; links are not followed."""
+    regular, other = [], []
+    for root, dirs, names in os.walk(folder):
+        for name in [*names, *(d for d in dirs if os.path.islink(os.path.join(root, d)))]:
+            path = Path(root, name)
+            rel = path.relative_to(folder).as_posix()
+            if rel != MARKER:
+                (regular if path.is_file() and not path.is_symlink() else other).append(rel)
+    return sorted(regular), sorted(other)
+
+
+def written_before(folder: Path) -> dict:
+    """{relative path: [SHA-256, ...]} of the files an export wrote in
+    `folder`, from its marker, checked field by field ({} for none, or one
+    that is not a marker)."""
+    marker = folder / MARKER
+    try:
+        if not marker.is_file() or marker.is_symlink() or marker.stat().st_size > MAX_MARKER_BYTES:
+            return {}
+        listing = json.loads(marker.read_bytes()).get("files")
+    except (OSError, ValueError, AttributeError, RecursionError):
+        return {}
+    if not isinstance(listing, dict):
+        return {}
+    return {rel: hashes for rel, hashes in listing.items()
+            if isinstance(hashes, list) and all(isinstance(h, str) for h in hashes)}
+
+
+def in_the_way(folder: Path) -> list:
+    """What in `folder` an export did not write, or that changed since it
+    did: files the user made, which an export never deletes."""
+    if not folder.is_dir():
+        return []
+    ours = written_before(folder)
+    regular, other = entries(folder)
+    return sorted(other + [rel for rel in regular if rel not in ours or digest(folder / rel) not in ours[rel]])
+
+
+def merge(made: Path, out: Path) -> None:
+    """Move the site in `made` into `out`, file by file (each a rename),
+    and remove the files the last export wrote that this one does not;
+    anything else in `out` stays. The marker first lists old and new
+    hashes, so that a crash halfway leaves every file accounted for."""
+    old, new = written_before(out), written_before(made)
+    both = {rel: old.get(rel, []) + new.get(rel, []) for rel in {*old, *new}}
+    put(out / MARKER, json.dumps({"files": both}) + "\n")
+    for rel in new:
+        target = files.written_path(out / rel)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        files.check_replaceable(target)
+        os.replace(made / rel, target)
+    for rel in sorted(set(old) - set(new)):
+        path = out / rel
+        if path.is_file() and not path.is_symlink() and digest(path) in old[rel]:
+            path.unlink()
+            for parent in path.relative_to(out).parents:
+                if str(parent) != "." and not any((out / parent).iterdir()):
+                    (out / parent).rmdir()
+    os.replace(made / MARKER, out / MARKER)
+
+
+def export_site(names, out, version: str = "", force: bool = False) -> dict:
     """Write a static site sampling `names` (shipped names or .onnx paths) to `out`.
 
-    `out` must not exist, be empty, or be a site this function wrote before
-    (it is then replaced). Written next to `out` and renamed into place, so
-    a failure leaves nothing behind. Returns {"path", "models", "bytes", "files"}.
+    `out` is new, empty, or holds only what an export wrote there (which is
+    replaced); anything else in it is refused by name, unless `force`, which
+    keeps it and replaces the export's own files. A symbolic link is written
+    through. The site is made beside `out` first, so a failure leaves `out`
+    as it was. Returns {"path", "models", "bytes", "files"}.
     """
-    out = Path(out)
+    out = files.written_path(out)
     if out.exists() and not out.is_dir():
         raise InputError(f"{out}: exists and is not a folder")
-    if out.is_dir() and any(out.iterdir()) and not (out / MARKER).is_file():
-        raise InputError(f"{out}: a folder with other files in it; name a new or empty folder "
-                         "(a folder that export-web wrote is replaced)")
+    foreign = in_the_way(out)
+    if foreign and not force:
+        shown = ", ".join(foreign[:SHOWN]) + (f" and {len(foreign) - SHOWN} more" if len(foreign) > SHOWN else "")
+        raise InputError(f"{out}: holds files export-web did not write ({shown}); move them away, or force to "
+                         "keep them and replace the rest", "force")
     models = resolve(names)
     for model in models.values():  # replacing the folder would delete them
         if out.resolve() in model.path.resolve().parents:
@@ -139,18 +221,21 @@ def export_site(names, out, version: str = "") -> dict:
     parent = out.absolute().parent
     if not parent.is_dir():
         raise InputError(f"{parent}: no such folder")
-    # Unique names of bounded length: two exports to one folder never share them.
-    temporary, old = files.temporary_path(parent / out.name, "partial"), files.temporary_path(parent / out.name, "old")
+    # A unique name of bounded length: two exports to one folder never share it.
+    temporary = files.temporary_path(parent / out.name, "partial")
     try:
         temporary.mkdir()
         write_site(temporary, models, version)
+        if out.is_dir() and not any(out.iterdir()):
+            out.rmdir()
         if out.exists():
-            out.rename(old)
-        temporary.rename(out)
+            merge(temporary, out)
+        else:
+            temporary.rename(out)
     except OSError as error:
         raise InputError(f"{out}: cannot write the site ({error.strerror or error})") from None
     finally:
         shutil.rmtree(temporary, ignore_errors=True)
-        shutil.rmtree(old, ignore_errors=True)
-    written = [f for f in out.rglob("*") if f.is_file()]
-    return {"path": out, "models": list(models), "bytes": sum(f.stat().st_size for f in written), "files": len(written)}
+    written = written_before(out)
+    return {"path": out, "models": list(models), "bytes": sum((out / rel).stat().st_size for rel in written),
+            "files": len(written)}

@@ -324,7 +324,8 @@ def test_requests_are_checked_as_python_checks_them(site_page):
 
 @pytest.mark.parametrize("text", ["3:0%,0%,0%:50%,100%,100%", "3: 1.5,0,0 :4,2.5,0.75", "+3:0%,0%,0%:100%,100%,100%",
                                   "3:0%,0%,0%:0%,100%,100%", "3:0%,0%,0%:5%,100%,100%", "3:0%,0%,0%:150%,100%,100%",
-                                  "x:0,0,0:1,1,1", "3:0,0:1,1,1", "3:a,0,0:1,1,1", "3:0,0,0", "-1:0%,0%,0%:50%,100%,100%"])
+                                  "x:0,0,0:1,1,1", "3:0,0:1,1,1", "3:a,0,0:1,1,1", "3:0,0,0", "-1:0%,0%,0%:50%,100%,100%",
+                                  "3:40%,0%,0%:45%,100%,100%", "3:1,0%,0%:1.5,100%,100%", "3:50%,0,0:20%,1,1"])
 def test_parts_are_read_as_python_reads_them(site_page, terrain, text):
     """The page's kept boxes are text, read in the worker by edit.js's parsePart as edit.parse_part
     reads them on the server: the same box in voxels, or the same message."""
@@ -504,6 +505,18 @@ def foreign_op(proto):
     proto.graph.node[0].op_type = "Softmax"
 
 
+def sealed_twice(path: Path) -> Path:
+    """The terrain model with a second sinshape.manifest entry, sealed (protobuf keeps the last: which is the model's?)."""
+    from sinshape.core import manifest as fmt
+
+    proto = onnx.load(TERRAIN)
+    drop_seal(proto)
+    manifest = next(p.value for p in proto.metadata_props if p.key == "sinshape.manifest")
+    proto.metadata_props.add(key="sinshape.manifest", value=manifest.replace('"noise_amp": 1', '"noise_amp": 2'))
+    path.write_bytes(fmt.seal(proto.SerializeToString()))
+    return path
+
+
 def load_in_page(page, files) -> list:
     """Each file loaded by the browser runtime: 'loaded', or its error message."""
     return page.evaluate("""async (files) => {
@@ -555,7 +568,8 @@ def test_files_are_refused_as_the_python_loader_refuses_them(site_page, tmp_path
              altered_terrain(tmp_path / "seconds.onnx", edit_manifest(lambda m: m["training"].update(level_seconds=5))),
              altered_terrain(tmp_path / "shrink.onnx", edit_manifest(lambda m: m["levels"][1].update(size=[9, 9, 9]))),
              altered_terrain(tmp_path / "spacing.onnx", edit_manifest(lambda m: m["frame"].update(spacing=[1e-300, 1, 1]))),
-             altered_terrain(tmp_path / "step.onnx", edit_manifest(lambda m: m["frame"].update(origin=[1e9, 0, 0])))]
+             altered_terrain(tmp_path / "step.onnx", edit_manifest(lambda m: m["frame"].update(origin=[1e9, 0, 0]))),
+             sealed_twice(tmp_path / "twice.onnx")]
     messages = load_in_page(page, files)
     for path, message in zip(files, messages):
         with pytest.raises(InputError) as python:
@@ -567,6 +581,7 @@ def test_files_are_refused_as_the_python_loader_refuses_them(site_page, tmp_path
     assert "ends with a seal" in messages[8] and "noise_amp" in messages[9] and "origin" in messages[10]
     assert "source" in messages[11] and "config" in messages[12] and "training seconds" in messages[13]
     assert "levels grow" in messages[14] and "spacing" in messages[15] and "float32's step" in messages[16]
+    assert "corrupt model: it holds sinshape.manifest twice" in messages[17]
     # The page reads formats 3 and 4 only (sinrun serve and export-web seal older models on the way out).
     (message,) = load_in_page(page, [Path(__file__).parent / "data" / "tiny_v2.onnx"])
     assert message == "tiny_v2.onnx: a format 2 model; the browser reads formats 3 and 4, which `sinrun serve` and " \
@@ -614,13 +629,11 @@ def test_export_web_writes_replaces_and_refuses(tmp_path):
     assert {"ort.wasm.min.mjs", "ort-wasm-simd-threaded.mjs", "ort-wasm-simd-threaded.wasm", "LICENSE"} <= vendored
     assert not [name for name in vendored if "jsep" in name or name.startswith("ort.min.")]
     # A previous export is replaced; any other folder with files is refused, untouched.
-    (out / "stale.txt").write_text("x")
     assert run("export-web", "terrain", "-o", out).exit_code == 0
-    assert not (out / "stale.txt").exists()
     other = tmp_path / "other"
     other.mkdir()
     (other / "keep.txt").write_text("mine")
-    assert_one_line_error(run("export-web", "terrain", "-o", other), "a folder with other files in it")
+    assert_one_line_error(run("export-web", "terrain", "-o", other), "holds files export-web did not write (keep.txt)")
     assert [p.name for p in other.iterdir()] == ["keep.txt"]
     # A bad model: one line, nothing written.
     assert_one_line_error(run("export-web", foreign_model(tmp_path / "foreign.onnx"), "-o", tmp_path / "new"),

@@ -7,6 +7,7 @@ loadable weights-only; `load_checkpoint` checks it is one of ours before a
 resumed run restores it (`Trainer.restore`).
 """
 
+import math
 import time
 from pathlib import Path
 
@@ -41,18 +42,81 @@ def count_levels(generator_state: dict) -> int:
 
 
 def load_checkpoint(path: Path) -> dict:
-    """Read a checkpoint and check that it is one of ours."""
+    """Read a checkpoint (weights only: tensors and plain values, never
+    pickled objects) and check that it is one of ours, field by field."""
     if not path.is_file():
         raise InputError(f"{path}: no checkpoint to resume from")
     try:
         state = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as error:  # torch raises many kinds for a bad file
         raise InputError(f"{path}: not a readable checkpoint ({type(error).__name__})") from None
-    if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT:
+    if not (isinstance(state, dict) and isinstance(state.get("format"), str) and state["format"] == CHECKPOINT_FORMAT):
         raise InputError(f"{path}: not a sinshape checkpoint")
-    if state.get("version") != CHECKPOINT_VERSION:
-        raise InputError(f"{path}: checkpoint version {state.get('version')} is not {CHECKPOINT_VERSION}")
+    if not (whole(state.get("version")) and state["version"] == CHECKPOINT_VERSION):
+        raise InputError(f"{path}: checkpoint version {str(state.get('version'))[:20]!r} is not {CHECKPOINT_VERSION}")
+    why = check_fields(state)
+    if why:
+        raise InputError(f"{path}: a damaged checkpoint ({why})")
     return state
+
+
+def whole(value, low: int = 0, high: int = 2**63) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and low <= value < high
+
+
+def finite(value) -> bool:
+    """A plain finite number (an integer of at most 63 bits: a float's range, and no 10**400)."""
+    if isinstance(value, bool):
+        return False
+    return whole(value, -2**63) or isinstance(value, float) and math.isfinite(value)
+
+
+def numbers_list(value) -> bool:
+    return isinstance(value, list) and all(finite(v) for v in value)
+
+
+def tensors(value) -> bool:
+    return isinstance(value, dict) and all(isinstance(k, str) and isinstance(v, torch.Tensor) for k, v in value.items())
+
+
+def check_fields(state: dict) -> str | None:
+    """What is wrong with a checkpoint's fields (None: nothing): each of the
+    type, sign and range `Trainer.restore` and `TrainConfig` rely on."""
+    if not isinstance(state.get("config"), dict):
+        return "config is not a table of settings"
+    try:
+        TrainConfig.from_dict(state["config"])
+    except (TypeError, ValueError) as error:  # InputError is a ValueError
+        return f"its config: {str(error).splitlines()[0][:200] if str(error) else type(error).__name__}"
+    sizes = state.get("sizes")
+    if not (isinstance(sizes, list) and 1 <= len(sizes) <= 32
+            and all(isinstance(s, list) and len(s) == 3 and all(whole(n, 1, 4097) for n in s) for s in sizes)):
+        return "sizes must be 1 to 32 lists of 3 whole numbers in [1, 4096]"
+    source = state.get("source")
+    if not (isinstance(source, dict) and all(isinstance(source.get(k), str) for k in ("name", "sha256", "kind"))):
+        return "source must hold the strings name, sha256 and kind"
+    if not (whole(state.get("level"), 0, len(sizes) + 1) and whole(state.get("iteration"))):
+        return f"level must be 0 to {len(sizes)} and iteration a whole number"
+    for name in ("noise_amps", "seconds"):
+        if not numbers_list(state.get(name)):
+            return f"{name} must be a list of finite numbers"
+    for name in ("lrs", "rewinds", "plan"):
+        if state.get(name) is not None and not numbers_list(state[name]):
+            return f"{name} must be a list of finite numbers"
+    if not finite(state.get("level_seconds")):
+        return "level_seconds must be a finite number"
+    if not (tensors(state.get("generator")) and tensors(state.get("critic"))):
+        return "generator and critic must be tables of tensors"
+    if any(k.startswith("levels.") and not k.split(".")[1].isdigit() for k in state["generator"]):
+        return "the generator's levels are not numbered"
+    if count_levels(state["generator"]) > len(sizes):
+        return f"the generator has {count_levels(state['generator'])} levels for {len(sizes)} sizes"
+    if any(state.get(name) is not None and not isinstance(state[name], dict) for name in ("opt_g", "opt_d")):
+        return "opt_g and opt_d must be optimiser states"
+    rng = state.get("rng")
+    if not (isinstance(rng, torch.Tensor) and rng.dtype == torch.uint8 and rng.dim() == 1):
+        return "rng must be a generator's state (a tensor of bytes)"
+    return None
 
 
 def load_generator(checkpoint_path) -> tuple:

@@ -113,7 +113,11 @@ def open_run(input_path, output_path: Path, config: TrainConfig | None, resume: 
     log(f"training on {placement.describe()}")
     trainer = Trainer(config, pyramid, placement)
     if state is not None:
-        trainer.restore(state)
+        try:
+            trainer.restore(state)
+        except (RuntimeError, KeyError, ValueError, IndexError) as error:  # tensors whose shapes do not fit
+            why = " ".join(str(error).split())[:200] or type(error).__name__
+            raise InputError(f"{checkpoint_path}: a checkpoint whose state does not fit its networks ({why})") from None
         if trainer.level < len(trainer.sizes):
             log(f"resuming at level {trainer.level + 1}/{len(trainer.sizes)}, iteration {trainer.iteration}")
         else:

@@ -14,43 +14,57 @@ const PLANE_AXES = [[0, 1], [0, 2], [1, 2]];
  * edit.parse_part: corners in the model's frame (manifest's origin and
  * spacing), or percentages of the sample's extent ('50%').
  */
-export const parsePart = (text, manifest, size) => checkPart(readPart(text, manifest, size), size);
+export function parsePart(text, manifest, size) {
+  const part = readPart(text, manifest, size);
+  // A figure in the units the box was written in along an axis, beside the voxels, as edit.parse_part's in_units.
+  const inUnits = (axis, voxels, length = false) => (part.percent[axis]
+    ? `${formatG((voxels / Math.max(size[axis] - 1, 1)) * 100)}%`
+    : formatG(voxels * manifest.spacing[axis] + (length ? 0 : manifest.origin[axis])));
+  return checkPart(part, size, inUnits);
+}
 
 /** parsePart's reading of the text, { seed, low, high }, before its box is checked (the page draws it as typed). */
 export function readPart(text, manifest, size) {
   const pieces = text.split(':');
   if (pieces.length !== 3) throw new InputError(`part ${pyRepr(text)}: give SEED:X0,Y0,Z0:X1,Y1,Z1, like 3:0%,0%,0%:50%,100%,100%`, 'keep');
   if (!/^\s*[+-]?\d+\s*$/.test(pieces[0])) throw new InputError(`part ${pyRepr(text)}: the seed ${pyRepr(pieces[0])} is not an integer`, 'keep');
+  const percent = [false, false, false];
   const [low, high] = pieces.slice(1).map((corner) => {
     const values = corner.split(',');
     if (values.length !== 3) throw new InputError(`part ${pyRepr(text)}: a corner needs 3 values, got ${pyRepr(corner)}`, 'keep');
     return values.map((value, axis) => {
-      const percent = value.trim().endsWith('%');
-      const number = parseNumber(percent ? value.trim().slice(0, -1) : value);
+      const inPercent = value.trim().endsWith('%');
+      const number = parseNumber(inPercent ? value.trim().slice(0, -1) : value);
       if (number === null) throw new InputError(`part ${pyRepr(text)}: ${pyRepr(value)} is not a number or a percentage`, 'keep');
-      return percent ? (number / 100) * (size[axis] - 1) : (number - manifest.origin[axis]) / manifest.spacing[axis];
+      if (inPercent) percent[axis] = true;
+      return inPercent ? (number / 100) * (size[axis] - 1) : (number - manifest.origin[axis]) / manifest.spacing[axis];
     });
   });
-  return { seed: BigInt(pieces[0].trim()), low, high };
+  return { seed: BigInt(pieces[0].trim()), low, high, percent };
 }
 
 /** Check a part { seed, low, high, offset, factors } against a sample of finest size `size`, as edit.check_part. */
-export function checkPart(part, size) {
+export function checkPart(part, size, inUnits = null) {
   checkSeed(part.seed);
   const corners = [part.low, part.high];
   if (!corners.every((c) => Array.isArray(c) && c.length === 3 && c.every(Number.isFinite))) {
     throw new InputError(`a box needs two corners of 3 finite numbers, got ${pyRepr(part.low)}, ${pyRepr(part.high)}`, 'keep');
   }
+  const also = (axis, voxels, length = false) => (inUnits ? ` (${inUnits(axis, voxels, length)})` : '');
   for (let axis = 0; axis < 3; axis++) {
     const [lo, hi, n, name] = [part.low[axis], part.high[axis], size[axis], 'xyz'[axis]];
-    if (!(lo < hi)) throw new InputError(`the box is empty or inverted along ${name} (${formatG(lo)} to ${formatG(hi)})`, 'keep');
+    if (!(lo < hi)) {
+      throw new InputError(`the box is empty or inverted along ${name} (${formatG(lo)}${also(axis, lo)} to `
+        + `${formatG(hi)}${also(axis, hi)} voxels)`, 'keep');
+    }
     if (lo < 0 || hi > n - 1) {
-      throw new InputError(`the box (${formatG(lo)} to ${formatG(hi)} along ${name}) leaves the sample, whose voxels run 0 to ${n - 1} along ${name}`, 'keep');
+      throw new InputError(`the box (${formatG(lo)}${also(axis, lo)} to ${formatG(hi)}${also(axis, hi)} voxels along ${name}) `
+        + `leaves the sample, whose voxels run 0 to ${n - 1}${also(axis, n - 1)} along ${name}`, 'keep');
     }
     const kept = (hi < n - 1 ? hi : Infinity) - (lo > 0 ? lo : -Infinity) - 2 * MARGIN;
     if (!(kept > 0)) {
-      throw new InputError(`the box is ${formatG(hi - lo)} voxels along ${name}: a kept box needs more than ${2 * MARGIN} `
-        + `(a ${MARGIN}-voxel join on each side inside the sample)`, 'keep');
+      throw new InputError(`the box is ${formatG(hi - lo)}${also(axis, hi - lo, true)} voxels along ${name}: a kept box `
+        + `needs more than ${2 * MARGIN}${also(axis, 2 * MARGIN, true)} (a ${MARGIN}-voxel join on each side inside the sample)`, 'keep');
     }
   }
   return { seed: part.seed, low: part.low, high: part.high, offset: part.offset ?? [0, 0, 0], factors: part.factors ?? null };

@@ -155,7 +155,7 @@ export function readChecked(bytes, name) {
   try {
     model = readModel(bytes);
   } catch (error) {
-    if (error instanceof FormatError) throw new InputError(`${name}: not an ONNX file`);
+    if (error instanceof FormatError) throw new InputError(`${name}: not an ONNX file (truncated or corrupt)`);
     throw error;
   }
   const { graph } = model;
@@ -169,6 +169,7 @@ export function readChecked(bytes, name) {
   const bad = [...new Set(graph.nodes.filter((n) => !['', 'ai.onnx'].includes(n.domain) || !ALLOWED_OPS.has(n.opType))
     .map((n) => n.opType))].sort();
   if (bad.length) throw new InputError(`${name}: uses ops a sinshape model never has (${bad.slice(0, 5).join(', ')})`);
+  if (model.repeated.has(METADATA_KEY)) throw new InputError(`${name}: corrupt model: it holds ${METADATA_KEY} twice`);
   if (!(METADATA_KEY in model.metadata)) {
     throw new InputError(`${name}: an ONNX model, but not a sinshape model (no ${METADATA_KEY} metadata)`);
   }

@@ -112,11 +112,11 @@ function readValueInfo(bytes, f) {
 }
 
 /**
- * Parse a model file: { irVersion, opsets (raw), metadata {key: value}, functions,
+ * Parse a model file: { irVersion, opsets (raw), metadata {key: value}, repeated (keys given twice), functions,
  * graph: { nodes, initializers, inputs, outputs, sparse } }. Throws FormatError.
  */
 export function readModel(bytes) {
-  const model = { irVersion: 0, opsets: [], metadata: {}, functions: 0, graph: null };
+  const model = { irVersion: 0, opsets: [], metadata: {}, repeated: new Set(), functions: 0, graph: null };
   for (const f of readFields(bytes)) {
     if (f.field === 1 && f.wire === 0) model.irVersion = f.value;
     else if (f.field === 8 && f.wire === 2) model.opsets.push(bytes.subarray(f.start, f.end));
@@ -127,6 +127,7 @@ export function readModel(bytes) {
         if (g.field === 1 && g.wire === 2) key = text(bytes, g);
         else if (g.field === 2 && g.wire === 2) value = text(bytes, g);
       }
+      if (key in model.metadata) model.repeated.add(key);
       model.metadata[key] = value;
     } else if (f.field === 25) model.functions += 1;
   }
