@@ -5,8 +5,12 @@ The decoder's first layer is applied to each plane once (stage
 decoder_planes), and bilinear interpolation commutes with it, so a point
 costs the sum of three interpolated hidden vectors, a ReLU and a dot product
 (docs/METHOD.md, "The decoder's first layer"). On a regular grid the
-interpolation is separable: a fine plane row is a matrix product of the
-coarse plane with resize weights.
+interpolation is separable: a fine plane is the coarse plane interpolated
+along one axis, then the other, each point from its two neighbours
+(`Taps`), in separately rounded float32 multiplications and additions. A
+matrix product would do the same sums, but BLAS rounds them differently
+with its thread count and CPU (fused multiply-adds in some kernels), and a
+sample must be the same bytes everywhere.
 
 A grid `scale` times finer has round(N * scale) points per axis spanning the
 same extent as the N plane cells (align_corners=True), so scale 1 reads the
@@ -23,7 +27,7 @@ from sinshape.core.budget import check_memory
 from sinshape.core.errors import InputError
 from sinshape.core.manifest import PLANE_AXES
 
-from .generate import MAX_GRID_SIDE, TriPlane, resize_matrix
+from .generate import MAX_GRID_SIDE, TriPlane
 
 # The band search bounds blocks of BLOCK cells (a slab is one block thick),
 # then the leaves of LEAF cells inside those it could not decide; only
@@ -32,7 +36,7 @@ SIDES = (16, 8)
 BLOCK, LEAF = SIDES[0], SIDES[-1]
 BOUND_MARGIN = 1e-4  # a block is uniform only if its logit bound clears 0 by this much of its terms' size
 BOUND_CHUNK = 256  # blocks bounded at once
-FINE_ROWS = 32  # plane rows interpolated at once (a slab's 17 in one product)
+FINE_ROWS = 32  # plane rows interpolated at once (a slab's 17 at a time)
 LEAVES_AT_ONCE = 16  # leaves evaluated at once: (LEAF + 1)^3 hidden vectors each, 1.5 MB at D = 32
 
 
@@ -145,6 +149,38 @@ def grid_shape(size, scale: float) -> tuple:
     return tuple(max(2, round(n * scale)) for n in size)
 
 
+@dataclass(frozen=True)
+class Taps:
+    """Linear interpolation (align_corners=True) along one axis: each output
+    point's two coarse neighbours and their weights."""
+
+    low: np.ndarray
+    high: np.ndarray
+    w_low: np.ndarray  # float32
+    w_high: np.ndarray
+
+    @classmethod
+    def of(cls, n_in: int, n_out: int) -> "Taps":
+        src = np.arange(n_out) * ((n_in - 1) / (n_out - 1)) if n_out > 1 else np.zeros(1)
+        low = np.minimum(np.floor(src).astype(np.intp), n_in - 1)
+        frac = (src - low).astype(np.float32)
+        return cls(low, np.minimum(low + 1, n_in - 1), np.float32(1) - frac, frac)
+
+    def take(self, index) -> "Taps":
+        """The taps of the points `index` selects."""
+        return Taps(self.low[index], self.high[index], self.w_low[index], self.w_high[index])
+
+    def apply(self, values: np.ndarray, axis: int) -> np.ndarray:
+        """`values` (float32) interpolated along `axis` to these points."""
+        shape = [1] * values.ndim
+        shape[axis] = -1
+        low, high = np.take(values, self.low, axis), np.take(values, self.high, axis)
+        low *= self.w_low.reshape(shape)
+        high *= self.w_high.reshape(shape)
+        low += high
+        return low
+
+
 class FineGrid:
     """A grid `scale` times finer than a projected tri-plane, padded by one
     empty point per side, with its interpolated planes made on demand.
@@ -159,9 +195,9 @@ class FineGrid:
         self.block = block
         self.blocks = tuple(-(-(m + 1) // block) for m in self.shape)  # blocks cover 0 .. M + 1
         self.padded = tuple(n * block + 1 for n in self.blocks)
-        # Resize weights from coarse cells to every padded point (clipped), per axis.
-        self.weights = [resize_matrix(n, m)[self.real_index(axis)] for axis, (n, m) in
-                        enumerate(zip(proj.size, self.shape))]
+        # Linear interpolation from coarse cells to every padded point (clipped), per axis.
+        self.taps = [Taps.of(n, m).take(self.real_index(axis)) for axis, (n, m) in
+                     enumerate(zip(proj.size, self.shape))]
         self._yz = None
 
     def real_index(self, axis: int) -> np.ndarray:
@@ -175,15 +211,11 @@ class FineGrid:
         """Plane k interpolated to padded points; `rows` selects points along
         the plane's first axis: (r, Pb, D)."""
         a, b = PLANE_AXES[k]
-        plane, first = self.proj.planes[k], self.weights[a][rows]
-        out = np.empty((len(first), self.padded[b], plane.shape[-1]), np.float32)
-        for start in range(0, len(first), FINE_ROWS):
-            partial = np.tensordot(first[start:start + FINE_ROWS], plane, axes=(1, 0))  # (r, Nb, D)
-            r, nb, d = partial.shape
-            # One (Pb, Nb) @ (Nb, r D) product: one large product runs at the
-            # machine's rate where r small ones (a batched matmul) do not.
-            fine = self.weights[b] @ partial.transpose(1, 0, 2).reshape(nb, r * d)
-            out[start:start + r] = fine.reshape(-1, r, d).transpose(1, 0, 2)
+        plane, first, second = self.proj.planes[k], self.taps[a].take(rows), self.taps[b]
+        out = np.empty((len(first.low), self.padded[b], plane.shape[-1]), np.float32)
+        for start in range(0, len(first.low), FINE_ROWS):
+            along = first.take(slice(start, start + FINE_ROWS)).apply(plane, 0)  # (r, Nb, D)
+            out[start:start + len(along)] = second.apply(along, 1)
         return out
 
     @property

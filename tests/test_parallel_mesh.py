@@ -35,6 +35,25 @@ def test_threads_give_the_same_bytes(model, tmp_path, scale, monkeypatch):
         assert one.read_bytes() == three.read_bytes()
 
 
+
+def test_blas_threads_give_the_same_bytes(tiny_model, tmp_path):
+    """numpy's BLAS reads its thread count when it loads (Ray's workers get
+    OMP_NUM_THREADS=1): a sample's bytes must not depend on it, at a scale
+    that interpolates the planes."""
+    import os
+    import subprocess
+    import sys
+
+    written = []
+    for blas_threads in ("1", "2"):
+        out = tmp_path / f"blas{blas_threads}.ply"
+        env = {**os.environ, "OMP_NUM_THREADS": blas_threads, "OPENBLAS_NUM_THREADS": blas_threads}
+        subprocess.run([sys.executable, "-c", "from sinshape.cli.main import main; main()", "sample",
+                        str(tiny_model), "--seed", "3", "--scale", "2.5", "-o", str(out)], env=env, check=True,
+                       capture_output=True)
+        written.append(out.read_bytes())
+    assert written[0] == written[1]
+
 def test_small_grids_are_meshed_without_a_pool(model, monkeypatch):
     monkeypatch.setattr(mesh, "POOL_POINTS", 10**9)
     slab_mesh, meshed_on = mesh.slab_mesh, set()
