@@ -81,8 +81,9 @@ def tiny_model(tmp_path_factory, tiny_pyramid):
 
 
 # A coloured model (format 4), made by the real trainer once with
-#   sinrun train tests/data/colour/box_vertex.ply -o tiny_colour.onnx --preset tiny --iters 3
-# on the box painted red above and blue below (tests/data/colour).
+#   sinrun train tests/data/colour/box_vertex.ply -o tiny_colour.onnx --preset tiny --iters 60 --lr 1e-3
+# on the box painted red above and blue below (tests/data/colour): it has
+# learnt the colours (tests/data/README.md).
 TINY_COLOUR_ONNX = Path(__file__).parent / "data" / "tiny_colour.onnx"
 PAINTED_BOX = Path(__file__).parent / "data" / "colour" / "box_vertex.ply"
 
