@@ -88,17 +88,26 @@ def points(model, triplane: TriPlane, coords: np.ndarray, chunk: int = 1 << 16) 
     return out
 
 
-def colours(model, triplane: TriPlane, coords: np.ndarray, chunk: int = 1 << 16) -> np.ndarray:
+def colours(model, triplane: TriPlane, coords: np.ndarray) -> np.ndarray:
     """A coloured model's sRGB colour at arbitrary points (coords as in
     `points`); a point outside the tri-plane takes the colour of the nearest
     point inside (a mesh's vertices reach half a voxel beyond it, where the
     surface closes). Returns (n, 3) float32 in [0, 1]."""
-    coords = np.clip(point_array(coords), 0, np.array(triplane.size) - 1)
-    proj = project(model, triplane)
-    out = np.empty((len(coords), 3), np.float32)
-    for start in range(0, len(coords), chunk):
-        out[start:start + chunk] = head_colour(model.head, hidden_at(proj.planes, coords[start:start + chunk]))
-    return out
+    return colouring(model, triplane)(coords)
+
+
+def colouring(model, triplane: TriPlane, chunk: int = 1 << 16):
+    """`colours` of one tri-plane as a function of the points, the planes
+    projected once: for a mesh coloured piece by piece as it streams."""
+    planes, top = project(model, triplane).planes, np.array(triplane.size) - 1
+
+    def colour(coords) -> np.ndarray:
+        coords = np.clip(point_array(coords), 0, top)
+        out = np.empty((len(coords), 3), np.float32)
+        for start in range(0, len(coords), chunk):
+            out[start:start + chunk] = head_colour(model.head, hidden_at(planes, coords[start:start + chunk]))
+        return out
+    return colour
 
 
 def point_array(coords) -> np.ndarray:
