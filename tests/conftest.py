@@ -63,21 +63,26 @@ def sealed_bytes(proto) -> bytes:
 TINY_ONNX = Path(__file__).parent / "data" / "tiny.onnx"
 
 
-@pytest.fixture(scope="session")
-def tiny_model(tmp_path_factory, tiny_pyramid):
-    """A two-level model trained for a few iterations on tiny_pyramid: trained
-    here where torch is installed (so the trainer's export is what the
-    runtime reads), else the committed copy."""
+def trained_or_committed(tmp_path_factory, source, committed: Path) -> Path:
+    """A two-level model trained for a few iterations on `source` where torch
+    is installed (so the trainer's export is what the runtime reads), else
+    the committed copy."""
     try:
         import torch  # noqa: F401
     except ImportError:
-        return TINY_ONNX
+        return committed
     from sinshape.trainer import train
     from sinshape.trainer.config import make_config
 
-    out = tmp_path_factory.mktemp("model") / "tiny.onnx"
-    train.train(tiny_pyramid, out, make_config("tiny", iters=3))
+    out = tmp_path_factory.mktemp("model") / committed.name
+    train.train(source, out, make_config("tiny", iters=3))
     return out
+
+
+@pytest.fixture(scope="session")
+def tiny_model(tmp_path_factory, tiny_pyramid):
+    """A two-level model trained for a few iterations on tiny_pyramid (see trained_or_committed)."""
+    return trained_or_committed(tmp_path_factory, tiny_pyramid, TINY_ONNX)
 
 
 # A coloured model (format 4), made by the real trainer once with
@@ -90,18 +95,8 @@ PAINTED_BOX = Path(__file__).parent / "data" / "colour" / "box_vertex.ply"
 
 @pytest.fixture(scope="session")
 def tiny_colour_model(tmp_path_factory):
-    """tiny_model's coloured counterpart: trained here on the painted box
-    where torch is installed, else the committed copy."""
-    try:
-        import torch  # noqa: F401
-    except ImportError:
-        return TINY_COLOUR_ONNX
-    from sinshape.trainer import train
-    from sinshape.trainer.config import make_config
-
-    out = tmp_path_factory.mktemp("model") / "tiny_colour.onnx"
-    train.train(PAINTED_BOX, out, make_config("tiny", iters=3))
-    return out
+    """tiny_model's coloured counterpart, on the painted box (see trained_or_committed)."""
+    return trained_or_committed(tmp_path_factory, PAINTED_BOX, TINY_COLOUR_ONNX)
 
 
 @pytest.fixture(scope="session")
