@@ -2,14 +2,17 @@
 trained on the same example with the same budget (docs/BENCHMARKS.md, "Colour").
 
     python benchmarks/colour.py cost painted_terrain.ply
+    python benchmarks/colour.py sampling colour.onnx
     python benchmarks/colour.py quality painted_terrain.ply colour.onnx geometry.onnx
 
-cost: per level of the default preset's pyramid, seconds per training
-iteration and the peak memory one iteration adds, each level measured with
-and without colour in fresh processes, one after the other, then the ratio.
-quality: LP-IoU, LP-F and diversity of both models (docs/EVALUATION.md);
-the time to sample and mesh a .ply of each (the coloured one with its
-colours), seeds interleaved; the reconstruction's colour against the
+cost: per level of the default preset's pyramid (res 64), seconds per
+training iteration with and without colour, iterations interleaved in one
+process, and the peak memory one iteration adds, each in a fresh process;
+then the ratios.
+sampling: the time to sample and write a .ply with its colours and
+without, from one coloured model (the colour head read or not), seeds
+interleaved. quality: LP-IoU, LP-F and diversity of both models
+(docs/EVALUATION.md); sampling; the reconstruction's colour against the
 example's (PSNR of its vertex colours against the colour of the example's
 surface nearest each vertex); the samples' colours against the example's
 (the per-channel Wasserstein distance of their vertex colours to the
@@ -18,7 +21,6 @@ distance between two seeds' samples, the colour's diversity).
 """
 
 import argparse
-import json
 import resource
 import subprocess
 import sys
@@ -29,46 +31,82 @@ from pathlib import Path
 import numpy as np
 
 
-def measure(path: str, level: int, colour: bool, rounds: int = 3) -> dict:
-    """Seconds per iteration and bytes one iteration adds, at `level` (run in a child)."""
-    from sinshape.prep.pyramid import load_pyramid
+def trainer_at(pyramid, level: int):
+    """A trainer of the default preset (float32, CPU) ready at `level`, with
+    its reconstruction's input; untrained levels cost what trained ones do."""
     from sinshape.trainer import device, train
     from sinshape.trainer.config import make_config
 
-    config = make_config(None, precision="fp32")
-    pyramid = load_pyramid(Path(path), config.res, colour=colour)
-    trainer = train.Trainer(config, pyramid, device.choose("cpu", "fp32"))
-    for _ in range(level):  # untrained levels cost what trained ones do
+    trainer = train.Trainer(make_config(None, precision="fp32"), pyramid, device.choose("cpu", "fp32"))
+    for _ in range(level):
         trainer.begin_level()
         trainer.finish_level()
     trainer.begin_level()
+    return trainer, trainer.recon_inputs()
+
+
+def peak(path: str, level: int, colour: bool) -> int:
+    """Bytes one iteration at `level` adds to this process (run in a child)."""
+    from sinshape.prep.pyramid import load_pyramid
+
+    trainer, recon = trainer_at(load_pyramid(Path(path), 64, colour=colour), level)
     with open("/proc/self/statm") as f:
         before = int(f.read().split()[1]) * resource.getpagesize()
-    recon = trainer.recon_inputs()
-    trainer.iterate(recon)  # the first allocates and picks kernels
-    started = time.perf_counter()
-    for _ in range(rounds):
+    for _ in range(2):  # the first allocates
         trainer.iterate(recon)
-    return {"seconds": (time.perf_counter() - started) / rounds, "size": list(pyramid.sizes[level]),
-            "bytes": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024 - before,
-            "levels": len(pyramid.sizes)}
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024 - before
 
 
-def cost(path: str) -> None:
+def cost(path: str, rounds: int) -> None:
+    """Per level: seconds per iteration of both, their iterations interleaved
+    in this process (a busy machine slows both alike; the median of
+    `rounds`), and the peak memory of each in a child of its own."""
+    from sinshape.prep.pyramid import load_pyramid
+
+    pyramids = {colour: load_pyramid(Path(path), 64, colour=colour) for colour in (False, True)}
+
     def child(level, colour):
         command = [sys.executable, __file__, "child", path, str(level), str(int(colour))]
-        return json.loads(subprocess.run(command, check=True, capture_output=True, text=True).stdout)
+        return int(subprocess.run(command, check=True, capture_output=True, text=True).stdout)
 
     print("| level | size | s/iteration geometry | s/iteration colour | ratio | peak MiB geometry | peak MiB colour | ratio |")
     print("|---|---|---|---|---|---|---|---|")
-    level, levels = 0, 1
-    while level < levels:
-        plain, coloured = child(level, False), child(level, True)
-        levels = plain["levels"]
-        print(f"| {level} | {'x'.join(map(str, plain['size']))} | {plain['seconds']:.3f} | {coloured['seconds']:.3f} | "
-              f"{coloured['seconds'] / plain['seconds']:.2f} | {plain['bytes'] / 2**20:.0f} | "
-              f"{coloured['bytes'] / 2**20:.0f} | {coloured['bytes'] / plain['bytes']:.2f} |")
-        level += 1
+    for level, size in enumerate(pyramids[False].sizes):
+        trainers = {colour: trainer_at(pyramids[colour], level) for colour in (False, True)}
+        times = {False: [], True: []}
+        for _ in range(rounds + 1):  # the first of each allocates and picks kernels
+            for colour, (trainer, recon) in trainers.items():
+                started = time.perf_counter()
+                trainer.iterate(recon)
+                times[colour].append(time.perf_counter() - started)
+        plain, coloured = (float(np.median(times[c][1:])) for c in (False, True))
+        plain_bytes, coloured_bytes = child(level, False), child(level, True)
+        print(f"| {level} | {'x'.join(map(str, size))} | {plain:.3f} | {coloured:.3f} | {coloured / plain:.2f} | "
+              f"{plain_bytes / 2**20:.0f} | {coloured_bytes / 2**20:.0f} | {coloured_bytes / plain_bytes:.2f} |",
+              flush=True)
+
+
+def sampling(path: str, seeds: int, scales=(1, 4)) -> None:
+    """The time to sample and write a .ply, with its colours and without
+    (the same model, its colour head left unread: the same tri-planes and
+    meshes), seeds interleaved; median over seeds."""
+    import dataclasses
+
+    from sinshape.runtime import generate, load_model, write
+
+    coloured = load_model(path)
+    plain = dataclasses.replace(coloured, manifest=dataclasses.replace(coloured.manifest, colour=False))
+    with tempfile.TemporaryDirectory() as folder:
+        for scale in scales:
+            times = {False: [], True: []}
+            for seed in range(seeds + 1):  # the first warms up
+                for colour, model in ((False, plain), (True, coloured)):
+                    started = time.perf_counter()
+                    write.write_sample(model, generate.sample(model, seed), Path(folder) / "s.ply", scale=scale)
+                    times[colour].append(time.perf_counter() - started)
+            without, with_colour = (float(np.median(times[c][1:])) for c in (False, True))
+            print(f"sampling a .ply at scale {scale} (median of {seeds} seeds): geometry {without:.3f} s, "
+                  f"with colour {with_colour:.3f} s, ratio {with_colour / without:.2f}", flush=True)
 
 
 def wasserstein(a: np.ndarray, b: np.ndarray) -> float:
@@ -82,7 +120,7 @@ def quality(path: str, coloured_path: str, plain_path: str, samples: int, seeds:
     from scipy.spatial import cKDTree
 
     from sinshape.prep import colour, voxelize
-    from sinshape.runtime import evaluate, generate, load_model, mesh, write
+    from sinshape.runtime import evaluate, generate, load_model, mesh
 
     coloured, plain = load_model(coloured_path), load_model(plain_path)
     print("| model | LP-IoU | LP-F | diversity |")
@@ -91,17 +129,8 @@ def quality(path: str, coloured_path: str, plain_path: str, samples: int, seeds:
         scores = evaluate.evaluate_model(model, Path(path), samples=samples)
         print(f"| {name} | {scores['lp_iou']:.3f} | {scores['lp_f']:.3f} | {scores['diversity']:.3f} |")
 
-    times = {"geometry only": [], "coloured": []}
-    with tempfile.TemporaryDirectory() as folder:
-        for seed in range(seeds):
-            for name, model in (("geometry only", plain), ("coloured", coloured)):
-                started = time.perf_counter()
-                write.write_sample(model, generate.sample(model, seed), Path(folder) / "s.ply")
-                times[name].append(time.perf_counter() - started)
-    plain_s, coloured_s = (np.median(times[k]) for k in ("geometry only", "coloured"))
-    print(f"\nsampling a .ply (median of {seeds} seeds): geometry only {plain_s:.3f} s, coloured {coloured_s:.3f} s, "
-          f"ratio {coloured_s / plain_s:.2f}")
-
+    print()
+    sampling(coloured_path, seeds)
     scene, data = voxelize.read_scene(Path(path))
     surface = colour.surface_colour(scene, Path(path), data, voxel=float(np.min(coloured.manifest.spacing)))
     tree = cKDTree(surface.points)
@@ -120,16 +149,19 @@ def quality(path: str, coloured_path: str, plain_path: str, samples: int, seeds:
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("what", choices=["cost", "quality", "child"])
+    parser.add_argument("what", choices=["cost", "sampling", "quality", "child"])
     parser.add_argument("example")
     parser.add_argument("more", nargs="*")
     parser.add_argument("--samples", type=int, default=100, help="samples scored for LP-IoU, LP-F, diversity")
     parser.add_argument("--seeds", type=int, default=8, help="seeds sampled for times and colour statistics")
+    parser.add_argument("--rounds", type=int, default=5, help="timed iterations per level and model")
     args = parser.parse_args()
     if args.what == "child":
-        print(json.dumps(measure(args.example, int(args.more[0]), bool(int(args.more[1])))))
+        print(peak(args.example, int(args.more[0]), bool(int(args.more[1]))))
+    elif args.what == "sampling":
+        sampling(args.example, args.seeds)
     elif args.what == "cost":
-        cost(args.example)
+        cost(args.example, args.rounds)
     else:
         quality(args.example, *args.more, samples=args.samples, seeds=args.seeds)
 

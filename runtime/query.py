@@ -92,17 +92,26 @@ def points(model, triplane: TriPlane, coords: np.ndarray, chunk: int = 1 << 16) 
     return out
 
 
-def colours(model, triplane: TriPlane, coords: np.ndarray, chunk: int = 1 << 16) -> np.ndarray:
+def colours(model, triplane: TriPlane, coords: np.ndarray) -> np.ndarray:
     """A coloured model's sRGB colour at arbitrary points (coords as in
     `points`); a point outside the tri-plane takes the colour of the nearest
     point inside (a mesh's vertices reach half a voxel beyond it, where the
     surface closes). Returns (n, 3) float32 in [0, 1]."""
-    coords = np.clip(point_array(coords), 0, np.array(triplane.size) - 1)
-    proj = project(model, triplane)
-    out = np.empty((len(coords), 3), np.float32)
-    for start in range(0, len(coords), chunk):
-        out[start:start + chunk] = head_colour(model.head, hidden_at(proj.planes, coords[start:start + chunk]))
-    return out
+    return colouring(model, triplane)(coords)
+
+
+def colouring(model, triplane: TriPlane, chunk: int = 1 << 16):
+    """`colours` of one tri-plane as a function of the points, the planes
+    projected once: for a mesh coloured piece by piece as it streams."""
+    planes, top = project(model, triplane).planes, np.array(triplane.size) - 1
+
+    def colour(coords) -> np.ndarray:
+        coords = np.clip(point_array(coords), 0, top)
+        out = np.empty((len(coords), 3), np.float32)
+        for start in range(0, len(coords), chunk):
+            out[start:start + chunk] = head_colour(model.head, hidden_at(planes, coords[start:start + chunk]))
+        return out
+    return colour
 
 
 def point_array(coords) -> np.ndarray:
@@ -129,8 +138,9 @@ def bilinear(plane: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     v0 = np.clip(np.floor(v).astype(int), 0, max(w - 2, 0))
     u1, v1 = np.minimum(u0 + 1, h - 1), np.minimum(v0 + 1, w - 1)
     fu, fv = (u - u0)[:, None].astype(np.float32), (v - v0)[:, None].astype(np.float32)
-    top = plane[u0, v0] * (1 - fv) + plane[u0, v1] * fv
-    bottom = plane[u1, v0] * (1 - fv) + plane[u1, v1] * fv
+    rows = plane.reshape(h * w, -1)  # rows taken by flat index: faster than indexing two axes
+    top = np.take(rows, u0 * w + v0, axis=0) * (1 - fv) + np.take(rows, u0 * w + v1, axis=0) * fv
+    bottom = np.take(rows, u1 * w + v0, axis=0) * (1 - fv) + np.take(rows, u1 * w + v1, axis=0) * fv
     return top * (1 - fu) + bottom * fu
 
 

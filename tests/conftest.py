@@ -63,10 +63,10 @@ def sealed_bytes(proto) -> bytes:
 TINY_ONNX = Path(__file__).parent / "data" / "tiny.onnx"
 
 
-def trained_or_committed(tmp_path_factory, example, committed: Path) -> Path:
-    """A tiny model trained here on `example` where torch is installed (so
-    the trainer's export is what the runtime reads), else the committed copy
-    made the same way."""
+def trained_or_committed(tmp_path_factory, source, committed: Path) -> Path:
+    """A two-level model trained for a few iterations on `source` where torch
+    is installed (so the trainer's export is what the runtime reads), else
+    the committed copy."""
     try:
         import torch  # noqa: F401
     except ImportError:
@@ -75,26 +75,27 @@ def trained_or_committed(tmp_path_factory, example, committed: Path) -> Path:
     from sinshape.trainer.config import make_config
 
     out = tmp_path_factory.mktemp("model") / committed.name
-    train.train(example, out, make_config("tiny", iters=3))
+    train.train(source, out, make_config("tiny", iters=3))
     return out
 
 
 @pytest.fixture(scope="session")
 def tiny_model(tmp_path_factory, tiny_pyramid):
-    """A two-level model trained for a few iterations on tiny_pyramid."""
+    """A two-level model trained for a few iterations on tiny_pyramid (see trained_or_committed)."""
     return trained_or_committed(tmp_path_factory, tiny_pyramid, TINY_ONNX)
 
 
 # A coloured model (format 4), made by the real trainer once with
-#   sinrun train tests/data/colour/box_vertex.ply -o tiny_colour.onnx --preset tiny --iters 3
-# on the box painted red above and blue below (tests/data/colour).
+#   sinrun train tests/data/colour/box_vertex.ply -o tiny_colour.onnx --preset tiny --iters 60 --lr 1e-3
+# on the box painted red above and blue below (tests/data/colour): it has
+# learnt the colours (tests/data/README.md).
 TINY_COLOUR_ONNX = Path(__file__).parent / "data" / "tiny_colour.onnx"
 PAINTED_BOX = Path(__file__).parent / "data" / "colour" / "box_vertex.ply"
 
 
 @pytest.fixture(scope="session")
 def tiny_colour_model(tmp_path_factory):
-    """tiny_model's coloured counterpart, on the painted box."""
+    """tiny_model's coloured counterpart, on the painted box (see trained_or_committed)."""
     return trained_or_committed(tmp_path_factory, PAINTED_BOX, TINY_COLOUR_ONNX)
 
 

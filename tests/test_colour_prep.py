@@ -148,3 +148,15 @@ def test_colour_that_cannot_be_read_is_refused_in_one_line(tmp_path, case):
     with pytest.raises(InputError) as error:
         load_pyramid(make(tmp_path), res=24, levels=1)
     assert fragment in str(error.value) and "\n" not in str(error.value)
+
+
+def test_glb_vertex_colours_are_read_as_linear(tmp_path):
+    # The runtime writes COLOR_0 linear (glTF's rule); read back, the sRGB colours return.
+    from sinshape.runtime.write import mesh_bytes
+
+    painted = trimesh.load(DATA / "box_vertex.ply", process=False)
+    (tmp_path / "box.glb").write_bytes(mesh_bytes(painted, ".glb"))
+    pyramid = load_pyramid(tmp_path / "box.glb", res=24, levels=1)
+    z = pyramid.levels[-1].shape[2]
+    np.testing.assert_allclose(band_colour(pyramid, z - 2), TOP, atol=0.03)
+    np.testing.assert_allclose(band_colour(pyramid, 1), BOTTOM, atol=0.03)

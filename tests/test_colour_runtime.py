@@ -201,3 +201,17 @@ def test_render_draws_a_coloured_mesh_in_its_colours(tmp_path):
     assert solid.mean() > 0.2
     assert (drawn[solid][:, 0] > 3 * drawn[solid][:, 1]).mean() > 0.9  # red where the box is (its edges blend)
     assert np.array_equal(render(box, size=(64, 64), outline=False, color=CLAY), plain)
+
+
+@pytest.mark.parametrize("seed", [None, 1, 2])
+def test_a_box_painted_by_height_gives_its_high_vertices_the_top_colour(tmp_path, seed):
+    # The committed model learnt the box red above its middle, blue below
+    # (z up in the file): its samples keep red on top and blue underneath.
+    from conftest import TINY_COLOUR_ONNX
+
+    out = tmp_path / "s.ply"
+    sinrun("sample", TINY_COLOUR_ONNX, *(["--recon"] if seed is None else ["--seed", seed]), "-o", out)
+    vertices, colours = read_ply(out)
+    z, rgb = vertices[:, 2], colours.astype(int)
+    top, bottom = rgb[z > np.quantile(z, 0.8)].mean(axis=0), rgb[z < np.quantile(z, 0.2)].mean(axis=0)
+    assert top[0] > top[2] + 100 and bottom[2] > bottom[0] + 100, (top, bottom)
