@@ -5,6 +5,7 @@ import * as ort from '../vendor/onnxruntime-web/ort.wasm.min.mjs';
 import { unseal } from './seal.js';
 import { FormatError, readModel, stageModel, tensorFloats } from './onnx.js';
 import { InputError } from './errors.js';
+import { headColour } from './query.js';
 
 export { InputError };
 
@@ -16,7 +17,6 @@ const COLOUR_SPACE = { space: 'srgb' }; // manifest `colour`: values are sRGB-en
 export const METADATA_KEY = 'sinshape.manifest';
 export const NOISE_SCHEME = 'splitmix64-boxmuller-v1';
 export const PLANES = ['xy', 'xz', 'yz'];
-export const PLANE_AXES = [[0, 1], [0, 2], [1, 2]]; // the grid axes each plane keeps, in PLANES order
 export const HEAD_WEIGHTS = ['decoder_head.bias1', 'decoder_head.weight2', 'decoder_head.bias2'];
 // A coloured model's colour head, (D, 3), (3,): RGB = sigmoid(relu(h + b1) @ w + b).
 export const COLOUR_WEIGHTS = ['decoder_head.weight_colour', 'decoder_head.bias_colour'];
@@ -223,21 +223,6 @@ export class Stage {
     const results = await this.session.run(feeds);
     return this.outputs.map((name) => ({ data: results[name].data, dims: results[name].dims }));
   }
-}
-
-/** A coloured model's colour head (runtime/query.py: head_colour): sigmoid(relu(h + b1) @ w_colour + b_colour)
- * of one pre-activation vector, its sRGB into out[outAt..outAt + 2]. */
-export function headColour(head, hidden, at = 0, out = new Float32Array(3), outAt = 0) {
-  const { bias1, weightColour: w, biasColour: b } = head;
-  let r = b[0], g = b[1], bl = b[2];
-  for (let c = 0; c < bias1.length; c++) {
-    const h = hidden[at + c] + bias1[c];
-    if (h > 0) { r += h * w[3 * c]; g += h * w[3 * c + 1]; bl += h * w[3 * c + 2]; }
-  }
-  out[outAt] = 1 / (1 + Math.exp(-r));
-  out[outAt + 1] = 1 / (1 + Math.exp(-g));
-  out[outAt + 2] = 1 / (1 + Math.exp(-bl));
-  return out;
 }
 
 /** The numpy head of runtime/query.py: sigmoid(w2 . relu(h + b1) + b2) for one pre-activation vector. */

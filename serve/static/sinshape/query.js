@@ -5,7 +5,23 @@
 // adds, a ReLU and a dot product.
 import { InputError } from './errors.js';
 import { resizeWeights, roundHalfEven } from './generate.js';
-import { PLANE_AXES, headColour } from './model.js';
+
+export const PLANE_AXES = [[0, 1], [0, 2], [1, 2]]; // the grid axes each plane keeps, in PLANES order
+
+/** A coloured model's colour head (runtime/query.py: head_colour): sigmoid(relu(h + b1) @ w_colour + b_colour)
+ * of one pre-activation vector, its sRGB into out[outAt..outAt + 2]. */
+export function headColour(head, hidden, at = 0, out = new Float32Array(3), outAt = 0) {
+  const { bias1, weightColour: w, biasColour: b } = head;
+  let r = b[0], g = b[1], bl = b[2];
+  for (let c = 0; c < bias1.length; c++) {
+    const h = hidden[at + c] + bias1[c];
+    if (h > 0) { r += h * w[3 * c]; g += h * w[3 * c + 1]; bl += h * w[3 * c + 2]; }
+  }
+  out[outAt] = 1 / (1 + Math.exp(-r));
+  out[outAt + 1] = 1 / (1 + Math.exp(-g));
+  out[outAt + 2] = 1 / (1 + Math.exp(-bl));
+  return out;
+}
 
 const MAX_GRID_SIDE = 1 << 16;
 const MAX_BYTES = 2 * 2 ** 30; // a dense grid in a browser tab: stay well under its memory

@@ -17,8 +17,7 @@ import { InputError, formatG, pyRepr } from './errors.js';
 import { checkSeed, drawNoise, roundHalfEven, scaledSizes, triplane } from './generate.js';
 import { marchingCubes } from './mesh.js';
 import { streamKey } from './noise.js';
-import { PLANE_AXES, headColour } from './model.js';
-import { addBilinear, project } from './query.js';
+import { PLANE_AXES, addBilinear, headColour, project } from './query.js';
 
 const WORLD_STREAM = 2; // world.WORLD_STREAM: (WORLD_STREAM, a, b) keys window (a, b)'s noise, after the seed
 const MAX_TILE = 2n ** 62n; // world.MAX_TILE: |i|, |j| below it
