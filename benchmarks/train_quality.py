@@ -64,13 +64,13 @@ def acropolis_pyramid(path: Path) -> Path:
 
 
 def mesh_pyramid(mesh: Path, res: int, path: Path) -> Path:
-    """A mesh voxelised as `sinrun train MESH --res RES` does, written once so
-    that every run trains on exactly the same grids."""
+    """A mesh voxelised as `sinrun train MESH --res RES --no-colour` does,
+    written once so that every run trains on exactly the same grids."""
     from sinshape.prep.pyramid import pyramid_from_mesh
 
     if path.exists():
         return path
-    return write_pyramid(path, pyramid_from_mesh(mesh, res).levels)
+    return write_pyramid(path, pyramid_from_mesh(mesh, res, colour=False).levels)  # geometry is measured
 
 
 REAL_PYRAMIDS = {"Canyon": "Canyon_r128s6.h5", "NaturalArch": "NaturalArch_r128s7.h5",

@@ -265,7 +265,8 @@ def main():
     if args.full:
         with tempfile.TemporaryDirectory() as tmp:
             started = time.perf_counter()
-            manifest = train.train(args.full, Path(tmp) / "model.onnx", make_config("default"), device=args.device)
+            manifest = train.train(args.full, Path(tmp) / "model.onnx", make_config("default"), device=args.device,
+                                   colour=False)
             wall = time.perf_counter() - started
         print(f"\ndefault preset on {args.full.name}: {wall / 60:.1f} min wall time")
         print("| level | grid | s/iter |")
