@@ -22,14 +22,18 @@ PLANE_BYTES_PER_CELL = 12_500
 LEVEL_BYTES = 17 << 20  # what a level adds whatever its size
 
 
+def level_extent(size, box: int | None) -> tuple:
+    """(voxels, plane cells) one iteration at a level of `size` (X, Y, Z)
+    works on: with boxes, only the voxels of a box are decoded and judged;
+    the planes are whole either way."""
+    box = box or max(size)
+    return math.prod(min(n, box) for n in size), sum(math.prod(plane) for plane in plane_sizes(size))
+
+
 def level_memory(size, config: TrainConfig) -> int:
     """Bytes one training iteration at a level of `size` (X, Y, Z) needs
-    beyond the data and the networks. Activations grow with the channels.
-    With boxes, only the voxels of a box are decoded and judged; the planes
-    are whole either way."""
-    box = config.box or max(size)
-    seen = math.prod(min(n, box) for n in size)
-    cells = sum(math.prod(plane) for plane in plane_sizes(size))
+    beyond the data and the networks. Activations grow with the channels."""
+    seen, cells = level_extent(size, config.box)
     activations = (GENERATOR_BYTES_PER_VOXEL + CRITIC_BYTES_PER_VOXEL) * seen + PLANE_BYTES_PER_CELL * cells
     return LEVEL_BYTES + activations * config.channels // 32
 

@@ -26,7 +26,8 @@ import math
 import time
 
 from sinshape.core.errors import InputError
-from sinshape.core.manifest import plane_sizes
+
+from .memory import level_extent
 
 # Seconds a budget may spend measuring the levels before training: this
 # share of it, and at least MEASURING_SECONDS. Levels beyond it are estimated.
@@ -43,9 +44,8 @@ ENOUGH_ITERATIONS = 300
 def level_work(size, box: int | None) -> int:
     """What an iteration at a level of `size` processes, in voxels: the
     voxels decoded and judged (a box's, with boxes) and the planes' cells."""
-    box = box or max(size)
-    seen = math.prod(min(n, box) for n in size)
-    return seen + PLANE_CELL_WORK * sum(math.prod(plane) for plane in plane_sizes(size))
+    seen, cells = level_extent(size, box)
+    return seen + PLANE_CELL_WORK * cells
 
 
 def measuring_allowance(seconds: float) -> float:
