@@ -29,7 +29,7 @@ OPTIONS = {"scale": "--scale", "factors": "--size", "smooth": "--smooth", "threa
            "train_depth": "--train-depth", "focus": "--focus", "up": "--up", "resume": "--resume",
            "size": "--size", "keep": "--keep", "layout": "--layout", "recon": "--recon",
            "output": "--output", "tile": "--tiles", "frame": "--frame", "force": "--force",
-           "no_colour": "--no-colour", "ema": "--ema"}
+           "no_colour": "--no-colour"}
 # ctx.meta key: {parameter: what set it} where a command's value came from elsewhere than OPTIONS says.
 SOURCES = "sinrun.sources"
 # The extra that installs each optional module (pyproject.toml): a command
@@ -169,10 +169,6 @@ class TrainCommand(Command):
                    "iterations (0.1 / iterations, from 1e-4 to 1e-3: 1e-4 at its 1000, up to 1e-3 in "
                    "a short --minutes budget). A fixed 1e-3 over more than about 400 iterations per "
                    "level makes copies of the example.")
-@click.option("--ema", type=float, default=None,
-              help="Keep each level's weights averaged (an exponential moving average) over about this "
-                   "share of its iterations instead of its last ones: 0 (the paper's) to 1. Later levels "
-                   "build on the average and the model holds it. Default: the preset's.")
 @click.option("--seed", type=int, default=None, help="Seed of the training run (weights, noise draws). Default 0.")
 @click.option("--up", type=click.Choice(["y", "z"]), default=None,
               help="Which axis of the input points up, recorded in the model for viewers and pictures. "
@@ -193,7 +189,7 @@ class TrainCommand(Command):
               help="Checkpoint file. Default: MODEL.ckpt.pt beside the output.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress output.")
 def train(input_path, output, preset, res, levels, iters, minutes, min_iters, device, precision, box, train_depth, lr,
-          ema, seed, up, generator, no_colour, resume, checkpoint, quiet):
+          seed, up, generator, no_colour, resume, checkpoint, quiet):
     """Train a model on one example shape and export it as one .onnx file.
 
     INPUT is a mesh (.obj, .ply, .stl, .off, .glb; not necessarily watertight)
@@ -205,8 +201,7 @@ def train(input_path, output, preset, res, levels, iters, minutes, min_iters, de
     from sinshape.trainer import config as configs, train as training
 
     config = configs.make_config(preset, resume, res=res, levels=levels, iters=iters, minutes=minutes, min_iters=min_iters,
-                                 precision=precision, box=box, train_depth=train_depth, lr=lr, ema=ema, seed=seed, up=up,
-                                 generator=generator)
+                                 precision=precision, box=box, train_depth=train_depth, lr=lr, seed=seed, up=up, generator=generator)
     if levels is None:  # an .h5 file with fewer levels blames where the count came from
         click.get_current_context().meta[SOURCES] = {
             "levels": "the checkpoint's levels" if resume else f"the {preset or 'default'} preset's levels"}

@@ -50,11 +50,6 @@ class TrainConfig:
     lr_scale: float = 0.1
     gp_weight: float = 0.1
     rec_weight: float = 10.0
-    # 0, as the paper: a level's last weights are kept. A share (0, 1]: the
-    # weights it trains are averaged (exponential moving average) over about
-    # this share of its planned iterations, and the average is kept
-    # (average.py): later levels build on it and the model holds it.
-    ema: float = 0.0
     noise_ratio: float = 0.1  # sigma_i = noise_ratio * RMSE(upsampled rec_(i-1), real_i)
 
     # Speed. A time budget in minutes plans the iterations of every level to
@@ -90,7 +85,6 @@ class TrainConfig:
             (self.train_depth >= 1, "train_depth", f"train_depth must be at least 1, got {self.train_depth}"),
             (0 < self.lr_scale <= 1, None, f"lr_scale must be in (0, 1], got {self.lr_scale}"),
             (self.lr > 0, "lr", f"lr must be positive, got {self.lr}"),
-            (0 <= self.ema <= 1, "ema", f"ema must be between 0 (off) and 1, got {self.ema}"),
             (self.lr_total is None or self.lr_total > 0, None, f"lr_total must be positive, got {self.lr_total}"),
             (self.lr_total is None or self.lr_max >= self.lr, None, f"lr_max {self.lr_max} is below lr {self.lr}"),
             (self.min_iters >= 1, "min_iters", f"min_iters must be at least 1, got {self.min_iters}"),

@@ -27,7 +27,6 @@ from sinshape.prep.pyramid import training_targets
 
 from . import device as devices
 from .checkpoint import CHECKPOINT_FORMAT, CHECKPOINT_VERSION, count_levels
-from .average import WeightAverage
 from .config import TrainConfig
 from .networks import Discriminator, critic_input, make_generator
 
@@ -94,7 +93,6 @@ class Trainer:
         self.seconds = []  # wall time per finished level
         self.level_seconds = 0.0  # wall time so far at the current level
         self.opt_g = self.opt_d = None
-        self.average = None  # the trained weights' running average (config.ema), per level
         self.rewinds = []  # [level, at, to, lr]: where a level diverged, where it went back, its new rate
         # Iterations per level; under a time budget each level's is planned as it starts.
         self.plan = list(config.level_iters or [0 if config.minutes else config.iters] * len(self.sizes))
@@ -126,12 +124,10 @@ class Trainer:
         """Record the level as trained, with the iterations it ran (a budget
         may have cut or extended its plan) and its time, and move on to the
         next, whose optimisers are made when it begins."""
-        if self.average:
-            self.average.apply()
         self.plan[self.level] = self.iteration
         self.seconds.append(self.level_seconds)
         self.level, self.iteration, self.level_seconds = self.level + 1, 0, 0.0
-        self.opt_g = self.opt_d = self.average = None
+        self.opt_g = self.opt_d = None
 
     def initial_noise_amp(self, level: int) -> float:
         """sigma_i = ratio * RMSE(trilinear upsample of rec_(i-1), real_i)."""
@@ -159,8 +155,6 @@ class Trainer:
         # at the coarsest level, where Adam's per-tensor overhead shows)
         self.opt_g = torch.optim.Adam(groups, lr=lr, betas=(c.beta1, c.beta2), fused=True)
         self.opt_d = torch.optim.Adam([group([self.critic], 1.0)], lr=lr, betas=(c.beta1, c.beta2), fused=True)
-        trained = [p for g in groups for p in g["params"]]
-        self.average = WeightAverage(trained, self.plan[level], c.ema) if c.ema else None
 
     def set_rates(self) -> None:
         """Every parameter group at its share of the level's rate (after a rewind)."""
@@ -330,8 +324,6 @@ class Trainer:
             loss_g.backward()
             self.opt_g.step()
         critic.requires_grad_(True)
-        if self.average:
-            self.average.update()
         return {"D": loss_d.item(), "G": loss_adv.item(), "rec": loss_rec.item()}
 
     def reconstruction_error(self, rec, box) -> torch.Tensor:
@@ -366,7 +358,7 @@ class Trainer:
         """An in-memory copy of what this level's steps change."""
         return copy.deepcopy({"iteration": self.iteration, "generator": self.generator.state_dict(),
                               "critic": self.critic.state_dict(), "opt_g": self.opt_g.state_dict(),
-                              "opt_d": self.opt_d.state_dict(), "average": self.average_state()})
+                              "opt_d": self.opt_d.state_dict()})
 
     def rewind(self, kept: dict) -> None:
         """Go back to `kept` and halve this level's learning rate."""
@@ -377,15 +369,7 @@ class Trainer:
         self.critic.load_state_dict(kept["critic"])
         self.opt_g.load_state_dict(kept["opt_g"])
         self.opt_d.load_state_dict(kept["opt_d"])
-        self.restore_average(kept["average"])
         self.set_rates()
-
-    def average_state(self) -> dict | None:
-        return self.average.state() if self.average else None
-
-    def restore_average(self, state: dict | None) -> None:
-        if self.average and state:
-            self.average.restore(state)
 
     # -- checkpoints ---------------------------------------------------------
     def trained_seconds(self) -> float:
@@ -413,7 +397,6 @@ class Trainer:
             "critic": self.critic.state_dict(),
             "opt_g": self.opt_g.state_dict() if self.opt_g else None,
             "opt_d": self.opt_d.state_dict() if self.opt_d else None,
-            "average": self.average_state(),
             "rng": self.rng.get_state(),
         }
 
@@ -436,7 +419,6 @@ class Trainer:
             self.make_optimizers()
             self.opt_g.load_state_dict(state["opt_g"])
             self.opt_d.load_state_dict(state["opt_d"])
-            self.restore_average(state.get("average"))  # older checkpoints: the average starts here
             for optimizer in (self.opt_g, self.opt_d):  # older checkpoints: one group each, at the full rate
                 for group in optimizer.param_groups:
                     group.setdefault("scale", 1.0)
