@@ -17,8 +17,9 @@ your own. Each run trains in a fresh process (`sinrun train PYRAMID --preset
 P --minutes M` or `--iters N`), then `sinrun eval` scores 100 samples
 against the pyramid's finest level (LP-IoU, LP-F, diversity), and the table
 shows the iterations each level got. Arguments after `--` go to `sinrun
-train`. One JSON line per run goes to --results. Runs are one after another:
-a run beside other work gets fewer iterations for its minutes. The whole
+train`. One JSON line per run goes to --results. Runs are one after another
+(a run beside other work gets fewer iterations for its minutes); --jobs N
+runs N at once, for --iters runs on a GPU (`-- --device cuda`). The whole
 default set is 5 shapes x 2 budgets x 2 seeds: about 7 hours.
 """
 
@@ -28,6 +29,7 @@ import json
 import subprocess
 import sys
 import time
+from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
 
 import numpy as np
@@ -109,14 +111,31 @@ def rate_range(rates) -> str:
     return low if low == high else f"{low} to {high}"
 
 
+class RunFailed(Exception):
+    """A sinrun command failed; its own one-line error went to stderr."""
+
+
 def run(command: list) -> float:
-    """Seconds the command took; if it fails, its own one-line error (on
-    stderr) is the last word and this script exits with its status."""
+    """Seconds the command took."""
     started = time.perf_counter()
     code = subprocess.run(command, stdout=subprocess.DEVNULL).returncode
     if code:
-        sys.exit(code)
+        raise RunFailed(code)
     return time.perf_counter() - started
+
+
+def train_and_score(args, label: str, pyramid: Path, flag: str, value: str, seed: int) -> dict:
+    """Train one model, score 100 samples; the results' row."""
+    name = f"{label}_{pyramid.stem}_{flag.strip('-')}{value}_seed{seed}"
+    model, scores = args.work / f"{name}.onnx", args.work / f"{name}.json"
+    wall = run([args.sinrun, "train", str(pyramid), "-o", str(model), "--preset", args.preset, flag, value,
+                "--seed", str(seed), "--quiet", *args.train_args])
+    run([args.sinrun, "eval", str(model), "--reference", str(pyramid), "-n", "100", "--json", str(scores)])
+    summary = json.loads(scores.read_text())
+    iterations, rates = model_training(args.sinrun, model)
+    return {"label": label, "shape": pyramid.stem, "seed": seed, "iterations_per_level": iterations,
+            "learning_rates": rates, flag.strip("-"): float(value), "train_args": args.train_args,
+            "wall_seconds": round(wall, 1), **{k: summary[k] for k in ("lp_iou", "lp_f", "diversity")}}
 
 
 def main():
@@ -138,6 +157,9 @@ def main():
     parser.add_argument("--label", default=None, help="default: the preset's name")
     parser.add_argument("--work", type=Path, default=Path("train_quality"))
     parser.add_argument("--results", type=Path, default=None, help="default: WORK/results.jsonl")
+    parser.add_argument("--jobs", type=int, default=1,
+                        help="runs at once (default 1: a run beside others gets fewer iterations for its "
+                             "minutes; more suits a GPU with --iters)")
     parser.add_argument("train_args", nargs="*", help="passed to sinrun train (after --)")
     args = parser.parse_args()
     args.work.mkdir(parents=True, exist_ok=True)
@@ -161,24 +183,23 @@ def main():
     print("| run | shape | seed | budget | training wall | iterations per level | learning rate "
           "| LP-IoU | LP-F | diversity |")
     print("|---|---|---|---|---|---|---|---|---|---|")
-    for pyramid, (flag, value), seed in itertools.product(pyramids, budgets, args.seeds):
-        name = f"{label}_{pyramid.stem}_{flag.strip('-')}{value}_seed{seed}"
-        model, scores = args.work / f"{name}.onnx", args.work / f"{name}.json"
-        wall = run([args.sinrun, "train", str(pyramid), "-o", str(model), "--preset", args.preset, flag, value,
-                    "--seed", str(seed), "--quiet", *args.train_args])
-        run([args.sinrun, "eval", str(model), "--reference", str(pyramid), "-n", "100",
-             "--json", str(scores)])
-        summary = json.loads(scores.read_text())
-        iterations, rates = model_training(args.sinrun, model)
-        row = {"label": label, "shape": pyramid.stem, "seed": seed, "iterations_per_level": iterations,
-               "learning_rates": rates, flag.strip("-"): float(value), "train_args": args.train_args,
-               "wall_seconds": round(wall, 1), **{k: summary[k] for k in ("lp_iou", "lp_f", "diversity")}}
-        with open(results, "a") as f:
-            f.write(json.dumps(row) + "\n")
-        print(f"| {label} | {pyramid.stem} | {seed} | {flag} {value} | {wall / 60:.1f} min | "
-              f"{', '.join(map(str, iterations))} | {rate_range(rates)} | {row['lp_iou']:.3f} "
-              f"| {row['lp_f']:.3f} | {row['diversity']:.3f} |", flush=True)
-
+    runs = itertools.product(pyramids, budgets, args.seeds)
+    with ThreadPoolExecutor(args.jobs) as pool:
+        pending = [pool.submit(train_and_score, args, label, pyramid, flag, value, seed)
+                   for pyramid, (flag, value), seed in runs]
+        try:
+            for done in as_completed(pending):
+                row = done.result()
+                with open(results, "a") as f:
+                    f.write(json.dumps(row) + "\n")
+                budget = next(f"--{key} {row[key]:g}" for key in ("iters", "minutes") if key in row)
+                print(f"| {label} | {row['shape']} | {row['seed']} | {budget} | {row['wall_seconds'] / 60:.1f} min | "
+                      f"{', '.join(map(str, row['iterations_per_level']))} | {rate_range(row['learning_rates'])} "
+                      f"| {row['lp_iou']:.3f} | {row['lp_f']:.3f} | {row['diversity']:.3f} |", flush=True)
+        except RunFailed as failed:  # its error is the last word; runs not started are dropped
+            for future in pending:
+                future.cancel()
+            return failed.args[0]
 
 if __name__ == "__main__":
     sys.exit(main())
