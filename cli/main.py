@@ -29,7 +29,7 @@ OPTIONS = {"scale": "--scale", "factors": "--size", "smooth": "--smooth", "threa
            "train_depth": "--train-depth", "focus": "--focus", "up": "--up", "resume": "--resume",
            "size": "--size", "keep": "--keep", "layout": "--layout", "recon": "--recon",
            "output": "--output", "tile": "--tiles", "frame": "--frame", "force": "--force",
-           "no_colour": "--no-colour"}
+           "no_colour": "--no-colour", "d_steps": "--d-steps", "d_rate": "--d-rate"}
 # ctx.meta key: {parameter: what set it} where a command's value came from elsewhere than OPTIONS says.
 SOURCES = "sinrun.sources"
 # The extra that installs each optional module (pyproject.toml): a command
@@ -169,6 +169,11 @@ class TrainCommand(Command):
                    "iterations (0.1 / iterations, from 1e-4 to 1e-3: 1e-4 at its 1000, up to 1e-3 in "
                    "a short --minutes budget). A fixed 1e-3 over more than about 400 iterations per "
                    "level makes copies of the example.")
+@click.option("--d-steps", type=click.IntRange(min=1), default=None,
+              help="Critic updates per iteration, before the generator's 3. Default: 3, as the paper. "
+                   "Fewer make an iteration cheaper (the critic's gradient penalty is most of its cost).")
+@click.option("--d-rate", type=click.FloatRange(min=0, min_open=True), default=None,
+              help="The critic's learning rate as a multiple of the generator's. Default: 1, as the paper.")
 @click.option("--seed", type=int, default=None, help="Seed of the training run (weights, noise draws). Default 0.")
 @click.option("--up", type=click.Choice(["y", "z"]), default=None,
               help="Which axis of the input points up, recorded in the model for viewers and pictures. "
@@ -189,7 +194,7 @@ class TrainCommand(Command):
               help="Checkpoint file. Default: MODEL.ckpt.pt beside the output.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress output.")
 def train(input_path, output, preset, res, levels, iters, minutes, min_iters, device, precision, box, train_depth, lr,
-          seed, up, generator, no_colour, resume, checkpoint, quiet):
+          d_steps, d_rate, seed, up, generator, no_colour, resume, checkpoint, quiet):
     """Train a model on one example shape and export it as one .onnx file.
 
     INPUT is a mesh (.obj, .ply, .stl, .off, .glb; not necessarily watertight)
@@ -201,7 +206,8 @@ def train(input_path, output, preset, res, levels, iters, minutes, min_iters, de
     from sinshape.trainer import config as configs, train as training
 
     config = configs.make_config(preset, resume, res=res, levels=levels, iters=iters, minutes=minutes, min_iters=min_iters,
-                                 precision=precision, box=box, train_depth=train_depth, lr=lr, seed=seed, up=up, generator=generator)
+                                 precision=precision, box=box, train_depth=train_depth, lr=lr, d_steps=d_steps, d_rate=d_rate, seed=seed,
+                                 up=up, generator=generator)
     if levels is None:  # an .h5 file with fewer levels blames where the count came from
         click.get_current_context().meta[SOURCES] = {
             "levels": "the checkpoint's levels" if resume else f"the {preset or 'default'} preset's levels"}

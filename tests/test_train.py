@@ -243,3 +243,23 @@ def test_the_reconstruction_overlays_a_thin_example(tmp_path):
     spacing = np.array(model.manifest.spacing)
     assert spacing[2] < spacing[0] / 2  # 15 voxels, not 3, across the slab
     assert np.all(np.abs(recon.bounds - trimesh.load(path).bounds) <= 2 * spacing)
+
+
+def test_the_critic_steps_and_rate_are_its_own(tiny_pyramid):
+    """--d-steps 1 --d-rate 3: one critic update per iteration, at three
+    times the level's rate, and still so after a rewind halves the rate."""
+    trainer = train.Trainer(make_config("tiny", d_steps=1, d_rate=3.0), train.load_pyramid(tiny_pyramid, 32))
+    trainer.begin_level()
+    recon_inputs = trainer.recon_inputs()
+    trainer.iterate(recon_inputs)
+    trainer.count_iteration()
+    kept = trainer.keep()
+    assert trainer.opt_d.state_dict()["state"][0]["step"] == 1
+    assert trainer.opt_g.state_dict()["state"][0]["step"] == 3
+    lr = trainer.lrs[0]
+    assert trainer.opt_d.param_groups[0]["lr"] == pytest.approx(3 * lr)
+    assert trainer.opt_g.param_groups[0]["lr"] == pytest.approx(lr)
+    trainer.iterate(recon_inputs)
+    trainer.rewind(kept)
+    assert trainer.opt_d.param_groups[0]["lr"] == pytest.approx(1.5 * lr)
+    assert trainer.opt_g.param_groups[0]["lr"] == pytest.approx(lr / 2)

@@ -33,6 +33,7 @@ class TrainConfig:
     iters: int = 2000
     d_steps: int = 3
     g_steps: int = 3
+    d_rate: float = 1.0  # the critic's learning rate over the generator's
     lr: float = 1e-4
     # None keeps lr at every level, as the paper does. A number sets each
     # level's rate from the iterations it is given: lr_total / iterations,
@@ -81,10 +82,11 @@ class TrainConfig:
             (self.generator in ("triplane", "voxel"), "generator",
              f"generator must be triplane or voxel, got {self.generator!r}"),
             (self.iters >= 1, "iters", f"iters must be at least 1, got {self.iters}"),
-            (self.d_steps >= 1 and self.g_steps >= 1, None, "d_steps and g_steps must be at least 1"),
+            (self.d_steps >= 1 and self.g_steps >= 1, "d_steps", "d_steps and g_steps must be at least 1"),
             (self.train_depth >= 1, "train_depth", f"train_depth must be at least 1, got {self.train_depth}"),
             (0 < self.lr_scale <= 1, None, f"lr_scale must be in (0, 1], got {self.lr_scale}"),
             (self.lr > 0, "lr", f"lr must be positive, got {self.lr}"),
+            (self.d_rate > 0, "d_rate", f"d_rate must be positive, got {self.d_rate}"),
             (self.lr_total is None or self.lr_total > 0, None, f"lr_total must be positive, got {self.lr_total}"),
             (self.lr_total is None or self.lr_max >= self.lr, None, f"lr_max {self.lr_max} is below lr {self.lr}"),
             (self.min_iters >= 1, "min_iters", f"min_iters must be at least 1, got {self.min_iters}"),

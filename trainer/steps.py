@@ -142,7 +142,8 @@ class Trainer:
 
     def make_optimizers(self) -> None:
         """Adam for the critic and for the trained levels, one parameter group
-        per level; a group's `scale` is its share of the level's rate."""
+        per level; a group's `scale` is its share of the level's rate (the
+        critic's: d_rate)."""
         c, level, lr = self.config, self.level, self.lrs[self.level]
 
         def group(modules, scale):
@@ -154,7 +155,7 @@ class Trainer:
         # fused: one kernel for all of a step's tensors (measured 15% of an iteration
         # at the coarsest level, where Adam's per-tensor overhead shows)
         self.opt_g = torch.optim.Adam(groups, lr=lr, betas=(c.beta1, c.beta2), fused=True)
-        self.opt_d = torch.optim.Adam([group([self.critic], 1.0)], lr=lr, betas=(c.beta1, c.beta2), fused=True)
+        self.opt_d = torch.optim.Adam([group([self.critic], c.d_rate)], lr=lr, betas=(c.beta1, c.beta2), fused=True)
 
     def set_rates(self) -> None:
         """Every parameter group at its share of the level's rate (after a rewind)."""
