@@ -5,6 +5,7 @@ paper's exact method against the default, side by side.
     python benchmarks/train_speed.py --sizes paper   # the six level sizes of a paper res-128 pyramid
     python benchmarks/train_speed.py --box 48 64     # also the default with boxes of these sides
     python benchmarks/train_speed.py --train-depth 2 3  # also the default with levels trained together
+    python benchmarks/train_speed.py --d-steps 1 2   # also the default with fewer critic steps
     python benchmarks/train_speed.py --port          # also a straightforward port of the authors' step
     python benchmarks/train_speed.py --rounds 9 --levels 5 6
     python benchmarks/train_speed.py --full MESH     # also: the whole default preset on MESH
@@ -15,7 +16,8 @@ pyramid with the given level sizes (frozen levels below, noise injection).
 "paper" is `--preset paper`, "default" the default preset (the same step
 with other learning rates, so the same speed), "box N" the default with
 `--box N` (only boxes of at most N voxels per side decoded and judged at
-large levels), "depth N" the default with `--train-depth N`; all in the
+large levels), "depth N" the default with `--train-depth N`, "critic N"
+the default with `--d-steps N` (N critic steps an iteration); all in the
 precision `sinrun train` picks here. The straightforward port (--port)
 does what the authors' code does, in float32: the decoder concatenates the
 three plane features of every voxel into a (X, Y, Z, 96) tensor and runs
@@ -198,6 +200,7 @@ def main():
     parser.add_argument("--box", type=int, nargs="*", default=[], help="also the default with --box N")
     parser.add_argument("--train-depth", type=int, nargs="*", default=[],
                         help="also the default with --train-depth N")
+    parser.add_argument("--d-steps", type=int, nargs="*", default=[], help="also the default with --d-steps N")
     parser.add_argument("--port", action="store_true", help="also the straightforward port (float32)")
     parser.add_argument("--full", type=Path, help="also train the default preset on this mesh, end to end")
     parser.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N (default: cpu)")
@@ -220,6 +223,7 @@ def main():
     runs = [("paper", False, "auto", "paper", {}), ("default", False, "auto", "default", {})]
     runs += [(f"box {side}", False, "auto", "default", {"box": side}) for side in args.box]
     runs += [(f"depth {n}", False, "auto", "default", {"train_depth": n}) for n in args.train_depth]
+    runs += [(f"critic {n}", False, "auto", "default", {"d_steps": n}) for n in args.d_steps]
     if args.port:
         runs = [("straightforward", True, "fp32", "paper", {}), ("paper fp32", False, "fp32", "paper", {})] + runs
     names = [name for name, *_ in runs]
