@@ -201,5 +201,6 @@ def main():
                 future.cancel()
             return failed.args[0]
 
+
 if __name__ == "__main__":
     sys.exit(main())

@@ -206,8 +206,8 @@ def train(input_path, output, preset, res, levels, iters, minutes, min_iters, de
     from sinshape.trainer import config as configs, train as training
 
     config = configs.make_config(preset, resume, res=res, levels=levels, iters=iters, minutes=minutes, min_iters=min_iters,
-                                 precision=precision, box=box, train_depth=train_depth, lr=lr, d_steps=d_steps, d_rate=d_rate, seed=seed,
-                                 up=up, generator=generator)
+                                 precision=precision, box=box, train_depth=train_depth, lr=lr, d_steps=d_steps,
+                                 d_rate=d_rate, seed=seed, up=up, generator=generator)
     if levels is None:  # an .h5 file with fewer levels blames where the count came from
         click.get_current_context().meta[SOURCES] = {
             "levels": "the checkpoint's levels" if resume else f"the {preset or 'default'} preset's levels"}
