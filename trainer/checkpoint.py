@@ -93,8 +93,9 @@ def check_fields(state: dict) -> str | None:
             and all(isinstance(s, list) and len(s) == 3 and all(whole(n, 1, 4097) for n in s) for s in sizes)):
         return "sizes must be 1 to 32 lists of 3 whole numbers in [1, 4096]"
     source = state.get("source")
-    if not (isinstance(source, dict) and all(isinstance(source.get(k), str) for k in ("name", "sha256", "kind"))):
-        return "source must hold the strings name, sha256 and kind"
+    if not (isinstance(source, dict) and all(isinstance(source.get(k), str) for k in ("name", "sha256", "kind"))
+            and all(isinstance(source.get(k, ""), str) for k in ("files", "colour"))):
+        return "source must hold the strings name, sha256 and kind (and files and colour, if any)"
     if not (whole(state.get("level"), 0, len(sizes) + 1) and whole(state.get("iteration"))):
         return f"level must be 0 to {len(sizes)} and iteration a whole number"
     for name in ("noise_amps", "seconds"):
