@@ -30,7 +30,7 @@ OPTIONS = {"scale": "--scale", "factors": "--size", "smooth": "--smooth", "threa
            "size": "--size", "keep": "--keep", "layout": "--layout", "recon": "--recon",
            "output": "--output", "tile": "--tiles", "frame": "--frame", "force": "--force",
            "no_colour": "--no-colour", "d_steps": "--d-steps", "d_rate": "--d-rate",
-           "asset_folder": "--asset-folder"}
+           "asset_folder": "--asset-folder", "restart": "--restart"}
 # ctx.meta key: {parameter: what set it} where a command's value came from elsewhere than OPTIONS says.
 SOURCES = "sinrun.sources"
 # The extra that installs each optional module (pyproject.toml): a command
@@ -265,6 +265,12 @@ def mesh_options(command):
     return command
 
 
+RESTART_OPTION = click.option(
+    "--restart", is_flag=True,
+    help="Make every file again where the index beside the outputs records another job (another model, seed, "
+         "request or file name), which a rerun otherwise refuses, naming the difference.")
+
+
 def open_model(model, threads):
     from sinshape import models
     from sinshape.runtime import load
@@ -313,8 +319,9 @@ def open_model(model, threads):
 @click.option("--address", default=None,
               help="With --engine ray: the cluster's address. Default: Ray's own (RAY_ADDRESS, else a "
                    "local Ray on this machine).")
+@RESTART_OPTION
 def sample(model, seed, seeds, recon, keep, layout_file, resample_layout, grow_by, anchor, scale, size, output, smooth, smoother, largest, frame, threads, workers,
-           engine, address):
+           engine, address, restart):
     """Generate new shapes from a model and write them as meshes.
 
     MODEL is a .onnx file from `sinrun train` or the name of a shipped model
@@ -324,9 +331,9 @@ def sample(model, seed, seeds, recon, keep, layout_file, resample_layout, grow_b
     from sinshape.runtime import layout, write
     from sinshape.runtime.request import Layout, SampleRequest
 
-    if seeds is None and (workers is not None or engine != "local" or address is not None):
-        raise ConflictError("workers, engine and address are for many samples: give seeds",
-                            ("workers", "engine", "address", "seeds"))
+    if seeds is None and (workers is not None or engine != "local" or address is not None or restart):
+        raise ConflictError("workers, engine, address and restart are for many samples: give seeds",
+                            ("workers", "engine", "address", "restart", "seeds"))
     loaded = open_model(model, threads)
     laid_out = Layout.of(layout.read_any(loaded, layout_file, size), resample_layout) if layout_file else None
     request = SampleRequest(seed, recon, size, scale, smooth, smoother, largest, frame, keep, grow_by, anchor,
@@ -334,7 +341,7 @@ def sample(model, seed, seeds, recon, keep, layout_file, resample_layout, grow_b
     show_warnings(loaded, request)
     output = output or Path(f"{loaded.path.stem}_{'recon' if recon else 'seed{seed}'}.ply")
     if seeds:
-        return sample_seeds(loaded, seeds, output, engine, workers, threads, address, request)
+        return sample_seeds(loaded, seeds, output, engine, workers, threads, address, request, restart)
     path = named_output(output, seed=request.sample_seed) if "{" in str(output) else output
     with StageProgress() as show:
         write.write_request(loaded, request, path, [layout_file] if layout_file else [], threads,
@@ -342,7 +349,7 @@ def sample(model, seed, seeds, recon, keep, layout_file, resample_layout, grow_b
     click.echo(f"wrote {path}")
 
 
-def sample_seeds(model, seeds, output, engine, workers, threads, address, request) -> None:
+def sample_seeds(model, seeds, output, engine, workers, threads, address, request, restart=False) -> None:
     """`sinrun sample --seeds`: one resumable job, one progress bar."""
     from sinshape.runtime import many, write
 
@@ -354,7 +361,7 @@ def sample_seeds(model, seeds, output, engine, workers, threads, address, reques
     else:
         pattern = output.with_name(f"{output.stem}_seed{{seed}}{output.suffix}")
     run_job(lambda progress: many.sample_many(model.path, iter(seeds), pattern, engine, workers, threads, address,
-                                              progress=progress, request=request),
+                                              progress=progress, request=request, restart=restart),
             seeds, "seeds", lambda seed: named_output(pattern, seed=seed))
 
 
@@ -405,7 +412,8 @@ def run_job(job, items, unit: str, name) -> None:
 @click.option("--engine", type=click.Choice(["local", "ray"]), default="local", show_default=True,
               help="This machine's cores, or a Ray cluster (pip install 'sinshape[ray]').")
 @click.option("--address", default=None, help="With --engine ray: the cluster's address.")
-def world(model, seed, tiles, output, suffix, scale, frame, threads, workers, engine, address):
+@RESTART_OPTION
+def world(model, seed, tiles, output, suffix, scale, frame, threads, workers, engine, address, restart):
     """Write tiles of an endless world: any tile on its own, seamless with its neighbours.
 
     The world spreads along the model's two horizontal axes (the two that are
@@ -425,7 +433,7 @@ def world(model, seed, tiles, output, suffix, scale, frame, threads, workers, en
         return click.echo(f"wrote {output} ({len(tiles)} tiles)")
     pattern = output if "{tile}" in output.name else output / f"tile_{{tile}}.{suffix}"
     run_job(lambda progress: worlds.write_tiles(loaded.path, iter(tiles), pattern, SampleRequest(seed, scale=scale,
-                                                frame=frame), engine, workers, threads, address, progress),
+                                                frame=frame), engine, workers, threads, address, progress, restart),
             tiles, "tiles", lambda tile: pattern.with_name(pattern.name.replace("{tile}", f"{tile[0]}_{tile[1]}")))
 
 

@@ -32,8 +32,16 @@ def default_checkpoint_path(output: Path) -> Path:
 
 def atomic_save(obj, path: Path) -> None:
     """torch.save through the runtime's atomic writer: never a half-written
-    checkpoint, and no temporary file left behind."""
-    atomic_write(path, lambda f: torch.save(obj, f))
+    checkpoint, and no temporary file left behind. One that cannot be
+    written (a full disk, a file-size limit) is an InputError, and the last
+    one written stays as it was."""
+    try:
+        atomic_write(path, lambda f: torch.save(obj, f))
+    except InputError as error:  # the file system's own reason
+        raise InputError(f"{error}; the last checkpoint written is kept") from None
+    except RuntimeError:  # torch's zip writer says only "unexpected pos" (inline_container.cc)
+        raise InputError(f"{path}: cannot write the checkpoint (writing it failed: a full disk, or a file-size "
+                         "limit?); the last checkpoint written is kept") from None
 
 
 def count_levels(generator_state: dict) -> int:
