@@ -153,6 +153,29 @@ def test_a_tiles_work_stops_within_a_slab_when_it_is_given_up():
     assert len(calls) == 6
 
 
+# -- 5. a colour head that gives no finite colour is refused at load ------------------------------
+
+def test_a_colour_head_that_overflows_is_refused_at_load(tmp_path):
+    """Finite colour weights of +-3e38, sealed: samples of NaN colours were written black, exit 0."""
+    onnx = pytest.importorskip("onnx")
+    import numpy as np
+    from onnx import numpy_helper
+
+    from conftest import sealed_bytes
+
+    proto = onnx.load(TINY.with_name("tiny_colour.onnx"))
+    for weight in proto.graph.initializer:
+        if weight.name == "decoder_head.weight_colour":
+            values = numpy_helper.to_array(weight)
+            signs = np.where(np.arange(values.size).reshape(values.shape) % 2, 1, -1)
+            weight.CopyFrom(numpy_helper.from_array((3e38 * signs).astype(np.float32), weight.name))
+    (tmp_path / "bad.onnx").write_bytes(sealed_bytes(proto))
+    assert_one_line_error(run("sample", tmp_path / "bad.onnx", "-o", tmp_path / "s.ply"),
+                          "its colour head gives no finite colour for its own reconstruction")
+    assert not (tmp_path / "s.ply").exists()
+    assert run("sample", TINY.with_name("tiny_colour.onnx"), "-o", tmp_path / "s.ply").exit_code == 0
+
+
 # -- 6. the site's serve.py, and a checkpoint that cannot be written ------------------------------
 
 def site_server(*args) -> subprocess.CompletedProcess:
