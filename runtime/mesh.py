@@ -15,7 +15,7 @@ from threadpoolctl import threadpool_limits
 
 from sinshape.core.errors import InputError
 
-from . import cubes, query
+from . import colour, cubes, query
 from .load import default_threads
 
 SMOOTHERS = ("laplacian", "taubin")
@@ -171,16 +171,18 @@ def extract(model, triplane, scale: float = 1.0, smooth: int = 0, smoother: str 
     check_frame(frame)
     mesh = finish(band_mesh(model, triplane, scale, progress=progress, memory_limit=memory_limit, threads=threads),
                   smooth, smoother, largest)
-    paint(mesh, model, triplane)
+    paint(mesh, model, triplane, scale)
     return to_frame(mesh, model.manifest) if frame == "input" else mesh
 
 
-def paint(mesh, model, triplane) -> None:
+def paint(mesh, model, triplane, scale: float = 1.0) -> None:
     """Give a mesh in model coordinates a coloured model's colour at its
     vertices (their final places, after smoothing), as 8-bit sRGB vertex
-    colours; a geometry-only model's mesh is left as it is."""
+    colours, each the colour around it (a vertex of a grid `scale` times
+    finer stands for 1 / scale voxels); a geometry-only model's mesh is left
+    as it is."""
     if model.manifest.colour and len(mesh.vertices):
-        mesh.visual.vertex_colors = colour_bytes(query.colours(model, triplane, mesh.vertices))
+        mesh.visual.vertex_colors = colour_bytes(colour.colours(model, triplane, mesh.vertices, 1 / scale))
 
 
 def colour_bytes(rgb: np.ndarray) -> np.ndarray:

@@ -92,17 +92,12 @@ def points(model, triplane: TriPlane, coords: np.ndarray, chunk: int = 1 << 16) 
     return out
 
 
-def colours(model, triplane: TriPlane, coords: np.ndarray) -> np.ndarray:
-    """A coloured model's sRGB colour at arbitrary points (coords as in
-    `points`); a point outside the tri-plane takes the colour of the nearest
-    point inside (a mesh's vertices reach half a voxel beyond it, where the
-    surface closes). Returns (n, 3) float32 in [0, 1]."""
-    return colouring(model, triplane)(coords)
-
-
 def colouring(model, triplane: TriPlane, chunk: int = 1 << 16):
-    """`colours` of one tri-plane as a function of the points, the planes
-    projected once: for a mesh coloured piece by piece as it streams."""
+    """A format-4 model's colour head on one tri-plane as a function of the
+    points (coords as in `points`), the planes projected once; a point
+    outside the tri-plane takes the colour of the nearest point inside (a
+    mesh's vertices reach half a voxel beyond it, where the surface closes).
+    (n, 3) float32 sRGB in [0, 1]. runtime.colour picks it or the tiles."""
     planes, top = project(model, triplane).planes, np.array(triplane.size) - 1
 
     def colour(coords) -> np.ndarray:

@@ -152,10 +152,10 @@ def write_sample(model, triplane, path, scale: float = 1.0, smooth: int = 0, smo
     pieces = mesh.pieces(model, triplane, scale, progress=mesh_progress, threads=threads)
     colour = model.manifest.colour
     if colour:  # each piece's new vertices coloured as they come: the cost is per vertex
-        from .query import colouring
+        from .colour import colouring
 
         paint = colouring(model, triplane)
-        pieces = ((v, f, mesh.colour_bytes(paint(v))) for v, f in pieces)
+        pieces = ((v, f, mesh.colour_bytes(paint(v, 1 / scale))) for v, f in pieces)
     if frame == "input":
         pieces = ((mesh.in_frame(v, model.manifest), *rest) for v, *rest in pieces)
 

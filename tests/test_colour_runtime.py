@@ -13,7 +13,7 @@ from scipy.spatial import cKDTree
 
 from sinshape.cli.main import cli
 from sinshape.core import manifest as fmt
-from sinshape.runtime import edit, generate, load_model, query
+from sinshape.runtime import colour, edit, generate, load_model, query
 from sinshape.runtime.request import SampleRequest, make
 
 
@@ -120,9 +120,9 @@ def test_a_kept_box_keeps_the_other_seeds_colours(model, tmp_path):
     assert deep.sum() > 50 and far.sum() > 50
     kept = generate.sample(model, 3)
     points = vertices.astype(np.float64)
-    np.testing.assert_allclose(colours[deep] / 255, query.colours(model, kept, points[deep]), atol=0.6 / 255)
+    np.testing.assert_allclose(colours[deep] / 255, colour.colours(model, kept, points[deep]), atol=0.6 / 255)
     # ...and elsewhere not the kept seed's: the colour came from the box, not from anywhere.
-    assert np.abs(colours[far] / 255 - query.colours(model, kept, points[far])).max() > 2 / 255
+    assert np.abs(colours[far] / 255 - colour.colours(model, kept, points[far])).max() > 2 / 255
 
 
 @pytest.mark.parametrize("edit_options", [("--grow", "1.5,1,1"), ("--keep", "3:0%,0%,0%:50%,100%,100%")])

@@ -11,7 +11,7 @@ import pytest
 
 from browser import site_server_process, open_page, wait_world
 from test_web import browser, playwright, wait_done  # noqa: F401 (the fixtures of the browser's tests)
-from sinshape.runtime import load, query, world
+from sinshape.runtime import colour, load, query, world
 from sinshape.runtime.generate import sample
 from sinshape.serve import site
 
@@ -74,7 +74,7 @@ def test_a_samples_colours_are_the_python_runtimes_at_the_same_vertices(colour_p
     positions, colours = colours_in_page(colour_page, 3)
     manifest = coloured.manifest
     coords = (positions - np.asarray(manifest.origin)) / np.asarray(manifest.spacing)
-    expected = query.colours(coloured, sample(coloured, 3), coords)
+    expected = colour.colours(coloured, sample(coloured, 3), coords)
     assert len(colours) > 500 and colours.std(axis=0).max() > 0.01  # colour that varies over the shape
     assert np.abs(colours - expected).max() < TOLERANCE
     assert np.abs(colours - expected[::-1]).max() > 10 * TOLERANCE  # a vertex's colour from the wrong place shows

@@ -9,7 +9,7 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from sinshape.core import manifest  # noqa: E402
-from sinshape.runtime import generate, load, query  # noqa: E402
+from sinshape.runtime import colour, generate, load, query  # noqa: E402
 from sinshape.prep import pyramid  # noqa: E402
 from sinshape.trainer import checkpoint, train  # noqa: E402
 
@@ -73,7 +73,7 @@ def test_onnxruntime_equals_torch(tiny_model, tiny_colour_model, seed, factors, 
         reference = generator(z0, noises, sizes)[0].numpy()
     if coloured:
         index = np.argwhere(np.ones(sizes[-1], bool))[::7]
-        colour = query.colours(model, triplane, index.astype(float))
+        colour = colour.colours(model, triplane, index.astype(float))
         np.testing.assert_allclose(colour, reference[1:][(slice(None), *index.T)].T, atol=1e-4)
         reference = reference[0]
     assert ours.shape == reference.shape == sizes[-1]

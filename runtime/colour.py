@@ -1,0 +1,400 @@
+"""A sample's colour: read from the example by correspondence (format 5), or
+from the decoder's colour head (format 4).
+
+The generator makes a sample from the example's own features, so a voxel of
+a sample whose features look like those of a voxel of the example's
+reconstruction copies that part of the example. Its colour is read there,
+from the example's colour tiles (prep/appearance.py, docs/FORMAT.md), at
+the example's own detail: no colour is made up, so a sample has no hue its
+example lacks, and a brick wall's mortar lines stay as sharp as its
+texture's, whatever the voxel grid.
+
+Matching is PatchMatch (Barnes et al. 2009) on the voxel grid. Each voxel u
+of the sample's surface band gets the example voxel J(u) whose patch of
+hidden sums (the decoder's first layer, at a voxel and its six neighbours)
+is nearest in squared distance. Voxels picked by their content (about one
+in SEED_RATE) search the whole example; the rest start at random and, in
+ITERATIONS rounds, take a neighbour's match shifted by the step between
+them when it is nearer (so matches grow into large coherent pieces of the
+example), or a random voxel near their own match. A point p then stands for
+q = J(u) + (p - u), u = round(p), and reads the tile of q's voxel: within a
+voxel, the example's texture at full resolution.
+
+The same sample matches the same way everywhere: hidden sums are compared
+as integers (steps of 1/QUANTUM), whose squared distances are exact in
+float64 in any order, and every random choice is drawn from the specified
+noise (core/noise.py) keyed by the voxel's own content, not its place, so a
+part of a sample that another sample shares (a kept box, a world tile's
+neighbourhood) matches alike there. The browser's runtime repeats it
+(serve/static/sinshape/colour.js).
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from sinshape.core import noise
+from sinshape.core.budget import check_memory
+
+from . import generate, query
+
+# The patch: a voxel and its six neighbours.
+PATCH = np.array([(0, 0, 0), (1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1), (0, 0, -1)])
+QUANTUM = 256  # hidden sums are compared in steps of 1/QUANTUM
+ITERATIONS = 6
+PROPAGATION = (1, 2, 4, 8)  # neighbours this many voxels away along each axis offer their match
+SEARCH = (8, 4, 2, 1)  # random candidates within this many voxels of the current match
+SEED_RATE = 64  # about one voxel in this many searches the whole example
+MATCH_STREAM = 2  # core/noise's stream id of the matching's random choices (0 and 1 are the generator's)
+DEPTH_RANGE = 0.5  # a tile's depth byte spans this many voxels either side of its centre (prep/appearance.py)
+ACROSS = np.array([(1, 2), (0, 2), (0, 1)])  # a tile's rows and columns run along these axes, by its axis
+
+
+@dataclass(frozen=True)
+class Tiles:
+    """The example's colour as the runtime reads it: directional tiles of its
+    surface voxels (prep/appearance.py), and for every voxel near the surface
+    the tile of each direction it reads."""
+
+    voxels: np.ndarray  # (N, 3) int64: the voxel of each tile
+    directions: np.ndarray  # (N,) int64: 2 * axis + (1 looking from +, else 0)
+    mips: list  # RGB [(N, T, T, 3) uint8, (N, T/2, T/2, 3), ..., (N, 1, 1, 3)]
+    depth: np.ndarray  # (N, T, T) uint8: where the surface is along the tile's axis, 0..255 for -0.5..0.5 voxel
+    along: np.ndarray  # (X, Y, Z, 6) int32: per voxel and direction, the tile it reads (-1: none)
+
+    @classmethod
+    def of(cls, voxels: np.ndarray, directions: np.ndarray, images: np.ndarray, size) -> "Tiles":
+        voxels, directions = voxels.astype(np.int64), directions.astype(np.int64)
+        return cls(voxels, directions, mip_levels(np.ascontiguousarray(images[..., :3])),
+                   np.ascontiguousarray(images[..., 3]), reads_along(voxels, directions, size))
+
+    @staticmethod
+    def bytes(count: int, side: int, size) -> int:
+        """Memory of `count` tiles of `side` read for a finest level of `size`."""
+        return count * side * side * 5 + int(np.prod(size)) * 6 * 4
+
+    def band(self) -> np.ndarray:
+        """The voxels (m, 3) where a match may land: every voxel with a tile to read."""
+        return np.argwhere((self.along >= 0).any(axis=3))
+
+    def read(self, voxels: np.ndarray) -> np.ndarray:
+        """The tiles (n, 6) each (n, 3) voxel reads, -1 for none (outside the grid: none)."""
+        size = np.array(self.along.shape[:3])
+        inside = np.all((voxels >= 0) & (voxels < size), axis=1)
+        out = np.full((len(voxels), 6), -1, np.int64)
+        out[inside] = self.along[tuple(voxels[inside].T)]
+        return out
+
+
+def reads_along(voxels: np.ndarray, directions: np.ndarray, size) -> np.ndarray:
+    """Per voxel and direction (axis a, side s), the tile of that direction
+    of the voxel itself, else of the nearest voxel along a that has one, up
+    to two away, the side the tile looks from first (a point above a floor
+    reads the floor below it): its in-plane position in that tile is its
+    own. (X, Y, Z, 6) int32."""
+    size = tuple(int(n) for n in size)
+    own = np.full((*size, 6), -1, np.int32)
+    own[voxels[:, 0], voxels[:, 1], voxels[:, 2], directions] = np.arange(len(voxels), dtype=np.int32)
+    along = own.copy()
+    for direction in range(6):
+        axis, positive = divmod(direction, 2)
+        for step in ((-1, 1, -2, 2) if positive else (1, -1, 2, -2)):  # the side it looks from first
+            reach = abs(step)
+            if reach >= size[axis]:
+                continue
+            src, dst = [slice(None)] * 3, [slice(None)] * 3
+            if step < 0:  # the voxel `reach` below along the axis
+                src[axis], dst[axis] = slice(0, -reach), slice(reach, None)
+            else:
+                src[axis], dst[axis] = slice(reach, None), slice(0, -reach)
+            shifted = np.full(size, -1, np.int32)
+            shifted[tuple(dst)] = own[(*src, direction)]
+            take = (along[..., direction] < 0) & (shifted >= 0)
+            along[..., direction][take] = shifted[take]
+    return along
+
+
+def mip_levels(images: np.ndarray) -> list:
+    """Box-filtered halvings of (N, T, T, 3) uint8 tiles down to 1 x 1, each
+    texel the rounded mean of four (integers: the same in every runtime)."""
+    levels = [images]
+    while levels[-1].shape[1] > 1:
+        t = levels[-1].astype(np.uint16)
+        total = t[:, 0::2, 0::2] + t[:, 1::2, 0::2] + t[:, 0::2, 1::2] + t[:, 1::2, 1::2]
+        levels.append(((total + 2) // 4).astype(np.uint8))
+    return levels
+
+
+def grid_hidden(model, triplane):
+    """A tri-plane's hidden pre-activations (b1 added) at grid points of
+    scale 1, as a function of (n, 3) int voxels -> (n, D) float32, clamped
+    to the grid: the three projected plane cells, summed xy + xz + yz."""
+    xy, xz, yz = query.project(model, triplane).planes
+    top = np.array(triplane.size) - 1
+    bias = model.head.bias1
+
+    def at(voxels: np.ndarray) -> np.ndarray:
+        i, j, k = np.clip(voxels, 0, top).T
+        return xy[i, j] + xz[i, k] + yz[j, k] + bias
+    return at
+
+
+def patches(hidden_at, voxels: np.ndarray) -> np.ndarray:
+    """The patch of each voxel, (n, 3) -> (n, 7 * D) float32: hidden sums
+    rounded to steps of 1/QUANTUM and held as integers (|values| < 2^24),
+    so squared distances are integers below 2^53, exact in float64 in any
+    order of summation (a matrix product included)."""
+    return np.concatenate([np.rint(hidden_at(voxels + offset) * np.float32(QUANTUM)) for offset in PATCH], axis=1)
+
+
+def content_keys(patch: np.ndarray) -> np.ndarray:
+    """A key per patch (n, K) from its own voxel's values (its first D
+    columns' integers): the random choices made for a voxel follow what is
+    there, not where. uint64."""
+    key = np.full(len(patch), noise.stream_key(0, MATCH_STREAM), np.uint64)
+    with np.errstate(over="ignore"):
+        for value in patch[:, :patch.shape[1] // len(PATCH)].T:
+            key = noise.mix64(key + np.uint64(noise.GOLDEN) * (value.astype(np.int64).astype(np.uint64) + np.uint64(1)))
+    return key
+
+
+def draw(keys: np.ndarray, slot: int) -> np.ndarray:
+    """The random bits of draw `slot` for each voxel's key: SplitMix64's
+    output number key + 1 from state `slot` (core/noise.bits). uint64."""
+    return noise.bits(slot, keys)
+
+
+def squared_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise squared distances of patches (n, K): exact float64."""
+    diff = a.astype(np.float64) - b
+    return np.einsum("nk,nk->n", diff, diff)
+
+
+class Matcher:
+    """The example's side of matching: the voxels a match may land in (every
+    voxel with tiles to read) and the reconstruction's patch at each."""
+
+    def __init__(self, tiles: Tiles, reference_at):
+        self.band = tiles.band()  # (B, 3)
+        self.row = np.full(tiles.along.shape[:3], -1, np.int64)
+        self.row[tuple(self.band.T)] = np.arange(len(self.band))
+        self.reference = patches(reference_at, self.band)  # (B, K)
+        reference = self.reference.astype(np.float64)
+        self.norms = np.einsum("mk,mk->m", reference, reference)
+
+    def rows(self, voxels: np.ndarray) -> np.ndarray:
+        """The band row of each (n, 3) example voxel, -1 outside the band."""
+        size = np.array(self.row.shape)
+        inside = np.all((voxels >= 0) & (voxels < size), axis=1)
+        out = np.full(len(voxels), -1, np.int64)
+        out[inside] = self.row[tuple(voxels[inside].T)]
+        return out
+
+    def distance(self, sample: np.ndarray, candidates: np.ndarray) -> np.ndarray:
+        """Patch distances of sample patches (n, K) to candidate example voxels
+        (n, 3); infinite where a candidate is outside the band."""
+        row = self.rows(candidates)
+        d = squared_distances(sample, self.reference[np.maximum(row, 0)])
+        d[row < 0] = np.inf
+        return d
+
+    def nearest(self, sample: np.ndarray, chunk: int = 256) -> np.ndarray:
+        """The nearest band voxel of each patch (n, K) of all: (n, 3), the
+        first of equals. |s - r|^2 - |s|^2 = |r|^2 - 2 s.r, exact integers."""
+        out = np.empty(len(sample), np.int64)
+        reference = self.reference.astype(np.float64)
+        for start in range(0, len(sample), chunk):
+            block = sample[start:start + chunk].astype(np.float64)
+            out[start:start + chunk] = np.argmin(self.norms[None, :] - 2 * (block @ reference.T), axis=1)
+        return self.band[out]
+
+    def match(self, sample_at, voxels: np.ndarray) -> np.ndarray:
+        """The example voxel J(u) of each voxel u (n, 3) of a sample's band,
+        whose hidden sums `sample_at` gives: (n, 3) int64."""
+        check_memory(len(voxels) * self.reference.shape[1] * 16 + len(self.band) * 8 * 64,
+                     f"matching {len(voxels)} voxels to the example")
+        sample = patches(sample_at, voxels)
+        keys = content_keys(sample)
+        band, count = self.band, len(self.band)
+        lookup = voxel_lookup(voxels)
+        current = band[(draw(keys, 0) % np.uint64(count)).astype(np.int64)]
+        seeds = np.flatnonzero(draw(keys, 1) % np.uint64(SEED_RATE) == 0)
+        if len(seeds):
+            current[seeds] = self.nearest(sample[seeds])
+        best = self.distance(sample, current)
+        slot = 2
+        for _ in range(ITERATIONS):
+            previous = current.copy()
+            candidates = []
+            for step in PROPAGATION:
+                for axis in range(3):
+                    for sign in (1, -1):
+                        shift = np.zeros(3, np.int64)
+                        shift[axis] = sign * step
+                        neighbour = lookup(voxels - shift)
+                        offered = previous[np.maximum(neighbour, 0)] + shift
+                        candidates.append(np.where((neighbour >= 0)[:, None], offered, -1))
+            for radius in SEARCH:
+                bits = draw(keys, slot)
+                slot += 1
+                offsets = np.stack([((bits >> np.uint64(16 * a)) & np.uint64(0xFFFF)).astype(np.int64)
+                                    % (2 * radius + 1) for a in range(3)], axis=1) - radius
+                candidates.append(previous + offsets)
+            candidates.append(band[(draw(keys, slot) % np.uint64(count)).astype(np.int64)])
+            slot += 1
+            for candidate in candidates:  # in this order: the first of equals stays
+                d = self.distance(sample, candidate)
+                better = d < best
+                current[better], best[better] = candidate[better], d[better]
+        return current
+
+
+def voxel_lookup(voxels: np.ndarray):
+    """A function from (n, 3) voxels to their row in `voxels`, -1 where absent."""
+    low = voxels.min(axis=0) if len(voxels) else np.zeros(3, np.int64)
+    size = (voxels.max(axis=0) - low + 1) if len(voxels) else np.ones(3, np.int64)
+    table = np.full(tuple(size), -1, np.int64)
+    table[tuple((voxels - low).T)] = np.arange(len(voxels))
+
+    def lookup(query_voxels: np.ndarray) -> np.ndarray:
+        local = query_voxels - low
+        inside = np.all((local >= 0) & (local < size), axis=1)
+        out = np.full(len(query_voxels), -1, np.int64)
+        out[inside] = table[tuple(local[inside].T)]
+        return out
+    return lookup
+
+
+def surface_band(occupancy: np.ndarray) -> np.ndarray:
+    """The voxels (n, 3) of a scale-1 occupancy grid within one voxel of a
+    change between inside and outside: where a mesh's vertices round to."""
+    inside = occupancy > 0.5
+    change = np.zeros_like(inside)
+    for axis in range(3):
+        a, b = [slice(None)] * 3, [slice(None)] * 3
+        a[axis], b[axis] = slice(0, -1), slice(1, None)
+        differs = inside[tuple(a)] != inside[tuple(b)]
+        change[tuple(a)] |= differs
+        change[tuple(b)] |= differs
+    band = change.copy()
+    for axis in range(3):  # grown by one voxel along each axis
+        a, b = [slice(None)] * 3, [slice(None)] * 3
+        a[axis], b[axis] = slice(0, -1), slice(1, None)
+        band[tuple(a)] |= change[tuple(b)]
+        band[tuple(b)] |= change[tuple(a)]
+    return np.argwhere(band)
+
+
+def matcher(model) -> Matcher:
+    """The model's matcher, made once: the reconstruction's patches at every
+    voxel of the example's band."""
+    if model.matcher is None:
+        model.matcher = Matcher(model.tiles, grid_hidden(model, generate.sample(model, None)))
+    return model.matcher
+
+
+def correspondence(model, triplane):
+    """J for one sample: a function from (n, 3) voxels of its grid to their
+    example voxels. The surface band is matched as a whole; a voxel outside
+    it (a point asked for far from the surface) searches on its own."""
+    example = matcher(model)
+    hidden = grid_hidden(model, triplane)
+    band = surface_band(query.dense(model, triplane, 1.0))
+    matched = example.match(hidden, band) if len(band) else np.zeros((0, 3), np.int64)
+    lookup = voxel_lookup(band) if len(band) else (lambda v: np.full(len(v), -1, np.int64))
+
+    def of(voxels: np.ndarray) -> np.ndarray:
+        row = lookup(voxels)
+        out = matched[np.maximum(row, 0)] if len(matched) else np.zeros((len(voxels), 3), np.int64)
+        lone = np.flatnonzero(row < 0)
+        if len(lone):
+            out[lone] = example.nearest(patches(hidden, voxels[lone]))
+        return out
+    return of
+
+
+def read_colours(tiles: Tiles, matched, points: np.ndarray, grid, footprint: float | None = None) -> np.ndarray:
+    """The colour at points (n, 3) (sample model units) of a sample whose
+    voxels `matched` maps to example voxels: (n, 3) float32 sRGB. `grid`:
+    the sample's size; a point beyond its last voxel (a mesh closes half a
+    voxel outside) belongs to that voxel.
+
+    Point p in voxel u = round(p) stands for q = J(u) + (p - u) in the
+    example. Of the tiles q's voxel reads, the one whose surface lies nearest
+    q along its axis is read, at q's place across that axis. `footprint`:
+    the length a colour stands for (voxels), e.g. a vertex's spacing: its
+    mip level averages the texture over it (None: full detail)."""
+    # Halves up, as in every runtime (numpy's rint rounds them to even).
+    u = np.clip(np.floor(points + 0.5).astype(np.int64), 0, np.asarray(grid) - 1)
+    example = matched(u)
+    q = example + (points - u)
+    reads = tiles.read(example)
+    side = tiles.depth.shape[1]
+    best = np.full(len(points), np.inf, np.float32)
+    tile = np.zeros(len(points), np.int64)
+    across = np.zeros((len(points), 2), np.float32)
+    for direction in range(6):
+        candidate = reads[:, direction]
+        has = candidate >= 0
+        candidate = np.maximum(candidate, 0)
+        local = (q - tiles.voxels[candidate]).astype(np.float32)
+        axis = direction // 2
+        plane = local[:, ACROSS[axis]]
+        depth = texel(tiles.depth, candidate, plane).astype(np.float32) * np.float32(2 * DEPTH_RANGE / 255) \
+            - np.float32(DEPTH_RANGE)
+        distance = np.abs(local[:, axis] - depth)
+        better = has & (distance < best)
+        best[better], tile[better], across[better] = distance[better], candidate[better], plane[better]
+    level = 0
+    if footprint is not None and footprint > 0:
+        level = int(np.clip(np.round(np.log2(footprint * side)), 0, len(tiles.mips) - 1))
+    images = tiles.mips[level]
+    n = images.shape[1]
+    return bilinear_tiles(images, tile, (across[:, 0] + 0.5) * n - 0.5, (across[:, 1] + 0.5) * n - 0.5)
+
+
+def texel(values: np.ndarray, tile: np.ndarray, plane: np.ndarray) -> np.ndarray:
+    """values (N, T, T) at the texel holding each in-plane point (n, 2) in [-0.5, 0.5]^2."""
+    side = values.shape[1]
+    index = np.clip(np.floor((plane + 0.5) * side).astype(np.int64), 0, side - 1)
+    return values[tile, index[:, 0], index[:, 1]]
+
+
+def bilinear_tiles(images: np.ndarray, tile: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Bilinear lookup in tiles (N, T, T, 3) uint8 at texel coordinates x (rows), y (columns), clamped."""
+    n = images.shape[1]
+    x = np.clip(x, 0, n - 1).astype(np.float32)
+    y = np.clip(y, 0, n - 1).astype(np.float32)
+    x0 = np.minimum(np.floor(x).astype(np.int64), max(n - 2, 0))
+    y0 = np.minimum(np.floor(y).astype(np.int64), max(n - 2, 0))
+    x1, y1 = np.minimum(x0 + 1, n - 1), np.minimum(y0 + 1, n - 1)
+    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+    top = images[tile, x0, y0] * (1 - fy) + images[tile, x0, y1] * fy
+    bottom = images[tile, x1, y0] * (1 - fy) + images[tile, x1, y1] * fy
+    return ((top * (1 - fx) + bottom * fx) / np.float32(255)).astype(np.float32)
+
+
+def colouring(model, triplane, chunk: int = 1 << 16):
+    """A coloured model's colour of one sample as a function of points:
+    (n, 3) model coordinates -> (n, 3) float32 sRGB, with an optional
+    footprint (the length in voxels a colour stands for). A format-5 model
+    matches the sample once; a format-4 model reads its colour head."""
+    if model.tiles is None:
+        head = query.colouring(model, triplane, chunk)
+        return lambda points, footprint=None: head(points)
+    matched = correspondence(model, triplane)
+    grid = np.array(triplane.size)
+
+    def colour(points, footprint=None) -> np.ndarray:
+        points = query.point_array(points)
+        out = np.empty((len(points), 3), np.float32)
+        for start in range(0, len(points), chunk):
+            out[start:start + chunk] = read_colours(model.tiles, matched, points[start:start + chunk], grid, footprint)
+        return out
+    return colour
+
+
+def colours(model, triplane, coords, footprint: float | None = None) -> np.ndarray:
+    """A coloured model's sRGB colour at arbitrary points of a sample (model
+    coordinates, as `query.points`): (n, 3) float32 in [0, 1]."""
+    return colouring(model, triplane)(coords, footprint)
