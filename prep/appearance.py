@@ -14,8 +14,9 @@ surface it meets inside the voxel (the texture looked up at that exact
 point, or the vertex colours interpolated there), and the depth where it
 met it. So a tile keeps a mortar line one texel wide, and a point near the
 surface reads the colour of the surface beside it along the axis. T follows
-the texture's own density (texels per voxel): a power of two from 2 to
-MAX_TILE, halved while all the tiles would exceed MAX_TILE_BYTES.
+the texture's own density: a power of two from 2 to MAX_TILE, at least
+twice its texels across a voxel, halved while all the tiles would exceed
+MAX_TILE_BYTES.
 
 numpy, scipy and Pillow only (no torch).
 """
@@ -29,7 +30,7 @@ from sinshape.core.budget import check_memory
 
 from . import colour as colours
 
-MAX_TILE = 32
+MAX_TILE = 64
 MAX_TILE_BYTES = 48 << 20  # tiles above this get coarser (halved sides) until they fit
 FACING = 0.2  # a tile along axis a, side s, shows the faces whose normal has s * n_a above this
 DEPTH_RANGE = 0.5  # a tile's depth: where its surface lies inside the voxel, this far (voxels) either side of its centre
@@ -74,24 +75,29 @@ def triangle_areas(triangles: np.ndarray) -> np.ndarray:
 
 
 def samples_per_length(geometry, vertices: np.ndarray) -> float:
-    """How finely a geometry's colour varies: texels per unit of length for a
-    texture (its pixels over its UV area, against the surface's area), else
-    vertex colours per unit of length."""
-    area = triangle_areas(vertices[geometry.faces]).sum()
-    if area <= 0:
+    """How finely a geometry's colour varies, per unit of length: for a
+    texture, texels per unit along each face's most detailed edge (its
+    pixels over the edge's length), averaged by area; else vertex colours
+    per unit of length."""
+    triangles = vertices[geometry.faces]
+    areas = triangle_areas(triangles)
+    if areas.sum() <= 0:
         return 0.0
     visual = geometry.visual
+    image = None
     if getattr(visual, "kind", None) == "texture" and getattr(visual, "uv", None) is not None:
-        material = visual.material
-        image = getattr(material, "baseColorTexture", None)
-        image = getattr(material, "image", None) if image is None else image
-        if image is not None:
-            uv = np.asarray(visual.uv, np.float64)[geometry.faces]
-            uv_area = 0.5 * np.abs(np.cross(uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0])).sum()
-            return math.sqrt(uv_area * image.size[0] * image.size[1] / area)
+        image = getattr(visual.material, "baseColorTexture", None)
+        image = getattr(visual.material, "image", None) if image is None else image
+    if image is not None:
+        uv = np.asarray(visual.uv, np.float64)[geometry.faces] * np.array(image.size)  # in pixels
+        edges = [(1, 0), (2, 1), (0, 2)]
+        texels = np.stack([np.linalg.norm(uv[:, a] - uv[:, b], axis=1) for a, b in edges], axis=1)
+        lengths = np.stack([np.linalg.norm(triangles[:, a] - triangles[:, b], axis=1) for a, b in edges], axis=1)
+        ratio = np.max(texels / np.maximum(lengths, 1e-30), axis=1)
+        return float(np.average(ratio, weights=np.maximum(areas, 1e-30)))
     if getattr(visual, "kind", None) == "vertex":
-        return math.sqrt(len(vertices) / area)
-    return math.sqrt(len(geometry.faces) / area)
+        return math.sqrt(len(vertices) / areas.sum())
+    return math.sqrt(len(geometry.faces) / areas.sum())
 
 
 def example_tiles(surface: Surface, box_low, spacing, shape) -> Tiles:
@@ -232,7 +238,8 @@ def fill_misses(images: np.ndarray, hit: np.ndarray) -> np.ndarray:
 
 
 def tile_side(density: float, spacing) -> int:
-    """Texels per tile side: a power of two that holds the surface's colour
-    detail across one voxel."""
-    wanted = density * float(np.min(spacing))
+    """Texels per tile side: a power of two at least twice the surface's
+    colour samples across one voxel (a tile resamples the texture: at one
+    texel per texel, a texel's colour would spread over two)."""
+    wanted = 2 * density * float(np.min(spacing))
     return int(min(MAX_TILE, max(2, 2 ** math.ceil(math.log2(max(wanted, 1))))))
