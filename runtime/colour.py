@@ -125,18 +125,58 @@ def mip_levels(images: np.ndarray) -> list:
     return levels
 
 
-def grid_hidden(model, triplane):
-    """A tri-plane's hidden pre-activations (b1 added) at grid points of
-    scale 1, as a function of (n, 3) int voxels -> (n, D) float32, clamped
-    to the grid: the three projected plane cells, summed xy + xz + yz."""
-    xy, xz, yz = query.project(model, triplane).planes
-    top = np.array(triplane.size) - 1
+def grid_hidden(model, planes: list, size):
+    """Hidden pre-activations (b1 added) at the grid points of scale 1 of
+    projected planes (query.project) spanning `size`, as a function of
+    (n, 3) int voxels -> (n, D) float32, clamped to the grid: the three
+    plane cells summed in float32, ((xy + xz) + yz) + b1."""
+    xy, xz, yz = planes
+    top = np.array(size) - 1
     bias = model.head.bias1
 
     def at(voxels: np.ndarray) -> np.ndarray:
         i, j, k = np.clip(voxels, 0, top).T
         return xy[i, j] + xz[i, k] + yz[j, k] + bias
     return at
+
+
+def inside(model, hidden: np.ndarray) -> np.ndarray:
+    """Where hidden sums (n, D) (b1 added) are inside the shape: the head's
+    logit sum_c relu(h_c) w2_c + b2 > 0, summed in float32 in the order of
+    c (no matrix product, whose rounding depends on the machine), so that
+    every runtime draws the same band."""
+    logit = np.full(len(hidden), np.float32(model.head.bias2), np.float32)
+    active = np.maximum(hidden, 0)
+    for c, weight in enumerate(model.head.weight2):
+        logit += active[:, c] * weight
+    return logit > 0
+
+
+def surface_band(model, hidden_at, size) -> np.ndarray:
+    """The voxels (n, 3) of a grid of scale 1 within one voxel of a change
+    between inside and outside along an axis: where a mesh's vertices round to."""
+    size = tuple(int(n) for n in size)
+    solid = np.empty(size, bool)
+    rows = max(1, (1 << 18) // (size[1] * size[2]))
+    j, k = np.meshgrid(np.arange(size[1]), np.arange(size[2]), indexing="ij")
+    for x0 in range(0, size[0], rows):
+        x = np.arange(x0, min(x0 + rows, size[0]))
+        voxels = np.stack(np.broadcast_arrays(x[:, None, None], j[None], k[None]), axis=-1).reshape(-1, 3)
+        solid[x0:x0 + len(x)] = inside(model, hidden_at(voxels)).reshape(len(x), *size[1:])
+    change = np.zeros(size, bool)
+    for axis in range(3):
+        a, b = [slice(None)] * 3, [slice(None)] * 3
+        a[axis], b[axis] = slice(0, -1), slice(1, None)
+        differs = solid[tuple(a)] != solid[tuple(b)]
+        change[tuple(a)] |= differs
+        change[tuple(b)] |= differs
+    band = change.copy()
+    for axis in range(3):  # grown by one voxel along each axis
+        a, b = [slice(None)] * 3, [slice(None)] * 3
+        a[axis], b[axis] = slice(0, -1), slice(1, None)
+        band[tuple(a)] |= change[tuple(b)]
+        band[tuple(b)] |= change[tuple(a)]
+    return np.argwhere(band)
 
 
 def patches(hidden_at, voxels: np.ndarray) -> np.ndarray:
@@ -265,52 +305,65 @@ def voxel_lookup(voxels: np.ndarray):
     return lookup
 
 
-def surface_band(occupancy: np.ndarray) -> np.ndarray:
-    """The voxels (n, 3) of a scale-1 occupancy grid within one voxel of a
-    change between inside and outside: where a mesh's vertices round to."""
-    inside = occupancy > 0.5
-    change = np.zeros_like(inside)
-    for axis in range(3):
-        a, b = [slice(None)] * 3, [slice(None)] * 3
-        a[axis], b[axis] = slice(0, -1), slice(1, None)
-        differs = inside[tuple(a)] != inside[tuple(b)]
-        change[tuple(a)] |= differs
-        change[tuple(b)] |= differs
-    band = change.copy()
-    for axis in range(3):  # grown by one voxel along each axis
-        a, b = [slice(None)] * 3, [slice(None)] * 3
-        a[axis], b[axis] = slice(0, -1), slice(1, None)
-        band[tuple(a)] |= change[tuple(b)]
-        band[tuple(b)] |= change[tuple(a)]
-    return np.argwhere(band)
-
-
 def matcher(model) -> Matcher:
     """The model's matcher, made once: the reconstruction's patches at every
     voxel of the example's band."""
     if model.matcher is None:
-        model.matcher = Matcher(model.tiles, grid_hidden(model, generate.sample(model, None)))
+        recon = generate.sample(model, None)
+        model.matcher = Matcher(model.tiles, grid_hidden(model, query.project(model, recon).planes, recon.size))
     return model.matcher
 
 
-def correspondence(model, triplane):
-    """J for one sample: a function from (n, 3) voxels of its grid to their
-    example voxels. The surface band is matched as a whole; a voxel outside
-    it (a point asked for far from the surface) searches on its own."""
-    example = matcher(model)
-    hidden = grid_hidden(model, triplane)
-    band = surface_band(query.dense(model, triplane, 1.0))
-    matched = example.match(hidden, band) if len(band) else np.zeros((0, 3), np.int64)
-    lookup = voxel_lookup(band) if len(band) else (lambda v: np.full(len(v), -1, np.int64))
+# A voxel outside the band takes the match of the first voxel beside it that
+# has one, in this order, shifted by the step: the band's matches carried
+# outwards (and inwards) one voxel a round.
+STEPS = np.array([(-1, 0, 0), (1, 0, 0), (0, -1, 0), (0, 1, 0), (0, 0, -1), (0, 0, 1)])
 
-    def of(voxels: np.ndarray) -> np.ndarray:
-        row = lookup(voxels)
-        out = matched[np.maximum(row, 0)] if len(matched) else np.zeros((len(voxels), 3), np.int64)
-        lone = np.flatnonzero(row < 0)
-        if len(lone):
-            out[lone] = example.nearest(patches(hidden, voxels[lone]))
-        return out
-    return of
+
+class Correspondence:
+    """J of one sample: its surface band matched to the example as a whole,
+    and the rest of its grid, when asked for, from the band outwards."""
+
+    def __init__(self, model, planes: list, size):
+        self.size = np.array(size)
+        example = matcher(model)
+        hidden = grid_hidden(model, planes, size)
+        self.band = surface_band(model, hidden, size)
+        self.matched = example.match(hidden, self.band) if len(self.band) else np.zeros((0, 3), np.int64)
+        self.lookup = voxel_lookup(self.band)
+        self.field = None
+
+    def __call__(self, voxels: np.ndarray) -> np.ndarray:
+        """The example voxel of each (n, 3) voxel of the sample's grid."""
+        voxels = np.clip(voxels, 0, self.size - 1)
+        row = self.lookup(voxels)
+        if np.all(row >= 0):
+            return self.matched[row]
+        if self.field is None:
+            self.field = self.spread()
+        return self.field[tuple(voxels.T)]
+
+    def spread(self) -> np.ndarray:
+        """J on every voxel of the grid: (X, Y, Z, 3) int64 (the band's own,
+        or carried from it; all zeros if the sample has no surface)."""
+        check_memory(int(np.prod(self.size)) * 8 * 8, f"matching a {'x'.join(map(str, self.size))} grid")
+        field = np.zeros((*self.size, 3), np.int64)
+        known = np.zeros(tuple(self.size), bool)
+        field[tuple(self.band.T)] = self.matched
+        known[tuple(self.band.T)] = True
+        while len(self.band) and not known.all():
+            before = known.copy()
+            for step in STEPS:
+                axis = int(np.flatnonzero(step)[0])
+                src, dst = [slice(None)] * 3, [slice(None)] * 3
+                if step[axis] < 0:  # take from the voxel before along the axis
+                    src[axis], dst[axis] = slice(0, -1), slice(1, None)
+                else:
+                    src[axis], dst[axis] = slice(1, None), slice(0, -1)
+                take = ~known[tuple(dst)] & before[tuple(src)]
+                field[tuple(dst)][take] = field[tuple(src)][take] - step
+                known[tuple(dst)] |= take
+        return field
 
 
 def read_colours(tiles: Tiles, matched, points: np.ndarray, grid, footprint: float | None = None) -> np.ndarray:
@@ -382,7 +435,7 @@ def colouring(model, triplane, chunk: int = 1 << 16):
     if model.tiles is None:
         head = query.colouring(model, triplane, chunk)
         return lambda points, footprint=None: head(points)
-    matched = correspondence(model, triplane)
+    matched = Correspondence(model, query.project(model, triplane).planes, triplane.size)
     grid = np.array(triplane.size)
 
     def colour(points, footprint=None) -> np.ndarray:

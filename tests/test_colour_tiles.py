@@ -105,27 +105,32 @@ def model(tiny_colour_model):
     return loaded
 
 
+def hidden_of(model, triplane):
+    return colour.grid_hidden(model, colour.query.project(model, triplane).planes, triplane.size)
+
+
 def test_the_reconstruction_matches_itself(model):
     matcher = colour.matcher(model)
     recon = generate.sample(model, None)
-    band = colour.surface_band(colour.query.dense(model, recon, 1.0))
+    hidden = hidden_of(model, recon)
+    band = colour.surface_band(model, hidden, recon.size)
     ours = band[matcher.rows(band) >= 0]  # the voxels the example's band holds too
     assert len(ours) > 50
-    np.testing.assert_array_equal(matcher.match(colour.grid_hidden(model, recon), ours), ours)
+    np.testing.assert_array_equal(matcher.match(hidden, ours), ours)
 
 
 def test_a_match_follows_content_not_place_or_order(model):
     matcher = colour.matcher(model)
     triplane = generate.sample(model, 3)
-    hidden = colour.grid_hidden(model, triplane)
-    band = colour.surface_band(colour.query.dense(model, triplane, 1.0))
+    hidden = hidden_of(model, triplane)
+    band = colour.surface_band(model, hidden, triplane.size)
     matched = matcher.match(hidden, band)
     order = np.random.default_rng(0).permutation(len(band))
     np.testing.assert_array_equal(matcher.match(hidden, band[order]), matched[order])
     shift = np.array([40, -7, 3])  # the same content elsewhere: the same example voxels
     np.testing.assert_array_equal(matcher.match(lambda voxels: hidden(voxels - shift), band + shift), matched)
     # ...and other content, other matches.
-    other = colour.grid_hidden(model, generate.sample(model, 4))
+    other = hidden_of(model, generate.sample(model, 4))
     assert not np.array_equal(matcher.match(other, band), matched)
 
 
