@@ -507,11 +507,3 @@ def dense(model, triplane: TriPlane, scale: float = 1.0, memory_limit: int | Non
         if colour:
             colours[rows.start - 1:rows.stop - 1] = np.round(head_colour(model.head, sums) * 255)
     return (out, colours) if colour else out
-
-
-def dense_grids(model, triplane: TriPlane, scale: float = 1.0) -> dict:
-    """What an .npz sample holds: {"occupancy"}, and a coloured model's {"colour"}."""
-    if not model.manifest.colour:
-        return {"occupancy": dense(model, triplane, scale)}
-    occupancy, colour = dense(model, triplane, scale, colour=True)
-    return {"occupancy": occupancy, "colour": colour}

@@ -206,7 +206,9 @@ def sample_bytes(model, triplane, path, scale: float = 1.0, smooth: int = 0, smo
 
     path = Path(path)
     if output_kind(path) == "grid":
-        return grid_bytes(**query.dense_grids(model, triplane, scale), size=triplane.size, scale=scale), None
+        from .colour import dense_grids
+
+        return grid_bytes(**dense_grids(model, triplane, scale), size=triplane.size, scale=scale), None
     result = mesh.extract(model, triplane, scale, smooth, smoother, largest, frame, progress=mesh_progress,
                           threads=threads)
     if not len(result.faces):
