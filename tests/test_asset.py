@@ -16,7 +16,7 @@ from click.testing import CliRunner
 from conftest import TINY_COLOUR_ONNX, TINY_ONNX
 from sinshape.cli.main import cli
 from sinshape.core.errors import InputError, MemoryLimitError
-from sinshape.runtime import asset, generate, load_model, query
+from sinshape.runtime import asset, generate, gltf, load_model, query
 from sinshape.runtime.request import SampleRequest
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -38,45 +38,6 @@ def validate(path: Path) -> dict:
     return json.loads(done.stdout)
 
 
-def read_glb(data: bytes) -> tuple:
-    """(glTF JSON, binary chunk) of a .glb."""
-    magic, version, total = struct.unpack("<III", data[:12])
-    assert (magic, version, total) == (0x46546C67, 2, len(data))
-    size = struct.unpack("<I", data[12:16])[0]
-    gltf = json.loads(data[20:20 + size])
-    return gltf, data[20 + size + 8:]
-
-
-def accessor(gltf: dict, binary: bytes, index: int) -> np.ndarray:
-    a = gltf["accessors"][index]
-    view = gltf["bufferViews"][a["bufferView"]]
-    dtype = {5126: np.float32, 5123: np.uint16, 5125: np.uint32}[a["componentType"]]
-    width = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}[a["type"]]
-    values = np.frombuffer(binary, dtype, a["count"] * width, view["byteOffset"])
-    return values.reshape(a["count"], width) if width > 1 else values
-
-
-def image(gltf: dict, binary: bytes, texture: int) -> np.ndarray:
-    import io
-
-    from PIL import Image
-
-    view = gltf["bufferViews"][gltf["images"][gltf["textures"][texture]["source"]]["bufferView"]]
-    return np.asarray(Image.open(io.BytesIO(binary[view["byteOffset"]:view["byteOffset"] + view["byteLength"]])))
-
-
-def level(gltf: dict, binary: bytes, node: int) -> dict:
-    """A level's arrays and maps, by its node."""
-    mesh = gltf["meshes"][gltf["nodes"][node]["mesh"]]["primitives"][0]
-    out = {name.lower(): accessor(gltf, binary, index) for name, index in mesh["attributes"].items()}
-    out["faces"] = accessor(gltf, binary, mesh["indices"]).reshape(-1, 3).astype(np.int64)
-    material = gltf["materials"][mesh["material"]]
-    out["normal_map"] = image(gltf, binary, material["normalTexture"]["index"])
-    colour = material["pbrMetallicRoughness"].get("baseColorTexture")
-    out["colour_map"] = None if colour is None else image(gltf, binary, colour["index"])
-    return out
-
-
 @pytest.fixture(scope="module")
 def coloured_asset(tmp_path_factory):
     """An asset of the coloured tiny model, its file and the model."""
@@ -92,22 +53,22 @@ def test_the_khronos_validator_finds_no_error_or_warning_and_the_levels_keep_the
     path, _, info = coloured_asset
     report = validate(path)
     assert report["issues"]["numErrors"] == 0 and report["issues"]["numWarnings"] == 0, report["issues"]["messages"]
-    gltf, binary = read_glb(path.read_bytes())
-    assert [node["name"] for node in gltf["nodes"]] == ["box_LOD0", "box_LOD1"]
-    assert gltf["nodes"][0]["extensions"]["MSFT_lod"]["ids"] == [1]
+    document, binary = gltf.read(path.read_bytes())
+    assert [node["name"] for node in document["nodes"]] == ["box_LOD0", "box_LOD1"]
+    assert document["nodes"][0]["extensions"]["MSFT_lod"]["ids"] == [1]
     for node, target in enumerate(LODS):
-        faces = level(gltf, binary, node)["faces"]
+        faces = gltf.level_arrays(document, binary, node)["faces"]
         assert target * 0.8 <= len(faces) <= target  # at most the count asked for, and near it
-    assert report["info"]["totalTriangleCount"] == sum(len(level(gltf, binary, k)["faces"]) for k in range(2))
+    assert report["info"]["totalTriangleCount"] == sum(len(gltf.level_arrays(document, binary, k)["faces"]) for k in range(2))
     assert info["dense_triangles"] > LODS[0]
 
 
 def test_the_validator_reports_a_broken_asset(coloured_asset, tmp_path):
     """The check above can fail: a position accessor that claims more
     vertices than its buffer holds is an error to the validator."""
-    gltf, binary = read_glb(coloured_asset[0].read_bytes())
-    gltf["accessors"][0]["count"] += 10**6
-    text = json.dumps(gltf).encode()
+    document, binary = gltf.read(coloured_asset[0].read_bytes())
+    document["accessors"][0]["count"] += 10**6
+    text = json.dumps(document).encode()
     text += b" " * (-len(text) % 4)
     broken = tmp_path / "broken.glb"
     broken.write_bytes(struct.pack("<III", 0x46546C67, 2, 28 + len(text) + len(binary)) +
@@ -125,9 +86,9 @@ def welded(positions: np.ndarray, faces: np.ndarray) -> tuple:
 def test_every_level_is_closed_where_the_sample_is(coloured_asset):
     import trimesh
 
-    gltf, binary = read_glb(coloured_asset[0].read_bytes())
+    document, binary = gltf.read(coloured_asset[0].read_bytes())
     for node in range(len(LODS)):
-        arrays = level(gltf, binary, node)
+        arrays = gltf.level_arrays(document, binary, node)
         assert trimesh.Trimesh(*welded(arrays["position"], arrays["faces"]), process=False).is_watertight
 
 
@@ -179,8 +140,8 @@ def decoded_normals(arrays: dict, rows, columns, normals, tangents) -> np.ndarra
 
 def test_the_colour_map_holds_the_models_colour_at_each_texels_surface_point(coloured_asset):
     _, model, _ = coloured_asset
-    gltf, binary = read_glb(coloured_asset[0].read_bytes())
-    arrays = level(gltf, binary, 1)  # the coarsest level: its surface is furthest from the model's
+    document, binary = gltf.read(coloured_asset[0].read_bytes())
+    arrays = gltf.level_arrays(document, binary, 1)  # the coarsest level: its surface is furthest from the model's
     points, rows, columns, normals, _ = texel_centres(arrays, TEXTURE)
     triplane = generate.sample(model, 3)
     surface = along_normals(lambda p: query.points(model, triplane, p), points, normals)
@@ -238,10 +199,10 @@ def test_the_normal_map_turns_a_coarse_level_into_the_fields_surface():
 def test_a_geometry_only_model_gets_a_normal_map_and_no_colour_map(tmp_path):
     model = load_model(TINY_ONNX, threads=1)
     data, _ = asset.asset_bytes(model, SampleRequest(1), asset.AssetOptions((800,), 64), threads=1)
-    gltf, binary = read_glb(data)
-    arrays = level(gltf, binary, 0)
+    document, binary = gltf.read(data)
+    arrays = gltf.level_arrays(document, binary, 0)
     assert arrays["colour_map"] is None
-    assert gltf["materials"][0]["pbrMetallicRoughness"]["baseColorFactor"][3] == 1
+    assert document["materials"][0]["pbrMetallicRoughness"]["baseColorFactor"][3] == 1
     assert arrays["normal_map"].shape == (64, 64, 3)
     flat = np.all(arrays["normal_map"] == [128, 128, 255], axis=2).mean()
     assert flat < 0.5 and arrays["normal_map"].std(axis=(0, 1)).min() > 2  # not blank
@@ -270,8 +231,8 @@ def test_sinrun_writes_an_asset_and_nothing_for_bad_values(tmp_path):
     result = CliRunner().invoke(cli, ["sample", str(TINY_ONNX), "--seed", "2", "--lods", "600,150", "--texture", "64",
                                       "-o", str(out)])
     assert result.exit_code == 0, result.output
-    gltf, _ = read_glb(out.read_bytes())
-    assert [n["name"] for n in gltf["nodes"]] == ["rock_LOD0", "rock_LOD1"]
+    document, _ = gltf.read(out.read_bytes())
+    assert [n["name"] for n in document["nodes"]] == ["rock_LOD0", "rock_LOD1"]
     for args, said in [(["--lods", "600", "--texture", "100"], "--texture must be a power of two"),
                        (["--lods", "0"], "--lods asks for 0 triangles"),
                        (["--lods", "9999999"], "more than the sample's full-resolution mesh"),
@@ -298,9 +259,9 @@ def test_world_tiles_as_assets_meet_at_their_border_at_every_level(tmp_path):
     border = layout.stride[axis]  # the face tiles (0, 0) and (1, 0) share
     sides = []
     for name in ("tile_0_0.glb", "tile_1_0.glb"):
-        gltf, binary = read_glb((tmp_path / "w" / name).read_bytes())
+        document, binary = gltf.read((tmp_path / "w" / name).read_bytes())
         sides.append([set(map(tuple, np.round(p[np.abs(p[:, axis] - border) < 1e-4], 4)))
-                      for p in (level(gltf, binary, k)["position"] for k in range(2))])
+                      for p in (gltf.level_arrays(document, binary, k)["position"] for k in range(2))])
     assert sides[0][0] and all(sides[0][a] == sides[1][b] for a in range(2) for b in range(2))
 
 
@@ -312,16 +273,16 @@ def test_the_web_api_hands_out_assets_and_refuses_bad_values_in_one_line_of_json
         status, headers, body = get(f"{route}/sample?seed=3&lods=1500,300&texture=64")
         assert status == 200 and headers["Content-Type"] == "model/gltf-binary", body[:200]
         assert "asset1500_300" in headers["Content-Disposition"]
-        gltf, binary = read_glb(body)
-        assert [len(level(gltf, binary, k)["faces"]) <= n for k, n in enumerate((1500, 300))] == [True, True]
-        assert level(gltf, binary, 0)["colour_map"].shape == (64, 64, 3)
+        document, binary = gltf.read(body)
+        assert [len(gltf.level_arrays(document, binary, k)["faces"]) <= n for k, n in enumerate((1500, 300))] == [True, True]
+        assert gltf.level_arrays(document, binary, 0)["colour_map"].shape == (64, 64, 3)
         for query_, said in [("lods=0", "at least 4"), ("lods=300&format=ply", "glb"),
                              ("lods=300&texture=100", "power of two"), ("texture=64", "give lods"),
                              ("lods=x", "triangle counts")]:
             status, _, body = get(f"{route}/sample?seed=3&{query_}")
             assert status == 400 and said in json.loads(body)["detail"] and b"\n" not in body, body
         status, _, body = get(f"{route}/tile?i=0&j=0&lods=500&texture=32")
-        assert status == 200 and read_glb(body)[0]["nodes"][0]["name"].endswith("_LOD0")
+        assert status == 200 and gltf.read(body)[0]["nodes"][0]["name"].endswith("_LOD0")
 
 
 @pytest.mark.blender
