@@ -28,10 +28,10 @@ from typing import Callable
 
 import numpy as np
 
-LATTICE = 0.5  # voxels between lattice points: the model's detail is a voxel's
+LATTICE = 0.75  # voxels between lattice points: the model's detail is a voxel's
 MAX_SPLIT = 64  # lattice intervals along a level's triangle side, at most
 BRACKET = 7  # field samples along a lattice point's ray before refining
-REFINE = 4  # regula falsi steps inside the bracket
+REFINE = 2  # regula falsi steps inside the bracket
 GRADIENT_STEP = 0.25  # voxels either side of a point its gradient is taken over
 CHUNK = 1 << 14  # points asked of the model at once: 1.6x faster than 1 << 16 (cache-sized temporaries)
 # Ambient occlusion: directions around the normal, and the distances (voxels)
