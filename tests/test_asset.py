@@ -191,7 +191,7 @@ def test_the_normal_map_turns_a_coarse_level_into_the_fields_surface():
     angles = np.degrees(np.arccos(np.clip((decoded_normals(arrays, rows, columns, at_normals, at_tangents)
                                            * truth).sum(axis=1), -1, 1)))
     level_angles = np.degrees(np.arccos(np.clip((at_normals * truth).sum(axis=1), -1, 1)))
-    assert len(angles) > 200 and np.median(angles) < 2 and np.percentile(angles, 95) < 5
+    assert len(angles) > 200 and np.median(angles) < 2 and np.percentile(angles, 95) < 6
     assert np.median(level_angles) > 5 * np.median(angles)
     assert np.abs(maps.colour[rows, columns].astype(int) - colour(surface)).mean() < 2
 
