@@ -263,7 +263,7 @@ def asset_bytes(model, request, options: AssetOptions, name: str = "sample", thr
     written = time.perf_counter()
     extras = {"sinshape": {"seed": request.sample_seed, "tile": list(request.tile) if request.tile else None,
                            "lods": list(options.lods), "texture": options.texture}}
-    data = gltf.glb_bytes(levels, name, extras)
+    data = gltf.glb_bytes(levels, name, extras, model.manifest.up)
     timings["write"] = time.perf_counter() - written
     info = {"dense_triangles": len(dense.faces), "dense_vertices": len(dense.vertices), "levels": figures,
             "seconds": {k: round(v, 3) for k, v in timings.items()}, "bytes": len(data)}
