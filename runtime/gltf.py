@@ -179,7 +179,8 @@ def read(data: bytes) -> tuple:
 
 def level_arrays(document: dict, binary: bytes, node: int) -> dict:
     """A level's arrays (position, normal, tangent, texcoord_0, faces) and
-    maps (normal_map, colour_map: None where the material has none), by its node."""
+    maps (normal_map, colour_map, occlusion_map: None where the material has
+    none), by its node."""
     from PIL import Image
 
     def accessor(index):
@@ -202,4 +203,5 @@ def level_arrays(document: dict, binary: bytes, node: int) -> dict:
     material = document["materials"][primitive["material"]]
     out["normal_map"] = image(material["normalTexture"])
     out["colour_map"] = image(material["pbrMetallicRoughness"].get("baseColorTexture"))
+    out["occlusion_map"] = image(material.get("occlusionTexture"))
     return out

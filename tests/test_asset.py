@@ -42,8 +42,8 @@ def validate(path: Path) -> dict:
 def coloured_asset(tmp_path_factory):
     """An asset of the coloured tiny model, its file and the model."""
     model = load_model(TINY_COLOUR_ONNX, threads=1)
-    data, info = asset.asset_bytes(model, SampleRequest(3, frame="model"), asset.AssetOptions(LODS, TEXTURE),
-                                   "box", threads=1)
+    options = asset.AssetOptions(LODS, TEXTURE, ao=True)
+    data, info = asset.asset_bytes(model, SampleRequest(3, frame="model"), options, "box", threads=1)
     path = tmp_path_factory.mktemp("asset") / "box.glb"
     path.write_bytes(data)
     return path, model, info
@@ -180,7 +180,8 @@ def test_the_normal_map_turns_a_coarse_level_into_the_fields_surface():
 
     field, frame = bake.Field(bumpy_sphere, colour), bake.Frame(np.zeros(3), np.ones(3))
     maps = bake.bake(field, frame, vertices[source], split, uvs, normals, tangents, 256, voxel=1.0, reach=2.0,
-                     padding=options.padding, threads=1)
+                     padding=options.padding, ao=True, threads=1)
+    assert maps.occlusion.mean() > 0.9 * 255  # a ball has no hollows
     arrays = {"position": vertices[source], "normal": normals, "tangent": tangents, "texcoord_0": uvs,
               "faces": split, "normal_map": maps.normal}
     points, rows, columns, at_normals, at_tangents = texel_centres(arrays, 256)
@@ -196,12 +197,14 @@ def test_the_normal_map_turns_a_coarse_level_into_the_fields_surface():
     assert np.abs(maps.colour[rows, columns].astype(int) - colour(surface)).mean() < 2
 
 
-def test_a_geometry_only_model_gets_a_normal_map_and_no_colour_map(tmp_path):
+def test_a_geometry_only_model_gets_a_normal_map_no_colour_map_and_occlusion_if_asked(tmp_path):
     model = load_model(TINY_ONNX, threads=1)
-    data, _ = asset.asset_bytes(model, SampleRequest(1), asset.AssetOptions((800,), 64), threads=1)
+    data, _ = asset.asset_bytes(model, SampleRequest(1), asset.AssetOptions((800,), 64, ao=True), threads=1)
     document, binary = gltf.read(data)
     arrays = gltf.level_arrays(document, binary, 0)
     assert arrays["colour_map"] is None
+    occlusion = arrays["occlusion_map"]  # a terrain's hollows are darker than its tops
+    assert occlusion.shape == (64, 64) and occlusion.max() > 240 and np.percentile(occlusion, 5) < 200
     assert document["materials"][0]["pbrMetallicRoughness"]["baseColorFactor"][3] == 1
     assert arrays["normal_map"].shape == (64, 64, 3)
     flat = np.all(arrays["normal_map"] == [128, 128, 255], axis=2).mean()
