@@ -244,6 +244,9 @@ def asset_bytes(model, request, options: AssetOptions, name: str = "sample", thr
     an edit or a world tile) and what it holds: (bytes, info), info with the
     full mesh's and each level's counts, and the seconds of each stage.
     progress(done, total) is called as meshing goes."""
+    import meshoptimizer  # noqa: F401  the assets extra, asked for before any work
+    import xatlas  # noqa: F401
+
     check_asset_memory(options, memory_limit)
     threads = threads or os.cpu_count() or 1
     started = time.perf_counter()

@@ -99,18 +99,11 @@ def rasterise_uv(uvs: np.ndarray, faces: np.ndarray, size: int) -> tuple:
     float32). uvs (V, 2) in [0, 1], glTF's: u right, v down the image."""
     from .render import rasterise
 
-    corners = uvs[faces] * size  # (F, 3, 2) in texels
-    owner, _ = rasterise(corners, np.zeros(faces.shape), (size, size))
+    owner, _, found = rasterise(uvs[faces] * size, np.zeros(faces.shape), (size, size), weights=True)
     texels = np.flatnonzero(owner.ravel() >= 0)
-    face = owner.ravel()[texels]
-    corners = corners.astype(np.float32)
-    a, e1, e2 = corners[face, 0], corners[face, 1] - corners[face, 0], corners[face, 2] - corners[face, 0]
-    q = np.stack([texels % size, texels // size], axis=1).astype(np.float32) + np.float32(0.5) - a
-    area = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
-    w1 = (q[:, 0] * e2[:, 1] - q[:, 1] * e2[:, 0]) / area
-    w2 = (e1[:, 0] * q[:, 1] - e1[:, 1] * q[:, 0]) / area
-    weights = np.clip(np.stack([1 - w1 - w2, w1, w2], axis=1), 0, 1)
-    return texels, face, weights / weights.sum(axis=1, keepdims=True)
+    w12 = np.clip(found.reshape(-1, 2)[texels], 0, 1)
+    weights = np.concatenate([np.clip(1 - w12.sum(axis=1, keepdims=True), 0, 1), w12], axis=1)
+    return texels, owner.ravel()[texels], weights / weights.sum(axis=1, keepdims=True)
 
 
 @dataclass
@@ -301,11 +294,15 @@ def dilate(image: np.ndarray, filled: np.ndarray, steps: int) -> tuple:
     height, width = filled.shape
     flat, known = image.reshape(height * width, -1), filled.ravel()
     shifts = [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx]
+    across = np.empty_like(filled)
     for _ in range(steps):
-        padded = np.pad(filled, 1)
-        near = np.zeros_like(filled)
-        for dy, dx in shifts:
-            near |= padded[1 + dy:1 + dy + height, 1 + dx:1 + dx + width]
+        # The 8-neighbourhood's any(), as a row's then a column's (separable).
+        across[:] = filled
+        across[:, 1:] |= filled[:, :-1]
+        across[:, :-1] |= filled[:, 1:]
+        near = across.copy()
+        near[1:] |= across[:-1]
+        near[:-1] |= across[1:]
         ring = np.flatnonzero((near & ~filled).ravel())
         if not len(ring):
             break

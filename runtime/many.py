@@ -227,7 +227,7 @@ def handler_kept(signum: int):
 class InProcess:
     """One worker: this process."""
 
-    def __init__(self, model_path, suffix, threads, request, field, asset):
+    def __init__(self, model_path, suffix, threads, request, field, asset=None):
         self.worker, self.done = Worker(model_path, suffix, threads, request, field, asset), []
 
     slots = 1
@@ -245,7 +245,7 @@ class InProcess:
 class Processes:
     """Worker processes on this machine (multiprocessing, spawned)."""
 
-    def __init__(self, model_path, suffix, threads, request, field, asset, workers: int):
+    def __init__(self, model_path, suffix, threads, request, field, workers: int, asset=None):
         import multiprocessing
 
         with signals_deferred(signal.SIGINT, signal.SIGTERM):
@@ -286,8 +286,8 @@ class RayActors:
     """Ray actors, each holding a Worker; Ray's own default cluster unless
     `address` names one."""
 
-    def __init__(self, model_path, suffix, threads, request, field, asset, workers: int | None,
-                 address: str | None):
+    def __init__(self, model_path, suffix, threads, request, field, workers: int | None, address: str | None,
+                 asset=None):
         try:
             import ray
         except ImportError:
@@ -433,17 +433,16 @@ def run_job(model_path, items, pattern, varying: Varying, request, engine: str =
     if index.is_file() and (len(done) != len(found) or not index.read_bytes().endswith(b"\n")
                             or index.read_bytes().count(b"\n") != len(found)):
         rewrite_index(index, done)
-    job = (model_path, pattern.suffix, threads or 1, request, varying.field, asset)
+    job = (model_path, pattern.suffix, threads or 1, request, varying.field)
     if engine == "ray":
-        pool = RayActors(*job, workers, address)
+        pool = RayActors(*job, workers, address, asset=asset)
     else:
         if workers is not None and workers > default_threads():
             raise InputError(f"workers must be 1 to {default_threads()} (this machine's cores), got {workers}",
                              "workers")
         workers = default_threads() if workers is None else workers
-        job = (model_path, pattern.suffix, threads or max(1, default_threads() // workers), request, varying.field,
-               asset)
-        pool = InProcess(*job) if workers == 1 else Processes(*job, workers)
+        job = (model_path, pattern.suffix, threads or max(1, default_threads() // workers), request, varying.field)
+        pool = InProcess(*job, asset=asset) if workers == 1 else Processes(*job, workers, asset=asset)
     written = skipped = running = 0
     try:
         with Appender(index) as log:

@@ -7,6 +7,8 @@ import os
 import shutil
 import struct
 import subprocess
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -246,6 +248,13 @@ def test_sinrun_writes_an_asset_and_nothing_for_bad_values(tmp_path):
     assert "--lods" in CliRunner().invoke(cli, ["sample", "--help"]).output
 
 
+def test_without_the_assets_extra_sinrun_names_it_and_writes_nothing(tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "xatlas", None)  # as if not installed
+    out = tmp_path / "rock.glb"
+    result = CliRunner().invoke(cli, ["sample", str(TINY_ONNX), "--lods", "600", "-o", str(out)])
+    assert result.exit_code == 1 and "pip install 'sinshape[assets]'" in result.output and not out.exists()
+
+
 def test_world_tiles_as_assets_meet_at_their_border_at_every_level(tmp_path):
     """Every level keeps every vertex of a tile's border, so neighbours'
     levels meet whichever each shows."""
@@ -301,10 +310,36 @@ nodes = sorted({{n.type for m in bpy.data.materials if m.node_tree for n in m.no
 images = {{i.name: list(i.size) for i in bpy.data.images}}
 print("RESULT" + json.dumps({{"objects": objects, "nodes": nodes, "images": images}}))
 """
-    import sys
 
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
     result = json.loads(next(line[6:] for line in done.stdout.splitlines() if line.startswith("RESULT")))
     assert result["objects"]["box_LOD0"] <= LODS[0]
     assert {"TEX_IMAGE", "NORMAL_MAP", "BSDF_PRINCIPLED"} <= set(result["nodes"])
     assert [TEXTURE, TEXTURE] in result["images"].values() and len(result["images"]) >= 2
+
+
+@pytest.mark.skipif(not shutil.which("godot3-server"), reason="needs Godot 3's headless build: apt-get install "
+                    "godot3-server (not on CI: the time)")
+def test_godot_imports_every_level_with_its_maps(coloured_asset, tmp_path):
+    """Godot's own glTF import (its editor's, headless), then the scene loaded by a script."""
+    shutil.copy(coloured_asset[0], tmp_path / "box.glb")
+    (tmp_path / "project.godot").write_text("config_version=4\n")
+    # The editor imports the file, then may stay open (Godot 3.2 headless): it is stopped once the import is there.
+    editor = subprocess.Popen(["godot3-server", "--path", str(tmp_path), "--editor", "--quit"],
+                              stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        for _ in range(600):
+            if editor.poll() is not None or (list(tmp_path.glob(".import/box.glb-*.scn"))
+                                             and (tmp_path / "box.glb.import").exists()):
+                break
+            time.sleep(0.2)
+        time.sleep(1)  # the import's last files
+    finally:
+        editor.kill()
+        editor.wait()
+    done = subprocess.run(["godot3-server", "--path", str(tmp_path), "-s", str(ROOT / "tools" / "godot" / "list_meshes.gd"),
+                           "res://box.glb"], capture_output=True, text=True, timeout=300)
+    meshes = json.loads(next(line[7:] for line in done.stdout.splitlines() if line.startswith("RESULT ")))
+    assert [(m["name"], m["albedo"], m["normal"]) for m in meshes] == [("box_LOD0", TEXTURE, TEXTURE),
+                                                                        ("box_LOD1", TEXTURE, TEXTURE)]
+    assert [m["triangles"] <= n for m, n in zip(meshes, LODS)] == [True, True]
