@@ -48,14 +48,16 @@ def load(name: str, threads: int = 2):
 
 
 def make_asset(model, seed: int, scale: float, lods: tuple, texture: int) -> tuple:
-    """(the dense mesh (vertices, faces) in the input frame, the .glb, info)."""
+    """(the dense mesh (vertices, faces) in the input frame, its vertex colours
+    (uint8, None for a geometry-only model), the .glb, info)."""
     from sinshape.runtime import asset
     from sinshape.runtime.request import SampleRequest
 
     request = SampleRequest(seed, scale=scale)
     dense = asset.dense_surface(model, request)
     data, info = asset.asset_bytes(model, request, asset.AssetOptions(lods, texture), model.path.stem)
-    return (dense.vertices, dense.faces), data, info
+    colours = dense.field.colour(dense.frame.to_model(dense.vertices)) if dense.field.colour else None
+    return (dense.vertices, dense.faces), colours, data, info
 
 
 # --- drawing -------------------------------------------------------------------------------------------
@@ -83,9 +85,11 @@ class Camera:
         self.radius = np.abs((corners - self.centre) @ self.axes[:2].T).max() / 0.9
         self.size = size
 
-    def draw(self, vertices, faces, shading) -> tuple:
-        """(mask (H, W) bool, brightness (H, W) float): shading(face, weights)
-        gives each drawn pixel's world normal from its face and barycentric weights."""
+    def draw(self, vertices, faces, shading, albedo=None) -> tuple:
+        """(mask (H, W) bool, brightness (H, W) float, colour (H, W, 3) in [0, 1]):
+        shading(face, weights) gives each drawn pixel's world normal from its
+        face and barycentric weights, albedo(face, weights) its sRGB colour
+        (None: grey)."""
         from sinshape.runtime import render
 
         camera = (np.asarray(vertices, np.float64) - self.centre) @ self.axes.T
@@ -108,7 +112,10 @@ class Camera:
             light += strength * np.maximum(normals @ (np.array(direction) / np.linalg.norm(direction)), 0)
         mask, brightness = np.zeros(self.size * self.size, bool), np.zeros(self.size * self.size)
         mask[drawn], brightness[drawn] = True, light
-        return mask.reshape(self.size, self.size), brightness.reshape(self.size, self.size)
+        colour = np.full((self.size * self.size, 3), 0.98)
+        colour[drawn] = light[:, None] * (albedo(face, weights) if albedo else 0.85)
+        return (mask.reshape(self.size, self.size), brightness.reshape(self.size, self.size),
+                np.clip(colour, 0, 1).reshape(self.size, self.size, 3))
 
 
 def smooth_shading(vertices, faces):
@@ -116,9 +123,32 @@ def smooth_shading(vertices, faces):
     return lambda face, weights: np.einsum("pk,pkc->pc", weights, normals[faces[face]])
 
 
+def vertex_albedo(faces, colours):
+    """Per-pixel colour interpolated from (V, 3) uint8 vertex colours."""
+    return lambda face, weights: np.einsum("pk,pkc->pc", weights, colours[faces[face]] / 255.0)
+
+
+def bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """A (S, S, C) map at UVs (k, 2), texel centres at (i + 0.5) / S."""
+    size = image.shape[0]
+    uv = uv * size - 0.5
+    low = np.clip(np.floor(uv).astype(int), 0, size - 2)
+    f = np.clip(uv - low, 0, 1)
+    x0, y0 = low[:, 0], low[:, 1]
+    return (image[y0, x0] * ((1 - f[:, :1]) * (1 - f[:, 1:])) + image[y0, x0 + 1] * (f[:, :1] * (1 - f[:, 1:]))
+            + image[y0 + 1, x0] * ((1 - f[:, :1]) * f[:, 1:]) + image[y0 + 1, x0 + 1] * (f[:, :1] * f[:, 1:]))
+
+
+def mapped_albedo(arrays: dict):
+    """A level's colour from its base-colour map."""
+    colours = arrays["colour_map"].astype(np.float64) / 255
+    return lambda face, weights: bilinear(colours, np.einsum("pk,pkc->pc", weights,
+                                                             arrays["texcoord_0"][arrays["faces"][face]]))
+
+
 def mapped_shading(arrays: dict):
     """A level's normal from its normal map (bilinear), through its tangent frame."""
-    faces, size = arrays["faces"], arrays["normal_map"].shape[0]
+    faces = arrays["faces"]
     texels = arrays["normal_map"].astype(np.float64) / 255 * 2 - 1
 
     def shading(face, weights):
@@ -129,19 +159,14 @@ def mapped_shading(arrays: dict):
         t /= np.linalg.norm(t, axis=1, keepdims=True)
         b = np.cross(n, t) * arrays["tangent"][corners[:, 0], 3:]
         b /= np.maximum(np.linalg.norm(b, axis=1, keepdims=True), 1e-12)
-        uv = np.einsum("pk,pkc->pc", weights, arrays["texcoord_0"][corners].astype(np.float64)) * size - 0.5
-        low = np.clip(np.floor(uv).astype(int), 0, size - 2)
-        f = np.clip(uv - low, 0, 1)
-        x0, y0 = low[:, 0], low[:, 1]
-        c = (texels[y0, x0] * ((1 - f[:, :1]) * (1 - f[:, 1:])) + texels[y0, x0 + 1] * (f[:, :1] * (1 - f[:, 1:]))
-             + texels[y0 + 1, x0] * ((1 - f[:, :1]) * f[:, 1:]) + texels[y0 + 1, x0 + 1] * (f[:, :1] * f[:, 1:]))
+        c = bilinear(texels, np.einsum("pk,pkc->pc", weights, arrays["texcoord_0"][corners].astype(np.float64)))
         return t * c[:, :1] + b * c[:, 1:2] + n * c[:, 2:]
     return shading
 
 
 def compare(reference: tuple, drawn: tuple) -> tuple:
     """(silhouette IoU, mean brightness difference in % where both are drawn)."""
-    (mask_a, light_a), (mask_b, light_b) = reference, drawn
+    (mask_a, light_a, _), (mask_b, light_b, _) = reference, drawn
     both = mask_a & mask_b
     return both.sum() / (mask_a | mask_b).sum(), 100 * np.abs(light_a - light_b)[both].mean()
 
@@ -235,7 +260,7 @@ def fidelity(args) -> None:
 
     model = load(args.model)
     up = model.manifest.up
-    dense, data, info = make_asset(model, args.seed, args.scale, args.lods, args.texture)
+    dense, colours, data, info = make_asset(model, args.seed, args.scale, args.lods, args.texture)
     document, binary = gltf.read(data)
     levels = [gltf.level_arrays(document, binary, k) for k in range(len(args.lods))]
     box = np.array([dense[0].min(axis=0), dense[0].max(axis=0)])
@@ -243,21 +268,23 @@ def fidelity(args) -> None:
         others = {"Blender Decimate": decimated(dense, args.lods, Path(folder)),
                   "gltfpack -si": gltfpacked(dense, args.lods, Path(folder), args.gltfpack)}
     cameras = [Camera(box, view, up) for view in VIEWS]
-    references = [camera.draw(dense[0], dense[1], smooth_shading(*dense)) for camera in cameras]
+    dense_albedo = vertex_albedo(dense[1], colours) if colours is not None else None
+    references = [camera.draw(dense[0], dense[1], smooth_shading(*dense), dense_albedo) for camera in cameras]
     print(f"{args.model} seed {args.seed} scale {args.scale:g}: full mesh {len(dense[1])} triangles; maps "
           f"{args.texture}; {len(VIEWS)} views of {PICTURE_SIZE} px")
     print(f"{'triangles':>9} | {'what':<28} | {'silhouette IoU':>14} | {'brightness diff %':>17}")
     pictures = {}
     for k, target in enumerate(args.lods):
         arrays = levels[k]
-        rows = {"asset: level + normal map": (arrays["position"], arrays["faces"], mapped_shading(arrays)),
-                "asset: level, no map": (*welded(arrays["position"], arrays["faces"]), None)}
+        albedo = mapped_albedo(arrays) if arrays["colour_map"] is not None else None
+        rows = {"asset: level + normal map": (arrays["position"], arrays["faces"], mapped_shading(arrays), albedo),
+                "asset: level, no map": (*welded(arrays["position"], arrays["faces"]), None, None)}
         for name, made in others.items():
             if target in made:
-                rows[name] = (*made[target][:2], None)
-        for name, (vertices, faces, shading) in rows.items():
+                rows[name] = (*made[target][:2], None, None)
+        for name, (vertices, faces, shading, colour) in rows.items():
             shading = shading or smooth_shading(vertices, faces)
-            drawn = [camera.draw(vertices, faces, shading) for camera in cameras]
+            drawn = [camera.draw(vertices, faces, shading, colour) for camera in cameras]
             scores = np.array([compare(r, d) for r, d in zip(references, drawn)])
             print(f"{len(faces):>9} | {name:<28} | {scores[:, 0].mean():>14.4f} | {scores[:, 1].mean():>17.2f}")
             pictures[(target, name)] = drawn[0]
@@ -266,14 +293,15 @@ def fidelity(args) -> None:
 
 
 def save_pictures(args, reference, pictures: dict) -> None:
-    """One view: the full mesh, then per level a row of the asset with its map, without, and the others."""
-    from PIL import Image, ImageDraw
+    """One view: the full mesh, then per level a row of the asset with its map, without, and the others;
+    and the first three of the coarsest level's row on their own (for the README)."""
+    from PIL import Image, ImageDraw, ImageFont
+
+    font = ImageFont.load_default(size=22)
 
     def tile(drawn, label):
-        mask, light = drawn
-        image = np.where(mask, np.clip(light, 0, 1) * 235, 250).astype(np.uint8)
-        picture = Image.fromarray(image).convert("RGB")
-        ImageDraw.Draw(picture).text((8, 8), label, fill=(20, 20, 20))
+        picture = Image.fromarray(np.round(drawn[2] * 255).astype(np.uint8))
+        ImageDraw.Draw(picture).text((12, 10), label, fill=(20, 20, 20), font=font)
         return picture
 
     names = list(dict.fromkeys(name for _, name in pictures))
@@ -285,7 +313,9 @@ def save_pictures(args, reference, pictures: dict) -> None:
             sheet.paste(picture, (i * PICTURE_SIZE, 0))
         path = Path(args.pictures) / f"asset_{args.model}_{target}.png"
         path.parent.mkdir(parents=True, exist_ok=True)
-        sheet.resize((sheet.width // 2, sheet.height // 2), Image.LANCZOS).save(path)
+        sheet.save(path)
+        if target == args.lods[-1]:  # the full mesh beside the coarsest level with its maps and without
+            sheet.crop((0, 0, 3 * PICTURE_SIZE, PICTURE_SIZE)).save(path.with_name(f"asset_{args.model}_three.png"))
         print(f"wrote {path}")
 
 
@@ -392,9 +422,9 @@ def speed(args) -> None:
         return
     total = sum(result.values())
     print(f"  Blender Cycles bake, selected to active, 1 sample, 2 threads: "
-          f"{', '.join(f'{k.lower()} {v:.2f} s' for k, v in result.items())}; {total:.2f} s in all against the "
-          f"asset's bake {info['seconds']['bake']:.2f} s (its whole asset {best['asset']:.2f} s: "
-          f"{total / best['asset']:.2f}x faster)")
+          f"{', '.join(f'{k.lower()} {v:.2f} s' for k, v in result.items())}; {total:.2f} s in all, "
+          f"{total / info['seconds']['bake']:.2f}x the asset's bake ({info['seconds']['bake']:.2f} s) and "
+          f"{total / best['asset']:.2f}x its whole asset ({best['asset']:.2f} s)")
 
 
 def main() -> None:
