@@ -396,6 +396,12 @@ def export_asset(obj, path: Path, lods: str, texture: int, ao: bool, add_objects
     from sinshape.runtime import asset, write
 
     options = asset.options_of(lods, texture, ao)  # refused before any work
+    try:
+        import meshoptimizer  # noqa: F401
+        import xatlas  # noqa: F401
+    except ImportError:
+        raise InputError("a game asset needs meshoptimizer and xatlas, which this Blender's Python lacks: "
+                         "pip install 'sinshape[assets]' into it") from None
     model = load_model(obj.sinshape)
     write.write_request(model, request_of(obj, model), path, asset=options)
     if not add_objects:
