@@ -148,7 +148,7 @@ def dense_surface(model, request, threads: int | None = None, progress=None) -> 
 
     spacing = np.asarray(model.manifest.spacing, np.float64)
     if request.tile is not None:
-        vertices, faces = world.tile_mesh(model, request.sample_seed, request.tile, request.scale)
+        vertices, faces = world.tile_mesh(model, request.sample_seed, request.tile, request.scale, progress=progress)
         offset = world.placed(model, request.tile, np.zeros((1, 3)), request.frame)[0]
         scale = world.placed(model, request.tile, np.ones((1, 3)), request.frame)[0] - offset
         field, lock = tile_field(model, request.sample_seed, request.tile), True

@@ -86,8 +86,8 @@ def make_sample(model, job: Job, checkpoint) -> Sample:
         body, info = write.request_bytes(model, job.request, job.filename(), mesh_progress=checkpoint,
                                          asset=job.asset)
         faces = info["dense_triangles"]
-    elif job.request.tile is not None:  # a tile of a world: small, made at once
-        body, result = write.request_bytes(model, job.request, job.filename())
+    elif job.request.tile is not None:  # a tile of a world: stopped within a slab when given up
+        body, result = write.request_bytes(model, job.request, job.filename(), mesh_progress=checkpoint)
         faces = None if result is None else len(result.faces)
     else:
         triplane = make(model, job.request)

@@ -261,8 +261,13 @@ def test_world_tiles_as_assets_meet_at_their_border_at_every_level(tmp_path):
     result = CliRunner().invoke(cli, ["world", str(TINY_ONNX), "--tiles", "0:1,0:0", "--lods", "700,450",
                                       "--texture", "32", "--frame", "model", "-o", str(tmp_path / "w")])
     assert result.exit_code == 0, result.output
-    records = [json.loads(line) for line in (tmp_path / "w" / "tile_index.jsonl").read_text().splitlines()]
-    assert sorted(r["tile"] for r in records) == [[0, 0], [1, 0]] and all(len(r["levels"]) == 2 for r in records)
+    from sinshape.runtime import many
+
+    records = many.read_index(tmp_path / "w" / "tile_index.jsonl", many.TILES)
+    assert sorted(records) == [(0, 0), (1, 0)] and all(len(r["levels"]) == 2 for r in records.values())
+    again = CliRunner().invoke(cli, ["world", str(TINY_ONNX), "--tiles", "0:1,0:0", "--lods", "700",
+                                     "--texture", "32", "--frame", "model", "-o", str(tmp_path / "w")])
+    assert again.exit_code == 1 and 'asset {"lods": [700, 450]' in again.output  # another job: not resumed
     model = load_model(TINY_ONNX, threads=1)
     from sinshape.runtime.world import world_layout
 
