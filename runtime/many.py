@@ -255,7 +255,8 @@ class Worker:
 
         started = time.perf_counter()
         request = dataclasses.replace(self.request, **{self.field: item})
-        data, mesh = write.request_bytes(self.model, request, f"{self.field}{self.suffix}", self.threads,
+        label = "_".join(map(str, item)) if isinstance(item, tuple) else item  # an asset's name: seed3, tile2_-1
+        data, mesh = write.request_bytes(self.model, request, f"{self.field}{label}{self.suffix}", self.threads,
                                          asset=self.asset)
         record = {self.field: item, "vertices": None, "faces": None, "watertight": None, "volume": None}
         if self.field == "tile":  # where the tile lies: its files may hold it in its own frame

@@ -246,6 +246,12 @@ def test_sinrun_writes_an_asset_and_nothing_for_bad_values(tmp_path):
         result = CliRunner().invoke(cli, ["sample", str(TINY_ONNX), *args, "-o", str(bad)])
         assert result.exit_code != 0 and said in result.output and not bad.exists(), result.output
     assert "--lods" in CliRunner().invoke(cli, ["sample", "--help"]).output
+    job = ["sample", str(TINY_ONNX), "--seeds", "0-1", "--workers", "1", "--lods", "300", "--texture", "32",
+           "-o", str(tmp_path / "many" / "{seed}.glb")]
+    (tmp_path / "many").mkdir()
+    assert CliRunner().invoke(cli, job).exit_code == 0
+    assert gltf.read((tmp_path / "many" / "1.glb").read_bytes())[0]["nodes"][0]["name"] == "seed1_LOD0"
+    assert "wrote 0 files, 2 already done" in CliRunner().invoke(cli, job).output  # resumed from its index
 
 
 def test_without_the_assets_extra_sinrun_names_it_and_writes_nothing(tmp_path, monkeypatch):
