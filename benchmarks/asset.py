@@ -3,6 +3,7 @@
     python benchmarks/asset.py fidelity [--model towerruins] [--seed 3] [--scale 4] [--lods 20000,5000,1200]
                                         [--texture 2048] [--gltfpack PATH] [--pictures DIR]
     python benchmarks/asset.py speed [--model towerruins] [--scale 4] [--lods 5000] [--texture 2048] [--repeats 3]
+    python benchmarks/asset.py cycles [--model towerruins] [--scale 2] [--lods 1200] [--texture 1024] --pictures DIR
 
 fidelity: the sample's asset, each level drawn with its normal map, beside
 the full-resolution mesh drawn with its own smooth normals, from 6 views
@@ -22,6 +23,11 @@ its asset (--lods, --texture), alternated, the best of --repeats; then
 Blender baking the same maps from the same meshes (Cycles, selected to
 active, one sample: the normal map, and the colour for a coloured model),
 and the sizes: the .glb against the dense mesh's .glb and .ply.
+
+cycles: the full mesh (`sinrun sample -o x.glb`) and the asset's coarsest
+level with its maps, each imported by Blender's glTF importer and rendered
+by Cycles side by side: an engine's own reading of the normal map (Blender
+builds its own tangents).
 """
 
 import argparse
@@ -427,9 +433,80 @@ def speed(args) -> None:
           f"{total / best['asset']:.2f}x its whole asset ({best['asset']:.2f} s)")
 
 
+BLENDER_RENDER = """
+import bpy, math, json
+from mathutils import Vector
+bpy.ops.wm.read_factory_settings(use_empty=True)
+bpy.ops.import_scene.gltf(filepath={path!r})
+meshes = [o for o in bpy.data.objects if o.type == "MESH"]
+obj = meshes[0]  # the finest level (Blender imports the coarser ones too: hidden)
+for other in meshes[1:]:
+    other.hide_render = True
+if not obj.data.materials:
+    obj.data.materials.append(bpy.data.materials.new("clay"))
+for polygon in obj.data.polygons:
+    polygon.use_smooth = True
+scene = bpy.context.scene
+scene.render.engine = "CYCLES"
+scene.cycles.samples, scene.cycles.device = 16, "CPU"
+scene.render.resolution_x = scene.render.resolution_y = {size}
+corners = [obj.matrix_world @ Vector(c) for c in obj.bound_box]
+centre = sum(corners, Vector()) / 8
+radius = max((c - centre).length for c in corners)
+camera = bpy.data.objects.new("camera", bpy.data.cameras.new("camera"))
+scene.collection.objects.link(camera)
+scene.camera = camera
+camera.data.type, camera.data.ortho_scale = "ORTHO", 2.2 * radius
+view = Vector((math.sin(math.radians(35)), -math.cos(math.radians(35)), 0.45)).normalized()
+camera.location = centre + view * 4 * radius
+camera.rotation_euler = (-view).to_track_quat("-Z", "Y").to_euler()
+sun = bpy.data.objects.new("sun", bpy.data.lights.new("sun", "SUN"))
+scene.collection.objects.link(sun)
+sun.rotation_euler, sun.data.energy = (math.radians(50), 0, math.radians(-30)), 4
+scene.world = bpy.data.worlds.new("world")
+scene.world.color = (0.3, 0.3, 0.3)
+scene.render.filepath = {out!r}
+bpy.ops.render.render(write_still=True)
+print("RESULT" + json.dumps({{"object": obj.name, "triangles": len(obj.data.polygons)}}))
+"""
+
+
+def cycles(args) -> None:
+    """The full mesh and the coarsest level with its maps, rendered side by side by Blender's Cycles, which
+    imports the .glb itself and builds its own tangents (MikkTSpace): the normal map read by an engine."""
+    from PIL import Image
+
+    from sinshape.runtime import write
+
+    model = load(args.model)
+    from sinshape.runtime.request import SampleRequest
+
+    request = SampleRequest(args.seed, scale=args.scale)
+    with tempfile.TemporaryDirectory() as folder:
+        pictures = []
+        for name, options in (("dense", None), ("asset", asset_options(args))):
+            path = Path(folder, f"{name}.glb")
+            write.write_request(model, request, path, asset=options)
+            out = Path(folder, f"{name}.png")
+            print(name, blender(BLENDER_RENDER.format(path=str(path), out=str(out), size=400)))
+            pictures.append(Image.open(out).convert("RGB"))
+        sheet = Image.new("RGB", (800, 400))
+        for i, picture in enumerate(pictures):
+            sheet.paste(picture, (400 * i, 0))
+        Path(args.pictures).mkdir(parents=True, exist_ok=True)
+        sheet.save(Path(args.pictures) / f"asset_{args.model}_cycles.png")
+        print(f"wrote {Path(args.pictures) / f'asset_{args.model}_cycles.png'}")
+
+
+def asset_options(args):
+    from sinshape.runtime import asset
+
+    return asset.AssetOptions(args.lods[-1:], args.texture)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("what", choices=["fidelity", "speed"])
+    parser.add_argument("what", choices=["fidelity", "speed", "cycles"])
     parser.add_argument("--model", default="towerruins")
     parser.add_argument("--seed", type=int, default=3)
     parser.add_argument("--scale", type=float, default=4.0)
@@ -439,8 +516,8 @@ def main() -> None:
     parser.add_argument("--gltfpack", default=None)
     parser.add_argument("--pictures", default=None)
     args = parser.parse_args()
-    args.lods = tuple(int(n) for n in (args.lods or ("20000,5000,1200" if args.what == "fidelity" else "5000")).split(","))
-    (fidelity if args.what == "fidelity" else speed)(args)
+    args.lods = tuple(int(n) for n in (args.lods or ("5000" if args.what == "speed" else "20000,5000,1200")).split(","))
+    {"fidelity": fidelity, "speed": speed, "cycles": cycles}[args.what](args)
 
 
 if __name__ == "__main__":
