@@ -199,6 +199,17 @@ def test_the_normal_map_turns_a_coarse_level_into_the_fields_surface():
     assert np.abs(maps.colour[rows, columns].astype(int) - colour(surface)).mean() < 2
 
 
+def test_an_edit_is_packed_as_it_is_sampled():
+    """A grown sample's asset is the grown sample's: its full mesh is the one `sinrun sample --grow` makes."""
+    from sinshape.runtime import write
+
+    model = load_model(TINY_ONNX, threads=1)
+    grown = SampleRequest(1, grow=(1.5, 1, 1))
+    _, info = asset.asset_bytes(model, grown, asset.AssetOptions((400,), 32), threads=1)
+    assert info["dense_triangles"] == len(write.request_bytes(model, grown, "g.ply")[1].faces)
+    assert info["dense_triangles"] > len(write.request_bytes(model, SampleRequest(1), "p.ply")[1].faces)
+
+
 def test_a_geometry_only_model_gets_a_normal_map_no_colour_map_and_occlusion_if_asked(tmp_path):
     model = load_model(TINY_ONNX, threads=1)
     data, _ = asset.asset_bytes(model, SampleRequest(1), asset.AssetOptions((800,), 64, ao=True), threads=1)
