@@ -157,7 +157,6 @@ def dense_surface(model, request, threads: int | None = None, progress=None) -> 
         surface = mesh.finish(mesh.band_mesh(model, triplane, request.scale, progress, threads=threads),
                               options["smooth"], options["smoother"], options["largest"])
         vertices, faces = np.asarray(surface.vertices), np.asarray(surface.faces)
-        mesh.check_frame(request.frame)
         offset, scale = ((np.asarray(model.manifest.origin, np.float64), spacing) if request.frame == "input"
                          else (np.zeros(3), np.ones(3)))
         field, lock = sample_field(model, triplane), False
