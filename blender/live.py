@@ -392,7 +392,9 @@ def export_asset(obj, path: Path, lods: str, texture: int, ao: bool, add_objects
     """Write the sample of `obj` as a game asset (runtime.asset) to `path`,
     and with add_objects import it with Blender's glTF importer, placed as
     the sample is (its levels' frame is the sample's mesh's: glTF's Y up is
-    turned to Blender's Z as the sample's model frame is). Returns the new objects."""
+    turned to Blender's Z as the sample's model frame is). The importer
+    puts the coarser levels, outside the file's scene, in a collection it
+    excludes from the view layer (Orphan Nodes). Returns the new objects."""
     from sinshape.runtime import asset, write
 
     options = asset.options_of(lods, texture, ao)  # refused before any work
@@ -412,7 +414,8 @@ def export_asset(obj, path: Path, lods: str, texture: int, ao: bool, add_objects
     for other in added:
         if other.parent is None:
             other.matrix_world = obj.matrix_world @ other.matrix_world
-        other.select_set(False)
+        if other.name in bpy.context.view_layer.objects:  # not the coarser levels, in an excluded collection
+            other.select_set(False)
     obj.select_set(True)  # the sample stays the active object, as before the export
     bpy.context.view_layer.objects.active = obj
     return added

@@ -358,7 +358,8 @@ def test_export_asset_writes_the_samples_asset_and_adds_its_levels_where_the_sam
     document, _ = gltf.read(path.read_bytes())
     assert [node["name"] for node in document["nodes"]] == ["rock_LOD0", "rock_LOD1"]
     level = bpy.data.objects["rock_LOD0"]
-    assert len(level.data.polygons) <= 800
+    assert len(level.data.polygons) <= 800 and level.name in bpy.context.scene.objects
+    assert "rock_LOD1" not in bpy.context.view_layer.objects  # a coarser level: in the importer's excluded collection
     images = {node.image.size[0] for node in level.active_material.node_tree.nodes if node.type == "TEX_IMAGE"}
     assert images == {64}
     def corners(o):
