@@ -204,6 +204,7 @@ def is_number(word: str) -> bool:
 
 
 STATEMENT = re.compile(r"^[ \t]*(\S+)[ \t]+(.*?)[ \t]*$", re.MULTILINE)
+MTLLIB = re.compile(r"^[ \t]*mtllib[ \t]+(.*?)[ \t]*$", re.MULTILINE)
 
 
 def obj_textures(text: str, folder: MeshFolder) -> list:
@@ -211,9 +212,7 @@ def obj_textures(text: str, folder: MeshFolder) -> list:
     and the diffuse textures (`map_Kd`) they name: a list of MtlTexture.
     Colours (`Kd`) must be three numbers in [0, 1]."""
     textures = []
-    for keyword, library in STATEMENT.findall(text):
-        if keyword != "mtllib":
-            continue
+    for library in MTLLIB.findall(text):  # only these lines: an OBJ may hold millions of others
         mtl = folder.read(library, "material library", MAX_MTL_BYTES).decode("utf-8", errors="replace")
         for key, value in STATEMENT.findall(mtl):
             key = key.lower()
