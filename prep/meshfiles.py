@@ -452,8 +452,8 @@ def check_references(path: Path, data: bytes, folder: MeshFolder, materials: boo
                 raise colour_input(error) from None
     elif suffix == ".obj" and materials:
         try:
-            for mtl in obj_textures(data.decode("latin-1"), folder):
-                raw = folder.read(mtl.file, "texture", MAX_IMAGE_BYTES, named_in=mtl.library)
+            for mtl in {mtl.file: mtl for mtl in obj_textures(data.decode("latin-1"), folder)}.values():
+                raw = folder.read(mtl.file, "texture", MAX_IMAGE_BYTES, named_in=mtl.library)  # each file once
                 textures.append(checked_texture(raw, mtl.file, f"{path.name}: texture {mtl.file}"))
         except InputError as error:
             raise colour_input(error) from None
