@@ -208,9 +208,11 @@ def draw(keys: np.ndarray, slot: int) -> np.ndarray:
 
 
 def squared_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise squared distances of patches (n, K): exact float64."""
-    diff = a.astype(np.float64) - b
-    return np.einsum("nk,nk->n", diff, diff)
+    """Row-wise squared distances of patches (n, K) of integers held in
+    float32: the differences are exact in float32, their squares and sums
+    exact in float64."""
+    diff = a - b
+    return np.einsum("nk,nk->n", diff, diff, dtype=np.float64)
 
 
 class Matcher:
@@ -265,6 +267,7 @@ class Matcher:
         if len(seeds):
             current[seeds] = self.nearest(sample[seeds])
         best = self.distance(sample, current)
+        changed = np.ones(len(voxels), bool)  # whose match changed last round: only their offers are new
         slot = 2
         for _ in range(ITERATIONS):
             previous = current.copy()
@@ -276,7 +279,8 @@ class Matcher:
                         shift[axis] = sign * step
                         neighbour = lookup(voxels - shift)
                         offered = previous[np.maximum(neighbour, 0)] + shift
-                        candidates.append(np.where((neighbour >= 0)[:, None], offered, -1))
+                        new = (neighbour >= 0) & changed[np.maximum(neighbour, 0)]
+                        candidates.append(np.where(new[:, None], offered, current))
             for radius in SEARCH:
                 bits = draw(keys, slot)
                 slot += 1
@@ -286,9 +290,11 @@ class Matcher:
             candidates.append(band[(draw(keys, slot) % np.uint64(count)).astype(np.int64)])
             slot += 1
             for candidate in candidates:  # in this order: the first of equals stays
-                d = self.distance(sample, candidate)
-                better = d < best
-                current[better], best[better] = candidate[better], d[better]
+                new = np.flatnonzero(np.any(candidate != current, axis=1))  # the current one is known
+                d = self.distance(sample[new], candidate[new])
+                won = d < best[new]
+                current[new[won]], best[new[won]] = candidate[new[won]], d[won]
+            changed = np.any(current != previous, axis=1)
         return current
 
 
