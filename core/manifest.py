@@ -28,8 +28,9 @@ TILES_VERSION = 5
 READ_VERSION = TILES_VERSION  # the newest version this code reads
 COLOUR_SPACE = {"space": "srgb"}  # manifest `colour`: values are sRGB-encoded in [0, 1]
 # Initializers of a format-5 model's tiles (prep/appearance.py, docs/FORMAT.md):
-# (N, 3) int32 voxels, (N,) uint8 directions, (N, T, T, 4) uint8 images.
-TILE_TENSORS = ("colour_tiles.voxels", "colour_tiles.directions", "colour_tiles.images")
+# (N, 3) int32 voxels, (N,) uint8 directions, (N, T, T, 4) uint8 images, and
+# the finest level's (X, Y, Z) int8 signed distance to the example's surface.
+TILE_TENSORS = ("colour_tiles.voxels", "colour_tiles.directions", "colour_tiles.images", "colour_tiles.distance")
 MAX_TILE_SIDE = 64
 METADATA_KEY = "sinshape.manifest"  # key of the manifest in the ONNX metadata_props
 SEAL_KEY = "sinshape.sha256"  # key of the last metadata_props entry: the seal (format 3 on)

@@ -35,6 +35,7 @@ MAX_TILE_BYTES = 48 << 20  # tiles above this get coarser (halved sides) until t
 FACING = 0.2  # a tile along axis a, side s, shows the faces whose normal has s * n_a above this
 DEPTH_RANGE = 0.5  # a tile's depth: where its surface lies inside the voxel, this far (voxels) either side of its centre
 REACH = 1.5  # a ray that meets no surface inside its voxel takes the nearest it meets this far out
+DISTANCE_STEP = 1 / 63.5  # voxels per unit of the signed distance grid: int8 holds -2..2 voxels
 
 
 @dataclass(frozen=True)
@@ -43,7 +44,8 @@ class Tiles:
 
     voxels: np.ndarray  # (N, 3) int32: the finest-level voxel each tile belongs to, sorted
     directions: np.ndarray  # (N,) uint8: 2 * axis + (1 if it looks from + else 0)
-    images: np.ndarray  # (N, T, T, 4) uint8: sRGB, and the surface's depth (0..255 for -1..1 voxel)
+    images: np.ndarray  # (N, T, T, 4) uint8: sRGB, and the surface's depth (0..255 for -0.5..0.5 voxel)
+    distance: np.ndarray  # (X, Y, Z) int8: signed distance to the surface at voxel centres, DISTANCE_STEP a unit
 
 
 @dataclass(frozen=True)
@@ -100,16 +102,17 @@ def samples_per_length(geometry, vertices: np.ndarray) -> float:
     return math.sqrt(len(geometry.faces) / areas.sum())
 
 
-def example_tiles(surface: Surface, box_low, spacing, shape) -> Tiles:
-    """The tiles of every finest-level voxel the surface passes through
-    (voxel (i, j, k) centred at box_low + (i + 0.5) * spacing, input frame).
+def example_tiles(surface: Surface, box_low, spacing, solid: np.ndarray) -> Tiles:
+    """The tiles of every voxel of the finest level `solid` (X, Y, Z) bool
+    the surface passes through (voxel (i, j, k) centred at box_low + (i +
+    0.5) * spacing, input frame), and the signed distance at every voxel.
 
     A voxel gets one tile per axis direction that some face through it looks
     along (a floor: +z; a wall's corner: two or three). Each texel casts a ray
     along the tile's axis through its centre and takes the colour and depth
     of the nearest facing surface it meets within DEPTH_RANGE of the voxel's
     centre; texels whose ray meets none take their nearest neighbour's."""
-    box_low, spacing, shape = np.asarray(box_low, np.float64), np.asarray(spacing, np.float64), tuple(shape)
+    box_low, spacing, shape = np.asarray(box_low, np.float64), np.asarray(spacing, np.float64), solid.shape
     triangles = (surface.triangles - box_low) / spacing - 0.5  # model units: voxel centres at integers
     normals = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
     normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-30)
@@ -141,7 +144,24 @@ def example_tiles(surface: Surface, box_low, spacing, shape) -> Tiles:
     direction = (kept % 6).astype(np.uint8)
     flat = kept // 6
     voxels = np.stack([flat // (shape[1] * shape[2]), flat // shape[2] % shape[1], flat % shape[2]], axis=1)
-    return Tiles(voxels.astype(np.int32), direction, images[hit_any])
+    return Tiles(voxels.astype(np.int32), direction, images[hit_any], signed_distance(triangles, solid))
+
+
+def signed_distance(triangles: np.ndarray, solid: np.ndarray) -> np.ndarray:
+    """The distance from each voxel centre to the surface (model units:
+    triangles (F, 3, 3) in voxels), negative inside `solid`, to within
+    about a twentieth of a voxel (its nearest of 64 samples per voxel face
+    of area), clamped to +-2 voxels: (X, Y, Z) int8 in DISTANCE_STEPs.
+    A point near the surface finds the surface point nearest it from it."""
+    from scipy.spatial import cKDTree
+
+    face, weights = colours.sample_faces(triangles, 64.0, np.random.default_rng(1))
+    tree = cKDTree(np.einsum("nk,nkc->nc", weights, triangles[face]))
+    centres = np.argwhere(np.ones(solid.shape, bool)).astype(np.float64)
+    distance, _ = tree.query(centres, distance_upper_bound=3.0, workers=-1)
+    distance = np.minimum(distance, 2.0).reshape(solid.shape)
+    distance[solid] *= -1
+    return np.round(distance / DISTANCE_STEP).astype(np.int8)
 
 
 def key_of(voxels: np.ndarray, shape) -> np.ndarray:

@@ -179,7 +179,7 @@ def pyramid_from_mesh(path: Path, res: int, levels: int | None = None,
             raise InputError(f"{path.name}: the mesh gives an empty {size} grid; is it a closed solid?")
     fields = [colours.colour_grid(surface, box_low, box / np.array(size), size) for size in sizes] if surface else None
     spacing = box / np.array(sizes[-1])
-    tiles = appearance.example_tiles(appearance.coloured_surface(scene, path), box_low, spacing, sizes[-1]) \
+    tiles = appearance.example_tiles(appearance.coloured_surface(scene, path), box_low, spacing, grids[-1]) \
         if surface else None
     return Pyramid(
         levels=grids,

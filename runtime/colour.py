@@ -29,6 +29,7 @@ neighbourhood) matches alike there. The browser's runtime repeats it
 (serve/static/sinshape/colour.js).
 """
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -41,12 +42,26 @@ from . import generate, query
 # The patch: a voxel and its six neighbours.
 PATCH = np.array([(0, 0, 0), (1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1), (0, 0, -1)])
 QUANTUM = 256  # hidden sums are compared in steps of 1/QUANTUM
+KEY_VALUES, KEY_QUANTUM = 8, 4  # a voxel's random choices are keyed by its first 8 hidden sums in steps of 1/4
 ITERATIONS = 6
 PROPAGATION = (1, 2, 4, 8)  # neighbours this many voxels away along each axis offer their match
 SEARCH = (8, 4, 2, 1)  # random candidates within this many voxels of the current match
 SEED_RATE = 64  # about one voxel in this many searches the whole example
+# A neighbour's match continued (the same piece of the example, shifted by
+# the step) is weighed at this share of its distance: pieces stay whole
+# unless another place fits clearly better (Ashikhmin 2001's coherence).
+COHERENT = 0.8
 MATCH_STREAM = 2  # core/noise's stream id of the matching's random choices (0 and 1 are the generator's)
+DISTANCE_STEP = 1 / 63.5  # voxels per unit of the signed distance grid (prep/appearance.py)
+PROJECTIONS = 2  # Newton steps that take a point to the example's surface
 DEPTH_RANGE = 0.5  # a tile's depth byte spans this many voxels either side of its centre (prep/appearance.py)
+# A point reads the tiles of each direction of its own voxel and of those
+# along the tile's axis, this many voxels away: the surface nearest it wins,
+# a tile counted TURN voxels farther for each unit its axis turns from the
+# example's normal there (1 - cosine): near the surface the nearest surface
+# decides, farther off the normal does, so that the choice does not flicker.
+REACH_ORDER = (0, -1, 1)
+TURN = 0.25
 ACROSS = np.array([(1, 2), (0, 2), (0, 1)])  # a tile's rows and columns run along these axes, by its axis
 
 
@@ -60,22 +75,38 @@ class Tiles:
     directions: np.ndarray  # (N,) int64: 2 * axis + (1 looking from +, else 0)
     mips: list  # RGB [(N, T, T, 3) uint8, (N, T/2, T/2, 3), ..., (N, 1, 1, 3)]
     depth: np.ndarray  # (N, T, T) uint8: where the surface is along the tile's axis, 0..255 for -0.5..0.5 voxel
+    slopes: np.ndarray  # (N, 2) float64: the surface's mean slope across the tile (depth per voxel along its rows, columns)
     along: np.ndarray  # (X, Y, Z, 6) int32: per voxel and direction, the tile it reads (-1: none)
+    own: np.ndarray  # (X, Y, Z, 6) int32: per voxel and direction, its own tile (-1: none)
+    distance: np.ndarray  # (X, Y, Z) float32: signed distance to the example's surface at voxel centres, voxels
 
     @classmethod
-    def of(cls, voxels: np.ndarray, directions: np.ndarray, images: np.ndarray, size) -> "Tiles":
+    def of(cls, voxels: np.ndarray, directions: np.ndarray, images: np.ndarray, distance: np.ndarray) -> "Tiles":
         voxels, directions = voxels.astype(np.int64), directions.astype(np.int64)
-        return cls(voxels, directions, mip_levels(np.ascontiguousarray(images[..., :3])),
-                   np.ascontiguousarray(images[..., 3]), reads_along(voxels, directions, size))
+        depth = np.ascontiguousarray(images[..., 3])
+        size = distance.shape
+        own = np.full((*size, 6), -1, np.int32)
+        own[voxels[:, 0], voxels[:, 1], voxels[:, 2], directions] = np.arange(len(voxels), dtype=np.int32)
+        return cls(voxels, directions, mip_levels(np.ascontiguousarray(images[..., :3])), depth, slopes(depth),
+                   reads_along(own), own, distance.astype(np.float32) * np.float32(DISTANCE_STEP))
 
     @staticmethod
     def bytes(count: int, side: int, size) -> int:
         """Memory of `count` tiles of `side` read for a finest level of `size`."""
-        return count * side * side * 5 + int(np.prod(size)) * 6 * 4
+        return count * side * side * 5 + int(np.prod(size)) * (12 * 4 + 4)
 
     def band(self) -> np.ndarray:
         """The voxels (m, 3) where a match may land: every voxel with a tile to read."""
         return np.argwhere((self.along >= 0).any(axis=3))
+
+    def own_tiles(self, voxels: np.ndarray, directions: np.ndarray) -> np.ndarray:
+        """Each (n, 3) voxel's own tile of its direction (n,), -1 for none (outside the grid: none)."""
+        size = np.array(self.along.shape[:3])
+        inside = np.all((voxels >= 0) & (voxels < size), axis=1)
+        out = np.full(len(voxels), -1, np.int64)
+        index = voxels[inside]
+        out[inside] = self.own[index[:, 0], index[:, 1], index[:, 2], directions[inside]]
+        return out
 
     def read(self, voxels: np.ndarray) -> np.ndarray:
         """The tiles (n, 6) each (n, 3) voxel reads, -1 for none (outside the grid: none)."""
@@ -86,15 +117,13 @@ class Tiles:
         return out
 
 
-def reads_along(voxels: np.ndarray, directions: np.ndarray, size) -> np.ndarray:
+def reads_along(own: np.ndarray) -> np.ndarray:
     """Per voxel and direction (axis a, side s), the tile of that direction
     of the voxel itself, else of the nearest voxel along a that has one, up
     to two away, the side the tile looks from first (a point above a floor
     reads the floor below it): its in-plane position in that tile is its
     own. (X, Y, Z, 6) int32."""
-    size = tuple(int(n) for n in size)
-    own = np.full((*size, 6), -1, np.int32)
-    own[voxels[:, 0], voxels[:, 1], voxels[:, 2], directions] = np.arange(len(voxels), dtype=np.int32)
+    size = own.shape[:3]
     along = own.copy()
     for direction in range(6):
         axis, positive = divmod(direction, 2)
@@ -112,6 +141,20 @@ def reads_along(voxels: np.ndarray, directions: np.ndarray, size) -> np.ndarray:
             take = (along[..., direction] < 0) & (shifted >= 0)
             along[..., direction][take] = shifted[take]
     return along
+
+
+def slopes(depth: np.ndarray) -> np.ndarray:
+    """The least-squares slope of each tile's depth across it, (N, T, T)
+    uint8 -> (N, 2) float64 voxels of depth per voxel along rows and columns:
+    sums of integers (exact in any order) over a fixed denominator."""
+    side = depth.shape[1]
+    centred = 2 * np.arange(side) - (side - 1)  # texel centres, in half texels from the tile's middle
+    # slope = sum(x (h - mean)) / sum(x^2), x = centred / (2 side) voxels, h = value * DEPTH_RANGE / 127.5 - DEPTH_RANGE
+    scale = 127.5 * float(np.sum(centred * centred)) / (2 * DEPTH_RANGE)
+    values = depth.astype(np.int64)
+    rows = np.einsum("ntc,t->n", values, centred)
+    columns = np.einsum("ntc,c->n", values, centred)
+    return np.stack([rows, columns], axis=1) / scale
 
 
 def mip_levels(images: np.ndarray) -> list:
@@ -190,14 +233,17 @@ def patches(hidden_at, voxels: np.ndarray) -> np.ndarray:
     return np.concatenate([np.rint(hidden_at(voxels + offset) * np.float32(QUANTUM)) for offset in PATCH], axis=1)
 
 
-def content_keys(patch: np.ndarray) -> np.ndarray:
-    """A key per patch (n, K) from its own voxel's values (its first D
-    columns' integers): the random choices made for a voxel follow what is
-    there, not where. uint64."""
-    key = np.full(len(patch), noise.stream_key(0, MATCH_STREAM), np.uint64)
+def content_keys(hidden: np.ndarray) -> np.ndarray:
+    """A key per voxel from its own hidden sums (n, D): the random choices
+    made for a voxel follow what is there, not where. Its first KEY_VALUES
+    sums rounded coarsely (steps of 1/KEY_QUANTUM): two runtimes whose
+    floats differ in the last bits give a voxel the same key but where a
+    value lies within that difference of a step's edge. uint64."""
+    key = np.full(len(hidden), noise.stream_key(0, MATCH_STREAM), np.uint64)
+    values = np.rint(hidden[:, :KEY_VALUES] * np.float32(KEY_QUANTUM)).astype(np.int64)
     with np.errstate(over="ignore"):
-        for value in patch[:, :patch.shape[1] // len(PATCH)].T:
-            key = noise.mix64(key + np.uint64(noise.GOLDEN) * (value.astype(np.int64).astype(np.uint64) + np.uint64(1)))
+        for value in values.T:
+            key = noise.mix64(key + np.uint64(noise.GOLDEN) * (value.astype(np.uint64) + np.uint64(1)))
     return key
 
 
@@ -259,7 +305,7 @@ class Matcher:
         check_memory(len(voxels) * self.reference.shape[1] * 16 + len(self.band) * 8 * 64,
                      f"matching {len(voxels)} voxels to the example")
         sample = patches(sample_at, voxels)
-        keys = content_keys(sample)
+        keys = content_keys(sample_at(voxels))
         band, count = self.band, len(self.band)
         lookup = voxel_lookup(voxels)
         current = band[(draw(keys, 0) % np.uint64(count)).astype(np.int64)]
@@ -281,6 +327,7 @@ class Matcher:
                         offered = previous[np.maximum(neighbour, 0)] + shift
                         new = (neighbour >= 0) & changed[np.maximum(neighbour, 0)]
                         candidates.append(np.where(new[:, None], offered, current))
+            offers = len(candidates)
             for radius in SEARCH:
                 bits = draw(keys, slot)
                 slot += 1
@@ -289,9 +336,11 @@ class Matcher:
                 candidates.append(previous + offsets)
             candidates.append(band[(draw(keys, slot) % np.uint64(count)).astype(np.int64)])
             slot += 1
-            for candidate in candidates:  # in this order: the first of equals stays
+            for index, candidate in enumerate(candidates):  # in this order: the first of equals stays
                 new = np.flatnonzero(np.any(candidate != current, axis=1))  # the current one is known
                 d = self.distance(sample[new], candidate[new])
+                if index < offers:  # a neighbour's match continued: the same piece of the example
+                    d = d * COHERENT
                 won = d < best[new]
                 current[new[won]], best[new[won]] = candidate[new[won]], d[won]
             changed = np.any(current != previous, axis=1)
@@ -382,31 +431,44 @@ def read_colours(tiles: Tiles, matched, points: np.ndarray, grid, footprint: flo
     voxel outside) belongs to that voxel.
 
     Point p in voxel u = round(p) stands for q = J(u) + (p - u) in the
-    example. Of the tiles q's voxel reads, the one whose surface lies nearest
-    q along its axis is read, at q's place across that axis. `footprint`:
-    the length a colour stands for (voxels), e.g. a vertex's spacing: its
-    mip level averages the texture over it (None: full detail)."""
+    example, near its surface but rarely on it. It reads, of the tiles of
+    its voxel and of those beside it along each tile's axis, the one whose
+    surface is nearest q (REACH_ORDER, TURN), at that surface's point
+    nearest q. `footprint`: the length a colour stands for (voxels), e.g.
+    a vertex's spacing: its mip level averages the texture over it (None:
+    full detail)."""
     # Halves up, as in every runtime (numpy's rint rounds them to even).
     u = np.clip(np.floor(points + 0.5).astype(np.int64), 0, np.asarray(grid) - 1)
-    example = matched(u)
-    q = example + (points - u)
-    reads = tiles.read(example)
-    side = tiles.depth.shape[1]
-    best = np.full(len(points), np.inf, np.float32)
+    q = matched(u) + (points - u)
+    _, normal = trilinear(tiles.distance, q)
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
+    voxel = np.clip(np.floor(q + 0.5).astype(np.int64), 0, np.array(tiles.distance.shape) - 1)
+    rows = np.arange(len(points))
+    best = np.full(len(points), np.inf)
     tile = np.zeros(len(points), np.int64)
-    across = np.zeros((len(points), 2), np.float32)
-    for direction in range(6):
-        candidate = reads[:, direction]
+    across = np.zeros((len(points), 2))
+    for direction, reach in itertools.product(range(6), REACH_ORDER):
+        axis, positive = divmod(direction, 2)
+        step = np.zeros(3, np.int64)
+        step[axis] = reach
+        candidate = tiles.own_tiles(voxel + step, np.full(len(points), direction))
         has = candidate >= 0
         candidate = np.maximum(candidate, 0)
-        local = (q - tiles.voxels[candidate]).astype(np.float32)
-        axis = direction // 2
+        local = q - tiles.voxels[candidate]
         plane = local[:, ACROSS[axis]]
-        depth = texel(tiles.depth, candidate, plane).astype(np.float32) * np.float32(2 * DEPTH_RANGE / 255) \
-            - np.float32(DEPTH_RANGE)
-        distance = np.abs(local[:, axis] - depth)
-        better = has & (distance < best)
-        best[better], tile[better], across[better] = distance[better], candidate[better], plane[better]
+        # The tile's surface under q as a plane of its slope through its
+        # depth there: q's distance to it, and its nearest point, along its
+        # normal (so that tiles of two axes agree where they overlap).
+        slope = tiles.slopes[candidate]
+        lean = 1 + np.einsum("nc,nc->n", slope, slope)
+        above = (local[:, axis] - bilinear_depth(tiles.depth, candidate, plane)) / lean
+        facing = normal[:, axis] * (1 if positive else -1)
+        score = np.abs(above) * np.sqrt(lean) + TURN * (1 - facing)
+        better = has & (score < best)
+        best[better], tile[better] = score[better], candidate[better]
+        across[better] = (plane + above[:, None] * slope)[better]
+    tile, across = across_tiles(tiles, tile, across)
+    side = tiles.depth.shape[1]
     level = 0
     if footprint is not None and footprint > 0:
         level = int(np.clip(np.round(np.log2(footprint * side)), 0, len(tiles.mips) - 1))
@@ -415,11 +477,69 @@ def read_colours(tiles: Tiles, matched, points: np.ndarray, grid, footprint: flo
     return bilinear_tiles(images, tile, (across[:, 0] + 0.5) * n - 0.5, (across[:, 1] + 0.5) * n - 0.5)
 
 
-def texel(values: np.ndarray, tile: np.ndarray, plane: np.ndarray) -> np.ndarray:
-    """values (N, T, T) at the texel holding each in-plane point (n, 2) in [-0.5, 0.5]^2."""
-    side = values.shape[1]
-    index = np.clip(np.floor((plane + 0.5) * side).astype(np.int64), 0, side - 1)
-    return values[tile, index[:, 0], index[:, 1]]
+def to_surface(distance: np.ndarray, points: np.ndarray) -> tuple:
+    """Points (n, 3) moved to where the signed distance grid (X, Y, Z) is
+    zero, by PROJECTIONS Newton steps along its gradient (trilinear, voxel
+    centres at integers): ((n, 3) float64, the gradient there (n, 3): the
+    surface's outward normal, unnormalised)."""
+    for _ in range(PROJECTIONS):
+        value, gradient = trilinear(distance, points)
+        length = np.einsum("nc,nc->n", gradient, gradient)
+        points = points - np.where(length > 1e-12, value / np.maximum(length, 1e-12), 0)[:, None] * gradient
+    return points, trilinear(distance, points)[1]
+
+
+def trilinear(grid: np.ndarray, points: np.ndarray) -> tuple:
+    """A grid (X, Y, Z) at points (n, 3), clamped to it, and its gradient:
+    ((n,), (n, 3)) float64."""
+    size = np.array(grid.shape)
+    p = np.clip(points, 0, size - 1)
+    low = np.minimum(np.floor(p).astype(np.int64), np.maximum(size - 2, 0))
+    f = p - low
+    high = np.minimum(low + 1, size - 1)
+    value = np.zeros(len(points))
+    gradient = np.zeros((len(points), 3))
+    for corner in itertools.product((0, 1), repeat=3):
+        index = tuple(np.where(corner[a], high[:, a], low[:, a]) for a in range(3))
+        v = grid[index].astype(np.float64)
+        w = [np.where(corner[a], f[:, a], 1 - f[:, a]) for a in range(3)]
+        value += v * w[0] * w[1] * w[2]
+        for a in range(3):
+            dw = [w[b] if b != a else np.where(corner[a], 1.0, -1.0) for b in range(3)]
+            gradient[:, a] += v * dw[0] * dw[1] * dw[2]
+    return value, gradient
+
+
+def across_tiles(tiles: Tiles, tile: np.ndarray, across: np.ndarray) -> tuple:
+    """Where a place on a tile's plane (n, 2) lies beyond the tile's own
+    voxel, the tile of the same direction of the voxel it lies in (its own
+    voxel's, or one along the axis): a direction's tiles read as one
+    surface, with no seam at voxels' edges. (tile (n,), across (n, 2))."""
+    outside = np.flatnonzero(np.any(np.abs(across) > 0.5, axis=1))
+    if not len(outside):
+        return tile, across
+    axis = tiles.directions[tile[outside]] // 2
+    centre = tiles.voxels[tile[outside]]
+    inplane = np.stack([centre[np.arange(len(outside)), ACROSS[axis, 0]],
+                        centre[np.arange(len(outside)), ACROSS[axis, 1]]], axis=1)
+    spot = inplane + across[outside]
+    step = np.floor(spot + 0.5).astype(np.int64) - inplane
+    neighbour = centre.copy()
+    for k in range(2):
+        neighbour[np.arange(len(outside)), ACROSS[axis, k]] += step[:, k]
+    found = tiles.read(neighbour)[np.arange(len(outside)), tiles.directions[tile[outside]]]
+    moved = found >= 0
+    tile, across = tile.copy(), across.copy()
+    tile[outside[moved]] = found[moved]
+    across[outside[moved]] = (across[outside] - step)[moved]
+    return tile, across
+
+
+def bilinear_depth(depth: np.ndarray, tile: np.ndarray, plane: np.ndarray) -> np.ndarray:
+    """Tiles' depth (N, T, T) uint8 at in-plane points (n, 2) of [-0.5, 0.5]^2, in voxels (float64)."""
+    side = depth.shape[1]
+    x, y = ((plane + 0.5) * side - 0.5).T
+    return bilinear_tiles(depth[..., None], tile, x, y)[:, 0].astype(np.float64) * (2 * DEPTH_RANGE) - DEPTH_RANGE
 
 
 def bilinear_tiles(images: np.ndarray, tile: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:

@@ -243,7 +243,8 @@ def read_head(model: onnxfile.OnnxModel, manifest: fmt.Manifest, path: Path) -> 
 def read_tiles(model: onnxfile.OnnxModel, manifest: fmt.Manifest, path: Path):
     """A format-5 model's colour tiles, checked against its manifest and its
     finest level: (N, 3) voxels inside it, (N,) directions below 6, each
-    pair once and a voxel's tiles together, (N, T, T, 4) images."""
+    pair once and a voxel's tiles together, (N, T, T, 4) images, and the
+    level's (X, Y, Z) signed distance grid."""
     from .colour import Tiles
 
     count, side = manifest.tiles
@@ -251,21 +252,24 @@ def read_tiles(model: onnxfile.OnnxModel, manifest: fmt.Manifest, path: Path):
     if any(name not in model.weights for name in names):
         raise InputError(f"{path}: its colour tiles are missing ({', '.join(names)})")
     try:
-        voxels, directions, images = (onnxfile.tensor_array(model.weights[name], kind) for name, kind in
-                                      zip(names, (onnxfile.INT32, onnxfile.UINT8, onnxfile.UINT8)))
+        voxels, directions, images, distance = (
+            onnxfile.tensor_array(model.weights[name], kind) for name, kind in
+            zip(names, (onnxfile.INT32, onnxfile.UINT8, onnxfile.UINT8, onnxfile.INT8)))
     except ValueError as error:
         raise InputError(f"{path}: corrupt model: {error}") from None
+    size = np.array(manifest.sizes[-1])
     if voxels.shape != (count, 3) or directions.shape != (count,) or images.shape != (count, side, side, 4):
         raise InputError(f"{path}: colour tiles of shapes {voxels.shape}, {directions.shape}, {images.shape} "
                          f"do not match the manifest's {count} of side {side}")
-    size = np.array(manifest.sizes[-1])
+    if distance.shape != tuple(size):
+        raise InputError(f"{path}: a colour distance grid of shape {distance.shape}, not the finest level's {tuple(size)}")
     if not (np.all((voxels >= 0) & (voxels < size)) and np.all(directions < 6)):
         raise InputError(f"{path}: colour tiles lie outside the model's finest level")
     key = ((voxels[:, 0].astype(np.int64) * size[1] + voxels[:, 1]) * size[2] + voxels[:, 2]) * 6 + directions
     if np.any(np.diff(key) <= 0):
         raise InputError(f"{path}: colour tiles are not each once, in order of their voxel")
     check_memory(Tiles.bytes(count, side, size), f"the colour tiles of {path.name}")
-    return Tiles.of(voxels, directions, images, size)
+    return Tiles.of(voxels, directions, images, distance)
 
 
 def check_stages(model: Model) -> None:

@@ -20,8 +20,8 @@ NODE_INPUT, NODE_OUTPUT, NODE_NAME, NODE_OP, NODE_DOMAIN = 1, 2, 3, 4, 7
 TENSOR_DIMS, TENSOR_TYPE, TENSOR_FLOATS, TENSOR_NAME, TENSOR_RAW = 1, 2, 4, 8, 9
 TENSOR_EXTERNAL, TENSOR_LOCATION = 13, 14
 NAMED_NAME = 1  # ValueInfoProto.name; StringStringEntryProto.key (value is 2)
-FLOAT, UINT8, INT32 = 1, 2, 6  # TensorProto.DataType
-DTYPES = {FLOAT: "<f4", UINT8: "u1", INT32: "<i4"}
+FLOAT, UINT8, INT8, INT32 = 1, 2, 3, 6  # TensorProto.DataType
+DTYPES = {FLOAT: "<f4", UINT8: "u1", INT8: "i1", INT32: "<i4"}
 
 
 def fields(data: bytes, start: int = 0, end: int | None = None):
@@ -163,7 +163,7 @@ def read_graph(model: OnnxModel, span: tuple) -> None:
 
 def tensor_array(tensor: Tensor, wanted: int = FLOAT) -> np.ndarray:
     """A weight of type `wanted` as an array: float32 from raw_data or
-    float_data, uint8 or int32 (data, not weights) from raw_data."""
+    float_data, uint8, int8 or int32 (data, not weights) from raw_data."""
     data = tensor.data
     dims, kind, raw, floats = [], None, None, []
     for n, w, v, _ in fields(data):

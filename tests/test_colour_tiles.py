@@ -33,14 +33,16 @@ def striped_box(tmp_path, texels: int = 128):
 
 
 def grid_of(path, res: int = 16):
-    """The finest grid a model of `res` would have: (box_low, spacing, shape)."""
+    """The finest level a model of `res` would have: (scene, box_low,
+    spacing, the level's solid voxels (X, Y, Z) bool)."""
     scene, _ = voxelize.read_scene(path)
     mesh = voxelize.scene_mesh(scene, path)
     low, high = mesh.bounds
     voxel = (high - low).max() / res
     shape = tuple(int(np.ceil(e / voxel - 1e-6)) for e in high - low)
     box = np.array(shape) * voxel
-    return scene, (low + high) / 2 - box / 2, box / np.array(shape), shape
+    box_low, spacing = (low + high) / 2 - box / 2, box / np.array(shape)
+    return scene, box_low, spacing, voxelize.voxelize(mesh, box_low, spacing, shape)
 
 
 def surface_points(path, count: int = 20000):
@@ -57,11 +59,12 @@ def psnr(a, b) -> float:
 
 def test_tiles_keep_stripes_finer_than_a_voxel(tmp_path):
     path = striped_box(tmp_path)
-    scene, box_low, spacing, shape = grid_of(path)
+    scene, box_low, spacing, solid = grid_of(path)
+    shape = solid.shape
     surface = appearance.coloured_surface(scene, path)
-    tiles = appearance.example_tiles(surface, box_low, spacing, shape)
+    tiles = appearance.example_tiles(surface, box_low, spacing, solid)
     assert tiles.images.shape[1] >= 8  # the texture's 8 texels a voxel, kept
-    read = colour.Tiles.of(tiles.voxels, tiles.directions, tiles.images, shape)
+    read = colour.Tiles.of(tiles.voxels, tiles.directions, tiles.images, tiles.distance)
     points, truth = surface_points(path)
     model_points = (points - box_low) / spacing - 0.5
     found = colour.read_colours(read, lambda voxels: voxels, model_points, shape)
@@ -91,8 +94,8 @@ def test_every_colour_a_tile_holds_is_the_examples(tmp_path):
     # A stripe's colour, or at a stripe's edge a blend of the two (the
     # texture is read bilinearly, as a renderer reads it): no other hue.
     path = striped_box(tmp_path)
-    scene, box_low, spacing, shape = grid_of(path)
-    tiles = appearance.example_tiles(appearance.coloured_surface(scene, path), box_low, spacing, shape)
+    scene, box_low, spacing, solid = grid_of(path)
+    tiles = appearance.example_tiles(appearance.coloured_surface(scene, path), box_low, spacing, solid)
     distance, t = off_the_line(tiles.images[..., :3].reshape(-1, 3).astype(float), *STRIPES)
     assert distance.max() <= 1.5
     assert (t < 0.05).mean() > 0.15 and (t > 0.95).mean() > 0.15
@@ -167,6 +170,7 @@ def damaged(model_path, tmp_path, change):
     (lambda a: a.update({"colour_tiles.voxels": a["colour_tiles.voxels"][::-1].copy()}), "in order"),
     (lambda a: a.update({"colour_tiles.images": a["colour_tiles.images"][:-1]}), "do not match the manifest"),
     (lambda a: a.update({"colour_tiles.voxels": a["colour_tiles.voxels"].astype(np.float32)}), "not int32"),
+    (lambda a: a.update({"colour_tiles.distance": a["colour_tiles.distance"][:-1]}), "distance grid"),
 ])
 def test_damaged_tiles_are_refused_in_one_line(tiny_colour_model, tmp_path, change, message):
     pytest.importorskip("onnx")

@@ -136,8 +136,8 @@ def build_model(generator, manifest: dict, tiles=None) -> onnx.ModelProto:
         add_level(g, level, names, scale, bias)
     add_decoder(g, generator.decoder, stages["decoder_planes"], stages["decoder_head"])
     if tiles is not None:
-        for name, array, dtype in zip(fmt.TILE_TENSORS, (tiles.voxels, tiles.directions, tiles.images),
-                                      (np.int32, np.uint8, np.uint8)):
+        for name, array, dtype in zip(fmt.TILE_TENSORS, (tiles.voxels, tiles.directions, tiles.images, tiles.distance),
+                                      (np.int32, np.uint8, np.uint8, np.int8)):
             g.data(name, array.astype(dtype))
     graph = helper.make_graph(g.nodes, "sinshape", g.inputs, g.outputs, g.initializers)
     model = helper.make_model(
