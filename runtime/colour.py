@@ -154,7 +154,8 @@ def inside(model, hidden: np.ndarray) -> np.ndarray:
 
 def surface_band(model, hidden_at, size) -> np.ndarray:
     """The voxels (n, 3) of a grid of scale 1 within one voxel of a change
-    between inside and outside along an axis: where a mesh's vertices round to."""
+    between inside and outside along an axis (beyond the grid is outside):
+    where a mesh's vertices round to."""
     size = tuple(int(n) for n in size)
     solid = np.empty(size, bool)
     rows = max(1, (1 << 18) // (size[1] * size[2]))
@@ -163,13 +164,15 @@ def surface_band(model, hidden_at, size) -> np.ndarray:
         x = np.arange(x0, min(x0 + rows, size[0]))
         voxels = np.stack(np.broadcast_arrays(x[:, None, None], j[None], k[None]), axis=-1).reshape(-1, 3)
         solid[x0:x0 + len(x)] = inside(model, hidden_at(voxels)).reshape(len(x), *size[1:])
-    change = np.zeros(size, bool)
+    solid = np.pad(solid, 1)  # outside the grid is empty: a mesh closes there
+    change = np.zeros(solid.shape, bool)
     for axis in range(3):
         a, b = [slice(None)] * 3, [slice(None)] * 3
         a[axis], b[axis] = slice(0, -1), slice(1, None)
         differs = solid[tuple(a)] != solid[tuple(b)]
         change[tuple(a)] |= differs
         change[tuple(b)] |= differs
+    change = change[1:-1, 1:-1, 1:-1]
     band = change.copy()
     for axis in range(3):  # grown by one voxel along each axis
         a, b = [slice(None)] * 3, [slice(None)] * 3
@@ -205,9 +208,11 @@ def draw(keys: np.ndarray, slot: int) -> np.ndarray:
 
 
 def squared_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise squared distances of patches (n, K): exact float64."""
-    diff = a.astype(np.float64) - b
-    return np.einsum("nk,nk->n", diff, diff)
+    """Row-wise squared distances of patches (n, K) of integers held in
+    float32: the differences are exact in float32, their squares and sums
+    exact in float64."""
+    diff = a - b
+    return np.einsum("nk,nk->n", diff, diff, dtype=np.float64)
 
 
 class Matcher:
@@ -262,6 +267,7 @@ class Matcher:
         if len(seeds):
             current[seeds] = self.nearest(sample[seeds])
         best = self.distance(sample, current)
+        changed = np.ones(len(voxels), bool)  # whose match changed last round: only their offers are new
         slot = 2
         for _ in range(ITERATIONS):
             previous = current.copy()
@@ -273,7 +279,8 @@ class Matcher:
                         shift[axis] = sign * step
                         neighbour = lookup(voxels - shift)
                         offered = previous[np.maximum(neighbour, 0)] + shift
-                        candidates.append(np.where((neighbour >= 0)[:, None], offered, -1))
+                        new = (neighbour >= 0) & changed[np.maximum(neighbour, 0)]
+                        candidates.append(np.where(new[:, None], offered, current))
             for radius in SEARCH:
                 bits = draw(keys, slot)
                 slot += 1
@@ -283,9 +290,11 @@ class Matcher:
             candidates.append(band[(draw(keys, slot) % np.uint64(count)).astype(np.int64)])
             slot += 1
             for candidate in candidates:  # in this order: the first of equals stays
-                d = self.distance(sample, candidate)
-                better = d < best
-                current[better], best[better] = candidate[better], d[better]
+                new = np.flatnonzero(np.any(candidate != current, axis=1))  # the current one is known
+                d = self.distance(sample[new], candidate[new])
+                won = d < best[new]
+                current[new[won]], best[new[won]] = candidate[new[won]], d[won]
+            changed = np.any(current != previous, axis=1)
         return current
 
 
@@ -451,3 +460,30 @@ def colours(model, triplane, coords, footprint: float | None = None) -> np.ndarr
     """A coloured model's sRGB colour at arbitrary points of a sample (model
     coordinates, as `query.points`): (n, 3) float32 in [0, 1]."""
     return colouring(model, triplane)(coords, footprint)
+
+
+def surface_painter(model, triplane, vertices: np.ndarray, faces: np.ndarray):
+    """A format-5 sample's colour on its own mesh (vertices in model
+    coordinates), as a function of (face (n,), barycentric weights (n, 3))
+    -> (n, 3) sRGB at full detail: what a picture asks of each pixel
+    (render.PAINT), so that it shows the texture, not the vertex colours."""
+    read = colouring(model, triplane)
+    corners = np.asarray(vertices, np.float64)[np.asarray(faces)]
+    return lambda face, weights: read(np.einsum("nk,nkc->nc", weights, corners[face]))
+
+
+def dense_grids(model, triplane, scale: float = 1.0) -> dict:
+    """What an .npz sample holds: {"occupancy"} on a grid `scale` times
+    finer, and a coloured model's {"colour"} there, (X, Y, Z, 3) uint8 sRGB,
+    each point's colour around it (1 / scale voxels)."""
+    occupancy = query.dense(model, triplane, scale)
+    if not model.manifest.colour:
+        return {"occupancy": occupancy}
+    if model.tiles is None:
+        return {"occupancy": occupancy, "colour": query.dense(model, triplane, scale, colour=True)[1]}
+    check_memory(occupancy.size * 3 * 8, f"the colours of a {'x'.join(map(str, occupancy.shape))} grid")
+    steps = [(np.array(triplane.size[a]) - 1) / max(occupancy.shape[a] - 1, 1) for a in range(3)]
+    points = np.stack(np.meshgrid(*(np.arange(n) * step for n, step in zip(occupancy.shape, steps)), indexing="ij"),
+                      axis=-1).reshape(-1, 3)
+    rgb = colouring(model, triplane)(points, 1 / scale)
+    return {"occupancy": occupancy, "colour": np.round(rgb * 255).astype(np.uint8).reshape(*occupancy.shape, 3)}
