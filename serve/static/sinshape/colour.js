@@ -101,7 +101,9 @@ export class Tiles {
 export function readsAlong(voxels, directions, size) {
   const [X, Y, Z] = size, strides = [Y * Z, Z, 1];
   const own = new Int32Array(X * Y * Z * 6).fill(-1);
-  for (let t = 0; t < directions.length; t++) own[6 * ((voxels[3 * t] * Y + voxels[3 * t + 1]) * Z + voxels[3 * t + 2]) + directions[t]] = t;
+  for (let t = 0; t < directions.length; t++) {
+    own[6 * ((voxels[3 * t] * Y + voxels[3 * t + 1]) * Z + voxels[3 * t + 2]) + directions[t]] = t;
+  }
   const along = own.slice();
   for (let direction = 0; direction < 6; direction++) {
     const axis = direction >> 1, steps = direction & 1 ? ALONG.positive : ALONG.negative;
@@ -128,7 +130,8 @@ export function mipLevels(images, count, side) {
         for (let j = 0; j < h; j++) {
           for (let c = 0; c < 3; c++) {
             const texel = (a, b) => src[((t * n + a) * n + b) * 3 + c];
-            const total = texel(2 * i, 2 * j) + texel(2 * i + 1, 2 * j) + texel(2 * i, 2 * j + 1) + texel(2 * i + 1, 2 * j + 1);
+            const total = texel(2 * i, 2 * j) + texel(2 * i + 1, 2 * j) + texel(2 * i, 2 * j + 1)
+              + texel(2 * i + 1, 2 * j + 1);
             out[((t * h + i) * h + j) * 3 + c] = (total + 2) >> 2;
           }
         }
@@ -169,7 +172,7 @@ export function inside(model, hidden) {
 }
 
 /** The voxels (n, 3) of a grid of scale 1 within one voxel of a change between inside and outside along an
- * axis: where a mesh's vertices round to. */
+ * axis (beyond the grid is outside: a mesh closes there): where a mesh's vertices round to. */
 export function surfaceBand(model, hiddenAt, size) {
   const [X, Y, Z] = size, strides = [Y * Z, Z, 1], count = X * Y * Z;
   const solid = new Uint8Array(count);
@@ -184,11 +187,14 @@ export function surfaceBand(model, hiddenAt, size) {
     solid.set(inside(model, hiddenAt(voxels)), x0 * Y * Z);
   }
   const at = (v, axis) => [Math.floor(v / (Y * Z)), Math.floor(v / Z) % Y, v % Z][axis];
+  // A change: a voxel unlike the one before or after it along an axis, beyond the grid empty (Python's padding).
+  const beside = (v, axis, step) => {
+    const place = at(v, axis) + step;
+    return place >= 0 && place < size[axis] ? solid[v + step * strides[axis]] : 0;
+  };
   const change = new Uint8Array(count);
   for (let axis = 0; axis < 3; axis++) {
-    for (let v = 0; v < count; v++) {
-      if (at(v, axis) + 1 < size[axis] && solid[v] !== solid[v + strides[axis]]) change[v] = change[v + strides[axis]] = 1;
-    }
+    for (let v = 0; v < count; v++) if (solid[v] !== beside(v, axis, -1) || solid[v] !== beside(v, axis, 1)) change[v] = 1;
   }
   const band = change.slice();
   for (let axis = 0; axis < 3; axis++) { // grown by one voxel along each axis
@@ -298,7 +304,8 @@ export class Matcher {
 
   /** The band row of each (n, 3) example voxel, -1 outside the band. */
   rows(voxels) {
-    return Int32Array.from({ length: voxels.length / 3 }, (_, i) => this.rowOf(voxels[3 * i], voxels[3 * i + 1], voxels[3 * i + 2]));
+    const n = voxels.length / 3;
+    return Int32Array.from({ length: n }, (_, i) => this.rowOf(voxels[3 * i], voxels[3 * i + 1], voxels[3 * i + 2]));
   }
 
   /** Patch distances of sample patches (n, K) to candidate example voxels (n, 3); infinite where a candidate is
@@ -348,6 +355,7 @@ export class Matcher {
       seeds.forEach((v, i) => current.set(found.subarray(3 * i, 3 * i + 3), 3 * v));
     }
     const best = this.distance(sample, current);
+    let changed = new Uint8Array(n).fill(1); // whose match changed last round: only their offers are new
     let slot = 2;
     // One voxel's candidate (x, y, z), tried against its current match: only a strictly nearer one
     // replaces it. A candidate outside the band (Python's distance: infinite) and one equal to the
@@ -369,7 +377,7 @@ export class Matcher {
           for (let axis = 0; axis < 3; axis++) {
             for (const shift of [step, -step]) {
               const neighbour = lookup(x - (axis === 0 ? shift : 0), y - (axis === 1 ? shift : 0), z - (axis === 2 ? shift : 0));
-              if (neighbour < 0) continue; // Python's (-1, -1, -1): outside the band
+              if (neighbour < 0 || !changed[neighbour]) continue; // none, or the offer it made last round
               offer(v, previous[3 * neighbour] + (axis === 0 ? shift : 0), previous[3 * neighbour + 1] + (axis === 1 ? shift : 0),
                 previous[3 * neighbour + 2] + (axis === 2 ? shift : 0));
             }
@@ -383,6 +391,8 @@ export class Matcher {
         const r = modulo(anywhere[2 * v], anywhere[2 * v + 1], count); // anywhere in the band
         offer(v, band[3 * r], band[3 * r + 1], band[3 * r + 2]);
       }
+      changed = Uint8Array.from({ length: n }, (_, v) => (current[3 * v] !== previous[3 * v]
+        || current[3 * v + 1] !== previous[3 * v + 1] || current[3 * v + 2] !== previous[3 * v + 2] ? 1 : 0));
     }
     return current;
   }
@@ -401,7 +411,9 @@ export function voxelLookup(voxels) {
   }
   checkBytes(size[0] * size[1] * size[2] * 4, `a lookup of ${n} voxels`);
   const table = new Int32Array(size[0] * size[1] * size[2]).fill(-1);
-  for (let i = 0; i < n; i++) table[((voxels[3 * i] - low[0]) * size[1] + voxels[3 * i + 1] - low[1]) * size[2] + voxels[3 * i + 2] - low[2]] = i;
+  for (let i = 0; i < n; i++) {
+    table[((voxels[3 * i] - low[0]) * size[1] + voxels[3 * i + 1] - low[1]) * size[2] + voxels[3 * i + 2] - low[2]] = i;
+  }
   return (x, y, z) => {
     x -= low[0]; y -= low[1]; z -= low[2];
     return x < 0 || y < 0 || z < 0 || x >= size[0] || y >= size[1] || z >= size[2] ? -1 : table[(x * size[1] + y) * size[2] + z];
