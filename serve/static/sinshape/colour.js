@@ -55,9 +55,9 @@ export class Tiles {
     Object.assign(this, { voxels, directions, mips, depth, along, size, side });
   }
 
-  /** images: Uint8Array (N, T, T, 4), RGB and depth. */
-  static of(voxels, directions, images, size) {
-    const count = directions.length, side = Math.round(Math.sqrt(images.length / 4 / Math.max(count, 1)));
+  /** images: Uint8Array (N, T, T, 4), RGB and depth, of side T. */
+  static of(voxels, directions, images, size, side) {
+    const count = directions.length;
     const rgb = new Uint8Array(count * side * side * 3), depth = new Uint8Array(count * side * side);
     for (let t = 0; t < count * side * side; t++) {
       rgb[3 * t] = images[4 * t];

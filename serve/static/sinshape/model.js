@@ -264,7 +264,7 @@ function readTiles(model, manifest, name) {
   if (Tiles.bytes(count, side, size) > MAX_TILE_BYTES) {
     throw new InputError(`${name}: its colour tiles need more memory than a page should take`);
   }
-  return Tiles.of(voxels, directions, images, size);
+  return Tiles.of(voxels, directions, images, size, side);
 }
 
 /** One runnable stage: a session and its tensor names, in plane order. */
