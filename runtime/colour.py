@@ -314,6 +314,7 @@ class Matcher:
             current[seeds] = self.nearest(sample[seeds])
         best = self.distance(sample, current)
         changed = np.ones(len(voxels), bool)  # whose match changed last round: only their offers are new
+        everyone = np.ones(len(voxels), bool)
         slot = 2
         for _ in range(ITERATIONS):
             previous = current.copy()
@@ -325,19 +326,18 @@ class Matcher:
                         shift[axis] = sign * step
                         neighbour = lookup(voxels - shift)
                         offered = previous[np.maximum(neighbour, 0)] + shift
-                        new = (neighbour >= 0) & changed[np.maximum(neighbour, 0)]
-                        candidates.append(np.where(new[:, None], offered, current))
+                        candidates.append((offered, (neighbour >= 0) & changed[np.maximum(neighbour, 0)]))
             offers = len(candidates)
             for radius in SEARCH:
                 bits = draw(keys, slot)
                 slot += 1
                 offsets = np.stack([((bits >> np.uint64(16 * a)) & np.uint64(0xFFFF)).astype(np.int64)
                                     % (2 * radius + 1) for a in range(3)], axis=1) - radius
-                candidates.append(previous + offsets)
-            candidates.append(band[(draw(keys, slot) % np.uint64(count)).astype(np.int64)])
+                candidates.append((previous + offsets, everyone))
+            candidates.append((band[(draw(keys, slot) % np.uint64(count)).astype(np.int64)], everyone))
             slot += 1
-            for index, candidate in enumerate(candidates):  # in this order: the first of equals stays
-                new = np.flatnonzero(np.any(candidate != current, axis=1))  # the current one is known
+            for index, (candidate, offered) in enumerate(candidates):  # in this order: the first of equals stays
+                new = np.flatnonzero(offered & np.any(candidate != current, axis=1))  # the current one is known
                 d = self.distance(sample[new], candidate[new])
                 if index < offers:  # a neighbour's match continued: the same piece of the example
                     d = d * COHERENT

@@ -262,7 +262,8 @@ def read_tiles(model: onnxfile.OnnxModel, manifest: fmt.Manifest, path: Path):
         raise InputError(f"{path}: colour tiles of shapes {voxels.shape}, {directions.shape}, {images.shape} "
                          f"do not match the manifest's {count} of side {side}")
     if distance.shape != tuple(size):
-        raise InputError(f"{path}: a colour distance grid of shape {distance.shape}, not the finest level's {tuple(size)}")
+        raise InputError(f"{path}: a colour distance grid of shape {distance.shape}, not the finest level's "
+                         f"{tuple(int(n) for n in size)}")
     if not (np.all((voxels >= 0) & (voxels < size)) and np.all(directions < 6)):
         raise InputError(f"{path}: colour tiles lie outside the model's finest level")
     key = ((voxels[:, 0].astype(np.int64) * size[1] + voxels[:, 1]) * size[2] + voxels[:, 2]) * 6 + directions

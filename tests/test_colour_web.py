@@ -208,8 +208,8 @@ def test_a_format_5_samples_matches_and_colours_are_pythons(colour_page, coloure
     assert len(np.unique(mesh.colour_bytes(expected), axis=0)) > 2  # the sample shows the example's colours
 
 
-CONSTANTS = ("PATCH", "QUANTUM", "ITERATIONS", "PROPAGATION", "SEARCH", "SEED_RATE", "MATCH_STREAM", "DEPTH_RANGE",
-             "ACROSS", "STEPS")
+CONSTANTS = ("PATCH", "QUANTUM", "KEY_VALUES", "KEY_QUANTUM", "ITERATIONS", "PROPAGATION", "SEARCH", "SEED_RATE",
+             "COHERENT", "MATCH_STREAM", "DEPTH_RANGE", "DISTANCE_STEP", "REACH_ORDER", "TURN", "ACROSS", "STEPS")
 
 
 def test_the_browsers_matching_constants_are_pythons(colour_page):
@@ -279,6 +279,7 @@ def test_damaged_tiles_are_refused_as_the_python_loader_refuses_them(colour_page
         "int32_data": outside_raw_data,
         "ragged": ragged_raw_data,
         "side": tiles_of_side_3,
+        "distance": tile_array("colour_tiles.distance", lambda a: a[:-1]),
     }
     files = [altered(tmp_path / f"{name}.onnx", change) for name, change in cases.items()]
     messages = dict(zip(cases, load_in_page(colour_page, files)))
@@ -295,6 +296,7 @@ def test_damaged_tiles_are_refused_as_the_python_loader_refuses_them(colour_page
     assert "keeps its values outside raw_data" in messages["int32_data"]
     assert "buffer size must be a multiple of element size" in messages["ragged"]
     assert "T a power of two up to 64" in messages["side"]
+    assert "a colour distance grid of shape" in messages["distance"]
 
 
 @pytest.mark.parametrize("tile", [(0, 0), (3, -2), (10**9, -10**9)])

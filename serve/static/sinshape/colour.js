@@ -26,12 +26,19 @@ import { project, projectedColours } from './query.js';
 // The patch: a voxel and its six neighbours.
 export const PATCH = [[0, 0, 0], [1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]];
 export const QUANTUM = 256; // hidden sums are compared in steps of 1/QUANTUM
+export const KEY_VALUES = 8, KEY_QUANTUM = 4; // a voxel's random choices are keyed by its first 8 hidden sums in steps of 1/4
 export const ITERATIONS = 6;
 export const PROPAGATION = [1, 2, 4, 8]; // neighbours this many voxels away along each axis offer their match
 export const SEARCH = [8, 4, 2, 1]; // random candidates within this many voxels of the current match
 export const SEED_RATE = 64; // about one voxel in this many searches the whole example
+export const COHERENT = 0.8; // a neighbour's match continued is weighed at this share of its distance
 export const MATCH_STREAM = 2; // noise.js's stream id of the matching's random choices
 export const DEPTH_RANGE = 0.5; // a tile's depth byte spans this many voxels either side of its centre
+export const DISTANCE_STEP = 1 / 63.5; // voxels per unit of the signed distance grid
+// A point reads the tiles of each direction of its voxel and of those this many voxels away along the tile's
+// axis: the surface nearest it wins, a tile counted TURN voxels farther per unit its axis turns from the normal.
+export const REACH_ORDER = [0, -1, 1];
+export const TURN = 0.25;
 export const ACROSS = [[1, 2], [0, 2], [0, 1]]; // a tile's rows and columns run along these axes, by its axis
 // reads_along: the voxels along a tile's axis whose tile a voxel without its own reads, by the side it looks from.
 export const ALONG = { positive: [-1, 1, -2, 2], negative: [1, -1, 2, -2] };
@@ -39,24 +46,24 @@ export const ALONG = { positive: [-1, 1, -2, 2], negative: [1, -1, 2, -2] };
 export const STEPS = [[-1, 0, 0], [1, 0, 0], [0, -1, 0], [0, 1, 0], [0, 0, -1], [0, 0, 1]];
 
 const MAX_BYTES = 2 * 2 ** 30; // a browser tab's share: matching and its grids stay well under it
-const DEPTH_STEP = Math.fround((2 * DEPTH_RANGE) / 255);
 const f32 = Math.fround;
 
 function checkBytes(bytes, what) {
   if (bytes > MAX_BYTES) throw new InputError(`${what} needs more memory than a page should take`);
 }
 
-/** The example's colour as the runtime reads it: directional tiles of its surface voxels, and for every
- * voxel near the surface the tile of each direction it reads. */
+/** The example's colour as the runtime reads it: directional tiles of its surface voxels, for every voxel near
+ * the surface the tile of each direction it reads, its own tiles, and the example's signed distance. */
 export class Tiles {
   /** voxels Int32Array (N, 3); directions Uint8Array (N,); mips [RGB Uint8Array (N, t, t, 3) for t = T, T/2,
-   * ..., 1]; depth Uint8Array (N, T, T); along Int32Array (X, Y, Z, 6); size [X, Y, Z]; side T. */
-  constructor(voxels, directions, mips, depth, along, size, side) {
-    Object.assign(this, { voxels, directions, mips, depth, along, size, side });
+   * ..., 1]; depth Uint8Array (N, T, T); slopes Float64Array (N, 2); along and own Int32Array (X, Y, Z, 6);
+   * distance Float32Array (X, Y, Z) in voxels; size [X, Y, Z]; side T. */
+  constructor(voxels, directions, mips, depth, slopes, along, own, distance, size, side) {
+    Object.assign(this, { voxels, directions, mips, depth, slopes, along, own, distance, size, side });
   }
 
-  /** images: Uint8Array (N, T, T, 4), RGB and depth, of side T. */
-  static of(voxels, directions, images, size, side) {
+  /** images: Uint8Array (N, T, T, 4), RGB and depth, of side T; distance: Int8Array (X, Y, Z). */
+  static of(voxels, directions, images, distance, size, side) {
     const count = directions.length;
     const rgb = new Uint8Array(count * side * side * 3), depth = new Uint8Array(count * side * side);
     for (let t = 0; t < count * side * side; t++) {
@@ -65,12 +72,22 @@ export class Tiles {
       rgb[3 * t + 2] = images[4 * t + 2];
       depth[t] = images[4 * t + 3];
     }
-    return new Tiles(voxels, directions, mipLevels(rgb, count, side), depth, readsAlong(voxels, directions, size), size, side);
+    const [X, Y, Z] = size, own = new Int32Array(X * Y * Z * 6).fill(-1);
+    for (let t = 0; t < count; t++) own[6 * ((voxels[3 * t] * Y + voxels[3 * t + 1]) * Z + voxels[3 * t + 2]) + directions[t]] = t;
+    const step = f32(DISTANCE_STEP);
+    return new Tiles(voxels, directions, mipLevels(rgb, count, side), depth, slopes(depth, count, side), readsAlong(own, size),
+      own, Float32Array.from(distance, (v) => f32(v * step)), size, side);
   }
 
   /** Memory of `count` tiles of `side` read for a finest level of `size`. */
   static bytes(count, side, size) {
-    return count * side * side * 5 + size[0] * size[1] * size[2] * 6 * 4;
+    return count * side * side * 5 + size[0] * size[1] * size[2] * (12 * 4 + 4);
+  }
+
+  /** Voxel (x, y, z)'s own tile of `direction`, -1 for none (outside the grid: none). */
+  ownTile(x, y, z, direction) {
+    const [X, Y, Z] = this.size;
+    return x < 0 || y < 0 || z < 0 || x >= X || y >= Y || z >= Z ? -1 : this.own[6 * ((x * Y + y) * Z + z) + direction];
   }
 
   /** The voxels (m, 3) where a match may land: every voxel with a tile to read. */
@@ -98,12 +115,8 @@ export class Tiles {
 
 /** Per voxel and direction (axis a, side s), the tile of that direction of the voxel itself, else of the
  * nearest voxel along a that has one, up to two away, the side the tile looks from first. (X, Y, Z, 6) Int32Array. */
-export function readsAlong(voxels, directions, size) {
+export function readsAlong(own, size) {
   const [X, Y, Z] = size, strides = [Y * Z, Z, 1];
-  const own = new Int32Array(X * Y * Z * 6).fill(-1);
-  for (let t = 0; t < directions.length; t++) {
-    own[6 * ((voxels[3 * t] * Y + voxels[3 * t + 1]) * Z + voxels[3 * t + 2]) + directions[t]] = t;
-  }
   const along = own.slice();
   for (let direction = 0; direction < 6; direction++) {
     const axis = direction >> 1, steps = direction & 1 ? ALONG.positive : ALONG.negative;
@@ -118,6 +131,28 @@ export function readsAlong(voxels, directions, size) {
     }
   }
   return along;
+}
+
+/** The least-squares slope of each tile's depth across it, (N, T, T) -> (N, 2) Float64Array: voxels of depth
+ * per voxel along rows and columns, from sums of integers over runtime/colour.py's fixed denominator. */
+export function slopes(depth, count, side) {
+  const out = new Float64Array(2 * count);
+  let squares = 0;
+  for (let k = 0; k < side; k++) squares += (2 * k - (side - 1)) ** 2;
+  const scale = (127.5 * squares) / (2 * DEPTH_RANGE);
+  for (let t = 0; t < count; t++) {
+    let rows = 0, columns = 0;
+    for (let r = 0; r < side; r++) {
+      for (let c = 0; c < side; c++) {
+        const value = depth[(t * side + r) * side + c];
+        rows += value * (2 * r - (side - 1));
+        columns += value * (2 * c - (side - 1));
+      }
+    }
+    out[2 * t] = rows / scale;
+    out[2 * t + 1] = columns / scale;
+  }
+  return out;
 }
 
 /** Box-filtered halvings of (N, T, T, 3) tiles down to 1 x 1, each texel the rounded mean of four. */
@@ -226,15 +261,16 @@ export function patches(hiddenAt, voxels) {
   return out;
 }
 
-/** A key per patch (n, K) from its own voxel's values (its first D integers, as int64 then uint64): the random
- * choices made for a voxel follow what is there, not where. Uint32Array (n, 2): high and low halves. */
-export function contentKeys(patch, n) {
-  const k = patch.length / Math.max(n, 1), d = k / PATCH.length, start = streamKey(0, MATCH_STREAM);
+/** A key per voxel from its own hidden sums (n, D): its first KEY_VALUES sums rounded (halves to even) to steps
+ * of 1/KEY_QUANTUM, as int64 then uint64: the random choices made for a voxel follow what is there, not where.
+ * Uint32Array (n, 2): high and low halves. */
+export function contentKeys(hidden, n) {
+  const d = hidden.length / Math.max(n, 1), start = streamKey(0, MATCH_STREAM);
   const startHi = Number(start >> 32n), startLo = Number(start & 0xffffffffn), out = new Uint32Array(2 * n);
   for (let v = 0; v < n; v++) {
     let hi = startHi, lo = startLo;
-    for (let c = 0; c < d; c++) {
-      const value = patch[v * k + c]; // an integer: its two's complement halves
+    for (let c = 0; c < KEY_VALUES; c++) {
+      const value = roundHalfEven(f32(hidden[v * d + c] * KEY_QUANTUM)); // an integer: its two's complement halves
       add64(Math.floor(value / 2 ** 32) >>> 0, value >>> 0, 0, 1);
       mul64(hiOut, loOut, GOLDEN_HI, GOLDEN_LO);
       add64(hi, lo, hiOut, loOut);
@@ -337,7 +373,7 @@ export class Matcher {
     const n = voxels.length / 3, count = this.band.length / 3, k = this.width, band = this.band;
     checkBytes(n * k * 16 + count * 8 * 64, `matching ${n} voxels to the example`);
     const sample = patches(sampleAt, voxels);
-    const keys = contentKeys(sample, n);
+    const keys = contentKeys(sampleAt(voxels), n);
     const lookup = voxelLookup(voxels);
     const current = new Int32Array(3 * n);
     let bits = draw(keys, 0);
@@ -360,11 +396,16 @@ export class Matcher {
     // One voxel's candidate (x, y, z), tried against its current match: only a strictly nearer one
     // replaces it. A candidate outside the band (Python's distance: infinite) and one equal to the
     // current match (exactly as far) cannot, so neither is measured.
-    const offer = (v, x, y, z) => {
+    // A neighbour's match continued is weighed at COHERENT of its distance (Python multiplies, then compares);
+    // the early stop's bound is widened a hair so that a distance it stops is one that loses in Python too.
+    const offer = (v, x, y, z, coherent = false) => {
       if (x === current[3 * v] && y === current[3 * v + 1] && z === current[3 * v + 2]) return;
       const row = this.rowOf(x, y, z);
       if (row < 0) return;
-      const d = squaredDistance(sample, v, this.reference, row, k, best[v]);
+      const bound = coherent ? (best[v] / COHERENT) * (1 + 1e-12) : best[v];
+      let d = squaredDistance(sample, v, this.reference, row, k, bound);
+      if (d >= bound) return;
+      if (coherent) d *= COHERENT;
       if (d < best[v]) { best[v] = d; current[3 * v] = x; current[3 * v + 1] = y; current[3 * v + 2] = z; }
     };
     for (let iteration = 0; iteration < ITERATIONS; iteration++) {
@@ -379,7 +420,7 @@ export class Matcher {
               const neighbour = lookup(x - (axis === 0 ? shift : 0), y - (axis === 1 ? shift : 0), z - (axis === 2 ? shift : 0));
               if (neighbour < 0 || !changed[neighbour]) continue; // none, or the offer it made last round
               offer(v, previous[3 * neighbour] + (axis === 0 ? shift : 0), previous[3 * neighbour + 1] + (axis === 1 ? shift : 0),
-                previous[3 * neighbour + 2] + (axis === 2 ? shift : 0));
+                previous[3 * neighbour + 2] + (axis === 2 ? shift : 0), true);
             }
           }
         }
@@ -506,47 +547,107 @@ export class Correspondence {
 /**
  * The colour at points (n, 3) (sample model units, Float64Array) of a sample whose voxels `matched` maps to
  * example voxels: (n, 3) Float32Array sRGB. `grid`: the sample's size; a point beyond its last voxel belongs
- * to that voxel. Point p in voxel u = round(p) stands for q = J(u) + (p - u); of the tiles q's voxel reads,
- * the one whose surface lies nearest q along its axis is read at q's place across it. `footprint`: the length
- * a colour stands for (voxels): its mip level averages the texture over it (null: full detail).
+ * to that voxel. Point p in voxel u = round(p) stands for q = J(u) + (p - u); of the tiles of q's voxel and of
+ * those beside it along each tile's axis, the one whose surface is nearest q (REACH_ORDER, TURN) is read, at
+ * that surface's point nearest q. `footprint`: the length a colour stands for (voxels): its mip level
+ * averages the texture over it (null: full detail).
  */
 export function readColours(tiles, matched, points, grid, footprint = null) {
   const n = points.length / 3, u = new Int32Array(3 * n);
   for (let i = 0; i < 3 * n; i++) u[i] = Math.min(Math.max(Math.floor(points[i] + 0.5), 0), grid[i % 3] - 1); // halves up
   const example = matched(u);
-  const reads = tiles.read(example);
-  const tile = new Int32Array(n), across = new Float32Array(2 * n), q = [0, 0, 0], local = [0, 0, 0];
+  const tile = new Int32Array(n), across = new Float64Array(2 * n), q = [0, 0, 0], normal = [0, 0, 0], voxel = [0, 0, 0];
+  const [X, Y, Z] = tiles.size, side = tiles.side;
   for (let i = 0; i < n; i++) {
     for (let a = 0; a < 3; a++) q[a] = example[3 * i + a] + (points[3 * i + a] - u[3 * i + a]);
-    let best = Infinity;
+    trilinear(tiles.distance, tiles.size, q, normal);
+    const length = Math.max(Math.sqrt(normal[0] * normal[0] + normal[1] * normal[1] + normal[2] * normal[2]), 1e-12);
+    for (let a = 0; a < 3; a++) normal[a] /= length;
+    for (let a = 0; a < 3; a++) voxel[a] = Math.min(Math.max(Math.floor(q[a] + 0.5), 0), [X, Y, Z][a] - 1);
+    let best = Infinity, chosen = 0, first = 0, second = 0;
     for (let direction = 0; direction < 6; direction++) {
-      const read = reads[6 * i + direction], candidate = Math.max(read, 0);
-      for (let a = 0; a < 3; a++) local[a] = f32(q[a] - tiles.voxels[3 * candidate + a]);
-      const axis = direction >> 1, [pa, pb] = ACROSS[axis];
-      const depth = f32(f32(texel(tiles.depth, tiles.side, candidate, local[pa], local[pb]) * DEPTH_STEP) - DEPTH_RANGE);
-      const distance = Math.abs(f32(local[axis] - depth));
-      if (read >= 0 && distance < best) {
-        best = distance;
-        tile[i] = candidate;
-        across[2 * i] = local[pa];
-        across[2 * i + 1] = local[pb];
+      const axis = direction >> 1, positive = direction & 1, [pa, pb] = ACROSS[axis];
+      for (const reach of REACH_ORDER) {
+        const at = [voxel[0], voxel[1], voxel[2]];
+        at[axis] += reach;
+        const found = tiles.ownTile(at[0], at[1], at[2], direction);
+        if (found < 0) continue;
+        const la = q[axis] - tiles.voxels[3 * found + axis];
+        const a = q[pa] - tiles.voxels[3 * found + pa], b = q[pb] - tiles.voxels[3 * found + pb];
+        const sa = tiles.slopes[2 * found], sb = tiles.slopes[2 * found + 1];
+        const lean = 1 + (sa * sa + sb * sb);
+        const above = (la - bilinearDepth(tiles.depth, side, found, a, b)) / lean;
+        const facing = normal[axis] * (positive ? 1 : -1);
+        const score = Math.abs(above) * Math.sqrt(lean) + TURN * (1 - facing);
+        if (score < best) { best = score; chosen = found; first = a + above * sa; second = b + above * sb; }
       }
     }
+    tile[i] = chosen;
+    across[2 * i] = first;
+    across[2 * i + 1] = second;
   }
+  acrossTiles(tiles, tile, across);
   let level = 0;
   if (footprint !== null && footprint > 0) {
-    level = Math.min(Math.max(roundHalfEven(Math.log2(footprint * tiles.side)), 0), tiles.mips.length - 1);
+    level = Math.min(Math.max(roundHalfEven(Math.log2(footprint * side)), 0), tiles.mips.length - 1);
   }
-  const side = tiles.side >> level;
-  const x = Float32Array.from({ length: n }, (_, i) => f32(f32(f32(across[2 * i] + 0.5) * side) - 0.5));
-  const y = Float32Array.from({ length: n }, (_, i) => f32(f32(f32(across[2 * i + 1] + 0.5) * side) - 0.5));
-  return bilinearTiles(tiles.mips[level], side, tile, x, y);
+  const m = side >> level;
+  const x = Float32Array.from({ length: n }, (_, i) => (across[2 * i] + 0.5) * m - 0.5);
+  const y = Float32Array.from({ length: n }, (_, i) => (across[2 * i + 1] + 0.5) * m - 0.5);
+  return bilinearTiles(tiles.mips[level], m, tile, x, y);
 }
 
-/** values (N, T, T) at the texel holding in-plane point (a, b) in [-0.5, 0.5]^2 of tile `tile`. */
-export function texel(values, side, tile, a, b) {
-  const index = (p) => Math.min(Math.max(Math.floor(f32(f32(p + 0.5) * side)), 0), side - 1);
-  return values[(tile * side + index(a)) * side + index(b)];
+/** A grid (X, Y, Z) at point q (clamped to it), trilinear with voxel centres at integers, and its gradient
+ * into `gradient` (3): float64, as runtime/colour.py's trilinear. Returns the value. */
+export function trilinear(grid, size, q, gradient) {
+  const low = [0, 0, 0], high = [0, 0, 0], f = [0, 0, 0];
+  for (let a = 0; a < 3; a++) {
+    const p = Math.min(Math.max(q[a], 0), size[a] - 1);
+    low[a] = Math.min(Math.floor(p), Math.max(size[a] - 2, 0));
+    f[a] = p - low[a];
+    high[a] = Math.min(low[a] + 1, size[a] - 1);
+  }
+  let value = 0;
+  gradient[0] = 0; gradient[1] = 0; gradient[2] = 0;
+  for (let corner = 0; corner < 8; corner++) {
+    const c = [(corner >> 2) & 1, (corner >> 1) & 1, corner & 1];
+    const index = c.map((bit, a) => (bit ? high[a] : low[a]));
+    const v = grid[(index[0] * size[1] + index[1]) * size[2] + index[2]];
+    const w = c.map((bit, a) => (bit ? f[a] : 1 - f[a]));
+    value += v * w[0] * w[1] * w[2];
+    for (let a = 0; a < 3; a++) {
+      const dw = w.map((wb, b) => (b !== a ? wb : c[a] ? 1 : -1));
+      gradient[a] += v * dw[0] * dw[1] * dw[2];
+    }
+  }
+  return value;
+}
+
+/** Where a place on a tile's plane lies beyond the tile's own voxel, the tile of the same direction of the voxel
+ * it lies in (its own, or one along the axis): a direction's tiles read as one surface. tile and across, in place. */
+export function acrossTiles(tiles, tile, across) {
+  for (let i = 0; i < tile.length; i++) {
+    if (Math.abs(across[2 * i]) <= 0.5 && Math.abs(across[2 * i + 1]) <= 0.5) continue;
+    const direction = tiles.directions[tile[i]], axis = direction >> 1, [pa, pb] = ACROSS[axis];
+    const centre = [0, 1, 2].map((a) => tiles.voxels[3 * tile[i] + a]);
+    const stepA = Math.floor(centre[pa] + across[2 * i] + 0.5) - centre[pa];
+    const stepB = Math.floor(centre[pb] + across[2 * i + 1] + 0.5) - centre[pb];
+    const neighbour = centre.slice();
+    neighbour[pa] += stepA;
+    neighbour[pb] += stepB;
+    const found = tiles.read(Int32Array.from(neighbour))[direction];
+    if (found < 0) continue;
+    tile[i] = found;
+    across[2 * i] -= stepA;
+    across[2 * i + 1] -= stepB;
+  }
+}
+
+/** Tiles' depth (N, T, T) at in-plane point (a, b) of [-0.5, 0.5]^2, in voxels: runtime/colour.py's
+ * bilinear_depth (its bilinear blend, then float64). */
+export function bilinearDepth(depth, side, tile, a, b) {
+  const x = Float32Array.of(f32((a + 0.5) * side - 0.5)), y = Float32Array.of(f32((b + 0.5) * side - 0.5));
+  return bilinearOne(depth, side, tile, x[0], y[0]) * (2 * DEPTH_RANGE) - DEPTH_RANGE;
 }
 
 /** Bilinear lookup in tiles (N, n, n, 3) at texel coordinates x (rows), y (columns), clamped; the blend in
@@ -566,6 +667,19 @@ export function bilinearTiles(images, n, tile, x, y) {
     }
   }
   return out;
+}
+
+/** One channel's bilinear lookup, as bilinearTiles of values (N, n, n, 1): float32. */
+function bilinearOne(values, n, tile, x, y) {
+  const last = Math.max(n - 2, 0);
+  const xi = Math.min(Math.max(x, 0), n - 1), yi = Math.min(Math.max(y, 0), n - 1);
+  const x0 = Math.min(Math.floor(xi), last), y0 = Math.min(Math.floor(yi), last);
+  const x1 = Math.min(x0 + 1, n - 1), y1 = Math.min(y0 + 1, n - 1);
+  const fx = xi - x0, fy = yi - y0;
+  const at = (a, b) => values[(tile * n + a) * n + b];
+  const top = at(x0, y0) * (1 - fy) + at(x0, y1) * fy;
+  const bottom = at(x1, y0) * (1 - fy) + at(x1, y1) * fy;
+  return f32((top * (1 - fx) + bottom * fx) / 255);
 }
 
 /**

@@ -4,7 +4,7 @@
 // model's colour tiles.
 import * as ort from '../vendor/onnxruntime-web/ort.wasm.min.mjs';
 import { unseal } from './seal.js';
-import { FLOAT, FormatError, INT32, UINT8, readModel, stageModel, tensorArray, tupleText } from './onnx.js';
+import { FLOAT, FormatError, INT8, INT32, UINT8, readModel, stageModel, tensorArray, tupleText } from './onnx.js';
 import { InputError } from './errors.js';
 import { headColour } from './query.js';
 import { Tiles } from './colour.js';
@@ -18,7 +18,7 @@ export const TILES_VERSION = 5;  // 4 with the example's colour as tiles, read b
 const READ_VERSION = TILES_VERSION; // the newest version this code reads
 const COLOUR_SPACE = { space: 'srgb' }; // manifest `colour`: values are sRGB-encoded in [0, 1]
 // Initializers of a format-5 model's tiles: (N, 3) int32 voxels, (N,) uint8 directions, (N, T, T, 4) uint8 images.
-export const TILE_TENSORS = ['colour_tiles.voxels', 'colour_tiles.directions', 'colour_tiles.images'];
+export const TILE_TENSORS = ['colour_tiles.voxels', 'colour_tiles.directions', 'colour_tiles.images', 'colour_tiles.distance'];
 const MAX_TILE_SIDE = 64;
 const MAX_TILE_BYTES = 2 * 2 ** 30; // the tiles and what reads them, in a browser tab
 export const METADATA_KEY = 'sinshape.manifest';
@@ -248,12 +248,15 @@ function readTiles(model, manifest, name) {
   const weights = new Map(model.graph.initializers.map((t) => [t.name, t]));
   if (TILE_TENSORS.some((n) => !weights.has(n))) throw new InputError(`${name}: its colour tiles are missing (${TILE_TENSORS.join(', ')})`);
   const tensors = TILE_TENSORS.map((n) => weights.get(n));
-  const [voxels, directions, images] = readArrays(tensors, [INT32, UINT8, UINT8], name);
+  const [voxels, directions, images, distance] = readArrays(tensors, [INT32, UINT8, UINT8, INT8], name);
+  const size = manifest.sizes[manifest.sizes.length - 1];
   if (!sameJson(tensors[0].dims, [count, 3]) || !sameJson(tensors[1].dims, [count]) || !sameJson(tensors[2].dims, [count, side, side, 4])) {
-    throw new InputError(`${name}: colour tiles of shapes ${tensors.map((t) => tupleText(t.dims)).join(', ')} `
+    throw new InputError(`${name}: colour tiles of shapes ${tensors.slice(0, 3).map((t) => tupleText(t.dims)).join(', ')} `
       + `do not match the manifest's ${count} of side ${side}`);
   }
-  const size = manifest.sizes[manifest.sizes.length - 1];
+  if (!sameJson(tensors[3].dims, size)) {
+    throw new InputError(`${name}: a colour distance grid of shape ${tupleText(tensors[3].dims)}, not the finest level's ${tupleText(size)}`);
+  }
   if (!voxels.every((v, i) => v >= 0 && v < size[i % 3]) || !directions.every((d) => d < 6)) {
     throw new InputError(`${name}: colour tiles lie outside the model's finest level`);
   }
@@ -264,7 +267,7 @@ function readTiles(model, manifest, name) {
   if (Tiles.bytes(count, side, size) > MAX_TILE_BYTES) {
     throw new InputError(`${name}: its colour tiles need more memory than a page should take`);
   }
-  return Tiles.of(voxels, directions, images, size, side);
+  return Tiles.of(voxels, directions, images, distance, size, side);
 }
 
 /** One runnable stage: a session and its tensor names, in plane order. */

@@ -101,8 +101,8 @@ function floatsOf(slice) {
   return Array.from({ length: slice.byteLength >> 2 }, (_, i) => view.getFloat32(4 * i, true));
 }
 
-export const FLOAT = 1, UINT8 = 2, INT32 = 6; // TensorProto.DataType
-const ARRAYS = { [FLOAT]: ['float32', Float32Array], [UINT8]: ['uint8', Uint8Array], [INT32]: ['int32', Int32Array] };
+export const FLOAT = 1, UINT8 = 2, INT8 = 3, INT32 = 6; // TensorProto.DataType
+const ARRAYS = { [FLOAT]: ['float32', Float32Array], [UINT8]: ['uint8', Uint8Array], [INT8]: ['int8', Int8Array], [INT32]: ['int32', Int32Array] };
 
 /** A Python tuple's text, as messages print shapes: (3,), (2, 3). */
 export const tupleText = (dims) => `(${dims.join(', ')}${dims.length === 1 ? ',' : ''})`;
