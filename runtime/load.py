@@ -16,13 +16,23 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import onnxruntime as ort
+
+# onnxruntime's Linux and macOS wheels write telemetry as soon as they are
+# imported: a device id and a database of queued events (the OS, the CPU, the
+# process's path) under ~/.cache/Microsoft/DeveloperTools/. Only
+# ORT_DISABLE_TELEMETRY, set before the import, stops the files; its call,
+# disable_telemetry_events, stops the events of a module someone else
+# imported first. A user who set the variable keeps their choice.
+os.environ.setdefault("ORT_DISABLE_TELEMETRY", "1")
+import onnxruntime as ort  # noqa: E402
 
 from sinshape.core import manifest as fmt
 from sinshape.core.errors import InputError
 from sinshape.core.files import atomic_write, check_readable, check_writable
 
 from . import onnxfile
+
+ort.disable_telemetry_events()
 
 MAX_MODEL_BYTES = 512 * 1024 * 1024
 # onnxruntime starts every thread of every stage's pool up front (a million

@@ -215,3 +215,22 @@ def test_the_committed_tiny_model_is_the_tiny_pyramids(tiny_pyramid):
     assert source["sha256"] == hashlib.sha256(tiny_pyramid.read_bytes()).hexdigest()
     assert model.manifest.sizes == [(15, 15, 15), (20, 18, 15)]
     assert runtime.extract(model, runtime.sample(model, 3)).is_watertight
+
+
+def test_the_runtime_writes_nothing_under_the_users_home(tmp_path):
+    """onnxruntime writes a device id and queued telemetry events under
+    ~/.cache/Microsoft/DeveloperTools/ when it is imported, unless told not
+    to: a sample made in a fresh process leaves the home as it was."""
+    import subprocess
+    import sys
+
+    home = tmp_path / "home"
+    home.mkdir()
+    env = {key: value for key, value in os.environ.items()
+           if key not in ("ORT_DISABLE_TELEMETRY", "XDG_CACHE_HOME")}
+    script = ("import sys\nfrom sinshape.runtime import load_model, sample, extract\n"
+              "model = load_model(sys.argv[1], threads=1)\nassert len(extract(model, sample(model, 3)).faces)")
+    done = subprocess.run([sys.executable, "-c", script, str(TINY_ONNX)], env={**env, "HOME": str(home)},
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert [str(p.relative_to(home)) for p in home.rglob("*")] == []
