@@ -185,10 +185,19 @@ class SINSHAPE_OT_keep_box_add(SampleOperator):
         box.parent = obj
         box.location = (low + high) / 2
         box.scale = (high - low) / 2
+        context.view_layer.update()  # the box's matrix_world, which places it in the sample's space
         settings = obj.sinshape
+        before = settings.keep_box, settings.keep_seed, settings.edit
         with live.suspended():
             settings.keep_box, settings.keep_seed, settings.edit = box, settings.seed + 1, "KEEP"
-        return reported(self, live.regenerate, obj)
+        done = reported(self, live.regenerate, obj)
+        if done == {"CANCELLED"}:  # nothing half made: the box goes, the edit is as it was
+            with live.suspended():
+                settings.keep_box, settings.keep_seed, settings.edit = before
+            mesh = box.data
+            bpy.data.objects.remove(box)
+            bpy.data.meshes.remove(mesh)
+        return done
 
 
 def reported(operator, function, *args) -> set:

@@ -119,6 +119,31 @@ def test_a_kept_box_is_the_command_lines_keep(scene, tiny_model, tmp_path):
     assert_same_mesh(obj, "z", sinrun_sample(tmp_path, tiny_model, "--seed", 7, "--keep", settings.keep_part))
 
 
+def test_a_keep_box_works_wherever_the_sample_stands(scene, tiny_model, tmp_path):
+    """Samples are added at the 3D cursor: the box, made in the sample's
+    space, keeps the same part anywhere; one the sample refuses leaves
+    nothing behind."""
+    import bpy
+
+    parts = []
+    for place in ((0, 0, 0), (20, -3, 2)):
+        bpy.context.scene.cursor.location = place
+        obj = add(tiny_model, seed=7)
+        assert bpy.ops.sinshape.keep_box_add() == {"FINISHED"}
+        parts.append(np.array([float(v) for corner in obj.sinshape.keep_part.split(":")[1:]
+                               for v in corner.split(",")]))
+    assert np.abs(parts[0] - parts[1]).max() < 1e-4
+    assert_same_mesh(obj, "z", sinrun_sample(tmp_path, tiny_model, "--seed", 7, "--keep", obj.sinshape.keep_part))
+    moved = tmp_path / "moved.onnx"
+    moved.write_bytes(tiny_model.read_bytes())
+    lost = add(moved, seed=7)
+    moved.unlink()  # the sample cannot be made again
+    objects = len(bpy.data.objects)
+    with pytest.raises(RuntimeError, match="no such model file"):
+        bpy.ops.sinshape.keep_box_add()
+    assert len(bpy.data.objects) == objects and lost.sinshape.edit == "NONE" and lost.sinshape.keep_box is None
+
+
 def test_grow_maps_blenders_axes_to_the_models(scene, tmp_path):
     obj = add("towerruins", seed=3)  # y up: Blender (x, y, z) is the model's (x, -z, y)
     with_settings(obj, grow=(1.0, 1.5, 1.0), anchor=(0.0, 1.0, 0.0), edit="GROW")
