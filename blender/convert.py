@@ -67,12 +67,16 @@ def model_path(reference: str) -> Path:
     return models.find(reference)
 
 
-def check_unchanged(path: Path, digest: str, recorded: str) -> None:
-    """A model file given by path must still be the one recorded when it was
-    chosen (when one was): a changed file is refused, never used in its place."""
-    if recorded and digest != recorded:
-        raise InputError(f"{path}: the model file has changed since this object was made from it (SHA-256 "
-                         f"{recorded[:12]}..., now {digest[:12]}...); choose the file again to use it as it is", "model")
+def check_unchanged(reference: str, path: Path, digest: str, recorded: str) -> None:
+    """A model must still be the one recorded when it was chosen (when one
+    was): a changed file, or a shipped model that an update of the extension
+    replaced, is refused, never used in its place."""
+    if not recorded or digest == recorded:
+        return
+    what = (f"the shipped model {reference} has changed (an update of the extension)" if reference in models.available()
+            else f"{path}: the model file has changed")
+    raise InputError(f"{what} since this object was made from it (SHA-256 {recorded[:12]}..., now {digest[:12]}...); "
+                     "its mesh is kept: choose the model again to use it as it is", "model")
 
 
 def sample_request(values: dict, up: str) -> SampleRequest:

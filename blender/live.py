@@ -16,7 +16,6 @@ from pathlib import Path
 import bpy
 import numpy as np
 
-from sinshape import models
 from sinshape.core.errors import InputError
 from sinshape.core.files import check_readable
 from sinshape.runtime import layout, load, many, mesh
@@ -30,12 +29,14 @@ DIGESTS = {}  # (path, size, mtime) -> SHA-256: a file is hashed again only when
 KEEP_MODELS = 4
 SUSPENDED = []  # non-empty while settings are filled in by the add-on itself: no regeneration
 MADE = {}  # object name -> what its mesh was made from, (model setting, request) (a world: its tiles' asking)
+IN_EDIT_MODE = set()  # names of objects whose regeneration waits for them to leave edit mode
 
 
 def model_file(reference: str, recorded: str = "") -> tuple:
     """(path, SHA-256) of the model a setting names ('//' relative to the
-    .blend), checked: a file is there and, given by path, is the one
-    `recorded` (convert.check_unchanged); hashed again only when it changed."""
+    .blend), checked: a file is there and is the one `recorded`
+    (convert.check_unchanged), a shipped model too; hashed again only when
+    it changed."""
     if reference.startswith("//"):
         reference = bpy.path.abspath(reference)
     path = check_readable(convert.model_path(reference), "model file")
@@ -46,8 +47,7 @@ def model_file(reference: str, recorded: str = "") -> tuple:
         if digest is None:
             raise InputError(f"{path}: cannot read the model file")
         DIGESTS[key] = digest[1]
-    if reference not in models.available():
-        convert.check_unchanged(path, DIGESTS[key], recorded)
+    convert.check_unchanged(reference, path, DIGESTS[key], recorded)
     return path, DIGESTS[key]
 
 
@@ -69,9 +69,10 @@ def load_model(settings):
 
 def load_settings(settings) -> tuple:
     """(the model, its file's SHA-256) that settings (a sample's or a
-    world's) name; a file's SHA-256 is recorded the first time."""
+    world's) name; the SHA-256 is recorded the first time (a shipped
+    model's too: an update of the extension may replace it)."""
     model, digest = load_file(settings.model, settings.model_sha256)
-    if settings.model not in models.available() and not settings.model_sha256:
+    if not settings.model_sha256:
         with suspended():
             settings.model_sha256 = digest
     return model, digest
@@ -177,7 +178,12 @@ def suspended():
 
 
 def set_mesh(obj, arrays, request=None) -> None:
-    """Put (vertices, faces, edges, colours) into an object's mesh; the request it was made from is remembered."""
+    """Put (vertices, faces, edges, colours) into an object's mesh; the
+    request it was made from is remembered. A mesh shared with other
+    objects (a linked duplicate, Alt+D) is theirs too: this object gets a
+    mesh of its own first."""
+    if obj.data.users > 1:
+        obj.data = obj.data.copy()
     put_mesh(obj.data, arrays, obj.sinshape.shade_smooth)
     obj.sinshape.error = ""
     MADE[obj.name] = (obj.sinshape.model, request)
@@ -214,7 +220,9 @@ def regenerate(obj, force: bool = False) -> None:
     settings = obj.sinshape
     try:
         if obj.mode == "EDIT":
+            IN_EDIT_MODE.add(obj.name)
             raise InputError(f"{obj.name} is in edit mode: leave it to regenerate the sample")
+        IN_EDIT_MODE.discard(obj.name)
         model = load_model(settings)
         request = request_of(obj, model)
         if not force and MADE.get(obj.name) == (settings.model, request):
@@ -232,8 +240,26 @@ def regenerate(obj, force: bool = False) -> None:
 
 def apply_to(name: str, arrays, request) -> None:
     obj = bpy.data.objects.get(name)
-    if obj is not None and obj.sinshape.active and obj.mode != "EDIT":
-        set_mesh(obj, arrays, request)
+    if obj is None or not obj.sinshape.active:
+        return
+    if obj.mode == "EDIT":  # entered while the work ran: made again when it is left
+        IN_EDIT_MODE.add(name)
+        return
+    set_mesh(obj, arrays, request)
+
+
+def left_edit_mode() -> None:
+    """After a change in the scene: samples whose regeneration was refused
+    in edit mode and that have left it are made now (their error goes)."""
+    for name in list(IN_EDIT_MODE):
+        obj = bpy.data.objects.get(name)
+        if obj is None or not obj.sinshape.active:
+            IN_EDIT_MODE.discard(name)
+        elif obj.mode != "EDIT":
+            try:
+                regenerate(obj)
+            except InputError as error:
+                report_later(f"{name}: {error}")
 
 
 def changed(settings, context) -> None:
@@ -403,3 +429,4 @@ def forget() -> None:
     """Another file opens: its objects were made by no request of this session."""
     work.WORKER.clear()
     MADE.clear()
+    IN_EDIT_MODE.clear()

@@ -68,9 +68,8 @@ class SINSHAPE_OT_add_sample(AddOperator, bpy.types.Operator):
         except InputError as error:
             self.report({"ERROR"}, str(error))
             return {"CANCELLED"}
-        recorded = "" if self.model in models.available() else digest
         obj = live.new_object(context.collection, f"sinshape {model.path.stem}", arrays,
-                              {**settings, "model_sha256": recorded}, request)
+                              {**settings, "model_sha256": digest}, request)
         obj.location = context.scene.cursor.location
         self.select(context, obj)
         return {"FINISHED"}

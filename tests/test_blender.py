@@ -144,6 +144,57 @@ def test_a_keep_box_works_wherever_the_sample_stands(scene, tiny_model, tmp_path
     assert len(bpy.data.objects) == objects and lost.sinshape.edit == "NONE" and lost.sinshape.keep_box is None
 
 
+def test_leaving_edit_mode_makes_the_change_refused_in_it(scene, tiny_model, tmp_path):
+    import bpy
+
+    obj = add(tiny_model, seed=3)
+    bpy.ops.object.mode_set(mode="EDIT")
+    obj.sinshape.seed = 5
+    assert "edit mode" in obj.sinshape.error
+    bpy.ops.object.mode_set(mode="OBJECT")
+    assert obj.sinshape.error == ""
+    assert_same_mesh(obj, "z", sinrun_sample(tmp_path, tiny_model, "--seed", 5))
+
+
+def test_a_linked_duplicate_reseeded_leaves_the_original_as_it_was(scene, tiny_model, tmp_path):
+    import bpy
+
+    obj = add(tiny_model, seed=3)
+    bpy.ops.object.duplicate(linked=True)  # Alt+D: the same mesh
+    duplicate = bpy.context.active_object
+    assert duplicate != obj and duplicate.data == obj.data
+    duplicate.sinshape.seed = 9
+    assert duplicate.data != obj.data and obj.sinshape.seed == 3
+    assert_same_mesh(obj, "z", sinrun_sample(tmp_path, tiny_model, "--seed", 3))
+    assert_same_mesh(duplicate, "z", sinrun_sample(tmp_path, tiny_model, "--seed", 9))
+
+
+def test_a_shipped_model_is_pinned_to_its_sha256(scene, addon):
+    """An update of the extension may replace a shipped model: an object
+    made from another version says so, and keeps its mesh, until the model
+    is chosen again."""
+    import hashlib
+
+    import bpy
+
+    from sinshape import models
+
+    obj = add("terrain", seed=3)
+    assert obj.sinshape.model_sha256 == hashlib.sha256(models.find("terrain").read_bytes()).hexdigest()
+    obj.sinshape.model_sha256 = "0" * 64  # as saved by an extension that shipped another terrain
+    before = model_frame(obj, "z")
+    with pytest.raises(RuntimeError, match="the shipped model terrain has changed"):
+        obj.sinshape.seed = 4
+        bpy.ops.sinshape.regenerate()
+    assert all(np.array_equal(a, b) for a, b in zip(model_frame(obj, "z"), before))
+    obj.sinshape.error = ""
+    addon.live.check_models()  # what opening the file does
+    assert "the shipped model terrain has changed" in obj.sinshape.error
+    obj.sinshape.model = "terrain"  # chosen again: taken as it is now
+    assert obj.sinshape.error == "" and obj.sinshape.model_sha256 != "0" * 64
+    assert not all(np.array_equal(a, b) for a, b in zip(model_frame(obj, "z"), before))  # seed 4 now
+
+
 def test_grow_maps_blenders_axes_to_the_models(scene, tmp_path):
     obj = add("towerruins", seed=3)  # y up: Blender (x, y, z) is the model's (x, -z, y)
     with_settings(obj, grow=(1.0, 1.5, 1.0), anchor=(0.0, 1.0, 0.0), edit="GROW")
