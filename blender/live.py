@@ -405,7 +405,7 @@ def apply_layout(obj) -> None:
     model = load_model(settings)
     up = model.manifest.up
     vertices = convert.to_model(points_between(convert.mesh_vertices(cubes.data), cubes, obj), up)
-    grid = convert.cubes_layout(vertices, convert.mesh_edges(cubes.data), model.manifest, model_factors(settings, up))
+    grid = convert.cubes_layout(vertices, *convert.mesh_faces(cubes.data), model.manifest, model_factors(settings, up))
     if not grid.any():
         raise InputError("the layout's cubes lie outside the sample: nothing to apply", "layout")
     shape, text = convert.layout_text(grid)

@@ -81,7 +81,7 @@ class SINSHAPE_OT_add_world(AddOperator, bpy.types.Operator):
     bl_idname = "sinshape.add_world"
     bl_label = "sinshape world"
 
-    radius: IntProperty(name="Radius", default=2, min=0, max=32, soft_max=8,
+    radius: IntProperty(name="Radius", default=2, min=0, max=worlds.MAX_RADIUS, soft_max=8,
                         description="Tiles kept on each side of the followed point's tile")
 
     def execute(self, context):

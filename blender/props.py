@@ -84,7 +84,7 @@ class SinshapeWorld(bpy.types.PropertyGroup):
                       description="The same seed gives the same world")
     scale: FloatProperty(name="Scale", default=1.0, min=0.01, soft_min=0.25, soft_max=8.0, update=worlds.changed,
                          description="Query the surface on a grid this many times finer per axis")
-    radius: IntProperty(name="Radius", default=2, min=0, max=32, soft_max=8, update=worlds.changed,
+    radius: IntProperty(name="Radius", default=2, min=0, max=worlds.MAX_RADIUS, soft_max=8, update=worlds.changed,
                         description="Tiles kept on each side of the followed point's tile")
     follow: PointerProperty(name="Follow", type=bpy.types.Object, update=worlds.changed,
                             description="The object whose place the tiles fill around (the camera, say); "

@@ -15,17 +15,19 @@ exactly, so side by side they are one surface without a weld.
 """
 
 import math
+import re
 
 import bpy
 import numpy as np
 
 from sinshape.core.errors import InputError
-from sinshape.runtime import world
+from sinshape.runtime import generate, world
 
 from . import convert, live, work
 
 TILE = "sinshape_tile"  # a tile object's custom property: "I,J"
 MADE = "sinshape_made"  # ... and what it was made from: the model file's SHA-256, the seed, the scale
+MAX_RADIUS = 32  # tiles on each side: (2 r + 1)^2 = 4225 tiles at most
 
 
 def followed_point(obj, scene) -> np.ndarray:
@@ -54,9 +56,32 @@ def tiles_around(centre, radius: int) -> list:
     return sorted(tiles, key=lambda t: (max(abs(t[0] - ci), abs(t[1] - cj)), t))
 
 
+TILE_TEXT = re.compile(r"(-?[0-9]{1,19}),(-?[0-9]{1,19})")
+
+
+def tile_of(child) -> tuple:
+    """The tile (i, j) a child object holds, as its TILE property says
+    ("I,J"), checked as the runtime checks a tile."""
+    value = child[TILE]
+    match = TILE_TEXT.fullmatch(value) if isinstance(value, str) else None
+    if match is None:
+        raise InputError(f"{child.name}: its {TILE} property {str(value)[:40]!r} is not a tile I,J (two "
+                         "integers): remove the property or the object", "tile")
+    return world.check_tile((int(match[1]), int(match[2])))
+
+
 def tile_objects(obj) -> dict:
     """(i, j) -> the world's child object holding that tile."""
-    return {tuple(int(n) for n in child[TILE].split(",")): child for child in obj.children if TILE in child}
+    return {tile_of(child): child for child in obj.children if TILE in child}
+
+
+def check_settings(settings) -> None:
+    """What a world's settings hold (a .blend may hold anything) before use:
+    the seed as the runtime checks it, and the radius within its property's bounds."""
+    generate.check_seed(settings.seed)
+    radius = settings.radius
+    if not 0 <= radius <= MAX_RADIUS:
+        raise InputError(f"radius must be 0 to {MAX_RADIUS} tiles on each side, got {radius}", "radius")
 
 
 def remove(child) -> None:
@@ -77,6 +102,7 @@ def refresh(obj, scene=None, force: bool = False) -> None:
     settings = obj.sinshape_world
     scene = scene or bpy.context.scene
     try:
+        check_settings(settings)
         model, digest = live.load_settings(settings)
         layout = world.world_layout(model)
         world.check_world_scale(layout, settings.scale, model.manifest.hidden, None)
@@ -125,7 +151,11 @@ def apply_tile(name: str, model, made: str, tile: tuple, arrays) -> None:
     obj = bpy.data.objects.get(name)
     if obj is None or not obj.sinshape_world.active:
         return
-    child = tile_objects(obj).get(tile)
+    try:
+        child = tile_objects(obj).get(tile)
+    except InputError as error:  # a child renamed while the work ran
+        obj.sinshape_world.error = str(error)
+        return
     if child is None:
         label = f"{name} tile {tile[0]},{tile[1]}"
         child = bpy.data.objects.new(label, bpy.data.meshes.new(label))

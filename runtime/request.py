@@ -15,12 +15,14 @@ the memory a size needs) is checked by `resolved` and `make`, which take it.
 """
 
 import dataclasses
+import math
 import numbers
 from dataclasses import dataclass
 
 import numpy as np
 
 from sinshape.core.errors import ConflictError, InputError
+from sinshape.core.manifest import MAX_LEVEL_SIDE
 
 from .edit import Part
 from .mesh import MAX_SMOOTH, SMOOTHERS
@@ -41,6 +43,20 @@ class Layout:
     shape: tuple
     bits: bytes
     resample: bool = False
+
+    def __post_init__(self):
+        """A layout held elsewhere (a .blend, a request) is checked as one read from a file."""
+        shape = self.shape
+        if not (isinstance(shape, tuple) and len(shape) == 3
+                and all(isinstance(n, (int, np.integer)) and not isinstance(n, bool) and 1 <= n <= MAX_LEVEL_SIDE
+                        for n in shape)):
+            raise InputError(f"a layout is a 3-D grid of 1 to {MAX_LEVEL_SIDE} cells per axis, got shape {shape!r}",
+                             "layout")
+        needed = -(-math.prod(shape) // 8)
+        if not isinstance(self.bits, bytes) or len(self.bits) != needed:
+            got = f"{len(self.bits)} bytes" if isinstance(self.bits, bytes) else type(self.bits).__name__
+            raise InputError(f"a {'x'.join(map(str, shape))} layout is {needed} bytes of packed cells, got {got}",
+                             "layout")
 
     @classmethod
     def of(cls, grid, resample: bool = False) -> "Layout":

@@ -257,15 +257,56 @@ def test_cubes_moved_copied_and_extruded_read_back_as_cells(tiny_model):
     grid = np.zeros(shape, bool)
     grid[1, 1, 1] = grid[3, 2, 1] = True
     vertices, quads = convert.layout_cubes(grid, manifest, (1, 1, 1))
-    edges = np.concatenate([quads[:, [0, 1]], quads[:, [1, 2]], quads[:, [2, 3]], quads[:, [3, 0]]])
-    assert np.array_equal(convert.cubes_layout(vertices, edges, manifest, (1, 1, 1)), grid)
+    faces = (quads.ravel(), np.arange(0, quads.size, 4))  # as Blender keeps them: corners, each face's first
+    assert np.array_equal(convert.cubes_layout(vertices, *faces, manifest, (1, 1, 1)), grid)
     moved = vertices.copy()
     moved[:8] += spacing * np.array([2.3, 0.2, 0])  # nudged off the grid: the nearest cell
     moved[8:, 2] = np.where(moved[8:, 2] > moved[8:, 2].min(), moved[8:, 2] + 2 * spacing[2], moved[8:, 2])  # extruded up 2
     expected = np.zeros(shape, bool)
     expected[3, 1, 1] = True
     expected[3, 2, 1:4] = True
-    assert np.array_equal(convert.cubes_layout(moved, edges, manifest, (1, 1, 1)), expected)
+    assert np.array_equal(convert.cubes_layout(moved, *faces, manifest, (1, 1, 1)), expected)
+
+
+def test_welded_cubes_give_the_layout_they_show(scene, tiny_model):
+    """Merge by Distance welds the cubes into one piece and drops the face
+    between two of them; Limited Dissolve joins faces into n-gons: the
+    cells read back are the cubes', a hollow kept hollow."""
+    import bpy
+
+    from blender import convert
+    from sinshape.runtime import layout
+    from sinshape.runtime.load import load_model
+
+    obj = add(tiny_model, seed=3)
+    own = layout.layout(load_model(tiny_model, threads=1), 3)
+    assert bpy.ops.sinshape.layout_show() == {"FINISHED"}
+    cubes = obj.sinshape.layout_object
+    bpy.context.view_layer.objects.active = cubes
+    bpy.ops.object.mode_set(mode="EDIT")
+    bpy.ops.mesh.select_all(action="SELECT")
+    bpy.ops.mesh.remove_doubles()
+    bpy.ops.mesh.dissolve_limited()
+    bpy.ops.object.mode_set(mode="OBJECT")
+    assert len(cubes.data.vertices) < 8 * own.sum() / 2 and len(cubes.data.polygons) < 6 * own.sum()  # welded
+    bpy.context.view_layer.objects.active = obj
+    assert bpy.ops.sinshape.layout_apply() == {"FINISHED"}
+    assert np.array_equal(convert.layout_from_text(obj.sinshape.layout_shape, obj.sinshape.layout_bits).grid(), own)
+    manifest = load_model(tiny_model, threads=1).manifest
+    block = np.zeros(layout.cells(manifest)[2], bool)
+    block[1:4, 1:4, 1:4] = True
+    for grid in (block, block & ~(np.indices(block.shape) == 2).all(axis=0)):  # full, and hollow at its centre
+        mesh = bpy.data.meshes.new("block")
+        convert.fill_mesh(mesh, *convert.layout_cubes(grid, manifest, (1, 1, 1)))
+        welded = bpy.data.objects.new("block", mesh)
+        bpy.context.scene.collection.objects.link(welded)
+        bpy.context.view_layer.objects.active = welded
+        bpy.ops.object.mode_set(mode="EDIT")
+        bpy.ops.mesh.select_all(action="SELECT")
+        bpy.ops.mesh.remove_doubles()
+        bpy.ops.object.mode_set(mode="OBJECT")
+        read = convert.cubes_layout(convert.mesh_vertices(mesh), *convert.mesh_faces(mesh), manifest, (1, 1, 1))
+        assert np.array_equal(read, grid)
 
 
 def test_variations_are_objects_of_each_seed_in_a_collection(scene, tiny_model, tmp_path):
