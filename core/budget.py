@@ -20,8 +20,36 @@ FALLBACK_MEMORY_LIMIT = 4 << 30
 
 
 def available_memory() -> int:
-    """Bytes of memory available to new work: MemAvailable on Linux (it
-    counts reclaimable caches), else the free physical pages, else
+    """Bytes of memory available to new work: the machine's (machine_memory),
+    or less where the process's address space is limited (`ulimit -v`,
+    RLIMIT_AS): what the limit leaves of it."""
+    machine = machine_memory()
+    try:
+        import resource
+
+        limit = resource.getrlimit(resource.RLIMIT_AS)[0]
+    except (ImportError, OSError, ValueError):  # no resource module (Windows)
+        return machine
+    if limit == resource.RLIM_INFINITY:
+        return machine
+    return max(0, min(machine, limit - address_space()))
+
+
+def address_space() -> int:
+    """Bytes of address space this process uses now (VmSize), 0 where unknown."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmSize:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return 0
+
+
+def machine_memory() -> int:
+    """Bytes of the machine's memory available to new work: MemAvailable on
+    Linux (it counts reclaimable caches), else the free physical pages, else
     FALLBACK_MEMORY_LIMIT."""
     try:
         with open("/proc/meminfo") as f:

@@ -190,11 +190,28 @@ def reconstruction_noise(model, sizes: list) -> Noise:
     return Noise(noise.z0_noise(m.recon_seed, sizes[0]), [None] * len(sizes))
 
 
-def check_generation_memory(sizes: list, channels: int, factors, limit: int | None = None) -> None:
-    """z0 and its float64 pooling sums, and a few copies of the largest tri-plane."""
+# Bytes per value of the largest level's tri-plane while the chain runs
+# there: the noise of every level, the upsampled planes, the noisy input,
+# onnxruntime's activations and the residuals. Measured at its peak: 40 to
+# 46 (towerruins at 4x4x4 to 16x16x16, terrain at 8x8x8).
+CHAIN_BYTES_PER_VALUE = 52
+
+
+def generation_memory(sizes: list, channels: int) -> int:
+    """Bytes a sample's chain needs at its peak: z0 and its float64
+    pooling sums, and the largest level's work (CHAIN_BYTES_PER_VALUE)."""
     z0 = math.prod(sizes[0]) * 16  # exact: numpy's int64 product wrapped round for huge sizes
-    planes = max(sum(h * w for h, w in plane_sizes(size)) for size in sizes) * channels * 4 * 6
-    check_memory(int(z0 + planes), f"a sample of size {'x'.join(f'{f:g}' for f in factors)}", limit)
+    return z0 + max(triplane_values(size, channels) for size in sizes) * CHAIN_BYTES_PER_VALUE
+
+
+def triplane_values(size, channels: int) -> int:
+    """Values in the tri-plane of a grid of `size`: 3 planes of `channels`."""
+    return sum(h * w for h, w in plane_sizes(size)) * channels
+
+
+def check_generation_memory(sizes: list, channels: int, factors, limit: int | None = None) -> None:
+    check_memory(generation_memory(sizes, channels), f"a sample of size {'x'.join(f'{f:g}' for f in factors)}",
+                 limit)
 
 
 def check_seed(seed: int) -> int:

@@ -80,6 +80,7 @@ class Model:
     decoder_planes: Stage
     decoder_head: Stage
     head: HeadWeights
+    faces_per_voxel: float | None = None  # its reconstruction's, at scale 1: measured when first needed (mesh.py)
 
 
 def default_threads() -> int:

@@ -25,7 +25,7 @@ import numpy as np
 
 from sinshape.core.budget import check_memory
 from sinshape.core.errors import InputError
-from sinshape.core.manifest import PLANE_AXES
+from sinshape.core.manifest import PLANE_AXES, plane_sizes
 
 from .generate import MAX_GRID_SIDE, TriPlane
 
@@ -328,20 +328,36 @@ def linear_logits(head, low: np.ndarray, high: np.ndarray, samples: list) -> tup
     return bottom, top
 
 
-def check_band_memory(size, scale: float, hidden: int, memory_limit: int | None = None,
-                      slabs_at_once: int = 1) -> None:
-    """Refuse up front a band search (`Band`) that needs more than
-    memory_limit bytes: the yz plane of D = `hidden` pre-activations at every
-    padded (y, z); per slab being worked on, its values and cell
-    configurations (5 bytes a point), the x rows of two planes, and the
-    buffers of LEAVES_AT_ONCE leaves' hidden vectors (four, counting the
-    gathered plane rows)."""
+def band_memory(size, scale: float, hidden: int, slabs_at_once: int = 1) -> int:
+    """Bytes a band search (`Band`) of a tri-plane of `size` needs beside
+    the tri-plane and its projection: the yz plane of D = `hidden`
+    pre-activations at every padded (y, z); per slab being worked on, its
+    values and cell configurations (5 bytes a point), the x rows of two
+    planes, and the buffers of LEAVES_AT_ONCE leaves' hidden vectors (four,
+    counting the gathered plane rows)."""
     shape = grid_shape(size, scale)
     py, pz = (-(-(m + 1) // BLOCK) * BLOCK + 1 for m in shape[1:])
     per_slab = py * pz * 5 * (BLOCK + 1) + (BLOCK + 1) * (py + pz) * hidden * 4 \
         + 4 * LEAVES_AT_ONCE * (LEAF + 1) ** 3 * hidden * 4
-    needed = py * pz * hidden * 4 + per_slab * slabs_at_once
-    check_memory(needed, f"meshing a {'x'.join(map(str, shape))} grid", memory_limit)
+    return py * pz * hidden * 4 + per_slab * slabs_at_once
+
+
+def check_band_memory(size, scale: float, hidden: int, memory_limit: int | None = None,
+                      slabs_at_once: int = 1) -> None:
+    """Refuse up front a band search that needs more than memory_limit bytes (band_memory)."""
+    check_memory(band_memory(size, scale, hidden, slabs_at_once),
+                 f"meshing a {'x'.join(map(str, grid_shape(size, scale)))} grid", memory_limit)
+
+
+def projected_memory(size, hidden: int) -> int:
+    """Bytes of a tri-plane's projection (`project`): each plane's D = `hidden` values per cell, float32."""
+    return sum(h * w for h, w in plane_sizes(size)) * hidden * 4
+
+
+def dense_memory(size, scale: float, hidden: int, colour: bool = False) -> int:
+    """Bytes `dense` needs: the grid (and its colours), and the yz plane at every (y, z)."""
+    mx, my, mz = grid_shape(size, scale)
+    return mx * my * mz * (4 + 3 * colour) + my * mz * hidden * 4
 
 
 class Band:
@@ -493,9 +509,7 @@ def dense(model, triplane: TriPlane, scale: float = 1.0, memory_limit: int | Non
     (occupancy, (Mx, My, Mz, 3) uint8 sRGB). Refused up front if it needs
     more than memory_limit bytes (None: the memory available)."""
     mx, my, mz = grid_shape(triplane.size, scale)
-    hidden = model.manifest.hidden  # the decoder's hidden width D
-    # The grid (and its colours), and the yz plane at every (y, z).
-    check_memory(mx * my * mz * (4 + 3 * colour) + my * mz * hidden * 4,
+    check_memory(dense_memory(triplane.size, scale, model.manifest.hidden, colour),
                  f"a dense {mx}x{my}x{mz} occupancy grid (a mesh output streams instead)", memory_limit)
     proj = project(model, triplane)
     grid = FineGrid(proj, scale)

@@ -424,6 +424,41 @@ def test_bad_input_is_one_reported_line_and_nothing_half_made(scene, tiny_model,
     assert "Traceback" not in capfd.readouterr().err
 
 
+def test_a_scale_whose_mesh_would_not_fit_is_refused_in_one_line_before_any_work(scene, tiny_model, monkeypatch,
+                                                                                   capfd):
+    """The memory check counts the mesh, and the add-on's own copies of it:
+    refused before anything is made, on the object and as a report."""
+    import bpy
+
+    from sinshape.core import budget
+
+    obj = add(tiny_model, seed=1)
+    before = model_frame(obj, "z")
+    monkeypatch.setattr(budget, "available_memory", lambda: 256 << 20)
+    objects = len(bpy.data.objects)
+    with pytest.raises(RuntimeError, match=r"with a mesh of about [\d,]+ faces needs about"):
+        bpy.ops.sinshape.add_sample(model=str(tiny_model), scale=40)
+    assert len(bpy.data.objects) == objects
+    obj.sinshape.scale = 40
+    assert "with a mesh of about" in obj.sinshape.error and "\n" not in obj.sinshape.error
+    assert all(np.array_equal(a, b) for a, b in zip(model_frame(obj, "z"), before))
+    assert "Traceback" not in capfd.readouterr().err
+
+
+def test_running_out_of_memory_all_the_same_is_one_line_on_the_object(scene, tiny_model, monkeypatch, capfd):
+    from blender import live
+
+    obj = add(tiny_model, seed=1)
+
+    def exhausted(*args, **kwargs):
+        raise MemoryError
+
+    monkeypatch.setattr(live.mesh, "extract", exhausted)
+    obj.sinshape.seed = 2
+    assert "ran out of memory" in obj.sinshape.error and "\n" not in obj.sinshape.error
+    assert "Traceback" not in capfd.readouterr().err
+
+
 def test_arrays_make_a_valid_mesh_in_bulk_and_come_back_the_same(addon):
     import bpy
 

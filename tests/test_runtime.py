@@ -168,6 +168,64 @@ def test_the_memory_limit_is_a_parameter_defaulting_to_the_available_memory(mode
     assert len(runtime.extract(model, triplane, memory_limit=1 << 30).faces) > 0
 
 
+def test_a_sample_whose_mesh_would_not_fit_is_refused_before_any_work(model, monkeypatch):
+    """The check counts the mesh (its faces estimated from the model's
+    reconstruction) besides the tri-plane, before anything is generated; a
+    mesh streamed to a .ply holds no mesh, so the same request fits that way."""
+    from sinshape.runtime import request as requests
+
+    monkeypatch.setattr(generate, "draw_noise", lambda *a, **k: pytest.fail("sampled before the check"))
+    asked = runtime.SampleRequest(seed=1, scale=40)
+    with pytest.raises(runtime.MemoryLimitError, match=r"with a mesh of about [\d,]+ faces needs about"):
+        requests.make(model, asked, memory_limit=1 << 30)
+    requests.check_memory(model, asked, "stream", memory_limit=1 << 30)
+    with pytest.raises(runtime.MemoryLimitError, match="dense grid"):
+        requests.check_memory(model, asked, "grid", memory_limit=1 << 30)
+    with pytest.raises(runtime.MemoryLimitError, match="needs about"):  # a layout's fit is counted too
+        requests.check_memory(model, runtime.SampleRequest(seed=1, size=30, layout=runtime.Layout.of(
+            np.ones(generate.scaled_sizes(model.manifest.sizes, (30, 30, 30))[0]))), "planes", memory_limit=1 << 30)
+
+
+@pytest.mark.parametrize("factors, scale", [((1, 1, 1), 1), ((2, 2, 1), 2), ((0.5, 1, 1), 3), ((1, 1, 1), 6)])
+def test_the_face_estimate_covers_the_faces_a_sample_has(model, factors, scale):
+    from sinshape.runtime import mesh
+
+    triplane = runtime.sample(model, 3, factors)
+    faces = sum(len(f) for _, f in mesh.pieces(model, triplane, scale))
+    assert faces <= mesh.estimate_faces(model, triplane.size, scale) <= 3 * faces
+
+
+def test_meshing_stops_when_its_faces_pass_the_limit(model):
+    """The estimate is an estimate: a whole mesh's faces are counted as
+    they come, and meshing stops before they fill the memory."""
+    from sinshape.runtime import mesh
+
+    triplane = runtime.sample(model, 3)
+    with pytest.raises(runtime.MemoryLimitError, match=r"passed [\d,]+ faces"):
+        mesh.extract(model, triplane, 4, memory_limit=64 << 20, per_face=1 << 20)
+
+
+def test_the_command_line_refuses_what_would_not_fit_under_an_address_space_limit(tmp_path):
+    """`ulimit -v`: the limit counts, and a size whose sample and mesh
+    would not fit is refused in one line before any work (it died with a
+    numpy MemoryError traceback after 30 s)."""
+    import resource
+    import subprocess
+    import sys
+
+    def limited():
+        resource.setrlimit(resource.RLIMIT_AS, (3 << 30, resource.getrlimit(resource.RLIMIT_AS)[1]))
+
+    out = tmp_path / "big.ply"
+    done = subprocess.run([sys.executable, "-c", "from sinshape.cli.main import main; main()", "sample",
+                           "towerruins", "--size", "40,40,40", "-o", str(out)],
+                          capture_output=True, text=True, timeout=120, preexec_fn=limited)
+    assert done.returncode == 1 and not out.exists()
+    assert "Traceback" not in done.stderr and len(done.stderr.strip().splitlines()) == 1
+    limit = float(done.stderr.split("(limit ")[1].split()[0])
+    assert "a sample of size 40x40x40" in done.stderr and "needs about" in done.stderr and limit < 3
+
+
 def test_available_memory_reads_the_machine_or_falls_back(monkeypatch):
     if os.path.exists("/proc/meminfo"):
         with open("/proc/meminfo") as f:
