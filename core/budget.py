@@ -37,31 +37,32 @@ def available_memory() -> int:
 
 def address_space() -> int:
     """Bytes of address space this process uses now (VmSize), 0 where unknown."""
-    try:
-        with open("/proc/self/status") as f:
-            for line in f:
-                if line.startswith("VmSize:"):
-                    return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
-    return 0
+    return proc_kib("/proc/self/status", "VmSize:") or 0
 
 
 def machine_memory() -> int:
     """Bytes of the machine's memory available to new work: MemAvailable on
     Linux (it counts reclaimable caches), else the free physical pages, else
     FALLBACK_MEMORY_LIMIT."""
-    try:
-        with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
+    available = proc_kib("/proc/meminfo", "MemAvailable:")
+    if available is not None:
+        return available
     try:
         return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
     except (AttributeError, ValueError, OSError):
         return FALLBACK_MEMORY_LIMIT
+
+
+def proc_kib(path: str, field: str) -> int | None:
+    """A 'Field: N kB' line of a Linux /proc file, in bytes; None where there is none."""
+    try:
+        with open(path) as f:
+            for line in f:
+                if line.startswith(field):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
 
 
 def check_memory(needed: int, what: str, limit: int | None = None) -> None:

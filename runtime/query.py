@@ -7,7 +7,7 @@ costs the sum of three interpolated hidden vectors, a ReLU and a dot product
 (docs/METHOD.md, "The decoder's first layer"). On a regular grid the
 interpolation is separable: a fine plane is the coarse plane interpolated
 along one axis, then the other, each point from its two neighbours
-(`Taps`), in separately rounded float32 multiplications and additions. A
+(`generate.Taps`), in separately rounded float32 multiplications and additions. A
 matrix product would do the same sums, but BLAS rounds them differently
 with its thread count and CPU (fused multiply-adds in some kernels), and a
 sample must be the same bytes everywhere.
@@ -27,7 +27,7 @@ from sinshape.core.budget import check_memory
 from sinshape.core.errors import InputError
 from sinshape.core.manifest import PLANE_AXES, plane_sizes
 
-from .generate import MAX_GRID_SIDE, TriPlane
+from .generate import MAX_GRID_SIDE, Taps, TriPlane
 
 # The band search bounds blocks of BLOCK cells (a slab is one block thick),
 # then the leaves of LEAF cells inside those it could not decide; only
@@ -157,38 +157,6 @@ def grid_shape(size, scale: float) -> tuple:
         raise InputError(f"scale {scale} asks for a {points} grid; at most {MAX_GRID_SIDE} points per axis are supported",
                          "scale")
     return tuple(max(2, round(n * scale)) for n in size)
-
-
-@dataclass(frozen=True)
-class Taps:
-    """Linear interpolation (align_corners=True) along one axis: each output
-    point's two coarse neighbours and their weights."""
-
-    low: np.ndarray
-    high: np.ndarray
-    w_low: np.ndarray  # float32
-    w_high: np.ndarray
-
-    @classmethod
-    def of(cls, n_in: int, n_out: int) -> "Taps":
-        src = np.arange(n_out) * ((n_in - 1) / (n_out - 1)) if n_out > 1 else np.zeros(1)
-        low = np.minimum(np.floor(src).astype(np.intp), n_in - 1)
-        frac = (src - low).astype(np.float32)
-        return cls(low, np.minimum(low + 1, n_in - 1), np.float32(1) - frac, frac)
-
-    def take(self, index) -> "Taps":
-        """The taps of the points `index` selects."""
-        return Taps(self.low[index], self.high[index], self.w_low[index], self.w_high[index])
-
-    def apply(self, values: np.ndarray, axis: int) -> np.ndarray:
-        """`values` (float32) interpolated along `axis` to these points."""
-        shape = [1] * values.ndim
-        shape[axis] = -1
-        low, high = np.take(values, self.low, axis), np.take(values, self.high, axis)
-        low *= self.w_low.reshape(shape)
-        high *= self.w_high.reshape(shape)
-        low += high
-        return low
 
 
 class FineGrid:
