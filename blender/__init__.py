@@ -19,6 +19,7 @@ from . import live, ops, props, ui, worlds
 @persistent
 def opening(*_):
     live.forget()
+    worlds.forget()
 
 
 @persistent

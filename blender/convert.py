@@ -99,6 +99,23 @@ def sample_request(values: dict, up: str) -> SampleRequest:
     return SampleRequest(**fields)
 
 
+# A model trained from an SSG .h5 pyramid has no units of its own: its
+# frame is the finest level's voxels (docs/FORMAT.md), 100 or more Blender
+# units wide. Its objects are scaled so that its training shape's longest
+# side is this many units, about what the shipped models' meshes span.
+VOXEL_MODEL_SIDE = 6.0
+
+
+def object_scale(manifest) -> float:
+    """The scale a new object of this model gets: 1, or for a model in voxel
+    units (an .h5 pyramid's), one that makes it VOXEL_MODEL_SIDE units long.
+    The object's scale, not its mesh: the mesh stays the command line's."""
+    if manifest.raw.get("source", {}).get("kind") != "pyramid":
+        return 1.0
+    extent = (np.array(manifest.sizes[-1]) - 1) * np.asarray(manifest.spacing)
+    return VOXEL_MODEL_SIDE / float(extent.max())
+
+
 def sample_extent(manifest, factors) -> tuple:
     """(low, high) corners of a sample of `factors` (model axes) in the model's frame."""
     finest = np.array(scaled_sizes(manifest.sizes, factors)[-1])

@@ -71,6 +71,7 @@ class SINSHAPE_OT_add_sample(AddOperator, bpy.types.Operator):
         obj = live.new_object(context.collection, f"sinshape {model.path.stem}", arrays,
                               {**settings, "model_sha256": digest}, request)
         obj.location = context.scene.cursor.location
+        obj.scale = (convert.object_scale(model.manifest),) * 3
         self.select(context, obj)
         return {"FINISHED"}
 
@@ -89,6 +90,10 @@ class SINSHAPE_OT_add_world(AddOperator, bpy.types.Operator):
         obj = bpy.data.objects.new(name, None)
         obj.empty_display_type = "PLAIN_AXES"
         obj.location = context.scene.cursor.location
+        try:
+            obj.scale = (convert.object_scale(live.load_file(self.model)[0].manifest),) * 3
+        except InputError:
+            pass  # refused below, by the world's own checks
         context.collection.objects.link(obj)
         context.view_layer.update()  # its matrix, which places the followed point in the world
         with live.suspended():

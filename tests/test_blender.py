@@ -144,6 +144,15 @@ def test_a_keep_box_works_wherever_the_sample_stands(scene, tiny_model, tmp_path
     assert len(bpy.data.objects) == objects and lost.sinshape.edit == "NONE" and lost.sinshape.keep_box is None
 
 
+def test_a_model_in_voxel_units_comes_in_a_sensible_size(scene, tiny_model, tmp_path):
+    """A model trained from an .h5 pyramid has voxels for units: its object
+    is scaled to about the shipped models' size, its mesh left the command line's."""
+    obj = add(tiny_model, seed=3)  # tiny_model is trained on a pyramid: 19 voxels long
+    assert 4 < max(obj.dimensions) < 8
+    assert_same_mesh(obj, "z", sinrun_sample(tmp_path, tiny_model, "--seed", 3))
+    assert tuple(add("terrain", seed=3).scale) == (1.0, 1.0, 1.0)  # a mesh's own units stay
+
+
 def test_leaving_edit_mode_makes_the_change_refused_in_it(scene, tiny_model, tmp_path):
     import bpy
 
