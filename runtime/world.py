@@ -182,12 +182,13 @@ def check_world_scale(layout: Layout, scale: float, hidden: int, memory_limit: i
 
 
 def tile_occupancy(model, seed: int, tile, scale: float = 1.0, memory_limit: int | None = None,
-                   colour: bool = False):
+                   colour: bool = False, progress=None):
     """Occupancy on tile (i, j)'s grid: (X, Y, Z) float32, its points along
     each horizontal axis from the tile's lattice point to the next (both
     included: the faces it shares), along up the model's height. With
     `colour` (a coloured model), also its colour there: (occupancy,
-    (X, Y, Z, 3) uint8 sRGB)."""
+    (X, Y, Z, 3) uint8 sRGB). progress(done, total) after each window and
+    each slab of rows (a server stops a job there)."""
     from .generate import check_seed
 
     check_seed(seed)
@@ -203,6 +204,8 @@ def tile_occupancy(model, seed: int, tile, scale: float = 1.0, memory_limit: int
         planes = [interpolate(plane, cells[r], cells[c])
                   for plane, (r, c) in zip(window(model, layout, seed, a, b), PLANE_AXES)]
         sources.append((planes, [axes[axis].weights[index[axis]] for axis in range(3)]))
+        if progress:
+            progress(0, axes[0].points)
     out = np.empty([a.points for a in axes], np.float32)
     colours = np.empty((*out.shape, 3), np.uint8) if colour else None
     rows = max(1, (1 << 22) // (out.shape[1] * out.shape[2] * model.manifest.hidden))  # ~16 MB of sums
@@ -216,6 +219,8 @@ def tile_occupancy(model, seed: int, tile, scale: float = 1.0, memory_limit: int
         out[x] = head(model.head, total)
         if colour:
             colours[x] = np.round(head_colour(model.head, total) * 255)
+        if progress:
+            progress(x.stop, out.shape[0])
     return (out, colours) if colour else out
 
 
@@ -255,14 +260,14 @@ def head(weights, hidden: np.ndarray) -> np.ndarray:
 
 
 def tile_mesh(model, seed: int, tile, scale: float = 1.0, memory_limit: int | None = None,
-              closed: tuple = ()) -> tuple:
+              closed: tuple = (), progress=None) -> tuple:
     """Tile (i, j)'s surface: (vertices (V, 3) float64 in model units
     relative to the tile's lowest corner, faces (F, 3) int64). Closed at the
     top and bottom, open on the four sides it shares with its neighbours,
     whose border vertices it shares exactly, except the sides in `closed`
     ((axis, 0 or 1) pairs: the low or high side along a horizontal axis),
-    closed as a sample's sides are (where a block of tiles ends)."""
-    values = tile_occupancy(model, seed, tile, scale, memory_limit)
+    closed as a sample's sides are (where a block of tiles ends). progress: as tile_occupancy's."""
+    values = tile_occupancy(model, seed, tile, scale, memory_limit, progress=progress)
     layout = world_layout(model)
     pad = [[0, 0], [0, 0], [0, 0]]
     pad[layout.up] = [1, 1]
@@ -317,22 +322,24 @@ def placed(model, tile, vertices: np.ndarray, frame: str) -> np.ndarray:
     return absolute if frame == "model" else np.asarray(manifest.origin) + absolute * np.asarray(manifest.spacing)
 
 
-def tile_bytes(model, request, name) -> tuple:
+def tile_bytes(model, request, name, progress=None) -> tuple:
     """A tile request (request.SampleRequest with `tile`) as the bytes of the
-    file `name` names, and its mesh (None for an .npz grid)."""
+    file `name` names, and its mesh (None for an .npz grid). progress: as
+    tile_occupancy's."""
     from pathlib import Path
 
     from . import write
 
     suffix = Path(name).suffix.lower()
     if write.output_kind(name) == "grid":
-        grids = tile_occupancy(model, request.sample_seed, request.tile, request.scale, colour=model.manifest.colour)
+        grids = tile_occupancy(model, request.sample_seed, request.tile, request.scale, colour=model.manifest.colour,
+                               progress=progress)
         grids = dict(zip(("occupancy", "colour"), grids)) if model.manifest.colour else {"occupancy": grids}
         return write.grid_bytes(**grids, tile=request.tile, corner=tile_corner(model, request.tile),
                                 scale=request.scale), None
     import trimesh
 
-    vertices, faces = tile_mesh(model, request.sample_seed, request.tile, request.scale)
+    vertices, faces = tile_mesh(model, request.sample_seed, request.tile, request.scale, progress=progress)
     if not len(faces):
         raise write.no_surface(Path(name))
     mesh = trimesh.Trimesh(placed(model, request.tile, vertices, request.frame), faces, process=False)
@@ -342,11 +349,13 @@ def tile_bytes(model, request, name) -> tuple:
 
 
 def write_tiles(model_path, tiles, pattern, request, engine: str = "local", workers: int | None = None,
-                threads: int | None = None, address: str | None = None, progress=None) -> dict:
+                threads: int | None = None, address: str | None = None, progress=None,
+                restart: bool = False) -> dict:
     """Write one file per tile of `tiles` ((i, j) pairs, read lazily), `pattern`
     with {tile} filled in as I_J: the world of `request` (a
     request.SampleRequest with a seed and no tile), resumably, on the cores
-    or a Ray cluster as runtime.many's jobs. Returns {"written", "skipped", "index"}."""
+    or a Ray cluster as runtime.many's jobs (an index of another job is
+    refused unless `restart`). Returns {"written", "skipped", "index"}."""
     import dataclasses
 
     from . import many
@@ -372,23 +381,35 @@ def write_tiles(model_path, tiles, pattern, request, engine: str = "local", work
         except OSError as error:
             raise InputError(f"{folder}: cannot make the folder ({error.strerror})") from None
     return many.run_job(model_path, tiles, pattern, many.TILES, request, engine, workers, threads, address,
-                        progress)
+                        progress, restart)
 
 
 MAX_BLOCK_TILES = 4096  # tiles written as one mesh; more is a folder of tiles (write_tiles)
+# Peak bytes a block holds per vertex of its tiles (their arrays, the joined
+# ones, welding's sort, the mesh and its file's bytes): 296 to 422 measured
+# on blocks of 144 and 256 terrain tiles at scales 2 and 1, counting the
+# first tile's vertices for every tile; it stands for the others, which may
+# hold more.
+BLOCK_BYTES_PER_VERTEX = 500
 
 
-def block_mesh(model, request, tiles, progress=None):
+def block_mesh(model, request, tiles, progress=None, memory_limit: int | None = None):
     """A block of tiles (a rectangle of them) as one trimesh mesh in the
     request's frame ('input' or 'model': placed in the world), shared border
     vertices welded and the block's outer sides closed: one closed surface.
+    Its count is bounded before a tile is listed, and its memory (the first
+    tile's surface times the count) before the second is made.
     progress(done, total) after each tile."""
     import trimesh
 
-    tiles = list(tiles)
-    if not 0 < len(tiles) <= MAX_BLOCK_TILES:
-        raise InputError(f"a block is 1 to {MAX_BLOCK_TILES} tiles, got {len(tiles)}; write more as a folder "
-                         "of tiles", "tile")
+    sized = hasattr(tiles, "__len__")
+    count = len(tiles) if sized else None  # a block's count is checked before its tiles are listed
+    tiles = list(itertools.islice(tiles, MAX_BLOCK_TILES + 1)) if not sized or count <= MAX_BLOCK_TILES else []
+    count = count if sized else len(tiles)
+    if not 0 < count <= MAX_BLOCK_TILES:
+        got = count if sized else f"more than {MAX_BLOCK_TILES}"
+        raise InputError(f"a block is 1 to {MAX_BLOCK_TILES} tiles, got {got}; write more as a folder of tiles",
+                         "tile")
     if request.frame == "tile":
         raise InputError("a block is placed in the world: give frame input or model", "frame")
     h0, h1 = world_layout(model).horizontal
@@ -398,7 +419,11 @@ def block_mesh(model, request, tiles, progress=None):
         check_placement(model, tile, request.frame)
         ends = [(axis, side) for n, axis in enumerate((h0, h1)) for side, end in enumerate((low, high))
                 if tile[n] == end[n]]
-        v, f = tile_mesh(model, request.sample_seed, tile, request.scale, closed=ends)
+        v, f = tile_mesh(model, request.sample_seed, tile, request.scale, memory_limit, closed=ends)
+        if done == 1:
+            check_memory(BLOCK_BYTES_PER_VERTEX * max(len(v), 1) * len(tiles),
+                         f"a block of {len(tiles)} tiles at scale {request.scale:g} (about {len(v)} vertices each)",
+                         memory_limit)
         if model.manifest.colour:
             colours.append(tile_colours(model, request.sample_seed, tile, v))
         vertices.append(np.array(tile_corner(model, tile), np.float64) + v)  # exact on shared borders

@@ -172,7 +172,7 @@ def test_a_sample_whose_mesh_would_not_fit_is_refused_before_any_work(model, mon
     """The check counts the mesh (its faces estimated from the model's
     reconstruction) besides the tri-plane, before anything is generated; a
     mesh streamed to a .ply holds no mesh, so the same request fits that way."""
-    from sinshape.runtime import request as requests
+    from sinshape.runtime import edit, layout, request as requests  # noqa: F401 (bound before the patch below)
 
     monkeypatch.setattr(generate, "draw_noise", lambda *a, **k: pytest.fail("sampled before the check"))
     asked = runtime.SampleRequest(seed=1, scale=40)
