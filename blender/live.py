@@ -28,6 +28,7 @@ MODELS = {}  # (path, SHA-256) -> a loaded model, the few last used
 DIGESTS = {}  # (path, size, mtime) -> SHA-256: a file is hashed again only when it changed
 KEEP_MODELS = 4
 SUSPENDED = []  # non-empty while settings are filled in by the add-on itself: no regeneration
+MAX_PART_TEXT = 256  # a kept part's text as the add-on writes it (convert.kept_part) is under 150 characters
 MADE = {}  # object name -> what its mesh was made from, (model setting, request) (a world: its tiles' asking)
 IN_EDIT_MODE = set()  # names of objects whose regeneration waits for them to leave edit mode
 
@@ -96,6 +97,9 @@ def keep_part(obj, model) -> str:
     if box is None:
         if not settings.keep_part:
             raise InputError("choose a box object to keep (Add Keep Box)", "keep")
+        if len(settings.keep_part) > MAX_PART_TEXT:  # the runtime would echo all of it
+            raise InputError(f"the kept part recorded on the object is {len(settings.keep_part)} characters, not a "
+                             "part's SEED:X0,Y0,Z0:X1,Y1,Z1: choose a box object to keep (Add Keep Box)", "keep")
         return settings.keep_part
     corners = points_between([tuple(corner) for corner in box.bound_box], box, obj)
     up = model.manifest.up

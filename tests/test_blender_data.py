@@ -129,3 +129,14 @@ def test_a_world_radius_past_its_bounds_is_refused(scene, tiny_model):
     with pytest.raises(RuntimeError, match="radius must be 0 to 32"):
         bpy.ops.sinshape.regenerate()
     assert len(obj.children) == 1
+
+
+@pytest.mark.parametrize("text, said", [("3:nan,0,0:1,1,1", "3 finite numbers"), ("x" * 100000, "100000 characters")])
+def test_a_kept_part_recorded_on_the_object_is_checked_as_the_runtime_checks_it(scene, tiny_model, text, said):
+    from blender import live
+
+    obj = add(tiny_model, seed=3)
+    with live.suspended():
+        obj.sinshape.keep_part, obj.sinshape.edit = text, "KEEP"
+    refused(obj, said)
+    assert len(obj.sinshape.error) < 300
