@@ -17,9 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-# onnxruntime's Linux and macOS wheels write telemetry as soon as they are
-# imported: a device id and a database of queued events (the OS, the CPU, the
-# process's path) under ~/.cache/Microsoft/DeveloperTools/. Only
+# onnxruntime's POSIX builds (its Linux wheel, checked) write telemetry as
+# soon as they are imported: a device id and a database of queued events (the
+# OS, the CPU, the process's path) under ~/.cache/Microsoft/DeveloperTools/. Only
 # ORT_DISABLE_TELEMETRY, set before the import, stops the files; its call,
 # disable_telemetry_events, stops the events of a module someone else
 # imported first. A user who set the variable keeps their choice.
