@@ -233,6 +233,13 @@ def tile_colours(model, seed: int, tile, vertices: np.ndarray) -> np.ndarray:
     Returns (n, 4) uint8 RGBA."""
     from .mesh import colour_bytes
 
+    return colour_bytes(head_colour(model.head, tile_hidden(model, seed, tile, vertices)))
+
+
+def tile_hidden(model, seed: int, tile, vertices: np.ndarray) -> np.ndarray:
+    """The decoder's hidden pre-activations (b1 not added) at points of tile
+    (i, j) (model units from its corner): the four windows' hidden sums
+    blended with the weights the tile's grid has there. (n, D)."""
     i, j = check_tile(tile)
     layout = world_layout(model)
     h0, h1 = layout.horizontal
@@ -246,7 +253,7 @@ def tile_colours(model, seed: int, tile, vertices: np.ndarray) -> np.ndarray:
             weight = weight * (1 - behind if before else behind)
         cells[layout.up] = vertices[:, layout.up]
         total = total + weight[:, None] * hidden_at(window(model, layout, seed, a, b), np.stack(cells, axis=1))
-    return colour_bytes(head_colour(model.head, total))
+    return total
 
 
 def head(weights, hidden: np.ndarray) -> np.ndarray:
@@ -350,12 +357,14 @@ def tile_bytes(model, request, name, progress=None) -> tuple:
 
 def write_tiles(model_path, tiles, pattern, request, engine: str = "local", workers: int | None = None,
                 threads: int | None = None, address: str | None = None, progress=None,
-                restart: bool = False) -> dict:
+                restart: bool = False, asset=None) -> dict:
     """Write one file per tile of `tiles` ((i, j) pairs, read lazily), `pattern`
     with {tile} filled in as I_J: the world of `request` (a
     request.SampleRequest with a seed and no tile), resumably, on the cores
     or a Ray cluster as runtime.many's jobs (an index of another job is
-    refused unless `restart`). Returns {"written", "skipped", "index"}."""
+    refused unless `restart`); with `asset` (an asset.AssetOptions), each
+    tile's game asset (.glb), whose levels keep the tile's whole border.
+    Returns {"written", "skipped", "index"}."""
     import dataclasses
 
     from . import many
@@ -381,7 +390,7 @@ def write_tiles(model_path, tiles, pattern, request, engine: str = "local", work
         except OSError as error:
             raise InputError(f"{folder}: cannot make the folder ({error.strerror})") from None
     return many.run_job(model_path, tiles, pattern, many.TILES, request, engine, workers, threads, address,
-                        progress, restart)
+                        progress, restart, asset)
 
 
 MAX_BLOCK_TILES = 4096  # tiles written as one mesh; more is a folder of tiles (write_tiles)
