@@ -16,7 +16,15 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import onnxruntime as ort
+
+# onnxruntime's POSIX builds (its Linux wheel, checked) write telemetry as
+# soon as they are imported: a device id and a database of queued events (the
+# OS, the CPU, the process's path) under ~/.cache/Microsoft/DeveloperTools/. Only
+# ORT_DISABLE_TELEMETRY, set before the import, stops the files; its call,
+# disable_telemetry_events, stops the events of a module someone else
+# imported first. A user who set the variable keeps their choice.
+os.environ.setdefault("ORT_DISABLE_TELEMETRY", "1")
+import onnxruntime as ort  # noqa: E402
 
 from sinshape.core import manifest as fmt
 from sinshape.core.budget import check_memory
@@ -24,6 +32,8 @@ from sinshape.core.errors import InputError
 from sinshape.core.files import atomic_write, check_readable, check_writable
 
 from . import onnxfile
+
+ort.disable_telemetry_events()
 
 MAX_MODEL_BYTES = 512 * 1024 * 1024
 # onnxruntime starts every thread of every stage's pool up front (a million
@@ -71,8 +81,9 @@ class Model:
     decoder_planes: Stage
     decoder_head: Stage
     head: HeadWeights
-    tiles: object = None  # format 5: the example's colour (appearance.Tiles), read by correspondence
-    matcher: object = None  # its matcher, made on the first coloured sample (appearance.matcher)
+    tiles: object = None  # format 5: the example's colour (colour.Tiles), read by correspondence
+    matcher: object = None  # its matcher, made on the first coloured sample (colour.matcher)
+    faces_per_voxel: float | None = None  # its reconstruction's, at scale 1: measured when first needed (mesh.py)
 
 
 def default_threads() -> int:
