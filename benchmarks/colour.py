@@ -9,9 +9,10 @@ cost: per level of the default preset's pyramid (res 64), seconds per
 training iteration with and without colour, iterations interleaved in one
 process, and the peak memory one iteration adds, each in a fresh process;
 then the ratios.
-sampling: the time to sample and write a .ply with its colours and
-without, from one coloured model (the colour head read or not), seeds
-interleaved. quality: LP-IoU, LP-F and diversity of both models
+sampling: the time to sample and write a .ply without colour, with the
+colour head's and with colour read by correspondence (a format-5 model),
+from one coloured model, seeds interleaved, and each coloured way's peak
+memory. quality: LP-IoU, LP-F and diversity of both models
 (docs/EVALUATION.md); sampling; the reconstruction's colour against the
 example's (PSNR of its vertex colours against the colour of the example's
 surface nearest each vertex); the samples' colours against the example's
@@ -87,26 +88,52 @@ def cost(path: str, rounds: int) -> None:
 
 
 def sampling(path: str, seeds: int, scales=(1, 4)) -> None:
-    """The time to sample and write a .ply, with its colours and without
-    (the same model, its colour head left unread: the same tri-planes and
-    meshes), seeds interleaved; median over seeds."""
+    """The time to sample and write a .ply: geometry alone, colour from the
+    decoder's colour head, and (a format-5 model) colour read from the
+    example by correspondence: the same model and tri-planes, seeds
+    interleaved; median over seeds. Then the peak memory of one coloured
+    sample at scale 1, both ways, each in a fresh process."""
     import dataclasses
 
     from sinshape.runtime import generate, load_model, write
 
     coloured = load_model(path)
-    plain = dataclasses.replace(coloured, manifest=dataclasses.replace(coloured.manifest, colour=False))
+    ways = {"geometry": dataclasses.replace(coloured, manifest=dataclasses.replace(coloured.manifest, colour=False)),
+            "colour head": dataclasses.replace(coloured, tiles=None)}
+    if coloured.tiles is not None:
+        ways["correspondence"] = coloured
     with tempfile.TemporaryDirectory() as folder:
         for scale in scales:
-            times = {False: [], True: []}
-            for seed in range(seeds + 1):  # the first warms up
-                for colour, model in ((False, plain), (True, coloured)):
+            times = {name: [] for name in ways}
+            for seed in range(seeds + 1):  # the first warms up (and makes the matcher)
+                for name, model in ways.items():
                     started = time.perf_counter()
                     write.write_sample(model, generate.sample(model, seed), Path(folder) / "s.ply", scale=scale)
-                    times[colour].append(time.perf_counter() - started)
-            without, with_colour = (float(np.median(times[c][1:])) for c in (False, True))
-            print(f"sampling a .ply at scale {scale} (median of {seeds} seeds): geometry {without:.3f} s, "
-                  f"with colour {with_colour:.3f} s, ratio {with_colour / without:.2f}", flush=True)
+                    times[name].append(time.perf_counter() - started)
+            medians = {name: float(np.median(t[1:])) for name, t in times.items()}
+            print(f"sampling a .ply at scale {scale} (median of {seeds} seeds): "
+                  + ", ".join(f"{name} {m:.3f} s" for name, m in medians.items())
+                  + f"; ratios to geometry: " + ", ".join(f"{name} {m / medians['geometry']:.2f}"
+                                                          for name, m in medians.items() if name != "geometry"),
+                  flush=True)
+    for name in [n for n in ways if n != "geometry"]:
+        command = [sys.executable, __file__, "peak", path, name]
+        print(f"peak memory of one coloured sample ({name}): "
+              f"{int(subprocess.run(command, check=True, capture_output=True, text=True).stdout) / 2**20:.0f} MiB")
+
+
+def sampling_peak(path: str, way: str) -> int:
+    """Peak resident bytes of loading `path` and writing one coloured sample (this process)."""
+    import dataclasses
+
+    from sinshape.runtime import generate, load_model, write
+
+    model = load_model(path)
+    if way == "colour head":
+        model = dataclasses.replace(model, tiles=None)
+    with tempfile.TemporaryDirectory() as folder:
+        write.write_sample(model, generate.sample(model, 1), Path(folder) / "s.ply")
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
 
 
 def wasserstein(a: np.ndarray, b: np.ndarray) -> float:
@@ -149,7 +176,7 @@ def quality(path: str, coloured_path: str, plain_path: str, samples: int, seeds:
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("what", choices=["cost", "sampling", "quality", "child"])
+    parser.add_argument("what", choices=["cost", "sampling", "quality", "child", "peak"])
     parser.add_argument("example")
     parser.add_argument("more", nargs="*")
     parser.add_argument("--samples", type=int, default=100, help="samples scored for LP-IoU, LP-F, diversity")
@@ -158,6 +185,8 @@ def main():
     args = parser.parse_args()
     if args.what == "child":
         print(peak(args.example, int(args.more[0]), bool(int(args.more[1]))))
+    elif args.what == "peak":
+        print(sampling_peak(args.example, " ".join(args.more)))
     elif args.what == "sampling":
         sampling(args.example, args.seeds)
     elif args.what == "cost":

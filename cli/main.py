@@ -29,7 +29,7 @@ OPTIONS = {"scale": "--scale", "factors": "--size", "smooth": "--smooth", "threa
            "train_depth": "--train-depth", "focus": "--focus", "up": "--up", "resume": "--resume",
            "size": "--size", "keep": "--keep", "layout": "--layout", "recon": "--recon",
            "output": "--output", "tile": "--tiles", "frame": "--frame", "force": "--force",
-           "no_colour": "--no-colour", "d_steps": "--d-steps", "d_rate": "--d-rate",
+           "no_colour": "--no-colour", "d_steps": "--d-steps", "d_rate": "--d-rate", "colour_mb": "--colour-mb",
            "asset_folder": "--asset-folder", "restart": "--restart", "lods": "--lods", "texture": "--texture",
            "ao": "--ao"}
 # ctx.meta key: {parameter: what set it} where a command's value came from elsewhere than OPTIONS says.
@@ -197,6 +197,10 @@ ASSET_FOLDER_OPTION = click.option(
               help="Train geometry only, reading no colour. By default a mesh with colour (vertex colours, "
                    "or a base-colour texture of a .glb/.gltf, or of an .obj with its .mtl and image) "
                    "trains a coloured model, and colour that cannot be read is an error.")
+@click.option("--colour-mb", "colour_mb", type=float, default=None,
+              help="The most MB a coloured example's colour tiles may take in the model (the example's colour "
+                   "at its own detail, which samples read: docs/METHOD.md). Default 48: a 1024-pixel texture "
+                   "at res 48 keeps its full detail in about 24.")
 @ASSET_FOLDER_OPTION
 @click.option("--resume", is_flag=True,
               help="Continue an interrupted run from its checkpoint, skipping finished levels, "
@@ -205,7 +209,7 @@ ASSET_FOLDER_OPTION = click.option(
               help="Checkpoint file. Default: MODEL.ckpt.pt beside the output.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress output.")
 def train(input_path, output, preset, res, levels, iters, minutes, min_iters, device, precision, box, train_depth, lr,
-          d_steps, d_rate, seed, up, generator, no_colour, asset_folder, resume, checkpoint, quiet):
+          d_steps, d_rate, seed, up, generator, no_colour, colour_mb, asset_folder, resume, checkpoint, quiet):
     """Train a model on one example shape and export it as one .onnx file.
 
     INPUT is a mesh (.obj, .ply, .stl, .off, .glb; not necessarily watertight)
@@ -218,7 +222,7 @@ def train(input_path, output, preset, res, levels, iters, minutes, min_iters, de
 
     config = configs.make_config(preset, resume, res=res, levels=levels, iters=iters, minutes=minutes, min_iters=min_iters,
                                  precision=precision, box=box, train_depth=train_depth, lr=lr, d_steps=d_steps,
-                                 d_rate=d_rate, seed=seed, up=up, generator=generator)
+                                 d_rate=d_rate, seed=seed, up=up, generator=generator, colour_mb=colour_mb)
     if levels is None:  # an .h5 file with fewer levels blames where the count came from
         click.get_current_context().meta[SOURCES] = {
             "levels": "the checkpoint's levels" if resume else f"the {preset or 'default'} preset's levels"}
@@ -643,7 +647,9 @@ def render(inputs, output, seeds, recon, scale, size, smooth, views, up, columns
 def shape(name, output, seed, detail):
     """Write a procedural example shape to train on (z is up).
 
-    NAME is terrain, acropolis, stairs, wall or cheese.
+    NAME is terrain, painted_terrain (with vertex colours), acropolis,
+    stairs, wall, cheese, brick_ruin or lichen_rock (textured: written as
+    .glb, or as .obj beside its .mtl and .png).
     """
     from sinshape.prep import shapes
 

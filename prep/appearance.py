@@ -102,10 +102,11 @@ def samples_per_length(geometry, vertices: np.ndarray) -> float:
     return math.sqrt(len(geometry.faces) / areas.sum())
 
 
-def example_tiles(surface: Surface, box_low, spacing, solid: np.ndarray) -> Tiles:
+def example_tiles(surface: Surface, box_low, spacing, solid: np.ndarray, max_bytes: int = MAX_TILE_BYTES) -> Tiles:
     """The tiles of every voxel of the finest level `solid` (X, Y, Z) bool
     the surface passes through (voxel (i, j, k) centred at box_low + (i +
-    0.5) * spacing, input frame), and the signed distance at every voxel.
+    0.5) * spacing, input frame), and the signed distance at every voxel;
+    the tiles' side is halved while they would pass `max_bytes`.
 
     A voxel gets one tile per axis direction that some face through it looks
     along (a floor: +z; a wall's corner: two or three). Each texel casts a ray
@@ -126,7 +127,7 @@ def example_tiles(surface: Surface, box_low, spacing, solid: np.ndarray) -> Tile
     # Each (voxel, direction) with a facing face is a tile; a voxel's tiles are kept together.
     keys = np.concatenate([key_of(v, shape) * 6 + 2 * a + p for a, p, v, _ in pairs])
     unique = np.unique(keys)
-    while len(unique) * side * side * 4 > MAX_TILE_BYTES and side > 2:
+    while len(unique) * side * side * 4 > max_bytes and side > 2:
         side //= 2
     check_memory(len(unique) * side * side * 120, f"the colour tiles of {len(unique)} surface directions")
     images = np.zeros((len(unique), side, side, 4), np.uint8)

@@ -135,7 +135,8 @@ def file_sha256(path: Path) -> str:
 
 def pyramid_from_mesh(path: Path, res: int, levels: int | None = None,
                       factor: float = LEVEL_FACTOR, min_size: int = MIN_SIZE, check=None,
-                      colour: bool = True, asset_folder: Path | None = None) -> Pyramid:
+                      colour: bool = True, asset_folder: Path | None = None,
+                      tile_bytes: int = appearance.MAX_TILE_BYTES) -> Pyramid:
     """Voxelise a mesh file at every level of its pyramid. check(sizes), if
     given, sees the level sizes before any is voxelised (to refuse work up
     front); voxelising that would not fit in memory is refused too. With
@@ -179,8 +180,8 @@ def pyramid_from_mesh(path: Path, res: int, levels: int | None = None,
             raise InputError(f"{path.name}: the mesh gives an empty {size} grid; is it a closed solid?")
     fields = [colours.colour_grid(surface, box_low, box / np.array(size), size) for size in sizes] if surface else None
     spacing = box / np.array(sizes[-1])
-    tiles = appearance.example_tiles(appearance.coloured_surface(scene, path), box_low, spacing, grids[-1]) \
-        if surface else None
+    tiles = appearance.example_tiles(appearance.coloured_surface(scene, path), box_low, spacing, grids[-1],
+                                     tile_bytes) if surface else None
     return Pyramid(
         levels=grids,
         origin=tuple(float(v) for v in box_low + spacing / 2),
@@ -287,19 +288,21 @@ def _occupancy(grid: np.ndarray, name: str) -> np.ndarray:
 
 
 def load_pyramid(path, res: int, levels: int | None = None, factor: float = LEVEL_FACTOR, min_size: int = MIN_SIZE,
-                 check=None, colour: bool = True, asset_folder: Path | None = None) -> Pyramid:
+                 check=None, colour: bool = True, asset_folder: Path | None = None,
+                 tile_bytes: int = appearance.MAX_TILE_BYTES) -> Pyramid:
     """The pyramid of a mesh file (voxelised at `res`) or of an SSG .h5 file
     (which has no colour). check(sizes), if given, sees the level sizes
     before a mesh is voxelised, after an .h5 file is read. `colour`: read a
     mesh's colour, if it has any; `asset_folder`: where the files a mesh
-    names may lie (default: its own folder)."""
+    names may lie (default: its own folder); `tile_bytes`: the most its
+    colour tiles may take."""
     path = check_readable(path, "mesh or .h5 file")
     if path.suffix.lower() in PYRAMID_SUFFIXES:
         pyramid = pyramid_from_h5(path, levels)
         if check:
             check(pyramid.sizes)
         return pyramid
-    return pyramid_from_mesh(path, res, levels, factor, min_size, check, colour, asset_folder)
+    return pyramid_from_mesh(path, res, levels, factor, min_size, check, colour, asset_folder, tile_bytes)
 
 
 def reference_grid(path, manifest, scale: float = 1.0) -> np.ndarray:

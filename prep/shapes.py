@@ -364,6 +364,20 @@ def cheese(seed: int = 0, detail: int = 112) -> trimesh.Trimesh:
     return solid.mesh()
 
 
+def brick_ruin(seed: int = 0, detail: int = 16) -> trimesh.Trimesh:
+    """A ruined brick enclosure with a 1024x768 brick texture (prep/textured.py)."""
+    from .textured import brick_ruin as made
+
+    return made(seed, detail)
+
+
+def lichen_rock(seed: int = 0, detail: int = 5) -> trimesh.Trimesh:
+    """A twisted rock with a 512x512 atlas of stone and lichen (prep/textured.py)."""
+    from .textured import lichen_rock as made
+
+    return made(seed, detail)
+
+
 SHAPES: dict[str, Callable[..., trimesh.Trimesh]] = {
     "terrain": terrain,
     "painted_terrain": painted_terrain,
@@ -371,7 +385,11 @@ SHAPES: dict[str, Callable[..., trimesh.Trimesh]] = {
     "stairs": stairs,
     "wall": wall,
     "cheese": cheese,
+    "brick_ruin": brick_ruin,
+    "lichen_rock": lichen_rock,
 }
+TEXTURED = ("brick_ruin", "lichen_rock")
+TEXTURED_FORMATS = (".glb", ".obj")  # a textured shape keeps its texture in these (an .obj beside its .mtl and .png)
 
 
 def make_shape(name: str, seed: int = 0, detail: int | None = None) -> trimesh.Trimesh:
@@ -389,11 +407,23 @@ def make_shape(name: str, seed: int = 0, detail: int | None = None) -> trimesh.T
 
 def write_shape(name: str, path, seed: int = 0, detail: int | None = None) -> trimesh.Trimesh:
     """Make a shape and write it to `path`, in the format its suffix names
-    (atomically, as every sample is written); returns the mesh."""
+    (atomically, as every sample is written); returns the mesh. A textured
+    shape is written as .glb (its texture inside) or .obj (beside it, a .mtl
+    and a .png of the same stem)."""
     path = Path(path)
-    if path.suffix.lower() not in MESH_FORMATS:
+    suffix = path.suffix.lower()
+    if suffix not in MESH_FORMATS:
         raise InputError(f"cannot write a mesh as {path.name!r}; use one of {', '.join(MESH_FORMATS)}")
+    if name in SHAPES and name in TEXTURED and suffix not in TEXTURED_FORMATS:
+        raise InputError(f"{name} is textured: write it as {' or '.join(TEXTURED_FORMATS)}, which keep its texture")
     mesh = make_shape(name, seed, detail)
-    data = mesh.export(file_type=MESH_FORMATS[path.suffix.lower()])
+    if name in TEXTURED and suffix == ".obj":
+        mesh.visual.material.name = path.stem  # the .png is named for it
+        text, files = trimesh.exchange.obj.export_obj(mesh, return_texture=True, mtl_name=f"{path.stem}.mtl")
+        for file, data in files.items():  # the .mtl and the image it names
+            atomic_write(path.parent / file, lambda f, data=data: f.write(data))
+        atomic_write(path, lambda f: f.write(text.encode()))
+        return mesh
+    data = mesh.export(file_type=MESH_FORMATS[suffix])
     atomic_write(path, lambda f: f.write(data.encode() if isinstance(data, str) else data))
     return mesh

@@ -257,5 +257,7 @@ def lichen_rock(seed: int = 0, detail: int = 5) -> trimesh.Trimesh:
     image, covered = dilate(image, covered, gutter)
     image[~covered] = STONE
     texture = Image.fromarray(np.round(np.clip(image, 0, 1) * 255).astype(np.uint8))
-    visual = trimesh.visual.TextureVisuals(uv=uv, material=trimesh.visual.material.SimpleMaterial(image=texture))
+    material = trimesh.visual.material.SimpleMaterial(image=texture, diffuse=(255, 255, 255, 255),
+                                                      ambient=(255, 255, 255, 255), specular=(20, 20, 20, 255))
+    visual = trimesh.visual.TextureVisuals(uv=uv, material=material)
     return trimesh.Trimesh(vertices, split_faces, visual=visual, process=False)

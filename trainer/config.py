@@ -67,6 +67,11 @@ class TrainConfig:
     # only boxes are decoded, so an iteration costs what its boxes cost.
     box: int = 0
 
+    # A coloured example's colour tiles (prep/appearance.py) stay within this
+    # many MB: finer than the texture's own detail they never are, coarser
+    # (halved sides) where they would pass it. The model's file grows by them.
+    colour_mb: float = 48.0
+
     # Which axis of the input points up, recorded in the model for viewers
     # and pictures; None: the input's own (prep.pyramid.up_axis for .h5, y for a mesh).
     up: str | None = None
@@ -87,6 +92,7 @@ class TrainConfig:
             (0 < self.lr_scale <= 1, None, f"lr_scale must be in (0, 1], got {self.lr_scale}"),
             (self.lr > 0, "lr", f"lr must be positive, got {self.lr}"),
             (self.d_rate > 0, "d_rate", f"d_rate must be positive, got {self.d_rate}"),
+            (0 < self.colour_mb <= 1024, "colour_mb", f"colour_mb must be in (0, 1024] MB, got {self.colour_mb}"),
             (self.lr_total is None or self.lr_total > 0, None, f"lr_total must be positive, got {self.lr_total}"),
             (self.lr_total is None or self.lr_max >= self.lr, None, f"lr_max {self.lr_max} is below lr {self.lr}"),
             (self.min_iters >= 1, "min_iters", f"min_iters must be at least 1, got {self.min_iters}"),

@@ -110,7 +110,7 @@ def open_run(input_path, output_path: Path, config: TrainConfig | None, resume: 
     first = state["level"] if state else 0  # the levels still to train
     pyramid = load_pyramid(input_path, config.res, config.levels, config.level_factor, config.min_size,
                            check=lambda sizes: check_training_memory(sizes[first:], config, placement),
-                           colour=colour, asset_folder=asset_folder)
+                           colour=colour, asset_folder=asset_folder, tile_bytes=int(config.colour_mb * 2**20))
     if resume:
         check_same_input(pyramid, state["source"], checkpoint_path)
     # Record what was actually used: an .h5 pyramid fixes res and levels.
