@@ -564,8 +564,14 @@ def colouring(model, triplane, chunk: int = 1 << 16):
     if model.tiles is None:
         head = query.colouring(model, triplane, chunk)
         return lambda points, footprint=None: head(points)
-    matched = Correspondence(model, query.project(model, triplane).planes, triplane.size)
-    grid = np.array(triplane.size)
+    return planes_colouring(model, query.project(model, triplane).planes, triplane.size, chunk)
+
+
+def planes_colouring(model, planes: list, size, chunk: int = 1 << 16):
+    """`colouring` of a format-5 sample given as its projected planes
+    (query.project) and its size: a world's windows come so."""
+    matched = Correspondence(model, planes, size)
+    grid = np.array(size)
 
     def colour(points, footprint=None) -> np.ndarray:
         points = query.point_array(points)

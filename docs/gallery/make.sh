@@ -10,12 +10,16 @@ work=$(mktemp -d)
 sinrun shape terrain -o "$work/terrain.obj"
 sinrun shape acropolis -o "$work/acropolis.obj"
 sinrun shape painted_terrain -o "$work/painted_terrain.ply"
+sinrun shape brick_ruin -o "$work/brick_ruin.glb"
 
 # Each model: its training shape, then samples at the training size.
 sinrun render "$tower" towerruins --seeds 1-4 --scale 2 --columns 5 --image-size 256 -o towerruins.png
 sinrun render "$work/terrain.obj" terrain --seeds 1-4 --scale 2 --up z --columns 5 --image-size 256 -o terrain.png
 sinrun render "$work/acropolis.obj" acropolis --seeds 1-4 --scale 2 --up z --columns 5 --image-size 256 -o acropolis.png
 sinrun render "$work/painted_terrain.ply" terrain_colour --seeds 1-4 --scale 2 --up z --columns 5 --image-size 256 -o terrain_colour.png
+sinrun render "$work/brick_ruin.glb" brickruin --seeds 1-4 --scale 2 --up z --columns 5 --image-size 256 -o brickruin.png
+# A textured example's colour at its own detail: the ruin and a sample, close up.
+sinrun render "$work/brick_ruin.glb" brickruin --seeds 2 --scale 4 --up z --zoom 2 --focus 0.5,0.0,0.4 --azimuth 10 --elevation 10 --image-size 384 -o brickruin_closeup.png
 
 # Other sizes and aspect ratios: twice as long, twice as wide, half as deep.
 sinrun render terrain --seeds 5 --size 2,1,1 --scale 2 --up z --image-size 384 -o terrain_2x1.png
