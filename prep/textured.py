@@ -114,7 +114,7 @@ def cell_faces(filled: np.ndarray, origin, along: int, width: float, height: flo
                     corners = corners[::-1]
                 quads.append(corners)
                 normals.append(normal)
-    return np.array(quads, float), np.array(normals, float)
+    return np.array(quads, float).reshape(-1, 4, 3), np.array(normals, float).reshape(-1, 3)
 
 
 def box_uv(points: np.ndarray, normal: np.ndarray, units=TEXTURE_UNITS) -> np.ndarray:
@@ -131,7 +131,7 @@ def brick_ruin(seed: int = 0, detail: int = 16) -> trimesh.Trimesh:
     walls: one brick thick, broken down to uneven heights in brick steps, a
     doorway and two windows, textured with the tiling brick image."""
     rng = np.random.default_rng(seed)
-    long_cols, short_cols = 2 * detail, 2 * round(detail * 0.625)  # half-brick columns
+    long_cols, short_cols = 2 * detail, max(6, 2 * round(detail * 0.625))  # half-brick columns; short walls of 2 or more
     width, thickness = BRICK_LENGTH / 2, BRICK_LENGTH
     height = BRICK_LENGTH * COURSE_PX / BRICK_PX
     courses = max(4, round(detail * 1.25))

@@ -78,9 +78,9 @@ def test_flipped_weight_bytes_are_named_corruption(v3_model, tmp_path):
 
 @pytest.mark.parametrize("name", sorted(models.available()))
 def test_a_shipped_model_with_a_flipped_byte_is_named_corrupt(name, tmp_path):
-    """The shipped models are sealed format 3 files (4 when coloured), so they are protected too."""
+    """The shipped models are sealed format 3 files (5 when coloured), so they are protected too."""
     path = models.find(name)
-    assert json.loads(manifest_prop(onnx.load(path)).value)["format_version"] in (3, 4)
+    assert json.loads(manifest_prop(onnx.load(path)).value)["format_version"] in (3, 5)
     flipped = altered(path, tmp_path / f"{name}.onnx", flip_bytes(np.random.default_rng(1)), seal=False)
     with pytest.raises(InputError, match="corrupt model"):
         load_model(flipped, threads=1)

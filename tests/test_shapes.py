@@ -9,10 +9,30 @@ from sinshape.prep import shapes
 
 # Small versions, each made in well under a second.
 SMALL = {"terrain": 32, "painted_terrain": 32, "acropolis": 4, "stairs": 6, "wall": 6, "cheese": 40}
+# The textured ones: quads and charts of their own (not one welded solid), and their texture.
+TEXTURED = {"brick_ruin": (4, (768, 1024)), "lichen_rock": (2, (512, 512))}
 
 
 def test_every_shape_has_a_small_detail():
-    assert set(SMALL) == set(shapes.SHAPES)
+    assert set(SMALL) | set(TEXTURED) == set(shapes.SHAPES)
+
+
+@pytest.mark.parametrize("name", TEXTURED)
+def test_a_textured_shape_has_its_texture_and_uvs_on_every_vertex(name, tmp_path):
+    detail, (height, width) = TEXTURED[name]
+    mesh = shapes.make_shape(name, detail=detail)
+    image = getattr(mesh.visual.material, "baseColorTexture", None) or mesh.visual.material.image
+    assert image.size == (width, height)
+    assert mesh.visual.uv.shape == (len(mesh.vertices), 2) and np.isfinite(mesh.visual.uv).all()
+    assert np.asarray(image).std(axis=(0, 1)).max() > 10  # a pattern, not one colour
+    # Written so that a reader gets its texture back: .glb, and .obj beside its .mtl and .png.
+    for suffix in (".glb", ".obj"):
+        shapes.write_shape(name, tmp_path / f"shape{suffix}", detail=detail)
+    assert (tmp_path / "shape.mtl").is_file() and (tmp_path / "shape.png").is_file()
+    loaded = trimesh.load(tmp_path / "shape.obj", process=False)
+    assert loaded.visual.material.image.size == (width, height)
+    with pytest.raises(InputError, match="textured"):
+        shapes.write_shape(name, tmp_path / "shape.ply", detail=detail)
 
 
 @pytest.mark.parametrize("name", SMALL)
