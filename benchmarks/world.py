@@ -1,7 +1,7 @@
 """Endless worlds, measured: seams, cost at any distance, and quality.
 
     python benchmarks/world.py [--models terrain acropolis towerruins] [--block 4] [--windows 100]
-                               [--sections seams cost quality] [--blend 1.0]
+                               [--sections seams cost quality repetition] [--blend 1.0]
 
 Seams: a block of tiles at scale 1 and 2: the largest occupancy difference
 on shared faces, border vertices matched, and whether the block's union is
@@ -11,8 +11,11 @@ alternately, best of 3, no window kept between tiles), and tiles per second
 of a `sinrun world` job on all cores. Quality: LP-IoU, LP-F and diversity
 (runtime/evaluate.py) of windows the size of an ordinary sample cut at
 random places of the worlds of 10 seeds (most straddle tile borders),
-beside ordinary samples; and the autocorrelation of the height field along
-each horizontal axis of a long strip of tiles, at the tile period and around it.
+beside ordinary samples. Repetition: the autocorrelation of the height
+field (evaluate.height_autocorrelation) along each horizontal axis of long
+strips of tiles at S/2 and at the tile period S and its multiples, beside
+ordinary samples as long; and the relief (the spread of column heights) at
+tile corners, at tile centres and over ordinary samples.
 --blend sets world.BLEND (the share of a stride over which one window gives
 way to the next) for a comparison.
 """
@@ -126,16 +129,6 @@ def reference_of(name: str, model, folder: Path) -> np.ndarray:
     return reference_grid(source, model.manifest)
 
 
-def height_autocorrelation(grid: np.ndarray, up: int, axis: int, lags: list) -> list:
-    """The height field's (occupied voxels per column) autocorrelation along `axis` at `lags`."""
-    height = (grid > 0.5).sum(axis=up).astype(np.float64)
-    along = 0 if axis < up else axis - 1  # the axis's index once `up` is summed away
-    height = np.moveaxis(height, along, 0)
-    height -= height.mean(axis=0)
-    variance = (height ** 2).mean()
-    return [float((height[:-lag] * height[lag:]).mean() / variance) for lag in lags]
-
-
 def quality(model, name: str, windows: int) -> dict:
     layout = world.world_layout(model)
     h0, h1 = layout.horizontal
@@ -168,19 +161,62 @@ def quality(model, name: str, windows: int) -> dict:
                            (f"windows of ordinary samples {LARGE[0]:g} times as large along each horizontal axis", crops)):
         lp = evaluate.lp_metrics(volumes, reference)
         out[label] = f"{lp['lp_iou']:.3f} / {lp['lp_f']:.3f} / {evaluate.diversity(volumes):.3f}"
+    return out
+
+
+def strips(model, seeds) -> dict:
+    """Per horizontal axis, long strips of the world (STRIP tiles along it,
+    3 across) and ordinary samples as large, one of each per seed."""
+    layout = world.world_layout(model)
+    h0, h1 = layout.horizontal
+    finest = model.manifest.sizes[-1]
+    out = {}
     for axis, other in ((h0, h1), (h1, h0)):
-        period = layout.stride[axis]
-        lags = [period - 2, period - 1, period, period + 1, period + 2, 2 * period]
         block = {axis: range(STRIP), other: range(3)}
-        strip = world_grid(model, 7, block[h0], block[h1])
+        worlds = [world_grid(model, seed, block[h0], block[h1]) for seed in seeds]
         factors = [1.0, 1.0, 1.0]
         for a in (h0, h1):
-            factors[a] = strip.shape[a] / finest[a]
-        ordinary = dense(model, sample(model, 7, tuple(factors)))
-        for label, grid in (("world", strip), ("an ordinary sample as long", ordinary)):
-            values = height_autocorrelation(grid, layout.up, axis, lags)
-            out[f"height autocorrelation along {'xyz'[axis]}, {label}, lags {lags}"] = \
+            factors[a] = worlds[0].shape[a] / finest[a]
+        out[axis] = (worlds, [dense(model, sample(model, seed, tuple(factors))) for seed in seeds])
+    return out
+
+
+def zones(grid: np.ndarray, layout, width: float = 0.1) -> dict:
+    """Height-field columns of a world grid (a block from tile (0, 0)) near the
+    tiles' corners (within `width` of a stride from a border along both
+    horizontal axes) and near their centres (within `width` of the middle
+    along both): (n,) heights each."""
+    h0, h1 = layout.horizontal
+    height = evaluate.height_field(grid, layout.up)  # (h0, h1)
+    fraction = [(np.arange(height.shape[k]) % layout.stride[a]) / layout.stride[a] for k, a in enumerate((h0, h1))]
+    corner = [np.minimum(f, 1 - f) <= width for f in fraction]
+    centre = [np.abs(f - 0.5) <= width for f in fraction]
+    return {"corners": height[np.ix_(*corner)].ravel(), "centres": height[np.ix_(*centre)].ravel()}
+
+
+def repetition(model, seeds=(7, 8)) -> dict:
+    """The height field's autocorrelation at the tile period S and its
+    multiples along each horizontal axis, world against ordinary samples as
+    long (mean over `seeds`); and the relief (std of heights) at tile
+    corners, centres and over ordinary samples."""
+    layout = world.world_layout(model)
+    out = {}
+    relief = {"corners": [], "centres": [], "ordinary": []}
+    for axis, (worlds, ordinary) in strips(model, seeds).items():
+        period = layout.stride[axis]
+        lags = [period // 2, period, 2 * period, 3 * period]
+        for label, grids in (("world", worlds), ("an ordinary sample as long", ordinary)):
+            values = np.mean([evaluate.height_autocorrelation(g, layout.up, axis, lags) for g in grids], axis=0)
+            out[f"height autocorrelation along {'xyz'[axis]} at S/2, S, 2S, 3S ({lags}), {label}"] = \
                 " ".join(f"{v:+.3f}" for v in values)
+        for grid in worlds:
+            for key, heights in zones(grid, layout).items():
+                relief[key].append(heights)
+        relief["ordinary"] += [evaluate.height_field(g, layout.up).ravel() for g in ordinary]
+    spread = {key: float(np.std(np.concatenate(v))) for key, v in relief.items()}
+    out["relief (std of heights, voxels): tile corners / tile centres / ordinary samples"] = \
+        f"{spread['corners']:.2f} / {spread['centres']:.2f} / {spread['ordinary']:.2f}" + \
+        (f" (centres {spread['centres'] / spread['corners'] - 1:+.0%} against corners)" if spread["corners"] else "")
     return out
 
 
@@ -189,7 +225,7 @@ def main():
     parser.add_argument("--models", nargs="+", default=["terrain", "acropolis", "towerruins"])
     parser.add_argument("--block", type=int, default=4)
     parser.add_argument("--windows", type=int, default=100)
-    parser.add_argument("--sections", nargs="+", default=["seams", "cost", "quality"])
+    parser.add_argument("--sections", nargs="+", default=["seams", "cost", "quality", "repetition"])
     parser.add_argument("--blend", type=float, default=None)
     args = parser.parse_args()
     if args.blend is not None:
@@ -203,7 +239,8 @@ def main():
         print("| measure | value |\n|---|---|")
         for section in args.sections:
             figures = {"seams": lambda: seams(model, args.block), "cost": lambda: cost(model, name),
-                       "quality": lambda: quality(model, name, args.windows)}[section]()
+                       "quality": lambda: quality(model, name, args.windows),
+                       "repetition": lambda: repetition(model)}[section]()
             for key, value in figures.items():
                 print(f"| {key} | {value} |", flush=True)
 
