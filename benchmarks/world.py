@@ -21,6 +21,7 @@ way to the next) for a comparison.
 """
 
 import argparse
+import dataclasses
 import subprocess
 import sys
 import tempfile
@@ -40,27 +41,29 @@ from sinshape.runtime.query import dense
 ROOT = Path(__file__).resolve().parent.parent
 LARGE = (2.5, 2.5, 1.0)  # horizontal factors of the ordinary samples windows are also cut from
 STRIP = 24  # tiles along the axis whose autocorrelation is measured
+ARRANGE = {"terrain": "blend", "acropolis": "scatter", "towerruins": "scatter"}  # landscape or object
 TRAINING_INPUTS = {"terrain": "shape", "acropolis": "shape", "towerruins": ROOT / "tests/data/towerruins/towerruins.obj"}
 
 
-def world_grid(model, seed: int, rows: range, columns: range, scale: float = 1.0) -> np.ndarray:
+def world_grid(model, seed: int, rows: range, columns: range, scale: float = 1.0,
+               options: world.WorldOptions = world.PLAIN) -> np.ndarray:
     """Occupancy of a block of tiles as one grid (each shared face once)."""
     h0, h1 = world.world_layout(model).horizontal
     strips = []
     for i in rows:
-        row = [world.tile_occupancy(model, seed, (i, j), scale) for j in columns]
+        row = [world.tile_occupancy(model, seed, (i, j), scale, options=options) for j in columns]
         row = [np.take(t, range(0 if k == 0 else 1, t.shape[h1]), axis=h1) for k, t in enumerate(row)]
         strips.append(np.concatenate(row, axis=h1))
     strips = [np.take(s, range(0 if k == 0 else 1, s.shape[h0]), axis=h0) for k, s in enumerate(strips)]
     return np.concatenate(strips, axis=h0)
 
 
-def seams(model, block: int) -> dict:
+def seams(model, block: int, options) -> dict:
     layout = world.world_layout(model)
     h0, h1 = layout.horizontal
     out = {}
     for scale in (1.0, 2.0):
-        grids = {(i, j): world.tile_occupancy(model, 3, (i, j), scale) for i in range(block) for j in range(block)}
+        grids = {(i, j): world.tile_occupancy(model, 3, (i, j), scale, options=options) for i in range(block) for j in range(block)}
         worst = 0.0
         for (i, j), grid in grids.items():
             for di, dj, axis in ((1, 0, h0), (0, 1, h1)):
@@ -70,16 +73,26 @@ def seams(model, block: int) -> dict:
         out[f"face difference, scale {scale:g}"] = worst
     matched = total = 0
     for i in range(block - 1):
-        a, b = (world.tile_mesh(model, 3, (i, 0))[0], world.tile_mesh(model, 3, (i + 1, 0))[0])
+        a, b = (world.tile_mesh(model, 3, (i, 0), options=options)[0],
+                world.tile_mesh(model, 3, (i + 1, 0), options=options)[0])
         on_a = {tuple(v) for v in a[a[:, h0] == layout.stride[h0]] - np.eye(3)[h0] * layout.stride[h0]}
         on_b = {tuple(v) for v in b[b[:, h0] == 0]}
         matched, total = matched + len(on_a & on_b), total + len(on_a | on_b)
     out["border vertices matched"] = f"{matched} of {total}"
+    same = total_normals = 0
+    for i in range(block - 1):
+        a, b = (world.tile_surface(model, 3, (i, 0), options=options), world.tile_surface(model, 3, (i + 1, 0), options=options))
+        on_a = {tuple(v - np.eye(3)[h0] * layout.stride[h0]): tuple(n) for v, n in zip(a.vertices, a.normals)
+                if v[h0] == layout.stride[h0]}
+        on_b = {tuple(v): tuple(n) for v, n in zip(b.vertices, b.normals) if v[h0] == 0}
+        same += sum(on_a[v] == on_b.get(v) for v in on_a)
+        total_normals += len(on_a)
+    out["border normals equal to the bit"] = f"{same} of {total_normals}"
     vertices, faces = [], []
     count = 0
     for i in range(block):
         for j in range(block):
-            v, f = world.tile_mesh(model, 3, (i, j))
+            v, f = world.tile_mesh(model, 3, (i, j), options=options)
             vertices.append(v + np.array(world.tile_corner(model, (i, j))))
             faces.append(f + count)
             count += len(v)
@@ -97,27 +110,38 @@ def seams(model, block: int) -> dict:
     return out
 
 
-def cost(model, name: str) -> dict:
+def cost(model, name: str, options) -> dict:
+    """Seconds and traced memory of a tile (mesh, normals and all) with no
+    window kept, at four distances and at each coarser level of detail,
+    measured alternately, best of 3; and a `sinrun world` job."""
     out = {}
     distances = [0, 10**3, 10**6, 10**9]
-    best = {d: (np.inf, 0) for d in distances}
+    levels = range(1, len(model.manifest.sizes))
+    kinds = [("distance", d) for d in distances] + [("lod", lod) for lod in levels]
+    best = {kind: (np.inf, 0) for kind in kinds}
     for _ in range(3):
-        for d in distances:
+        for kind in kinds:
+            d, chosen = (kind[1], options) if kind[0] == "distance" else (0, dataclasses.replace(options, lod=kind[1]))
             world._windows.clear()
             tracemalloc.start()
             started = time.perf_counter()
-            world.tile_mesh(model, 3, (d, -d))
+            world.tile_surface(model, 3, (d, -d), options=chosen)
             seconds = time.perf_counter() - started
             peak = tracemalloc.get_traced_memory()[1]
             tracemalloc.stop()
-            best[d] = (min(best[d][0], seconds), max(best[d][1], peak))
-    for d in distances:
-        out[f"tile at {d:g}: s / MB"] = f"{best[d][0]:.3f} / {best[d][1] / 2**20:.1f}"
-    with tempfile.TemporaryDirectory() as folder:
-        started = time.perf_counter()
-        subprocess.run([str(Path(sys.executable).with_name("sinrun")), "world", name, "--tiles", "0:5,0:5", "-o",
-                        folder], check=True, capture_output=True)
-        out["tiles/s, sinrun world (36 tiles, all cores)"] = f"{36 / (time.perf_counter() - started):.2f}"
+            best[kind] = (min(best[kind][0], seconds), max(best[kind][1], peak))
+    full = best[("distance", 0)][0]
+    for kind, (seconds, peak) in best.items():
+        label = f"tile at {kind[1]:g}" if kind[0] == "distance" else f"tile at lod {kind[1]} (x full)"
+        ratio = f" ({seconds / full:.2f}x)" if kind[0] == "lod" else ""
+        out[f"{label}: s / MB"] = f"{seconds:.3f}{ratio} / {peak / 2**20:.1f}"
+    for workers in (1, 2):
+        with tempfile.TemporaryDirectory() as folder:
+            started = time.perf_counter()
+            subprocess.run([str(Path(sys.executable).with_name("sinrun")), "world", name, "--tiles", "0:5,0:5", "-o",
+                            folder, "--workers", str(workers), "--arrange", options.arrange], check=True,
+                           capture_output=True)
+            out[f"tiles/s, sinrun world (36 tiles, {workers} workers)"] = f"{36 / (time.perf_counter() - started):.2f}"
     return out
 
 
@@ -129,7 +153,7 @@ def reference_of(name: str, model, folder: Path) -> np.ndarray:
     return reference_grid(source, model.manifest)
 
 
-def quality(model, name: str, windows: int) -> dict:
+def quality(model, name: str, windows: int, options) -> dict:
     layout = world.world_layout(model)
     h0, h1 = layout.horizontal
     finest = model.manifest.sizes[-1]
@@ -139,7 +163,7 @@ def quality(model, name: str, windows: int) -> dict:
     cut = []
     per_world = max(1, windows // 10)
     for seed in range(10):
-        grid = world_grid(model, seed, range(4), range(4)) > 0.5
+        grid = world_grid(model, seed, range(4), range(4), options=options) > 0.5
         for _ in range(per_world):
             start = [0, 0, 0]
             for axis in (h0, h1):
@@ -164,7 +188,7 @@ def quality(model, name: str, windows: int) -> dict:
     return out
 
 
-def strips(model, seeds) -> dict:
+def strips(model, seeds, options) -> dict:
     """Per horizontal axis, long strips of the world (STRIP tiles along it,
     3 across) and ordinary samples as large, one of each per seed."""
     layout = world.world_layout(model)
@@ -173,7 +197,7 @@ def strips(model, seeds) -> dict:
     out = {}
     for axis, other in ((h0, h1), (h1, h0)):
         block = {axis: range(STRIP), other: range(3)}
-        worlds = [world_grid(model, seed, block[h0], block[h1]) for seed in seeds]
+        worlds = [world_grid(model, seed, block[h0], block[h1], options=options) for seed in seeds]
         factors = [1.0, 1.0, 1.0]
         for a in (h0, h1):
             factors[a] = worlds[0].shape[a] / finest[a]
@@ -194,7 +218,7 @@ def zones(grid: np.ndarray, layout, width: float = 0.1) -> dict:
     return {"corners": height[np.ix_(*corner)].ravel(), "centres": height[np.ix_(*centre)].ravel()}
 
 
-def repetition(model, seeds=(7, 8)) -> dict:
+def repetition(model, options, seeds=(7, 8)) -> dict:
     """The height field's autocorrelation at the tile period S and its
     multiples along each horizontal axis, world against ordinary samples as
     long (mean over `seeds`); and the relief (std of heights) at tile
@@ -202,7 +226,7 @@ def repetition(model, seeds=(7, 8)) -> dict:
     layout = world.world_layout(model)
     out = {}
     relief = {"corners": [], "centres": [], "ordinary": []}
-    for axis, (worlds, ordinary) in strips(model, seeds).items():
+    for axis, (worlds, ordinary) in strips(model, seeds, options).items():
         period = layout.stride[axis]
         lags = [period // 2, period, 2 * period, 3 * period]
         for label, grids in (("world", worlds), ("an ordinary sample as long", ordinary)):
@@ -213,10 +237,62 @@ def repetition(model, seeds=(7, 8)) -> dict:
             for key, heights in zones(grid, layout).items():
                 relief[key].append(heights)
         relief["ordinary"] += [evaluate.height_field(g, layout.up).ravel() for g in ordinary]
+    if options.arrange != "blend":  # tiles neither blend at their centres nor hold one window at their corners
+        relief.pop("corners"), relief.pop("centres")
+        out["relief (std of heights, voxels): ordinary samples"] = f"{np.std(np.concatenate(relief['ordinary'])):.2f}"
+        return out
     spread = {key: float(np.std(np.concatenate(v))) for key, v in relief.items()}
     out["relief (std of heights, voxels): tile corners / tile centres / ordinary samples"] = \
         f"{spread['corners']:.2f} / {spread['centres']:.2f} / {spread['ordinary']:.2f}" + \
         (f" (centres {spread['centres'] / spread['corners'] - 1:+.0%} against corners)" if spread["corners"] else "")
+    return out
+
+
+def painted_map(tiles: int, relief: float) -> np.ndarray:
+    """A designer's map over tiles x tiles: two hills and a valley between,
+    heights 0 to `relief` voxels (what a brush would paint)."""
+    r = (np.arange(tiles) + 0.5) / tiles
+    u, v = r[:, None], r[None, :]
+    hills = np.exp(-((u - 0.3) ** 2 + (v - 0.3) ** 2) / 0.02) + 0.8 * np.exp(-((u - 0.7) ** 2 + (v - 0.65) ** 2) / 0.03)
+    valley = 0.5 * np.exp(-((u - v) ** 2) / 0.01)
+    heights = np.clip(hills - valley + 0.3, 0, None)
+    return relief * heights / heights.max()
+
+
+def world_heights(model, seed: int, tiles: int, options) -> np.ndarray:
+    """The height field (occupied voxels per column) of tiles x tiles from
+    (0, 0), each tile's shared faces once: (tiles S0 + 1, tiles S1 + 1)."""
+    layout = world.world_layout(model)
+    rows = []
+    for i in range(tiles):
+        row = [evaluate.height_field(world.tile_occupancy(model, seed, (i, j), options=options), layout.up)
+               for j in range(tiles)]
+        row = [t[:, (0 if k == 0 else 1):] for k, t in enumerate(row)]
+        rows.append(np.concatenate(row, axis=1))
+    return np.concatenate([r[(0 if k == 0 else 1):] for k, r in enumerate(rows)], axis=0)
+
+
+def large_shape(model, options, tiles: int = 32, relief_factor: float = 4.0) -> dict:
+    """A world of tiles x tiles painted with painted_map (relief_factor
+    times the model's height): its large-scale relief (the std of each
+    tile's mean height) against the model's own height band (the std of an
+    ordinary sample's heights) and the plain world's, and how it follows
+    the map (correlation of each tile's mean height with its pixel)."""
+    layout = world.world_layout(model)
+    relief = relief_factor * layout.stride[layout.up]
+    heights = painted_map(tiles, relief)
+    painted = dataclasses.replace(options, heights=world.HeightMap.of(heights))
+    out = {}
+    band = float(np.std(evaluate.height_field(dense(model, sample(model, 7)), layout.up)))
+    for label, chosen in (("plain", options), (f"painted, relief {relief:g} voxels", painted)):
+        field = world_heights(model, 7, tiles, chosen)
+        s0, s1 = layout.stride[layout.horizontal[0]], layout.stride[layout.horizontal[1]]
+        means = field[:tiles * s0, :tiles * s1].reshape(tiles, s0, tiles, s1).mean(axis=(1, 3))
+        out[f"{tiles}x{tiles} tiles, {label}: large-scale relief (std of tile means) / model's band"] = \
+            f"{means.std():.2f} / {band:.2f} voxels ({means.std() / band:.1f}x)"
+        if chosen is painted:
+            out[f"... correlation of tile means with the painted heights"] = \
+                f"{np.corrcoef(means.ravel(), heights.ravel())[0, 1]:.3f}"
     return out
 
 
@@ -225,22 +301,31 @@ def main():
     parser.add_argument("--models", nargs="+", default=["terrain", "acropolis", "towerruins"])
     parser.add_argument("--block", type=int, default=4)
     parser.add_argument("--windows", type=int, default=100)
-    parser.add_argument("--sections", nargs="+", default=["seams", "cost", "quality", "repetition"])
+    parser.add_argument("--sections", nargs="+", default=["seams", "cost", "quality", "repetition", "map"])
     parser.add_argument("--blend", type=float, default=None)
+    parser.add_argument("--contrast", type=float, default=None, help="world.CONTRAST, for a comparison")
+    parser.add_argument("--pitch", type=int, default=None, help="world.PITCH, for a comparison")
+    parser.add_argument("--presence", type=float, default=None, help="world.PRESENCE, for a comparison")
+    parser.add_argument("--arrange", choices=world.ARRANGEMENTS, default=None,
+                        help="every model's arrangement (default: ARRANGE's, each model's own)")
     args = parser.parse_args()
-    if args.blend is not None:
-        world.BLEND = args.blend
-    print(f"world.BLEND = {world.BLEND}")
+    for name in ("blend", "contrast", "pitch", "presence"):
+        if getattr(args, name) is not None:
+            setattr(world, name.upper(), getattr(args, name))
+    print(f"world.BLEND = {world.BLEND}, CONTRAST = {world.CONTRAST}, PITCH = {world.PITCH}, PRESENCE = {world.PRESENCE}")
     for name in args.models:
         model = load_model(models.find(name))
+        options = world.WorldOptions(arrange=args.arrange or ARRANGE[name])
         layout = world.world_layout(model)
         print(f"\n## {name}: up {model.manifest.up}, tiles of {layout.stride[layout.horizontal[0]]} x "
-              f"{layout.stride[layout.horizontal[1]]} voxels, windows {'x'.join(map(str, model.manifest.sizes[-1]))}\n")
+              f"{layout.stride[layout.horizontal[1]]} voxels, windows {'x'.join(map(str, model.manifest.sizes[-1]))}, "
+              f"{options.arrange}\n")
         print("| measure | value |\n|---|---|")
         for section in args.sections:
-            figures = {"seams": lambda: seams(model, args.block), "cost": lambda: cost(model, name),
-                       "quality": lambda: quality(model, name, args.windows),
-                       "repetition": lambda: repetition(model)}[section]()
+            figures = {"seams": lambda: seams(model, args.block, options), "cost": lambda: cost(model, name, options),
+                       "quality": lambda: quality(model, name, args.windows, options),
+                       "repetition": lambda: repetition(model, options),
+                       "map": lambda: large_shape(model, options)}[section]()
             for key, value in figures.items():
                 print(f"| {key} | {value} |", flush=True)
 

@@ -29,7 +29,8 @@ OPTIONS = {"scale": "--scale", "factors": "--size", "smooth": "--smooth", "threa
            "train_depth": "--train-depth", "focus": "--focus", "up": "--up", "resume": "--resume",
            "size": "--size", "keep": "--keep", "layout": "--layout", "recon": "--recon",
            "output": "--output", "tile": "--tiles", "frame": "--frame", "force": "--force",
-           "no_colour": "--no-colour", "d_steps": "--d-steps", "d_rate": "--d-rate"}
+           "no_colour": "--no-colour", "d_steps": "--d-steps", "d_rate": "--d-rate", "arrange": "--arrange",
+           "heights": "--map", "relief": "--relief", "lod": "--lod"}
 # ctx.meta key: {parameter: what set it} where a command's value came from elsewhere than OPTIONS says.
 SOURCES = "sinrun.sources"
 # The extra that installs each optional module (pyproject.toml): a command
@@ -395,27 +396,43 @@ def run_job(job, items, unit: str, name) -> None:
 @click.option("--engine", type=click.Choice(["local", "ray"]), default="local", show_default=True,
               help="This machine's cores, or a Ray cluster (pip install 'sinshape[ray]').")
 @click.option("--address", default=None, help="With --engine ray: the cluster's address.")
-def world(model, seed, tiles, output, suffix, scale, frame, threads, workers, engine, address):
+@click.option("--arrange", type=click.Choice(["blend", "scatter"]), default="blend", show_default=True,
+              help="blend: samples blended into one continuing surface (terrain, rock, walls); scatter: whole "
+                   "samples, one in most cells of three tiles a side, at drawn places, on a ground (a temple, "
+                   "a tower).")
+@click.option("--map", "height_map", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
+              help="The world's large shape: a greyscale .png (black low, white --relief voxels high; a column "
+                   "per tile along the first horizontal axis, a row per tile up the second, from tile 0,0) or a "
+                   ".npy array of heights in voxels, [i, j] for tile i,j. Beyond it, its edge goes on.")
+@click.option("--relief", type=float, default=None,
+              help="Voxels from a .png map's black to its white. Default: 4 times the model's height.")
+@click.option("--lod", type=int, default=0, show_default=True,
+              help="Levels of detail coarser than the finest: distant tiles, cheaper, with a skirt that hides "
+                   "the crack where they meet finer ones.")
+def world(model, seed, tiles, output, suffix, scale, frame, threads, workers, engine, address, arrange, height_map,
+          relief, lod):
     """Write tiles of an endless world: any tile on its own, seamless with its neighbours.
 
     The world spreads along the model's two horizontal axes (the two that are
     not its up axis: `sinrun info` names it). Every tile depends only on the
-    model, the seed and its place, so tiles join without a crack whatever
-    was made before, and a tile a billion tiles away costs what tile 0,0 costs.
+    model, the seed, the map and its place, so tiles join without a crack
+    whatever was made before, and a tile a billion tiles away costs what
+    tile 0,0 costs.
     """
     from sinshape.runtime import world as worlds, write
     from sinshape.runtime.request import SampleRequest
 
     loaded = open_model(model, threads)
+    heights = worlds.read_height_map(height_map, loaded, relief) if height_map else None
+    wanted = SampleRequest(seed, scale=scale, frame=frame, arrange=arrange, heights=heights, lod=lod)
     output = output or Path(f"{loaded.path.stem}_world_seed{seed}")
     if output.suffix.lower() in files.MESH_FORMATS and "{tile}" not in output.name:  # one mesh of the block
         with StageProgress() as show:
-            write.write_block(loaded, SampleRequest(seed, scale=scale, frame=frame), tiles, output,
-                              lambda done, total: show("tiles", done, total))
+            write.write_block(loaded, wanted, tiles, output, lambda done, total: show("tiles", done, total))
         return click.echo(f"wrote {output} ({len(tiles)} tiles)")
     pattern = output if "{tile}" in output.name else output / f"tile_{{tile}}.{suffix}"
-    run_job(lambda progress: worlds.write_tiles(loaded.path, iter(tiles), pattern, SampleRequest(seed, scale=scale,
-                                                frame=frame), engine, workers, threads, address, progress),
+    run_job(lambda progress: worlds.write_tiles(loaded.path, iter(tiles), pattern, wanted, engine, workers, threads,
+                                                address, progress),
             tiles, "tiles", lambda tile: pattern.with_name(pattern.name.replace("{tile}", f"{tile[0]}_{tile[1]}")))
 
 
