@@ -29,8 +29,9 @@ OPTIONS = {"scale": "--scale", "factors": "--size", "smooth": "--smooth", "threa
            "train_depth": "--train-depth", "focus": "--focus", "up": "--up", "resume": "--resume",
            "size": "--size", "keep": "--keep", "layout": "--layout", "recon": "--recon",
            "output": "--output", "tile": "--tiles", "frame": "--frame", "force": "--force",
-           "no_colour": "--no-colour", "d_steps": "--d-steps", "d_rate": "--d-rate", "arrange": "--arrange",
-           "heights": "--map", "relief": "--relief", "lod": "--lod"}
+           "no_colour": "--no-colour", "d_steps": "--d-steps", "d_rate": "--d-rate",
+           "asset_folder": "--asset-folder", "restart": "--restart", "arrange": "--arrange", "heights": "--map",
+           "relief": "--relief", "lod": "--lod"}
 # ctx.meta key: {parameter: what set it} where a command's value came from elsewhere than OPTIONS says.
 SOURCES = "sinrun.sources"
 # The extra that installs each optional module (pyproject.toml): a command
@@ -125,6 +126,13 @@ class TrainCommand(Command):
             formatter.write_text(f"--device auto --precision auto picks {picked}.")
 
 
+ASSET_FOLDER_OPTION = click.option(
+    "--asset-folder", type=click.Path(file_okay=False, path_type=Path), default=None,
+    help="The folder the files a mesh names (an .obj's .mtl and textures, a .gltf's buffers and images) must lie "
+         "in, links followed. Default: the mesh's own folder; give a folder above it for textures kept beside it "
+         "(../textures/wall.png).")
+
+
 @cli.command(cls=TrainCommand)
 @click.argument("input_path", metavar="INPUT", type=click.Path(path_type=Path))
 @click.option("-o", "--output", type=click.Path(path_type=Path), required=True,
@@ -188,14 +196,15 @@ class TrainCommand(Command):
               help="Train geometry only, reading no colour. By default a mesh with colour (vertex colours, "
                    "or a base-colour texture of a .glb/.gltf, or of an .obj with its .mtl and image) "
                    "trains a coloured model, and colour that cannot be read is an error.")
+@ASSET_FOLDER_OPTION
 @click.option("--resume", is_flag=True,
               help="Continue an interrupted run from its checkpoint, skipping finished levels, "
-                   "with the checkpoint's settings.")
+                   "with the checkpoint's settings. Refused when the mesh or the files it names have changed.")
 @click.option("--checkpoint", type=click.Path(path_type=Path), default=None,
               help="Checkpoint file. Default: MODEL.ckpt.pt beside the output.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress output.")
 def train(input_path, output, preset, res, levels, iters, minutes, min_iters, device, precision, box, train_depth, lr,
-          d_steps, d_rate, seed, up, generator, no_colour, resume, checkpoint, quiet):
+          d_steps, d_rate, seed, up, generator, no_colour, asset_folder, resume, checkpoint, quiet):
     """Train a model on one example shape and export it as one .onnx file.
 
     INPUT is a mesh (.obj, .ply, .stl, .off, .glb; not necessarily watertight)
@@ -215,7 +224,8 @@ def train(input_path, output, preset, res, levels, iters, minutes, min_iters, de
     try:
         with TrainProgress(quiet=quiet) as progress:
             manifest = training.train(input_path, output, config, resume=resume, device=device, colour=not no_colour,
-                                      checkpoint_path=checkpoint, progress=progress, log=progress.log)
+                                      checkpoint_path=checkpoint, progress=progress, log=progress.log,
+                                      asset_folder=asset_folder)
     except training.Interrupted as error:  # Ctrl-C or `kill` (Terminated): a checkpoint was saved
         exit_stopped(error.__context__, command_line_message(error))
     except training.TrainingDiverged as error:  # OPTIONS has no seed: sample's come from --seed, --seeds, --keep
@@ -254,6 +264,12 @@ def mesh_options(command):
     ]):
         command = option(command)
     return command
+
+
+RESTART_OPTION = click.option(
+    "--restart", is_flag=True,
+    help="Make every file again where the index beside the outputs records another job (another model, seed, "
+         "request or file name), which a rerun otherwise refuses, naming the difference.")
 
 
 def open_model(model, threads):
@@ -304,8 +320,9 @@ def open_model(model, threads):
 @click.option("--address", default=None,
               help="With --engine ray: the cluster's address. Default: Ray's own (RAY_ADDRESS, else a "
                    "local Ray on this machine).")
+@RESTART_OPTION
 def sample(model, seed, seeds, recon, keep, layout_file, resample_layout, grow_by, anchor, scale, size, output, smooth, smoother, largest, frame, threads, workers,
-           engine, address):
+           engine, address, restart):
     """Generate new shapes from a model and write them as meshes.
 
     MODEL is a .onnx file from `sinrun train` or the name of a shipped model
@@ -315,9 +332,9 @@ def sample(model, seed, seeds, recon, keep, layout_file, resample_layout, grow_b
     from sinshape.runtime import layout, write
     from sinshape.runtime.request import Layout, SampleRequest
 
-    if seeds is None and (workers is not None or engine != "local" or address is not None):
-        raise ConflictError("workers, engine and address are for many samples: give seeds",
-                            ("workers", "engine", "address", "seeds"))
+    if seeds is None and (workers is not None or engine != "local" or address is not None or restart):
+        raise ConflictError("workers, engine, address and restart are for many samples: give seeds",
+                            ("workers", "engine", "address", "restart", "seeds"))
     loaded = open_model(model, threads)
     laid_out = Layout.of(layout.read_any(loaded, layout_file, size), resample_layout) if layout_file else None
     request = SampleRequest(seed, recon, size, scale, smooth, smoother, largest, frame, keep, grow_by, anchor,
@@ -325,7 +342,7 @@ def sample(model, seed, seeds, recon, keep, layout_file, resample_layout, grow_b
     show_warnings(loaded, request)
     output = output or Path(f"{loaded.path.stem}_{'recon' if recon else 'seed{seed}'}.ply")
     if seeds:
-        return sample_seeds(loaded, seeds, output, engine, workers, threads, address, request)
+        return sample_seeds(loaded, seeds, output, engine, workers, threads, address, request, restart)
     path = named_output(output, seed=request.sample_seed) if "{" in str(output) else output
     with StageProgress() as show:
         write.write_request(loaded, request, path, [layout_file] if layout_file else [], threads,
@@ -333,7 +350,7 @@ def sample(model, seed, seeds, recon, keep, layout_file, resample_layout, grow_b
     click.echo(f"wrote {path}")
 
 
-def sample_seeds(model, seeds, output, engine, workers, threads, address, request) -> None:
+def sample_seeds(model, seeds, output, engine, workers, threads, address, request, restart=False) -> None:
     """`sinrun sample --seeds`: one resumable job, one progress bar."""
     from sinshape.runtime import many, write
 
@@ -345,7 +362,7 @@ def sample_seeds(model, seeds, output, engine, workers, threads, address, reques
     else:
         pattern = output.with_name(f"{output.stem}_seed{{seed}}{output.suffix}")
     run_job(lambda progress: many.sample_many(model.path, iter(seeds), pattern, engine, workers, threads, address,
-                                              progress=progress, request=request),
+                                              progress=progress, request=request, restart=restart),
             seeds, "seeds", lambda seed: named_output(pattern, seed=seed))
 
 
@@ -409,8 +426,9 @@ def run_job(job, items, unit: str, name) -> None:
 @click.option("--lod", type=int, default=0, show_default=True,
               help="Levels of detail coarser than the finest: distant tiles, cheaper, with a skirt that hides "
                    "the crack where they meet finer ones.")
+@RESTART_OPTION
 def world(model, seed, tiles, output, suffix, scale, frame, threads, workers, engine, address, arrange, height_map,
-          relief, lod):
+          relief, lod, restart):
     """Write tiles of an endless world: any tile on its own, seamless with its neighbours.
 
     The world spreads along the model's two horizontal axes (the two that are
@@ -432,7 +450,7 @@ def world(model, seed, tiles, output, suffix, scale, frame, threads, workers, en
         return click.echo(f"wrote {output} ({len(tiles)} tiles)")
     pattern = output if "{tile}" in output.name else output / f"tile_{{tile}}.{suffix}"
     run_job(lambda progress: worlds.write_tiles(loaded.path, iter(tiles), pattern, wanted, engine, workers, threads,
-                                                address, progress),
+                                                address, progress, restart),
             tiles, "tiles", lambda tile: pattern.with_name(pattern.name.replace("{tile}", f"{tile[0]}_{tile[1]}")))
 
 
@@ -574,17 +592,19 @@ def orient(model, up, output):
               help="Where the --zoom box is centred, as fractions of the shape's bounding box per axis.")
 @click.option("--azimuth", type=float, default=35.0, show_default=True, help="Camera angle around the up axis.")
 @click.option("--elevation", type=float, default=25.0, show_default=True, help="Camera angle above the ground.")
+@ASSET_FOLDER_OPTION
 @THREADS_OPTION
 def render(inputs, output, seeds, recon, scale, size, smooth, views, up, columns, image_size, zoom, focus,
-           azimuth, elevation, threads):
+           azimuth, elevation, asset_folder, threads):
     """Draw shaded pictures of meshes or of a model's samples, headless.
 
-    Each input is a mesh file (drawn as it is) or a model (.onnx or a shipped
+    Each input is a mesh file (drawn as it is, in its colours: vertex colours
+    or its texture, as training reads them) or a model (.onnx or a shipped
     name; its samples are drawn, labelled by seed). Several inputs make one
     picture, e.g. `sinrun render towerruins.obj towerruins --seeds 1-3`
     shows the training mesh beside three samples.
     """
-    from sinshape.runtime import render as draw, write
+    from sinshape.runtime import render as draw
 
     if output.suffix.lower() != ".png":
         raise InputError(f"{output}: the picture is written as .png")
@@ -592,11 +612,11 @@ def render(inputs, output, seeds, recon, scale, size, smooth, views, up, columns
     if views < 1 or columns < 1 or image_size < 16:
         raise click.UsageError("--views and --columns must be at least 1, --image-size at least 16")
     draw.check_view(zoom, azimuth, elevation)  # before any model is loaded
-    items = [Path(item) if Path(item).is_file() and Path(item).suffix.lower() in write.MESH_FORMATS
-             else open_model(item, threads) for item in inputs]
+    items = [Path(item) if draw.is_mesh_file(item) else open_model(item, threads) for item in inputs]
     with StageProgress() as show:
         picture = draw.draw_shapes(items, seeds, recon, size, scale, smooth, views, up, columns, image_size, zoom,
-                                   focus, azimuth, elevation, progress=show)
+                                   focus, azimuth, elevation, progress=show, asset_folder=asset_folder,
+                                   warn=lambda said: click.echo(f"Warning: {command_line_message(said)}", err=True))
     draw.save_png(picture, output)
     click.echo(f"wrote {output} ({picture.shape[1]}x{picture.shape[0]})")
 

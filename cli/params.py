@@ -93,8 +93,8 @@ class TileBlock:
     def __init__(self, rows: range, columns: range):
         self.rows, self.columns = rows, columns
 
-    def __len__(self) -> int:
-        return len(self.rows) * len(self.columns)
+    def __len__(self) -> int:  # len() of a range or a count past 2**63 would overflow
+        return min((self.rows.stop - self.rows.start) * (self.columns.stop - self.columns.start), sys.maxsize)
 
     def __iter__(self):
         return ((i, j) for i in self.rows for j in self.columns)

@@ -20,11 +20,6 @@ of the surface, where vertices land.
 numpy, scipy and Pillow only (no torch).
 """
 
-import base64
-import io
-import json
-import re
-import struct
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -33,11 +28,8 @@ import numpy as np
 from sinshape.core.errors import InputError
 from sinshape.core.manifest import linear_to_srgb, srgb_to_linear
 
-# A texture larger than this is refused before it is decoded: 16k a side is
-# the largest in common use; 2^27 pixels (16k x 8k) keeps its float copy
-# near 1.6 GB, and below Pillow's own decompression-bomb limit.
-MAX_TEXTURE_SIDE = 16384
-MAX_TEXTURE_PIXELS = 1 << 27
+from .meshfiles import check_texture_size, mtl_map
+
 # Surface samples per finest voxel face of area, at least: the nearest sample
 # is then within about a third of a voxel of the nearest surface point.
 SAMPLES_PER_VOXEL_AREA = 8
@@ -57,18 +49,19 @@ class SurfaceColour:
 
     points: np.ndarray  # (n, 3) float64
     rgb: np.ndarray  # (n, 3) float32 in [0, 1]
+    read: str = ""  # what the colour was read from, in words
+    warnings: tuple = ()  # what a user would not expect of it, in words
 
 
 def texture_array(image, name: str) -> np.ndarray:
     """A PIL image as (H, W, 3) float32 sRGB in [0, 1], refused when absurdly large."""
-    width, height = image.size
-    if not (1 <= width <= MAX_TEXTURE_SIDE and 1 <= height <= MAX_TEXTURE_SIDE) or width * height > MAX_TEXTURE_PIXELS:
-        raise InputError(f"{name}: a {width}x{height} texture is not a usable size (at most {MAX_TEXTURE_SIDE} "
-                         f"pixels a side and {MAX_TEXTURE_PIXELS} in all)")
+    check_texture_size(*image.size, name)
     try:
-        return np.asarray(image.convert("RGB"), dtype=np.float32) / 255
+        texture = np.asarray(image.convert("RGB"), dtype=np.float32)
     except (OSError, ValueError) as error:
         raise InputError(f"{name}: cannot decode its texture ({str(error).splitlines()[0][:200]})") from None
+    texture /= 255  # in place: a second float copy would be the largest thing held
+    return texture
 
 
 def sample_texture(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
@@ -109,9 +102,9 @@ def corner_colours(geometry, name: str, linear_vertex_colours: bool):
     material = visual.material
     factor = np.ones(3, np.float32)
     base = getattr(material, "baseColorFactor", None)
-    if base is not None:  # glTF: base colour = factor x texture (the factor is linear)
+    if base is not None:  # glTF: base colour = factor x texture x COLOR_0 (all linear)
         factor = np.asarray(base, dtype=np.float32)[:3]
-        factor = factor / 255 if factor.max() > 1 else factor
+        factor = factor / 255 if np.asarray(base).dtype.kind in "ui" else factor  # trimesh keeps bytes
     image = getattr(material, "baseColorTexture", None)  # glTF's (PBRMaterial)
     image = getattr(material, "image", None) if image is None else image  # OBJ's (SimpleMaterial)
     if image is None:  # a material of one colour
@@ -123,16 +116,84 @@ def corner_colours(geometry, name: str, linear_vertex_colours: bool):
         else:
             colour = linear_to_srgb(factor)
         return lambda face, weights: np.broadcast_to(colour, (len(face), 3))
-    uv = np.asarray(visual.uv, dtype=np.float64)
-    if uv.ndim != 2 or len(uv) != len(geometry.vertices):
-        raise InputError(f"{name}: its UVs do not match its vertices ({len(uv)} for {len(geometry.vertices)})")
-    if not np.isfinite(uv).all():
-        raise InputError(f"{name}: NaN or infinite texture coordinates")
+    uv = texture_coordinates(geometry, image, name)
     texture = texture_array(image, name)
     faces = geometry.faces
     if base is not None and not np.allclose(factor, 1):
         texture = linear_to_srgb(srgb_to_linear(texture) * factor).astype(np.float32)
-    return lambda face, weights: sample_texture(texture, np.einsum("nk,nkc->nc", weights, uv[faces[face]]))
+    tint = gltf_vertex_colours(geometry, name) if linear_vertex_colours else None
+    if tint is None:
+        return lambda face, weights: sample_texture(texture, np.einsum("nk,nkc->nc", weights, uv[faces[face]]))
+    return lambda face, weights: linear_to_srgb(
+        srgb_to_linear(sample_texture(texture, np.einsum("nk,nkc->nc", weights, uv[faces[face]])))
+        * np.einsum("nk,nkc->nc", weights, tint[faces[face]]))
+
+
+# UVs beyond this are refused as coordinates beyond MAX_COORDINATE are: a
+# million repeats of a 16k texture still address its pixels exactly.
+MAX_UV = 1e6
+
+
+def texture_coordinates(geometry, image, name: str) -> np.ndarray:
+    """A textured geometry's UVs, (V, 2) float64, checked as vertex
+    coordinates are (one per vertex, finite, not absurd), with an OBJ
+    texture statement's options applied: -s scales them and -o offsets them
+    (uv * s + o, as three.js's MTLLoader reads them), -clamp on clamps them
+    to [0, 1] rather than repeating."""
+    uv = np.asarray(geometry.visual.uv if geometry.visual.uv is not None else [], dtype=np.float64)
+    if uv.ndim != 2 or uv.shape[1:] != (2,) or len(uv) != len(geometry.vertices):
+        raise InputError(f"{name}: its UVs do not match its vertices ({len(uv)} for {len(geometry.vertices)})")
+    if not np.isfinite(uv).all():
+        raise InputError(f"{name}: NaN or infinite texture coordinates")
+    if len(uv) and np.abs(uv).max() > MAX_UV:
+        raise InputError(f"{name}: texture coordinates beyond +-{MAX_UV:g}")
+    statement = str(getattr(image, "info", {}).get("file_path", ""))  # an OBJ's map_Kd, as written
+    if statement.lstrip().startswith("-"):
+        options = mtl_map(statement)[0]
+        scale = [float(v) for v in options.get("-s", [])] + [1.0, 1.0]  # u [v [w]]: v defaults to 1, w unused
+        offset = [float(v) for v in options.get("-o", [])] + [0.0, 0.0]
+        uv = uv * scale[:2] + offset[:2]
+        if options.get("-clamp", ["off"])[0].lower() == "on":
+            uv = np.clip(uv, 0, 1)
+    return uv
+
+
+def gltf_vertex_colours(geometry, name: str) -> np.ndarray | None:
+    """A textured glTF primitive's COLOR_0, which glTF multiplies into its
+    base colour: (V, 3) float32 linear in [0, 1], or None without one
+    (trimesh keeps it beside the texture as the visual's `color`)."""
+    colours = geometry.visual.vertex_attributes.get("color") if hasattr(geometry.visual, "vertex_attributes") \
+        else None
+    if colours is None:
+        return None
+    colours = np.asarray(colours)
+    if colours.ndim != 2 or colours.shape[1] not in (3, 4) or len(colours) != len(geometry.vertices):
+        raise InputError(f"{name}: its vertex colours (COLOR_0) do not match its vertices")
+    if colours.dtype.kind in "ui":  # normalised integers
+        colours = colours / float(np.iinfo(colours.dtype).max)
+    colours = colours[:, :3].astype(np.float32)
+    if not (np.isfinite(colours).all() and colours.min() >= 0 and colours.max() <= 1):
+        raise InputError(f"{name}: its vertex colours (COLOR_0) must be numbers in [0, 1]")
+    return colours
+
+
+def colour_kind(geometry, gltf: bool) -> str | None:
+    """What gives a geometry its colour, in words: for training to say what
+    it read."""
+    visual = geometry.visual
+    kind = getattr(visual, "kind", None)
+    if kind in ("vertex", "face"):
+        return f"{kind} colours"
+    if kind != "texture":
+        return None
+    material = visual.material
+    if getattr(material, "baseColorTexture", None) is None and getattr(material, "image", None) is None:
+        return "material colour"
+    if gltf and getattr(visual, "vertex_attributes", {}).get("color") is not None:
+        return "texture times vertex colours (COLOR_0, as glTF defines)"
+    if not gltf and getattr(geometry, "vertex_attributes", {}).get("color") is not None:
+        return "texture; its vertex colours are not used"
+    return "texture"
 
 
 def check_ply_colours(geometry, name: str) -> None:
@@ -160,99 +221,87 @@ def sample_faces(triangles: np.ndarray, per_area: float, rng) -> tuple:
     return face, np.stack([1 - a - b, a, b], axis=1)
 
 
-def gltf_textures_readable(data: bytes, path: Path) -> None:
-    """Every image a glTF material uses as its base colour decodes, and has a
-    usable size: trimesh drops a texture it cannot read without a word."""
-    if data[:4] == b"glTF":
-        length = struct.unpack_from("<I", data, 12)[0]
-        meta = json.loads(data[20:20 + length])
-        binary = data[20 + length + 8:] if len(data) > 20 + length + 8 else b""
-    else:
-        meta, binary = json.loads(data), b""
-    images, textures = meta.get("images", []), meta.get("textures", [])
-    used = {textures[m["pbrMetallicRoughness"]["baseColorTexture"]["index"]].get("source")
-            for m in meta.get("materials", []) if "baseColorTexture" in m.get("pbrMetallicRoughness", {})}
-    for index in sorted(i for i in used if i is not None):
-        image = images[index]
-        uri = str(image.get("uri", ""))
-        name = f"{path.name}: base colour image {index if not uri or uri.startswith('data:') else uri}"
-        if "bufferView" in image:
-            view = meta["bufferViews"][image["bufferView"]]
-            raw = binary[view.get("byteOffset", 0):view.get("byteOffset", 0) + view["byteLength"]]
-        elif uri.startswith("data:"):
-            raw = base64.b64decode(uri.split(",", 1)[1])
-        else:
-            file = path.parent / uri
-            if not file.is_file():
-                raise InputError(f"{name} is missing")
-            raw = file.read_bytes()
-        check_image(raw, name)
+def painted_parts(scene, path: Path) -> list | None:
+    """How to colour each part of a read scene (voxelize.scene_parts, in its
+    order): [(vertices (V, 3) float64, faces (F, 3), colour function of (face
+    index, barycentric weights) -> (n, 3) sRGB, what gives it colour in
+    words)], or None when no part has colour. A part without colour beside
+    coloured parts is an InputError: colour is never dropped silently."""
+    from .voxelize import scene_parts
+
+    gltf = path.suffix.lower() in GLTF_SUFFIXES
+    parts = scene_parts(scene)
+    painted, uncoloured = [], []
+    for key, vertices, faces, geometry in parts:
+        colour = corner_colours(geometry, f"{path.name}: {key}" if len(parts) > 1 else path.name, gltf)
+        if colour is None:
+            uncoloured.append(key)
+        painted.append((vertices, faces, colour, colour_kind(geometry, gltf)))
+    if len(uncoloured) == len(painted):
+        return None
+    if uncoloured:
+        raise InputError(f"{path.name}: part {uncoloured[0]} has no colour while others have")
+    return painted
 
 
-def check_image(raw: bytes, name: str) -> None:
-    """An image file's bytes decode, and its size is usable."""
-    from PIL import Image
+def colour_read(scene, kinds) -> tuple:
+    """(what the colour was read from, in words; warnings about it) of a read
+    scene whose parts are coloured by `kinds` (colour_kind's words)."""
+    from .voxelize import REFERENCES
 
-    try:
-        with Image.open(io.BytesIO(raw)) as image:
-            texture_array(image, name)  # the size first, then the pixels
-    except Image.DecompressionBombError:
-        raise InputError(f"{name}: an image of absurd size is not a usable size for a texture") from None
-    except (OSError, ValueError) as error:
-        raise InputError(f"{name}: cannot read it as an image ({str(error).splitlines()[0][:200]})") from None
-
-
-def obj_textures_readable(text: str, path: Path) -> None:
-    """Every material library an OBJ names exists, and every diffuse texture
-    (`map_Kd`) it names reads as an image: trimesh skips missing ones silently."""
-    for library in re.findall(r"^\s*mtllib\s+(.+?)\s*$", text, re.MULTILINE):
-        mtl = path.parent / library
-        if not mtl.is_file():
-            raise InputError(f"{path.name}: its material library {library} is missing")
-        for texture in re.findall(r"^\s*map_Kd\s+(?:-\S+\s+\S+\s+)*(.+?)\s*$", mtl.read_text(errors="replace"),
-                                  re.MULTILINE):
-            file = mtl.parent / texture
-            if not file.is_file():
-                raise InputError(f"{path.name}: its texture {texture} (named in {library}) is missing")
-            check_image(file.read_bytes(), f"{path.name}: texture {texture}")
+    textures = scene.metadata[REFERENCES].textures if REFERENCES in scene.metadata else ()
+    named = ", ".join(f"{t.name} ({t.width}x{t.height})" for t in textures)
+    read = "; ".join(dict.fromkeys(kind.replace("texture", f"texture {named}", 1) if named else kind
+                                   for kind in kinds))
+    warnings = [f"texture {t.name} is one colour (#{''.join(f'{c:02x}' for c in t.one_colour)}): the model "
+                "learns that colour alone" for t in textures if t.one_colour is not None]
+    if any("not used" in kind for kind in kinds):
+        warnings.append("its vertex colours are not used: an OBJ's texture gives its colour (the format does "
+                        "not say how the two combine)")
+    return read, tuple(warnings)
 
 
 def surface_colour(scene, path: Path, data: bytes, voxel: float, seed: int = 0) -> SurfaceColour | None:
-    """The colour of a loaded scene's surface, sampled at SAMPLES_PER_VOXEL_AREA
+    """The colour of a read scene's surface, sampled at SAMPLES_PER_VOXEL_AREA
     points per voxel face of size `voxel` (input units); None when no part
     of it has colour. A part without colour beside coloured parts, or a
     texture that cannot be read, is an InputError: colour is never dropped
     silently (`colour=False`, `--no-colour`, trains geometry alone)."""
-    suffix = path.suffix.lower()
-    if suffix in GLTF_SUFFIXES:
-        gltf_textures_readable(data, path)
-    elif suffix == ".obj":
-        obj_textures_readable(data.decode("latin-1"), path)
+    parts = painted_parts(scene, path)
+    if parts is None:
+        return None
     rng = np.random.default_rng(seed)
-    points, colours, uncoloured = [], [], []
-    for node in scene.graph.nodes_geometry:
-        transform, key = scene.graph[node]
-        geometry = scene.geometry[key]
-        if not hasattr(geometry, "faces") or len(geometry.faces) == 0:
-            continue
-        colour = corner_colours(geometry, f"{path.name}: {key}" if len(scene.geometry) > 1 else path.name,
-                                suffix in GLTF_SUFFIXES)
-        if colour is None:
-            uncoloured.append(str(key))
-            continue
-        vertices = np.asarray(geometry.vertices, np.float64) @ transform[:3, :3].T + transform[:3, 3]
-        triangles = vertices[geometry.faces]
+    points, colours = [], []
+    for vertices, faces, colour, _ in parts:
+        triangles = vertices[faces]
         face, weights = sample_faces(triangles, SAMPLES_PER_VOXEL_AREA / voxel**2, rng)
         points.append(np.einsum("nk,nkc->nc", weights, triangles[face]))
         colours.append(np.asarray(colour(face, weights), np.float32))
-    if not points:
-        return None
-    if uncoloured:
-        raise InputError(f"{path.name}: part {uncoloured[0]} has no colour while others have")
     rgb = np.concatenate(colours)
     if not np.isfinite(rgb).all():
         raise InputError(f"{path.name}: NaN or infinite colours")
-    return SurfaceColour(np.concatenate(points), np.clip(rgb, 0, 1))
+    read, warnings = colour_read(scene, [kind for *_, kind in parts])
+    return SurfaceColour(np.concatenate(points), np.clip(rgb, 0, 1), read, warnings)
+
+
+def surface_painter(scene, path: Path):
+    """A read scene's colour as a function of (face index into its faces in
+    voxelize.scene_mesh's order, barycentric weights (n, 3)) -> (n, 3)
+    sRGB in [0, 1], for drawing it; None when it has no colour."""
+    parts = painted_parts(scene, path)
+    if parts is None:
+        return None
+    offsets = np.cumsum([0] + [len(faces) for _, faces, _, _ in parts])
+
+    def paint(face: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        out = np.empty((len(face), 3), np.float32)
+        part = np.searchsorted(offsets, face, side="right") - 1
+        for index in np.unique(part):
+            chosen = part == index
+            out[chosen] = parts[index][2](face[chosen] - offsets[index], weights[chosen])
+        return np.clip(np.nan_to_num(out), 0, 1)
+
+    return paint
 
 
 def colour_grid(surface: SurfaceColour, box_low, spacing, shape) -> tuple:

@@ -26,7 +26,7 @@ from sinshape.core.files import check_readable
 from sinshape.core.manifest import MAX_LEVEL_SIDE
 
 from . import colour as colours
-from . import voxelize
+from . import meshfiles, voxelize
 
 # The coarsest level's longest side should be 2-3x the discriminator's
 # 11-voxel receptive field: levels are added until it is at most this.
@@ -65,6 +65,12 @@ class Pyramid:
     # (X_i, Y_i, Z_i) float32 weights of the colour loss (the surface band).
     colours: list | None = None
     bands: list | None = None
+    # The SHA-256 of the files the mesh names (prep.meshfiles: its textures,
+    # material libraries, buffers), which a resumed run compares; what its
+    # colour was read from, in words, and warnings about it.
+    files_sha256: str = ""
+    colour_read: str = ""
+    colour_warnings: tuple = ()
 
     @property
     def sizes(self) -> list:
@@ -126,13 +132,19 @@ def file_sha256(path: Path) -> str:
 
 def pyramid_from_mesh(path: Path, res: int, levels: int | None = None,
                       factor: float = LEVEL_FACTOR, min_size: int = MIN_SIZE, check=None,
-                      colour: bool = True) -> Pyramid:
+                      colour: bool = True, asset_folder: Path | None = None) -> Pyramid:
     """Voxelise a mesh file at every level of its pyramid. check(sizes), if
     given, sees the level sizes before any is voxelised (to refuse work up
     front); voxelising that would not fit in memory is refused too. With
     `colour`, a mesh that has colour gets its colour field at every level;
-    without, its colour is not read at all."""
-    scene, data = voxelize.read_scene(path)
+    without, its colour is not read at all (nor its materials and textures).
+    The files it names are read from its folder, or `asset_folder`."""
+    try:
+        scene, data = voxelize.read_scene(path, materials=colour, asset_folder=asset_folder)
+    except InputError as error:  # a texture or material that cannot be read: say what gets past it
+        if "no_colour" not in meshfiles.parameters(error):
+            raise
+        raise type(error)(f"{error} (no_colour trains geometry only)", error.parameter) from None
     mesh = voxelize.scene_mesh(scene, path)
     corners = mesh.vertices[mesh.faces.reshape(-1)]
     low, high = corners.min(axis=0), corners.max(axis=0)
@@ -173,6 +185,9 @@ def pyramid_from_mesh(path: Path, res: int, levels: int | None = None,
         source_kind="mesh",
         colours=[rgb for rgb, _ in fields] if fields else None,
         bands=[colours.band(distance) for _, distance in fields] if fields else None,
+        files_sha256=scene.metadata[voxelize.REFERENCES].sha256,
+        colour_read=surface.read if surface else "",
+        colour_warnings=surface.warnings if surface else (),
     )
 
 
@@ -265,19 +280,20 @@ def _occupancy(grid: np.ndarray, name: str) -> np.ndarray:
     return occupied
 
 
-def load_pyramid(path, res: int, levels: int | None = None,
-                 factor: float = LEVEL_FACTOR, min_size: int = MIN_SIZE, check=None, colour: bool = True) -> Pyramid:
+def load_pyramid(path, res: int, levels: int | None = None, factor: float = LEVEL_FACTOR, min_size: int = MIN_SIZE,
+                 check=None, colour: bool = True, asset_folder: Path | None = None) -> Pyramid:
     """The pyramid of a mesh file (voxelised at `res`) or of an SSG .h5 file
     (which has no colour). check(sizes), if given, sees the level sizes
     before a mesh is voxelised, after an .h5 file is read. `colour`: read a
-    mesh's colour, if it has any."""
+    mesh's colour, if it has any; `asset_folder`: where the files a mesh
+    names may lie (default: its own folder)."""
     path = check_readable(path, "mesh or .h5 file")
     if path.suffix.lower() in PYRAMID_SUFFIXES:
         pyramid = pyramid_from_h5(path, levels)
         if check:
             check(pyramid.sizes)
         return pyramid
-    return pyramid_from_mesh(path, res, levels, factor, min_size, check, colour)
+    return pyramid_from_mesh(path, res, levels, factor, min_size, check, colour, asset_folder)
 
 
 def reference_grid(path, manifest, scale: float = 1.0) -> np.ndarray:

@@ -72,6 +72,8 @@ import trimesh
 from sinshape.core.budget import check_memory
 from sinshape.core.errors import InputError
 
+from . import meshfiles
+
 # A mesh thinner than this fraction of its size across some direction is
 # flat: it has no inside to fill.
 _FLAT_RATIO = 1e-3
@@ -95,24 +97,13 @@ MAX_COORDINATE = 1e12
 MESH_BYTES_PER_FILE_BYTE = 24
 
 
-class FolderResolver(trimesh.resolvers.FilePathResolver):
-    """The files a mesh refers to (textures, .gltf buffers, .mtl), read
-    from the mesh's own folder only: a name that climbs out of it or is
-    absolute is refused, one that is missing is named."""
-
-    def get(self, name):
-        if Path(name).is_absolute() or ".." in Path(name).parts:
-            raise InputError(f"refers to {name!r}, outside its folder")
-        try:
-            return super().get(name)
-        except (OSError, KeyError, ValueError):
-            raise InputError(f"refers to {name!r}, which is not there") from None
 # A mesh this many times wider than where 99% of its points lie has strays far away.
 OUTLIER_RATIO = 1000
 
 
-def load_mesh(path: str | Path, solid: bool = True) -> trimesh.Trimesh:
-    """Load any mesh file trimesh reads into one triangle mesh.
+def load_mesh(path: str | Path, solid: bool = True, asset_folder: Path | None = None) -> trimesh.Trimesh:
+    """Load any mesh file trimesh reads into one triangle mesh (its geometry:
+    no material is read).
 
     A scene is concatenated with its transforms applied. Every way the file
     can be unusable raises `InputError` with a one-line message naming it:
@@ -121,13 +112,15 @@ def load_mesh(path: str | Path, solid: bool = True) -> trimesh.Trimesh:
     picture of one is fine).
     """
     path = Path(path)
-    return scene_mesh(read_scene(path)[0], path, solid)
+    return scene_mesh(read_scene(path, materials=False, asset_folder=asset_folder)[0], path, solid)
 
 
-def read_scene(path: Path) -> tuple:
+def read_scene(path: Path, materials: bool = True, asset_folder: Path | None = None) -> tuple:
     """(scene, bytes) of a mesh file as trimesh reads it, unprocessed, its
-    parts and their materials kept (prep.colour reads them); a file it
-    cannot read is an InputError."""
+    parts kept and, with `materials`, their materials (prep.colour reads
+    them); a file it cannot read is an InputError. Every file it names is
+    read from its folder (or `asset_folder`), checked first
+    (prep.meshfiles): what was read is the scene's metadata[REFERENCES]."""
     formats = sorted(trimesh.exchange.load.mesh_formats())
     if not path.exists():
         raise InputError(f"{path}: no such file")
@@ -143,36 +136,63 @@ def read_scene(path: Path) -> tuple:
     if not data:
         raise InputError(f"{path}: empty file")
     data = _as_text(data, file_type, path)
+    folder = meshfiles.MeshFolder(path, asset_folder)
+    references = meshfiles.check_references(path, data, folder, materials)
     try:
         # Unprocessed, so that faces with NaN coordinates are seen, not dropped; garbage numbers
         # are refused below, without numpy's RuntimeWarning lines first.
         with np.errstate(all="ignore"), warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
             scene = trimesh.load_scene(io.BytesIO(data), file_type=file_type, process=False,
-                                       resolver=FolderResolver(str(path)))
-    except InputError as exc:  # from FolderResolver
-        raise InputError(f"{path}: {exc}") from None
+                                       resolver=meshfiles.FolderResolver(folder), skip_materials=not materials)
+    except InputError:  # from FolderResolver: it names the file
+        raise
     except Exception as exc:  # trimesh's parsers raise anything on a bad file
         reason = " ".join(str(exc).split()) or type(exc).__name__
         raise InputError(f"{path}: cannot read as .{file_type}: {reason}") from None
+    scene.metadata[REFERENCES] = references
     return scene, data
 
 
+REFERENCES = "sinshape.references"  # a read scene's metadata: the meshfiles.References of what it names
+
+
+def scene_parts(scene) -> list:
+    """The parts of a scene that have faces, in its graph's order, each as
+    (name, vertices (V, 3) float64 with its transform applied, faces (F, 3),
+    the geometry as read)."""
+    parts = []
+    for node in scene.graph.nodes_geometry:
+        transform, key = scene.graph[node]
+        geometry = scene.geometry[key]
+        if not hasattr(geometry, "faces") or len(geometry.faces) == 0:
+            continue
+        vertices = np.asarray(geometry.vertices, np.float64)
+        transform = np.asarray(transform, np.float64)
+        if vertices.ndim == 2 and vertices.shape[1] == 3 and not np.array_equal(transform, np.eye(4)):
+            with np.errstate(all="ignore"):  # non-finite coordinates are refused by name later
+                vertices = vertices @ transform[:3, :3].T + transform[:3, 3]
+        parts.append((str(key), vertices, np.asarray(geometry.faces), geometry))
+    return parts
+
+
 def scene_mesh(scene, path: Path, solid: bool = True) -> trimesh.Trimesh:
-    """A scene's parts as one checked triangle mesh (see `load_mesh`)."""
-    try:
-        with np.errstate(all="ignore"), warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)
-            mesh = scene.to_mesh()
-    except Exception as exc:  # trimesh's parsers raise anything on a bad file
-        reason = " ".join(str(exc).split()) or type(exc).__name__
-        raise InputError(f"{path}: cannot read as {path.suffix.lower()}: {reason}") from None
-    if len(mesh.faces) == 0:
+    """A scene's parts as one checked triangle mesh (see `load_mesh`), their
+    faces in `scene_parts`' order: geometry only (trimesh's own
+    concatenation would pack their textures into one, decoding them all)."""
+    parts = scene_parts(scene)
+    if any(vertices.ndim != 2 or vertices.shape[1] != 3 for _, vertices, _, _ in parts):
+        shape = next(vertices.shape for _, vertices, _, _ in parts if vertices.ndim != 2 or vertices.shape[1] != 3)
+        raise InputError(f"{path}: not a 3-D mesh (its vertices have {shape[-1]} coordinates)")
+    if not parts:
         raise InputError(f"{path}: no triangles (an empty mesh, a point cloud or lines)")
-    if mesh.vertices.shape[1] != 3:
-        raise InputError(f"{path}: not a 3-D mesh (its vertices have {mesh.vertices.shape[1]} coordinates)")
-    if mesh.faces.min() < 0 or mesh.faces.max() >= len(mesh.vertices):
-        raise InputError(f"{path}: corrupt mesh: faces refer to vertices it does not have")
+    offsets = np.cumsum([0] + [len(vertices) for _, vertices, _, _ in parts])
+    for (_, vertices, faces, _), offset in zip(parts, offsets):
+        if faces.ndim != 2 or faces.shape[1] != 3 or faces.min() < 0 or faces.max() >= len(vertices):
+            raise InputError(f"{path}: corrupt mesh: faces refer to vertices it does not have")
+    mesh = trimesh.Trimesh(np.concatenate([vertices for _, vertices, _, _ in parts]),
+                           np.concatenate([faces + offset for (_, _, faces, _), offset in zip(parts, offsets)]),
+                           process=False)
     if not np.isfinite(mesh.vertices[mesh.faces]).all():
         raise InputError(f"{path}: NaN or infinite vertex coordinates")
     if np.abs(mesh.vertices[mesh.faces]).max() > MAX_COORDINATE:

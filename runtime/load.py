@@ -267,11 +267,39 @@ def check_stages(model: Model) -> None:
     graph = model.decoder_head.run(list(hidden))
     if not all(np.isfinite(g).all() for g in graph):
         raise InputError(f"{model.path}: stage decoder_head gives NaN or infinite values (bad weights)")
-    numpy = [head_occupancy(model.head, hidden.sum(axis=0))[..., None]]
-    if m.colour:
-        numpy.append(head_colour(model.head, hidden.sum(axis=0)))
+    with np.errstate(all="ignore"):  # weights that overflow are refused below, in words
+        numpy = [head_occupancy(model.head, hidden.sum(axis=0))[..., None]]
+        if m.colour:
+            numpy.append(head_colour(model.head, hidden.sum(axis=0)))
     if any(np.abs(g - n).max() > 1e-5 for g, n in zip(graph, numpy)):
         raise InputError(f"{model.path}: the decoder head graph does not match its weights")
+    if m.colour:
+        check_colour_head(model)
+
+
+# The colour head's logits must stay below this: float32 overflows at 3.4e38.
+MAX_COLOUR_LOGIT = 1e38
+
+
+def check_colour_head(model: Model) -> None:
+    """The colour head gives finite colours for the model's own
+    reconstruction: its logits are bounded over every point of the
+    reconstruction's planes (a point's hidden vector is a sum of the three
+    planes' values there, each within its plane's range per channel), and
+    the bound must stay far from float32's overflow, where inf - inf is NaN.
+    Weights of 3e38, finite and sealed, sampled NaN colours written black."""
+    from .generate import sample
+    from .query import project
+
+    planes = project(model, sample(model, None)).planes
+    if not all(np.isfinite(p).all() for p in planes):
+        raise InputError(f"{model.path}: its reconstruction's planes are not finite (bad weights)")
+    most = sum(np.abs(p).reshape(-1, p.shape[-1]).max(axis=0).astype(np.float64) for p in planes)  # (D,)
+    active = np.maximum(most + model.head.bias1.astype(np.float64), 0)  # relu(hidden + b1) lies in [0, active]
+    bound = active @ np.abs(model.head.weight_colour.astype(np.float64)) + np.abs(model.head.bias_colour)
+    if not bound.max() < MAX_COLOUR_LOGIT:
+        raise InputError(f"{model.path}: its colour head gives no finite colour for its own reconstruction (its "
+                         f"logits reach {bound.max():.3g}; bad weights)")
 
 
 def load_model(path, threads: int | None = None) -> Model:

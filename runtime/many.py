@@ -4,10 +4,13 @@ over worker processes on this machine, or over a Ray cluster.
 Workers load the model once and send back each seed's file bytes and
 figures; only this process writes, atomically, then appends the seed to an
 index file beside the outputs (JSON lines with the file's size and SHA-256,
-fsynced, so it is valid after a crash). A rerun skips a seed only if its
-file is the one the index recorded (same size and hash): a missing,
-truncated or changed file is made again, and the index is rewritten first
-with one line per seed it still vouches for. Ctrl-C leaves no partial file.
+fsynced, so it is valid after a crash), whose first line records the job
+(the model's SHA-256, the files' names, the request). A rerun resumes only
+that job (another is refused, naming the difference, unless `restart`), and
+skips a seed only if its file is the one the index recorded (same size and
+hash): a missing, truncated or changed file is made again, and the index is
+rewritten first with one line per seed it still vouches for. Ctrl-C leaves
+no partial file.
 Seeds are taken lazily, a few ahead of the workers, so a range of any length
 costs nothing up front.
 """
@@ -15,12 +18,14 @@ costs nothing up front.
 import contextlib
 import dataclasses
 import hashlib
+import itertools
 import json
 import os
 import queue
 import re
 import signal
 import socket
+import stat
 import tempfile
 import threading
 import time
@@ -29,6 +34,7 @@ from pathlib import Path
 from typing import Callable
 
 from sinshape.core import files
+from sinshape.core.budget import check_memory
 from sinshape.core.errors import ConflictError, InputError
 
 from .load import default_threads, load_model
@@ -81,33 +87,124 @@ def index_path(pattern, varying: Varying = SEEDS) -> Path:
 
 
 MAX_INDEX_LINE = 4096  # bytes of one record: a seed or tile, a file name, a size and a hash
+INDEX_FORMAT = 1  # the job record's version: the index's first line, {"job": {...}}
+INDEX_BYTES_PER_BYTE = 8  # memory its records take as read, per byte of the index
+
+
+@dataclass(frozen=True)
+class IndexFile:
+    """An index as read: the job its first line records (None: no job line,
+    an index from before they were recorded), {item: its last record}, how
+    many item lines it has and whether it ends with a whole line."""
+
+    job: dict | None
+    records: dict
+    lines: int
+    whole: bool
+
+
+def scan_index(path: Path, varying: Varying = SEEDS) -> IndexFile | None:
+    """The index at `path` (None when there is none), each field it is read
+    by checked (the item, the file's size and hash), read a line at a time
+    and each line bounded, so that no file makes it read more than it holds
+    or block: one that is not a regular file is refused. A last line cut
+    short by a crash is dropped."""
+    try:
+        mode = os.stat(path)
+    except FileNotFoundError:
+        return None
+    except OSError as error:
+        raise InputError(f"{path}: cannot read the job's index ({error.strerror})") from None
+    if not stat.S_ISREG(mode.st_mode):
+        kind = "a folder" if stat.S_ISDIR(mode.st_mode) else "a FIFO" if stat.S_ISFIFO(mode.st_mode) else "not a file"
+        raise InputError(f"{path}: the job's index is {kind}, not a regular file; move it away or choose another "
+                         "output name")
+    check_memory(mode.st_size * INDEX_BYTES_PER_BYTE, f"reading the job's index {path}")
+    job, records, lines, whole = None, {}, 0, True
+    with open(path, "rb") as f:
+        for number in itertools.count(1):
+            line = f.readline(MAX_INDEX_LINE + 1)
+            if not line:
+                break
+            if not line.endswith(b"\n") and len(line) <= MAX_INDEX_LINE:
+                whole = False  # cut short by a crash
+                break
+            try:
+                if len(line) > MAX_INDEX_LINE:
+                    raise ValueError(f"longer than {MAX_INDEX_LINE} bytes")
+                record = json.loads(line)
+                if not isinstance(record, dict):
+                    raise ValueError("not a JSON object")
+                if number == 1 and set(record) == {"job"} and isinstance(record["job"], dict):
+                    job = record["job"]
+                    continue
+                item = varying.item(record[varying.field])
+                size, digest = record.get("bytes"), record.get("sha256")
+                if not (size is None or isinstance(size, int) and not isinstance(size, bool) and size >= 0) \
+                        or not (digest is None or isinstance(digest, str)):
+                    raise ValueError("a file size or hash of the wrong type")
+                records[item] = record
+                lines += 1
+            except (ValueError, KeyError, TypeError, RecursionError, InputError):
+                raise InputError(f"{path}: not a sinshape index (line {number} is not a {varying.field}'s JSON "
+                                 "record); move it away or choose another output name") from None
+    return IndexFile(job, records, lines, whole)
 
 
 def read_index(path: Path, varying: Varying = SEEDS) -> dict:
-    """{item: its last record} of an index, each field it is read by checked
-    (the item, the file's size and hash). A line cut short by a crash is
-    dropped."""
-    if not path.is_file():
-        return {}
-    data = path.read_bytes()
-    records = {}
-    for number, line in enumerate(data[:data.rfind(b"\n") + 1].splitlines(), 1):
-        try:
-            if len(line) > MAX_INDEX_LINE:
-                raise ValueError(f"longer than {MAX_INDEX_LINE} bytes")
-            record = json.loads(line)
-            if not isinstance(record, dict):
-                raise ValueError("not a JSON object")
-            item = varying.item(record[varying.field])
-            size, digest = record.get("bytes"), record.get("sha256")
-            if not (size is None or isinstance(size, int) and not isinstance(size, bool) and size >= 0) \
-                    or not (digest is None or isinstance(digest, str)):
-                raise ValueError("a file size or hash of the wrong type")
-            records[item] = record
-        except (ValueError, KeyError, TypeError, RecursionError, InputError):
-            raise InputError(f"{path}: not a sinshape index (line {number} is not a {varying.field}'s JSON record); "
-                             "move it away or choose another output name") from None
-    return records
+    """{item: its last record} of an index (scan_index)."""
+    index = scan_index(path, varying)
+    return index.records if index else {}
+
+
+def job_record(model, request, pattern: Path, varying: Varying) -> dict:
+    """What a job is, as its index's first line records it: the model (its
+    bytes' SHA-256), the files' names and format, and the request each item
+    fills in (for a world, its seed with the rest)."""
+    fields = {}
+    for field in dataclasses.fields(request):
+        value = getattr(request, field.name)
+        if field.name == varying.field:
+            continue
+        if field.name == "layout" and value is not None:
+            value = {"shape": value.shape, "sha256": hashlib.sha256(value.bits).hexdigest(), "resample": value.resample}
+        elif field.name == "heights" and value is not None:
+            value = {"shape": value.shape, "sha256": hashlib.sha256(value.data).hexdigest()}
+        elif field.name == "keep":
+            value = [part if isinstance(part, str) else dataclasses.asdict(part) for part in value]
+        fields[field.name] = value
+    return json.loads(json.dumps({"index": INDEX_FORMAT, "model": hashlib.sha256(model.data).hexdigest(),
+                                  "model_name": model.path.name, "files": pattern.name, "request": fields}))
+
+
+def job_difference(recorded: dict, job: dict) -> str:
+    """How a recorded job differs from this one, in words: the first field that does."""
+    if recorded.get("index") != job["index"]:
+        return f"index format {json.dumps(recorded.get('index'))[:20]}, not {job['index']}"
+    if recorded.get("model") != job["model"]:
+        return f"another model ({str(recorded.get('model_name'))[:100]}, sha256 {str(recorded.get('model'))[:12]}...)"
+    if recorded.get("files") != job["files"]:
+        return f"files {json.dumps(recorded.get('files'))[:100]}, not {json.dumps(job['files'])}"
+    asked = recorded.get("request") if isinstance(recorded.get("request"), dict) else {}
+    for name, value in job["request"].items():
+        if asked.get(name, "missing") != value:
+            return f"{name} {json.dumps(asked.get(name))[:100]}, not {json.dumps(value)[:100]}"
+    return "a request with other fields"
+
+
+def check_same_job(index: IndexFile | None, job: dict, path: Path, restart: bool) -> IndexFile | None:
+    """The index a job resumes from: refused, naming the difference, when it
+    records another job (or none), unless `restart`, which starts it afresh
+    (its files are made again). An index without any line is no index."""
+    if index is None or (index.job is None and not index.records):
+        return None
+    if index.job == job:
+        return index
+    if not restart:
+        what = (f"records another job ({job_difference(index.job, job)})" if index.job is not None else
+                "records no job (an index from before sinshape recorded its jobs), so it cannot vouch for its files")
+        raise InputError(f"{path}: {what}; restart makes the files again, or choose another output name", "restart")
+    return None
 
 
 def file_digest(path: Path) -> tuple:
@@ -132,9 +229,9 @@ def verified(records: dict, pattern: Path, varying: Varying = SEEDS) -> dict:
     return kept
 
 
-def rewrite_index(path: Path, records: dict) -> None:
-    """The index with one line per item it vouches for, written atomically."""
-    text = "".join(json.dumps(record) + "\n" for record in records.values())
+def rewrite_index(path: Path, job: dict, records: dict) -> None:
+    """The index with its job and one line per item it vouches for, written atomically."""
+    text = "".join(json.dumps(record) + "\n" for record in [{"job": job}, *records.values()])
     files.atomic_write(path, lambda f: f.write(text.encode()))
 
 
@@ -335,11 +432,12 @@ class RayActors:
 
 
 class Appender:
-    """The index, opened for appending when the first record comes: a job
-    that fails before its first file leaves no index behind."""
+    """The index, opened for appending when the first record comes (a job
+    that fails before its first file leaves no index behind), its job's line
+    first if it is new."""
 
-    def __init__(self, path: Path):
-        self.path, self.file = path, None
+    def __init__(self, path: Path, job: dict):
+        self.path, self.job, self.file = path, job, None
 
     def __enter__(self):
         return self
@@ -347,6 +445,8 @@ class Appender:
     def write(self, text: str) -> None:
         if self.file is None:
             self.file = open(self.path, "a")
+            if self.file.tell() == 0:
+                text = json.dumps({"job": self.job}) + "\n" + text
         self.file.write(text)
         self.file.flush()
         os.fsync(self.file.fileno())
@@ -372,7 +472,7 @@ def check_existing_outputs(pattern: Path, inputs, varying: Varying = SEEDS) -> N
 
 def sample_many(model_path, seeds, pattern, engine: str = "local", workers: int | None = None,
                 threads: int | None = None, address: str | None = None, progress=None, request=None,
-                **fields) -> dict:
+                restart: bool = False, **fields) -> dict:
     """Write one file per seed, `pattern` with {seed} filled in, resumably:
     the sample `request` (a request.SampleRequest with no seed; None: the
     plain one), with `fields` of SampleRequest replaced, for each seed.
@@ -382,7 +482,9 @@ def sample_many(model_path, seeds, pattern, engine: str = "local", workers: int 
     (None: one per CPU of the cluster) on the cluster at `address` (None:
     Ray's default). threads: per worker (None: the cores divided among the
     local workers; 1 on Ray). Each sample is made in memory.
-    progress(seed, record or None if skipped) after each seed.
+    progress(seed, record or None if skipped) after each seed. An index
+    beside the outputs that records another job is refused, unless
+    `restart`, which makes its files again.
     Returns {"written", "skipped", "index"}.
     """
     from .request import SampleRequest
@@ -391,15 +493,16 @@ def sample_many(model_path, seeds, pattern, engine: str = "local", workers: int 
     if request.seed is not None or request.recon:
         one = "recon" if request.recon else "seed"
         raise ConflictError(f"give seeds or {one}, not both", ("seeds", one))
-    return run_job(model_path, seeds, pattern, SEEDS, request, engine, workers, threads, address, progress)
+    return run_job(model_path, seeds, pattern, SEEDS, request, engine, workers, threads, address, progress, restart)
 
 
 def run_job(model_path, items, pattern, varying: Varying, request, engine: str = "local",
             workers: int | None = None, threads: int | None = None, address: str | None = None,
-            progress=None) -> dict:
+            progress=None, restart: bool = False) -> dict:
     """One file per item (`varying` says which field of `request` each item
     sets, and how it is named), resumably, on the engine asked for: the
-    job `sample_many` and world.write_tiles run."""
+    job `sample_many` and world.write_tiles run. It resumes only the job its
+    index records (check_same_job)."""
     from . import write
 
     pattern = Path(pattern)
@@ -418,13 +521,13 @@ def run_job(model_path, items, pattern, varying: Varying, request, engine: str =
     write.output_kind(pattern)
     files.check_writable(pattern.with_name(pattern.name.replace(varying.placeholder, "0")), [model_path])
     check_existing_outputs(pattern, [model_path], varying)
-    load_model(model_path, threads=1)  # a bad model is one line here, not one per worker
+    identity = job_record(load_model(model_path, threads=1), request, pattern, varying)  # a bad model: one line here
     index = index_path(pattern, varying)
-    found = read_index(index, varying)
-    done = verified(found, pattern, varying)
-    if index.is_file() and (len(done) != len(found) or not index.read_bytes().endswith(b"\n")
-                            or index.read_bytes().count(b"\n") != len(found)):
-        rewrite_index(index, done)
+    found = check_same_job(scan_index(index, varying), identity, index, restart)
+    done = verified(found.records, pattern, varying) if found else {}
+    if found is None and index.exists() or found and (len(done) != len(found.records) or not found.whole
+                                                      or found.lines != len(found.records)):
+        rewrite_index(index, identity, done)
     job = (model_path, pattern.suffix, threads or 1, request, varying.field)
     if engine == "ray":
         pool = RayActors(*job, workers, address)
@@ -437,7 +540,7 @@ def run_job(model_path, items, pattern, varying: Varying, request, engine: str =
         pool = InProcess(*job) if workers == 1 else Processes(*job, workers)
     written = skipped = running = 0
     try:
-        with Appender(index) as log:
+        with Appender(index, identity) as log:
             def finish():
                 nonlocal written, running
                 data, record = pool.next_result()

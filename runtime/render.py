@@ -67,8 +67,10 @@ def render(mesh: trimesh.Trimesh, size=(512, 512), azimuth=35.0, elevation=25.0,
     positive azimuths turn it towards +x, positive elevations raise it.
     `projection` is "perspective" or "orthographic". Either way the mesh
     fills the picture less a small margin. Drawing `supersample` times larger
-    and averaging smooths jagged edges; 1 is faster. A mesh with vertex
-    colours (a coloured model's samples) is drawn in them, else in `color`.
+    and averaging smooths jagged edges; 1 is faster. A mesh whose metadata
+    holds PAINT (a textured example: mesh_file) is drawn in it pixel by
+    pixel; one with vertex colours (a coloured model's samples) in them, a
+    colour per face; any other in `color`.
     """
     width, height = size
     s = supersample
@@ -77,13 +79,73 @@ def render(mesh: trimesh.Trimesh, size=(512, 512), azimuth=35.0, elevation=25.0,
     camera = camera_triangles(mesh, azimuth, elevation, up)
     corners, nearness = project(camera, (width * s, height * s), projection)
     face, depth = rasterise(corners, nearness, (width * s, height * s))
-    # One colour per face, then the background last, where face -1 picks it.
-    palette = np.vstack([lambert(camera, corners)[:, None] * face_colours(mesh, color), background]).astype(np.float32)
-    image = palette[face]
+    paint = mesh.metadata.get(PAINT)
+    if paint is not None:
+        image = painted_pixels(face, corners, nearness if projection == "perspective" else None,
+                               lambert(camera, corners), paint, background)
+    else:  # one colour per face, then the background last, where face -1 picks it
+        palette = np.vstack([lambert(camera, corners)[:, None] * face_colours(mesh, color), background])
+        image = palette.astype(np.float32)[face]
     if outline:
         image[depth_edges(depth, s)] = OUTLINE
     image = image.reshape(height, s, width, s, 3).mean(axis=(1, 3))
     return np.round(np.clip(image, 0, 1) * 255).astype(np.uint8)
+
+
+def painted_pixels(face: np.ndarray, corners: np.ndarray, nearness: np.ndarray | None, light: np.ndarray,
+                   paint, background) -> np.ndarray:
+    """A picture's pixels in a painted mesh's colours: each covered pixel's
+    point on its face (barycentric weights, made perspective-correct with
+    the corners' `nearness`, None for orthographic) is asked its colour,
+    times its face's light: (height, width, 3) float32."""
+    height, width = face.shape
+    image = np.empty((height * width, 3), np.float32)
+    image[:] = background
+    covered = np.flatnonzero(face.ravel() >= 0)
+    for start in range(0, len(covered), BATCH):
+        pixel = covered[start:start + BATCH]
+        f = face.ravel()[pixel]
+        row, col = np.divmod(pixel, width)
+        a, b, c = corners[f, 0], corners[f, 1], corners[f, 2]
+        p = np.stack([col + 0.5, row + 0.5], axis=1)
+        area = cross(b - a, c - a)
+        w1, w2 = cross(p - a, c - a) / area, cross(b - a, p - a) / area
+        weights = np.clip(np.stack([1 - w1 - w2, w1, w2], axis=1), 0, 1)
+        if nearness is not None:  # screen-space weights over depth: the point on the face itself
+            weights = weights * nearness[f]
+        weights /= np.maximum(weights.sum(axis=1, keepdims=True), 1e-30)
+        image[pixel] = light[f, None] * paint(f, weights)
+    return image.reshape(height, width, 3)
+
+
+def mesh_file(path: Path, asset_folder: Path | None = None, warn=None) -> trimesh.Trimesh:
+    """A mesh file to draw, as training reads it: its geometry and, where it
+    has colour (vertex colours, a texture through its UVs), that colour as
+    PAINT in its metadata. With `warn`, colour that cannot be read is told to
+    warn(InputError) and the geometry drawn without it; else raised."""
+    from sinshape.prep import colour, meshfiles, voxelize
+
+    try:
+        scene, _ = voxelize.read_scene(path, materials=True, asset_folder=asset_folder)
+        paint = colour.surface_painter(scene, path)
+    except InputError as error:
+        if warn is None or "no_colour" not in meshfiles.parameters(error):
+            raise
+        warn(InputError(f"{error}; drawn without its colour", error.parameter))
+        scene, paint = voxelize.read_scene(path, materials=False, asset_folder=asset_folder)[0], None
+    mesh = voxelize.scene_mesh(scene, path, solid=False)
+    if paint is not None:
+        mesh.metadata[PAINT] = paint
+    return mesh
+
+
+def is_mesh_file(item) -> bool:
+    """A file of a format trimesh reads as a mesh (not a model)."""
+    path = Path(item)
+    return path.is_file() and path.suffix.lower().lstrip(".") in trimesh.exchange.load.mesh_formats()
+
+
+PAINT = "sinshape.paint"  # a mesh's metadata: its colour, f(faces (n,), barycentric weights (n, 3)) -> (n, 3) sRGB
 
 
 def face_colours(mesh: trimesh.Trimesh, color) -> np.ndarray:
@@ -173,7 +235,12 @@ def crop(mesh: trimesh.Trimesh, zoom: float, focus=(0.5, 0.5, 0.5)) -> trimesh.T
     keep = (abs(mesh.triangles_center - centre) <= mesh.extents / (2 * zoom)).all(axis=1)
     if not keep.any():
         raise InputError(f"no part of the shape lies in the zoomed box at focus {','.join(map(str, focus))}", "focus")
-    return mesh.submesh([keep.nonzero()[0]], append=True)
+    kept = keep.nonzero()[0]
+    part = mesh.submesh([kept], append=True)
+    paint = mesh.metadata.get(PAINT)
+    if paint is not None:  # the kept faces, renumbered
+        part.metadata[PAINT] = lambda face, weights: paint(kept[face], weights)
+    return part
 
 
 def sample_label(seed, factors=(1, 1, 1), scale: float = 1.0) -> str:
@@ -385,14 +452,14 @@ def depth_edges(nearness: np.ndarray, width=1) -> np.ndarray:
 def draw_shapes(items: list, seeds, recon: bool = False, factors=(1.0, 1.0, 1.0), scale: float = 1.0,
                 smooth: int = 0, views: int = 1, up: str | None = None, columns: int = 4, image_size: int = 320,
                 zoom: float = 1.0, focus=(0.5, 0.5, 0.5), azimuth: float = 35.0, elevation: float = 25.0,
-                progress=None) -> np.ndarray:
-    """One picture of `items`: mesh files (Paths, drawn as they are) and
-    loaded models (their samples `seeds`, the reconstruction first with
-    `recon`), as a grid of labelled cells or, with views > 1, a turntable row
-    per shape. `up` None: what the first model records, else y.
-    progress(stage, done, total) follows the sampling, then the drawing."""
-    from sinshape.prep.voxelize import load_mesh
-
+                progress=None, warn=None, asset_folder: Path | None = None) -> np.ndarray:
+    """One picture of `items`: mesh files (Paths, drawn as they are, in
+    their colours: `mesh_file`, the files they name read from their folder
+    or `asset_folder`) and loaded models (their samples `seeds`, the
+    reconstruction first with `recon`), as a grid of labelled cells or, with
+    views > 1, a turntable row per shape. `up` None: what the first model
+    records, else y. progress(stage, done, total) follows the sampling, then
+    the drawing; warn(InputError) hears of a mesh's colour that cannot be read."""
     from .generate import sample
     from .mesh import extract
 
@@ -404,7 +471,7 @@ def draw_shapes(items: list, seeds, recon: bool = False, factors=(1.0, 1.0, 1.0)
     shapes, labels, sampled = [], [], 0
     for item in items:
         if isinstance(item, Path):
-            shapes.append(load_mesh(item, solid=False))
+            shapes.append(mesh_file(item, asset_folder, warn))
             labels.append(item.name)
             continue
         for seed in chosen:

@@ -614,22 +614,29 @@ class ContrastSum:
         return self.mean + self.deviation * np.power(self.squares, np.float32(-CONTRAST / 2))
 
 
-def blend_sources(model, layout: Layout, seed: int, tile: tuple, level: int) -> list:
+def blend_sources(model, layout: Layout, seed: int, tile: tuple, level: int, progress=None) -> list:
     """Tile (i, j)'s four windows in the fixed order of the sum, each with
     its offset (voxels from its lattice point to the tile's) along the two
-    horizontal axes and whether it is the one behind along each."""
+    horizontal axes and whether it is the one behind along each.
+    progress(0, 1) after each window made or found."""
     i, j = tile
     h0, h1 = layout.horizontal
-    return [(window(model, layout, seed, a, b, level),
-             (layout.stride[h0] if a < i else 0, layout.stride[h1] if b < j else 0), (a == i, b == j))
-            for a in (i - 1, i) for b in (j - 1, j)]
+    sources = []
+    for a in (i - 1, i):
+        for b in (j - 1, j):
+            sources.append((window(model, layout, seed, a, b, level),
+                            (layout.stride[h0] if a < i else 0, layout.stride[h1] if b < j else 0), (a == i, b == j)))
+            if progress:
+                progress(0, 1)
+    return sources
 
 
 def tile_logits(model, seed: int, tile, scale: float = 1.0, options: WorldOptions = PLAIN,
-                memory_limit: int | None = None, colour: bool = False):
+                memory_limit: int | None = None, colour: bool = False, progress=None):
     """The head's logits on tile (i, j)'s grid (tile_grid), in tile order (h0,
     h1, up): (X, Y, K) float32; with `colour`, also the colour there ((X, Y,
-    K, 3) float32 sRGB, from the blended hidden vector or the object's)."""
+    K, 3) float32 sRGB, from the blended hidden vector or the object's).
+    progress(done, total) after each window and each slab of rows."""
     i, j = check_tile(tile)
     layout = world_layout(model)
     level = check_lod(model, options.lod)
@@ -643,10 +650,13 @@ def tile_logits(model, seed: int, tile, scale: float = 1.0, options: WorldOption
     if options.arrange == "scatter":
         ground = z[None, None, :] - GROUND if heights is None else z[None, None, :] - heights[:, :, None] - GROUND
         out[...] = -np.float32(GROUND_SLOPE) * ground.astype(np.float32)
-        for placed_object in objects_near(model, layout, seed, (i, j), level, options.heights):
+        near = objects_near(model, layout, seed, (i, j), level, options.heights)
+        for done, placed_object in enumerate(near, 1):
+            if progress:
+                progress(done, len(near))
             scatter_into(out, colours, model, layout, placed_object, u0, u1, z)
         return (out, colours) if colour else out
-    sources = blend_sources(model, layout, seed, (i, j), level)
+    sources = blend_sources(model, layout, seed, (i, j), level, progress)
     rows = max(1, (1 << 21) // (len(u1) * len(z) * model.manifest.hidden))  # ~8 MB a sum
     for x0 in range(0, len(u0), rows):
         x = slice(x0, min(x0 + rows, len(u0)))
@@ -663,6 +673,8 @@ def tile_logits(model, seed: int, tile, scale: float = 1.0, options: WorldOption
         out[x] = capped(head_logits(model.head, total), z[None, None, :] - rise - layout.stride[up])
         if colour:
             colours[x] = head_colour(model.head, total)
+        if progress:
+            progress(x.stop, len(u0))
     return (out, colours) if colour else out
 
 
@@ -689,17 +701,18 @@ def scatter_into(out: np.ndarray, colours, model, layout: Layout, placed_object:
 
 
 def tile_occupancy(model, seed: int, tile, scale: float = 1.0, memory_limit: int | None = None,
-                   colour: bool = False, options: WorldOptions = PLAIN):
+                   colour: bool = False, options: WorldOptions = PLAIN, progress=None):
     """Occupancy on tile (i, j)'s grid: (X, Y, Z) float32, its points along
     each horizontal axis from the tile's lattice point to the next (both
     included: the faces it shares), along up the world's heights. With
     `colour` (a coloured model), also its colour there: (occupancy,
-    (X, Y, Z, 3) uint8 sRGB)."""
+    (X, Y, Z, 3) uint8 sRGB). progress(done, total) after each window and
+    each slab of rows (a server stops a job there)."""
     from .generate import check_seed
 
     check_seed(seed)
     layout = world_layout(model)
-    made = tile_logits(model, seed, tile, scale, options, memory_limit, colour)
+    made = tile_logits(model, seed, tile, scale, options, memory_limit, colour, progress)
     logits, colours = made if colour else (made, None)
     order = np.argsort([*layout.horizontal, layout.up])  # tile order -> the model's axes
     occupancy = np.ascontiguousarray(sigmoid(logits).transpose(order))
@@ -824,15 +837,15 @@ def tile_colours(model, seed: int, tile, vertices: np.ndarray, options: WorldOpt
 # ---- a tile's surface
 
 def tile_mesh(model, seed: int, tile, scale: float = 1.0, memory_limit: int | None = None,
-              closed: tuple = (), options: WorldOptions = PLAIN) -> tuple:
+              closed: tuple = (), options: WorldOptions = PLAIN, progress=None) -> tuple:
     """Tile (i, j)'s surface: (vertices (V, 3) float64 in model units
     relative to the tile's lowest corner along the horizontal axes and to
     the model's floor along up, faces (F, 3) int64). Closed at the top and
     bottom, open on the four sides it shares with its neighbours, whose
     border vertices it shares exactly, except the sides in `closed` ((axis,
     0 or 1) pairs: the low or high side along a horizontal axis), closed as
-    a sample's sides are (where a block of tiles ends)."""
-    values = tile_occupancy(model, seed, tile, scale, memory_limit, options=options)
+    a sample's sides are (where a block of tiles ends). progress: as tile_occupancy's."""
+    values = tile_occupancy(model, seed, tile, scale, memory_limit, options=options, progress=progress)
     layout = world_layout(model)
     grid = tile_grid(model, layout, scale, options)
     pad = [[0, 0], [0, 0], [0, 0]]
@@ -867,12 +880,13 @@ class Surface:
 
 
 def tile_surface(model, seed: int, tile, scale: float = 1.0, options: WorldOptions = PLAIN,
-                 memory_limit: int | None = None) -> Surface:
+                 memory_limit: int | None = None, progress=None) -> Surface:
     """Tile (i, j)'s mesh with its normals (and colours), and at lod > 0 a
     skirt: every edge on the tile's sides extruded SKIRT grid steps down, so
     that a finer neighbour's border, which its own does not meet, shows no
-    gap. Skirt vertices take the normal and colour of the vertex above."""
-    vertices, faces = tile_mesh(model, seed, tile, scale, memory_limit, options=options)
+    gap. Skirt vertices take the normal and colour of the vertex above.
+    progress: as tile_occupancy's."""
+    vertices, faces = tile_mesh(model, seed, tile, scale, memory_limit, options=options, progress=progress)
     normals = tile_normals(model, seed, tile, vertices, options)
     colours = tile_colours(model, seed, tile, vertices, options) if model.manifest.colour else None
     if options.lod and len(faces):
@@ -947,9 +961,10 @@ def placed(model, tile, vertices: np.ndarray, frame: str) -> np.ndarray:
     return absolute if frame == "model" else np.asarray(manifest.origin) + absolute * np.asarray(manifest.spacing)
 
 
-def tile_bytes(model, request, name) -> tuple:
+def tile_bytes(model, request, name, progress=None) -> tuple:
     """A tile request (request.SampleRequest with `tile`) as the bytes of the
-    file `name` names, and its mesh (None for an .npz grid)."""
+    file `name` names, and its mesh (None for an .npz grid). progress: as
+    tile_occupancy's."""
     from pathlib import Path
 
     from . import write
@@ -958,7 +973,7 @@ def tile_bytes(model, request, name) -> tuple:
     options = request.world_options()
     if write.output_kind(name) == "grid":
         grids = tile_occupancy(model, request.sample_seed, request.tile, request.scale, colour=model.manifest.colour,
-                               options=options)
+                               options=options, progress=progress)
         grids = dict(zip(("occupancy", "colour"), grids)) if model.manifest.colour else {"occupancy": grids}
         grid = tile_grid(model, world_layout(model), request.scale, options)
         return write.grid_bytes(**grids, tile=request.tile, corner=tile_corner(model, request.tile),
@@ -966,7 +981,7 @@ def tile_bytes(model, request, name) -> tuple:
                                 heights=grid.positions[world_layout(model).up]), None
     import trimesh
 
-    surface = tile_surface(model, request.sample_seed, request.tile, request.scale, options)
+    surface = tile_surface(model, request.sample_seed, request.tile, request.scale, options, progress=progress)
     if not len(surface.faces):
         raise write.no_surface(Path(name))
     vertices = placed(model, request.tile, surface.vertices, request.frame)
@@ -984,11 +999,13 @@ def frame_normals(model, normals: np.ndarray) -> np.ndarray:
 
 
 def write_tiles(model_path, tiles, pattern, request, engine: str = "local", workers: int | None = None,
-                threads: int | None = None, address: str | None = None, progress=None) -> dict:
+                threads: int | None = None, address: str | None = None, progress=None,
+                restart: bool = False) -> dict:
     """Write one file per tile of `tiles` ((i, j) pairs, read lazily), `pattern`
     with {tile} filled in as I_J: the world of `request` (a
     request.SampleRequest with a seed and no tile), resumably, on the cores
-    or a Ray cluster as runtime.many's jobs. Returns {"written", "skipped", "index"}."""
+    or a Ray cluster as runtime.many's jobs (an index of another job is
+    refused unless `restart`). Returns {"written", "skipped", "index"}."""
     import dataclasses
 
     from . import many
@@ -1016,23 +1033,35 @@ def write_tiles(model_path, tiles, pattern, request, engine: str = "local", work
         except OSError as error:
             raise InputError(f"{folder}: cannot make the folder ({error.strerror})") from None
     return many.run_job(model_path, tiles, pattern, many.TILES, request, engine, workers, threads, address,
-                        progress)
+                        progress, restart)
 
 
 MAX_BLOCK_TILES = 4096  # tiles written as one mesh; more is a folder of tiles (write_tiles)
+# Peak bytes a block holds per vertex of its tiles (their arrays, the joined
+# ones, welding's sort, the mesh and its file's bytes): 296 to 422 measured
+# on blocks of 144 and 256 terrain tiles at scales 2 and 1, counting the
+# first tile's vertices for every tile; it stands for the others, which may
+# hold more.
+BLOCK_BYTES_PER_VERTEX = 500
 
 
-def block_mesh(model, request, tiles, progress=None):
+def block_mesh(model, request, tiles, progress=None, memory_limit: int | None = None):
     """A block of tiles (a rectangle of them) as one trimesh mesh in the
     request's frame ('input' or 'model': placed in the world), shared border
     vertices welded and the block's outer sides closed: one closed surface.
+    Its count is bounded before a tile is listed, and its memory (the first
+    tile's surface times the count) before the second is made.
     progress(done, total) after each tile."""
     import trimesh
 
-    tiles = list(tiles)
-    if not 0 < len(tiles) <= MAX_BLOCK_TILES:
-        raise InputError(f"a block is 1 to {MAX_BLOCK_TILES} tiles, got {len(tiles)}; write more as a folder "
-                         "of tiles", "tile")
+    sized = hasattr(tiles, "__len__")
+    count = len(tiles) if sized else None  # a block's count is checked before its tiles are listed
+    tiles = list(itertools.islice(tiles, MAX_BLOCK_TILES + 1)) if not sized or count <= MAX_BLOCK_TILES else []
+    count = count if sized else len(tiles)
+    if not 0 < count <= MAX_BLOCK_TILES:
+        got = count if sized else f"more than {MAX_BLOCK_TILES}"
+        raise InputError(f"a block is 1 to {MAX_BLOCK_TILES} tiles, got {got}; write more as a folder of tiles",
+                         "tile")
     if request.frame == "tile":
         raise InputError("a block is placed in the world: give frame input or model", "frame")
     options = request.world_options()
@@ -1045,7 +1074,11 @@ def block_mesh(model, request, tiles, progress=None):
         check_placement(model, tile, request.frame)
         ends = [(axis, side) for n, axis in enumerate((h0, h1)) for side, end in enumerate((low, high))
                 if tile[n] == end[n]]
-        v, f = tile_mesh(model, request.sample_seed, tile, request.scale, closed=ends, options=options)
+        v, f = tile_mesh(model, request.sample_seed, tile, request.scale, memory_limit, closed=ends, options=options)
+        if done == 1:
+            check_memory(BLOCK_BYTES_PER_VERTEX * max(len(v), 1) * len(tiles),
+                         f"a block of {len(tiles)} tiles at scale {request.scale:g} (about {len(v)} vertices each)",
+                         memory_limit)
         if model.manifest.colour:
             colours.append(tile_colours(model, request.sample_seed, tile, v, options))
         vertices.append(np.array(tile_corner(model, tile), np.float64) + v)  # exact on shared borders

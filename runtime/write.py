@@ -189,13 +189,14 @@ def write_request(model, request, path, inputs=(), threads: int | None = None, m
 
 def request_bytes(model, request, name, threads: int | None = None, mesh_progress=None) -> tuple:
     """`sample_bytes` of the sample a request asks for: the file `name` names,
-    in memory, and its mesh; a tile of a world (world.tile_bytes) likewise."""
+    in memory, and its mesh; a tile of a world (world.tile_bytes) likewise.
+    mesh_progress(done, total) as the work goes (a server stops a job there)."""
     from .request import make
 
     if request.tile is not None:
         from .world import tile_bytes
 
-        return tile_bytes(model, request, name)
+        return tile_bytes(model, request, name, mesh_progress)
     return sample_bytes(model, make(model, request), name, threads=threads, mesh_progress=mesh_progress,
                         **request.mesh_options())
 

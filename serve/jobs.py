@@ -84,8 +84,8 @@ def make_sample(model, job: Job, checkpoint) -> Sample:
     if job.layout_of is not None:  # a layout, not a sample
         grid = layout.layout(model, job.request.sample_seed, job.layout_of, job.request.size)
         body, faces = layout_file(grid, job.layout_of, job.format), None
-    elif job.request.tile is not None:  # a tile of a world: small, made at once
-        body, result = write.request_bytes(model, job.request, job.filename())
+    elif job.request.tile is not None:  # a tile of a world: stopped within a slab when given up
+        body, result = write.request_bytes(model, job.request, job.filename(), mesh_progress=checkpoint)
         faces = None if result is None else len(result.faces)
     else:
         triplane = make(model, job.request)

@@ -1,7 +1,8 @@
 """Serve this folder:  python serve.py [PORT]   (Python 3.8 or newer, nothing else)
 
 Sends what `python -m http.server` does not: the cross-origin isolation
-headers that let onnxruntime-web run WASM on several threads; FILE.gz in
+headers that let onnxruntime-web run WASM on several threads; errors as a
+line of JSON, as `sinrun serve` answers them; FILE.gz in
 place of FILE to a client that accepts gzip (Content-Encoding: gzip, the
 type of FILE); and Cache-Control: no-cache with an ETag and Last-Modified,
 so a browser keeps what it fetched and checks it with a short request (304)
@@ -17,6 +18,7 @@ its reading of Accept-Encoding from here.)
 import email.utils
 import functools
 import http.server
+import json
 import os
 import sys
 
@@ -97,6 +99,21 @@ class Handler(http.server.SimpleHTTPRequestHandler):
         except (TypeError, ValueError, IndexError, OverflowError):
             return False
 
+    def send_error(self, code, message=None, explain=None):
+        """An error as `sinrun serve` answers one: a line of JSON, {"detail": ...}."""
+        short = self.responses.get(code, ("Error", ""))[0]
+        detail = " ".join(str(message or short).split())
+        body = json.dumps({"detail": detail}).encode()
+        self.log_error("code %d, message %s", code, detail)
+        self.send_response(code, detail.encode("latin-1", "replace").decode("latin-1"))
+        self.send_header("Connection", "close")
+        if code >= 200 and code not in (204, 205, 304):
+            self.send_header("Content-Type", "application/json")
+            self.send_header("Content-Length", str(len(body)))
+        self.end_headers()
+        if self.command != "HEAD" and code >= 200 and code not in (204, 205, 304):
+            self.wfile.write(body)
+
     def send_validators(self, etag, stat, has_packed):
         self.send_header("Cache-Control", "no-cache")
         self.send_header("ETag", etag)
@@ -111,9 +128,16 @@ def make_server(folder: str, port: int) -> http.server.ThreadingHTTPServer:
 
 
 def main(argv) -> None:
-    """`python serve.py [PORT]`: serve the folder this file lies in until Ctrl-C."""
+    """`python serve.py [PORT]`: serve the folder this file lies in until
+    Ctrl-C. A port that is not one, or cannot be listened on, is one line
+    on stderr and exit status 1."""
+    if len(argv) > 1 or argv and not (argv[0].isdigit() and 0 <= int(argv[0]) <= 65535):
+        sys.exit(f"Error: give one port, a whole number from 0 to 65535 (python serve.py [PORT]); got {' '.join(argv)!r}")
     port = int(argv[0]) if argv else 8000
-    server = make_server(os.path.dirname(os.path.abspath(__file__)), port)
+    try:
+        server = make_server(os.path.dirname(os.path.abspath(__file__)), port)
+    except OSError as error:
+        sys.exit(f"Error: cannot listen on 127.0.0.1:{port} ({error.strerror or error})")
     print(f"serving on http://127.0.0.1:{port}/ (Ctrl-C stops)")
     try:
         server.serve_forever()

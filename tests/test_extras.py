@@ -4,6 +4,7 @@ a command that still reaches one of them fails here, whatever is installed."""
 
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -28,6 +29,7 @@ def sinrun_without_extras(*args, cwd):
     (["sample", TINY_ONNX, "--seed", "3", "--smooth", "3", "--largest", "-o", "s.obj"], "s.obj"),
     (["sample", TINY_ONNX, "--seed", "3", "--smooth", "4", "--smoother", "taubin", "-o", "t.glb"], "t.glb"),
     (["render", TINY_ONNX, "--seeds", "0-1", "-o", "r.png"], "r.png"),
+    (["render", Path(__file__).parent / "data" / "colour" / "box_texture.glb", "-o", "m.png"], "m.png"),  # its texture
     (["layout", TINY_ONNX, "--seed", "3", "-o", "l.vox"], "l.vox"),
     (["export-web", TINY_ONNX, "-o", "site"], "site"),
 ])

@@ -544,7 +544,7 @@ def test_a_resumed_job_redoes_exactly_its_damaged_seeds(finished_job, tmp_path_f
     root = tmp_path_factory.mktemp("resumed")
     folder = root / "job"
     shutil.copytree(job, folder)
-    lines = (folder / "index.jsonl").read_text().splitlines(keepends=True)
+    job, *lines = (folder / "index.jsonl").read_text().splitlines(keepends=True)  # the job's line stays first
     for seed, damage in damages.items():
         path = folder / f"{seed}.ply"
         raw = bytearray(reference[seed])
@@ -566,7 +566,7 @@ def test_a_resumed_job_redoes_exactly_its_damaged_seeds(finished_job, tmp_path_f
     elif crash == "a line cut short" and lines:
         line = lines[data.draw(st.integers(0, len(lines) - 1))]
         lines.append(line[:data.draw(st.integers(1, len(line) - 2))])  # no newline: a crash mid-write
-    (folder / "index.jsonl").write_text("".join(lines))
+    (folder / "index.jsonl").write_text("".join([job, *lines]))
 
     made, run = [], many.Worker.run
 
@@ -591,7 +591,8 @@ def test_a_resumed_job_redoes_exactly_its_damaged_seeds(finished_job, tmp_path_f
         assert sorted(made) == expected  # each damaged or new seed made once, none other
         seeds = range(JOB + more)
         assert sorted(p.name for p in folder.iterdir()) == sorted([f"{s}.ply" for s in seeds] + ["index.jsonl"])
-        records = [json.loads(line) for line in (folder / "index.jsonl").read_text().splitlines()]
+        head, *records = [json.loads(line) for line in (folder / "index.jsonl").read_text().splitlines()]
+        assert head == json.loads(job)  # the job, first
         assert sorted(r["seed"] for r in records) == list(seeds)  # one line per seed
         for record in records:
             whole = reference[record["seed"]]

@@ -1,6 +1,7 @@
 """Property-based fuzzing of every reader of a file a user hands over
-(layouts .vox and .npz, .h5 pyramids, a batch job's index, meshes,
-training checkpoints): files structurally valid, their fields hostile
+(layouts .vox and .npz, .h5 pyramids, a batch job's index, meshes, the
+material libraries and glTF images a textured mesh names, training
+checkpoints): files structurally valid, their fields hostile
 (negative, huge, of the wrong type or dtype, null), not only random bytes.
 Each reader gives what it promises or one InputError; never another
 exception (docs/RELIABILITY.md).
@@ -14,16 +15,19 @@ draws new ones:
 import io
 import json
 import os
+import shutil
 import struct
 import zipfile
 from datetime import timedelta
+from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
 from sinshape.core.errors import InputError
+from sinshape.prep import meshfiles
 from sinshape.runtime import layout as L
 from sinshape.runtime import many
 
@@ -47,7 +51,9 @@ def refused_or(read, check):
         value = read()
     except InputError as error:
         assert "\n" not in str(error) and str(error)
+        event("refused")
         return
+    event("read")
     check(value)
 
 
@@ -214,3 +220,92 @@ def test_checkpoint_fields(tmp_path_factory, checkpoint_state, changes):
         assert isinstance(loaded["level"], int) and isinstance(loaded["generator"], dict)
 
     refused_or(lambda: load_checkpoint(path), check)
+
+
+COLOUR = Path(__file__).parent / "data" / "colour"
+MTL_WORDS = st.one_of(st.sampled_from(sorted(meshfiles.MTL_OPTIONS) + ["-zz", "-", "on", "off", "maybe"]),
+                      st.sampled_from(["1", "0.5", "-2", "nan", "inf", "1e400", "3e38", "x"]))
+TEXTURE_NAMES = st.sampled_from(["box_texture.png", "missing.png", "../box_texture.png", "/etc/passwd",
+                                 "sub dir/t.png", "fifo.png", ".", "box_texture.png box_texture.png"])
+
+
+def surface_colour_of(path):
+    """What training reads of a mesh's colour: the scene, its files checked, and its surface's colour."""
+    from sinshape.prep import colour, voxelize
+
+    scene, data = voxelize.read_scene(path)
+    return colour.surface_colour(scene, path, data, voxel=0.25)
+
+
+def a_colour(surface):
+    assert surface is None or (np.isfinite(surface.rgb).all() and surface.rgb.min() >= 0 and surface.rgb.max() <= 1)
+
+
+VALID_STATEMENT = st.tuples(st.just("map_Kd"), st.sampled_from([[], ["-s", "2", "1", "1"], ["-o", "0.5"], ["-clamp", "on"],
+                                                              ["-mm", "0", "1"], ["-blendu", "off", "-bm", "1"]]),
+                            st.just("box_texture.png"))
+HOSTILE_STATEMENT = st.tuples(st.sampled_from(["map_Kd", "Kd", "newmtl", "map_kd"]), st.lists(MTL_WORDS, max_size=5),
+                              TEXTURE_NAMES)
+
+
+@READERS
+@given(statements=st.lists(st.one_of(VALID_STATEMENT, HOSTILE_STATEMENT), min_size=1, max_size=3),
+       uv=st.sampled_from([None, None, "3e38", "nan", "-1e6", "1e7"]))
+def test_mtl_fields(tmp_path_factory, statements, uv):
+    """An OBJ's material library of hostile statements: texture options of
+    any name and argument count, files anywhere (outside, missing, a FIFO),
+    colours that are not colours; UVs of hostile size."""
+    folder = tmp_path_factory.mktemp("mtl")
+    for name in ("box_texture.obj", "box_texture.png"):
+        shutil.copy(COLOUR / name, folder / name)
+    os.mkfifo(folder / "fifo.png")
+    lines = ["newmtl painted"] + [f"{key} {' '.join(words)} {'' if key == 'Kd' else name}".strip()
+                                  for key, words, name in statements]
+    (folder / "box_texture.mtl").write_text("\n".join(lines) + "\n")
+    if uv is not None:
+        text = (folder / "box_texture.obj").read_text()
+        (folder / "box_texture.obj").write_text(text.replace("\nvt ", f"\nvt {uv} ", 1).replace(f"vt {uv} ", f"vt {uv} 0 #", 1))
+    refused_or(lambda: surface_colour_of(folder / "box_texture.obj"), a_colour)
+
+
+def one_pixel() -> bytes:
+    from PIL import Image
+
+    out = io.BytesIO()
+    Image.new("RGB", (1, 1), (200, 100, 50)).save(out, format="PNG")
+    return out.getvalue()
+
+
+IMAGE_BYTES = st.sampled_from(["good", "cut", "junk", "huge header", "one pixel", "empty"])
+
+
+@READERS
+@given(changes=st.lists(st.tuples(st.sampled_from([
+    ("images", 0, "uri"), ("images", 0, "bufferView"), ("images", 0, "mimeType"), ("textures", 0, "source"),
+    ("materials", 0, "pbrMetallicRoughness"), ("buffers", 0, "uri"), ("buffers", 0, "byteLength"),
+    ("bufferViews", 2, "byteOffset"), ("bufferViews", 2, "buffer"), ("meshes", 0, "primitives")]),
+    st.one_of(HOSTILE, st.sampled_from(["data:image/png;base64", "data:;base64,@@", "data:,x", "tex.png", "../tex.png",
+                                        "/etc/passwd", "box.bin", {"baseColorFactor": [float("nan")] * 4},
+                                        {"baseColorTexture": {"index": 3}}, {"baseColorTexture": "0"}]))),
+    max_size=3), image=IMAGE_BYTES, top=st.sampled_from([None, "images", "textures", "materials", "bufferViews"]))
+def test_gltf_image_fields(tmp_path_factory, changes, image, top):
+    """A glTF whose images, textures, materials, buffers and views hold
+    hostile values (indices out of range or of the wrong type, data: URIs
+    that are not base64, paths outside its folder), its image file good,
+    cut short, junk, or claiming a huge size; a top-level list replaced."""
+    folder = tmp_path_factory.mktemp("gltf")
+    meta, binary = meshfiles.gltf_json((COLOUR / "box_texture.glb").read_bytes(), "box_texture.glb")
+    view = meta["bufferViews"][meta["images"][0]["bufferView"]]
+    good = binary[view["byteOffset"]:view["byteOffset"] + view["byteLength"]]
+    (folder / "tex.png").write_bytes({"good": good, "cut": good[:40], "junk": b"\x89PNG junk" * 9, "empty": b"",
+                                      "huge header": good[:16] + struct.pack(">II", 2**31 - 1, 2**31 - 1) + good[24:],
+                                      "one pixel": one_pixel()}[image])
+    (folder / "box.bin").write_bytes(binary)
+    meta["buffers"][0]["uri"] = "box.bin"
+    meta["images"][0] = {"uri": "tex.png"}
+    for (key, number, field), value in changes:
+        meta[key][number][field] = value
+    if top:
+        meta[top] = {"images": [], "textures": [{"source": -1}], "materials": "x", "bufferViews": [{}]}[top]
+    (folder / "box.gltf").write_text(json.dumps(meta))
+    refused_or(lambda: surface_colour_of(folder / "box.gltf"), a_colour)

@@ -18,8 +18,15 @@ def sinrun(*args):
     return CliRunner().invoke(cli, [str(a) for a in args])
 
 
+def index_records(folder) -> list:
+    """The seed records of a job's index (its first line records the job)."""
+    lines = (folder / "index.jsonl").read_text().splitlines()
+    assert set(json.loads(lines[0])) == {"job"}
+    return [json.loads(line) for line in lines[1:]]
+
+
 def index_seeds(folder) -> list:
-    return [json.loads(line)["seed"] for line in (folder / "index.jsonl").read_text().splitlines()]
+    return [record["seed"] for record in index_records(folder)]
 
 
 @pytest.fixture(scope="module")
@@ -48,7 +55,7 @@ def assert_same_files(folder, reference, seeds):
 
 
 def test_the_index_records_each_seed(sequential):
-    records = [json.loads(line) for line in (sequential / "index.jsonl").read_text().splitlines()]
+    records = index_records(sequential)
     assert [r["seed"] for r in records] == list(range(8))
     first = records[0]
     assert first["file"] == "0.ply" and first["faces"] > 0 and first["watertight"] is True
@@ -81,7 +88,7 @@ def test_an_interrupted_job_resumes_without_redoing_seeds(tiny_model, sequential
 def test_a_rerun_redoes_damaged_and_missing_files_and_keeps_one_line_per_seed(tiny_model, sequential, tmp_path,
                                                                              monkeypatch):
     many.sample_many(tiny_model, range(6), tmp_path / "{seed}.ply", workers=1, scale=SCALE)
-    records = {json.loads(line)["seed"]: json.loads(line) for line in (tmp_path / "index.jsonl").read_text().splitlines()}
+    records = {record["seed"]: record for record in index_records(tmp_path)}
     assert records[0]["bytes"] == (tmp_path / "0.ply").stat().st_size and len(records[0]["sha256"]) == 64
     with open(tmp_path / "5.ply", "r+b") as f:  # truncate -s 100
         f.truncate(100)

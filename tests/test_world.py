@@ -143,7 +143,8 @@ def test_world_writes_a_resumable_folder_of_tiles(tiny_model, model, tmp_path):
                                       "--workers", "1"])
     assert result.exit_code == 0, result.output
     assert sorted(p.name for p in out.iterdir()) == ["tile_-1_2.ply", "tile_0_2.ply", "tile_index.jsonl"]
-    records = [json.loads(line) for line in (out / "tile_index.jsonl").read_text().splitlines()]
+    job, *records = [json.loads(line) for line in (out / "tile_index.jsonl").read_text().splitlines()]
+    assert job["job"]["request"]["seed"] == 4 and "tile" not in job["job"]["request"]  # the world, not one tile
     assert [r["tile"] for r in records] == [[-1, 2], [0, 2]]
     assert records[0]["corner"] == list(world.tile_corner(model, (-1, 2)))
     assert (out / "tile_0_2.ply").read_bytes() == write.request_bytes(model, SampleRequest(4, tile=(0, 2)), "x.ply")[0]

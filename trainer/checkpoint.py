@@ -32,8 +32,16 @@ def default_checkpoint_path(output: Path) -> Path:
 
 def atomic_save(obj, path: Path) -> None:
     """torch.save through the runtime's atomic writer: never a half-written
-    checkpoint, and no temporary file left behind."""
-    atomic_write(path, lambda f: torch.save(obj, f))
+    checkpoint, and no temporary file left behind. One that cannot be
+    written (a full disk, a file-size limit) is an InputError, and the last
+    one written stays as it was."""
+    try:
+        atomic_write(path, lambda f: torch.save(obj, f))
+    except InputError as error:  # the file system's own reason
+        raise InputError(f"{error}; the last checkpoint written is kept") from None
+    except RuntimeError:  # torch's zip writer says only "unexpected pos" (inline_container.cc)
+        raise InputError(f"{path}: cannot write the checkpoint (writing it failed: a full disk, or a file-size "
+                         "limit?); the last checkpoint written is kept") from None
 
 
 def count_levels(generator_state: dict) -> int:
@@ -93,8 +101,9 @@ def check_fields(state: dict) -> str | None:
             and all(isinstance(s, list) and len(s) == 3 and all(whole(n, 1, 4097) for n in s) for s in sizes)):
         return "sizes must be 1 to 32 lists of 3 whole numbers in [1, 4096]"
     source = state.get("source")
-    if not (isinstance(source, dict) and all(isinstance(source.get(k), str) for k in ("name", "sha256", "kind"))):
-        return "source must hold the strings name, sha256 and kind"
+    if not (isinstance(source, dict) and all(isinstance(source.get(k), str) for k in ("name", "sha256", "kind"))
+            and all(isinstance(source.get(k, ""), str) for k in ("files", "colour"))):
+        return "source must hold the strings name, sha256 and kind (and files and colour, if any)"
     if not (whole(state.get("level"), 0, len(sizes) + 1) and whole(state.get("iteration"))):
         return f"level must be 0 to {len(sizes)} and iteration a whole number"
     for name in ("noise_amps", "seconds"):

@@ -58,11 +58,14 @@ class Progress:
 
 
 def train(input_path, output_path, config: TrainConfig | None, *, resume: bool = False, device: str = "auto",
-          checkpoint_path=None, checkpoint_every: float = 300.0, progress=None, log=None, colour: bool = True):
+          checkpoint_path=None, checkpoint_every: float = 300.0, progress=None, log=None, colour: bool = True,
+          asset_folder=None):
     """Train on a mesh or SSG pyramid and export the model to `output_path`.
 
     A mesh with colour trains a coloured model (format 4) unless `colour` is
-    False, which reads no colour at all (a resumed run keeps its checkpoint's).
+    False, which reads no colour at all (a resumed run keeps its checkpoint's,
+    and refuses False for a coloured one). The files a mesh names are read
+    from its folder, or `asset_folder`.
 
     With resume, `config` must be None: the checkpoint's config is used (the
     device may differ from the one the run started on). `progress(Progress)`
@@ -74,7 +77,7 @@ def train(input_path, output_path, config: TrainConfig | None, *, resume: bool =
     log = log or (lambda message: None)
     output_path = Path(output_path)
     checkpoint_path = Path(checkpoint_path) if checkpoint_path else default_checkpoint_path(output_path)
-    trainer = open_run(input_path, output_path, config, resume, device, checkpoint_path, log, colour)
+    trainer = open_run(input_path, output_path, config, resume, device, checkpoint_path, log, colour, asset_folder)
     budget = plan_budget(trainer, clock_started, log)
     checkpoints = Checkpoints(checkpoint_path, checkpoint_every)
     try:
@@ -87,7 +90,7 @@ def train(input_path, output_path, config: TrainConfig | None, *, resume: bool =
 
 
 def open_run(input_path, output_path: Path, config: TrainConfig | None, resume: bool, device: str,
-             checkpoint_path: Path, log, colour: bool = True) -> Trainer:
+             checkpoint_path: Path, log, colour: bool = True, asset_folder=None) -> Trainer:
     """The trainer of a new run, or of a resumed one at its checkpoint (whose
     config it takes), once every check that needs no training has passed."""
     if (config is None) != resume:
@@ -97,6 +100,9 @@ def open_run(input_path, output_path: Path, config: TrainConfig | None, resume: 
         # The checkpoint says how the pyramid was made; the hash, of what file.
         state = load_checkpoint(checkpoint_path)
         config = TrainConfig.from_dict(state["config"])
+        if not colour and state.get("colour", False):
+            raise InputError(f"{checkpoint_path}: this checkpoint trains colour, which a resumed run keeps; "
+                             "drop no_colour, or train afresh", ("no_colour", "resume"))
         colour = state.get("colour", False)  # checkpoints from before colour had none
     check_outputs(input_path, output_path, checkpoint_path, config.generator)
     placement = devices.choose(device, config.precision)
@@ -104,11 +110,15 @@ def open_run(input_path, output_path: Path, config: TrainConfig | None, resume: 
     first = state["level"] if state else 0  # the levels still to train
     pyramid = load_pyramid(input_path, config.res, config.levels, config.level_factor, config.min_size,
                            check=lambda sizes: check_training_memory(sizes[first:], config, placement),
-                           colour=colour)
-    if resume and pyramid.source_sha256 != state["source"]["sha256"]:
-        raise InputError(f"{checkpoint_path}: this checkpoint was trained on another file ({state['source']['name']})")
+                           colour=colour, asset_folder=asset_folder)
+    if resume:
+        check_same_input(pyramid, state["source"], checkpoint_path)
     # Record what was actually used: an .h5 pyramid fixes res and levels.
     config = dataclasses.replace(config, res=max(pyramid.sizes[-1]), levels=len(pyramid.levels))
+    if pyramid.colour_read:
+        log(f"colour: {pyramid.colour_read}")
+    for warning in pyramid.colour_warnings:
+        log(f"warning: {warning}")
 
     log(f"training on {placement.describe()}")
     trainer = Trainer(config, pyramid, placement)
@@ -123,6 +133,17 @@ def open_run(input_path, output_path: Path, config: TrainConfig | None, resume: 
         else:
             log("every level is trained already; exporting")
     return trainer
+
+
+def check_same_input(pyramid, source: dict, checkpoint_path: Path) -> None:
+    """A resumed run reads what its checkpoint was trained on: the same file,
+    and the same files it names (textures, material libraries, buffers:
+    checkpoints from before these were recorded are not compared)."""
+    if pyramid.source_sha256 != source["sha256"]:
+        raise InputError(f"{checkpoint_path}: this checkpoint was trained on another file ({source['name']})")
+    if source.get("files", pyramid.files_sha256) != pyramid.files_sha256:
+        raise InputError(f"{checkpoint_path}: the files {source['name']} names (its textures, material library or "
+                         "buffers) have changed since this checkpoint; put them back, or train afresh")
 
 
 def check_outputs(input_path, output_path: Path, checkpoint_path: Path, generator: str) -> None:
