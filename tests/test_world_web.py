@@ -212,7 +212,7 @@ def memory(page) -> dict:
 
 def test_the_page_flies_over_a_far_world_nearest_first_in_bounded_memory(site_page, terrain):  # noqa: F811
     """World mode in the browser from tile (10^9, -10^9): the tiles around the camera, made nearest
-    first, each the Python runtime's; the scene's origin floats with the camera, so every tile lies
+    first to the point it looks ahead to, each the Python runtime's; the scene's origin floats with the camera, so every tile lies
     within a few tiles of it; flying on drops the tiles behind, and the GPU holds at most the
     tiles within reach and the hold, however far it goes; leaving gives the shape back."""
     page = site_page
@@ -228,13 +228,15 @@ def test_the_page_flies_over_a_far_world_nearest_first_in_bounded_memory(site_pa
     assert "edit=world&at=1000000000%2C-1000000000&travel=fly&reach=1" in page.url
     assert status["at"] == ["1000000000", "-1000000000"] and len(status["tiles"]) == 9
     # Each tile is the Python runtime's (its values within 1e-5: the same faces within a few).
-    for i, j, faces, _ in status["tiles"]:
+    for i, j, faces, *_ in status["tiles"]:
         assert abs(faces - len(world.tile_mesh(terrain, 3, (int(i), int(j)))[1])) <= 2
-    # Nearest first: the camera starts over the middle of its tile.
+    # Nearest first to a point ahead of the camera: it starts over the middle of its tile, looking
+    # along the first horizontal axis (viewer/world.js's AHEAD, 1.5 tiles), and all at full detail.
     size = status["size"]
-    distance = lambda i, j: math.hypot((int(i) - 10**9) * size[0], (int(j) + 10**9) * size[1])  # noqa: E731
-    by_order = [distance(i, j) for i, j, _, _ in sorted(status["tiles"], key=lambda t: t[3])]
-    assert by_order == sorted(by_order) and by_order[0] == 0
+    ahead = 1.5 * min(size) / size[0]
+    distance = lambda i, j: math.hypot((int(i) - 10**9 - ahead) * size[0], (int(j) + 10**9) * size[1])  # noqa: E731
+    by_order = [distance(i, j) for i, j, *_ in sorted(status["tiles"], key=lambda t: t[3])]
+    assert by_order == sorted(by_order) and [t[4] for t in status["tiles"]] == [0] * 9
     assert status["farthest"] <= math.hypot(*size) * 1.01  # placed from the camera's tile, not at 10^9 tiles
 
     # Fly on, a tile at a time: tiles behind are dropped and disposed, memory stays bounded by the
