@@ -7,11 +7,14 @@ moving, turning or scaling it moves the whole world. It follows its
 `follow` object (the camera, say), or the 3D cursor where none is set.
 
 One child mesh object per tile, not one joined mesh: each tile is made on
-its own (world.tile_mesh) and shown as soon as it is done, a tile left
+its own (world.tile_surface) and shown as soon as it is done, a tile left
 behind is one object removed, and nothing already shown is rebuilt when
 the point moves on; a joined mesh would be rebuilt whole for every tile
 that comes or goes. The runtime's tiles share their border vertices
-exactly, so side by side they are one surface without a weld.
+exactly, so side by side they are one surface without a weld. Tiles past
+the fine radius are made a level coarser per tile (world.WorldOptions.lod),
+with the skirt that covers the crack where they meet finer ones, and made
+again at their new level as the point moves.
 """
 
 import math
@@ -25,7 +28,7 @@ from sinshape.runtime import world
 from . import convert, live, work
 
 TILE = "sinshape_tile"  # a tile object's custom property: "I,J"
-MADE = "sinshape_made"  # ... and what it was made from: the model file's SHA-256, the seed, the scale
+MADE = "sinshape_made"  # ... and what it was made from: the model file's SHA-256, the seed, the scale, the arrangement, its lod
 
 
 def followed_point(obj, scene) -> np.ndarray:
@@ -54,6 +57,11 @@ def tiles_around(centre, radius: int) -> list:
     return sorted(tiles, key=lambda t: (max(abs(t[0] - ci), abs(t[1] - cj)), t))
 
 
+def detail(centre, tile, fine: int, coarsest: int) -> int:
+    """The level of detail of a tile: 0 within `fine` tiles of the centre's, a level coarser per tile beyond."""
+    return min(coarsest, max(0, max(abs(tile[0] - centre[0]), abs(tile[1] - centre[1])) - fine))
+
+
 def tile_objects(obj) -> dict:
     """(i, j) -> the world's child object holding that tile."""
     return {tuple(int(n) for n in child[TILE].split(",")): child for child in obj.children if TILE in child}
@@ -80,35 +88,38 @@ def refresh(obj, scene=None, force: bool = False) -> None:
         model, digest = live.load_settings(settings)
         layout = world.world_layout(model)
         world.check_world_scale(layout, settings.scale, model.manifest.hidden, None)
-        wanted = tiles_around(centre_tile(model, layout, followed_point(obj, scene)), settings.radius)
-        made = f"{digest}:{settings.seed}:{settings.scale!r}"
-        if not force and live.MADE.get(obj.name) == (made, wanted):
+        centre = centre_tile(model, layout, followed_point(obj, scene))
+        wanted = tiles_around(centre, settings.radius)
+        made = f"{digest}:{settings.seed}:{settings.scale!r}:{settings.arrange}"
+        lods = {tile: detail(centre, tile, settings.fine, len(model.manifest.sizes) - 1) for tile in wanted}
+        if not force and live.MADE.get(obj.name) == (made, lods):
             return
-        live.MADE[obj.name] = (made, wanted)
+        live.MADE[obj.name] = (made, lods)
         present = tile_objects(obj)
         for tile in set(present) - set(wanted):
             remove(present.pop(tile))
-        todo = [tile for tile in wanted if force or tile not in present or present[tile].get(MADE) != made]
+        todo = [(tile, lods[tile]) for tile in wanted
+                if force or tile not in present or present[tile].get(MADE) != f"{made}:{lods[tile]}"]
         settings.error = ""
         if todo:
-            submit(obj.name, model, made, settings.seed, settings.scale, todo)
+            submit(obj.name, model, made, settings.seed, settings.scale, settings.arrange, todo)
     except InputError as error:
         settings.error = str(error)
         raise
 
 
-def submit(name: str, model, made: str, seed: int, scale: float, tiles: list) -> None:
-    """One job for a world's tiles; a newer one for the same world stops it between two tiles."""
+def submit(name: str, model, made: str, seed: int, scale: float, arrange: str, tiles: list) -> None:
+    """One job for a world's tiles ((tile, level of detail) pairs); a newer one for the same world stops
+    it between two tiles."""
     up = model.manifest.up
 
     def compute(job):
-        for done, tile in enumerate(tiles):
+        for done, (tile, lod) in enumerate(tiles):
             job.progress(done, len(tiles))
-            vertices, faces = world.tile_mesh(model, seed, tile, scale)
-            colours = None
-            if model.manifest.colour:
-                colours = convert.byte_colours(world.tile_colours(model, seed, tile, vertices))
-            job.deliver((tile, live.blender_arrays(world.placed(model, tile, vertices, "tile"), faces, up, colours)))
+            surface = world.tile_surface(model, seed, tile, scale, world.WorldOptions(arrange, lod=lod))
+            colours = None if surface.colours is None else convert.byte_colours(surface.colours)
+            arrays = live.blender_arrays(world.placed(model, tile, surface.vertices, "tile"), surface.faces, up, colours)
+            job.deliver((tile, f"{made}:{lod}", arrays))
 
     def fail(error):
         obj = bpy.data.objects.get(name)
@@ -117,10 +128,10 @@ def submit(name: str, model, made: str, seed: int, scale: float, tiles: list) ->
         live.report_later(f"{name}: {error}")
 
     work.WORKER.submit(work.Job(name, f"{name}: {len(tiles)} tiles", compute,
-                                lambda result: apply_tile(name, model, made, *result), fail))
+                                lambda result: apply_tile(name, model, *result), fail))
 
 
-def apply_tile(name: str, model, made: str, tile: tuple, arrays) -> None:
+def apply_tile(name: str, model, tile: tuple, made: str, arrays) -> None:
     """A finished tile into its child object (made where there is none), placed at the tile's corner."""
     obj = bpy.data.objects.get(name)
     if obj is None or not obj.sinshape_world.active:

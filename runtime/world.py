@@ -734,17 +734,24 @@ def point_field(model, seed: int, tile, points: np.ndarray, options: WorldOption
     level = check_lod(model, options.lod)
     h0, h1 = layout.horizontal
     points = np.asarray(points, np.float64)
-    steps = [np.floor(points[:, axis] / layout.stride[axis]).astype(np.int64) for axis in (h0, h1)]
+    steps = np.stack([np.floor(points[:, axis] / layout.stride[axis]).astype(np.int64) for axis in (h0, h1)], axis=1)
+    groups, which = np.unique(steps, axis=0, return_inverse=True)  # the tiles the points fall in
+    which = which.reshape(-1)
+    if len(groups) == 1:
+        order, starts = np.arange(len(points)), np.array([0, len(points)])
+    else:
+        order = np.argsort(which, kind="stable")
+        starts = np.searchsorted(which[order], np.arange(len(groups) + 1))
     logits = np.empty(len(points), np.float32)
-    hidden = np.zeros((len(points), model.manifest.hidden), np.float32)
-    ground = np.zeros(len(points), bool)
-    for t0, t1 in sorted(set(zip(steps[0].tolist(), steps[1].tolist()))):
-        chosen = (steps[0] == t0) & (steps[1] == t1)
-        local = points[chosen].copy()
+    hidden = np.empty((len(points), model.manifest.hidden), np.float32)
+    ground = np.empty(len(points), bool)
+    for group, (t0, t1) in enumerate(groups.tolist()):
+        chosen = order[starts[group]:starts[group + 1]]
+        local = points[chosen]
         local[:, h0] -= t0 * layout.stride[h0]  # exact: a power-of-two step from an integer
         local[:, h1] -= t1 * layout.stride[h1]
-        found = point_tile(model, layout, seed, (i + t0, j + t1), local, level, options)
-        logits[chosen], hidden[chosen], ground[chosen] = found
+        logits[chosen], hidden[chosen], ground[chosen] = point_tile(model, layout, seed, (i + t0, j + t1), local,
+                                                                     level, options)
     return logits, hidden, ground
 
 

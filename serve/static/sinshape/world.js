@@ -394,12 +394,13 @@ async function tileLogits(model, seed, [i, j], scale, options) {
   const [h0, h1] = layout.horizontal, up = layout.up, top = layout.stride[up];
   const shape = grid.map((p) => p.length), [u0, u1, z] = [grid[h0], grid[h1], grid[up]];
   const out = new Float32Array(shape[0] * shape[1] * shape[2]);
-  const index = (x, y, k) => { const at = [0, 0, 0]; at[h0] = x; at[h1] = y; at[up] = k; return (at[0] * shape[1] + at[1]) * shape[2] + at[2]; };
-  const rise = new Float64Array(u0.length * u1.length);
-  if (options.heights) u0.forEach((a, x) => u1.forEach((b, y) => { rise[x * u1.length + y] = mapHeight(options.heights, layout, a, b, [i, j]); }));
+  const strides = [shape[1] * shape[2], shape[2], 1], sx = strides[h0], sy = strides[h1], sk = strides[up]; // tile order -> C order
+  const nx = u0.length, ny = u1.length, nk = z.length;
+  const rise = new Float64Array(nx * ny);
+  if (options.heights) for (let x = 0; x < nx; x++) for (let y = 0; y < ny; y++) rise[x * ny + y] = mapHeight(options.heights, layout, u0[x], u1[y], [i, j]);
   const hidden = new Float64Array(d);
   if (options.arrange === 'scatter') {
-    u0.forEach((_, x) => u1.forEach((__, y) => z.forEach((at, k) => { out[index(x, y, k)] = -GROUND_SLOPE * (at - rise[x * u1.length + y] - GROUND); })));
+    for (let x = 0; x < nx; x++) for (let y = 0; y < ny; y++) for (let k = 0; k < nk; k++) out[x * sx + y * sy + k * sk] = -GROUND_SLOPE * (z[k] - rise[x * ny + y] - GROUND);
     for (const placed of await objectsNear(model, layout, seed, [i, j], level, options.heights)) {
       const inside = [u0, u1].map((u, k) => {
         const chosen = [], cells = [];
@@ -410,14 +411,16 @@ async function tileLogits(model, seed, [i, j], scale, options) {
         return { chosen, cells: Float64Array.from(cells, (c) => c * placed.window.cells[layout.horizontal[k]]) };
       });
       if (!inside[0].chosen.length || !inside[1].chosen.length) continue;
-      const read = readPlanes(placed.window, layout, inside[0].cells, inside[1].cells), ny = inside[1].chosen.length;
-      inside[0].chosen.forEach((x, n0) => inside[1].chosen.forEach((y, n1) => z.forEach((at, k) => {
-        const cell = Math.min(Math.max(at - placed.height, 0), top) * placed.window.cells[up];
-        for (let e = 0; e < d; e++) hidden[e] = read.flat.data[(n0 * ny + n1) * d + e];
-        for (const v of read.vertical) addUp(v, v.alongFirst ? n0 : n1, cell, hidden);
-        const logit = capped(headLogit(model.head, hidden), at - placed.height - top), where = index(x, y, k);
-        if (logit > out[where]) out[where] = logit;
-      })));
+      const read = readPlanes(placed.window, layout, inside[0].cells, inside[1].cells), m1 = inside[1].chosen.length;
+      inside[0].chosen.forEach((x, n0) => inside[1].chosen.forEach((y, n1) => {
+        for (let k = 0; k < nk; k++) {
+          const cell = Math.min(Math.max(z[k] - placed.height, 0), top) * placed.window.cells[up];
+          for (let e = 0; e < d; e++) hidden[e] = read.flat.data[(n0 * m1 + n1) * d + e];
+          for (const v of read.vertical) addUp(v, v.alongFirst ? n0 : n1, cell, hidden);
+          const logit = capped(headLogit(model.head, hidden), z[k] - placed.height - top), where = x * sx + y * sy + k * sk;
+          if (logit > out[where]) out[where] = logit;
+        }
+      }));
     }
     return { data: out, shape };
   }
@@ -426,27 +429,37 @@ async function tileLogits(model, seed, [i, j], scale, options) {
     u1.map((u) => (u + s.offset[1]) * s.window.cells[h1])));
   const weights = sources.map((s) => [u0.map((u) => { const w = behindWeight(u, layout.stride[h0]); return s.behind[0] ? w : Math.fround(1 - w); }),
     u1.map((u) => { const w = behindWeight(u, layout.stride[h1]); return s.behind[1] ? w : Math.fround(1 - w); })]);
-  const meanSum = new Float64Array(d), deviation = new Float64Array(d), part = new Float64Array(d), mean = new Float64Array(d);
-  for (let x = 0; x < u0.length; x++) {
-    for (let y = 0; y < u1.length; y++) {
-      const lift = rise[x * u1.length + y];
-      for (let k = 0; k < z.length; k++) {
-        const height = Math.min(Math.max(z[k] - lift, 0), top);
+  // Every window of a tile is read at one level, so the four share their cells along up: each
+  // point's two cells and weight along up are found once. Per window: its planes read along x and y.
+  const cellsUp = sources[0].window.cells[up], count = reads[0].vertical[0].count, means = sources.map((s) => s.window.mean);
+  const alongX = reads.map((r) => r.vertical.find((v) => v.alongFirst).data), alongY = reads.map((r) => r.vertical.find((v) => !v.alongFirst).data);
+  const flats = reads.map((r) => r.flat.data);
+  const meanSum = new Float64Array(d), deviation = new Float64Array(d);
+  for (let x = 0; x < nx; x++) {
+    for (let y = 0; y < ny; y++) {
+      const lift = rise[x * ny + y];
+      for (let k = 0; k < nk; k++) {
+        const cell = Math.min(Math.max(z[k] - lift, 0), top) * cellsUp;
+        const low = Math.min(Math.max(Math.floor(cell), 0), Math.max(count - 2, 0)), high = Math.min(low + 1, count - 1);
+        const f = Math.fround(cell - low), g = 1 - f;
         meanSum.fill(0);
         deviation.fill(0);
         let squares = 0;
-        sources.forEach((s, n) => {
-          const w = weights[n][0][x] * weights[n][1][y], cell = height * s.window.cells[up];
-          for (let e = 0; e < d; e++) part[e] = reads[n].flat.data[(x * u1.length + y) * d + e];
-          for (const v of reads[n].vertical) addUp(v, v.alongFirst ? x : y, cell, part);
-          mean.fill(0);
-          addUp({ data: s.window.mean, count: s.window.mean.length / d }, 0, cell, mean);
-          for (let e = 0; e < d; e++) { meanSum[e] += w * mean[e]; deviation[e] += w * (part[e] - mean[e]); }
+        for (let n = 0; n < sources.length; n++) {
+          const w = weights[n][0][x] * weights[n][1][y], flat = flats[n], ax = alongX[n], ay = alongY[n], mean = means[n];
+          const at = (x * ny + y) * d, a0 = (x * count + low) * d, a1 = (x * count + high) * d;
+          const b0 = (y * count + low) * d, b1 = (y * count + high) * d, m0 = low * d, m1 = high * d;
+          for (let e = 0; e < d; e++) {
+            const part = flat[at + e] + (ax[a0 + e] * g + ax[a1 + e] * f) + (ay[b0 + e] * g + ay[b1 + e] * f);
+            const centre = mean[m0 + e] * g + mean[m1 + e] * f;
+            meanSum[e] += w * centre;
+            deviation[e] += w * (part - centre);
+          }
           squares += w * w;
-        });
+        }
         const scaleBy = squares ** (-CONTRAST / 2);
         for (let e = 0; e < d; e++) hidden[e] = meanSum[e] + deviation[e] * scaleBy;
-        out[index(x, y, k)] = capped(headLogit(model.head, hidden), z[k] - lift - top);
+        out[x * sx + y * sy + k * sk] = capped(headLogit(model.head, hidden), z[k] - lift - top);
       }
     }
   }
@@ -483,7 +496,7 @@ async function pointField(model, seed, [i, j], points, options) {
     if (!groups.has(key)) groups.set(key, []);
     groups.get(key).push(p);
   }
-  const at = [0, 0, 0], cell = [0, 0, 0], part = new Float64Array(d), mean = new Float64Array(d), total = new Float64Array(d), deviation = new Float64Array(d);
+  const at = [0, 0, 0], cell = [0, 0, 0], part = new Float64Array(d), total = new Float64Array(d), deviation = new Float64Array(d);
   for (const key of [...groups.keys()].sort()) {
     const [t0, t1] = key.split(',').map(Number), tile = [i + BigInt(t0), j + BigInt(t1)];
     const found = options.arrange === 'scatter' ? await objectsNear(model, layout, seed, tile, level, options.heights)
@@ -513,22 +526,25 @@ async function pointField(model, seed, [i, j], points, options) {
         continue;
       }
       const height = Math.min(Math.max(at[up] - rise, 0), top);
+      const behind0 = behindWeight(at[h0], layout.stride[h0]), behind1 = behindWeight(at[h1], layout.stride[h1]);
       total.fill(0);
       deviation.fill(0);
       let squares = 0;
       for (const s of found) {
-        let w = 1;
-        [h0, h1].forEach((axis, k) => {
-          const behind = behindWeight(at[axis], layout.stride[axis]);
-          w *= s.behind[k] ? behind : Math.fround(1 - behind);
-          cell[axis] = (at[axis] + s.offset[k]) * s.window.cells[axis];
-        });
-        cell[up] = height * s.window.cells[up];
+        const { window: win, offset } = s;
+        const w = (s.behind[0] ? behind0 : Math.fround(1 - behind0)) * (s.behind[1] ? behind1 : Math.fround(1 - behind1));
+        cell[h0] = (at[h0] + offset[0]) * win.cells[h0];
+        cell[h1] = (at[h1] + offset[1]) * win.cells[h1];
+        cell[up] = height * win.cells[up];
         part.fill(0);
-        PLANE_AXES.forEach(([a, b], k) => addBilinear(s.window.planes[k], cell[a], cell[b], part));
-        mean.fill(0);
-        addUp({ data: s.window.mean, count: s.window.mean.length / d }, 0, cell[up], mean);
-        for (let e = 0; e < d; e++) { total[e] += w * mean[e]; deviation[e] += w * (part[e] - mean[e]); }
+        for (let k = 0; k < 3; k++) addBilinear(win.planes[k], cell[PLANE_AXES[k][0]], cell[PLANE_AXES[k][1]], part);
+        const count = win.mean.length / d, low = Math.min(Math.max(Math.floor(cell[up]), 0), Math.max(count - 2, 0));
+        const high = Math.min(low + 1, count - 1), f = Math.fround(cell[up] - low), m0 = low * d, m1 = high * d;
+        for (let e = 0; e < d; e++) {
+          const centre = win.mean[m0 + e] * (1 - f) + win.mean[m1 + e] * f;
+          total[e] += w * centre;
+          deviation[e] += w * (part[e] - centre);
+        }
         squares += w * w;
       }
       const scaleBy = squares ** (-CONTRAST / 2);
