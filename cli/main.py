@@ -409,7 +409,9 @@ def run_job(job, items, unit: str, name) -> None:
                    "in the world (near the origin: float32 cannot place tiles far out), or 'tile': the "
                    "input's units from each tile's own corner (any tile; the index gives the corner).")
 @THREADS_OPTION
-@click.option("--workers", type=int, default=None, help="Worker processes (default: one per core) or Ray actors.")
+@click.option("--workers", type=int, default=None,
+              help="Worker processes (default: one, on every core's threads: neighbouring tiles share work a "
+                   "worker keeps, which workers taking tiles in turn would each do again) or Ray actors.")
 @click.option("--engine", type=click.Choice(["local", "ray"]), default="local", show_default=True,
               help="This machine's cores, or a Ray cluster (pip install 'sinshape[ray]').")
 @click.option("--address", default=None, help="With --engine ray: the cluster's address.")
