@@ -89,9 +89,9 @@ WORKER_JS = """async ([file, seed, repeats, arrange, levels]) => {
 
 # Frame times (requestAnimationFrame) while `recording` is set.
 RECORD_JS = """() => {
-  window.frameTimes = [];
+  const times = window.frameTimes = [];  // a recording of its own: an earlier loop stops at its next frame
   window.recording = true;
-  const tick = (t) => { window.frameTimes.push(t); if (window.recording) requestAnimationFrame(tick); };
+  const tick = (t) => { times.push(t); if (window.recording && window.frameTimes === times) requestAnimationFrame(tick); };
   requestAnimationFrame(tick);
 }"""
 

@@ -49,6 +49,7 @@ Why this holds:
   from its sides (SKIRT of its grid steps straight down) that covers it.
 """
 
+import functools
 import io
 import itertools
 import math
@@ -345,6 +346,7 @@ class Cell:
     mirror: tuple  # (2,) bool
 
 
+@functools.lru_cache(maxsize=1024)  # a pure function, asked again for each tile and point group near the cell
 def scatter_cell(seed: int, a: int, b: int, room: tuple) -> Cell:
     """The draws of cell (a, b): `room` is how far (voxels) an object may move
     along each horizontal axis inside its cell."""
@@ -733,10 +735,13 @@ def point_field(model, seed: int, tile, points: np.ndarray, options: WorldOption
     layout = world_layout(model)
     level = check_lod(model, options.lod)
     h0, h1 = layout.horizontal
-    points = np.asarray(points, np.float64)
-    steps = np.stack([np.floor(points[:, axis] / layout.stride[axis]).astype(np.int64) for axis in (h0, h1)], axis=1)
-    groups, which = np.unique(steps, axis=0, return_inverse=True)  # the tiles the points fall in
-    which = which.reshape(-1)
+    points = np.asarray(points, np.float64).reshape(-1, 3)
+    t0, t1 = (np.floor(points[:, axis] / layout.stride[axis]).astype(np.int64) for axis in (h0, h1))
+    low0, low1 = (int(t0.min()), int(t1.min())) if len(points) else (0, 0)
+    span = int(t1.max()) - low1 + 1 if len(points) else 1
+    keys = (t0 - low0) * span + (t1 - low1)  # the tile each point falls in, as one number
+    codes, which = np.unique(keys, return_inverse=True)
+    groups = np.stack([codes // span + low0, codes % span + low1], axis=1)
     if len(groups) == 1:
         order, starts = np.arange(len(points)), np.array([0, len(points)])
     else:
@@ -912,8 +917,8 @@ def skirted(vertices: np.ndarray, faces: np.ndarray, layout: Layout, depth: floa
     the face beside it. Returns (vertices, faces, the vertex each new vertex
     copies: an index per vertex)."""
     edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    key = np.sort(edges, axis=1)
-    _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    key = np.minimum(edges[:, 0], edges[:, 1]) * len(vertices) + np.maximum(edges[:, 0], edges[:, 1])
+    _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
     open_edges = edges[counts[inverse.reshape(-1)] == 1]
     on_side = np.zeros(len(open_edges), bool)
     for axis in layout.horizontal:
