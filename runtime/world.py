@@ -88,7 +88,11 @@ GROUND = 1.0  # voxels of ground above the map's height under a scatter world's 
 # The ground's logit per voxel: nearly linear across a grid step, so that
 # marching cubes places a sloping ground without terraces (4 drew them).
 GROUND_SLOPE = 1.0
-NORMAL_STEP = 0.25  # voxels (times 2 ** lod): the central differences of a normal, a power of two
+NORMAL_STEP = 0.25  # voxels: a normal's differences, a power of two (exact steps from a face), under PLATEAU
+# Voxels either side of a lattice line where the window whose line it is
+# holds the whole weight: a normal's points just past a face need no window
+# but the face's own, so a tile's normals make no neighbour's windows.
+PLATEAU = 0.5
 SKIRT = 2.0  # a coarser tile's skirt, in its grid's steps along up
 MAX_MAP_SIDE = 1 << 12  # pixels of a height map along each axis
 MAX_RELIEF = 1 << 14  # voxels: a height map's values in +-MAX_RELIEF
@@ -330,9 +334,11 @@ def smoothstep(f):
 
 def behind_weight(u, stride: int):
     """The weight, along one horizontal axis, of the window whose lattice
-    point lies behind a point u voxels past it (0 to S); the window before
-    weighs exactly 1 minus this. float32."""
-    return np.float32(smoothstep(np.clip((np.asarray(u) / stride - 0.5) / BLEND + 0.5, 0, 1)))
+    point lies behind a point u voxels past it (0 to S): exactly 0 within
+    PLATEAU of that point, exactly 1 within PLATEAU of the next, smooth
+    between; the window before weighs exactly 1 minus this. float32."""
+    f = np.clip((np.asarray(u) - PLATEAU) / (stride - 2 * PLATEAU), 0, 1)
+    return np.float32(smoothstep(np.clip((f - 0.5) / BLEND + 0.5, 0, 1)))
 
 
 @dataclass(frozen=True)
@@ -367,14 +373,20 @@ def scatter_geometry(model, layout: Layout) -> tuple:
 
 @dataclass(frozen=True)
 class Placed:
-    """An object of a scatter world where a tile sees it: its lowest corner
-    relative to the tile's (integer voxels), mirrors, and the height it stands at."""
+    """An object of a scatter world where a tile sees it: its cell, its
+    lowest corner relative to the tile's (integer voxels), mirrors, and the
+    height it stands at. Its planes are made (`object_window`) only when a
+    point asks for them."""
 
-    window: Window
+    cell: tuple  # (a, b)
     corner: tuple  # (2,) ints, relative to the tile's lowest corner
     extent: tuple  # (2,) E - 1 per horizontal axis
     mirror: tuple
     height: float
+
+
+def object_window(model, layout: Layout, seed: int, placed_object: Placed, level: int) -> Window:
+    return window(model, layout, seed, *placed_object.cell, level, "scatter")
 
 
 def objects_near(model, layout: Layout, seed: int, tile: tuple, level: int, heights) -> list:
@@ -392,8 +404,7 @@ def objects_near(model, layout: Layout, seed: int, tile: tuple, level: int, heig
                     or low[1] + e1 < j * s1:
                 continue
             height = 0.0 if heights is None else object_height(heights, layout, low, (e0, e1))
-            found.append(Placed(window(model, layout, seed, a, b, level, "scatter"),
-                                (low[0] - i * s0, low[1] - j * s1), (e0, e1), cell.mirror, height))
+            found.append(Placed((a, b), (low[0] - i * s0, low[1] - j * s1), (e0, e1), cell.mirror, height))
     return found
 
 
@@ -656,7 +667,7 @@ def tile_logits(model, seed: int, tile, scale: float = 1.0, options: WorldOption
         for done, placed_object in enumerate(near, 1):
             if progress:
                 progress(done, len(near))
-            scatter_into(out, colours, model, layout, placed_object, u0, u1, z)
+            scatter_into(out, colours, model, layout, seed, level, placed_object, u0, u1, z)
         return (out, colours) if colour else out
     sources = blend_sources(model, layout, seed, (i, j), level, progress)
     rows = max(1, (1 << 21) // (len(u1) * len(z) * model.manifest.hidden))  # ~8 MB a sum
@@ -680,10 +691,10 @@ def tile_logits(model, seed: int, tile, scale: float = 1.0, options: WorldOption
     return (out, colours) if colour else out
 
 
-def scatter_into(out: np.ndarray, colours, model, layout: Layout, placed_object: Placed, u0, u1, z) -> None:
+def scatter_into(out: np.ndarray, colours, model, layout: Layout, seed: int, level: int, placed_object: Placed,
+                 u0, u1, z) -> None:
     """One object's logits where they are the largest yet, on the part of a tile's grid inside its box."""
     h0, h1, up = *layout.horizontal, layout.up
-    found = placed_object.window
     local = []
     for u, low, extent, mirror in zip((u0, u1), placed_object.corner, placed_object.extent, placed_object.mirror):
         inside = np.flatnonzero((u - low >= 0) & (u - low <= extent))
@@ -692,6 +703,7 @@ def scatter_into(out: np.ndarray, colours, model, layout: Layout, placed_object:
     (x, c0), (y, c1) = local
     if not len(x) or not len(y):
         return
+    found = object_window(model, layout, seed, placed_object, level)
     levels = np.clip(z - placed_object.height, 0, layout.stride[up])[None, None, :]
     hidden, _ = hidden_on_grid(found, layout, c0 * found.cells[h0], c1 * found.cells[h1], levels * found.cells[up])
     logits = capped(head_logits(model.head, hidden), (z - placed_object.height - layout.stride[up])[None, None, :])
@@ -772,17 +784,18 @@ def point_tile(model, layout: Layout, seed: int, tile: tuple, points: np.ndarray
         hidden = np.zeros((len(points), model.manifest.hidden), np.float32)
         ground = np.ones(len(points), bool)
         for placed_object in objects_near(model, layout, seed, tile, level, options.heights):
-            found = placed_object.window
             inside = np.ones(len(points), bool)
             cells = np.empty((len(points), 3))
             for axis, u, low, extent, mirror in zip((h0, h1), (u0, u1), placed_object.corner, placed_object.extent,
                                                     placed_object.mirror):
                 position = u - low
                 inside &= (position >= 0) & (position <= extent)
-                cells[:, axis] = (extent - position if mirror else position) * found.cells[axis]
-            cells[:, up] = np.clip(z - placed_object.height, 0, layout.stride[up]) * found.cells[up]
+                cells[:, axis] = extent - position if mirror else position
             if not inside.any():
                 continue
+            found = object_window(model, layout, seed, placed_object, level)
+            cells[:, up] = np.clip(z - placed_object.height, 0, layout.stride[up])
+            cells *= np.asarray(found.cells)
             hid = point_hidden(found, cells[inside])
             better = np.zeros(len(points), bool)
             candidate = capped(head_logits(model.head, hid), (z - placed_object.height - layout.stride[up])[inside])
@@ -793,13 +806,18 @@ def point_tile(model, layout: Layout, seed: int, tile: tuple, points: np.ndarray
         return logits, hidden, ground
     levels = np.clip(z - rise, 0, layout.stride[up])
     blend = ContrastSum()
-    for found, offset, behind in blend_sources(model, layout, seed, tile, level):
-        cells = np.empty((len(points), 3))
-        cells[:, h0] = (u0 + offset[0]) * found.cells[h0]
-        cells[:, h1] = (u1 + offset[1]) * found.cells[h1]
-        cells[:, up] = levels * found.cells[up]
-        weight = window_weight(u0, layout.stride[h0], behind[0]) * window_weight(u1, layout.stride[h1], behind[1])
-        blend.add(weight[:, None], point_hidden(found, cells), along(found.mean, cells[:, up], 0))
+    i, j = tile
+    for a in (i - 1, i):
+        for b in (j - 1, j):
+            weight = window_weight(u0, layout.stride[h0], a == i) * window_weight(u1, layout.stride[h1], b == j)
+            if not weight.any():  # adds exact zeros: its planes are not needed (a point just past a face)
+                continue
+            found = window(model, layout, seed, a, b, level)
+            cells = np.empty((len(points), 3))
+            cells[:, h0] = (u0 + (layout.stride[h0] if a < i else 0)) * found.cells[h0]
+            cells[:, h1] = (u1 + (layout.stride[h1] if b < j else 0)) * found.cells[h1]
+            cells[:, up] = levels * found.cells[up]
+            blend.add(weight[:, None], point_hidden(found, cells), along(found.mean, cells[:, up], 0))
     total = blend.total()
     return capped(head_logits(model.head, total), z - rise - layout.stride[up]), total, np.zeros(len(points), bool)
 
@@ -812,11 +830,12 @@ def point_hidden(window: Window, cells: np.ndarray) -> np.ndarray:
 def tile_normals(model, seed: int, tile, vertices: np.ndarray, options: WorldOptions = PLAIN) -> np.ndarray:
     """Unit normals at a tile's vertices (model units from its corner, as
     tile_mesh gives them): the field's gradient, by differences over
-    NORMAL_STEP (times 2 ** lod) voxels along each axis from the vertex,
-    pointing out of the solid. A vertex on a face two tiles share gets the
-    same normal from both (the same points, each read in the tile it falls
-    in). (V, 3) float32."""
-    step = NORMAL_STEP * 2 ** options.lod
+    NORMAL_STEP voxels along each axis from the vertex, pointing out of the
+    solid. A vertex on a face two tiles share gets the same normal from both
+    (the same points, each read in the tile it falls in: just past a face,
+    only the face's own windows count, so none of the neighbour's is made).
+    (V, 3) float32."""
+    step = NORMAL_STEP
     vertices = np.asarray(vertices, np.float64)
     offsets = np.concatenate([np.zeros((1, 3)), np.eye(3) * step])  # (4, 3): the vertex, then a step along each axis
     probes = (vertices[:, None, :] + offsets[None]).reshape(-1, 3)

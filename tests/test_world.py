@@ -338,3 +338,13 @@ def test_world_writes_a_painted_scattered_coarser_world_and_refuses_a_bad_map(ti
     assert_one_line_error(CliRunner().invoke(cli, ["world", str(tiny_model), "--tiles", "0,0", "--map",
                                                    str(tmp_path / "map.npy"), "--relief", "3", "-o", str(tmp_path / "x")]),
                           "relief scales an image's")
+
+
+def test_a_tiles_normals_make_none_of_its_neighbours_windows(model, fresh, monkeypatch):
+    """A blended tile, normals and all, makes its own four windows and no other (the points of a
+    normal just past a face read only the face's window, which holds the whole weight there)."""
+    made = []
+    monkeypatch.setattr(world, "draw_noise", lambda *args: made.append(args[0]) or generate.draw_noise(*args))
+    surface = world.tile_surface(model, 4, (3, -2))
+    assert len(surface.normals) == len(surface.vertices) > 100
+    assert sorted(made) == sorted(world.window_seed(4, a, b) for a in (2, 3) for b in (-3, -2))

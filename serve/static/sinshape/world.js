@@ -38,7 +38,8 @@ const PITCH = 3; // world.PITCH: a scatter cell's side, in strides
 const PRESENCE = 0.6; // world.PRESENCE: the share of scatter cells holding an object
 const GROUND = 1.0; // world.GROUND: voxels of ground over the map under a scatter world's objects
 const GROUND_SLOPE = 1.0; // world.GROUND_SLOPE: the ground's (and a ceiling's) logit per voxel
-const NORMAL_STEP = 0.25; // world.NORMAL_STEP: voxels (times 2 ** lod) of a normal's differences
+const NORMAL_STEP = 0.25; // world.NORMAL_STEP: voxels of a normal's differences
+const PLATEAU = 0.5; // world.PLATEAU: voxels either side of a lattice line where its window holds the whole weight
 const SKIRT = 2.0; // world.SKIRT: a coarser tile's skirt, in its grid's steps along up
 const GROUND_COLOUR = [0.5, 0.5, 0.5]; // world.GROUND_COLOUR
 const MAX_MAP_SIDE = 1 << 12; // world.MAX_MAP_SIDE
@@ -194,8 +195,8 @@ function scatterCell(seed, a, b, room) {
            mirror: [(draw[3] & 1n) !== 0n, (draw[3] & 2n) !== 0n] };
 }
 
-/** The objects of a scatter world that reach into tile (i, j), in a fixed order, as world.objects_near. */
-async function objectsNear(model, layout, seed, [i, j], level, heights) {
+/** The objects of a scatter world that reach into tile (i, j), in a fixed order, as world.objects_near (their planes not made). */
+function objectsNear(model, layout, seed, [i, j], level, heights) {
   const [h0, h1] = layout.horizontal, finest = model.manifest.sizes.at(-1);
   const s0 = BigInt(layout.stride[h0]), s1 = BigInt(layout.stride[h1]);
   const p0 = BigInt(PITCH * layout.stride[h0]), p1 = BigInt(PITCH * layout.stride[h1]);
@@ -208,8 +209,7 @@ async function objectsNear(model, layout, seed, [i, j], level, heights) {
       if (!cell.present || low[0] > (i + 1n) * s0 || low[0] + BigInt(e0) < i * s0 || low[1] > (j + 1n) * s1
           || low[1] + BigInt(e1) < j * s1) continue;
       const height = heights === null ? 0 : objectHeight(heights, layout, low, [e0, e1]);
-      found.push({ window: await windowAt(model, layout, seed, a, b, level, 'scatter'), corner: [Number(low[0] - i * s0), Number(low[1] - j * s1)],
-                   extent: [e0, e1], mirror: cell.mirror, height });
+      found.push({ cell: [a, b], corner: [Number(low[0] - i * s0), Number(low[1] - j * s1)], extent: [e0, e1], mirror: cell.mirror, height });
     }
   }
   return found;
@@ -257,7 +257,10 @@ function objectHeight(map, layout, low, extent) {
 
 const smoothstep = (f) => f * f * (3 - 2 * f);
 /** The weight of the window behind a point u voxels past its lattice point, as world.behind_weight (in float32). */
-const behindWeight = (u, stride) => Math.fround(smoothstep(Math.min(Math.max((u / stride - 0.5) / BLEND + 0.5, 0), 1)));
+function behindWeight(u, stride) {
+  const f = Math.min(Math.max((u - PLATEAU) / (stride - 2 * PLATEAU), 0), 1);
+  return Math.fround(smoothstep(Math.min(Math.max((f - 0.5) / BLEND + 0.5, 0), 1)));
+}
 
 /** A tile's grid at `scale` and `lod`, as world.tile_grid: per model axis the positions (horizontal: from the tile's corner; up: from the floor). */
 function tileGrid(manifest, layout, scale, options) {
@@ -401,17 +404,19 @@ async function tileLogits(model, seed, [i, j], scale, options) {
   const hidden = new Float64Array(d);
   if (options.arrange === 'scatter') {
     for (let x = 0; x < nx; x++) for (let y = 0; y < ny; y++) for (let k = 0; k < nk; k++) out[x * sx + y * sy + k * sk] = -GROUND_SLOPE * (z[k] - rise[x * ny + y] - GROUND);
-    for (const placed of await objectsNear(model, layout, seed, [i, j], level, options.heights)) {
+    for (const placed of objectsNear(model, layout, seed, [i, j], level, options.heights)) {
       const inside = [u0, u1].map((u, k) => {
         const chosen = [], cells = [];
         u.forEach((at, n) => {
           const position = at - placed.corner[k];
           if (position >= 0 && position <= placed.extent[k]) { chosen.push(n); cells.push(placed.mirror[k] ? placed.extent[k] - position : position); }
         });
-        return { chosen, cells: Float64Array.from(cells, (c) => c * placed.window.cells[layout.horizontal[k]]) };
+        return { chosen, cells };
       });
       if (!inside[0].chosen.length || !inside[1].chosen.length) continue;
-      const read = readPlanes(placed.window, layout, inside[0].cells, inside[1].cells), m1 = inside[1].chosen.length;
+      placed.window = await windowAt(model, layout, seed, ...placed.cell, level, 'scatter');
+      const c0 = Float64Array.from(inside[0].cells, (c) => c * placed.window.cells[h0]), c1 = Float64Array.from(inside[1].cells, (c) => c * placed.window.cells[h1]);
+      const read = readPlanes(placed.window, layout, c0, c1), m1 = inside[1].chosen.length;
       inside[0].chosen.forEach((x, n0) => inside[1].chosen.forEach((y, n1) => {
         for (let k = 0; k < nk; k++) {
           const cell = Math.min(Math.max(z[k] - placed.height, 0), top) * placed.window.cells[up];
@@ -498,10 +503,27 @@ async function pointField(model, seed, [i, j], points, options) {
   }
   const at = [0, 0, 0], cell = [0, 0, 0], part = new Float64Array(d), total = new Float64Array(d), deviation = new Float64Array(d);
   for (const key of [...groups.keys()].sort()) {
-    const [t0, t1] = key.split(',').map(Number), tile = [i + BigInt(t0), j + BigInt(t1)];
-    const found = options.arrange === 'scatter' ? await objectsNear(model, layout, seed, tile, level, options.heights)
-      : await blendSources(model, layout, seed, tile, level);
-    for (const p of groups.get(key)) {
+    const [t0, t1] = key.split(',').map(Number), tile = [i + BigInt(t0), j + BigInt(t1)], members = groups.get(key);
+    const local = (p, axis) => points[3 * p + axis] - (axis === h0 ? t0 * layout.stride[h0] : axis === h1 ? t1 * layout.stride[h1] : 0);
+    // Only the windows or objects some point of the group reads are made: a point just past a face
+    // reads the face's own windows alone (PLATEAU), so a tile's normals make none of its neighbour's.
+    const found = [];
+    if (options.arrange === 'scatter') {
+      for (const placed of objectsNear(model, layout, seed, tile, level, options.heights)) {
+        const reads = members.some((p) => [h0, h1].every((axis, k) => { const position = local(p, axis) - placed.corner[k]; return position >= 0 && position <= placed.extent[k]; }));
+        if (reads) found.push({ ...placed, window: await windowAt(model, layout, seed, ...placed.cell, level, 'scatter') });
+      }
+    } else {
+      for (const [a, b] of [[tile[0] - 1n, tile[1] - 1n], [tile[0] - 1n, tile[1]], [tile[0], tile[1] - 1n], [tile[0], tile[1]]]) {
+        const behind = [a === tile[0], b === tile[1]];
+        const weighs = members.some((p) => [h0, h1].every((axis, k) => { const w = behindWeight(local(p, axis), layout.stride[axis]); return (behind[k] ? w : Math.fround(1 - w)) !== 0; }));
+        if (weighs) {
+          found.push({ window: await windowAt(model, layout, seed, a, b, level, 'blend'), behind,
+                       offset: [behind[0] ? 0 : layout.stride[h0], behind[1] ? 0 : layout.stride[h1]] });
+        }
+      }
+    }
+    for (const p of members) {
       for (let a = 0; a < 3; a++) at[a] = points[3 * p + a];
       at[h0] -= t0 * layout.stride[h0]; // exact: a power-of-two step from an integer
       at[h1] -= t1 * layout.stride[h1];
@@ -558,11 +580,11 @@ async function pointField(model, seed, [i, j], points, options) {
 /**
  * Unit normals at a tile's vertices (positions as tileMesh gives them), as
  * world.tile_normals: the field's gradient by differences over NORMAL_STEP
- * (times 2 ** lod) voxels along each axis, out of the solid. Float32Array (V, 3).
+ * voxels along each axis, out of the solid. Float32Array (V, 3).
  */
 export async function tileNormals(model, seed, tile, positions, options = PLAIN) {
   seed = checkSeed(seed);
-  const step = NORMAL_STEP * 2 ** options.lod, n = positions.length / 3, probes = new Float64Array(12 * n);
+  const step = NORMAL_STEP, n = positions.length / 3, probes = new Float64Array(12 * n);
   for (let v = 0; v < n; v++) {
     for (let k = 0; k < 4; k++) for (let a = 0; a < 3; a++) probes[12 * v + 3 * k + a] = positions[3 * v + a] + (k === a + 1 ? step : 0);
   }
