@@ -1031,8 +1031,10 @@ def frame_normals(model, normals: np.ndarray) -> np.ndarray:
 
 # Worker processes a world's job uses on this machine unless told: one, with
 # every core's threads. Neighbouring tiles share their windows, which a
-# worker keeps; workers given tiles in turn each make most windows again:
-# two on 2 cores wrote 36 terrain tiles in 15.6-21.2 s, one in 10.3-10.4 s.
+# worker keeps; workers given tiles in turn each make most windows again
+# (on 2 cores, two wrote 36 tiles as fast as one did, 7.0 and 6.4 tiles/s
+# for the terrain, and, while a tile's normals still made neighbours'
+# windows, 1.4 to 1.6 times slower). More cores: --workers.
 LOCAL_WORKERS = 1
 
 
