@@ -388,6 +388,39 @@ def apply_layout(obj) -> None:
     regenerate(obj, force=True)
 
 
+def export_asset(obj, path: Path, lods: str, texture: int, ao: bool, add_objects: bool) -> list:
+    """Write the sample of `obj` as a game asset (runtime.asset) to `path`,
+    and with add_objects import it with Blender's glTF importer, placed as
+    the sample is (its levels' frame is the sample's mesh's: glTF's Y up is
+    turned to Blender's Z as the sample's model frame is). The importer
+    puts the coarser levels, outside the file's scene, in a collection it
+    excludes from the view layer (Orphan Nodes). Returns the new objects."""
+    from sinshape.runtime import asset, write
+
+    options = asset.options_of(lods, texture, ao)  # refused before any work
+    try:
+        import meshoptimizer  # noqa: F401
+        import xatlas  # noqa: F401
+    except ImportError:
+        raise InputError("a game asset needs meshoptimizer and xatlas, which this Blender's Python lacks: "
+                         "pip install 'sinshape[assets]' into it") from None
+    model = load_model(obj.sinshape)
+    write.write_request(model, request_of(obj, model), path, asset=options)
+    if not add_objects:
+        return []
+    before = set(bpy.data.objects)
+    bpy.ops.import_scene.gltf(filepath=str(path))
+    added = [other for other in bpy.data.objects if other not in before]
+    for other in added:
+        if other.parent is None:
+            other.matrix_world = obj.matrix_world @ other.matrix_world
+        if other.name in bpy.context.view_layer.objects:  # not the coarser levels, in an excluded collection
+            other.select_set(False)
+    obj.select_set(True)  # the sample stays the active object, as before the export
+    bpy.context.view_layer.objects.active = obj
+    return added
+
+
 def check_models() -> None:
     """After a file opens: each sample's model is there and unchanged, or its error says why."""
     for obj in bpy.data.objects:

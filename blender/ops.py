@@ -1,12 +1,12 @@
 """The operators: add a sample or a world, regenerate, variations, a keep box, the
-layout shown as cubes and applied. Each reports bad input Blender's way
+layout shown as cubes and applied, a game asset exported. Each reports bad input Blender's way
 (one line, {'CANCELLED'}, nothing half made) and leaves the work to live."""
 
 from pathlib import Path
 
 import bpy
 import numpy as np
-from bpy.props import EnumProperty, FloatVectorProperty, IntProperty, StringProperty
+from bpy.props import BoolProperty, EnumProperty, FloatVectorProperty, IntProperty, StringProperty
 
 from sinshape import models
 from sinshape.core.errors import InputError
@@ -201,6 +201,33 @@ def reported(operator, function, *args) -> set:
     return {"FINISHED"}
 
 
+class SINSHAPE_OT_export_asset(SampleOperator):
+    """Write this sample as a game asset, a .glb of levels of detail with UVs and maps baked from the model, and add its levels as objects"""
+
+    bl_idname = "sinshape.export_asset"
+    bl_label = "Export Asset"
+
+    filepath: StringProperty(subtype="FILE_PATH", description="The .glb to write")
+    filter_glob: StringProperty(default="*.glb", options={"HIDDEN"})
+    lods: StringProperty(name="Levels", default="20000,5000,1200",
+                         description="Triangles of each level of detail, finest first")
+    texture: IntProperty(name="Maps", default=1024, min=16, max=8192, subtype="PIXEL",
+                         description="Texels per side of each level's maps, a power of two")
+    ao: BoolProperty(name="Ambient occlusion", description="Bake an ambient occlusion map too")
+    add_objects: BoolProperty(name="Add to scene", default=True,
+                              description="Import the written asset's levels, textured, where the sample is")
+
+    def invoke(self, context, event):
+        if not self.filepath:
+            self.filepath = f"{sample_object(context).name}.glb"
+        context.window_manager.fileselect_add(self)
+        return {"RUNNING_MODAL"}
+
+    def execute(self, context):
+        return reported(self, live.export_asset, sample_object(context), Path(bpy.path.abspath(self.filepath)),
+                        self.lods, self.texture, self.ao, self.add_objects)
+
+
 class SINSHAPE_OT_layout_show(SampleOperator):
     """Show the sample's coarse layout as cubes, one per full cell: delete, duplicate, move or extrude them, then apply"""
 
@@ -237,4 +264,5 @@ class SINSHAPE_OT_report(bpy.types.Operator):
 
 
 CLASSES = (SINSHAPE_OT_add_sample, SINSHAPE_OT_add_world, SINSHAPE_OT_regenerate, SINSHAPE_OT_variations,
-           SINSHAPE_OT_keep_box_add, SINSHAPE_OT_layout_show, SINSHAPE_OT_layout_apply, SINSHAPE_OT_report)
+           SINSHAPE_OT_keep_box_add, SINSHAPE_OT_layout_show, SINSHAPE_OT_layout_apply, SINSHAPE_OT_export_asset,
+           SINSHAPE_OT_report)

@@ -36,6 +36,7 @@ class VIEW3D_PT_sinshape(bpy.types.Panel):
             column.prop(settings, name)
         layout.operator("sinshape.regenerate", icon="FILE_REFRESH")
         layout.operator("sinshape.variations", icon="MOD_ARRAY")
+        layout.operator("sinshape.export_asset", icon="EXPORT")
         layout.separator()
         layout.prop(settings, "edit", expand=True)
         if settings.edit == "KEEP":

@@ -30,14 +30,15 @@ OPTIONS = {"scale": "--scale", "factors": "--size", "smooth": "--smooth", "threa
            "size": "--size", "keep": "--keep", "layout": "--layout", "recon": "--recon",
            "output": "--output", "tile": "--tiles", "frame": "--frame", "force": "--force",
            "no_colour": "--no-colour", "d_steps": "--d-steps", "d_rate": "--d-rate",
-           "asset_folder": "--asset-folder", "restart": "--restart", "arrange": "--arrange", "heights": "--map",
-           "relief": "--relief", "lod": "--lod"}
+           "asset_folder": "--asset-folder", "restart": "--restart", "lods": "--lods", "texture": "--texture",
+           "ao": "--ao", "arrange": "--arrange", "heights": "--map", "relief": "--relief", "lod": "--lod"}
 # ctx.meta key: {parameter: what set it} where a command's value came from elsewhere than OPTIONS says.
 SOURCES = "sinrun.sources"
 # The extra that installs each optional module (pyproject.toml): a command
 # that needs a missing one says which extra to install.
 EXTRAS = {"torch": "train", "onnx": "train", "scipy": "prep", "h5py": "prep", "skimage": "prep",
-          "fastapi": "serve", "uvicorn": "serve", "starlette": "serve", "ray": "ray"}
+          "fastapi": "serve", "uvicorn": "serve", "starlette": "serve", "ray": "ray", "xatlas": "assets",
+          "meshoptimizer": "assets"}
 
 
 def command_line_message(error: Exception, options: dict = OPTIONS) -> str:
@@ -266,6 +267,22 @@ def mesh_options(command):
     return command
 
 
+def asset_options(command):
+    """Options of a game asset (.glb with levels of detail and baked maps)."""
+    for option in reversed([
+        click.option("--lods", default=None, metavar="N,N,...",
+                     help="Write a game asset (.glb): levels of detail of these triangle counts, finest first, "
+                          "e.g. 20000,5000,1200, simplified from the full-resolution surface, each with its own "
+                          "UVs and maps baked from the model (normal, and colour for a coloured model)."),
+        click.option("--texture", type=int, default=None,
+                     help="With --lods: texels per side of each level's maps, a power of two up to 8192. "
+                          "Default 1024."),
+        click.option("--ao", is_flag=True, help="With --lods: bake ambient occlusion too."),
+    ]):
+        command = option(command)
+    return command
+
+
 RESTART_OPTION = click.option(
     "--restart", is_flag=True,
     help="Make every file again where the index beside the outputs records another job (another model, seed, "
@@ -309,6 +326,7 @@ def open_model(model, threads):
                    "whole in memory), or .npz (the occupancy grid). With --seeds, {seed} in the name is "
                    "replaced, or _seedN is added. Default: MODEL_seedN.ply.")
 @mesh_options
+@asset_options
 @THREADS_OPTION
 @click.option("--workers", type=int, default=None,
               help="With --seeds: worker processes (--engine local; default: one per core) or Ray actors "
@@ -321,36 +339,38 @@ def open_model(model, threads):
               help="With --engine ray: the cluster's address. Default: Ray's own (RAY_ADDRESS, else a "
                    "local Ray on this machine).")
 @RESTART_OPTION
-def sample(model, seed, seeds, recon, keep, layout_file, resample_layout, grow_by, anchor, scale, size, output, smooth, smoother, largest, frame, threads, workers,
-           engine, address, restart):
+def sample(model, seed, seeds, recon, keep, layout_file, resample_layout, grow_by, anchor, scale, size, output, smooth,
+           smoother, largest, frame, lods, texture, ao, threads, workers, engine, address, restart):
     """Generate new shapes from a model and write them as meshes.
 
     MODEL is a .onnx file from `sinrun train` or the name of a shipped model
     (`sinrun models` lists them); without it, the default shipped model.
     Needs no torch.
     """
-    from sinshape.runtime import layout, write
+    from sinshape.runtime import asset as assets, layout, write
     from sinshape.runtime.request import Layout, SampleRequest
 
     if seeds is None and (workers is not None or engine != "local" or address is not None or restart):
         raise ConflictError("workers, engine, address and restart are for many samples: give seeds",
                             ("workers", "engine", "address", "restart", "seeds"))
+    packed = assets.options_of(lods, texture, ao)
     loaded = open_model(model, threads)
     laid_out = Layout.of(layout.read_any(loaded, layout_file, size), resample_layout) if layout_file else None
     request = SampleRequest(seed, recon, size, scale, smooth, smoother, largest, frame, keep, grow_by, anchor,
                             laid_out)
     show_warnings(loaded, request)
-    output = output or Path(f"{loaded.path.stem}_{'recon' if recon else 'seed{seed}'}.ply")
+    output = output or Path(f"{loaded.path.stem}_{'recon' if recon else 'seed{seed}'}.{'glb' if packed else 'ply'}")
     if seeds:
-        return sample_seeds(loaded, seeds, output, engine, workers, threads, address, request, restart)
+        return sample_seeds(loaded, seeds, output, engine, workers, threads, address, request, restart, packed)
     path = named_output(output, seed=request.sample_seed) if "{" in str(output) else output
     with StageProgress() as show:
         write.write_request(loaded, request, path, [layout_file] if layout_file else [], threads,
-                            lambda done, total: show("meshing", done, total))
+                            lambda done, total: show("meshing", done, total), packed)
     click.echo(f"wrote {path}")
 
 
-def sample_seeds(model, seeds, output, engine, workers, threads, address, request, restart=False) -> None:
+def sample_seeds(model, seeds, output, engine, workers, threads, address, request, restart=False,
+                 asset=None) -> None:
     """`sinrun sample --seeds`: one resumable job, one progress bar."""
     from sinshape.runtime import many, write
 
@@ -362,7 +382,7 @@ def sample_seeds(model, seeds, output, engine, workers, threads, address, reques
     else:
         pattern = output.with_name(f"{output.stem}_seed{{seed}}{output.suffix}")
     run_job(lambda progress: many.sample_many(model.path, iter(seeds), pattern, engine, workers, threads, address,
-                                              progress=progress, request=request, restart=restart),
+                                              progress=progress, request=request, restart=restart, asset=asset),
             seeds, "seeds", lambda seed: named_output(pattern, seed=seed))
 
 
@@ -429,8 +449,9 @@ def run_job(job, items, unit: str, name) -> None:
               help="Levels of detail coarser than the finest: distant tiles, cheaper, with a skirt that hides "
                    "the crack where they meet finer ones.")
 @RESTART_OPTION
+@asset_options
 def world(model, seed, tiles, output, suffix, scale, frame, threads, workers, engine, address, arrange, height_map,
-          relief, lod, restart):
+          relief, lod, restart, lods, texture, ao):
     """Write tiles of an endless world: any tile on its own, seamless with its neighbours.
 
     The world spreads along the model's two horizontal axes (the two that are
@@ -439,20 +460,25 @@ def world(model, seed, tiles, output, suffix, scale, frame, threads, workers, en
     whatever was made before, and a tile a billion tiles away costs what
     tile 0,0 costs.
     """
-    from sinshape.runtime import world as worlds, write
+    from sinshape.runtime import asset as assets, world as worlds, write
     from sinshape.runtime.request import SampleRequest
 
+    packed = assets.options_of(lods, texture, ao)
     loaded = open_model(model, threads)
     heights = worlds.read_height_map(height_map, loaded, relief) if height_map else None
     wanted = SampleRequest(seed, scale=scale, frame=frame, arrange=arrange, heights=heights, lod=lod)
     output = output or Path(f"{loaded.path.stem}_world_seed{seed}")
+    suffix = "glb" if packed else suffix
     if output.suffix.lower() in files.MESH_FORMATS and "{tile}" not in output.name:  # one mesh of the block
+        if packed:
+            raise InputError(f"{output}: a block of tiles is one mesh; write its tiles as assets to a folder or a "
+                             "name holding {tile}", "lods")
         with StageProgress() as show:
             write.write_block(loaded, wanted, tiles, output, lambda done, total: show("tiles", done, total))
         return click.echo(f"wrote {output} ({len(tiles)} tiles)")
     pattern = output if "{tile}" in output.name else output / f"tile_{{tile}}.{suffix}"
     run_job(lambda progress: worlds.write_tiles(loaded.path, iter(tiles), pattern, wanted, engine, workers, threads,
-                                                address, progress, restart),
+                                                address, progress, restart, packed),
             tiles, "tiles", lambda tile: pattern.with_name(pattern.name.replace("{tile}", f"{tile[0]}_{tile[1]}")))
 
 

@@ -204,6 +204,7 @@ def is_number(word: str) -> bool:
 
 
 STATEMENT = re.compile(r"^[ \t]*(\S+)[ \t]+(.*?)[ \t]*$", re.MULTILINE)
+MTLLIB = re.compile(r"^[ \t]*mtllib[ \t]+(.*?)[ \t]*$", re.MULTILINE)
 
 
 def obj_textures(text: str, folder: MeshFolder) -> list:
@@ -211,9 +212,7 @@ def obj_textures(text: str, folder: MeshFolder) -> list:
     and the diffuse textures (`map_Kd`) they name: a list of MtlTexture.
     Colours (`Kd`) must be three numbers in [0, 1]."""
     textures = []
-    for keyword, library in STATEMENT.findall(text):
-        if keyword != "mtllib":
-            continue
+    for library in MTLLIB.findall(text):  # only these lines: an OBJ may hold millions of others
         mtl = folder.read(library, "material library", MAX_MTL_BYTES).decode("utf-8", errors="replace")
         for key, value in STATEMENT.findall(mtl):
             key = key.lower()
@@ -453,8 +452,8 @@ def check_references(path: Path, data: bytes, folder: MeshFolder, materials: boo
                 raise colour_input(error) from None
     elif suffix == ".obj" and materials:
         try:
-            for mtl in obj_textures(data.decode("latin-1"), folder):
-                raw = folder.read(mtl.file, "texture", MAX_IMAGE_BYTES, named_in=mtl.library)
+            for mtl in {mtl.file: mtl for mtl in obj_textures(data.decode("latin-1"), folder)}.values():
+                raw = folder.read(mtl.file, "texture", MAX_IMAGE_BYTES, named_in=mtl.library)  # each file once
                 textures.append(checked_texture(raw, mtl.file, f"{path.name}: texture {mtl.file}"))
         except InputError as error:
             raise colour_input(error) from None

@@ -10,11 +10,14 @@
     mesh = runtime.extract(model, triplane, scale=4)  # trimesh.Trimesh, in the input mesh's frame
     grid = runtime.dense(model, triplane, scale=1)    # (X, Y, Z) occupancy in [0, 1]
     runtime.sample_many("towerruins.onnx", range(1000), "out/{seed}.glb")  # a resumable job on all cores
+    data, info = runtime.asset_bytes(model, request, runtime.AssetOptions((20000, 5000, 1200), 2048))  # a game asset
 
 Stages, one module each: load -> generate -> query -> mesh -> write; edit
 composes a sample from boxes of others; request is the one sample request
 (its checks, and `make`, which picks the plain sample or its edit); many
-runs requests for many seeds on worker processes or a Ray cluster.
+runs requests for many seeds on worker processes or a Ray cluster; asset
+packs a request as a game asset (.glb: levels of detail, UVs, maps baked by
+bake, written by gltf; the assets extra).
 
 Sampling imports numpy, onnxruntime and threadpoolctl, and trimesh only
 for a whole mesh in memory (a .ply streams without it); render adds pillow,
@@ -35,7 +38,8 @@ _EXPORTS = {
     "InputError": "sinshape.core.errors", "MemoryLimitError": "sinshape.core.errors", "Model": "load",
     "load_model": "load", "TriPlane": "generate", "sample": "generate", "interpolate": "generate",
     "extract": "mesh", "dense": "query", "points": "query", "colours": "query", "sample_many": "many", "compose": "edit",
-    "Part": "edit", "SampleRequest": "request", "Layout": "request", "make": "request",
+    "Part": "edit", "SampleRequest": "request", "Layout": "request", "make": "request", "AssetOptions": "asset",
+    "asset_bytes": "asset",
 }
 __all__ = sorted(_EXPORTS) + ["__version__"]
 

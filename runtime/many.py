@@ -185,6 +185,8 @@ def job_difference(recorded: dict, job: dict) -> str:
         return f"another model ({str(recorded.get('model_name'))[:100]}, sha256 {str(recorded.get('model'))[:12]}...)"
     if recorded.get("files") != job["files"]:
         return f"files {json.dumps(recorded.get('files'))[:100]}, not {json.dumps(job['files'])}"
+    if recorded.get("asset") != job.get("asset"):
+        return f"asset {json.dumps(recorded.get('asset'))[:100]}, not {json.dumps(job.get('asset'))[:100]}"
     asked = recorded.get("request") if isinstance(recorded.get("request"), dict) else {}
     for name, value in job["request"].items():
         if asked.get(name, "missing") != value:
@@ -239,7 +241,7 @@ class Worker:
     """One worker's model, loaded once, and the request each item's file is
     made by, with the item in its `field`."""
 
-    def __init__(self, model, suffix: str, threads: int, request, field: str = "seed"):
+    def __init__(self, model, suffix: str, threads: int, request, field: str = "seed", asset=None):
         if isinstance(model, bytes):  # sent over the network (Ray): load it from a local copy
             with tempfile.NamedTemporaryFile(suffix=".onnx") as f:
                 f.write(model)
@@ -247,7 +249,7 @@ class Worker:
                 self.model = load_model(f.name, threads=threads)
         else:
             self.model = load_model(model, threads=threads)
-        self.suffix, self.threads, self.request, self.field = suffix, threads, request, field
+        self.suffix, self.threads, self.request, self.field, self.asset = suffix, threads, request, field, asset
 
     def run(self, item) -> tuple:
         """(file bytes, index record without the file name) of one item."""
@@ -255,13 +257,17 @@ class Worker:
 
         started = time.perf_counter()
         request = dataclasses.replace(self.request, **{self.field: item})
-        data, mesh = write.request_bytes(self.model, request, f"{self.field}{self.suffix}", self.threads)
+        label = "_".join(map(str, item)) if isinstance(item, tuple) else item  # an asset's name: seed3, tile2_-1
+        data, mesh = write.request_bytes(self.model, request, f"{self.field}{label}{self.suffix}", self.threads,
+                                         asset=self.asset)
         record = {self.field: item, "vertices": None, "faces": None, "watertight": None, "volume": None}
         if self.field == "tile":  # where the tile lies: its files may hold it in its own frame
             from .world import tile_corner
 
             record["corner"] = tile_corner(self.model, item)
-        if mesh is not None:
+        if self.asset is not None:  # an asset's figures: the full mesh's counts and each level's
+            record.update(vertices=mesh["dense_vertices"], faces=mesh["dense_triangles"], levels=mesh["levels"])
+        elif mesh is not None:
             record.update(vertices=len(mesh.vertices), faces=len(mesh.faces),
                           watertight=bool(mesh.is_watertight), volume=round(float(mesh.volume), 6))
         record["seconds"] = round(time.perf_counter() - started, 3)
@@ -321,8 +327,8 @@ def handler_kept(signum: int):
 class InProcess:
     """One worker: this process."""
 
-    def __init__(self, model_path, suffix, threads, request, field):
-        self.worker, self.done = Worker(model_path, suffix, threads, request, field), []
+    def __init__(self, model_path, suffix, threads, request, field, asset=None):
+        self.worker, self.done = Worker(model_path, suffix, threads, request, field, asset), []
 
     slots = 1
 
@@ -339,12 +345,12 @@ class InProcess:
 class Processes:
     """Worker processes on this machine (multiprocessing, spawned)."""
 
-    def __init__(self, model_path, suffix, threads, request, field, workers: int):
+    def __init__(self, model_path, suffix, threads, request, field, workers: int, asset=None):
         import multiprocessing
 
         with signals_deferred(signal.SIGINT, signal.SIGTERM):
             self.pool = multiprocessing.get_context("spawn").Pool(
-                workers, initializer=_start_process, initargs=(str(model_path), suffix, threads, request, field))
+                workers, initializer=_start_process, initargs=(str(model_path), suffix, threads, request, field, asset))
         self.results = queue.Queue()
         self.slots = 2 * workers  # one running and one waiting per worker
 
@@ -380,7 +386,8 @@ class RayActors:
     """Ray actors, each holding a Worker; Ray's own default cluster unless
     `address` names one."""
 
-    def __init__(self, model_path, suffix, threads, request, field, workers: int | None, address: str | None):
+    def __init__(self, model_path, suffix, threads, request, field, workers: int | None, address: str | None,
+                 asset=None):
         try:
             import ray
         except ImportError:
@@ -407,7 +414,7 @@ class RayActors:
                              f"{workers * threads} CPUs; the Ray cluster has {cpus}", "workers")
         actor = ray.remote(num_cpus=threads)(Worker)
         model = ray.put(Path(model_path).read_bytes())
-        self.actors = [actor.remote(model, suffix, threads, request, field) for _ in range(workers)]
+        self.actors = [actor.remote(model, suffix, threads, request, field, asset) for _ in range(workers)]
         self.free = self.actors * 2  # one running and one waiting per actor
         self.slots = len(self.free)
         self.pending = {}  # object ref -> actor
@@ -472,10 +479,11 @@ def check_existing_outputs(pattern: Path, inputs, varying: Varying = SEEDS) -> N
 
 def sample_many(model_path, seeds, pattern, engine: str = "local", workers: int | None = None,
                 threads: int | None = None, address: str | None = None, progress=None, request=None,
-                restart: bool = False, **fields) -> dict:
+                restart: bool = False, asset=None, **fields) -> dict:
     """Write one file per seed, `pattern` with {seed} filled in, resumably:
     the sample `request` (a request.SampleRequest with no seed; None: the
-    plain one), with `fields` of SampleRequest replaced, for each seed.
+    plain one), with `fields` of SampleRequest replaced, for each seed; with
+    `asset` (an asset.AssetOptions), each as a game asset (.glb).
 
     seeds: any iterable of seeds, read lazily. engine 'local': `workers`
     processes (None: one per core; 1: this process), or 'ray': Ray actors
@@ -493,16 +501,18 @@ def sample_many(model_path, seeds, pattern, engine: str = "local", workers: int 
     if request.seed is not None or request.recon:
         one = "recon" if request.recon else "seed"
         raise ConflictError(f"give seeds or {one}, not both", ("seeds", one))
-    return run_job(model_path, seeds, pattern, SEEDS, request, engine, workers, threads, address, progress, restart)
+    return run_job(model_path, seeds, pattern, SEEDS, request, engine, workers, threads, address, progress, restart,
+                   asset)
 
 
 def run_job(model_path, items, pattern, varying: Varying, request, engine: str = "local",
             workers: int | None = None, threads: int | None = None, address: str | None = None,
-            progress=None, restart: bool = False) -> dict:
+            progress=None, restart: bool = False, asset=None) -> dict:
     """One file per item (`varying` says which field of `request` each item
     sets, and how it is named), resumably, on the engine asked for: the
-    job `sample_many` and world.write_tiles run. It resumes only the job its
-    index records (check_same_job)."""
+    job `sample_many` and world.write_tiles run; with `asset` (an
+    asset.AssetOptions) each item's game asset (.glb). It resumes only the
+    job its index records (check_same_job)."""
     from . import write
 
     pattern = Path(pattern)
@@ -519,9 +529,13 @@ def run_job(model_path, items, pattern, varying: Varying, request, engine: str =
     if threads is not None and threads < 1:
         raise InputError(f"threads must be at least 1, got {threads}", "threads")
     write.output_kind(pattern)
+    if asset is not None and pattern.suffix.lower() != ".glb":
+        raise InputError(f"{pattern.name}: an asset is written as .glb (glTF's binary), not {pattern.suffix}", "lods")
     files.check_writable(pattern.with_name(pattern.name.replace(varying.placeholder, "0")), [model_path])
     check_existing_outputs(pattern, [model_path], varying)
     identity = job_record(load_model(model_path, threads=1), request, pattern, varying)  # a bad model: one line here
+    if asset is not None:  # an asset job is another job than the plain one, and than an asset of other levels
+        identity["asset"] = {"lods": list(asset.lods), "texture": asset.texture, "ao": asset.ao}
     index = index_path(pattern, varying)
     found = check_same_job(scan_index(index, varying), identity, index, restart)
     done = verified(found.records, pattern, varying) if found else {}
@@ -530,14 +544,14 @@ def run_job(model_path, items, pattern, varying: Varying, request, engine: str =
         rewrite_index(index, identity, done)
     job = (model_path, pattern.suffix, threads or 1, request, varying.field)
     if engine == "ray":
-        pool = RayActors(*job, workers, address)
+        pool = RayActors(*job, workers, address, asset=asset)
     else:
         if workers is not None and workers > default_threads():
             raise InputError(f"workers must be 1 to {default_threads()} (this machine's cores), got {workers}",
                              "workers")
         workers = default_threads() if workers is None else workers
         job = (model_path, pattern.suffix, threads or max(1, default_threads() // workers), request, varying.field)
-        pool = InProcess(*job) if workers == 1 else Processes(*job, workers)
+        pool = InProcess(*job, asset=asset) if workers == 1 else Processes(*job, workers, asset=asset)
     written = skipped = running = 0
     try:
         with Appender(index, identity) as log:

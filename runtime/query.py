@@ -81,15 +81,23 @@ def points(model, triplane: TriPlane, coords: np.ndarray, chunk: int = 1 << 16) 
     (i, j, k) of the sample at scale 1 is at (i, j, k); the sample spans
     [0, N - 1] per axis. Points outside count as empty. Returns (n,) float32.
     """
-    coords = point_array(coords)
-    size = np.array(triplane.size)
-    out = np.zeros(len(coords), np.float32)
-    inside = np.nonzero(np.all((coords >= 0) & (coords <= size - 1), axis=1))[0]
-    proj = project(model, triplane)
-    for start in range(0, len(inside), chunk):
-        index = inside[start:start + chunk]
-        out[index] = head_occupancy(model.head, hidden_at(proj.planes, coords[index]))
-    return out
+    return occupying(model, triplane, chunk)(coords)
+
+
+def occupying(model, triplane: TriPlane, chunk: int = 1 << 16):
+    """`points` of one tri-plane as a function of the points, the planes
+    projected once: for work that asks again and again (an asset's bake)."""
+    planes, top = project(model, triplane).planes, np.array(triplane.size) - 1
+
+    def occupancy(coords) -> np.ndarray:
+        coords = point_array(coords)
+        out = np.zeros(len(coords), np.float32)
+        inside = np.nonzero(np.all((coords >= 0) & (coords <= top), axis=1))[0]
+        for start in range(0, len(inside), chunk):
+            index = inside[start:start + chunk]
+            out[index] = head_occupancy(model.head, hidden_at(planes, coords[index]))
+        return out
+    return occupancy
 
 
 def colours(model, triplane: TriPlane, coords: np.ndarray) -> np.ndarray:

@@ -332,10 +332,12 @@ def project(camera: np.ndarray, size, projection: str):
     return pixels, nearness
 
 
-def rasterise(corners: np.ndarray, nearness: np.ndarray, size):
+def rasterise(corners: np.ndarray, nearness: np.ndarray, size, weights: bool = False):
     """Z-buffer the projected faces: for each pixel, the index of the nearest
     face covering its centre (-1 for none) and that face's nearness there
-    (-inf for none), both (height, width).
+    (-inf for none), both (height, width); with `weights`, also the
+    barycentric weights of that face's corners 1 and 2 at the pixel's
+    centre, (height, width, 2) float32 (an asset's bake reads them).
 
     corners : (m, 3, 2) float pixel positions; nearness : (m, 3) float.
 
@@ -366,6 +368,7 @@ def rasterise(corners: np.ndarray, nearness: np.ndarray, size):
 
     zbuffer = np.full(width * height, -np.inf)
     owner = np.full(width * height, -1, dtype=np.int64)
+    found = np.zeros((width * height, 2), np.float32) if weights else None
     boxes = span + 1
     boxes = np.where(boxes <= 8, boxes, 2 ** np.ceil(np.log2(boxes)).astype(np.int64))
     # One integer per (width, height): np.unique on rows is much slower.
@@ -385,7 +388,11 @@ def rasterise(corners: np.ndarray, nearness: np.ndarray, size):
             row, col = np.nonzero(inside)
             f, dx_in, dy_in = f[row], dx[col], dy[col]
             pixel = (first[f, 1] + dy_in) * width + first[f, 0] + dx_in
-            keep_nearest(pixel, near[f, 0] + near[f, 1] * dx_in + near[f, 2] * dy_in, kept[f], zbuffer, owner)
+            won = keep_nearest(pixel, near[f, 0] + near[f, 1] * dx_in + near[f, 2] * dy_in, kept[f], zbuffer, owner)
+            if weights:
+                found[pixel[won]] = np.stack([u[row, col][won], v[row, col][won]], axis=1)
+    if weights:
+        return owner.reshape(height, width), zbuffer.reshape(height, width), found.reshape(height, width, 2)
     return owner.reshape(height, width), zbuffer.reshape(height, width)
 
 
@@ -394,14 +401,15 @@ def cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
 
 
-def keep_nearest(pixel, near, face, zbuffer, owner) -> None:
+def keep_nearest(pixel, near, face, zbuffer, owner) -> np.ndarray:
     """Depth-test fragments (k,): pixel index, nearness and face each; update
-    the buffers in place."""
+    the buffers in place. Returns which fragments won their pixel, (k,) bool."""
     np.maximum.at(zbuffer, pixel, near)  # unlike zbuffer[pixel] = ..., right when a pixel repeats
     # The fragments that set their pixel's nearness win it. Where two tie,
     # the two faces meet there, and either is right.
     won = near == zbuffer[pixel]
     owner[pixel[won]] = face[won]
+    return won
 
 
 def lambert(camera: np.ndarray, corners: np.ndarray) -> np.ndarray:

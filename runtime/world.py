@@ -865,6 +865,21 @@ def tile_colours(model, seed: int, tile, vertices: np.ndarray, options: WorldOpt
     return colour_bytes(rgb)
 
 
+def tile_hidden(model, seed: int, tile, points: np.ndarray, options: WorldOptions = PLAIN) -> np.ndarray:
+    """The decoder's hidden pre-activations (b1 not added) at points of tile
+    (i, j) (model units from its corner along the horizontal axes, from the
+    floor along up), as the occupancy has them there: the windows' blended
+    with their contrast kept, or a scatter world's object's (zero on its
+    ground). (n, D) float32."""
+    return point_field(model, seed, tile, points, options)[1]
+
+
+def tile_points(model, seed: int, tile, points: np.ndarray, options: WorldOptions = PLAIN) -> np.ndarray:
+    """The world's occupancy at any points of tile (i, j) (as tile_hidden's):
+    (n,) float32, what its grid holds where a point is one of the grid's."""
+    return sigmoid(point_field(model, seed, tile, points, options)[0])
+
+
 # ---- a tile's surface
 
 def tile_mesh(model, seed: int, tile, scale: float = 1.0, memory_limit: int | None = None,
@@ -1040,12 +1055,14 @@ LOCAL_WORKERS = 1
 
 def write_tiles(model_path, tiles, pattern, request, engine: str = "local", workers: int | None = None,
                 threads: int | None = None, address: str | None = None, progress=None,
-                restart: bool = False) -> dict:
+                restart: bool = False, asset=None) -> dict:
     """Write one file per tile of `tiles` ((i, j) pairs, read lazily), `pattern`
     with {tile} filled in as I_J: the world of `request` (a
     request.SampleRequest with a seed and no tile), resumably, on the cores
     or a Ray cluster as runtime.many's jobs (an index of another job is
-    refused unless `restart`). Returns {"written", "skipped", "index"}."""
+    refused unless `restart`); with `asset` (an asset.AssetOptions), each
+    tile's game asset (.glb), whose levels keep the tile's whole border.
+    Returns {"written", "skipped", "index"}."""
     import dataclasses
 
     from . import many
@@ -1075,7 +1092,7 @@ def write_tiles(model_path, tiles, pattern, request, engine: str = "local", work
     if engine == "local" and workers is None:
         workers = LOCAL_WORKERS
     return many.run_job(model_path, tiles, pattern, many.TILES, request, engine, workers, threads, address,
-                        progress, restart)
+                        progress, restart, asset)
 
 
 MAX_BLOCK_TILES = 4096  # tiles written as one mesh; more is a folder of tiles (write_tiles)

@@ -171,28 +171,39 @@ def write_sample(model, triplane, path, scale: float = 1.0, smooth: int = 0, smo
     atomic_write(path, write)
 
 
-def write_request(model, request, path, inputs=(), threads: int | None = None, mesh_progress=None) -> None:
+def write_request(model, request, path, inputs=(), threads: int | None = None, mesh_progress=None,
+                  asset=None) -> None:
     """The sample a request.SampleRequest asks for, made by `request.make`
-    and written to `path` with `write_sample`. The path is checked first,
+    and written to `path` with `write_sample`, or as a game asset with
+    `asset` (an asset.AssetOptions; path a .glb). The path is checked first,
     against the model and `inputs` (a layout's file) too, so that a bad one
     costs no work."""
     from .request import make
 
     check_writable(path, [model.path, *inputs])
-    if request.tile is not None:
-        data, _ = request_bytes(model, request, path)
+    if request.tile is not None or asset is not None:
+        data, _ = request_bytes(model, request, path, threads, mesh_progress, asset)
         atomic_write(path, lambda f: f.write(data))
         return
     write_sample(model, make(model, request), path, threads=threads, mesh_progress=mesh_progress,
                  **request.mesh_options())
 
 
-def request_bytes(model, request, name, threads: int | None = None, mesh_progress=None) -> tuple:
+def request_bytes(model, request, name, threads: int | None = None, mesh_progress=None, asset=None) -> tuple:
     """`sample_bytes` of the sample a request asks for: the file `name` names,
     in memory, and its mesh; a tile of a world (world.tile_bytes) likewise.
-    mesh_progress(done, total) as the work goes (a server stops a job there)."""
+    mesh_progress(done, total) as the work goes (a server stops a job there).
+    With `asset` (an asset.AssetOptions), the game asset of either as a
+    .glb, and in place of the mesh what it holds (asset.asset_bytes)."""
     from .request import make
 
+    if asset is not None:
+        from .asset import asset_bytes
+
+        if Path(name).suffix.lower() != ".glb":
+            raise InputError(f"{Path(name).name}: an asset is written as .glb (glTF's binary), not "
+                             f"{Path(name).suffix or '(no extension)'}", "lods")
+        return asset_bytes(model, request, asset, Path(name).stem, threads, mesh_progress)
     if request.tile is not None:
         from .world import tile_bytes
 

@@ -35,7 +35,7 @@ from starlette.concurrency import run_in_threadpool
 from starlette.requests import ClientDisconnect
 
 from sinshape.core.errors import InputError, MemoryLimitError
-from sinshape.runtime import generate, layout, load, mesh, world
+from sinshape.runtime import asset, generate, layout, load, mesh, world
 from sinshape.runtime.request import Layout, SampleRequest, resolved
 from sinshape.serve import catalog, http
 from sinshape.serve.catalog import load_models  # noqa: F401  the API: app.load_models, app.create_app, app.run
@@ -82,6 +82,30 @@ ScaleQuery = Annotated[float, Query(gt=0, allow_inf_nan=False,
                                     description="Query a grid this many times finer per axis.")]
 SmoothQuery = Annotated[int, Query(ge=0, le=MAX_SMOOTH, description="Laplacian smoothing steps.")]
 FormatQuery = Annotated[Format, Query(description="glb ply obj stl off: a mesh; npz: the occupancy grid.")]
+
+
+LodsQuery = Annotated[str | None, Query(description="A game asset (format glb): levels of detail of these triangle "
+                                         "counts, finest first, like 20000,5000,1200, each with its UVs and maps "
+                                         "baked from the model.")]
+TextureQuery = Annotated[int | None, Query(description="With lods: texels per side of each level's maps, a power "
+                                           "of two up to 8192 (default 1024).")]
+AoQuery = Annotated[bool, Query(description="With lods: bake ambient occlusion too.")]
+
+
+@dataclass
+class AssetQuery:
+    """What makes a sample or a tile a game asset."""
+
+    lods: LodsQuery = None
+    texture: TextureQuery = None
+    ao: AoQuery = False
+
+    def options(self, format: str):
+        """The runtime's asset options (None: a plain file); an asset is a .glb."""
+        options = asset.options_of(self.lods, self.texture, self.ao)
+        if options is not None and format != "glb":
+            raise InputError(f"an asset is written as glb (glTF's binary), not {format}")
+        return options
 
 
 @dataclass
@@ -176,6 +200,7 @@ async def model_file(request: Request, name: str):
 async def sample(
     request: Request,
     q: Annotated[SampleQuery, Depends()],
+    a: Annotated[AssetQuery, Depends()],
     keep: Annotated[list[str], Query(description="Parts to keep from other samples, "
                                      "SEED:X0,Y0,Z0:X1,Y1,Z1 (the model's frame, or percentages like 50%); "
                                      "repeat for more. The rest comes from `seed`.")] = [],
@@ -189,7 +214,7 @@ async def sample(
                                                               "three fractions in [0, 1]", "anchor")
     wanted = SampleRequest(q.seed, size=generate.parse_size(q.size), scale=q.scale, smooth=q.smooth,
                            keep=tuple(keep), grow=generate.parse_size(grow) if grow else None, anchor=where)
-    return await answer(request, model, Job(q.name, resolved(model, wanted), q.format))
+    return await answer(request, model, Job(q.name, resolved(model, wanted), q.format, asset=a.options(q.format)))
 
 
 @routes.post("/api/models/{name}/sample", summary="One sample with the structure of an uploaded layout",
@@ -255,20 +280,20 @@ class TileQuery:
                               "with a skirt over the crack where it meets a finer one.")] = 0
 
 
-async def tile_answer(request: Request, q: TileQuery, heights=None) -> Response:
+async def tile_answer(request: Request, q: TileQuery, heights=None, asset=None) -> Response:
     model = find(request, q.name)
     wanted = SampleRequest(q.seed, scale=q.scale, frame=q.frame, tile=(q.i, q.j), arrange=q.arrange, heights=heights,
                            lod=q.lod)
-    response = await answer(request, model, Job(q.name, wanted, q.format))
+    response = await answer(request, model, Job(q.name, wanted, q.format, asset=asset))
     response.headers["X-Tile-Corner"] = ",".join(map(str, world.tile_corner(model, (q.i, q.j))))
     return response
 
 
 @routes.get("/api/models/{name}/tile", summary="One tile of a model's endless world as a file",
             response_class=Response, responses=FILE_ANSWERS)
-async def tile(request: Request, q: Annotated[TileQuery, Depends()]):
+async def tile(request: Request, q: Annotated[TileQuery, Depends()], a: Annotated[AssetQuery, Depends()]):
     """Tile (i, j) of the world of `seed`: it joins its neighbours without a seam, whatever else was asked."""
-    return await tile_answer(request, q)
+    return await tile_answer(request, q, asset=a.options(q.format))
 
 
 @routes.post("/api/models/{name}/tile", summary="One tile of a world shaped by an uploaded height map",
@@ -276,6 +301,7 @@ async def tile(request: Request, q: Annotated[TileQuery, Depends()]):
 async def tile_of_map(
     request: Request,
     q: Annotated[TileQuery, Depends()],
+    a: Annotated[AssetQuery, Depends()],
     relief: Annotated[float | None, Query(gt=0, allow_inf_nan=False, description="Voxels from a .png map's "
                                           "black to its white (default: 4 times the model's height).")] = None,
 ):
@@ -291,7 +317,7 @@ async def tile_of_map(
         layout = world.world_layout(find(request, q.name))
         relief = world.RELIEF * layout.stride[layout.up]
     heights = await run_in_threadpool(world.parse_height_map, body, suffix, "the height map", relief)
-    return await tile_answer(request, q, heights)
+    return await tile_answer(request, q, heights, a.options(q.format))
 
 
 @routes.get("/", include_in_schema=False)

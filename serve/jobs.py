@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sinshape.runtime import layout, write
+from sinshape.runtime.asset import AssetOptions
 from sinshape.runtime.request import SampleRequest, make
 from sinshape.serve.http import entity_tag
 
@@ -26,6 +27,7 @@ class Job:
     request: SampleRequest
     format: str
     layout_of: int | None = None
+    asset: AssetOptions | None = None  # the sample as a game asset (.glb)
 
     def filename(self) -> str:
         request = self.request
@@ -50,6 +52,8 @@ class Job:
             tags.append(f"scale{request.scale:g}")
         if request.smooth and self.format != "npz":
             tags.append(f"smooth{request.smooth}")
+        if self.asset:
+            tags.append("asset" + "_".join(map(str, self.asset.lods)))
         return f"{self.model}_{'_'.join(tags)}.{self.format}"
 
 
@@ -84,6 +88,10 @@ def make_sample(model, job: Job, checkpoint) -> Sample:
     if job.layout_of is not None:  # a layout, not a sample
         grid = layout.layout(model, job.request.sample_seed, job.layout_of, job.request.size)
         body, faces = layout_file(grid, job.layout_of, job.format), None
+    elif job.asset is not None:  # a game asset: its full mesh's faces
+        body, info = write.request_bytes(model, job.request, job.filename(), mesh_progress=checkpoint,
+                                         asset=job.asset)
+        faces = info["dense_triangles"]
     elif job.request.tile is not None:  # a tile of a world: stopped within a slab when given up
         body, result = write.request_bytes(model, job.request, job.filename(), mesh_progress=checkpoint)
         faces = None if result is None else len(result.faces)

@@ -342,3 +342,32 @@ def test_blenders_axes_turn_into_the_models_and_back(addon):
     assert convert.factors_to_model((2, 3, 4), "y") == (2.0, 4.0, 3.0)
     assert convert.fractions_to_model((0.1, 0.25, 0.5), "y") == (0.1, 0.5, 0.75)  # Blender's y is the model's -z
     assert convert.fractions_to_model((0.1, 0.25, 0.5), "z") == (0.1, 0.25, 0.5)
+
+
+def test_export_asset_writes_the_samples_asset_and_adds_its_levels_where_the_sample_is(scene, tiny_model, tmp_path):
+    import bpy
+    from mathutils import Vector
+
+    from sinshape.runtime import gltf
+
+    obj = add(tiny_model, seed=2)
+    obj.location = (5.0, 0.0, 0.0)
+    bpy.context.view_layer.update()
+    path = tmp_path / "rock.glb"
+    assert bpy.ops.sinshape.export_asset(filepath=str(path), lods="800,200", texture=64) == {"FINISHED"}
+    document, _ = gltf.read(path.read_bytes())
+    assert [node["name"] for node in document["nodes"]] == ["rock_LOD0", "rock_LOD1"]
+    level = bpy.data.objects["rock_LOD0"]
+    assert len(level.data.polygons) <= 800 and level.name in bpy.context.scene.objects
+    assert "rock_LOD1" not in bpy.context.view_layer.objects  # a coarser level: in the importer's excluded collection
+    images = {node.image.size[0] for node in level.active_material.node_tree.nodes if node.type == "TEX_IMAGE"}
+    assert images == {64}
+    def corners(o):
+        return np.array([list(o.matrix_world @ Vector(corner)) for corner in o.bound_box])
+
+    assert np.abs(corners(level).min(axis=0) - corners(obj).min(axis=0)).max() < 1.0  # in place, to a voxel
+    assert np.abs(corners(level).max(axis=0) - corners(obj).max(axis=0)).max() < 1.0
+    bad = tmp_path / "bad.glb"
+    with pytest.raises(RuntimeError, match="lods asks for 0 triangles") as raised:  # the ERROR report, one line
+        bpy.ops.sinshape.export_asset(filepath=str(bad), lods="0", texture=64)
+    assert len(str(raised.value).strip().splitlines()) == 1 and not bad.exists()

@@ -276,7 +276,7 @@ def one_pixel() -> bytes:
     return out.getvalue()
 
 
-IMAGE_BYTES = st.sampled_from(["good", "cut", "junk", "huge header", "one pixel", "empty"])
+IMAGE_BYTES = st.sampled_from(["good", "good", "good", "cut", "junk", "huge header", "one pixel", "empty"])
 
 
 @READERS
@@ -286,8 +286,10 @@ IMAGE_BYTES = st.sampled_from(["good", "cut", "junk", "huge header", "one pixel"
     ("bufferViews", 2, "byteOffset"), ("bufferViews", 2, "buffer"), ("meshes", 0, "primitives")]),
     st.one_of(HOSTILE, st.sampled_from(["data:image/png;base64", "data:;base64,@@", "data:,x", "tex.png", "../tex.png",
                                         "/etc/passwd", "box.bin", {"baseColorFactor": [float("nan")] * 4},
-                                        {"baseColorTexture": {"index": 3}}, {"baseColorTexture": "0"}]))),
-    max_size=3), image=IMAGE_BYTES, top=st.sampled_from([None, "images", "textures", "materials", "bufferViews"]))
+                                        {"baseColorTexture": {"index": 3}}, {"baseColorTexture": "0"},
+                                        {"baseColorFactor": [0.5, 1, 0.2, 1], "baseColorTexture": {"index": 0}}]),
+              st.sampled_from([0, 0, "tex.png", "image/png"]))),
+    max_size=2), image=IMAGE_BYTES, top=st.sampled_from([None] * 6 + ["images", "textures", "materials", "bufferViews"]))
 def test_gltf_image_fields(tmp_path_factory, changes, image, top):
     """A glTF whose images, textures, materials, buffers and views hold
     hostile values (indices out of range or of the wrong type, data: URIs

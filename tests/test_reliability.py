@@ -186,7 +186,7 @@ def test_a_batch_index_with_a_hostile_seed_is_one_line_on_resume(tmp_path, seed)
     index = tmp_path / "sindex.jsonl"
     index.write_text(index.read_text() + f'{{"seed": {seed}, "file": "x", "bytes": 1, "sha256": "a"}}\n')
     assert_one_line_error(run("sample", TINY, "--seeds", "0-2", "-o", out, "--workers", 1),
-                          "line 3 is not a seed's JSON record")
+                          "line 4 is not a seed's JSON record")  # after the job's line and two seeds'
 
 
 @pytest.mark.parametrize("line", ['{"seed": 2, "bytes": -1}', '{"seed": 2, "sha256": 7}', '"' + "x" * 5000 + '"',

@@ -225,29 +225,24 @@ def test_the_sites_serve_py_answers_errors_in_json(tmp_path):
         server.server_close()
 
 
-def test_a_checkpoint_that_cannot_be_written_is_one_line_and_keeps_the_last(tmp_path, tiny_pyramid):
-    """Under a file-size limit torch's writer traced back (inline_container.cc)."""
-    pytest.importorskip("torch")
-    from sinshape.trainer import train
-    from sinshape.trainer.config import make_config
+def test_a_checkpoint_that_cannot_be_written_is_one_line_and_keeps_the_last(tmp_path):
+    """Under a file-size limit (or on a full disk) torch's writer traced back
+    (inline_container.cc): the real writer, against a real limit."""
+    torch = pytest.importorskip("torch")
+    from sinshape.trainer.checkpoint import atomic_save
 
-    out = tmp_path / "m.onnx"
-    checkpoint = train.default_checkpoint_path(out)
+    checkpoint = tmp_path / "m.ckpt.pt"
+    atomic_save({"weights": torch.zeros(1000)}, checkpoint)
+    kept = checkpoint.read_bytes()
     limits = resource.getrlimit(resource.RLIMIT_FSIZE)
     ignored = signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # write() then fails with EFBIG, as on a full disk
-    kept = []
-
-    def progress(p):  # level 2 begins: the level 1 checkpoint is written; the next, larger, cannot be
-        if p.level == 1 and not kept:
-            kept.append(checkpoint.read_bytes())
-            resource.setrlimit(resource.RLIMIT_FSIZE, (len(kept[0]) + 1000, limits[1]))
-
     try:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (len(kept) + 1000, limits[1]))
         with pytest.raises(InputError) as error:
-            train.train(tiny_pyramid, out, make_config("tiny", iters=2), progress=progress)
+            atomic_save({"weights": torch.zeros(100000)}, checkpoint)
     finally:
         resource.setrlimit(resource.RLIMIT_FSIZE, limits)
         signal.signal(signal.SIGXFSZ, ignored)
     assert str(error.value) == (f"{checkpoint}: cannot write the checkpoint (writing it failed: a full disk, or a "
                                 "file-size limit?); the last checkpoint written is kept")
-    assert checkpoint.read_bytes() == kept[0] and sorted(p.name for p in tmp_path.iterdir()) == ["m.ckpt.pt"]
+    assert checkpoint.read_bytes() == kept and [p.name for p in tmp_path.iterdir()] == ["m.ckpt.pt"]

@@ -362,12 +362,16 @@ def test_a_truncated_texture_is_named_and_no_colour_gets_past_it(tmp_path):
 
 
 def test_train_says_which_colour_it_read(tmp_path):
+    """What a run logs as it opens (the trainer is made, nothing trained)."""
     pytest.importorskip("torch")
-    path = textured_obj(tmp_path, texture=png(1, 1, rows=b"\0" + bytes([9, 9, 9])))
-    result = run("train", path, "-o", tmp_path / "m.onnx", "--preset", "tiny", "--iters", 1, "--levels", 1, "--res", 16)
-    assert result.exit_code == 0, result.output
-    assert "colour: texture box_texture.png (1x1)" in result.output
-    assert "warning: texture box_texture.png is one colour (#090909)" in result.output
+    from sinshape.trainer import train
+    from sinshape.trainer.config import make_config
+
+    path, said = textured_obj(tmp_path, texture=png(1, 1, rows=b"\0" + bytes([9, 9, 9]))), []
+    train.open_run(path, tmp_path / "m.onnx", make_config("tiny", res=16, levels=1), False, "cpu",
+                   tmp_path / "m.ckpt.pt", said.append)
+    assert "colour: texture box_texture.png (1x1)" in said
+    assert "warning: texture box_texture.png is one colour (#090909): the model learns that colour alone" in said
 
 
 def test_render_draws_a_textured_mesh_in_its_texture(tmp_path):

@@ -118,7 +118,8 @@ def test_openapi_describes_every_route(server):
     assert {"/health", "/api/models", "/api/models/{name}", "/api/models/{name}/sample"} <= set(paths)
     assert "post" in paths["/api/models/{name}/sample"]
     params = {p["name"] for p in paths["/api/models/{name}/sample"]["get"]["parameters"]}
-    assert params == {"name", "seed", "size", "scale", "smooth", "format", "keep", "grow", "anchor"}
+    assert params == {"name", "seed", "size", "scale", "smooth", "format", "keep", "grow", "anchor", "lods", "texture",
+                      "ao"}
 
 
 def test_the_page_and_its_offline_scripts(server):
@@ -536,7 +537,7 @@ def test_a_tile_is_the_runtimes_tile_with_its_corner_and_etag(server):
     assert get(url, {"If-None-Match": headers["ETag"]})[0] == 304
     params = {p["name"] for p in json.loads(get(f"{base}/openapi.json")[2])["paths"]["/api/models/{name}/tile"]["get"]
               ["parameters"]}
-    assert params == {"name", "i", "j", "seed", "scale", "format", "frame", "arrange", "lod"}
+    assert params == {"name", "i", "j", "seed", "scale", "format", "frame", "arrange", "lod", "lods", "texture", "ao"}
     for query, code, says in (("i=0", 422, "j: Field required"), (f"i={2**62}&j=0", 422, "i: Input should be less"),
                               ("i=100000000&j=0&frame=input", 400, "give frame tile"), ("i=0&j=0&lod=9", 400, "lod must be 0 to 3"),
                               ("i=0&j=0&arrange=spread", 422, "arrange: Input should be 'blend' or 'scatter'")):

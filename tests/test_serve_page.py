@@ -639,3 +639,38 @@ def test_the_world_mode_makes_far_tiles_coarser_and_remakes_them_as_they_come_ne
     painted = world.WorldOptions("scatter", heights=world.HeightMap.of(heights))
     assert faces[1, 0] == len(world.tile_surface(terrain, 3, (1, 0), options=painted).faces)
     assert not page.errors and not page.outside
+
+
+def test_a_game_asset_downloads_and_opens_in_the_pages_three_js(page, tmp_path):
+    """The asset format offers the shown sample's asset (levels sized from
+    its triangles), which three.js's own glTF loader opens with its maps."""
+    from sinshape.runtime import gltf
+
+    page.goto(f"{page.base}/?seed=3&up=z&format=asset")
+    wait_ready(page, 3)
+    href = page.get_attribute("#download", "href")
+    assert "format=glb" in href and "lods=" in href and "texture=1024" in href
+    with page.expect_download() as download:
+        page.click("#download")
+    saved = tmp_path / "asset.glb"
+    download.value.save_as(saved)
+    document, _ = gltf.read(saved.read_bytes())
+    assert download.value.suggested_filename.startswith("terrain_seed3_asset")
+    faces = int(page.text_content("#status").split()[0].replace(",", ""))
+    lods = [int(n) for n in href.split("lods=")[1].split("&")[0].replace("%2C", ",").split(",")]
+    assert lods[0] <= faces // 2 and len(document["nodes"]) == len(lods)
+    opened = page.evaluate("""async (url) => {
+      const { GLTFLoader } = await import('three/addons/loaders/GLTFLoader.js');
+      const data = await (await fetch(url)).arrayBuffer();
+      const asset = await new GLTFLoader().parseAsync(data, '');
+      const meshes = [];
+      asset.scene.traverse((object) => { if (object.isMesh) meshes.push(object); });
+      const levels = await Promise.all(asset.parser.json.nodes[0].extensions.MSFT_lod.ids
+        .map((id) => asset.parser.getDependency('node', id)));
+      const material = meshes[0].material;
+      return { names: meshes.map((mesh) => mesh.name), normalMap: material.normalMap?.image?.width ?? null,
+               tangents: Boolean(meshes[0].geometry.attributes.tangent), levels: levels.map((level) => level.name) };
+    }""", href)
+    assert opened["names"] == [document["nodes"][0]["name"]] and opened["normalMap"] == 1024 and opened["tangents"]
+    assert opened["levels"] == [node["name"] for node in document["nodes"][1:]]
+    assert not page.errors and not page.outside

@@ -33,6 +33,7 @@ const ups = new Map(); // model name -> its up axis, recorded when it was traine
 let latest = 0; // the newest request: whatever an older one finds, it shows nothing
 let aborter = null; // gives up the request under way (the server stops making it)
 let downloadUrl = null;
+let shownFaces = 0; // the triangles of the sample shown: what an asset's levels are sized from
 
 /** Read the controls into the state; another sample has no block selected. */
 function readForm() {
@@ -84,9 +85,11 @@ async function load({ replay = false } = {}) {
       editor.dropLayout();
     }
     editor.draw(request, info);
-    if (where === 'server' && !request.layout) offer(sampling.serverRequest(name, request, state.format).url);
+    if (where === 'server' && !request.layout && state.format !== 'asset') offer(sampling.serverRequest(name, request, state.format).url);
     const made = await sampling.sample(where, name, request, { progress, signal });
     if (ticket !== latest) return;
+    shownFaces = made.faces.length / 3;
+    if (where === 'server' && !request.layout && state.format === 'asset') offer(sampling.serverRequest(name, request, 'asset', shownFaces).url);
     const extent = [name, state.size, state.edit === 'grow' ? `${state.grow}|${state.anchor}` : '', state.up].join('|');
     showMesh(made, state.up, extent);
     $('status').textContent = made.status;
@@ -120,7 +123,7 @@ function showWorldStatus({ at, shown, waiting, made, complete, error }, ticket) 
     state.at = $('at').value = here;
     writeUrl();
   }
-  if (state.where === 'server') offer(sampling.serverRequest(state.model, requestOf(), state.format).url); // the camera's tile
+  if (state.where === 'server' && state.format !== 'asset') offer(sampling.serverRequest(state.model, requestOf(), state.format).url); // the camera's tile
   $('status').textContent = `tile ${at.join(', ')} · ${shown} tiles shown · ${made} made${waiting ? `, ${waiting} to make` : ''}`;
   if (error) report(`a tile failed: ${error.message}`);
   if (ticket === latest && document.body.dataset.state === 'loading') {
@@ -267,7 +270,7 @@ async function start() {
     readForm();
     writeUrl();
     try {
-      offer(sampling.serverRequest(state.model, requestOf(editor.layout()), state.format).url);
+      offer(sampling.serverRequest(state.model, requestOf(editor.layout()), state.format, shownFaces).url);
     } catch {
       $('download').removeAttribute('href'); // a state that makes no request: nothing to download
     }

@@ -44,8 +44,11 @@ async function answer(response) {
  * route has no recon, smoother, largest or frame, and takes kept parts as
  * text: a request that needs more is refused here, not sent without it.
  */
-export function serverRequest(name, request, format) {
+export function serverRequest(name, request, format, faces = null) {
+  const asset = format === 'asset' ? assetQuery(faces) : null;
+  if (asset) format = 'glb';
   if (request.tile) {
+    if (asset) throw new Error('the page offers a tile as a mesh; sinrun world --lods writes tiles as assets');
     const [i, j] = request.tile;
     const query = new URLSearchParams({ i, j, seed: request.seed ?? 0n, scale: request.scale, format, frame: request.frame });
     if (request.arrange !== 'blend') query.set('arrange', request.arrange);
@@ -64,10 +67,27 @@ export function serverRequest(name, request, format) {
     query.set('anchor', request.anchor ?? [0, 0, 0]);
   }
   if (request.layout?.resample) query.set('resample_layout', 'true');
+  if (asset) for (const [key, value] of Object.entries(asset)) query.set(key, value);
   const url = `${modelRoute(name)}/sample?${query}`;
   if (!request.layout) return { url, init: {} };
   const body = voxBytes(request.layout.grid, request.layout.shape);
   return { url, init: { method: 'POST', body, headers: { 'Content-Type': 'application/octet-stream' } } };
+}
+
+/**
+ * The query of a game asset of a sample of `faces` triangles: levels of
+ * 20000, 5000 and 1200 triangles, each at most half the one before (the
+ * first, half the sample's), and 1024-texel maps. A sample's triangle
+ * count is known once it is shown: before that, an error.
+ */
+export function assetQuery(faces) {
+  if (!faces) throw new Error('an asset is offered once its sample is shown');
+  const lods = [];
+  for (const wanted of [20000, 5000, 1200]) {
+    const count = Math.min(wanted, Math.floor((lods.at(-1) ?? faces) / 2));
+    if (count >= 4) lods.push(count);
+  }
+  return { lods: lods.join(','), texture: 1024 };
 }
 
 /** The one mesh of a .glb file trimesh wrote: { positions, faces, colours } (no normals, no

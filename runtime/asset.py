@@ -1,0 +1,286 @@
+"""A sample as a game-ready asset: levels of detail simplified from its
+full-resolution surface, UVs per level, and maps baked from the model onto
+each level, in one glTF binary (.glb).
+
+    sample request --make/tile_mesh--> dense mesh --simplify--> levels --unwrap--> UVs --bake--> maps --gltf--> .glb
+
+Simplification is meshoptimizer's (the simplifier behind gltfpack; compared
+with fast-simplification in docs/ASSETS.md), with a world tile's border
+locked so that every level of a tile meets every level of its neighbours.
+UVs come from xatlas, charts padded so that mip-maps do not bleed. The maps
+are baked from the model itself (bake.py): the normal from its field's
+gradient, the colour from the one function that colours a sample's
+vertices (query.colouring; a world tile's blend, world.tile_colours).
+"""
+
+import math
+import os
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from sinshape.core.budget import check_memory
+from sinshape.core.errors import ConflictError, InputError
+
+from . import bake, gltf
+
+MAX_LODS = 8
+MIN_TRIANGLES = 4  # the fewest a closed surface has
+MAX_TEXTURE = 8192
+MIN_TEXTURE = 16
+FILL = 0.6  # the share of an atlas xatlas's charts are expected to cover (0.65-0.72 measured), for its scale
+BAKE_BYTES_PER_TEXEL = 160  # peak bytes per texel of one level's bake and file: 118-138 measured (tracemalloc, 1024 and 2048)
+
+
+@dataclass(frozen=True)
+class AssetOptions:
+    """How a sample is packed as an asset.
+
+    lods: the levels' triangle counts, finest first (each at most its
+      predecessor's; the first at most the full mesh's);
+    texture: texels per side of each level's maps, a power of two up to
+      MAX_TEXTURE; ao: bake ambient occlusion too (an occlusion map).
+    """
+
+    lods: tuple = (20000, 5000, 1200)
+    texture: int = 1024
+    ao: bool = False
+
+    def __post_init__(self):
+        lods = (self.lods,) if isinstance(self.lods, int) else self.lods
+        try:
+            lods = tuple(lods)
+        except TypeError:
+            lods = ()
+        if not (1 <= len(lods) <= MAX_LODS and all(isinstance(n, (int, np.integer)) and not isinstance(n, bool)
+                                                    for n in lods)):
+            raise InputError(f"lods must be 1 to {MAX_LODS} triangle counts, finest first, got {self.lods!r}",
+                             "lods")
+        low = [n for n in lods if n < MIN_TRIANGLES]
+        if low:
+            raise InputError(f"lods asks for {low[0]} triangles; a level needs at least {MIN_TRIANGLES}", "lods")
+        if any(b >= a for a, b in zip(lods, lods[1:])):
+            raise InputError(f"lods must fall level by level, finest first, got {','.join(map(str, lods))}", "lods")
+        object.__setattr__(self, "lods", tuple(int(n) for n in lods))
+        size = self.texture
+        if not (isinstance(size, (int, np.integer)) and not isinstance(size, bool)
+                and MIN_TEXTURE <= size <= MAX_TEXTURE and size & (size - 1) == 0):
+            raise InputError(f"texture must be a power of two from {MIN_TEXTURE} to {MAX_TEXTURE} texels, "
+                             f"got {size!r}", "texture")
+        object.__setattr__(self, "texture", int(size))
+
+    @property
+    def padding(self) -> int:
+        """Texels between charts (and grown around each): four at 1024, so
+        that mip-maps to an eighth of the size still read a chart's own."""
+        return max(2, self.texture // 256)
+
+
+def parse_lods(text: str) -> tuple:
+    """'20000,5000,1200' -> (20000, 5000, 1200): the command line's and the
+    web API's spelling of AssetOptions.lods."""
+    try:
+        return tuple(int(part) for part in str(text).split(","))
+    except ValueError:
+        raise InputError(f"lods must be triangle counts like 20000,5000,1200, got {text!r}", "lods") from None
+
+
+def check_asset_memory(options: AssetOptions, memory_limit: int | None = None) -> None:
+    """Refuse up front a bake that needs more than memory_limit bytes."""
+    size = options.texture
+    check_memory(size * size * BAKE_BYTES_PER_TEXEL, f"baking {size}x{size} maps", memory_limit)
+
+
+@dataclass(frozen=True)
+class Dense:
+    """A sample's full-resolution surface and what the bake reads: vertices
+    (V, 3) and faces (F, 3) in the asset's frame, the model's field, the
+    frame's map, a voxel's size in the frame, and whether borders are locked
+    (a world tile's)."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    field: bake.Field
+    frame: bake.Frame
+    voxel: float
+    lock_border: bool
+
+
+def sample_field(model, triplane) -> bake.Field:
+    """The field of a sample (or an edit's composed tri-plane) and its colour."""
+    from . import mesh, query
+
+    colour = None
+    if model.manifest.colour:
+        paint = query.colouring(model, triplane)
+
+        def colour(points):
+            return mesh.colour_bytes(paint(points))[:, :3]
+    return bake.Field(query.occupying(model, triplane), colour)
+
+
+def tile_field(model, seed: int, tile, options) -> bake.Field:
+    """The field of world tile (i, j) (its world made as world.WorldOptions
+    `options` say), in model units from its corner, and its colour: empty
+    above and below the world's heights, as its mesh is."""
+    from . import world
+
+    layout = world.world_layout(model)
+    heights = world.tile_grid(model, layout, 1.0, options).positions[layout.up]
+
+    def occupancy(points):
+        out = world.tile_points(model, seed, tile, points, options)
+        out[(points[:, layout.up] < heights[0]) | (points[:, layout.up] > heights[-1])] = 0
+        return out
+
+    def colour(points):
+        return world.tile_colours(model, seed, tile, points, options)[:, :3]
+
+    return bake.Field(occupancy, colour if model.manifest.colour else None)
+
+
+def dense_surface(model, request, threads: int | None = None, progress=None) -> Dense:
+    """The full-resolution surface of a request (a sample, an edit or a
+    world tile) in its frame, and the field behind it."""
+    from . import mesh, world
+    from .request import make
+
+    spacing = np.asarray(model.manifest.spacing, np.float64)
+    if request.tile is not None:
+        vertices, faces = world.tile_mesh(model, request.sample_seed, request.tile, request.scale, progress=progress,
+                                          options=request.world_options())
+        offset = world.placed(model, request.tile, np.zeros((1, 3)), request.frame)[0]
+        scale = world.placed(model, request.tile, np.ones((1, 3)), request.frame)[0] - offset
+        field, lock = tile_field(model, request.sample_seed, request.tile, request.world_options()), True
+    else:
+        triplane = make(model, request)
+        options = request.mesh_options()
+        surface = mesh.finish(mesh.band_mesh(model, triplane, request.scale, progress, threads=threads),
+                              options["smooth"], options["smoother"], options["largest"])
+        vertices, faces = np.asarray(surface.vertices), np.asarray(surface.faces)
+        offset, scale = ((np.asarray(model.manifest.origin, np.float64), spacing) if request.frame == "input"
+                         else (np.zeros(3), np.ones(3)))
+        field, lock = sample_field(model, triplane), False
+    frame = bake.Frame(offset, scale)
+    return Dense(offset + vertices * scale, np.asarray(faces, np.int64), field, frame, float(np.max(scale)), lock)
+
+
+def simplify(vertices: np.ndarray, faces: np.ndarray, target: int, lock_border: bool) -> tuple:
+    """meshoptimizer's simplification of a mesh to at most `target`
+    triangles, keeping its topology (a closed surface stays closed) and, with
+    lock_border, every vertex of its open border: (vertices, faces, error),
+    error the largest deviation in the mesh's units. Refused if the
+    simplifier cannot get down to the target."""
+    import meshoptimizer
+
+    indices = np.ascontiguousarray(faces, np.uint32).ravel()
+    positions = np.ascontiguousarray(vertices, np.float32)
+    out = np.zeros(len(indices), np.uint32)
+    error = np.zeros(1, np.float32)
+    count = meshoptimizer.simplify(out, indices, positions, target_index_count=3 * target, target_error=1.0,
+                                   options=meshoptimizer.SIMPLIFY_LOCK_BORDER if lock_border else 0,
+                                   result_error=error)
+    if count // 3 > target:
+        why = " (a world tile keeps every vertex of its border)" if lock_border else ""
+        raise InputError(f"lods asks for {target} triangles, but the surface simplifies to no fewer than "
+                         f"{count // 3}{why}", "lods")
+    kept = out[:count].reshape(-1, 3).astype(np.int64)
+    used = np.unique(kept)
+    remap = np.zeros(len(vertices), np.int64)
+    remap[used] = np.arange(len(used))
+    extent = float(np.max(vertices.max(axis=0) - vertices.min(axis=0))) if len(vertices) else 0.0
+    return vertices[used], remap[kept], float(error[0]) * extent
+
+
+def unwrap(vertices: np.ndarray, faces: np.ndarray, options: AssetOptions) -> tuple:
+    """xatlas's charts and packing: (the original vertex of each new vertex
+    (V',), faces (F, 3) of new vertices, UVs (V', 2) in [0, 1] of a square
+    texture, glTF's: u right, v down). Charts are `options.padding` texels
+    apart at the texture's size."""
+    import xatlas
+
+    size = options.texture
+    atlas = xatlas.Atlas()
+    atlas.add_mesh(np.ascontiguousarray(vertices, np.float32), np.ascontiguousarray(faces, np.uint32))
+    pack = xatlas.PackOptions()
+    pack.padding, pack.bilinear = options.padding, True
+    # Scale the charts so that the packed atlas comes out about the texture's size.
+    pack.texels_per_unit = size * math.sqrt(FILL / max(bake.area(vertices[faces]).sum(), 1e-30))
+    atlas.generate(xatlas.ChartOptions(), pack)
+    source, new_faces, uvs = atlas[0]
+    side = np.array([atlas.width, atlas.height], np.float64)
+    # xatlas gives UVs in [0, 1] of its own width and height: the texture's
+    # square holds the atlas as it is, or shrunk to fit if it came out larger.
+    uvs = uvs * side / max(size, side.max())
+    return source.astype(np.int64), new_faces.astype(np.int64), uvs
+
+
+def level(dense: Dense, target: int, options: AssetOptions, threads: int | None, timings: dict) -> tuple:
+    """One level of detail, baked: (gltf.Level, its figures)."""
+    started = time.perf_counter()
+    vertices, faces, error = simplify(dense.vertices, dense.faces, target, dense.lock_border)
+    simplified = time.perf_counter()
+    source, split_faces, uvs = unwrap(vertices, faces, options)
+    unwrapped = time.perf_counter()
+    normals = bake.vertex_normals(vertices, faces)[source]  # smooth across UV seams
+    positions = vertices[source]
+    tangents = bake.vertex_tangents(positions, split_faces, uvs, normals)
+    maps = bake.bake(dense.field, dense.frame, positions, split_faces, uvs, normals, tangents, options.texture,
+                     dense.voxel, reach=error + 2 * dense.voxel, padding=options.padding, ao=options.ao,
+                     threads=threads)
+    baked = time.perf_counter()
+    for stage, seconds in (("simplify", simplified - started), ("unwrap", unwrapped - simplified),
+                           ("bake", baked - unwrapped)):
+        timings[stage] = timings.get(stage, 0) + seconds
+    figures = {"triangles": len(split_faces), "vertices": len(positions), "error": round(error, 6),
+               "surface_found": round(maps.found, 4)}
+    return gltf.Level(positions, normals, tangents, uvs, split_faces, maps.normal, maps.colour, maps.occlusion), figures
+
+
+def asset_bytes(model, request, options: AssetOptions, name: str = "sample", threads: int | None = None,
+                progress=None, memory_limit: int | None = None) -> tuple:
+    """The .glb of the asset of a request (a request.SampleRequest: a sample,
+    an edit or a world tile) and what it holds: (bytes, info), info with the
+    full mesh's and each level's counts, and the seconds of each stage.
+    progress(done, total) is called as meshing goes."""
+    import meshoptimizer  # noqa: F401  the assets extra, asked for before any work
+    import xatlas  # noqa: F401
+
+    check_asset_memory(options, memory_limit)
+    threads = threads or os.cpu_count() or 1
+    started = time.perf_counter()
+    dense = dense_surface(model, request, threads, progress)
+    if not len(dense.faces):
+        raise InputError("the sample has no surface at this scale and size; nothing written")
+    if options.lods[0] > len(dense.faces):
+        raise InputError(f"lods asks for {options.lods[0]} triangles, more than the "
+                         f"{'tile' if request.tile is not None else 'sample'}'s full-resolution mesh has "
+                         f"({len(dense.faces)}): ask for fewer, or a larger scale", "lods")
+    timings = {"sample": time.perf_counter() - started}
+    levels, figures = [], []
+    for target in options.lods:
+        built, described = level(dense, target, options, threads, timings)
+        levels.append(built)
+        figures.append(described)
+    written = time.perf_counter()
+    extras = {"sinshape": {"seed": request.sample_seed, "tile": list(request.tile) if request.tile else None,
+                           "lods": list(options.lods), "texture": options.texture}}
+    data = gltf.glb_bytes(levels, name, extras, model.manifest.up)
+    timings["write"] = time.perf_counter() - written
+    info = {"dense_triangles": len(dense.faces), "dense_vertices": len(dense.vertices), "levels": figures,
+            "seconds": {k: round(v, 3) for k, v in timings.items()}, "bytes": len(data)}
+    return data, info
+
+
+def options_of(lods=None, texture: int | None = None, ao: bool = False) -> AssetOptions | None:
+    """The asset a front end's values ask for: None without lods (a plain
+    sample), which texture and ao need. lods: counts, or their text."""
+    if lods is None:
+        given = [name for name, value in (("texture", texture is not None), ("ao", ao)) if value]
+        if given:
+            raise ConflictError(f"{' and '.join(given)} {'are' if len(given) > 1 else 'is'} for an asset: give lods "
+                                "too (its levels' triangle counts, like 20000,5000,1200)", (*given, "lods"))
+        return None
+    lods = parse_lods(lods) if isinstance(lods, str) else lods
+    return AssetOptions(lods, AssetOptions.texture if texture is None else texture, bool(ao))

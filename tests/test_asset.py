@@ -1,0 +1,369 @@
+"""Game assets (runtime/asset.py): a sample as a .glb with levels of detail,
+UVs and maps baked from the model, checked by the Khronos glTF-Validator,
+read back here, and refused in one line when asked for what cannot be."""
+
+import json
+import os
+import shutil
+import struct
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from conftest import TINY_COLOUR_ONNX, TINY_ONNX
+from sinshape.cli.main import cli
+from sinshape.core.errors import InputError, MemoryLimitError
+from sinshape.runtime import asset, generate, gltf, load_model, query
+from sinshape.runtime.request import SampleRequest
+
+ROOT = Path(__file__).resolve().parent.parent
+# Where .ci/run installs the validator (npm install --prefix tools/node gltf-validator).
+VALIDATOR_MODULES = Path(os.environ.get("GLTF_VALIDATOR_MODULES", ROOT / "tools" / "node" / "node_modules"))
+LODS, TEXTURE = (1500, 300), 128
+
+
+def validate(path: Path) -> dict:
+    """The Khronos glTF-Validator's report on a file (skipped where it is not
+    installed, except on CI, which installs it)."""
+    if not (shutil.which("node") and (VALIDATOR_MODULES / "gltf-validator").is_dir()):
+        if os.environ.get("CI"):
+            pytest.fail(f"the glTF validator is not installed in {VALIDATOR_MODULES} (.ci/run installs it)")
+        pytest.skip("the glTF validator is not installed: npm install --prefix tools/node gltf-validator")
+    done = subprocess.run(["node", str(ROOT / "tools" / "validate_gltf.mjs"), str(path)], capture_output=True,
+                          text=True, timeout=120, env={**os.environ, "NODE_PATH": str(VALIDATOR_MODULES)})
+    assert done.returncode == 0, done.stderr
+    return json.loads(done.stdout)
+
+
+@pytest.fixture(scope="module")
+def coloured_asset(tmp_path_factory):
+    """An asset of the coloured tiny model, its file and the model."""
+    model = load_model(TINY_COLOUR_ONNX, threads=1)
+    options = asset.AssetOptions(LODS, TEXTURE, ao=True)
+    data, info = asset.asset_bytes(model, SampleRequest(3, frame="model"), options, "box", threads=1)
+    path = tmp_path_factory.mktemp("asset") / "box.glb"
+    path.write_bytes(data)
+    return path, model, info
+
+
+def test_the_khronos_validator_finds_no_error_or_warning_and_the_levels_keep_their_counts(coloured_asset):
+    path, _, info = coloured_asset
+    report = validate(path)
+    assert report["issues"]["numErrors"] == 0 and report["issues"]["numWarnings"] == 0, report["issues"]["messages"]
+    document, binary = gltf.read(path.read_bytes())
+    assert [node["name"] for node in document["nodes"]] == ["box_LOD0", "box_LOD1"]
+    assert document["nodes"][0]["extensions"]["MSFT_lod"]["ids"] == [1]
+    for node, target in enumerate(LODS):
+        faces = gltf.level_arrays(document, binary, node)["faces"]
+        assert target * 0.8 <= len(faces) <= target  # at most the count asked for, and near it
+    assert report["info"]["totalTriangleCount"] == sum(len(gltf.level_arrays(document, binary, k)["faces"]) for k in range(2))
+    assert info["dense_triangles"] > LODS[0]
+
+
+def test_the_validator_reports_a_broken_asset(coloured_asset, tmp_path):
+    """The check above can fail: a position accessor that claims more
+    vertices than its buffer holds is an error to the validator."""
+    document, binary = gltf.read(coloured_asset[0].read_bytes())
+    document["accessors"][0]["count"] += 10**6
+    text = json.dumps(document).encode()
+    text += b" " * (-len(text) % 4)
+    broken = tmp_path / "broken.glb"
+    broken.write_bytes(struct.pack("<III", 0x46546C67, 2, 28 + len(text) + len(binary)) +
+                       struct.pack("<II", len(text), 0x4E4F534A) + text + struct.pack("<II", len(binary), 0x004E4942)
+                       + binary)
+    assert validate(broken)["issues"]["numErrors"] > 0
+
+
+def welded(positions: np.ndarray, faces: np.ndarray) -> tuple:
+    """The mesh with vertices split at UV seams joined again."""
+    unique, index = np.unique(positions, axis=0, return_inverse=True)
+    return unique, index.reshape(-1)[faces]
+
+
+def test_every_level_is_closed_where_the_sample_is(coloured_asset):
+    import trimesh
+
+    document, binary = gltf.read(coloured_asset[0].read_bytes())
+    for node in range(len(LODS)):
+        arrays = gltf.level_arrays(document, binary, node)
+        assert trimesh.Trimesh(*welded(arrays["position"], arrays["faces"]), process=False).is_watertight
+
+
+def along_normals(occupancy, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """Where a field crosses 0.5 along each normal (the crossing nearest the
+    point within 3 units), found here by a plain fine search, independent of
+    the bake's: (n, 3)."""
+    steps = np.linspace(-3, 3, 241)
+    values = np.stack([occupancy(points + t * normals) for t in steps], axis=1) - 0.5
+    change = np.sign(values[:, :-1]) != np.sign(values[:, 1:])
+    nearest = np.argmin(np.where(change, np.abs(steps[:-1] + steps[1:]), np.inf), axis=1)
+    rows = np.arange(len(points))
+    a, b = values[rows, nearest], values[rows, nearest + 1]
+    return points + (steps[nearest] + (steps[1] - steps[0]) * a / (a - b))[:, None] * normals
+
+
+def texel_centres(arrays: dict, size: int) -> tuple:
+    """One texel per face (the one under its centroid), where its centre
+    lies on the level: (level points, texel rows, columns, interpolated
+    normals, tangents), for the texels whose centre is inside their face."""
+    faces = arrays["faces"]
+    uv = arrays["texcoord_0"][faces].astype(np.float64)  # (F, 3, 2)
+    texel = np.clip(np.floor(uv.mean(axis=1) * size), 0, size - 1)
+    centre = (texel + 0.5) / size
+    e1, e2, q = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0], centre - uv[:, 0]
+    area = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+    w1, w2 = (q[:, 0] * e2[:, 1] - q[:, 1] * e2[:, 0]) / area, (e1[:, 0] * q[:, 1] - e1[:, 1] * q[:, 0]) / area
+    weights = np.stack([1 - w1 - w2, w1, w2], axis=1)
+    inside = (weights >= 0).all(axis=1)
+    weights, faces, texel = weights[inside], faces[inside], texel[inside].astype(int)
+
+    def at(name):
+        return np.einsum("fk,fkc->fc", weights, arrays[name][faces].astype(np.float64))
+
+    normals = at("normal")
+    return at("position"), texel[:, 1], texel[:, 0], normals / np.linalg.norm(normals, axis=1, keepdims=True), \
+        at("tangent")
+
+
+def decoded_normals(arrays: dict, rows, columns, normals, tangents) -> np.ndarray:
+    """The normal map's texels turned back into normals, as a shader does."""
+    encoded = arrays["normal_map"][rows, columns].astype(float) / 255 * 2 - 1
+    t = tangents[:, :3] / np.linalg.norm(tangents[:, :3], axis=1, keepdims=True)
+    b = np.cross(normals, t)
+    b = b / np.linalg.norm(b, axis=1, keepdims=True) * np.sign(tangents[:, 3:])
+    decoded = t * encoded[:, :1] + b * encoded[:, 1:2] + normals * encoded[:, 2:]
+    return decoded / np.linalg.norm(decoded, axis=1, keepdims=True)
+
+
+def test_the_colour_map_holds_the_models_colour_at_each_texels_surface_point(coloured_asset):
+    _, model, _ = coloured_asset
+    document, binary = gltf.read(coloured_asset[0].read_bytes())
+    arrays = gltf.level_arrays(document, binary, 1)  # the coarsest level: its surface is furthest from the model's
+    points, rows, columns, normals, _ = texel_centres(arrays, TEXTURE)
+    triplane = generate.sample(model, 3)
+    surface = along_normals(lambda p: query.points(model, triplane, p), points, normals)
+    baked = arrays["colour_map"][rows, columns].astype(float)
+    truth = np.round(query.colours(model, triplane, surface) * 255)
+    assert len(truth) > 100 and truth.std(axis=0).max() > 30  # red above, blue below: a wrong place shows
+    assert np.abs(baked - truth).mean() < 4
+    shuffled = np.abs(baked - truth[np.random.default_rng(0).permutation(len(truth))]).mean()
+    assert shuffled > 5 * np.abs(baked - truth).mean()
+
+
+def bumpy_sphere(points: np.ndarray) -> np.ndarray:
+    """A smooth field: a ball of radius 10 with bumps, occupancy in [0, 1]."""
+    r = np.linalg.norm(points, axis=1)
+    radius = 10 + 0.8 * np.sin(3 * points[:, 0] / 2) * np.cos(2 * points[:, 1] / 2)
+    return 1 / (1 + np.exp(-4 * (radius - r)))
+
+
+def test_the_normal_map_turns_a_coarse_level_into_the_fields_surface():
+    """Baked onto a 320-face sphere from a bumpy ball, the decoded normal map
+    is the field's normal at each texel's surface point, and the colour the
+    field's colour there; the level's own normals are far from it."""
+    import trimesh
+
+    from sinshape.runtime import bake
+
+    sphere = trimesh.creation.icosphere(2, radius=10)
+    options = asset.AssetOptions((len(sphere.faces),), 256)
+    vertices, faces = np.asarray(sphere.vertices), np.asarray(sphere.faces)
+    source, split, uvs = asset.unwrap(vertices, faces, options)
+    normals = bake.vertex_normals(vertices, faces)[source]
+    tangents = bake.vertex_tangents(vertices[source], split, uvs, normals)
+
+    def colour(points):
+        return np.round(np.clip(points / 24 + 0.5, 0, 1) * 255).astype(np.uint8)
+
+    field, frame = bake.Field(bumpy_sphere, colour), bake.Frame(np.zeros(3), np.ones(3))
+    maps = bake.bake(field, frame, vertices[source], split, uvs, normals, tangents, 256, voxel=1.0, reach=2.0,
+                     padding=options.padding, ao=True, threads=1)
+    assert maps.occlusion.mean() > 0.9 * 255  # a ball has no hollows
+    arrays = {"position": vertices[source], "normal": normals, "tangent": tangents, "texcoord_0": uvs,
+              "faces": split, "normal_map": maps.normal}
+    points, rows, columns, at_normals, at_tangents = texel_centres(arrays, 256)
+    surface = along_normals(bumpy_sphere, points, at_normals)
+    step = bake.GRADIENT_STEP  # the bake's normal is the field's over a quarter voxel either side
+    gradient = np.stack([bumpy_sphere(surface + step * e) - bumpy_sphere(surface - step * e) for e in np.eye(3)], 1)
+    truth = -gradient / np.linalg.norm(gradient, axis=1, keepdims=True)
+    angles = np.degrees(np.arccos(np.clip((decoded_normals(arrays, rows, columns, at_normals, at_tangents)
+                                           * truth).sum(axis=1), -1, 1)))
+    level_angles = np.degrees(np.arccos(np.clip((at_normals * truth).sum(axis=1), -1, 1)))
+    assert len(angles) > 200 and np.median(angles) < 2 and np.percentile(angles, 95) < 6
+    assert np.median(level_angles) > 5 * np.median(angles)
+    assert np.abs(maps.colour[rows, columns].astype(int) - colour(surface)).mean() < 2
+
+
+def test_an_edit_is_packed_as_it_is_sampled():
+    """A grown sample's asset is the grown sample's: its full mesh is the one `sinrun sample --grow` makes."""
+    from sinshape.runtime import write
+
+    model = load_model(TINY_ONNX, threads=1)
+    grown = SampleRequest(1, grow=(1.5, 1, 1))
+    _, info = asset.asset_bytes(model, grown, asset.AssetOptions((400,), 32), threads=1)
+    assert info["dense_triangles"] == len(write.request_bytes(model, grown, "g.ply")[1].faces)
+    assert info["dense_triangles"] > len(write.request_bytes(model, SampleRequest(1), "p.ply")[1].faces)
+
+
+def test_a_geometry_only_model_gets_a_normal_map_no_colour_map_and_occlusion_if_asked(tmp_path):
+    model = load_model(TINY_ONNX, threads=1)
+    data, _ = asset.asset_bytes(model, SampleRequest(1), asset.AssetOptions((800,), 64, ao=True), threads=1)
+    again, _ = asset.asset_bytes(model, SampleRequest(1), asset.AssetOptions((800,), 64, ao=True), threads=2)
+    assert again == data  # the same request, the same bytes, on any number of threads
+    document, binary = gltf.read(data)
+    arrays = gltf.level_arrays(document, binary, 0)
+    assert arrays["colour_map"] is None
+    occlusion = arrays["occlusion_map"]  # a terrain's hollows are darker than its tops
+    assert occlusion.shape == (64, 64) and occlusion.max() > 240 and np.percentile(occlusion, 5) < 200
+    assert document["materials"][0]["pbrMetallicRoughness"]["baseColorFactor"][3] == 1
+    assert arrays["normal_map"].shape == (64, 64, 3)
+    flat = np.all(arrays["normal_map"] == [128, 128, 255], axis=2).mean()
+    assert flat < 0.5 and arrays["normal_map"].std(axis=(0, 1)).min() > 2  # not blank
+
+
+@pytest.mark.parametrize("options, message", [
+    (dict(lods=(0,)), "at least 4"), (dict(lods=(-5,)), "at least 4"), (dict(lods=(100, 200)), "fall level by level"),
+    (dict(lods=()), "1 to 8"), (dict(texture=1000), "power of two"), (dict(texture=16384), "8192"),
+])
+def test_bad_options_are_refused_in_one_line(options, message):
+    with pytest.raises(InputError, match=message) as error:
+        asset.AssetOptions(**options)
+    assert "\n" not in str(error.value)
+
+
+def test_more_triangles_than_the_sample_has_or_memory_it_lacks_are_refused():
+    model = load_model(TINY_ONNX, threads=1)
+    with pytest.raises(InputError, match=r"more than the sample's full-resolution mesh has \(\d+\)"):
+        asset.asset_bytes(model, SampleRequest(1), asset.AssetOptions((10**7,), 64))
+    with pytest.raises(MemoryLimitError, match=r"baking 8192x8192 maps needs about \d+\.\d GiB"):
+        asset.asset_bytes(model, SampleRequest(1), asset.AssetOptions((100,), 8192), memory_limit=1 << 30)
+
+
+def test_sinrun_writes_an_asset_and_nothing_for_bad_values(tmp_path):
+    out = tmp_path / "rock.glb"
+    result = CliRunner().invoke(cli, ["sample", str(TINY_ONNX), "--seed", "2", "--lods", "600,150", "--texture", "64",
+                                      "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    document, _ = gltf.read(out.read_bytes())
+    assert [n["name"] for n in document["nodes"]] == ["rock_LOD0", "rock_LOD1"]
+    for args, said in [(["--lods", "600", "--texture", "100"], "--texture must be a power of two"),
+                       (["--lods", "0"], "--lods asks for 0 triangles"),
+                       (["--lods", "9999999"], "more than the sample's full-resolution mesh"),
+                       (["--texture", "64"], "--texture is for an asset: give --lods")]:
+        bad = tmp_path / "bad.glb"
+        result = CliRunner().invoke(cli, ["sample", str(TINY_ONNX), *args, "-o", str(bad)])
+        assert result.exit_code != 0 and said in result.output and not bad.exists(), result.output
+    assert "--lods" in CliRunner().invoke(cli, ["sample", "--help"]).output
+    job = ["sample", str(TINY_ONNX), "--seeds", "0-1", "--workers", "1", "--lods", "300", "--texture", "32",
+           "-o", str(tmp_path / "many" / "{seed}.glb")]
+    (tmp_path / "many").mkdir()
+    assert CliRunner().invoke(cli, job).exit_code == 0
+    assert gltf.read((tmp_path / "many" / "1.glb").read_bytes())[0]["nodes"][0]["name"] == "seed1_LOD0"
+    assert "wrote 0 files, 2 already done" in CliRunner().invoke(cli, job).output  # resumed from its index
+
+
+def test_without_the_assets_extra_sinrun_names_it_and_writes_nothing(tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "xatlas", None)  # as if not installed
+    out = tmp_path / "rock.glb"
+    result = CliRunner().invoke(cli, ["sample", str(TINY_ONNX), "--lods", "600", "-o", str(out)])
+    assert result.exit_code == 1 and "pip install 'sinshape[assets]'" in result.output and not out.exists()
+
+
+def test_world_tiles_as_assets_meet_at_their_border_at_every_level(tmp_path):
+    """Every level keeps every vertex of a tile's border, so neighbours'
+    levels meet whichever each shows."""
+    result = CliRunner().invoke(cli, ["world", str(TINY_ONNX), "--tiles", "0:1,0:0", "--lods", "700,450",
+                                      "--texture", "32", "--frame", "model", "-o", str(tmp_path / "w")])
+    assert result.exit_code == 0, result.output
+    from sinshape.runtime import many
+
+    records = many.read_index(tmp_path / "w" / "tile_index.jsonl", many.TILES)
+    assert sorted(records) == [(0, 0), (1, 0)] and all(len(r["levels"]) == 2 for r in records.values())
+    again = CliRunner().invoke(cli, ["world", str(TINY_ONNX), "--tiles", "0:1,0:0", "--lods", "700",
+                                     "--texture", "32", "--frame", "model", "-o", str(tmp_path / "w")])
+    assert again.exit_code == 1 and 'asset {"lods": [700, 450]' in again.output  # another job: not resumed
+    model = load_model(TINY_ONNX, threads=1)
+    from sinshape.runtime.world import world_layout
+
+    layout = world_layout(model)
+    axis = layout.horizontal[0]
+    border = layout.stride[axis]  # the face tiles (0, 0) and (1, 0) share
+    sides = []
+    for name in ("tile_0_0.glb", "tile_1_0.glb"):
+        document, binary = gltf.read((tmp_path / "w" / name).read_bytes())
+        sides.append([set(map(tuple, np.round(p[np.abs(p[:, axis] - border) < 1e-4], 4)))
+                      for p in (gltf.level_arrays(document, binary, k)["position"] for k in range(2))])
+    assert sides[0][0] and all(sides[0][a] == sides[1][b] for a in range(2) for b in range(2))
+
+
+def test_the_web_api_hands_out_assets_and_refuses_bad_values_in_one_line_of_json():
+    from test_serve import get, running_server
+
+    with running_server(TINY_COLOUR_ONNX, "--threads", 1) as (base, _):
+        route = f"{base}/api/models/tiny_colour"
+        status, headers, body = get(f"{route}/sample?seed=3&lods=1500,300&texture=64")
+        assert status == 200 and headers["Content-Type"] == "model/gltf-binary", body[:200]
+        assert "asset1500_300" in headers["Content-Disposition"]
+        document, binary = gltf.read(body)
+        assert [len(gltf.level_arrays(document, binary, k)["faces"]) <= n for k, n in enumerate((1500, 300))] == [True, True]
+        assert gltf.level_arrays(document, binary, 0)["colour_map"].shape == (64, 64, 3)
+        for query_, said in [("lods=0", "at least 4"), ("lods=300&format=ply", "glb"),
+                             ("lods=300&texture=100", "power of two"), ("texture=64", "give lods"),
+                             ("lods=x", "triangle counts")]:
+            status, _, body = get(f"{route}/sample?seed=3&{query_}")
+            assert status == 400 and said in json.loads(body)["detail"] and b"\n" not in body, body
+        status, _, body = get(f"{route}/tile?i=0&j=0&lods=500&texture=32")
+        assert status == 200 and gltf.read(body)[0]["nodes"][0]["name"].endswith("_LOD0")
+
+
+@pytest.mark.blender
+def test_blender_opens_an_asset_with_its_maps(coloured_asset):
+    """Blender's own glTF importer, in a Blender of its own (bpy)."""
+    pytest.importorskip("bpy", reason="needs bpy: pip install 'sinshape[blender]'")
+    script = f"""
+import json, bpy
+bpy.ops.wm.read_factory_settings(use_empty=True)
+bpy.ops.import_scene.gltf(filepath={str(coloured_asset[0])!r})
+objects = {{o.name: len(o.data.polygons) for o in bpy.data.objects if o.type == "MESH"}}
+nodes = sorted({{n.type for m in bpy.data.materials if m.node_tree for n in m.node_tree.nodes}})
+images = {{i.name: list(i.size) for i in bpy.data.images}}
+print("RESULT" + json.dumps({{"objects": objects, "nodes": nodes, "images": images}}))
+"""
+
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
+    result = json.loads(next(line[6:] for line in done.stdout.splitlines() if line.startswith("RESULT")))
+    assert result["objects"]["box_LOD0"] <= LODS[0]
+    assert {"TEX_IMAGE", "NORMAL_MAP", "BSDF_PRINCIPLED"} <= set(result["nodes"])
+    assert [TEXTURE, TEXTURE] in result["images"].values() and len(result["images"]) >= 2
+
+
+@pytest.mark.skipif(not shutil.which("godot3-server"), reason="needs Godot 3's headless build: apt-get install "
+                    "godot3-server (not on CI: the time)")
+def test_godot_imports_every_level_with_its_maps(coloured_asset, tmp_path):
+    """Godot's own glTF import (its editor's, headless), then the scene loaded by a script."""
+    shutil.copy(coloured_asset[0], tmp_path / "box.glb")
+    (tmp_path / "project.godot").write_text("config_version=4\n")
+    # The editor imports the file, then may stay open (Godot 3.2 headless): it is stopped once the import is there.
+    editor = subprocess.Popen(["godot3-server", "--path", str(tmp_path), "--editor", "--quit"],
+                              stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        for _ in range(600):
+            if editor.poll() is not None or (list(tmp_path.glob(".import/box.glb-*.scn"))
+                                             and (tmp_path / "box.glb.import").exists()):
+                break
+            time.sleep(0.2)
+        time.sleep(1)  # the import's last files
+    finally:
+        editor.kill()
+        editor.wait()
+    done = subprocess.run(["godot3-server", "--path", str(tmp_path), "-s", str(ROOT / "tools" / "godot" / "list_meshes.gd"),
+                           "res://box.glb"], capture_output=True, text=True, timeout=300)
+    meshes = json.loads(next(line[7:] for line in done.stdout.splitlines() if line.startswith("RESULT ")))
+    assert [(m["name"], m["albedo"], m["normal"]) for m in meshes] == [("box_LOD0", TEXTURE, TEXTURE),
+                                                                        ("box_LOD1", TEXTURE, TEXTURE)]
+    assert [m["triangles"] <= n for m, n in zip(meshes, LODS)] == [True, True]
