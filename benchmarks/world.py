@@ -41,7 +41,6 @@ from sinshape.runtime.query import dense
 ROOT = Path(__file__).resolve().parent.parent
 LARGE = (2.5, 2.5, 1.0)  # horizontal factors of the ordinary samples windows are also cut from
 STRIP = 24  # tiles along the axis whose autocorrelation is measured
-ARRANGE = {"terrain": "blend", "acropolis": "scatter", "towerruins": "scatter"}  # landscape or object
 TRAINING_INPUTS = {"terrain": "shape", "acropolis": "shape", "towerruins": ROOT / "tests/data/towerruins/towerruins.obj"}
 
 
@@ -313,7 +312,7 @@ def main():
     parser.add_argument("--pitch", type=int, default=None, help="world.PITCH, for a comparison")
     parser.add_argument("--presence", type=float, default=None, help="world.PRESENCE, for a comparison")
     parser.add_argument("--arrange", choices=world.ARRANGEMENTS, default=None,
-                        help="every model's arrangement (default: ARRANGE's, each model's own)")
+                        help="every model's arrangement (default: each model's own, as its manifest records)")
     args = parser.parse_args()
     for name in ("blend", "contrast", "pitch", "presence"):
         if getattr(args, name) is not None:
@@ -321,7 +320,7 @@ def main():
     print(f"world.BLEND = {world.BLEND}, CONTRAST = {world.CONTRAST}, PITCH = {world.PITCH}, PRESENCE = {world.PRESENCE}")
     for name in args.models:
         model = load_model(models.find(name))
-        options = world.WorldOptions(arrange=args.arrange or ARRANGE[name])
+        options = world.WorldOptions(arrange=args.arrange or model.manifest.arrange)
         layout = world.world_layout(model)
         print(f"\n## {name}: up {model.manifest.up}, tiles of {layout.stride[layout.horizontal[0]]} x "
               f"{layout.stride[layout.horizontal[1]]} voxels, windows {'x'.join(map(str, model.manifest.sizes[-1]))}, "

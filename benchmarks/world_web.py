@@ -169,9 +169,6 @@ def shots(browser, base: str, seed: int, path: Path) -> None:
     both.quantize(256, dither=Image.Dither.NONE).save(path, optimize=True)
 
 
-ARRANGE = {"terrain": "blend", "terrain_colour": "blend", "acropolis": "scatter", "towerruins": "scatter"}
-
-
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("model", nargs="?", default="terrain")
@@ -183,9 +180,9 @@ def main():
     parser.add_argument("--shots", type=Path)
     args = parser.parse_args()
 
-    arrange = args.arrange or ARRANGE.get(args.model, "blend")
     path = models.find(args.model)
-    levels = len(load.load_model(path, threads=1).manifest.sizes)
+    manifest = load.load_model(path, threads=1).manifest
+    arrange, levels = args.arrange or manifest.arrange, len(manifest.sizes)
     load_before = os.getloadavg()[0]
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp) / "site"

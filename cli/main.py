@@ -435,10 +435,10 @@ def run_job(job, items, unit: str, name) -> None:
 @click.option("--engine", type=click.Choice(["local", "ray"]), default="local", show_default=True,
               help="This machine's cores, or a Ray cluster (pip install 'sinshape[ray]').")
 @click.option("--address", default=None, help="With --engine ray: the cluster's address.")
-@click.option("--arrange", type=click.Choice(["blend", "scatter"]), default="blend", show_default=True,
+@click.option("--arrange", type=click.Choice(["blend", "scatter"]), default=None,
               help="blend: samples blended into one continuing surface (terrain, rock, walls); scatter: whole "
                    "samples, one in most cells of three tiles a side, at drawn places, on a ground (a temple, "
-                   "a tower).")
+                   "a tower). Default: what the model records (`sinrun orient --arrange`), else blend.")
 @click.option("--map", "height_map", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
               help="The world's large shape: a greyscale .png (black low, white --relief voxels high; a column "
                    "per tile along the first horizontal axis, a row per tile up the second, from tile 0,0) or a "
@@ -466,7 +466,8 @@ def world(model, seed, tiles, output, suffix, scale, frame, threads, workers, en
     packed = assets.options_of(lods, texture, ao)
     loaded = open_model(model, threads)
     heights = worlds.read_height_map(height_map, loaded, relief) if height_map else None
-    wanted = SampleRequest(seed, scale=scale, frame=frame, arrange=arrange, heights=heights, lod=lod)
+    wanted = SampleRequest(seed, scale=scale, frame=frame, arrange=arrange or loaded.manifest.arrange, heights=heights,
+                           lod=lod)
     output = output or Path(f"{loaded.path.stem}_world_seed{seed}")
     suffix = "glb" if packed else suffix
     if output.suffix.lower() in files.MESH_FORMATS and "{tile}" not in output.name:  # one mesh of the block
@@ -577,24 +578,29 @@ def info(model):
 
 @cli.command()
 @MODEL_ARGUMENT
-@click.option("--up", type=click.Choice(["y", "z"]), required=True,
+@click.option("--up", type=click.Choice(["y", "z"]), default=None,
               help="The axis of the model's training input that points up.")
+@click.option("--arrange", type=click.Choice(["blend", "scatter"]), default=None,
+              help="How the model's world is made unless `sinrun world --arrange` says: blend (a landscape: "
+                   "terrain, rock) or scatter (one object: a temple, a tower).")
 @click.option("-o", "--output", type=click.Path(path_type=Path), default=None,
               help="Where to write the changed model (.onnx). Default: the model's own file, changed in "
                    "place (never a shipped model's).")
-def orient(model, up, output):
-    """Record which axis of a model points up, without retraining.
+def orient(model, up, arrange, output):
+    """Record which axis of a model points up, or how its world is made, without retraining.
 
     Viewers, pictures, the page and Blender stand a model's samples on that
-    axis. Samples themselves do not change: the same seed gives the same
-    shape, in the same coordinates.
+    axis; `sinrun world`, the page and Blender make its world as it says
+    unless told otherwise. Samples themselves do not change: the same seed
+    gives the same shape, in the same coordinates.
     """
     from sinshape import models
     from sinshape.runtime import load
 
     target = models.own_file(model, output)
-    load.write_oriented(open_model(model, threads=1), up, target)
-    click.echo(f"wrote {target} ({up} points up)")
+    load.write_oriented(open_model(model, threads=1), up, target, arrange)
+    said = [f"{up} points up"] * (up is not None) + [f"its world {arrange}s"] * (arrange is not None)
+    click.echo(f"wrote {target} ({', '.join(said)})")
 
 
 @cli.command()

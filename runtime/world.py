@@ -62,7 +62,7 @@ import numpy as np
 from sinshape.core import noise
 from sinshape.core.budget import check_memory
 from sinshape.core.errors import InputError
-from sinshape.core.manifest import PLANE_AXES
+from sinshape.core.manifest import ARRANGEMENTS, PLANE_AXES
 
 from . import cubes
 from .generate import draw_noise, scaled_sizes, triplane
@@ -73,7 +73,6 @@ SCATTER_STREAM = 3  # (SCATTER_STREAM, a, b): the key of scatter cell (a, b)'s d
 MAX_TILE = 1 << 62  # |i|, |j| below this: a window index and its neighbour fit in 64 bits in every runtime
 MIN_STRIDE = 4  # voxels: a window of fewer than 2 * 4 + 1 along an axis has no room to blend
 UP_AXIS = {"y": 1, "z": 2}
-ARRANGEMENTS = ("blend", "scatter")
 BLEND = 1.0  # the share of a stride, around its middle, over which one window gives way to the next
 # The blend's contrast exponent: 1 keeps the variance of independent
 # Gaussian windows; the head's threshold is not linear, and 1 left the

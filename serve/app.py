@@ -273,17 +273,17 @@ class TileQuery:
     frame: Annotated[Literal["tile", "input", "model"], Query(
         description="tile: the training mesh's units from the tile's own corner (any tile; X-Tile-Corner "
                     "gives the corner in voxels); input or model: placed in the world, near its origin.")] = "tile"
-    arrange: Annotated[Literal["blend", "scatter"], Query(
+    arrange: Annotated[Literal["blend", "scatter"] | None, Query(
         description="blend: samples blended into one surface (terrain); scatter: whole samples at drawn places "
-                    "on a ground (an object).")] = "blend"
+                    "on a ground (an object). Default: what the model records, else blend.")] = None
     lod: Annotated[int, Query(ge=0, description="Levels coarser than the finest: a distant tile, "
                               "with a skirt over the crack where it meets a finer one.")] = 0
 
 
 async def tile_answer(request: Request, q: TileQuery, heights=None, asset=None) -> Response:
     model = find(request, q.name)
-    wanted = SampleRequest(q.seed, scale=q.scale, frame=q.frame, tile=(q.i, q.j), arrange=q.arrange, heights=heights,
-                           lod=q.lod)
+    wanted = SampleRequest(q.seed, scale=q.scale, frame=q.frame, tile=(q.i, q.j),
+                           arrange=q.arrange or model.manifest.arrange, heights=heights, lod=q.lod)
     response = await answer(request, model, Job(q.name, wanted, q.format, asset=asset))
     response.headers["X-Tile-Corner"] = ",".join(map(str, world.tile_corner(model, (q.i, q.j))))
     return response

@@ -103,7 +103,7 @@ def test_health_models_and_manifest(server):
     assert status == 200 and json.loads(body)["status"] == "ok"
     status, _, body = get(f"{base}/api/models")
     assert status == 200 and json.loads(body) == [
-        {"name": "terrain", "size": list(TERRAIN), "levels": 4, "up": "z", "training_input": "terrain.obj"}]
+        {"name": "terrain", "size": list(TERRAIN), "levels": 4, "up": "z", "arrange": "blend", "training_input": "terrain.obj"}]
     status, _, body = get(f"{base}/api/models/terrain")
     summary = json.loads(body)
     assert status == 200 and summary["levels"] == len(summary["sizes"]) == 4

@@ -34,8 +34,8 @@ sinrun world terrain --seed 3 --tiles 0:7,0:7 --scale 2 -o "$work/terrain_world.
 sinrun render "$work/terrain_world.ply" --up z --image-size 640 --elevation 40 --azimuth 30 -o world_terrain.png
 sinrun world terrain --seed 3 --tiles 0:15,0:15 --map world_map.png --relief 120 -o "$work/painted.ply"
 sinrun render "$work/painted.ply" --up z --image-size 900 --elevation 30 --azimuth 210 -o world_painted.png
-sinrun world acropolis --seed 3 --tiles 0:11,0:11 --arrange scatter --map world_map.png --relief 60 -o "$work/temples.ply"
+sinrun world acropolis --seed 3 --tiles 0:11,0:11 --map world_map.png --relief 60 -o "$work/temples.ply"
 sinrun render "$work/temples.ply" --up z --image-size 900 --elevation 35 --azimuth 210 -o world_acropolis.png
-sinrun world towerruins --seed 3 --tiles 0:11,0:11 --arrange scatter -o "$work/towers.ply"
+sinrun world towerruins --seed 3 --tiles 0:11,0:11 -o "$work/towers.ply"
 sinrun render "$work/towers.ply" --up y --image-size 900 --elevation 35 --azimuth 30 -o world_towerruins.png
 rm -r "$work"

@@ -111,6 +111,11 @@ async function showWorld(request, ticket, options) {
   editor.dropLayout();
   const info = await sampling.info(state.where, state.model, options);
   if (ticket !== latest) return;
+  if (!state.arrange) { // as the model records, shown and in the URL
+    state.arrange = $('arrange').value = info.arrange ?? 'blend';
+    writeUrl();
+    request = requestOf();
+  }
   if (document.activeElement === $('edit')) $('edit').blur(); // the keys fly now, not pick another mode
   world.show({ where: state.where, name: state.model, seed: request.seed ?? 0n, scale: request.scale, tile: request.tile, info, reach, walk: walking,
     arrange: request.arrange, heights: request.heights }, (status) => showWorldStatus(status, ticket));
@@ -237,6 +242,7 @@ async function start() {
     readForm();
     state.up = ups.get(state.model) ?? state.up;
     $('up').value = state.up;
+    state.arrange = ''; // another model's world is made as that model records
     load();
   });
   const boxes = ['bx0', 'by0', 'bz0', 'bx1', 'by1', 'bz1', 'gx', 'gy', 'gz', 'ax', 'ay', 'az'];

@@ -5,7 +5,7 @@
 //
 // Messages in, each with an id the answers repeat:
 //   { id, type: 'load', name, bytes, file }  load and check a model (bytes: Uint8Array)
-//     -> { id, type: 'loaded', backend, threads, seconds, sizes, origin, spacing, up }  (the manifest's grids and frame)
+//     -> { id, type: 'loaded', backend, threads, seconds, sizes, origin, spacing, up, arrange }  (the manifest's grids, frame and world)
 //   { id, type: 'sample', name, request }  request: a sample request (request.js: sampleRequest, or a
 //       structured clone of one), made as runtime.request.make makes it (request.js: make), or
 //       with a tile, that tile of the world (request.js: makeTile; docs/WORLDS.md)
@@ -27,9 +27,9 @@ async function load({ name, bytes, file }) {
   models.set(name, loading);
   try {
     const model = await loading;
-    const { sizes, origin, spacing, up } = model.manifest;
+    const { sizes, origin, spacing, up, arrange } = model.manifest;
     return { backend: model.backend, threads: model.threads, seconds: (performance.now() - started) / 1000,
-             sizes, origin, spacing, up };
+             sizes, origin, spacing, up, arrange };
   } catch (error) {
     models.delete(name); // a later try loads again
     throw error;

@@ -19,7 +19,7 @@ class Cancelled extends Error {
   constructor() { super('cancelled'); }
 }
 
-const models = new Map(); // name -> { url or bytes, file, loaded: a promise of the worker's { backend, threads, seconds, sizes, origin, spacing, up } }
+const models = new Map(); // name -> { url or bytes, file, loaded: a promise of the worker's { backend, threads, seconds, sizes, origin, spacing, up, arrange } }
 
 /** A model the browser may load: from `url`, or the bytes of a file opened on the page. */
 export function addModel(name, { url = null, bytes = null, file }) {
@@ -28,7 +28,7 @@ export function addModel(name, { url = null, bytes = null, file }) {
 
 // ---- the server: its routes (docs/SERVE.md)
 const loader = new GLTFLoader();
-const infos = new Map(); // model name -> a promise of { sizes, origin, spacing, up }
+const infos = new Map(); // model name -> a promise of { sizes, origin, spacing, up, arrange }
 const modelRoute = (name) => `api/models/${encodeURIComponent(name)}`;
 
 async function answer(response) {
@@ -118,7 +118,7 @@ const server = {
     if (!infos.has(name)) {
       infos.set(name, (async () => {
         const body = await (await answer(await fetch(modelRoute(name)))).json();
-        return { sizes: body.sizes, origin: body.frame.origin, spacing: body.frame.spacing, up: body.up };
+        return { sizes: body.sizes, origin: body.frame.origin, spacing: body.frame.spacing, up: body.up, arrange: body.arrange };
       })());
       infos.get(name).catch(() => infos.delete(name));
     }
@@ -300,7 +300,7 @@ export function stop() {
 const backends = { server, browser };
 const layouts = new Map(); // "where|model|seed|size" -> a promise of a seed's layout { shape, grid }
 
-/** A model's grids, frame and up axis: { sizes, origin, spacing, up }. */
+/** A model's grids, frame, up axis and world's arrangement: { sizes, origin, spacing, up, arrange }. */
 export const info = (where, name, options) => backends[where].info(name, options);
 
 /** The sample of a request: { positions, faces, status, file (a Blob to download, or null), extension,

@@ -12,10 +12,11 @@ const FIELDS = ['model', 'where', 'seed', 'size', 'scale', 'smooth', 'up', 'form
 // and anchor (3 factors, 3 fractions); cells (layout-cells.js's text of the edited cells).
 // The world mode's too (not an edit: the world of the seed, flown over): at (the
 // camera's tile i,j), travel (fly or walk), reach (tiles made on each side) and
-// arrange (blend or scatter); its height map, a file the user opened, is not in the URL.
+// arrange (blend or scatter; empty: what the model records); its height map, a file the
+// user opened, is not in the URL.
 const EDITS = { keep: ['box', 'other'], grow: ['grow', 'anchor'], layout: ['cells'], world: ['at', 'travel', 'reach', 'arrange'] };
 const EDIT_DEFAULTS = { edit: '', box: '0,0,0,50,100,100', other: '', grow: '2,1,1', anchor: '0,0,0', cells: '', at: '0,0', travel: 'fly', reach: '3',
-  arrange: 'blend' };
+  arrange: '' };
 // What makes the shape: a step of the undo history when one of these changes.
 const SHAPE_FIELDS = ['model', 'seed', 'size', 'scale', 'smooth', 'edit', 'box', 'other', 'grow', 'anchor', 'cells'];
 
@@ -98,7 +99,7 @@ const numberOf = (text) => parseNumber(text) ?? String(text);
 export function requestOf(layout = null) {
   if (state.edit === 'world') { // the tile under the camera, as the tile route takes it
     const tile = String(state.at).split(',').map((t) => (/^\s*-?\d+\s*$/.test(t) ? BigInt(t) : t));
-    return sampleRequest({ seed: seedOf(state.seed), scale: numberOf(state.scale), tile, frame: 'tile', arrange: state.arrange,
+    return sampleRequest({ seed: seedOf(state.seed), scale: numberOf(state.scale), tile, frame: 'tile', arrange: state.arrange || 'blend',
                            heights: state.heights });
   }
   const fields = { seed: seedOf(state.seed), size: parseSize(state.size), scale: numberOf(state.scale), smooth: numberOf(state.smooth) };
