@@ -461,13 +461,10 @@ def world(model, seed, tiles, output, suffix, scale, frame, threads, workers, en
     tile 0,0 costs.
     """
     from sinshape.runtime import asset as assets, world as worlds, write
-    from sinshape.runtime.request import SampleRequest
 
     packed = assets.options_of(lods, texture, ao)
     loaded = open_model(model, threads)
-    heights = worlds.read_height_map(height_map, loaded, relief) if height_map else None
-    wanted = SampleRequest(seed, scale=scale, frame=frame, arrange=arrange or loaded.manifest.arrange, heights=heights,
-                           lod=lod)
+    wanted = worlds.world_request(loaded, seed, scale, frame, arrange, height_map, relief, lod)
     output = output or Path(f"{loaded.path.stem}_world_seed{seed}")
     suffix = "glb" if packed else suffix
     if output.suffix.lower() in files.MESH_FORMATS and "{tile}" not in output.name:  # one mesh of the block

@@ -245,6 +245,18 @@ def read_height_map(path, model, relief: float | None = None) -> HeightMap:
     return parse_height_map(data, path.suffix, path.name, relief)
 
 
+def world_request(model, seed: int, scale: float = 1.0, frame: str = "input", arrange: str | None = None,
+                  height_map=None, relief: float | None = None, lod: int = 0):
+    """The request of a world's tiles (request.SampleRequest, no tile yet)
+    as a front end is asked for it: the model's own arrangement unless one
+    is given, the height map read from its file (read_height_map)."""
+    from .request import SampleRequest
+
+    heights = read_height_map(height_map, model, relief) if height_map else None
+    return SampleRequest(seed, scale=scale, frame=frame, arrange=arrange or model.manifest.arrange, heights=heights,
+                         lod=lod)
+
+
 @dataclass(frozen=True)
 class WorldOptions:
     """How a world is made (its arrangement and height map: every tile of one
