@@ -10,7 +10,8 @@ threads as the browser reports cores. Each figure is the median of
 `--repeats` samples after one warm-up: sample (the level chain on
 onnxruntime-web, with the noise), grid (the decoder on every grid point),
 mesh (marching cubes), and for a coloured model the colour at the mesh's
-vertices (a grey model's is 0). The Python runtime does the same work (sample, then
+vertices (a grey model's is 0; a format-5 model's matcher, made once per
+model, in the warm-up). The Python runtime does the same work (sample, then
 extract, which meshes only the band around the surface) with 1 and with
 all threads. Ends with the static folder's size.
 """
@@ -45,7 +46,7 @@ BROWSER_JS = """async ([file, seed, scale, repeats]) => {
     const t2 = performance.now();
     const m = s.surface(grid, tri.size);
     const t3 = performance.now();
-    if (model.manifest.colour) s.projectedColours(model, await s.project(model, tri), m.positions); // at the mesh's vertices (voxels)
+    if (model.manifest.colour) await s.colours(model, tri, m.positions, 1 / scale); // at the mesh's vertices (voxels), as the page
     const t4 = performance.now();
     if (i > 0) runs.push({ sample: t1 - t0, grid: t2 - t1, mesh: t3 - t2, colour: t4 - t3, total: t4 - t0, faces: m.faces.length / 3 });
   }

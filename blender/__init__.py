@@ -19,6 +19,7 @@ from . import live, ops, props, ui, worlds
 @persistent
 def opening(*_):
     live.forget()
+    worlds.forget()
 
 
 @persistent
@@ -29,12 +30,14 @@ def opened(*_):
 
 @persistent
 def moved(scene, depsgraph):
-    """A keep box (or its sample) moved: regenerate that sample; one whose
+    """A sample refused in edit mode has left it: make it. A keep box (or
+    its sample) moved: regenerate that sample; one whose
     kept part did not change makes nothing (live.regenerate). A world
     fills the tiles around its followed point (worlds.follow). The updates
     are read first: a world's refresh removes objects they name."""
     if live.SUSPENDED:
         return
+    live.left_edit_mode()
     names = {update.id.original.name for update in depsgraph.updates
              if isinstance(update.id, bpy.types.Object) and update.is_updated_transform}
     scene_changed = any(isinstance(update.id, bpy.types.Scene) for update in depsgraph.updates)

@@ -7,6 +7,7 @@ tested on its own; the operators only gather values and call them.
 """
 
 import base64
+import binascii
 import re
 from pathlib import Path
 
@@ -67,12 +68,16 @@ def model_path(reference: str) -> Path:
     return models.find(reference)
 
 
-def check_unchanged(path: Path, digest: str, recorded: str) -> None:
-    """A model file given by path must still be the one recorded when it was
-    chosen (when one was): a changed file is refused, never used in its place."""
-    if recorded and digest != recorded:
-        raise InputError(f"{path}: the model file has changed since this object was made from it (SHA-256 "
-                         f"{recorded[:12]}..., now {digest[:12]}...); choose the file again to use it as it is", "model")
+def check_unchanged(reference: str, path: Path, digest: str, recorded: str) -> None:
+    """A model must still be the one recorded when it was chosen (when one
+    was): a changed file, or a shipped model that an update of the extension
+    replaced, is refused, never used in its place."""
+    if not recorded or digest == recorded:
+        return
+    what = (f"the shipped model {reference} has changed (an update of the extension)" if reference in models.available()
+            else f"{path}: the model file has changed")
+    raise InputError(f"{what} since this object was made from it (SHA-256 {recorded[:12]}..., now {digest[:12]}...); "
+                     "its mesh is kept: choose the model again to use it as it is", "model")
 
 
 def sample_request(values: dict, up: str) -> SampleRequest:
@@ -92,6 +97,23 @@ def sample_request(values: dict, up: str) -> SampleRequest:
             raise InputError("no layout applied yet: show the layout, edit it, then apply it", "layout")
         fields["layout"] = values["layout"]
     return SampleRequest(**fields)
+
+
+# A model trained from an SSG .h5 pyramid has no units of its own: its
+# frame is the finest level's voxels (docs/FORMAT.md), 100 or more Blender
+# units wide. Its objects are scaled so that its training shape's longest
+# side is this many units, about what the shipped models' meshes span.
+VOXEL_MODEL_SIDE = 6.0
+
+
+def object_scale(manifest) -> float:
+    """The scale a new object of this model gets: 1, or for a model in voxel
+    units (an .h5 pyramid's), one that makes it VOXEL_MODEL_SIDE units long.
+    The object's scale, not its mesh: the mesh stays the command line's."""
+    if manifest.raw.get("source", {}).get("kind") != "pyramid":
+        return 1.0
+    extent = (np.array(manifest.sizes[-1]) - 1) * np.asarray(manifest.spacing)
+    return VOXEL_MODEL_SIDE / float(extent.max())
 
 
 def sample_extent(manifest, factors) -> tuple:
@@ -122,9 +144,16 @@ def layout_text(grid: np.ndarray) -> tuple:
 
 
 def layout_from_text(shape, text: str) -> Layout | None:
+    """The layout a .blend keeps (layout_text's), checked as the runtime
+    checks a layout (request.Layout); None where there is none."""
     if not text:
         return None
-    return Layout(tuple(int(n) for n in shape), base64.b64decode(text))
+    try:
+        bits = base64.b64decode(text, validate=True)
+    except (binascii.Error, ValueError):
+        raise InputError("the applied layout is damaged (its cells are not base64): show the layout and apply "
+                         "it again", "layout") from None
+    return Layout(tuple(int(n) for n in shape), bits)
 
 
 # A unit cube's corners (index 4x + 2y + z) and its six faces, each wound
@@ -144,27 +173,137 @@ def layout_cubes(grid: np.ndarray, manifest, factors) -> tuple:
     return vertices.reshape(-1, 3), faces.reshape(-1, 4)
 
 
-def cubes_layout(vertices, edges, manifest, factors) -> np.ndarray:
-    """The layout grid that cubes (vertices in the model's frame, and the
-    mesh's edges) stand for: every connected piece fills the cells whose
-    centres lie within its bounds, so a moved cube fills the nearest cell
-    and an extruded one the cells it reaches."""
+def cubes_layout(vertices, corners, starts, manifest, factors) -> np.ndarray:
+    """The layout grid that cubes stand for, read from their faces whatever
+    Blender's tools did to the mesh's topology (cubes welded by Merge by
+    Distance, which also drops the doubled face between two of them; faces
+    joined, split or deleted): a moved cube fills the nearest cell, an
+    extruded one the cells it reaches. vertices: (n, 3) in the model's
+    frame; the faces as Blender keeps them: corners (k,) each corner's
+    vertex, starts (p,) each face's first corner.
+
+    Faces are walls between cell centres (where a ray from one centre to
+    the next crosses one). Cells the outside reaches without crossing a
+    wall are empty; the rest fall into pieces that walls close off, and a
+    piece is full unless every wall around it faces into it: an enclosed
+    empty cell, seen from the cubes about it. Welding leaves one face of
+    each doubled pair, but which one follows the cubes' order, so every
+    cube keeps a face looking out of it."""
     corner, spacing, shape = layout.cells(manifest, factors)
-    grid = np.zeros(shape, bool)
-    vertices, edges = np.asarray(vertices, float), np.asarray(edges, np.int64).reshape(-1, 2)
-    if not len(vertices):
-        return grid
-    piece = connected_parts(edges[:, 0], edges[:, 1], len(vertices))
-    names, piece = np.unique(piece, return_inverse=True)
-    low = np.full((len(names), 3), np.inf)
-    high = np.full((len(names), 3), -np.inf)
-    np.minimum.at(low, piece, vertices)
-    np.maximum.at(high, piece, vertices)
-    first = np.clip(np.ceil((low - corner) / spacing - 0.5), 0, None).astype(int)
-    last = np.minimum(np.floor((high - corner) / spacing - 0.5), np.array(shape) - 1).astype(int)
-    for (x0, y0, z0), (x1, y1, z1) in zip(first, last):  # one slice per piece, not per vertex
-        grid[x0:x1 + 1, y0:y1 + 1, z0:z1 + 1] = True
-    return grid
+    triangles = fan_triangles(vertices, corners, starts)
+    cells = int(np.prod(shape))
+    index = np.arange(cells).reshape(shape)
+    outside = cells  # one more node: everything beyond the grid
+    joined, walls = [], []  # (lower, upper) node pairs: neighbours with no wall between, and walls with their facing
+    for axis in range(3):
+        order = [(axis + 1) % 3, (axis + 2) % 3, axis]  # cyclic: handedness kept, the ray along the last axis
+        up, down = segment_walls(triangles[:, :, order], corner[order], spacing[order],
+                                        tuple(shape[a] for a in order))
+        nodes = np.transpose(index, order)  # the cells along each ray last
+        pad = np.full(nodes.shape[:2] + (1,), outside)
+        ends = np.concatenate([pad, nodes, pad], axis=2)
+        lower, upper = ends[..., :-1], ends[..., 1:]  # segment s joins node s - 1 and node s
+        blocked = up | down
+        joined.append(np.stack([lower[~blocked], upper[~blocked]], axis=1))
+        walls.append(np.stack([lower[blocked], upper[blocked], up[blocked], down[blocked]], axis=1))
+    joined, walls = np.concatenate(joined), np.concatenate(walls)
+    piece = connected_parts(joined[:, 0], joined[:, 1], cells + 1)
+    looks_out = np.zeros(cells + 1, bool)  # a wall of the piece faces out of it
+    np.logical_or.at(looks_out, piece[walls[:, 0]], walls[:, 2] > 0)  # a face looking up: out of the lower node
+    np.logical_or.at(looks_out, piece[walls[:, 1]], walls[:, 3] > 0)
+    return ((piece != piece[outside]) & looks_out[piece])[:cells].reshape(shape)
+
+
+def segment_walls(triangles: np.ndarray, corner, spacing, shape) -> tuple:
+    """Along rays through the cell centres parallel to the last axis: which
+    segments between neighbouring centres (and between the end centres and
+    the outside) a face crosses, by how it looks: (up, down), (A, B, n + 1)
+    bool each, a face there looking along the ray, or against it."""
+    count = shape[2] + 1
+    up = np.zeros(shape[:2] + (count,), bool)
+    down = np.zeros_like(up)
+    for i, j, height, sign in column_crossings(triangles, corner, spacing, shape):
+        at = (height - corner[2]) / spacing[2] - 0.5  # in centres: cell k's at k
+        segment = np.floor(at).astype(np.int64) + 1  # between centre segment - 1 and centre segment
+        inside = (segment >= 0) & (segment < count)
+        i, j, segment, sign = i[inside], j[inside], segment[inside], sign[inside]
+        up[i[sign > 0], j[sign > 0], segment[sign > 0]] = True
+        down[i[sign < 0], j[sign < 0], segment[sign < 0]] = True
+    return up, down
+
+
+def fan_triangles(vertices, corners, starts) -> np.ndarray:
+    """(m, 3, 3) float64 triangles of faces given as Blender keeps them
+    (each face fanned from its first corner: the fan's signed triangles
+    cover what the face covers, convex or not), checked first: finite
+    vertices, corners that name them, faces of at least 3 corners."""
+    vertices = np.asarray(vertices, np.float64).reshape(-1, 3)
+    corners, starts = np.asarray(corners).ravel(), np.asarray(starts).ravel()
+    if not np.isfinite(vertices).all():
+        raise InputError("the layout's cubes have vertices that are not finite numbers (NaN or infinite): "
+                         "move them back or show the layout again", "layout")
+    if not (np.issubdtype(corners.dtype, np.integer) or not corners.size) \
+            or not (np.issubdtype(starts.dtype, np.integer) or not starts.size):
+        raise InputError("the layout's cubes are not a mesh: corners and faces are not integers", "layout")
+    counts = np.diff(np.append(starts, len(corners)))
+    if len(corners) and ((corners < 0) | (corners >= len(vertices))).any():
+        raise InputError(f"the layout's cubes are not a valid mesh: a face names a vertex outside its "
+                         f"{len(vertices)}", "layout")
+    if len(starts) and (starts[0] != 0 or (counts < 3).any()):
+        raise InputError("the layout's cubes are not a valid mesh: a face has fewer than 3 corners", "layout")
+    face = np.repeat(np.arange(len(starts)), counts - 2)  # face of each fan triangle
+    step = np.arange(len(face)) - np.repeat(np.cumsum(counts - 2) - (counts - 2), counts - 2)
+    first = starts[face]
+    return vertices[corners[np.stack([first, first + step + 1, first + step + 2], axis=1)]]
+
+
+COLUMN_BATCH = 1 << 20  # (triangle, column) candidates tested at once
+
+
+def column_crossings(triangles: np.ndarray, corner, spacing, shape):
+    """Where the vertical rays through the cell centres' columns cross the
+    triangles: yields (i, j, z, sign) arrays, batch by batch, sign the
+    triangle's facing (+1 up, -1 down); triangles seen edge-on cross none.
+    A ray through an edge shared by two triangles counts once (the
+    top-left rule of rasterisers), so welded and unwelded faces alike
+    count each crossing once."""
+    xy = (triangles[:, :, :2] - corner[:2]) / spacing[:2] - 0.5  # column units: column c at c
+    area = ((xy[:, 1, 0] - xy[:, 0, 0]) * (xy[:, 2, 1] - xy[:, 0, 1])
+            - (xy[:, 2, 0] - xy[:, 0, 0]) * (xy[:, 1, 1] - xy[:, 0, 1]))
+    keep = area != 0
+    triangles, xy, area = triangles[keep], xy[keep], area[keep]
+    sign = np.sign(area).astype(np.int64)
+    xy = np.where(sign[:, None, None] < 0, xy[:, ::-1], xy)  # every triangle counter-clockwise
+    z = np.where(sign[:, None] < 0, triangles[:, ::-1, 2], triangles[:, :, 2])
+    low = np.clip(np.ceil(xy.min(axis=1)), 0, np.array(shape[:2])).astype(np.int64)
+    high = np.clip(np.floor(xy.max(axis=1)) + 1, 0, np.array(shape[:2])).astype(np.int64)
+    span = np.maximum(high - low, 0)
+    count = span[:, 0] * span[:, 1]
+    ends = np.cumsum(count)
+    first = 0
+    while first < len(count):
+        last = max(first + 1, int(np.searchsorted(ends, (ends[first - 1] if first else 0) + COLUMN_BATCH)))
+        which = np.repeat(np.arange(first, last), count[first:last])
+        offset = np.arange(len(which)) - np.repeat(ends[first:last] - count[first:last], count[first:last])
+        i = low[which, 0] + offset // np.maximum(span[which, 1], 1)
+        j = low[which, 1] + offset % np.maximum(span[which, 1], 1)
+        a, b, c = xy[which, 0], xy[which, 1], xy[which, 2]
+        weights = []
+        for start, end in ((b, c), (c, a), (a, b)):  # barycentric weight of the vertex opposite each edge
+            edge = end - start
+            # From the edge's lower end, so that two faces sharing it compute the same value, negated.
+            flip = (start[:, 0] > end[:, 0]) | ((start[:, 0] == end[:, 0]) & (start[:, 1] > end[:, 1]))
+            origin = np.where(flip[:, None], end, start)
+            along = np.where(flip[:, None], -edge, edge)
+            value = along[:, 0] * (j - origin[:, 1]) - along[:, 1] * (i - origin[:, 0])
+            value = np.where(flip, -value, value)
+            top_left = (edge[:, 1] < 0) | ((edge[:, 1] == 0) & (edge[:, 0] > 0))  # the ray nudged along +x, +y
+            weights.append(np.where((value > 0) | ((value == 0) & top_left), value, np.nan))
+        hit = ~np.isnan(weights[0] + weights[1] + weights[2])
+        total = weights[0] + weights[1] + weights[2]
+        height = (weights[0] * z[which, 0] + weights[1] * z[which, 1] + weights[2] * z[which, 2]) / total
+        yield i[hit], j[hit], height[hit], sign[which][hit]
+        first = last
 
 
 def triangle_edges(faces) -> tuple:
@@ -281,10 +420,16 @@ def mesh_colours(mesh) -> np.ndarray | None:
     return linear_to_srgb(rgba.reshape(-1, 4)[:, :3])
 
 
-def mesh_edges(mesh) -> np.ndarray:
-    edges = np.empty(len(mesh.edges) * 2, np.int32)
-    mesh.edges.foreach_get("vertices", edges)
-    return edges.reshape(-1, 2)
+def mesh_faces(mesh) -> tuple:
+    """(corners (k,), starts (p,)) of a bpy Mesh's faces: each corner's
+    vertex, and each face's first corner (cubes_layout reads faces so)."""
+    corners = np.empty(len(mesh.loops), np.int32)
+    starts = np.empty(len(mesh.polygons), np.int32)
+    if len(corners):
+        mesh.attributes[".corner_vert"].data.foreach_get("value", corners)
+    if len(starts):
+        mesh.polygons.foreach_get("loop_start", starts)
+    return corners, starts
 
 
 PLY_TYPES = {b"float": "<f4", b"double": "<f8", b"uchar": "u1", b"int": "<i4", b"uint": "<u4"}

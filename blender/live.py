@@ -16,7 +16,6 @@ from pathlib import Path
 import bpy
 import numpy as np
 
-from sinshape import models
 from sinshape.core.errors import InputError
 from sinshape.core.files import check_readable
 from sinshape.runtime import layout, load, many, mesh
@@ -29,13 +28,16 @@ MODELS = {}  # (path, SHA-256) -> a loaded model, the few last used
 DIGESTS = {}  # (path, size, mtime) -> SHA-256: a file is hashed again only when it changed
 KEEP_MODELS = 4
 SUSPENDED = []  # non-empty while settings are filled in by the add-on itself: no regeneration
+MAX_PART_TEXT = 256  # a kept part's text as the add-on writes it (convert.kept_part) is under 150 characters
 MADE = {}  # object name -> what its mesh was made from, (model setting, request) (a world: its tiles' asking)
+IN_EDIT_MODE = set()  # names of objects whose regeneration waits for them to leave edit mode
 
 
 def model_file(reference: str, recorded: str = "") -> tuple:
     """(path, SHA-256) of the model a setting names ('//' relative to the
-    .blend), checked: a file is there and, given by path, is the one
-    `recorded` (convert.check_unchanged); hashed again only when it changed."""
+    .blend), checked: a file is there and is the one `recorded`
+    (convert.check_unchanged), a shipped model too; hashed again only when
+    it changed."""
     if reference.startswith("//"):
         reference = bpy.path.abspath(reference)
     path = check_readable(convert.model_path(reference), "model file")
@@ -46,8 +48,7 @@ def model_file(reference: str, recorded: str = "") -> tuple:
         if digest is None:
             raise InputError(f"{path}: cannot read the model file")
         DIGESTS[key] = digest[1]
-    if reference not in models.available():
-        convert.check_unchanged(path, DIGESTS[key], recorded)
+    convert.check_unchanged(reference, path, DIGESTS[key], recorded)
     return path, DIGESTS[key]
 
 
@@ -69,9 +70,10 @@ def load_model(settings):
 
 def load_settings(settings) -> tuple:
     """(the model, its file's SHA-256) that settings (a sample's or a
-    world's) name; a file's SHA-256 is recorded the first time."""
+    world's) name; the SHA-256 is recorded the first time (a shipped
+    model's too: an update of the extension may replace it)."""
     model, digest = load_file(settings.model, settings.model_sha256)
-    if settings.model not in models.available() and not settings.model_sha256:
+    if not settings.model_sha256:
         with suspended():
             settings.model_sha256 = digest
     return model, digest
@@ -95,6 +97,9 @@ def keep_part(obj, model) -> str:
     if box is None:
         if not settings.keep_part:
             raise InputError("choose a box object to keep (Add Keep Box)", "keep")
+        if len(settings.keep_part) > MAX_PART_TEXT:  # the runtime would echo all of it
+            raise InputError(f"the kept part recorded on the object is {len(settings.keep_part)} characters, not a "
+                             "part's SEED:X0,Y0,Z0:X1,Y1,Z1: choose a box object to keep (Add Keep Box)", "keep")
         return settings.keep_part
     corners = points_between([tuple(corner) for corner in box.bound_box], box, obj)
     up = model.manifest.up
@@ -115,17 +120,30 @@ def request_of(obj, model) -> requests.SampleRequest:
     return convert.sample_request(values, model.manifest.up)
 
 
+# Bytes a face costs here at its peak: the runtime's mesh, its copy turned
+# to Z up, its edges found in numpy, and Blender's own mesh (291 measured
+# for terrain at 6x6x6, 2.6 million faces); smoothing costs the runtime more.
+BYTES_PER_FACE = 384
+
+
 def make_mesh(model, request, progress=None) -> tuple:
     """(vertices along Blender's axes, triangles, their edges, a coloured
     model's sRGB colours or None) of the sample a request asks for:
     request.make and mesh.extract (which colours a coloured model's mesh),
-    then the turn to Z up."""
-    triplane = requests.make(model, request)
-    result = mesh.extract(model, triplane, progress=progress, **request.mesh_options())
-    if not len(result.faces):
-        raise InputError("the sample has no surface at this size and scale; the mesh is left as it was")
-    return blender_arrays(result.vertices, result.faces, model.manifest.up,
-                          convert.byte_colours(result.visual.vertex_colors) if model.manifest.colour else None)
+    then the turn to Z up. A size or scale whose mesh would not fit in
+    memory is refused before any of it is made (request.check_memory, with
+    this add-on's own copies counted), and a memory error all the same is
+    one line, never a traceback."""
+    per_face = max(BYTES_PER_FACE, mesh.held_per_face(request.smooth, largest=request.largest))
+    try:
+        triplane = requests.make(model, request, per_face=per_face)
+        result = mesh.extract(model, triplane, progress=progress, per_face=per_face, **request.mesh_options())
+        if not len(result.faces):
+            raise InputError("the sample has no surface at this size and scale; the mesh is left as it was")
+        return blender_arrays(result.vertices, result.faces, model.manifest.up,
+                              convert.byte_colours(result.visual.vertex_colors) if model.manifest.colour else None)
+    except MemoryError:
+        raise InputError("the sample ran out of memory: choose a smaller size or scale") from None
 
 
 def blender_arrays(vertices, faces, up: str, colours=None) -> tuple:
@@ -177,7 +195,12 @@ def suspended():
 
 
 def set_mesh(obj, arrays, request=None) -> None:
-    """Put (vertices, faces, edges, colours) into an object's mesh; the request it was made from is remembered."""
+    """Put (vertices, faces, edges, colours) into an object's mesh; the
+    request it was made from is remembered. A mesh shared with other
+    objects (a linked duplicate, Alt+D) is theirs too: this object gets a
+    mesh of its own first."""
+    if obj.data.users > 1:
+        obj.data = obj.data.copy()
     put_mesh(obj.data, arrays, obj.sinshape.shade_smooth)
     obj.sinshape.error = ""
     MADE[obj.name] = (obj.sinshape.model, request)
@@ -214,7 +237,9 @@ def regenerate(obj, force: bool = False) -> None:
     settings = obj.sinshape
     try:
         if obj.mode == "EDIT":
+            IN_EDIT_MODE.add(obj.name)
             raise InputError(f"{obj.name} is in edit mode: leave it to regenerate the sample")
+        IN_EDIT_MODE.discard(obj.name)
         model = load_model(settings)
         request = request_of(obj, model)
         if not force and MADE.get(obj.name) == (settings.model, request):
@@ -232,8 +257,26 @@ def regenerate(obj, force: bool = False) -> None:
 
 def apply_to(name: str, arrays, request) -> None:
     obj = bpy.data.objects.get(name)
-    if obj is not None and obj.sinshape.active and obj.mode != "EDIT":
-        set_mesh(obj, arrays, request)
+    if obj is None or not obj.sinshape.active:
+        return
+    if obj.mode == "EDIT":  # entered while the work ran: made again when it is left
+        IN_EDIT_MODE.add(name)
+        return
+    set_mesh(obj, arrays, request)
+
+
+def left_edit_mode() -> None:
+    """After a change in the scene: samples whose regeneration was refused
+    in edit mode and that have left it are made now (their error goes)."""
+    for name in list(IN_EDIT_MODE):
+        obj = bpy.data.objects.get(name)
+        if obj is None or not obj.sinshape.active:
+            IN_EDIT_MODE.discard(name)
+        elif obj.mode != "EDIT":
+            try:
+                regenerate(obj)
+            except InputError as error:
+                report_later(f"{name}: {error}")
 
 
 def changed(settings, context) -> None:
@@ -379,7 +422,7 @@ def apply_layout(obj) -> None:
     model = load_model(settings)
     up = model.manifest.up
     vertices = convert.to_model(points_between(convert.mesh_vertices(cubes.data), cubes, obj), up)
-    grid = convert.cubes_layout(vertices, convert.mesh_edges(cubes.data), model.manifest, model_factors(settings, up))
+    grid = convert.cubes_layout(vertices, *convert.mesh_faces(cubes.data), model.manifest, model_factors(settings, up))
     if not grid.any():
         raise InputError("the layout's cubes lie outside the sample: nothing to apply", "layout")
     shape, text = convert.layout_text(grid)
@@ -436,3 +479,4 @@ def forget() -> None:
     """Another file opens: its objects were made by no request of this session."""
     work.WORKER.clear()
     MADE.clear()
+    IN_EDIT_MODE.clear()

@@ -68,10 +68,10 @@ class SINSHAPE_OT_add_sample(AddOperator, bpy.types.Operator):
         except InputError as error:
             self.report({"ERROR"}, str(error))
             return {"CANCELLED"}
-        recorded = "" if self.model in models.available() else digest
         obj = live.new_object(context.collection, f"sinshape {model.path.stem}", arrays,
-                              {**settings, "model_sha256": recorded}, request)
+                              {**settings, "model_sha256": digest}, request)
         obj.location = context.scene.cursor.location
+        obj.scale = (convert.object_scale(model.manifest),) * 3
         self.select(context, obj)
         return {"FINISHED"}
 
@@ -82,7 +82,7 @@ class SINSHAPE_OT_add_world(AddOperator, bpy.types.Operator):
     bl_idname = "sinshape.add_world"
     bl_label = "sinshape world"
 
-    radius: IntProperty(name="Radius", default=2, min=0, max=32, soft_max=8,
+    radius: IntProperty(name="Radius", default=2, min=0, max=worlds.MAX_RADIUS, soft_max=8,
                         description="Tiles kept on each side of the followed point's tile")
 
     def execute(self, context):
@@ -90,6 +90,10 @@ class SINSHAPE_OT_add_world(AddOperator, bpy.types.Operator):
         obj = bpy.data.objects.new(name, None)
         obj.empty_display_type = "PLAIN_AXES"
         obj.location = context.scene.cursor.location
+        try:
+            obj.scale = (convert.object_scale(live.load_file(self.model)[0].manifest),) * 3
+        except InputError:
+            pass  # refused below, by the world's own checks
         context.collection.objects.link(obj)
         context.view_layer.update()  # its matrix, which places the followed point in the world
         with live.suspended():
@@ -187,10 +191,19 @@ class SINSHAPE_OT_keep_box_add(SampleOperator):
         box.parent = obj
         box.location = (low + high) / 2
         box.scale = (high - low) / 2
+        context.view_layer.update()  # the box's matrix_world, which places it in the sample's space
         settings = obj.sinshape
+        before = settings.keep_box, settings.keep_seed, settings.edit
         with live.suspended():
             settings.keep_box, settings.keep_seed, settings.edit = box, settings.seed + 1, "KEEP"
-        return reported(self, live.regenerate, obj)
+        done = reported(self, live.regenerate, obj)
+        if done == {"CANCELLED"}:  # nothing half made: the box goes, the edit is as it was
+            with live.suspended():
+                settings.keep_box, settings.keep_seed, settings.edit = before
+            mesh = box.data
+            bpy.data.objects.remove(box)
+            bpy.data.meshes.remove(mesh)
+        return done
 
 
 def reported(operator, function, *args) -> set:

@@ -22,7 +22,7 @@ def model_names(settings, context, text):
 
 
 def model_changed(settings, context):
-    settings.model_sha256 = ""  # a file chosen (again) is taken as it is now
+    settings.model_sha256 = ""  # a model chosen (again) is taken as it is now
     live.changed(settings, context)
 
 
@@ -36,7 +36,7 @@ class SinshapeSettings(bpy.types.PropertyGroup):
                          default=False)
     model: StringProperty(name="Model", default=models.DEFAULT, search=model_names, update=model_changed,
                           description="A shipped model's name, or a .onnx file (// is the .blend's folder)")
-    model_sha256: StringProperty(name="Model SHA-256", description="The model file's SHA-256 when it was chosen")
+    model_sha256: StringProperty(name="Model SHA-256", description="The model's SHA-256 when it was chosen")
     seed: IntProperty(name="Seed", min=0, max=SEED_MAX, update=live.changed,
                       description="The same seed gives the same shape")
     size: FloatVectorProperty(name="Size", size=3, default=(1.0, 1.0, 1.0), min=0.01, soft_min=0.25, soft_max=4.0,
@@ -79,12 +79,12 @@ class SinshapeWorld(bpy.types.PropertyGroup):
                          default=False)
     model: StringProperty(name="Model", default=models.DEFAULT, search=model_names, update=world_model_changed,
                           description="A shipped model's name, or a .onnx file (// is the .blend's folder)")
-    model_sha256: StringProperty(name="Model SHA-256", description="The model file's SHA-256 when it was chosen")
+    model_sha256: StringProperty(name="Model SHA-256", description="The model's SHA-256 when it was chosen")
     seed: IntProperty(name="Seed", min=0, max=SEED_MAX, update=worlds.changed,
                       description="The same seed gives the same world")
     scale: FloatProperty(name="Scale", default=1.0, min=0.01, soft_min=0.25, soft_max=8.0, update=worlds.changed,
                          description="Query the surface on a grid this many times finer per axis")
-    radius: IntProperty(name="Radius", default=2, min=0, max=32, soft_max=8, update=worlds.changed,
+    radius: IntProperty(name="Radius", default=2, min=0, max=worlds.MAX_RADIUS, soft_max=8, update=worlds.changed,
                         description="Tiles kept on each side of the followed point's tile")
     arrange: EnumProperty(name="Arrange", update=worlds.changed, default="blend",
                           items=[("blend", "Blend", "Samples blended into one landscape (terrain, rock)"),

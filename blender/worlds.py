@@ -18,17 +18,20 @@ again at their new level as the point moves.
 """
 
 import math
+import re
+from dataclasses import dataclass
 
 import bpy
 import numpy as np
 
 from sinshape.core.errors import InputError
-from sinshape.runtime import world
+from sinshape.runtime import generate, world
 
 from . import convert, live, work
 
 TILE = "sinshape_tile"  # a tile object's custom property: "I,J"
 MADE = "sinshape_made"  # ... and what it was made from: the model file's SHA-256, the seed, the scale, the arrangement, its lod
+MAX_RADIUS = 32  # tiles on each side: (2 r + 1)^2 = 4225 tiles at most
 
 
 def followed_point(obj, scene) -> np.ndarray:
@@ -62,12 +65,40 @@ def detail(centre, tile, fine: int, coarsest: int) -> int:
     return min(coarsest, max(0, max(abs(tile[0] - centre[0]), abs(tile[1] - centre[1])) - fine))
 
 
+TILE_TEXT = re.compile(r"(-?[0-9]{1,19}),(-?[0-9]{1,19})")
+
+
+def tile_of(child) -> tuple:
+    """The tile (i, j) a child object holds, as its TILE property says
+    ("I,J"), checked as the runtime checks a tile."""
+    value = child[TILE]
+    match = TILE_TEXT.fullmatch(value) if isinstance(value, str) else None
+    if match is None:
+        raise InputError(f"{child.name}: its {TILE} property {str(value)[:40]!r} is not a tile I,J (two "
+                         "integers): remove the property or the object", "tile")
+    return world.check_tile((int(match[1]), int(match[2])))
+
+
 def tile_objects(obj) -> dict:
     """(i, j) -> the world's child object holding that tile."""
-    return {tuple(int(n) for n in child[TILE].split(",")): child for child in obj.children if TILE in child}
+    return {tile_of(child): child for child in obj.children if TILE in child}
+
+
+def check_settings(settings) -> None:
+    """What a world's settings hold (a .blend may hold anything) before use:
+    the seed as the runtime checks it, and the radius within its property's bounds."""
+    generate.check_seed(settings.seed)
+    radius = settings.radius
+    if not 0 <= radius <= MAX_RADIUS:
+        raise InputError(f"radius must be 0 to {MAX_RADIUS} tiles on each side, got {radius}", "radius")
 
 
 def remove(child) -> None:
+    if child.parent is not None and TILE in child:
+        try:
+            SHADES.get(child.parent.name, {}).pop(tile_of(child), None)
+        except InputError:
+            pass  # a child that names no tile has no shade
     mesh = child.data
     bpy.data.objects.remove(child)
     if mesh is not None and not mesh.users:
@@ -85,6 +116,7 @@ def refresh(obj, scene=None, force: bool = False) -> None:
     settings = obj.sinshape_world
     scene = scene or bpy.context.scene
     try:
+        check_settings(settings)
         model, digest = live.load_settings(settings)
         layout = world.world_layout(model)
         world.check_world_scale(layout, settings.scale, model.manifest.hidden, None)
@@ -96,16 +128,43 @@ def refresh(obj, scene=None, force: bool = False) -> None:
             return
         live.MADE[obj.name] = (made, lods)
         present = tile_objects(obj)
-        for tile in set(present) - set(wanted):
-            remove(present.pop(tile))
         todo = [(tile, lods[tile]) for tile in wanted
                 if force or tile not in present or present[tile].get(MADE) != f"{made}:{lods[tile]}"]
-        settings.error = ""
+        # Tiles left behind stay until the new ones are made (a jump would
+        # show nothing for seconds), the farthest dropped at once past as many as are wanted.
+        centre = wanted[0]
+        behind = sorted(set(present) - set(wanted), key=lambda t: -max(abs(t[0] - centre[0]), abs(t[1] - centre[1])))
+        for tile in behind[:max(0, len(behind) - len(wanted)) if todo else None]:
+            remove(present.pop(tile))
+        settings.error = far_warning(model, wanted)
         if todo:
             submit(obj.name, model, made, settings.seed, settings.scale, settings.arrange, todo)
     except InputError as error:
         settings.error = str(error)
         raise
+
+
+# A crack between tiles that float32 locations may open, in voxels, beyond
+# which the world object says so.
+VISIBLE_CRACK = 0.01
+
+
+def far_warning(model, tiles: list) -> str:
+    """What to say where tiles lie so far from the world object's origin that
+    their 32-bit locations (Blender keeps no other) step by more than
+    VISIBLE_CRACK of a voxel, opening cracks between them; else ''."""
+    manifest = model.manifest
+    voxel = float(np.min(manifest.spacing))
+    corners = [np.asarray(manifest.origin) + np.array(world.tile_corner(model, tile)) * np.asarray(manifest.spacing)
+               for tile in (tiles[0], tiles[-1])]  # the centre and the farthest
+    far = float(max(np.abs(corner).max() for corner in corners))
+    step = float(np.spacing(np.float32(far)))
+    if step <= VISIBLE_CRACK * voxel:
+        return ""
+    limit = VISIBLE_CRACK * voxel * 2.0**23
+    return (f"tiles here lie {far:.3g} units from the world object's origin, where Blender's 32-bit locations "
+            f"step by {step:.2g} units ({step / voxel:.2g} voxels): cracks open between tiles beyond about "
+            f"{limit:.3g} units. Move the world object near them")
 
 
 def submit(name: str, model, made: str, seed: int, scale: float, arrange: str, tiles: list) -> None:
@@ -119,7 +178,8 @@ def submit(name: str, model, made: str, seed: int, scale: float, arrange: str, t
             surface = world.tile_surface(model, seed, tile, scale, world.WorldOptions(arrange, lod=lod))
             colours = None if surface.colours is None else convert.byte_colours(surface.colours)
             arrays = live.blender_arrays(world.placed(model, tile, surface.vertices, "tile"), surface.faces, up, colours)
-            job.deliver((tile, f"{made}:{lod}", arrays))
+            job.deliver((f"{made}:{lod}", tile, arrays, tile_shade(model, tile, arrays[0], surface.faces)))
+        job.deliver(None)  # all made: the tiles left behind go
 
     def fail(error):
         obj = bpy.data.objects.get(name)
@@ -127,16 +187,38 @@ def submit(name: str, model, made: str, seed: int, scale: float, arrange: str, t
             obj.sinshape_world.error = str(error)
         live.report_later(f"{name}: {error}")
 
-    work.WORKER.submit(work.Job(name, f"{name}: {len(tiles)} tiles", compute,
-                                lambda result: apply_tile(name, model, *result), fail))
+    def apply(result):
+        if result is None:
+            drop_behind(name)
+        else:
+            apply_tile(name, model, *result)
+
+    work.WORKER.submit(work.Job(name, f"{name}: {len(tiles)} tiles", compute, apply, fail))
 
 
-def apply_tile(name: str, model, tile: tuple, made: str, arrays) -> None:
-    """A finished tile into its child object (made where there is none), placed at the tile's corner."""
+def drop_behind(name: str) -> None:
+    """Remove a world's tiles that its last asking does not want."""
+    obj = bpy.data.objects.get(name)
+    if obj is None or name not in live.MADE:
+        return
+    wanted = set(live.MADE[name][1])
+    for tile, child in tile_objects(obj).items():
+        if tile not in wanted:
+            remove(child)
+
+
+def apply_tile(name: str, model, made: str, tile: tuple, arrays, shade) -> None:
+    """A finished tile into its child object (made where there is none),
+    placed at the tile's corner, its normals and its neighbours' made to
+    agree along their borders (`shade_borders`)."""
     obj = bpy.data.objects.get(name)
     if obj is None or not obj.sinshape_world.active:
         return
-    child = tile_objects(obj).get(tile)
+    try:
+        child = tile_objects(obj).get(tile)
+    except InputError as error:  # a child renamed while the work ran
+        obj.sinshape_world.error = str(error)
+        return
     if child is None:
         label = f"{name} tile {tile[0]},{tile[1]}"
         child = bpy.data.objects.new(label, bpy.data.meshes.new(label))
@@ -149,6 +231,95 @@ def apply_tile(name: str, model, tile: tuple, made: str, arrays) -> None:
         child.location = convert.to_blender([corner], manifest.up)[0]
     live.put_mesh(child.data, arrays, True)
     child[MADE] = made
+    SHADES.setdefault(name, {})[tile] = shade
+    shade_borders(obj, model, tile)
+
+
+# Normals that agree along tile borders. A tile's own faces give a vertex
+# on its border half of the faces around it, which shades each border as a
+# crease; the tiles beside it give the rest. Each vertex's sum of its
+# faces' normals, weighted by the face's angle at it as Blender weighs them,
+# is kept with the tile under where the vertex lies on a border line (its
+# place there is the same bits in both tiles), and a border vertex's
+# normal is the sum over the tiles present there, set as a custom normal;
+# the others keep Blender's own. A world's page does the same.
+SHADES = {}  # world name -> {tile: Shade}
+
+
+@dataclass
+class Shade:
+    sums: np.ndarray  # (n, 3) float64: each vertex's angle-weighted face normals, summed
+    borders: dict  # where a border vertex lies (border_key) -> its index
+
+
+def tile_shade(model, tile: tuple, vertices, faces) -> Shade:
+    """A tile's Shade, from its mesh as Blender holds it (float32, its own
+    space along Blender's axes)."""
+    vertices = np.asarray(vertices, np.float32).astype(np.float64)
+    faces = np.asarray(faces, np.int64).reshape(-1, 3)
+    sums = np.zeros_like(vertices)
+    if len(faces):
+        corners = vertices[faces]  # (m, 3 corners, 3)
+        normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
+        for k in range(3):
+            a, b = corners[:, (k + 1) % 3] - corners[:, k], corners[:, (k + 2) % 3] - corners[:, k]
+            cosine = (a * b).sum(axis=1) / np.maximum(np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1), 1e-300)
+            angle = np.arccos(np.clip(cosine, -1, 1))
+            for axis in range(3):
+                sums[:, axis] += np.bincount(faces[:, k], normal[:, axis] * angle, len(vertices))
+    return Shade(sums, border_keys(model, tile, np.asarray(vertices, np.float32)))
+
+
+def border_keys(model, tile: tuple, vertices: np.ndarray) -> dict:
+    """Where each of a tile's vertices on its four sides lies: ('a', line,
+    j, ...) on a line between two columns of tiles, ('b', i, line, ...)
+    between two rows, ('c', line, line, up) on a corner's column, with its
+    coordinates along the line, as the tile's neighbours name it too."""
+    layout = world.world_layout(model)
+    manifest = model.manifest
+    turn = convert.TURNS[manifest.up]
+    axes, sides, ends = [], [], []
+    for a in layout.horizontal:  # model axis a lies along Blender axis b, in direction sign
+        b = int(np.abs(turn[:, a]).argmax())
+        axes.append(b)
+        ends.append(float(np.float32(turn[b, a] * layout.stride[a] * manifest.spacing[a])))
+        sides.append((vertices[:, b] == 0) * 1 + (vertices[:, b] == ends[-1]) * 2)  # 1 low, 2 high, 0 neither
+    up = int(np.abs(turn[:, layout.up]).argmax())
+    (b0, b1), (s0, s1), (i, j) = axes, sides, tile
+    keys = {}
+    for index in np.flatnonzero((s0 > 0) | (s1 > 0)):
+        line0, line1 = i + (s0[index] == 2), j + (s1[index] == 2)
+        v = vertices[index].tolist()
+        key = (("c", line0, line1, v[up]) if s0[index] and s1[index] else
+               ("a", line0, j, v[b1], v[up]) if s0[index] else ("b", i, line1, v[b0], v[up]))
+        keys[key] = index
+    return keys
+
+
+def shade_borders(obj, model, tile: tuple) -> None:
+    """A tile that came: its normals and those of the tiles beside it, summed along their shared borders."""
+    present = tile_objects(obj)
+    shades = SHADES.setdefault(obj.name, {})
+    for other, child in present.items():  # tiles from a saved file: their shade from their mesh
+        if other not in shades and max(abs(other[0] - tile[0]), abs(other[1] - tile[1])) <= 2:
+            vertices, faces = convert.mesh_arrays(child.data)
+            shades[other] = tile_shade(model, other, vertices, faces)
+    around = [(tile[0] + di, tile[1] + dj) for di in (-1, 0, 1) for dj in (-1, 0, 1)]
+    for here in [t for t in around if t in present and t in shades]:
+        shade = shades[here]
+        normals = np.zeros_like(shade.sums)  # zero: Blender's own normal
+        beside = [shades[t] for t in ((here[0] + di, here[1] + dj) for di in (-1, 0, 1) for dj in (-1, 0, 1))
+                  if t != here and t in shades and t in present]
+        for key, index in shade.borders.items():
+            total = shade.sums[index] + sum(other.sums[other.borders[key]] for other in beside if key in other.borders)
+            normals[index] = total / max(np.linalg.norm(total), 1e-300)
+        present[here].data.normals_split_custom_set_from_vertices(normals.astype(np.float32))
+
+
+def forget() -> None:
+    """Another file opens: its worlds' tiles are shaded afresh."""
+    SHADES.clear()
 
 
 def world_of(obj):

@@ -547,7 +547,8 @@ def say_how_long(model, seeds, request) -> None:
     from sinshape.runtime.request import make
 
     count = len(seeds)
-    seconds = mesh.estimate_seconds(model, make(model, request.with_seed(seeds.first)), request.scale) * count
+    triplane = make(model, request.with_seed(seeds.first), output="planes")  # each seed's own output is checked as made
+    seconds = mesh.estimate_seconds(model, triplane, request.scale) * count
     if seconds > 30:
         click.echo(f"--scale {request.scale:g}: about {format_seconds(seconds)} (h:mm:ss) "
                    f"for {count} sample{'s' if count > 1 else ''}", err=True)

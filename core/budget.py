@@ -20,20 +20,49 @@ FALLBACK_MEMORY_LIMIT = 4 << 30
 
 
 def available_memory() -> int:
-    """Bytes of memory available to new work: MemAvailable on Linux (it
-    counts reclaimable caches), else the free physical pages, else
-    FALLBACK_MEMORY_LIMIT."""
+    """Bytes of memory available to new work: the machine's (machine_memory),
+    or less where the process's address space is limited (`ulimit -v`,
+    RLIMIT_AS): what the limit leaves of it."""
+    machine = machine_memory()
     try:
-        with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
+        import resource
+
+        limit = resource.getrlimit(resource.RLIMIT_AS)[0]
+    except (ImportError, OSError, ValueError):  # no resource module (Windows)
+        return machine
+    if limit == resource.RLIM_INFINITY:
+        return machine
+    return max(0, min(machine, limit - address_space()))
+
+
+def address_space() -> int:
+    """Bytes of address space this process uses now (VmSize), 0 where unknown."""
+    return proc_kib("/proc/self/status", "VmSize:") or 0
+
+
+def machine_memory() -> int:
+    """Bytes of the machine's memory available to new work: MemAvailable on
+    Linux (it counts reclaimable caches), else the free physical pages, else
+    FALLBACK_MEMORY_LIMIT."""
+    available = proc_kib("/proc/meminfo", "MemAvailable:")
+    if available is not None:
+        return available
     try:
         return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
     except (AttributeError, ValueError, OSError):
         return FALLBACK_MEMORY_LIMIT
+
+
+def proc_kib(path: str, field: str) -> int | None:
+    """A 'Field: N kB' line of a Linux /proc file, in bytes; None where there is none."""
+    try:
+        with open(path) as f:
+            for line in f:
+                if line.startswith(field):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
 
 
 def check_memory(needed: int, what: str, limit: int | None = None) -> None:

@@ -19,11 +19,19 @@ from .errors import InputError
 FORMAT_NAME = "sinshape"
 # 3 seals the file's bytes with a SHA-256 at its end; 2 had a `checksum`
 # field over the weights and manifest only; 1 had none. 4 is 3 with a colour
-# head (`colour`); a geometry-only model is still written as 3. All four load.
+# head (`colour`); 5 is 4 with the example's colour as tiles, read by
+# correspondence (`colour.tiles`). A geometry-only model is still written as
+# 3. All five load.
 FORMAT_VERSION = 3
 COLOUR_VERSION = 4
-READ_VERSION = COLOUR_VERSION  # the newest version this code reads
+TILES_VERSION = 5
+READ_VERSION = TILES_VERSION  # the newest version this code reads
 COLOUR_SPACE = {"space": "srgb"}  # manifest `colour`: values are sRGB-encoded in [0, 1]
+# Initializers of a format-5 model's tiles (prep/appearance.py, docs/FORMAT.md):
+# (N, 3) int32 voxels, (N,) uint8 directions, (N, T, T, 4) uint8 images, and
+# the finest level's (X, Y, Z) int8 signed distance to the example's surface.
+TILE_TENSORS = ("colour_tiles.voxels", "colour_tiles.directions", "colour_tiles.images", "colour_tiles.distance")
+MAX_TILE_SIDE = 64
 METADATA_KEY = "sinshape.manifest"  # key of the manifest in the ONNX metadata_props
 SEAL_KEY = "sinshape.sha256"  # key of the last metadata_props entry: the seal (format 3 on)
 NOISE_SCHEME = "splitmix64-boxmuller-v1"  # core/noise.py
@@ -99,6 +107,7 @@ class Manifest:
     up: str = "y"  # the input frame's axis that points up: "y" (most meshes) or "z" (voxel data)
     arrange: str = "blend"  # how its world is made unless asked: "blend" (a landscape) or "scatter" (an object)
     colour: bool = False  # the decoder also gives sRGB colour (format 4)
+    tiles: tuple | None = None  # format 5: (count, side) of the example's colour tiles
 
 
 def _require(ok: bool, message: str) -> None:
@@ -204,8 +213,20 @@ def parse(text: str) -> Manifest:
             f"model format version {version} is newer than this sinshape reads ({READ_VERSION}); upgrade sinshape"
         )
     colour = version >= COLOUR_VERSION
-    _require(raw.get("colour") == (COLOUR_SPACE if colour else None),
-             f"colour must be {json.dumps(COLOUR_SPACE)} in format {COLOUR_VERSION} and absent before it")
+    tiles = None
+    if version >= TILES_VERSION:
+        field = raw.get("colour")
+        tiles = field.get("tiles") if isinstance(field, dict) else None
+        _require(isinstance(field, dict) and set(field) == {"space", "tiles"} and field["space"] == "srgb"
+                 and isinstance(tiles, dict) and set(tiles) == {"count", "side"}
+                 and _is_int(tiles["count"], 1, 2**31 - 1) and _is_int(tiles["side"], 1, MAX_TILE_SIDE)
+                 and tiles["side"] & (tiles["side"] - 1) == 0,
+                 f'colour must be {{"space": "srgb", "tiles": {{"count": N, "side": T}}}} in format {TILES_VERSION}, '
+                 f"T a power of two up to {MAX_TILE_SIDE}")
+        tiles = (tiles["count"], tiles["side"])
+    else:
+        _require(raw.get("colour") == (COLOUR_SPACE if colour else None),
+                 f"colour must be {json.dumps(COLOUR_SPACE)} in format {COLOUR_VERSION} and absent before it")
     if version == 2:
         _require(isinstance(raw.get("checksum"), str) and CHECKSUM_RE.fullmatch(raw["checksum"]) is not None,
                  "checksum must be 'sha256:' and 64 hex digits")
@@ -273,6 +294,7 @@ def parse(text: str) -> Manifest:
         up=raw.get("up", "y"),
         arrange=raw.get("arrange", "blend"),
         colour=colour,
+        tiles=tiles,
     )
 
 
@@ -315,7 +337,10 @@ def describe(raw: dict) -> list:
                          f"and on at rate {lr:.3g}")
     origin, spacing = (", ".join(f"{v:.4g}" for v in raw["frame"][k]) for k in ("origin", "spacing"))
     if raw.get("colour"):
-        lines.append(f"colour      {printable(raw['colour'].get('space'))} RGB beside occupancy")
+        tiles = raw["colour"].get("tiles")
+        lines.append(f"colour      {printable(raw['colour'].get('space'))} RGB, " + (
+            f"read from the example by correspondence: {tiles['count']} tiles of {tiles['side']}x{tiles['side']}"
+            if tiles else "from the decoder's colour head"))
     lines += [
         f"networks    {raw['channels']} channels, {raw['pool_bins']} pooling bins, MLP hidden {raw['mlp_hidden']}",
         f"frame       voxel (0, 0, 0) at ({origin}), voxel size ({spacing}); {raw.get('up', 'y')} points up",

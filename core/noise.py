@@ -95,13 +95,27 @@ def bits_to_normal(h: np.ndarray) -> np.ndarray:
     return (np.sqrt(-2.0 * np.log(u1)) * np.cos(2.0 * np.pi * u2)).astype(np.float32)
 
 
+# Positions drawn at once: Box-Muller's float64 temporaries (about 50 bytes
+# a value) stay a few MB, so a large array costs its own 4 bytes a value.
+CHUNK = 1 << 18
+
+
 def normal(seed: int, stream: tuple, shape, offset=None) -> np.ndarray:
     """Standard normal noise of one stream over a block of positions.
 
     Returns `shape` float32; `offset` (default zeros) is where the block
-    starts, so a tile equals the same slice of the whole array.
+    starts, so a tile equals the same slice of the whole array. Drawn a
+    slab of rows at a time (the values are the same however it is cut).
     """
-    return bits_to_normal(bits(stream_key(seed, *stream), counters(tuple(shape), offset)))
+    key = stream_key(seed, *stream)
+    shape = tuple(shape)
+    offset = (0,) * len(shape) if offset is None else tuple(offset)
+    out = np.empty(shape, np.float32)
+    rows = max(1, CHUNK // max(1, int(np.prod(shape[1:], dtype=np.int64))))
+    for start in range(0, shape[0], rows):
+        block = (min(rows, shape[0] - start), *shape[1:])
+        out[start:start + block[0]] = bits_to_normal(bits(key, counters(block, (offset[0] + start, *offset[1:]))))
+    return out
 
 
 def z0_noise(seed: int, shape) -> np.ndarray:
@@ -111,6 +125,7 @@ def z0_noise(seed: int, shape) -> np.ndarray:
 
 def plane_noise(seed: int, level: int, plane: int, channels: int, shape) -> np.ndarray:
     """Noise added to one plane at one level: (channels, H, W) float32."""
-    keys = np.array([stream_key(seed, PLANE_STREAM, level, plane, c) for c in range(channels)], np.uint64)
-    with np.errstate(over="ignore"):  # all channels at once: `bits` with one key per channel
-        return bits_to_normal(mix64(keys[:, None, None] + np.uint64(GOLDEN) * (counters(tuple(shape)) + np.uint64(1))))
+    out = np.empty((channels, *shape), np.float32)
+    for c in range(channels):  # one stream a channel, drawn as `normal` draws it
+        out[c] = normal(seed, (PLANE_STREAM, level, plane, c), shape)
+    return out

@@ -25,7 +25,7 @@ from sinshape.core.errors import InputError
 from sinshape.core.files import check_readable
 from sinshape.core.manifest import MAX_LEVEL_SIDE
 
-from . import colour as colours
+from . import appearance, colour as colours
 from . import meshfiles, voxelize
 
 # The coarsest level's longest side should be 2-3x the discriminator's
@@ -71,6 +71,9 @@ class Pyramid:
     files_sha256: str = ""
     colour_read: str = ""
     colour_warnings: tuple = ()
+    # A coloured mesh's surface colour at its own detail, as tiles of the
+    # finest level's surface voxels (prep.appearance.Tiles), or None.
+    tiles: object = None
 
     @property
     def sizes(self) -> list:
@@ -176,6 +179,8 @@ def pyramid_from_mesh(path: Path, res: int, levels: int | None = None,
             raise InputError(f"{path.name}: the mesh gives an empty {size} grid; is it a closed solid?")
     fields = [colours.colour_grid(surface, box_low, box / np.array(size), size) for size in sizes] if surface else None
     spacing = box / np.array(sizes[-1])
+    tiles = appearance.example_tiles(appearance.coloured_surface(scene, path), box_low, spacing, grids[-1]) \
+        if surface else None
     return Pyramid(
         levels=grids,
         origin=tuple(float(v) for v in box_low + spacing / 2),
@@ -188,6 +193,7 @@ def pyramid_from_mesh(path: Path, res: int, levels: int | None = None,
         files_sha256=scene.metadata[voxelize.REFERENCES].sha256,
         colour_read=surface.read if surface else "",
         colour_warnings=surface.warnings if surface else (),
+        tiles=tiles,
     )
 
 

@@ -37,7 +37,7 @@ import importlib
 _EXPORTS = {
     "InputError": "sinshape.core.errors", "MemoryLimitError": "sinshape.core.errors", "Model": "load",
     "load_model": "load", "TriPlane": "generate", "sample": "generate", "interpolate": "generate",
-    "extract": "mesh", "dense": "query", "points": "query", "colours": "query", "sample_many": "many", "compose": "edit",
+    "extract": "mesh", "dense": "query", "points": "query", "colours": "colour", "sample_many": "many", "compose": "edit",
     "Part": "edit", "SampleRequest": "request", "Layout": "request", "make": "request", "AssetOptions": "asset",
     "asset_bytes": "asset",
 }

@@ -10,7 +10,7 @@ locked so that every level of a tile meets every level of its neighbours.
 UVs come from xatlas, charts padded so that mip-maps do not bleed. The maps
 are baked from the model itself (bake.py): the normal from its field's
 gradient, the colour from the one function that colours a sample's
-vertices (query.colouring; a world tile's blend, world.tile_colours).
+vertices (colour.colouring; a world tile's blend, world.tile_colours).
 """
 
 import math
@@ -108,12 +108,13 @@ class Dense:
 
 
 def sample_field(model, triplane) -> bake.Field:
-    """The field of a sample (or an edit's composed tri-plane) and its colour."""
-    from . import mesh, query
+    """The field of a sample (or an edit's composed tri-plane) and its colour
+    at full detail (a format-5 model's tiles, read at each texel's point)."""
+    from . import colour as colouring, mesh, query
 
     colour = None
     if model.manifest.colour:
-        paint = query.colouring(model, triplane)
+        paint = colouring.colouring(model, triplane)
 
         def colour(points):
             return mesh.colour_bytes(paint(points))[:, :3]

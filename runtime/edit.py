@@ -32,7 +32,7 @@ from sinshape.core.budget import check_memory
 from sinshape.core.errors import InputError
 from sinshape.core.manifest import PLANE_AXES, plane_sizes
 
-from .generate import Noise, TriPlane, chain, check_seed, draw_noise, scaled_sizes, triplane
+from .generate import Noise, Taps, TriPlane, chain, check_seed, draw_noise, scaled_sizes, triplane
 
 # Cells of each level blended on either side of a box's face: the reach of a
 # level's generator (four 3x3 convolutions).
@@ -170,14 +170,17 @@ def placement(cells: int, finest: int, source_cells: int, source_finest: int, of
     return low, (numerator - low * denominator) / denominator, nearest
 
 
-def interpolation(where: tuple, source_cells: int) -> np.ndarray:
-    """(cells, source_cells) linear interpolation weights from `placement`."""
+def interpolation(where: tuple, source_cells: int) -> Taps:
+    """Linear interpolation from `placement`: each cell's two source cells and their float64 weights."""
     low, frac, _ = where
-    weights = np.zeros((len(low), source_cells), np.float64)
-    rows = np.arange(len(low))
-    np.add.at(weights, (rows, low), 1 - frac)
-    np.add.at(weights, (rows, np.minimum(low + 1, source_cells - 1)), frac)
-    return weights
+    return Taps(low, np.minimum(low + 1, source_cells - 1), 1 - frac, frac)
+
+
+def placed_plane(plane: np.ndarray, rows: Taps, cols: Taps) -> np.ndarray:
+    """A (C, H, W) plane brought onto a composed level's cells: along H,
+    then W, in float64, rounded to float32 once (as the browser runtime
+    does; no matrix product, whose sums BLAS rounds by its version and CPU)."""
+    return cols.sum64(rows.sum64(plane, 1), 2).astype(np.float32)
 
 
 @dataclass
@@ -204,7 +207,7 @@ def place(model, part: Part, sizes: list, factors) -> Placed:
         level_planes, level_noise = [], []
         for k, (a, b) in enumerate(PLANE_AXES):
             rows, cols = interpolation(where[a], source_size[a]), interpolation(where[b], source_size[b])
-            level_planes.append((rows @ levels[level][k] @ cols.T).astype(np.float32))
+            level_planes.append(placed_plane(levels[level][k], rows, cols))
             if level > 0:
                 level_noise.append(source_noise.planes[level][k][:, where[a][2]][:, :, where[b][2]])
         planes.append(level_planes)

@@ -111,13 +111,71 @@ def resize_volume(volume: np.ndarray, shape) -> np.ndarray:
     return out.astype(np.float32)
 
 
+@dataclass(frozen=True)
+class Taps:
+    """Linear interpolation (align_corners=True) along one axis: each output
+    point's two coarse neighbours and their weights."""
+
+    low: np.ndarray
+    high: np.ndarray
+    w_low: np.ndarray  # float32
+    w_high: np.ndarray
+
+    @classmethod
+    def of(cls, n_in: int, n_out: int) -> "Taps":
+        src = np.arange(n_out) * ((n_in - 1) / (n_out - 1)) if n_out > 1 else np.zeros(1)
+        low = np.minimum(np.floor(src).astype(np.intp), n_in - 1)
+        frac = (src - low).astype(np.float32)
+        return cls(low, np.minimum(low + 1, n_in - 1), np.float32(1) - frac, frac)
+
+    def take(self, index) -> "Taps":
+        """The taps of the points `index` selects."""
+        return Taps(self.low[index], self.high[index], self.w_low[index], self.w_high[index])
+
+    def apply(self, values: np.ndarray, axis: int) -> np.ndarray:
+        """`values` (float32) interpolated along `axis` to these points, in
+        float32: each product and the sum rounded alone (the band search's)."""
+        shape = [1] * values.ndim
+        shape[axis] = -1
+        low, high = np.take(values, self.low, axis), np.take(values, self.high, axis)
+        low *= self.w_low.reshape(shape)
+        high *= self.w_high.reshape(shape)
+        low += high
+        return low
+
+    def sum64(self, values: np.ndarray, axis: int) -> np.ndarray:
+        """`values` interpolated along `axis` to these points, each point's two
+        products (exact in float64 for float32 values and weights) summed in
+        float64: float64 (what the browser runtime computes)."""
+        shape = [1] * values.ndim
+        shape[axis] = -1
+        low = np.take(values, self.low, axis).astype(np.float64)
+        low *= self.w_low.reshape(shape)
+        high = np.take(values, self.high, axis).astype(np.float64)
+        high *= self.w_high.reshape(shape)
+        low += high
+        return low
+
+
+RESIZE_CHUNK = 1 << 20  # plane values resized at once
+
+
 def resize_plane(plane: np.ndarray, size) -> np.ndarray:
-    """Bilinear resize (align_corners=True) of a (C, H, W) plane to `size`."""
+    """Bilinear resize (align_corners=True) of a (C, H, W) plane to `size`:
+    along H, then W, each point from its two neighbours (`Taps`), summed in
+    float64 and rounded to float32, as the browser runtime does. Not a
+    matrix product: BLAS orders and fuses its sums by its version and the
+    CPU it finds, and a seed must give the same planes with any numpy on
+    any machine."""
     h, w = size
     if plane.shape[1:] == (h, w):
         return plane
-    rows, cols = resize_matrix(plane.shape[1], h), resize_matrix(plane.shape[2], w)
-    return (rows @ plane @ cols.T).astype(np.float32)
+    rows, cols = Taps.of(plane.shape[1], h), Taps.of(plane.shape[2], w)
+    out = np.empty((plane.shape[0], h, w), np.float32)
+    step = max(1, RESIZE_CHUNK // (max(plane.shape[1], h) * max(plane.shape[2], w)))
+    for c in range(0, plane.shape[0], step):  # channels a few at a time: the float64 sums stay small
+        out[c:c + step] = cols.sum64(rows.sum64(plane[c:c + step], 1).astype(np.float32), 2)
+    return out
 
 
 @dataclass
@@ -190,11 +248,28 @@ def reconstruction_noise(model, sizes: list) -> Noise:
     return Noise(noise.z0_noise(m.recon_seed, sizes[0]), [None] * len(sizes))
 
 
-def check_generation_memory(sizes: list, channels: int, factors, limit: int | None = None) -> None:
-    """z0 and its float64 pooling sums, and a few copies of the largest tri-plane."""
+# Bytes per value of the largest level's tri-plane while the chain runs
+# there: the noise of every level, the upsampled planes, the noisy input,
+# onnxruntime's activations and the residuals. Measured at its peak: 40 to
+# 46 (towerruins at 4x4x4 to 16x16x16, terrain at 8x8x8).
+CHAIN_BYTES_PER_VALUE = 52
+
+
+def generation_memory(sizes: list, channels: int) -> int:
+    """Bytes a sample's chain needs at its peak: z0 and its float64
+    pooling sums, and the largest level's work (CHAIN_BYTES_PER_VALUE)."""
     z0 = math.prod(sizes[0]) * 16  # exact: numpy's int64 product wrapped round for huge sizes
-    planes = max(sum(h * w for h, w in plane_sizes(size)) for size in sizes) * channels * 4 * 6
-    check_memory(int(z0 + planes), f"a sample of size {'x'.join(f'{f:g}' for f in factors)}", limit)
+    return z0 + max(triplane_values(size, channels) for size in sizes) * CHAIN_BYTES_PER_VALUE
+
+
+def triplane_values(size, channels: int) -> int:
+    """Values in the tri-plane of a grid of `size`: 3 planes of `channels`."""
+    return sum(h * w for h, w in plane_sizes(size)) * channels
+
+
+def check_generation_memory(sizes: list, channels: int, factors, limit: int | None = None) -> None:
+    check_memory(generation_memory(sizes, channels), f"a sample of size {'x'.join(f'{f:g}' for f in factors)}",
+                 limit)
 
 
 def check_seed(seed: int) -> int:

@@ -39,6 +39,12 @@ MARGIN = 0.1  # an edited cell is fitted until its occupancy is this far past 0.
 KEEP_WEIGHT = 0.2  # an unedited cell's weight, against an edited cell's 1, once it has crossed 0.5
 SLOPE_FLOOR = 0.1  # the sigmoid's slope in the fit's gradient, at least: see fit
 SHARE = 0.4  # a plane cell may change where more than this share of the cells on its line were edited
+UNITS_AT_ONCE = 8  # the decoder's hidden units a fit evaluates at once, over every voxel within reach
+# Bytes per finest voxel and hidden unit a fit holds at its peak (the
+# planes through the first layer within reach, the whole grid at worst, and
+# UNITS_AT_ONCE units' pre-activations and gradient): 4.2 and 5.2 measured
+# for towerruins at sizes 1 and 2, 8.8 for terrain at 2.
+FIT_BYTES = 12
 
 
 def check_level(model, level: int) -> int:
@@ -73,11 +79,46 @@ def area_weights(n_in: int, n_out: int) -> np.ndarray:
     return (overlap / overlap.sum(axis=1, keepdims=True)).astype(np.float32)
 
 
+def along(matrix: np.ndarray, values: np.ndarray, axis: int) -> np.ndarray:
+    """An (n_out, n_in) matrix applied along `axis` of `values` (n_in long
+    there): out[o] = the sum over i, in order, of matrix[o, i] * values[i],
+    each product and sum rounded alone (the values' and matrix's dtype).
+    A matrix product does the same sums, but BLAS orders and fuses them by
+    its version and the CPU it finds, and the same layout and seed must
+    give the same shape with any numpy on any machine. A sparse matrix (a
+    resize, an area average: a few entries a row) gathers each row's
+    entries in turn; a dense one (a layer's weights) adds a column at a time."""
+    values = np.moveaxis(values, axis, 0)
+    out = np.zeros((matrix.shape[0], *values.shape[1:]), np.result_type(matrix, values))
+    shape = (-1,) + (1,) * (values.ndim - 1)
+    nonzero = matrix != 0
+    entries = nonzero.sum(axis=1)
+    if 4 * entries.max(initial=0) <= matrix.shape[1]:
+        columns = np.argsort(~nonzero, axis=1, kind="stable")  # each row's nonzero columns first, in order
+        rows = np.arange(len(matrix))
+        for k in range(entries.max(initial=0)):
+            weight = np.where(k < entries, matrix[rows, columns[:, k]], 0)  # a row with fewer entries adds 0
+            out += weight.reshape(shape) * values[columns[:, k]]
+    else:  # every product at once, summed over the columns in order (a reduction along an outer axis)
+        out = np.add.reduce(matrix.reshape(matrix.shape + shape[1:]) * values[None], axis=1)
+    return np.ascontiguousarray(np.moveaxis(out, 0, axis))
+
+
+def summed(values: np.ndarray, axis: int) -> np.ndarray:
+    """The sum over `axis`, slab after slab in order (numpy's own reduction
+    is several times slower along a short inner axis)."""
+    slabs = np.moveaxis(values, axis, 0)
+    out = slabs[0].copy()
+    for slab in slabs[1:]:
+        out += slab
+    return out
+
+
 def separable(weights: list, grid: np.ndarray) -> np.ndarray:
     """One (n_out, n_in) matrix applied along each axis of a 3-D grid."""
     out = grid.astype(np.float32)
     for axis, w in enumerate(weights):
-        out = np.moveaxis(np.tensordot(w, out, axes=(1, axis)), 0, axis)
+        out = along(w, out, axis)
     return out
 
 
@@ -129,8 +170,13 @@ def reach(masks: list, pools: list) -> tuple:
 
 
 def resized(rows: np.ndarray, field: np.ndarray, cols: np.ndarray) -> np.ndarray:
-    """An (H, W, D) field resized by (rows, cols) matrices, each of its D channels: rows @ field @ cols.T."""
-    return np.einsum("ij,jkd,lk->ild", rows, field, cols, optimize=True)
+    """A (..., H, W) field resized by (rows, cols) matrices: rows @ field @ cols.T for each of its leading entries."""
+    return along(cols, along(rows, field, -2), -1)
+
+
+def through(weights: np.ndarray, planes: np.ndarray) -> np.ndarray:
+    """(C, H, W) planes through a (C, D) block of the decoder's first layer: (D, H, W)."""
+    return along(weights.T, planes, 0)
 
 
 def fit(model, planes: list, target: np.ndarray, steps: int, edited: np.ndarray, hold: bool = False) -> list:
@@ -148,7 +194,11 @@ def fit(model, planes: list, target: np.ndarray, steps: int, edited: np.ndarray,
     gradient is floored at SLOPE_FLOOR: a voxel deep on the wrong side (a
     block added apart from the rest, which a finer level's generator
     emptied) has a slope near 0 and would not come back in the steps there
-    are."""
+    are.
+
+    Every sum runs in a fixed order (`along`, and the decoder's hidden
+    units UNITS_AT_ONCE at a time), channels first in each array, so that
+    the fit is the same numbers with any numpy on any machine."""
     if not edited.any():
         return planes
     weights = first_layer(model)
@@ -157,7 +207,7 @@ def fit(model, planes: list, target: np.ndarray, steps: int, edited: np.ndarray,
     pools = [area_weights(n, m) for n, m in zip(size, target.shape)]
     # Per plane, (rows, cols) resize matrices from the layout's cells to the plane's.
     grow = [(resize_matrix(target.shape[a], size[a]), resize_matrix(target.shape[b], size[b])) for a, b in PLANE_AXES]
-    masks = [(r @ m.astype(np.float32) @ c.T > 0).astype(np.float32) for m, (r, c) in zip(plane_masks(edited), grow)]
+    masks = [(resized(r, m.astype(np.float32), c) > 0).astype(np.float32) for m, (r, c) in zip(plane_masks(edited), grow)]
     cells, voxels = reach(masks, pools)
     pools = [w[c, v] for w, c, v in zip(pools, cells, voxels)]
     target, edited = target[cells], edited[cells]
@@ -166,18 +216,26 @@ def fit(model, planes: list, target: np.ndarray, steps: int, edited: np.ndarray,
     # multiplied through the layer at the layout's resolution, several times
     # fewer cells than the plane's, and so is its gradient.
     grow_in = [(r[voxels[a]], c[voxels[b]]) for (r, c), (a, b) in zip(grow, PLANE_AXES)]
-    masks_in = [m[voxels[a], voxels[b]][..., None] for m, (a, b) in zip(masks, PLANE_AXES)]
-    start = [np.einsum("chw,cd->hwd", p[:, voxels[a], voxels[b]].astype(np.float32), w)
-             for p, w, (a, b) in zip(planes, weights, PLANE_AXES)]
+    masks_in = [m[voxels[a], voxels[b]] for m, (a, b) in zip(masks, PLANE_AXES)]
+    start = [through(w, p[:, voxels[a], voxels[b]].astype(np.float32))
+             for p, w, (a, b) in zip(planes, weights, PLANE_AXES)]  # (D, h, w) each
     change = [np.zeros((p.shape[0], r.shape[1], c.shape[1]), np.float32) for p, (r, c) in zip(planes, grow)]
     moments = [(np.zeros_like(d), np.zeros_like(d)) for d in change]
+    hidden = len(head.weight2)
+    groups = [slice(u, min(u + UNITS_AT_ONCE, hidden)) for u in range(0, hidden, UNITS_AT_ONCE)]
     side = need = weight = None
     for step in range(1, steps + 1):
-        a_xy, a_xz, a_yz = (s + mask * resized(r, np.einsum("chw,cd->hwd", d, w), c)
+        a_xy, a_xz, a_yz = (s + mask * resized(r, through(w, d), c)
                             for s, mask, d, w, (r, c) in zip(start, masks_in, change, weights, grow_in))
-        pre = a_xy[:, :, None] + a_xz[:, None] + a_yz[None] + head.bias1  # (X, Y, Z, D) within reach
-        active = pre > 0
-        occupancy = sigmoid(np.where(active, pre, 0) @ head.weight2 + head.bias2)
+
+        def pre(units):  # those hidden units' pre-activations at every voxel within reach: (u, X, Y, Z)
+            return (a_xy[units][:, :, :, None] + a_xz[units][:, :, None] + a_yz[units][:, None]
+                    + head.bias1[units, None, None, None])
+
+        logits = np.zeros(a_xy.shape[1:] + a_xz.shape[2:], np.float32)
+        for units in groups:
+            logits += np.add.reduce(np.maximum(pre(units), 0) * head.weight2[units, None, None, None], axis=0)
+        occupancy = sigmoid(logits + np.float32(head.bias2))
         pooled = separable(pools, occupancy)
         if side is None:  # the unedited cells keep the side these planes put them on (with hold, the layout's)
             side = np.where(edited | hold, target, pooled > 0.5).astype(np.float32) * 2 - 1
@@ -188,14 +246,22 @@ def fit(model, planes: list, target: np.ndarray, steps: int, edited: np.ndarray,
             break
         # The hinge's gradient, back through the pooling, the sigmoid and the ReLU.
         d_occupancy = separable([w.T for w in pools], np.where(short, -side * weight, 0))
-        d_pre = (d_occupancy * np.maximum(occupancy * (1 - occupancy), SLOPE_FLOOR))[..., None] * head.weight2 * active
-        d_a = [d_pre.sum(axis=2), d_pre.sum(axis=1), d_pre.sum(axis=0)]
+        d_logits = d_occupancy * np.maximum(occupancy * (1 - occupancy), SLOPE_FLOOR)
+        d_a = [np.empty_like(a) for a in (a_xy, a_xz, a_yz)]
+        for units in groups:
+            d_pre = d_logits * (head.weight2[units, None, None, None] * (pre(units) > 0))
+            d_a[0][units], d_a[1][units], d_a[2][units] = (summed(d_pre, axis) for axis in (3, 2, 1))
         for d, d_k, w, mask, (r, c), (m, v) in zip(change, d_a, weights, masks_in, grow_in, moments):
-            grad = np.einsum("hwd,cd->chw", resized(r.T, mask * d_k, c.T), w) + 2 * PULL / d.size * d
+            grad = along(w, resized(r.T, mask * d_k, c.T), 0) + 2 * PULL / d.size * d
             m += 0.1 * (grad - m)  # Adam, beta1 0.9, beta2 0.999
             v += 0.001 * (grad * grad - v)
             d -= FIT_RATE * (m / (1 - 0.9**step)) / (np.sqrt(v / (1 - 0.999**step)) + 1e-8)
-    return [p.astype(np.float32) + mask * (r @ d @ c.T) for p, mask, d, (r, c) in zip(planes, masks, change, grow)]
+    return [p.astype(np.float32) + mask * resized(r, d, c) for p, mask, d, (r, c) in zip(planes, masks, change, grow)]
+
+
+def fit_memory(sizes: list, hidden: int) -> int:
+    """Bytes generating from a layout needs at its peak, at the finest level's fit."""
+    return int(np.prod(sizes[-1], dtype=object)) * hidden * FIT_BYTES
 
 
 def layout_level(model, shape: tuple, factors=(1.0, 1.0, 1.0), resample: bool = False) -> int:

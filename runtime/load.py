@@ -16,13 +16,24 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import onnxruntime as ort
+
+# onnxruntime's POSIX builds (its Linux wheel, checked) write telemetry as
+# soon as they are imported: a device id and a database of queued events (the
+# OS, the CPU, the process's path) under ~/.cache/Microsoft/DeveloperTools/. Only
+# ORT_DISABLE_TELEMETRY, set before the import, stops the files; its call,
+# disable_telemetry_events, stops the events of a module someone else
+# imported first. A user who set the variable keeps their choice.
+os.environ.setdefault("ORT_DISABLE_TELEMETRY", "1")
+import onnxruntime as ort  # noqa: E402
 
 from sinshape.core import manifest as fmt
+from sinshape.core.budget import check_memory
 from sinshape.core.errors import InputError
 from sinshape.core.files import atomic_write, check_readable, check_writable
 
 from . import onnxfile
+
+ort.disable_telemetry_events()
 
 MAX_MODEL_BYTES = 512 * 1024 * 1024
 # onnxruntime starts every thread of every stage's pool up front (a million
@@ -70,6 +81,9 @@ class Model:
     decoder_planes: Stage
     decoder_head: Stage
     head: HeadWeights
+    tiles: object = None  # format 5: the example's colour (colour.Tiles), read by correspondence
+    matcher: object = None  # its matcher, made on the first coloured sample (colour.matcher)
+    faces_per_voxel: float | None = None  # its reconstruction's, at scale 1: measured when first needed (mesh.py)
 
 
 def default_threads() -> int:
@@ -244,6 +258,39 @@ def read_head(model: onnxfile.OnnxModel, manifest: fmt.Manifest, path: Path) -> 
     return HeadWeights(b1, w2[:, 0], float(b2[0]), *colour)
 
 
+def read_tiles(model: onnxfile.OnnxModel, manifest: fmt.Manifest, path: Path):
+    """A format-5 model's colour tiles, checked against its manifest and its
+    finest level: (N, 3) voxels inside it, (N,) directions below 6, each
+    pair once and a voxel's tiles together, (N, T, T, 4) images, and the
+    level's (X, Y, Z) signed distance grid."""
+    from .colour import Tiles
+
+    count, side = manifest.tiles
+    names = fmt.TILE_TENSORS
+    if any(name not in model.weights for name in names):
+        raise InputError(f"{path}: its colour tiles are missing ({', '.join(names)})")
+    try:
+        voxels, directions, images, distance = (
+            onnxfile.tensor_array(model.weights[name], kind) for name, kind in
+            zip(names, (onnxfile.INT32, onnxfile.UINT8, onnxfile.UINT8, onnxfile.INT8)))
+    except ValueError as error:
+        raise InputError(f"{path}: corrupt model: {error}") from None
+    size = np.array(manifest.sizes[-1])
+    if voxels.shape != (count, 3) or directions.shape != (count,) or images.shape != (count, side, side, 4):
+        raise InputError(f"{path}: colour tiles of shapes {voxels.shape}, {directions.shape}, {images.shape} "
+                         f"do not match the manifest's {count} of side {side}")
+    if distance.shape != tuple(size):
+        raise InputError(f"{path}: a colour distance grid of shape {distance.shape}, not the finest level's "
+                         f"{tuple(int(n) for n in size)}")
+    if not (np.all((voxels >= 0) & (voxels < size)) and np.all(directions < 6)):
+        raise InputError(f"{path}: colour tiles lie outside the model's finest level")
+    key = ((voxels[:, 0].astype(np.int64) * size[1] + voxels[:, 1]) * size[2] + voxels[:, 2]) * 6 + directions
+    if np.any(np.diff(key) <= 0):
+        raise InputError(f"{path}: colour tiles are not each once, in order of their voxel")
+    check_memory(Tiles.bytes(count, side, size), f"the colour tiles of {path.name}")
+    return Tiles.of(voxels, directions, images, distance)
+
+
 def check_stages(model: Model) -> None:
     """Run every stage once on a small input: the file is coherent, or refused."""
     m = model.manifest
@@ -334,6 +381,7 @@ def load_model(path, threads: int | None = None) -> Model:
         decoder_planes=make(stages["decoder_planes"]),
         decoder_head=make(stages["decoder_head"]),
         head=read_head(proto, manifest, path),
+        tiles=read_tiles(proto, manifest, path) if manifest.tiles else None,
     )
     check_stages(model)
     return model

@@ -7,15 +7,17 @@ its grid edge, so seams weld exactly by name, and the padding of empty
 points closes the surface at the grid's border.
 """
 
+import math
 import numbers
 from collections import deque
 
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from sinshape.core.errors import InputError
+from sinshape.core import budget
+from sinshape.core.errors import InputError, MemoryLimitError
 
-from . import cubes, query
+from . import colour, cubes, query
 from .load import default_threads
 
 SMOOTHERS = ("laplacian", "taubin")
@@ -31,19 +33,71 @@ MAX_SMOOTH = 100
 POOL_POINTS = 200_000
 
 
+# Bytes a face of a whole mesh costs at its peak, beside the tri-plane and
+# the band search (terrain at 6x6x6, 2.6 million faces): a mesh and its
+# binary file (.ply, .glb: 126 to 157 measured), the same as text (.obj:
+# 236), and while it is smoothed (489). A front end that copies the mesh
+# again (Blender) asks for more.
+MESH_BYTES_PER_FACE = 160
+TEXT_BYTES_PER_FACE = 256
+SMOOTH_BYTES_PER_FACE = 512
+# Samples have about their reconstruction's faces per voxel; those grown
+# far from the training size, more: measured 0.55 to 1.32 times it
+# (towerruins at 3x3x3 and 12x12x12), 0.67 (terrain), 0.97 (acropolis at 8).
+FACE_MARGIN = 1.5
+MAX_FACES_PER_CELL = 5  # what marching cubes can cut from one cell, at most
+
+
+def faces_per_voxel(model) -> float:
+    """Faces of the model's reconstruction at scale 1 per finest voxel:
+    measured once per loaded model (a sample's meshing at the training
+    size), and kept on it."""
+    if model.faces_per_voxel is None:
+        from .generate import sample
+
+        faces = sum(len(f) for _, f in pieces(model, sample(model, None), 1.0, threads=1))
+        model.faces_per_voxel = faces / math.prod(model.manifest.sizes[-1])
+    return model.faces_per_voxel
+
+
+def estimate_faces(model, size, scale: float) -> int:
+    """About how many faces (with FACE_MARGIN) the mesh of a sample of
+    `size` finest voxels has at `scale`: the reconstruction's faces per
+    voxel times its voxels (a larger sample holds more of the same; a
+    smaller one, no less than its area's share), times scale^2, as a
+    surface's faces grow with the square of the grid's resolution."""
+    voxels = math.prod(model.manifest.sizes[-1])
+    grown = math.prod(size) / voxels
+    share = max(grown, grown ** (2 / 3))
+    return int(faces_per_voxel(model) * voxels * share * scale**2 * FACE_MARGIN) + 1
+
+
 def band_mesh(model, triplane, scale: float = 1.0, progress=None, memory_limit: int | None = None,
-              threads: int | None = None):
+              threads: int | None = None, per_face: int = MESH_BYTES_PER_FACE):
     """The 0.5 surface of a tri-plane on a grid `scale` times finer, as a
     trimesh.Trimesh.
 
     Vertices are in model coordinates (finest training voxels; see
     query.points). progress(done, total) is called after each slab.
-    memory_limit: as for query.Band; threads: see `pieces`.
+    memory_limit: as for query.Band, and the mesh itself: its faces at
+    `per_face` bytes each (what the caller will hold at its peak) are
+    counted as they come, and meshing stops with MemoryLimitError as soon
+    as they pass the limit, before they fill the memory (the estimate
+    made up front, request.check_memory, is an estimate). threads: see
+    `pieces`.
     """
+    limit = budget.available_memory() if memory_limit is None else memory_limit
     vertices, faces = [], []
-    for v, f in pieces(model, triplane, scale, progress, memory_limit, threads):
+    count = 0
+    for done, (v, f) in enumerate(pieces(model, triplane, scale, progress, memory_limit, threads), 1):
         vertices.append(v)
         faces.append(f)
+        count += len(f)
+        if count * per_face > limit:
+            shape = "x".join(map(str, query.grid_shape(triplane.size, scale)))
+            raise MemoryLimitError(f"meshing a {shape} grid passed {count:,} faces ({count * per_face / 2**30:.1f} "
+                                   f"GiB of mesh) before it was done; the memory limit is {budget.gib(limit)} GiB: "
+                                   "choose a smaller size or scale")
     import trimesh  # only a whole mesh needs it (a .ply streams without); after the work, which can be cancelled
 
     if not vertices:
@@ -163,24 +217,36 @@ def estimate_seconds(model, triplane, scale: float) -> float:
 
 def extract(model, triplane, scale: float = 1.0, smooth: int = 0, smoother: str = "laplacian",
             largest: bool = False, frame: str = "input", progress=None,
-            memory_limit: int | None = None, threads: int | None = None):
+            memory_limit: int | None = None, threads: int | None = None, per_face: int | None = None):
     """A sample's mesh: band marching cubes, clean-up, then the chosen frame
     ('input': overlays the training mesh; 'model': finest-voxel units).
     Meshing that needs more than memory_limit bytes (None: the memory
-    available) is refused up front; threads: see `pieces`."""
+    available) is refused up front, and stopped as soon as its faces, at
+    `per_face` bytes each (None: held_per_face's), pass it; threads: see
+    `pieces`."""
     check_frame(frame)
-    mesh = finish(band_mesh(model, triplane, scale, progress=progress, memory_limit=memory_limit, threads=threads),
-                  smooth, smoother, largest)
-    paint(mesh, model, triplane)
+    per_face = held_per_face(smooth, largest=largest) if per_face is None else per_face
+    mesh = finish(band_mesh(model, triplane, scale, progress=progress, memory_limit=memory_limit, threads=threads,
+                            per_face=per_face), smooth, smoother, largest)
+    paint(mesh, model, triplane, scale)
     return to_frame(mesh, model.manifest) if frame == "input" else mesh
 
 
-def paint(mesh, model, triplane) -> None:
+def held_per_face(smooth: int = 0, suffix: str = ".ply", largest: bool = False) -> int:
+    """Bytes a face of a whole mesh costs at its peak: smoothed or cut to its largest part, or written as `suffix`."""
+    if smooth or largest:
+        return SMOOTH_BYTES_PER_FACE
+    return TEXT_BYTES_PER_FACE if suffix.lower() in (".obj", ".off") else MESH_BYTES_PER_FACE
+
+
+def paint(mesh, model, triplane, scale: float = 1.0) -> None:
     """Give a mesh in model coordinates a coloured model's colour at its
     vertices (their final places, after smoothing), as 8-bit sRGB vertex
-    colours; a geometry-only model's mesh is left as it is."""
+    colours, each the colour around it (a vertex of a grid `scale` times
+    finer stands for 1 / scale voxels); a geometry-only model's mesh is left
+    as it is."""
     if model.manifest.colour and len(mesh.vertices):
-        mesh.visual.vertex_colors = colour_bytes(query.colours(model, triplane, mesh.vertices))
+        mesh.visual.vertex_colors = colour_bytes(colour.colours(model, triplane, mesh.vertices, 1 / scale))
 
 
 def colour_bytes(rgb: np.ndarray) -> np.ndarray:

@@ -20,7 +20,8 @@ NODE_INPUT, NODE_OUTPUT, NODE_NAME, NODE_OP, NODE_DOMAIN = 1, 2, 3, 4, 7
 TENSOR_DIMS, TENSOR_TYPE, TENSOR_FLOATS, TENSOR_NAME, TENSOR_RAW = 1, 2, 4, 8, 9
 TENSOR_EXTERNAL, TENSOR_LOCATION = 13, 14
 NAMED_NAME = 1  # ValueInfoProto.name; StringStringEntryProto.key (value is 2)
-FLOAT = 1  # TensorProto.DataType
+FLOAT, UINT8, INT8, INT32 = 1, 2, 3, 6  # TensorProto.DataType
+DTYPES = {FLOAT: "<f4", UINT8: "u1", INT8: "i1", INT32: "<i4"}
 
 
 def fields(data: bytes, start: int = 0, end: int | None = None):
@@ -160,8 +161,9 @@ def read_graph(model: OnnxModel, span: tuple) -> None:
             (model.inputs if number == GRAPH_INPUT else model.outputs)[names[-1] if names else ""] = data[first:last]
 
 
-def tensor_array(tensor: Tensor) -> np.ndarray:
-    """A float32 weight as an array (raw_data or float_data)."""
+def tensor_array(tensor: Tensor, wanted: int = FLOAT) -> np.ndarray:
+    """A weight of type `wanted` as an array: float32 from raw_data or
+    float_data, uint8, int8 or int32 (data, not weights) from raw_data."""
     data = tensor.data
     dims, kind, raw, floats = [], None, None, []
     for n, w, v, _ in fields(data):
@@ -180,12 +182,14 @@ def tensor_array(tensor: Tensor) -> np.ndarray:
             floats.append(data[v[0]:v[1]])
         elif n == TENSOR_FLOATS and w == 5:
             floats.append(v.to_bytes(4, "little"))
-    if kind != FLOAT:
-        raise ValueError(f"weight {tensor.name!r} is not float32")
-    values = np.frombuffer(raw if raw is not None else b"".join(floats), "<f4")
+    if kind != wanted:
+        raise ValueError(f"weight {tensor.name!r} is not {np.dtype(DTYPES[wanted]).name}")
+    if wanted != FLOAT and raw is None:
+        raise ValueError(f"weight {tensor.name!r} keeps its values outside raw_data")
+    values = np.frombuffer(raw if raw is not None else b"".join(floats), DTYPES[wanted])
     if any(d >= 1 << 40 for d in dims) or values.size != int(np.prod(dims, dtype=object)):
         raise ValueError(f"weight {tensor.name!r} has {values.size} values for shape {tuple(dims)}")
-    return values.reshape(dims).astype(np.float32)
+    return values.reshape(dims).astype(np.dtype(DTYPES[wanted]).newbyteorder("="))  # native order, a copy
 
 
 def entry(number: int, payload: bytes) -> bytes:

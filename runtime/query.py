@@ -7,7 +7,7 @@ costs the sum of three interpolated hidden vectors, a ReLU and a dot product
 (docs/METHOD.md, "The decoder's first layer"). On a regular grid the
 interpolation is separable: a fine plane is the coarse plane interpolated
 along one axis, then the other, each point from its two neighbours
-(`Taps`), in separately rounded float32 multiplications and additions. A
+(`generate.Taps`), in separately rounded float32 multiplications and additions. A
 matrix product would do the same sums, but BLAS rounds them differently
 with its thread count and CPU (fused multiply-adds in some kernels), and a
 sample must be the same bytes everywhere.
@@ -25,9 +25,9 @@ import numpy as np
 
 from sinshape.core.budget import check_memory
 from sinshape.core.errors import InputError
-from sinshape.core.manifest import PLANE_AXES
+from sinshape.core.manifest import PLANE_AXES, plane_sizes
 
-from .generate import MAX_GRID_SIDE, TriPlane
+from .generate import MAX_GRID_SIDE, Taps, TriPlane
 
 # The band search bounds blocks of BLOCK cells (a slab is one block thick),
 # then the leaves of LEAF cells inside those it could not decide; only
@@ -100,17 +100,12 @@ def occupying(model, triplane: TriPlane, chunk: int = 1 << 16):
     return occupancy
 
 
-def colours(model, triplane: TriPlane, coords: np.ndarray) -> np.ndarray:
-    """A coloured model's sRGB colour at arbitrary points (coords as in
-    `points`); a point outside the tri-plane takes the colour of the nearest
-    point inside (a mesh's vertices reach half a voxel beyond it, where the
-    surface closes). Returns (n, 3) float32 in [0, 1]."""
-    return colouring(model, triplane)(coords)
-
-
 def colouring(model, triplane: TriPlane, chunk: int = 1 << 16):
-    """`colours` of one tri-plane as a function of the points, the planes
-    projected once: for a mesh coloured piece by piece as it streams."""
+    """A format-4 model's colour head on one tri-plane as a function of the
+    points (coords as in `points`), the planes projected once; a point
+    outside the tri-plane takes the colour of the nearest point inside (a
+    mesh's vertices reach half a voxel beyond it, where the surface closes).
+    (n, 3) float32 sRGB in [0, 1]. runtime.colour picks it or the tiles."""
     planes, top = project(model, triplane).planes, np.array(triplane.size) - 1
 
     def colour(coords) -> np.ndarray:
@@ -165,38 +160,6 @@ def grid_shape(size, scale: float) -> tuple:
         raise InputError(f"scale {scale} asks for a {points} grid; at most {MAX_GRID_SIDE} points per axis are supported",
                          "scale")
     return tuple(max(2, round(n * scale)) for n in size)
-
-
-@dataclass(frozen=True)
-class Taps:
-    """Linear interpolation (align_corners=True) along one axis: each output
-    point's two coarse neighbours and their weights."""
-
-    low: np.ndarray
-    high: np.ndarray
-    w_low: np.ndarray  # float32
-    w_high: np.ndarray
-
-    @classmethod
-    def of(cls, n_in: int, n_out: int) -> "Taps":
-        src = np.arange(n_out) * ((n_in - 1) / (n_out - 1)) if n_out > 1 else np.zeros(1)
-        low = np.minimum(np.floor(src).astype(np.intp), n_in - 1)
-        frac = (src - low).astype(np.float32)
-        return cls(low, np.minimum(low + 1, n_in - 1), np.float32(1) - frac, frac)
-
-    def take(self, index) -> "Taps":
-        """The taps of the points `index` selects."""
-        return Taps(self.low[index], self.high[index], self.w_low[index], self.w_high[index])
-
-    def apply(self, values: np.ndarray, axis: int) -> np.ndarray:
-        """`values` (float32) interpolated along `axis` to these points."""
-        shape = [1] * values.ndim
-        shape[axis] = -1
-        low, high = np.take(values, self.low, axis), np.take(values, self.high, axis)
-        low *= self.w_low.reshape(shape)
-        high *= self.w_high.reshape(shape)
-        low += high
-        return low
 
 
 class FineGrid:
@@ -336,20 +299,36 @@ def linear_logits(head, low: np.ndarray, high: np.ndarray, samples: list) -> tup
     return bottom, top
 
 
-def check_band_memory(size, scale: float, hidden: int, memory_limit: int | None = None,
-                      slabs_at_once: int = 1) -> None:
-    """Refuse up front a band search (`Band`) that needs more than
-    memory_limit bytes: the yz plane of D = `hidden` pre-activations at every
-    padded (y, z); per slab being worked on, its values and cell
-    configurations (5 bytes a point), the x rows of two planes, and the
-    buffers of LEAVES_AT_ONCE leaves' hidden vectors (four, counting the
-    gathered plane rows)."""
+def band_memory(size, scale: float, hidden: int, slabs_at_once: int = 1) -> int:
+    """Bytes a band search (`Band`) of a tri-plane of `size` needs beside
+    the tri-plane and its projection: the yz plane of D = `hidden`
+    pre-activations at every padded (y, z); per slab being worked on, its
+    values and cell configurations (5 bytes a point), the x rows of two
+    planes, and the buffers of LEAVES_AT_ONCE leaves' hidden vectors (four,
+    counting the gathered plane rows)."""
     shape = grid_shape(size, scale)
     py, pz = (-(-(m + 1) // BLOCK) * BLOCK + 1 for m in shape[1:])
     per_slab = py * pz * 5 * (BLOCK + 1) + (BLOCK + 1) * (py + pz) * hidden * 4 \
         + 4 * LEAVES_AT_ONCE * (LEAF + 1) ** 3 * hidden * 4
-    needed = py * pz * hidden * 4 + per_slab * slabs_at_once
-    check_memory(needed, f"meshing a {'x'.join(map(str, shape))} grid", memory_limit)
+    return py * pz * hidden * 4 + per_slab * slabs_at_once
+
+
+def check_band_memory(size, scale: float, hidden: int, memory_limit: int | None = None,
+                      slabs_at_once: int = 1) -> None:
+    """Refuse up front a band search that needs more than memory_limit bytes (band_memory)."""
+    check_memory(band_memory(size, scale, hidden, slabs_at_once),
+                 f"meshing a {'x'.join(map(str, grid_shape(size, scale)))} grid", memory_limit)
+
+
+def projected_memory(size, hidden: int) -> int:
+    """Bytes of a tri-plane's projection (`project`): each plane's D = `hidden` values per cell, float32."""
+    return sum(h * w for h, w in plane_sizes(size)) * hidden * 4
+
+
+def dense_memory(size, scale: float, hidden: int, colour: bool = False) -> int:
+    """Bytes `dense` needs: the grid (and its colours), and the yz plane at every (y, z)."""
+    mx, my, mz = grid_shape(size, scale)
+    return mx * my * mz * (4 + 3 * colour) + my * mz * hidden * 4
 
 
 class Band:
@@ -501,9 +480,7 @@ def dense(model, triplane: TriPlane, scale: float = 1.0, memory_limit: int | Non
     (occupancy, (Mx, My, Mz, 3) uint8 sRGB). Refused up front if it needs
     more than memory_limit bytes (None: the memory available)."""
     mx, my, mz = grid_shape(triplane.size, scale)
-    hidden = model.manifest.hidden  # the decoder's hidden width D
-    # The grid (and its colours), and the yz plane at every (y, z).
-    check_memory(mx * my * mz * (4 + 3 * colour) + my * mz * hidden * 4,
+    check_memory(dense_memory(triplane.size, scale, model.manifest.hidden, colour),
                  f"a dense {mx}x{my}x{mz} occupancy grid (a mesh output streams instead)", memory_limit)
     proj = project(model, triplane)
     grid = FineGrid(proj, scale)
@@ -520,11 +497,3 @@ def dense(model, triplane: TriPlane, scale: float = 1.0, memory_limit: int | Non
         if colour:
             colours[rows.start - 1:rows.stop - 1] = np.round(head_colour(model.head, sums) * 255)
     return (out, colours) if colour else out
-
-
-def dense_grids(model, triplane: TriPlane, scale: float = 1.0) -> dict:
-    """What an .npz sample holds: {"occupancy"}, and a coloured model's {"colour"}."""
-    if not model.manifest.colour:
-        return {"occupancy": dense(model, triplane, scale)}
-    occupancy, colour = dense(model, triplane, scale, colour=True)
-    return {"occupancy": occupancy, "colour": colour}

@@ -468,8 +468,9 @@ def draw_shapes(items: list, seeds, recon: bool = False, factors=(1.0, 1.0, 1.0)
     views > 1, a turntable row per shape. `up` None: what the first model
     records, else y. progress(stage, done, total) follows the sampling, then
     the drawing; warn(InputError) hears of a mesh's colour that cannot be read."""
+    from .colour import surface_painter
     from .generate import sample
-    from .mesh import extract
+    from .mesh import extract, to_frame
 
     check_view(zoom, azimuth, elevation)
     chosen = [None, *seeds] if recon else list(seeds)
@@ -483,8 +484,11 @@ def draw_shapes(items: list, seeds, recon: bool = False, factors=(1.0, 1.0, 1.0)
             labels.append(item.name)
             continue
         for seed in chosen:
-            shapes.append(extract(item, sample(item, seed, factors if seed is not None else (1, 1, 1)), scale,
-                                  smooth=smooth))
+            triplane = sample(item, seed, factors if seed is not None else (1, 1, 1))
+            shapes.append(extract(item, triplane, scale, smooth=smooth, frame="model"))
+            if item.tiles is not None:  # its colour read at each pixel: the example's texture, not vertex colours
+                shapes[-1].metadata[PAINT] = surface_painter(item, triplane, shapes[-1].vertices, shapes[-1].faces)
+            to_frame(shapes[-1], item.manifest)
             if not len(shapes[-1].faces):
                 raise InputError(f"{item.path.name}: seed {seed} has no surface at this scale and size; nothing drawn",
                                  "scale")

@@ -15,12 +15,15 @@ the memory a size needs) is checked by `resolved` and `make`, which take it.
 """
 
 import dataclasses
+import math
 import numbers
 from dataclasses import dataclass
 
 import numpy as np
 
-from sinshape.core.errors import ConflictError, InputError
+from sinshape.core import budget
+from sinshape.core.errors import ConflictError, InputError, MemoryLimitError
+from sinshape.core.manifest import MAX_LEVEL_SIDE
 
 from .edit import Part
 from .mesh import MAX_SMOOTH, SMOOTHERS
@@ -41,6 +44,20 @@ class Layout:
     shape: tuple
     bits: bytes
     resample: bool = False
+
+    def __post_init__(self):
+        """A layout held elsewhere (a .blend, a request) is checked as one read from a file."""
+        shape = self.shape
+        if not (isinstance(shape, tuple) and len(shape) == 3
+                and all(isinstance(n, (int, np.integer)) and not isinstance(n, bool) and 1 <= n <= MAX_LEVEL_SIDE
+                        for n in shape)):
+            raise InputError(f"a layout is a 3-D grid of 1 to {MAX_LEVEL_SIDE} cells per axis, got shape {shape!r}",
+                             "layout")
+        needed = -(-math.prod(shape) // 8)
+        if not isinstance(self.bits, bytes) or len(self.bits) != needed:
+            got = f"{len(self.bits)} bytes" if isinstance(self.bits, bytes) else type(self.bits).__name__
+            raise InputError(f"a {'x'.join(map(str, shape))} layout is {needed} bytes of packed cells, got {got}",
+                             "layout")
 
     @classmethod
     def of(cls, grid, resample: bool = False) -> "Layout":
@@ -215,10 +232,68 @@ def resolved(model, request: SampleRequest) -> SampleRequest:
     return request if parts == request.keep else dataclasses.replace(request, keep=parts)
 
 
-def make(model, request: SampleRequest, memory_limit: int | None = None):
-    """The tri-plane (generate.TriPlane) of the sample the request asks for.
-    Work needing more than memory_limit bytes (None: the memory available
-    now) is refused up front with MemoryLimitError."""
+# What a sample is made for, and so what its memory check counts besides the
+# tri-plane: a whole mesh in memory, a mesh streamed to a file slab by
+# slab, a dense occupancy grid, or nothing more.
+OUTPUTS = ("mesh", "stream", "grid", "planes")
+
+
+def check_memory(model, request: SampleRequest, output: str = "mesh", per_face: int | None = None,
+                 memory_limit: int | None = None) -> None:
+    """Refuse up front, with the figure (MemoryLimitError), a request whose
+    work would need more than memory_limit bytes (None: the memory
+    available now), before any of it is done: making its tri-plane (the
+    chain, a composition of kept parts, a layout's fit), then, with the
+    tri-plane held, what `output` (OUTPUTS) asks: 'mesh' the band search
+    and the whole mesh, its faces (mesh.estimate_faces) at per_face bytes
+    each (None: mesh.held_per_face's); 'stream' the band search; 'grid' the
+    dense grid; 'planes' nothing more. The faces are estimated (a meshing
+    of the model's reconstruction, once) only where their most possible
+    would not fit."""
+    from . import edit, generate, layout, mesh, query
+    from .load import default_threads
+
+    if output not in OUTPUTS:
+        raise InputError(f"unknown output {output!r}; choose {', '.join(OUTPUTS)}", "output")
+    if request.tile is not None:  # a world's tile is bounded by world.check_world_scale
+        return
+    factors = request.size if request.grow is None else tuple(f * g for f, g in zip(request.size, request.grow))
+    sizes = generate.scaled_sizes(model.manifest.sizes, factors)
+    channels, hidden, finest = model.manifest.channels, model.manifest.hidden, sizes[-1]
+    making = generate.generation_memory(sizes, channels)
+    if request.keep or request.grow is not None:
+        making = max(making, edit.compose_memory(sizes, channels, max(1, len(request.keep))))
+    if request.layout is not None:
+        making = max(making, layout.fit_memory(sizes, hidden))
+    held = generate.triplane_values(finest, channels) * 4
+    what = f"a sample of size {'x'.join(f'{f:g}' for f in factors)}"
+    what += f" at scale {request.scale:g}" if output != "planes" else ""
+    if output == "planes":
+        return budget.check_memory(making, what, memory_limit)
+    if output == "grid":
+        dense = query.dense_memory(finest, request.scale, hidden, model.manifest.colour)
+        return budget.check_memory(max(making, held + dense), f"{what} as a dense grid", memory_limit)
+    held += query.projected_memory(finest, hidden) + query.band_memory(finest, request.scale, hidden,
+                                                                       2 * default_threads())
+    if output == "stream":
+        return budget.check_memory(max(making, held), what, memory_limit)
+    per_face = mesh.held_per_face(request.smooth, largest=request.largest) if per_face is None else per_face
+    most = mesh.MAX_FACES_PER_CELL * math.prod(query.grid_shape(finest, request.scale))
+    try:
+        budget.check_memory(max(making, held + most * per_face), what, memory_limit)
+    except MemoryLimitError:
+        faces = mesh.estimate_faces(model, finest, request.scale)
+        budget.check_memory(max(making, held + faces * per_face), f"{what} with a mesh of about {faces:,} faces",
+                            memory_limit)
+
+
+def make(model, request: SampleRequest, memory_limit: int | None = None, output: str = "mesh",
+         per_face: int | None = None):
+    """The tri-plane (generate.TriPlane) of the sample the request asks for,
+    made for `output` (OUTPUTS; per_face: check_memory's). Work needing more
+    than memory_limit bytes (None: the memory available now), the meshing
+    it is made for included, is refused up front with MemoryLimitError
+    (check_memory)."""
     from . import edit, generate, layout
 
     if request.tile is not None:
@@ -231,6 +306,7 @@ def make(model, request: SampleRequest, memory_limit: int | None = None):
         field = request.world_fields()[0]
         raise InputError(f"{field} is for the tiles of a world; a sample has none", field)
     request = resolved(model, request)
+    check_memory(model, request, output, per_face, memory_limit)
     seed, size = request.sample_seed, request.size
     if request.layout is not None:
         return layout.from_layout(model, seed, request.layout.grid(), size, request.layout.resample)

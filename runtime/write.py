@@ -157,10 +157,10 @@ def write_sample(model, triplane, path, scale: float = 1.0, smooth: int = 0, smo
     pieces = mesh.pieces(model, triplane, scale, progress=mesh_progress, threads=threads)
     colour = model.manifest.colour
     if colour:  # each piece's new vertices coloured as they come: the cost is per vertex
-        from .query import colouring
+        from .colour import colouring
 
         paint = colouring(model, triplane)
-        pieces = ((v, f, mesh.colour_bytes(paint(v))) for v, f in pieces)
+        pieces = ((v, f, mesh.colour_bytes(paint(v, 1 / scale))) for v, f in pieces)
     if frame == "input":
         pieces = ((mesh.in_frame(v, model.manifest), *rest) for v, *rest in pieces)
 
@@ -185,8 +185,23 @@ def write_request(model, request, path, inputs=(), threads: int | None = None, m
         data, _ = request_bytes(model, request, path, threads, mesh_progress, asset)
         atomic_write(path, lambda f: f.write(data))
         return
-    write_sample(model, make(model, request), path, threads=threads, mesh_progress=mesh_progress,
-                 **request.mesh_options())
+    write_sample(model, make(model, request, **made_for(path, request)), path, threads=threads,
+                 mesh_progress=mesh_progress, **request.mesh_options())
+
+
+def made_for(path, request, streamed: bool = True) -> dict:
+    """What a sample written to `path` is made for, for its memory check
+    (request.check_memory): a grid, a .ply streamed slab by slab (unless
+    smoothing or the largest part needs the whole mesh; `streamed` False:
+    made in memory), or a whole mesh, its faces costing what its format's do."""
+    from .mesh import held_per_face
+
+    path = Path(path)
+    if output_kind(path) == "grid":
+        return dict(output="grid")
+    if streamed and path.suffix.lower() == ".ply" and not request.smooth and not request.largest:
+        return dict(output="stream")
+    return dict(output="mesh", per_face=held_per_face(request.smooth, path.suffix, request.largest))
 
 
 def request_bytes(model, request, name, threads: int | None = None, mesh_progress=None, asset=None) -> tuple:
@@ -208,8 +223,8 @@ def request_bytes(model, request, name, threads: int | None = None, mesh_progres
         from .world import tile_bytes
 
         return tile_bytes(model, request, name, mesh_progress)
-    return sample_bytes(model, make(model, request), name, threads=threads, mesh_progress=mesh_progress,
-                        **request.mesh_options())
+    return sample_bytes(model, make(model, request, **made_for(name, request, streamed=False)), name,
+                        threads=threads, mesh_progress=mesh_progress, **request.mesh_options())
 
 
 def sample_bytes(model, triplane, path, scale: float = 1.0, smooth: int = 0, smoother: str = "laplacian",
@@ -222,9 +237,11 @@ def sample_bytes(model, triplane, path, scale: float = 1.0, smooth: int = 0, smo
 
     path = Path(path)
     if output_kind(path) == "grid":
-        return grid_bytes(**query.dense_grids(model, triplane, scale), size=triplane.size, scale=scale), None
+        from .colour import dense_grids
+
+        return grid_bytes(**dense_grids(model, triplane, scale), size=triplane.size, scale=scale), None
     result = mesh.extract(model, triplane, scale, smooth, smoother, largest, frame, progress=mesh_progress,
-                          threads=threads)
+                          threads=threads, per_face=mesh.held_per_face(smooth, path.suffix, largest))
     if not len(result.faces):
         raise no_surface(path)
     return mesh_bytes(result, path.suffix), result

@@ -18,7 +18,7 @@ from click.testing import CliRunner
 from conftest import TINY_COLOUR_ONNX, TINY_ONNX
 from sinshape.cli.main import cli
 from sinshape.core.errors import InputError, MemoryLimitError
-from sinshape.runtime import asset, generate, gltf, load_model, query
+from sinshape.runtime import asset, colour, generate, gltf, load_model, query
 from sinshape.runtime.request import SampleRequest
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -148,7 +148,7 @@ def test_the_colour_map_holds_the_models_colour_at_each_texels_surface_point(col
     triplane = generate.sample(model, 3)
     surface = along_normals(lambda p: query.points(model, triplane, p), points, normals)
     baked = arrays["colour_map"][rows, columns].astype(float)
-    truth = np.round(query.colours(model, triplane, surface) * 255)
+    truth = np.round(colour.colours(model, triplane, surface) * 255)
     assert len(truth) > 100 and truth.std(axis=0).max() > 30  # red above, blue below: a wrong place shows
     assert np.abs(baked - truth).mean() < 4
     shuffled = np.abs(baked - truth[np.random.default_rng(0).permutation(len(truth))]).mean()

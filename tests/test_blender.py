@@ -119,6 +119,91 @@ def test_a_kept_box_is_the_command_lines_keep(scene, tiny_model, tmp_path):
     assert_same_mesh(obj, "z", sinrun_sample(tmp_path, tiny_model, "--seed", 7, "--keep", settings.keep_part))
 
 
+def test_a_keep_box_works_wherever_the_sample_stands(scene, tiny_model, tmp_path):
+    """Samples are added at the 3D cursor: the box, made in the sample's
+    space, keeps the same part anywhere; one the sample refuses leaves
+    nothing behind."""
+    import bpy
+
+    parts = []
+    for place in ((0, 0, 0), (20, -3, 2)):
+        bpy.context.scene.cursor.location = place
+        obj = add(tiny_model, seed=7)
+        assert bpy.ops.sinshape.keep_box_add() == {"FINISHED"}
+        parts.append(np.array([float(v) for corner in obj.sinshape.keep_part.split(":")[1:]
+                               for v in corner.split(",")]))
+    assert np.abs(parts[0] - parts[1]).max() < 1e-4
+    assert_same_mesh(obj, "z", sinrun_sample(tmp_path, tiny_model, "--seed", 7, "--keep", obj.sinshape.keep_part))
+    moved = tmp_path / "moved.onnx"
+    moved.write_bytes(tiny_model.read_bytes())
+    lost = add(moved, seed=7)
+    moved.unlink()  # the sample cannot be made again
+    objects = len(bpy.data.objects)
+    with pytest.raises(RuntimeError, match="no such model file"):
+        bpy.ops.sinshape.keep_box_add()
+    assert len(bpy.data.objects) == objects and lost.sinshape.edit == "NONE" and lost.sinshape.keep_box is None
+
+
+def test_a_model_in_voxel_units_comes_in_a_sensible_size(scene, tiny_model, tmp_path):
+    """A model trained from an .h5 pyramid has voxels for units: its object
+    is scaled to about the shipped models' size, its mesh left the command line's."""
+    obj = add(tiny_model, seed=3)  # tiny_model is trained on a pyramid: 19 voxels long
+    assert 4 < max(obj.dimensions) < 8
+    assert_same_mesh(obj, "z", sinrun_sample(tmp_path, tiny_model, "--seed", 3))
+    assert tuple(add("terrain", seed=3).scale) == (1.0, 1.0, 1.0)  # a mesh's own units stay
+
+
+def test_leaving_edit_mode_makes_the_change_refused_in_it(scene, tiny_model, tmp_path):
+    import bpy
+
+    obj = add(tiny_model, seed=3)
+    bpy.ops.object.mode_set(mode="EDIT")
+    obj.sinshape.seed = 5
+    assert "edit mode" in obj.sinshape.error
+    bpy.ops.object.mode_set(mode="OBJECT")
+    assert obj.sinshape.error == ""
+    assert_same_mesh(obj, "z", sinrun_sample(tmp_path, tiny_model, "--seed", 5))
+
+
+def test_a_linked_duplicate_reseeded_leaves_the_original_as_it_was(scene, tiny_model, tmp_path):
+    import bpy
+
+    obj = add(tiny_model, seed=3)
+    bpy.ops.object.duplicate(linked=True)  # Alt+D: the same mesh
+    duplicate = bpy.context.active_object
+    assert duplicate != obj and duplicate.data == obj.data
+    duplicate.sinshape.seed = 9
+    assert duplicate.data != obj.data and obj.sinshape.seed == 3
+    assert_same_mesh(obj, "z", sinrun_sample(tmp_path, tiny_model, "--seed", 3))
+    assert_same_mesh(duplicate, "z", sinrun_sample(tmp_path, tiny_model, "--seed", 9))
+
+
+def test_a_shipped_model_is_pinned_to_its_sha256(scene, addon):
+    """An update of the extension may replace a shipped model: an object
+    made from another version says so, and keeps its mesh, until the model
+    is chosen again."""
+    import hashlib
+
+    import bpy
+
+    from sinshape import models
+
+    obj = add("terrain", seed=3)
+    assert obj.sinshape.model_sha256 == hashlib.sha256(models.find("terrain").read_bytes()).hexdigest()
+    obj.sinshape.model_sha256 = "0" * 64  # as saved by an extension that shipped another terrain
+    before = model_frame(obj, "z")
+    with pytest.raises(RuntimeError, match="the shipped model terrain has changed"):
+        obj.sinshape.seed = 4
+        bpy.ops.sinshape.regenerate()
+    assert all(np.array_equal(a, b) for a, b in zip(model_frame(obj, "z"), before))
+    obj.sinshape.error = ""
+    addon.live.check_models()  # what opening the file does
+    assert "the shipped model terrain has changed" in obj.sinshape.error
+    obj.sinshape.model = "terrain"  # chosen again: taken as it is now
+    assert obj.sinshape.error == "" and obj.sinshape.model_sha256 != "0" * 64
+    assert not all(np.array_equal(a, b) for a, b in zip(model_frame(obj, "z"), before))  # seed 4 now
+
+
 def test_grow_maps_blenders_axes_to_the_models(scene, tmp_path):
     obj = add("towerruins", seed=3)  # y up: Blender (x, y, z) is the model's (x, -z, y)
     with_settings(obj, grow=(1.0, 1.5, 1.0), anchor=(0.0, 1.0, 0.0), edit="GROW")
@@ -181,15 +266,56 @@ def test_cubes_moved_copied_and_extruded_read_back_as_cells(tiny_model):
     grid = np.zeros(shape, bool)
     grid[1, 1, 1] = grid[3, 2, 1] = True
     vertices, quads = convert.layout_cubes(grid, manifest, (1, 1, 1))
-    edges = np.concatenate([quads[:, [0, 1]], quads[:, [1, 2]], quads[:, [2, 3]], quads[:, [3, 0]]])
-    assert np.array_equal(convert.cubes_layout(vertices, edges, manifest, (1, 1, 1)), grid)
+    faces = (quads.ravel(), np.arange(0, quads.size, 4))  # as Blender keeps them: corners, each face's first
+    assert np.array_equal(convert.cubes_layout(vertices, *faces, manifest, (1, 1, 1)), grid)
     moved = vertices.copy()
     moved[:8] += spacing * np.array([2.3, 0.2, 0])  # nudged off the grid: the nearest cell
     moved[8:, 2] = np.where(moved[8:, 2] > moved[8:, 2].min(), moved[8:, 2] + 2 * spacing[2], moved[8:, 2])  # extruded up 2
     expected = np.zeros(shape, bool)
     expected[3, 1, 1] = True
     expected[3, 2, 1:4] = True
-    assert np.array_equal(convert.cubes_layout(moved, edges, manifest, (1, 1, 1)), expected)
+    assert np.array_equal(convert.cubes_layout(moved, *faces, manifest, (1, 1, 1)), expected)
+
+
+def test_welded_cubes_give_the_layout_they_show(scene, tiny_model):
+    """Merge by Distance welds the cubes into one piece and drops the face
+    between two of them; Limited Dissolve joins faces into n-gons: the
+    cells read back are the cubes', a hollow kept hollow."""
+    import bpy
+
+    from blender import convert
+    from sinshape.runtime import layout
+    from sinshape.runtime.load import load_model
+
+    obj = add(tiny_model, seed=3)
+    own = layout.layout(load_model(tiny_model, threads=1), 3)
+    assert bpy.ops.sinshape.layout_show() == {"FINISHED"}
+    cubes = obj.sinshape.layout_object
+    bpy.context.view_layer.objects.active = cubes
+    bpy.ops.object.mode_set(mode="EDIT")
+    bpy.ops.mesh.select_all(action="SELECT")
+    bpy.ops.mesh.remove_doubles()
+    bpy.ops.mesh.dissolve_limited()
+    bpy.ops.object.mode_set(mode="OBJECT")
+    assert len(cubes.data.vertices) < 8 * own.sum() / 2 and len(cubes.data.polygons) < 6 * own.sum()  # welded
+    bpy.context.view_layer.objects.active = obj
+    assert bpy.ops.sinshape.layout_apply() == {"FINISHED"}
+    assert np.array_equal(convert.layout_from_text(obj.sinshape.layout_shape, obj.sinshape.layout_bits).grid(), own)
+    manifest = load_model(tiny_model, threads=1).manifest
+    block = np.zeros(layout.cells(manifest)[2], bool)
+    block[1:4, 1:4, 1:4] = True
+    for grid in (block, block & ~(np.indices(block.shape) == 2).all(axis=0)):  # full, and hollow at its centre
+        mesh = bpy.data.meshes.new("block")
+        convert.fill_mesh(mesh, *convert.layout_cubes(grid, manifest, (1, 1, 1)))
+        welded = bpy.data.objects.new("block", mesh)
+        bpy.context.scene.collection.objects.link(welded)
+        bpy.context.view_layer.objects.active = welded
+        bpy.ops.object.mode_set(mode="EDIT")
+        bpy.ops.mesh.select_all(action="SELECT")
+        bpy.ops.mesh.remove_doubles()
+        bpy.ops.object.mode_set(mode="OBJECT")
+        read = convert.cubes_layout(convert.mesh_vertices(mesh), *convert.mesh_faces(mesh), manifest, (1, 1, 1))
+        assert np.array_equal(read, grid)
 
 
 def test_variations_are_objects_of_each_seed_in_a_collection(scene, tiny_model, tmp_path):
@@ -304,6 +430,41 @@ def test_bad_input_is_one_reported_line_and_nothing_half_made(scene, tiny_model,
     assert all(np.array_equal(a, b) for a, b in zip(model_frame(obj, "z"), before))
     with pytest.raises(RuntimeError, match=said):
         bpy.ops.sinshape.regenerate()
+    assert "Traceback" not in capfd.readouterr().err
+
+
+def test_a_scale_whose_mesh_would_not_fit_is_refused_in_one_line_before_any_work(scene, tiny_model, monkeypatch,
+                                                                                   capfd):
+    """The memory check counts the mesh, and the add-on's own copies of it:
+    refused before anything is made, on the object and as a report."""
+    import bpy
+
+    from sinshape.core import budget
+
+    obj = add(tiny_model, seed=1)
+    before = model_frame(obj, "z")
+    monkeypatch.setattr(budget, "available_memory", lambda: 256 << 20)
+    objects = len(bpy.data.objects)
+    with pytest.raises(RuntimeError, match=r"with a mesh of about [\d,]+ faces needs about"):
+        bpy.ops.sinshape.add_sample(model=str(tiny_model), scale=40)
+    assert len(bpy.data.objects) == objects
+    obj.sinshape.scale = 40
+    assert "with a mesh of about" in obj.sinshape.error and "\n" not in obj.sinshape.error
+    assert all(np.array_equal(a, b) for a, b in zip(model_frame(obj, "z"), before))
+    assert "Traceback" not in capfd.readouterr().err
+
+
+def test_running_out_of_memory_all_the_same_is_one_line_on_the_object(scene, tiny_model, monkeypatch, capfd):
+    from blender import live
+
+    obj = add(tiny_model, seed=1)
+
+    def exhausted(*args, **kwargs):
+        raise MemoryError
+
+    monkeypatch.setattr(live.mesh, "extract", exhausted)
+    obj.sinshape.seed = 2
+    assert "ran out of memory" in obj.sinshape.error and "\n" not in obj.sinshape.error
     assert "Traceback" not in capfd.readouterr().err
 
 

@@ -120,7 +120,9 @@ def test_the_built_zip_installs_in_blender_and_samples_from_its_own_wheels(tmp_p
     only.mkdir()
     for name in ("bpy", "numpy"):
         (only / name).symlink_to(Path(importlib.util.find_spec(name).submodule_search_locations[0]))
-    env = {"BLENDER_USER_RESOURCES": str(tmp_path / "user"), "PATH": "/usr/bin:/bin"}
+    home = tmp_path / "home"  # nothing may be written there (onnxruntime's telemetry was)
+    home.mkdir()
+    env = {"BLENDER_USER_RESOURCES": str(tmp_path / "user"), "PATH": "/usr/bin:/bin", "HOME": str(home)}
     done = subprocess.run([sys.executable, "-I", "-S", "-c", INSTALL.format(path=str(only), zip=str(out))],
                           capture_output=True, text=True, timeout=600, env=env)
     assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-3000:]
@@ -128,6 +130,8 @@ def test_the_built_zip_installs_in_blender_and_samples_from_its_own_wheels(tmp_p
     extensions = str(tmp_path / "user" / "extensions")
     assert all(extensions in module for module in result["modules"])
     assert result["vertices"] == result["expected"] > 0 and result["faces"] == result["expected_faces"]
+    written = [str(p.relative_to(home)) for p in home.rglob("*") if p.is_file()]
+    assert written == [], written
 
 
 SCRIPT = """

@@ -7,6 +7,7 @@ Marked `blender`; skipped where bpy cannot be imported."""
 import json
 import subprocess
 import sys
+import threading
 
 import numpy as np
 import pytest
@@ -41,14 +42,16 @@ def tiles_of(obj) -> dict:
     return worlds.tile_objects(obj)
 
 
-def tile_at(model_path, point) -> tuple:
-    """The tile holding a point of Blender's space (a world object at the origin)."""
+def tile_at(model_path, point, obj) -> tuple:
+    """The tile holding a point of Blender's space, in world object `obj`'s space."""
+    from mathutils import Vector
+
     from blender import worlds
     from sinshape.runtime import world
     from sinshape.runtime.load import load_model
 
     model = load_model(model_path, threads=1)
-    return worlds.centre_tile(model, world.world_layout(model), point)
+    return worlds.centre_tile(model, world.world_layout(model), obj.matrix_world.inverted() @ Vector(point))
 
 
 def assert_tiles_are_the_command_lines(obj, tmp_path, model_path, seed) -> None:
@@ -77,7 +80,7 @@ def test_a_world_fills_the_tiles_around_the_cursor_as_sinrun_world_makes_them(sc
     obj = add_world(tiny_model, seed=4, radius=1)
     obj.location = (0, 0, 0)  # the world at the origin, the cursor where it was
     scene.view_layers[0].update()
-    ci, cj = tile_at(tiny_model, (30.0, -12.0, 0.0))
+    ci, cj = tile_at(tiny_model, (30.0, -12.0, 0.0), obj)
     assert (ci, cj) != (0, 0)
     assert set(tiles_of(obj)) == {(ci + di, cj + dj) for di in (-1, 0, 1) for dj in (-1, 0, 1)}
     assert sum(len(child.data.polygons) for child in tiles_of(obj).values()) > 0
@@ -85,7 +88,7 @@ def test_a_world_fills_the_tiles_around_the_cursor_as_sinrun_world_makes_them(sc
     assert_tiles_are_the_command_lines(obj, tmp_path, tiny_model, 4)
     scene.cursor.location = (-30.0, 12.0, 0.0)  # the cursor moved: the scene's update moves the world on
     scene.view_layers[0].update()
-    ci, cj = tile_at(tiny_model, (-30.0, 12.0, 0.0))
+    ci, cj = tile_at(tiny_model, (-30.0, 12.0, 0.0), obj)
     assert set(tiles_of(obj)) == {(ci + di, cj + dj) for di in (-1, 0, 1) for dj in (-1, 0, 1)}
 
 
@@ -98,11 +101,11 @@ def test_tiles_follow_an_object_and_those_left_behind_are_dropped(scene, tiny_mo
     scene.collection.objects.link(camera)
     obj.sinshape_world.follow = camera  # at the origin too: the same tiles, none made again
     before = {tile: child.as_pointer() for tile, child in tiles_of(obj).items()}
-    centre = tile_at(tiny_model, (0, 0, 0))
-    while tile_at(tiny_model, tuple(camera.location))[0] < centre[0] + 2:
+    centre = tile_at(tiny_model, (0, 0, 0), obj)
+    while tile_at(tiny_model, tuple(camera.location), obj)[0] < centre[0] + 2:
         camera.location.x += 0.25
     bpy.context.view_layer.update()  # the depsgraph's update moves the world on
-    moved = tile_at(tiny_model, tuple(camera.location))
+    moved = tile_at(tiny_model, tuple(camera.location), obj)
     after = tiles_of(obj)
     assert set(after) == {(moved[0] + di, moved[1] + dj) for di in (-1, 0, 1) for dj in (-1, 0, 1)}
     kept = set(before) & set(after)
@@ -119,6 +122,79 @@ def test_a_changed_seed_remakes_every_tile(scene, tiny_model, tmp_path):
     assert {tile: child["sinshape_made"].split(":")[1] for tile, child in tiles_of(obj).items()} == \
         {tile: "9" for tile in first}
     assert_tiles_are_the_command_lines(obj, tmp_path, tiny_model, 9)
+
+
+def border_normals(obj, first, second) -> float:
+    """The largest difference between the normals Blender shades two
+    neighbouring tiles with at the vertices they share (in the world's space)."""
+    tiles = tiles_of(obj)
+
+    def shading(child):
+        from blender import convert
+
+        mesh = child.data
+        corners = np.empty(len(mesh.loops), np.int32)
+        mesh.attributes[".corner_vert"].data.foreach_get("value", corners)
+        normals = np.empty(len(mesh.loops) * 3, np.float32)
+        mesh.corner_normals.foreach_get("vector", normals)
+        places = convert.mesh_vertices(mesh).astype(np.float64) + np.array(child.location)
+        return places, corners, normals.reshape(-1, 3)
+
+    (places_a, corners_a, normals_a), (places_b, corners_b, normals_b) = shading(tiles[first]), shading(tiles[second])
+    index = {tuple(np.round(p, 4)): i for i, p in enumerate(places_a)}
+    worst, shared = 0.0, 0
+    for j, place in enumerate(places_b):
+        i = index.get(tuple(np.round(place, 4)))
+        if i is not None:
+            shared += 1
+            worst = max(worst, np.abs(normals_a[corners_a == i] - normals_b[corners_b == j][:1]).max())
+    assert shared > 5
+    return worst
+
+
+def test_tiles_shade_as_one_surface_across_their_borders(scene, tiny_model):
+    """A border vertex's normal is summed over the tiles on both sides, as
+    the joined surface's would be: no crease along every border."""
+    scene.cursor.location = (0, 0, 0)
+    obj = add_world(tiny_model, seed=2, radius=1)
+    centre = sorted(tiles_of(obj))[4]
+    assert border_normals(obj, centre, (centre[0] + 1, centre[1])) < 0.01  # Blender keeps custom normals to ~1e-3
+    assert border_normals(obj, centre, (centre[0], centre[1] + 1)) < 0.01
+
+
+def test_a_jump_keeps_the_old_tiles_until_the_new_ones_are_made(scene, tiny_model, monkeypatch):
+    """Off the main thread, as with Blender's event loop: the tiles left
+    behind stay shown while the new ones are made, and go when they are."""
+    from blender import work
+
+    scene.cursor.location = (0, 0, 0)
+    obj = add_world(tiny_model, seed=2, radius=0)
+    (old,) = tiles_of(obj)
+    worker = work.Worker(synchronous=False)
+    monkeypatch.setattr(work, "WORKER", worker)
+    scene.cursor.location = (400.0, 0, 0)  # many tiles away
+    scene.view_layers[0].update()
+    assert old in tiles_of(obj)  # still shown while the new one is made
+    for _ in range(500):
+        if worker.poll() is None:
+            break
+        threading.Event().wait(0.02)
+    (new,) = tiles_of(obj)
+    assert new != old and new == tile_at(tiny_model, (400.0, 0, 0), obj)
+
+
+def test_tiles_far_from_the_world_origin_say_where_float32_ends(scene, tiny_model):
+    scene.cursor.location = (0, 0, 0)
+    obj = add_world(tiny_model, seed=2, radius=0)
+    assert obj.sinshape_world.error == ""
+    scene.cursor.location = (1e7, 0, 0)  # the world object stays at the origin
+    scene.view_layers[0].update()
+    (tile,) = tiles_of(obj)  # made all the same
+    assert tile == tile_at(tiny_model, (1e7, 0, 0), obj)
+    assert "32-bit locations" in obj.sinshape_world.error and "\n" not in obj.sinshape_world.error
+    scene.cursor.location = (0, 0, 0)
+    scene.view_layers[0].update()
+    assert obj.sinshape_world.error == ""
 
 
 @pytest.mark.parametrize("options, said", [({"model": "missing.onnx"}, "no such model file"),
@@ -192,7 +268,7 @@ def test_far_tiles_are_made_coarser_with_a_skirt_and_a_scattered_world_is_the_ru
     scene.cursor.location = (0, 0, 0)
     obj = add_world(tiny_model, seed=3, radius=2)
     obj.sinshape_world.arrange = "scatter"  # background mode: every tile made again before this returns
-    ci, cj = tile_at(tiny_model, (0, 0, 0))
+    ci, cj = tile_at(tiny_model, (0, 0, 0), obj)
     lods = {tile: int(child["sinshape_made"].rsplit(":", 1)[1]) for tile, child in tiles_of(obj).items()}
     assert lods == {(ci + di, cj + dj): min(1, max(0, max(abs(di), abs(dj)) - 1)) for di in range(-2, 3) for dj in range(-2, 3)}
     far = (ci + 2, cj)

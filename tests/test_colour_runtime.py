@@ -1,6 +1,7 @@
 """A coloured model's samples carry colour in every output format, each
-vertex's colour the decoder's at that vertex, through edits too; a
-geometry-only model's outputs are as they were."""
+vertex's colour the model's at that vertex (read from the example by
+correspondence: runtime/colour.py), through edits too; a geometry-only
+model's outputs are as they were."""
 
 import json
 import struct
@@ -13,7 +14,7 @@ from scipy.spatial import cKDTree
 
 from sinshape.cli.main import cli
 from sinshape.core import manifest as fmt
-from sinshape.runtime import edit, generate, load_model, query
+from sinshape.runtime import colour, edit, generate, load_model, query
 from sinshape.runtime.request import SampleRequest, make
 
 
@@ -62,18 +63,29 @@ def model_coordinates(model, vertices: np.ndarray) -> np.ndarray:
     return (vertices - np.asarray(model.manifest.origin)) / np.asarray(model.manifest.spacing)
 
 
+def matching_share(written: np.ndarray, expected: np.ndarray) -> float:
+    """The share of vertices whose 8-bit colour is the expected colour: a
+    vertex written as float32 can fall on the other side of a voxel's edge
+    than its float64 self, and take a neighbouring voxel's match there."""
+    return float(np.mean(np.abs(written / 255 - expected).max(axis=1) <= 0.6 / 255 + 1e-3))
+
+
 @pytest.mark.parametrize("options", [(), ("--scale", 1.7), ("--smooth", 3), ("--size", "1.3,1,0.8")])
-def test_each_vertex_has_the_decoders_colour_at_that_vertex(model, tmp_path, options):
+def test_each_vertex_has_the_models_colour_at_that_vertex(model, tmp_path, options):
     # The streamed .ply, a finer grid, smoothed vertices (coloured where they
-    # end up), another size: every vertex's 8-bit colour is the decoder's there.
+    # end up), another size: every vertex's 8-bit colour is the model's
+    # there, averaged over the vertex's spacing (1 / scale voxels).
     out = tmp_path / "s.ply"
     sinrun("sample", model.path, "--seed", 5, *options, "-o", out)
     vertices, colours = read_ply(out)
     assert colours is not None and len(colours) == len(vertices) > 100
     factors = (1.3, 1, 0.8) if "--size" in options else (1.0, 1.0, 1.0)
+    scale = 1.7 if "--scale" in options else 1.0
     triplane = generate.sample(model, 5, factors)
-    expected = decoder_colour(model, triplane, model_coordinates(model, vertices.astype(np.float64)))
-    assert np.abs(colours / 255 - expected).max() <= 0.6 / 255 + 1e-3  # float32 positions in the file
+    points = model_coordinates(model, vertices.astype(np.float64))
+    assert matching_share(colours, colour.colours(model, triplane, points, 1 / scale)) > 0.99
+    # Not the decoder's colour head: the tiles'.
+    assert matching_share(colours, decoder_colour(model, triplane, points)) < 0.5
     # The colours differ over the shape: not one colour everywhere.
     assert np.ptp(colours.astype(int), axis=0).max() > 3
 
@@ -95,13 +107,14 @@ def test_every_mesh_format_and_the_grid_carry_the_same_colours(model, tmp_path):
     (glb,) = trimesh.load_scene(tmp_path / "s.glb", process=False).geometry.values()
     linear = glb.visual.vertex_colors[:, :3] / 255
     np.testing.assert_allclose(linear, fmt.srgb_to_linear(ply_colour_at(glb.vertices) / 255), atol=1 / 255)
-    # The grid's colours are the decoder's at its points.
+    # The grid's colours are the model's at its points (not its colour head's).
     grid = np.load(tmp_path / "s.npz")
     assert grid["colour"].shape == grid["occupancy"].shape + (3,) and grid["colour"].dtype == np.uint8
     triplane = generate.sample(model, 2)
-    index = np.argwhere(grid["occupancy"] > -1)[::37]
-    np.testing.assert_allclose(grid["colour"][tuple(index.T)] / 255,
-                               decoder_colour(model, triplane, index.astype(float)), atol=0.6 / 255)
+    index = np.argwhere(grid["occupancy"] > -1)[::37].astype(float)
+    np.testing.assert_allclose(grid["colour"][tuple(index.astype(int).T)] / 255,
+                               colour.colours(model, triplane, index, 1.0), atol=0.6 / 255)
+    assert matching_share(grid["colour"][tuple(index.astype(int).T)], decoder_colour(model, triplane, index)) < 0.5
 
 
 def test_the_streamed_ply_is_the_whole_mesh_ply(model, tmp_path):
@@ -122,9 +135,12 @@ def test_a_kept_box_keeps_the_other_seeds_colours(model, tmp_path):
     assert deep.sum() > 50 and far.sum() > 50
     kept = generate.sample(model, 3)
     points = vertices.astype(np.float64)
-    np.testing.assert_allclose(colours[deep] / 255, query.colours(model, kept, points[deep]), atol=0.6 / 255)
+    # Deep in the box the features are the kept seed's, and so are the
+    # matches (they follow content, not place), but for the rare voxel
+    # whose match a neighbour's from outside the box outbid.
+    assert matching_share(colours[deep], colour.colours(model, kept, points[deep], 1.0)) > 0.95
     # ...and elsewhere not the kept seed's: the colour came from the box, not from anywhere.
-    assert np.abs(colours[far] / 255 - query.colours(model, kept, points[far])).max() > 2 / 255
+    assert matching_share(colours[far], colour.colours(model, kept, points[far], 1.0)) < 0.9
 
 
 @pytest.mark.parametrize("edit_options", [("--grow", "1.5,1,1"), ("--keep", "3:0%,0%,0%:50%,100%,100%")])
@@ -135,8 +151,8 @@ def test_edits_are_coloured_by_their_own_triplane(model, tmp_path, edit_options)
     request = SampleRequest(seed=7, **({"grow": (1.5, 1.0, 1.0)} if edit_options[0] == "--grow" else
                                        {"keep": (edit.parse_part(edit_options[1], model.manifest,
                                                                  model.manifest.sizes[-1]),)}))
-    expected = decoder_colour(model, make(model, request), vertices.astype(np.float64))
-    assert np.abs(colours / 255 - expected).max() <= 0.6 / 255 + 1e-3
+    expected = colour.colours(model, make(model, request), vertices.astype(np.float64), 1.0)
+    assert matching_share(colours, expected) > 0.99
 
 
 def test_geometry_only_outputs_have_no_colour(tiny_model, tmp_path):

@@ -39,14 +39,20 @@ def test_manifest_says_how_the_model_was_made(tiny_model, tiny_pyramid):
     assert m["up"] == "z"  # voxel data stands on z, unless --up says otherwise
 
 
-def test_a_coloured_model_is_format_4_and_a_plain_one_format_3(tiny_model, tiny_colour_model):
+def test_a_coloured_model_is_format_5_and_a_plain_one_format_3(tiny_model, tiny_colour_model):
     plain, coloured = (json.loads({p.key: p.value for p in onnx.load(path).metadata_props}[manifest.METADATA_KEY])
                        for path in (tiny_model, tiny_colour_model))
     assert plain["format_version"] == 3 and "colour" not in plain
-    assert coloured["format_version"] == 4 and coloured["colour"] == {"space": "srgb"}
+    assert coloured["format_version"] == 5 and coloured["colour"]["space"] == "srgb"
+    count, side = coloured["colour"]["tiles"]["count"], coloured["colour"]["tiles"]["side"]
     assert coloured["stages"]["decoder_head"]["outputs"] == ["decoder_head.occupancy", "decoder_head.colour"]
     weights = {t.name: onnx.numpy_helper.to_array(t) for t in onnx.load(tiny_colour_model).graph.initializer}
     assert weights["decoder_head.weight_colour"].shape == (32, 3) and weights["decoder_head.bias_colour"].shape == (3,)
+    # The example's colour tiles, as docs/FORMAT.md lays them out.
+    assert weights["colour_tiles.voxels"].shape == (count, 3) and weights["colour_tiles.voxels"].dtype == np.int32
+    assert weights["colour_tiles.images"].shape == (count, side, side, 4)
+    assert weights["colour_tiles.distance"].shape == tuple(coloured["levels"][-1]["size"])
+    assert weights["colour_tiles.distance"].dtype == np.int8
 
 
 @pytest.mark.parametrize("seed, factors", [(None, (1, 1, 1)), (11, (1, 1, 1)), (12, (1.5, 1, 0.7))])
@@ -73,8 +79,8 @@ def test_onnxruntime_equals_torch(tiny_model, tiny_colour_model, seed, factors, 
         reference = generator(z0, noises, sizes)[0].numpy()
     if coloured:
         index = np.argwhere(np.ones(sizes[-1], bool))[::7]
-        colour = query.colours(model, triplane, index.astype(float))
-        np.testing.assert_allclose(colour, reference[1:][(slice(None), *index.T)].T, atol=1e-4)
+        head = query.colouring(model, triplane)(index.astype(float))  # the colour head, exported
+        np.testing.assert_allclose(head, reference[1:][(slice(None), *index.T)].T, atol=1e-4)
         reference = reference[0]
     assert ours.shape == reference.shape == sizes[-1]
     assert np.abs(ours - reference).max() < 1e-4

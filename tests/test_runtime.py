@@ -168,6 +168,64 @@ def test_the_memory_limit_is_a_parameter_defaulting_to_the_available_memory(mode
     assert len(runtime.extract(model, triplane, memory_limit=1 << 30).faces) > 0
 
 
+def test_a_sample_whose_mesh_would_not_fit_is_refused_before_any_work(model, monkeypatch):
+    """The check counts the mesh (its faces estimated from the model's
+    reconstruction) besides the tri-plane, before anything is generated; a
+    mesh streamed to a .ply holds no mesh, so the same request fits that way."""
+    from sinshape.runtime import edit, layout, request as requests  # noqa: F401 (bound before the patch below)
+
+    monkeypatch.setattr(generate, "draw_noise", lambda *a, **k: pytest.fail("sampled before the check"))
+    asked = runtime.SampleRequest(seed=1, scale=40)
+    with pytest.raises(runtime.MemoryLimitError, match=r"with a mesh of about [\d,]+ faces needs about"):
+        requests.make(model, asked, memory_limit=1 << 30)
+    requests.check_memory(model, asked, "stream", memory_limit=1 << 30)
+    with pytest.raises(runtime.MemoryLimitError, match="dense grid"):
+        requests.check_memory(model, asked, "grid", memory_limit=1 << 30)
+    with pytest.raises(runtime.MemoryLimitError, match="needs about"):  # a layout's fit is counted too
+        requests.check_memory(model, runtime.SampleRequest(seed=1, size=30, layout=runtime.Layout.of(
+            np.ones(generate.scaled_sizes(model.manifest.sizes, (30, 30, 30))[0]))), "planes", memory_limit=1 << 30)
+
+
+@pytest.mark.parametrize("factors, scale", [((1, 1, 1), 1), ((2, 2, 1), 2), ((0.5, 1, 1), 3), ((1, 1, 1), 6)])
+def test_the_face_estimate_covers_the_faces_a_sample_has(model, factors, scale):
+    from sinshape.runtime import mesh
+
+    triplane = runtime.sample(model, 3, factors)
+    faces = sum(len(f) for _, f in mesh.pieces(model, triplane, scale))
+    assert faces <= mesh.estimate_faces(model, triplane.size, scale) <= 3 * faces
+
+
+def test_meshing_stops_when_its_faces_pass_the_limit(model):
+    """The estimate is an estimate: a whole mesh's faces are counted as
+    they come, and meshing stops before they fill the memory."""
+    from sinshape.runtime import mesh
+
+    triplane = runtime.sample(model, 3)
+    with pytest.raises(runtime.MemoryLimitError, match=r"passed [\d,]+ faces"):
+        mesh.extract(model, triplane, 4, memory_limit=64 << 20, per_face=1 << 20)
+
+
+def test_the_command_line_refuses_what_would_not_fit_under_an_address_space_limit(tmp_path):
+    """`ulimit -v`: the limit counts, and a size whose sample and mesh
+    would not fit is refused in one line before any work (it died with a
+    numpy MemoryError traceback after 30 s)."""
+    import resource
+    import subprocess
+    import sys
+
+    def limited():
+        resource.setrlimit(resource.RLIMIT_AS, (3 << 30, resource.getrlimit(resource.RLIMIT_AS)[1]))
+
+    out = tmp_path / "big.ply"
+    done = subprocess.run([sys.executable, "-c", "from sinshape.cli.main import main; main()", "sample",
+                           "towerruins", "--size", "40,40,40", "-o", str(out)],
+                          capture_output=True, text=True, timeout=120, preexec_fn=limited)
+    assert done.returncode == 1 and not out.exists()
+    assert "Traceback" not in done.stderr and len(done.stderr.strip().splitlines()) == 1
+    limit = float(done.stderr.split("(limit ")[1].split()[0])
+    assert "a sample of size 40x40x40" in done.stderr and "needs about" in done.stderr and limit < 3
+
+
 def test_available_memory_reads_the_machine_or_falls_back(monkeypatch):
     if os.path.exists("/proc/meminfo"):
         with open("/proc/meminfo") as f:
@@ -215,3 +273,65 @@ def test_the_committed_tiny_model_is_the_tiny_pyramids(tiny_pyramid):
     assert source["sha256"] == hashlib.sha256(tiny_pyramid.read_bytes()).hexdigest()
     assert model.manifest.sizes == [(15, 15, 15), (20, 18, 15)]
     assert runtime.extract(model, runtime.sample(model, 3)).is_watertight
+
+
+def test_the_runtime_writes_nothing_under_the_users_home(tmp_path):
+    """onnxruntime writes a device id and queued telemetry events under
+    ~/.cache/Microsoft/DeveloperTools/ when it is imported, unless told not
+    to: a sample made in a fresh process leaves the home as it was."""
+    import subprocess
+    import sys
+
+    home = tmp_path / "home"
+    home.mkdir()
+    env = {key: value for key, value in os.environ.items()
+           if key not in ("ORT_DISABLE_TELEMETRY", "XDG_CACHE_HOME")}
+    script = ("import sys\nfrom sinshape.runtime import load_model, sample, extract\n"
+              "model = load_model(sys.argv[1], threads=1)\nassert len(extract(model, sample(model, 3)).faces)")
+    done = subprocess.run([sys.executable, "-c", script, str(TINY_ONNX)], env={**env, "HOME": str(home)},
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert [str(p.relative_to(home)) for p in home.rglob("*")] == []
+
+
+SAME_EVERYWHERE = """
+import hashlib, sys
+import numpy as np
+from sinshape.runtime import layout, load_model, request, extract
+model = load_model(sys.argv[1], threads=1)
+planes = {}
+for name, asked in (("plain", request.SampleRequest(seed=3, size=(1.5, 1, 0.8))),
+                    ("grow", request.SampleRequest(seed=3, grow=(1.5, 1, 1))),
+                    ("keep", request.SampleRequest(seed=3, keep="5:0%,0%,0%:50%,100%,100%"))):
+    planes[name] = request.make(model, asked).planes
+own = layout.layout(model, 3)
+own[: own.shape[0] // 2] = False
+planes["layout"] = layout.from_layout(model, 3, own).planes
+mesh = extract(model, request.make(model, request.SampleRequest(seed=3)), 2)
+np.savez(sys.argv[2], vertices=mesh.vertices, faces=mesh.faces,
+         **{name: hashlib.sha256(b"".join(p.tobytes() for p in made)).hexdigest() for name, made in planes.items()})
+"""
+
+
+def test_a_seed_gives_the_same_planes_whatever_blas_numpy_brings(tmp_path):
+    """numpy's BLAS sums a matrix product in an order of its own, by its
+    version and the CPU kernels it picks (OPENBLAS_CORETYPE picks two
+    here): a sample's, a grown, a kept and a laid-out sample's tri-planes
+    are the same bytes under both, and the mesh the same faces, its
+    vertices within 1e-3 of a voxel (the decoder head's dot product is
+    BLAS's; docs/BLENDER.md gives the figures)."""
+    import subprocess
+    import sys
+
+    made = {}
+    for kernels in ("Prescott", "Haswell"):
+        out = tmp_path / f"{kernels}.npz"
+        done = subprocess.run([sys.executable, "-c", SAME_EVERYWHERE, str(TINY_ONNX), str(out)], capture_output=True,
+                              text=True, timeout=300, env={**os.environ, "OPENBLAS_CORETYPE": kernels})
+        assert done.returncode == 0, done.stderr[-2000:]
+        made[kernels] = dict(np.load(out))
+    first, second = made.values()
+    for name in ("plain", "grow", "keep", "layout"):
+        assert first[name] == second[name], name
+    assert np.array_equal(first["faces"], second["faces"])
+    assert np.abs(first["vertices"] - second["vertices"]).max() < 1e-3  # the tiny model's frame: voxels

@@ -585,9 +585,9 @@ def test_files_are_refused_as_the_python_loader_refuses_them(site_page, tmp_path
     assert "source" in messages[11] and "config" in messages[12] and "training seconds" in messages[13]
     assert "levels grow" in messages[14] and "spacing" in messages[15] and "float32's step" in messages[16]
     assert "corrupt model: it holds sinshape.manifest twice" in messages[17]
-    # The page reads formats 3 and 4 only (sinrun serve and export-web seal older models on the way out).
+    # The page reads formats 3 to 5 only (sinrun serve and export-web seal older models on the way out).
     (message,) = load_in_page(page, [Path(__file__).parent / "data" / "tiny_v2.onnx"])
-    assert message == "tiny_v2.onnx: a format 2 model; the browser reads formats 3 and 4, which `sinrun serve` and " \
+    assert message == "tiny_v2.onnx: a format 2 model; the browser reads formats 3 to 5, which `sinrun serve` and " \
                       "`sinrun export-web` write from it"
 
 

@@ -40,6 +40,10 @@ class GraphBuilder:
         self.initializers.append(numpy_helper.from_array(array.astype(np.float32), name))
         return name
 
+    def data(self, name: str, array: np.ndarray) -> None:
+        """An initializer no stage reads, of its own type: data the runtime reads by name."""
+        self.initializers.append(numpy_helper.from_array(np.ascontiguousarray(array), name))
+
     def node(self, op: str, inputs: list, output: str | None = None, **attrs) -> str:
         self.counter += 1
         output = output or f"{inputs[0]}/{op}{self.counter}"
@@ -120,8 +124,9 @@ def add_decoder(g: GraphBuilder, decoder, plane_names: dict, head_names: dict) -
         g.output(y, ["head_d0", "head_d1", "head_d2", 3])
 
 
-def build_model(generator, manifest: dict) -> onnx.ModelProto:
-    """The ONNX model of a generator with its manifest in the metadata."""
+def build_model(generator, manifest: dict, tiles=None) -> onnx.ModelProto:
+    """The ONNX model of a generator with its manifest in the metadata, and
+    a coloured example's tiles (prep.appearance.Tiles) as data."""
     stages = manifest["stages"]
     g = GraphBuilder()
     add_projection(g, generator.projection, stages["projection"])
@@ -130,6 +135,10 @@ def build_model(generator, manifest: dict) -> onnx.ModelProto:
     for level, names in zip(generator.levels, stages["levels"]):
         add_level(g, level, names, scale, bias)
     add_decoder(g, generator.decoder, stages["decoder_planes"], stages["decoder_head"])
+    if tiles is not None:
+        for name, array, dtype in zip(fmt.TILE_TENSORS, (tiles.voxels, tiles.directions, tiles.images, tiles.distance),
+                                      (np.int32, np.uint8, np.uint8, np.int8)):
+            g.data(name, array.astype(dtype))
     graph = helper.make_graph(g.nodes, "sinshape", g.inputs, g.outputs, g.initializers)
     model = helper.make_model(
         graph,
@@ -146,12 +155,15 @@ def build_model(generator, manifest: dict) -> onnx.ModelProto:
 
 
 def make_manifest(generator, *, sizes, noise_amps, config, pyramid, seconds, ran_on: dict) -> dict:
-    """The manifest dict (build_model checks it): format 4 with `colour`
-    for a coloured decoder, else format 3, as before colour."""
+    """The manifest dict (build_model checks it): format 5 with `colour` and
+    its tiles for a coloured example, format 4 for a coloured decoder
+    without tiles, else format 3, as before colour."""
     colour = generator.decoder.fc_colour is not None
+    tiles = getattr(pyramid, "tiles", None) if colour else None
+    version = fmt.TILES_VERSION if tiles is not None else fmt.COLOUR_VERSION if colour else fmt.FORMAT_VERSION
     manifest = {
         "format": fmt.FORMAT_NAME,
-        "format_version": fmt.COLOUR_VERSION if colour else fmt.FORMAT_VERSION,
+        "format_version": version,
         "created_by": f"sinshape {importlib.metadata.version('sinshape')}, torch {torch.__version__}",
         "planes": list(fmt.PLANES),
         "channels": generator.channels,
@@ -172,7 +184,9 @@ def make_manifest(generator, *, sizes, noise_amps, config, pyramid, seconds, ran
             **ran_on,
         },
     }
-    if colour:
+    if tiles is not None:
+        manifest["colour"] = {**fmt.COLOUR_SPACE, "tiles": {"count": len(tiles.voxels), "side": tiles.images.shape[1]}}
+    elif colour:
         manifest["colour"] = fmt.COLOUR_SPACE
     return manifest
 
@@ -183,7 +197,8 @@ def export_model(generator, *, sizes, noise_amps, config, pyramid, seconds, path
     its plan, recorded with its times."""
     manifest = make_manifest(generator, sizes=sizes, noise_amps=noise_amps, config=config,
                              pyramid=pyramid, seconds=seconds, ran_on=ran_on or {})
-    model = build_model(generator, manifest)
+    tiles = pyramid.tiles if manifest["format_version"] == fmt.TILES_VERSION else None
+    model = build_model(generator, manifest, tiles)
     data = fmt.seal(model.SerializeToString())  # what onnx.save_model writes, then the seal
     atomic_write(path, lambda f: f.write(data))
     return manifest

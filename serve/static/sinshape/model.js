@@ -1,19 +1,26 @@
 // Load a sinshape .onnx file in the browser: check it as runtime/load.py does
 // (the same refusals, in one line each), cut it into one onnxruntime-web
-// session per stage, and read the decoder head's weights.
+// session per stage, and read the decoder head's weights and a format-5
+// model's colour tiles.
 import * as ort from '../vendor/onnxruntime-web/ort.wasm.min.mjs';
 import { unseal } from './seal.js';
-import { FormatError, readModel, stageModel, tensorFloats } from './onnx.js';
+import { FLOAT, FormatError, INT8, INT32, UINT8, readModel, stageModel, tensorArray, tupleText } from './onnx.js';
 import { InputError } from './errors.js';
 import { headColour } from './query.js';
+import { Tiles } from './colour.js';
 
 export { InputError };
 
 export const FORMAT_NAME = 'sinshape';
 export const FORMAT_VERSION = 3;  // 3 seals the file's bytes (seal.js); the page reads no older one
 export const COLOUR_VERSION = 4;  // 3 with a colour head (manifest `colour`)
-const READ_VERSION = COLOUR_VERSION; // the newest version this code reads
+export const TILES_VERSION = 5;  // 4 with the example's colour as tiles, read by correspondence (`colour.tiles`)
+const READ_VERSION = TILES_VERSION; // the newest version this code reads
 const COLOUR_SPACE = { space: 'srgb' }; // manifest `colour`: values are sRGB-encoded in [0, 1]
+// Initializers of a format-5 model's tiles: (N, 3) int32 voxels, (N,) uint8 directions, (N, T, T, 4) uint8 images.
+export const TILE_TENSORS = ['colour_tiles.voxels', 'colour_tiles.directions', 'colour_tiles.images', 'colour_tiles.distance'];
+const MAX_TILE_SIDE = 64;
+const MAX_TILE_BYTES = 2 * 2 ** 30; // the tiles and what reads them, in a browser tab
 export const METADATA_KEY = 'sinshape.manifest';
 export const NOISE_SCHEME = 'splitmix64-boxmuller-v1';
 export const PLANES = ['xy', 'xz', 'yz'];
@@ -89,8 +96,21 @@ export function parseManifest(textValue) {
     throw new InputError(`model format version ${version} is newer than this sinshape reads (${READ_VERSION}); upgrade sinshape`);
   }
   const colour = version >= COLOUR_VERSION;
-  need(colour ? sameJson(get(raw, 'colour', null), COLOUR_SPACE) : get(raw, 'colour', null) === null,
-    `colour must be {"space": "srgb"} in format ${COLOUR_VERSION} and absent before it`);
+  let tiles = null;
+  if (version >= TILES_VERSION) {
+    const field = get(raw, 'colour', null);
+    tiles = isObject(field) ? get(field, 'tiles', null) : null;
+    const keys = (obj) => JSON.stringify(Object.keys(obj).sort());
+    need(isObject(field) && keys(field) === '["space","tiles"]' && field.space === 'srgb'
+      && isObject(tiles) && keys(tiles) === '["count","side"]'
+      && isInt(tiles.count, 1, 2 ** 31 - 1) && isInt(tiles.side, 1, MAX_TILE_SIDE) && (tiles.side & (tiles.side - 1)) === 0,
+    `colour must be {"space": "srgb", "tiles": {"count": N, "side": T}} in format ${TILES_VERSION}, `
+      + `T a power of two up to ${MAX_TILE_SIDE}`);
+    tiles = [tiles.count, tiles.side];
+  } else {
+    need(colour ? sameJson(get(raw, 'colour', null), COLOUR_SPACE) : get(raw, 'colour', null) === null,
+      `colour must be {"space": "srgb"} in format ${COLOUR_VERSION} and absent before it`);
+  }
   if (version === 2) {
     need(typeof raw.checksum === 'string' && /^sha256:[0-9a-f]{64}$/.test(raw.checksum), "checksum must be 'sha256:' and 64 hex digits");
   }
@@ -142,7 +162,7 @@ export function parseManifest(textValue) {
   need(sameJson(raw.stages, stageNames(levels.length, colour)), 'stages do not name the standard tensors for this level count');
   return {
     sizes, noiseAmps: amps, channels: raw.channels, poolBins: raw.pool_bins, hidden: raw.mlp_hidden,
-    reconSeed: BigInt(seedText), origin: frame.origin, spacing: frame.spacing, stages: raw.stages, up: raw.up ?? 'y', arrange: raw.arrange ?? 'blend', colour, raw,
+    reconSeed: BigInt(seedText), origin: frame.origin, spacing: frame.spacing, stages: raw.stages, up: raw.up ?? 'y', arrange: raw.arrange ?? 'blend', colour, tiles, raw,
   };
 }
 
@@ -185,20 +205,30 @@ export function readChecked(bytes, name) {
   if (version >= 3 && !sealed) throw new InputError(`${name}: corrupt model: format ${version} ends with a seal, and this file does not`);
   if (version < 3 && sealed) throw new InputError(`${name}: corrupt model: a seal on a format ${version} file`);
   if (version < 3) {
-    throw new InputError(`${name}: a format ${version} model; the browser reads formats 3 and 4, which \`sinrun serve\` `
+    throw new InputError(`${name}: a format ${version} model; the browser reads formats 3 to 5, which \`sinrun serve\` `
       + 'and `sinrun export-web` write from it');
   }
   return { model, manifest };
+}
+
+/** Tensors as typed arrays ([FLOAT, ...] `kinds`), refused as a corrupt model where unreadable. */
+function readArrays(tensors, kinds, name) {
+  try {
+    return tensors.map((t, k) => tensorArray(t, kinds[k]));
+  } catch (error) {
+    if (error instanceof FormatError) throw new InputError(`${name}: corrupt model: ${error.message}`);
+    throw error;
+  }
 }
 
 /** Initializers by name, each checked for its shape and finite values (runtime/load.py: read_weights). */
 function readWeights(weights, names, shapes, name) {
   if (names.some((n) => !weights.has(n))) throw new InputError(`${name}: the decoder head lacks its weights (${names.join(', ')})`);
   const tensors = names.map((n) => weights.get(n));
+  const arrays = readArrays(tensors, names.map(() => FLOAT), name);
   if (tensors.some((t, k) => !sameJson(t.dims, shapes[k]))) {
-    throw new InputError(`${name}: decoder head weights have shapes ${tensors.map((t) => `(${t.dims})`).join(', ')}`);
+    throw new InputError(`${name}: decoder head weights have shapes ${tensors.map((t) => tupleText(t.dims)).join(', ')}`);
   }
-  const arrays = tensors.map(tensorFloats);
   if (!arrays.every((a) => a.every(Number.isFinite))) throw new InputError(`${name}: decoder head weights are not finite`);
   return arrays;
 }
@@ -209,6 +239,36 @@ function readHead(model, manifest, name) {
   const [bias1, weight2, bias2] = readWeights(weights, HEAD_WEIGHTS, [[hidden], [hidden, 1], [1]], name);
   const [weightColour, biasColour] = manifest.colour ? readWeights(weights, COLOUR_WEIGHTS, [[hidden, 3], [3]], name) : [null, null];
   return { bias1, weight2, bias2: bias2[0], weightColour, biasColour };
+}
+
+/** A format-5 model's colour tiles, checked against its manifest and its finest level (runtime/load.py:
+ * read_tiles): (N, 3) voxels inside it, (N,) directions below 6, each pair once and a voxel's tiles
+ * together, (N, T, T, 4) images. */
+function readTiles(model, manifest, name) {
+  const [count, side] = manifest.tiles;
+  const weights = new Map(model.graph.initializers.map((t) => [t.name, t]));
+  if (TILE_TENSORS.some((n) => !weights.has(n))) throw new InputError(`${name}: its colour tiles are missing (${TILE_TENSORS.join(', ')})`);
+  const tensors = TILE_TENSORS.map((n) => weights.get(n));
+  const [voxels, directions, images, distance] = readArrays(tensors, [INT32, UINT8, UINT8, INT8], name);
+  const size = manifest.sizes[manifest.sizes.length - 1];
+  if (!sameJson(tensors[0].dims, [count, 3]) || !sameJson(tensors[1].dims, [count]) || !sameJson(tensors[2].dims, [count, side, side, 4])) {
+    throw new InputError(`${name}: colour tiles of shapes ${tensors.slice(0, 3).map((t) => tupleText(t.dims)).join(', ')} `
+      + `do not match the manifest's ${count} of side ${side}`);
+  }
+  if (!sameJson(tensors[3].dims, size)) {
+    throw new InputError(`${name}: a colour distance grid of shape ${tupleText(tensors[3].dims)}, not the finest level's ${tupleText(size)}`);
+  }
+  if (!voxels.every((v, i) => v >= 0 && v < size[i % 3]) || !directions.every((d) => d < 6)) {
+    throw new InputError(`${name}: colour tiles lie outside the model's finest level`);
+  }
+  for (let i = 1; i < count; i++) { // each (voxel, direction) once, in order: keys rise
+    const key = (t) => ((voxels[3 * t] * size[1] + voxels[3 * t + 1]) * size[2] + voxels[3 * t + 2]) * 6 + directions[t];
+    if (key(i) <= key(i - 1)) throw new InputError(`${name}: colour tiles are not each once, in order of their voxel`);
+  }
+  if (Tiles.bytes(count, side, size) > MAX_TILE_BYTES) {
+    throw new InputError(`${name}: its colour tiles need more memory than a page should take`);
+  }
+  return Tiles.of(voxels, directions, images, distance, size, side);
 }
 
 /** One runnable stage: a session and its tensor names, in plane order. */
@@ -257,11 +317,13 @@ export function configure({ threads = null, wasmPaths = null } = {}) {
  * Load and check a model from its bytes (Uint8Array). Its stages run on
  * onnxruntime-web's WASM backend, on `threads` threads (configure's default
  * when null). Returns { name, manifest, projection, levels, decoderPlanes,
- * decoderHead, head, backend: 'wasm', threads }.
+ * decoderHead, head, tiles (format 5: colour.js's Tiles, else null), matcher
+ * (made by colour.js on the first coloured sample), backend: 'wasm', threads }.
  */
 export async function loadModel(bytes, { name = 'model.onnx', threads = null } = {}) {
   const { model, manifest } = readChecked(bytes, name);
   const head = readHead(model, manifest, name);
+  const tiles = manifest.tiles ? readTiles(model, manifest, name) : null;
   const setup = configure({ threads });
   const sessions = []; // released if a stage fails
   const make = async (names) => {
@@ -279,7 +341,7 @@ export async function loadModel(bytes, { name = 'model.onnx', threads = null } =
   try {
     const stages = manifest.stages;
     const loaded = {
-      name, manifest, head, backend: 'wasm', threads: setup.threads,
+      name, manifest, head, tiles, matcher: null, backend: 'wasm', threads: setup.threads,
       projection: await make(stages.projection),
       levels: [],
       decoderPlanes: await make(stages.decoder_planes),

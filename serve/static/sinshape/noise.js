@@ -2,12 +2,13 @@
 // core/noise.py, bit for bit. Every value is a pure function of
 // (seed, stream, position), computed with unsigned 64-bit wrapping arithmetic.
 // Keys (a few per sample) use BigInt; the bulk work uses 32-bit halves, which
-// is about 50 times faster than BigInt per value.
+// is about 50 times faster than BigInt per value (exported for colour.js's
+// draws, which are SplitMix64 outputs too).
 
 const MASK64 = (1n << 64n) - 1n;
 export const GOLDEN = 0x9e3779b97f4a7c15n;
-const GOLDEN_HI = 0x9e3779b9;
-const GOLDEN_LO = 0x7f4a7c15;
+export const GOLDEN_HI = 0x9e3779b9;
+export const GOLDEN_LO = 0x7f4a7c15;
 const TWO32 = 4294967296;
 const COORD_BITS = 21;
 
@@ -33,11 +34,12 @@ export function streamKey(seed, ...ids) {
 }
 
 // ---- 64-bit arithmetic on (hi, lo) pairs of uint32; results in hiOut / loOut
-let hiOut = 0;
-let loOut = 0;
+// (exported as live bindings: an importer reads them right after a call)
+export let hiOut = 0;
+export let loOut = 0;
 
 /** (ah, al) * (bh, bl) mod 2^64, with 16-bit limbs for the high half of al * bl. */
-function mul64(ah, al, bh, bl) {
+export function mul64(ah, al, bh, bl) {
   const a0 = al & 0xffff, a1 = al >>> 16, b0 = bl & 0xffff, b1 = bl >>> 16;
   const p01 = a0 * b1, p10 = a1 * b0; // < 2^32, exact
   const carry = (((a0 * b0) >>> 16) + (p01 & 0xffff) + (p10 & 0xffff)) >>> 16;
@@ -46,14 +48,14 @@ function mul64(ah, al, bh, bl) {
 }
 
 /** (ah, al) + (bh, bl) mod 2^64. */
-function add64(ah, al, bh, bl) {
+export function add64(ah, al, bh, bl) {
   const low = al + bl;
   loOut = low >>> 0;
   hiOut = (ah + bh + (low >= TWO32 ? 1 : 0)) >>> 0;
 }
 
 /** SplitMix64's finaliser on (hi, lo). */
-function mix64(hi, lo) {
+export function mix64(hi, lo) {
   lo = (lo ^ ((lo >>> 30) | (hi << 2))) >>> 0; // z ^= z >> 30
   hi = (hi ^ (hi >>> 30)) >>> 0;
   mul64(hi, lo, 0xbf58476d, 0x1ce4e5b9);

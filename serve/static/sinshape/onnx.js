@@ -8,6 +8,8 @@
 // Field numbers: onnx/onnx.proto (ModelProto, GraphProto, NodeProto, TensorProto,
 // ValueInfoProto, StringStringEntryProto).
 
+import { pyRepr } from './errors.js';
+
 export class FormatError extends Error {}
 
 const TEXT = new TextDecoder('utf-8', { fatal: false });
@@ -99,10 +101,32 @@ function floatsOf(slice) {
   return Array.from({ length: slice.byteLength >> 2 }, (_, i) => view.getFloat32(4 * i, true));
 }
 
-/** A tensor's values as float32 (FLOAT tensors only), from raw_data or float_data. */
-export function tensorFloats(tensor) {
-  if (tensor.dataType !== 1) throw new FormatError(`tensor ${tensor.name} is not float32`);
-  return Float32Array.from(tensor.data ? floatsOf(tensor.data) : tensor.floats);
+export const FLOAT = 1, UINT8 = 2, INT8 = 3, INT32 = 6; // TensorProto.DataType
+const ARRAYS = { [FLOAT]: ['float32', Float32Array], [UINT8]: ['uint8', Uint8Array], [INT8]: ['int8', Int8Array], [INT32]: ['int32', Int32Array] };
+
+/** A Python tuple's text, as messages print shapes: (3,), (2, 3). */
+export const tupleText = (dims) => `(${dims.join(', ')}${dims.length === 1 ? ',' : ''})`;
+
+/**
+ * A tensor of type `wanted` as a typed array in C order (runtime/onnxfile.py:
+ * tensor_array): float32 from raw_data or float_data, uint8 or int32 (data,
+ * not weights) from raw_data. Throws FormatError with tensor_array's words.
+ */
+export function tensorArray(tensor, wanted = FLOAT) {
+  const [typeName, Type] = ARRAYS[wanted];
+  const name = pyRepr(tensor.name);
+  if (tensor.dataType !== wanted) throw new FormatError(`weight ${name} is not ${typeName}`);
+  if (wanted !== FLOAT && !tensor.data) throw new FormatError(`weight ${name} keeps its values outside raw_data`);
+  let values;
+  if (tensor.data) {
+    if (tensor.data.byteLength % Type.BYTES_PER_ELEMENT) throw new FormatError('buffer size must be a multiple of element size');
+    values = new Type(tensor.data.byteLength / Type.BYTES_PER_ELEMENT);
+    new Uint8Array(values.buffer).set(tensor.data); // a copy, aligned (little-endian, as every browser is)
+  } else values = Float32Array.from(tensor.floats);
+  if (tensor.dims.some((d) => d >= 2 ** 40) || values.length !== tensor.dims.reduce((a, b) => a * b, 1)) {
+    throw new FormatError(`weight ${name} has ${values.length} values for shape ${tupleText(tensor.dims)}`);
+  }
+  return values;
 }
 
 function readValueInfo(bytes, f) {

@@ -1,5 +1,5 @@
 // Occupancy on a grid from a tri-plane, as runtime/query.py's dense (and a
-// coloured model's colour at points, as its colours): the
+// format-4 model's colour head at points, as its colouring): the
 // decoder's first layer is applied to each plane once (stage decoder_planes),
 // bilinear interpolation commutes with it, so a grid point costs three vector
 // adds, a ReLU and a dot product.
@@ -116,7 +116,7 @@ export function addBilinear(plane, u, v, out) {
 }
 
 /**
- * A coloured model's sRGB colour at points, as runtime/query.py's colours:
+ * A format-4 model's sRGB colour at points, as runtime/query.py's colouring:
  * coords (n, 3) in finest voxels (grid point (i, j, k) of the sample at
  * scale 1 at (i, j, k)); a point outside the tri-plane takes the colour of
  * the nearest point inside. Returns Float32Array (n, 3) in [0, 1].
@@ -131,11 +131,4 @@ export function projectedColours(model, proj, coords) {
     headColour(model.head, hidden, 0, out, 3 * i);
   }
   return out;
-}
-
-/** The colours at a sample's mesh vertices (positions in the training input's frame, as surface gives them). */
-export async function vertexColours(model, tri, positions) {
-  const { origin, spacing } = model.manifest;
-  const coords = Float64Array.from(positions, (p, i) => (p - origin[i % 3]) / spacing[i % 3]);
-  return projectedColours(model, await project(model, tri), coords);
 }

@@ -9,7 +9,7 @@
 //   const grid = await sinshape.dense(model, tri, 2);    // { data: Float32Array (X, Y, Z), shape }
 //   const mesh = sinshape.surface(grid, tri.size, model.manifest);   // { positions, faces }
 //   sinshape.smooth(mesh, 3);                            // Laplacian steps, as --smooth
-//   const rgb = await sinshape.vertexColours(model, tri, mesh.positions);  // a coloured model's sRGB at the vertices
+//   const rgb = await sinshape.vertexColours(model, tri, mesh.positions, 1 / 2);  // a coloured model's sRGB at the vertices (footprint 1 / scale)
 //   const edited = await sinshape.compose(model, 7, [{ seed: 3, low: [0, 0, 0], high: [30, 36, 31] }]);  // as runtime.compose
 //   const laid = await sinshape.layout(model, 3);                        // { grid, shape }: level 0's layout, as runtime.layout.layout
 //   const fitted = await sinshape.fromLayout(model, 3, laid.grid, laid.shape);  // as runtime.layout.from_layout
@@ -22,6 +22,7 @@ export { compose, grow, parsePart } from './edit.js';
 export { Layout, make, makeTile, sampleRequest } from './request.js';
 export { tileColours, tileCorner, tileMesh, tileOccupancy, windowSeed, worldLayout } from './world.js';
 export { normal, streamKey } from './noise.js';
-export { dense, gridShape, project, projectedColours, projectedDense, vertexColours } from './query.js';
+export { dense, gridShape, project, projectedColours, projectedDense } from './query.js';
+export { colouring, colours, vertexColours } from './colour.js';
 export { fromLayout, layout } from './layout.js';
 export { marchingCubes, massProperties, smooth, surface } from './mesh.js';

@@ -1,0 +1,609 @@
+"""A sample's colour: read from the example by correspondence (format 5), or
+from the decoder's colour head (format 4).
+
+The generator makes a sample from the example's own features, so a voxel of
+a sample whose features look like those of a voxel of the example's
+reconstruction copies that part of the example. Its colour is read there,
+from the example's colour tiles (prep/appearance.py, docs/FORMAT.md), at
+the example's own detail: no colour is made up, so a sample has no hue its
+example lacks, and a brick wall's mortar lines stay as sharp as its
+texture's, whatever the voxel grid.
+
+Matching is PatchMatch (Barnes et al. 2009) on the voxel grid. Each voxel u
+of the sample's surface band gets the example voxel J(u) whose patch of
+hidden sums (the decoder's first layer, at a voxel and its six neighbours)
+is nearest in squared distance. Voxels picked by their content (about one
+in SEED_RATE) search the whole example; the rest start at random and, in
+ITERATIONS rounds, take a neighbour's match shifted by the step between
+them when it is nearer (so matches grow into large coherent pieces of the
+example), or a random voxel near their own match. A point p then stands for
+q = J(u) + (p - u), u = round(p), and reads the tile of q's voxel: within a
+voxel, the example's texture at full resolution.
+
+The same sample matches the same way everywhere: hidden sums are compared
+as integers (steps of 1/QUANTUM), whose squared distances are exact in
+float64 in any order, and every random choice is drawn from the specified
+noise (core/noise.py) keyed by the voxel's own content, not its place, so a
+part of a sample that another sample shares (a kept box, a world tile's
+neighbourhood) matches alike there. The browser's runtime repeats it
+(serve/static/sinshape/colour.js).
+"""
+
+import itertools
+from dataclasses import dataclass
+
+import numpy as np
+
+from sinshape.core import noise
+from sinshape.core.budget import check_memory
+
+from . import generate, query
+
+# The patch: a voxel and its six neighbours.
+PATCH = np.array([(0, 0, 0), (1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1), (0, 0, -1)])
+QUANTUM = 256  # hidden sums are compared in steps of 1/QUANTUM
+KEY_VALUES, KEY_QUANTUM = 8, 4  # a voxel's random choices are keyed by its first 8 hidden sums in steps of 1/4
+ITERATIONS = 6
+PROPAGATION = (1, 2, 4, 8)  # neighbours this many voxels away along each axis offer their match
+SEARCH = (8, 4, 2, 1)  # random candidates within this many voxels of the current match
+SEED_RATE = 64  # about one voxel in this many searches the whole example
+# A neighbour's match continued (the same piece of the example, shifted by
+# the step) is weighed at this share of its distance: pieces stay whole
+# unless another place fits clearly better (Ashikhmin 2001's coherence).
+COHERENT = 0.8
+MATCH_STREAM = 2  # core/noise's stream id of the matching's random choices (0 and 1 are the generator's)
+DISTANCE_STEP = 1 / 63.5  # voxels per unit of the signed distance grid (prep/appearance.py)
+PROJECTIONS = 2  # Newton steps that take a point to the example's surface
+DEPTH_RANGE = 0.5  # a tile's depth byte spans this many voxels either side of its centre (prep/appearance.py)
+# A point reads the tiles of each direction of its own voxel and of those
+# along the tile's axis, this many voxels away: the surface nearest it wins,
+# a tile counted TURN voxels farther for each unit its axis turns from the
+# example's normal there (1 - cosine): near the surface the nearest surface
+# decides, farther off the normal does, so that the choice does not flicker.
+REACH_ORDER = (0, -1, 1)
+TURN = 0.25
+ACROSS = np.array([(1, 2), (0, 2), (0, 1)])  # a tile's rows and columns run along these axes, by its axis
+
+
+@dataclass(frozen=True)
+class Tiles:
+    """The example's colour as the runtime reads it: directional tiles of its
+    surface voxels (prep/appearance.py), and for every voxel near the surface
+    the tile of each direction it reads."""
+
+    voxels: np.ndarray  # (N, 3) int64: the voxel of each tile
+    directions: np.ndarray  # (N,) int64: 2 * axis + (1 looking from +, else 0)
+    mips: list  # RGB [(N, T, T, 3) uint8, (N, T/2, T/2, 3), ..., (N, 1, 1, 3)]
+    depth: np.ndarray  # (N, T, T) uint8: where the surface is along the tile's axis, 0..255 for -0.5..0.5 voxel
+    slopes: np.ndarray  # (N, 2) float64: the surface's mean slope across the tile (depth per voxel along its rows, columns)
+    along: np.ndarray  # (X, Y, Z, 6) int32: per voxel and direction, the tile it reads (-1: none)
+    own: np.ndarray  # (X, Y, Z, 6) int32: per voxel and direction, its own tile (-1: none)
+    distance: np.ndarray  # (X, Y, Z) float32: signed distance to the example's surface at voxel centres, voxels
+
+    @classmethod
+    def of(cls, voxels: np.ndarray, directions: np.ndarray, images: np.ndarray, distance: np.ndarray) -> "Tiles":
+        voxels, directions = voxels.astype(np.int64), directions.astype(np.int64)
+        depth = np.ascontiguousarray(images[..., 3])
+        size = distance.shape
+        own = np.full((*size, 6), -1, np.int32)
+        own[voxels[:, 0], voxels[:, 1], voxels[:, 2], directions] = np.arange(len(voxels), dtype=np.int32)
+        return cls(voxels, directions, mip_levels(np.ascontiguousarray(images[..., :3])), depth, slopes(depth),
+                   reads_along(own), own, distance.astype(np.float32) * np.float32(DISTANCE_STEP))
+
+    @staticmethod
+    def bytes(count: int, side: int, size) -> int:
+        """Memory of `count` tiles of `side` read for a finest level of `size`."""
+        return count * side * side * 5 + int(np.prod(size)) * (12 * 4 + 4)
+
+    def band(self) -> np.ndarray:
+        """The voxels (m, 3) where a match may land: every voxel with a tile to read."""
+        return np.argwhere((self.along >= 0).any(axis=3))
+
+    def own_tiles(self, voxels: np.ndarray, directions: np.ndarray) -> np.ndarray:
+        """Each (n, 3) voxel's own tile of its direction (n,), -1 for none (outside the grid: none)."""
+        size = np.array(self.along.shape[:3])
+        inside = np.all((voxels >= 0) & (voxels < size), axis=1)
+        out = np.full(len(voxels), -1, np.int64)
+        index = voxels[inside]
+        out[inside] = self.own[index[:, 0], index[:, 1], index[:, 2], directions[inside]]
+        return out
+
+    def read(self, voxels: np.ndarray) -> np.ndarray:
+        """The tiles (n, 6) each (n, 3) voxel reads, -1 for none (outside the grid: none)."""
+        size = np.array(self.along.shape[:3])
+        inside = np.all((voxels >= 0) & (voxels < size), axis=1)
+        out = np.full((len(voxels), 6), -1, np.int64)
+        out[inside] = self.along[tuple(voxels[inside].T)]
+        return out
+
+
+def reads_along(own: np.ndarray) -> np.ndarray:
+    """Per voxel and direction (axis a, side s), the tile of that direction
+    of the voxel itself, else of the nearest voxel along a that has one, up
+    to two away, the side the tile looks from first (a point above a floor
+    reads the floor below it): its in-plane position in that tile is its
+    own. (X, Y, Z, 6) int32."""
+    size = own.shape[:3]
+    along = own.copy()
+    for direction in range(6):
+        axis, positive = divmod(direction, 2)
+        for step in ((-1, 1, -2, 2) if positive else (1, -1, 2, -2)):  # the side it looks from first
+            reach = abs(step)
+            if reach >= size[axis]:
+                continue
+            src, dst = [slice(None)] * 3, [slice(None)] * 3
+            if step < 0:  # the voxel `reach` below along the axis
+                src[axis], dst[axis] = slice(0, -reach), slice(reach, None)
+            else:
+                src[axis], dst[axis] = slice(reach, None), slice(0, -reach)
+            shifted = np.full(size, -1, np.int32)
+            shifted[tuple(dst)] = own[(*src, direction)]
+            take = (along[..., direction] < 0) & (shifted >= 0)
+            along[..., direction][take] = shifted[take]
+    return along
+
+
+def slopes(depth: np.ndarray) -> np.ndarray:
+    """The least-squares slope of each tile's depth across it, (N, T, T)
+    uint8 -> (N, 2) float64 voxels of depth per voxel along rows and columns:
+    sums of integers (exact in any order) over a fixed denominator."""
+    side = depth.shape[1]
+    centred = 2 * np.arange(side) - (side - 1)  # texel centres, in half texels from the tile's middle
+    # slope = sum(x (h - mean)) / sum(x^2), x = centred / (2 side) voxels, h = value * DEPTH_RANGE / 127.5 - DEPTH_RANGE
+    scale = 127.5 * float(np.sum(centred * centred)) / (2 * DEPTH_RANGE)
+    values = depth.astype(np.int64)
+    rows = np.einsum("ntc,t->n", values, centred)
+    columns = np.einsum("ntc,c->n", values, centred)
+    return np.stack([rows, columns], axis=1) / scale
+
+
+def mip_levels(images: np.ndarray) -> list:
+    """Box-filtered halvings of (N, T, T, 3) uint8 tiles down to 1 x 1, each
+    texel the rounded mean of four (integers: the same in every runtime)."""
+    levels = [images]
+    while levels[-1].shape[1] > 1:
+        t = levels[-1].astype(np.uint16)
+        total = t[:, 0::2, 0::2] + t[:, 1::2, 0::2] + t[:, 0::2, 1::2] + t[:, 1::2, 1::2]
+        levels.append(((total + 2) // 4).astype(np.uint8))
+    return levels
+
+
+def grid_hidden(model, planes: list, size):
+    """Hidden pre-activations (b1 added) at the grid points of scale 1 of
+    projected planes (query.project) spanning `size`, as a function of
+    (n, 3) int voxels -> (n, D) float32, clamped to the grid: the three
+    plane cells summed in float32, ((xy + xz) + yz) + b1."""
+    xy, xz, yz = planes
+    top = np.array(size) - 1
+    bias = model.head.bias1
+
+    def at(voxels: np.ndarray) -> np.ndarray:
+        i, j, k = np.clip(voxels, 0, top).T
+        return xy[i, j] + xz[i, k] + yz[j, k] + bias
+    return at
+
+
+def inside(model, hidden: np.ndarray) -> np.ndarray:
+    """Where hidden sums (n, D) (b1 added) are inside the shape: the head's
+    logit sum_c relu(h_c) w2_c + b2 > 0, summed in float32 in the order of
+    c (no matrix product, whose rounding depends on the machine), so that
+    every runtime draws the same band."""
+    logit = np.full(len(hidden), np.float32(model.head.bias2), np.float32)
+    active = np.maximum(hidden, 0)
+    for c, weight in enumerate(model.head.weight2):
+        logit += active[:, c] * weight
+    return logit > 0
+
+
+def surface_band(model, hidden_at, size) -> np.ndarray:
+    """The voxels (n, 3) of a grid of scale 1 within one voxel of a change
+    between inside and outside along an axis (beyond the grid is outside):
+    where a mesh's vertices round to."""
+    size = tuple(int(n) for n in size)
+    solid = np.empty(size, bool)
+    rows = max(1, (1 << 18) // (size[1] * size[2]))
+    j, k = np.meshgrid(np.arange(size[1]), np.arange(size[2]), indexing="ij")
+    for x0 in range(0, size[0], rows):
+        x = np.arange(x0, min(x0 + rows, size[0]))
+        voxels = np.stack(np.broadcast_arrays(x[:, None, None], j[None], k[None]), axis=-1).reshape(-1, 3)
+        solid[x0:x0 + len(x)] = inside(model, hidden_at(voxels)).reshape(len(x), *size[1:])
+    solid = np.pad(solid, 1)  # outside the grid is empty: a mesh closes there
+    change = np.zeros(solid.shape, bool)
+    for axis in range(3):
+        a, b = [slice(None)] * 3, [slice(None)] * 3
+        a[axis], b[axis] = slice(0, -1), slice(1, None)
+        differs = solid[tuple(a)] != solid[tuple(b)]
+        change[tuple(a)] |= differs
+        change[tuple(b)] |= differs
+    change = change[1:-1, 1:-1, 1:-1]
+    band = change.copy()
+    for axis in range(3):  # grown by one voxel along each axis
+        a, b = [slice(None)] * 3, [slice(None)] * 3
+        a[axis], b[axis] = slice(0, -1), slice(1, None)
+        band[tuple(a)] |= change[tuple(b)]
+        band[tuple(b)] |= change[tuple(a)]
+    return np.argwhere(band)
+
+
+def patches(hidden_at, voxels: np.ndarray) -> np.ndarray:
+    """The patch of each voxel, (n, 3) -> (n, 7 * D) float32: hidden sums
+    rounded to steps of 1/QUANTUM and held as integers (|values| < 2^24),
+    so squared distances are integers below 2^53, exact in float64 in any
+    order of summation (a matrix product included)."""
+    return np.concatenate([np.rint(hidden_at(voxels + offset) * np.float32(QUANTUM)) for offset in PATCH], axis=1)
+
+
+def content_keys(hidden: np.ndarray) -> np.ndarray:
+    """A key per voxel from its own hidden sums (n, D): the random choices
+    made for a voxel follow what is there, not where. Its first KEY_VALUES
+    sums rounded coarsely (steps of 1/KEY_QUANTUM): two runtimes whose
+    floats differ in the last bits give a voxel the same key but where a
+    value lies within that difference of a step's edge. uint64."""
+    key = np.full(len(hidden), noise.stream_key(0, MATCH_STREAM), np.uint64)
+    values = np.rint(hidden[:, :KEY_VALUES] * np.float32(KEY_QUANTUM)).astype(np.int64)
+    with np.errstate(over="ignore"):
+        for value in values.T:
+            key = noise.mix64(key + np.uint64(noise.GOLDEN) * (value.astype(np.uint64) + np.uint64(1)))
+    return key
+
+
+def draw(keys: np.ndarray, slot: int) -> np.ndarray:
+    """The random bits of draw `slot` for each voxel's key: SplitMix64's
+    output number key + 1 from state `slot` (core/noise.bits). uint64."""
+    return noise.bits(slot, keys)
+
+
+def squared_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise squared distances of patches (n, K) of integers held in
+    float32: the differences are exact in float32, their squares and sums
+    exact in float64."""
+    diff = a - b
+    return np.einsum("nk,nk->n", diff, diff, dtype=np.float64)
+
+
+class Matcher:
+    """The example's side of matching: the voxels a match may land in (every
+    voxel with tiles to read) and the reconstruction's patch at each."""
+
+    def __init__(self, tiles: Tiles, reference_at):
+        self.band = tiles.band()  # (B, 3)
+        self.row = np.full(tiles.along.shape[:3], -1, np.int64)
+        self.row[tuple(self.band.T)] = np.arange(len(self.band))
+        self.reference = patches(reference_at, self.band)  # (B, K)
+        reference = self.reference.astype(np.float64)
+        self.norms = np.einsum("mk,mk->m", reference, reference)
+
+    def rows(self, voxels: np.ndarray) -> np.ndarray:
+        """The band row of each (n, 3) example voxel, -1 outside the band."""
+        size = np.array(self.row.shape)
+        inside = np.all((voxels >= 0) & (voxels < size), axis=1)
+        out = np.full(len(voxels), -1, np.int64)
+        out[inside] = self.row[tuple(voxels[inside].T)]
+        return out
+
+    def distance(self, sample: np.ndarray, candidates: np.ndarray) -> np.ndarray:
+        """Patch distances of sample patches (n, K) to candidate example voxels
+        (n, 3); infinite where a candidate is outside the band."""
+        row = self.rows(candidates)
+        d = squared_distances(sample, self.reference[np.maximum(row, 0)])
+        d[row < 0] = np.inf
+        return d
+
+    def nearest(self, sample: np.ndarray, chunk: int = 256) -> np.ndarray:
+        """The nearest band voxel of each patch (n, K) of all: (n, 3), the
+        first of equals. |s - r|^2 - |s|^2 = |r|^2 - 2 s.r, exact integers."""
+        out = np.empty(len(sample), np.int64)
+        reference = self.reference.astype(np.float64)
+        for start in range(0, len(sample), chunk):
+            block = sample[start:start + chunk].astype(np.float64)
+            out[start:start + chunk] = np.argmin(self.norms[None, :] - 2 * (block @ reference.T), axis=1)
+        return self.band[out]
+
+    def match(self, sample_at, voxels: np.ndarray) -> np.ndarray:
+        """The example voxel J(u) of each voxel u (n, 3) of a sample's band,
+        whose hidden sums `sample_at` gives: (n, 3) int64."""
+        check_memory(len(voxels) * self.reference.shape[1] * 16 + len(self.band) * 8 * 64,
+                     f"matching {len(voxels)} voxels to the example")
+        sample = patches(sample_at, voxels)
+        keys = content_keys(sample_at(voxels))
+        band, count = self.band, len(self.band)
+        lookup = voxel_lookup(voxels)
+        current = band[(draw(keys, 0) % np.uint64(count)).astype(np.int64)]
+        seeds = np.flatnonzero(draw(keys, 1) % np.uint64(SEED_RATE) == 0)
+        if len(seeds):
+            current[seeds] = self.nearest(sample[seeds])
+        best = self.distance(sample, current)
+        changed = np.ones(len(voxels), bool)  # whose match changed last round: only their offers are new
+        everyone = np.ones(len(voxels), bool)
+        slot = 2
+        for _ in range(ITERATIONS):
+            previous = current.copy()
+            candidates = []
+            for step in PROPAGATION:
+                for axis in range(3):
+                    for sign in (1, -1):
+                        shift = np.zeros(3, np.int64)
+                        shift[axis] = sign * step
+                        neighbour = lookup(voxels - shift)
+                        offered = previous[np.maximum(neighbour, 0)] + shift
+                        candidates.append((offered, (neighbour >= 0) & changed[np.maximum(neighbour, 0)]))
+            offers = len(candidates)
+            for radius in SEARCH:
+                bits = draw(keys, slot)
+                slot += 1
+                offsets = np.stack([((bits >> np.uint64(16 * a)) & np.uint64(0xFFFF)).astype(np.int64)
+                                    % (2 * radius + 1) for a in range(3)], axis=1) - radius
+                candidates.append((previous + offsets, everyone))
+            candidates.append((band[(draw(keys, slot) % np.uint64(count)).astype(np.int64)], everyone))
+            slot += 1
+            for index, (candidate, offered) in enumerate(candidates):  # in this order: the first of equals stays
+                new = np.flatnonzero(offered & np.any(candidate != current, axis=1))  # the current one is known
+                d = self.distance(sample[new], candidate[new])
+                if index < offers:  # a neighbour's match continued: the same piece of the example
+                    d = d * COHERENT
+                won = d < best[new]
+                current[new[won]], best[new[won]] = candidate[new[won]], d[won]
+            changed = np.any(current != previous, axis=1)
+        return current
+
+
+def voxel_lookup(voxels: np.ndarray):
+    """A function from (n, 3) voxels to their row in `voxels`, -1 where absent."""
+    low = voxels.min(axis=0) if len(voxels) else np.zeros(3, np.int64)
+    size = (voxels.max(axis=0) - low + 1) if len(voxels) else np.ones(3, np.int64)
+    table = np.full(tuple(size), -1, np.int64)
+    table[tuple((voxels - low).T)] = np.arange(len(voxels))
+
+    def lookup(query_voxels: np.ndarray) -> np.ndarray:
+        local = query_voxels - low
+        inside = np.all((local >= 0) & (local < size), axis=1)
+        out = np.full(len(query_voxels), -1, np.int64)
+        out[inside] = table[tuple(local[inside].T)]
+        return out
+    return lookup
+
+
+def matcher(model) -> Matcher:
+    """The model's matcher, made once: the reconstruction's patches at every
+    voxel of the example's band."""
+    if model.matcher is None:
+        recon = generate.sample(model, None)
+        model.matcher = Matcher(model.tiles, grid_hidden(model, query.project(model, recon).planes, recon.size))
+    return model.matcher
+
+
+# A voxel outside the band takes the match of the first voxel beside it that
+# has one, in this order, shifted by the step: the band's matches carried
+# outwards (and inwards) one voxel a round.
+STEPS = np.array([(-1, 0, 0), (1, 0, 0), (0, -1, 0), (0, 1, 0), (0, 0, -1), (0, 0, 1)])
+
+
+class Correspondence:
+    """J of one sample: its surface band matched to the example as a whole,
+    and the rest of its grid, when asked for, from the band outwards."""
+
+    def __init__(self, model, planes: list, size):
+        self.size = np.array(size)
+        example = matcher(model)
+        hidden = grid_hidden(model, planes, size)
+        self.band = surface_band(model, hidden, size)
+        self.matched = example.match(hidden, self.band) if len(self.band) else np.zeros((0, 3), np.int64)
+        self.lookup = voxel_lookup(self.band)
+        self.field = None
+
+    def __call__(self, voxels: np.ndarray) -> np.ndarray:
+        """The example voxel of each (n, 3) voxel of the sample's grid."""
+        voxels = np.clip(voxels, 0, self.size - 1)
+        row = self.lookup(voxels)
+        if np.all(row >= 0):
+            return self.matched[row]
+        if self.field is None:
+            self.field = self.spread()
+        return self.field[tuple(voxels.T)]
+
+    def spread(self) -> np.ndarray:
+        """J on every voxel of the grid: (X, Y, Z, 3) int64 (the band's own,
+        or carried from it; all zeros if the sample has no surface)."""
+        check_memory(int(np.prod(self.size)) * 8 * 8, f"matching a {'x'.join(map(str, self.size))} grid")
+        field = np.zeros((*self.size, 3), np.int64)
+        known = np.zeros(tuple(self.size), bool)
+        field[tuple(self.band.T)] = self.matched
+        known[tuple(self.band.T)] = True
+        while len(self.band) and not known.all():
+            before = known.copy()
+            for step in STEPS:
+                axis = int(np.flatnonzero(step)[0])
+                src, dst = [slice(None)] * 3, [slice(None)] * 3
+                if step[axis] < 0:  # take from the voxel before along the axis
+                    src[axis], dst[axis] = slice(0, -1), slice(1, None)
+                else:
+                    src[axis], dst[axis] = slice(1, None), slice(0, -1)
+                take = ~known[tuple(dst)] & before[tuple(src)]
+                field[tuple(dst)][take] = field[tuple(src)][take] - step
+                known[tuple(dst)] |= take
+        return field
+
+
+def read_colours(tiles: Tiles, matched, points: np.ndarray, grid, footprint: float | None = None) -> np.ndarray:
+    """The colour at points (n, 3) (sample model units) of a sample whose
+    voxels `matched` maps to example voxels: (n, 3) float32 sRGB. `grid`:
+    the sample's size; a point beyond its last voxel (a mesh closes half a
+    voxel outside) belongs to that voxel.
+
+    Point p in voxel u = round(p) stands for q = J(u) + (p - u) in the
+    example, near its surface but rarely on it. It reads, of the tiles of
+    its voxel and of those beside it along each tile's axis, the one whose
+    surface is nearest q (REACH_ORDER, TURN), at that surface's point
+    nearest q. `footprint`: the length a colour stands for (voxels), e.g.
+    a vertex's spacing: its mip level averages the texture over it (None:
+    full detail)."""
+    # Halves up, as in every runtime (numpy's rint rounds them to even).
+    u = np.clip(np.floor(points + 0.5).astype(np.int64), 0, np.asarray(grid) - 1)
+    q = matched(u) + (points - u)
+    _, normal = trilinear(tiles.distance, q)
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
+    voxel = np.clip(np.floor(q + 0.5).astype(np.int64), 0, np.array(tiles.distance.shape) - 1)
+    rows = np.arange(len(points))
+    best = np.full(len(points), np.inf)
+    tile = np.zeros(len(points), np.int64)
+    across = np.zeros((len(points), 2))
+    for direction, reach in itertools.product(range(6), REACH_ORDER):
+        axis, positive = divmod(direction, 2)
+        step = np.zeros(3, np.int64)
+        step[axis] = reach
+        candidate = tiles.own_tiles(voxel + step, np.full(len(points), direction))
+        has = candidate >= 0
+        candidate = np.maximum(candidate, 0)
+        local = q - tiles.voxels[candidate]
+        plane = local[:, ACROSS[axis]]
+        # The tile's surface under q as a plane of its slope through its
+        # depth there: q's distance to it, and its nearest point, along its
+        # normal (so that tiles of two axes agree where they overlap).
+        slope = tiles.slopes[candidate]
+        lean = 1 + np.einsum("nc,nc->n", slope, slope)
+        above = (local[:, axis] - bilinear_depth(tiles.depth, candidate, plane)) / lean
+        facing = normal[:, axis] * (1 if positive else -1)
+        score = np.abs(above) * np.sqrt(lean) + TURN * (1 - facing)
+        better = has & (score < best)
+        best[better], tile[better] = score[better], candidate[better]
+        across[better] = (plane + above[:, None] * slope)[better]
+    tile, across = across_tiles(tiles, tile, across)
+    side = tiles.depth.shape[1]
+    level = 0
+    if footprint is not None and footprint > 0:
+        level = int(np.clip(np.round(np.log2(footprint * side)), 0, len(tiles.mips) - 1))
+    images = tiles.mips[level]
+    n = images.shape[1]
+    return bilinear_tiles(images, tile, (across[:, 0] + 0.5) * n - 0.5, (across[:, 1] + 0.5) * n - 0.5)
+
+
+def to_surface(distance: np.ndarray, points: np.ndarray) -> tuple:
+    """Points (n, 3) moved to where the signed distance grid (X, Y, Z) is
+    zero, by PROJECTIONS Newton steps along its gradient (trilinear, voxel
+    centres at integers): ((n, 3) float64, the gradient there (n, 3): the
+    surface's outward normal, unnormalised)."""
+    for _ in range(PROJECTIONS):
+        value, gradient = trilinear(distance, points)
+        length = np.einsum("nc,nc->n", gradient, gradient)
+        points = points - np.where(length > 1e-12, value / np.maximum(length, 1e-12), 0)[:, None] * gradient
+    return points, trilinear(distance, points)[1]
+
+
+def trilinear(grid: np.ndarray, points: np.ndarray) -> tuple:
+    """A grid (X, Y, Z) at points (n, 3), clamped to it, and its gradient:
+    ((n,), (n, 3)) float64."""
+    size = np.array(grid.shape)
+    p = np.clip(points, 0, size - 1)
+    low = np.minimum(np.floor(p).astype(np.int64), np.maximum(size - 2, 0))
+    f = p - low
+    high = np.minimum(low + 1, size - 1)
+    value = np.zeros(len(points))
+    gradient = np.zeros((len(points), 3))
+    for corner in itertools.product((0, 1), repeat=3):
+        index = tuple(np.where(corner[a], high[:, a], low[:, a]) for a in range(3))
+        v = grid[index].astype(np.float64)
+        w = [np.where(corner[a], f[:, a], 1 - f[:, a]) for a in range(3)]
+        value += v * w[0] * w[1] * w[2]
+        for a in range(3):
+            dw = [w[b] if b != a else np.where(corner[a], 1.0, -1.0) for b in range(3)]
+            gradient[:, a] += v * dw[0] * dw[1] * dw[2]
+    return value, gradient
+
+
+def across_tiles(tiles: Tiles, tile: np.ndarray, across: np.ndarray) -> tuple:
+    """Where a place on a tile's plane (n, 2) lies beyond the tile's own
+    voxel, the tile of the same direction of the voxel it lies in (its own
+    voxel's, or one along the axis): a direction's tiles read as one
+    surface, with no seam at voxels' edges. (tile (n,), across (n, 2))."""
+    outside = np.flatnonzero(np.any(np.abs(across) > 0.5, axis=1))
+    if not len(outside):
+        return tile, across
+    axis = tiles.directions[tile[outside]] // 2
+    centre = tiles.voxels[tile[outside]]
+    inplane = np.stack([centre[np.arange(len(outside)), ACROSS[axis, 0]],
+                        centre[np.arange(len(outside)), ACROSS[axis, 1]]], axis=1)
+    spot = inplane + across[outside]
+    step = np.floor(spot + 0.5).astype(np.int64) - inplane
+    neighbour = centre.copy()
+    for k in range(2):
+        neighbour[np.arange(len(outside)), ACROSS[axis, k]] += step[:, k]
+    found = tiles.read(neighbour)[np.arange(len(outside)), tiles.directions[tile[outside]]]
+    moved = found >= 0
+    tile, across = tile.copy(), across.copy()
+    tile[outside[moved]] = found[moved]
+    across[outside[moved]] = (across[outside] - step)[moved]
+    return tile, across
+
+
+def bilinear_depth(depth: np.ndarray, tile: np.ndarray, plane: np.ndarray) -> np.ndarray:
+    """Tiles' depth (N, T, T) uint8 at in-plane points (n, 2) of [-0.5, 0.5]^2, in voxels (float64)."""
+    side = depth.shape[1]
+    x, y = ((plane + 0.5) * side - 0.5).T
+    return bilinear_tiles(depth[..., None], tile, x, y)[:, 0].astype(np.float64) * (2 * DEPTH_RANGE) - DEPTH_RANGE
+
+
+def bilinear_tiles(images: np.ndarray, tile: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Bilinear lookup in tiles (N, T, T, 3) uint8 at texel coordinates x (rows), y (columns), clamped."""
+    n = images.shape[1]
+    x = np.clip(x, 0, n - 1).astype(np.float32)
+    y = np.clip(y, 0, n - 1).astype(np.float32)
+    x0 = np.minimum(np.floor(x).astype(np.int64), max(n - 2, 0))
+    y0 = np.minimum(np.floor(y).astype(np.int64), max(n - 2, 0))
+    x1, y1 = np.minimum(x0 + 1, n - 1), np.minimum(y0 + 1, n - 1)
+    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+    top = images[tile, x0, y0] * (1 - fy) + images[tile, x0, y1] * fy
+    bottom = images[tile, x1, y0] * (1 - fy) + images[tile, x1, y1] * fy
+    return ((top * (1 - fx) + bottom * fx) / np.float32(255)).astype(np.float32)
+
+
+def colouring(model, triplane, chunk: int = 1 << 16):
+    """A coloured model's colour of one sample as a function of points:
+    (n, 3) model coordinates -> (n, 3) float32 sRGB, with an optional
+    footprint (the length in voxels a colour stands for). A format-5 model
+    matches the sample once; a format-4 model reads its colour head."""
+    if model.tiles is None:
+        head = query.colouring(model, triplane, chunk)
+        return lambda points, footprint=None: head(points)
+    matched = Correspondence(model, query.project(model, triplane).planes, triplane.size)
+    grid = np.array(triplane.size)
+
+    def colour(points, footprint=None) -> np.ndarray:
+        points = query.point_array(points)
+        out = np.empty((len(points), 3), np.float32)
+        for start in range(0, len(points), chunk):
+            out[start:start + chunk] = read_colours(model.tiles, matched, points[start:start + chunk], grid, footprint)
+        return out
+    return colour
+
+
+def colours(model, triplane, coords, footprint: float | None = None) -> np.ndarray:
+    """A coloured model's sRGB colour at arbitrary points of a sample (model
+    coordinates, as `query.points`): (n, 3) float32 in [0, 1]."""
+    return colouring(model, triplane)(coords, footprint)
+
+
+def surface_painter(model, triplane, vertices: np.ndarray, faces: np.ndarray):
+    """A format-5 sample's colour on its own mesh (vertices in model
+    coordinates), as a function of (face (n,), barycentric weights (n, 3))
+    -> (n, 3) sRGB at full detail: what a picture asks of each pixel
+    (render.PAINT), so that it shows the texture, not the vertex colours."""
+    read = colouring(model, triplane)
+    corners = np.asarray(vertices, np.float64)[np.asarray(faces)]
+    return lambda face, weights: read(np.einsum("nk,nkc->nc", weights, corners[face]))
+
+
+def dense_grids(model, triplane, scale: float = 1.0) -> dict:
+    """What an .npz sample holds: {"occupancy"} on a grid `scale` times
+    finer, and a coloured model's {"colour"} there, (X, Y, Z, 3) uint8 sRGB,
+    each point's colour around it (1 / scale voxels)."""
+    occupancy = query.dense(model, triplane, scale)
+    if not model.manifest.colour:
+        return {"occupancy": occupancy}
+    if model.tiles is None:
+        return {"occupancy": occupancy, "colour": query.dense(model, triplane, scale, colour=True)[1]}
+    check_memory(occupancy.size * 3 * 8, f"the colours of a {'x'.join(map(str, occupancy.shape))} grid")
+    steps = [(np.array(triplane.size[a]) - 1) / max(occupancy.shape[a] - 1, 1) for a in range(3)]
+    points = np.stack(np.meshgrid(*(np.arange(n) * step for n, step in zip(occupancy.shape, steps)), indexing="ij"),
+                      axis=-1).reshape(-1, 3)
+    rgb = colouring(model, triplane)(points, 1 / scale)
+    return {"occupancy": occupancy, "colour": np.round(rgb * 255).astype(np.uint8).reshape(*occupancy.shape, 3)}

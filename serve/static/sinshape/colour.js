@@ -1,0 +1,708 @@
+// A sample's colour, as runtime/colour.py: read from the example by
+// correspondence (format 5), or from the decoder's colour head (format 4).
+//
+// A voxel of the sample's surface band is matched to the example voxel J(u)
+// whose patch of hidden sums is nearest (PatchMatch, seeded and randomised by
+// the voxel's own content), and a point p reads the example's colour tile at
+// J(u) + (p - u), u = round(p). Each function below is its Python namesake's
+// mirror, step for step, so that a sample has the same colours here as in
+// Python:
+// - hidden sums, logits and tile coordinates are float32 where Python's are
+//   (Math.fround after every operation numpy does in float32), the bilinear
+//   blend float64 where numpy's is;
+// - patches are integers (numpy's rint: halves to even), so distances are
+//   exact in any order of summation;
+// - every random choice is SplitMix64's output (noise.js's 32-bit halves),
+//   reduced modulo a count exactly (uint64 % count, 16 bits at a time);
+// - candidates are tried in Python's order and only a strictly nearer one
+//   replaces a match, so ties keep the first.
+// Arrays are flat typed arrays in C order: voxels Int32Array (n, 3), hidden
+// sums Float32Array (n, D), patches Float32Array (n, 7 D).
+import { InputError } from './errors.js';
+import { roundHalfEven, sample } from './generate.js';
+import { GOLDEN_HI, GOLDEN_LO, add64, hiOut, loOut, mix64, mul64, streamKey } from './noise.js';
+import { project, projectedColours } from './query.js';
+
+// The patch: a voxel and its six neighbours.
+export const PATCH = [[0, 0, 0], [1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]];
+export const QUANTUM = 256; // hidden sums are compared in steps of 1/QUANTUM
+export const KEY_VALUES = 8, KEY_QUANTUM = 4; // a voxel's random choices are keyed by its first 8 hidden sums in steps of 1/4
+export const ITERATIONS = 6;
+export const PROPAGATION = [1, 2, 4, 8]; // neighbours this many voxels away along each axis offer their match
+export const SEARCH = [8, 4, 2, 1]; // random candidates within this many voxels of the current match
+export const SEED_RATE = 64; // about one voxel in this many searches the whole example
+export const COHERENT = 0.8; // a neighbour's match continued is weighed at this share of its distance
+export const MATCH_STREAM = 2; // noise.js's stream id of the matching's random choices
+export const DEPTH_RANGE = 0.5; // a tile's depth byte spans this many voxels either side of its centre
+export const DISTANCE_STEP = 1 / 63.5; // voxels per unit of the signed distance grid
+// A point reads the tiles of each direction of its voxel and of those this many voxels away along the tile's
+// axis: the surface nearest it wins, a tile counted TURN voxels farther per unit its axis turns from the normal.
+export const REACH_ORDER = [0, -1, 1];
+export const TURN = 0.25;
+export const ACROSS = [[1, 2], [0, 2], [0, 1]]; // a tile's rows and columns run along these axes, by its axis
+// reads_along: the voxels along a tile's axis whose tile a voxel without its own reads, by the side it looks from.
+export const ALONG = { positive: [-1, 1, -2, 2], negative: [1, -1, 2, -2] };
+// A voxel outside the band takes the match of the first voxel beside it that has one, in this order.
+export const STEPS = [[-1, 0, 0], [1, 0, 0], [0, -1, 0], [0, 1, 0], [0, 0, -1], [0, 0, 1]];
+
+const MAX_BYTES = 2 * 2 ** 30; // a browser tab's share: matching and its grids stay well under it
+const f32 = Math.fround;
+
+function checkBytes(bytes, what) {
+  if (bytes > MAX_BYTES) throw new InputError(`${what} needs more memory than a page should take`);
+}
+
+/** The example's colour as the runtime reads it: directional tiles of its surface voxels, for every voxel near
+ * the surface the tile of each direction it reads, its own tiles, and the example's signed distance. */
+export class Tiles {
+  /** voxels Int32Array (N, 3); directions Uint8Array (N,); mips [RGB Uint8Array (N, t, t, 3) for t = T, T/2,
+   * ..., 1]; depth Uint8Array (N, T, T); slopes Float64Array (N, 2); along and own Int32Array (X, Y, Z, 6);
+   * distance Float32Array (X, Y, Z) in voxels; size [X, Y, Z]; side T. */
+  constructor(voxels, directions, mips, depth, slopes, along, own, distance, size, side) {
+    Object.assign(this, { voxels, directions, mips, depth, slopes, along, own, distance, size, side });
+  }
+
+  /** images: Uint8Array (N, T, T, 4), RGB and depth, of side T; distance: Int8Array (X, Y, Z). */
+  static of(voxels, directions, images, distance, size, side) {
+    const count = directions.length;
+    const rgb = new Uint8Array(count * side * side * 3), depth = new Uint8Array(count * side * side);
+    for (let t = 0; t < count * side * side; t++) {
+      rgb[3 * t] = images[4 * t];
+      rgb[3 * t + 1] = images[4 * t + 1];
+      rgb[3 * t + 2] = images[4 * t + 2];
+      depth[t] = images[4 * t + 3];
+    }
+    const [X, Y, Z] = size, own = new Int32Array(X * Y * Z * 6).fill(-1);
+    for (let t = 0; t < count; t++) own[6 * ((voxels[3 * t] * Y + voxels[3 * t + 1]) * Z + voxels[3 * t + 2]) + directions[t]] = t;
+    const step = f32(DISTANCE_STEP);
+    return new Tiles(voxels, directions, mipLevels(rgb, count, side), depth, slopes(depth, count, side), readsAlong(own, size),
+      own, Float32Array.from(distance, (v) => f32(v * step)), size, side);
+  }
+
+  /** Memory of `count` tiles of `side` read for a finest level of `size`. */
+  static bytes(count, side, size) {
+    return count * side * side * 5 + size[0] * size[1] * size[2] * (12 * 4 + 4);
+  }
+
+  /** Voxel (x, y, z)'s own tile of `direction`, -1 for none (outside the grid: none). */
+  ownTile(x, y, z, direction) {
+    const [X, Y, Z] = this.size;
+    return x < 0 || y < 0 || z < 0 || x >= X || y >= Y || z >= Z ? -1 : this.own[6 * ((x * Y + y) * Z + z) + direction];
+  }
+
+  /** The voxels (m, 3) where a match may land: every voxel with a tile to read. */
+  band() {
+    const [X, Y, Z] = this.size, out = [];
+    for (let v = 0; v < X * Y * Z; v++) {
+      for (let d = 0; d < 6; d++) {
+        if (this.along[6 * v + d] >= 0) { out.push(Math.floor(v / (Y * Z)), Math.floor(v / Z) % Y, v % Z); break; }
+      }
+    }
+    return Int32Array.from(out);
+  }
+
+  /** The tiles (n, 6) each (n, 3) voxel reads, -1 for none (outside the grid: none). */
+  read(voxels) {
+    const [X, Y, Z] = this.size, n = voxels.length / 3, out = new Int32Array(6 * n).fill(-1);
+    for (let i = 0; i < n; i++) {
+      const x = voxels[3 * i], y = voxels[3 * i + 1], z = voxels[3 * i + 2];
+      if (x < 0 || y < 0 || z < 0 || x >= X || y >= Y || z >= Z) continue;
+      out.set(this.along.subarray(6 * ((x * Y + y) * Z + z), 6 * ((x * Y + y) * Z + z) + 6), 6 * i);
+    }
+    return out;
+  }
+}
+
+/** Per voxel and direction (axis a, side s), the tile of that direction of the voxel itself, else of the
+ * nearest voxel along a that has one, up to two away, the side the tile looks from first. (X, Y, Z, 6) Int32Array. */
+export function readsAlong(own, size) {
+  const [X, Y, Z] = size, strides = [Y * Z, Z, 1];
+  const along = own.slice();
+  for (let direction = 0; direction < 6; direction++) {
+    const axis = direction >> 1, steps = direction & 1 ? ALONG.positive : ALONG.negative;
+    for (let v = 0; v < X * Y * Z; v++) {
+      if (along[6 * v + direction] >= 0) continue;
+      const at = [Math.floor(v / (Y * Z)), Math.floor(v / Z) % Y, v % Z][axis];
+      for (const step of steps) { // the voxel `step` away along the axis
+        if (at + step < 0 || at + step >= size[axis]) continue;
+        const tile = own[6 * (v + step * strides[axis]) + direction];
+        if (tile >= 0) { along[6 * v + direction] = tile; break; }
+      }
+    }
+  }
+  return along;
+}
+
+/** The least-squares slope of each tile's depth across it, (N, T, T) -> (N, 2) Float64Array: voxels of depth
+ * per voxel along rows and columns, from sums of integers over runtime/colour.py's fixed denominator. */
+export function slopes(depth, count, side) {
+  const out = new Float64Array(2 * count);
+  let squares = 0;
+  for (let k = 0; k < side; k++) squares += (2 * k - (side - 1)) ** 2;
+  const scale = (127.5 * squares) / (2 * DEPTH_RANGE);
+  for (let t = 0; t < count; t++) {
+    let rows = 0, columns = 0;
+    for (let r = 0; r < side; r++) {
+      for (let c = 0; c < side; c++) {
+        const value = depth[(t * side + r) * side + c];
+        rows += value * (2 * r - (side - 1));
+        columns += value * (2 * c - (side - 1));
+      }
+    }
+    out[2 * t] = rows / scale;
+    out[2 * t + 1] = columns / scale;
+  }
+  return out;
+}
+
+/** Box-filtered halvings of (N, T, T, 3) tiles down to 1 x 1, each texel the rounded mean of four. */
+export function mipLevels(images, count, side) {
+  const levels = [images];
+  for (let n = side; n > 1; n >>= 1) {
+    const src = levels[levels.length - 1], h = n >> 1, out = new Uint8Array(count * h * h * 3);
+    for (let t = 0; t < count; t++) {
+      for (let i = 0; i < h; i++) {
+        for (let j = 0; j < h; j++) {
+          for (let c = 0; c < 3; c++) {
+            const texel = (a, b) => src[((t * n + a) * n + b) * 3 + c];
+            const total = texel(2 * i, 2 * j) + texel(2 * i + 1, 2 * j) + texel(2 * i, 2 * j + 1)
+              + texel(2 * i + 1, 2 * j + 1);
+            out[((t * h + i) * h + j) * 3 + c] = (total + 2) >> 2;
+          }
+        }
+      }
+    }
+    levels.push(out);
+  }
+  return levels;
+}
+
+/** Hidden pre-activations (b1 added) at the grid points of scale 1 of projected planes spanning `size`, as a
+ * function of (n, 3) voxels -> (n, D) Float32Array, clamped to the grid: ((xy + xz) + yz) + b1 in float32. */
+export function gridHidden(model, planes, size) {
+  const [xy, xz, yz] = planes.map((p) => p.data), bias = model.head.bias1, d = bias.length;
+  const [X, Y, Z] = size;
+  return (voxels) => {
+    const n = voxels.length / 3, out = new Float32Array(n * d);
+    for (let v = 0; v < n; v++) {
+      const i = Math.min(Math.max(voxels[3 * v], 0), X - 1), j = Math.min(Math.max(voxels[3 * v + 1], 0), Y - 1);
+      const k = Math.min(Math.max(voxels[3 * v + 2], 0), Z - 1);
+      const a = (i * Y + j) * d, b = (i * Z + k) * d, e = (j * Z + k) * d;
+      for (let c = 0; c < d; c++) out[v * d + c] = f32(f32(f32(xy[a + c] + xz[b + c]) + yz[e + c]) + bias[c]);
+    }
+    return out;
+  };
+}
+
+/** Where hidden sums (n, D) (b1 added) are inside the shape: sum_c relu(h_c) w2_c + b2 > 0, in float32 in the
+ * order of c. Uint8Array (n,). */
+export function inside(model, hidden) {
+  const { weight2, bias2 } = model.head, d = weight2.length, n = hidden.length / d, out = new Uint8Array(n);
+  for (let v = 0; v < n; v++) {
+    let logit = f32(bias2);
+    for (let c = 0; c < d; c++) logit = f32(logit + f32(Math.max(hidden[v * d + c], 0) * weight2[c]));
+    out[v] = logit > 0 ? 1 : 0;
+  }
+  return out;
+}
+
+/** The voxels (n, 3) of a grid of scale 1 within one voxel of a change between inside and outside along an
+ * axis (beyond the grid is outside: a mesh closes there): where a mesh's vertices round to. */
+export function surfaceBand(model, hiddenAt, size) {
+  const [X, Y, Z] = size, strides = [Y * Z, Z, 1], count = X * Y * Z;
+  const solid = new Uint8Array(count);
+  const rows = Math.max(1, Math.floor((1 << 18) / (Y * Z)));
+  for (let x0 = 0; x0 < X; x0 += rows) {
+    const x1 = Math.min(x0 + rows, X), voxels = new Int32Array((x1 - x0) * Y * Z * 3);
+    for (let v = 0; v < (x1 - x0) * Y * Z; v++) {
+      voxels[3 * v] = x0 + Math.floor(v / (Y * Z));
+      voxels[3 * v + 1] = Math.floor(v / Z) % Y;
+      voxels[3 * v + 2] = v % Z;
+    }
+    solid.set(inside(model, hiddenAt(voxels)), x0 * Y * Z);
+  }
+  const at = (v, axis) => [Math.floor(v / (Y * Z)), Math.floor(v / Z) % Y, v % Z][axis];
+  // A change: a voxel unlike the one before or after it along an axis, beyond the grid empty (Python's padding).
+  const beside = (v, axis, step) => {
+    const place = at(v, axis) + step;
+    return place >= 0 && place < size[axis] ? solid[v + step * strides[axis]] : 0;
+  };
+  const change = new Uint8Array(count);
+  for (let axis = 0; axis < 3; axis++) {
+    for (let v = 0; v < count; v++) if (solid[v] !== beside(v, axis, -1) || solid[v] !== beside(v, axis, 1)) change[v] = 1;
+  }
+  const band = change.slice();
+  for (let axis = 0; axis < 3; axis++) { // grown by one voxel along each axis
+    for (let v = 0; v < count; v++) {
+      if (at(v, axis) + 1 < size[axis]) {
+        if (change[v + strides[axis]]) band[v] = 1;
+        if (change[v]) band[v + strides[axis]] = 1;
+      }
+    }
+  }
+  const out = [];
+  for (let v = 0; v < count; v++) if (band[v]) out.push(at(v, 0), at(v, 1), at(v, 2));
+  return Int32Array.from(out);
+}
+
+/** The patch of each voxel, (n, 3) -> (n, 7 D) Float32Array: hidden sums rounded (halves to even) to steps of
+ * 1/QUANTUM and held as integers, so squared distances are exact in any order of summation. */
+export function patches(hiddenAt, voxels) {
+  const n = voxels.length / 3, shifted = new Int32Array(voxels.length);
+  let out = null, d = 0;
+  PATCH.forEach((offset, o) => {
+    for (let i = 0; i < voxels.length; i++) shifted[i] = voxels[i] + offset[i % 3];
+    const hidden = hiddenAt(shifted);
+    if (!out) { d = hidden.length / Math.max(n, 1); out = new Float32Array(n * PATCH.length * d); }
+    for (let v = 0; v < n; v++) {
+      for (let c = 0; c < d; c++) out[(v * PATCH.length + o) * d + c] = roundHalfEven(f32(hidden[v * d + c] * QUANTUM));
+    }
+  });
+  return out;
+}
+
+/** A key per voxel from its own hidden sums (n, D): its first KEY_VALUES sums rounded (halves to even) to steps
+ * of 1/KEY_QUANTUM, as int64 then uint64: the random choices made for a voxel follow what is there, not where.
+ * Uint32Array (n, 2): high and low halves. */
+export function contentKeys(hidden, n) {
+  const d = hidden.length / Math.max(n, 1), start = streamKey(0, MATCH_STREAM);
+  const startHi = Number(start >> 32n), startLo = Number(start & 0xffffffffn), out = new Uint32Array(2 * n);
+  for (let v = 0; v < n; v++) {
+    let hi = startHi, lo = startLo;
+    for (let c = 0; c < KEY_VALUES; c++) {
+      const value = roundHalfEven(f32(hidden[v * d + c] * KEY_QUANTUM)); // an integer: its two's complement halves
+      add64(Math.floor(value / 2 ** 32) >>> 0, value >>> 0, 0, 1);
+      mul64(hiOut, loOut, GOLDEN_HI, GOLDEN_LO);
+      add64(hi, lo, hiOut, loOut);
+      mix64(hiOut, loOut);
+      hi = hiOut; lo = loOut;
+    }
+    out[2 * v] = hi;
+    out[2 * v + 1] = lo;
+  }
+  return out;
+}
+
+/** The random bits of draw `slot` for each voxel's key: SplitMix64's output number key + 1 from state `slot`
+ * (noise.js's bits). Uint32Array (n, 2). */
+export function draw(keys, slot) {
+  const out = new Uint32Array(keys.length);
+  for (let v = 0; v < keys.length; v += 2) {
+    add64(keys[v], keys[v + 1], 0, 1);
+    mul64(hiOut, loOut, GOLDEN_HI, GOLDEN_LO);
+    add64(0, slot, hiOut, loOut);
+    mix64(hiOut, loOut);
+    out[v] = hiOut;
+    out[v + 1] = loOut;
+  }
+  return out;
+}
+
+/** (hi * 2^32 + lo) % m, exactly, for m below 2^31: 16 bits at a time. */
+export function modulo(hi, lo, m) {
+  let r = hi % m;
+  r = (r * 65536 + (lo >>> 16)) % m;
+  return (r * 65536 + (lo & 0xffff)) % m;
+}
+
+/** Squared distance of patch row `a` of `first` to row `b` of `second` (K values each): exact integers. Stops
+ * early once it reaches `bound` (it can only grow), returning a value at least `bound`. */
+function squaredDistance(first, a, second, b, k, bound = Infinity) {
+  let total = 0;
+  for (let c = 0; c < k; c += 8) {
+    for (let e = c; e < Math.min(c + 8, k); e++) {
+      const diff = first[a * k + e] - second[b * k + e];
+      total += diff * diff;
+    }
+    if (total >= bound) return total;
+  }
+  return total;
+}
+
+/** The example's side of matching: the voxels a match may land in (every voxel with tiles to read) and the
+ * reconstruction's patch at each. */
+export class Matcher {
+  constructor(tiles, referenceAt) {
+    this.band = tiles.band(); // (B, 3)
+    this.size = tiles.size;
+    const [X, Y, Z] = this.size, count = this.band.length / 3;
+    this.row = new Int32Array(X * Y * Z).fill(-1);
+    for (let r = 0; r < count; r++) this.row[(this.band[3 * r] * Y + this.band[3 * r + 1]) * Z + this.band[3 * r + 2]] = r;
+    this.reference = patches(referenceAt, this.band); // (B, K)
+    this.width = this.reference.length / Math.max(count, 1); // K
+  }
+
+  /** The band row of example voxel (x, y, z), -1 outside the band. */
+  rowOf(x, y, z) {
+    const [X, Y, Z] = this.size;
+    return x < 0 || y < 0 || z < 0 || x >= X || y >= Y || z >= Z ? -1 : this.row[(x * Y + y) * Z + z];
+  }
+
+  /** The band row of each (n, 3) example voxel, -1 outside the band. */
+  rows(voxels) {
+    const n = voxels.length / 3;
+    return Int32Array.from({ length: n }, (_, i) => this.rowOf(voxels[3 * i], voxels[3 * i + 1], voxels[3 * i + 2]));
+  }
+
+  /** Patch distances of sample patches (n, K) to candidate example voxels (n, 3); infinite where a candidate is
+   * outside the band. Float64Array (n,). */
+  distance(sample, candidates) {
+    const rows = this.rows(candidates);
+    return Float64Array.from(rows, (r, i) => (r < 0 ? Infinity : squaredDistance(sample, i, this.reference, r, this.width)));
+  }
+
+  /** The nearest band voxel of each patch (n, K) of all: (n, 3), the first of equals. Python takes the
+   * argmin of |r|^2 - 2 s.r, which is |s - r|^2 - |s|^2 in exact integers: the same order and the same
+   * ties as |s - r|^2, which is measured here, a candidate given up once it is no nearer. */
+  nearest(sample) {
+    const n = sample.length / this.width, k = this.width, count = this.band.length / 3, out = new Int32Array(3 * n);
+    for (let i = 0; i < n; i++) {
+      let best = Infinity, arg = 0;
+      for (let r = 0; r < count; r++) {
+        const value = squaredDistance(sample, i, this.reference, r, k, best);
+        if (value < best) { best = value; arg = r; }
+      }
+      out.set(this.band.subarray(3 * arg, 3 * arg + 3), 3 * i);
+    }
+    return out;
+  }
+
+  /** The example voxel J(u) of each voxel u (n, 3) of a sample's band, whose hidden sums `sampleAt` gives:
+   * (n, 3) Int32Array. */
+  match(sampleAt, voxels) {
+    const n = voxels.length / 3, count = this.band.length / 3, k = this.width, band = this.band;
+    checkBytes(n * k * 16 + count * 8 * 64, `matching ${n} voxels to the example`);
+    const sample = patches(sampleAt, voxels);
+    const keys = contentKeys(sampleAt(voxels), n);
+    const lookup = voxelLookup(voxels);
+    const current = new Int32Array(3 * n);
+    let bits = draw(keys, 0);
+    for (let v = 0; v < n; v++) {
+      const r = modulo(bits[2 * v], bits[2 * v + 1], count);
+      current.set(band.subarray(3 * r, 3 * r + 3), 3 * v);
+    }
+    bits = draw(keys, 1);
+    const seeds = [];
+    for (let v = 0; v < n; v++) if (modulo(bits[2 * v], bits[2 * v + 1], SEED_RATE) === 0) seeds.push(v);
+    if (seeds.length) {
+      const seeded = new Float32Array(seeds.length * k);
+      seeds.forEach((v, i) => seeded.set(sample.subarray(v * k, (v + 1) * k), i * k));
+      const found = this.nearest(seeded);
+      seeds.forEach((v, i) => current.set(found.subarray(3 * i, 3 * i + 3), 3 * v));
+    }
+    const best = this.distance(sample, current);
+    let changed = new Uint8Array(n).fill(1); // whose match changed last round: only their offers are new
+    let slot = 2;
+    // One voxel's candidate (x, y, z), tried against its current match: only a strictly nearer one
+    // replaces it. A candidate outside the band (Python's distance: infinite) and one equal to the
+    // current match (exactly as far) cannot, so neither is measured.
+    // A neighbour's match continued is weighed at COHERENT of its distance (Python multiplies, then compares);
+    // the early stop's bound is widened a hair so that a distance it stops is one that loses in Python too.
+    const offer = (v, x, y, z, coherent = false) => {
+      if (x === current[3 * v] && y === current[3 * v + 1] && z === current[3 * v + 2]) return;
+      const row = this.rowOf(x, y, z);
+      if (row < 0) return;
+      const bound = coherent ? (best[v] / COHERENT) * (1 + 1e-12) : best[v];
+      let d = squaredDistance(sample, v, this.reference, row, k, bound);
+      if (d >= bound) return;
+      if (coherent) d *= COHERENT;
+      if (d < best[v]) { best[v] = d; current[3 * v] = x; current[3 * v + 1] = y; current[3 * v + 2] = z; }
+    };
+    for (let iteration = 0; iteration < ITERATIONS; iteration++) {
+      const previous = current.slice();
+      const searches = SEARCH.map(() => draw(keys, slot++)); // the random draws of this round, in slot order
+      const anywhere = draw(keys, slot++);
+      for (let v = 0; v < n; v++) { // the candidates in Python's order
+        const x = voxels[3 * v], y = voxels[3 * v + 1], z = voxels[3 * v + 2];
+        for (const step of PROPAGATION) { // each neighbour's previous match, shifted by the step between them
+          for (let axis = 0; axis < 3; axis++) {
+            for (const shift of [step, -step]) {
+              const neighbour = lookup(x - (axis === 0 ? shift : 0), y - (axis === 1 ? shift : 0), z - (axis === 2 ? shift : 0));
+              if (neighbour < 0 || !changed[neighbour]) continue; // none, or the offer it made last round
+              offer(v, previous[3 * neighbour] + (axis === 0 ? shift : 0), previous[3 * neighbour + 1] + (axis === 1 ? shift : 0),
+                previous[3 * neighbour + 2] + (axis === 2 ? shift : 0), true);
+            }
+          }
+        }
+        SEARCH.forEach((radius, s) => { // a voxel near the previous match: offsets from bits 0-15, 16-31, 32-47
+          const hi = searches[s][2 * v], lo = searches[s][2 * v + 1], span = 2 * radius + 1;
+          offer(v, previous[3 * v] + ((lo & 0xffff) % span) - radius, previous[3 * v + 1] + ((lo >>> 16) % span) - radius,
+            previous[3 * v + 2] + ((hi & 0xffff) % span) - radius);
+        });
+        const r = modulo(anywhere[2 * v], anywhere[2 * v + 1], count); // anywhere in the band
+        offer(v, band[3 * r], band[3 * r + 1], band[3 * r + 2]);
+      }
+      changed = Uint8Array.from({ length: n }, (_, v) => (current[3 * v] !== previous[3 * v]
+        || current[3 * v + 1] !== previous[3 * v + 1] || current[3 * v + 2] !== previous[3 * v + 2] ? 1 : 0));
+    }
+    return current;
+  }
+}
+
+/** A function from voxel (x, y, z) to its row in `voxels` (n, 3), -1 where absent. */
+export function voxelLookup(voxels) {
+  const n = voxels.length / 3, low = [0, 0, 0], size = [1, 1, 1];
+  if (n) {
+    for (let a = 0; a < 3; a++) {
+      let least = Infinity, most = -Infinity;
+      for (let i = a; i < voxels.length; i += 3) { least = Math.min(least, voxels[i]); most = Math.max(most, voxels[i]); }
+      low[a] = least;
+      size[a] = most - least + 1;
+    }
+  }
+  checkBytes(size[0] * size[1] * size[2] * 4, `a lookup of ${n} voxels`);
+  const table = new Int32Array(size[0] * size[1] * size[2]).fill(-1);
+  for (let i = 0; i < n; i++) {
+    table[((voxels[3 * i] - low[0]) * size[1] + voxels[3 * i + 1] - low[1]) * size[2] + voxels[3 * i + 2] - low[2]] = i;
+  }
+  return (x, y, z) => {
+    x -= low[0]; y -= low[1]; z -= low[2];
+    return x < 0 || y < 0 || z < 0 || x >= size[0] || y >= size[1] || z >= size[2] ? -1 : table[(x * size[1] + y) * size[2] + z];
+  };
+}
+
+/** The model's matcher, made once: the reconstruction's patches at every voxel of the example's band. */
+export async function matcher(model) {
+  if (!model.matcher) {
+    model.matcher = (async () => {
+      const recon = await sample(model, null);
+      return new Matcher(model.tiles, gridHidden(model, (await project(model, recon)).planes, recon.size));
+    })();
+    model.matcher.catch(() => { model.matcher = null; }); // a failure is not kept: the next sample tries again
+  }
+  return model.matcher;
+}
+
+/** J of one sample: its surface band matched to the example as a whole (`example`, matcher's), and the rest
+ * of its grid, when asked for, from the band outwards. */
+export class Correspondence {
+  constructor(example, model, planes, size) {
+    this.size = size;
+    const hidden = gridHidden(model, planes, size);
+    this.band = surfaceBand(model, hidden, size);
+    this.matched = this.band.length ? example.match(hidden, this.band) : new Int32Array(0);
+    this.lookup = voxelLookup(this.band);
+    this.field = null;
+  }
+
+  /** The example voxel of each (n, 3) voxel of the sample's grid (Python's __call__). */
+  call(voxels) {
+    const [X, Y, Z] = this.size, out = new Int32Array(voxels.length);
+    for (let i = 0; i < voxels.length; i += 3) {
+      const x = Math.min(Math.max(voxels[i], 0), X - 1), y = Math.min(Math.max(voxels[i + 1], 0), Y - 1);
+      const z = Math.min(Math.max(voxels[i + 2], 0), Z - 1);
+      const row = this.lookup(x, y, z);
+      if (row >= 0) out.set(this.matched.subarray(3 * row, 3 * row + 3), i);
+      else {
+        this.field ??= this.spread();
+        out.set(this.field.subarray(3 * ((x * Y + y) * Z + z), 3 * ((x * Y + y) * Z + z) + 3), i);
+      }
+    }
+    return out;
+  }
+
+  /** J on every voxel of the grid: (X, Y, Z, 3) Int32Array (the band's own, or carried from it one voxel a
+   * round, from the first voxel beside it in STEPS' order known before the round; all zeros if the sample
+   * has no surface). */
+  spread() {
+    const [X, Y, Z] = this.size, count = X * Y * Z, strides = [Y * Z, Z, 1];
+    checkBytes(count * 8 * 8, `matching a ${this.size.join('x')} grid`);
+    const field = new Int32Array(3 * count);
+    const known = new Int32Array(count).fill(-1); // the round in which a voxel's match became known
+    let frontier = [];
+    for (let r = 0; r < this.band.length / 3; r++) {
+      const v = (this.band[3 * r] * Y + this.band[3 * r + 1]) * Z + this.band[3 * r + 2];
+      field.set(this.matched.subarray(3 * r, 3 * r + 3), 3 * v);
+      known[v] = 0;
+      frontier.push(v);
+    }
+    const at = (v) => [Math.floor(v / (Y * Z)), Math.floor(v / Z) % Y, v % Z];
+    for (let round = 1; frontier.length; round++) {
+      const next = []; // the unknown voxels beside the last round's: this round's
+      for (const v of frontier) {
+        const place = at(v);
+        for (const step of STEPS) {
+          const axis = step.findIndex((s) => s !== 0), to = place[axis] - step[axis];
+          const w = v - step[axis] * strides[axis];
+          if (to >= 0 && to < this.size[axis] && known[w] === -1) { known[w] = -2; next.push(w); }
+        }
+      }
+      for (const v of next) {
+        const place = at(v);
+        for (const step of STEPS) { // take from the first voxel v + step known before this round
+          const axis = step.findIndex((s) => s !== 0), from = place[axis] + step[axis];
+          const w = v + step[axis] * strides[axis];
+          if (from < 0 || from >= this.size[axis] || known[w] < 0 || known[w] >= round) continue;
+          for (let a = 0; a < 3; a++) field[3 * v + a] = field[3 * w + a] - step[a];
+          break;
+        }
+        known[v] = round;
+      }
+      frontier = next;
+    }
+    return field;
+  }
+}
+
+/**
+ * The colour at points (n, 3) (sample model units, Float64Array) of a sample whose voxels `matched` maps to
+ * example voxels: (n, 3) Float32Array sRGB. `grid`: the sample's size; a point beyond its last voxel belongs
+ * to that voxel. Point p in voxel u = round(p) stands for q = J(u) + (p - u); of the tiles of q's voxel and of
+ * those beside it along each tile's axis, the one whose surface is nearest q (REACH_ORDER, TURN) is read, at
+ * that surface's point nearest q. `footprint`: the length a colour stands for (voxels): its mip level
+ * averages the texture over it (null: full detail).
+ */
+export function readColours(tiles, matched, points, grid, footprint = null) {
+  const n = points.length / 3, u = new Int32Array(3 * n);
+  for (let i = 0; i < 3 * n; i++) u[i] = Math.min(Math.max(Math.floor(points[i] + 0.5), 0), grid[i % 3] - 1); // halves up
+  const example = matched(u);
+  const tile = new Int32Array(n), across = new Float64Array(2 * n), q = [0, 0, 0], normal = [0, 0, 0], voxel = [0, 0, 0];
+  const [X, Y, Z] = tiles.size, side = tiles.side;
+  for (let i = 0; i < n; i++) {
+    for (let a = 0; a < 3; a++) q[a] = example[3 * i + a] + (points[3 * i + a] - u[3 * i + a]);
+    trilinear(tiles.distance, tiles.size, q, normal);
+    const length = Math.max(Math.sqrt(normal[0] * normal[0] + normal[1] * normal[1] + normal[2] * normal[2]), 1e-12);
+    for (let a = 0; a < 3; a++) normal[a] /= length;
+    for (let a = 0; a < 3; a++) voxel[a] = Math.min(Math.max(Math.floor(q[a] + 0.5), 0), [X, Y, Z][a] - 1);
+    let best = Infinity, chosen = 0, first = 0, second = 0;
+    for (let direction = 0; direction < 6; direction++) {
+      const axis = direction >> 1, positive = direction & 1, [pa, pb] = ACROSS[axis];
+      for (const reach of REACH_ORDER) {
+        const at = [voxel[0], voxel[1], voxel[2]];
+        at[axis] += reach;
+        const found = tiles.ownTile(at[0], at[1], at[2], direction);
+        if (found < 0) continue;
+        const la = q[axis] - tiles.voxels[3 * found + axis];
+        const a = q[pa] - tiles.voxels[3 * found + pa], b = q[pb] - tiles.voxels[3 * found + pb];
+        const sa = tiles.slopes[2 * found], sb = tiles.slopes[2 * found + 1];
+        const lean = 1 + (sa * sa + sb * sb);
+        const above = (la - bilinearDepth(tiles.depth, side, found, a, b)) / lean;
+        const facing = normal[axis] * (positive ? 1 : -1);
+        const score = Math.abs(above) * Math.sqrt(lean) + TURN * (1 - facing);
+        if (score < best) { best = score; chosen = found; first = a + above * sa; second = b + above * sb; }
+      }
+    }
+    tile[i] = chosen;
+    across[2 * i] = first;
+    across[2 * i + 1] = second;
+  }
+  acrossTiles(tiles, tile, across);
+  let level = 0;
+  if (footprint !== null && footprint > 0) {
+    level = Math.min(Math.max(roundHalfEven(Math.log2(footprint * side)), 0), tiles.mips.length - 1);
+  }
+  const m = side >> level;
+  const x = Float32Array.from({ length: n }, (_, i) => (across[2 * i] + 0.5) * m - 0.5);
+  const y = Float32Array.from({ length: n }, (_, i) => (across[2 * i + 1] + 0.5) * m - 0.5);
+  return bilinearTiles(tiles.mips[level], m, tile, x, y);
+}
+
+/** A grid (X, Y, Z) at point q (clamped to it), trilinear with voxel centres at integers, and its gradient
+ * into `gradient` (3): float64, as runtime/colour.py's trilinear. Returns the value. */
+export function trilinear(grid, size, q, gradient) {
+  const low = [0, 0, 0], high = [0, 0, 0], f = [0, 0, 0];
+  for (let a = 0; a < 3; a++) {
+    const p = Math.min(Math.max(q[a], 0), size[a] - 1);
+    low[a] = Math.min(Math.floor(p), Math.max(size[a] - 2, 0));
+    f[a] = p - low[a];
+    high[a] = Math.min(low[a] + 1, size[a] - 1);
+  }
+  let value = 0;
+  gradient[0] = 0; gradient[1] = 0; gradient[2] = 0;
+  for (let corner = 0; corner < 8; corner++) {
+    const c = [(corner >> 2) & 1, (corner >> 1) & 1, corner & 1];
+    const index = c.map((bit, a) => (bit ? high[a] : low[a]));
+    const v = grid[(index[0] * size[1] + index[1]) * size[2] + index[2]];
+    const w = c.map((bit, a) => (bit ? f[a] : 1 - f[a]));
+    value += v * w[0] * w[1] * w[2];
+    for (let a = 0; a < 3; a++) {
+      const dw = w.map((wb, b) => (b !== a ? wb : c[a] ? 1 : -1));
+      gradient[a] += v * dw[0] * dw[1] * dw[2];
+    }
+  }
+  return value;
+}
+
+/** Where a place on a tile's plane lies beyond the tile's own voxel, the tile of the same direction of the voxel
+ * it lies in (its own, or one along the axis): a direction's tiles read as one surface. tile and across, in place. */
+export function acrossTiles(tiles, tile, across) {
+  for (let i = 0; i < tile.length; i++) {
+    if (Math.abs(across[2 * i]) <= 0.5 && Math.abs(across[2 * i + 1]) <= 0.5) continue;
+    const direction = tiles.directions[tile[i]], axis = direction >> 1, [pa, pb] = ACROSS[axis];
+    const centre = [0, 1, 2].map((a) => tiles.voxels[3 * tile[i] + a]);
+    const stepA = Math.floor(centre[pa] + across[2 * i] + 0.5) - centre[pa];
+    const stepB = Math.floor(centre[pb] + across[2 * i + 1] + 0.5) - centre[pb];
+    const neighbour = centre.slice();
+    neighbour[pa] += stepA;
+    neighbour[pb] += stepB;
+    const found = tiles.read(Int32Array.from(neighbour))[direction];
+    if (found < 0) continue;
+    tile[i] = found;
+    across[2 * i] -= stepA;
+    across[2 * i + 1] -= stepB;
+  }
+}
+
+/** Tiles' depth (N, T, T) at in-plane point (a, b) of [-0.5, 0.5]^2, in voxels: runtime/colour.py's
+ * bilinear_depth (its bilinear blend, then float64). */
+export function bilinearDepth(depth, side, tile, a, b) {
+  const x = Float32Array.of(f32((a + 0.5) * side - 0.5)), y = Float32Array.of(f32((b + 0.5) * side - 0.5));
+  return bilinearOne(depth, side, tile, x[0], y[0]) * (2 * DEPTH_RANGE) - DEPTH_RANGE;
+}
+
+/** Bilinear lookup in tiles (N, n, n, 3) at texel coordinates x (rows), y (columns), clamped; the blend in
+ * float64 as numpy's, then float32. */
+export function bilinearTiles(images, n, tile, x, y) {
+  const out = new Float32Array(3 * tile.length), last = Math.max(n - 2, 0);
+  for (let i = 0; i < tile.length; i++) {
+    const xi = Math.min(Math.max(x[i], 0), n - 1), yi = Math.min(Math.max(y[i], 0), n - 1);
+    const x0 = Math.min(Math.floor(xi), last), y0 = Math.min(Math.floor(yi), last);
+    const x1 = Math.min(x0 + 1, n - 1), y1 = Math.min(y0 + 1, n - 1);
+    const fx = xi - x0, fy = yi - y0;
+    const at = (a, b, c) => images[((tile[i] * n + a) * n + b) * 3 + c];
+    for (let c = 0; c < 3; c++) {
+      const top = at(x0, y0, c) * (1 - fy) + at(x0, y1, c) * fy;
+      const bottom = at(x1, y0, c) * (1 - fy) + at(x1, y1, c) * fy;
+      out[3 * i + c] = (top * (1 - fx) + bottom * fx) / 255;
+    }
+  }
+  return out;
+}
+
+/** One channel's bilinear lookup, as bilinearTiles of values (N, n, n, 1): float32. */
+function bilinearOne(values, n, tile, x, y) {
+  const last = Math.max(n - 2, 0);
+  const xi = Math.min(Math.max(x, 0), n - 1), yi = Math.min(Math.max(y, 0), n - 1);
+  const x0 = Math.min(Math.floor(xi), last), y0 = Math.min(Math.floor(yi), last);
+  const x1 = Math.min(x0 + 1, n - 1), y1 = Math.min(y0 + 1, n - 1);
+  const fx = xi - x0, fy = yi - y0;
+  const at = (a, b) => values[(tile * n + a) * n + b];
+  const top = at(x0, y0) * (1 - fy) + at(x0, y1) * fy;
+  const bottom = at(x1, y0) * (1 - fy) + at(x1, y1) * fy;
+  return f32((top * (1 - fx) + bottom * fx) / 255);
+}
+
+/**
+ * A coloured model's colour of one sample as a function of points: (n, 3) model coordinates (Float64Array)
+ * -> (n, 3) Float32Array sRGB, with an optional footprint (the length in voxels a colour stands for). A
+ * format-5 model matches the sample once; a format-4 model reads its colour head.
+ */
+export async function colouring(model, tri) {
+  const proj = await project(model, tri);
+  if (!model.tiles) return (points) => projectedColours(model, proj, points);
+  const matched = new Correspondence(await matcher(model), model, proj.planes, tri.size);
+  return (points, footprint = null) => readColours(model.tiles, (voxels) => matched.call(voxels), points, tri.size, footprint);
+}
+
+/** A coloured model's sRGB colour at points of a sample (model coordinates): (n, 3) Float32Array in [0, 1]. */
+export async function colours(model, tri, coords, footprint = null) {
+  return (await colouring(model, tri))(coords, footprint);
+}
+
+/** The colours at a sample's mesh vertices (positions in the training input's frame, as surface gives them),
+ * each standing for `footprint` voxels (a mesh `scale` times finer: 1 / scale), as runtime.mesh.paint. */
+export async function vertexColours(model, tri, positions, footprint = null) {
+  const { origin, spacing } = model.manifest;
+  const coords = Float64Array.from(positions, (p, i) => (p - origin[i % 3]) / spacing[i % 3]);
+  return colours(model, tri, coords, footprint);
+}

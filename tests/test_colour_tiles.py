@@ -1,0 +1,179 @@
+"""Colour by correspondence: the example's colour tiles keep detail finer
+than a voxel, a sample's voxels are matched to the example's the same way
+wherever they lie, the reconstruction matches itself, and a model's tiles
+are checked when it loads."""
+
+import numpy as np
+import pytest
+import trimesh
+from PIL import Image
+
+from sinshape.core.errors import InputError
+from sinshape.prep import appearance, colour as example_colour, voxelize
+from sinshape.runtime import colour, generate, load_model
+
+STRIPES = ((230, 200, 40), (40, 60, 160))  # sRGB
+
+
+def striped_box(tmp_path, texels: int = 128):
+    """A 2 x 1 x 1 box whose texture has stripes two texels wide across x:
+    at res 16 (voxels of 0.125), two whole stripe periods in every voxel."""
+    mesh = trimesh.creation.box(extents=(2.0, 1.0, 1.0))
+    for _ in range(3):
+        mesh = mesh.subdivide()
+    column = (np.arange(texels) // 2) % 2
+    image = np.array(STRIPES, np.uint8)[column][None].repeat(8, axis=0)  # 8 rows, stripes along u
+    u = (mesh.vertices[:, 0] + 1.0) / 2.0
+    v = 0.5 + 0.1 * mesh.vertices[:, 2]
+    visual = trimesh.visual.TextureVisuals(uv=np.stack([u, v], axis=1), material=trimesh.visual.material.PBRMaterial(
+        baseColorTexture=Image.fromarray(image)))
+    path = tmp_path / "striped.glb"
+    path.write_bytes(trimesh.Trimesh(mesh.vertices, mesh.faces, visual=visual, process=False).export(file_type="glb"))
+    return path
+
+
+def grid_of(path, res: int = 16):
+    """The finest level a model of `res` would have: (scene, box_low,
+    spacing, the level's solid voxels (X, Y, Z) bool)."""
+    scene, _ = voxelize.read_scene(path)
+    mesh = voxelize.scene_mesh(scene, path)
+    low, high = mesh.bounds
+    voxel = (high - low).max() / res
+    shape = tuple(int(np.ceil(e / voxel - 1e-6)) for e in high - low)
+    box = np.array(shape) * voxel
+    box_low, spacing = (low + high) / 2 - box / 2, box / np.array(shape)
+    return scene, box_low, spacing, voxelize.voxelize(mesh, box_low, spacing, shape)
+
+
+def surface_points(path, count: int = 20000):
+    """Points on the example's surface and their true colour there."""
+    scene, _ = voxelize.read_scene(path)
+    surface = appearance.coloured_surface(scene, path)
+    face, weights = example_colour.sample_faces(surface.triangles, count / 10, np.random.default_rng(1))
+    return np.einsum("nk,nkc->nc", weights, surface.triangles[face]), surface.colour(face, weights)
+
+
+def psnr(a, b) -> float:
+    return float(10 * np.log10(1 / np.mean((a - b) ** 2)))
+
+
+def test_tiles_keep_stripes_finer_than_a_voxel(tmp_path):
+    path = striped_box(tmp_path)
+    scene, box_low, spacing, solid = grid_of(path)
+    shape = solid.shape
+    surface = appearance.coloured_surface(scene, path)
+    tiles = appearance.example_tiles(surface, box_low, spacing, solid)
+    assert tiles.images.shape[1] >= 8  # the texture's 8 texels a voxel, kept
+    read = colour.Tiles.of(tiles.voxels, tiles.directions, tiles.images, tiles.distance)
+    points, truth = surface_points(path)
+    model_points = (points - box_low) / spacing - 0.5
+    found = colour.read_colours(read, lambda voxels: voxels, model_points, shape)
+    assert psnr(found, truth) > 28
+    # The colour field the decoder's head is trained on, one colour a voxel,
+    # cannot hold them: the tiles' detail is not the voxel grid's.
+    field = example_colour.surface_colour(scene, path, b"", float(spacing.min()))
+    rgb, _ = example_colour.colour_grid(field, box_low, spacing, shape)
+    voxel = np.clip(np.floor(model_points + 0.5).astype(int), 0, np.array(shape) - 1)
+    assert psnr(rgb[:, voxel[:, 0], voxel[:, 1], voxel[:, 2]].T, truth) < 15
+    # Both stripes inside one voxel, a stripe's colour exactly (no blend).
+    front = np.flatnonzero(np.isclose(points[:, 1], points[:, 1].min()))
+    inside = front[np.all(voxel[front] == voxel[front[0]], axis=1)]
+    near = np.abs(found[inside] * 255 - np.array(STRIPES)[:, None]).max(axis=2) <= 2
+    assert near[0].any() and near[1].any()
+
+
+def off_the_line(rgb, a, b) -> np.ndarray:
+    """Each colour's distance (8-bit steps) from the nearest blend of colours
+    a and b, and where along a..b it lies: ((n,), (n,) in [0, 1])."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    t = np.clip(((rgb - a) @ (b - a)) / ((b - a) @ (b - a)), 0, 1)
+    return np.linalg.norm(rgb - (a + t[:, None] * (b - a)), axis=1), t
+
+
+def test_every_colour_a_tile_holds_is_the_examples(tmp_path):
+    # A stripe's colour, or at a stripe's edge a blend of the two (the
+    # texture is read bilinearly, as a renderer reads it): no other hue.
+    path = striped_box(tmp_path)
+    scene, box_low, spacing, solid = grid_of(path)
+    tiles = appearance.example_tiles(appearance.coloured_surface(scene, path), box_low, spacing, solid)
+    distance, t = off_the_line(tiles.images[..., :3].reshape(-1, 3).astype(float), *STRIPES)
+    assert distance.max() <= 1.5
+    assert (t < 0.05).mean() > 0.15 and (t > 0.95).mean() > 0.15
+
+
+@pytest.fixture(scope="module")
+def model(tiny_colour_model):
+    loaded = load_model(tiny_colour_model, threads=1)
+    assert loaded.tiles is not None and loaded.manifest.raw["format_version"] == 5
+    return loaded
+
+
+def hidden_of(model, triplane):
+    return colour.grid_hidden(model, colour.query.project(model, triplane).planes, triplane.size)
+
+
+def test_the_reconstruction_matches_itself(model):
+    matcher = colour.matcher(model)
+    recon = generate.sample(model, None)
+    hidden = hidden_of(model, recon)
+    band = colour.surface_band(model, hidden, recon.size)
+    ours = band[matcher.rows(band) >= 0]  # the voxels the example's band holds too
+    assert len(ours) > 50
+    np.testing.assert_array_equal(matcher.match(hidden, ours), ours)
+
+
+def test_a_match_follows_content_not_place_or_order(model):
+    matcher = colour.matcher(model)
+    triplane = generate.sample(model, 3)
+    hidden = hidden_of(model, triplane)
+    band = colour.surface_band(model, hidden, triplane.size)
+    matched = matcher.match(hidden, band)
+    order = np.random.default_rng(0).permutation(len(band))
+    np.testing.assert_array_equal(matcher.match(hidden, band[order]), matched[order])
+    shift = np.array([40, -7, 3])  # the same content elsewhere: the same example voxels
+    np.testing.assert_array_equal(matcher.match(lambda voxels: hidden(voxels - shift), band + shift), matched)
+    # ...and other content, other matches.
+    other = hidden_of(model, generate.sample(model, 4))
+    assert not np.array_equal(matcher.match(other, band), matched)
+
+
+def test_a_samples_colours_are_the_examples(model):
+    # The box is red above and blue below: at full detail every colour a
+    # sample shows is one of the two, or a blend of neighbouring texels of both.
+    triplane = generate.sample(model, 5)
+    points = np.argwhere(colour.query.dense(model, triplane, 2.0) > 0.5) / 2.0
+    distance, t = off_the_line(colour.colours(model, triplane, points) * 255, (30, 60, 200), (220, 40, 30))
+    assert distance.max() < 3
+    assert (t > 0.9).mean() > 0.2 and (t < 0.1).mean() > 0.2
+
+
+def damaged(model_path, tmp_path, change):
+    import onnx
+    from onnx import numpy_helper
+
+    from sinshape.core import manifest as fmt
+
+    proto = onnx.load(model_path)
+    arrays = {t.name: numpy_helper.to_array(t) for t in proto.graph.initializer if t.name in fmt.TILE_TENSORS}
+    change(arrays)
+    for tensor in proto.graph.initializer:
+        if tensor.name in arrays:
+            tensor.CopyFrom(numpy_helper.from_array(arrays[tensor.name], tensor.name))
+    out = tmp_path / "damaged.onnx"
+    out.write_bytes(fmt.seal(proto.SerializeToString()))
+    return out
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda a: a.update({"colour_tiles.voxels": a["colour_tiles.voxels"] + 1000}), "outside the model's finest level"),
+    (lambda a: a.update({"colour_tiles.directions": a["colour_tiles.directions"] * 0 + 6}), "outside"),
+    (lambda a: a.update({"colour_tiles.voxels": a["colour_tiles.voxels"][::-1].copy()}), "in order"),
+    (lambda a: a.update({"colour_tiles.images": a["colour_tiles.images"][:-1]}), "do not match the manifest"),
+    (lambda a: a.update({"colour_tiles.voxels": a["colour_tiles.voxels"].astype(np.float32)}), "not int32"),
+    (lambda a: a.update({"colour_tiles.distance": a["colour_tiles.distance"][:-1]}), "distance grid"),
+])
+def test_damaged_tiles_are_refused_in_one_line(tiny_colour_model, tmp_path, change, message):
+    pytest.importorskip("onnx")
+    with pytest.raises(InputError, match=message) as error:
+        load_model(damaged(tiny_colour_model, tmp_path, change))
+    assert "\n" not in str(error.value)
