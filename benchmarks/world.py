@@ -1,7 +1,7 @@
 """Endless worlds, measured: seams, cost at any distance, and quality.
 
     python benchmarks/world.py [--models terrain acropolis towerruins] [--block 4] [--windows 100]
-                               [--sections seams cost quality] [--blend 1.0]
+                               [--sections seams cost quality repetition] [--blend 1.0]
 
 Seams: a block of tiles at scale 1 and 2: the largest occupancy difference
 on shared faces, border vertices matched, and whether the block's union is
@@ -11,13 +11,17 @@ alternately, best of 3, no window kept between tiles), and tiles per second
 of a `sinrun world` job on all cores. Quality: LP-IoU, LP-F and diversity
 (runtime/evaluate.py) of windows the size of an ordinary sample cut at
 random places of the worlds of 10 seeds (most straddle tile borders),
-beside ordinary samples; and the autocorrelation of the height field along
-each horizontal axis of a long strip of tiles, at the tile period and around it.
+beside ordinary samples. Repetition: the autocorrelation of the height
+field (evaluate.height_autocorrelation) along each horizontal axis of long
+strips of tiles at S/2 and at the tile period S and its multiples, beside
+ordinary samples as long; and the relief (the spread of column heights) at
+tile corners, at tile centres and over ordinary samples.
 --blend sets world.BLEND (the share of a stride over which one window gives
 way to the next) for a comparison.
 """
 
 import argparse
+import dataclasses
 import subprocess
 import sys
 import tempfile
@@ -40,24 +44,25 @@ STRIP = 24  # tiles along the axis whose autocorrelation is measured
 TRAINING_INPUTS = {"terrain": "shape", "acropolis": "shape", "towerruins": ROOT / "tests/data/towerruins/towerruins.obj"}
 
 
-def world_grid(model, seed: int, rows: range, columns: range, scale: float = 1.0) -> np.ndarray:
+def world_grid(model, seed: int, rows: range, columns: range, scale: float = 1.0,
+               options: world.WorldOptions = world.PLAIN) -> np.ndarray:
     """Occupancy of a block of tiles as one grid (each shared face once)."""
     h0, h1 = world.world_layout(model).horizontal
     strips = []
     for i in rows:
-        row = [world.tile_occupancy(model, seed, (i, j), scale) for j in columns]
+        row = [world.tile_occupancy(model, seed, (i, j), scale, options=options) for j in columns]
         row = [np.take(t, range(0 if k == 0 else 1, t.shape[h1]), axis=h1) for k, t in enumerate(row)]
         strips.append(np.concatenate(row, axis=h1))
     strips = [np.take(s, range(0 if k == 0 else 1, s.shape[h0]), axis=h0) for k, s in enumerate(strips)]
     return np.concatenate(strips, axis=h0)
 
 
-def seams(model, block: int) -> dict:
+def seams(model, block: int, options) -> dict:
     layout = world.world_layout(model)
     h0, h1 = layout.horizontal
     out = {}
     for scale in (1.0, 2.0):
-        grids = {(i, j): world.tile_occupancy(model, 3, (i, j), scale) for i in range(block) for j in range(block)}
+        grids = {(i, j): world.tile_occupancy(model, 3, (i, j), scale, options=options) for i in range(block) for j in range(block)}
         worst = 0.0
         for (i, j), grid in grids.items():
             for di, dj, axis in ((1, 0, h0), (0, 1, h1)):
@@ -67,16 +72,26 @@ def seams(model, block: int) -> dict:
         out[f"face difference, scale {scale:g}"] = worst
     matched = total = 0
     for i in range(block - 1):
-        a, b = (world.tile_mesh(model, 3, (i, 0))[0], world.tile_mesh(model, 3, (i + 1, 0))[0])
+        a, b = (world.tile_mesh(model, 3, (i, 0), options=options)[0],
+                world.tile_mesh(model, 3, (i + 1, 0), options=options)[0])
         on_a = {tuple(v) for v in a[a[:, h0] == layout.stride[h0]] - np.eye(3)[h0] * layout.stride[h0]}
         on_b = {tuple(v) for v in b[b[:, h0] == 0]}
         matched, total = matched + len(on_a & on_b), total + len(on_a | on_b)
     out["border vertices matched"] = f"{matched} of {total}"
+    same = total_normals = 0
+    for i in range(block - 1):
+        a, b = (world.tile_surface(model, 3, (i, 0), options=options), world.tile_surface(model, 3, (i + 1, 0), options=options))
+        on_a = {tuple(v - np.eye(3)[h0] * layout.stride[h0]): tuple(n) for v, n in zip(a.vertices, a.normals)
+                if v[h0] == layout.stride[h0]}
+        on_b = {tuple(v): tuple(n) for v, n in zip(b.vertices, b.normals) if v[h0] == 0}
+        same += sum(on_a[v] == on_b.get(v) for v in on_a)
+        total_normals += len(on_a)
+    out["border normals equal to the bit"] = f"{same} of {total_normals}"
     vertices, faces = [], []
     count = 0
     for i in range(block):
         for j in range(block):
-            v, f = world.tile_mesh(model, 3, (i, j))
+            v, f = world.tile_mesh(model, 3, (i, j), options=options)
             vertices.append(v + np.array(world.tile_corner(model, (i, j))))
             faces.append(f + count)
             count += len(v)
@@ -94,27 +109,44 @@ def seams(model, block: int) -> dict:
     return out
 
 
-def cost(model, name: str) -> dict:
+RUN = 6  # tiles in a row measured at each distance: a scattered world's tiles hold 0 to 4 objects
+
+
+def cost(model, name: str, options) -> dict:
+    """Seconds and traced memory of a tile (mesh, normals and all) with no
+    window kept, the mean over a row of RUN tiles at each of four distances
+    and at each coarser level of detail, measured alternately, best of 3;
+    and a `sinrun world` job on one and two workers."""
     out = {}
     distances = [0, 10**3, 10**6, 10**9]
-    best = {d: (np.inf, 0) for d in distances}
+    levels = range(1, len(model.manifest.sizes))
+    kinds = [("distance", d) for d in distances] + [("lod", lod) for lod in levels]
+    best = {kind: (np.inf, 0) for kind in kinds}
     for _ in range(3):
-        for d in distances:
-            world._windows.clear()
-            tracemalloc.start()
+        for kind in kinds:
+            d, chosen = (kind[1], options) if kind[0] == "distance" else (0, dataclasses.replace(options, lod=kind[1]))
+            seconds = peak = 0
+            for k in range(RUN):
+                world._windows.clear()
+                tracemalloc.start()
+                started = time.perf_counter()
+                world.tile_surface(model, 3, (d + k, -d), options=chosen)
+                seconds += (time.perf_counter() - started) / RUN
+                peak = max(peak, tracemalloc.get_traced_memory()[1])
+                tracemalloc.stop()
+            best[kind] = (min(best[kind][0], seconds), max(best[kind][1], peak))
+    full = best[("distance", 0)][0]
+    for kind, (seconds, peak) in best.items():
+        label = f"a tile at {kind[1]:g} (mean of {RUN})" if kind[0] == "distance" else f"a tile at lod {kind[1]} (x full)"
+        ratio = f" ({seconds / full:.2f}x)" if kind[0] == "lod" else ""
+        out[f"{label}: s / MB"] = f"{seconds:.3f}{ratio} / {peak / 2**20:.1f}"
+    for workers in (1, 2):
+        with tempfile.TemporaryDirectory() as folder:
             started = time.perf_counter()
-            world.tile_mesh(model, 3, (d, -d))
-            seconds = time.perf_counter() - started
-            peak = tracemalloc.get_traced_memory()[1]
-            tracemalloc.stop()
-            best[d] = (min(best[d][0], seconds), max(best[d][1], peak))
-    for d in distances:
-        out[f"tile at {d:g}: s / MB"] = f"{best[d][0]:.3f} / {best[d][1] / 2**20:.1f}"
-    with tempfile.TemporaryDirectory() as folder:
-        started = time.perf_counter()
-        subprocess.run([str(Path(sys.executable).with_name("sinrun")), "world", name, "--tiles", "0:5,0:5", "-o",
-                        folder], check=True, capture_output=True)
-        out["tiles/s, sinrun world (36 tiles, all cores)"] = f"{36 / (time.perf_counter() - started):.2f}"
+            subprocess.run([str(Path(sys.executable).with_name("sinrun")), "world", name, "--tiles", "0:5,0:5", "-o",
+                            folder, "--workers", str(workers), "--arrange", options.arrange], check=True,
+                           capture_output=True)
+            out[f"tiles/s, sinrun world (36 tiles, {workers} workers)"] = f"{36 / (time.perf_counter() - started):.2f}"
     return out
 
 
@@ -126,17 +158,7 @@ def reference_of(name: str, model, folder: Path) -> np.ndarray:
     return reference_grid(source, model.manifest)
 
 
-def height_autocorrelation(grid: np.ndarray, up: int, axis: int, lags: list) -> list:
-    """The height field's (occupied voxels per column) autocorrelation along `axis` at `lags`."""
-    height = (grid > 0.5).sum(axis=up).astype(np.float64)
-    along = 0 if axis < up else axis - 1  # the axis's index once `up` is summed away
-    height = np.moveaxis(height, along, 0)
-    height -= height.mean(axis=0)
-    variance = (height ** 2).mean()
-    return [float((height[:-lag] * height[lag:]).mean() / variance) for lag in lags]
-
-
-def quality(model, name: str, windows: int) -> dict:
+def quality(model, name: str, windows: int, options) -> dict:
     layout = world.world_layout(model)
     h0, h1 = layout.horizontal
     finest = model.manifest.sizes[-1]
@@ -146,7 +168,7 @@ def quality(model, name: str, windows: int) -> dict:
     cut = []
     per_world = max(1, windows // 10)
     for seed in range(10):
-        grid = world_grid(model, seed, range(4), range(4)) > 0.5
+        grid = world_grid(model, seed, range(4), range(4), options=options) > 0.5
         for _ in range(per_world):
             start = [0, 0, 0]
             for axis in (h0, h1):
@@ -168,19 +190,114 @@ def quality(model, name: str, windows: int) -> dict:
                            (f"windows of ordinary samples {LARGE[0]:g} times as large along each horizontal axis", crops)):
         lp = evaluate.lp_metrics(volumes, reference)
         out[label] = f"{lp['lp_iou']:.3f} / {lp['lp_f']:.3f} / {evaluate.diversity(volumes):.3f}"
+    return out
+
+
+def strips(model, seeds, options) -> dict:
+    """Per horizontal axis, long strips of the world (STRIP tiles along it,
+    3 across) and ordinary samples as large, one of each per seed."""
+    layout = world.world_layout(model)
+    h0, h1 = layout.horizontal
+    finest = model.manifest.sizes[-1]
+    out = {}
     for axis, other in ((h0, h1), (h1, h0)):
-        period = layout.stride[axis]
-        lags = [period - 2, period - 1, period, period + 1, period + 2, 2 * period]
         block = {axis: range(STRIP), other: range(3)}
-        strip = world_grid(model, 7, block[h0], block[h1])
+        worlds = [world_grid(model, seed, block[h0], block[h1], options=options) for seed in seeds]
         factors = [1.0, 1.0, 1.0]
         for a in (h0, h1):
-            factors[a] = strip.shape[a] / finest[a]
-        ordinary = dense(model, sample(model, 7, tuple(factors)))
-        for label, grid in (("world", strip), ("an ordinary sample as long", ordinary)):
-            values = height_autocorrelation(grid, layout.up, axis, lags)
-            out[f"height autocorrelation along {'xyz'[axis]}, {label}, lags {lags}"] = \
+            factors[a] = worlds[0].shape[a] / finest[a]
+        out[axis] = (worlds, [dense(model, sample(model, seed, tuple(factors))) for seed in seeds])
+    return out
+
+
+def zones(grid: np.ndarray, layout, width: float = 0.1) -> dict:
+    """Height-field columns of a world grid (a block from tile (0, 0)) near the
+    tiles' corners (within `width` of a stride from a border along both
+    horizontal axes) and near their centres (within `width` of the middle
+    along both): (n,) heights each."""
+    h0, h1 = layout.horizontal
+    height = evaluate.height_field(grid, layout.up)  # (h0, h1)
+    fraction = [(np.arange(height.shape[k]) % layout.stride[a]) / layout.stride[a] for k, a in enumerate((h0, h1))]
+    corner = [np.minimum(f, 1 - f) <= width for f in fraction]
+    centre = [np.abs(f - 0.5) <= width for f in fraction]
+    return {"corners": height[np.ix_(*corner)].ravel(), "centres": height[np.ix_(*centre)].ravel()}
+
+
+def repetition(model, options, seeds=(7, 8)) -> dict:
+    """The height field's autocorrelation at the tile period S and its
+    multiples along each horizontal axis, world against ordinary samples as
+    long (mean over `seeds`); and the relief (std of heights) at tile
+    corners, centres and over ordinary samples."""
+    layout = world.world_layout(model)
+    out = {}
+    relief = {"corners": [], "centres": [], "ordinary": []}
+    for axis, (worlds, ordinary) in strips(model, seeds, options).items():
+        period = layout.stride[axis]
+        lags = [period // 2, period, 2 * period, 3 * period]
+        for label, grids in (("world", worlds), ("an ordinary sample as long", ordinary)):
+            values = np.mean([evaluate.height_autocorrelation(g, layout.up, axis, lags) for g in grids], axis=0)
+            out[f"height autocorrelation along {'xyz'[axis]} at S/2, S, 2S, 3S ({lags}), {label}"] = \
                 " ".join(f"{v:+.3f}" for v in values)
+        for grid in worlds:
+            for key, heights in zones(grid, layout).items():
+                relief[key].append(heights)
+        relief["ordinary"] += [evaluate.height_field(g, layout.up).ravel() for g in ordinary]
+    if options.arrange != "blend":  # tiles neither blend at their centres nor hold one window at their corners
+        relief.pop("corners"), relief.pop("centres")
+        out["relief (std of heights, voxels): ordinary samples"] = f"{np.std(np.concatenate(relief['ordinary'])):.2f}"
+        return out
+    spread = {key: float(np.std(np.concatenate(v))) for key, v in relief.items()}
+    out["relief (std of heights, voxels): tile corners / tile centres / ordinary samples"] = \
+        f"{spread['corners']:.2f} / {spread['centres']:.2f} / {spread['ordinary']:.2f}" + \
+        (f" (centres {spread['centres'] / spread['corners'] - 1:+.0%} against corners)" if spread["corners"] else "")
+    return out
+
+
+def painted_map(tiles: int, relief: float) -> np.ndarray:
+    """A designer's map over tiles x tiles: two hills and a valley between,
+    heights 0 to `relief` voxels (what a brush would paint)."""
+    r = (np.arange(tiles) + 0.5) / tiles
+    u, v = r[:, None], r[None, :]
+    hills = np.exp(-((u - 0.3) ** 2 + (v - 0.3) ** 2) / 0.02) + 0.8 * np.exp(-((u - 0.7) ** 2 + (v - 0.65) ** 2) / 0.03)
+    valley = 0.5 * np.exp(-((u - v) ** 2) / 0.01)
+    heights = np.clip(hills - valley + 0.3, 0, None)
+    return relief * heights / heights.max()
+
+
+def world_heights(model, seed: int, tiles: int, options) -> np.ndarray:
+    """The height field (occupied voxels per column) of tiles x tiles from
+    (0, 0), each tile's shared faces once: (tiles S0 + 1, tiles S1 + 1)."""
+    layout = world.world_layout(model)
+    rows = []
+    for i in range(tiles):
+        row = [evaluate.height_field(world.tile_occupancy(model, seed, (i, j), options=options), layout.up)
+               for j in range(tiles)]
+        row = [t[:, (0 if k == 0 else 1):] for k, t in enumerate(row)]
+        rows.append(np.concatenate(row, axis=1))
+    return np.concatenate([r[(0 if k == 0 else 1):] for k, r in enumerate(rows)], axis=0)
+
+
+def large_shape(model, options, tiles: int = 32, relief_factor: float = 4.0) -> dict:
+    """A world of tiles x tiles painted with painted_map (relief_factor
+    times the model's height): its large-scale relief (the std of each
+    tile's mean height) against the model's own height band (the std of an
+    ordinary sample's heights) and the plain world's, and how it follows
+    the map (correlation of each tile's mean height with its pixel)."""
+    layout = world.world_layout(model)
+    relief = relief_factor * layout.stride[layout.up]
+    heights = painted_map(tiles, relief)
+    painted = dataclasses.replace(options, heights=world.HeightMap.of(heights))
+    out = {}
+    band = float(np.std(evaluate.height_field(dense(model, sample(model, 7)), layout.up)))
+    for label, chosen in (("plain", options), (f"painted, relief {relief:g} voxels", painted)):
+        field = world_heights(model, 7, tiles, chosen)
+        s0, s1 = layout.stride[layout.horizontal[0]], layout.stride[layout.horizontal[1]]
+        means = field[:tiles * s0, :tiles * s1].reshape(tiles, s0, tiles, s1).mean(axis=(1, 3))
+        out[f"{tiles}x{tiles} tiles, {label}: large-scale relief (std of tile means) / model's band"] = \
+            f"{means.std():.2f} / {band:.2f} voxels ({means.std() / band:.1f}x)"
+        if chosen is painted:
+            out[f"... correlation of tile means with the painted heights"] = \
+                f"{np.corrcoef(means.ravel(), heights.ravel())[0, 1]:.3f}"
     return out
 
 
@@ -189,21 +306,31 @@ def main():
     parser.add_argument("--models", nargs="+", default=["terrain", "acropolis", "towerruins"])
     parser.add_argument("--block", type=int, default=4)
     parser.add_argument("--windows", type=int, default=100)
-    parser.add_argument("--sections", nargs="+", default=["seams", "cost", "quality"])
+    parser.add_argument("--sections", nargs="+", default=["seams", "cost", "quality", "repetition", "map"])
     parser.add_argument("--blend", type=float, default=None)
+    parser.add_argument("--contrast", type=float, default=None, help="world.CONTRAST, for a comparison")
+    parser.add_argument("--pitch", type=int, default=None, help="world.PITCH, for a comparison")
+    parser.add_argument("--presence", type=float, default=None, help="world.PRESENCE, for a comparison")
+    parser.add_argument("--arrange", choices=world.ARRANGEMENTS, default=None,
+                        help="every model's arrangement (default: each model's own, as its manifest records)")
     args = parser.parse_args()
-    if args.blend is not None:
-        world.BLEND = args.blend
-    print(f"world.BLEND = {world.BLEND}")
+    for name in ("blend", "contrast", "pitch", "presence"):
+        if getattr(args, name) is not None:
+            setattr(world, name.upper(), getattr(args, name))
+    print(f"world.BLEND = {world.BLEND}, CONTRAST = {world.CONTRAST}, PITCH = {world.PITCH}, PRESENCE = {world.PRESENCE}")
     for name in args.models:
         model = load_model(models.find(name))
+        options = world.WorldOptions(arrange=args.arrange or model.manifest.arrange)
         layout = world.world_layout(model)
         print(f"\n## {name}: up {model.manifest.up}, tiles of {layout.stride[layout.horizontal[0]]} x "
-              f"{layout.stride[layout.horizontal[1]]} voxels, windows {'x'.join(map(str, model.manifest.sizes[-1]))}\n")
+              f"{layout.stride[layout.horizontal[1]]} voxels, windows {'x'.join(map(str, model.manifest.sizes[-1]))}, "
+              f"{options.arrange}\n")
         print("| measure | value |\n|---|---|")
         for section in args.sections:
-            figures = {"seams": lambda: seams(model, args.block), "cost": lambda: cost(model, name),
-                       "quality": lambda: quality(model, name, args.windows)}[section]()
+            figures = {"seams": lambda: seams(model, args.block, options), "cost": lambda: cost(model, name, options),
+                       "quality": lambda: quality(model, name, args.windows, options),
+                       "repetition": lambda: repetition(model, options),
+                       "map": lambda: large_shape(model, options)}[section]()
             for key, value in figures.items():
                 print(f"| {key} | {value} |", flush=True)
 

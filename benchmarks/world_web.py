@@ -1,25 +1,32 @@
-"""Endless worlds in the browser: tiles per second made in the page's worker,
-and the frame rate while flying, in headless chromium (WebGL drawn by its
-software renderer, SwiftShader: no GPU), with the Python runtime beside it.
+"""Endless worlds in the browser: tiles made in the page's worker at each
+level of detail, the page's first view filled, and its frame times while
+tiles stream, in headless chromium (WebGL drawn by its software renderer,
+SwiftShader: no GPU), from the page's worker and from `sinrun serve`, with
+the Python runtime beside them.
 
-    python benchmarks/world_web.py [MODEL] [--reach 3] [--seconds 10] [--repeats 5] [--seed 3] [--shots PNG]
+    python benchmarks/world_web.py [MODEL] [--arrange blend|scatter] [--reach 3] [--seconds 10] [--repeats 5]
+                                   [--seed 3] [--shots PNG]
 
 Exports MODEL (default: the shipped terrain) with `sinrun export-web`, serves
 it with the site's own serve.py (cross-origin isolated: WASM on threads) and
 opens it in headless chromium (the tests' harness, tests/browser.py):
 
 - The worker: a worker of its own (static/sinshape/worker.js, as the page
-  starts it) makes tiles with no window kept (far apart: four new windows
-  each), along a row (two new windows each, the two it shares kept) and
-  again (none new: the decoding and the mesh only), and, to compare,
-  samples of the training size; the median of `--repeats` each, after a
-  warm-up.
-- The page: world mode at `--reach` tiles around the camera's, from choosing
-  it (the model already loaded) until every tile of the ring is made.
-- Flying: the frame intervals (requestAnimationFrame) for `--seconds` while
-  the camera flies forward at its speed (tiles made in the worker meanwhile,
-  and dropped behind), then, every tile made, while it turns in place.
-- The Python runtime makes the same ring, in the same order, on one thread.
+  starts it) makes tiles with no window kept at every level of detail (far
+  apart: four new windows each), along a row at full detail (two new windows
+  each) and again (none new: the decoding, the mesh and its normals only),
+  and, to compare, samples of the training size; the median of `--repeats`
+  each, after a warm-up.
+- The page, in browser mode and then from `sinrun serve MODEL`: world mode
+  at `--reach` tiles around the camera's (each a level coarser per tile past
+  the first ring), from choosing it (the model already loaded) until every
+  tile is made, with the frame intervals (requestAnimationFrame) meanwhile:
+  the worst, the 95th percentile and the median.
+- Flying (browser mode): the frame intervals for `--seconds` while the camera
+  flies forward at its speed (tiles made meanwhile, and dropped behind),
+  then, every tile made, while it turns in place.
+- The Python runtime makes the same ring at the same levels, in the same
+  order, on one thread.
 
 With --shots PNG, the page in world mode at 1100x700 and, beside it, at a
 phone's 390x844 is saved as one picture (docs/world-page.png).
@@ -37,13 +44,13 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
-from browser import chromium, open_page, site_server_process, wait_world  # noqa: E402
+from browser import chromium, open_page, server_process, site_server_process, wait_world  # noqa: E402
 
 from sinshape import models  # noqa: E402
 from sinshape.runtime import load, world  # noqa: E402
 from sinshape.serve import site  # noqa: E402
 
-WORKER_JS = """async ([file, seed, repeats]) => {
+WORKER_JS = """async ([file, seed, repeats, arrange, levels]) => {
   const { sampleRequest } = await import('./static/sinshape/request.js');
   const worker = new Worker('static/sinshape/worker.js', { type: 'module' });
   let ids = 0;
@@ -60,19 +67,19 @@ WORKER_JS = """async ([file, seed, repeats]) => {
   });
   const bytes = new Uint8Array(await (await fetch(file)).arrayBuffer());
   const loaded = await call({ type: 'load', name: 'model', bytes, file });
-  const tile = async (i, j) => {
+  const tile = async (i, j, lod = 0) => {
     const started = performance.now();
-    await call({ type: 'sample', name: 'model', request: sampleRequest({ seed: BigInt(seed), tile: [BigInt(i), BigInt(j)], frame: 'tile' }) });
+    await call({ type: 'sample', name: 'model', request: sampleRequest({ seed: BigInt(seed), tile: [BigInt(i), BigInt(j)], frame: 'tile', arrange, lod }) });
     return performance.now() - started;
   };
   await tile(-7777, 0);  // the warm-up: the JIT, onnxruntime's first runs
-  const cold = [], row = [], warm = [], sample = [];
+  const cold = Array.from({ length: levels }, () => []), row = [], warm = [], sample = [];
   for (let k = 1; k <= repeats; k++) {
     const started = performance.now();
     await call({ type: 'sample', name: 'model', request: sampleRequest({ seed: BigInt(seed + k) }) });
     sample.push(performance.now() - started);
   }
-  for (let k = 1; k <= repeats; k++) cold.push(await tile(1000 * k, 0));
+  for (let k = 1; k <= repeats; k++) for (let lod = 0; lod < levels; lod++) cold[lod].push(await tile(1000 * k + 100 * lod, 0, lod));
   await tile(50000, 0);
   for (let k = 1; k <= repeats; k++) row.push(await tile(50000 + k, 0));
   for (let k = 1; k <= repeats; k++) warm.push(await tile(50000 + repeats, 0));
@@ -82,41 +89,62 @@ WORKER_JS = """async ([file, seed, repeats]) => {
 
 # Frame times (requestAnimationFrame) while `recording` is set.
 RECORD_JS = """() => {
-  window.frameTimes = [];
+  const times = window.frameTimes = [];  // a recording of its own: an earlier loop stops at its next frame
   window.recording = true;
-  const tick = (t) => { window.frameTimes.push(t); if (window.recording) requestAnimationFrame(tick); };
+  const tick = (t) => { times.push(t); if (window.recording && window.frameTimes === times) requestAnimationFrame(tick); };
   requestAnimationFrame(tick);
 }"""
 
 
+def intervals(times: list) -> dict:
+    """Frame times (ms) -> the intervals' worst, 95th percentile and median (ms), and frames per second."""
+    gaps = sorted(b - a for a, b in zip(times, times[1:]))
+    return {"worst": gaps[-1], "p95": gaps[int(0.95 * (len(gaps) - 1))], "median": statistics.median(gaps),
+            "fps": (len(times) - 1) / ((times[-1] - times[0]) / 1000)}
+
+
 def frames_while(page, key: str, seconds: float) -> dict:
-    """Hold `key` for `seconds`: the frame intervals' median and 95th percentile (ms), frames per second."""
+    """Hold `key` for `seconds`: the frame intervals (intervals)."""
     page.evaluate(RECORD_JS)
     page.keyboard.down(key)
     page.wait_for_timeout(seconds * 1000)
     page.keyboard.up(key)
-    times = page.evaluate("window.recording = false, window.frameTimes")
-    gaps = sorted(b - a for a, b in zip(times, times[1:]))
-    return {"median": statistics.median(gaps), "p95": gaps[int(0.95 * (len(gaps) - 1))],
-            "fps": (len(times) - 1) / ((times[-1] - times[0]) / 1000)}
+    return intervals(page.evaluate("window.recording = false, window.frameTimes"))
+
+
+def first_view(page, base: str, seed: int, reach: int, arrange: str) -> dict:
+    """World mode chosen on a page showing a sample (its model loaded): seconds until every tile
+    of the view is made, its tiles, and the frame intervals meanwhile."""
+    page.goto(f"{base}/?seed={seed}&reach={reach}")
+    page.wait_for_function("document.body.dataset.state === 'ready'", timeout=120_000)
+    page.evaluate(RECORD_JS)
+    started = page.evaluate(f"""() => {{ const t = performance.now(); document.getElementById('arrange').value = '{arrange}';
+      const edit = document.getElementById('edit'); edit.value = 'world'; edit.dispatchEvent(new Event('change')); return t; }}""")
+    status = wait_world(page, timeout=600_000)
+    seconds = (page.evaluate("performance.now()") - started) / 1000
+    frames = intervals(page.evaluate("window.recording = false, window.frameTimes"))
+    return {"seconds": seconds, "tiles": status["tiles"], "frames": frames}
 
 
 def ring(reach: int, size) -> list:
-    """The tiles within `reach` of tile (0, 0), nearest first from the camera over its middle, as the page orders them."""
+    """The tiles within `reach` of tile (0, 0), nearest first from the camera over its middle, and the
+    level of detail the page asks each at (viewer/world.js's FINE: a level coarser per tile past the first)."""
     tiles = [(i, j) for i in range(-reach, reach + 1) for j in range(-reach, reach + 1)]
-    return sorted(tiles, key=lambda t: math.hypot(t[0] * size[0], t[1] * size[1]))
+    return [(t, max(0, max(abs(t[0]), abs(t[1])) - 1))
+            for t in sorted(tiles, key=lambda t: math.hypot(t[0] * size[0], t[1] * size[1]))]
 
 
-def python_ring(path: Path, seed: int, reach: int) -> float:
-    """Seconds for the Python runtime, one thread, to make the ring's tiles in the page's order."""
+def python_ring(path: Path, seed: int, reach: int, arrange: str) -> float:
+    """Seconds for the Python runtime, one thread, to make the ring's tiles at their levels in the page's order."""
     model = load.load_model(path, threads=1)
     layout = world.world_layout(model)
     size = [layout.stride[a] * model.manifest.spacing[a] for a in layout.horizontal]
-    world.tile_mesh(model, seed, (-7777, 0))  # the warm-up
+    world.tile_surface(model, seed, (-7777, 0))  # the warm-up
     world._windows.clear()
+    coarsest = len(model.manifest.sizes) - 1
     started = time.perf_counter()
-    for tile in ring(reach, size):
-        world.tile_mesh(model, seed, tile)
+    for tile, lod in ring(reach, size):
+        world.tile_surface(model, seed, tile, options=world.WorldOptions(arrange, lod=min(lod, coarsest)))
     return time.perf_counter() - started
 
 
@@ -144,6 +172,7 @@ def shots(browser, base: str, seed: int, path: Path) -> None:
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("model", nargs="?", default="terrain")
+    parser.add_argument("--arrange", choices=world.ARRANGEMENTS, default=None, help="default: the model's own")
     parser.add_argument("--reach", type=int, default=3)
     parser.add_argument("--seconds", type=float, default=10)
     parser.add_argument("--repeats", type=int, default=5)
@@ -152,6 +181,8 @@ def main():
     args = parser.parse_args()
 
     path = models.find(args.model)
+    manifest = load.load_model(path, threads=1).manifest
+    arrange, levels = args.arrange or manifest.arrange, len(manifest.sizes)
     load_before = os.getloadavg()[0]
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp) / "site"
@@ -159,14 +190,8 @@ def main():
         with site_server_process(folder) as base, chromium() as browser:
             page = open_page(browser, base)
             page.goto(f"{base}/README.txt")
-            worker = page.evaluate(WORKER_JS, [f"models/{args.model}.onnx", args.seed, args.repeats])
-            page.goto(f"{base}/?seed={args.seed}&reach={args.reach}")  # a sample first: the worker holds the model
-            page.wait_for_function("document.body.dataset.state === 'ready'", timeout=120_000)
-            started = page.evaluate("() => { const t = performance.now(); const edit = document.getElementById('edit');"
-                                    " edit.value = 'world'; edit.dispatchEvent(new Event('change')); return t; }")
-            status = wait_world(page, timeout=600_000)
-            filled = (page.evaluate("performance.now()") - started) / 1000
-            tiles = len(status["tiles"])
+            worker = page.evaluate(WORKER_JS, [f"models/{args.model}.onnx", args.seed, args.repeats, arrange, levels])
+            in_browser = first_view(page, base, args.seed, args.reach, arrange)
             before = page.evaluate("window.sinshapeView.world.status()")
             flying = frames_while(page, "w", args.seconds)
             after = page.evaluate("window.sinshapeView.world.status()")
@@ -176,25 +201,36 @@ def main():
             assert not page.errors, page.errors
             if args.shots:
                 shots(browser, base, args.seed, args.shots)
-    python = python_ring(path, args.seed, args.reach)
+        sinrun = Path(sys.executable).with_name("sinrun")
+        with server_process([str(sinrun), "serve", args.model, "--port"], Path(tmp), "sinrun serve") as base, \
+                chromium() as browser:
+            page = open_page(browser, base)
+            from_server = first_view(page, base, args.seed, args.reach, arrange)
+            assert not page.errors, page.errors
+    python = python_ring(path, args.seed, args.reach, arrange)
 
-    row = lambda ms: f"{statistics.median(ms):.0f} ms, {1000 / statistics.median(ms):.1f} tiles/s"  # noqa: E731
-    print(f"{args.model}, seed {args.seed}: headless chromium, WebGL on SwiftShader (software), "
+    ms = lambda values: f"{statistics.median(values):.0f} ms"  # noqa: E731
+    frames = lambda f: (f"worst {f['worst']:.0f} ms, 95th percentile {f['p95']:.0f} ms, median {f['median']:.0f} ms, "  # noqa: E731
+                        f"{f['fps']:.1f} frames/s")
+    print(f"{args.model} ({arrange}), seed {args.seed}: headless chromium, WebGL on SwiftShader (software), "
           f"WASM on {worker['threads']} threads; load average {load_before:.1f} before, {os.getloadavg()[0]:.1f} after\n")
-    print("| the browser's worker, a tile | median | ")
+    print("| the browser's worker, a tile (mesh and normals) | median |")
     print("|---|---|")
-    print(f"| no window kept (4 made) | {row(worker['cold'])} |")
-    print(f"| along a row (2 made) | {row(worker['row'])} |")
-    print(f"| every window kept (the decoding and the mesh) | {row(worker['warm'])} |")
-    print(f"| a sample at the training size, for comparison | {statistics.median(worker['sample']):.0f} ms |")
-    print(f"\nthe page's world mode, reach {args.reach}: {tiles} tiles in {filled:.1f} s, {tiles / filled:.1f} tiles/s "
-          f"(the Python runtime, 1 thread, the same ring: {python:.1f} s, {tiles / python:.1f} tiles/s)")
-    print(f"flying {args.seconds:g} s: {flying['fps']:.1f} frames/s, interval median {flying['median']:.0f} ms, "
-          f"95th percentile {flying['p95']:.0f} ms; {after['made'] - before['made']} tiles made, "
+    for lod, values in enumerate(worker["cold"]):
+        print(f"| no window kept (4 made), lod {lod} | {ms(values)} ({statistics.median(values) / statistics.median(worker['cold'][0]):.2f}x) |")
+    print(f"| along a row (2 made), lod 0 | {ms(worker['row'])} |")
+    print(f"| every window kept (the decoding, the mesh and its normals) | {ms(worker['warm'])} |")
+    print(f"| a sample at the training size, for comparison | {ms(worker['sample'])} |")
+    for label, view in (("in the browser", in_browser), ("from sinrun serve", from_server)):
+        lods = sorted({t[4] for t in view["tiles"]})
+        count = len(view["tiles"])
+        print(f"\nthe page's first view {label}, reach {args.reach}: {count} tiles (levels of detail {lods}) in "
+              f"{view['seconds']:.1f} s, {count / view['seconds']:.1f} tiles/s; frames meanwhile: {frames(view['frames'])}")
+    print(f"(the Python runtime, 1 thread, the same tiles at the same levels: {python:.1f} s, {count / python:.1f} tiles/s)")
+    print(f"\nflying {args.seconds:g} s (browser): {frames(flying)}; {after['made'] - before['made']} tiles made, "
           f"{after['dropped'] - before['dropped']} dropped, tile {', '.join(before['at'])} to {', '.join(after['at'])}; "
           f"GPU geometries after: {memory['geometries']}")
-    print(f"turning in place {args.seconds:g} s, no tile made: {still['fps']:.1f} frames/s, interval median "
-          f"{still['median']:.0f} ms, 95th percentile {still['p95']:.0f} ms")
+    print(f"turning in place {args.seconds:g} s, no tile made: {frames(still)}")
 
 
 if __name__ == "__main__":

@@ -101,6 +101,8 @@ class SINSHAPE_OT_add_world(AddOperator, bpy.types.Operator):
                 setattr(obj.sinshape_world, key, getattr(self, key))
             obj.sinshape_world.active = True
         try:
+            with live.suspended():  # made as the model records its world unless the arrangement is changed
+                obj.sinshape_world.arrange = live.load_settings(obj.sinshape_world)[0].manifest.arrange
             worlds.refresh(obj, context.scene)
         except InputError as error:
             for child in list(obj.children):

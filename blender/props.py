@@ -86,6 +86,12 @@ class SinshapeWorld(bpy.types.PropertyGroup):
                          description="Query the surface on a grid this many times finer per axis")
     radius: IntProperty(name="Radius", default=2, min=0, max=worlds.MAX_RADIUS, soft_max=8, update=worlds.changed,
                         description="Tiles kept on each side of the followed point's tile")
+    arrange: EnumProperty(name="Arrange", update=worlds.changed, default="blend",
+                          items=[("blend", "Blend", "Samples blended into one landscape (terrain, rock)"),
+                                 ("scatter", "Scatter", "Whole samples at drawn places on a ground (a temple, a tower)")])
+    fine: IntProperty(name="Fine Radius", default=1, min=0, max=32, soft_max=8, update=worlds.changed,
+                      description="Tiles on each side of the followed point's made at full detail; each tile "
+                                  "farther, a level coarser (with a skirt over the crack)")
     follow: PointerProperty(name="Follow", type=bpy.types.Object, update=worlds.changed,
                             description="The object whose place the tiles fill around (the camera, say); "
                                         "none: the 3D cursor")

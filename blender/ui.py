@@ -20,7 +20,7 @@ class VIEW3D_PT_sinshape(bpy.types.Panel):
             settings = world.sinshape_world
             self.draw_state(settings)
             column = layout.column()
-            for name in ("model", "seed", "scale", "radius", "follow"):
+            for name in ("model", "seed", "scale", "arrange", "radius", "fine", "follow"):
                 column.prop(settings, name)
             layout.operator("sinshape.regenerate", icon="FILE_REFRESH")
             return

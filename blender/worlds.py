@@ -7,11 +7,14 @@ moving, turning or scaling it moves the whole world. It follows its
 `follow` object (the camera, say), or the 3D cursor where none is set.
 
 One child mesh object per tile, not one joined mesh: each tile is made on
-its own (world.tile_mesh) and shown as soon as it is done, a tile left
+its own (world.tile_surface) and shown as soon as it is done, a tile left
 behind is one object removed, and nothing already shown is rebuilt when
 the point moves on; a joined mesh would be rebuilt whole for every tile
 that comes or goes. The runtime's tiles share their border vertices
-exactly, so side by side they are one surface without a weld.
+exactly, so side by side they are one surface without a weld. Tiles past
+the fine radius are made a level coarser per tile (world.WorldOptions.lod),
+with the skirt that covers the crack where they meet finer ones, and made
+again at their new level as the point moves.
 """
 
 import math
@@ -27,7 +30,7 @@ from sinshape.runtime import generate, world
 from . import convert, live, work
 
 TILE = "sinshape_tile"  # a tile object's custom property: "I,J"
-MADE = "sinshape_made"  # ... and what it was made from: the model file's SHA-256, the seed, the scale
+MADE = "sinshape_made"  # ... and what it was made from: the model file's SHA-256, the seed, the scale, the arrangement, its lod
 MAX_RADIUS = 32  # tiles on each side: (2 r + 1)^2 = 4225 tiles at most
 
 
@@ -55,6 +58,11 @@ def tiles_around(centre, radius: int) -> list:
     tiles = [world.check_tile((ci + di, cj + dj)) for di in range(-radius, radius + 1)
              for dj in range(-radius, radius + 1)]
     return sorted(tiles, key=lambda t: (max(abs(t[0] - ci), abs(t[1] - cj)), t))
+
+
+def detail(centre, tile, fine: int, coarsest: int) -> int:
+    """The level of detail of a tile: 0 within `fine` tiles of the centre's, a level coarser per tile beyond."""
+    return min(coarsest, max(0, max(abs(tile[0] - centre[0]), abs(tile[1] - centre[1])) - fine))
 
 
 TILE_TEXT = re.compile(r"(-?[0-9]{1,19}),(-?[0-9]{1,19})")
@@ -112,13 +120,16 @@ def refresh(obj, scene=None, force: bool = False) -> None:
         model, digest = live.load_settings(settings)
         layout = world.world_layout(model)
         world.check_world_scale(layout, settings.scale, model.manifest.hidden, None)
-        wanted = tiles_around(centre_tile(model, layout, followed_point(obj, scene)), settings.radius)
-        made = f"{digest}:{settings.seed}:{settings.scale!r}"
-        if not force and live.MADE.get(obj.name) == (made, wanted):
+        centre = centre_tile(model, layout, followed_point(obj, scene))
+        wanted = tiles_around(centre, settings.radius)
+        made = f"{digest}:{settings.seed}:{settings.scale!r}:{settings.arrange}"
+        lods = {tile: detail(centre, tile, settings.fine, len(model.manifest.sizes) - 1) for tile in wanted}
+        if not force and live.MADE.get(obj.name) == (made, lods):
             return
-        live.MADE[obj.name] = (made, wanted)
+        live.MADE[obj.name] = (made, lods)
         present = tile_objects(obj)
-        todo = [tile for tile in wanted if force or tile not in present or present[tile].get(MADE) != made]
+        todo = [(tile, lods[tile]) for tile in wanted
+                if force or tile not in present or present[tile].get(MADE) != f"{made}:{lods[tile]}"]
         # Tiles left behind stay until the new ones are made (a jump would
         # show nothing for seconds), the farthest dropped at once past as many as are wanted.
         centre = wanted[0]
@@ -127,7 +138,7 @@ def refresh(obj, scene=None, force: bool = False) -> None:
             remove(present.pop(tile))
         settings.error = far_warning(model, wanted)
         if todo:
-            submit(obj.name, model, made, settings.seed, settings.scale, todo)
+            submit(obj.name, model, made, settings.seed, settings.scale, settings.arrange, todo)
     except InputError as error:
         settings.error = str(error)
         raise
@@ -156,19 +167,18 @@ def far_warning(model, tiles: list) -> str:
             f"{limit:.3g} units. Move the world object near them")
 
 
-def submit(name: str, model, made: str, seed: int, scale: float, tiles: list) -> None:
-    """One job for a world's tiles; a newer one for the same world stops it between two tiles."""
+def submit(name: str, model, made: str, seed: int, scale: float, arrange: str, tiles: list) -> None:
+    """One job for a world's tiles ((tile, level of detail) pairs); a newer one for the same world stops
+    it between two tiles."""
     up = model.manifest.up
 
     def compute(job):
-        for done, tile in enumerate(tiles):
+        for done, (tile, lod) in enumerate(tiles):
             job.progress(done, len(tiles))
-            vertices, faces = world.tile_mesh(model, seed, tile, scale)
-            colours = None
-            if model.manifest.colour:
-                colours = convert.byte_colours(world.tile_colours(model, seed, tile, vertices))
-            arrays = live.blender_arrays(world.placed(model, tile, vertices, "tile"), faces, up, colours)
-            job.deliver((tile, arrays, tile_shade(model, tile, arrays[0], faces)))
+            surface = world.tile_surface(model, seed, tile, scale, world.WorldOptions(arrange, lod=lod))
+            colours = None if surface.colours is None else convert.byte_colours(surface.colours)
+            arrays = live.blender_arrays(world.placed(model, tile, surface.vertices, "tile"), surface.faces, up, colours)
+            job.deliver((f"{made}:{lod}", tile, arrays, tile_shade(model, tile, arrays[0], surface.faces)))
         job.deliver(None)  # all made: the tiles left behind go
 
     def fail(error):
@@ -181,7 +191,7 @@ def submit(name: str, model, made: str, seed: int, scale: float, tiles: list) ->
         if result is None:
             drop_behind(name)
         else:
-            apply_tile(name, model, made, *result)
+            apply_tile(name, model, *result)
 
     work.WORKER.submit(work.Job(name, f"{name}: {len(tiles)} tiles", compute, apply, fail))
 

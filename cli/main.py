@@ -31,7 +31,7 @@ OPTIONS = {"scale": "--scale", "factors": "--size", "smooth": "--smooth", "threa
            "output": "--output", "tile": "--tiles", "frame": "--frame", "force": "--force",
            "no_colour": "--no-colour", "d_steps": "--d-steps", "d_rate": "--d-rate", "colour_mb": "--colour-mb",
            "asset_folder": "--asset-folder", "restart": "--restart", "lods": "--lods", "texture": "--texture",
-           "ao": "--ao"}
+           "ao": "--ao", "arrange": "--arrange", "heights": "--map", "relief": "--relief", "lod": "--lod"}
 # ctx.meta key: {parameter: what set it} where a command's value came from elsewhere than OPTIONS says.
 SOURCES = "sinrun.sources"
 # The extra that installs each optional module (pyproject.toml): a command
@@ -433,26 +433,42 @@ def run_job(job, items, unit: str, name) -> None:
                    "in the world (near the origin: float32 cannot place tiles far out), or 'tile': the "
                    "input's units from each tile's own corner (any tile; the index gives the corner).")
 @THREADS_OPTION
-@click.option("--workers", type=int, default=None, help="Worker processes (default: one per core) or Ray actors.")
+@click.option("--workers", type=int, default=None,
+              help="Worker processes (default: one, on every core's threads: neighbouring tiles share work a "
+                   "worker keeps, which workers taking tiles in turn would each do again) or Ray actors.")
 @click.option("--engine", type=click.Choice(["local", "ray"]), default="local", show_default=True,
               help="This machine's cores, or a Ray cluster (pip install 'sinshape[ray]').")
 @click.option("--address", default=None, help="With --engine ray: the cluster's address.")
+@click.option("--arrange", type=click.Choice(["blend", "scatter"]), default=None,
+              help="blend: samples blended into one continuing surface (terrain, rock, walls); scatter: whole "
+                   "samples, one in most cells of three tiles a side, at drawn places, on a ground (a temple, "
+                   "a tower). Default: what the model records (`sinrun orient --arrange`), else blend.")
+@click.option("--map", "height_map", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
+              help="The world's large shape: a greyscale .png (black low, white --relief voxels high; a column "
+                   "per tile along the first horizontal axis, a row per tile up the second, from tile 0,0) or a "
+                   ".npy array of heights in voxels, [i, j] for tile i,j. Beyond it, its edge goes on.")
+@click.option("--relief", type=float, default=None,
+              help="Voxels from a .png map's black to its white. Default: 4 times the model's height.")
+@click.option("--lod", type=int, default=0, show_default=True,
+              help="Levels of detail coarser than the finest: distant tiles, cheaper, with a skirt that hides "
+                   "the crack where they meet finer ones.")
 @RESTART_OPTION
 @asset_options
-def world(model, seed, tiles, output, suffix, scale, frame, threads, workers, engine, address, restart, lods, texture,
-          ao):
+def world(model, seed, tiles, output, suffix, scale, frame, threads, workers, engine, address, arrange, height_map,
+          relief, lod, restart, lods, texture, ao):
     """Write tiles of an endless world: any tile on its own, seamless with its neighbours.
 
     The world spreads along the model's two horizontal axes (the two that are
     not its up axis: `sinrun info` names it). Every tile depends only on the
-    model, the seed and its place, so tiles join without a crack whatever
-    was made before, and a tile a billion tiles away costs what tile 0,0 costs.
+    model, the seed, the map and its place, so tiles join without a crack
+    whatever was made before, and a tile a billion tiles away costs what
+    tile 0,0 costs.
     """
     from sinshape.runtime import asset as assets, world as worlds, write
-    from sinshape.runtime.request import SampleRequest
 
     packed = assets.options_of(lods, texture, ao)
     loaded = open_model(model, threads)
+    wanted = worlds.world_request(loaded, seed, scale, frame, arrange, height_map, relief, lod)
     output = output or Path(f"{loaded.path.stem}_world_seed{seed}")
     suffix = "glb" if packed else suffix
     if output.suffix.lower() in files.MESH_FORMATS and "{tile}" not in output.name:  # one mesh of the block
@@ -460,13 +476,11 @@ def world(model, seed, tiles, output, suffix, scale, frame, threads, workers, en
             raise InputError(f"{output}: a block of tiles is one mesh; write its tiles as assets to a folder or a "
                              "name holding {tile}", "lods")
         with StageProgress() as show:
-            write.write_block(loaded, SampleRequest(seed, scale=scale, frame=frame), tiles, output,
-                              lambda done, total: show("tiles", done, total))
+            write.write_block(loaded, wanted, tiles, output, lambda done, total: show("tiles", done, total))
         return click.echo(f"wrote {output} ({len(tiles)} tiles)")
     pattern = output if "{tile}" in output.name else output / f"tile_{{tile}}.{suffix}"
-    run_job(lambda progress: worlds.write_tiles(loaded.path, iter(tiles), pattern, SampleRequest(seed, scale=scale,
-                                                frame=frame), engine, workers, threads, address, progress, restart,
-                                                packed),
+    run_job(lambda progress: worlds.write_tiles(loaded.path, iter(tiles), pattern, wanted, engine, workers, threads,
+                                                address, progress, restart, packed),
             tiles, "tiles", lambda tile: pattern.with_name(pattern.name.replace("{tile}", f"{tile[0]}_{tile[1]}")))
 
 
@@ -566,24 +580,29 @@ def info(model):
 
 @cli.command()
 @MODEL_ARGUMENT
-@click.option("--up", type=click.Choice(["y", "z"]), required=True,
+@click.option("--up", type=click.Choice(["y", "z"]), default=None,
               help="The axis of the model's training input that points up.")
+@click.option("--arrange", type=click.Choice(["blend", "scatter"]), default=None,
+              help="How the model's world is made unless `sinrun world --arrange` says: blend (a landscape: "
+                   "terrain, rock) or scatter (one object: a temple, a tower).")
 @click.option("-o", "--output", type=click.Path(path_type=Path), default=None,
               help="Where to write the changed model (.onnx). Default: the model's own file, changed in "
                    "place (never a shipped model's).")
-def orient(model, up, output):
-    """Record which axis of a model points up, without retraining.
+def orient(model, up, arrange, output):
+    """Record which axis of a model points up, or how its world is made, without retraining.
 
     Viewers, pictures, the page and Blender stand a model's samples on that
-    axis. Samples themselves do not change: the same seed gives the same
-    shape, in the same coordinates.
+    axis; `sinrun world`, the page and Blender make its world as it says
+    unless told otherwise. Samples themselves do not change: the same seed
+    gives the same shape, in the same coordinates.
     """
     from sinshape import models
     from sinshape.runtime import load
 
     target = models.own_file(model, output)
-    load.write_oriented(open_model(model, threads=1), up, target)
-    click.echo(f"wrote {target} ({up} points up)")
+    load.write_oriented(open_model(model, threads=1), up, target, arrange)
+    said = [f"{up} points up"] * (up is not None) + [f"its world {arrange}s"] * (arrange is not None)
+    click.echo(f"wrote {target} ({', '.join(said)})")
 
 
 @cli.command()

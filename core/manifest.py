@@ -36,6 +36,7 @@ METADATA_KEY = "sinshape.manifest"  # key of the manifest in the ONNX metadata_p
 SEAL_KEY = "sinshape.sha256"  # key of the last metadata_props entry: the seal (format 3 on)
 NOISE_SCHEME = "splitmix64-boxmuller-v1"  # core/noise.py
 UP_AXES = ("y", "z")  # manifest `up`: which input-frame axis points up (absent: y)
+ARRANGEMENTS = ("blend", "scatter")  # manifest `arrange`: how the model's world is made unless asked (absent: blend)
 PLANES = ("xy", "xz", "yz")  # plane k drops grid axis 2 - k
 PLANE_AXES = ((0, 1), (0, 2), (1, 2))  # the grid axes each plane keeps, in PLANES order
 # Initializers of stage decoder_head, (D,), (D, 1), (1,): b1, w2, b2.
@@ -104,6 +105,7 @@ class Manifest:
     stages: dict
     raw: dict
     up: str = "y"  # the input frame's axis that points up: "y" (most meshes) or "z" (voxel data)
+    arrange: str = "blend"  # how its world is made unless asked: "blend" (a landscape) or "scatter" (an object)
     colour: bool = False  # the decoder also gives sRGB colour (format 4)
     tiles: tuple | None = None  # format 5: (count, side) of the example's colour tiles
 
@@ -251,6 +253,7 @@ def parse(text: str) -> Manifest:
         amps.append(float(amp))
 
     _require(raw.get("up", "y") in UP_AXES, f"up must be one of {', '.join(UP_AXES)}")
+    _require(raw.get("arrange", "blend") in ARRANGEMENTS, f"arrange must be one of {', '.join(ARRANGEMENTS)}")
     frame = raw.get("frame")
     _require(isinstance(frame, dict), "frame is missing")
     origin, spacing = frame.get("origin"), frame.get("spacing")
@@ -289,6 +292,7 @@ def parse(text: str) -> Manifest:
         stages=stages,
         raw=raw,
         up=raw.get("up", "y"),
+        arrange=raw.get("arrange", "blend"),
         colour=colour,
         tiles=tiles,
     )
@@ -340,6 +344,7 @@ def describe(raw: dict) -> list:
     lines += [
         f"networks    {raw['channels']} channels, {raw['pool_bins']} pooling bins, MLP hidden {raw['mlp_hidden']}",
         f"frame       voxel (0, 0, 0) at ({origin}), voxel size ({spacing}); {raw.get('up', 'y')} points up",
+        f"world       {raw.get('arrange', 'blend')}ed (sinrun world's arrangement unless asked)",
         "levels      size          noise amplitude   learning rate   iterations   seconds",
     ]
     seconds = training.get("level_seconds", [])

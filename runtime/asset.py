@@ -121,21 +121,22 @@ def sample_field(model, triplane) -> bake.Field:
     return bake.Field(query.occupying(model, triplane), colour)
 
 
-def tile_field(model, seed: int, tile) -> bake.Field:
-    """The field of world tile (i, j), in model units from its corner, and
-    its colour: empty above and below the world's height, as its mesh is."""
+def tile_field(model, seed: int, tile, options) -> bake.Field:
+    """The field of world tile (i, j) (its world made as world.WorldOptions
+    `options` say), in model units from its corner, and its colour: empty
+    above and below the world's heights, as its mesh is."""
     from . import world
 
     layout = world.world_layout(model)
-    height = layout.stride[layout.up]
+    heights = world.tile_grid(model, layout, 1.0, options).positions[layout.up]
 
     def occupancy(points):
-        out = world.head(model.head, world.tile_hidden(model, seed, tile, points).astype(np.float32))
-        out[(points[:, layout.up] < 0) | (points[:, layout.up] > height)] = 0
+        out = world.tile_points(model, seed, tile, points, options)
+        out[(points[:, layout.up] < heights[0]) | (points[:, layout.up] > heights[-1])] = 0
         return out
 
     def colour(points):
-        return world.tile_colours(model, seed, tile, points)[:, :3]
+        return world.tile_colours(model, seed, tile, points, options)[:, :3]
 
     return bake.Field(occupancy, colour if model.manifest.colour else None)
 
@@ -148,10 +149,11 @@ def dense_surface(model, request, threads: int | None = None, progress=None) -> 
 
     spacing = np.asarray(model.manifest.spacing, np.float64)
     if request.tile is not None:
-        vertices, faces = world.tile_mesh(model, request.sample_seed, request.tile, request.scale, progress=progress)
+        vertices, faces = world.tile_mesh(model, request.sample_seed, request.tile, request.scale, progress=progress,
+                                          options=request.world_options())
         offset = world.placed(model, request.tile, np.zeros((1, 3)), request.frame)[0]
         scale = world.placed(model, request.tile, np.ones((1, 3)), request.frame)[0] - offset
-        field, lock = tile_field(model, request.sample_seed, request.tile), True
+        field, lock = tile_field(model, request.sample_seed, request.tile, request.world_options()), True
     else:
         triplane = make(model, request)
         options = request.mesh_options()

@@ -190,6 +190,31 @@ def diversity(samples: list) -> float:
     return float(np.mean(distance.sum(axis=1) / (n - 1)))  # the diagonal is 0
 
 
+def height_field(volume, up: int) -> np.ndarray:
+    """Occupied voxels per column along `up`: (X, Y, Z) -> the two other axes
+    in ascending order, float64 (a terrain's surface height; for any shape,
+    how much stands on each spot of the ground)."""
+    return _occupancy(volume).sum(axis=up, dtype=np.float64)
+
+
+def height_autocorrelation(volume, up: int, axis: int, lags) -> list:
+    """The height field's autocorrelation along the horizontal `axis` (an
+    axis of the volume, not `up`) at each lag in voxels: each line along
+    `axis` less its own mean, products at the lag over the variance, both
+    averaged over all lines. A shape that repeats every L voxels along the
+    axis gives about 1 at L; an unstructured one about 0."""
+    if axis == up or not (0 <= axis < 3 and 0 <= up < 3):
+        raise InputError(f"axis {axis} is not a horizontal axis of a volume whose up is {up}")
+    height = np.moveaxis(height_field(volume, up), axis - (axis > up), 0)  # (along, across)
+    height = height - height.mean(axis=0)
+    variance = (height ** 2).mean()
+    if not all(0 < lag < len(height) for lag in lags):
+        raise InputError(f"lags must be 1 to {len(height) - 1} voxels, got {list(lags)}")
+    if variance == 0:
+        return [0.0 for _ in lags]
+    return [float((height[:-lag] * height[lag:]).mean() / variance) for lag in lags]
+
+
 def sample_volumes(model, seeds, scale: float = 1.0, upsample: bool = False, progress=None) -> list:
     """Binary occupancy grids (occupancy > 0.5) of samples at `scale`, queried
     from the tri-planes or (upsample) trilinearly upsampled from scale 1."""

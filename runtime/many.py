@@ -168,6 +168,8 @@ def job_record(model, request, pattern: Path, varying: Varying) -> dict:
             continue
         if field.name == "layout" and value is not None:
             value = {"shape": value.shape, "sha256": hashlib.sha256(value.bits).hexdigest(), "resample": value.resample}
+        elif field.name == "heights" and value is not None:
+            value = {"shape": value.shape, "sha256": hashlib.sha256(value.data).hexdigest()}
         elif field.name == "keep":
             value = [part if isinstance(part, str) else dataclasses.asdict(part) for part in value]
         fields[field.name] = value

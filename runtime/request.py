@@ -27,7 +27,7 @@ from sinshape.core.manifest import MAX_LEVEL_SIDE
 
 from .edit import Part
 from .mesh import MAX_SMOOTH, SMOOTHERS
-from .world import check_tile
+from .world import ARRANGEMENTS, HeightMap, WorldOptions, check_tile
 
 FRAMES = ("input", "model", "tile")
 MAX_PARTS = 16  # boxes kept in one sample: each runs a whole chain of its own
@@ -104,6 +104,9 @@ class SampleRequest:
       at any distance from the world's origin).
     tile: (i, j), a tile of the endless world of `seed` (world.py) instead
       of a sample: no size, edits or clean-up, which would break its seams.
+    For a tile, how its world is made: arrange ('blend' or 'scatter',
+      world.ARRANGEMENTS), heights (a world.HeightMap: the world's large
+      shape), and lod (levels coarser than the finest: a distant tile).
     At most one edit:
     keep: parts taken from other samples (edit.Part, or their text form
       'SEED:X0,Y0,Z0:X1,Y1,Z1', read against the model by `resolved`);
@@ -125,6 +128,9 @@ class SampleRequest:
     anchor: tuple | None = None
     layout: Layout | None = None
     tile: tuple | None = None
+    arrange: str = "blend"
+    heights: HeightMap | None = None
+    lod: int = 0
 
     def __post_init__(self):
         def set_field(name, value):
@@ -157,6 +163,7 @@ class SampleRequest:
             raise InputError("layout must be a request.Layout (Layout.of(grid))", "layout")
         if self.tile is not None:
             set_field("tile", check_tile(self.tile))
+        self.world_options()  # its fields' own checks
         self.check_together()
 
     def check_together(self) -> None:
@@ -181,6 +188,17 @@ class SampleRequest:
             if kept:
                 raise ConflictError(f"a tile shares its border with its neighbours, which {kept[0]} would break: "
                                     f"give tile or {', '.join(kept)}", ("tile", *kept))
+
+
+    def world_options(self) -> WorldOptions:
+        """How a tile's world is made, and how finely the tile."""
+        return WorldOptions(self.arrange, self.heights, self.lod)
+
+    def world_fields(self) -> list:
+        """The names of the world's fields given other than their defaults
+        (a job of many tiles holds them in a request without a tile)."""
+        return [name for name, value in (("arrange", self.arrange != ARRANGEMENTS[0]),
+                                         ("heights", self.heights is not None), ("lod", self.lod)) if value]
 
     def edits(self) -> list:
         """The names of the edits given."""
@@ -284,6 +302,9 @@ def make(model, request: SampleRequest, memory_limit: int | None = None, output:
     if request.frame == "tile":
         raise InputError("frame tile (coordinates from a tile's corner) is for the tiles of a world; a sample "
                          "is placed in frame input or model", "frame")
+    if request.world_fields():
+        field = request.world_fields()[0]
+        raise InputError(f"{field} is for the tiles of a world; a sample has none", field)
     request = resolved(model, request)
     check_memory(model, request, output, per_face, memory_limit)
     seed, size = request.sample_seed, request.size

@@ -42,27 +42,30 @@ PLY_FACE = np.dtype([("count", "u1"), ("indices", "<i4", (3,))])
 PLY_COUNT_DIGITS = 10  # counts are zero-padded to a fixed width, so the header can be patched in place
 
 
-# A coloured PLY vertex: float32 x, y, z and 8-bit sRGB.
-PLY_COLOURED_VERTEX = np.dtype([("position", "<f4", (3,)), ("colour", "u1", (3,))])
-
-
-def ply_header(vertices: int, faces: int, colour: bool = False) -> bytes:
+def ply_header(vertices: int, faces: int, colour: bool = False, normals: bool = False) -> bytes:
     return (f"ply\nformat binary_little_endian 1.0\ncomment made by sinshape\n"
             f"element vertex {vertices:0{PLY_COUNT_DIGITS}d}\n"
             "property float x\nproperty float y\nproperty float z\n"
+            + "property float nx\nproperty float ny\nproperty float nz\n" * normals
             + "property uchar red\nproperty uchar green\nproperty uchar blue\n" * colour +
             f"element face {faces:0{PLY_COUNT_DIGITS}d}\n"
             "property list uchar int vertex_indices\nend_header\n").encode()
 
 
-def ply_vertices(vertices: np.ndarray, colours: np.ndarray | None = None) -> bytes:
-    """Vertices as PLY's binary records: float32 positions, and with
-    colours ((n, 3) or (n, 4) uint8) their red, green and blue."""
-    if colours is None:
+def ply_vertices(vertices: np.ndarray, colours: np.ndarray | None = None, normals: np.ndarray | None = None) -> bytes:
+    """Vertices as PLY's binary records: float32 positions, with normals
+    ((n, 3)) their float32 nx, ny, nz, and with colours ((n, 3) or (n, 4)
+    uint8) their red, green and blue."""
+    if colours is None and normals is None:
         return np.asarray(vertices, "<f4").tobytes()  # float32, as trimesh writes PLY
-    records = np.empty(len(vertices), PLY_COLOURED_VERTEX)
+    fields = [("position", "<f4", (3,))] + [("normal", "<f4", (3,))] * (normals is not None) \
+        + [("colour", "u1", (3,))] * (colours is not None)
+    records = np.empty(len(vertices), np.dtype(fields))
     records["position"] = vertices
-    records["colour"] = np.asarray(colours)[:, :3]
+    if normals is not None:
+        records["normal"] = normals
+    if colours is not None:
+        records["colour"] = np.asarray(colours)[:, :3]
     return records.tobytes()
 
 
@@ -102,13 +105,15 @@ def write_ply_pieces(file, pieces, folder, colour: bool = False) -> tuple:
     return tuple(counts)
 
 
-def mesh_bytes(mesh, suffix: str) -> bytes:
+def mesh_bytes(mesh, suffix: str, normals: bool = False) -> bytes:
     """A trimesh mesh as the file bytes of a mesh format ('.ply', '.glb', ...),
-    with its vertex colours where it has them (8-bit sRGB, see the top)."""
+    with its vertex colours where it has them (8-bit sRGB, see the top),
+    and with `normals` its vertex normals (.ply, .glb, .obj)."""
     colours = mesh.visual.vertex_colors if mesh.visual.kind == "vertex" else None
     if suffix.lower() == ".ply":  # the bytes a streamed write (write_ply_pieces) makes of the same mesh
-        return (ply_header(len(mesh.vertices), len(mesh.faces), colours is not None)
-                + ply_vertices(mesh.vertices, colours) + ply_faces(mesh.faces))
+        vertex_normals = mesh.vertex_normals if normals else None
+        return (ply_header(len(mesh.vertices), len(mesh.faces), colours is not None, normals)
+                + ply_vertices(mesh.vertices, colours, vertex_normals) + ply_faces(mesh.faces))
     if colours is not None and suffix.lower() == ".glb":  # glTF's COLOR_0 is linear
         mesh = mesh.copy()
         linear = srgb_to_linear(np.asarray(colours[:, :3], np.float64) / 255)

@@ -121,7 +121,7 @@ class SampleQuery:
     format: FormatQuery = "glb"
 
 
-MAX_UPLOAD_BYTES = 4 << 20  # a layout of a coarse level is a few kB
+MAX_UPLOAD_BYTES = 4 << 20  # a layout of a coarse level is a few kB; a height map of 1024 x 1024 float32
 
 
 def layout_suffix(data: bytes) -> str:
@@ -256,30 +256,68 @@ async def sample_layout(
     return await answer(request, model, wanted)
 
 
-TileQuery = Annotated[int, Query(gt=-2**62, lt=2**62, description="A tile index along one horizontal axis.")]
+TileIndex = Annotated[int, Query(gt=-2**62, lt=2**62, description="A tile index along one horizontal axis.")]
+
+
+@dataclass
+class TileQuery:
+    """What both tile routes take: the model's name (the path's), the tile
+    and how its world and it are made."""
+
+    name: str
+    i: TileIndex
+    j: TileIndex
+    seed: SeedQuery = 0
+    scale: ScaleQuery = 1.0
+    format: FormatQuery = "glb"
+    frame: Annotated[Literal["tile", "input", "model"], Query(
+        description="tile: the training mesh's units from the tile's own corner (any tile; X-Tile-Corner "
+                    "gives the corner in voxels); input or model: placed in the world, near its origin.")] = "tile"
+    arrange: Annotated[Literal["blend", "scatter"] | None, Query(
+        description="blend: samples blended into one surface (terrain); scatter: whole samples at drawn places "
+                    "on a ground (an object). Default: what the model records, else blend.")] = None
+    lod: Annotated[int, Query(ge=0, description="Levels coarser than the finest: a distant tile, "
+                              "with a skirt over the crack where it meets a finer one.")] = 0
+
+
+async def tile_answer(request: Request, q: TileQuery, heights=None, asset=None) -> Response:
+    model = find(request, q.name)
+    wanted = SampleRequest(q.seed, scale=q.scale, frame=q.frame, tile=(q.i, q.j),
+                           arrange=q.arrange or model.manifest.arrange, heights=heights, lod=q.lod)
+    response = await answer(request, model, Job(q.name, wanted, q.format, asset=asset))
+    response.headers["X-Tile-Corner"] = ",".join(map(str, world.tile_corner(model, (q.i, q.j))))
+    return response
 
 
 @routes.get("/api/models/{name}/tile", summary="One tile of a model's endless world as a file",
             response_class=Response, responses=FILE_ANSWERS)
-async def tile(
-    request: Request,
-    name: str,
-    i: TileQuery,
-    j: TileQuery,
-    a: Annotated[AssetQuery, Depends()],
-    seed: SeedQuery = 0,
-    scale: ScaleQuery = 1.0,
-    format: FormatQuery = "glb",
-    frame: Annotated[Literal["tile", "input", "model"], Query(
-        description="tile: the training mesh's units from the tile's own corner (any tile; X-Tile-Corner "
-                    "gives the corner in voxels); input or model: placed in the world, near its origin.")] = "tile",
-):
+async def tile(request: Request, q: Annotated[TileQuery, Depends()], a: Annotated[AssetQuery, Depends()]):
     """Tile (i, j) of the world of `seed`: it joins its neighbours without a seam, whatever else was asked."""
-    model = find(request, name)
-    job = Job(name, SampleRequest(seed, scale=scale, frame=frame, tile=(i, j)), format, asset=a.options(format))
-    response = await answer(request, model, job)
-    response.headers["X-Tile-Corner"] = ",".join(map(str, world.tile_corner(model, (i, j))))
-    return response
+    return await tile_answer(request, q, asset=a.options(q.format))
+
+
+@routes.post("/api/models/{name}/tile", summary="One tile of a world shaped by an uploaded height map",
+             response_class=Response, responses=FILE_ANSWERS)
+async def tile_of_map(
+    request: Request,
+    q: Annotated[TileQuery, Depends()],
+    a: Annotated[AssetQuery, Depends()],
+    relief: Annotated[float | None, Query(gt=0, allow_inf_nan=False, description="Voxels from a .png map's "
+                                          "black to its white (default: 4 times the model's height).")] = None,
+):
+    """The body is the height map (.npy heights in voxels, or a greyscale .png), at most 4 MB: every tile
+    of the world asks with the same map."""
+    body = await request.body()  # ClientDisconnect: gone before its map arrived (499)
+    if not body or len(body) > MAX_UPLOAD_BYTES:
+        raise InputError(f"send the height map as the request body (1 byte to {MAX_UPLOAD_BYTES >> 20} MB)")
+    suffix = ".npy" if body.startswith(b"\x93NUMPY") else ".png" if body.startswith(b"\x89PNG") else None
+    if suffix is None:
+        raise InputError("the height map is neither a .npy array nor a .png image")
+    if suffix == ".png" and relief is None:
+        layout = world.world_layout(find(request, q.name))
+        relief = world.RELIEF * layout.stride[layout.up]
+    heights = await run_in_threadpool(world.parse_height_map, body, suffix, "the height map", relief)
+    return await tile_answer(request, q, heights, a.options(q.format))
 
 
 @routes.get("/", include_in_schema=False)

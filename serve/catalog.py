@@ -28,7 +28,8 @@ def load_models(names, threads: int | None = None) -> dict:
 def entry(name: str, model) -> dict:
     """A model in a list of them (the server's /api/models, the site's models.json)."""
     sizes = model.manifest.sizes
-    return {"name": name, "size": list(sizes[-1]), "levels": len(sizes), "up": model.manifest.up}
+    return {"name": name, "size": list(sizes[-1]), "levels": len(sizes), "up": model.manifest.up,
+            "arrange": model.manifest.arrange}
 
 
 def summary(name: str, model) -> dict:
@@ -47,5 +48,6 @@ def summary(name: str, model) -> dict:
         "config": m.get("config", {}),
         "frame": m["frame"],
         "up": model.manifest.up,
+        "arrange": model.manifest.arrange,
         "format_version": m["format_version"],
     }

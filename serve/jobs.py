@@ -34,6 +34,12 @@ class Job:
         tags = [f"seed{request.seed}"] + [f"keep{part.seed}" for part in request.keep]
         if request.tile is not None:
             tags.append(f"tile{request.tile[0]}_{request.tile[1]}")
+        if request.arrange != "blend":
+            tags.append(request.arrange)
+        if request.heights is not None:
+            tags.append("map" + hashlib.sha256(request.heights.data).hexdigest()[:8])
+        if request.lod:
+            tags.append(f"lod{request.lod}")
         if self.layout_of is not None:
             tags.append(f"layout{self.layout_of}")
         if request.grow:

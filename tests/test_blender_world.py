@@ -255,3 +255,27 @@ def test_a_saved_world_reopens_and_makes_the_same_tiles(scene, tiny_model, tmp_p
     assert "Traceback" not in done.stderr
     result = json.loads(done.stdout.split("RESULT", 1)[1])
     assert result == dict(error="", tiles=tiles, saved=tiles, same=True)
+
+
+def test_far_tiles_are_made_coarser_with_a_skirt_and_a_scattered_world_is_the_runtimes(scene, tiny_model):
+    """Past the fine radius a tile is a level coarser per tile (world.tile_surface at that lod: the
+    runtime's mesh and its skirt); a wider fine radius remakes those at full detail."""
+    from blender import convert
+    from sinshape.runtime import world
+    from sinshape.runtime.load import load_model
+
+    model = load_model(tiny_model, threads=1)
+    scene.cursor.location = (0, 0, 0)
+    obj = add_world(tiny_model, seed=3, radius=2)
+    obj.sinshape_world.arrange = "scatter"  # background mode: every tile made again before this returns
+    ci, cj = tile_at(tiny_model, (0, 0, 0), obj)
+    lods = {tile: int(child["sinshape_made"].rsplit(":", 1)[1]) for tile, child in tiles_of(obj).items()}
+    assert lods == {(ci + di, cj + dj): min(1, max(0, max(abs(di), abs(dj)) - 1)) for di in range(-2, 3) for dj in range(-2, 3)}
+    far = (ci + 2, cj)
+    surface = world.tile_surface(model, 3, far, options=world.WorldOptions("scatter", lod=1))
+    vertices, faces = convert.mesh_arrays(tiles_of(obj)[far].data)
+    assert len(faces) > len(world.tile_mesh(model, 3, far, options=world.WorldOptions("scatter", lod=1))[1])
+    assert np.array_equal(faces, surface.faces)
+    assert np.abs(convert.to_model(vertices, "z") - world.placed(model, far, surface.vertices, "tile")).max() < 1e-5
+    obj.sinshape_world.fine = 2
+    assert {int(child["sinshape_made"].rsplit(":", 1)[1]) for child in tiles_of(obj).values()} == {0}

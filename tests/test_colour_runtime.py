@@ -30,13 +30,15 @@ def model(tiny_colour_model):
 
 
 def read_ply(path) -> tuple:
-    """(vertices float32 (n, 3), colours uint8 (n, 3) or None) of a binary PLY as sinshape writes it."""
+    """(vertices float32 (n, 3), colours uint8 (n, 3) or None) of a binary PLY as sinshape writes it
+    (a world's tiles with normals between them)."""
     data = path.read_bytes()
     header, body = data.split(b"end_header\n", 1)
     count = int(header.split(b"element vertex ")[1].split()[0])
+    fields = [("p", "<f4", (3,))] + [("n", "<f4", (3,))] * (b"property float nx" in header)
     if b"property uchar red" not in header:
-        return np.frombuffer(body, "<f4", count * 3).reshape(-1, 3), None
-    records = np.frombuffer(body, np.dtype([("p", "<f4", (3,)), ("c", "u1", (3,))]), count)
+        return np.frombuffer(body, np.dtype(fields), count)["p"], None
+    records = np.frombuffer(body, np.dtype(fields + [("c", "u1", (3,))]), count)
     return records["p"], records["c"]
 
 

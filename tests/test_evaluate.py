@@ -266,3 +266,29 @@ def test_bad_inputs_are_input_errors():
         lp_metrics([], left)
     with pytest.raises(InputError, match="3-D"):
         valid_patches(np.zeros((8, 8), bool))
+
+
+# ---- height_autocorrelation -------------------------------------------------
+
+def ridges(up: int) -> np.ndarray:
+    """A height field with a ridge every 18 voxels along one horizontal axis and
+    a random phase per line across it: (60, 72, 12) with z up, (60, 12, 72) with y up."""
+    rng = np.random.default_rng(0)
+    along = np.arange(72)
+    heights = 6 + 4 * np.sin(2 * np.pi * along / 18 + rng.uniform(0, 2 * np.pi, (60, 1)))  # (60 across, 72 along)
+    volume = np.arange(12) < heights[..., None]  # (60, 72, 12): z up
+    return volume if up == 2 else np.moveaxis(volume, 2, 1)
+
+
+@pytest.mark.parametrize("up", [2, 1])
+def test_height_autocorrelation_follows_the_axis_asked_for(up):
+    """Ridges every 18 voxels along the second horizontal axis: about 1 at 18 and 36
+    along it, and none across it, whichever axis is up (an index into the height
+    field taken as the volume's axis once measured x when asked for y)."""
+    volume = ridges(up)
+    along, across = (1, 0) if up == 2 else (2, 0)
+    period = evaluate.height_autocorrelation(volume, up, along, [9, 18, 36])
+    assert period[0] < -0.7 and period[1] > 0.7 and period[2] > 0.6
+    assert max(abs(v) for v in evaluate.height_autocorrelation(volume, up, across, [9, 18, 36])) < 0.3
+    with pytest.raises(InputError):
+        evaluate.height_autocorrelation(volume, up, up, [18])

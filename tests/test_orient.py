@@ -75,3 +75,30 @@ def test_orient_refuses_what_it_cannot_change(tiny_model, tmp_path):
                           "no such model file")
     assert CliRunner().invoke(cli, ["orient", str(tiny_model), "--up", "x"]).exit_code == 2
     assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+def test_orient_records_how_the_models_world_is_made_and_world_follows_it(tiny_model, tmp_path):
+    """--arrange scatter is recorded (and nothing else changes); `sinrun world` then scatters the
+    model's world unless told, and a bad manifest value is refused as any other."""
+    from sinshape.runtime import world, write
+    from sinshape.runtime.request import SampleRequest
+
+    out = tmp_path / "o.onnx"
+    result = CliRunner().invoke(cli, ["orient", str(tiny_model), "--arrange", "scatter", "-o", str(out)])
+    assert result.exit_code == 0 and result.output == f"wrote {out} (its world scatters)\n", result.output
+    before, after = load_model(tiny_model, threads=1), load_model(out, threads=1)
+    assert (before.manifest.arrange, after.manifest.arrange) == ("blend", "scatter")
+    assert {k: v for k, v in after.manifest.raw.items() if k not in ("arrange", "format_version")} == \
+        {k: v for k, v in before.manifest.raw.items() if k != "format_version"}
+    for options, arrange in (([], "scatter"), (["--arrange", "blend"], "blend")):
+        folder = tmp_path / f"w{arrange}"
+        made = CliRunner().invoke(cli, ["world", str(out), "--tiles", "0,0", "--workers", "1", "--frame", "tile", "-o",
+                                        str(folder), *options])
+        assert made.exit_code == 0, made.output
+        expected = write.request_bytes(after, SampleRequest(0, tile=(0, 0), frame="tile", arrange=arrange), "t.ply")[0]
+        assert (folder / "tile_0_0.ply").read_bytes() == expected
+    assert world.ARRANGEMENTS == fmt.ARRANGEMENTS
+    with pytest.raises(Exception, match="arrange must be one of blend, scatter"):
+        fmt.parse(__import__("json").dumps({**before.manifest.raw, "arrange": "pile"}))
+    assert_one_line_error(CliRunner().invoke(cli, ["orient", str(tiny_model), "-o", str(tmp_path / "n.onnx")]),
+                          "nothing to change")

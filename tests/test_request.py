@@ -13,6 +13,7 @@ from sinshape.cli.main import cli
 from sinshape.core.errors import ConflictError, InputError
 from sinshape.runtime import dense, edit, generate, layout, load_model, many
 from sinshape.runtime.request import MAX_PARTS, Layout, SampleRequest, make, resolved, warnings
+from sinshape.runtime.world import HeightMap
 
 KEPT = "3:0%,0%,0%:60%,100%,100%"
 
@@ -53,7 +54,8 @@ def test_values_that_do_not_go_together_are_one_conflict_naming_them_all(fields,
 
 
 # Fields and what Python makes of them, or why it refuses them: the browser's request.js
-# meets the same table (tests/test_web.py). A layout is given as {shape, cells}.
+# meets the same table (tests/test_web.py). A layout is given as {shape, cells}, a height map
+# as {shape, values}.
 REQUEST_CASES = json.loads((Path(__file__).parent / "data" / "sample_requests.json").read_text())
 
 
@@ -63,6 +65,8 @@ def outcome(fields: dict) -> dict:
     try:
         if isinstance(fields.get("layout"), dict):
             fields["layout"] = Layout.of(np.reshape(fields["layout"]["cells"], fields["layout"]["shape"]))
+        if isinstance(fields.get("heights"), dict):
+            fields["heights"] = HeightMap.of(np.reshape(fields["heights"]["values"], fields["heights"]["shape"]))
         request = SampleRequest(**fields)
     except InputError as error:
         names = list(error.parameter) if isinstance(error, ConflictError) else [error.parameter]
@@ -71,6 +75,8 @@ def outcome(fields: dict) -> dict:
     made.update({name: list(made[name]) for name in ("size", "keep", "grow", "anchor", "tile") if made[name] is not None})
     if request.layout:
         made["layout"] = {"shape": list(request.layout.shape), "cells": request.layout.grid().ravel().astype(int).tolist()}
+    if request.heights:
+        made["heights"] = {"shape": list(request.heights.shape), "values": request.heights.array().ravel().tolist()}
     return {"request": made}
 
 

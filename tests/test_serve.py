@@ -103,7 +103,7 @@ def test_health_models_and_manifest(server):
     assert status == 200 and json.loads(body)["status"] == "ok"
     status, _, body = get(f"{base}/api/models")
     assert status == 200 and json.loads(body) == [
-        {"name": "terrain", "size": list(TERRAIN), "levels": 4, "up": "z", "training_input": "terrain.obj"}]
+        {"name": "terrain", "size": list(TERRAIN), "levels": 4, "up": "z", "arrange": "blend", "training_input": "terrain.obj"}]
     status, _, body = get(f"{base}/api/models/terrain")
     summary = json.loads(body)
     assert status == 200 and summary["levels"] == len(summary["sizes"]) == 4
@@ -537,8 +537,20 @@ def test_a_tile_is_the_runtimes_tile_with_its_corner_and_etag(server):
     assert get(url, {"If-None-Match": headers["ETag"]})[0] == 304
     params = {p["name"] for p in json.loads(get(f"{base}/openapi.json")[2])["paths"]["/api/models/{name}/tile"]["get"]
               ["parameters"]}
-    assert params == {"name", "i", "j", "seed", "scale", "format", "frame", "lods", "texture", "ao"}
+    assert params == {"name", "i", "j", "seed", "scale", "format", "frame", "arrange", "lod", "lods", "texture", "ao"}
     for query, code, says in (("i=0", 422, "j: Field required"), (f"i={2**62}&j=0", 422, "i: Input should be less"),
-                              ("i=100000000&j=0&frame=input", 400, "give frame tile")):
+                              ("i=100000000&j=0&frame=input", 400, "give frame tile"), ("i=0&j=0&lod=9", 400, "lod must be 0 to 3"),
+                              ("i=0&j=0&arrange=spread", 422, "arrange: Input should be 'blend' or 'scatter'")):
         status, _, body = get(f"{base}/api/models/terrain/tile?{query}")
         assert status == code and says in json.loads(body)["detail"], body
+    # A world shaped by a height map: the map is the POST's body, the tile the runtime's of that map.
+    heights = np.array([[0.0, 30.0], [12.5, 60.0]], np.float32)
+    npy = io.BytesIO()
+    np.save(npy, heights)
+    status, headers, body = post(f"{base}/api/models/terrain/tile?seed=4&i=1&j=0&format=ply&arrange=scatter&lod=1",
+                                 npy.getvalue())
+    wanted = SampleRequest(4, tile=(1, 0), frame="tile", arrange="scatter", lod=1, heights=world.HeightMap.of(heights))
+    assert status == 200 and body == write.request_bytes(terrain, wanted, "t.ply")[0]
+    assert "_scatter_map" in headers["Content-Disposition"] and "_lod1." in headers["Content-Disposition"]
+    status, _, body = post(f"{base}/api/models/terrain/tile?i=0&j=0", b"GIF89a")
+    assert status == 400 and "neither a .npy array nor a .png image" in json.loads(body)["detail"]

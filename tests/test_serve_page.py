@@ -585,8 +585,8 @@ def test_the_world_mode_takes_its_tiles_from_the_tile_route(page, terrain):
     tiles = [url for url in requested if url.startswith("/api/models/terrain/tile?")]
     assert len(tiles) == 9 and "/api/models/terrain/tile?i=-3&j=7&seed=3&scale=1&format=glb&frame=tile" in tiles
     assert not [url for url in requested if "onnxruntime-web" in url or url.endswith(("/model.js", "/worker.js"))]
-    assert sorted((int(i), int(j)) for i, j, _, _ in status["tiles"]) == [(i, j) for i in (-4, -3, -2) for j in (6, 7, 8)]
-    for i, j, faces, _ in status["tiles"]:
+    assert sorted((int(i), int(j)) for i, j, *_ in status["tiles"]) == [(i, j) for i in (-4, -3, -2) for j in (6, 7, 8)]
+    for i, j, faces, *_ in status["tiles"]:
         assert faces == len(world.tile_mesh(terrain, 3, (int(i), int(j)))[1])
     assert page.get_attribute("#download", "href").endswith("tile?i=-3&j=7&seed=3&scale=1&format=glb&frame=tile")
     page.evaluate("window.sinshapeView.world.moveBy(0, -1)")
@@ -596,6 +596,48 @@ def test_the_world_mode_takes_its_tiles_from_the_tile_route(page, terrain):
     page.goto(f"{page.base}/?seed=3&up=z&edit=world&at=4611686018427387904,0")  # 2**62: the request's own message
     page.wait_for_function("document.body.dataset.state === 'error'")
     assert page.text_content("#error") == "a tile is two integers (i, j) of magnitude below 2**62, got [4611686018427387904, 0]"
+    assert not page.errors and not page.outside
+
+
+def test_the_world_mode_makes_far_tiles_coarser_and_remakes_them_as_they_come_near(page, terrain, tmp_path):
+    """Scattered, at reach 2, from the tile route: the camera's tile and those beside it at full
+    detail, those two tiles out a level coarser (asked for with lod=1), each the runtime's tile with
+    its normals (unit, one per vertex); a step on remakes the tiles that came near at full detail;
+    a height map opened shapes the world (posted to the tile route with every tile)."""
+    from sinshape.runtime import world
+
+    page.goto(f"{page.base}/?seed=3&up=z&edit=world&at=0,0&reach=2&arrange=scatter")
+    status = wait_world(page)
+    expected = {(i, j): 0 if max(abs(i), abs(j)) <= 1 else 1 for i in range(-2, 3) for j in range(-2, 3)}
+    assert {(int(i), int(j)): lod for i, j, _, _, lod in status["tiles"]} == expected
+    requested = page.evaluate("performance.getEntriesByType('resource').map((entry) => entry.name)")
+    assert any("i=2&j=0&" in url and "arrange=scatter" in url and "lod=1" in url for url in requested)
+    faces = {(int(i), int(j)): count for i, j, count, *_ in status["tiles"]}
+    coarse = world.tile_surface(terrain, 3, (2, 0), options=world.WorldOptions("scatter", lod=1))
+    assert faces[2, 0] == len(coarse.faces) > len(world.tile_mesh(terrain, 3, (2, 0), options=world.WorldOptions(
+        "scatter", lod=1))[1])  # its skirt's faces too
+    lengths = page.evaluate("""() => {
+      const out = [];
+      window.sinshapeView.scene.traverse((node) => {
+        if (!node.isMesh || !/^-?\\d+,-?\\d+$/.test(node.name)) return;
+        const n = node.geometry.attributes.normal, p = node.geometry.attributes.position;
+        for (let v = 0; v < n.count; v += 97) out.push([n.count === p.count, Math.hypot(n.getX(v), n.getY(v), n.getZ(v))]);
+      });
+      return out;
+    }""")
+    assert lengths and all(same and abs(length - 1) < 1e-4 for same, length in lengths)
+    page.evaluate("window.sinshapeView.world.moveBy(1, 0)")
+    status = wait_world(page)
+    lods = {(int(i), int(j)): lod for i, j, _, _, lod in status["tiles"]}
+    assert lods[2, 0] == 0 and lods[3, 0] == 1 and lods[-1, 0] == 1
+    heights = np.array([[0, 10], [25, 40], [60, 5]], np.float32)
+    np.save(tmp_path / "hills.npy", heights)
+    page.set_input_files("#map-file", str(tmp_path / "hills.npy"))
+    page.wait_for_function("document.getElementById('map-label').textContent === 'map: hills.npy'")
+    status = wait_world(page)
+    faces = {(int(i), int(j)): count for i, j, count, *_ in status["tiles"]}
+    painted = world.WorldOptions("scatter", heights=world.HeightMap.of(heights))
+    assert faces[1, 0] == len(world.tile_surface(terrain, 3, (1, 0), options=painted).faces)
     assert not page.errors and not page.outside
 
 

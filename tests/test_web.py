@@ -287,15 +287,18 @@ def test_layouts_equal_the_python_runtime(site_page, terrain):
 # exactly) made into a request by request.js, in the table's form.
 REQUESTS_JS = """async (text) => {
   const { Layout, sampleRequest } = await import('./static/sinshape/request.js');
+  const { HeightMap } = await import('./static/sinshape/world.js');
   const exact = (key, value, { source }) => (/^-?\\d+$/.test(source ?? '') && !Number.isSafeInteger(value) ? BigInt(source) : value);
   return JSON.parse(text, exact).map(({ fields }) => {
     try {
       const given = { ...fields };
       if (given.layout?.cells) given.layout = Layout.of(given.layout.cells, given.layout.shape);
+      if (given.heights?.values) given.heights = HeightMap.of(given.heights.values, given.heights.shape);
       const made = sampleRequest(given);
       const layout = made.layout && { shape: made.layout.shape, cells: Array.from(made.layout.grid) };
+      const heights = made.heights && { shape: made.heights.shape, values: Array.from(made.heights.data) };
       const tile = made.tile && made.tile.map(String);
-      return { request: { ...made, seed: made.seed === null ? null : String(made.seed), layout, tile } };
+      return { request: { ...made, seed: made.seed === null ? null : String(made.seed), layout, heights, tile } };
     } catch (error) {
       return { refused: { error: error.constructor.name, fields: error.fields ?? [error.field], message: error.message } };
     }

@@ -11,7 +11,7 @@ from click.testing import CliRunner
 
 from sinshape.cli.main import cli
 from sinshape.core.errors import InputError, MemoryLimitError
-from sinshape.runtime import load_model, world, write
+from sinshape.runtime import generate, load_model, world, write
 from sinshape.runtime.request import SampleRequest
 from test_cli_train import assert_one_line_error
 
@@ -205,3 +205,146 @@ def test_a_folder_of_tiles_in_the_tile_frame_holds_each_tile_as_made_alone(tiny_
         expected = write.request_bytes(model, SampleRequest(2, tile=(i, 5), frame="tile"), "t.ply")[0]
         assert np.array_equal(written.vertices, trimesh.load(trimesh.util.wrap_as_stream(expected),
                                                              file_type="ply", process=False).vertices)
+
+
+# ---- how a world is made: scattered, painted, coarser
+
+def identical_windows(model):
+    """The model with no noise at all: every window and object the same sample."""
+    same = load_model(model.path, threads=1)
+    same.manifest = type(same.manifest)(**{**same.manifest.__dict__, "noise_amps": [0.0] * len(same.manifest.noise_amps)})
+    return same
+
+
+def strip_heights(model, options, tiles=12) -> tuple:
+    """A strip of tiles along the first horizontal axis, two across: (its height field's grid, stride)."""
+    layout = world.world_layout(model)
+    h0, h1 = layout.horizontal
+    rows = []
+    for i in range(tiles):
+        row = [world.tile_occupancy(model, 5, (i, j), options=options) for j in (0, 1)]
+        rows.append(np.concatenate([row[0], np.take(row[1], range(1, row[1].shape[h1]), axis=h1)], axis=h1))
+    strip = np.concatenate([rows[0]] + [np.take(r, range(1, r.shape[h0]), axis=h0) for r in rows[1:]], axis=h0)
+    return strip, layout.stride[h0]
+
+
+def test_a_scattered_world_of_identical_samples_has_no_period(model, fresh):
+    """Samples that do not differ: blended on the tile lattice they repeat with it (the height
+    field's autocorrelation at the tile period near 1); scattered, their places and mirrors do not."""
+    from sinshape.runtime import evaluate
+
+    same = identical_windows(model)
+    up = world.world_layout(same).up
+    h0 = world.world_layout(same).horizontal[0]
+    blended, stride = strip_heights(same, world.WorldOptions("blend"))
+    assert min(evaluate.height_autocorrelation(blended, up, h0, [stride, 2 * stride])) > 0.9
+    scattered, _ = strip_heights(same, world.WorldOptions("scatter"))
+    at_stride, at_twice, at_pitch = evaluate.height_autocorrelation(scattered, up, h0, [stride, 2 * stride,
+                                                                                        world.PITCH * stride])
+    assert abs(at_stride) < 0.5 and abs(at_twice) < 0.5 and abs(at_pitch) < 0.3  # one per cell, unmoved: 0.52
+
+
+@pytest.mark.parametrize("options", [world.WorldOptions("scatter"), world.WorldOptions("blend", lod=1),
+                                     world.WorldOptions("scatter", heights=world.HeightMap.of([[0.0, 25.0], [40.0, 7.5]]))],
+                         ids=["scatter", "lod", "scatter-map"])
+def test_neighbours_agree_on_faces_and_normals_to_the_bit_however_the_world_is_made(model, options):
+    layout = world.world_layout(model)
+    h0, h1 = layout.horizontal
+    for a, b, axis in (((0, 0), (1, 0), h0), ((1, 0), (1, 1), h1)):
+        grid_a, grid_b = (world.tile_occupancy(model, 7, t, options=options) for t in (a, b))
+        assert np.array_equal(np.take(grid_a, -1, axis), np.take(grid_b, 0, axis))
+        made = [world.tile_surface(model, 7, t, options=options) for t in (a, b)]
+        mine = {tuple(v - np.eye(3)[axis] * layout.stride[axis]): tuple(n)
+                for v, n in zip(made[0].vertices, made[0].normals) if v[axis] == layout.stride[axis]}
+        theirs = {tuple(v): tuple(n) for v, n in zip(made[1].vertices, made[1].normals) if v[axis] == 0}
+        assert len(mine) > 5 and mine == theirs
+        assert np.allclose(np.linalg.norm(made[0].normals, axis=1), 1, atol=1e-5)
+
+
+def test_a_height_map_raises_the_world_where_it_is_painted(model):
+    """A plateau painted 50 voxels high over tiles (0..3, 0..3) raises tile (1, 1) by 50 (the map's
+    spline is flat there), blended or scattered (the ground), leaves a tile where the map is 0
+    where it was, and goes on beyond the map's edges as its edge."""
+    plateau = np.zeros((6, 6))
+    plateau[:4, :4] = 50
+    heights = world.HeightMap.of(plateau)
+    up = world.world_layout(model).up
+
+    def surface(tile, options) -> float:
+        """The mean height of the highest solid point of each column that has one."""
+        grid = np.moveaxis(world.tile_occupancy(model, 2, tile, options=options) > 0.5, up, -1)
+        z = world.tile_grid(model, world.world_layout(model), 1.0, options).positions[up]
+        solid = grid.any(axis=-1)
+        return float(np.mean(z[grid.shape[-1] - 1 - np.argmax(grid[..., ::-1], axis=-1)][solid]))
+
+    for arrange in world.ARRANGEMENTS:
+        plain, shaped = world.WorldOptions(arrange), world.WorldOptions(arrange, heights=heights)
+        for tile, rise in (((1, 1), 50), ((10**6, 10**6), 0), ((-5, 1), 50)):
+            assert abs(surface(tile, shaped) - surface(tile, plain) - rise) < 1e-3 * (1 + rise), (arrange, tile)
+
+
+def test_a_coarser_tile_is_cheaper_and_its_skirt_covers_the_crack(fresh, monkeypatch):
+    """Terrain: a tile at the coarsest level of detail draws a small part of a full tile's noise
+    and has a fraction of its points; beside a full tile, the fine border never falls below the
+    bottom of the coarse tile's skirt (so no gap shows from the finer side)."""
+    from sinshape import models
+
+    terrain = load_model(models.find("terrain"), threads=1)
+    layout = world.world_layout(terrain)
+    h0, h1, up = *layout.horizontal, layout.up
+    drawn = []
+    monkeypatch.setattr(world, "draw_noise", lambda *args: drawn.append(args) or generate.draw_noise(*args))
+    coarsest = len(terrain.manifest.sizes) - 1
+    counted = []
+    for lod in (0, coarsest):
+        world._windows.clear()
+        drawn.clear()
+        grid = world.tile_occupancy(terrain, 3, (0, 0), options=world.WorldOptions(lod=lod))
+        values = sum(np.prod(size) for args in drawn for size in args[1])
+        counted.append((values, grid.size))
+    assert counted[1][0] < counted[0][0] / 4 and counted[1][1] < counted[0][1] / 4
+    fine = world.tile_surface(terrain, 3, (0, 0))
+    coarse = world.tile_surface(terrain, 3, (1, 0), options=world.WorldOptions(lod=1))
+    depth = world.SKIRT * np.diff(world.tile_grid(terrain, layout, 1.0, world.WorldOptions(lod=1)).positions[up][:2])[0]
+    border = fine.vertices[(fine.vertices[:, h0] == layout.stride[h0]) & (fine.vertices[:, up] > 1)]  # not the bottom's
+    top = coarse.vertices[(coarse.vertices[:, h0] == 0) & (coarse.vertices[:, up] > 1)]
+    highest = np.array([top[np.abs(top[:, h1] - t) <= 1.0, up].max() for t in border[:, h1]])
+    assert len(border) > 10 and (border[:, up] >= highest - depth - 1.0).all()
+    assert (coarse.vertices[:, up] < coarse.vertices[:, up].max() - depth / 2).any()  # a skirt hangs below
+
+
+def test_world_writes_a_painted_scattered_coarser_world_and_refuses_a_bad_map(tiny_model, model, tmp_path):
+    """--map (a .png: columns along the first axis, rows up the second), --relief, --arrange and
+    --lod make the runtime's tiles of that world; a map that is not one is a one-line error."""
+    from PIL import Image
+
+    pixels = np.zeros((2, 3), np.uint8)  # rows from the top: the second axis's last row first
+    pixels[1, 2] = 255  # bottom row, third column: tile (2, 0)
+    Image.fromarray(pixels).save(tmp_path / "map.png")
+    heights = world.read_height_map(tmp_path / "map.png", model, 40.0)
+    assert heights.shape == (3, 2) and heights.array()[2, 0] == 40 and heights.array().sum() == 40
+    result = CliRunner().invoke(cli, ["world", str(tiny_model), "--seed", "4", "--tiles", "1:2,0", "--map",
+                                      str(tmp_path / "map.png"), "--relief", "40", "--arrange", "scatter", "--lod", "1",
+                                      "--frame", "tile", "--workers", "1", "-o", str(tmp_path / "w")])
+    assert result.exit_code == 0, result.output
+    wanted = SampleRequest(4, tile=(2, 0), frame="tile", arrange="scatter", heights=heights, lod=1)
+    assert (tmp_path / "w" / "tile_2_0.ply").read_bytes() == write.request_bytes(model, wanted, "t.ply")[0]
+    assert b"property float nx" in (tmp_path / "w" / "tile_2_0.ply").read_bytes()[:400]  # normals in the file
+    (tmp_path / "bad.png").write_bytes(b"not an image")
+    assert_one_line_error(CliRunner().invoke(cli, ["world", str(tiny_model), "--tiles", "0,0", "--map",
+                                                   str(tmp_path / "bad.png"), "-o", str(tmp_path / "x")]),
+                          "bad.png: not a readable image")
+    np.save(tmp_path / "map.npy", np.ones((2, 2)))
+    assert_one_line_error(CliRunner().invoke(cli, ["world", str(tiny_model), "--tiles", "0,0", "--map",
+                                                   str(tmp_path / "map.npy"), "--relief", "3", "-o", str(tmp_path / "x")]),
+                          "relief scales an image's")
+
+
+def test_a_tiles_normals_make_none_of_its_neighbours_windows(model, fresh, monkeypatch):
+    """A blended tile, normals and all, makes its own four windows and no other (the points of a
+    normal just past a face read only the face's window, which holds the whole weight there)."""
+    made = []
+    monkeypatch.setattr(world, "draw_noise", lambda *args: made.append(args[0]) or generate.draw_noise(*args))
+    surface = world.tile_surface(model, 4, (3, -2))
+    assert len(surface.normals) == len(surface.vertices) > 100
+    assert sorted(made) == sorted(world.window_seed(4, a, b) for a in (2, 3) for b in (-3, -2))

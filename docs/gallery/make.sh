@@ -31,9 +31,15 @@ sinrun render towerruins --seeds 5 --size 2,1,2 --scale 2 --image-size 384 -o to
 sinrun render towerruins --seeds 3 --scale 1 --zoom 3 --focus 0.5,0.8,1 --image-size 384 -o closeup_scale1.png
 sinrun render towerruins --seeds 3 --scale 8 --zoom 3 --focus 0.5,0.8,1 --image-size 384 -o closeup_scale8.png
 
-# Endless worlds: an 8 x 8 block of terrain tiles, a row of 8 x 2 temple tiles (docs/WORLDS.md).
+# Endless worlds (docs/WORLDS.md): an 8 x 8 block of terrain tiles; 16 x 16 tiles of it shaped by a
+# painted height map (world_map.png: a pixel a tile, white 120 voxels up); temples scattered over the
+# same map; tower ruins scattered on flat ground.
 sinrun world terrain --seed 3 --tiles 0:7,0:7 --scale 2 -o "$work/terrain_world.ply"
 sinrun render "$work/terrain_world.ply" --up z --image-size 640 --elevation 40 --azimuth 30 -o world_terrain.png
-sinrun world acropolis --seed 3 --tiles 0:7,0:1 --scale 2 -o "$work/acropolis_world.ply"
-sinrun render "$work/acropolis_world.ply" --up z --image-size 640 --elevation 25 --azimuth 25 -o world_acropolis.png
+sinrun world terrain --seed 3 --tiles 0:15,0:15 --map world_map.png --relief 120 -o "$work/painted.ply"
+sinrun render "$work/painted.ply" --up z --image-size 900 --elevation 30 --azimuth 210 -o world_painted.png
+sinrun world acropolis --seed 3 --tiles 0:11,0:11 --map world_map.png --relief 60 -o "$work/temples.ply"
+sinrun render "$work/temples.ply" --up z --image-size 900 --elevation 35 --azimuth 210 -o world_acropolis.png
+sinrun world towerruins --seed 3 --tiles 0:11,0:11 -o "$work/towers.ply"
+sinrun render "$work/towers.ply" --up y --image-size 900 --elevation 35 --azimuth 30 -o world_towerruins.png
 rm -r "$work"

@@ -22,6 +22,7 @@ import * as sampling from './viewer/sampling.js';
 import { camera, frame, memory, orient, renderer, scene, showMesh, summary } from './viewer/scene.js';
 import { STATIC_SITE, canWalk, fileStem, readUrl, record, requestOf, state, walk, worldOptions, writeUrl } from './viewer/state.js';
 import * as world from './viewer/world.js';
+import { readHeightMap } from './viewer/heights.js';
 
 window.sinshapeView = { // for the tests and the console
   scene, camera, renderer, shape: summary, memory, pick: editor.pick, facePoint: editor.facePoint,
@@ -110,9 +111,14 @@ async function showWorld(request, ticket, options) {
   editor.dropLayout();
   const info = await sampling.info(state.where, state.model, options);
   if (ticket !== latest) return;
+  if (!state.arrange) { // as the model records, shown and in the URL
+    state.arrange = $('arrange').value = info.arrange ?? 'blend';
+    writeUrl();
+    request = requestOf();
+  }
   if (document.activeElement === $('edit')) $('edit').blur(); // the keys fly now, not pick another mode
-  world.show({ where: state.where, name: state.model, seed: request.seed ?? 0n, scale: request.scale, tile: request.tile, info, reach, walk: walking },
-    (status) => showWorldStatus(status, ticket));
+  world.show({ where: state.where, name: state.model, seed: request.seed ?? 0n, scale: request.scale, tile: request.tile, info, reach, walk: walking,
+    arrange: request.arrange, heights: request.heights }, (status) => showWorldStatus(status, ticket));
 }
 
 /** The world's work so far: the camera's tile in the controls and the URL, what is shown and made. */
@@ -181,6 +187,30 @@ async function openFile(file) {
   load();
 }
 
+let mapName = ''; // the height map's file
+
+/** Shape the world with a height map from a file; the world mode shows it at once. */
+async function openMap(file) {
+  $('map-file').value = ''; // the same file again is a change too
+  try {
+    const info = await sampling.info(state.where, state.model, {});
+    state.heights = await readHeightMap(file, info);
+    mapName = file.name;
+  } catch (error) {
+    fail(error);
+    return;
+  }
+  showMap();
+  readForm();
+  load();
+}
+
+/** The height map's name on its button, and the button that drops it. */
+function showMap() {
+  $('map-label').firstChild.textContent = state.heights ? `map: ${mapName}` : 'height map';
+  $('map-clear').hidden = !state.heights;
+}
+
 async function start() {
   $('unserved').hidden = true; // the script runs: the page is served
   readUrl();
@@ -206,14 +236,17 @@ async function start() {
   $('prev').addEventListener('click', () => step(-1));
   $('next').addEventListener('click', () => step(+1));
   $('file').addEventListener('change', () => { if ($('file').files.length) openFile($('file').files[0]); });
+  $('map-file').addEventListener('change', () => { if ($('map-file').files.length) openMap($('map-file').files[0]); });
+  $('map-clear').addEventListener('click', () => { state.heights = null; showMap(); load(); });
   $('model').addEventListener('change', () => {
     readForm();
     state.up = ups.get(state.model) ?? state.up;
     $('up').value = state.up;
+    state.arrange = ''; // another model's world is made as that model records
     load();
   });
   const boxes = ['bx0', 'by0', 'bz0', 'bx1', 'by1', 'bz1', 'gx', 'gy', 'gz', 'ax', 'ay', 'az'];
-  for (const id of ['where', 'seed', 'sx', 'sy', 'sz', 'scale', 'smooth', 'edit', 'other', 'at', 'travel', 'reach', ...boxes]) {
+  for (const id of ['where', 'seed', 'sx', 'sy', 'sz', 'scale', 'smooth', 'edit', 'other', 'at', 'travel', 'reach', 'arrange', ...boxes]) {
     $(id).addEventListener('change', () => { readForm(); load(); });
   }
   for (const id of boxes) { // the box follows as it is typed

@@ -137,6 +137,7 @@ export function parseManifest(textValue) {
     amps.push(level.noise_amp);
   });
   need(['y', 'z'].includes(raw.up ?? 'y'), 'up must be one of y, z');
+  need(['blend', 'scatter'].includes(raw.arrange ?? 'blend'), 'arrange must be one of blend, scatter');
   const frame = raw.frame;
   need(frame !== null && typeof frame === 'object', 'frame is missing');
   need(Array.isArray(frame.origin) && frame.origin.length === 3 && frame.origin.every((v) => isNumber(v) && Math.abs(v) <= MAX_COORD),
@@ -161,7 +162,7 @@ export function parseManifest(textValue) {
   need(sameJson(raw.stages, stageNames(levels.length, colour)), 'stages do not name the standard tensors for this level count');
   return {
     sizes, noiseAmps: amps, channels: raw.channels, poolBins: raw.pool_bins, hidden: raw.mlp_hidden,
-    reconSeed: BigInt(seedText), origin: frame.origin, spacing: frame.spacing, stages: raw.stages, up: raw.up ?? 'y', colour, tiles, raw,
+    reconSeed: BigInt(seedText), origin: frame.origin, spacing: frame.spacing, stages: raw.stages, up: raw.up ?? 'y', arrange: raw.arrange ?? 'blend', colour, tiles, raw,
   };
 }
 

@@ -6,7 +6,7 @@
 // draws, which are SplitMix64 outputs too).
 
 const MASK64 = (1n << 64n) - 1n;
-const GOLDEN = 0x9e3779b97f4a7c15n;
+export const GOLDEN = 0x9e3779b97f4a7c15n;
 export const GOLDEN_HI = 0x9e3779b9;
 export const GOLDEN_LO = 0x7f4a7c15;
 const TWO32 = 4294967296;
@@ -15,7 +15,8 @@ const COORD_BITS = 21;
 export const Z0_STREAM = 0; // (Z0_STREAM,): the coarsest level's 3-D input noise z0
 export const PLANE_STREAM = 1; // (PLANE_STREAM, level, plane, channel): noise added at a level
 
-function mix64Big(z) {
+/** SplitMix64's finaliser on a BigInt in [0, 2**64), as core/noise.py's mix64. */
+export function mix64Big(z) {
   z = ((z ^ (z >> 30n)) * 0xbf58476d1ce4e5b9n) & MASK64;
   z = ((z ^ (z >> 27n)) * 0x94d049bb133111ebn) & MASK64;
   return z ^ (z >> 31n);

@@ -13,7 +13,7 @@ import { ConflictError, InputError, pyRepr, pyStr } from './errors.js';
 import { sample, scaledSizes } from './generate.js';
 import { checkPart, compose, grow, parsePart } from './edit.js';
 import { fromLayout } from './layout.js';
-import { checkPlacement, checkTile, placed, tileColours, tileCorner, tileMesh, worldLayout } from './world.js';
+import { checkPlacement, checkTile, frameNormals, placed, tileCorner, tileSurface, worldLayout, worldOptions } from './world.js';
 
 const MAX_SMOOTH = 100; // mesh.MAX_SMOOTH
 const SMOOTHERS = ['laplacian', 'taubin']; // mesh.SMOOTHERS; the browser's mesh.js has the first only
@@ -21,7 +21,7 @@ const FRAMES = ['input', 'model', 'tile'];
 const MAX_PARTS = 16; // boxes kept in one sample: each runs a whole chain of its own
 const DEFAULTS = {
   seed: null, recon: false, size: [1, 1, 1], scale: 1, smooth: 0, smoother: 'laplacian', largest: false, frame: 'input',
-  keep: [], grow: null, anchor: null, layout: null, tile: null,
+  keep: [], grow: null, anchor: null, layout: null, tile: null, arrange: 'blend', heights: null, lod: 0,
 };
 const isNumber = (v) => typeof v === 'number';
 
@@ -84,9 +84,10 @@ export function sampleRequest(fields = {}) {
     layout = Layout.of(layout.grid, layout.shape, layout.resample);
   }
   const tile = given.tile === null ? null : checkTile(given.tile);
+  const { arrange, heights, lod } = worldOptions({ arrange: given.arrange, heights: given.heights, lod: given.lod });
   const request = Object.freeze({
     seed, recon: Boolean(given.recon), size, scale, smooth, smoother: given.smoother, largest: Boolean(given.largest),
-    frame: given.frame, keep: Object.freeze([...keep]), grow: grown, anchor, layout, tile,
+    frame: given.frame, keep: Object.freeze([...keep]), grow: grown, anchor, layout, tile, arrange, heights, lod,
   });
   checkTogether(request);
   return request;
@@ -113,6 +114,10 @@ function checkTogether(request) {
   }
 }
 
+/** The world's fields given other than their defaults, as SampleRequest.world_fields. */
+const worldFields = (request) => [['arrange', request.arrange !== 'blend'], ['heights', request.heights !== null], ['lod', request.lod]]
+  .filter(([, value]) => value).map(([name]) => name);
+
 /** The seed whose noise makes the sample (null: the training shape). */
 const sampleSeed = (request) => (request.recon ? null : request.seed ?? 0n);
 
@@ -126,6 +131,8 @@ export async function make(model, request, progress = null) {
   if (request.frame === 'tile') {
     throw new InputError("frame tile (coordinates from a tile's corner) is for the tiles of a world; a sample is placed in frame input or model", 'frame');
   }
+  const world = worldFields(request);
+  if (world.length) throw new InputError(`${world[0]} is for the tiles of a world; a sample has none`, world[0]);
   const seed = sampleSeed(request), { size, layout } = request;
   if (layout) {
     if (layout.resample) throw new InputError('the browser fits a layout of one level\'s own size only; resample it with sinrun', 'layout');
@@ -148,15 +155,14 @@ export async function make(model, request, progress = null) {
 
 /**
  * The mesh of a tile request (`tile` given), as world.tile_bytes makes it:
- * { positions: Float32Array (V, 3) in the request's frame, faces, corner:
- * the tile's lowest corner in voxels (BigInts) }.
+ * { positions: Float32Array (V, 3) in the request's frame, faces, normals,
+ * colours (or null), corner: the tile's lowest corner in voxels (BigInts) }.
  */
 export async function makeTile(model, request, progress = null) {
   checkPlacement(model.manifest, request.tile, request.frame); // refused before the work, not after
   progress?.('making the tile', null);
-  const seed = sampleSeed(request);
-  const { positions, faces } = await tileMesh(model, seed, request.tile, request.scale);
-  const colours = model.manifest.colour ? await tileColours(model, seed, request.tile, positions) : null;
-  return { positions: placed(model.manifest, request.tile, positions, request.frame), faces, colours,
-           corner: tileCorner(worldLayout(model.manifest), request.tile) };
+  const options = worldOptions(request);
+  const { positions, faces, normals, colours } = await tileSurface(model, sampleSeed(request), request.tile, request.scale, options);
+  return { positions: placed(model.manifest, request.tile, positions, request.frame), faces,
+           normals: frameNormals(model.manifest, normals, request.frame), colours, corner: tileCorner(worldLayout(model.manifest), request.tile) };
 }

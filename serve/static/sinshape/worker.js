@@ -5,14 +5,14 @@
 //
 // Messages in, each with an id the answers repeat:
 //   { id, type: 'load', name, bytes, file }  load and check a model (bytes: Uint8Array)
-//     -> { id, type: 'loaded', backend, threads, seconds, sizes, origin, spacing, up }  (the manifest's grids and frame)
+//     -> { id, type: 'loaded', backend, threads, seconds, sizes, origin, spacing, up, arrange }  (the manifest's grids, frame and world)
 //   { id, type: 'sample', name, request }  request: a sample request (request.js: sampleRequest, or a
 //       structured clone of one), made as runtime.request.make makes it (request.js: make), or
 //       with a tile, that tile of the world (request.js: makeTile; docs/WORLDS.md)
 //     -> { id, type: 'progress', stage, fraction }  (fraction in [0, 1], or null)
 //     -> { id, type: 'done', positions, faces, colours, seconds }  (the buffers are transferred;
 //        colours: a coloured model's sRGB per vertex, Float32Array (V, 3), else null; a tile's
-//        corner too, in voxels, as digit strings)
+//        normals (unit, Float32Array (V, 3)) and corner too, in voxels, as digit strings)
 //   { id, type: 'layout', name, seed, factors }  the level-0 layout of the sample of `seed`, as runtime.layout.layout
 //     -> { id, type: 'done', grid, shape }  (grid: Uint8Array in C order, 1 full)
 //   any of them -> { id, type: 'error', message, input }  (input: an InputError, a message for the user)
@@ -27,9 +27,9 @@ async function load({ name, bytes, file }) {
   models.set(name, loading);
   try {
     const model = await loading;
-    const { sizes, origin, spacing, up } = model.manifest;
+    const { sizes, origin, spacing, up, arrange } = model.manifest;
     return { backend: model.backend, threads: model.threads, seconds: (performance.now() - started) / 1000,
-             sizes, origin, spacing, up };
+             sizes, origin, spacing, up, arrange };
   } catch (error) {
     models.delete(name); // a later try loads again
     throw error;
@@ -49,8 +49,8 @@ async function sample({ name, request }, progress) {
   const started = performance.now();
   const wanted = sampleRequest(request); // a clone has lost its freezing: checked again, as cheap as it is
   if (wanted.tile !== null) { // a tile takes none of the surface options it could not keep seamless (the request says so)
-    const { positions, faces, colours, corner } = await makeTile(model, wanted, progress);
-    return { positions, faces, colours, corner: corner.map(String), seconds: (performance.now() - started) / 1000 };
+    const { positions, faces, normals, colours, corner } = await makeTile(model, wanted, progress);
+    return { positions, faces, normals, colours, corner: corner.map(String), seconds: (performance.now() - started) / 1000 };
   }
   for (const [field, value] of Object.entries(BROWSER_SURFACE)) {
     if (wanted[field] !== value) throw new sinshape.InputError(`the browser runtime makes ${field} ${value} only`, field);
@@ -80,7 +80,7 @@ self.onmessage = async ({ data: job }) => {
       self.postMessage({ id, type: 'done', grid, shape }, [grid.buffer]);
     } else if (job.type === 'sample') {
       const result = await sample(job, progress);
-      const buffers = [result.positions, result.faces, result.colours].filter(Boolean).map((array) => array.buffer);
+      const buffers = [result.positions, result.faces, result.normals, result.colours].filter(Boolean).map((array) => array.buffer);
       self.postMessage({ id, type: 'done', ...result }, buffers);
     } else {
       throw new Error(`unknown job type '${job.type}'`);

@@ -1,29 +1,49 @@
 // Endless worlds, as runtime/world.py (docs/WORLDS.md): tile (i, j) of the
-// world of a seed is the decoder's head applied to four windows' hidden
-// vectors, blended with smoothstep weights that sum to one. A window is an
-// ordinary sample of the training extent with its own noise, keyed by
-// (seed, a, b) at its lattice point (a, b); a tile depends on its four
-// windows only, so it costs the same anywhere and whatever was made before.
-// The blend and the head are element-wise, in one fixed order, so two
-// neighbouring tiles compute their shared face from the same window at
-// weight exactly 1 by the same arithmetic: the same floats, to the bit
-// (within this runtime; against Python's, within the runtimes' 1e-4).
+// world of a seed, made of samples arranged one of two ways. blend: the
+// decoder's head applied to four windows' hidden vectors (ordinary samples
+// of the training extent with their own noise, keyed by (seed, a, b) at
+// lattice point (a, b)), blended with smoothstep weights that sum to one,
+// contrast kept. scatter: whole samples, one in most cells of a coarser
+// lattice at a drawn place, on a ground, the largest occupancy. A height map
+// raises a blend world's columns, and a scatter world's ground and objects.
+// A tile depends on the windows that reach into it only, so it costs the
+// same anywhere and whatever was made before; a coarser tile (lod) reads an
+// earlier level and hangs a skirt from its sides. The field is computed
+// element-wise, in one fixed order, at positions that are small numbers
+// relative to the tile, so two neighbouring tiles compute their shared face
+// (and the normals there: the field's gradient) the same way: the same
+// floats, to the bit (within this runtime; against Python's, within the
+// runtimes' 1e-4).
 //
-//   const layout = worldLayout(model.manifest);             // horizontal axes, up, stride S per axis
-//   const grid = await tileOccupancy(model, 3n, [5n, -2n]);  // { data: Float32Array (X, Y, Z), shape }
-//   const mesh = await tileMesh(model, 3n, [5n, -2n]);       // { positions (voxels from the corner), faces }
-//   const rgb = await tileColours(model, 3n, [5n, -2n], mesh.positions);  // a coloured model's sRGB at its vertices
+//   const layout = worldLayout(model.manifest);                         // horizontal axes, up, stride S per axis
+//   const options = worldOptions({ arrange: 'scatter', lod: 1 });       // as world.WorldOptions
+//   const grid = await tileOccupancy(model, 3n, [5n, -2n], 1, options);  // { data: Float32Array (X, Y, Z), shape }
+//   const mesh = await tileMesh(model, 3n, [5n, -2n], 1, options);       // { positions (voxels from the corner), faces }
+//   const surface = await tileSurface(model, 3n, [5n, -2n], 1, options); // ... and normals, colours, a coarser tile's skirt
 import { InputError, formatG, pyRepr } from './errors.js';
 import { checkSeed, drawNoise, roundHalfEven, scaledSizes, triplane } from './generate.js';
 import { marchingCubes } from './mesh.js';
-import { streamKey } from './noise.js';
+import { GOLDEN, mix64Big, streamKey } from './noise.js';
 import { PLANE_AXES, addBilinear, headColour, project } from './query.js';
 
 const WORLD_STREAM = 2; // world.WORLD_STREAM: (WORLD_STREAM, a, b) keys window (a, b)'s noise, after the seed
+const SCATTER_STREAM = 3; // world.SCATTER_STREAM: (SCATTER_STREAM, a, b) keys scatter cell (a, b)'s draws
 const MAX_TILE = 2n ** 62n; // world.MAX_TILE: |i|, |j| below it
 const MIN_STRIDE = 4; // voxels: a window of fewer than 2 * 4 + 1 along an axis has no room to blend
 const UP_AXIS = { y: 1, z: 2 };
+export const ARRANGEMENTS = ['blend', 'scatter']; // world.ARRANGEMENTS
 const BLEND = 1.0; // world.BLEND
+const CONTRAST = 1.3; // world.CONTRAST: the blend's contrast exponent
+const PITCH = 3; // world.PITCH: a scatter cell's side, in strides
+const PRESENCE = 0.6; // world.PRESENCE: the share of scatter cells holding an object
+const GROUND = 1.0; // world.GROUND: voxels of ground over the map under a scatter world's objects
+const GROUND_SLOPE = 1.0; // world.GROUND_SLOPE: the ground's (and a ceiling's) logit per voxel
+const NORMAL_STEP = 0.25; // world.NORMAL_STEP: voxels of a normal's differences
+const PLATEAU = 0.5; // world.PLATEAU: voxels either side of a lattice line where its window holds the whole weight
+const SKIRT = 2.0; // world.SKIRT: a coarser tile's skirt, in its grid's steps along up
+const GROUND_COLOUR = [0.5, 0.5, 0.5]; // world.GROUND_COLOUR
+const MAX_MAP_SIDE = 1 << 12; // world.MAX_MAP_SIDE
+const MAX_RELIEF = 1 << 14; // world.MAX_RELIEF
 const MAX_POINTS = 1 << 14; // per axis of a tile, as world.check_world_scale
 const MAX_BYTES = 2 * 2 ** 30; // a tile's grid and interpolated planes in a browser tab
 const MAX_ABSOLUTE = 2n ** 18n; // world.MAX_ABSOLUTE: voxels from the origin that float32 still places to 1/64
@@ -54,27 +74,84 @@ export function windowSeed(seed, a, b) {
   return streamKey(seed, WORLD_STREAM, BigInt.asUintN(64, BigInt(a)), BigInt.asUintN(64, BigInt(b)));
 }
 
+// ---- the world's options
+
+/** A designer's map of heights in voxels at the centres of tiles (r, c), as world.HeightMap.of: { shape, data: Float32Array }. */
+export const HeightMap = {
+  of(values, shape) {
+    const sides = Array.isArray(shape) && shape.length === 2 && shape.every((n) => Number.isInteger(n));
+    if (!(sides && Math.min(...shape) > 0 && Math.max(...shape) <= MAX_MAP_SIDE)) {
+      const tuple = Array.isArray(shape) ? `(${shape.map(pyRepr).join(', ')}${shape.length === 1 ? ',' : ''})` : pyRepr(shape);
+      throw new InputError(`a height map is a 2-D array of 1 to ${MAX_MAP_SIDE} pixels a side, got shape ${tuple}`, 'heights');
+    }
+    if (values?.length !== shape[0] * shape[1]) {
+      throw new InputError(`a height map of ${shape.join('x')} pixels needs ${shape[0] * shape[1]} values, got ${values?.length}`, 'heights');
+    }
+    if (!Array.from(values).every((v) => typeof v === 'number' && Number.isFinite(v) && Math.abs(v) <= MAX_RELIEF)) {
+      throw new InputError(`a height map holds heights in voxels within +-${MAX_RELIEF}: no NaN or infinities`, 'heights');
+    }
+    return Object.freeze({ shape: [...shape], data: Float32Array.from(values) });
+  },
+  /** The lowest and highest heights, rounded out to whole voxels, as HeightMap.bounds. */
+  bounds(map) {
+    let low = Infinity, high = -Infinity;
+    for (const v of map.data) { low = Math.min(low, v); high = Math.max(high, v); }
+    return [Math.floor(low), Math.ceil(high)];
+  },
+};
+
+/** How a world is made and how finely one of its tiles is, checked as world.WorldOptions: { arrange, heights, lod }. */
+export function worldOptions({ arrange = 'blend', heights = null, lod = 0 } = {}) {
+  if (!ARRANGEMENTS.includes(arrange)) throw new InputError(`unknown arrangement ${pyRepr(arrange)}; choose ${ARRANGEMENTS.join(' or ')}`, 'arrange');
+  if (heights !== null && !(heights?.data instanceof Float32Array && Array.isArray(heights.shape))) {
+    throw new InputError('heights must be a world.HeightMap (HeightMap.of(array))', 'heights');
+  }
+  if (!(Number.isInteger(lod) && lod >= 0)) throw new InputError(`lod must be a whole number of levels, 0 or more, got ${pyRepr(lod)}`, 'lod');
+  return Object.freeze({ arrange, heights, lod });
+}
+
+const PLAIN = worldOptions();
+
+/** The level a tile of `lod` reads its detail from, as world.check_lod. */
+function checkLod(manifest, lod) {
+  const levels = manifest.sizes.length;
+  if (lod >= levels) throw new InputError(`lod must be 0 to ${levels - 1} (the model has ${levels} levels), got ${lod}`, 'lod');
+  return levels - 1 - lod;
+}
+
+// ---- windows and objects
+
+/** Every level's size of a window (blend) or an object (scatter), as world.window_sizes. */
+const windowSizes = (manifest, layout, arrange) => scaledSizes(manifest.sizes, arrange === 'blend' ? layout.factors : [1, 1, 1]);
+
 // Windows kept for the next tiles (a tile shares each of its four with a
 // neighbour; a view of 7 x 7 tiles made nearest first, or a row of them
 // made as the view moves, reuses all it can with 64). A cache, not state:
 // a window is the same array whether it is made or found.
 const WINDOWS_KEPT = 64;
 let modelCount = 0;
-const windows = new Map(); // "model|seed|a|b" -> a promise of the window's planes, oldest use first
+const windows = new Map(); // "model|seed|arrange|level|a|b" -> a promise of the window, oldest use first
 const modelIds = new WeakMap(); // model -> a number naming it in the keys
 
-/** Window (a, b)'s final planes times the decoder's first layer: 3 x { data, dims: [H, W, D] }. */
-function windowPlanes(model, layout, seed, a, b) {
+/**
+ * Window (a, b) (or scatter cell (a, b)'s object), its chain stopped at
+ * `level`, as world.window: { planes: 3 x { data, dims: [H, W, D] } (times
+ * the decoder's first layer), mean: (U, D) its mean over its horizontal
+ * extent at each height, cells: [3] level cells per finest voxel }.
+ */
+function windowAt(model, layout, seed, a, b, level, arrange) {
   if (!modelIds.has(model)) modelIds.set(model, ++modelCount);
-  const key = `${modelIds.get(model)}|${seed}|${a}|${b}`;
+  const key = `${modelIds.get(model)}|${seed}|${arrange}|${level}|${a}|${b}`;
   let made = windows.get(key);
   if (made) {
     windows.delete(key); // to the end: the newest use
   } else {
     made = (async () => {
-      const sizes = scaledSizes(model.manifest.sizes, layout.factors);
+      const sizes = windowSizes(model.manifest, layout, arrange).slice(0, level + 1);
       const tri = await triplane(model, drawNoise(windowSeed(seed, a, b), sizes, model.manifest.channels), sizes);
-      return (await project(model, tri)).planes;
+      const { planes } = await project(model, tri);
+      return { planes, mean: windowMean(planes, layout, sizes[level][layout.up], model.manifest.hidden),
+               cells: [0, 1, 2].map((axis) => (sizes[level][axis] - 1) / (windowSizes(model.manifest, layout, arrange).at(-1)[axis] - 1)) };
     })();
     made.catch(() => windows.delete(key));
   }
@@ -83,71 +160,122 @@ function windowPlanes(model, layout, seed, a, b) {
   return made;
 }
 
-/** How many windows are kept now, at most WINDOWS_KEPT. */
-export const keptWindows = () => windows.size;
-
-/** Forget the windows kept (the tests' fresh start). */
-export function dropWindows() {
-  windows.clear();
-}
-
-const smoothstep = (f) => f * f * (3 - 2 * f);
-
-/**
- * A tile's grid along `axis`, as world.tile_axis: { points, cells, weights }.
- * Horizontal: m + 1 points over the stride S (m = S scale, rounded), point p
- * at p S / m, and for the tile's two windows (the one before, the one behind)
- * their cell positions and weights; along up, one window spanning it all.
- */
-function tileAxis(layout, axis, scale) {
-  const stride = layout.stride[axis];
-  if (axis === layout.up) {
-    const m = Math.max(2, roundHalfEven((stride + 1) * scale)); // as a sample's grid: m points over the height
-    return { points: m, cells: [Float64Array.from({ length: m }, (_, p) => p * (stride / (m - 1)))], weights: [new Float32Array(m).fill(1)] };
-  }
-  const m = Math.max(1, roundHalfEven(stride * scale));
-  const behind = new Float32Array(m + 1), before = new Float32Array(m + 1);
-  for (let p = 0; p <= m; p++) {
-    behind[p] = smoothstep(Math.min(Math.max((p / m - 0.5) / BLEND + 0.5, 0), 1)); // window i (p = 0 at its start)
-    before[p] = 1 - behind[p]; // window i - 1: exactly 1 - behind, in float32
-  }
-  const cells = [Float64Array.from({ length: m + 1 }, (_, p) => ((m + p) * stride) / m),
-    Float64Array.from({ length: m + 1 }, (_, p) => (p * stride) / m)];
-  return { points: m + 1, cells, weights: [before, behind] };
-}
-
-/** Per position, the two grid points around it and the weight of the upper one, as world.interpolate's `along`. */
-function taps(positions, n) {
-  const low = new Int32Array(positions.length), high = new Int32Array(positions.length), frac = new Float32Array(positions.length);
-  positions.forEach((at, k) => {
-    low[k] = Math.min(Math.max(Math.floor(at), 0), Math.max(n - 2, 0));
-    high[k] = Math.min(low[k] + 1, n - 1);
-    frac[k] = at - low[k];
+/** A window's mean hidden sum at each of its heights: Float32Array (U, D), as world.window's. */
+function windowMean(planes, layout, heights, d) {
+  const mean = new Float64Array(heights * d);
+  planes.forEach((plane, k) => {
+    const [r, c] = PLANE_AXES[k], [h, w] = plane.dims, src = plane.data;
+    if (r !== layout.up && c !== layout.up) {
+      const flat = new Float64Array(d);
+      for (let p = 0; p < h * w; p++) for (let e = 0; e < d; e++) flat[e] += src[p * d + e];
+      for (let u = 0; u < heights; u++) for (let e = 0; e < d; e++) mean[u * d + e] += Math.fround(flat[e] / (h * w));
+    } else {
+      const upFirst = r === layout.up, along = upFirst ? w : h;
+      for (let u = 0; u < heights; u++) {
+        for (let e = 0; e < d; e++) {
+          let sum = 0;
+          for (let n = 0; n < along; n++) sum += src[(upFirst ? u * w + n : n * w + u) * d + e];
+          mean[u * d + e] += Math.fround(sum / along);
+        }
+      }
+    }
   });
-  return { low, high, frac };
+  return Float32Array.from(mean);
 }
 
-/**
- * A (H, W, D) plane at every (row, col) of two position lists, element-wise
- * (bilinear, align_corners), as world.interpolate: (rows, cols, D)
- * Float32Array. Two tiles asking for the same position get the same bits.
- */
-function interpolate(plane, rows, cols) {
-  const [h, w, d] = plane.dims, src = plane.data;
-  const r = taps(rows, h), c = taps(cols, w);
-  const along = new Float32Array(rows.length * w * d); // along the rows first: (rows, W, D)
-  for (let i = 0; i < rows.length; i++) {
-    const a0 = r.low[i] * w * d, a1 = r.high[i] * w * d, f = r.frac[i], at = i * w * d;
-    for (let t = 0; t < w * d; t++) along[at + t] = src[a0 + t] * (1 - f) + src[a1 + t] * f;
-  }
-  const out = new Float32Array(rows.length * cols.length * d);
-  for (let i = 0; i < rows.length; i++) {
-    for (let j = 0; j < cols.length; j++) {
-      const b0 = (i * w + c.low[j]) * d, b1 = (i * w + c.high[j]) * d, f = c.frac[j], at = (i * cols.length + j) * d;
-      for (let k = 0; k < d; k++) out[at + k] = along[b0 + k] * (1 - f) + along[b1 + k] * f;
+/** BigInt floor division (BigInt's own truncates towards zero). */
+const floorDiv = (a, b) => (a % b !== 0n && (a < 0n) !== (b < 0n) ? a / b - 1n : a / b);
+
+/** Scatter cell (a, b)'s draws, as world.scatter_cell: { present, offset: [2], mirror: [2] }. */
+function scatterCell(seed, a, b, room) {
+  const mask = (1n << 64n) - 1n;
+  const key = streamKey(seed, SCATTER_STREAM, BigInt.asUintN(64, a), BigInt.asUintN(64, b));
+  const draw = [0n, 1n, 2n, 3n].map((n) => mix64Big((key + GOLDEN * (n + 1n)) & mask));
+  return { present: (draw[0] >> 11n) < BigInt(PRESENCE * 2 ** 53), offset: [Number(draw[1] % BigInt(room[0] + 1)), Number(draw[2] % BigInt(room[1] + 1))],
+           mirror: [(draw[3] & 1n) !== 0n, (draw[3] & 2n) !== 0n] };
+}
+
+/** The objects of a scatter world that reach into tile (i, j), in a fixed order, as world.objects_near (their planes not made). */
+function objectsNear(model, layout, seed, [i, j], level, heights) {
+  const [h0, h1] = layout.horizontal, finest = model.manifest.sizes.at(-1);
+  const s0 = BigInt(layout.stride[h0]), s1 = BigInt(layout.stride[h1]);
+  const p0 = BigInt(PITCH * layout.stride[h0]), p1 = BigInt(PITCH * layout.stride[h1]);
+  const e0 = finest[h0] - 1, e1 = finest[h1] - 1;
+  const found = [];
+  for (let a = floorDiv(i * s0, p0) - 1n; a < floorDiv((i + 1n) * s0, p0) + 1n; a++) {
+    for (let b = floorDiv(j * s1, p1) - 1n; b < floorDiv((j + 1n) * s1, p1) + 1n; b++) {
+      const cell = scatterCell(seed, a, b, [Number(p0) - e0, Number(p1) - e1]);
+      const low = [a * p0 + BigInt(cell.offset[0]), b * p1 + BigInt(cell.offset[1])];
+      if (!cell.present || low[0] > (i + 1n) * s0 || low[0] + BigInt(e0) < i * s0 || low[1] > (j + 1n) * s1
+          || low[1] + BigInt(e1) < j * s1) continue;
+      const height = heights === null ? 0 : objectHeight(heights, layout, low, [e0, e1]);
+      found.push({ cell: [a, b], corner: [Number(low[0] - i * s0), Number(low[1] - j * s1)], extent: [e0, e1], mirror: cell.mirror, height });
     }
   }
+  return found;
+}
+
+// ---- the height map, read anywhere
+
+/** The uniform cubic B-spline's four weights at a fraction t, as world.spline_weights. */
+function splineWeights(t) {
+  const s = 1 - t;
+  return [s * s * s / 6, (3 * t * t * t - 6 * t * t + 4) / 6, (-3 * t * t * t + 3 * t * t + 3 * t + 1) / 6, t * t * t / 6];
+}
+
+/** Where a point u voxels past tile `tile`'s corner falls among `count` pixels, clamped, as world.map_coordinates. */
+function mapCoordinate(count, tile, u, stride) {
+  const near = Number(tile < -4n ? -4n : tile > BigInt(count + 4) ? BigInt(count + 4) : tile);
+  return Math.min(Math.max((near - 0.5) + u / stride, -2), count + 1);
+}
+
+/** The map's cubic B-spline at map coordinates (q0, q1), summed in world.spline's order. */
+function spline(map, q0, q1) {
+  const [rows, cols] = map.shape, b0 = Math.floor(q0), b1 = Math.floor(q1);
+  const w0 = splineWeights(q0 - b0), w1 = splineWeights(q1 - b1);
+  let out = 0;
+  for (let m = 0; m < 4; m++) {
+    const r = Math.min(Math.max(b0 + m - 1, 0), rows - 1);
+    let row = 0;
+    for (let n = 0; n < 4; n++) row += w1[n] * map.data[r * cols + Math.min(Math.max(b1 + n - 1, 0), cols - 1)];
+    out += w0[m] * row;
+  }
   return out;
+}
+
+/** The map's height at a point of tile [i, j] (u0, u1 voxels from its corner), as world.map_heights. */
+const mapHeight = (map, layout, u0, u1, [i, j]) => spline(map, mapCoordinate(map.shape[0], i, u0, layout.stride[layout.horizontal[0]]),
+  mapCoordinate(map.shape[1], j, u1, layout.stride[layout.horizontal[1]]));
+
+/** The map's height under an object's centre (its lowest corner `low` in world voxels, BigInts), as world.object_height. */
+function objectHeight(map, layout, low, extent) {
+  const q = low.map((c, k) => Math.min(Math.max(Number(2n * c + BigInt(extent[k])) / (2 * layout.stride[layout.horizontal[k]]) - 0.5, -2), map.shape[k] + 1));
+  return spline(map, q[0], q[1]);
+}
+
+// ---- a tile's grid and field
+
+const smoothstep = (f) => f * f * (3 - 2 * f);
+/** The weight of the window behind a point u voxels past its lattice point, as world.behind_weight (in float32). */
+function behindWeight(u, stride) {
+  const f = Math.min(Math.max((u - PLATEAU) / (stride - 2 * PLATEAU), 0), 1);
+  return Math.fround(smoothstep(Math.min(Math.max((f - 0.5) / BLEND + 0.5, 0), 1)));
+}
+
+/** A tile's grid at `scale` and `lod`, as world.tile_grid: per model axis the positions (horizontal: from the tile's corner; up: from the floor). */
+function tileGrid(manifest, layout, scale, options) {
+  const sizes = manifest.sizes, level = checkLod(manifest, options.lod);
+  return [0, 1, 2].map((axis) => {
+    const ratio = (sizes[level][axis] - 1) / (sizes.at(-1)[axis] - 1), stride = layout.stride[axis];
+    if (axis === layout.up) {
+      const m = Math.max(2, roundHalfEven((stride + 1) * scale * ratio)), step = stride / (m - 1);
+      const [low, high] = options.heights ? HeightMap.bounds(options.heights) : [0, 0];
+      const count = m + Math.ceil((high - low) / step);
+      return Float64Array.from({ length: count }, (_, k) => low + k * step);
+    }
+    const m = Math.max(1, roundHalfEven(stride * scale * ratio));
+    return Float64Array.from({ length: m + 1 }, (_, p) => (p * stride) / m); // exact at the faces: m S / m = S
+  });
 }
 
 /** A tile of a world, (i, j): two integers of magnitude below 2**62, as world.check_tile; frozen BigInts. */
@@ -159,60 +287,184 @@ export function checkTile(tile) {
   return Object.freeze(tile.map(BigInt));
 }
 
-/** A tile's grid per axis at `scale`, refused where it is too large for the page, as world.check_world_scale. */
-function tileAxes(layout, scale, hidden) {
+/** A tile's grid refused where it is too large for the page, as world.check_world_scale. */
+function checkGrid(grid, scale, hidden) {
   if (!(typeof scale === 'number' && scale > 0 && scale < Infinity)) throw new InputError(`scale must be a positive number, got ${scale}`, 'scale');
-  const axes = [0, 1, 2].map((a) => tileAxis(layout, a, scale));
-  const points = axes.map((a) => a.points);
+  const points = grid.map((p) => p.length);
   if (Math.max(...points) > MAX_POINTS) {
     throw new InputError(`scale ${formatG(scale)} makes a tile of ${points.join('x')} points; at most ${MAX_POINTS} per axis`, 'scale');
   }
   const bytes = points[0] * points[1] * points[2] * 4 + 4 * hidden * 4 * PLANE_AXES.reduce((n, [a, b]) => n + points[a] * points[b], 0);
   if (bytes > MAX_BYTES) throw new InputError(`a ${points.join('x')} tile needs more memory than a page should take`, 'scale');
-  return axes;
+}
+
+/** Per position, the two cells around it and the weight of the upper one, as world.along's. */
+function taps(positions, n) {
+  const low = new Int32Array(positions.length), high = new Int32Array(positions.length), frac = new Float32Array(positions.length);
+  positions.forEach((at, k) => {
+    low[k] = Math.min(Math.max(Math.floor(at), 0), Math.max(n - 2, 0));
+    high[k] = Math.min(low[k] + 1, n - 1);
+    frac[k] = at - low[k];
+  });
+  return { low, high, frac };
 }
 
 /**
- * Occupancy on tile (i, j)'s grid, as world.tile_occupancy: { data:
- * Float32Array (X, Y, Z) in C order, shape }, its points along each
- * horizontal axis from the tile's lattice point to the next (both included:
- * the faces it shares), along up the model's height.
+ * A window's planes read on a tile's grid, as world.hidden_on_grid does
+ * before its reads along up: the horizontal plane at every (c0, c1),
+ * (X, Y, D); each vertical plane along its horizontal axis, (N, U, D), with
+ * which of the two grid axes N runs along.
  */
-export async function tileOccupancy(model, seed, tile, scale = 1) {
-  seed = checkSeed(seed);
-  const [i, j] = checkTile(tile);
-  const { hidden } = model.manifest;
-  const layout = worldLayout(model.manifest);
-  const axes = tileAxes(layout, scale, hidden);
-  const [h0, h1] = layout.horizontal;
-  const sources = []; // per window, in a fixed order (the sum's): its interpolated planes and weights
-  for (const [a, b] of [[i - 1n, j - 1n], [i - 1n, j], [i, j - 1n], [i, j]]) {
-    const index = [0, 0, 0];
-    index[h0] = Number(a - i + 1n);
-    index[h1] = Number(b - j + 1n);
-    const cells = axes.map((axis, n) => axis.cells[index[n]]);
-    const planes = (await windowPlanes(model, layout, seed, a, b)).map((plane, k) => interpolate(plane, cells[PLANE_AXES[k][0]], cells[PLANE_AXES[k][1]]));
-    sources.push({ planes, weights: axes.map((axis, n) => axis.weights[index[n]]) });
+function readPlanes(found, layout, c0, c1) {
+  const [h0, h1] = layout.horizontal, cells = { [h0]: c0, [h1]: c1 };
+  let flat = null;
+  const vertical = [];
+  found.planes.forEach((plane, k) => {
+    const [r, c] = PLANE_AXES[k], [h, w, d] = plane.dims, src = plane.data;
+    if (r !== layout.up && c !== layout.up) { // the horizontal plane: (rows, cols, D), then (X, Y, D)
+      const rows = cells[r], cols = cells[c], tr = taps(rows, h), tc = taps(cols, w);
+      const along = new Float32Array(rows.length * w * d);
+      for (let i = 0; i < rows.length; i++) {
+        const a0 = tr.low[i] * w * d, a1 = tr.high[i] * w * d, f = tr.frac[i], at = i * w * d;
+        for (let t = 0; t < w * d; t++) along[at + t] = src[a0 + t] * (1 - f) + src[a1 + t] * f;
+      }
+      const swap = r !== h0, nx = swap ? cols.length : rows.length, ny = swap ? rows.length : cols.length;
+      flat = { data: new Float32Array(nx * ny * d), ny };
+      for (let i = 0; i < rows.length; i++) {
+        for (let j = 0; j < cols.length; j++) {
+          const b0 = (i * w + tc.low[j]) * d, b1 = (i * w + tc.high[j]) * d, f = tc.frac[j];
+          const at = (swap ? j * ny + i : i * ny + j) * d;
+          for (let e = 0; e < d; e++) flat.data[at + e] = along[b0 + e] * (1 - f) + along[b1 + e] * f;
+        }
+      }
+    } else { // a vertical plane: along its horizontal axis, (N, U, D)
+      const upFirst = r === layout.up, hAxis = upFirst ? c : r, positions = cells[hAxis];
+      const t = taps(positions, upFirst ? w : h), count = upFirst ? h : w;
+      const data = new Float32Array(positions.length * count * d);
+      for (let n = 0; n < positions.length; n++) {
+        const f = t.frac[n];
+        for (let u = 0; u < count; u++) {
+          const a0 = (upFirst ? u * w + t.low[n] : t.low[n] * w + u) * d, a1 = (upFirst ? u * w + t.high[n] : t.high[n] * w + u) * d;
+          const at = (n * count + u) * d;
+          for (let e = 0; e < d; e++) data[at + e] = src[a0 + e] * (1 - f) + src[a1 + e] * f;
+        }
+      }
+      vertical.push({ data, count, alongFirst: hAxis === h0 });
+    }
+  });
+  return { flat, vertical };
+}
+
+/** Adds a (N, U, D) read's value at row n, height cell z (linear, as world.along_up), times `scale`, into out. */
+function addUp(read, n, z, out, scale = 1) {
+  const { data, count } = read, d = out.length;
+  const low = Math.min(Math.max(Math.floor(z), 0), Math.max(count - 2, 0)), high = Math.min(low + 1, count - 1), f = Math.fround(z - low);
+  const a = (n * count + low) * d, b = (n * count + high) * d;
+  for (let e = 0; e < d; e++) out[e] += scale * (data[a + e] * (1 - f) + data[b + e] * f);
+}
+
+/** w2 . relu(h + b1) + b2 over the hidden width, in order, as world.head_logits. */
+function headLogit({ bias1, weight2, bias2 }, hidden) {
+  let s = bias2;
+  for (let c = 0; c < hidden.length; c++) {
+    const h = hidden[c] + bias1[c];
+    if (h > 0) s += h * weight2[c];
   }
-  const shape = axes.map((a) => a.points), [mx, my, mz] = shape;
-  const { bias1, weight2, bias2 } = model.head;
-  const out = new Float32Array(mx * my * mz);
-  const total = new Float64Array(hidden);
-  for (let x = 0; x < mx; x++) {
-    for (let y = 0; y < my; y++) {
-      for (let z = 0; z < mz; z++) {
-        total.fill(0);
-        for (const { planes: [xy, xz, yz], weights: [wx, wy, wz] } of sources) {
-          const weight = wx[x] * wy[y] * wz[z];
-          const a = (x * my + y) * hidden, b = (x * mz + z) * hidden, e = (y * mz + z) * hidden;
-          for (let c = 0; c < hidden; c++) total[c] += weight * (xy[a + c] + xz[b + c] + yz[e + c]);
+  return s;
+}
+
+/** A logit read above a window's top cut by a ceiling half a voxel up, as world.capped. */
+const capped = (logit, above) => (above > 0 ? Math.min(logit, -GROUND_SLOPE * (above - 0.5)) : logit);
+
+/** Tile (i, j)'s four windows in the order of the sum, with their offsets and which is behind along each axis, as world.blend_sources. */
+async function blendSources(model, layout, seed, [i, j], level) {
+  const [h0, h1] = layout.horizontal, sources = [];
+  for (const [a, b] of [[i - 1n, j - 1n], [i - 1n, j], [i, j - 1n], [i, j]]) {
+    sources.push({ window: await windowAt(model, layout, seed, a, b, level, 'blend'),
+                   offset: [a < i ? layout.stride[h0] : 0, b < j ? layout.stride[h1] : 0], behind: [a === i, b === j] });
+  }
+  return sources;
+}
+
+/**
+ * The head's logits on tile (i, j)'s grid, as world.tile_logits: { data:
+ * Float32Array in the model's axes (X, Y, Z), C order, shape }.
+ */
+async function tileLogits(model, seed, [i, j], scale, options) {
+  const { manifest } = model, d = manifest.hidden, layout = worldLayout(manifest), level = checkLod(manifest, options.lod);
+  const grid = tileGrid(manifest, layout, scale, options);
+  checkGrid(grid, scale, d);
+  const [h0, h1] = layout.horizontal, up = layout.up, top = layout.stride[up];
+  const shape = grid.map((p) => p.length), [u0, u1, z] = [grid[h0], grid[h1], grid[up]];
+  const out = new Float32Array(shape[0] * shape[1] * shape[2]);
+  const strides = [shape[1] * shape[2], shape[2], 1], sx = strides[h0], sy = strides[h1], sk = strides[up]; // tile order -> C order
+  const nx = u0.length, ny = u1.length, nk = z.length;
+  const rise = new Float64Array(nx * ny);
+  if (options.heights) for (let x = 0; x < nx; x++) for (let y = 0; y < ny; y++) rise[x * ny + y] = mapHeight(options.heights, layout, u0[x], u1[y], [i, j]);
+  const hidden = new Float64Array(d);
+  if (options.arrange === 'scatter') {
+    for (let x = 0; x < nx; x++) for (let y = 0; y < ny; y++) for (let k = 0; k < nk; k++) out[x * sx + y * sy + k * sk] = -GROUND_SLOPE * (z[k] - rise[x * ny + y] - GROUND);
+    for (const placed of objectsNear(model, layout, seed, [i, j], level, options.heights)) {
+      const inside = [u0, u1].map((u, k) => {
+        const chosen = [], cells = [];
+        u.forEach((at, n) => {
+          const position = at - placed.corner[k];
+          if (position >= 0 && position <= placed.extent[k]) { chosen.push(n); cells.push(placed.mirror[k] ? placed.extent[k] - position : position); }
+        });
+        return { chosen, cells };
+      });
+      if (!inside[0].chosen.length || !inside[1].chosen.length) continue;
+      placed.window = await windowAt(model, layout, seed, ...placed.cell, level, 'scatter');
+      const c0 = Float64Array.from(inside[0].cells, (c) => c * placed.window.cells[h0]), c1 = Float64Array.from(inside[1].cells, (c) => c * placed.window.cells[h1]);
+      const read = readPlanes(placed.window, layout, c0, c1), m1 = inside[1].chosen.length;
+      inside[0].chosen.forEach((x, n0) => inside[1].chosen.forEach((y, n1) => {
+        for (let k = 0; k < nk; k++) {
+          const cell = Math.min(Math.max(z[k] - placed.height, 0), top) * placed.window.cells[up];
+          for (let e = 0; e < d; e++) hidden[e] = read.flat.data[(n0 * m1 + n1) * d + e];
+          for (const v of read.vertical) addUp(v, v.alongFirst ? n0 : n1, cell, hidden);
+          const logit = capped(headLogit(model.head, hidden), z[k] - placed.height - top), where = x * sx + y * sy + k * sk;
+          if (logit > out[where]) out[where] = logit;
         }
-        let s = bias2; // the head: sigmoid(w2 . relu(h + b1) + b2), over the hidden width in order
-        for (let c = 0; c < hidden; c++) {
-          const h = total[c] + bias1[c];
-          if (h > 0) s += h * weight2[c];
+      }));
+    }
+    return { data: out, shape };
+  }
+  const sources = await blendSources(model, layout, seed, [i, j], level);
+  const reads = sources.map((s) => readPlanes(s.window, layout, u0.map((u) => (u + s.offset[0]) * s.window.cells[h0]),
+    u1.map((u) => (u + s.offset[1]) * s.window.cells[h1])));
+  const weights = sources.map((s) => [u0.map((u) => { const w = behindWeight(u, layout.stride[h0]); return s.behind[0] ? w : Math.fround(1 - w); }),
+    u1.map((u) => { const w = behindWeight(u, layout.stride[h1]); return s.behind[1] ? w : Math.fround(1 - w); })]);
+  // Every window of a tile is read at one level, so the four share their cells along up: each
+  // point's two cells and weight along up are found once. Per window: its planes read along x and y.
+  const cellsUp = sources[0].window.cells[up], count = reads[0].vertical[0].count, means = sources.map((s) => s.window.mean);
+  const alongX = reads.map((r) => r.vertical.find((v) => v.alongFirst).data), alongY = reads.map((r) => r.vertical.find((v) => !v.alongFirst).data);
+  const flats = reads.map((r) => r.flat.data);
+  const meanSum = new Float64Array(d), deviation = new Float64Array(d);
+  for (let x = 0; x < nx; x++) {
+    for (let y = 0; y < ny; y++) {
+      const lift = rise[x * ny + y];
+      for (let k = 0; k < nk; k++) {
+        const cell = Math.min(Math.max(z[k] - lift, 0), top) * cellsUp;
+        const low = Math.min(Math.max(Math.floor(cell), 0), Math.max(count - 2, 0)), high = Math.min(low + 1, count - 1);
+        const f = Math.fround(cell - low), g = 1 - f;
+        meanSum.fill(0);
+        deviation.fill(0);
+        let squares = 0;
+        for (let n = 0; n < sources.length; n++) {
+          const w = weights[n][0][x] * weights[n][1][y], flat = flats[n], ax = alongX[n], ay = alongY[n], mean = means[n];
+          const at = (x * ny + y) * d, a0 = (x * count + low) * d, a1 = (x * count + high) * d;
+          const b0 = (y * count + low) * d, b1 = (y * count + high) * d, m0 = low * d, m1 = high * d;
+          for (let e = 0; e < d; e++) {
+            const part = flat[at + e] + (ax[a0 + e] * g + ax[a1 + e] * f) + (ay[b0 + e] * g + ay[b1 + e] * f);
+            const centre = mean[m0 + e] * g + mean[m1 + e] * f;
+            meanSum[e] += w * centre;
+            deviation[e] += w * (part - centre);
+          }
+          squares += w * w;
         }
-        out[(x * my + y) * mz + z] = 1 / (1 + Math.exp(-s));
+        const scaleBy = squares ** (-CONTRAST / 2);
+        for (let e = 0; e < d; e++) hidden[e] = meanSum[e] + deviation[e] * scaleBy;
+        out[x * sx + y * sy + k * sk] = capped(headLogit(model.head, hidden), z[k] - lift - top);
       }
     }
   }
@@ -220,66 +472,223 @@ export async function tileOccupancy(model, seed, tile, scale = 1) {
 }
 
 /**
- * Tile (i, j)'s surface, as world.tile_mesh: { positions: Float32Array (V, 3)
- * in voxels from the tile's lowest corner, faces: Uint32Array (F, 3) }.
- * Closed at the top and bottom, open on the four sides it shares with its
- * neighbours, whose border vertices it shares exactly.
+ * Occupancy on tile (i, j)'s grid, as world.tile_occupancy: { data:
+ * Float32Array (X, Y, Z) in C order, shape }, its points along each
+ * horizontal axis from the tile's lattice point to the next (both included:
+ * the faces it shares), along up the world's heights.
  */
-export async function tileMesh(model, seed, tile, scale = 1) {
-  const grid = await tileOccupancy(model, seed, tile, scale);
-  const layout = worldLayout(model.manifest);
-  const pad = [[0, 0], [0, 0], [0, 0]];
-  pad[layout.up] = [1, 1];
-  const { positions, faces } = marchingCubes(grid, 0.5, null, pad);
-  for (let v = 0; v < positions.length; v += 3) {
-    for (let axis = 0; axis < 3; axis++) {
-      positions[v + axis] = (positions[v + axis] - pad[axis][0]) * layout.stride[axis] / (grid.shape[axis] - 1); // exact at the faces: m S / m = S
-    }
-  }
-  return { positions, faces };
+export async function tileOccupancy(model, seed, tile, scale = 1, options = PLAIN) {
+  seed = checkSeed(seed);
+  const logits = await tileLogits(model, seed, checkTile(tile), scale, options);
+  return { data: logits.data.map((s) => 1 / (1 + Math.exp(-s))), shape: logits.shape };
 }
 
-/** A window's weight along a horizontal axis at a fraction f of the stride from its lattice point, as tileAxis's `behind`. */
-const behindWeight = (f) => smoothstep(Math.min(Math.max((f - 0.5) / BLEND + 0.5, 0), 1));
+// ---- the field at any points of a tile
+
+/**
+ * The logits and hidden vectors at points of tile (i, j) (voxels from its
+ * corner along the horizontal axes, from the floor along up), each read in
+ * the tile it falls in, as world.point_field: { logits: Float64Array (n),
+ * hidden: Float64Array (n, D), ground: Uint8Array (n) }.
+ */
+async function pointField(model, seed, [i, j], points, options) {
+  const { manifest } = model, d = manifest.hidden, layout = worldLayout(manifest), level = checkLod(manifest, options.lod);
+  const [h0, h1] = layout.horizontal, up = layout.up, top = layout.stride[up], n = points.length / 3;
+  const logits = new Float64Array(n), hidden = new Float64Array(n * d), ground = new Uint8Array(n);
+  const groups = new Map(); // "t0,t1" -> point indices
+  for (let p = 0; p < n; p++) {
+    const key = `${Math.floor(points[3 * p + h0] / layout.stride[h0])},${Math.floor(points[3 * p + h1] / layout.stride[h1])}`;
+    if (!groups.has(key)) groups.set(key, []);
+    groups.get(key).push(p);
+  }
+  const at = [0, 0, 0], cell = [0, 0, 0], part = new Float64Array(d), total = new Float64Array(d), deviation = new Float64Array(d);
+  for (const key of [...groups.keys()].sort()) {
+    const [t0, t1] = key.split(',').map(Number), tile = [i + BigInt(t0), j + BigInt(t1)], members = groups.get(key);
+    const local = (p, axis) => points[3 * p + axis] - (axis === h0 ? t0 * layout.stride[h0] : axis === h1 ? t1 * layout.stride[h1] : 0);
+    // Only the windows or objects some point of the group reads are made: a point just past a face
+    // reads the face's own windows alone (PLATEAU), so a tile's normals make none of its neighbour's.
+    const found = [];
+    if (options.arrange === 'scatter') {
+      for (const placed of objectsNear(model, layout, seed, tile, level, options.heights)) {
+        const reads = members.some((p) => [h0, h1].every((axis, k) => { const position = local(p, axis) - placed.corner[k]; return position >= 0 && position <= placed.extent[k]; }));
+        if (reads) found.push({ ...placed, window: await windowAt(model, layout, seed, ...placed.cell, level, 'scatter') });
+      }
+    } else {
+      for (const [a, b] of [[tile[0] - 1n, tile[1] - 1n], [tile[0] - 1n, tile[1]], [tile[0], tile[1] - 1n], [tile[0], tile[1]]]) {
+        const behind = [a === tile[0], b === tile[1]];
+        const weighs = members.some((p) => [h0, h1].every((axis, k) => { const w = behindWeight(local(p, axis), layout.stride[axis]); return (behind[k] ? w : Math.fround(1 - w)) !== 0; }));
+        if (weighs) {
+          found.push({ window: await windowAt(model, layout, seed, a, b, level, 'blend'), behind,
+                       offset: [behind[0] ? 0 : layout.stride[h0], behind[1] ? 0 : layout.stride[h1]] });
+        }
+      }
+    }
+    for (const p of members) {
+      for (let a = 0; a < 3; a++) at[a] = points[3 * p + a];
+      at[h0] -= t0 * layout.stride[h0]; // exact: a power-of-two step from an integer
+      at[h1] -= t1 * layout.stride[h1];
+      const rise = options.heights ? mapHeight(options.heights, layout, at[h0], at[h1], tile) : 0;
+      if (options.arrange === 'scatter') {
+        logits[p] = -GROUND_SLOPE * (at[up] - rise - GROUND);
+        ground[p] = 1;
+        for (const placed of found) {
+          let inside = true;
+          [h0, h1].forEach((axis, k) => {
+            const position = at[axis] - placed.corner[k];
+            inside &&= position >= 0 && position <= placed.extent[k];
+            cell[axis] = (placed.mirror[k] ? placed.extent[k] - position : position) * placed.window.cells[axis];
+          });
+          if (!inside) continue;
+          cell[up] = Math.min(Math.max(at[up] - placed.height, 0), top) * placed.window.cells[up];
+          part.fill(0);
+          PLANE_AXES.forEach(([a, b], k) => addBilinear(placed.window.planes[k], cell[a], cell[b], part));
+          const logit = capped(headLogit(model.head, part), at[up] - placed.height - top);
+          if (logit > logits[p]) { logits[p] = logit; hidden.set(part, p * d); ground[p] = 0; }
+        }
+        continue;
+      }
+      const height = Math.min(Math.max(at[up] - rise, 0), top);
+      const behind0 = behindWeight(at[h0], layout.stride[h0]), behind1 = behindWeight(at[h1], layout.stride[h1]);
+      total.fill(0);
+      deviation.fill(0);
+      let squares = 0;
+      for (const s of found) {
+        const { window: win, offset } = s;
+        const w = (s.behind[0] ? behind0 : Math.fround(1 - behind0)) * (s.behind[1] ? behind1 : Math.fround(1 - behind1));
+        cell[h0] = (at[h0] + offset[0]) * win.cells[h0];
+        cell[h1] = (at[h1] + offset[1]) * win.cells[h1];
+        cell[up] = height * win.cells[up];
+        part.fill(0);
+        for (let k = 0; k < 3; k++) addBilinear(win.planes[k], cell[PLANE_AXES[k][0]], cell[PLANE_AXES[k][1]], part);
+        const count = win.mean.length / d, low = Math.min(Math.max(Math.floor(cell[up]), 0), Math.max(count - 2, 0));
+        const high = Math.min(low + 1, count - 1), f = Math.fround(cell[up] - low), m0 = low * d, m1 = high * d;
+        for (let e = 0; e < d; e++) {
+          const centre = win.mean[m0 + e] * (1 - f) + win.mean[m1 + e] * f;
+          total[e] += w * centre;
+          deviation[e] += w * (part[e] - centre);
+        }
+        squares += w * w;
+      }
+      const scaleBy = squares ** (-CONTRAST / 2);
+      for (let e = 0; e < d; e++) hidden[p * d + e] = total[e] + deviation[e] * scaleBy;
+      logits[p] = capped(headLogit(model.head, hidden.subarray(p * d, p * d + d)), at[up] - rise - top);
+    }
+  }
+  return { logits, hidden, ground };
+}
+
+/**
+ * Unit normals at a tile's vertices (positions as tileMesh gives them), as
+ * world.tile_normals: the field's gradient by differences over NORMAL_STEP
+ * voxels along each axis, out of the solid. Float32Array (V, 3).
+ */
+export async function tileNormals(model, seed, tile, positions, options = PLAIN) {
+  seed = checkSeed(seed);
+  const step = NORMAL_STEP, n = positions.length / 3, probes = new Float64Array(12 * n);
+  for (let v = 0; v < n; v++) {
+    for (let k = 0; k < 4; k++) for (let a = 0; a < 3; a++) probes[12 * v + 3 * k + a] = positions[3 * v + a] + (k === a + 1 ? step : 0);
+  }
+  const { logits } = await pointField(model, seed, checkTile(tile), probes, options);
+  const up = worldLayout(model.manifest).up, normals = new Float32Array(3 * n);
+  for (let v = 0; v < n; v++) {
+    const g = [1, 2, 3].map((k) => logits[4 * v + k] - logits[4 * v]), length = Math.hypot(...g);
+    for (let a = 0; a < 3; a++) normals[3 * v + a] = length > 0 ? -g[a] / length : a === up ? 1 : 0;
+  }
+  return normals;
+}
 
 /**
  * A coloured model's sRGB colour at a tile's mesh vertices (tileMesh's
- * positions, voxels from the tile's corner), as world.tile_colours: the
- * four windows' hidden vectors blended at each vertex with the weights the
- * tile's grid gives there, then the colour head. A vertex on a shared face
- * takes one window at weight exactly 1, so neighbours agree on its colour.
- * Returns Float32Array (V, 3) in [0, 1] (Python's gives them as bytes).
+ * positions), as world.tile_colours: the colour head of the hidden vector
+ * there, blended as the occupancy is (a scatter world's: its object's, the
+ * ground grey). Returns Float32Array (V, 3) in [0, 1] (Python's gives them as bytes).
  */
-export async function tileColours(model, seed, tile, positions) {
+export async function tileColours(model, seed, tile, positions, options = PLAIN) {
   seed = checkSeed(seed);
-  const [i, j] = checkTile(tile);
-  const { hidden: d } = model.manifest;
-  const layout = worldLayout(model.manifest), { stride, up } = layout, [h0, h1] = layout.horizontal;
-  const windows = [];
-  for (const [a, b] of [[i - 1n, j - 1n], [i - 1n, j], [i, j - 1n], [i, j]]) {
-    windows.push({ behind: [a === i, b === j], planes: await windowPlanes(model, layout, seed, a, b) });
-  }
-  const n = positions.length / 3, out = new Float32Array(3 * n), total = new Float64Array(d), part = new Float64Array(d);
-  const at = [0, 0, 0], cell = [0, 0, 0];
+  const { hidden, ground } = await pointField(model, seed, checkTile(tile), Float64Array.from(positions), options);
+  const d = model.manifest.hidden, n = positions.length / 3, out = new Float32Array(3 * n);
   for (let v = 0; v < n; v++) {
-    for (let axis = 0; axis < 3; axis++) at[axis] = positions[3 * v + axis];
-    cell[up] = at[up];
-    total.fill(0);
-    for (const { behind, planes } of windows) {
-      let weight = 1;
-      [h0, h1].forEach((axis, k) => {
-        const w = behindWeight(at[axis] / stride[axis]);
-        weight *= behind[k] ? w : 1 - w;
-        cell[axis] = behind[k] ? at[axis] : at[axis] + stride[axis];
-      });
-      if (weight === 0) continue;
-      part.fill(0);
-      PLANE_AXES.forEach(([a, b], k) => addBilinear(planes[k], cell[a], cell[b], part));
-      for (let c = 0; c < d; c++) total[c] += weight * part[c];
-    }
-    headColour(model.head, total, 0, out, 3 * v);
+    if (ground[v]) out.set(GROUND_COLOUR, 3 * v);
+    else headColour(model.head, hidden, v * d, out, 3 * v);
   }
   return out;
+}
+
+// ---- a tile's surface
+
+/**
+ * Tile (i, j)'s surface, as world.tile_mesh: { positions: Float32Array (V, 3)
+ * in voxels from the tile's lowest corner (along up, from the floor), faces:
+ * Uint32Array (F, 3) }. Closed at the top and bottom, open on the four sides
+ * it shares with its neighbours, whose border vertices it shares exactly.
+ */
+export async function tileMesh(model, seed, tile, scale = 1, options = PLAIN) {
+  const grid = await tileOccupancy(model, seed, tile, scale, options);
+  const layout = worldLayout(model.manifest), positions = tileGrid(model.manifest, layout, scale, options);
+  const pad = [[0, 0], [0, 0], [0, 0]];
+  pad[layout.up] = [1, 1];
+  const mesh = marchingCubes(grid, 0.5, null, pad);
+  const low = positions[layout.up][0], step = positions[layout.up][1] - positions[layout.up][0];
+  for (let v = 0; v < mesh.positions.length; v += 3) {
+    for (let axis = 0; axis < 3; axis++) {
+      const at = mesh.positions[v + axis] - pad[axis][0];
+      mesh.positions[v + axis] = axis === layout.up ? low + at * step
+        : (at * layout.stride[axis]) / (grid.shape[axis] - 1); // exact at the faces: m S / m = S
+    }
+  }
+  return { positions: mesh.positions, faces: mesh.faces };
+}
+
+/**
+ * A tile's mesh with a skirt, as world.skirted: each edge on one of the
+ * tile's four sides gets a quad hanging `depth` below it. Returns {
+ * positions, faces, source: the vertex each vertex copies }.
+ */
+function skirted({ positions, faces }, layout, depth) {
+  const count = new Map(), key = (a, b) => (a < b ? `${a},${b}` : `${b},${a}`);
+  for (let f = 0; f < faces.length; f += 3) {
+    for (let k = 0; k < 3; k++) count.set(key(faces[f + k], faces[f + (k + 1) % 3]), (count.get(key(faces[f + k], faces[f + (k + 1) % 3])) ?? 0) + 1);
+  }
+  const onSide = (a, b) => layout.horizontal.some((axis) => [0, layout.stride[axis]].some((end) => positions[3 * a + axis] === end && positions[3 * b + axis] === end));
+  const hanging = new Map(), added = [], extra = [];
+  const lower = (v) => {
+    if (!hanging.has(v)) { hanging.set(v, positions.length / 3 + added.length); added.push(v); }
+    return hanging.get(v);
+  };
+  for (let f = 0; f < faces.length; f += 3) {
+    for (let k = 0; k < 3; k++) {
+      const a = faces[f + k], b = faces[f + (k + 1) % 3];
+      if (count.get(key(a, b)) === 1 && onSide(a, b)) extra.push(b, a, lower(a), b, lower(a), lower(b));
+    }
+  }
+  const out = new Float32Array(positions.length + 3 * added.length);
+  out.set(positions);
+  added.forEach((v, n) => {
+    for (let axis = 0; axis < 3; axis++) out[positions.length + 3 * n + axis] = positions[3 * v + axis] - (axis === layout.up ? depth : 0);
+  });
+  const joined = new Uint32Array(faces.length + extra.length);
+  joined.set(faces);
+  joined.set(extra, faces.length);
+  return { positions: out, faces: joined, source: Uint32Array.from({ length: positions.length / 3 + added.length }, (_, k) => (k < positions.length / 3 ? k : added[k - positions.length / 3])) };
+}
+
+/**
+ * Tile (i, j) as its file holds it, as world.tile_surface: { positions,
+ * faces, normals (unit, the field's gradient), colours (a coloured model's,
+ * or null) }, and at lod > 0 a skirt SKIRT grid steps deep, its vertices
+ * taking the normal and colour of the vertex above.
+ */
+export async function tileSurface(model, seed, tile, scale = 1, options = PLAIN) {
+  const mesh = await tileMesh(model, seed, tile, scale, options);
+  let normals = await tileNormals(model, seed, tile, mesh.positions, options);
+  let colours = model.manifest.colour ? await tileColours(model, seed, tile, mesh.positions, options) : null;
+  if (!options.lod || !mesh.faces.length) return { ...mesh, normals, colours };
+  const layout = worldLayout(model.manifest), grid = tileGrid(model.manifest, layout, scale, options);
+  const skirt = skirted(mesh, layout, SKIRT * (grid[layout.up][1] - grid[layout.up][0]));
+  const copy = (values) => { const out = new Float32Array(3 * skirt.source.length); skirt.source.forEach((v, n) => out.set(values.subarray(3 * v, 3 * v + 3), 3 * n)); return out; };
+  normals = copy(normals);
+  colours = colours && copy(colours);
+  return { positions: skirt.positions, faces: skirt.faces, normals, colours };
 }
 
 /** Tile (i, j)'s lowest corner in voxels, as world.tile_corner: three BigInts (exact for any tile). */
@@ -316,4 +725,22 @@ export function placed(manifest, tile, positions, frame) {
     }
   }
   return positions;
+}
+
+/** Normals in voxel units turned into a frame's (its spacing may differ per axis), in place, as world.frame_normals. */
+export function frameNormals(manifest, normals, frame) {
+  if (frame === 'model') return normals;
+  for (let v = 0; v < normals.length; v += 3) {
+    const n = [0, 1, 2].map((a) => normals[v + a] / manifest.spacing[a]), length = Math.hypot(...n);
+    for (let a = 0; a < 3; a++) normals[v + a] = n[a] / length;
+  }
+  return normals;
+}
+
+/** How many windows are kept now, at most WINDOWS_KEPT. */
+export const keptWindows = () => windows.size;
+
+/** Forget the windows kept (the tests' fresh start). */
+export function dropWindows() {
+  windows.clear();
 }

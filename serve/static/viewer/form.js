@@ -15,7 +15,7 @@ for (const x of document.querySelectorAll('.xyz > input')) {
     x.after(input);
   }
 }
-const PLAIN = ['where', 'scale', 'smooth', 'up', 'format', 'edit', 'other', 'at', 'travel', 'reach']; // one control each, as they are
+const PLAIN = ['where', 'scale', 'smooth', 'up', 'format', 'edit', 'other', 'at', 'travel', 'reach', 'arrange']; // one control each, as they are
 const TRIPLES = { box: ['bx0', 'by0', 'bz0', 'bx1', 'by1', 'bz1'], grow: ['gx', 'gy', 'gz'], anchor: ['ax', 'ay', 'az'] };
 
 export function toForm() {

@@ -19,7 +19,7 @@ class Cancelled extends Error {
   constructor() { super('cancelled'); }
 }
 
-const models = new Map(); // name -> { url or bytes, file, loaded: a promise of the worker's { backend, threads, seconds, sizes, origin, spacing, up } }
+const models = new Map(); // name -> { url or bytes, file, loaded: a promise of the worker's { backend, threads, seconds, sizes, origin, spacing, up, arrange } }
 
 /** A model the browser may load: from `url`, or the bytes of a file opened on the page. */
 export function addModel(name, { url = null, bytes = null, file }) {
@@ -28,7 +28,7 @@ export function addModel(name, { url = null, bytes = null, file }) {
 
 // ---- the server: its routes (docs/SERVE.md)
 const loader = new GLTFLoader();
-const infos = new Map(); // model name -> a promise of { sizes, origin, spacing, up }
+const infos = new Map(); // model name -> a promise of { sizes, origin, spacing, up, arrange }
 const modelRoute = (name) => `api/models/${encodeURIComponent(name)}`;
 
 async function answer(response) {
@@ -51,7 +51,10 @@ export function serverRequest(name, request, format, faces = null) {
     if (asset) throw new Error('the page offers a tile as a mesh; sinrun world --lods writes tiles as assets');
     const [i, j] = request.tile;
     const query = new URLSearchParams({ i, j, seed: request.seed ?? 0n, scale: request.scale, format, frame: request.frame });
-    return { url: `${modelRoute(name)}/tile?${query}`, init: {} };
+    if (request.arrange !== 'blend') query.set('arrange', request.arrange);
+    if (request.lod) query.set('lod', request.lod);
+    const init = request.heights ? { method: 'POST', body: npyBytes(request.heights), headers: { 'Content-Type': 'application/octet-stream' } } : {};
+    return { url: `${modelRoute(name)}/tile?${query}`, init };
   }
   const unsent = { recon: request.recon, largest: request.largest, smoother: request.smoother !== 'laplacian',
     frame: request.frame !== 'input', keep: request.keep.some((part) => typeof part !== 'string') };
@@ -89,13 +92,25 @@ export function assetQuery(faces) {
 
 /** The one mesh of a .glb file trimesh wrote: { positions, faces, colours } (no normals, no
  * transform); colours, where it has COLOR_0 (linear, as glTF says), turned back to sRGB, else null. */
+/** A height map ({ shape, data: Float32Array }) as the bytes of a .npy file: the tile route's POST body. */
+function npyBytes({ shape, data }) {
+  let header = `{'descr': '<f4', 'fortran_order': False, 'shape': (${shape[0]}, ${shape[1]}), }`;
+  header += ' '.repeat(63 - ((10 + header.length) % 64)) + '\n'; // the data starts at a multiple of 64
+  const bytes = new Uint8Array(10 + header.length + data.byteLength);
+  bytes.set([0x93, ...new TextEncoder().encode('NUMPY'), 1, 0, header.length & 0xff, header.length >> 8]);
+  bytes.set(new TextEncoder().encode(header), 10);
+  bytes.set(new Uint8Array(data.buffer, data.byteOffset, data.byteLength), 10 + header.length);
+  return bytes;
+}
+
 async function glbMesh(data) {
   let geometry = null;
   (await loader.parseAsync(data, '')).scene.traverse((node) => { if (node.isMesh) geometry ??= node.geometry; });
   const color = geometry?.attributes.color;
   const srgb = (c) => (c <= 0.0031308 ? c * 12.92 : 1.055 * c ** (1 / 2.4) - 0.055);
   const colours = color ? Float32Array.from({ length: 3 * color.count }, (_, i) => srgb(color.getComponent(Math.floor(i / 3), i % 3))) : null;
-  return { positions: geometry?.attributes.position.array ?? new Float32Array(), faces: geometry?.index.array ?? new Uint32Array(), colours };
+  return { positions: geometry?.attributes.position.array ?? new Float32Array(), faces: geometry?.index.array ?? new Uint32Array(),
+           normals: geometry?.attributes.normal?.array ?? null, colours };
 }
 
 const server = {
@@ -103,7 +118,7 @@ const server = {
     if (!infos.has(name)) {
       infos.set(name, (async () => {
         const body = await (await answer(await fetch(modelRoute(name)))).json();
-        return { sizes: body.sizes, origin: body.frame.origin, spacing: body.frame.spacing, up: body.up };
+        return { sizes: body.sizes, origin: body.frame.origin, spacing: body.frame.spacing, up: body.up, arrange: body.arrange };
       })());
       infos.get(name).catch(() => infos.delete(name));
     }
@@ -132,10 +147,11 @@ const server = {
   },
 
   async tile(name, request, { signal }) {
-    const response = await fetch(serverRequest(name, request, 'glb').url, { signal });
+    const { url, init } = serverRequest(name, request, 'glb');
+    const response = await fetch(url, { ...init, signal });
     // A tile with no surface (all empty or all full there) is refused as a file: here it is nothing to show.
     if (response.status === 400 && / has no surface /.test((await response.clone().json().catch(() => ({}))).detail)) {
-      return { positions: new Float32Array(), faces: new Uint32Array(), colours: null };
+      return { positions: new Float32Array(), faces: new Uint32Array(), normals: null, colours: null };
     }
     return glbMesh(await (await answer(response)).arrayBuffer());
   },
@@ -284,7 +300,7 @@ export function stop() {
 const backends = { server, browser };
 const layouts = new Map(); // "where|model|seed|size" -> a promise of a seed's layout { shape, grid }
 
-/** A model's grids, frame and up axis: { sizes, origin, spacing, up }. */
+/** A model's grids, frame, up axis and world's arrangement: { sizes, origin, spacing, up, arrange }. */
 export const info = (where, name, options) => backends[where].info(name, options);
 
 /** The sample of a request: { positions, faces, status, file (a Blob to download, or null), extension,

@@ -11,15 +11,19 @@ const FIELDS = ['model', 'where', 'seed', 'size', 'scale', 'smooth', 'up', 'form
 // of the sample, from the seed's sample) and other (the seed of the rest); grow
 // and anchor (3 factors, 3 fractions); cells (layout-cells.js's text of the edited cells).
 // The world mode's too (not an edit: the world of the seed, flown over): at (the
-// camera's tile i,j), travel (fly or walk) and reach (tiles made on each side).
-const EDITS = { keep: ['box', 'other'], grow: ['grow', 'anchor'], layout: ['cells'], world: ['at', 'travel', 'reach'] };
-const EDIT_DEFAULTS = { edit: '', box: '0,0,0,50,100,100', other: '', grow: '2,1,1', anchor: '0,0,0', cells: '', at: '0,0', travel: 'fly', reach: '3' };
+// camera's tile i,j), travel (fly or walk), reach (tiles made on each side) and
+// arrange (blend or scatter; empty: what the model records); its height map, a file the
+// user opened, is not in the URL.
+const EDITS = { keep: ['box', 'other'], grow: ['grow', 'anchor'], layout: ['cells'], world: ['at', 'travel', 'reach', 'arrange'] };
+const EDIT_DEFAULTS = { edit: '', box: '0,0,0,50,100,100', other: '', grow: '2,1,1', anchor: '0,0,0', cells: '', at: '0,0', travel: 'fly', reach: '3',
+  arrange: '' };
 // What makes the shape: a step of the undo history when one of these changes.
 const SHAPE_FIELDS = ['model', 'seed', 'size', 'scale', 'smooth', 'edit', 'box', 'other', 'grow', 'anchor', 'cells'];
 
 export const state = {
   model: '', where: STATIC_SITE ? 'browser' : 'server', seed: 0, size: '1,1,1', scale: '1', smooth: '0', up: 'y', format: 'glb',
   ...EDIT_DEFAULTS,
+  heights: null, // the world's height map (world.js's HeightMap), read from a file the user opened
 };
 
 /** The seed after `seed` (text; BigInt: seeds go to 2^63, past what a Number holds exactly). */
@@ -95,7 +99,8 @@ const numberOf = (text) => parseNumber(text) ?? String(text);
 export function requestOf(layout = null) {
   if (state.edit === 'world') { // the tile under the camera, as the tile route takes it
     const tile = String(state.at).split(',').map((t) => (/^\s*-?\d+\s*$/.test(t) ? BigInt(t) : t));
-    return sampleRequest({ seed: seedOf(state.seed), scale: numberOf(state.scale), tile, frame: 'tile' });
+    return sampleRequest({ seed: seedOf(state.seed), scale: numberOf(state.scale), tile, frame: 'tile', arrange: state.arrange || 'blend',
+                           heights: state.heights });
   }
   const fields = { seed: seedOf(state.seed), size: parseSize(state.size), scale: numberOf(state.scale), smooth: numberOf(state.smooth) };
   if (state.edit === 'keep') {

@@ -1,15 +1,18 @@
 // The world mode (docs/WORLDS.md, "In the browser"): fly or walk over the
 // endless world of the model and seed. Tiles are made around the camera,
-// nearest first, by the page's back end (the tile route, or the worker's
-// world.js), and dropped behind it, their GPU buffers disposed, so memory
-// stays bounded however far one goes. The origin floats: the scene's
+// those ahead of it first, by the page's back end (the tile route, or the
+// worker's world.js), coarser the farther they are (a tile's level of
+// detail follows its distance, and it is made again as that changes), and
+// dropped behind it, their GPU buffers disposed, so memory stays bounded
+// however far one goes. Each tile comes with its normals, the field's
+// gradient, which agree across its borders. The origin floats: the scene's
 // origin is the lowest corner of the camera's tile, every tile is placed
 // relative to it and the camera stays within its tile, so a tile a billion
 // tiles out is drawn as precisely as tile (0, 0). The camera's motion is
 // viewer/flight.js's.
 //
-//   show({ where, name, seed, scale, tile, info, reach, walk }, report)  the world from `tile`; report(status) as it changes
-//   stop()                                                               drop it all, and give the view back to the shape
+//   show({ where, name, seed, scale, tile, info, reach, walk, arrange, heights }, report)  the world from `tile`
+//   stop()                                                                                drop it all, and give the view back to the shape
 import * as THREE from 'three';
 import { sampleRequest } from '../sinshape/request.js';
 import { worldLayout } from '../sinshape/world.js';
@@ -19,6 +22,8 @@ import { camera, paint, scene, worldView } from './scene.js';
 
 const SLOTS = { server: 2, browser: 1 }; // tiles asked for at once: the worker makes one at a time
 const HOLD = 1; // tiles kept this far past the reach before they are dropped: a step back makes none again
+const FINE = 1; // tiles this far from the camera's (and its own) at the finest level; each tile farther, a level coarser
+const AHEAD = 1.5; // tiles: the point ahead of the camera, along its view, that the nearest tiles are counted from
 const sky = new THREE.Color(0xaab8c4); // a haze the far tiles fade into, as the background
 let background = null; // the shape's, while the world is shown
 
@@ -32,22 +37,24 @@ const keyOf = (i, j) => `${i},${j}`; // a tile's name
  * Fly over the world of `seed` (a BigInt) of model `name`, made `where`
  * ('server' or 'browser') at `scale`, from tile `tile` ([i, j] BigInts);
  * `info` is the model's { sizes, spacing, up }, `reach` how many tiles to
- * make on each side of the camera's, `walk` whether to keep to the ground.
+ * make on each side of the camera's, `walk` whether to keep to the ground,
+ * `arrange` and `heights` how the world is made (the request's fields).
  * The same world again keeps its tiles and the camera, unless `tile` is
  * another than the camera's (a jump). report({ at, shown, waiting, made,
  * dropped, complete, error }) follows the work.
  */
-export function show({ where, name, seed, scale, tile, info, reach, walk }, report) {
-  const key = `${where}|${name}|${seed}|${scale}`;
+export function show({ where, name, seed, scale, tile, info, reach, walk, arrange = 'blend', heights = null }, report) {
+  const key = `${where}|${name}|${seed}|${scale}|${arrange}|${heights ? mapId(heights) : ''}`;
   const jump = !run || run.key !== key || tile[0] !== run.origin[0] || tile[1] !== run.origin[1];
   if (run?.key !== key) {
     stop(false);
     const layout = worldLayout(info);
     const [h0, h1] = layout.horizontal;
     run = {
-      key, where, name, seed, scale, layout, report, origin: tile, tiles: new Map(), making: 0, made: 0, dropped: 0, error: null,
+      key, where, name, seed, scale, arrange, heights, layout, report, origin: tile, tiles: new Map(), making: 0, made: 0, dropped: 0, error: null,
+      coarsest: info.sizes.length - 1,
       size: [layout.stride[h0] * info.spacing[h0], layout.stride[h1] * info.spacing[h1]], // a tile's sides, in the input's units
-      height: layout.stride[layout.up] * info.spacing[layout.up],
+      height: (layout.stride[layout.up] + (heights ? Math.max(...heights.data) : 0)) * info.spacing[layout.up],
     };
     group.rotation.set(layout.up === 2 ? -Math.PI / 2 : 0, 0, 0); // the model's up along the view's y
     group.updateMatrixWorld(true);
@@ -92,13 +99,12 @@ export function stop(giveBack = true) {
   if (giveBack) worldView(false);
 }
 
+const mapIds = new WeakMap(); // a height map -> a number naming it in a world's key
+let mapCount = 0;
+const mapId = (heights) => { if (!mapIds.has(heights)) mapIds.set(heights, ++mapCount); return mapIds.get(heights); };
+
 function drop(entry) {
   entry.controller?.abort();
-  for (const key of entry.borders ?? []) {
-    const left = borders.get(key).filter((vertex) => vertex.entry !== entry);
-    if (left.length) borders.set(key, left);
-    else borders.delete(key);
-  }
   if (entry.mesh) {
     group.remove(entry.mesh);
     entry.mesh.geometry.dispose();
@@ -110,27 +116,44 @@ function drop(entry) {
 /** Where the camera is in the world's frame: the model's axes, from the camera's tile's lowest corner. */
 const cameraInModel = () => group.worldToLocal(camera.position.clone());
 
-/** Tiles within the reach of the camera's wanted; those past it and the hold dropped. */
+/** The level of detail a tile this many tiles from the camera's is made at. */
+const detail = (away) => Math.min(run.coarsest, Math.max(0, away - FINE));
+
+/**
+ * Tiles within the reach of the camera's wanted, at the level of detail
+ * their distance asks for (one shown at another is made again, and shown
+ * until then); those past the reach and the hold dropped.
+ */
 function refresh() {
   const { origin: [oi, oj], reach, tiles } = run;
   for (const entry of [...tiles.values()]) {
     const away = Math.max(Math.abs(Number(entry.i - oi)), Math.abs(Number(entry.j - oj)));
     if (away > reach + HOLD || (away > reach && entry.state === 'wanted')) drop(entry);
+    else if (away <= reach) {
+      entry.want = detail(away);
+      if (entry.state === 'done' && entry.lod !== entry.want) entry.state = 'wanted';
+    }
   }
   for (let di = -reach; di <= reach; di++) {
     for (let dj = -reach; dj <= reach; dj++) {
       const i = oi + BigInt(di), j = oj + BigInt(dj), key = keyOf(i, j);
-      if (!tiles.has(key)) tiles.set(key, { key, i, j, state: 'wanted', mesh: null, controller: null });
+      if (!tiles.has(key)) tiles.set(key, { key, i, j, state: 'wanted', mesh: null, controller: null, want: detail(Math.max(Math.abs(di), Math.abs(dj))) });
     }
   }
   pump();
 }
 
-/** Start making the wanted tiles nearest the camera, as many as the back end takes at once. */
+/**
+ * Start making the wanted tiles, as many as the back end takes at once:
+ * those not shown at all first, then those shown at another level of
+ * detail, each nearest first to a point ahead of the camera along its view.
+ */
 function pump() {
   const r = run;
-  const at = cameraInModel(), [h0, h1] = r.layout.horizontal;
-  const distance = (e) => ((Number(e.i - r.origin[0]) + 0.5) * r.size[0] - at.getComponent(h0)) ** 2
+  const ahead = camera.getWorldDirection(new THREE.Vector3()).setY(0);
+  if (ahead.lengthSq() > 0) ahead.setLength(AHEAD * Math.min(...r.size));
+  const at = group.worldToLocal(camera.position.clone().add(ahead)), [h0, h1] = r.layout.horizontal;
+  const distance = (e) => (e.mesh ? 1e30 : 0) + ((Number(e.i - r.origin[0]) + 0.5) * r.size[0] - at.getComponent(h0)) ** 2
     + ((Number(e.j - r.origin[1]) + 0.5) * r.size[1] - at.getComponent(h1)) ** 2;
   while (r.making < SLOTS[r.where]) {
     let next = null;
@@ -145,20 +168,27 @@ async function make(r, entry) {
   r.making++;
   entry.state = 'making';
   entry.controller = new AbortController();
+  const lod = entry.want;
   try {
-    const request = sampleRequest({ seed: r.seed, scale: r.scale, tile: [entry.i, entry.j], frame: 'tile' });
-    const { positions, faces, colours } = await sampling.tile(r.where, r.name, request, { signal: entry.controller.signal });
+    const request = sampleRequest({ seed: r.seed, scale: r.scale, tile: [entry.i, entry.j], frame: 'tile', arrange: r.arrange,
+                                    heights: r.heights, lod });
+    const { positions, faces, normals, colours } = await sampling.tile(r.where, r.name, request, { signal: entry.controller.signal });
     if (r.tiles.get(entry.key) !== entry) return; // dropped meanwhile
-    entry.state = 'done';
+    entry.state = lod === entry.want ? 'done' : 'wanted'; // the camera moved meanwhile: made again at its new level
     entry.order = ++r.made;
+    entry.lod = lod;
+    if (entry.mesh) { // the tile at its old level of detail, replaced
+      group.remove(entry.mesh);
+      entry.mesh.geometry.dispose();
+      entry.mesh = null;
+    }
     if (faces.length) {
       const geometry = new THREE.BufferGeometry();
       geometry.setAttribute('position', new THREE.BufferAttribute(positions, 3));
-      geometry.setAttribute('normal', new THREE.BufferAttribute(new Float32Array(positions.length), 3));
+      geometry.setAttribute('normal', new THREE.BufferAttribute(normals, 3));
       geometry.setIndex(new THREE.BufferAttribute(faces, 1));
       entry.mesh = new THREE.Mesh(geometry, paint(geometry, colours));
       entry.mesh.name = entry.key;
-      shade(r, entry);
       put(r, entry);
       group.add(entry.mesh);
       wake();
@@ -170,55 +200,6 @@ async function make(r, entry) {
   } finally {
     r.making--;
     if (run === r) pump();
-  }
-}
-
-// ---- normals: a tile's own faces give a vertex on its border half of the faces around it, which
-// would shade every tile's sides as a crease; the tiles beside it give the rest. Each border
-// vertex's sum of face normals (area-weighted, as three.js's computeVertexNormals) is kept
-// under where it lies on the lattice (its position there is the same bits from both sides),
-// and its normal is the sum over all the tiles there.
-const borders = new Map(); // lattice key -> [{ entry, vertex, sum }]
-
-/** A tile's normals: its own faces', then each border vertex's with the tiles already beside it. */
-function shade(r, entry) {
-  const geometry = entry.mesh.geometry, p = geometry.attributes.position.array, f = geometry.index.array;
-  const sums = new Float64Array(p.length);
-  for (let k = 0; k < f.length; k += 3) {
-    const [a, b, c] = [3 * f[k], 3 * f[k + 1], 3 * f[k + 2]];
-    const u = [p[b] - p[a], p[b + 1] - p[a + 1], p[b + 2] - p[a + 2]], v = [p[c] - p[a], p[c + 1] - p[a + 1], p[c + 2] - p[a + 2]];
-    const n = [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
-    for (const at of [a, b, c]) for (let axis = 0; axis < 3; axis++) sums[at + axis] += n[axis];
-  }
-  const normals = geometry.attributes.normal.array;
-  const normalise = (sum, at, out) => {
-    const length = Math.hypot(sum[0], sum[1], sum[2]) || 1;
-    for (let axis = 0; axis < 3; axis++) out[at + axis] = sum[axis] / length;
-  };
-  for (let v = 0; v < p.length; v += 3) normalise(sums.subarray(v, v + 3), v, normals);
-  const [h0, h1] = r.layout.horizontal, up = r.layout.up;
-  const ends = r.size.map(Math.fround); // a border vertex's coordinate: 0 or the tile's side, in float32
-  const line = (at, end, index) => (at === 0 ? index : at === end ? index + 1n : null);
-  entry.borders = new Set();
-  const changed = new Set();
-  for (let v = 0; v < p.length; v += 3) {
-    const x = line(p[v + h0], ends[0], entry.i), y = line(p[v + h1], ends[1], entry.j);
-    if (x === null && y === null) continue;
-    const key = x !== null && y !== null ? `c${x},${y},${p[v + up]}` // on a corner's column: up to four tiles
-      : x !== null ? `x${x},${entry.j},${p[v + h1]},${p[v + up]}` : `y${entry.i},${y},${p[v + h0]},${p[v + up]}`;
-    const there = borders.get(key) ?? [];
-    there.push({ entry, vertex: v, sum: sums.slice(v, v + 3) });
-    borders.set(key, there);
-    entry.borders.add(key);
-    if (there.length > 1) changed.add(key);
-  }
-  for (const key of changed) {
-    const there = borders.get(key), sum = [0, 0, 0];
-    for (const { sum: part } of there) for (let axis = 0; axis < 3; axis++) sum[axis] += part[axis];
-    for (const { entry: beside, vertex } of there) {
-      normalise(sum, vertex, beside.mesh.geometry.attributes.normal.array);
-      beside.mesh.geometry.attributes.normal.needsUpdate = true;
-    }
   }
 }
 
@@ -252,13 +233,13 @@ function tell() {
 
 /**
  * For the tests and the console: the world in view (the camera's tile, the tiles made as [i, j,
- * faces, the order they were made in], the camera's place, the farthest tile's from the
+ * faces, the order they were made in, their level of detail], the camera's place, the farthest tile's from the
  * scene's origin and how many tiles show vertex colours), and the camera moved by whole tiles (a scripted flight).
  */
 export const view = {
   status: () => run && {
     at: run.origin.map(String), made: run.made, dropped: run.dropped, size: run.size,
-    tiles: [...run.tiles.values()].filter((e) => e.state === 'done').map((e) => [String(e.i), String(e.j), e.mesh ? e.mesh.geometry.index.count / 3 : 0, e.order]),
+    tiles: [...run.tiles.values()].filter((e) => e.state === 'done').map((e) => [String(e.i), String(e.j), e.mesh ? e.mesh.geometry.index.count / 3 : 0, e.order, e.lod]),
     camera: camera.position.toArray(), farthest: Math.max(0, ...group.children.map((m) => m.position.length())),
     coloured: group.children.filter((m) => m.geometry.attributes.color && m.material.vertexColors).length,
   },
