@@ -730,8 +730,9 @@ def tile_occupancy(model, seed: int, tile, scale: float = 1.0, memory_limit: int
     """Occupancy on tile (i, j)'s grid: (X, Y, Z) float32, its points along
     each horizontal axis from the tile's lattice point to the next (both
     included: the faces it shares), along up the world's heights. With
-    `colour` (a coloured model), also its colour there: (occupancy,
-    (X, Y, Z, 3) uint8 sRGB). progress(done, total) after each window and
+    `colour` (a coloured model), also its colour there, tile_colours' at a
+    format-5 model's full-detail tile: (occupancy, (X, Y, Z, 3) uint8
+    sRGB). progress(done, total) after each window and
     each slab of rows (a server stops a job there)."""
     from .generate import check_seed
 
@@ -743,17 +744,24 @@ def tile_occupancy(model, seed: int, tile, scale: float = 1.0, memory_limit: int
     occupancy = np.ascontiguousarray(sigmoid(logits).transpose(order))
     if not colour:
         return occupancy
+    if model.tiles is not None and not options.lod:  # read from the example, as the tile's vertices are
+        grid = tile_grid(model, layout, scale, options)
+        points = np.stack(np.meshgrid(*grid.positions, indexing="ij"), axis=-1).reshape(-1, 3)
+        return occupancy, tile_colours(model, seed, tile, points, options, 1 / scale)[:, :3].reshape(*occupancy.shape, 3)
     return occupancy, np.round(np.ascontiguousarray(colours.transpose(*order, 3)) * 255).astype(np.uint8)
 
 
 # ---- the field at any points of a tile (normals, colours)
 
-def point_field(model, seed: int, tile, points: np.ndarray, options: WorldOptions = PLAIN) -> tuple:
+def point_field(model, seed: int, tile, points: np.ndarray, options: WorldOptions = PLAIN,
+                sources: list | None = None) -> tuple:
     """The logits and hidden vectors at points of tile (i, j) ((n, 3), voxels
     from the tile's corner along the horizontal axes, from the model's floor
     along up), each read in the tile it falls in (a point just past a face,
     in the neighbour's): (logits (n,) float32, hidden (n, D) float32, on the
-    ground (n,) bool: a scatter world's points outside every object)."""
+    ground (n,) bool: a scatter world's points outside every object). With a
+    list `sources`, also what each point reads most: the list gets, per
+    window or object, (its key for `window`, point indices, their cells in it)."""
     i, j = check_tile(tile)
     layout = world_layout(model)
     level = check_lod(model, options.lod)
@@ -778,14 +786,19 @@ def point_field(model, seed: int, tile, points: np.ndarray, options: WorldOption
         local = points[chosen]
         local[:, h0] -= t0 * layout.stride[h0]  # exact: a power-of-two step from an integer
         local[:, h1] -= t1 * layout.stride[h1]
+        found = [] if sources is not None else None
         logits[chosen], hidden[chosen], ground[chosen] = point_tile(model, layout, seed, (i + t0, j + t1), local,
-                                                                     level, options)
+                                                                     level, options, found)
+        if sources is not None:
+            sources.extend((key, chosen[index], cells) for key, index, cells in found)
     return logits, hidden, ground
 
 
 def point_tile(model, layout: Layout, seed: int, tile: tuple, points: np.ndarray, level: int,
-               options: WorldOptions) -> tuple:
-    """point_field for points inside one tile."""
+               options: WorldOptions, sources: list | None = None) -> tuple:
+    """point_field for points inside one tile (`sources`: as point_field's,
+    with indices into `points`: the window that weighs most, the first of
+    equals, or the object a point lies in)."""
     h0, h1, up = *layout.horizontal, layout.up
     u0, u1, z = points[:, h0], points[:, h1], points[:, up]
     rise = (np.zeros(len(points)) if options.heights is None
@@ -794,6 +807,7 @@ def point_tile(model, layout: Layout, seed: int, tile: tuple, points: np.ndarray
         logits = (-np.float32(GROUND_SLOPE) * (z - rise - GROUND)).astype(np.float32)
         hidden = np.zeros((len(points), model.manifest.hidden), np.float32)
         ground = np.ones(len(points), bool)
+        owner, owner_cells, objects = np.full(len(points), -1), np.zeros((len(points), 3)), []
         for placed_object in objects_near(model, layout, seed, tile, level, options.heights):
             inside = np.ones(len(points), bool)
             cells = np.empty((len(points), 3))
@@ -814,10 +828,17 @@ def point_tile(model, layout: Layout, seed: int, tile: tuple, points: np.ndarray
             logits[better] = candidate[better[inside]]
             hidden[better] = hid[better[inside]]
             ground[better] = False
+            if sources is not None:
+                owner[better] = len(objects)
+                owner_cells[better] = cells[better]
+                objects.append((*placed_object.cell, "scatter"))
+        if sources is not None:
+            sources.extend((key, np.flatnonzero(owner == k), owner_cells[owner == k]) for k, key in enumerate(objects))
         return logits, hidden, ground
     levels = np.clip(z - rise, 0, layout.stride[up])
     blend = ContrastSum()
     i, j = tile
+    heaviest, owner, owner_cells, keys = np.full(len(points), -1.0), np.zeros(len(points), np.int64), None, []
     for a in (i - 1, i):
         for b in (j - 1, j):
             weight = window_weight(u0, layout.stride[h0], a == i) * window_weight(u1, layout.stride[h1], b == j)
@@ -829,6 +850,13 @@ def point_tile(model, layout: Layout, seed: int, tile: tuple, points: np.ndarray
             cells[:, h1] = (u1 + (layout.stride[h1] if b < j else 0)) * found.cells[h1]
             cells[:, up] = levels * found.cells[up]
             blend.add(weight[:, None], point_hidden(found, cells), along(found.mean, cells[:, up], 0))
+            if sources is not None:
+                heavier = weight > heaviest
+                heaviest[heavier], owner[heavier] = weight[heavier], len(keys)
+                owner_cells = cells.copy() if owner_cells is None else np.where(heavier[:, None], cells, owner_cells)
+                keys.append((a, b, "blend"))
+    if sources is not None:
+        sources.extend((key, np.flatnonzero(owner == k), owner_cells[owner == k]) for k, key in enumerate(keys))
     total = blend.total()
     return capped(head_logits(model.head, total), z - rise - layout.stride[up]), total, np.zeros(len(points), bool)
 
@@ -862,18 +890,54 @@ def tile_normals(model, seed: int, tile, vertices: np.ndarray, options: WorldOpt
 GROUND_COLOUR = (0.5, 0.5, 0.5)  # sRGB of a scatter world's ground, which no model colours
 
 
-def tile_colours(model, seed: int, tile, vertices: np.ndarray, options: WorldOptions = PLAIN) -> np.ndarray:
+def tile_colours(model, seed: int, tile, vertices: np.ndarray, options: WorldOptions = PLAIN,
+                 footprint: float | None = None) -> np.ndarray:
     """A coloured model's colour at tile (i, j)'s vertices (model units from
-    the tile's corner, as tile_mesh gives them): the colour head of the
-    hidden vector there, blended as the occupancy is (a scatter world's:
-    the object's there, the ground grey). A vertex on a face two tiles
-    share gets the same colour from both. Returns (n, 4) uint8 RGBA."""
+    the tile's corner, as tile_mesh gives them): a format-5 model's, read
+    from the example by correspondence in the window that weighs most there
+    (a scatter world's: in the object there), each the colour around it
+    (`footprint` voxels); a format-4 model's (and a coarser tile's, `lod`),
+    the colour head of the hidden vector there, blended as the occupancy
+    is. A scatter world's ground is grey. A vertex on a face two tiles
+    share gets the same colour from both. Returns (n, 4) uint8 RGBA.""" 
     from .mesh import colour_bytes
 
-    _, hidden, ground = point_field(model, seed, tile, vertices, options)
-    rgb = head_colour(model.head, hidden)
+    if model.tiles is None or options.lod:
+        _, hidden, ground = point_field(model, seed, tile, vertices, options)
+        rgb = head_colour(model.head, hidden)
+    else:  # each vertex the colour its heaviest window (or its object) reads from the example
+        sources = []
+        _, _, ground = point_field(model, seed, tile, vertices, options, sources)
+        rgb = np.empty((len(vertices), 3), np.float32)
+        layout = world_layout(model)
+        for (a, b, arrange), index, cells in sources:
+            if len(index):
+                rgb[index] = window_colouring(model, layout, seed, a, b, arrange)(cells, footprint)
     rgb[ground] = GROUND_COLOUR
     return colour_bytes(rgb)
+
+
+# Windows' colourings kept for the next tiles, as their planes are (`window`).
+_colourings = OrderedDict()  # (id(model), seed, arrange, a, b) -> (model, colouring)
+
+
+def window_colouring(model, layout: Layout, seed: int, a: int, b: int, arrange: str):
+    """A format-5 window's (or object's) colour at points in its finest
+    cells: its own sample's colour by correspondence (colour.planes_colouring),
+    matched once and kept. A window's matches follow its content only, so a
+    tile and its neighbour read a window they share alike."""
+    from .colour import planes_colouring
+
+    key = (id(model), seed, arrange, a, b)
+    if key in _colourings:
+        _colourings.move_to_end(key)
+        return _colourings[key][1]
+    found = window(model, layout, seed, a, b, len(model.manifest.sizes) - 1, arrange)
+    made = planes_colouring(model, found.planes, window_sizes(model, layout, arrange)[-1])
+    _colourings[key] = (model, made)
+    while len(_colourings) > WINDOWS_KEPT:
+        _colourings.popitem(last=False)
+    return made
 
 
 def tile_hidden(model, seed: int, tile, points: np.ndarray, options: WorldOptions = PLAIN) -> np.ndarray:
@@ -945,7 +1009,7 @@ def tile_surface(model, seed: int, tile, scale: float = 1.0, options: WorldOptio
     progress: as tile_occupancy's."""
     vertices, faces = tile_mesh(model, seed, tile, scale, memory_limit, options=options, progress=progress)
     normals = tile_normals(model, seed, tile, vertices, options)
-    colours = tile_colours(model, seed, tile, vertices, options) if model.manifest.colour else None
+    colours = tile_colours(model, seed, tile, vertices, options, 1 / scale) if model.manifest.colour else None
     if options.lod and len(faces):
         layout = world_layout(model)
         grid = tile_grid(model, layout, scale, options)
@@ -1150,7 +1214,7 @@ def block_mesh(model, request, tiles, progress=None, memory_limit: int | None = 
                          f"a block of {len(tiles)} tiles at scale {request.scale:g} (about {len(v)} vertices each)",
                          memory_limit)
         if model.manifest.colour:
-            colours.append(tile_colours(model, request.sample_seed, tile, v, options))
+            colours.append(tile_colours(model, request.sample_seed, tile, v, options, 1 / request.scale))
         vertices.append(np.array(tile_corner(model, tile), np.float64) + v)  # exact on shared borders
         faces.append(f + count)
         count += len(v)

@@ -188,6 +188,15 @@ def test_world_tiles_are_coloured_seamlessly(model, tmp_path):
     np.testing.assert_array_equal(world.tile_colours(model, 3, (0, 0), on_a),
                                   world.tile_colours(model, 3, (1, 0), on_a - shift))
     assert len(on_b) == len(on_a)
+    # Read from the example in the windows, not the colour head's: the box's red and blue, or blends of them.
+    from sinshape.runtime.query import head_colour
+
+    rgb = world.tile_colours(model, 3, (0, 0), a)[:, :3].astype(float)
+    head = np.round(head_colour(model.head, world.point_field(model, 3, (0, 0), a)[1]) * 255)
+    assert np.mean(np.abs(rgb - head).max(axis=1) <= 1) < 0.5
+    red, blue = np.array([220, 40, 30]), np.array([30, 60, 200])
+    t = np.clip(((rgb - blue) @ (red - blue)) / ((red - blue) @ (red - blue)), 0, 1)
+    assert np.linalg.norm(rgb - (blue + t[:, None] * (red - blue)), axis=1).max() < 3
     # A block, a tile file: coloured with those colours.
     sinrun("world", model.path, "--seed", 3, "--tiles", "0:1,0:0", "--frame", "model", "-o", tmp_path / "b.ply")
     sinrun("world", model.path, "--seed", 3, "--tiles", "0:0,0:0", "--frame", "model", "-o", tmp_path / "t/")
