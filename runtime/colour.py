@@ -43,10 +43,10 @@ from . import generate, query
 PATCH = np.array([(0, 0, 0), (1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1), (0, 0, -1)])
 QUANTUM = 256  # hidden sums are compared in steps of 1/QUANTUM
 KEY_VALUES, KEY_QUANTUM = 8, 4  # a voxel's random choices are keyed by its first 8 hidden sums in steps of 1/4
-ITERATIONS = 6
-PROPAGATION = (1, 2, 4, 8)  # neighbours this many voxels away along each axis offer their match
+ITERATIONS = 4
+PROPAGATION = (1, 2, 4)  # neighbours this many voxels away along each axis offer their match
 SEARCH = (8, 4, 2, 1)  # random candidates within this many voxels of the current match
-SEED_RATE = 64  # about one voxel in this many searches the whole example
+SEED_RATE = 32  # about one voxel in this many searches the whole example
 # A neighbour's match continued (the same piece of the example, shifted by
 # the step) is weighed at this share of its distance: pieces stay whole
 # unless another place fits clearly better (Ashikhmin 2001's coherence).

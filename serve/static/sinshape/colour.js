@@ -27,10 +27,10 @@ import { project, projectedColours } from './query.js';
 export const PATCH = [[0, 0, 0], [1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]];
 export const QUANTUM = 256; // hidden sums are compared in steps of 1/QUANTUM
 export const KEY_VALUES = 8, KEY_QUANTUM = 4; // a voxel's random choices are keyed by its first 8 hidden sums in steps of 1/4
-export const ITERATIONS = 6;
-export const PROPAGATION = [1, 2, 4, 8]; // neighbours this many voxels away along each axis offer their match
+export const ITERATIONS = 4;
+export const PROPAGATION = [1, 2, 4]; // neighbours this many voxels away along each axis offer their match
 export const SEARCH = [8, 4, 2, 1]; // random candidates within this many voxels of the current match
-export const SEED_RATE = 64; // about one voxel in this many searches the whole example
+export const SEED_RATE = 32; // about one voxel in this many searches the whole example
 export const COHERENT = 0.8; // a neighbour's match continued is weighed at this share of its distance
 export const MATCH_STREAM = 2; // noise.js's stream id of the matching's random choices
 export const DEPTH_RANGE = 0.5; // a tile's depth byte spans this many voxels either side of its centre
