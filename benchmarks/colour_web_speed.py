@@ -2,7 +2,8 @@
 runtime, on the same machine, and how often the two agree.
 
     python benchmarks/colour_web_speed.py [MODEL.onnx] [--scale 2] [--seeds 1 2 3 4 5]
-    python benchmarks/colour_web_speed.py [MODEL.onnx] --tiles 0,0 1,0 1000000000,-1000000000 [--seeds 3] [--scale 1] [--arrange scatter]
+    python benchmarks/colour_web_speed.py [MODEL.onnx] --tiles 0,0 1,0 1000000000,-1000000000 [--seeds 3] [--scale 1] \
+        [--arrange scatter]
 
 Exports MODEL (default: tests/data/tiny_colour.onnx) with `sinrun
 export-web` into a temporary folder, serves it on loopback and, in headless
@@ -42,7 +43,9 @@ from sinshape.serve import site  # noqa: E402
 
 DEFAULT_MODEL = Path(__file__).resolve().parents[1] / "tests" / "data" / "tiny_colour.onnx"
 
-BROWSER_JS = """async ([file, seeds, scale]) => {
+# The start of the page scripts below, given `file`: the runtime `s`, `C` (colour.js), the model, and
+# `b64`, a typed array's bytes as base64.
+IN_PAGE = """
   const s = await import('./static/sinshape/runtime.js');
   const C = await import('./static/sinshape/colour.js');
   const model = await s.loadModel(new Uint8Array(await (await fetch(file)).arrayBuffer()), { name: file });
@@ -52,6 +55,9 @@ BROWSER_JS = """async ([file, seeds, scale]) => {
     for (let i = 0; i < bytes.length; i += 8192) text += String.fromCharCode(...bytes.subarray(i, i + 8192));
     return btoa(text);
   };
+"""
+
+BROWSER_JS = """async ([file, seeds, scale]) => {""" + IN_PAGE + """
   let t = performance.now();
   await C.matcher(model);
   const matcher = (performance.now() - t) / 1000;
@@ -68,17 +74,8 @@ BROWSER_JS = """async ([file, seeds, scale]) => {
 }"""
 
 
-TILES_JS = """async ([file, seed, tiles, scale, arrange]) => {
-  const s = await import('./static/sinshape/runtime.js');
-  const C = await import('./static/sinshape/colour.js');
+TILES_JS = """async ([file, seed, tiles, scale, arrange]) => {""" + IN_PAGE + """
   const W = await import('./static/sinshape/world.js');
-  const model = await s.loadModel(new Uint8Array(await (await fetch(file)).arrayBuffer()), { name: file });
-  const b64 = (array) => {
-    const bytes = new Uint8Array(array.buffer, array.byteOffset, array.byteLength);
-    let text = '';
-    for (let i = 0; i < bytes.length; i += 8192) text += String.fromCharCode(...bytes.subarray(i, i + 8192));
-    return btoa(text);
-  };
   await C.matcher(model);
   const options = W.worldOptions({ arrange }), runs = [];
   for (const [i, tile] of [tiles[0], ...tiles].entries()) {
@@ -86,7 +83,8 @@ TILES_JS = """async ([file, seed, tiles, scale, arrange]) => {
     const at = tile.map(BigInt), m = await W.tileMesh(model, BigInt(seed), at, scale, options);
     const t = performance.now();
     const colours = await W.tileColours(model, BigInt(seed), at, m.positions, options, 1 / scale);
-    if (i > 0) runs.push({ tile, seconds: (performance.now() - t) / 1000, positions: b64(m.positions), colours: b64(colours) });
+    const seconds = (performance.now() - t) / 1000;
+    if (i > 0) runs.push({ tile, seconds, positions: b64(m.positions), colours: b64(colours) });
   }
   return runs;
 }"""

@@ -33,15 +33,26 @@ TOLERANCE = 1e-4  # the runtimes' occupancy agrees within it (tests/test_web.py)
 SAME_BYTES = 0.995  # the share of vertices whose colour bytes must be Python's, a format-5 sample made by each runtime
 SAME_MATCHES = 0.97  # ...and of the band's voxels whose match must be (a match moved moves a few vertices' colour)
 
-# Runs in the page: a sample's mesh and its colours, or a tile's (at `scale`, its vertices' colours
-# standing for 1 / scale voxels, as a tile's file has them), made by the browser's runtime.
-COLOURS_JS = """async ([name, seed, tile, options]) => {
+# The start of the page scripts below, given `name`: the runtime `s`, the model of that name (loaded
+# once per page) `model`, the world's module `W`, and `b64`, a typed array's bytes as base64.
+IN_PAGE = """
   const s = await import('./static/sinshape/runtime.js');
   const W = await import('./static/sinshape/world.js');
   window.models ??= {};
   window.models[name] ??= await s.loadModel(new Uint8Array(await (await fetch(`models/${name}.onnx`)).arrayBuffer()),
                                             { name: `${name}.onnx` });
   const model = window.models[name];
+  const b64 = (array) => {
+    const bytes = new Uint8Array(array.buffer, array.byteOffset, array.byteLength);
+    let text = '';
+    for (let i = 0; i < bytes.length; i += 8192) text += String.fromCharCode(...bytes.subarray(i, i + 8192));
+    return btoa(text);
+  };
+"""
+
+# Runs in the page: a sample's mesh and its colours, or a tile's (at `scale`, its vertices' colours
+# standing for 1 / scale voxels, as a tile's file has them), made by the browser's runtime.
+COLOURS_JS = """async ([name, seed, tile, options]) => {""" + IN_PAGE + """
   let mesh, colours;
   if (tile) {
     const { scale, ...given } = options, world = W.worldOptions(given);
@@ -52,12 +63,6 @@ COLOURS_JS = """async ([name, seed, tile, options]) => {
     mesh = s.surface(await s.dense(model, tri, 1), tri.size, model.manifest);
     colours = await s.vertexColours(model, tri, mesh.positions);
   }
-  const b64 = (array) => {
-    const bytes = new Uint8Array(array.buffer, array.byteOffset, array.byteLength);
-    let text = '';
-    for (let i = 0; i < bytes.length; i += 8192) text += String.fromCharCode(...bytes.subarray(i, i + 8192));
-    return btoa(text);
-  };
   return { positions: b64(mesh.positions), colours: b64(colours), coloured: model.manifest.colour };
 }"""
 
@@ -117,19 +122,8 @@ def unb64(text, dtype, width: int) -> np.ndarray:
 
 # Runs in the page: a format-5 sample's matches and colours, first as the runtime makes them (its own
 # planes), then with Python's planes (`given`): the matching and the reading alone.
-MATCH_JS = """async ([name, seed, scale, given]) => {
-  const s = await import('./static/sinshape/runtime.js');
+MATCH_JS = """async ([name, seed, scale, given]) => {""" + IN_PAGE + """
   const C = await import('./static/sinshape/colour.js');
-  window.models ??= {};
-  window.models[name] ??= await s.loadModel(new Uint8Array(await (await fetch(`models/${name}.onnx`)).arrayBuffer()),
-                                            { name: `${name}.onnx` });
-  const model = window.models[name];
-  const b64 = (array) => {
-    const bytes = new Uint8Array(array.buffer, array.byteOffset, array.byteLength);
-    let text = '';
-    for (let i = 0; i < bytes.length; i += 8192) text += String.fromCharCode(...bytes.subarray(i, i + 8192));
-    return btoa(text);
-  };
   const bytes = (text) => Uint8Array.from(atob(text), (c) => c.charCodeAt(0)).buffer;
   const tri = await s.sample(model, seed, [1, 1, 1]);
   const m = s.surface(await s.dense(model, tri, scale), tri.size, model.manifest);
@@ -306,19 +300,7 @@ def test_damaged_tiles_are_refused_as_the_python_loader_refuses_them(colour_page
 # Runs in the page: a format-5 tile's mesh and colours as the browser makes them, and what they come
 # from: each vertex's source (world.js's pointField: the window that weighs most, or the object), its
 # cells there, and that window's planes.
-TILE_JS = """async ([name, seed, tile, options]) => {
-  const s = await import('./static/sinshape/runtime.js');
-  const W = await import('./static/sinshape/world.js');
-  window.models ??= {};
-  window.models[name] ??= await s.loadModel(new Uint8Array(await (await fetch(`models/${name}.onnx`)).arrayBuffer()),
-                                            { name: `${name}.onnx` });
-  const model = window.models[name];
-  const b64 = (array) => {
-    const bytes = new Uint8Array(array.buffer, array.byteOffset, array.byteLength);
-    let text = '';
-    for (let i = 0; i < bytes.length; i += 8192) text += String.fromCharCode(...bytes.subarray(i, i + 8192));
-    return btoa(text);
-  };
+TILE_JS = """async ([name, seed, tile, options]) => {""" + IN_PAGE + """
   const { scale, ...given } = options, world = W.worldOptions(given), at = tile.map(BigInt);
   const mesh = await W.tileMesh(model, BigInt(seed), at, scale, world);
   const colours = await W.tileColours(model, BigInt(seed), at, mesh.positions, world, 1 / scale);
@@ -327,7 +309,8 @@ TILE_JS = """async ([name, seed, tile, options]) => {
   const out = [];
   for (const { window: [a, b, arrange], index, cells } of sources) {
     const { planes } = await W.windowAt(model, layout, BigInt(seed), a, b, finest, arrange);
-    out.push({ key: [String(a), String(b), arrange], index: b64(index), cells: b64(cells), planes: planes.map((p) => b64(p.data)) });
+    out.push({ key: [String(a), String(b), arrange], index: b64(index), cells: b64(cells),
+               planes: planes.map((p) => b64(p.data)) });
   }
   return { positions: b64(mesh.positions), colours: b64(colours), sources: out };
 }"""
@@ -418,7 +401,8 @@ def test_a_format_5_tiles_colours_are_pythons_at_the_same_vertices(colour_page, 
     assert (mesh.colour_bytes(colours[::-1]) != python).any(axis=1).mean() > 0.1  # from the wrong vertices: others
 
 
-@pytest.mark.parametrize("name, tile, lod", [(HEAD_NAME, (0, 0), 0), (HEAD_NAME, (10**9, -10**9), 0), (NAME, (3, -2), 1)])
+@pytest.mark.parametrize("name, tile, lod", [(HEAD_NAME, (0, 0), 0), (HEAD_NAME, (10**9, -10**9), 0),
+                                             (NAME, (3, -2), 1)])
 def test_a_colour_heads_tile_colours_are_pythons_at_the_same_vertices(colour_page, coloured, headed, name, tile, lod):
     """A format-4 model's tile, and a format-5 model's coarser one (lod 1), take the colour head of
     the blended hidden vector. Python's tile colours are bytes: the browser's floats round to them,
@@ -482,20 +466,16 @@ def test_the_page_shows_a_coloured_models_vertex_colours_and_a_grey_ones_without
 
 # Runs in the page: the world mode's tiles of some names ("i,j") as shown (positions in frame tile,
 # three.js's linear colours), and the runtime's colours at their vertices (in voxels) with footprints.
-WORLD_TILES_JS = """async ([name, seed, tiles, footprints]) => {
-  const s = await import('./static/sinshape/runtime.js');
-  const W = await import('./static/sinshape/world.js');
-  window.models ??= {};
-  window.models[name] ??= await s.loadModel(new Uint8Array(await (await fetch(`models/${name}.onnx`)).arrayBuffer()),
-                                            { name: `${name}.onnx` });
-  const model = window.models[name], meshes = [], out = [];
+WORLD_TILES_JS = """async ([name, seed, tiles, footprints]) => {""" + IN_PAGE + """
+  const meshes = [], out = [];
   window.sinshapeView.scene.traverse((n) => { if (n.isMesh && tiles.includes(n.name)) meshes.push(n); });
   for (const n of meshes) {
     const positions = n.geometry.attributes.position.array;
     const voxels = positions.map((p, k) => p / model.manifest.spacing[k % 3]);
     const read = [];
+    const tile = n.name.split(',').map(BigInt);
     for (const footprint of footprints) {
-      read.push(Array.from(await W.tileColours(model, BigInt(seed), n.name.split(',').map(BigInt), voxels, W.worldOptions(), footprint)));
+      read.push(Array.from(await W.tileColours(model, BigInt(seed), tile, voxels, W.worldOptions(), footprint)));
     }
     out.push([n.name, Array.from(voxels), Array.from(n.geometry.attributes.color.array), read]);
   }

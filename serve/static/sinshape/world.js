@@ -22,7 +22,6 @@
 //   const grid = await tileOccupancy(model, 3n, [5n, -2n], 1, options);  // { data: Float32Array (X, Y, Z), shape }
 //   const mesh = await tileMesh(model, 3n, [5n, -2n], 1, options);       // { positions (voxels from the corner), faces }
 //   const surface = await tileSurface(model, 3n, [5n, -2n], 1, options); // ... and normals, colours, a coarser tile's skirt
-import { planesColouring } from './colour.js';
 import { InputError, formatG, pyRepr } from './errors.js';
 import { checkSeed, drawNoise, roundHalfEven, scaledSizes, triplane } from './generate.js';
 import { marchingCubes } from './mesh.js';
@@ -178,6 +177,7 @@ export function windowAt(model, layout, seed, a, b, level, arrange) {
  */
 export function windowColouring(model, layout, seed, a, b, arrange) {
   return kept(colourings, model, `${seed}|${arrange}|${a}|${b}`, async () => {
+    const { planesColouring } = await import('./colour.js'); // not before it is needed: the page imports this module
     const found = await windowAt(model, layout, seed, a, b, model.manifest.sizes.length - 1, arrange);
     return planesColouring(model, found.planes, windowSizes(model.manifest, layout, arrange).at(-1));
   });
