@@ -10,12 +10,12 @@
 // same anywhere and whatever was made before; a coarser tile (lod) reads an
 // earlier level and hangs a skirt from its sides. A format-5 model's
 // full-detail tile reads each vertex's colour from the example by
-// correspondence, in the window that weighs most there (or its object). The field is computed
-// element-wise, in one fixed order, at positions that are small numbers
-// relative to the tile, so two neighbouring tiles compute their shared face
-// (and the normals there: the field's gradient) the same way: the same
-// floats, to the bit (within this runtime; against Python's, within the
-// runtimes' 1e-4).
+// correspondence, in the window that weighs most there (or its object).
+// The field is computed element-wise, in one fixed order, at positions
+// that are small numbers relative to the tile, so two neighbouring tiles
+// compute their shared face (and the normals there: the field's gradient)
+// the same way: the same floats, to the bit (within this runtime; against
+// Python's, within the runtimes' 1e-4).
 //
 //   const layout = worldLayout(model.manifest);                         // horizontal axes, up, stride S per axis
 //   const options = worldOptions({ arrange: 'scatter', lod: 1 });       // as world.WorldOptions
