@@ -2,6 +2,8 @@
 runtime, on the same machine, and how often the two agree.
 
     python benchmarks/colour_web_speed.py [MODEL.onnx] [--scale 2] [--seeds 1 2 3 4 5]
+    python benchmarks/colour_web_speed.py [MODEL.onnx] --tiles 0,0 1,0 1000000000,-1000000000 [--seeds 3] [--scale 1] \
+        [--arrange scatter]
 
 Exports MODEL (default: tests/data/tiny_colour.onnx) with `sinrun
 export-web` into a temporary folder, serves it on loopback and, in headless
@@ -14,6 +16,12 @@ side of matching (the reconstruction's patches), made once per model, is
 timed apart; one seed is coloured first to warm the page's JIT. The Python
 runtime (1 thread) does the same at its own mesh's vertices. Then the share
 of the browser's vertices whose colour bytes are Python's at those vertices.
+
+With --tiles, the same for tiles of the world of each seed (the model's own
+arrangement unless --arrange, full detail): each tile's mesh at `--scale`, then its colours
+at the mesh's vertices (tileColours / world.tile_colours, footprint 1 /
+scale) timed with no window kept (its windows made, and each of those it
+reads matched to the example), against Python's at the browser's vertices.
 """
 
 import argparse
@@ -30,12 +38,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 from browser import chromium, open_page, static_server  # noqa: E402
 
-from sinshape.runtime import colour, generate, load, mesh, query  # noqa: E402
+from sinshape.runtime import colour, generate, load, mesh, query, world  # noqa: E402
 from sinshape.serve import site  # noqa: E402
 
 DEFAULT_MODEL = Path(__file__).resolve().parents[1] / "tests" / "data" / "tiny_colour.onnx"
 
-BROWSER_JS = """async ([file, seeds, scale]) => {
+# The start of the page scripts below, given `file`: the runtime `s`, `C` (colour.js), the model, and
+# `b64`, a typed array's bytes as base64.
+IN_PAGE = """
   const s = await import('./static/sinshape/runtime.js');
   const C = await import('./static/sinshape/colour.js');
   const model = await s.loadModel(new Uint8Array(await (await fetch(file)).arrayBuffer()), { name: file });
@@ -45,6 +55,9 @@ BROWSER_JS = """async ([file, seeds, scale]) => {
     for (let i = 0; i < bytes.length; i += 8192) text += String.fromCharCode(...bytes.subarray(i, i + 8192));
     return btoa(text);
   };
+"""
+
+BROWSER_JS = """async ([file, seeds, scale]) => {""" + IN_PAGE + """
   let t = performance.now();
   await C.matcher(model);
   const matcher = (performance.now() - t) / 1000;
@@ -61,18 +74,34 @@ BROWSER_JS = """async ([file, seeds, scale]) => {
 }"""
 
 
+TILES_JS = """async ([file, seed, tiles, scale, arrange]) => {""" + IN_PAGE + """
+  const W = await import('./static/sinshape/world.js');
+  await C.matcher(model);
+  const options = W.worldOptions({ arrange }), runs = [];
+  for (const [i, tile] of [tiles[0], ...tiles].entries()) {
+    W.dropWindows();
+    const at = tile.map(BigInt), m = await W.tileMesh(model, BigInt(seed), at, scale, options);
+    const t = performance.now();
+    const colours = await W.tileColours(model, BigInt(seed), at, m.positions, options, 1 / scale);
+    const seconds = (performance.now() - t) / 1000;
+    if (i > 0) runs.push({ tile, seconds, positions: b64(m.positions), colours: b64(colours) });
+  }
+  return runs;
+}"""
+
+
 def floats(text: str) -> np.ndarray:
     return np.frombuffer(base64.b64decode(text), np.float32).reshape(-1, 3)
 
 
-def browser_runs(path: Path, seeds, scale: float) -> dict:
+def browser_runs(path: Path, script: str, *arguments):
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp) / "site"
         name = site.export_site([str(path)], folder)["models"][0]
         with chromium() as browser, static_server(folder) as base:
             page = open_page(browser, base)
             page.goto(f"{base}/README.txt")
-            result = page.evaluate(BROWSER_JS, [f"models/{name}.onnx", list(seeds), scale])
+            result = page.evaluate(script, [f"models/{name}.onnx", *arguments])
             page.close()
     return result
 
@@ -98,17 +127,46 @@ def band_size(model, seed: int) -> int:
     return len(colour.surface_band(model, hidden, triplane.size))
 
 
+def tiles_table(model, path: Path, seeds, tiles, scale: float, arrange: str) -> None:
+    """The --tiles table: a world tile's colours in each runtime, no window kept, and their agreement."""
+    options = world.WorldOptions(arrange=arrange)
+    print(f"{path.name}, its world ({arrange}), scale {scale:g}: seconds to colour a tile's vertices, no window kept\n")
+    print("| seed | tile | vertices | browser | Python | browser / Python | colour bytes equal |")
+    print("|---|---|---|---|---|---|---|")
+    for seed in seeds:
+        runs = browser_runs(path, TILES_JS, seed, [list(t) for t in tiles], scale, arrange)
+        for run in runs:
+            tile, positions = tuple(run["tile"]), floats(run["positions"]).astype(np.float64)
+            seconds = []
+            for _ in range(2):  # the first warms the model's matcher and the runtime
+                world._windows.clear()
+                world._colourings.clear()
+                t = time.perf_counter()
+                expected = world.tile_colours(model, seed, tile, positions, options, 1 / scale)
+                seconds.append(time.perf_counter() - t)
+            share = (mesh.colour_bytes(floats(run["colours"])) == expected).all(axis=1).mean()
+            print(f"| {seed} | {tile[0]}, {tile[1]} | {len(positions):,} | {run['seconds']:.3f} | {seconds[-1]:.3f} | "
+                  f"{run['seconds'] / seconds[-1]:.2f} | {share:.4%} |")
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("model", nargs="?", type=Path, default=DEFAULT_MODEL)
-    parser.add_argument("--scale", type=float, default=2.0)
+    parser.add_argument("--scale", type=float, default=None, help="the mesh's scale (default: 2, tiles 1)")
     parser.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3, 4, 5])
+    parser.add_argument("--tiles", type=lambda text: tuple(int(v) for v in text.split(",")), nargs="+",
+                        help="tiles I,J of each seed's world instead of samples")
+    parser.add_argument("--arrange", choices=("blend", "scatter"), help="the world's (default: the model's own)")
     args = parser.parse_args()
 
     model = load.load_model(args.model, threads=1)
     if model.tiles is None:
         sys.exit(f"{args.model}: not a format-5 model (no colour tiles)")
-    browser = browser_runs(args.model, args.seeds, args.scale)
+    if args.tiles:
+        return tiles_table(model, args.model, args.seeds, args.tiles, args.scale or 1.0,
+                           args.arrange or model.manifest.arrange)
+    args.scale = args.scale or 2.0
+    browser = browser_runs(args.model, BROWSER_JS, list(args.seeds), args.scale)
     python = python_runs(model, args.seeds, args.scale)
 
     print(f"{args.model.name}, scale {args.scale:g}: seconds to colour a sample's vertices, "

@@ -33,28 +33,36 @@ TOLERANCE = 1e-4  # the runtimes' occupancy agrees within it (tests/test_web.py)
 SAME_BYTES = 0.995  # the share of vertices whose colour bytes must be Python's, a format-5 sample made by each runtime
 SAME_MATCHES = 0.97  # ...and of the band's voxels whose match must be (a match moved moves a few vertices' colour)
 
-# Runs in the page: a sample's mesh and its colours, or a tile's, made by the browser's runtime.
-COLOURS_JS = """async ([name, seed, tile]) => {
+# The start of the page scripts below, given `name`: the runtime `s`, the model of that name (loaded
+# once per page) `model`, the world's module `W`, and `b64`, a typed array's bytes as base64.
+IN_PAGE = """
   const s = await import('./static/sinshape/runtime.js');
+  const W = await import('./static/sinshape/world.js');
   window.models ??= {};
   window.models[name] ??= await s.loadModel(new Uint8Array(await (await fetch(`models/${name}.onnx`)).arrayBuffer()),
                                             { name: `${name}.onnx` });
   const model = window.models[name];
-  let mesh, colours;
-  if (tile) {
-    mesh = await s.tileMesh(model, BigInt(seed), tile.map(BigInt));
-    colours = await s.tileColours(model, BigInt(seed), tile.map(BigInt), mesh.positions);
-  } else {
-    const tri = await s.sample(model, seed, [1, 1, 1]);
-    mesh = s.surface(await s.dense(model, tri, 1), tri.size, model.manifest);
-    colours = await s.vertexColours(model, tri, mesh.positions);
-  }
   const b64 = (array) => {
     const bytes = new Uint8Array(array.buffer, array.byteOffset, array.byteLength);
     let text = '';
     for (let i = 0; i < bytes.length; i += 8192) text += String.fromCharCode(...bytes.subarray(i, i + 8192));
     return btoa(text);
   };
+"""
+
+# Runs in the page: a sample's mesh and its colours, or a tile's (at `scale`, its vertices' colours
+# standing for 1 / scale voxels, as a tile's file has them), made by the browser's runtime.
+COLOURS_JS = """async ([name, seed, tile, options]) => {""" + IN_PAGE + """
+  let mesh, colours;
+  if (tile) {
+    const { scale, ...given } = options, world = W.worldOptions(given);
+    mesh = await s.tileMesh(model, BigInt(seed), tile.map(BigInt), scale, world);
+    colours = await s.tileColours(model, BigInt(seed), tile.map(BigInt), mesh.positions, world, 1 / scale);
+  } else {
+    const tri = await s.sample(model, seed, [1, 1, 1]);
+    mesh = s.surface(await s.dense(model, tri, 1), tri.size, model.manifest);
+    colours = await s.vertexColours(model, tri, mesh.positions);
+  }
   return { positions: b64(mesh.positions), colours: b64(colours), coloured: model.manifest.colour };
 }"""
 
@@ -86,8 +94,9 @@ def colour_page(tmp_path_factory, browser):  # noqa: F811
         page.close()
 
 
-def colours_in_page(page, seed, tile=None, name=NAME) -> tuple:
-    made = page.evaluate(COLOURS_JS, [name, seed, [str(t) for t in tile] if tile else None])
+def colours_in_page(page, seed, tile=None, name=NAME, scale=1, arrange="blend", lod=0) -> tuple:
+    made = page.evaluate(COLOURS_JS, [name, seed, [str(t) for t in tile] if tile else None,
+                                      {"scale": scale, "arrange": arrange, "lod": lod}])
     assert made["coloured"]
     array = lambda text: np.frombuffer(base64.b64decode(text), np.float32).reshape(-1, 3)  # noqa: E731
     return array(made["positions"]), array(made["colours"])
@@ -113,19 +122,8 @@ def unb64(text, dtype, width: int) -> np.ndarray:
 
 # Runs in the page: a format-5 sample's matches and colours, first as the runtime makes them (its own
 # planes), then with Python's planes (`given`): the matching and the reading alone.
-MATCH_JS = """async ([name, seed, scale, given]) => {
-  const s = await import('./static/sinshape/runtime.js');
+MATCH_JS = """async ([name, seed, scale, given]) => {""" + IN_PAGE + """
   const C = await import('./static/sinshape/colour.js');
-  window.models ??= {};
-  window.models[name] ??= await s.loadModel(new Uint8Array(await (await fetch(`models/${name}.onnx`)).arrayBuffer()),
-                                            { name: `${name}.onnx` });
-  const model = window.models[name];
-  const b64 = (array) => {
-    const bytes = new Uint8Array(array.buffer, array.byteOffset, array.byteLength);
-    let text = '';
-    for (let i = 0; i < bytes.length; i += 8192) text += String.fromCharCode(...bytes.subarray(i, i + 8192));
-    return btoa(text);
-  };
   const bytes = (text) => Uint8Array.from(atob(text), (c) => c.charCodeAt(0)).buffer;
   const tri = await s.sample(model, seed, [1, 1, 1]);
   const m = s.surface(await s.dense(model, tri, scale), tri.size, model.manifest);
@@ -299,19 +297,128 @@ def test_damaged_tiles_are_refused_as_the_python_loader_refuses_them(colour_page
     assert "a colour distance grid of shape" in messages["distance"]
 
 
-@pytest.mark.parametrize("tile", [(0, 0), (3, -2), (10**9, -10**9)])
-def test_a_tiles_colours_are_the_python_runtimes_at_the_same_vertices(colour_page, coloured, tile):
-    """Python's tile colours are bytes: the browser's floats round to them, within the tolerance."""
-    positions, colours = colours_in_page(colour_page, 5, tile)
-    expected = world.tile_colours(coloured, 5, tile, positions.astype(np.float64))[:, :3]
+# Runs in the page: a format-5 tile's mesh and colours as the browser makes them, and what they come
+# from: each vertex's source (world.js's pointField: the window that weighs most, or the object), its
+# cells there, and that window's planes.
+TILE_JS = """async ([name, seed, tile, options]) => {""" + IN_PAGE + """
+  const { scale, ...given } = options, world = W.worldOptions(given), at = tile.map(BigInt);
+  const mesh = await W.tileMesh(model, BigInt(seed), at, scale, world);
+  const colours = await W.tileColours(model, BigInt(seed), at, mesh.positions, world, 1 / scale);
+  const sources = [], layout = W.worldLayout(model.manifest), finest = model.manifest.sizes.length - 1;
+  await W.pointField(model, BigInt(seed), at, Float64Array.from(mesh.positions), world, sources);
+  const out = [];
+  for (const { window: [a, b, arrange], index, cells } of sources) {
+    const { planes } = await W.windowAt(model, layout, BigInt(seed), a, b, finest, arrange);
+    out.push({ key: [String(a), String(b), arrange], index: b64(index), cells: b64(cells),
+               planes: planes.map((p) => b64(p.data)) });
+  }
+  return { positions: b64(mesh.positions), colours: b64(colours), sources: out };
+}"""
+
+# Runs in the page: colour.js's planesColouring of given planes (Python's windows'), read at given cells.
+GIVEN_JS = """async ([name, footprint, reads]) => {
+  const C = await import('./static/sinshape/colour.js');
+  const model = window.models[name];
+  const bytes = (text) => Uint8Array.from(atob(text), (c) => c.charCodeAt(0)).buffer;
+  const out = [];
+  for (const { planes, size, cells } of reads) {
+    const given = planes.map((text, k) => ({ data: new Float32Array(bytes(text)),
+      dims: [...[[0, 1], [0, 2], [1, 2]][k].map((a) => size[a]), model.manifest.hidden] }));
+    const read = (await C.planesColouring(model, given, size))(new Float64Array(bytes(cells)), footprint);
+    out.push(btoa(String.fromCharCode(...new Uint8Array(read.buffer))));
+  }
+  return out;
+}"""
+
+
+def by_window(sources) -> dict:
+    """Sources (key, point indices, cells) merged per window: {key: (indices, cells)} in index order
+    (a window read by points of two groups, those just past a face among them, comes twice)."""
+    merged = {}
+    for key, index, cells in sources:
+        merged.setdefault(tuple(key), []).append((np.asarray(index, np.int64), np.asarray(cells, np.float64)))
+    out = {}
+    for key, parts in merged.items():
+        index, cells = np.concatenate([i for i, _ in parts]), np.concatenate([c for _, c in parts])
+        order = np.argsort(index, kind="stable")
+        if len(index):  # a window no vertex reads most is no source
+            out[key] = (index[order], cells[order])
+    return out
+
+
+@pytest.mark.parametrize("seed, tile, scale, arrange", [(5, (0, 0), 2, "blend"), (5, (10**9, -10**9), 1, "blend"),
+                                                        (5, (3, 4), 1, "scatter")])
+def test_a_format_5_tiles_colours_are_pythons_at_the_same_vertices(colour_page, coloured, seed, tile, scale, arrange):
+    """A format-5 full-detail tile reads each vertex's colour from the example in one window (the
+    one that weighs most there, the first of equals) or its object, as world.tile_colours. At the
+    browser's vertices: the same source per vertex and the same cells there, to the bit; given
+    Python's window planes, the browser's colouring of each window is Python's, to the bit, and
+    given the browser's planes, Python's is the browser's tile colours, to the bit. Made by each
+    runtime on its own (onnxruntime-web's planes within 1e-4 of onnxruntime's), the colour bytes
+    are Python's at SAME_BYTES of the vertices or more: the near-ties of the sample test, per window
+    (100% measured on these tiles)."""
+    options = world.WorldOptions(arrange=arrange)
+    footprint = 1 / scale
+    made = colour_page.evaluate(TILE_JS, [NAME, seed, [str(t) for t in tile], {"scale": scale, "arrange": arrange}])
+    positions = unb64(made["positions"], np.float32, 3).astype(np.float64)
+    colours = unb64(made["colours"], np.float32, 3)
+    ours = []
+    _, _, ground = world.point_field(coloured, seed, tile, positions, options, ours)
+    theirs = [((int(s["key"][0]), int(s["key"][1]), s["key"][2]), unb64(s["index"], np.int32, 1)[:, 0],
+               unb64(s["cells"], np.float64, 3)) for s in made["sources"]]
+    ours, planes = by_window(ours), {tuple(s["key"]): s["planes"] for s in made["sources"]}
+    assert by_window(theirs).keys() == ours.keys()
+    for key, (index, cells) in by_window(theirs).items():  # the same source per vertex, the same cells in it
+        np.testing.assert_array_equal(index, ours[key][0])
+        np.testing.assert_array_equal(cells, ours[key][1])
+    assert len(ours) >= (2 if arrange == "blend" else 1)
+    np.testing.assert_array_equal(colours[ground], np.float32(0.5))  # a scatter world's ground is grey
+    if arrange == "scatter":
+        assert 0.1 < ground.mean() < 0.9  # ground and an object both
+
+    layout = world.world_layout(coloured)
+    finest = len(coloured.manifest.sizes) - 1
+    reads, expected = [], []
+    for (a, b, arrange_of), (index, cells) in ours.items():
+        size = world.window_sizes(coloured, layout, arrange_of)[-1]
+        python_planes = world.window(coloured, layout, seed, a, b, finest, arrange_of).planes
+        reads.append({"planes": [b64(p) for p in python_planes], "size": list(size), "cells": b64(cells)})
+        expected.append(world.window_colouring(coloured, layout, seed, a, b, arrange_of)(cells, footprint))
+        # The browser's planes in Python: its own tile colours, to the bit.
+        browser_planes = [unb64(text, np.float32, p.shape[-1]).reshape(p.shape)
+                          for text, p in zip(planes[(str(a), str(b), arrange_of)], python_planes)]
+        assert max(np.abs(x - y).max() for x, y in zip(browser_planes, python_planes)) < TOLERANCE
+        np.testing.assert_array_equal(colours[index],
+                                      colour.planes_colouring(coloured, browser_planes, size)(cells, footprint))
+    given = colour_page.evaluate(GIVEN_JS, [NAME, footprint, reads])  # Python's planes in the browser
+    for text, python in zip(given, expected):
+        np.testing.assert_array_equal(unb64(text, np.float32, 3), python)
+
+    python = world.tile_colours(coloured, seed, tile, positions, options, footprint)
+    equal = (mesh.colour_bytes(colours) == python).all(axis=1)
+    assert len(colours) > 300 and equal.mean() >= SAME_BYTES, f"{equal.mean():.4%} of the vertices' colours equal"
+    assert len(np.unique(python, axis=0)) > 2  # the example's colours, not one
+    assert (mesh.colour_bytes(colours[::-1]) != python).any(axis=1).mean() > 0.1  # from the wrong vertices: others
+
+
+@pytest.mark.parametrize("name, tile, lod", [(HEAD_NAME, (0, 0), 0), (HEAD_NAME, (10**9, -10**9), 0),
+                                             (NAME, (3, -2), 1)])
+def test_a_colour_heads_tile_colours_are_pythons_at_the_same_vertices(colour_page, coloured, headed, name, tile, lod):
+    """A format-4 model's tile, and a format-5 model's coarser one (lod 1), take the colour head of
+    the blended hidden vector. Python's tile colours are bytes: the browser's floats round to them,
+    within the tolerance."""
+    model = headed if name == HEAD_NAME else coloured
+    positions, colours = colours_in_page(colour_page, 5, tile, name=name, lod=lod)
+    expected = world.tile_colours(model, 5, tile, positions.astype(np.float64), world.WorldOptions(lod=lod), 1.0)[:, :3]
     assert len(colours) > 100 and colours.std(axis=0).max() > 0.01
     assert np.abs(colours * 255 - expected).max() <= 0.5 + 255 * TOLERANCE
     assert np.abs(colours[::-1] * 255 - expected).max() > 2  # a vertex's colour from the wrong place shows
 
 
 def test_neighbouring_tiles_give_their_shared_vertices_one_colour(colour_page, coloured):
-    """In the browser, tiles (0, 0) and (1, 0): each vertex on the face they share has the same
-    colour from both sides, to the bit (one window at weight 1 there)."""
+    """In the browser, a format-5 model's tiles (0, 0) and (1, 0): each vertex on the face they share
+    has the same colour from both sides, to the bit (one window at weight 1 there, read at the same
+    cells)."""
     layout = world.world_layout(coloured)
     h0 = layout.horizontal[0]
     (a, ca), (b, cb) = colours_in_page(colour_page, 2, (0, 0)), colours_in_page(colour_page, 2, (1, 0))
@@ -321,6 +428,7 @@ def test_neighbouring_tiles_give_their_shared_vertices_one_colour(colour_page, c
     right = {tuple(v): c for v, c in zip(b, cb) if v[h0] == 0}
     shared = set(left) & set(right)
     assert len(shared) > 5 and all(np.array_equal(left[v], right[v]) for v in shared)
+    assert len({tuple(right[v]) for v in shared}) > 1  # the face's colours vary: not one colour everywhere
 
 
 SHOWN_JS = """() => { const m = []; window.sinshapeView.scene.traverse((n) => n.isMesh && m.push([
@@ -356,15 +464,56 @@ def test_the_page_shows_a_coloured_models_vertex_colours_and_a_grey_ones_without
     assert page.evaluate(SHOWN_JS) == [[False, False, page.evaluate(SHOWN_JS)[0][2]]]
 
 
-def test_world_tiles_in_the_page_carry_colour(colour_page):
+# Runs in the page: the world mode's tiles of some names ("i,j") as shown (positions in frame tile,
+# three.js's linear colours), and the runtime's colours at their vertices (in voxels) with footprints.
+WORLD_TILES_JS = """async ([name, seed, tiles, footprints]) => {""" + IN_PAGE + """
+  const meshes = [], out = [];
+  window.sinshapeView.scene.traverse((n) => { if (n.isMesh && tiles.includes(n.name)) meshes.push(n); });
+  for (const n of meshes) {
+    const positions = n.geometry.attributes.position.array;
+    const voxels = positions.map((p, k) => p / model.manifest.spacing[k % 3]);
+    const read = [];
+    const tile = n.name.split(',').map(BigInt);
+    for (const footprint of footprints) {
+      read.push(Array.from(await W.tileColours(model, BigInt(seed), tile, voxels, W.worldOptions(), footprint)));
+    }
+    out.push([n.name, Array.from(voxels), Array.from(n.geometry.attributes.color.array), read]);
+  }
+  return out;
+}"""
+
+
+def test_world_tiles_in_the_page_carry_colour(colour_page, coloured):
+    """Every world tile of a coloured model is coloured in world mode; a format-5 model's full-detail
+    tiles as Python's tile files have them: the runtime's colours with the footprint of a tile's file
+    (1 / scale voxels: not those with none), which are world.tile_colours' bytes at the page's
+    vertices (within the one byte three.js's linear float32 colours may move them)."""
     page = colour_page
-    page.goto(f"{page.base}/?model={NAME}&seed=3&up=z")
+    page.goto(f"{page.base}/?model={NAME}&seed=3&scale=1&up=z")
     assert wait_done(page) == "ready", page.text_content("#error")
     page.select_option("#edit", "world")
     page.select_option("#reach", "1")
     status = wait_world(page)
     made = [t for t in status["tiles"] if t[2] > 0]
     assert made and status["coloured"] == len(made)
+    assert {f"{i},{j}": lod for i, j, _, _, lod in status["tiles"]}.keys() >= {"0,0", "1,0"}
+    assert all(lod == 0 for *_, lod in status["tiles"])  # within one tile of the camera's: full detail
+    shown, runtime, none, expected = [], [], [], []
+    read = page.evaluate(WORLD_TILES_JS, [NAME, 3, ["0,0", "1,0"], [1.0, None]])  # the camera's tile and one more
+    assert len(read) == 2
+    for name, voxels, linear, (footprint_one, no_footprint) in read:
+        linear = np.array(linear).reshape(-1, 3)  # three.js's linear colours, back to sRGB
+        shown.append(np.where(linear <= 0.0031308, linear * 12.92, 1.055 * np.maximum(linear, 0) ** (1 / 2.4) - 0.055))
+        runtime.append(np.reshape(footprint_one, (-1, 3)))
+        none.append(np.reshape(no_footprint, (-1, 3)))
+        voxels = np.array(voxels, np.float64).reshape(-1, 3)
+        expected.append(world.tile_colours(coloured, 3, tuple(int(t) for t in name.split(",")), voxels, footprint=1.0))
+    shown, runtime, none, expected = (np.concatenate(a) for a in (shown, runtime, none, expected))
+    assert len(shown) > 500
+    assert np.abs(shown - runtime).max() < 1e-5  # the footprint of a tile's file...
+    assert (np.abs(shown - none).max(axis=1) > 1e-3).mean() > 0.05  # ...which shows (15% of the vertices)
+    same = (np.abs(mesh.colour_bytes(shown).astype(int) - expected).max(axis=1) <= 1).mean()
+    assert same >= SAME_BYTES, f"{same:.4%} of the vertices' colours equal"
 
 
 COLOURS_SHOWN_JS = """() => { let c = null; window.sinshapeView.scene.traverse((n) => { if (n.isMesh && n.geometry.attributes.color)

@@ -690,8 +690,14 @@ function bilinearOne(values, n, tile, x, y) {
 export async function colouring(model, tri) {
   const proj = await project(model, tri);
   if (!model.tiles) return (points) => projectedColours(model, proj, points);
-  const matched = new Correspondence(await matcher(model), model, proj.planes, tri.size);
-  return (points, footprint = null) => readColours(model.tiles, (voxels) => matched.call(voxels), points, tri.size, footprint);
+  return planesColouring(model, proj.planes, tri.size);
+}
+
+/** `colouring` of a format-5 sample given as its projected planes (query.js's project) and its size: a world's
+ * windows come so (world.js's windowColouring), as runtime/colour.py's planes_colouring. */
+export async function planesColouring(model, planes, size) {
+  const matched = new Correspondence(await matcher(model), model, planes, size);
+  return (points, footprint = null) => readColours(model.tiles, (voxels) => matched.call(voxels), points, size, footprint);
 }
 
 /** A coloured model's sRGB colour at points of a sample (model coordinates): (n, 3) Float32Array in [0, 1]. */

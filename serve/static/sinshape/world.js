@@ -8,12 +8,14 @@
 // raises a blend world's columns, and a scatter world's ground and objects.
 // A tile depends on the windows that reach into it only, so it costs the
 // same anywhere and whatever was made before; a coarser tile (lod) reads an
-// earlier level and hangs a skirt from its sides. The field is computed
-// element-wise, in one fixed order, at positions that are small numbers
-// relative to the tile, so two neighbouring tiles compute their shared face
-// (and the normals there: the field's gradient) the same way: the same
-// floats, to the bit (within this runtime; against Python's, within the
-// runtimes' 1e-4).
+// earlier level and hangs a skirt from its sides. A format-5 model's
+// full-detail tile reads each vertex's colour from the example by
+// correspondence, in the window that weighs most there (or its object).
+// The field is computed element-wise, in one fixed order, at positions
+// that are small numbers relative to the tile, so two neighbouring tiles
+// compute their shared face (and the normals there: the field's gradient)
+// the same way: the same floats, to the bit (within this runtime; against
+// Python's, within the runtimes' 1e-4).
 //
 //   const layout = worldLayout(model.manifest);                         // horizontal axes, up, stride S per axis
 //   const options = worldOptions({ arrange: 'scatter', lod: 1 });       // as world.WorldOptions
@@ -126,12 +128,30 @@ const windowSizes = (manifest, layout, arrange) => scaledSizes(manifest.sizes, a
 
 // Windows kept for the next tiles (a tile shares each of its four with a
 // neighbour; a view of 7 x 7 tiles made nearest first, or a row of them
-// made as the view moves, reuses all it can with 64). A cache, not state:
-// a window is the same array whether it is made or found.
+// made as the view moves, reuses all it can with 64), and a format-5
+// model's windows' colourings likewise. A cache, not state: a window is the
+// same array, and its colouring the same matches, whether made or found.
 const WINDOWS_KEPT = 64;
 let modelCount = 0;
 const windows = new Map(); // "model|seed|arrange|level|a|b" -> a promise of the window, oldest use first
+const colourings = new Map(); // "model|seed|arrange|a|b" -> a promise of the window's colouring, oldest use first
 const modelIds = new WeakMap(); // model -> a number naming it in the keys
+
+/** What `cache` keeps under "model|key" (a promise), else make() kept there; the oldest use dropped past WINDOWS_KEPT. */
+function kept(cache, model, key, make) {
+  if (!modelIds.has(model)) modelIds.set(model, ++modelCount);
+  key = `${modelIds.get(model)}|${key}`;
+  let made = cache.get(key);
+  if (made) {
+    cache.delete(key); // to the end: the newest use
+  } else {
+    made = make();
+    made.catch(() => cache.delete(key)); // a failure is not kept
+  }
+  cache.set(key, made);
+  while (cache.size > WINDOWS_KEPT) cache.delete(cache.keys().next().value);
+  return made;
+}
 
 /**
  * Window (a, b) (or scatter cell (a, b)'s object), its chain stopped at
@@ -139,25 +159,28 @@ const modelIds = new WeakMap(); // model -> a number naming it in the keys
  * the decoder's first layer), mean: (U, D) its mean over its horizontal
  * extent at each height, cells: [3] level cells per finest voxel }.
  */
-function windowAt(model, layout, seed, a, b, level, arrange) {
-  if (!modelIds.has(model)) modelIds.set(model, ++modelCount);
-  const key = `${modelIds.get(model)}|${seed}|${arrange}|${level}|${a}|${b}`;
-  let made = windows.get(key);
-  if (made) {
-    windows.delete(key); // to the end: the newest use
-  } else {
-    made = (async () => {
-      const sizes = windowSizes(model.manifest, layout, arrange).slice(0, level + 1);
-      const tri = await triplane(model, drawNoise(windowSeed(seed, a, b), sizes, model.manifest.channels), sizes);
-      const { planes } = await project(model, tri);
-      return { planes, mean: windowMean(planes, layout, sizes[level][layout.up], model.manifest.hidden),
-               cells: [0, 1, 2].map((axis) => (sizes[level][axis] - 1) / (windowSizes(model.manifest, layout, arrange).at(-1)[axis] - 1)) };
-    })();
-    made.catch(() => windows.delete(key));
-  }
-  windows.set(key, made);
-  while (windows.size > WINDOWS_KEPT) windows.delete(windows.keys().next().value);
-  return made;
+export function windowAt(model, layout, seed, a, b, level, arrange) {
+  return kept(windows, model, `${seed}|${arrange}|${level}|${a}|${b}`, async () => {
+    const sizes = windowSizes(model.manifest, layout, arrange).slice(0, level + 1);
+    const tri = await triplane(model, drawNoise(windowSeed(seed, a, b), sizes, model.manifest.channels), sizes);
+    const { planes } = await project(model, tri);
+    return { planes, mean: windowMean(planes, layout, sizes[level][layout.up], model.manifest.hidden),
+             cells: [0, 1, 2].map((axis) => (sizes[level][axis] - 1) / (windowSizes(model.manifest, layout, arrange).at(-1)[axis] - 1)) };
+  });
+}
+
+/**
+ * A format-5 window's (or object's) colour at points in its finest cells, as
+ * world.window_colouring: its own sample's colour by correspondence
+ * (colour.js's planesColouring on its finest planes), matched once and kept.
+ * A promise of (cells Float64Array (n, 3), footprint) -> Float32Array (n, 3) sRGB.
+ */
+export function windowColouring(model, layout, seed, a, b, arrange) {
+  return kept(colourings, model, `${seed}|${arrange}|${a}|${b}`, async () => {
+    const { planesColouring } = await import('./colour.js'); // not before it is needed: the page imports this module
+    const found = await windowAt(model, layout, seed, a, b, model.manifest.sizes.length - 1, arrange);
+    return planesColouring(model, found.planes, windowSizes(model.manifest, layout, arrange).at(-1));
+  });
 }
 
 /** A window's mean hidden sum at each of its heights: Float32Array (U, D), as world.window's. */
@@ -489,9 +512,14 @@ export async function tileOccupancy(model, seed, tile, scale = 1, options = PLAI
  * The logits and hidden vectors at points of tile (i, j) (voxels from its
  * corner along the horizontal axes, from the floor along up), each read in
  * the tile it falls in, as world.point_field: { logits: Float64Array (n),
- * hidden: Float64Array (n, D), ground: Uint8Array (n) }.
+ * hidden: Float64Array (n, D), ground: Uint8Array (n) }. With an array
+ * `sources`, also what each point reads most, as point_field's: per window
+ * or object, { window: [a, b, arrange], index: Int32Array of points, cells:
+ * Float64Array (m, 3) theirs in it }; a blend's window that weighs most (its
+ * float32 weight, as numpy's; the first of equals in the order of the sum),
+ * a scatter world's object whose logit won (none on the ground).
  */
-async function pointField(model, seed, [i, j], points, options) {
+export async function pointField(model, seed, [i, j], points, options, sources = null) {
   const { manifest } = model, d = manifest.hidden, layout = worldLayout(manifest), level = checkLod(manifest, options.lod);
   const [h0, h1] = layout.horizontal, up = layout.up, top = layout.stride[up], n = points.length / 3;
   const logits = new Float64Array(n), hidden = new Float64Array(n * d), ground = new Uint8Array(n);
@@ -518,12 +546,14 @@ async function pointField(model, seed, [i, j], points, options) {
         const behind = [a === tile[0], b === tile[1]];
         const weighs = members.some((p) => [h0, h1].every((axis, k) => { const w = behindWeight(local(p, axis), layout.stride[axis]); return (behind[k] ? w : Math.fround(1 - w)) !== 0; }));
         if (weighs) {
-          found.push({ window: await windowAt(model, layout, seed, a, b, level, 'blend'), behind,
+          found.push({ window: await windowAt(model, layout, seed, a, b, level, 'blend'), behind, cell: [a, b],
                        offset: [behind[0] ? 0 : layout.stride[h0], behind[1] ? 0 : layout.stride[h1]] });
         }
       }
     }
-    for (const p of members) {
+    // Per member, the source it reads most (an index into found, -1: none) and its cells there.
+    const owner = sources && new Int32Array(members.length).fill(-1), ownerCells = sources && new Float64Array(3 * members.length);
+    for (const [m, p] of members.entries()) {
       for (let a = 0; a < 3; a++) at[a] = points[3 * p + a];
       at[h0] -= t0 * layout.stride[h0]; // exact: a power-of-two step from an integer
       at[h1] -= t1 * layout.stride[h1];
@@ -531,7 +561,7 @@ async function pointField(model, seed, [i, j], points, options) {
       if (options.arrange === 'scatter') {
         logits[p] = -GROUND_SLOPE * (at[up] - rise - GROUND);
         ground[p] = 1;
-        for (const placed of found) {
+        for (const [n, placed] of found.entries()) {
           let inside = true;
           [h0, h1].forEach((axis, k) => {
             const position = at[axis] - placed.corner[k];
@@ -543,7 +573,10 @@ async function pointField(model, seed, [i, j], points, options) {
           part.fill(0);
           PLANE_AXES.forEach(([a, b], k) => addBilinear(placed.window.planes[k], cell[a], cell[b], part));
           const logit = capped(headLogit(model.head, part), at[up] - placed.height - top);
-          if (logit > logits[p]) { logits[p] = logit; hidden.set(part, p * d); ground[p] = 0; }
+          if (logit > logits[p]) {
+            logits[p] = logit; hidden.set(part, p * d); ground[p] = 0;
+            if (sources) { owner[m] = n; ownerCells.set(cell, 3 * m); }
+          }
         }
         continue;
       }
@@ -551,13 +584,14 @@ async function pointField(model, seed, [i, j], points, options) {
       const behind0 = behindWeight(at[h0], layout.stride[h0]), behind1 = behindWeight(at[h1], layout.stride[h1]);
       total.fill(0);
       deviation.fill(0);
-      let squares = 0;
-      for (const s of found) {
+      let squares = 0, heaviest = -1;
+      for (const [n, s] of found.entries()) {
         const { window: win, offset } = s;
         const w = (s.behind[0] ? behind0 : Math.fround(1 - behind0)) * (s.behind[1] ? behind1 : Math.fround(1 - behind1));
         cell[h0] = (at[h0] + offset[0]) * win.cells[h0];
         cell[h1] = (at[h1] + offset[1]) * win.cells[h1];
         cell[up] = height * win.cells[up];
+        if (sources && Math.fround(w) > heaviest) { heaviest = Math.fround(w); owner[m] = n; ownerCells.set(cell, 3 * m); }
         part.fill(0);
         for (let k = 0; k < 3; k++) addBilinear(win.planes[k], cell[PLANE_AXES[k][0]], cell[PLANE_AXES[k][1]], part);
         const count = win.mean.length / d, low = Math.min(Math.max(Math.floor(cell[up]), 0), Math.max(count - 2, 0));
@@ -573,6 +607,12 @@ async function pointField(model, seed, [i, j], points, options) {
       for (let e = 0; e < d; e++) hidden[p * d + e] = total[e] + deviation[e] * scaleBy;
       logits[p] = capped(headLogit(model.head, hidden.subarray(p * d, p * d + d)), at[up] - rise - top);
     }
+    if (!sources) continue;
+    found.forEach((s, n) => {
+      const chosen = members.flatMap((p, m) => (owner[m] === n ? [m] : []));
+      sources.push({ window: [...s.cell, options.arrange], index: Int32Array.from(chosen, (m) => members[m]),
+                     cells: Float64Array.from({ length: 3 * chosen.length }, (_, k) => ownerCells[3 * chosen[Math.floor(k / 3)] + k % 3]) });
+    });
   }
   return { logits, hidden, ground };
 }
@@ -599,18 +639,34 @@ export async function tileNormals(model, seed, tile, positions, options = PLAIN)
 
 /**
  * A coloured model's sRGB colour at a tile's mesh vertices (tileMesh's
- * positions), as world.tile_colours: the colour head of the hidden vector
- * there, blended as the occupancy is (a scatter world's: its object's, the
- * ground grey). Returns Float32Array (V, 3) in [0, 1] (Python's gives them as bytes).
+ * positions), as world.tile_colours: a format-5 model's read from the
+ * example by correspondence in the window that weighs most there (a scatter
+ * world's: in the object there), each the colour around it (`footprint`
+ * voxels: a tile's mesh at `scale`, 1 / scale); a format-4 model's (and a
+ * coarser tile's, lod > 0) the colour head of the hidden vector there,
+ * blended as the occupancy is. A scatter world's ground is grey. Returns
+ * Float32Array (V, 3) in [0, 1] (Python's gives them as bytes).
  */
-export async function tileColours(model, seed, tile, positions, options = PLAIN) {
+export async function tileColours(model, seed, tile, positions, options = PLAIN, footprint = null) {
   seed = checkSeed(seed);
-  const { hidden, ground } = await pointField(model, seed, checkTile(tile), Float64Array.from(positions), options);
-  const d = model.manifest.hidden, n = positions.length / 3, out = new Float32Array(3 * n);
-  for (let v = 0; v < n; v++) {
-    if (ground[v]) out.set(GROUND_COLOUR, 3 * v);
-    else headColour(model.head, hidden, v * d, out, 3 * v);
+  const points = Float64Array.from(positions), n = points.length / 3, out = new Float32Array(3 * n);
+  if (!model.tiles || options.lod) {
+    const { hidden, ground } = await pointField(model, seed, checkTile(tile), points, options);
+    const d = model.manifest.hidden;
+    for (let v = 0; v < n; v++) {
+      if (ground[v]) out.set(GROUND_COLOUR, 3 * v);
+      else headColour(model.head, hidden, v * d, out, 3 * v);
+    }
+    return out;
   }
+  const sources = [], layout = worldLayout(model.manifest); // each vertex the colour its heaviest window (or its object) reads
+  const { ground } = await pointField(model, seed, checkTile(tile), points, options, sources);
+  for (const { window: [a, b, arrange], index, cells } of sources) {
+    if (!index.length) continue;
+    const read = (await windowColouring(model, layout, seed, a, b, arrange))(cells, footprint);
+    index.forEach((v, k) => out.set(read.subarray(3 * k, 3 * k + 3), 3 * v));
+  }
+  for (let v = 0; v < n; v++) if (ground[v]) out.set(GROUND_COLOUR, 3 * v);
   return out;
 }
 
@@ -675,13 +731,14 @@ function skirted({ positions, faces }, layout, depth) {
 /**
  * Tile (i, j) as its file holds it, as world.tile_surface: { positions,
  * faces, normals (unit, the field's gradient), colours (a coloured model's,
- * or null) }, and at lod > 0 a skirt SKIRT grid steps deep, its vertices
- * taking the normal and colour of the vertex above.
+ * each vertex's standing for 1 / scale voxels, or null) }, and at lod > 0 a
+ * skirt SKIRT grid steps deep, its vertices taking the normal and colour of
+ * the vertex above.
  */
 export async function tileSurface(model, seed, tile, scale = 1, options = PLAIN) {
   const mesh = await tileMesh(model, seed, tile, scale, options);
   let normals = await tileNormals(model, seed, tile, mesh.positions, options);
-  let colours = model.manifest.colour ? await tileColours(model, seed, tile, mesh.positions, options) : null;
+  let colours = model.manifest.colour ? await tileColours(model, seed, tile, mesh.positions, options, 1 / scale) : null;
   if (!options.lod || !mesh.faces.length) return { ...mesh, normals, colours };
   const layout = worldLayout(model.manifest), grid = tileGrid(model.manifest, layout, scale, options);
   const skirt = skirted(mesh, layout, SKIRT * (grid[layout.up][1] - grid[layout.up][0]));
@@ -740,7 +797,8 @@ export function frameNormals(manifest, normals, frame) {
 /** How many windows are kept now, at most WINDOWS_KEPT. */
 export const keptWindows = () => windows.size;
 
-/** Forget the windows kept (the tests' fresh start). */
+/** Forget the windows (and their colourings) kept (the tests' fresh start). */
 export function dropWindows() {
   windows.clear();
+  colourings.clear();
 }
