@@ -410,8 +410,16 @@ def run(loaded: dict, host: str = "127.0.0.1", port: int = 8000, timeout: float 
     application = create_app(loaded, timeout=timeout, allowed_hosts=allowed)
     sock = bind(host, port)
     shown = f"[{host}]" if ":" in host else host
-    if ready:
-        ready(f"http://{shown}:{sock.getsockname()[1]}/", allowed)
-    server = uvicorn.Server(uvicorn.Config(application, log_level="warning", timeout_graceful_shutdown=5,
-                                           http=http.json_400_protocol()))
+
+    class Server(uvicorn.Server):
+        async def startup(self, sockets=None):
+            # Announced only now that uvicorn's own signal handlers are in place:
+            # a SIGTERM that came earlier, during uvicorn's lazy imports, could
+            # land in an import-lock callback, where Python ignores the exception.
+            await super().startup(sockets)
+            if ready and self.started:
+                ready(f"http://{shown}:{sock.getsockname()[1]}/", allowed)
+
+    server = Server(uvicorn.Config(application, log_level="warning", timeout_graceful_shutdown=5,
+                                   http=http.json_400_protocol()))
     server.run(sockets=[sock])
