@@ -56,4 +56,4 @@ def test_the_voxel_baseline_asks_for_no_colour(tmp_path):
 
 
 def test_a_coloured_mesh_trains_a_coloured_model(tiny_colour_model):
-    assert version(tiny_colour_model) == 4
+    assert version(tiny_colour_model) == fmt.TILES_VERSION  # colour read from the example
