@@ -22,6 +22,7 @@ TENSOR_EXTERNAL, TENSOR_LOCATION = 13, 14
 NAMED_NAME = 1  # ValueInfoProto.name; StringStringEntryProto.key (value is 2)
 FLOAT, UINT8, INT8, INT32 = 1, 2, 3, 6  # TensorProto.DataType
 DTYPES = {FLOAT: "<f4", UINT8: "u1", INT8: "i1", INT32: "<i4"}
+MAX_DIM = 1 << 40  # a weight's side, below it: far past any model, and an exact float in every runtime
 
 
 def fields(data: bytes, start: int = 0, end: int | None = None):
@@ -187,7 +188,7 @@ def tensor_array(tensor: Tensor, wanted: int = FLOAT) -> np.ndarray:
     if wanted != FLOAT and raw is None:
         raise ValueError(f"weight {tensor.name!r} keeps its values outside raw_data")
     values = np.frombuffer(raw if raw is not None else b"".join(floats), DTYPES[wanted])
-    if any(d >= 1 << 40 for d in dims) or values.size != int(np.prod(dims, dtype=object)):
+    if any(d >= MAX_DIM for d in dims) or values.size != int(np.prod(dims, dtype=object)):
         raise ValueError(f"weight {tensor.name!r} has {values.size} values for shape {tuple(dims)}")
     return values.reshape(dims).astype(np.dtype(DTYPES[wanted]).newbyteorder("="))  # native order, a copy
 

@@ -513,6 +513,9 @@ def tile_grid(model, layout: Layout, scale: float, options: WorldOptions) -> Gri
     return Grid(tuple(positions))
 
 
+MAX_POINTS = 1 << 14  # a tile's grid points per axis, at most
+
+
 def check_world_scale(layout: Layout, scale: float, hidden: int, memory_limit: int | None,
                       points: tuple | None = None) -> None:
     """A tile's grid (`points` per axis; at lod 0 with no map unless given)
@@ -521,9 +524,9 @@ def check_world_scale(layout: Layout, scale: float, hidden: int, memory_limit: i
     if points is None:
         points = [round(layout.stride[a] * scale) + 1 if a != layout.up
                   else max(2, round((layout.stride[a] + 1) * scale)) for a in range(3)]
-    if max(points) > 1 << 14:
+    if max(points) > MAX_POINTS:
         raise InputError(f"scale {scale:g} makes a tile of {'x'.join(map(str, points))} points; at most "
-                         f"{1 << 14} per axis", "scale")
+                         f"{MAX_POINTS} per axis", "scale")
     h0, h1 = layout.horizontal
     # The grid, a row's sums and gathered planes, and the interpolated horizontal planes.
     row = points[h1] * points[layout.up] * hidden * 4 * 6

@@ -206,19 +206,6 @@ def test_a_format_5_samples_matches_and_colours_are_pythons(colour_page, coloure
     assert len(np.unique(mesh.colour_bytes(expected), axis=0)) > 2  # the sample shows the example's colours
 
 
-CONSTANTS = ("PATCH", "QUANTUM", "KEY_VALUES", "KEY_QUANTUM", "ITERATIONS", "PROPAGATION", "SEARCH", "SEED_RATE",
-             "COHERENT", "MATCH_STREAM", "DEPTH_RANGE", "DISTANCE_STEP", "REACH_ORDER", "TURN", "ACROSS", "STEPS")
-
-
-def test_the_browsers_matching_constants_are_pythons(colour_page):
-    """colour.js's constants and neighbour orders are runtime/colour.py's (the order in which
-    reads_along looks along an axis, inline in Python, is held by the tiles' equality above)."""
-    got = colour_page.evaluate("async (names) => { const C = await import('./static/sinshape/colour.js'); "
-                               "return Object.fromEntries(names.map((n) => [n, C[n]])); }", list(CONSTANTS))
-    expected = {name: np.asarray(getattr(colour, name)).tolist() for name in CONSTANTS}
-    assert got == expected
-
-
 def altered(path: Path, change) -> Path:
     """The format-5 model with its proto changed, sealed again (the change is what is checked)."""
     import onnx

@@ -18,7 +18,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from sinshape.core.errors import InputError
-from sinshape.core.manifest import PLANES, plane_sizes
+from sinshape.core.manifest import PLANE_AXES, PLANES, plane_sizes
 
 
 def plane_stack(channels: int) -> nn.Sequential:
@@ -122,7 +122,7 @@ class Decoder(nn.Module):
         to corner) -> (n,) occupancy, or (n, 4) occupancy and RGB when coloured.
         """
         features = []
-        for plane, (a, b) in zip(planes, ((0, 1), (0, 2), (1, 2))):
+        for plane, (a, b) in zip(planes, PLANE_AXES):
             # grid_sample's grid is (x=width, y=height): width is the plane's last axis.
             grid = coords[:, [b, a]].view(1, 1, -1, 2)
             features.append(F.grid_sample(plane, grid, align_corners=True)[0, :, 0].T)  # (n, C)

@@ -21,7 +21,7 @@
 import { InputError } from './errors.js';
 import { roundHalfEven, sample } from './generate.js';
 import { GOLDEN_HI, GOLDEN_LO, add64, hiOut, loOut, mix64, mul64, streamKey } from './noise.js';
-import { project, projectedColours } from './query.js';
+import { TAB_BYTES, project, projectedColours } from './query.js';
 
 // The patch: a voxel and its six neighbours.
 export const PATCH = [[0, 0, 0], [1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]];
@@ -45,11 +45,10 @@ export const ALONG = { positive: [-1, 1, -2, 2], negative: [1, -1, 2, -2] };
 // A voxel outside the band takes the match of the first voxel beside it that has one, in this order.
 export const STEPS = [[-1, 0, 0], [1, 0, 0], [0, -1, 0], [0, 1, 0], [0, 0, -1], [0, 0, 1]];
 
-const MAX_BYTES = 2 * 2 ** 30; // a browser tab's share: matching and its grids stay well under it
 const f32 = Math.fround;
 
 function checkBytes(bytes, what) {
-  if (bytes > MAX_BYTES) throw new InputError(`${what} needs more memory than a page should take`);
+  if (bytes > TAB_BYTES) throw new InputError(`${what} needs more memory than a page should take`);
 }
 
 /** The example's colour as the runtime reads it: directional tiles of its surface voxels, for every voxel near

@@ -5,9 +5,9 @@
 // between (the join); the noise is the part's inside the rectangle.
 import { InputError, formatG, pyRepr } from './errors.js';
 import { chain, checkSeed, drawNoise, parseNumber, planeSizes, roundHalfEven, scaledSizes, triplane } from './generate.js';
+import { PLANE_AXES } from './query.js';
 
 export const MARGIN = 4;
-const PLANE_AXES = [[0, 1], [0, 2], [1, 2]];
 
 /**
  * 'SEED:X0,Y0,Z0:X1,Y1,Z1' -> a part of a sample of finest size `size`, as

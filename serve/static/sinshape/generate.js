@@ -7,7 +7,7 @@
 import { planeNoise, z0Noise } from './noise.js';
 import { InputError, pyRepr } from './errors.js';
 
-const MIN_SIDE = 2; // a sample's coarsest grid may not shrink below this many voxels per axis
+export const MIN_SIDE = 2; // a sample's coarsest grid may not shrink below this many voxels per axis
 const MAX_BYTES = 4 * 2 ** 30; // a WASM memory holds at most 4 GiB: the browser's own bound
 
 /** Plane sizes of a grid (X, Y, Z): [(X, Y), (X, Z), (Y, Z)]. */

@@ -10,20 +10,19 @@
 // order (x slowest, z fastest), with their shape.
 import { InputError } from './errors.js';
 import { checkSeed, drawNoise, resizeWeights, sample, scaledSizes, triplane } from './generate.js';
-import { dense } from './query.js';
+import { PLANE_AXES, dense } from './query.js';
 import { DECODE_WASM } from './decode-wasm.js';
 
 // The fit's constants: they mirror runtime/layout.py's (which says why each is what it is).
-const FIT_STEPS = 30; // at the layout's level
-const FINER_STEPS = 10; // at each finer level
-const HOLD_STEPS = 20; // at the last level
-const FIT_RATE = 0.5; // Adam's step, in plane units
-const PULL = 0.001; // weight of the change's mean square
-const MARGIN = 0.1; // how far past 0.5 an edited cell is fitted, on the layout's side
-const KEEP_WEIGHT = 0.2; // an unedited cell's weight, against an edited cell's 1
-const SLOPE_FLOOR = 0.1; // the sigmoid's slope in the fit's gradient, at least
-const SHARE = 0.4; // a plane cell may change where more than this share of its line was edited
-const PLANE_AXES = [[0, 1], [0, 2], [1, 2]];
+export const FIT_STEPS = 30; // at the layout's level
+export const FINER_STEPS = 10; // at each finer level
+export const HOLD_STEPS = 20; // at the last level
+export const FIT_RATE = 0.5; // Adam's step, in plane units
+export const PULL = 0.001; // weight of the change's mean square
+export const MARGIN = 0.1; // how far past 0.5 an edited cell is fitted, on the layout's side
+export const KEEP_WEIGHT = 0.2; // an unedited cell's weight, against an edited cell's 1
+export const SLOPE_FLOOR = 0.1; // the sigmoid's slope in the fit's gradient, at least
+export const SHARE = 0.4; // a plane cell may change where more than this share of its line was edited
 
 const product = (shape) => shape.reduce((a, b) => a * b, 1);
 

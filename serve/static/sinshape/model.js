@@ -6,7 +6,7 @@ import * as ort from '../vendor/onnxruntime-web/ort.wasm.min.mjs';
 import { unseal } from './seal.js';
 import { FLOAT, FormatError, INT8, INT32, UINT8, readModel, stageModel, tensorArray, tupleText } from './onnx.js';
 import { InputError } from './errors.js';
-import { headColour } from './query.js';
+import { TAB_BYTES, headColour } from './query.js';
 import { Tiles } from './colour.js';
 
 export { InputError };
@@ -15,30 +15,29 @@ export const FORMAT_NAME = 'sinshape';
 export const FORMAT_VERSION = 3;  // 3 seals the file's bytes (seal.js); the page reads no older one
 export const COLOUR_VERSION = 4;  // 3 with a colour head (manifest `colour`)
 export const TILES_VERSION = 5;  // 4 with the example's colour as tiles, read by correspondence (`colour.tiles`)
-const READ_VERSION = TILES_VERSION; // the newest version this code reads
-const COLOUR_SPACE = { space: 'srgb' }; // manifest `colour`: values are sRGB-encoded in [0, 1]
+export const READ_VERSION = TILES_VERSION; // the newest version this code reads
+export const COLOUR_SPACE = { space: 'srgb' }; // manifest `colour`: values are sRGB-encoded in [0, 1]
 // Initializers of a format-5 model's tiles: (N, 3) int32 voxels, (N,) uint8 directions, (N, T, T, 4) uint8 images.
 export const TILE_TENSORS = ['colour_tiles.voxels', 'colour_tiles.directions', 'colour_tiles.images', 'colour_tiles.distance'];
-const MAX_TILE_SIDE = 64;
-const MAX_TILE_BYTES = 2 * 2 ** 30; // the tiles and what reads them, in a browser tab
+export const MAX_TILE_SIDE = 64;
 export const METADATA_KEY = 'sinshape.manifest';
 export const NOISE_SCHEME = 'splitmix64-boxmuller-v1';
 export const PLANES = ['xy', 'xz', 'yz'];
 export const HEAD_WEIGHTS = ['decoder_head.bias1', 'decoder_head.weight2', 'decoder_head.bias2'];
 // A coloured model's colour head, (D, 3), (3,): RGB = sigmoid(relu(h + b1) @ w + b).
 export const COLOUR_WEIGHTS = ['decoder_head.weight_colour', 'decoder_head.bias_colour'];
-const MAX_LEVELS = 64;
-const MIN_LEVEL_SIDE = 8;
-const MAX_LEVEL_SIDE = 4096;
-const MIN_SPACING = 1e-9;
-const MAX_MODEL_BYTES = 512 * 1024 * 1024;
-const MAX_MANIFEST_CHARS = 2 ** 20;
-const MAX_DEPTH = 16;
-const MAX_NOISE_AMP = 100;
-const MAX_COORD = 1e12;
+export const MAX_LEVELS = 64;
+export const MIN_LEVEL_SIDE = 8;
+export const MAX_LEVEL_SIDE = 4096;
+export const MIN_SPACING = 1e-9;
+export const MAX_MODEL_BYTES = 512 * 1024 * 1024;
+export const MAX_MANIFEST_CHARS = 2 ** 20;
+export const MAX_DEPTH = 16;
+export const MAX_NOISE_AMP = 100;
+export const MAX_COORD = 1e12;
 // core/manifest.py's messages print these with Python's '%g'.
-const MAX_COORD_TEXT = '1e+12', SPACING_TEXT = '[1e-09, 2.44141e+08]';
-const ALLOWED_OPS = new Set(['Conv', 'InstanceNormalization', 'LeakyRelu', 'Transpose', 'MatMul', 'Add', 'Relu', 'Sigmoid']);
+export const MAX_COORD_TEXT = '1e+12', SPACING_TEXT = '[1e-09, 2.44141e+08]';
+export const ALLOWED_OPS = new Set(['Conv', 'InstanceNormalization', 'LeakyRelu', 'Transpose', 'MatMul', 'Add', 'Relu', 'Sigmoid']);
 
 /** Input and output tensor names of every stage (core/manifest.py: stage_names); a coloured model's head has a second output. */
 export function stageNames(levels, colour = false) {
@@ -265,7 +264,7 @@ function readTiles(model, manifest, name) {
     const key = (t) => ((voxels[3 * t] * size[1] + voxels[3 * t + 1]) * size[2] + voxels[3 * t + 2]) * 6 + directions[t];
     if (key(i) <= key(i - 1)) throw new InputError(`${name}: colour tiles are not each once, in order of their voxel`);
   }
-  if (Tiles.bytes(count, side, size) > MAX_TILE_BYTES) {
+  if (Tiles.bytes(count, side, size) > TAB_BYTES) {
     throw new InputError(`${name}: its colour tiles need more memory than a page should take`);
   }
   return Tiles.of(voxels, directions, images, distance, size, side);

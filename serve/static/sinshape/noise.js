@@ -5,12 +5,12 @@
 // is about 50 times faster than BigInt per value (exported for colour.js's
 // draws, which are SplitMix64 outputs too).
 
-const MASK64 = (1n << 64n) - 1n;
+export const MASK64 = (1n << 64n) - 1n;
 export const GOLDEN = 0x9e3779b97f4a7c15n;
 export const GOLDEN_HI = 0x9e3779b9;
 export const GOLDEN_LO = 0x7f4a7c15;
 const TWO32 = 4294967296;
-const COORD_BITS = 21;
+export const COORD_BITS = 21;
 
 export const Z0_STREAM = 0; // (Z0_STREAM,): the coarsest level's 3-D input noise z0
 export const PLANE_STREAM = 1; // (PLANE_STREAM, level, plane, channel): noise added at a level

@@ -102,7 +102,8 @@ function floatsOf(slice) {
 }
 
 export const FLOAT = 1, UINT8 = 2, INT8 = 3, INT32 = 6; // TensorProto.DataType
-const ARRAYS = { [FLOAT]: ['float32', Float32Array], [UINT8]: ['uint8', Uint8Array], [INT8]: ['int8', Int8Array], [INT32]: ['int32', Int32Array] };
+export const MAX_DIM = 2 ** 40; // a weight's side, below it (onnxfile.MAX_DIM)
+export const ARRAYS = { [FLOAT]: ['float32', Float32Array], [UINT8]: ['uint8', Uint8Array], [INT8]: ['int8', Int8Array], [INT32]: ['int32', Int32Array] };
 
 /** A Python tuple's text, as messages print shapes: (3,), (2, 3). */
 export const tupleText = (dims) => `(${dims.join(', ')}${dims.length === 1 ? ',' : ''})`;
@@ -123,7 +124,7 @@ export function tensorArray(tensor, wanted = FLOAT) {
     values = new Type(tensor.data.byteLength / Type.BYTES_PER_ELEMENT);
     new Uint8Array(values.buffer).set(tensor.data); // a copy, aligned (little-endian, as every browser is)
   } else values = Float32Array.from(tensor.floats);
-  if (tensor.dims.some((d) => d >= 2 ** 40) || values.length !== tensor.dims.reduce((a, b) => a * b, 1)) {
+  if (tensor.dims.some((d) => d >= MAX_DIM) || values.length !== tensor.dims.reduce((a, b) => a * b, 1)) {
     throw new FormatError(`weight ${name} has ${values.length} values for shape ${tupleText(tensor.dims)}`);
   }
   return values;

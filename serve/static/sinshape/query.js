@@ -23,8 +23,8 @@ export function headColour(head, hidden, at = 0, out = new Float32Array(3), outA
   return out;
 }
 
-const MAX_GRID_SIDE = 1 << 16;
-const MAX_BYTES = 2 * 2 ** 30; // a dense grid in a browser tab: stay well under its memory
+export const MAX_GRID_SIDE = 1 << 16;
+export const TAB_BYTES = 2 * 2 ** 30; // what one piece of work may take in a browser tab: well under its memory
 
 /** The final tri-plane times the decoder's first layer: { planes: 3 x (H, W, D), size }. */
 export async function project(model, tri) {
@@ -69,7 +69,7 @@ function finePlane(plane, ma, mb) {
  */
 export function projectedDense(model, proj, scale = 1, progress = null) {
   const [mx, my, mz] = gridShape(proj.size, scale);
-  if (mx * my * mz * 4 > MAX_BYTES) throw new InputError(`a dense ${mx}x${my}x${mz} occupancy grid needs more memory than a page should take`);
+  if (mx * my * mz * 4 > TAB_BYTES) throw new InputError(`a dense ${mx}x${my}x${mz} occupancy grid needs more memory than a page should take`);
   const d = model.manifest.hidden;
   const xy = finePlane(proj.planes[0], mx, my);
   const xz = finePlane(proj.planes[1], mx, mz);

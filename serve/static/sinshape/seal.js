@@ -7,11 +7,11 @@ const ASCII = new TextEncoder();
 
 /** The seal's bytes before its 64 hex digits: protobuf's encoding of a
  * ModelProto metadata_props (field 14) entry of key SEAL_KEY. */
-const SEAL_PREFIX = (() => {
+export const SEAL_PREFIX = (() => {
   const key = ASCII.encode(SEAL_KEY);
   return Uint8Array.from([14 << 3 | 2, 2 + key.length + 2 + 64, 1 << 3 | 2, key.length, ...key, 2 << 3 | 2, 64]);
 })();
-const SEAL_BYTES = SEAL_PREFIX.length + 64;
+export const SEAL_BYTES = SEAL_PREFIX.length + 64;
 
 /** { body, sealed, intact }: sealed when `bytes` ends with a seal, intact when
  * its digest is the body's. An unsealed file is all body. */

@@ -26,29 +26,28 @@ import { InputError, formatG, pyRepr } from './errors.js';
 import { checkSeed, drawNoise, roundHalfEven, scaledSizes, triplane } from './generate.js';
 import { marchingCubes } from './mesh.js';
 import { GOLDEN, mix64Big, streamKey } from './noise.js';
-import { PLANE_AXES, addBilinear, headColour, project } from './query.js';
+import { PLANE_AXES, TAB_BYTES, addBilinear, headColour, project } from './query.js';
 
-const WORLD_STREAM = 2; // world.WORLD_STREAM: (WORLD_STREAM, a, b) keys window (a, b)'s noise, after the seed
-const SCATTER_STREAM = 3; // world.SCATTER_STREAM: (SCATTER_STREAM, a, b) keys scatter cell (a, b)'s draws
-const MAX_TILE = 2n ** 62n; // world.MAX_TILE: |i|, |j| below it
-const MIN_STRIDE = 4; // voxels: a window of fewer than 2 * 4 + 1 along an axis has no room to blend
-const UP_AXIS = { y: 1, z: 2 };
+export const WORLD_STREAM = 2; // world.WORLD_STREAM: (WORLD_STREAM, a, b) keys window (a, b)'s noise, after the seed
+export const SCATTER_STREAM = 3; // world.SCATTER_STREAM: (SCATTER_STREAM, a, b) keys scatter cell (a, b)'s draws
+export const MAX_TILE = 2n ** 62n; // world.MAX_TILE: |i|, |j| below it
+export const MIN_STRIDE = 4; // voxels: a window of fewer than 2 * 4 + 1 along an axis has no room to blend
+export const UP_AXIS = { y: 1, z: 2 };
 export const ARRANGEMENTS = ['blend', 'scatter']; // world.ARRANGEMENTS
-const BLEND = 1.0; // world.BLEND
-const CONTRAST = 1.3; // world.CONTRAST: the blend's contrast exponent
-const PITCH = 3; // world.PITCH: a scatter cell's side, in strides
-const PRESENCE = 0.6; // world.PRESENCE: the share of scatter cells holding an object
-const GROUND = 1.0; // world.GROUND: voxels of ground over the map under a scatter world's objects
-const GROUND_SLOPE = 1.0; // world.GROUND_SLOPE: the ground's (and a ceiling's) logit per voxel
-const NORMAL_STEP = 0.25; // world.NORMAL_STEP: voxels of a normal's differences
-const PLATEAU = 0.5; // world.PLATEAU: voxels either side of a lattice line where its window holds the whole weight
-const SKIRT = 2.0; // world.SKIRT: a coarser tile's skirt, in its grid's steps along up
-const GROUND_COLOUR = [0.5, 0.5, 0.5]; // world.GROUND_COLOUR
-const MAX_MAP_SIDE = 1 << 12; // world.MAX_MAP_SIDE
-const MAX_RELIEF = 1 << 14; // world.MAX_RELIEF
-const MAX_POINTS = 1 << 14; // per axis of a tile, as world.check_world_scale
-const MAX_BYTES = 2 * 2 ** 30; // a tile's grid and interpolated planes in a browser tab
-const MAX_ABSOLUTE = 2n ** 18n; // world.MAX_ABSOLUTE: voxels from the origin that float32 still places to 1/64
+export const BLEND = 1.0; // world.BLEND
+export const CONTRAST = 1.3; // world.CONTRAST: the blend's contrast exponent
+export const PITCH = 3; // world.PITCH: a scatter cell's side, in strides
+export const PRESENCE = 0.6; // world.PRESENCE: the share of scatter cells holding an object
+export const GROUND = 1.0; // world.GROUND: voxels of ground over the map under a scatter world's objects
+export const GROUND_SLOPE = 1.0; // world.GROUND_SLOPE: the ground's (and a ceiling's) logit per voxel
+export const NORMAL_STEP = 0.25; // world.NORMAL_STEP: voxels of a normal's differences
+export const PLATEAU = 0.5; // world.PLATEAU: voxels either side of a lattice line where its window holds the whole weight
+export const SKIRT = 2.0; // world.SKIRT: a coarser tile's skirt, in its grid's steps along up
+export const GROUND_COLOUR = [0.5, 0.5, 0.5]; // world.GROUND_COLOUR
+export const MAX_MAP_SIDE = 1 << 12; // world.MAX_MAP_SIDE
+export const MAX_RELIEF = 1 << 14; // world.MAX_RELIEF
+export const MAX_POINTS = 1 << 14; // per axis of a tile, as world.check_world_scale
+export const MAX_ABSOLUTE = 2n ** 18n; // world.MAX_ABSOLUTE: voxels from the origin that float32 still places to 1/64
 
 /**
  * The world's cut for a model's manifest ({ sizes, up }), as world.world_layout:
@@ -318,7 +317,7 @@ function checkGrid(grid, scale, hidden) {
     throw new InputError(`scale ${formatG(scale)} makes a tile of ${points.join('x')} points; at most ${MAX_POINTS} per axis`, 'scale');
   }
   const bytes = points[0] * points[1] * points[2] * 4 + 4 * hidden * 4 * PLANE_AXES.reduce((n, [a, b]) => n + points[a] * points[b], 0);
-  if (bytes > MAX_BYTES) throw new InputError(`a ${points.join('x')} tile needs more memory than a page should take`, 'scale');
+  if (bytes > TAB_BYTES) throw new InputError(`a ${points.join('x')} tile needs more memory than a page should take`, 'scale');
 }
 
 /** Per position, the two cells around it and the weight of the upper one, as world.along's. */

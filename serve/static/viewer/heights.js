@@ -8,7 +8,7 @@
 //   const heights = await readHeightMap(file, info);   // world.js's HeightMap
 import { HeightMap, worldLayout } from '../sinshape/world.js';
 
-const RELIEF = 4; // world.RELIEF: an image's white, in the model's heights
+export const RELIEF = 4; // world.RELIEF: an image's white, in the model's heights
 
 /** The .npy array's values, [i][j] in C order, and its shape: little-endian floats and integers only. */
 function readNpy(bytes) {

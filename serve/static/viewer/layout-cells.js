@@ -4,8 +4,8 @@
 // edit kept in the URL: the cells that differ from the seed's own layout,
 // 'a' for a cell added and 'r' for one removed, like "a3.4.5,r10.2.0".
 export const MAX_SIDE = 256; // MagicaVoxel's limit per axis, as runtime/layout.py's MAX_LAYOUT_SIDE
-const VOX_VERSION = 150;
-const VOX_COLOUR = 1; // the palette index cells are written with (any non-zero index reads as full)
+export const VOX_VERSION = 150;
+export const VOX_COLOUR = 1; // the palette index cells are written with (any non-zero index reads as full)
 
 /** A message for the user: a file or a URL that is not a layout. */
 export class LayoutError extends Error {}
