@@ -39,10 +39,13 @@ MARGIN = 0.1  # an edited cell is fitted until its occupancy is this far past 0.
 KEEP_WEIGHT = 0.2  # an unedited cell's weight, against an edited cell's 1, once it has crossed 0.5
 SLOPE_FLOOR = 0.1  # the sigmoid's slope in the fit's gradient, at least: see fit
 SHARE = 0.4  # a plane cell may change where more than this share of the cells on its line were edited
-UNITS_AT_ONCE = 8  # the decoder's hidden units a fit evaluates at once, over every voxel within reach
+# The decoder's hidden units a fit evaluates at once, over every voxel within
+# reach: its logit sums them in this many lanes, as the browser's SIMD does
+# (decode.wat), so that both runtimes add in one order.
+LANES = 4
 # Bytes per finest voxel and hidden unit a fit holds at its peak (the
 # planes through the first layer within reach, the whole grid at worst, and
-# UNITS_AT_ONCE units' pre-activations and gradient): 4.2 and 5.2 measured
+# LANES units' pre-activations and gradient): 4.2 and 5.2 measured
 # for towerruins at sizes 1 and 2, 8.8 for terrain at 2.
 FIT_BYTES = 12
 
@@ -84,10 +87,12 @@ def along(matrix: np.ndarray, values: np.ndarray, axis: int) -> np.ndarray:
     there): out[o] = the sum over i, in order, of matrix[o, i] * values[i],
     each product and sum rounded alone (the values' and matrix's dtype).
     A matrix product does the same sums, but BLAS orders and fuses them by
-    its version and the CPU it finds, and the same layout and seed must
-    give the same shape with any numpy on any machine. A sparse matrix (a
-    resize, an area average: a few entries a row) gathers each row's
-    entries in turn; a dense one (a layer's weights) adds a column at a time."""
+    its version and the CPU it finds (and numpy's own reductions sum pairwise
+    where the axis lies innermost in memory), and the same layout and seed
+    must give the same shape with any numpy on any machine, and in the
+    browser (layout.js's along). A sparse matrix (a resize, an area average:
+    a few entries a row) gathers each row's entries in turn; a dense one (a
+    layer's weights) adds a column at a time (its zeros add nothing)."""
     values = np.moveaxis(values, axis, 0)
     out = np.zeros((matrix.shape[0], *values.shape[1:]), np.result_type(matrix, values))
     shape = (-1,) + (1,) * (values.ndim - 1)
@@ -99,8 +104,9 @@ def along(matrix: np.ndarray, values: np.ndarray, axis: int) -> np.ndarray:
         for k in range(entries.max(initial=0)):
             weight = np.where(k < entries, matrix[rows, columns[:, k]], 0)  # a row with fewer entries adds 0
             out += weight.reshape(shape) * values[columns[:, k]]
-    else:  # every product at once, summed over the columns in order (a reduction along an outer axis)
-        out = np.add.reduce(matrix.reshape(matrix.shape + shape[1:]) * values[None], axis=1)
+    else:
+        for column in range(matrix.shape[1]):
+            out += matrix[:, column].reshape(shape) * values[column]
     return np.ascontiguousarray(np.moveaxis(out, 0, axis))
 
 
@@ -197,8 +203,9 @@ def fit(model, planes: list, target: np.ndarray, steps: int, edited: np.ndarray,
     are.
 
     Every sum runs in a fixed order (`along`, and the decoder's hidden
-    units UNITS_AT_ONCE at a time), channels first in each array, so that
-    the fit is the same numbers with any numpy on any machine."""
+    units in LANES lanes), channels first in each array, and the sigmoid in
+    float64, so that the fit is the same numbers with any numpy on any
+    machine, and in the browser (layout.js, tests/test_mirror.py)."""
     if not edited.any():
         return planes
     weights = first_layer(model)
@@ -222,20 +229,21 @@ def fit(model, planes: list, target: np.ndarray, steps: int, edited: np.ndarray,
     change = [np.zeros((p.shape[0], r.shape[1], c.shape[1]), np.float32) for p, (r, c) in zip(planes, grow)]
     moments = [(np.zeros_like(d), np.zeros_like(d)) for d in change]
     hidden = len(head.weight2)
-    groups = [slice(u, min(u + UNITS_AT_ONCE, hidden)) for u in range(0, hidden, UNITS_AT_ONCE)]
+    groups = [slice(u, min(u + LANES, hidden)) for u in range(0, hidden, LANES)]
     side = need = weight = None
     for step in range(1, steps + 1):
         a_xy, a_xz, a_yz = (s + mask * resized(r, through(w, d), c)
                             for s, mask, d, w, (r, c) in zip(start, masks_in, change, weights, grow_in))
 
         def pre(units):  # those hidden units' pre-activations at every voxel within reach: (u, X, Y, Z)
-            return (a_xy[units][:, :, :, None] + a_xz[units][:, :, None] + a_yz[units][:, None]
-                    + head.bias1[units, None, None, None])
+            return ((a_xy[units][:, :, :, None] + a_xz[units][:, :, None])
+                    + (a_yz[units][:, None] + head.bias1[units, None, None, None]))
 
-        logits = np.zeros(a_xy.shape[1:] + a_xz.shape[2:], np.float32)
+        lanes = np.zeros((LANES,) + a_xy.shape[1:] + a_xz.shape[2:], np.float32)  # lane l: units l, l + LANES, ...
         for units in groups:
-            logits += np.add.reduce(np.maximum(pre(units), 0) * head.weight2[units, None, None, None], axis=0)
-        occupancy = sigmoid(logits + np.float32(head.bias2))
+            lanes[:units.stop - units.start] += np.maximum(pre(units), 0) * head.weight2[units, None, None, None]
+        logits = (lanes[0] + lanes[1]) + (lanes[2] + lanes[3])
+        occupancy = sigmoid((logits + np.float32(head.bias2)).astype(np.float64)).astype(np.float32)
         pooled = separable(pools, occupancy)
         if side is None:  # the unedited cells keep the side these planes put them on (with hold, the layout's)
             side = np.where(edited | hold, target, pooled > 0.5).astype(np.float32) * 2 - 1

@@ -137,31 +137,39 @@ def plain(value):
     return value
 
 
-def js_constants(tmp_path_factory) -> dict:
+@pytest.fixture(scope="module")
+def run_node(tmp_path_factory):
+    """run_node(script, *args): a script run by node beside a copy of the
+    browser runtime's modules (./static/sinshape/...); its stdout. node reads
+    them as ES modules under a package.json saying so (the page's own copy
+    has none)."""
     node = shutil.which("node")
     if node is None:
-        pytest.skip("node is not installed (CI has it): the browser's constants are read with it")
-    # node reads the modules as ES modules under a package.json saying so; the page's own copy has none.
+        pytest.skip("node is not installed (CI has it): the browser runtime's modules are read with it")
     root = tmp_path_factory.mktemp("mirror") / "static"
     for path in MODULES:
         (root / path.parent.name).mkdir(parents=True, exist_ok=True)
         shutil.copy(path, root / path.parent.name / path.name)
     (root / "vendor").symlink_to(STATIC / "vendor")  # model.js imports onnxruntime-web
     (root / "package.json").write_text('{"type": "module"}')
-    (root.parent / "dump.mjs").write_text(DUMP_JS)
-    wanted = {}
-    for file, name, *_ in MIRROR:
-        wanted.setdefault(file, []).append(name)
-    done = subprocess.run([node, str(root.parent / "dump.mjs"), json.dumps(wanted)], capture_output=True, text=True,
-                          timeout=60, cwd=root.parent)
-    assert done.returncode == 0, done.stderr
-    bigints = lambda d: int(d["bigint"]) if set(d) == {"bigint"} else d  # noqa: E731
-    return json.loads(done.stdout, object_hook=bigints)
+
+    def run(script: str, *args: str) -> str:
+        (root.parent / "script.mjs").write_text(script)
+        done = subprocess.run([node, "script.mjs", *args], capture_output=True, text=True, timeout=120,
+                              cwd=root.parent)
+        assert done.returncode == 0, done.stderr
+        return done.stdout
+
+    return run
 
 
 @pytest.fixture(scope="module")
-def browser_constants(tmp_path_factory):
-    return js_constants(tmp_path_factory)
+def browser_constants(run_node):
+    wanted = {}
+    for file, name, *_ in MIRROR:
+        wanted.setdefault(file, []).append(name)
+    bigints = lambda d: int(d["bigint"]) if set(d) == {"bigint"} else d  # noqa: E731
+    return json.loads(run_node(DUMP_JS, json.dumps(wanted)), object_hook=bigints)
 
 
 @pytest.mark.parametrize(("file", "name", "python", "value"), MIRROR, ids=[f"{f}:{n}" for f, n, *_ in MIRROR])
@@ -200,3 +208,66 @@ def test_every_constant_of_the_browser_runtime_is_held_or_named():
     assert not copies, f"constants defined more than once: {copies}"
     print(f"{len(MIRROR)} constants compared with Python's; {len(BROWSER_ONLY)} the browser's own; "
           f"{len(OPTIONS)} built from the options' table")
+
+
+# Runs in node: layout.js's fit on the inputs Python's had at each level (files in argv[2]), its planes written beside.
+FIT_JS = """
+import { readFileSync, writeFileSync } from 'node:fs';
+import { fit } from './static/sinshape/layout.js';
+const dir = process.argv[2], meta = JSON.parse(readFileSync(`${dir}/meta.json`, 'utf8'));
+const read = (name, Type) => { const b = readFileSync(`${dir}/${name}`); return new Type(b.buffer.slice(b.byteOffset, b.byteOffset + b.byteLength)); };
+const model = { head: { bias1: read('bias1', Float32Array), weight2: read('weight2', Float32Array), bias2: meta.bias2 } };
+const weights = [0, 1, 2].map((k) => read(`weights${k}`, Float32Array));
+meta.levels.forEach(({ steps, hold, dims }, i) => {
+  const planes = dims.map((d, k) => ({ data: read(`in${i}_${k}`, Float32Array), dims: d }));
+  const made = fit(model, weights, planes, read(`target${i}`, Uint8Array), meta.shape, steps, read(`edited${i}`, Uint8Array), hold);
+  made.forEach((p, k) => writeFileSync(`${dir}/out${i}_${k}`, p.data));
+});
+"""
+
+
+def test_the_browsers_layout_fit_is_pythons_to_the_bit(run_node, tmp_path, monkeypatch):
+    """layout.js's fit, given the planes Python's fit was given at each level
+    of from_layout (terrain, seed 3, a tower's top cut off and a block
+    added), makes Python's planes to the bit: every sum in one order, in
+    float32, and the sigmoid in float64 in both. (The whole edit in the
+    browser differs only by its generators' and decoder's: onnxruntime-web's
+    float32 differs from onnxruntime's in the last bits, tests/test_web.py.)"""
+    from sinshape import models
+    from sinshape.runtime import load_model
+
+    model = load_model(models.find("terrain"), threads=1)
+    target = layout.layout(model, 3)
+    target[10:14, 6:10, 5:] = False
+    target[3, 3, 9] = True
+    calls, fit = [], layout.fit
+
+    def recorded(model, planes, target, steps, edited, hold=False):
+        made = fit(model, planes, target, steps, edited, hold)
+        calls.append((planes, target, steps, edited, hold, made))
+        return made
+
+    monkeypatch.setattr(layout, "fit", recorded)
+    layout.from_layout(model, 3, target)
+    assert len(calls) == len(model.manifest.sizes)  # the layout's level and each finer one
+    meta = {"shape": list(target.shape), "bias2": model.head.bias2, "levels": []}
+    write = lambda name, array: (tmp_path / name).write_bytes(np.ascontiguousarray(array).tobytes())  # noqa: E731
+    for k, weights in enumerate(layout.first_layer(model)):
+        write(f"weights{k}", weights.astype(np.float32))
+    write("bias1", model.head.bias1.astype(np.float32))
+    write("weight2", model.head.weight2.astype(np.float32))
+    for i, (planes, target, steps, edited, hold, _) in enumerate(calls):
+        meta["levels"].append({"steps": steps, "hold": hold, "dims": [list(p.shape) for p in planes]})
+        write(f"target{i}", target.astype(np.uint8))
+        write(f"edited{i}", edited.astype(np.uint8))
+        for k, plane in enumerate(planes):
+            write(f"in{i}_{k}", plane.astype(np.float32))
+    (tmp_path / "meta.json").write_text(json.dumps(meta))
+    run_node(FIT_JS, str(tmp_path))
+    for i, (planes, *_, made) in enumerate(calls):
+        for k, (given, expected) in enumerate(zip(planes, made)):
+            got = np.fromfile(tmp_path / f"out{i}_{k}", np.float32).reshape(expected.shape)
+            moved = (expected != given).sum()
+            assert k == 2 or moved > 100, f"level {i}'s fit moved {moved} values of plane {k}"  # yz: not for this edit
+            same = (got == expected).mean()
+            assert same == 1, f"level {i}, plane {k}: {same:.4%} of the values are Python's"

@@ -269,13 +269,16 @@ def test_layouts_equal_the_python_runtime(site_page, terrain):
     args = [3, target.ravel().astype(int).tolist(), list(target.shape)]
     grid = edited_in_page(page, "fromLayout", args)
     expected = query.dense(terrain, layout.from_layout(terrain, 3, target))
-    # The fit carries float32's step to whole voxels: Python's own result with its planes moved
-    # by 1e-6 before each level's fit crosses 0.5 in 0.005 to 0.02% of the voxels; the browser's
-    # in none (measured; an earlier fit, 0.3 to 0.6% and 0.8%).
+    # Given the same planes, the fit is Python's to the bit (tests/test_mirror.py); what differs
+    # is the generators' and the decoder's float32 (onnxruntime-web's last bits are not
+    # onnxruntime's), which the fit's hinge carries to whole voxels: Python's own result with its
+    # planes moved by 1e-6 (random signs) before each level's fit crosses 0.5 in 0.0025 to 0.013%
+    # of the voxels, by up to 1.6e-2 (measured); the browser's in none, by 3.6e-4. The bound is
+    # 8 times the most that moving the planes did.
     crossed = ((grid > 0.5) != (expected > 0.5)).mean()
     print(f"browser vs Python from_layout: max difference {np.abs(grid - expected).max():.2e}, "
-          f"{crossed:.2%} of the voxels across 0.5")
-    assert crossed < 0.015
+          f"{crossed:.4%} of the voxels across 0.5")
+    assert crossed < 0.001
     laid = layout.pool(grid, target.shape) > 0.5
     edited = target != base
     assert (laid == target)[edited].all()  # as Python's; the seed's own sample has none of them

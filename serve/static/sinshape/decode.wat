@@ -1,9 +1,11 @@
 ;; The fit's hot loops (layout.js, fit): the decoder's hidden layer for many
 ;; voxels at once, 4 units per instruction (WebAssembly SIMD), forward and
 ;; back. With n = (i * y + j) * z + k a voxel of an (x, y, z) grid and
-;;   pre[n, h] = xy[i, j, h] + xz[i, k, h] + yz[j, k, h] + bias[h],
+;;   pre[n, h] = (xy[i, j, h] + xz[i, k, h]) + (yz[j, k, h] + bias[h]),
 ;; decode:   out[n] = sum over h of max(0, pre[n, h]) * w2[h], where live[n] != 0
-;;           (everywhere with $all);
+;;           (everywhere with $all), in four lanes (lane l: h = l, l + 4, ...,
+;;           in order), then (lane 0 + lane 1) + (lane 2 + lane 3): the order
+;;           runtime/layout.py's fit adds in, so that both make the same floats;
 ;; backward: for every n with g[n] != 0 and every h with pre[n, h] > 0, adds
 ;;           g[n] * w2[h] to dxy[i, j, h], dxz[i, k, h] and dyz[j, k, h].
 ;; The terms and their gradients are f32 rows of $stride units (a multiple of

@@ -3,8 +3,10 @@
 // one: the planes of the layout's level and of every finer level are fitted
 // to it by gradient descent through the decoder (a hinge, Adam), each plane
 // only where its lines were edited. The steps are runtime/layout.py's, in
-// the same order; the hidden layer's sums run in float32, 4 at a time
-// (decode.wat), the others in float64 where numpy's run in float32.
+// the same order and in float32 (Math.fround after each operation, where
+// numpy rounds), the hidden layer's sums 4 units at a time in lanes
+// (decode.wat) as Python's, and the sigmoid in float64 as Python's: given
+// the same planes, the fit's are Python's to the bit (tests/test_mirror.py).
 //
 // Grids are Float32Array or Uint8Array (a layout: 1 full, 0 empty) in C
 // order (x slowest, z fastest), with their shape.
@@ -25,6 +27,7 @@ export const SLOPE_FLOOR = 0.1; // the sigmoid's slope in the fit's gradient, at
 export const SHARE = 0.4; // a plane cell may change where more than this share of its line was edited
 
 const product = (shape) => shape.reduce((a, b) => a * b, 1);
+const f32 = Math.fround;
 
 /** (nOut, nIn) as { data, rows, cols }: cell i of nOut averages the part of the nIn cells it covers, as area_weights. */
 export function areaWeights(nIn, nOut) {
@@ -69,16 +72,16 @@ function along(grid, shape, axis, { data: w, rows, cols }) {
     }
     first[i + 1] = at.length;
   }
-  // Sums in doubles, in the columns' order (numpy's float32 sums round more often); by rows of the
-  // inner axes where they are long, element by element where they are short.
-  const sum = new Float64Array(inner);
+  // Sums in float32, in the columns' order, as Python's along; by rows of the inner axes where they
+  // are long, element by element where they are short.
+  const sum = new Float32Array(inner);
   for (let o = 0; o < outer; o++) {
     for (let i = 0; i < rows; i++) {
       const to = (o * rows + i) * inner;
       if (inner < 16) {
         for (let t = 0; t < inner; t++) {
           let total = 0;
-          for (let n = first[i]; n < first[i + 1]; n++) total += weight[n] * grid[(o * cols + at[n]) * inner + t];
+          for (let n = first[i]; n < first[i + 1]; n++) total = f32(total + f32(weight[n] * grid[(o * cols + at[n]) * inner + t]));
           out[to + t] = total;
         }
         continue;
@@ -86,7 +89,7 @@ function along(grid, shape, axis, { data: w, rows, cols }) {
       sum.fill(0);
       for (let n = first[i]; n < first[i + 1]; n++) {
         const from = (o * cols + at[n]) * inner, by = weight[n];
-        for (let t = 0; t < inner; t++) sum[t] += by * grid[from + t];
+        for (let t = 0; t < inner; t++) sum[t] += f32(by * grid[from + t]);
       }
       out.set(sum, to);
     }
@@ -216,14 +219,14 @@ function reach(masks, pools, size) {
   return { cells, voxels };
 }
 
-/** An (n, C) matrix times a (C, m) one: (n, m), summed in doubles. */
+/** An (n, C) matrix times a (C, m) one: (n, m), summed in float32 over C in order, as Python's along. */
 function times(left, right, n, c, m) {
-  const out = new Float32Array(n * m), sum = new Float64Array(m);
+  const out = new Float32Array(n * m), sum = new Float32Array(m);
   for (let i = 0; i < n; i++) {
     sum.fill(0);
     for (let k = 0; k < c; k++) {
       const by = left[i * c + k], row = k * m;
-      if (by !== 0) for (let j = 0; j < m; j++) sum[j] += by * right[row + j];
+      if (by !== 0) for (let j = 0; j < m; j++) sum[j] += f32(by * right[row + j]);
     }
     out.set(sum, i * m);
   }
@@ -360,23 +363,23 @@ export function fit(model, weights, planes, target, shape, steps, edited, hold =
       }
     });
     const logits = decode(step === 1);
-    for (let n = 0; n < occupancy.length; n++) if (step === 1 || live[n]) occupancy[n] = 1 / (1 + Math.exp(-(bias2 + logits[n])));
+    for (let n = 0; n < occupancy.length; n++) if (step === 1 || live[n]) occupancy[n] = 1 / (1 + Math.exp(-f32(logits[n] + bias2)));
     const pooled = separable(pools, occupancy, [x, y, z]).data;
     if (side === null) { // the unedited cells keep the side these planes put them on (with hold, the layout's)
       side = Float32Array.from(pooled, (v, n) => ((edited[n] || hold ? target[n] : v > 0.5) ? 1 : -1));
       need = Float32Array.from(edited, (e) => (e ? MARGIN : 0));
-      weight = Float32Array.from(edited, (e) => (e ? 1 : KEEP_WEIGHT) / count);
+      weight = Float32Array.from(edited, (e) => (e ? 1 : f32(KEEP_WEIGHT)) / count);
     }
     const hinge = new Float32Array(target.length); // its gradient in the cells short of their side
     let short = false;
     for (let n = 0; n < target.length; n++) {
-      if (need[n] - side[n] * (pooled[n] - 0.5) > 0) [hinge[n], short] = [-side[n] * weight[n], true];
+      if (f32(need[n] - f32(side[n] * f32(pooled[n] - 0.5))) > 0) [hinge[n], short] = [-side[n] * weight[n], true];
     }
     if (!short || step === steps) break;
     // The hinge's gradient, back through the pooling, the sigmoid and the ReLU.
     const dOccupancy = separable(back, hinge, box).data;
     for (let n = 0; n < g.length; n++) { // a voxel reading no masked cell moves nothing
-      g[n] = live[n] ? dOccupancy[n] * Math.max(occupancy[n] * (1 - occupancy[n]), SLOPE_FLOOR) : 0;
+      g[n] = live[n] ? dOccupancy[n] * Math.max(f32(occupancy[n] * f32(1 - occupancy[n])), f32(SLOPE_FLOOR)) : 0;
     }
     const dA = backward(); // (h * w, stride) per plane
     change.forEach((field, k) => {
@@ -386,11 +389,12 @@ export function fit(model, weights, planes, target, shape, steps, edited, hold =
       for (let n = 0; n < area; n++) if (moving[k][n]) for (let e = 0; e < d; e++) masked[e * area + n] = dA[k][n * stride + e];
       const onLayout = onPlane(masked, [d, hIn, wIn], shrinkIn[k]); // (D, h, w) of the layout
       const grad = timesOn(weights[k], onLayout, c, d, h * w, used[k]), [m, v] = moments[k]; // einsum hwd,cd->chw
-      for (let i = 0; i < field.length; i++) {
-        const g = grad[i] + (2 * PULL / field.length) * field[i];
-        m[i] += 0.1 * (g - m[i]); // Adam, beta1 0.9, beta2 0.999
-        v[i] += 0.001 * (g * g - v[i]);
-        field[i] -= FIT_RATE * (m[i] / (1 - 0.9 ** step)) / (Math.sqrt(v[i] / (1 - 0.999 ** step)) + 1e-8);
+      const pull = f32(2 * PULL / field.length), m1 = f32(1 - 0.9 ** step), v1 = f32(1 - 0.999 ** step);
+      for (let i = 0; i < field.length; i++) { // Adam, beta1 0.9, beta2 0.999
+        const g = f32(grad[i] + f32(pull * field[i]));
+        m[i] += f32(f32(0.1) * f32(g - m[i]));
+        v[i] += f32(f32(0.001) * f32(f32(g * g) - v[i]));
+        field[i] -= f32(f32(FIT_RATE * f32(m[i] / m1)) / f32(f32(Math.sqrt(f32(v[i] / v1))) + f32(1e-8)));
       }
     });
   }
