@@ -9,6 +9,7 @@ import os
 import re
 import signal
 import sys
+import time
 from pathlib import Path
 
 import click
@@ -394,8 +395,6 @@ def run_job(job, items, unit: str, name) -> None:
     """Run a resumable job of many files, `job(progress)`, under one progress
     bar counting `items` (with a rate of `unit` per second); then say what
     it wrote, `name(item)` for the first and last."""
-    import time
-
     started, made = time.monotonic(), [0]
 
     def rate(_):
@@ -464,11 +463,11 @@ def world(model, seed, tiles, output, suffix, scale, frame, threads, workers, en
     whatever was made before, and a tile a billion tiles away costs what
     tile 0,0 costs.
     """
-    from sinshape.runtime import asset as assets, world as worlds, write
+    from sinshape.runtime import asset as assets, many, request as requests, write
 
     packed = assets.options_of(lods, texture, ao)
     loaded = open_model(model, threads)
-    wanted = worlds.world_request(loaded, seed, scale, frame, arrange, height_map, relief, lod)
+    wanted = requests.world_request(loaded, seed, scale, frame, arrange, height_map, relief, lod)
     output = output or Path(f"{loaded.path.stem}_world_seed{seed}")
     suffix = "glb" if packed else suffix
     if output.suffix.lower() in files.MESH_FORMATS and "{tile}" not in output.name:  # one mesh of the block
@@ -479,8 +478,8 @@ def world(model, seed, tiles, output, suffix, scale, frame, threads, workers, en
             write.write_block(loaded, wanted, tiles, output, lambda done, total: show("tiles", done, total))
         return click.echo(f"wrote {output} ({len(tiles)} tiles)")
     pattern = output if "{tile}" in output.name else output / f"tile_{{tile}}.{suffix}"
-    run_job(lambda progress: worlds.write_tiles(loaded.path, iter(tiles), pattern, wanted, engine, workers, threads,
-                                                address, progress, restart, packed),
+    run_job(lambda progress: many.write_tiles(loaded.path, iter(tiles), pattern, wanted, engine, workers, threads,
+                                              address, progress, restart, packed),
             tiles, "tiles", lambda tile: pattern.with_name(pattern.name.replace("{tile}", f"{tile[0]}_{tile[1]}")))
 
 
