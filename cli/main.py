@@ -209,8 +209,7 @@ ASSET_FOLDER_OPTION = click.option(
 @click.option("--checkpoint", type=click.Path(path_type=Path), default=None,
               help="Checkpoint file. Default: MODEL.ckpt.pt beside the output.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress output.")
-def train(input_path, output, preset, res, levels, iters, minutes, min_iters, device, precision, box, train_depth, lr,
-          d_steps, d_rate, seed, up, generator, no_colour, colour_mb, asset_folder, resume, checkpoint, quiet):
+def train(input_path, output, preset, device, no_colour, asset_folder, resume, checkpoint, quiet, **settings):
     """Train a model on one example shape and export it as one .onnx file.
 
     INPUT is a mesh (.obj, .ply, .stl, .off, .glb; not necessarily watertight)
@@ -221,10 +220,8 @@ def train(input_path, output, preset, res, levels, iters, minutes, min_iters, de
     """
     from sinshape.trainer import config as configs, train as training
 
-    config = configs.make_config(preset, resume, res=res, levels=levels, iters=iters, minutes=minutes, min_iters=min_iters,
-                                 precision=precision, box=box, train_depth=train_depth, lr=lr, d_steps=d_steps,
-                                 d_rate=d_rate, seed=seed, up=up, generator=generator, colour_mb=colour_mb)
-    if levels is None:  # an .h5 file with fewer levels blames where the count came from
+    config = configs.make_config(preset, resume, **settings)  # every other option is a TrainConfig field
+    if settings["levels"] is None:  # an .h5 file with fewer levels blames where the count came from
         click.get_current_context().meta[SOURCES] = {
             "levels": "the checkpoint's levels" if resume else f"the {preset or 'default'} preset's levels"}
     try:

@@ -23,9 +23,9 @@ from sinshape.core.budget import check_memory
 from sinshape.core.errors import InputError
 from sinshape.core.files import atomic_write
 
+from . import mesh as meshing
 from .colour import surface_painter
 from .generate import sample
-from .mesh import extract, to_frame
 from .raster import BATCH, cross, rasterise
 
 CLAY = (0.86, 0.82, 0.76)
@@ -405,10 +405,10 @@ def draw_shapes(items: list, seeds, recon: bool = False, factors=(1.0, 1.0, 1.0)
             continue
         for seed in chosen:
             triplane = sample(item, seed, factors if seed is not None else (1, 1, 1))
-            shapes.append(extract(item, triplane, scale, smooth=smooth, frame="model"))
+            shapes.append(meshing.extract(item, triplane, scale, smooth=smooth, frame="model"))
             if item.tiles is not None:  # its colour read at each pixel: the example's texture, not vertex colours
                 shapes[-1].metadata[PAINT] = surface_painter(item, triplane, shapes[-1].vertices, shapes[-1].faces)
-            to_frame(shapes[-1], item.manifest)
+            meshing.to_frame(shapes[-1], item.manifest)
             if not len(shapes[-1].faces):
                 raise InputError(f"{item.path.name}: seed {seed} has no surface at this scale and size; nothing drawn",
                                  "scale")
