@@ -1,5 +1,9 @@
 """The import rules of docs/ARCHITECTURE.md hold for every module: no package
-imports one above it (the table there is read, not copied).
+imports one above it (the table there is read, not copied); inside a
+package the modules form one order, with no cycle however late an import
+comes (the runtime's, the order ARCHITECTURE.md draws); and an import waits
+inside a function only for a reason LATER gives. `python tests/test_imports.py`
+prints each package's cycles and imports inside functions.
 
 Every way of naming a module counts: `import sinshape.x`, `from sinshape
 import x`, `from sinshape.x import y`, relative imports (`from .. import x`,
@@ -20,13 +24,17 @@ PACKAGES = ("core", "prep", "runtime", "trainer", "models", "serve", "cli", "ble
 UNREADABLE = "an import_module of sinshape whose package the source does not spell out"
 
 
+def table_rows(name: str) -> list:
+    """The cells of each row of ARCHITECTURE.md's table marked `name`."""
+    text = (ROOT / "docs" / "ARCHITECTURE.md").read_text()
+    table = text.split(f"<!-- {name}: read by tests/test_imports.py -->")[1].split(f"<!-- end of {name} -->")[0]
+    return [[c.strip() for c in row.strip().strip("|").split("|")] for row in table.splitlines()]
+
+
 def rules() -> dict:
     """{package: the packages it may import}, from ARCHITECTURE.md's table."""
-    text = (ROOT / "docs" / "ARCHITECTURE.md").read_text()
-    table = text.split("<!-- import rules: read by tests/test_imports.py -->")[1].split("<!-- end of import rules -->")[0]
     allowed = {}
-    for row in table.splitlines():
-        cells = [c.strip() for c in row.strip().strip("|").split("|")]
+    for cells in table_rows("import rules"):
         if len(cells) == 2 and cells[0].startswith("`"):
             allowed[cells[0].strip("`")] = set(re.findall(r"`(\w+)`", cells[1]))
     return allowed
@@ -338,11 +346,8 @@ def test_a_package_has_no_cycle(package):
 
 def runtime_rows() -> dict:
     """{runtime module: its row} from ARCHITECTURE.md's table of the runtime's order."""
-    text = (ROOT / "docs" / "ARCHITECTURE.md").read_text()
-    table = text.split("<!-- runtime order: read by tests/test_imports.py -->")[1].split("<!-- end of runtime order -->")[0]
     rows = {}
-    for line in table.splitlines():
-        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+    for cells in table_rows("runtime order"):
         if cells[0].isdigit():
             rows.update({f"sinshape.runtime.{name}": int(cells[0]) for name in re.findall(r"`(\w+)`", cells[1])})
     return rows
