@@ -96,12 +96,12 @@ class Camera:
         shading(face, weights) gives each drawn pixel's world normal from its
         face and barycentric weights, albedo(face, weights) its sRGB colour
         (None: grey)."""
-        from sinshape.runtime import render
+        from sinshape.runtime import raster, render
 
         camera = (np.asarray(vertices, np.float64) - self.centre) @ self.axes.T
         pixels = (camera[:, :2] / self.radius * [0.5, -0.5] + 0.5) * self.size
         corners = pixels[faces]
-        owner, _ = render.rasterise(corners, camera[faces][..., 2], (self.size, self.size))
+        owner, _ = raster.rasterise(corners, camera[faces][..., 2], (self.size, self.size))
         drawn = np.flatnonzero(owner.ravel() >= 0)
         face = owner.ravel()[drawn]
         centre = np.stack([drawn % self.size, drawn // self.size], axis=1) + 0.5

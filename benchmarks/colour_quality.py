@@ -50,20 +50,20 @@ def frame_views(low, high, up):
 
 def surface_pixels(vertices, faces, view):
     """(mask (H, W), face (n,), weights (n, 3), points (n, 3)) of a mesh in one view."""
-    from sinshape.runtime import render
+    from sinshape.runtime import raster
 
     axes, centre, scale = view
     camera = (np.asarray(vertices, np.float64) - centre) @ axes.T
     pixels = camera[:, :2] * scale * np.array([1, -1]) + np.array(SIZE) / 2
     corners = pixels[faces]
-    owner, _ = render.rasterise(corners, camera[faces][..., 2], SIZE)
+    owner, _ = raster.rasterise(corners, camera[faces][..., 2], SIZE)
     mask = owner >= 0
     face = owner[mask]
     row, col = np.nonzero(mask)
     p = np.stack([col + 0.5, row + 0.5], axis=1)
     a, b, c = corners[face, 0], corners[face, 1], corners[face, 2]
-    area = render.cross(b - a, c - a)
-    w1, w2 = render.cross(p - a, c - a) / area, render.cross(b - a, p - a) / area
+    area = raster.cross(b - a, c - a)
+    w1, w2 = raster.cross(p - a, c - a) / area, raster.cross(b - a, p - a) / area
     weights = np.stack([1 - w1 - w2, w1, w2], axis=1)
     return mask, face, weights, np.einsum("nk,nkc->nc", weights, np.asarray(vertices, np.float64)[faces[face]])
 

@@ -15,6 +15,7 @@ import numpy as np
 
 from sinshape import models
 from sinshape.core.errors import InputError
+from sinshape.core.manifest import linear_to_srgb, srgb_to_linear
 from sinshape.runtime import layout, write
 from sinshape.runtime.generate import scaled_sizes
 from sinshape.runtime.mesh import connected_parts
@@ -397,19 +398,6 @@ def byte_colours(rgba) -> np.ndarray:
     return np.asarray(rgba)[:, :3] / np.float32(255)
 
 
-def srgb_to_linear(values: np.ndarray) -> np.ndarray:
-    """sRGB-encoded values in [0, 1] -> linear (IEC 61966-2-1), float32."""
-    values = np.asarray(values, np.float32)
-    return np.where(values <= 0.04045, values / np.float32(12.92),
-                    ((values + np.float32(0.055)) / np.float32(1.055)) ** np.float32(2.4)).astype(np.float32)
-
-
-def linear_to_srgb(values: np.ndarray) -> np.ndarray:
-    values = np.asarray(values, np.float32)
-    return np.where(values <= 0.0031308, values * np.float32(12.92),
-                    np.float32(1.055) * values ** np.float32(1 / 2.4) - np.float32(0.055)).astype(np.float32)
-
-
 def mesh_colours(mesh) -> np.ndarray | None:
     """(n, 3) float32 sRGB of a mesh's COLOUR attribute, or None where it has none."""
     colour = mesh.color_attributes.get(COLOUR)
@@ -417,7 +405,7 @@ def mesh_colours(mesh) -> np.ndarray | None:
         return None
     rgba = np.empty(len(colour.data) * 4, np.float32)
     colour.data.foreach_get("color", rgba)
-    return linear_to_srgb(rgba.reshape(-1, 4)[:, :3])
+    return linear_to_srgb(rgba.reshape(-1, 4)[:, :3]).astype(np.float32)
 
 
 def mesh_faces(mesh) -> tuple:

@@ -18,7 +18,7 @@ import numpy as np
 
 from sinshape.core.errors import InputError
 from sinshape.core.files import check_readable
-from sinshape.runtime import layout, load, many, mesh
+from sinshape.runtime import asset, layout, load, many, mesh, write
 from sinshape.runtime import request as requests
 from sinshape.runtime.load import default_threads
 
@@ -438,8 +438,6 @@ def export_asset(obj, path: Path, lods: str, texture: int, ao: bool, add_objects
     turned to Blender's Z as the sample's model frame is). The importer
     puts the coarser levels, outside the file's scene, in a collection it
     excludes from the view layer (Orphan Nodes). Returns the new objects."""
-    from sinshape.runtime import asset, write
-
     options = asset.options_of(lods, texture, ao)  # refused before any work
     try:
         import meshoptimizer  # noqa: F401

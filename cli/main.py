@@ -9,6 +9,7 @@ import os
 import re
 import signal
 import sys
+import time
 from pathlib import Path
 
 import click
@@ -208,8 +209,7 @@ ASSET_FOLDER_OPTION = click.option(
 @click.option("--checkpoint", type=click.Path(path_type=Path), default=None,
               help="Checkpoint file. Default: MODEL.ckpt.pt beside the output.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress output.")
-def train(input_path, output, preset, res, levels, iters, minutes, min_iters, device, precision, box, train_depth, lr,
-          d_steps, d_rate, seed, up, generator, no_colour, colour_mb, asset_folder, resume, checkpoint, quiet):
+def train(input_path, output, preset, device, no_colour, asset_folder, resume, checkpoint, quiet, **settings):
     """Train a model on one example shape and export it as one .onnx file.
 
     INPUT is a mesh (.obj, .ply, .stl, .off, .glb; not necessarily watertight)
@@ -220,10 +220,8 @@ def train(input_path, output, preset, res, levels, iters, minutes, min_iters, de
     """
     from sinshape.trainer import config as configs, train as training
 
-    config = configs.make_config(preset, resume, res=res, levels=levels, iters=iters, minutes=minutes, min_iters=min_iters,
-                                 precision=precision, box=box, train_depth=train_depth, lr=lr, d_steps=d_steps,
-                                 d_rate=d_rate, seed=seed, up=up, generator=generator, colour_mb=colour_mb)
-    if levels is None:  # an .h5 file with fewer levels blames where the count came from
+    config = configs.make_config(preset, resume, **settings)  # every other option is a TrainConfig field
+    if settings["levels"] is None:  # an .h5 file with fewer levels blames where the count came from
         click.get_current_context().meta[SOURCES] = {
             "levels": "the checkpoint's levels" if resume else f"the {preset or 'default'} preset's levels"}
     try:
@@ -394,8 +392,6 @@ def run_job(job, items, unit: str, name) -> None:
     """Run a resumable job of many files, `job(progress)`, under one progress
     bar counting `items` (with a rate of `unit` per second); then say what
     it wrote, `name(item)` for the first and last."""
-    import time
-
     started, made = time.monotonic(), [0]
 
     def rate(_):
@@ -464,11 +460,11 @@ def world(model, seed, tiles, output, suffix, scale, frame, threads, workers, en
     whatever was made before, and a tile a billion tiles away costs what
     tile 0,0 costs.
     """
-    from sinshape.runtime import asset as assets, world as worlds, write
+    from sinshape.runtime import asset as assets, many, request as requests, write
 
     packed = assets.options_of(lods, texture, ao)
     loaded = open_model(model, threads)
-    wanted = worlds.world_request(loaded, seed, scale, frame, arrange, height_map, relief, lod)
+    wanted = requests.world_request(loaded, seed, scale, frame, arrange, height_map, relief, lod)
     output = output or Path(f"{loaded.path.stem}_world_seed{seed}")
     suffix = "glb" if packed else suffix
     if output.suffix.lower() in files.MESH_FORMATS and "{tile}" not in output.name:  # one mesh of the block
@@ -479,8 +475,8 @@ def world(model, seed, tiles, output, suffix, scale, frame, threads, workers, en
             write.write_block(loaded, wanted, tiles, output, lambda done, total: show("tiles", done, total))
         return click.echo(f"wrote {output} ({len(tiles)} tiles)")
     pattern = output if "{tile}" in output.name else output / f"tile_{{tile}}.{suffix}"
-    run_job(lambda progress: worlds.write_tiles(loaded.path, iter(tiles), pattern, wanted, engine, workers, threads,
-                                                address, progress, restart, packed),
+    run_job(lambda progress: many.write_tiles(loaded.path, iter(tiles), pattern, wanted, engine, workers, threads,
+                                              address, progress, restart, packed),
             tiles, "tiles", lambda tile: pattern.with_name(pattern.name.replace("{tile}", f"{tile[0]}_{tile[1]}")))
 
 

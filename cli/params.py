@@ -2,6 +2,7 @@
 Values are parsed by the runtime where the web API reads the same text."""
 
 import itertools
+import string
 import sys
 from pathlib import Path
 
@@ -147,8 +148,6 @@ def named_output(output: Path, **fields) -> Path:
         raise click.BadParameter(f"{output}: {', '.join('{' + k + '}' for k in fields)} fills in the file's name, "
                                  f"not its folder {output.parent}")
     if "{" in output.name:
-        import string
-
         try:
             if any(name is not None and (name not in fields or spec or conversion)
                    for _, name, spec, conversion in string.Formatter().parse(output.name)):

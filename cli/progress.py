@@ -1,6 +1,7 @@
 """What `sinrun` shows while it works: progress bars and times, on stderr."""
 
 import sys
+import time
 
 import click
 
@@ -20,8 +21,6 @@ class TrainProgress:
         self.reported = -1
 
     def __call__(self, p) -> None:
-        import time
-
         if self.quiet:
             return
         losses = "  ".join(f"{k} {v:+.4f}" for k, v in p.losses.items())

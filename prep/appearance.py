@@ -29,6 +29,7 @@ import numpy as np
 from sinshape.core.budget import check_memory
 
 from . import colour as colours
+from .voxelize import scene_parts
 
 MAX_TILE = 64
 MAX_TILE_BYTES = 48 << 20  # tiles above this get coarser (halved sides) until they fit
@@ -60,8 +61,6 @@ class Surface:
 def coloured_surface(scene, path) -> Surface | None:
     """A read scene's triangles, their colour and its density; None when
     nothing has colour (colour.painted_parts' rules for mixed scenes)."""
-    from .voxelize import scene_parts
-
     paint = colours.surface_painter(scene, path)
     if paint is None:
         return None

@@ -29,6 +29,7 @@ from sinshape.core.errors import InputError
 from sinshape.core.manifest import linear_to_srgb, srgb_to_linear
 
 from .meshfiles import check_texture_size, mtl_map
+from .voxelize import REFERENCES, scene_parts
 
 # Surface samples per finest voxel face of area, at least: the nearest sample
 # is then within about a third of a voxel of the nearest surface point.
@@ -227,8 +228,6 @@ def painted_parts(scene, path: Path) -> list | None:
     index, barycentric weights) -> (n, 3) sRGB, what gives it colour in
     words)], or None when no part has colour. A part without colour beside
     coloured parts is an InputError: colour is never dropped silently."""
-    from .voxelize import scene_parts
-
     gltf = path.suffix.lower() in GLTF_SUFFIXES
     parts = scene_parts(scene)
     painted, uncoloured = [], []
@@ -247,8 +246,6 @@ def painted_parts(scene, path: Path) -> list | None:
 def colour_read(scene, kinds) -> tuple:
     """(what the colour was read from, in words; warnings about it) of a read
     scene whose parts are coloured by `kinds` (colour_kind's words)."""
-    from .voxelize import REFERENCES
-
     textures = scene.metadata[REFERENCES].textures if REFERENCES in scene.metadata else ()
     named = ", ".join(f"{t.name} ({t.width}x{t.height})" for t in textures)
     read = "; ".join(dict.fromkeys(kind.replace("texture", f"texture {named}", 1) if named else kind

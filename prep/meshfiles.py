@@ -38,6 +38,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import trimesh
+from PIL import Image
 
 from sinshape.core.budget import check_memory
 from sinshape.core.errors import InputError
@@ -473,8 +474,6 @@ def check_image(raw: bytes, name: str) -> tuple:
     pixels counted against the memory budget from its header before they are
     decoded, then decoded once to see that they can be. `name` says which
     image, for messages."""
-    from PIL import Image
-
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)  # our own bound applies

@@ -29,6 +29,8 @@ from sinshape.core.budget import check_memory
 from sinshape.core.errors import InputError
 from sinshape.core.files import MESH_FORMATS, atomic_write
 
+from . import textured
+
 # Grid points farther than MARGIN voxels outside a primitive's bounding box
 # are left alone: its distance there exceeds MARGIN voxels, so it cannot
 # change the sign of the field or the values next to the surface, which are
@@ -366,16 +368,12 @@ def cheese(seed: int = 0, detail: int = 112) -> trimesh.Trimesh:
 
 def brick_ruin(seed: int = 0, detail: int = 16) -> trimesh.Trimesh:
     """A ruined brick enclosure with a 1024x768 brick texture (prep/textured.py)."""
-    from .textured import brick_ruin as made
-
-    return made(seed, detail)
+    return textured.brick_ruin(seed, detail)
 
 
 def lichen_rock(seed: int = 0, detail: int = 5) -> trimesh.Trimesh:
     """A twisted rock with a 512x512 atlas of stone and lichen (prep/textured.py)."""
-    from .textured import lichen_rock as made
-
-    return made(seed, detail)
+    return textured.lichen_rock(seed, detail)
 
 
 SHAPES: dict[str, Callable[..., trimesh.Trimesh]] = {

@@ -23,7 +23,8 @@ import numpy as np
 from sinshape.core.budget import check_memory
 from sinshape.core.errors import ConflictError, InputError
 
-from . import bake, gltf
+from . import bake, colour as colouring, gltf, mesh, query, world
+from .request import make
 
 MAX_LODS = 8
 MIN_TRIANGLES = 4  # the fewest a closed surface has
@@ -110,8 +111,6 @@ class Dense:
 def sample_field(model, triplane) -> bake.Field:
     """The field of a sample (or an edit's composed tri-plane) and its colour
     at full detail (a format-5 model's tiles, read at each texel's point)."""
-    from . import colour as colouring, mesh, query
-
     colour = None
     if model.manifest.colour:
         paint = colouring.colouring(model, triplane)
@@ -125,8 +124,6 @@ def tile_field(model, seed: int, tile, options) -> bake.Field:
     """The field of world tile (i, j) (its world made as world.WorldOptions
     `options` say), in model units from its corner, and its colour: empty
     above and below the world's heights, as its mesh is."""
-    from . import world
-
     layout = world.world_layout(model)
     heights = world.tile_grid(model, layout, 1.0, options).positions[layout.up]
 
@@ -144,9 +141,6 @@ def tile_field(model, seed: int, tile, options) -> bake.Field:
 def dense_surface(model, request, threads: int | None = None, progress=None) -> Dense:
     """The full-resolution surface of a request (a sample, an edit or a
     world tile) in its frame, and the field behind it."""
-    from . import mesh, world
-    from .request import make
-
     spacing = np.asarray(model.manifest.spacing, np.float64)
     if request.tile is not None:
         vertices, faces = world.tile_mesh(model, request.sample_seed, request.tile, request.scale, progress=progress,
@@ -173,7 +167,7 @@ def simplify(vertices: np.ndarray, faces: np.ndarray, target: int, lock_border: 
     lock_border, every vertex of its open border: (vertices, faces, error),
     error the largest deviation in the mesh's units. Refused if the
     simplifier cannot get down to the target."""
-    import meshoptimizer
+    import meshoptimizer  # the assets extra
 
     indices = np.ascontiguousarray(faces, np.uint32).ravel()
     positions = np.ascontiguousarray(vertices, np.float32)
@@ -199,7 +193,7 @@ def unwrap(vertices: np.ndarray, faces: np.ndarray, options: AssetOptions) -> tu
     (V',), faces (F, 3) of new vertices, UVs (V', 2) in [0, 1] of a square
     texture, glTF's: u right, v down). Charts are `options.padding` texels
     apart at the texture's size."""
-    import xatlas
+    import xatlas  # the assets extra
 
     size = options.texture
     atlas = xatlas.Atlas()

@@ -28,6 +28,8 @@ from typing import Callable
 
 import numpy as np
 
+from .raster import rasterise
+
 LATTICE = 0.75  # voxels between lattice points: the model's detail is a voxel's
 MAX_SPLIT = 64  # lattice intervals along a level's triangle side, at most
 BRACKET = 7  # field samples along a lattice point's ray before refining
@@ -97,8 +99,6 @@ def rasterise_uv(uvs: np.ndarray, faces: np.ndarray, size: int) -> tuple:
     """Which face covers each texel's centre, and where: (texel indices (k,)
     into the flat size x size image, faces (k,), barycentric weights (k, 3)
     float32). uvs (V, 2) in [0, 1], glTF's: u right, v down the image."""
-    from .render import rasterise
-
     owner, _, found = rasterise(uvs[faces] * size, np.zeros(faces.shape), (size, size), weights=True)
     texels = np.flatnonzero(owner.ravel() >= 0)
     w12 = np.clip(found.reshape(-1, 2)[texels], 0, 1)

@@ -44,9 +44,19 @@ On cropped inputs the results agree with the paper's torch functions run on
 CPU: identical patches, scores equal to float32 precision.
 """
 
+import itertools
+import json
+import time
+from pathlib import Path
+
 import numpy as np
 
+from sinshape.core.budget import check_memory
 from sinshape.core.errors import InputError
+from sinshape.core.files import atomic_write, check_writable
+
+from .generate import resize_volume, sample
+from .query import check_scale, dense, grid_shape
 
 REFERENCE_CHUNK = 2048  # reference patches per matrix product: ~30 MB of work arrays
 VOXEL_CHUNK = 1 << 16  # voxels per diversity product: float32 sums of 0/1 stay exact
@@ -218,9 +228,6 @@ def height_autocorrelation(volume, up: int, axis: int, lags) -> list:
 def sample_volumes(model, seeds, scale: float = 1.0, upsample: bool = False, progress=None) -> list:
     """Binary occupancy grids (occupancy > 0.5) of samples at `scale`, queried
     from the tri-planes or (upsample) trilinearly upsampled from scale 1."""
-    from .generate import resize_volume, sample
-    from .query import dense, grid_shape
-
     volumes = []
     for seed in seeds:
         triplane = sample(model, seed)
@@ -239,9 +246,6 @@ def check_evaluation_memory(model, samples: int, scale: float, limit: int | None
     memory available): every sample's grid is kept for diversity, whose
     pairwise overlaps are a few (n, n) float64 matrices and (n, VOXEL_CHUNK)
     float32 chunks; one sample is queried densely at a time."""
-    from sinshape.core.budget import check_memory
-    from .query import grid_shape
-
     if samples < 1:
         raise InputError(f"samples must be at least 1, got {samples}", "samples")
     voxels = int(np.prod(grid_shape(model.manifest.sizes[-1], scale)))
@@ -263,14 +267,7 @@ def evaluate_model(model, reference, samples: int = 100, first_seed: int = 0, sc
     `sinrun eval --json` writes, also to json_path when given (checked first):
     the means, sizes, timings and per-sample scores.
     """
-    import itertools
-    import json
-    import time
-
-    from sinshape.core.files import atomic_write, check_writable
-    from sinshape.prep.pyramid import reference_grid
-
-    from .query import check_scale
+    from sinshape.prep.pyramid import reference_grid  # the prep extra (scipy, h5py): scoring only
 
     check_scale(scale)
     if json_path:
@@ -304,9 +301,7 @@ def evaluate_model(model, reference, samples: int = 100, first_seed: int = 0, sc
 def not_training_input(model, reference) -> str | None:
     """What is wrong when `reference` is a file, but not the one whose SHA-256
     the model's manifest records as its training input; else None."""
-    from pathlib import Path
-
-    from sinshape.prep.pyramid import file_sha256
+    from sinshape.prep.pyramid import file_sha256  # the prep extra
 
     source = model.manifest.raw.get("source", {})
     if not source.get("sha256") or not Path(reference).is_file() or file_sha256(Path(reference)) == source["sha256"]:

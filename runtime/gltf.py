@@ -16,6 +16,7 @@ import json
 import math
 import os
 import struct
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -125,7 +126,7 @@ def screen_coverage(count: int) -> list:
 
 def png_bytes(image: np.ndarray) -> bytes:
     """A (size, size, 1 or 3) uint8 map as a PNG file."""
-    from PIL import Image
+    from PIL import Image  # pillow: Blender's Python has none, and imports this module (an asset's bake)
 
     png = io.BytesIO()
     Image.fromarray(image[..., 0] if image.shape[2] == 1 else image).save(png, "PNG", compress_level=PNG_LEVEL)
@@ -135,8 +136,6 @@ def png_bytes(image: np.ndarray) -> bytes:
 def encoded_maps(levels: list) -> list:
     """Each level's maps as PNG files ({field: bytes}), encoded on all cores
     (zlib lets go of the interpreter)."""
-    from concurrent.futures import ThreadPoolExecutor
-
     names = ("normal_map", "colour_map", "occlusion_map")
     jobs = [(k, name) for k, level in enumerate(levels) for name in names if getattr(level, name) is not None]
     with ThreadPoolExecutor(os.cpu_count() or 1) as pool:
@@ -181,7 +180,7 @@ def level_arrays(document: dict, binary: bytes, node: int) -> dict:
     """A level's arrays (position, normal, tangent, texcoord_0, faces) and
     maps (normal_map, colour_map, occlusion_map: None where the material has
     none), by its node."""
-    from PIL import Image
+    from PIL import Image  # pillow, as png_bytes
 
     def accessor(index):
         a = document["accessors"][index]

@@ -507,7 +507,7 @@ def cells(manifest, factors=(1.0, 1.0, 1.0)) -> tuple:
 def mesh_layout(model, path, factors=(1.0, 1.0, 1.0)) -> np.ndarray:
     """A rough mesh (a few boxes, in the model's frame: the units of its
     samples' meshes) voxelised on level 0's grid of a sample of `factors`."""
-    from sinshape.prep.voxelize import load_mesh, voxelize
+    from sinshape.prep.voxelize import load_mesh, voxelize  # the prep extra: only a layout read from a mesh needs it
 
     corner, spacing, shape = cells(model.manifest, factors)
     grid = voxelize(load_mesh(path), corner, spacing, shape)

@@ -32,6 +32,9 @@ from sinshape.core.errors import InputError
 from sinshape.core.files import atomic_write, check_readable, check_writable
 
 from . import onnxfile
+from .colour import Tiles
+from .generate import sample
+from .query import head_colour, head_occupancy, project
 
 ort.disable_telemetry_events()
 
@@ -263,8 +266,6 @@ def read_tiles(model: onnxfile.OnnxModel, manifest: fmt.Manifest, path: Path):
     finest level: (N, 3) voxels inside it, (N,) directions below 6, each
     pair once and a voxel's tiles together, (N, T, T, 4) images, and the
     level's (X, Y, Z) signed distance grid."""
-    from .colour import Tiles
-
     count, side = manifest.tiles
     names = fmt.TILE_TENSORS
     if any(name not in model.weights for name in names):
@@ -315,8 +316,6 @@ def check_stages(model: Model) -> None:
         if not all(np.isfinite(o).all() for o in outputs):
             raise InputError(f"{model.path}: stage {name} gives NaN or infinite values (bad weights)")
     # The numpy head must be the graph's head.
-    from .query import head_colour, head_occupancy
-
     hidden = (2 * np.cos(np.arange(3 * 64 * h).reshape(3, 64, 1, 1, h) * 0.7)).astype(np.float32)  # varied values
     graph = model.decoder_head.run(list(hidden))
     if not all(np.isfinite(g).all() for g in graph):
@@ -342,9 +341,6 @@ def check_colour_head(model: Model) -> None:
     planes' values there, each within its plane's range per channel), and
     the bound must stay far from float32's overflow, where inf - inf is NaN.
     Weights of 3e38, finite and sealed, sampled NaN colours written black."""
-    from .generate import sample
-    from .query import project
-
     planes = project(model, sample(model, None)).planes
     if not all(np.isfinite(p).all() for p in planes):
         raise InputError(f"{model.path}: its reconstruction's planes are not finite (bad weights)")

@@ -9,7 +9,9 @@ points closes the surface at the grid's border.
 
 import math
 import numbers
+import time
 from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 from threadpoolctl import threadpool_limits
@@ -18,6 +20,7 @@ from sinshape.core import budget
 from sinshape.core.errors import InputError, MemoryLimitError
 
 from . import colour, cubes, query
+from .generate import sample
 from .load import default_threads
 
 SMOOTHERS = ("laplacian", "taubin")
@@ -53,8 +56,6 @@ def faces_per_voxel(model) -> float:
     measured once per loaded model (a sample's meshing at the training
     size), and kept on it."""
     if model.faces_per_voxel is None:
-        from .generate import sample
-
         faces = sum(len(f) for _, f in pieces(model, sample(model, None), 1.0, threads=1))
         model.faces_per_voxel = faces / math.prod(model.manifest.sizes[-1])
     return model.faces_per_voxel
@@ -125,8 +126,6 @@ def pieces(model, triplane, scale: float = 1.0, progress=None, memory_limit: int
     steps = np.array([(n - 1) / (m - 1) for n, m in zip(triplane.size, shape)])
     pool = None
     if threads > 1 and len(search) > threads and np.prod(shape) >= POOL_POINTS:
-        from concurrent.futures import ThreadPoolExecutor
-
         pool = ThreadPoolExecutor(threads)
     # numpy's BLAS would start threads of its own in every product, which then
     # compete with (and spin beside) these: one each, measured faster on any
@@ -205,8 +204,6 @@ def estimate_seconds(model, triplane, scale: float) -> float:
     most 2 and extrapolated as scale^2.2. The surface, and so the leaves
     evaluated, grows as scale^2, and the shipped models measure scale^1.8
     to scale^2.4 between scales 2 and 16 (docs/RELIABILITY.md)."""
-    import time
-
     query.check_band_memory(triplane.size, scale, model.manifest.hidden)  # refused work takes no time
     measured = min(scale, 2.0)
     started = time.perf_counter()
@@ -293,7 +290,7 @@ def largest_part(mesh):
     """The connected part with the most faces (faces joined by a shared
     edge, as trimesh's split joins them; a tie goes to the part holding the
     lowest face index), with its vertices in their old order."""
-    import trimesh
+    import trimesh  # half a second to import, and only a whole mesh in memory needs it
 
     faces = np.asarray(mesh.faces)
     pairs = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1).astype(np.int64)

@@ -25,9 +25,11 @@ from sinshape.core import budget
 from sinshape.core.errors import ConflictError, InputError, MemoryLimitError
 from sinshape.core.manifest import MAX_LEVEL_SIDE
 
+from . import edit, generate, layout, mesh, query
 from .edit import Part
+from .load import default_threads
 from .mesh import MAX_SMOOTH, SMOOTHERS
-from .world import ARRANGEMENTS, HeightMap, WorldOptions, check_tile
+from .world import ARRANGEMENTS, HeightMap, WorldOptions, check_tile, read_height_map
 
 FRAMES = ("input", "model", "tile")
 MAX_PARTS = 16  # boxes kept in one sample: each runs a whole chain of its own
@@ -224,8 +226,6 @@ def resolved(model, request: SampleRequest) -> SampleRequest:
     edit.Part, in finest voxels, checked inside the sample): equal parts,
     however written, then make equal requests. A resolved request is
     returned as it is."""
-    from . import edit, generate
-
     finest = generate.scaled_sizes(model.manifest.sizes, request.size)[-1]
     parts = tuple(edit.parse_part(part, model.manifest, finest) if isinstance(part, str) else edit.check_part(part, finest)
                   for part in request.keep)
@@ -250,9 +250,6 @@ def check_memory(model, request: SampleRequest, output: str = "mesh", per_face: 
     dense grid; 'planes' nothing more. The faces are estimated (a meshing
     of the model's reconstruction, once) only where their most possible
     would not fit."""
-    from . import edit, generate, layout, mesh, query
-    from .load import default_threads
-
     if output not in OUTPUTS:
         raise InputError(f"unknown output {output!r}; choose {', '.join(OUTPUTS)}", "output")
     if request.tile is not None:  # a world's tile is bounded by world.check_world_scale
@@ -294,8 +291,6 @@ def make(model, request: SampleRequest, memory_limit: int | None = None, output:
     than memory_limit bytes (None: the memory available now), the meshing
     it is made for included, is refused up front with MemoryLimitError
     (check_memory)."""
-    from . import edit, generate, layout
-
     if request.tile is not None:
         raise InputError("a tile of a world has no tri-plane of its own: make its mesh with world.tile_mesh, or "
                          "its file with write.request_bytes", "tile")
@@ -322,8 +317,6 @@ def warnings(model, request: SampleRequest) -> list:
     raised; each names its field): a size that shrinks some level, or a
     scale that shrinks the final grid, below the smallest grid it can have
     (clamped, so the shape is not to scale)."""
-    from . import generate
-
     sizes = generate.scaled_sizes(model.manifest.sizes, request.size)  # refuses what is too large to round
     said = []
     if any(round(n * f) < generate.MIN_SIDE for size in model.manifest.sizes for n, f in zip(size, request.size)):
@@ -333,3 +326,13 @@ def warnings(model, request: SampleRequest) -> list:
         said.append(InputError(f"scale {request.scale:g} leaves under 2 grid points on an axis; the grid is "
                                "clamped to 2 and the shape barely resolved", "scale"))
     return said
+
+
+def world_request(model, seed: int, scale: float = 1.0, frame: str = "input", arrange: str | None = None,
+                  height_map=None, relief: float | None = None, lod: int = 0) -> SampleRequest:
+    """The request of a world's tiles (no tile yet) as a front end is asked
+    for it: the model's own arrangement unless one is given, the height map
+    read from its file (world.read_height_map)."""
+    heights = read_height_map(height_map, model, relief) if height_map else None
+    return SampleRequest(seed, scale=scale, frame=frame, arrange=arrange or model.manifest.arrange, heights=heights,
+                         lod=lod)

@@ -56,6 +56,7 @@ import math
 import numbers
 from collections import OrderedDict
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -65,7 +66,9 @@ from sinshape.core.errors import InputError
 from sinshape.core.manifest import ARRANGEMENTS, PLANE_AXES
 
 from . import cubes
-from .generate import draw_noise, scaled_sizes, triplane
+from .colour import planes_colouring
+from .generate import check_seed, draw_noise, scaled_sizes, triplane
+from .mesh import colour_bytes
 from .query import bilinear, check_scale, head_colour, project, sigmoid
 
 WORLD_STREAM = 2  # (WORLD_STREAM, a, b): the key of window (a, b)'s noise, absorbed after the world's seed
@@ -208,7 +211,7 @@ def parse_height_map(data: bytes, suffix: str, name, relief: float | None = None
     if suffix != ".png":
         raise InputError(f"{name}: a height map is a .png image or a .npy array, got {suffix or 'no extension'!r}",
                          "heights")
-    from PIL import Image, UnidentifiedImageError
+    from PIL import Image, UnidentifiedImageError  # pillow: Blender's Python, which makes worlds, has none
 
     if relief is None or not (isinstance(relief, numbers.Real) and 0 < relief <= MAX_RELIEF):
         raise InputError(f"relief must be a number of voxels in (0, {MAX_RELIEF}] for an image, got {relief!r}",
@@ -232,8 +235,6 @@ RELIEF = 4  # an image map's white, in the model's heights, unless a relief is g
 def read_height_map(path, model, relief: float | None = None) -> HeightMap:
     """parse_height_map of a file; an image's white is `relief` voxels
     (default RELIEF times the model's height)."""
-    from pathlib import Path
-
     path = Path(path)
     try:
         data = path.read_bytes()
@@ -243,18 +244,6 @@ def read_height_map(path, model, relief: float | None = None) -> HeightMap:
         layout = world_layout(model)
         relief = RELIEF * layout.stride[layout.up]
     return parse_height_map(data, path.suffix, path.name, relief)
-
-
-def world_request(model, seed: int, scale: float = 1.0, frame: str = "input", arrange: str | None = None,
-                  height_map=None, relief: float | None = None, lod: int = 0):
-    """The request of a world's tiles (request.SampleRequest, no tile yet)
-    as a front end is asked for it: the model's own arrangement unless one
-    is given, the height map read from its file (read_height_map)."""
-    from .request import SampleRequest
-
-    heights = read_height_map(height_map, model, relief) if height_map else None
-    return SampleRequest(seed, scale=scale, frame=frame, arrange=arrange or model.manifest.arrange, heights=heights,
-                         lod=lod)
 
 
 @dataclass(frozen=True)
@@ -737,8 +726,6 @@ def tile_occupancy(model, seed: int, tile, scale: float = 1.0, memory_limit: int
     format-5 model's full-detail tile: (occupancy, (X, Y, Z, 3) uint8
     sRGB). progress(done, total) after each window and
     each slab of rows (a server stops a job there)."""
-    from .generate import check_seed
-
     check_seed(seed)
     layout = world_layout(model)
     made = tile_logits(model, seed, tile, scale, options, memory_limit, colour, progress)
@@ -902,9 +889,7 @@ def tile_colours(model, seed: int, tile, vertices: np.ndarray, options: WorldOpt
     (`footprint` voxels); a format-4 model's (and a coarser tile's, `lod`),
     the colour head of the hidden vector there, blended as the occupancy
     is. A scatter world's ground is grey. A vertex on a face two tiles
-    share gets the same colour from both. Returns (n, 4) uint8 RGBA.""" 
-    from .mesh import colour_bytes
-
+    share gets the same colour from both. Returns (n, 4) uint8 RGBA."""
     if model.tiles is None or options.lod:
         _, hidden, ground = point_field(model, seed, tile, vertices, options)
         rgb = head_colour(model.head, hidden)
@@ -929,8 +914,6 @@ def window_colouring(model, layout: Layout, seed: int, a: int, b: int, arrange: 
     cells: its own sample's colour by correspondence (colour.planes_colouring),
     matched once and kept. A window's matches follow its content only, so a
     tile and its neighbour read a window they share alike."""
-    from .colour import planes_colouring
-
     key = (id(model), seed, arrange, a, b)
     if key in _colourings:
         _colourings.move_to_end(key)
@@ -1085,92 +1068,10 @@ def placed(model, tile, vertices: np.ndarray, frame: str) -> np.ndarray:
     return absolute if frame == "model" else np.asarray(manifest.origin) + absolute * np.asarray(manifest.spacing)
 
 
-def tile_bytes(model, request, name, progress=None) -> tuple:
-    """A tile request (request.SampleRequest with `tile`) as the bytes of the
-    file `name` names, and its mesh (None for an .npz grid). progress: as
-    tile_occupancy's."""
-    from pathlib import Path
-
-    from . import write
-
-    suffix = Path(name).suffix.lower()
-    options = request.world_options()
-    if write.output_kind(name) == "grid":
-        grids = tile_occupancy(model, request.sample_seed, request.tile, request.scale, colour=model.manifest.colour,
-                               options=options, progress=progress)
-        grids = dict(zip(("occupancy", "colour"), grids)) if model.manifest.colour else {"occupancy": grids}
-        grid = tile_grid(model, world_layout(model), request.scale, options)
-        return write.grid_bytes(**grids, tile=request.tile, corner=tile_corner(model, request.tile),
-                                scale=request.scale, lod=options.lod,
-                                heights=grid.positions[world_layout(model).up]), None
-    import trimesh
-
-    surface = tile_surface(model, request.sample_seed, request.tile, request.scale, options, progress=progress)
-    if not len(surface.faces):
-        raise write.no_surface(Path(name))
-    vertices = placed(model, request.tile, surface.vertices, request.frame)
-    normals = surface.normals if request.frame == "model" else frame_normals(model, surface.normals)
-    mesh = trimesh.Trimesh(vertices, surface.faces, vertex_normals=normals, process=False)
-    if surface.colours is not None:
-        mesh.visual.vertex_colors = surface.colours
-    return write.mesh_bytes(mesh, suffix, normals=True), mesh
-
-
 def frame_normals(model, normals: np.ndarray) -> np.ndarray:
     """Normals in voxel units -> the input's frame (its spacing may differ per axis)."""
     scaled = normals / np.asarray(model.manifest.spacing)
     return (scaled / np.linalg.norm(scaled, axis=1, keepdims=True)).astype(np.float32)
-
-
-# Worker processes a world's job uses on this machine unless told: one, with
-# every core's threads. Neighbouring tiles share their windows, which a
-# worker keeps; workers given tiles in turn each make most windows again
-# (on 2 cores, two wrote 36 tiles as fast as one did, 7.0 and 6.4 tiles/s
-# for the terrain, and, while a tile's normals still made neighbours'
-# windows, 1.4 to 1.6 times slower). More cores: --workers.
-LOCAL_WORKERS = 1
-
-
-def write_tiles(model_path, tiles, pattern, request, engine: str = "local", workers: int | None = None,
-                threads: int | None = None, address: str | None = None, progress=None,
-                restart: bool = False, asset=None) -> dict:
-    """Write one file per tile of `tiles` ((i, j) pairs, read lazily), `pattern`
-    with {tile} filled in as I_J: the world of `request` (a
-    request.SampleRequest with a seed and no tile), resumably, on the cores
-    or a Ray cluster as runtime.many's jobs (an index of another job is
-    refused unless `restart`); with `asset` (an asset.AssetOptions), each
-    tile's game asset (.glb), whose levels keep the tile's whole border.
-    Returns {"written", "skipped", "index"}."""
-    import dataclasses
-
-    from . import many
-
-    from pathlib import Path
-
-    from .load import load_model
-
-    if request.tile is not None:
-        raise InputError("give the tiles to write, not one tile in the request", "tile")
-    tiles = iter(tiles)
-    first = next(tiles, None)
-    if first is None:
-        raise InputError("no tiles to write", "tile")
-    dataclasses.replace(request, tile=first)  # what a tile refuses, refused before the first is made
-    loaded = load_model(model_path, threads=1)
-    check_lod(loaded, request.lod)
-    if request.frame != "tile":
-        check_placement(loaded, first, request.frame)
-    tiles = itertools.chain([first], tiles)
-    folder = Path(pattern).parent
-    if not folder.exists():
-        try:
-            folder.mkdir(parents=True)
-        except OSError as error:
-            raise InputError(f"{folder}: cannot make the folder ({error.strerror})") from None
-    if engine == "local" and workers is None:
-        workers = LOCAL_WORKERS
-    return many.run_job(model_path, tiles, pattern, many.TILES, request, engine, workers, threads, address,
-                        progress, restart, asset)
 
 
 MAX_BLOCK_TILES = 4096  # tiles written as one mesh; more is a folder of tiles (write_tiles)
@@ -1189,7 +1090,7 @@ def block_mesh(model, request, tiles, progress=None, memory_limit: int | None = 
     Its count is bounded before a tile is listed, and its memory (the first
     tile's surface times the count) before the second is made.
     progress(done, total) after each tile."""
-    import trimesh
+    import trimesh  # half a second to import, for a block's whole mesh only (runtime/mesh.py's tiles stream)
 
     sized = hasattr(tiles, "__len__")
     count = len(tiles) if sized else None  # a block's count is checked before its tiles are listed

@@ -8,7 +8,9 @@ red, green, blue) and .obj (`v x y z r g b`), linear in .glb's COLOR_0, as
 glTF says; .stl and .off have none. Its .npz grids carry a colour grid.
 Every file goes through core.files.atomic_write, so a crash or Ctrl-C leaves
 either the old file or the new one; mesh_bytes and grid_bytes give the same
-bytes in memory, to send elsewhere.
+bytes in memory, to send elsewhere. The encoders of what a request asks for
+are here too: sample_bytes (a sample), tile_bytes (a tile of a world) and
+request_bytes, which picks between them and a game asset (asset.py).
 """
 
 import io
@@ -22,6 +24,14 @@ import numpy as np
 from sinshape.core.errors import InputError
 from sinshape.core.files import MESH_FORMATS, atomic_write, check_writable
 from sinshape.core.manifest import srgb_to_linear
+
+from . import mesh, world
+from .asset import asset_bytes
+from .colour import colouring, dense_grids
+from .generate import interpolate
+from .mesh import held_per_face
+from .request import make
+
 GRID_FORMATS = {".npz"}
 
 
@@ -144,8 +154,6 @@ def write_sample(model, triplane, path, scale: float = 1.0, smooth: int = 0, smo
     A .ply without smoothing or --largest (which need the whole mesh) is
     streamed slab by slab: any size fits in memory. mesh_progress(done,
     total) is called as meshing goes."""
-    from . import mesh
-
     check_writable(path, [model.path])  # every name `interpolate` writes, not only the first
     path = Path(path)
     if output_kind(path) == "grid" or path.suffix.lower() != ".ply" or smooth or largest:
@@ -157,8 +165,6 @@ def write_sample(model, triplane, path, scale: float = 1.0, smooth: int = 0, smo
     pieces = mesh.pieces(model, triplane, scale, progress=mesh_progress, threads=threads)
     colour = model.manifest.colour
     if colour:  # each piece's new vertices coloured as they come: the cost is per vertex
-        from .colour import colouring
-
         paint = colouring(model, triplane)
         pieces = ((v, f, mesh.colour_bytes(paint(v, 1 / scale))) for v, f in pieces)
     if frame == "input":
@@ -178,8 +184,6 @@ def write_request(model, request, path, inputs=(), threads: int | None = None, m
     `asset` (an asset.AssetOptions; path a .glb). The path is checked first,
     against the model and `inputs` (a layout's file) too, so that a bad one
     costs no work."""
-    from .request import make
-
     check_writable(path, [model.path, *inputs])
     if request.tile is not None or asset is not None:
         data, _ = request_bytes(model, request, path, threads, mesh_progress, asset)
@@ -194,8 +198,6 @@ def made_for(path, request, streamed: bool = True) -> dict:
     (request.check_memory): a grid, a .ply streamed slab by slab (unless
     smoothing or the largest part needs the whole mesh; `streamed` False:
     made in memory), or a whole mesh, its faces costing what its format's do."""
-    from .mesh import held_per_face
-
     path = Path(path)
     if output_kind(path) == "grid":
         return dict(output="grid")
@@ -206,25 +208,46 @@ def made_for(path, request, streamed: bool = True) -> dict:
 
 def request_bytes(model, request, name, threads: int | None = None, mesh_progress=None, asset=None) -> tuple:
     """`sample_bytes` of the sample a request asks for: the file `name` names,
-    in memory, and its mesh; a tile of a world (world.tile_bytes) likewise.
+    in memory, and its mesh; a tile of a world (tile_bytes) likewise.
     mesh_progress(done, total) as the work goes (a server stops a job there).
     With `asset` (an asset.AssetOptions), the game asset of either as a
     .glb, and in place of the mesh what it holds (asset.asset_bytes)."""
-    from .request import make
-
     if asset is not None:
-        from .asset import asset_bytes
-
         if Path(name).suffix.lower() != ".glb":
             raise InputError(f"{Path(name).name}: an asset is written as .glb (glTF's binary), not "
                              f"{Path(name).suffix or '(no extension)'}", "lods")
         return asset_bytes(model, request, asset, Path(name).stem, threads, mesh_progress)
     if request.tile is not None:
-        from .world import tile_bytes
-
         return tile_bytes(model, request, name, mesh_progress)
     return sample_bytes(model, make(model, request, **made_for(name, request, streamed=False)), name,
                         threads=threads, mesh_progress=mesh_progress, **request.mesh_options())
+
+
+def tile_bytes(model, request, name, progress=None) -> tuple:
+    """A tile request (request.SampleRequest with `tile`) as the bytes of the
+    file `name` names, and its mesh (None for an .npz grid). progress: as
+    world.tile_occupancy's."""
+    suffix = Path(name).suffix.lower()
+    options = request.world_options()
+    if output_kind(name) == "grid":
+        grids = world.tile_occupancy(model, request.sample_seed, request.tile, request.scale,
+                                     colour=model.manifest.colour, options=options, progress=progress)
+        grids = dict(zip(("occupancy", "colour"), grids)) if model.manifest.colour else {"occupancy": grids}
+        layout = world.world_layout(model)
+        grid = world.tile_grid(model, layout, request.scale, options)
+        return grid_bytes(**grids, tile=request.tile, corner=world.tile_corner(model, request.tile),
+                          scale=request.scale, lod=options.lod, heights=grid.positions[layout.up]), None
+    import trimesh  # half a second to import: a streamed .ply of a sample does without it
+
+    surface = world.tile_surface(model, request.sample_seed, request.tile, request.scale, options, progress=progress)
+    if not len(surface.faces):
+        raise no_surface(Path(name))
+    vertices = world.placed(model, request.tile, surface.vertices, request.frame)
+    normals = surface.normals if request.frame == "model" else world.frame_normals(model, surface.normals)
+    tile = trimesh.Trimesh(vertices, surface.faces, vertex_normals=normals, process=False)
+    if surface.colours is not None:
+        tile.visual.vertex_colors = surface.colours
+    return mesh_bytes(tile, suffix, normals=True), tile
 
 
 def sample_bytes(model, triplane, path, scale: float = 1.0, smooth: int = 0, smoother: str = "laplacian",
@@ -233,12 +256,8 @@ def sample_bytes(model, triplane, path, scale: float = 1.0, smooth: int = 0, smo
     """One sample as the bytes of the file `path` names, made in memory, and
     its mesh (None for a grid): what write_sample writes, for a caller that
     writes elsewhere or wants the mesh too."""
-    from . import mesh, query
-
     path = Path(path)
     if output_kind(path) == "grid":
-        from .colour import dense_grids
-
         return grid_bytes(**dense_grids(model, triplane, scale), size=triplane.size, scale=scale), None
     result = mesh.extract(model, triplane, scale, smooth, smoother, largest, frame, progress=mesh_progress,
                           threads=threads, per_face=mesh.held_per_face(smooth, path.suffix, largest))
@@ -268,8 +287,6 @@ def write_interpolation(model, seed_a: int, seed_b: int, alpha, steps: int, path
     alpha(k), as `generate.blend_weights` makes it) to path(k), each made
     when its turn comes, with `write_samples`. The first path is checked
     before any work."""
-    from .generate import interpolate
-
     first = path(0)
     output_kind(first)
     check_writable(first, [model.path])
@@ -280,12 +297,10 @@ def write_interpolation(model, seed_a: int, seed_b: int, alpha, steps: int, path
 def write_block(model, request, tiles, path, progress=None) -> None:
     """A block of tiles of the world of `request` (world.block_mesh) as one
     mesh file, checked before any work."""
-    from .world import block_mesh
-
     if output_kind(path) != "mesh":
         raise InputError(f"{path}: a block is written as a mesh ({', '.join(MESH_FORMATS)})")
     check_writable(path, [model.path])
-    mesh = block_mesh(model, request, tiles, progress)
-    if not len(mesh.faces):
+    block = world.block_mesh(model, request, tiles, progress)
+    if not len(block.faces):
         raise no_surface(Path(path))
-    write_mesh(mesh, path)
+    write_mesh(block, path)

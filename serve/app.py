@@ -20,6 +20,7 @@ sampling takes longer than the time limit.
 
 import importlib.metadata
 import logging
+import socket
 from contextlib import asynccontextmanager
 from dataclasses import dataclass
 from functools import partial
@@ -388,8 +389,6 @@ def create_app(loaded: dict, slots: int | None = None, timeout: float = 60.0,
 
 def bind(host: str, port: int):
     """A listening socket, bound here so that a taken port is one line, not a server's traceback."""
-    import socket
-
     try:
         family = socket.AF_INET6 if ":" in host else socket.AF_INET
         sock = socket.socket(family, socket.SOCK_STREAM)

@@ -13,7 +13,7 @@ import numpy as np
 
 from sinshape.runtime import layout, write
 from sinshape.runtime.asset import AssetOptions
-from sinshape.runtime.request import SampleRequest, make
+from sinshape.runtime.request import SampleRequest
 from sinshape.serve.http import entity_tag
 
 
@@ -88,17 +88,8 @@ def make_sample(model, job: Job, checkpoint) -> Sample:
     if job.layout_of is not None:  # a layout, not a sample
         grid = layout.layout(model, job.request.sample_seed, job.layout_of, job.request.size)
         body, faces = layout_file(grid, job.layout_of, job.format), None
-    elif job.asset is not None:  # a game asset: its full mesh's faces
-        body, info = write.request_bytes(model, job.request, job.filename(), mesh_progress=checkpoint,
+    else:  # a sample, a tile of a world or a game asset, stopped within a slab when given up
+        body, made = write.request_bytes(model, job.request, job.filename(), mesh_progress=checkpoint,
                                          asset=job.asset)
-        faces = info["dense_triangles"]
-    elif job.request.tile is not None:  # a tile of a world: stopped within a slab when given up
-        body, result = write.request_bytes(model, job.request, job.filename(), mesh_progress=checkpoint)
-        faces = None if result is None else len(result.faces)
-    else:
-        triplane = make(model, job.request)
-        checkpoint()
-        body, result = write.sample_bytes(model, triplane, job.filename(), mesh_progress=checkpoint,
-                                          **job.request.mesh_options())
-        faces = None if result is None else len(result.faces)
+        faces = made["dense_triangles"] if job.asset is not None else None if made is None else len(made.faces)
     return Sample(body, entity_tag(body), faces, time.perf_counter() - started)

@@ -38,6 +38,21 @@ def test_help_explains_every_option():
     assert top.exit_code == 0 and "train" in top.output
 
 
+RUN_OPTIONS = {"input_path", "output", "preset", "device", "no_colour", "asset_folder", "resume", "checkpoint", "quiet"}
+
+
+def test_every_other_train_option_is_a_training_setting_of_its_name():
+    """A new training setting is a TrainConfig field and one option named
+    after it: train hands every option but the run's own to make_config."""
+    import dataclasses
+
+    from sinshape.trainer.config import TrainConfig
+
+    settings = {param.name for param in cli.commands["train"].params} - RUN_OPTIONS
+    assert settings and settings <= {field.name for field in dataclasses.fields(TrainConfig)}, \
+        settings - {field.name for field in dataclasses.fields(TrainConfig)}
+
+
 def test_without_torch_train_says_how_to_install_it(tiny_pyramid, tmp_path):
     result = run_sinrun("train", tiny_pyramid, "-o", tmp_path / "m.onnx", block_torch=True)
     assert result.returncode == 1

@@ -1,5 +1,9 @@
 """The import rules of docs/ARCHITECTURE.md hold for every module: no package
-imports one above it (the table there is read, not copied).
+imports one above it (the table there is read, not copied); inside a
+package the modules form one order, with no cycle however late an import
+comes (the runtime's, the order ARCHITECTURE.md draws); and an import waits
+inside a function only for a reason LATER gives. `python tests/test_imports.py`
+prints each package's cycles and imports inside functions.
 
 Every way of naming a module counts: `import sinshape.x`, `from sinshape
 import x`, `from sinshape.x import y`, relative imports (`from .. import x`,
@@ -20,13 +24,17 @@ PACKAGES = ("core", "prep", "runtime", "trainer", "models", "serve", "cli", "ble
 UNREADABLE = "an import_module of sinshape whose package the source does not spell out"
 
 
+def table_rows(name: str) -> list:
+    """The cells of each row of ARCHITECTURE.md's table marked `name`."""
+    text = (ROOT / "docs" / "ARCHITECTURE.md").read_text()
+    table = text.split(f"<!-- {name}: read by tests/test_imports.py -->")[1].split(f"<!-- end of {name} -->")[0]
+    return [[c.strip() for c in row.strip().strip("|").split("|")] for row in table.splitlines()]
+
+
 def rules() -> dict:
     """{package: the packages it may import}, from ARCHITECTURE.md's table."""
-    text = (ROOT / "docs" / "ARCHITECTURE.md").read_text()
-    table = text.split("<!-- import rules: read by tests/test_imports.py -->")[1].split("<!-- end of import rules -->")[0]
     allowed = {}
-    for row in table.splitlines():
-        cells = [c.strip() for c in row.strip().strip("|").split("|")]
+    for cells in table_rows("import rules"):
         if len(cells) == 2 and cells[0].startswith("`"):
             allowed[cells[0].strip("`")] = set(re.findall(r"`(\w+)`", cells[1]))
     return allowed
@@ -212,3 +220,208 @@ def test_what_a_package_may_import_is_not_flagged(source):
 def test_an_import_module_that_does_not_say_which_package_is_flagged():
     found = violations("import importlib\nimportlib.import_module(f'sinshape.{name}')\n", "runtime/x.py", rules())
     assert found == {UNREADABLE}
+
+
+# ---- inside a package: its modules form one order, and an import waits
+# inside a function only for a reason
+
+CYCLE_PACKAGES = ("core", "prep", "runtime", "trainer", "serve", "cli", "blender")
+
+
+def package_files(package: str) -> dict:
+    """{module name: its path from the root} of a package's files."""
+    return {names(path)[0]: path for path in (str(p.relative_to(ROOT)) for p in sorted((ROOT / package).glob("*.py")))}
+
+
+def module_imports(source: str, path: str, modules=()) -> list:
+    """(module imported, the function it is imported in: None at module
+    level) for each import of the file at `path`, at any depth, relative or
+    absolute. `from . import write` imports sinshape.runtime.write where that
+    is one of `modules`, and the package itself where it is not (`from .
+    import Part`). An import_module of a computed name (runtime/__init__.py's
+    lazy table) imports each of `modules` whose name, or last part, the file
+    spells as a string."""
+    module, package = names(path)
+    found, computing = [], []
+
+    def visit(node, function):
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, ast.Import):
+                found.extend((alias.name, function) for alias in child.names)
+            elif isinstance(child, ast.ImportFrom):
+                base = absolute(child.module or "", child.level, package)
+                found.extend((f"{base}.{alias.name}" if f"{base}.{alias.name}" in modules
+                               or not base.startswith("sinshape") else base, function) for alias in child.names)
+            elif isinstance(child, ast.Call) and child.args and \
+                    getattr(child.func, "attr", getattr(child.func, "id", None)) in ("import_module", "__import__"):
+                for text, whole in spelled(child.args[0]):
+                    level = len(text) - len(text.lstrip("."))
+                    if not whole:
+                        computing.append(function)
+                    elif level:  # relative: import_module(".x", __name__ or __package__)
+                        found.append((absolute(text[level:], level, package), function))
+                    else:
+                        found.append((text, function))
+            visit(child, child.name if isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef)) else function)
+
+    tree = ast.parse(source)
+    visit(tree, None)
+    if computing:
+        spelt = {node.value for node in ast.walk(tree) if isinstance(node, ast.Constant) and isinstance(node.value, str)}
+        found.extend((name, computing[0]) for name in modules
+                     if name != module and (name in spelt or name.rpartition(".")[2] in spelt))
+    return [(name, function) for name, function in found if name != module]
+
+
+def import_graph(package: str) -> dict:
+    """{module: the modules of its own package it imports, at any depth}."""
+    files = package_files(package)
+    return {module: sorted({name for name, _ in module_imports((ROOT / path).read_text(), path, files)
+                            if name in files})
+            for module, path in files.items()}
+
+
+def cycles(graph: dict) -> list:
+    """Every elementary cycle of a graph ({node: [nodes]}), each as a list of
+    its nodes starting from its least, found once."""
+    found = []
+
+    def walk(start, node, path, on_path):
+        for nxt in graph.get(node, ()):
+            if nxt == start:
+                found.append(path[:])
+            elif nxt > start and nxt not in on_path:
+                on_path.add(nxt)
+                path.append(nxt)
+                walk(start, nxt, path, on_path)
+                path.pop()
+                on_path.discard(nxt)
+
+    for start in sorted(graph):
+        walk(start, start, [start], {start})
+    return found
+
+
+def function_imports(package: str) -> list:
+    """(path, module imported, function) of each import a package's files make inside a function."""
+    files = package_files(package)
+    return [(path, name, function) for path in files.values()
+            for name, function in module_imports((ROOT / path).read_text(), path, files) if function]
+
+
+def test_cycles_finds_each_cycle_once():
+    graph = {"a": ["b"], "b": ["c", "a"], "c": ["a"], "d": ["d"], "e": ["a"]}
+    assert sorted(cycles(graph)) == [["a", "b"], ["a", "b", "c"], ["d"]]
+    assert cycles({"a": ["b"], "b": ["c"], "c": []}) == []
+
+
+@pytest.mark.parametrize("source, seen", [
+    ("from . import write\n", [("sinshape.runtime.write", None)]),
+    ("from .write import mesh_bytes\n", [("sinshape.runtime.write", None)]),
+    ("from . import SampleRequest\n", [("sinshape.runtime", None)]),
+    ("from sinshape.runtime import world as worlds\n", [("sinshape.runtime.world", None)]),
+    ("import sinshape.runtime.world\n", [("sinshape.runtime.world", None)]),
+    ("def f():\n    from . import write\n", [("sinshape.runtime.write", "f")]),
+    ("class A:\n    def f(self):\n        if x:\n            from ..runtime import write\n",
+     [("sinshape.runtime.write", "f")]),
+    ("import importlib\ndef f():\n    importlib.import_module('.write', __name__)\n",
+     [("importlib", None), ("sinshape.runtime.write", "f")]),
+    ("import importlib\nT = {'a': 'write'}\ndef f(n):\n    importlib.import_module(f'.{T[n]}', __name__)\n",
+     [("importlib", None), ("sinshape.runtime.write", "f")]),
+])
+def test_every_form_of_an_import_inside_a_package_is_an_edge(source, seen):
+    modules = {"sinshape.runtime", "sinshape.runtime.write", "sinshape.runtime.world"}
+    assert module_imports(source, "runtime/many.py", modules) == seen
+
+
+@pytest.mark.parametrize("package", CYCLE_PACKAGES)
+def test_a_package_has_no_cycle(package):
+    """docs/ARCHITECTURE.md: the modules of a package form one order, imports
+    inside functions counted: a module never needs, however late, a module
+    that needs it."""
+    found = cycles(import_graph(package))
+    assert not found, f"{package} has import cycles: " + "; ".join(
+        " -> ".join(name.rpartition(".")[2] or name for name in cycle + cycle[:1]) for cycle in found)
+
+
+def runtime_rows() -> dict:
+    """{runtime module: its row} from ARCHITECTURE.md's table of the runtime's order."""
+    rows = {}
+    for cells in table_rows("runtime order"):
+        if cells[0].isdigit():
+            rows.update({f"sinshape.runtime.{name}": int(cells[0]) for name in re.findall(r"`(\w+)`", cells[1])})
+    return rows
+
+
+def test_the_runtime_stands_in_the_order_architecture_draws():
+    """Each runtime module is in one row of the table, and imports only
+    modules of the rows above (runtime/__init__.py, above them all, imports
+    its public names on first use)."""
+    rows, graph = runtime_rows(), import_graph("runtime")
+    assert set(rows) == set(graph) - {"sinshape.runtime"}, "ARCHITECTURE.md's runtime order lists other modules"
+    climbing = [f"{module.rpartition('.')[2]} (row {rows[module]}) imports {name.rpartition('.')[2]} (row {rows[name]})"
+                for module, imported in graph.items() if module in rows for name in imported
+                if rows[name] >= rows[module]]
+    assert not climbing, f"imports that climb ARCHITECTURE.md's runtime order: {climbing}"
+
+
+# What may be imported inside a function, and why; anything else is imported
+# at the top of its module, where its cost and its failure show at once.
+# A module name is matched with everything under it; a (place, module) key
+# holds only in the files whose path starts with the place.
+LATER = {
+    "torch": "the train extra (several hundred MB), asked for only by training",
+    "onnx": "the train extra",
+    "scipy": "the prep extra",
+    "h5py": "the prep extra",
+    "skimage": "the prep extra",
+    "meshoptimizer": "the assets extra",
+    "xatlas": "the assets extra",
+    "ray": "the ray extra",
+    "uvicorn": "the serve extra",
+    "h11": "the serve extra's (uvicorn's) HTTP parser",
+    "trimesh": "half a second to import: only a whole mesh in memory needs it, a streamed .ply does not",
+    "PIL": "pillow: Blender's Python has none (tools/build_blender.py does not bundle it), and the extension "
+           "imports the runtime's worlds and assets; only an image needs it",
+    "importlib.metadata": "costs more than the rest of an import, and only __version__ needs it",
+    "resource": "Unix only: Windows has none",
+    ("runtime/", "sinshape.prep"): "the prep extra (scipy, h5py, scikit-image): evaluation and mesh layouts only",
+    ("runtime/__init__.py", "sinshape.runtime"): "the package's public names, each imported on first use",
+    ("cli/", "sinshape"): "sinrun --help stays instant: a command imports numpy, onnxruntime, torch or fastapi "
+                         "when it runs",
+}
+
+
+def later_reason(path: str, name: str) -> str | None:
+    """Why `name` may be imported inside a function of the file at `path` (None: it may not)."""
+    for key, reason in LATER.items():
+        place, module = key if isinstance(key, tuple) else ("", key)
+        if path.startswith(place) and (name == module or name.startswith(module + ".")):
+            return reason
+    return None
+
+
+@pytest.mark.parametrize("package", CYCLE_PACKAGES)
+def test_an_import_waits_inside_a_function_only_for_a_reason(package):
+    waiting = [f"{path}: {name} in {function}()" for path, name, function in function_imports(package)
+               if later_reason(path, name) is None]
+    assert not waiting, f"imports inside functions with no reason in LATER (tests/test_imports.py): {waiting}"
+
+
+def test_later_reasons_hold_for_their_package_only():
+    assert later_reason("runtime/world.py", "trimesh.exchange") is not None
+    assert later_reason("cli/main.py", "sinshape.runtime.write") is not None
+    assert later_reason("runtime/many.py", "sinshape.runtime.write") is None
+    assert later_reason("runtime/__init__.py", "sinshape.runtime.write") is not None
+    assert later_reason("serve/app.py", "sinshape.runtime.write") is None
+    assert later_reason("runtime/world.py", "json") is None
+
+
+if __name__ == "__main__":  # the figures: python tests/test_imports.py
+    for package in CYCLE_PACKAGES:
+        found, waiting = cycles(import_graph(package)), function_imports(package)
+        own = sum(name.startswith(f"sinshape.{package}") for _, name, _ in waiting)
+        print(f"{package:8} {len(found):3} cycles  {len(waiting):3} names imported inside functions "
+              f"({own} of its own package, {sum(later_reason(p, n) is None for p, n, _ in waiting)} without a reason)")
+        for cycle in found:
+            print("    " + " -> ".join(name.rpartition(".")[2] for name in cycle + cycle[:1]))

@@ -5,7 +5,7 @@ import pytest
 import trimesh
 from PIL import Image
 
-from sinshape.runtime import render as R
+from sinshape.runtime import raster, render as R
 
 BACKGROUND = np.round(np.array(R.BACKGROUND) * 255).astype(np.uint8)
 
@@ -108,7 +108,7 @@ def test_nearer_box_hides_the_farther_one(near_first):
     near, far = box((1, 1, 1), (0, 0, 2)), box((3, 3, 1), (0, 0, -2))  # the eye is at +z
     parts = [near, far] if near_first else [far, near]
     camera = R.camera_triangles(trimesh.util.concatenate(parts), 0, 0, "y")
-    owner, _ = R.rasterise(*R.project(camera, (40, 40), "perspective"), (40, 40))
+    owner, _ = raster.rasterise(*R.project(camera, (40, 40), "perspective"), (40, 40))
     near_faces = range(0, 12) if near_first else range(12, 24)
     assert owner[20, 20] in near_faces  # both cover the centre
     assert owner[4, 20] not in near_faces and owner[4, 20] >= 0  # only the far box reaches up there
@@ -120,7 +120,7 @@ def test_rasterise_matches_brute_force():
     corners[0, 2] = corners[0, 0] + 2 * (corners[0, 1] - corners[0, 0])  # a degenerate one
     corners[1] = [[5.2, 5.3], [5.9, 5.6], [5.4, 6.0]]  # a tiny one
     nearness = rng.uniform(0, 1, size=(30, 3))
-    owner, zbuffer = R.rasterise(corners, nearness, (24, 16))
+    owner, zbuffer = raster.rasterise(corners, nearness, (24, 16))
     expected_owner, expected_z = brute_force(corners, nearness, (24, 16))
     assert (owner == expected_owner).all()
     assert np.allclose(zbuffer, expected_z)

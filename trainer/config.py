@@ -147,8 +147,11 @@ def make_config(preset: str | None = None, resume: bool = False, **overrides) ->
     are ignored. With resume, None: a resumed run takes its checkpoint's
     config, so neither a preset nor a field may be given. iters and minutes
     both say how long to train: give one. Either rule broken is a
-    ConflictError naming what was given."""
-    changes = {k: v for k, v in overrides.items() if v is not None}
+    ConflictError naming what was given, in TrainConfig's order."""
+    names = [field.name for field in dataclasses.fields(TrainConfig)]
+    if set(overrides) - set(names):
+        raise TypeError(f"TrainConfig has no field {', '.join(sorted(set(overrides) - set(names)))}")
+    changes = {name: overrides[name] for name in names if overrides.get(name) is not None}
     if "iters" in changes and "minutes" in changes:
         raise ConflictError("give iters or minutes, not both: a time budget plans the iterations", ("iters", "minutes"))
     if resume:

@@ -154,7 +154,7 @@ export async function make(model, request, progress = null) {
 }
 
 /**
- * The mesh of a tile request (`tile` given), as world.tile_bytes makes it:
+ * The mesh of a tile request (`tile` given), as write.tile_bytes makes it:
  * { positions: Float32Array (V, 3) in the request's frame, faces, normals,
  * colours (or null), corner: the tile's lowest corner in voxels (BigInts) }.
  */
