@@ -25,8 +25,10 @@ from .progress import StageProgress, TrainProgress, format_seconds, progress_bar
 # a form of its own: {option: (its parameter, its flag)}. The others are
 # `request_option`s, named as the table names them.
 SPELLED = {"layout": ("layout_file", "--layout"), "tile": ("tiles", "--tiles"), "heights": ("height_map", "--map")}
-# Library errors name a function's parameter; on the command line it is an option.
-OPTIONS = {**{name: "--" + name.replace("_", "-") for name in OPTION}, **{n: f for n, (_, f) in SPELLED.items()},
+# Library errors name a function's parameter; on the command line it is an option
+# (but a seed: a sample's comes from --seed, --seeds or --keep, a run's from train's --seed).
+OPTIONS = {**{name: "--" + name.replace("_", "-") for name in OPTION if name != "seed"},
+           **{name: flag for name, (_, flag) in SPELLED.items()},
            "factors": "--size", "threads": "--threads",
            "levels": "--levels", "res": "--res", "workers": "--workers", "detail": "--detail",
            "alpha": "--range", "samples": "--samples", "zoom": "--zoom", "azimuth": "--azimuth",

@@ -126,10 +126,11 @@ def options_json() -> list:
 
 def module_js() -> str:
     """The browser's copy of the table: serve/static/sinshape/options.js."""
-    table = json.dumps(options_json(), indent=1)
+    rows = ",\n".join(f"  {json.dumps(row)}" for row in options_json())
     return ("// A sample request's options, as runtime/options.py declares them: written by\n"
-            "// `python -m sinshape.runtime.options`, never by hand (tests/test_options.py compares).\n"
-            f"export const OPTIONS = {table};\n")
+            "// `python -m sinshape.runtime.options > serve/static/sinshape/options.js`, never by hand\n"
+            "// (tests/test_options.py compares).\n"
+            f"export const OPTIONS = Object.freeze([\n{rows},\n]);\n")
 
 
 if __name__ == "__main__":
