@@ -410,7 +410,7 @@ def run_job(job, items, unit: str, name) -> None:
                    "(world/{tile}.glb); an index (JSON lines) beside them makes a rerun skip what is done. Or "
                    "one mesh file (block.ply): the block as one surface, placed in the world. Default: "
                    "MODEL_world_seedN/.")
-@click.option("--format", "suffix", type=click.Choice(["ply", "glb", "obj", "stl", "off", "npz"]), default="ply",
+@click.option("--format", "suffix", type=click.Choice(files.OUTPUT_FORMATS), default="ply",
               show_default=True, help="The tiles' format, for a folder: a mesh, or npz for the occupancy grid.")
 @SCALE_OPTION
 @request_option("frame", more_help="A tile in the training mesh's frame or finest voxels is placed where it lies in "

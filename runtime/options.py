@@ -16,6 +16,7 @@ import math
 import sys
 from dataclasses import dataclass
 
+from sinshape.core.files import OUTPUT_FORMATS
 from sinshape.core.manifest import ARRANGEMENTS
 
 SMOOTHERS = ("laplacian", "taubin")  # mesh.smoothed's filters
@@ -130,7 +131,9 @@ def module_js() -> str:
     return ("// A sample request's options, as runtime/options.py declares them: written by\n"
             "// `python -m sinshape.runtime.options > serve/static/sinshape/options.js`, never by hand\n"
             "// (tests/test_options.py compares).\n"
-            f"export const OPTIONS = Object.freeze([\n{rows},\n]);\n")
+            f"export const OPTIONS = Object.freeze([\n{rows},\n]);\n"
+            "// The formats a sample is written in (core.files.OUTPUT_FORMATS).\n"
+            f"export const FORMATS = Object.freeze({json.dumps(OUTPUT_FORMATS)});\n")
 
 
 if __name__ == "__main__":

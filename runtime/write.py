@@ -20,9 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from sinshape.core.errors import InputError
-from sinshape.core.files import MESH_FORMATS, atomic_write, check_writable
+from sinshape.core.files import GRID_FORMATS, MESH_FORMATS, atomic_write, check_writable
 from sinshape.core.manifest import srgb_to_linear
-GRID_FORMATS = {".npz"}
 
 
 def output_kind(path) -> str:

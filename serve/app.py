@@ -12,7 +12,8 @@ answer gets, whatever its route (the Host check, the isolation headers,
 gzip, ETags and 304), is http.py's.
 
 Errors are JSON {"detail": "one line"}: 422 for a value of the wrong type
-or range, 400 for a value the runtime refuses, 413 for work that would
+or range or a query parameter the route does not take (refused, never
+ignored), 400 for a value the runtime refuses, 413 for work that would
 exceed the runtime's memory limit (the message gives the figure), 404 for an
 unknown model, 503 when no sampling slot frees up in time, 504 when
 sampling takes longer than the time limit.
@@ -34,6 +35,7 @@ from pydantic import BaseModel
 from starlette.concurrency import run_in_threadpool
 from starlette.requests import ClientDisconnect
 
+from sinshape.core import files
 from sinshape.core.errors import InputError, MemoryLimitError
 from sinshape.runtime import asset, generate, layout, load, world
 from sinshape.runtime.options import OPTION
@@ -45,7 +47,7 @@ from sinshape.serve.jobs import Job, make_sample
 from sinshape.serve.sampler import ClientGone, NoSlot, OutOfTime, Sampler
 
 STATIC = Path(__file__).parent / "static"
-Format = Literal["glb", "ply", "obj", "stl", "off", "npz"]
+Format = Literal[files.OUTPUT_FORMATS]
 LayoutFormat = Literal["json", "vox", "npz"]
 MEDIA_TYPES = {"glb": "model/gltf-binary", "obj": "model/obj", "stl": "model/stl",
                "json": "application/json"}  # others: octet-stream
@@ -106,7 +108,8 @@ def option_query(name: str, optional: bool = False, **settings):
 SeedQuery = option_query("seed", description="The same seed gives the same shape.")
 SizeQuery = option_query("size")
 ScaleQuery = option_query("scale")
-FormatQuery = Annotated[Format, Query(description="glb ply obj stl off: a mesh; npz: the occupancy grid.")]
+FormatQuery = Annotated[Format, Query(description=f"{' '.join(files.MESH_FORMATS.values())}: a mesh; "
+                                                 f"{' '.join(files.GRID_FORMATS.values())}: the occupancy grid.")]
 
 
 LodsQuery = Annotated[str | None, Query(description="A game asset (format glb): levels of detail of these triangle "
@@ -178,7 +181,24 @@ def one_line(error: RequestValidationError) -> str:
     return "; ".join(parts)
 
 
-routes = APIRouter()
+def query_names(dependant) -> set:
+    """The query parameters a route takes, its dependencies' included."""
+    return {param.alias for param in dependant.query_params}.union(*map(query_names, dependant.dependencies))
+
+
+async def known_query(request: Request) -> None:
+    """A query parameter the route does not take is refused (422), never
+    ignored: a misspelt option, or one this server is too old for, would
+    otherwise be dropped without a word and the answer made without it."""
+    taken = query_names(request.scope["route"].dependant)
+    unknown = sorted(set(request.query_params) - taken)
+    if unknown:
+        raise HTTPException(422, f"{unknown[0]}: this route takes no such query parameter; it takes "
+                                 f"{', '.join(sorted(taken)) or 'none'}")
+
+
+routes = APIRouter(dependencies=[Depends(known_query)])  # the API
+pages = APIRouter()  # the page, whose own state is its query
 
 
 def find(request: Request, name: str):
@@ -347,7 +367,7 @@ async def tile_of_map(
     return await tile_answer(request, q, heights, a.options(q.format))
 
 
-@routes.get("/", include_in_schema=False)
+@pages.get("/", include_in_schema=False)
 async def page(request: Request):
     return await request.app.state.static.get_response("index.html", request.scope)
 
@@ -409,6 +429,7 @@ def create_app(loaded: dict, slots: int | None = None, timeout: float = 60.0,
     http.add_middleware(app, {name.lower().strip("[]") for name in allowed_hosts})
     add_error_answers(app)
     app.include_router(routes)
+    app.include_router(pages)
     app.mount("/static", app.state.static, name="static")
     return app
 

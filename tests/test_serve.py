@@ -118,8 +118,8 @@ def test_openapi_describes_every_route(server):
     assert {"/health", "/api/models", "/api/models/{name}", "/api/models/{name}/sample"} <= set(paths)
     assert "post" in paths["/api/models/{name}/sample"]
     params = {p["name"] for p in paths["/api/models/{name}/sample"]["get"]["parameters"]}
-    assert params == {"name", "seed", "size", "scale", "smooth", "format", "keep", "grow", "anchor", "lods", "texture",
-                      "ao"}
+    assert params == {"name", "seed", "recon", "size", "scale", "smooth", "smoother", "largest", "frame", "format",
+                      "keep", "grow", "anchor", "lods", "texture", "ao"}
 
 
 def test_the_page_and_its_offline_scripts(server):

@@ -19,3 +19,5 @@ export const OPTIONS = Object.freeze([
   {"name": "heights", "type": "heights", "default": null, "help": "The world's large shape: a height in voxels per tile.", "goes_with": ["tile"], "low": null, "high": null, "bounds": "[]", "choices": []},
   {"name": "lod", "type": "int", "default": 0, "help": "Levels of detail coarser than the finest: a distant tile, cheaper, with a skirt that hides the crack where it meets a finer one.", "goes_with": ["tile"], "low": 0, "high": null, "bounds": "[]", "choices": []},
 ]);
+// The formats a sample is written in (core.files.OUTPUT_FORMATS).
+export const FORMATS = Object.freeze(["ply", "obj", "stl", "off", "glb", "npz"]);

@@ -124,6 +124,23 @@ function checkTogether(request) {
 const worldFields = (request) => [['arrange', request.arrange !== DEFAULTS.arrange], ['heights', request.heights !== null], ['lod', request.lod]]
   .filter(([, value]) => value).map(([name]) => name);
 
+// The options this runtime makes, for a sample (make) and for a tile (makeTile).
+// Any other given other than its default (Python's smoother 'taubin', largest, a
+// sample's frame, an option added to the table later) is refused, never dropped.
+export const MAKES = Object.freeze({
+  sample: Object.freeze(['seed', 'recon', 'size', 'scale', 'smooth', 'keep', 'grow', 'anchor', 'layout']),
+  tile: Object.freeze(['seed', 'scale', 'frame', 'tile', 'arrange', 'heights', 'lod']),
+});
+
+/** Refuse what a request asks of an option this runtime does not make for its kind (an InputError naming it). */
+function refuseUnmade(request, kind) {
+  for (const option of OPTIONS) {
+    const { name, default: value } = option;
+    if (MAKES[kind].includes(name) || JSON.stringify(request[name]) === JSON.stringify(value)) continue;
+    throw new InputError(`the browser runtime makes ${value === null ? `no ${name}` : `${name} ${value} only`}`, name);
+  }
+}
+
 /** The seed whose noise makes the sample (null: the training shape). */
 const sampleSeed = (request) => (request.recon ? null : request.seed ?? 0n);
 
@@ -139,6 +156,7 @@ export async function make(model, request, progress = null) {
   }
   const world = worldFields(request);
   if (world.length) throw new InputError(`${world[0]} is for the tiles of a world; a sample has none`, world[0]);
+  refuseUnmade(request, 'sample');
   const seed = sampleSeed(request), { size, layout } = request;
   if (layout) {
     if (layout.resample) throw new InputError('the browser fits a layout of one level\'s own size only; resample it with sinrun', 'layout');
@@ -165,6 +183,7 @@ export async function make(model, request, progress = null) {
  * colours (or null), corner: the tile's lowest corner in voxels (BigInts) }.
  */
 export async function makeTile(model, request, progress = null) {
+  refuseUnmade(request, 'tile');
   checkPlacement(model.manifest, request.tile, request.frame); // refused before the work, not after
   progress?.('making the tile', null);
   const options = worldOptions(request);

@@ -12,6 +12,7 @@
 // the browser a request waits for the one before it, and is skipped if a
 // newer one aborted it meanwhile. `stop` ends the worker (cancel).
 import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
+import { OPTION } from '../sinshape/request.js';
 import { voxBytes } from './layout-cells.js';
 
 /** A request given up: nothing to report. */
@@ -37,16 +38,28 @@ async function answer(response) {
   throw new Error(body.detail || `${response.status} ${response.statusText}`);
 }
 
+// The options of a request (runtime/options.py) each route is sent: any other
+// given other than its default is refused here, not sent without it.
+export const ROUTE_TAKES = Object.freeze({
+  sample: ['seed', 'recon', 'size', 'scale', 'smooth', 'smoother', 'largest', 'frame', 'keep', 'grow', 'anchor', 'layout'],
+  tile: ['seed', 'scale', 'frame', 'tile', 'arrange', 'heights', 'lod'],
+});
+
 /**
  * The server's request for a sample request, as a file of `format`: { url,
  * init } for fetch. The sample route's query; a layout goes as the body of
  * a POST to it, written as .vox; a tile, the tile route's query. The sample
- * route has no recon, smoother, largest or frame, and takes kept parts as
- * text: a request that needs more is refused here, not sent without it.
+ * route takes kept parts as text, and neither route an option it is not
+ * sent (ROUTE_TAKES): a request that needs more is refused here.
  */
 export function serverRequest(name, request, format, faces = null) {
   const asset = format === 'asset' ? assetQuery(faces) : null;
   if (asset) format = 'glb';
+  const route = request.tile ? 'tile' : 'sample';
+  const unsent = Object.keys(OPTION).filter((field) => !ROUTE_TAKES[route].includes(field)
+    && JSON.stringify(request[field]) !== JSON.stringify(OPTION[field].default));
+  if (route === 'sample' && request.keep.some((part) => typeof part !== 'string')) unsent.push('keep');
+  if (unsent.length) throw new Error(`the ${route} route cannot take this request's ${unsent.join(', ')}`);
   if (request.tile) {
     if (asset) throw new Error('the page offers a tile as a mesh; sinrun world --lods writes tiles as assets');
     const [i, j] = request.tile;
@@ -56,11 +69,9 @@ export function serverRequest(name, request, format, faces = null) {
     const init = request.heights ? { method: 'POST', body: npyBytes(request.heights), headers: { 'Content-Type': 'application/octet-stream' } } : {};
     return { url: `${modelRoute(name)}/tile?${query}`, init };
   }
-  const unsent = { recon: request.recon, largest: request.largest, smoother: request.smoother !== 'laplacian',
-    frame: request.frame !== 'input', keep: request.keep.some((part) => typeof part !== 'string') };
-  const missing = Object.keys(unsent).filter((field) => unsent[field]);
-  if (missing.length) throw new Error(`the sample route cannot take this request's ${missing.join(', ')}`);
-  const query = new URLSearchParams({ seed: request.seed ?? 0n, size: request.size, scale: request.scale, smooth: request.smooth, format });
+  const query = new URLSearchParams({ size: request.size, scale: request.scale, smooth: request.smooth, format });
+  if (request.seed !== null) query.set('seed', request.seed);
+  for (const field of ['recon', 'smoother', 'largest', 'frame']) if (request[field] !== OPTION[field].default) query.set(field, request[field]);
   for (const part of request.keep) query.append('keep', part);
   if (request.grow) {
     query.set('grow', request.grow);
