@@ -361,7 +361,7 @@ def test_a_repeated_request_is_a_cache_hit(server):
     ({"size": "0,1,1"}, 400, "give one or three positive factors"),
     ({"size": "1e308"}, 400, "the most a sample may have per axis"),
     ({"smooth": "-3"}, 422, "smooth: Input should be greater than or equal to 0"),
-    ({"format": "xyz"}, 422, "format: Input should be 'glb', 'ply'"),
+    ({"format": "xyz"}, 422, "format: Input should be 'ply', 'obj'"),
     ({"model": "nope"}, 404, "unknown model 'nope'; this server has terrain"),
 ])
 def test_bad_values_are_4xx_with_one_line(server, query, status, fragment):
