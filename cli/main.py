@@ -292,29 +292,38 @@ def open_model(model, threads):
     return load.load_model(models.find(model), threads=threads)
 
 
+# What `sample` says of a request option beyond the table's words.
+SAMPLE_SETTINGS = {"size": dict(default="1"), "frame": dict(type=click.Choice(OPTION["frame"].choices[:2])),
+                   "keep": dict(more_help="The model's frame is the units of its meshes and `sinrun info`. The box "
+                                          "less a 4-voxel join is exactly SEED's."),
+                   "grow": dict(more_help="2,1,1 doubles the sample (of --seed, at --size) along x.")}
+
+
+def sample_options(command):
+    """Every option of a sample request (runtime/options.py: all but those
+    of a tile alone), each made from the table, but those SPELLED otherwise: a new
+    option reaches `sample` and its request without a line here."""
+    for option in reversed(OPTION.values()):
+        if option.goes_with != ("tile",) and option.name not in SPELLED:
+            command = request_option(option.name, **SAMPLE_SETTINGS.get(option.name, {}))(command)
+    return command
+
+
 @cli.command()
 @MODEL_ARGUMENT
-@request_option("seed")
+@sample_options
 @click.option("--seeds", type=SEEDS, default=None,
               help="Many samples, one file each: 0-99 or 1,5,9-12. A resumable job: see --engine.")
-@request_option("recon")
-@request_option("keep", more_help="The model's frame is the units of its meshes and `sinrun info`. The box less a "
-                                  "4-voxel join is exactly SEED's.")
 @click.option(*reversed(SPELLED["layout"]), type=click.Path(path_type=Path), default=None,
               help="Generate with the structure of this layout (.vox or .npz, from `sinrun layout`, edited "
                    "as you like; or a rough mesh, a few boxes in the model's frame, voxelised on the coarsest "
                    "level's grid); --seed still varies the detail.")
 @click.option("--resample-layout", is_flag=True,
               help="Fit a layout whose grid is not one of the model's levels to level 0's grid.")
-@request_option("grow", more_help="2,1,1 doubles the sample (of --seed, at --size) along x.")
-@request_option("anchor")
-@SCALE_OPTION
-@SIZE_OPTION
 @click.option("-o", "--output", type=click.Path(path_type=Path), default=None,
               help="Output file: .ply (streamed to disk slab by slab, any size) or .obj .stl .off .glb (made "
                    "whole in memory), or .npz (the occupancy grid). With --seeds, {seed} in the name is "
                    "replaced, or _seedN is added. Default: MODEL_seedN.ply.")
-@mesh_options
 @asset_options
 @THREADS_OPTION
 @click.option("--workers", type=int, default=None,

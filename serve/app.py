@@ -153,10 +153,13 @@ class SampleQuery:
     format: FormatQuery = "glb"
 
     def fields(self) -> dict:
-        """The request's options given as query parameters, by name."""
-        seed = 0 if self.seed is None and not self.recon else self.seed  # one request for one sample, one cache entry
-        return dict(seed=seed, recon=self.recon, size=generate.parse_size(self.size), scale=self.scale,
-                    smooth=self.smooth, smoother=self.smoother, largest=self.largest, frame=self.frame)
+        """The request's options given as query parameters, by name (the
+        size's text read; no seed: 0, one request for one sample and one
+        cache entry, but for the reconstruction)."""
+        given = {name: getattr(self, name) for name in OPTION if hasattr(self, name)}
+        given["size"] = generate.parse_size(self.size)
+        given["seed"] = 0 if self.seed is None and not self.recon else self.seed
+        return given
 
 
 MAX_UPLOAD_BYTES = 4 << 20  # a layout of a coarse level is a few kB; a height map of 1024 x 1024 float32
