@@ -69,8 +69,8 @@ export function serverRequest(name, request, format, faces = null) {
     const init = request.heights ? { method: 'POST', body: npyBytes(request.heights), headers: { 'Content-Type': 'application/octet-stream' } } : {};
     return { url: `${modelRoute(name)}/tile?${query}`, init };
   }
-  const query = new URLSearchParams({ size: request.size, scale: request.scale, smooth: request.smooth, format });
-  if (request.seed !== null) query.set('seed', request.seed);
+  const query = new URLSearchParams({ seed: request.seed ?? 0n, size: request.size, scale: request.scale, smooth: request.smooth, format });
+  if (request.recon) query.delete('seed'); // the training shape has none
   for (const field of ['recon', 'smoother', 'largest', 'frame']) if (request[field] !== OPTION[field].default) query.set(field, request[field]);
   for (const part of request.keep) query.append('keep', part);
   if (request.grow) {
