@@ -92,6 +92,7 @@ export function sampleRequest(fields = {}) {
   const tile = given.tile === null ? null : checkTile(given.tile);
   const { arrange, heights, lod } = worldOptions({ arrange: given.arrange, heights: given.heights, lod: given.lod });
   const request = Object.freeze({
+    ...given, // every option, in the table's order: one this file does not check yet as given (make refuses it)
     seed, recon: Boolean(given.recon), size, scale, smooth, smoother: given.smoother, largest: Boolean(given.largest),
     frame: given.frame, keep: Object.freeze([...keep]), grow: grown, anchor, layout, tile, arrange, heights, lod,
   });
