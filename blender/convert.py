@@ -96,7 +96,8 @@ def sample_request(values: dict, up: str) -> SampleRequest:
     (along Blender's axes), scale, smooth, edit (one of EDITS) and that
     edit's own values: keep (a part's text, `kept_part`), grow and anchor
     (along Blender's axes), layout (a request.Layout)."""
-    unknown = sorted(set(values) - {"model", "seed", "size", "scale", "smooth", "edit", "keep", "grow", "anchor", "layout"})
+    read = {"model", "seed", "size", "scale", "smooth", "edit", "keep", "grow", "anchor", "layout"}
+    unknown = sorted(set(values) - read)
     if unknown:  # a setting added without its place in the request: refused, never dropped
         raise InputError(f"a sample's settings have no {unknown[0]!r} that its request takes", unknown[0])
     edit = values.get("edit", "NONE")

@@ -321,8 +321,9 @@ def sample_options(command):
 @click.option("--resample-layout", is_flag=True,
               help="Fit a layout whose grid is not one of the model's levels to level 0's grid.")
 @click.option("-o", "--output", type=click.Path(path_type=Path), default=None,
-              help="Output file: .ply (streamed to disk slab by slab, any size) or .obj .stl .off .glb (made "
-                   "whole in memory), or .npz (the occupancy grid). With --seeds, {seed} in the name is "
+              help=f"Output file: .ply (streamed to disk slab by slab, any size) or "
+                   f"{' '.join(suffix for suffix in files.MESH_FORMATS if suffix != '.ply')} (made whole in memory), "
+                   f"or {' '.join(files.GRID_FORMATS)} (the occupancy grid). With --seeds, {{seed}} in the name is "
                    "replaced, or _seedN is added. Default: MODEL_seedN.ply.")
 @asset_options
 @THREADS_OPTION

@@ -62,8 +62,11 @@ class Option:
     choices: tuple = ()
 
     def __post_init__(self):
-        if self.type not in TYPES or not set(self.goes_with) <= {*KINDS, *EDITS} or self.bounds not in ("[]", "[)", "(]", "()"):
-            raise ValueError(f"option {self.name}: type {self.type!r}, goes_with {self.goes_with!r}, bounds {self.bounds!r}")
+        """A record the table could not hold is a programming error, found at import."""
+        known = self.type in TYPES and set(self.goes_with) <= {*KINDS, *EDITS}
+        if not known or self.bounds not in ("[]", "[)", "(]", "()"):
+            raise ValueError(f"option {self.name}: type {self.type!r}, goes_with {self.goes_with!r}, "
+                             f"bounds {self.bounds!r}")
 
     def admits(self, value) -> bool:
         """Whether a number lies in the option's range (and is finite)."""
