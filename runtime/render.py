@@ -458,9 +458,10 @@ def depth_edges(nearness: np.ndarray, width=1) -> np.ndarray:
     return wide
 
 
-def draw_shapes(items: list, seeds, recon: bool = False, request=None, views: int = 1, up: str | None = None, columns: int = 4,
-                image_size: int = 320, zoom: float = 1.0, focus=(0.5, 0.5, 0.5), azimuth: float = 35.0,
-                elevation: float = 25.0, progress=None, warn=None, asset_folder: Path | None = None) -> np.ndarray:
+def draw_shapes(items: list, seeds, recon: bool = False, request=None, views: int = 1, up: str | None = None,
+                columns: int = 4, image_size: int = 320, zoom: float = 1.0, focus=(0.5, 0.5, 0.5),
+                azimuth: float = 35.0, elevation: float = 25.0, progress=None, warn=None,
+                asset_folder: Path | None = None) -> np.ndarray:
     """One picture of `items`: mesh files (Paths, drawn as they are, in
     their colours: `mesh_file`, the files they name read from their folder
     or `asset_folder`) and loaded models (their samples `seeds`, the
