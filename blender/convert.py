@@ -81,11 +81,26 @@ def check_unchanged(reference: str, path: Path, digest: str, recorded: str) -> N
                      "its mesh is kept: choose the model again to use it as it is", "model")
 
 
+# The options of a sample request (runtime/options.py) the extension sets, and
+# the setting that sets each: a sample object's (props.SinshapeSettings), or a
+# world object's (props.SinshapeWorld: its tiles around the followed point,
+# each tile's lod from the fine radius) ...
+SETTINGS = {"seed": "seed", "size": "size", "scale": "scale", "smooth": "smooth", "keep": "keep_box", "grow": "grow",
+            "anchor": "anchor", "layout": "layout_bits", "tile": "radius", "arrange": "arrange", "lod": "fine"}
+# ... and those it leaves at their defaults (a mesh in the input's frame, turned to
+# Blender's; no height map). tests/test_blender_options.py holds both to the table.
+LEFT = ("recon", "smoother", "largest", "frame", "heights")
+
+
 def sample_request(values: dict, up: str) -> SampleRequest:
     """The request an object's settings stand for. `values`: seed, size
     (along Blender's axes), scale, smooth, edit (one of EDITS) and that
     edit's own values: keep (a part's text, `kept_part`), grow and anchor
     (along Blender's axes), layout (a request.Layout)."""
+    read = {"model", "seed", "size", "scale", "smooth", "edit", "keep", "grow", "anchor", "layout"}
+    unknown = sorted(set(values) - read)
+    if unknown:  # a setting added without its place in the request: refused, never dropped
+        raise InputError(f"a sample's settings have no {unknown[0]!r} that its request takes", unknown[0])
     edit = values.get("edit", "NONE")
     fields = dict(seed=values["seed"], size=factors_to_model(values["size"], up), scale=values["scale"],
                   smooth=values["smooth"], frame="input")
@@ -97,7 +112,7 @@ def sample_request(values: dict, up: str) -> SampleRequest:
         if values.get("layout") is None:
             raise InputError("no layout applied yet: show the layout, edit it, then apply it", "layout")
         fields["layout"] = values["layout"]
-    return SampleRequest(**fields)
+    return SampleRequest.of(fields)
 
 
 # A model trained from an SSG .h5 pyramid has no units of its own: its

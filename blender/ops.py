@@ -10,7 +10,7 @@ from bpy.props import BoolProperty, EnumProperty, FloatVectorProperty, IntProper
 
 from sinshape import models
 from sinshape.core.errors import InputError
-from sinshape.runtime.mesh import MAX_SMOOTH
+from sinshape.runtime.options import OPTION
 
 from . import convert, live, worlds
 from .props import SEED_MAX, model_names
@@ -57,7 +57,8 @@ class SINSHAPE_OT_add_sample(AddOperator, bpy.types.Operator):
     bl_label = "sinshape sample"
 
     size: FloatVectorProperty(name="Size", size=3, default=(1.0, 1.0, 1.0), min=0.01, soft_max=4.0, subtype="XYZ")
-    smooth: IntProperty(name="Smooth", min=0, max=MAX_SMOOTH, soft_max=20)
+    smooth: IntProperty(name="Smooth", min=OPTION["smooth"].low, max=OPTION["smooth"].high, soft_max=20,
+                        description=OPTION["smooth"].help)
 
     def execute(self, context):
         settings = dict(model=self.model, seed=self.seed, size=tuple(self.size), scale=self.scale, smooth=self.smooth)

@@ -9,7 +9,7 @@ from bpy.props import (BoolProperty, EnumProperty, FloatProperty, FloatVectorPro
                        IntVectorProperty, PointerProperty, StringProperty)
 
 from sinshape import models
-from sinshape.runtime.mesh import MAX_SMOOTH
+from sinshape.runtime.options import OPTION
 
 from . import live, worlds
 
@@ -37,15 +37,15 @@ class SinshapeSettings(bpy.types.PropertyGroup):
     model: StringProperty(name="Model", default=models.DEFAULT, search=model_names, update=model_changed,
                           description="A shipped model's name, or a .onnx file (// is the .blend's folder)")
     model_sha256: StringProperty(name="Model SHA-256", description="The model's SHA-256 when it was chosen")
-    seed: IntProperty(name="Seed", min=0, max=SEED_MAX, update=live.changed,
+    seed: IntProperty(name="Seed", min=OPTION["seed"].low, max=SEED_MAX, update=live.changed,
                       description="The same seed gives the same shape")
     size: FloatVectorProperty(name="Size", size=3, default=(1.0, 1.0, 1.0), min=0.01, soft_min=0.25, soft_max=4.0,
                               subtype="XYZ", update=live.changed,
                               description="Factors of the training size along Blender's X, Y and Z")
-    scale: FloatProperty(name="Scale", default=1.0, min=0.01, soft_min=0.25, soft_max=16.0, update=live.changed,
-                         description="Query the surface on a grid this many times finer per axis")
-    smooth: IntProperty(name="Smooth", min=0, max=MAX_SMOOTH, soft_max=20, update=live.changed,
-                        description="Laplacian smoothing iterations")
+    scale: FloatProperty(name="Scale", default=OPTION["scale"].default, min=0.01, soft_min=0.25, soft_max=16.0,
+                         update=live.changed, description=OPTION["scale"].help)
+    smooth: IntProperty(name="Smooth", min=OPTION["smooth"].low, max=OPTION["smooth"].high, soft_max=20,
+                        update=live.changed, description=OPTION["smooth"].help)
     shade_smooth: BoolProperty(name="Shade smooth", default=True, update=live.changed,
                                description="Smooth shading on the faces")
     edit: EnumProperty(name="Edit", update=live.changed, items=[
@@ -62,7 +62,8 @@ class SinshapeSettings(bpy.types.PropertyGroup):
     grow: FloatVectorProperty(name="Grow by", size=3, default=(1.5, 1.0, 1.0), min=1.0, soft_max=4.0,
                               subtype="XYZ", update=live.changed,
                               description="Factors along Blender's X, Y and Z, each at least 1")
-    anchor: FloatVectorProperty(name="Anchor", size=3, default=(0.0, 0.0, 0.0), min=0.0, max=1.0, subtype="XYZ",
+    anchor: FloatVectorProperty(name="Anchor", size=3, default=(0.0, 0.0, 0.0), min=OPTION["anchor"].low,
+                                max=OPTION["anchor"].high, subtype="XYZ",
                                 update=live.changed,
                                 description="Where the old sample sits in the grown one, per axis: 0 low, 1 high")
     layout_object: PointerProperty(name="Layout object", type=bpy.types.Object,

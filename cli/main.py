@@ -17,22 +17,30 @@ import click
 from sinshape.core import files
 from sinshape.core.errors import ConflictError, InputError
 
-from .params import FRACTIONS, SEEDS, SIZE, TILES, named_output
+from sinshape.runtime.options import OPTION
+
+from .params import FRACTIONS, SEEDS, TILES, named_output, request_option
 from .progress import StageProgress, TrainProgress, format_seconds, progress_bar
 
-# Library errors name a function's parameter; on the command line it is an option.
-OPTIONS = {"scale": "--scale", "factors": "--size", "smooth": "--smooth", "threads": "--threads",
+# The options of a sample request (runtime/options.py) the command line takes in
+# a form of its own: {option: (its parameter, its flag)}. The others are
+# `request_option`s, named as the table names them.
+SPELLED = {"layout": ("layout_file", "--layout"), "tile": ("tiles", "--tiles"), "heights": ("height_map", "--map")}
+# Library errors name a function's parameter; on the command line it is an option
+# (but a seed: a sample's comes from --seed, --seeds or --keep, a run's from train's --seed).
+OPTIONS = {**{name: "--" + name.replace("_", "-") for name in OPTION if name != "seed"},
+           **{name: flag for name, (_, flag) in SPELLED.items()},
+           "factors": "--size", "threads": "--threads",
            "levels": "--levels", "res": "--res", "workers": "--workers", "detail": "--detail",
            "alpha": "--range", "samples": "--samples", "zoom": "--zoom", "azimuth": "--azimuth",
-           "elevation": "--elevation", "timeout": "--timeout", "level": "--level", "grow": "--grow",
-           "anchor": "--anchor", "generator": "--generator", "iters": "--iters", "lr": "--lr",
+           "elevation": "--elevation", "timeout": "--timeout", "level": "--level",
+           "generator": "--generator", "iters": "--iters", "lr": "--lr",
            "min_iters": "--min-iters", "minutes": "--minutes", "precision": "--precision", "box": "--box",
            "train_depth": "--train-depth", "focus": "--focus", "up": "--up", "resume": "--resume",
-           "size": "--size", "keep": "--keep", "layout": "--layout", "recon": "--recon",
-           "output": "--output", "tile": "--tiles", "frame": "--frame", "force": "--force",
+           "output": "--output", "force": "--force",
            "no_colour": "--no-colour", "d_steps": "--d-steps", "d_rate": "--d-rate", "colour_mb": "--colour-mb",
            "asset_folder": "--asset-folder", "restart": "--restart", "lods": "--lods", "texture": "--texture",
-           "ao": "--ao", "arrange": "--arrange", "heights": "--map", "relief": "--relief", "lod": "--lod"}
+           "ao": "--ao", "relief": "--relief"}
 # ctx.meta key: {parameter: what set it} where a command's value came from elsewhere than OPTIONS says.
 SOURCES = "sinrun.sources"
 # The extra that installs each optional module (pyproject.toml): a command
@@ -241,30 +249,14 @@ def train(input_path, output, preset, device, no_colour, asset_folder, resume, c
 MODEL_ARGUMENT = click.argument("model", required=False)
 THREADS_OPTION = click.option("--threads", type=int, default=None,
                               help="onnxruntime threads per stage. Default: all cores.")
-SCALE_OPTION = click.option("--scale", type=float, default=1.0, show_default=True,
-                            help="Query the shape on a grid this many times finer per axis (any positive "
-                                 "number). Finer grids give smoother surfaces, not new detail.")
-SIZE_OPTION = click.option("--size", "size", type=SIZE, default="1", show_default=True,
-                           help="Sample size as factors of the training size: one factor, or sx,sy,sz "
-                                "for another aspect ratio (e.g. 2,1,1 is twice as long along x).")
-
-
-SMOOTH_HELP = ("Smoothing iterations, 0 to 100 (the paper uses 3 Laplacian iterations); 100 already blurs "
-               "over about 10 grid steps, the size of the patches the model learnt.")
+SCALE_OPTION = request_option("scale")
+SIZE_OPTION = request_option("size", default="1")
 
 
 def mesh_options(command):
-    """Options shared by the commands that write meshes."""
-    for option in reversed([
-        click.option("--smooth", type=int, default=0, show_default=True,
-                     help=SMOOTH_HELP),
-        click.option("--smoother", type=click.Choice(["laplacian", "taubin"]), default="laplacian",
-                     show_default=True, help="Laplacian (as the paper) or Taubin (keeps volume)."),
-        click.option("--largest", is_flag=True, help="Keep only the largest connected piece."),
-        click.option("--frame", type=click.Choice(["input", "model"]), default="input", show_default=True,
-                     help="Vertex coordinates: the training mesh's frame (samples overlay it) or "
-                          "finest-voxel units."),
-    ]):
+    """Options shared by the commands that write meshes: how a sample's surface is made."""
+    for option in reversed([request_option("smooth"), request_option("smoother"), request_option("largest"),
+                            request_option("frame", type=click.Choice(OPTION["frame"].choices[:2]))]):
         command = option(command)
     return command
 
@@ -298,36 +290,39 @@ def open_model(model, threads):
     return load.load_model(models.find(model), threads=threads)
 
 
+# What `sample` says of a request option beyond the table's words.
+SAMPLE_SETTINGS = {"size": dict(default="1"), "frame": dict(type=click.Choice(OPTION["frame"].choices[:2])),
+                   "keep": dict(more_help="The model's frame is the units of its meshes and `sinrun info`. The box "
+                                          "less a 4-voxel join is exactly SEED's."),
+                   "grow": dict(more_help="2,1,1 doubles the sample (of --seed, at --size) along x.")}
+
+
+def sample_options(command):
+    """Every option of a sample request (runtime/options.py: all but those
+    of a tile alone), each made from the table, but those SPELLED otherwise: a new
+    option reaches `sample` and its request without a line here."""
+    for option in reversed(OPTION.values()):
+        if option.goes_with != ("tile",) and option.name not in SPELLED:
+            command = request_option(option.name, **SAMPLE_SETTINGS.get(option.name, {}))(command)
+    return command
+
+
 @cli.command()
 @MODEL_ARGUMENT
-@click.option("--seed", type=int, default=None, help="Seed of the sample (the same seed gives the same shape). Default 0.")
+@sample_options
 @click.option("--seeds", type=SEEDS, default=None,
               help="Many samples, one file each: 0-99 or 1,5,9-12. A resumable job: see --engine.")
-@click.option("--recon", is_flag=True, help="The training shape itself (the fixed reconstruction noise), not a new sample.")
-@click.option("--keep", "keep", multiple=True, metavar="SEED:X0,Y0,Z0:X1,Y1,Z1",
-              help="Take this box from the sample of SEED, the rest from --seed, joined without a seam; "
-                   "repeat for more parts. Corners in the model's frame (the units of its meshes and "
-                   "`sinrun info`) or as percentages: 3:0%,0%,0%:50%,100%,100% is the lower half along x. "
-                   "The box less a 4-voxel join is exactly SEED's.")
-@click.option("--layout", "layout_file", type=click.Path(path_type=Path), default=None,
+@click.option(*reversed(SPELLED["layout"]), type=click.Path(path_type=Path), default=None,
               help="Generate with the structure of this layout (.vox or .npz, from `sinrun layout`, edited "
                    "as you like; or a rough mesh, a few boxes in the model's frame, voxelised on the coarsest "
                    "level's grid); --seed still varies the detail.")
 @click.option("--resample-layout", is_flag=True,
               help="Fit a layout whose grid is not one of the model's levels to level 0's grid.")
-@click.option("--grow", "grow_by", type=SIZE, default=None,
-              help="Grow the sample (of --seed, at --size) by these factors, keeping what it had: 2,1,1 "
-                   "doubles it along x, new ground joining the old without a seam.")
-@click.option("--anchor", type=FRACTIONS, default=None,
-              help="With --grow: where the old sample sits in the new, per axis from 0 (the low side, the "
-                   "default: growing toward +x) to 1 (the high side); 0.5 centres it.")
-@SCALE_OPTION
-@SIZE_OPTION
 @click.option("-o", "--output", type=click.Path(path_type=Path), default=None,
-              help="Output file: .ply (streamed to disk slab by slab, any size) or .obj .stl .off .glb (made "
-                   "whole in memory), or .npz (the occupancy grid). With --seeds, {seed} in the name is "
+              help=f"Output file: .ply (streamed to disk slab by slab, any size) or "
+                   f"{' '.join(suffix for suffix in files.MESH_FORMATS if suffix != '.ply')} (made whole in memory), "
+                   f"or {' '.join(files.GRID_FORMATS)} (the occupancy grid). With --seeds, {{seed}} in the name is "
                    "replaced, or _seedN is added. Default: MODEL_seedN.ply.")
-@mesh_options
 @asset_options
 @THREADS_OPTION
 @click.option("--workers", type=int, default=None,
@@ -341,8 +336,8 @@ def open_model(model, threads):
               help="With --engine ray: the cluster's address. Default: Ray's own (RAY_ADDRESS, else a "
                    "local Ray on this machine).")
 @RESTART_OPTION
-def sample(model, seed, seeds, recon, keep, layout_file, resample_layout, grow_by, anchor, scale, size, output, smooth,
-           smoother, largest, frame, lods, texture, ao, threads, workers, engine, address, restart):
+def sample(model, seeds, layout_file, resample_layout, output, lods, texture, ao, threads, workers, engine, address,
+           restart, **fields):
     """Generate new shapes from a model and write them as meshes.
 
     MODEL is a .onnx file from `sinrun train` or the name of a shipped model
@@ -357,11 +352,11 @@ def sample(model, seed, seeds, recon, keep, layout_file, resample_layout, grow_b
                             ("workers", "engine", "address", "restart", "seeds"))
     packed = assets.options_of(lods, texture, ao)
     loaded = open_model(model, threads)
-    laid_out = Layout.of(layout.read_any(loaded, layout_file, size), resample_layout) if layout_file else None
-    request = SampleRequest(seed, recon, size, scale, smooth, smoother, largest, frame, keep, grow_by, anchor,
-                            laid_out)
+    laid_out = Layout.of(layout.read_any(loaded, layout_file, fields["size"]), resample_layout) if layout_file else None
+    request = SampleRequest.of({**fields, "layout": laid_out})
     show_warnings(loaded, request)
-    output = output or Path(f"{loaded.path.stem}_{'recon' if recon else 'seed{seed}'}.{'glb' if packed else 'ply'}")
+    output = output or Path(f"{loaded.path.stem}_{'recon' if request.recon else 'seed{seed}'}."
+                            f"{'glb' if packed else 'ply'}")
     if seeds:
         return sample_seeds(loaded, seeds, output, engine, workers, threads, address, request, restart, packed)
     path = named_output(output, seed=request.sample_seed) if "{" in str(output) else output
@@ -412,8 +407,8 @@ def run_job(job, items, unit: str, name) -> None:
 
 @cli.command()
 @MODEL_ARGUMENT
-@click.option("--seed", type=int, default=0, show_default=True, help="The world's seed: the same seed, the same world.")
-@click.option("--tiles", type=TILES, required=True, metavar="I0:I1,J0:J1",
+@request_option("seed", default=0, help="The world's seed: the same seed, the same world.")
+@click.option(*reversed(SPELLED["tile"]), type=TILES, required=True, metavar="I0:I1,J0:J1",
               help="The tiles to write, both ends included: -8:8,-8:8 is 17 x 17 tiles around the origin; 3,4 "
                    "is one. A tile is half the training extent along each horizontal axis.")
 @click.option("-o", "--output", type=click.Path(path_type=Path), default=None,
@@ -421,13 +416,12 @@ def run_job(job, items, unit: str, name) -> None:
                    "(world/{tile}.glb); an index (JSON lines) beside them makes a rerun skip what is done. Or "
                    "one mesh file (block.ply): the block as one surface, placed in the world. Default: "
                    "MODEL_world_seedN/.")
-@click.option("--format", "suffix", type=click.Choice(["ply", "glb", "obj", "stl", "off", "npz"]), default="ply",
+@click.option("--format", "suffix", type=click.Choice(files.OUTPUT_FORMATS), default="ply",
               show_default=True, help="The tiles' format, for a folder: a mesh, or npz for the occupancy grid.")
 @SCALE_OPTION
-@click.option("--frame", type=click.Choice(["input", "model", "tile"]), default="input", show_default=True,
-              help="Vertex coordinates: the training mesh's frame or finest voxels, placed where the tile lies "
-                   "in the world (near the origin: float32 cannot place tiles far out), or 'tile': the "
-                   "input's units from each tile's own corner (any tile; the index gives the corner).")
+@request_option("frame", more_help="A tile in the training mesh's frame or finest voxels is placed where it lies in "
+                                   "the world (near the origin: float32 cannot place tiles far out); with 'tile' the "
+                                   "index gives each tile's corner.")
 @THREADS_OPTION
 @click.option("--workers", type=int, default=None,
               help="Worker processes (default: one, on every core's threads: neighbouring tiles share work a "
@@ -435,19 +429,15 @@ def run_job(job, items, unit: str, name) -> None:
 @click.option("--engine", type=click.Choice(["local", "ray"]), default="local", show_default=True,
               help="This machine's cores, or a Ray cluster (pip install 'sinshape[ray]').")
 @click.option("--address", default=None, help="With --engine ray: the cluster's address.")
-@click.option("--arrange", type=click.Choice(["blend", "scatter"]), default=None,
-              help="blend: samples blended into one continuing surface (terrain, rock, walls); scatter: whole "
-                   "samples, one in most cells of three tiles a side, at drawn places, on a ground (a temple, "
-                   "a tower). Default: what the model records (`sinrun orient --arrange`), else blend.")
-@click.option("--map", "height_map", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
+@request_option("arrange", default=None, show_default=False,
+                more_help="Default: what the model records (`sinrun orient --arrange`), else blend.")
+@click.option(*reversed(SPELLED["heights"]), type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
               help="The world's large shape: a greyscale .png (black low, white --relief voxels high; a column "
                    "per tile along the first horizontal axis, a row per tile up the second, from tile 0,0) or a "
                    ".npy array of heights in voxels, [i, j] for tile i,j. Beyond it, its edge goes on.")
 @click.option("--relief", type=float, default=None,
               help="Voxels from a .png map's black to its white. Default: 4 times the model's height.")
-@click.option("--lod", type=int, default=0, show_default=True,
-              help="Levels of detail coarser than the finest: distant tiles, cheaper, with a skirt that hides "
-                   "the crack where they meet finer ones.")
+@request_option("lod")
 @RESTART_OPTION
 @asset_options
 def world(model, seed, tiles, output, suffix, scale, frame, threads, workers, engine, address, arrange, height_map,
@@ -530,14 +520,15 @@ def interpolate(model, seeds, steps, alpha_range, scale, size, output, smooth, s
         raise click.BadParameter(f"--range must be two finite numbers, got {alpha_range[0]} {alpha_range[1]}")
     alpha = generate.blend_weights(*alpha_range, steps)  # refused before a name is made from them
     loaded = open_model(model, threads)
-    show_warnings(loaded, SampleRequest(size=size, scale=scale))
+    request = SampleRequest(seeds[0], size=size, scale=scale, smooth=smooth, smoother=smoother, largest=largest,
+                            frame=frame)
+    show_warnings(loaded, request)
 
     def path(k):
         return named_output(output, step=f"{k:02d}", alpha=f"{alpha(k):+.2f}")
 
     with progress_bar(steps, "interpolating") as bar:
-        write.write_interpolation(loaded, *seeds, alpha, steps, path, size, progress=lambda: bar.update(1),
-                                  scale=scale, smooth=smooth, smoother=smoother, largest=largest, frame=frame)
+        write.write_interpolation(loaded, request, seeds[1], alpha, steps, path, progress=lambda: bar.update(1))
     click.echo(f"wrote {steps} files: {path(0)} .. {path(steps - 1)}")
 
 
@@ -609,7 +600,7 @@ def orient(model, up, arrange, output):
 @click.option("--recon", is_flag=True, help="Draw each model's reconstruction of its training shape first.")
 @SCALE_OPTION
 @SIZE_OPTION
-@click.option("--smooth", type=int, default=0, show_default=True, help=SMOOTH_HELP)
+@request_option("smooth")
 @click.option("--views", type=int, default=1, show_default=True,
               help="Views per shape, turning around the up axis (a turntable row per shape).")
 @click.option("--up", type=click.Choice(["y", "z"]), default=None,
@@ -637,6 +628,7 @@ def render(inputs, output, seeds, recon, scale, size, smooth, views, up, columns
     shows the training mesh beside three samples.
     """
     from sinshape.runtime import render as draw
+    from sinshape.runtime.request import SampleRequest
 
     if output.suffix.lower() != ".png":
         raise InputError(f"{output}: the picture is written as .png")
@@ -646,8 +638,9 @@ def render(inputs, output, seeds, recon, scale, size, smooth, views, up, columns
     draw.check_view(zoom, azimuth, elevation)  # before any model is loaded
     items = [Path(item) if draw.is_mesh_file(item) else open_model(item, threads) for item in inputs]
     with StageProgress() as show:
-        picture = draw.draw_shapes(items, seeds, recon, size, scale, smooth, views, up, columns, image_size, zoom,
-                                   focus, azimuth, elevation, progress=show, asset_folder=asset_folder,
+        picture = draw.draw_shapes(items, seeds, recon, SampleRequest(size=size, scale=scale, smooth=smooth), views,
+                                   up, columns, image_size, zoom, focus, azimuth, elevation, progress=show,
+                                   asset_folder=asset_folder,
                                    warn=lambda said: click.echo(f"Warning: {command_line_message(said)}", err=True))
     draw.save_png(picture, output)
     click.echo(f"wrote {output} ({picture.shape[1]}x{picture.shape[0]})")

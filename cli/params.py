@@ -1,5 +1,7 @@
-"""`sinrun`'s parameter types: seed lists, per-axis values, output names.
-Values are parsed by the runtime where the web API reads the same text."""
+"""`sinrun`'s parameter types: seed lists, per-axis values, output names,
+and the options of a sample request, made from the runtime's table of them
+(runtime/options.py). Values are parsed by the runtime where the web API
+reads the same text."""
 
 import itertools
 import string
@@ -9,6 +11,7 @@ from pathlib import Path
 import click
 
 from sinshape.core.errors import InputError
+from sinshape.runtime.options import OPTION
 
 class SeedList:
     """Seeds such as 1,5,9-12 kept as ranges, so that 0-100000000 costs
@@ -158,3 +161,24 @@ def named_output(output: Path, **fields) -> Path:
                                      "can be filled in") from None
     tag = "_".join(f"{key}{value}" for key, value in fields.items())
     return output.with_name(f"{output.stem}_{tag}{output.suffix}")
+
+
+def request_option(name: str, *flags: str, more_help: str = "", **settings):
+    """A click option for the sample request's option `name`
+    (runtime.options.OPTION): its type, default and help from the table,
+    `more_help` added and `settings` (another flag, default or type) taking
+    precedence. Its parameter is the option's name unless `settings` names another."""
+    option = OPTION[name]
+    types = {"seed": int, "int": int, "number": float, "choice": click.Choice(option.choices),
+             "factors": FRACTIONS if option.high == 1 else SIZE}
+    made = dict(help=" ".join(filter(None, (option.help, more_help))), default=option.default)
+    if option.type == "bool":
+        made["is_flag"] = True
+    elif option.type == "parts":
+        made.update(multiple=True, metavar="SEED:X0,Y0,Z0:X1,Y1,Z1")
+    elif option.type in types:
+        made.update(type=types[option.type], show_default=option.default is not None)
+    else:
+        raise ValueError(f"the command line spells {name} ({option.type}) its own way")
+    made.update(settings)
+    return click.option(*(flags or ("--" + name.replace("_", "-"),)), made.pop("parameter", name), **made)

@@ -19,6 +19,12 @@ from .errors import InputError
 
 # The mesh formats sinshape writes, by extension: trimesh's names for them.
 MESH_FORMATS = {".ply": "ply", ".obj": "obj", ".stl": "stl", ".off": "off", ".glb": "glb"}
+# ... and the grid's: a sample's occupancy grid.
+GRID_FORMATS = {".npz": "npz"}
+# Every format a sample or a tile is written in, by name: the command line's
+# --format, the web API's `format` and the page's download are these
+# (runtime/options.py gives the page its copy).
+OUTPUT_FORMATS = (*MESH_FORMATS.values(), *GRID_FORMATS.values())
 
 # Bytes of the target's name kept in its temporary's name: with the bytes
 # added, well under the 255 bytes most file systems allow.

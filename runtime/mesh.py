@@ -22,13 +22,7 @@ from sinshape.core.errors import InputError, MemoryLimitError
 from . import colour, cubes, query
 from .generate import sample
 from .load import default_threads
-
-SMOOTHERS = ("laplacian", "taubin")
-# Smoothing spreads each vertex over about sqrt(iterations) grid steps, and
-# costs one pass over the mesh per iteration: 100 iterations already blur
-# over about 10 steps, the size of the patches the model learnt (the paper
-# smooths 3 times), so more would only erase the shape, slowly.
-MAX_SMOOTH = 100
+from .options import MAX_SMOOTH, SMOOTHERS  # noqa: F401  a request's limits, declared with its options
 # Below this many grid points (or with no more slabs than threads) one thread
 # meshes faster than a pool starts and feeds several: measured on 2 cores,
 # terrain at scale 1 (39k points) took 33 ms on one thread and 39 on two;

@@ -13,6 +13,7 @@ Colours are RGB floats in [0, 1]; images are (H, W, 3) uint8; sizes are
 
 import math
 import numbers
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -25,7 +26,7 @@ from sinshape.core.files import atomic_write
 
 from . import mesh as meshing
 from .colour import surface_painter
-from .generate import sample
+from .request import SampleRequest, make
 from .raster import BATCH, cross, rasterise
 
 CLAY = (0.86, 0.82, 0.76)
@@ -381,18 +382,21 @@ def depth_edges(nearness: np.ndarray, width=1) -> np.ndarray:
     return wide
 
 
-def draw_shapes(items: list, seeds, recon: bool = False, factors=(1.0, 1.0, 1.0), scale: float = 1.0,
-                smooth: int = 0, views: int = 1, up: str | None = None, columns: int = 4, image_size: int = 320,
-                zoom: float = 1.0, focus=(0.5, 0.5, 0.5), azimuth: float = 35.0, elevation: float = 25.0,
-                progress=None, warn=None, asset_folder: Path | None = None) -> np.ndarray:
+def draw_shapes(items: list, seeds, recon: bool = False, request=None, views: int = 1, up: str | None = None,
+                columns: int = 4, image_size: int = 320, zoom: float = 1.0, focus=(0.5, 0.5, 0.5),
+                azimuth: float = 35.0, elevation: float = 25.0, progress=None, warn=None,
+                asset_folder: Path | None = None) -> np.ndarray:
     """One picture of `items`: mesh files (Paths, drawn as they are, in
     their colours: `mesh_file`, the files they name read from their folder
     or `asset_folder`) and loaded models (their samples `seeds`, the
-    reconstruction first with `recon`), as a grid of labelled cells or, with
+    reconstruction first with `recon`, each made as `request` (a
+    request.SampleRequest, its seed replaced; None: the plain one) asks but
+    the reconstruction at the training size), as a grid of labelled cells or, with
     views > 1, a turntable row per shape. `up` None: what the first model
     records, else y. progress(stage, done, total) follows the sampling, then
     the drawing; warn(InputError) hears of a mesh's colour that cannot be read."""
     check_view(zoom, azimuth, elevation)
+    request = request or SampleRequest()
     chosen = [None, *seeds] if recon else list(seeds)
     models = [item for item in items if not isinstance(item, Path)]
     check_picture(len(items) - len(models) + len(models) * len(chosen), (image_size, image_size), views, columns)
@@ -404,15 +408,16 @@ def draw_shapes(items: list, seeds, recon: bool = False, factors=(1.0, 1.0, 1.0)
             labels.append(item.name)
             continue
         for seed in chosen:
-            triplane = sample(item, seed, factors if seed is not None else (1, 1, 1))
-            shapes.append(meshing.extract(item, triplane, scale, smooth=smooth, frame="model"))
+            wanted = replace(request, seed=None, recon=True, size=1.0) if seed is None else request.with_seed(seed)
+            triplane = make(item, wanted)
+            shapes.append(meshing.extract(item, triplane, **{**wanted.mesh_options(), "frame": "model"}))
             if item.tiles is not None:  # its colour read at each pixel: the example's texture, not vertex colours
                 shapes[-1].metadata[PAINT] = surface_painter(item, triplane, shapes[-1].vertices, shapes[-1].faces)
             meshing.to_frame(shapes[-1], item.manifest)
             if not len(shapes[-1].faces):
                 raise InputError(f"{item.path.name}: seed {seed} has no surface at this scale and size; nothing drawn",
                                  "scale")
-            labels.append(sample_label(seed, factors, scale))
+            labels.append(sample_label(seed, request.size, request.scale))
             sampled += 1
             if progress:
                 progress("sampling", sampled, len(models) * len(chosen))

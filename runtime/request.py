@@ -28,13 +28,8 @@ from sinshape.core.manifest import MAX_LEVEL_SIDE
 from . import edit, generate, layout, mesh, query
 from .edit import Part
 from .load import default_threads
-from .mesh import MAX_SMOOTH, SMOOTHERS
+from .options import EDITS, FRAMES, MAX_PARTS, OPTION, OPTIONS  # noqa: F401  the request's table
 from .world import ARRANGEMENTS, HeightMap, WorldOptions, check_tile, read_height_map
-
-FRAMES = ("input", "model", "tile")
-MAX_PARTS = 16  # boxes kept in one sample: each runs a whole chain of its own
-EDITS = ("keep", "grow", "layout")
-
 
 @dataclass(frozen=True)
 class Layout:
@@ -139,34 +134,44 @@ class SampleRequest:
             object.__setattr__(self, name, value)
 
         if self.seed is not None and not (isinstance(self.seed, (int, np.integer)) and not isinstance(self.seed, bool)
-                                          and 0 <= self.seed < 2**63):
+                                          and OPTION["seed"].admits(self.seed)):
             raise InputError(f"a seed must be an integer in [0, 2**63), got {self.seed!r}", "seed")
         set_field("seed", None if self.seed is None else int(self.seed))
-        set_field("size", per_axis(self.size, "size", lambda f: 0 < f < float("inf"), "one or three positive factors"))
-        if not (isinstance(self.scale, numbers.Real) and 0 < self.scale < float("inf")):
+        set_field("size", per_axis(self.size, "size", OPTION["size"].admits, "one or three positive factors"))
+        if not (isinstance(self.scale, numbers.Real) and OPTION["scale"].admits(self.scale)):
             raise InputError(f"scale must be a positive number, got {self.scale}", "scale")
-        if not (isinstance(self.smooth, numbers.Integral) and 0 <= self.smooth <= MAX_SMOOTH):
-            raise InputError(f"smooth must be 0 to {MAX_SMOOTH} iterations, got {self.smooth}", "smooth")
-        if self.smoother not in SMOOTHERS:
-            raise InputError(f"unknown smoother {self.smoother!r}; choose {' or '.join(SMOOTHERS)}", "smoother")
-        if self.frame not in FRAMES:
-            raise InputError(f"unknown frame {self.frame!r}; choose {' or '.join(FRAMES)}", "frame")
+        smooth = OPTION["smooth"]
+        if not (isinstance(self.smooth, numbers.Integral) and smooth.admits(self.smooth)):
+            raise InputError(f"smooth must be {smooth.low} to {smooth.high} iterations, got {self.smooth}", "smooth")
+        for name in ("smoother", "frame"):
+            if getattr(self, name) not in OPTION[name].choices:
+                raise InputError(f"unknown {name} {getattr(self, name)!r}; choose {' or '.join(OPTION[name].choices)}",
+                                 name)
         keep = (self.keep,) if isinstance(self.keep, (str, Part)) else tuple(self.keep)
-        if len(keep) > MAX_PARTS or not all(isinstance(part, (str, Part)) for part in keep):
-            raise InputError(f"keep takes at most {MAX_PARTS} parts, each a Part or its text "
+        if not OPTION["keep"].admits(len(keep)) or not all(isinstance(part, (str, Part)) for part in keep):
+            raise InputError(f"keep takes at most {OPTION['keep'].high} parts, each a Part or its text "
                              f"SEED:X0,Y0,Z0:X1,Y1,Z1", "keep")
         set_field("keep", keep)
         if self.grow is not None:
-            set_field("grow", per_axis(self.grow, "grow", lambda f: 1 <= f < float("inf"),
-                                       "one or three factors of at least 1"))
+            set_field("grow", per_axis(self.grow, "grow", OPTION["grow"].admits, "one or three factors of at least 1"))
         if self.anchor is not None:
-            set_field("anchor", per_axis(self.anchor, "anchor", lambda a: 0 <= a <= 1, "three fractions in [0, 1]"))
+            set_field("anchor", per_axis(self.anchor, "anchor", OPTION["anchor"].admits, "three fractions in [0, 1]"))
         if self.layout is not None and not isinstance(self.layout, Layout):
             raise InputError("layout must be a request.Layout (Layout.of(grid))", "layout")
         if self.tile is not None:
             set_field("tile", check_tile(self.tile))
         self.world_options()  # its fields' own checks
         self.check_together()
+
+    @classmethod
+    def of(cls, fields: dict) -> "SampleRequest":
+        """The request of a front end's values by option name (OPTIONS); a
+        name no option has is refused (InputError), never dropped."""
+        unknown = [name for name in fields if name not in OPTION]
+        if unknown:
+            raise InputError(f"a sample request has no field {unknown[0]!r}; its fields are {', '.join(OPTION)}",
+                             unknown[0])
+        return cls(**fields)
 
     def check_together(self) -> None:
         """The rules of which fields go together."""

@@ -69,11 +69,11 @@ from . import cubes
 from .colour import planes_colouring
 from .generate import check_seed, draw_noise, scaled_sizes, triplane
 from .mesh import colour_bytes
+from .options import MAX_TILE  # a tile request's range, declared with its options
 from .query import bilinear, check_scale, head_colour, project, sigmoid
 
 WORLD_STREAM = 2  # (WORLD_STREAM, a, b): the key of window (a, b)'s noise, absorbed after the world's seed
 SCATTER_STREAM = 3  # (SCATTER_STREAM, a, b): the key of scatter cell (a, b)'s draws (presence, place, mirrors)
-MAX_TILE = 1 << 62  # |i|, |j| below this: a window index and its neighbour fit in 64 bits in every runtime
 MIN_STRIDE = 4  # voxels: a window of fewer than 2 * 4 + 1 along an axis has no room to blend
 UP_AXIS = {"y": 1, "z": 2}
 BLEND = 1.0  # the share of a stride, around its middle, over which one window gives way to the next

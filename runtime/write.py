@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from sinshape.core.errors import InputError
-from sinshape.core.files import MESH_FORMATS, atomic_write, check_writable
+from sinshape.core.files import GRID_FORMATS, MESH_FORMATS, atomic_write, check_writable
 from sinshape.core.manifest import srgb_to_linear
 
 from . import mesh, world
@@ -31,8 +31,6 @@ from .colour import colouring, dense_grids
 from .generate import interpolate
 from .mesh import held_per_face
 from .request import make
-
-GRID_FORMATS = {".npz"}
 
 
 def output_kind(path) -> str:
@@ -281,17 +279,23 @@ def write_samples(model, outputs, progress=None, **options) -> None:
             progress()
 
 
-def write_interpolation(model, seed_a: int, seed_b: int, alpha, steps: int, path, factors=(1.0, 1.0, 1.0),
-                        progress=None, **options) -> None:
-    """Write `steps` blends of two seeds (`generate.interpolate` at weight
-    alpha(k), as `generate.blend_weights` makes it) to path(k), each made
-    when its turn comes, with `write_samples`. The first path is checked
-    before any work."""
+def write_interpolation(model, request, seed_b: int, alpha, steps: int, path, progress=None) -> None:
+    """Write `steps` blends of the request's seed and seed_b
+    (`generate.interpolate` at weight alpha(k), as `generate.blend_weights`
+    makes it) to path(k), each made when its turn comes, with
+    `write_samples`, at the request's size and with its surface options (a
+    plain request.SampleRequest: no edit, no tile, no reconstruction). The
+    first path is checked before any work."""
+    refused = [name for name, given in (("recon", request.recon), ("tile", request.tile is not None)) if given]
+    refused += request.edits() + request.world_fields()
+    if refused:
+        raise InputError(f"a blend of two seeds is a plain sample; it takes no {refused[0]}", refused[0])
     first = path(0)
     output_kind(first)
     check_writable(first, [model.path])
-    outputs = ((path(k), interpolate(model, seed_a, seed_b, alpha(k), factors)) for k in range(steps))
-    write_samples(model, outputs, progress, **options)
+    outputs = ((path(k), interpolate(model, request.sample_seed, seed_b, alpha(k), request.size))
+               for k in range(steps))
+    write_samples(model, outputs, progress, **request.mesh_options())
 
 
 def write_block(model, request, tiles, path, progress=None) -> None:

@@ -12,7 +12,8 @@ answer gets, whatever its route (the Host check, the isolation headers,
 gzip, ETags and 304), is http.py's.
 
 Errors are JSON {"detail": "one line"}: 422 for a value of the wrong type
-or range, 400 for a value the runtime refuses, 413 for work that would
+or range or a query parameter the route does not take (refused, never
+ignored), 400 for a value the runtime refuses, 413 for work that would
 exceed the runtime's memory limit (the message gives the figure), 404 for an
 unknown model, 503 when no sampling slot frees up in time, 504 when
 sampling takes longer than the time limit.
@@ -35,8 +36,10 @@ from pydantic import BaseModel
 from starlette.concurrency import run_in_threadpool
 from starlette.requests import ClientDisconnect
 
+from sinshape.core import files
 from sinshape.core.errors import InputError, MemoryLimitError
-from sinshape.runtime import asset, generate, layout, load, mesh, world
+from sinshape.runtime import asset, generate, layout, load, world
+from sinshape.runtime.options import OPTION
 from sinshape.runtime.request import Layout, SampleRequest, resolved
 from sinshape.serve import catalog, http
 from sinshape.serve.catalog import load_models  # noqa: F401  the API: app.load_models, app.create_app, app.run
@@ -45,11 +48,10 @@ from sinshape.serve.jobs import Job, make_sample
 from sinshape.serve.sampler import ClientGone, NoSlot, OutOfTime, Sampler
 
 STATIC = Path(__file__).parent / "static"
-Format = Literal["glb", "ply", "obj", "stl", "off", "npz"]
+Format = Literal[files.OUTPUT_FORMATS]
 LayoutFormat = Literal["json", "vox", "npz"]
 MEDIA_TYPES = {"glb": "model/gltf-binary", "obj": "model/obj", "stl": "model/stl",
                "json": "application/json"}  # others: octet-stream
-MAX_SMOOTH = mesh.MAX_SMOOTH  # smoothing cannot be interrupted either; the runtime bounds it
 # What the library raises -> the status it is answered with, {"detail": its message}; the closest class counts.
 STATUSES = {InputError: 400, MemoryLimitError: 413, NoSlot: 503, OutOfTime: 504}
 log = logging.getLogger("sinshape.serve")
@@ -76,13 +78,39 @@ FILE_ANSWERS = {
 }
 
 
+# The options of a sample request (runtime/options.py) the routes take other than
+# as a query parameter of their name: {option: where it goes}. The others are
+# `option_query`s; tests/test_options.py holds the routes to the table.
+SPELLED = {"layout": "the body of POST .../sample", "tile": "i and j", "heights": "the body of POST .../tile"}
+
+
+def option_query(name: str, optional: bool = False, **settings):
+    """The query parameter of the sample request's option `name`: its type,
+    range, choices and description from the table (runtime.options.OPTION),
+    `settings` taking precedence; it may be left out (None) where its
+    default is None or `optional` says. Factors are text ('2' or '2,1,1'),
+    read by the runtime as the command line reads them."""
+    option = OPTION[name]
+    kind = {"seed": int, "bool": bool, "int": int, "number": float, "factors": str, "parts": list[str],
+            "choice": Literal[option.choices] if option.choices else None}[option.type]
+    if optional or option.default is None:
+        kind = kind | None
+    limits = {}
+    if option.low is not None and option.type in ("seed", "int", "number"):
+        limits["gt" if option.bounds[0] == "(" else "ge"] = option.low
+    if option.high is not None and option.type in ("seed", "int", "number"):
+        limits["lt" if option.bounds[1] == ")" else "le"] = option.high
+    if option.type == "number":
+        limits["allow_inf_nan"] = False
+    return Annotated[kind, Query(**{"description": option.help, **limits, **settings})]
+
+
 # The query parameters of a sample (the layout route takes seed and size too).
-SeedQuery = Annotated[int, Query(ge=0, lt=2**63, description="The same seed gives the same shape.")]
-SizeQuery = Annotated[str, Query(description="Factors of the training size: one, or sx,sy,sz.")]
-ScaleQuery = Annotated[float, Query(gt=0, allow_inf_nan=False,
-                                    description="Query a grid this many times finer per axis.")]
-SmoothQuery = Annotated[int, Query(ge=0, le=MAX_SMOOTH, description="Laplacian smoothing steps.")]
-FormatQuery = Annotated[Format, Query(description="glb ply obj stl off: a mesh; npz: the occupancy grid.")]
+SeedQuery = option_query("seed", description="The same seed gives the same shape.")
+SizeQuery = option_query("size")
+ScaleQuery = option_query("scale")
+FormatQuery = Annotated[Format, Query(description=f"{' '.join(files.MESH_FORMATS.values())}: a mesh; "
+                                                 f"{' '.join(files.GRID_FORMATS.values())}: the occupancy grid.")]
 
 
 LodsQuery = Annotated[str | None, Query(description="A game asset (format glb): levels of detail of these triangle "
@@ -115,11 +143,24 @@ class SampleQuery:
     query parameters of a sample."""
 
     name: str
-    seed: SeedQuery = 0
+    seed: option_query("seed") = None
+    recon: option_query("recon") = False
     size: SizeQuery = "1"
     scale: ScaleQuery = 1.0
-    smooth: SmoothQuery = 0
+    smooth: option_query("smooth") = 0
+    smoother: option_query("smoother") = OPTION["smoother"].default
+    largest: option_query("largest") = False
+    frame: option_query("frame") = OPTION["frame"].default
     format: FormatQuery = "glb"
+
+    def fields(self) -> dict:
+        """The request's options given as query parameters, by name (the
+        size's text read; no seed: 0, one request for one sample and one
+        cache entry, but for the reconstruction)."""
+        given = {name: getattr(self, name) for name in OPTION if hasattr(self, name)}
+        given["size"] = generate.parse_size(self.size)
+        given["seed"] = 0 if self.seed is None and not self.recon else self.seed
+        return given
 
 
 MAX_UPLOAD_BYTES = 4 << 20  # a layout of a coarse level is a few kB; a height map of 1024 x 1024 float32
@@ -144,7 +185,24 @@ def one_line(error: RequestValidationError) -> str:
     return "; ".join(parts)
 
 
-routes = APIRouter()
+def query_names(dependant) -> set:
+    """The query parameters a route takes, its dependencies' included."""
+    return {param.alias for param in dependant.query_params}.union(*map(query_names, dependant.dependencies))
+
+
+async def known_query(request: Request) -> None:
+    """A query parameter the route does not take is refused (422), never
+    ignored: a misspelt option, or one this server is too old for, would
+    otherwise be dropped without a word and the answer made without it."""
+    taken = query_names(request.scope["route"].dependant)
+    unknown = sorted(set(request.query_params) - taken)
+    if unknown:
+        raise HTTPException(422, f"{unknown[0]}: this route takes no such query parameter; it takes "
+                                 f"{', '.join(sorted(taken)) or 'none'}")
+
+
+routes = APIRouter(dependencies=[Depends(known_query)])  # the API
+pages = APIRouter()  # the page, whose own state is its query
 
 
 def find(request: Request, name: str):
@@ -202,19 +260,15 @@ async def sample(
     request: Request,
     q: Annotated[SampleQuery, Depends()],
     a: Annotated[AssetQuery, Depends()],
-    keep: Annotated[list[str], Query(description="Parts to keep from other samples, "
-                                     "SEED:X0,Y0,Z0:X1,Y1,Z1 (the model's frame, or percentages like 50%); "
-                                     "repeat for more. The rest comes from `seed`.")] = [],
-    grow: Annotated[str | None, Query(description="Grow the sample by these factors (one, or sx,sy,sz, "
-                                      "each at least 1), keeping what it had.")] = None,
-    anchor: Annotated[str | None, Query(description="With grow: where the old sample sits, per axis from 0 "
-                                        "(low side, the default) to 1 (high side).")] = None,
+    keep: option_query("keep") = [],
+    grow: option_query("grow") = None,
+    anchor: option_query("anchor") = None,
 ):
     model = find(request, q.name)
     where = None if anchor is None else generate.parse_triple(anchor, lambda v: 0 <= v <= 1,
                                                               "three fractions in [0, 1]", "anchor")
-    wanted = SampleRequest(q.seed, size=generate.parse_size(q.size), scale=q.scale, smooth=q.smooth,
-                           keep=tuple(keep), grow=generate.parse_size(grow) if grow else None, anchor=where)
+    wanted = SampleRequest.of({**q.fields(), "keep": tuple(keep), "grow": generate.parse_size(grow) if grow else None,
+                               "anchor": where})
     return await answer(request, model, Job(q.name, resolved(model, wanted), q.format, asset=a.options(q.format)))
 
 
@@ -231,8 +285,7 @@ async def sample_from_layout(
         raise InputError(f"send the layout file as the request body (1 byte to {MAX_UPLOAD_BYTES >> 20} MB)")
     model = find(request, q.name)
     grid = await run_in_threadpool(layout.parse_layout, body, layout_suffix(body), "the layout")
-    wanted = SampleRequest(q.seed, size=generate.parse_size(q.size), scale=q.scale, smooth=q.smooth,
-                           layout=Layout.of(grid, resample_layout))
+    wanted = SampleRequest.of({**q.fields(), "layout": Layout.of(grid, resample_layout)})
     return await answer(request, model, Job(q.name, wanted, q.format))
 
 
@@ -271,20 +324,17 @@ class TileQuery:
     seed: SeedQuery = 0
     scale: ScaleQuery = 1.0
     format: FormatQuery = "glb"
-    frame: Annotated[Literal["tile", "input", "model"], Query(
-        description="tile: the training mesh's units from the tile's own corner (any tile; X-Tile-Corner "
-                    "gives the corner in voxels); input or model: placed in the world, near its origin.")] = "tile"
-    arrange: Annotated[Literal["blend", "scatter"] | None, Query(
-        description="blend: samples blended into one surface (terrain); scatter: whole samples at drawn places "
-                    "on a ground (an object). Default: what the model records, else blend.")] = None
-    lod: Annotated[int, Query(ge=0, description="Levels coarser than the finest: a distant tile, "
-                              "with a skirt over the crack where it meets a finer one.")] = 0
+    frame: option_query("frame", description="tile: the training mesh's units from the tile's own corner (any "
+                         "tile; X-Tile-Corner gives the corner in voxels); input or model: placed in the world, near "
+                         "its origin.") = "tile"
+    arrange: option_query("arrange", optional=True) = None  # None: what the model records, else blend
+    lod: option_query("lod") = 0
 
 
 async def tile_answer(request: Request, q: TileQuery, heights=None, asset=None) -> Response:
     model = find(request, q.name)
-    wanted = SampleRequest(q.seed, scale=q.scale, frame=q.frame, tile=(q.i, q.j),
-                           arrange=q.arrange or model.manifest.arrange, heights=heights, lod=q.lod)
+    wanted = SampleRequest.of(dict(seed=q.seed, scale=q.scale, frame=q.frame, tile=(q.i, q.j),
+                                   arrange=q.arrange or model.manifest.arrange, heights=heights, lod=q.lod))
     response = await answer(request, model, Job(q.name, wanted, q.format, asset=asset))
     response.headers["X-Tile-Corner"] = ",".join(map(str, world.tile_corner(model, (q.i, q.j))))
     return response
@@ -321,7 +371,7 @@ async def tile_of_map(
     return await tile_answer(request, q, heights, a.options(q.format))
 
 
-@routes.get("/", include_in_schema=False)
+@pages.get("/", include_in_schema=False)
 async def page(request: Request):
     return await request.app.state.static.get_response("index.html", request.scope)
 
@@ -383,6 +433,7 @@ def create_app(loaded: dict, slots: int | None = None, timeout: float = 60.0,
     http.add_middleware(app, {name.lower().strip("[]") for name in allowed_hosts})
     add_error_answers(app)
     app.include_router(routes)
+    app.include_router(pages)
     app.mount("/static", app.state.static, name="static")
     return app
 

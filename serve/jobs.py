@@ -31,7 +31,7 @@ class Job:
 
     def filename(self) -> str:
         request = self.request
-        tags = [f"seed{request.seed}"] + [f"keep{part.seed}" for part in request.keep]
+        tags = ["recon" if request.recon else f"seed{request.seed}"] + [f"keep{part.seed}" for part in request.keep]
         if request.tile is not None:
             tags.append(f"tile{request.tile[0]}_{request.tile[1]}")
         if request.arrange != "blend":
@@ -51,7 +51,11 @@ class Job:
         if request.scale != 1:
             tags.append(f"scale{request.scale:g}")
         if request.smooth and self.format != "npz":
-            tags.append(f"smooth{request.smooth}")
+            tags.append(f"smooth{request.smooth}" + ("" if request.smoother == "laplacian" else request.smoother))
+        if request.largest and self.format != "npz":
+            tags.append("largest")
+        if request.frame == "model":
+            tags.append("model")
         if self.asset:
             tags.append("asset" + "_".join(map(str, self.asset.lods)))
         return f"{self.model}_{'_'.join(tags)}.{self.format}"

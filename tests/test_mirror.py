@@ -79,6 +79,7 @@ MIRROR = [
     ("viewer/heights.js", *same("RELIEF", world)),
     ("viewer/layout-cells.js", "MAX_SIDE", "runtime.layout.MAX_LAYOUT_SIDE", layout.MAX_LAYOUT_SIDE),
     ("viewer/layout-cells.js", *same("VOX_VERSION", layout)),
+    ("sinshape/world.js", "ARRANGEMENTS", "core.manifest.ARRANGEMENTS", fmt.ARRANGEMENTS),
     ("viewer/layout-cells.js", *same("VOX_COLOUR", layout)),
 ]
 
@@ -99,9 +100,11 @@ BROWSER_ONLY = {
                                      "(tests/test_colour_web.py)",
     ("sinshape/decode-wasm.js", "DECODE_WASM"): "the fit's WebAssembly, built from decode.wat (tests/test_wasm.py)",
 }
-# request.js's and worker.js's option fields and constants, built from the table of a sample's options.
-OPTIONS = {("sinshape/request.js", name) for name in ("MAX_SMOOTH", "SMOOTHERS", "FRAMES", "MAX_PARTS", "DEFAULTS")} | {
-    ("sinshape/worker.js", "BROWSER_SURFACE"), ("sinshape/world.js", "ARRANGEMENTS")}
+# The table of a sample's options and the output formats: options.js is written from Python and
+# tests/test_options.py holds the copy equal to it; request.js reads its fields, defaults and limits there;
+# MAKES (the options the browser runtime makes) is held by tests/test_web.py.
+OPTIONS = {("sinshape/options.js", "OPTIONS"), ("sinshape/options.js", "FORMATS")} | {
+    ("sinshape/request.js", name) for name in ("OPTION", "DEFAULTS", "MAX_PARTS", "MAKES")}
 
 # Runs in node: the named exports of each module, as JSON (BigInts as {"bigint": text}, sets sorted, typed
 # arrays as arrays, functions as their names).

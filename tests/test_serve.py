@@ -22,6 +22,7 @@ from click.testing import CliRunner
 
 from sinshape import models
 from sinshape.cli.main import cli
+from sinshape.runtime.options import OPTION
 from test_cli_train import assert_one_line_error
 
 pytest.importorskip("fastapi", reason="needs the serve extra: pip install 'sinshape[serve]'")
@@ -118,8 +119,8 @@ def test_openapi_describes_every_route(server):
     assert {"/health", "/api/models", "/api/models/{name}", "/api/models/{name}/sample"} <= set(paths)
     assert "post" in paths["/api/models/{name}/sample"]
     params = {p["name"] for p in paths["/api/models/{name}/sample"]["get"]["parameters"]}
-    assert params == {"name", "seed", "size", "scale", "smooth", "format", "keep", "grow", "anchor", "lods", "texture",
-                      "ao"}
+    # and the options of a sample request, which tests/test_options.py holds to their table
+    assert params - set(OPTION) == {"name", "format", "lods", "texture", "ao"} and {"seed", "smooth"} <= params
 
 
 def test_the_page_and_its_offline_scripts(server):
@@ -361,7 +362,7 @@ def test_a_repeated_request_is_a_cache_hit(server):
     ({"size": "0,1,1"}, 400, "give one or three positive factors"),
     ({"size": "1e308"}, 400, "the most a sample may have per axis"),
     ({"smooth": "-3"}, 422, "smooth: Input should be greater than or equal to 0"),
-    ({"format": "xyz"}, 422, "format: Input should be 'glb', 'ply'"),
+    ({"format": "xyz"}, 422, "format: Input should be 'ply', 'obj'"),
     ({"model": "nope"}, 404, "unknown model 'nope'; this server has terrain"),
 ])
 def test_bad_values_are_4xx_with_one_line(server, query, status, fragment):

@@ -24,6 +24,7 @@ from sinshape.runtime.generate import sample
 from sinshape.runtime.request import SampleRequest, make
 from sinshape.serve import site
 from test_cli_train import assert_one_line_error
+from test_request import expected as expected_outcome
 
 pytest.importorskip("playwright.sync_api", reason="needs playwright (the test extra)")
 if not Path(CHROMIUM).is_file():
@@ -320,12 +321,69 @@ def test_requests_are_checked_as_python_checks_them(site_page):
     made = page.evaluate(REQUESTS_JS, text)
     assert len(made) == len(cases) and sum("refused" in case for case in cases) > 30
     for case, got in zip(cases, made):
-        expected = {key: value for key, value in case.items() if key != "fields"}
+        expected = expected_outcome(case)
         if "request" in expected and expected["request"]["seed"] is not None:
             expected["request"]["seed"] = str(expected["request"]["seed"])
         if "request" in expected and expected["request"]["tile"] is not None:
             expected["request"]["tile"] = [str(t) for t in expected["request"]["tile"]]
         assert got == expected, case["fields"]
+
+
+# Runs in the page: the browser's front ends against the table's copy (options.js): what
+# request.js refuses, what the worker refuses, what make, makeTile and each route will not
+# take, and the lists of what the runtime makes, each route is sent and the page sets.
+OPTIONS_JS = """async () => {
+  const { OPTIONS } = await import('./static/sinshape/options.js');
+  const { MAKES, make, makeTile, sampleRequest } = await import('./static/sinshape/request.js');
+  const { ROUTE_TAKES, serverRequest } = await import('./static/viewer/sampling.js');
+  const { PAGE_OPTIONS } = await import('./static/viewer/state.js');
+  const refusal = async (work) => {
+    try { await work(); return null; } catch (error) { return [error.constructor.name, error.message]; }
+  };
+  const worker = new Worker('./static/sinshape/worker.js', { type: 'module' });
+  const answer = await new Promise((resolve) => {
+    worker.onmessage = ({ data }) => resolve(data);
+    worker.postMessage({ id: 1, type: 'sample', name: 'terrain', request: { seed: 3, colour: 'red' } });
+  });
+  worker.terminate();
+  const tile = { tile: [0, 0], frame: 'tile', smoother: 'taubin' };
+  return {
+    names: OPTIONS.map((option) => option.name), makes: MAKES, routes: ROUTE_TAKES, page: PAGE_OPTIONS, worker: answer,
+    unknown: await refusal(() => sampleRequest({ seed: 3, colour: 'red' })),
+    sample: await refusal(() => make(null, sampleRequest({ smoother: 'taubin' }))),
+    tile: await refusal(() => makeTile(null, sampleRequest(tile))),
+    route: await refusal(() => serverRequest('terrain', sampleRequest(tile), 'glb')),
+    sent: serverRequest('terrain', sampleRequest({ seed: 3, smoother: 'taubin', largest: true }), 'glb').url,
+  };
+}"""
+
+
+def test_the_page_and_its_worker_are_held_to_the_options_table(site_page):
+    """Every option is one the browser runtime makes or refuses when given,
+    one each route is sent or refused before sending, one the page sets or
+    leaves at its default; a field no option has is refused by request.js and
+    by the worker (Python's message), not dropped."""
+    from sinshape.runtime.options import EDITS, OPTION, OPTIONS
+
+    page = site_page
+    if page.url.rstrip("/").split("?")[0] != page.base:  # the page itself, for its import map
+        page.goto(f"{page.base}/?seed=0")
+    got = page.evaluate(OPTIONS_JS)
+    names = list(OPTION)
+    assert got["names"] == names
+    for kind in ("sample", "tile"):
+        of_kind = {option.name for option in OPTIONS if kind in {"sample" if g in EDITS else g for g in option.goes_with}}
+        assert set(got["makes"][kind]) <= of_kind and set(got["routes"][kind]) == of_kind, kind
+    assert set(got["page"]["set"]) | set(got["page"]["left"]) == set(names)
+    assert set(got["page"]["set"]).isdisjoint(got["page"]["left"])
+    with pytest.raises(InputError) as python:
+        SampleRequest.of({"seed": 3, "colour": "red"})
+    assert got["unknown"] == ["InputError", str(python.value)]
+    assert got["worker"] == {"id": 1, "type": "error", "message": str(python.value), "input": True}
+    assert got["sample"] == ["InputError", "the browser runtime makes smoother laplacian only"]
+    assert got["tile"] == got["sample"]
+    assert got["route"] == ["Error", "the tile route cannot take this request's smoother"]
+    assert {"seed=3", "smoother=taubin", "largest=true"} <= set(got["sent"].split("?")[1].split("&"))
 
 
 @pytest.mark.parametrize("text", ["3:0%,0%,0%:50%,100%,100%", "3: 1.5,0,0 :4,2.5,0.75", "+3:0%,0%,0%:100%,100%,100%",

@@ -10,19 +10,23 @@
 //   const tri = await make(model, request);                          // as request.make
 //   const tile = await makeTile(model, sampleRequest({ seed: 7n, tile: [5n, -2n], frame: 'tile' }));  // a world's tile: a mesh
 import { ConflictError, InputError, pyRepr, pyStr } from './errors.js';
+import { OPTIONS } from './options.js';
 import { sample, scaledSizes } from './generate.js';
 import { checkPart, compose, grow, parsePart } from './edit.js';
 import { fromLayout } from './layout.js';
 import { checkPlacement, checkTile, frameNormals, placed, tileCorner, tileSurface, worldLayout, worldOptions } from './world.js';
 
-const MAX_SMOOTH = 100; // mesh.MAX_SMOOTH
-const SMOOTHERS = ['laplacian', 'taubin']; // mesh.SMOOTHERS; the browser's mesh.js has the first only
-const FRAMES = ['input', 'model', 'tile'];
-const MAX_PARTS = 16; // boxes kept in one sample: each runs a whole chain of its own
-const DEFAULTS = {
-  seed: null, recon: false, size: [1, 1, 1], scale: 1, smooth: 0, smoother: 'laplacian', largest: false, frame: 'input',
-  keep: [], grow: null, anchor: null, layout: null, tile: null, arrange: 'blend', heights: null, lod: 0,
-};
+// The options' ranges, choices and defaults: runtime/options.py's table (options.js, its copy).
+export const OPTION = Object.freeze(Object.fromEntries(OPTIONS.map((option) => [option.name, option])));
+const DEFAULTS = Object.fromEntries(OPTIONS.map(({ name, default: value }) => [name, value]));
+const { high: MAX_SMOOTH } = OPTION.smooth, { choices: SMOOTHERS } = OPTION.smoother, { choices: FRAMES } = OPTION.frame;
+const MAX_PARTS = OPTION.keep.high; // boxes kept in one sample: each runs a whole chain of its own
+/** Whether a number lies in an option's range, as Option.admits. */
+function admits({ low, high, bounds }, value) {
+  const above = low === null || (bounds[0] === '(' ? value > low : value >= low);
+  const below = high === null || (bounds[1] === ')' ? value < high : value <= high);
+  return above && below && Number.isFinite(value);
+}
 const isNumber = (v) => typeof v === 'number';
 
 /** A coarse layout to generate from: a grid (0/1, C order) of `shape`, as request.Layout.of. */
@@ -59,16 +63,18 @@ const edits = (request) => ['keep', 'grow', 'layout'].filter((name) => (name ===
  * and anchor three numbers).
  */
 export function sampleRequest(fields = {}) {
-  for (const name of Object.keys(fields)) if (!(name in DEFAULTS)) throw new TypeError(`a sample request has no field '${name}'`);
+  for (const name of Object.keys(fields)) {
+    if (!(name in DEFAULTS)) throw new InputError(`a sample request has no field ${pyRepr(name)}; its fields are ${Object.keys(DEFAULTS).join(', ')}`, name);
+  }
   const given = { ...DEFAULTS, ...Object.fromEntries(Object.entries(fields).filter(([, v]) => v !== undefined)) };
   let { seed, scale, smooth, keep, layout } = given;
   if (seed !== null) {
     const whole = typeof seed === 'bigint' || Number.isInteger(seed);
-    if (!(whole && BigInt(seed) >= 0n && BigInt(seed) < 2n ** 63n)) throw new InputError(`a seed must be an integer in [0, 2**63), got ${pyRepr(seed)}`, 'seed');
+    if (!(whole && BigInt(seed) >= BigInt(OPTION.seed.low) && BigInt(seed) < BigInt(OPTION.seed.high))) throw new InputError(`a seed must be an integer in [0, 2**63), got ${pyRepr(seed)}`, 'seed');
     seed = BigInt(seed);
   }
-  const size = perAxis(given.size, 'size', (f) => f > 0 && f < Infinity, 'one or three positive factors');
-  if (!(isNumber(scale) && scale > 0 && scale < Infinity)) throw new InputError(`scale must be a positive number, got ${pyStr(scale)}`, 'scale');
+  const size = perAxis(given.size, 'size', (f) => admits(OPTION.size, f), 'one or three positive factors');
+  if (!(isNumber(scale) && admits(OPTION.scale, scale))) throw new InputError(`scale must be a positive number, got ${pyStr(scale)}`, 'scale');
   if (!(Number.isInteger(smooth) && smooth >= 0 && smooth <= MAX_SMOOTH)) throw new InputError(`smooth must be 0 to ${MAX_SMOOTH} iterations, got ${pyStr(smooth)}`, 'smooth');
   if (!SMOOTHERS.includes(given.smoother)) throw new InputError(`unknown smoother ${pyRepr(given.smoother)}; choose ${SMOOTHERS.join(' or ')}`, 'smoother');
   if (!FRAMES.includes(given.frame)) throw new InputError(`unknown frame ${pyRepr(given.frame)}; choose ${FRAMES.join(' or ')}`, 'frame');
@@ -77,8 +83,8 @@ export function sampleRequest(fields = {}) {
   if (!(Array.isArray(keep) && keep.length <= MAX_PARTS && keep.every(isPart))) {
     throw new InputError(`keep takes at most ${MAX_PARTS} parts, each a Part or its text SEED:X0,Y0,Z0:X1,Y1,Z1`, 'keep');
   }
-  const grown = given.grow === null ? null : perAxis(given.grow, 'grow', (f) => f >= 1 && f < Infinity, 'one or three factors of at least 1');
-  const anchor = given.anchor === null ? null : perAxis(given.anchor, 'anchor', (a) => a >= 0 && a <= 1, 'three fractions in [0, 1]');
+  const grown = given.grow === null ? null : perAxis(given.grow, 'grow', (f) => admits(OPTION.grow, f), 'one or three factors of at least 1');
+  const anchor = given.anchor === null ? null : perAxis(given.anchor, 'anchor', (a) => admits(OPTION.anchor, a), 'three fractions in [0, 1]');
   if (layout !== null) {
     if (!(typeof layout === 'object' && 'grid' in layout && 'shape' in layout)) throw new InputError('layout must be a request.Layout (Layout.of(grid))', 'layout');
     layout = Layout.of(layout.grid, layout.shape, layout.resample);
@@ -86,6 +92,7 @@ export function sampleRequest(fields = {}) {
   const tile = given.tile === null ? null : checkTile(given.tile);
   const { arrange, heights, lod } = worldOptions({ arrange: given.arrange, heights: given.heights, lod: given.lod });
   const request = Object.freeze({
+    ...given, // every option, in the table's order: one this file does not check yet as given (make refuses it)
     seed, recon: Boolean(given.recon), size, scale, smooth, smoother: given.smoother, largest: Boolean(given.largest),
     frame: given.frame, keep: Object.freeze([...keep]), grow: grown, anchor, layout, tile, arrange, heights, lod,
   });
@@ -115,8 +122,25 @@ function checkTogether(request) {
 }
 
 /** The world's fields given other than their defaults, as SampleRequest.world_fields. */
-const worldFields = (request) => [['arrange', request.arrange !== 'blend'], ['heights', request.heights !== null], ['lod', request.lod]]
+const worldFields = (request) => [['arrange', request.arrange !== DEFAULTS.arrange], ['heights', request.heights !== null], ['lod', request.lod]]
   .filter(([, value]) => value).map(([name]) => name);
+
+// The options this runtime makes, for a sample (make) and for a tile (makeTile).
+// Any other given other than its default (Python's smoother 'taubin', largest, a
+// sample's frame, an option added to the table later) is refused, never dropped.
+export const MAKES = Object.freeze({
+  sample: Object.freeze(['seed', 'recon', 'size', 'scale', 'smooth', 'keep', 'grow', 'anchor', 'layout']),
+  tile: Object.freeze(['seed', 'scale', 'frame', 'tile', 'arrange', 'heights', 'lod']),
+});
+
+/** Refuse what a request asks of an option this runtime does not make for its kind (an InputError naming it). */
+function refuseUnmade(request, kind) {
+  for (const option of OPTIONS) {
+    const { name, default: value } = option;
+    if (MAKES[kind].includes(name) || JSON.stringify(request[name]) === JSON.stringify(value)) continue;
+    throw new InputError(`the browser runtime makes ${value === null ? `no ${name}` : `${name} ${value} only`}`, name);
+  }
+}
 
 /** The seed whose noise makes the sample (null: the training shape). */
 const sampleSeed = (request) => (request.recon ? null : request.seed ?? 0n);
@@ -133,6 +157,7 @@ export async function make(model, request, progress = null) {
   }
   const world = worldFields(request);
   if (world.length) throw new InputError(`${world[0]} is for the tiles of a world; a sample has none`, world[0]);
+  refuseUnmade(request, 'sample');
   const seed = sampleSeed(request), { size, layout } = request;
   if (layout) {
     if (layout.resample) throw new InputError('the browser fits a layout of one level\'s own size only; resample it with sinrun', 'layout');
@@ -159,6 +184,7 @@ export async function make(model, request, progress = null) {
  * colours (or null), corner: the tile's lowest corner in voxels (BigInts) }.
  */
 export async function makeTile(model, request, progress = null) {
+  refuseUnmade(request, 'tile');
   checkPlacement(model.manifest, request.tile, request.frame); // refused before the work, not after
   progress?.('making the tile', null);
   const options = worldOptions(request);

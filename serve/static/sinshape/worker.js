@@ -41,19 +41,15 @@ async function loaded(name) {
   return models.get(name);
 }
 
-// The surface options the Python runtime has and this one does not: refused, not ignored.
-const BROWSER_SURFACE = { smoother: 'laplacian', largest: false, frame: 'input' };
-
 async function sample({ name, request }, progress) {
+  // A clone has lost its freezing: checked again, as cheap as it is, and first. A field it does not
+  // know, or one make and makeTile do not make (request.js: MAKES), is refused, never dropped.
+  const wanted = sampleRequest(request);
   const model = await loaded(name);
   const started = performance.now();
-  const wanted = sampleRequest(request); // a clone has lost its freezing: checked again, as cheap as it is
   if (wanted.tile !== null) { // a tile takes none of the surface options it could not keep seamless (the request says so)
     const { positions, faces, normals, colours, corner } = await makeTile(model, wanted, progress);
     return { positions, faces, normals, colours, corner: corner.map(String), seconds: (performance.now() - started) / 1000 };
-  }
-  for (const [field, value] of Object.entries(BROWSER_SURFACE)) {
-    if (wanted[field] !== value) throw new sinshape.InputError(`the browser runtime makes ${field} ${value} only`, field);
   }
   const tri = await make(model, wanted, progress);
   const grid = await sinshape.dense(model, tri, wanted.scale, (f) => progress('querying the grid', f));

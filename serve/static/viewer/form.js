@@ -1,8 +1,20 @@
 // The controls: the state shown in them and read back from them, which of
 // them the state calls for, and the status line under them.
+import { FORMATS } from '../sinshape/options.js';
+import { OPTION } from '../sinshape/request.js';
 import { STATIC_SITE, nextSeed, state } from './state.js';
 
 export const $ = (id) => document.getElementById(id);
+
+// The download's formats, before the game asset: core.files.OUTPUT_FORMATS.
+$('format').prepend(...FORMATS.map((format) => new Option(format)));
+// The controls of a request's options take the table's help and range (runtime/options.py).
+for (const name of ['seed', 'scale', 'smooth']) {
+  const { help, low, high, bounds } = OPTION[name];
+  $(name).title = help;
+  if (low !== null && bounds[0] === '[') $(name).min = low;
+  if (high !== null && bounds[1] === ']') $(name).max = high;
+}
 
 // An x,y,z row of the page (class xyz) holds its x input; the y and z inputs
 // are copies of it, with x in their id, name and title turned to their axis.

@@ -12,6 +12,7 @@
 // the browser a request waits for the one before it, and is skipped if a
 // newer one aborted it meanwhile. `stop` ends the worker (cancel).
 import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
+import { OPTIONS } from '../sinshape/options.js';
 import { voxBytes } from './layout-cells.js';
 
 /** A request given up: nothing to report. */
@@ -37,35 +38,48 @@ async function answer(response) {
   throw new Error(body.detail || `${response.status} ${response.statusText}`);
 }
 
+// Each route takes every option of its kind of request (runtime/options.py; a
+// sample's edits are a sample's) as a query parameter of the option's name
+// (tests/test_options.py holds the routes to the table), but these, sent
+// otherwise; an option of another kind given other than its default is
+// refused here, not sent without it.
+const SENT_OTHERWISE = ['tile', 'layout', 'heights', 'keep']; // i and j, a POST's body, a parameter a part
+const ALWAYS_SENT = { sample: ['seed', 'size', 'scale', 'smooth'], tile: ['seed', 'scale'] }; // the links read so
+const takes = (route, { goes_with: goes }) => goes.some((kind) => kind === route || (route === 'sample' && kind !== 'tile'));
+const isDefault = (request, { name, default: value }) => JSON.stringify(request[name]) === JSON.stringify(value);
+
+/** The options each route takes, by name: { sample: [...], tile: [...] }. */
+export const ROUTE_TAKES = Object.freeze(Object.fromEntries(['sample', 'tile'].map((route) => [
+  route, OPTIONS.filter((option) => takes(route, option)).map(({ name }) => name)])));
+
 /**
  * The server's request for a sample request, as a file of `format`: { url,
  * init } for fetch. The sample route's query; a layout goes as the body of
  * a POST to it, written as .vox; a tile, the tile route's query. The sample
- * route has no recon, smoother, largest or frame, and takes kept parts as
- * text: a request that needs more is refused here, not sent without it.
+ * route takes kept parts as text, and neither route an option of the other
+ * kind: a request that needs more is refused here.
  */
 export function serverRequest(name, request, format, faces = null) {
   const asset = format === 'asset' ? assetQuery(faces) : null;
   if (asset) format = 'glb';
+  const route = request.tile ? 'tile' : 'sample';
+  const unsent = OPTIONS.filter((option) => !takes(route, option) && !isDefault(request, option)).map(({ name }) => name);
+  if (route === 'sample' && request.keep.some((part) => typeof part !== 'string')) unsent.push('keep');
+  if (unsent.length) throw new Error(`the ${route} route cannot take this request's ${unsent.join(', ')}`);
+  const query = new URLSearchParams(request.tile ? { i: request.tile[0], j: request.tile[1] } : {});
+  for (const field of ALWAYS_SENT[route]) query.set(field, request[field] ?? 0n);
+  if (request.recon) query.delete('seed'); // the training shape has none
+  query.set('format', format);
+  for (const option of OPTIONS) {
+    const sent = takes(route, option) && !ALWAYS_SENT[route].includes(option.name) && !SENT_OTHERWISE.includes(option.name);
+    if (sent && !isDefault(request, option)) query.set(option.name, request[option.name]);
+  }
   if (request.tile) {
     if (asset) throw new Error('the page offers a tile as a mesh; sinrun world --lods writes tiles as assets');
-    const [i, j] = request.tile;
-    const query = new URLSearchParams({ i, j, seed: request.seed ?? 0n, scale: request.scale, format, frame: request.frame });
-    if (request.arrange !== 'blend') query.set('arrange', request.arrange);
-    if (request.lod) query.set('lod', request.lod);
     const init = request.heights ? { method: 'POST', body: npyBytes(request.heights), headers: { 'Content-Type': 'application/octet-stream' } } : {};
     return { url: `${modelRoute(name)}/tile?${query}`, init };
   }
-  const unsent = { recon: request.recon, largest: request.largest, smoother: request.smoother !== 'laplacian',
-    frame: request.frame !== 'input', keep: request.keep.some((part) => typeof part !== 'string') };
-  const missing = Object.keys(unsent).filter((field) => unsent[field]);
-  if (missing.length) throw new Error(`the sample route cannot take this request's ${missing.join(', ')}`);
-  const query = new URLSearchParams({ seed: request.seed ?? 0n, size: request.size, scale: request.scale, smooth: request.smooth, format });
   for (const part of request.keep) query.append('keep', part);
-  if (request.grow) {
-    query.set('grow', request.grow);
-    query.set('anchor', request.anchor ?? [0, 0, 0]);
-  }
   if (request.layout?.resample) query.set('resample_layout', 'true');
   if (asset) for (const [key, value] of Object.entries(asset)) query.set(key, value);
   const url = `${modelRoute(name)}/sample?${query}`;

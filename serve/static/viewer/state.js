@@ -6,6 +6,14 @@ import { parseNumber, parseSize, parseTriple } from '../sinshape/generate.js';
 import { Layout, sampleRequest } from '../sinshape/request.js';
 
 export const STATIC_SITE = document.body.dataset.site === 'static';
+// The options of a sample request (runtime/options.py) the page sets, in its
+// modes and edits (world.js makes each tile's lod), and those it leaves at
+// their defaults: tests/test_options.py holds the two to the table, so that an
+// option added there is placed here too.
+export const PAGE_OPTIONS = Object.freeze({
+  set: ['seed', 'size', 'scale', 'smooth', 'frame', 'keep', 'grow', 'anchor', 'layout', 'tile', 'arrange', 'heights', 'lod'],
+  left: ['recon', 'smoother', 'largest'],
+});
 const FIELDS = ['model', 'where', 'seed', 'size', 'scale', 'smooth', 'up', 'format'];
 // Each edit's fields, in the URL after `edit`: box (6 percentages x0,y0,z0,x1,y1,z1
 // of the sample, from the seed's sample) and other (the seed of the rest); grow

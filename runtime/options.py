@@ -1,0 +1,143 @@
+"""A sample request's options, declared once: each option's name, type,
+range, default, help and the kind of request or edit it goes with.
+
+`request.SampleRequest` has one field per option and checks its values
+against this table; every front end (the command line, the HTTP routes,
+the page and its worker, Blender) offers the options from it or is held to
+it by a test (docs/ARCHITECTURE.md, "A sample's options"). The module is
+plain data, light to import: `sinrun --help` builds its options from it
+without loading the runtime, and `options_json` gives the browser its copy
+(serve/static/sinshape/options.js, written by `python -m sinshape.runtime.options`).
+"""
+
+import dataclasses
+import json
+import math
+import sys
+from dataclasses import dataclass
+
+from sinshape.core.files import OUTPUT_FORMATS
+from sinshape.core.manifest import ARRANGEMENTS
+
+SMOOTHERS = ("laplacian", "taubin")  # mesh.smoothed's filters
+# Smoothing spreads each vertex over about sqrt(iterations) grid steps, and
+# costs one pass over the mesh per iteration: 100 iterations already blur
+# over about 10 steps, the size of the patches the model learnt (the paper
+# smooths 3 times), so more would only erase the shape, slowly.
+MAX_SMOOTH = 100
+MAX_TILE = 1 << 62  # |i|, |j| below this: a window index and its neighbour fit in 64 bits in every runtime
+
+FRAMES = ("input", "model", "tile")
+MAX_PARTS = 16  # boxes kept in one sample: each runs a whole chain of its own
+EDITS = ("keep", "grow", "layout")
+KINDS = ("sample", "tile")  # what a request makes: a sample (plain or edited), or a tile of a world
+# What an option's value is: a seed; a flag; a whole number or any number in
+# its range; factors, one for all three axes or three; one of its choices;
+# kept parts; and the values no text spells (a Layout, a tile, a HeightMap).
+TYPES = ("seed", "bool", "int", "number", "factors", "choice", "parts", "layout", "tile", "heights")
+
+
+@dataclass(frozen=True)
+class Option:
+    """One option of a sample request, declared once: `SampleRequest` checks
+    its value against it, and every front end (the command line, the HTTP
+    routes, the page, its worker, Blender) offers it from this record or is
+    held to it by a test (docs/ARCHITECTURE.md, "A sample's options").
+
+    type: TYPES; default: SampleRequest's; low, high: its range (of each
+    number, or, for parts, how many), either None for no bound, with
+    `bounds` saying which ends are in it ('[]', '[)', '(]' or '()');
+    choices: a choice's values; goes_with: the KINDS of request it is for,
+    or the one edit (EDITS) it belongs to; help: what it does, in the words
+    every front end shows."""
+
+    name: str
+    type: str
+    default: object
+    help: str
+    goes_with: tuple = ("sample",)
+    low: float | None = None
+    high: float | None = None
+    bounds: str = "[]"
+    choices: tuple = ()
+
+    def __post_init__(self):
+        """A record the table could not hold is a programming error, found at import."""
+        known = self.type in TYPES and set(self.goes_with) <= {*KINDS, *EDITS}
+        if not known or self.bounds not in ("[]", "[)", "(]", "()"):
+            raise ValueError(f"option {self.name}: type {self.type!r}, goes_with {self.goes_with!r}, "
+                             f"bounds {self.bounds!r}")
+
+    def admits(self, value) -> bool:
+        """Whether a number lies in the option's range (and is finite)."""
+        above = self.low is None or (value > self.low if self.bounds[0] == "(" else value >= self.low)
+        below = self.high is None or (value < self.high if self.bounds[1] == ")" else value <= self.high)
+        return above and below and math.isfinite(value)
+
+    def as_json(self) -> dict:
+        """The record as JSON values (the browser's copy, sinshape/options.js)."""
+        fields = dataclasses.asdict(self)
+        for name in ("default", "goes_with", "choices"):
+            if isinstance(fields[name], tuple):
+                fields[name] = list(fields[name])
+        return fields
+
+
+# The options of a sample request, in SampleRequest's order: its fields are these.
+OPTIONS = (
+    Option("seed", "seed", None, "The seed of the sample (the same seed gives the same shape); default 0, unless "
+           "recon.", ("sample", "tile"), 0, 2**63, "[)"),
+    Option("recon", "bool", False, "The training shape itself (the fixed reconstruction noise), not a new sample."),
+    Option("size", "factors", (1.0, 1.0, 1.0), "Sample size as factors of the training size: one factor, or "
+           "three for another aspect ratio (2,1,1 is twice as long along x).", low=0, bounds="()"),
+    Option("scale", "number", 1.0, "Query the shape on a grid this many times finer per axis (any positive "
+           "number). Finer grids give smoother surfaces, not new detail.", ("sample", "tile"), 0, bounds="()"),
+    Option("smooth", "int", 0, f"Smoothing iterations, 0 to {MAX_SMOOTH} (the paper uses 3 Laplacian iterations); "
+           f"{MAX_SMOOTH} already blurs over about 10 grid steps, the size of the patches the model learnt.",
+           low=0, high=MAX_SMOOTH),
+    Option("smoother", "choice", SMOOTHERS[0], "Laplacian (as the paper) or Taubin (keeps volume).",
+           choices=SMOOTHERS),
+    Option("largest", "bool", False, "Keep only the largest connected piece."),
+    Option("frame", "choice", FRAMES[0], "Vertex coordinates: the training mesh's frame (samples overlay it), "
+           "finest-voxel units, or, for a tile, the training mesh's units from the tile's own corner (any tile).",
+           ("sample", "tile"), choices=FRAMES),
+    Option("keep", "parts", (), "Take this box from the sample of SEED, the rest from the seed, joined without a "
+           "seam: SEED:X0,Y0,Z0:X1,Y1,Z1, corners in the model's frame or as percentages "
+           "(3:0%,0%,0%:50%,100%,100% is the lower half along x); several for more parts.", ("keep",),
+           0, MAX_PARTS),
+    Option("grow", "factors", None, "Grow the sample by these factors (one, or three, each at least 1), keeping "
+           "what it had: new ground joining the old without a seam.", ("grow",), 1, bounds="[)"),
+    Option("anchor", "factors", None, "With grow: where the old sample sits in the new, per axis from 0 (the low "
+           "side, the default) to 1 (the high side); 0.5 centres it.", ("grow",), 0, 1),
+    Option("layout", "layout", None, "Generate with the structure of this coarse layout (an occupancy grid of one "
+           "of the model's levels); the seed still varies the detail.", ("layout",)),
+    Option("tile", "tile", None, "A tile (i, j) of the endless world of the seed instead of a sample: it joins "
+           "its neighbours without a seam.", ("tile",), -MAX_TILE, MAX_TILE, "()"),
+    Option("arrange", "choice", ARRANGEMENTS[0], "blend: samples blended into one continuing surface (terrain, "
+           "rock, walls); scatter: whole samples at drawn places on a ground (a temple, a tower).", ("tile",),
+           choices=ARRANGEMENTS),
+    Option("heights", "heights", None, "The world's large shape: a height in voxels per tile.", ("tile",)),
+    Option("lod", "int", 0, "Levels of detail coarser than the finest: a distant tile, cheaper, with a skirt "
+           "that hides the crack where it meets a finer one.", ("tile",), 0),
+)
+OPTION = {option.name: option for option in OPTIONS}
+
+
+def options_json() -> list:
+    """The table as JSON values, for front ends outside Python."""
+    return [option.as_json() for option in OPTIONS]
+
+
+def module_js() -> str:
+    """The browser's copy of the table: serve/static/sinshape/options.js."""
+    rows = ",\n".join(f"  {json.dumps(row)}" for row in options_json())
+    return ("// A sample request's options, as runtime/options.py declares them: written by\n"
+            "// `python -m sinshape.runtime.options > serve/static/sinshape/options.js`, never by hand\n"
+            "// (tests/test_options.py compares).\n"
+            f"export const OPTIONS = Object.freeze([\n{rows},\n]);\n"
+            "// The formats a sample is written in (core.files.OUTPUT_FORMATS).\n"
+            f"export const FORMATS = Object.freeze({json.dumps(OUTPUT_FORMATS)});\n")
+
+
+if __name__ == "__main__":
+    sys.stdout.write(module_js())

@@ -1,0 +1,49 @@
+"""The Blender extension held to the table of a sample's options
+(runtime/options.py): every option is set by one of its settings or left at
+its default, each setting takes the table's range, and the request it
+builds refuses a field no option has. Marked `blender`; skipped where bpy
+cannot be imported (Python 3.11 only: the blender extra)."""
+
+import importlib.util
+
+import pytest
+
+from sinshape.core.errors import InputError
+from sinshape.runtime.options import OPTION, OPTIONS
+
+HAS_BPY = importlib.util.find_spec("bpy") is not None
+pytestmark = [pytest.mark.blender,
+              pytest.mark.skipif(not HAS_BPY, reason="needs bpy, Blender as a Python module: "
+                                                     "pip install 'sinshape[blender]' (Python 3.11)")]
+
+
+def test_every_option_is_set_by_a_setting_or_left_at_its_default(addon):
+    from blender import convert, props
+
+    assert set(convert.SETTINGS).isdisjoint(convert.LEFT)
+    assert set(convert.SETTINGS) | set(convert.LEFT) == set(OPTION)
+    tile_options = {option.name for option in OPTIONS if "tile" in option.goes_with}
+    for name, setting in convert.SETTINGS.items():
+        group = props.SinshapeWorld if name in tile_options else props.SinshapeSettings
+        assert setting in group.__annotations__, (name, setting, group.__name__)
+
+
+def test_the_settings_take_the_tables_ranges(addon):
+    import bpy
+
+    properties = bpy.types.Object.bl_rna.properties["sinshape"].fixed_type.properties
+    smooth, scale, seed = properties["smooth"], properties["scale"], properties["seed"]
+    assert (smooth.hard_min, smooth.hard_max) == (OPTION["smooth"].low, OPTION["smooth"].high)
+    assert smooth.description == OPTION["smooth"].help and scale.description == OPTION["scale"].help
+    assert seed.hard_min == OPTION["seed"].low and scale.default == OPTION["scale"].default
+    anchor = properties["anchor"]
+    assert (anchor.hard_min, anchor.hard_max) == (OPTION["anchor"].low, OPTION["anchor"].high)
+
+
+def test_the_request_of_settings_refuses_a_field_no_option_has(addon):
+    from blender import convert
+
+    request = convert.sample_request(dict(seed=3, size=(1, 1, 1), scale=1.0, smooth=2), "y")
+    assert (request.seed, request.smooth, request.frame) == (3, 2, "input")
+    with pytest.raises(InputError, match="no 'colour'"):
+        convert.sample_request(dict(seed=3, size=(1, 1, 1), scale=1.0, smooth=2, colour="red"), "y")
