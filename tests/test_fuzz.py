@@ -48,7 +48,7 @@ LONG = EXAMPLES > 0
 CASE_SECONDS = 30  # a case running longer is a hang
 FUZZ = settings(
     max_examples=EXAMPLES or 60,
-    deadline=timedelta(seconds=CASE_SECONDS),  # hypothesis's own bound, per example
+    deadline=timedelta(seconds=CASE_SECONDS),  # hypothesis's own bound, per example: a hang guard only
     derandomize=not LONG,  # CI: the same cases every run
     database=None,
     suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much,
@@ -643,6 +643,7 @@ def tiny_server():
 
     pytest.importorskip("fastapi", reason="needs the serve extra: pip install 'sinshape[serve]'")
     pytest.importorskip("uvicorn", reason="needs the serve extra: pip install 'sinshape[serve]'")
+    from browser import STARTING_SECONDS
     from test_serve import free_port, get
 
     port = free_port()
@@ -652,11 +653,13 @@ def tiny_server():
     printed = Printed(process.stdout)
     base = f"http://127.0.0.1:{port}"
     try:
-        for _ in range(300):
+        deadline = time.monotonic() + STARTING_SECONDS
+        while True:
             assert process.poll() is None, "".join(printed.read())
             with contextlib.suppress(OSError):
                 if get(f"{base}/health")[0] == 200:
                     break
+            assert time.monotonic() < deadline, f"the server did not answer within {STARTING_SECONDS} s"
             time.sleep(0.1)
         yield base, printed
     finally:
