@@ -37,9 +37,10 @@ class Handler(http.server.SimpleHTTPRequestHandler):
         pass
 
 
-# A hang guard only: a server answers in about a second, and in tens of
-# seconds on a machine busy with other work; a test does not time it.
-STARTING_SECONDS = 120
+# The most a test waits for a thing to happen (a server to answer, a page to
+# report): a hang guard only, far above what it takes on a machine busy with
+# other work (a server answers in about a second); no test times it.
+GUARD_SECONDS = 120
 
 
 @contextlib.contextmanager
@@ -52,13 +53,13 @@ def server_process(command, folder: Path, what: str):
     process = subprocess.Popen([*command, str(port)], cwd=folder, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     base = f"http://127.0.0.1:{port}"
     try:
-        deadline = time.monotonic() + STARTING_SECONDS
+        deadline = time.monotonic() + GUARD_SECONDS
         while True:
             with contextlib.suppress(OSError):
                 urllib.request.urlopen(f"{base}/", timeout=5).close()
                 break
             assert process.poll() is None, f"{what} stopped"
-            assert time.monotonic() < deadline, f"{what} did not answer within {STARTING_SECONDS} s"
+            assert time.monotonic() < deadline, f"{what} did not answer within {GUARD_SECONDS} s"
             time.sleep(0.1)
         yield base
     finally:

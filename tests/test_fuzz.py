@@ -643,7 +643,7 @@ def tiny_server():
 
     pytest.importorskip("fastapi", reason="needs the serve extra: pip install 'sinshape[serve]'")
     pytest.importorskip("uvicorn", reason="needs the serve extra: pip install 'sinshape[serve]'")
-    from browser import STARTING_SECONDS
+    from browser import GUARD_SECONDS
     from test_serve import free_port, get
 
     port = free_port()
@@ -653,13 +653,13 @@ def tiny_server():
     printed = Printed(process.stdout)
     base = f"http://127.0.0.1:{port}"
     try:
-        deadline = time.monotonic() + STARTING_SECONDS
+        deadline = time.monotonic() + GUARD_SECONDS
         while True:
             assert process.poll() is None, "".join(printed.read())
             with contextlib.suppress(OSError):
                 if get(f"{base}/health")[0] == 200:
                     break
-            assert time.monotonic() < deadline, f"the server did not answer within {STARTING_SECONDS} s"
+            assert time.monotonic() < deadline, f"the server did not answer within {GUARD_SECONDS} s"
             time.sleep(0.1)
         yield base, printed
     finally:

@@ -20,7 +20,7 @@ import pytest
 import trimesh
 from click.testing import CliRunner
 
-from browser import STARTING_SECONDS
+from browser import GUARD_SECONDS
 from sinshape import models
 from sinshape.cli.main import cli
 from test_cli_train import assert_one_line_error
@@ -56,14 +56,14 @@ def running_server(*args):
                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     base = f"http://127.0.0.1:{port}"
     try:
-        deadline = time.monotonic() + STARTING_SECONDS
+        deadline = time.monotonic() + GUARD_SECONDS
         while True:
             if process.poll() is not None:
                 raise AssertionError(f"the server stopped: {process.stdout.read()}")
             with contextlib.suppress(OSError):
                 if get(f"{base}/health")[0] == 200:
                     break
-            assert time.monotonic() < deadline, f"the server did not answer /health within {STARTING_SECONDS} s"
+            assert time.monotonic() < deadline, f"the server did not answer /health within {GUARD_SECONDS} s"
             time.sleep(0.1)
         yield base, process
     finally:
