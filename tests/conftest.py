@@ -32,7 +32,7 @@ def no_signal_handler_left_behind(request):
 
 
 # The test during which this process's peak resident memory first passes
-# this fails, naming the figure: the whole suite peaks near 1.3 GB here
+# this fails, naming the figure: the whole suite peaks near 1.6 GB here
 # (torch, onnxruntime and Blender loaded), and a test that kept or listed
 # gigabytes (a refused render's 100 million seeds, once: 4.9 GB) shows at
 # once rather than as a contributor's machine swapping. Chromium, servers and
