@@ -73,8 +73,8 @@ def pytest_terminal_summary(terminalreporter, config):
     most = max(RECORDS, key=lambda r: r[1] + r[3])
     below = max(RECORDS, key=lambda r: r[3])
     say = terminalreporter.write_line
-    say(f"\nthe test process's peak resident memory: {RECORDS[-1][2]:.0f} MB ({COLLECTED[0]:.0f} MB once the tests were "
-        f"collected); at the end {RECORDS[-1][1]:.0f} MB")
+    say(f"\nthe test process's peak resident memory: {RECORDS[-1][2]:.0f} MB "
+        f"({COLLECTED[0]:.0f} MB once the tests were collected); at the end {RECORDS[-1][1]:.0f} MB")
     say(f"its child processes at once, at most: {below[3]:.0f} MB ({below[4]}), after {below[0]}")
     say(f"the process and its children at once, at most: {most[1] + most[3]:.0f} MB, after {most[0]}")
     say("the tests that raised the process's peak most:")

@@ -182,9 +182,10 @@ def test_a_sample_whose_mesh_would_not_fit_is_refused_before_any_work(model, mon
     requests.check_memory(model, asked, "stream", memory_limit=1 << 30)
     with pytest.raises(runtime.MemoryLimitError, match="dense grid"):
         requests.check_memory(model, asked, "grid", memory_limit=1 << 30)
+    grid = np.ones(generate.scaled_sizes(model.manifest.sizes, (30, 30, 30))[0], bool)
     with pytest.raises(runtime.MemoryLimitError, match="needs about"):  # a layout's fit is counted too
-        requests.check_memory(model, runtime.SampleRequest(seed=1, size=30, layout=runtime.Layout.of(
-            np.ones(generate.scaled_sizes(model.manifest.sizes, (30, 30, 30))[0], bool))), "planes", memory_limit=1 << 30)
+        requests.check_memory(model, runtime.SampleRequest(seed=1, size=30, layout=runtime.Layout.of(grid)), "planes",
+                              memory_limit=1 << 30)
 
 
 @pytest.mark.parametrize("factors, scale", [((1, 1, 1), 1), ((2, 2, 1), 2), ((0.5, 1, 1), 3), ((1, 1, 1), 6)])
