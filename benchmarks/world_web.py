@@ -13,7 +13,8 @@ opens it in headless chromium (the tests' harness, tests/browser.py):
 
 - The worker: a worker of its own (static/sinshape/worker.js, as the page
   starts it) makes tiles with no window kept at every level of detail (far
-  apart: four new windows each), along a row at full detail (two new windows
+  apart: four new windows each; at lod 0 near the origin and 10^9 tiles
+  away, in turn), along a row at full detail (two new windows
   each) and again (none new: the decoding, the mesh and its normals only),
   and, to compare, samples of the training size; the median of `--repeats`
   each, after a warm-up.
@@ -73,18 +74,21 @@ WORKER_JS = """async ([file, seed, repeats, arrange, levels]) => {
     return performance.now() - started;
   };
   await tile(-7777, 0);  // the warm-up: the JIT, onnxruntime's first runs
-  const cold = Array.from({ length: levels }, () => []), row = [], warm = [], sample = [];
+  const cold = Array.from({ length: levels }, () => []), far = [], row = [], warm = [], sample = [];
   for (let k = 1; k <= repeats; k++) {
     const started = performance.now();
     await call({ type: 'sample', name: 'model', request: sampleRequest({ seed: BigInt(seed + k) }) });
     sample.push(performance.now() - started);
   }
-  for (let k = 1; k <= repeats; k++) for (let lod = 0; lod < levels; lod++) cold[lod].push(await tile(1000 * k + 100 * lod, 0, lod));
+  for (let k = 1; k <= repeats; k++) {  // near and far in turn
+    for (let lod = 0; lod < levels; lod++) cold[lod].push(await tile(1000 * k + 100 * lod, 0, lod));
+    far.push(await tile(1e9 + 1000 * k, -1e9));
+  }
   await tile(50000, 0);
   for (let k = 1; k <= repeats; k++) row.push(await tile(50000 + k, 0));
   for (let k = 1; k <= repeats; k++) warm.push(await tile(50000 + repeats, 0));
   worker.terminate();
-  return { cold, row, warm, sample, threads: loaded.threads };
+  return { cold, far, row, warm, sample, threads: loaded.threads };
 }"""
 
 # Frame times (requestAnimationFrame) while `recording` is set.
@@ -218,6 +222,7 @@ def main():
     print("|---|---|")
     for lod, values in enumerate(worker["cold"]):
         print(f"| no window kept (4 made), lod {lod} | {ms(values)} ({statistics.median(values) / statistics.median(worker['cold'][0]):.2f}x) |")
+    print(f"| ... 10^9 tiles away, lod 0 | {ms(worker['far'])} ({statistics.median(worker['far']) / statistics.median(worker['cold'][0]):.2f}x) |")
     print(f"| along a row (2 made), lod 0 | {ms(worker['row'])} |")
     print(f"| every window kept (the decoding, the mesh and its normals) | {ms(worker['warm'])} |")
     print(f"| a sample at the training size, for comparison | {ms(worker['sample'])} |")

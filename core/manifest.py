@@ -32,6 +32,9 @@ COLOUR_SPACE = {"space": "srgb"}  # manifest `colour`: values are sRGB-encoded i
 # the finest level's (X, Y, Z) int8 signed distance to the example's surface.
 TILE_TENSORS = ("colour_tiles.voxels", "colour_tiles.directions", "colour_tiles.images", "colour_tiles.distance")
 MAX_TILE_SIDE = 64
+# How colour_tiles encode where the surface lies (docs/FORMAT.md): prep writes them, the runtime reads them.
+DEPTH_RANGE = 0.5  # an image's fourth byte, 0..255, spans this many voxels either side of the voxel's centre
+DISTANCE_STEP = 1 / 63.5  # voxels per unit of colour_tiles.distance: its int8 holds -2..2 voxels
 METADATA_KEY = "sinshape.manifest"  # key of the manifest in the ONNX metadata_props
 SEAL_KEY = "sinshape.sha256"  # key of the last metadata_props entry: the seal (format 3 on)
 NOISE_SCHEME = "splitmix64-boxmuller-v1"  # core/noise.py

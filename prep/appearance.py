@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sinshape.core.budget import check_memory
+from sinshape.core.manifest import DEPTH_RANGE, DISTANCE_STEP
 
 from . import colour as colours
 from .voxelize import scene_parts
@@ -34,9 +35,7 @@ from .voxelize import scene_parts
 MAX_TILE = 64
 MAX_TILE_BYTES = 48 << 20  # tiles above this get coarser (halved sides) until they fit
 FACING = 0.2  # a tile along axis a, side s, shows the faces whose normal has s * n_a above this
-DEPTH_RANGE = 0.5  # a tile's depth: where its surface lies inside the voxel, this far (voxels) either side of its centre
 REACH = 1.5  # a ray that meets no surface inside its voxel takes the nearest it meets this far out
-DISTANCE_STEP = 1 / 63.5  # voxels per unit of the signed distance grid: int8 holds -2..2 voxels
 
 
 @dataclass(frozen=True)

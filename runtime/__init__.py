@@ -20,13 +20,18 @@ packs a request as a game asset (.glb: levels of detail, UVs, maps baked by
 bake, written by gltf; the assets extra).
 
 Sampling imports numpy, onnxruntime and threadpoolctl, and trimesh only
-for a whole mesh in memory (a .ply streams without it); render adds pillow,
-and evaluation and rough-mesh layouts prep's readers (scipy, h5py,
-scikit-image). It reads ONNX itself (onnxfile), format 1 and 2 files
-included, and never imports the onnx package, nor torch. It stands on sinshape.core (errors, the memory budget,
-the model format, the noise, atomic files) and, for evaluation's reference
-grid only, sinshape.prep; never on sinshape.trainer, .cli or .serve: a model
-file and its manifest (docs/FORMAT.md) are all it shares with the trainer. `__version__` is the installed sinshape distribution's version.
+for a whole mesh in memory (a .ply streams without it); render adds pillow.
+It reads ONNX itself (onnxfile), format 1 and 2 files included, and never
+imports the onnx package, nor torch. It stands on sinshape.core (errors,
+the memory budget, the model format, the noise, atomic files) and on
+sinshape.prep where it reads an example as training does: render draws a
+mesh file with its colour (prep's mesh reader: trimesh and pillow, no
+extra), layout voxelises a rough mesh (prep.voxelize, which needs scipy)
+and evaluate scores against the reference grid (prep.pyramid: scipy, h5py,
+scikit-image); those two need the prep extra. Never on sinshape.trainer,
+.cli or .serve: a model file and its manifest (docs/FORMAT.md) are all it
+shares with the trainer. `__version__` is the installed sinshape
+distribution's version.
 """
 
 import importlib

@@ -36,6 +36,7 @@ import numpy as np
 
 from sinshape.core import noise
 from sinshape.core.budget import check_memory
+from sinshape.core.manifest import DEPTH_RANGE, DISTANCE_STEP
 
 from . import generate, query
 
@@ -52,9 +53,7 @@ SEED_RATE = 32  # about one voxel in this many searches the whole example
 # unless another place fits clearly better (Ashikhmin 2001's coherence).
 COHERENT = 0.8
 MATCH_STREAM = 2  # core/noise's stream id of the matching's random choices (0 and 1 are the generator's)
-DISTANCE_STEP = 1 / 63.5  # voxels per unit of the signed distance grid (prep/appearance.py)
 PROJECTIONS = 2  # Newton steps that take a point to the example's surface
-DEPTH_RANGE = 0.5  # a tile's depth byte spans this many voxels either side of its centre (prep/appearance.py)
 # A point reads the tiles of each direction of its own voxel and of those
 # along the tile's axis, this many voxels away: the surface nearest it wins,
 # a tile counted TURN voxels farther for each unit its axis turns from the

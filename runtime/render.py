@@ -397,9 +397,10 @@ def draw_shapes(items: list, seeds, recon: bool = False, request=None, views: in
     the drawing; warn(InputError) hears of a mesh's colour that cannot be read."""
     check_view(zoom, azimuth, elevation)
     request = request or SampleRequest()
-    chosen = [None, *seeds] if recon else list(seeds)
     models = [item for item in items if not isinstance(item, Path)]
-    check_picture(len(items) - len(models) + len(models) * len(chosen), (image_size, image_size), views, columns)
+    count = len(seeds) + bool(recon)  # counted, not listed: 0-100000000 would take gigabytes before the refusal
+    check_picture(len(items) - len(models) + len(models) * count, (image_size, image_size), views, columns)
+    chosen = [None, *seeds] if recon else list(seeds)
     up = up or (models[0].manifest.up if models else "y")
     shapes, labels, sampled = [], [], 0
     for item in items:

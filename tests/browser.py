@@ -37,6 +37,12 @@ class Handler(http.server.SimpleHTTPRequestHandler):
         pass
 
 
+# The most a test waits for a thing to happen (a server to answer, a page to
+# report): a hang guard only, far above what it takes on a machine busy with
+# other work (a server answers in about a second); no test times it.
+GUARD_SECONDS = 120
+
+
 @contextlib.contextmanager
 def server_process(command, folder: Path, what: str):
     """`command` (its last argument the port) run in `folder`, a child process
@@ -47,13 +53,14 @@ def server_process(command, folder: Path, what: str):
     process = subprocess.Popen([*command, str(port)], cwd=folder, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     base = f"http://127.0.0.1:{port}"
     try:
-        for _ in range(100):
+        deadline = time.monotonic() + GUARD_SECONDS
+        while True:
             with contextlib.suppress(OSError):
                 urllib.request.urlopen(f"{base}/", timeout=5).close()
                 break
+            assert process.poll() is None, f"{what} stopped"
+            assert time.monotonic() < deadline, f"{what} did not answer within {GUARD_SECONDS} s"
             time.sleep(0.1)
-        else:
-            raise AssertionError(f"{what} did not answer within 10 s")
         yield base
     finally:
         process.terminate()

@@ -5,6 +5,7 @@ prep/shapes.py, or read from tests/data (see its README for licences).
 """
 
 import signal
+import sys
 from pathlib import Path
 
 import h5py
@@ -28,6 +29,51 @@ def no_signal_handler_left_behind(request):
     for signum, handler in SESSION_HANDLERS.items():
         signal.signal(signum, handler)
     assert not left, f"{request.node.nodeid} left signal handlers behind: {left}"
+
+
+# The test during which this process's peak resident memory first passes
+# this fails, naming the figure: the whole suite peaks near 1.6 GB here
+# (torch, onnxruntime and Blender loaded), and a test that kept or listed
+# gigabytes (a refused render's 100 million seeds, once: 4.9 GB) shows at
+# once rather than as a contributor's machine swapping. Chromium, servers and
+# Ray workers are processes of their own, not counted. --max-rss-mb sets it
+# (0: no check).
+MAX_RSS_MB = 3072
+
+
+def pytest_addoption(parser):
+    parser.addoption("--max-rss-mb", type=int, default=MAX_RSS_MB,
+                     help="fail the test during which the test process's peak resident memory first passes this "
+                          f"many MB; 0: no check [default: {MAX_RSS_MB}]")
+
+
+def peak_rss_mb():
+    """This process's peak resident memory so far, in MB (None where the platform does not say)."""
+    try:
+        import resource
+    except ImportError:  # Windows
+        return None
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return peak / (1 << 20 if sys.platform == "darwin" else 1 << 10)  # bytes on macOS, kB on Linux
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_setup(item):
+    """The peak before the test's fixtures are made (what it crosses is its own)."""
+    item.peak_before = peak_rss_mb()
+
+
+@pytest.fixture(autouse=True)
+def bounded_memory(request):
+    """A test, its fixtures included, that takes this process's peak past
+    --max-rss-mb (see MAX_RSS_MB) fails in its teardown. The peak only
+    grows, so only the test that crossed the bound fails, not every later one."""
+    yield
+    limit, after = request.config.getoption("max_rss_mb"), peak_rss_mb()
+    before = getattr(request.node, "peak_before", None)
+    if limit and before is not None and after is not None:
+        assert not before <= limit < after, (f"{request.node.nodeid}: this process's resident memory peaked at "
+                                             f"{after:.0f} MB, past --max-rss-mb {limit}")
 
 
 def write_pyramid(path, sizes):

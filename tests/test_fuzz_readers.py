@@ -33,6 +33,7 @@ from sinshape.runtime import many
 
 RUNS = int(os.environ.get("SINSHAPE_FUZZ_EXAMPLES", "0"))
 EXAMPLES = RUNS or 60
+# deadline: a hang guard only, far above what a case takes
 READERS = settings(max_examples=EXAMPLES, deadline=timedelta(seconds=10), derandomize=not RUNS, database=None,
                    suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture,
                                           HealthCheck.data_too_large])

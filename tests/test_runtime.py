@@ -1,5 +1,6 @@
 """The torch-free runtime: generation, band queries, meshes, and the Python API."""
 
+import io
 import os
 
 import numpy as np
@@ -181,9 +182,10 @@ def test_a_sample_whose_mesh_would_not_fit_is_refused_before_any_work(model, mon
     requests.check_memory(model, asked, "stream", memory_limit=1 << 30)
     with pytest.raises(runtime.MemoryLimitError, match="dense grid"):
         requests.check_memory(model, asked, "grid", memory_limit=1 << 30)
+    grid = np.ones(generate.scaled_sizes(model.manifest.sizes, (30, 30, 30))[0], bool)
     with pytest.raises(runtime.MemoryLimitError, match="needs about"):  # a layout's fit is counted too
-        requests.check_memory(model, runtime.SampleRequest(seed=1, size=30, layout=runtime.Layout.of(
-            np.ones(generate.scaled_sizes(model.manifest.sizes, (30, 30, 30))[0]))), "planes", memory_limit=1 << 30)
+        requests.check_memory(model, runtime.SampleRequest(seed=1, size=30, layout=runtime.Layout.of(grid)), "planes",
+                              memory_limit=1 << 30)
 
 
 @pytest.mark.parametrize("factors, scale", [((1, 1, 1), 1), ((2, 2, 1), 2), ((0.5, 1, 1), 3), ((1, 1, 1), 6)])
@@ -227,10 +229,17 @@ def test_the_command_line_refuses_what_would_not_fit_under_an_address_space_limi
 
 
 def test_available_memory_reads_the_machine_or_falls_back(monkeypatch):
+    """MemAvailable, read from a /proc/meminfo given here (the machine's own
+    moves with other processes' work); the machine's lies within its total."""
     if os.path.exists("/proc/meminfo"):
         with open("/proc/meminfo") as f:
-            kib = next(int(line.split()[1]) for line in f if line.startswith("MemAvailable:"))
-        assert abs(budget.available_memory() - kib * 1024) < 256 << 20  # it moves while we read
+            total = next(int(line.split()[1]) for line in f if line.startswith("MemTotal:")) * 1024
+        assert 0 < budget.machine_memory() <= total
+    meminfo = "MemTotal:       24000000 kB\nMemFree:          500000 kB\nMemAvailable:   12345678 kB\n"
+    with monkeypatch.context() as patched:
+        patched.setattr(budget, "open", lambda path, *args: io.StringIO(meminfo) if path == "/proc/meminfo"
+                        else open(path, *args), raising=False)  # shadows the builtin there
+        assert budget.machine_memory() == 12345678 * 1024
 
     def unreadable(*args):
         raise OSError("no /proc/meminfo here")

@@ -4,6 +4,7 @@ import io
 import json
 import re
 import shutil
+import time
 from pathlib import Path
 
 import numpy as np
@@ -11,7 +12,7 @@ import pytest
 import trimesh
 from PIL import Image
 
-from browser import CLICKABLE_JS, edits_text, layout_in_page, wait_cells, wait_world
+from browser import CLICKABLE_JS, GUARD_SECONDS, edits_text, layout_in_page, wait_cells, wait_world
 from test_serve import running_server
 
 sync_api = pytest.importorskip("playwright.sync_api", reason="needs playwright (the test extra)")
@@ -36,6 +37,15 @@ def page():
         page.base = base
         yield page
         browser.close()
+
+
+def until(page, condition, what: str) -> None:
+    """Until condition() holds, polled every 100 ms while the page's events
+    come in (page.wait_for_timeout, not time.sleep): a hang guard only."""
+    deadline = time.monotonic() + GUARD_SECONDS
+    while not condition():
+        assert time.monotonic() < deadline, f"not within {GUARD_SECONDS} s: {what}"
+        page.wait_for_timeout(100)
 
 
 def view_pixels(page, path) -> np.ndarray:
@@ -249,24 +259,15 @@ def test_cancel_gives_up_a_server_sample_and_the_page_goes_on(page):
     page.goto(f"{page.base}/?seed=8&size=2,2,1&scale=8&up=z")  # seconds of work for the server
     page.wait_for_function("document.body.dataset.state === 'loading'", timeout=30_000)
     assert page.is_visible("#cancel") and page.text_content("#status") == "sampling on the server…"
-    for _ in range(300):  # until the server is making it (at most 30 s)
-        if json.loads(get(f"{page.base}/health")[2])["sampling"]:
-            break
-        page.wait_for_timeout(100)
+    until(page, lambda: json.loads(get(f"{page.base}/health")[2])["sampling"], "the server is making it")
     page.click("#cancel")
     assert page.evaluate("document.body.dataset.state") == "cancelled" and page.text_content("#status") == "cancelled"
     assert not page.is_visible("#cancel") and not page.is_visible("#error")
-    for _ in range(50):  # the browser reports the aborted request when its network stack has let it go
-        if [url for url in failed if "/sample?" in url]:
-            break
-        page.wait_for_timeout(100)
-    assert [url for url in failed if "/sample?" in url], "the request was not aborted"
-    for _ in range(300):  # the server stops at its next slab
-        health = json.loads(get(f"{page.base}/health")[2])
-        if not health["sampling"]:
-            break
-        page.wait_for_timeout(100)
-    assert health["sampling"] == 0 and health["in_flight"] == 0, health
+    # the browser reports the aborted request when its network stack has let it go
+    until(page, lambda: [url for url in failed if "/sample?" in url], "the request was aborted")
+    # the server stops at its next slab (that it stops there, not at the end, test_serve.py measures in CPU time)
+    until(page, lambda: json.loads(get(f"{page.base}/health")[2])["sampling"] == 0, "the server stopped sampling")
+    assert json.loads(get(f"{page.base}/health")[2])["in_flight"] == 0
     for field in ("#sx", "#sy", "#scale"):
         page.fill(field, "1")
     page.click("#show")

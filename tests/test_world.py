@@ -1,9 +1,8 @@
 """Endless worlds: a tile is a pure function of (model, seed, i, j), its
 shared faces are equal to the bit, the union of a block is one surface, and
-a far tile costs what a near one does."""
+a far tile does the work a near one does."""
 
 import json
-import time
 
 import numpy as np
 import pytest
@@ -80,35 +79,23 @@ def test_a_tile_is_the_same_whatever_was_made_before(model, fresh):
     assert write.request_bytes(model, SampleRequest(11, tile=(5, 3)), "t.ply")[0] == alone
 
 
-def test_a_far_tile_costs_what_a_near_one_costs(model, fresh, monkeypatch):
-    """The same work, counted (the noise drawn, the stages run), and about the
-    same seconds, measured alternately: at most 3x, a margin for a busy machine."""
-    far = (10**9, -10**9)
-    counted = {}
-
-    def counting(name, run):
-        def counted_run(*args, **kwargs):
-            counted[name] = counted.get(name, 0) + sum(np.asarray(a).size for a in args[1:2] if a is not None)
-            return run(*args, **kwargs)
-        return counted_run
-
-    monkeypatch.setattr(world, "draw_noise", counting("noise", world.draw_noise))
+def test_a_far_tile_does_the_work_a_near_one_does(model, fresh, monkeypatch):
+    """The same work, counted: as many windows' noise drawn, at the same sizes.
+    What a tile costs in seconds, at 0 to 10^9 tiles from the origin, is
+    measured by benchmarks/world.py (docs/BENCHMARKS.md, "Endless worlds"),
+    not here: a timed test fails when the machine is busy, not when the code
+    is wrong."""
+    drawn = []
+    monkeypatch.setattr(world, "draw_noise",
+                        lambda *args: drawn.append([tuple(size) for size in args[1]]) or generate.draw_noise(*args))
     work = []
-    for tile in ((0, 0), far):
-        counted.clear()
+    for tile in ((0, 0), (10**9, -10**9)):
+        drawn.clear()
         world._windows.clear()
         grid = world.tile_occupancy(model, 3, tile)
-        work.append(dict(counted))
+        work.append(sorted(drawn))
         assert np.isfinite(grid).all() and 0 < grid.mean() < 1
-    assert work[0] == work[1]
-    seconds = {(0, 0): [], far: []}
-    for _ in range(3):
-        for tile in seconds:
-            world._windows.clear()
-            started = time.perf_counter()
-            world.tile_occupancy(model, 3, tile)
-            seconds[tile].append(time.perf_counter() - started)
-    assert min(seconds[far]) < 3 * min(seconds[(0, 0)])
+    assert work[0] == work[1] and len(work[0]) > 1
 
 
 def test_no_two_windows_share_their_noise(model):

@@ -165,8 +165,8 @@ def test_a_tile_request_is_placed_in_its_frame_as_python_places_it(site_page, te
 
 
 # Runs in the page: tiles made with no window kept, near and far in turn, each stage run counted with
-# the numbers it was given (the noise among them), and timed.
-COST_JS = """async ([tiles, rounds]) => {
+# the numbers it was given (the noise among them).
+WORK_JS = """async ([tiles, rounds]) => {
   const s = await import('./static/sinshape/runtime.js');
   const w = await import('./static/sinshape/world.js');
   const model = await s.loadModel(new Uint8Array(await (await fetch('models/terrain.onnx')).arrayBuffer()), { name: 'terrain.onnx' });
@@ -175,14 +175,12 @@ COST_JS = """async ([tiles, rounds]) => {
     const run = stage.run.bind(stage);
     stage.run = (inputs) => { work.runs++; work.values += inputs.reduce((n, t) => n + t.data.length, 0); return run(inputs); };
   }
-  const out = tiles.map(() => ({ work: [], ms: [] }));
+  const out = tiles.map(() => ({ work: [] }));
   for (let round = 0; round < rounds; round++) {
     for (const [k, tile] of tiles.entries()) {
       w.dropWindows();
       work = { runs: 0, values: 0 };
-      const started = performance.now();
       const mesh = await s.tileMesh(model, 3n, tile.map(BigInt));
-      out[k].ms.push(performance.now() - started);
       out[k].work.push({ ...work, faces: mesh.faces.length / 3 });
     }
   }
@@ -190,18 +188,17 @@ COST_JS = """async ([tiles, rounds]) => {
 }"""
 
 
-def test_a_far_tile_costs_what_a_near_one_does(site_page):
-    """Tile (10^9, -10^9) runs the same stages on as many values as tile (0, 0), and takes about
-    as long, measured alternately: the best of three at most 3x, a margin for a busy machine."""
+def test_a_far_tile_does_the_work_a_near_one_does(site_page):
+    """Tile (10^9, -10^9) runs the same stages on as many values as tile (0, 0), each time. What
+    that costs in milliseconds is measured by benchmarks/world_web.py (docs/BENCHMARKS.md,
+    "Endless worlds"), not here: a timed test fails when the machine is busy."""
     page = site_page
     if not page.url.startswith(page.base):
         page.goto(f"{page.base}/README.txt")
-    near, far = page.evaluate(COST_JS, [[["0", "0"], ["1000000000", "-1000000000"]], 3])
+    near, far = page.evaluate(WORK_JS, [[["0", "0"], ["1000000000", "-1000000000"]], 3])
     work = lambda made: {(w["runs"], w["values"]) for w in made["work"]}  # noqa: E731
     assert work(near) == work(far) and len(work(near)) == 1
     assert all(w["faces"] > 500 for w in near["work"] + far["work"])
-    print(f"a tile with no window kept, near and far, ms: {near['ms']} {far['ms']}")
-    assert min(far["ms"]) < 3 * min(near["ms"])
 
 
 # ---- the page's world mode, tiles made in its worker
