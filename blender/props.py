@@ -81,7 +81,7 @@ class SinshapeWorld(bpy.types.PropertyGroup):
     model: StringProperty(name="Model", default=models.DEFAULT, search=model_names, update=world_model_changed,
                           description="A shipped model's name, or a .onnx file (// is the .blend's folder)")
     model_sha256: StringProperty(name="Model SHA-256", description="The model's SHA-256 when it was chosen")
-    seed: IntProperty(name="Seed", min=0, max=SEED_MAX, update=worlds.changed,
+    seed: IntProperty(name="Seed", min=OPTION["seed"].low, max=SEED_MAX, update=worlds.changed,
                       description="The same seed gives the same world")
     scale: FloatProperty(name="Scale", default=1.0, min=0.01, soft_min=0.25, soft_max=8.0, update=worlds.changed,
                          description="Query the surface on a grid this many times finer per axis")

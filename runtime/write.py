@@ -253,9 +253,12 @@ def sample_bytes(model, triplane, path, scale: float = 1.0, smooth: int = 0, smo
                  mesh_progress=None) -> tuple:
     """One sample as the bytes of the file `path` names, made in memory, and
     its mesh (None for a grid): what write_sample writes, for a caller that
-    writes elsewhere or wants the mesh too."""
+    writes elsewhere or wants the mesh too. mesh_progress(done, total) as
+    the mesh's slabs are made (once, before a grid)."""
     path = Path(path)
     if output_kind(path) == "grid":
+        if mesh_progress:  # nothing done of the grid yet: a server's job given up meanwhile stops here
+            mesh_progress(0, 1)
         return grid_bytes(**dense_grids(model, triplane, scale), size=triplane.size, scale=scale), None
     result = mesh.extract(model, triplane, scale, smooth, smoother, largest, frame, progress=mesh_progress,
                           threads=threads, per_face=mesh.held_per_face(smooth, path.suffix, largest))

@@ -153,6 +153,25 @@ def test_a_tiles_work_stops_within_a_slab_when_it_is_given_up():
     assert len(calls) == 6
 
 
+def test_a_grids_job_given_up_stops_before_its_grid_is_made(tiny_model, monkeypatch):
+    """A sample's .npz job looks at its checkpoint between its tri-plane and
+    its dense grid, the larger part of its work: given up by then, no grid is made."""
+    from sinshape.runtime import load_model, write
+    from sinshape.runtime.request import SampleRequest
+    from sinshape.serve.jobs import Job, make_sample
+    from sinshape.serve.sampler import Cancelled
+
+    made = []
+    monkeypatch.setattr(write, "dense_grids", lambda *args: made.append(args))
+
+    def checkpoint(*_):
+        raise Cancelled
+
+    with pytest.raises(Cancelled):
+        make_sample(load_model(tiny_model, threads=1), Job("tiny", SampleRequest(1), "npz"), checkpoint)
+    assert not made
+
+
 # -- 5. a colour head that gives no finite colour is refused at load ------------------------------
 
 def test_a_colour_head_that_overflows_is_refused_at_load(tmp_path):
