@@ -423,6 +423,29 @@ class Correspondence:
         return field
 
 
+def example_palette(tiles: Tiles) -> np.ndarray:
+    """The example's colours as a distant view shows them: each tile's mean
+    (its 1x1 mip), once each, (P, 3) uint8 in increasing order of
+    0xRRGGBB (so that the first of equally near ones is one colour everywhere)."""
+    means = tiles.mips[-1].reshape(-1, 3).astype(np.int64)
+    packed = np.unique(means[:, 0] << 16 | means[:, 1] << 8 | means[:, 2])
+    return np.stack([packed >> 16, packed >> 8 & 255, packed & 255], axis=1).astype(np.uint8)
+
+
+def nearest_in_palette(colours: np.ndarray, palette: np.ndarray, chunk: int = 256) -> np.ndarray:
+    """Each (n, 3) uint8 colour replaced by the palette's nearest (squared
+    distance over the bytes, exact integers; the first of equals): a colour
+    made by the colour head becomes one the example has."""
+    wanted, inverse = np.unique(colours, axis=0, return_inverse=True)
+    reference = palette.astype(np.float64)
+    norms = (reference * reference).sum(axis=1)
+    nearest = np.empty(len(wanted), np.int64)
+    for start in range(0, len(wanted), chunk):  # |c - p|^2 - |c|^2 = |p|^2 - 2 c.p: integers, exact in float64
+        block = wanted[start:start + chunk].astype(np.float64)
+        nearest[start:start + chunk] = np.argmin(norms[None, :] - 2 * (block @ reference.T), axis=1)
+    return palette[nearest[inverse.ravel()]]
+
+
 def read_colours(tiles: Tiles, matched, points: np.ndarray, grid, footprint: float | None = None) -> np.ndarray:
     """The colour at points (n, 3) (sample model units) of a sample whose
     voxels `matched` maps to example voxels: (n, 3) float32 sRGB. `grid`:

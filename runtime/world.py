@@ -66,7 +66,7 @@ from sinshape.core.errors import InputError
 from sinshape.core.manifest import ARRANGEMENTS, PLANE_AXES
 
 from . import cubes
-from .colour import planes_colouring
+from .colour import example_palette, nearest_in_palette, planes_colouring
 from .generate import check_seed, draw_noise, scaled_sizes, triplane
 from .mesh import colour_bytes
 from .options import MAX_TILE  # a tile request's range, declared with its options
@@ -888,8 +888,11 @@ def tile_colours(model, seed: int, tile, vertices: np.ndarray, options: WorldOpt
     (a scatter world's: in the object there), each the colour around it
     (`footprint` voxels); a format-4 model's (and a coarser tile's, `lod`),
     the colour head of the hidden vector there, blended as the occupancy
-    is. A scatter world's ground is grey. A vertex on a face two tiles
-    share gets the same colour from both. Returns (n, 4) uint8 RGBA."""
+    is; a format-5 model's coarser tile then takes the example's nearest
+    colour (colour.example_palette: its tiles' means), so that no hue the
+    example lacks shows in the distance either. A scatter world's ground is
+    grey. A vertex on a face two tiles share gets the same colour from
+    both. Returns (n, 4) uint8 RGBA."""
     if model.tiles is None or options.lod:
         _, hidden, ground = point_field(model, seed, tile, vertices, options)
         rgb = head_colour(model.head, hidden)
@@ -902,7 +905,10 @@ def tile_colours(model, seed: int, tile, vertices: np.ndarray, options: WorldOpt
             if len(index):
                 rgb[index] = window_colouring(model, layout, seed, a, b, arrange)(cells, footprint)
     rgb[ground] = GROUND_COLOUR
-    return colour_bytes(rgb)
+    out = colour_bytes(rgb)
+    if model.tiles is not None and options.lod:
+        out[~ground, :3] = nearest_in_palette(out[~ground, :3], example_palette(model.tiles))
+    return out
 
 
 # Windows' colourings kept for the next tiles, as their planes are (`window`).

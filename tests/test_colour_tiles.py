@@ -10,7 +10,7 @@ from PIL import Image
 
 from sinshape.core.errors import InputError
 from sinshape.prep import appearance, colour as example_colour, voxelize
-from sinshape.runtime import colour, generate, load_model
+from sinshape.runtime import colour, generate, load_model, world
 
 STRIPES = ((230, 200, 40), (40, 60, 160))  # sRGB
 
@@ -145,6 +145,20 @@ def test_a_samples_colours_are_the_examples(model):
     distance, t = off_the_line(colour.colours(model, triplane, points) * 255, (30, 60, 200), (220, 40, 30))
     assert distance.max() < 3
     assert (t > 0.9).mean() > 0.1 and (t < 0.1).mean() > 0.1
+
+
+def test_a_coarser_world_tile_shows_only_the_examples_colours(model):
+    """A coarser tile (lod > 0) has no finest planes to match: the colour head's colour there is
+    made the nearest of the example's tiles' means, so no hue the example lacks shows far away."""
+    got = world.tile_surface(model, 5, (3, -2), options=world.WorldOptions(lod=1)).colours[:, :3]
+    palette = {tuple(c) for c in colour.example_palette(model.tiles)}
+    assert len(got) > 100 and all(tuple(c) in palette for c in got)  # the head's own: none of them (measured)
+
+
+def test_the_nearest_colour_of_a_palette_is_the_first_of_equals():
+    palette = np.array([[10, 10, 10], [200, 200, 200], [210, 200, 200]], np.uint8)
+    colours = np.array([[0, 0, 0], [205, 200, 200], [255, 255, 255], [0, 0, 0]], np.uint8)
+    np.testing.assert_array_equal(colour.nearest_in_palette(colours, palette), palette[[0, 1, 2, 0]])
 
 
 def damaged(model_path, tmp_path, change):

@@ -543,6 +543,25 @@ export class Correspondence {
   }
 }
 
+/** The example's colours as a distant view shows them, as colour.example_palette: each tile's mean (its 1x1 mip),
+ * once each, as 0xRRGGBB in increasing order (Int32Array). */
+export function examplePalette(tiles) {
+  const means = tiles.mips[tiles.mips.length - 1], packed = new Set();
+  for (let i = 0; i < means.length; i += 3) packed.add((means[i] << 16) | (means[i + 1] << 8) | means[i + 2]);
+  return Int32Array.from([...packed].sort((a, b) => a - b));
+}
+
+/** The palette's (examplePalette's) nearest colour to the bytes r, g, b, as colour.nearest_in_palette: the
+ * squared distance over the bytes, the first of equals. Returns 0xRRGGBB. */
+export function nearestInPalette(palette, r, g, b) {
+  let best = Infinity, found = 0;
+  for (const p of palette) {
+    const d = (r - (p >> 16)) ** 2 + (g - ((p >> 8) & 255)) ** 2 + (b - (p & 255)) ** 2;
+    if (d < best) [best, found] = [d, p];
+  }
+  return found;
+}
+
 /**
  * The colour at points (n, 3) (sample model units, Float64Array) of a sample whose voxels `matched` maps to
  * example voxels: (n, 3) Float32Array sRGB. `grid`: the sample's size; a point beyond its last voxel belongs

@@ -636,6 +636,24 @@ export async function tileNormals(model, seed, tile, positions, options = PLAIN)
   return normals;
 }
 
+/** A coarser tile's colours (out, in place, but the ground's) made the example's nearest: each as Python's
+ * bytes (mesh.colour_bytes: clipped, times 255 in float32, rounded half to even), then colour.js's
+ * nearestInPalette, once per distinct colour. */
+async function snapToExample(tiles, out, ground) {
+  const { examplePalette, nearestInPalette } = await import('./colour.js');
+  const palette = examplePalette(tiles), found = new Map();
+  const byte = (x) => roundHalfEven(Math.fround(Math.min(Math.max(x, 0), 1) * 255));
+  for (let v = 0; v < ground.length; v++) {
+    if (ground[v]) continue;
+    const [r, g, b] = [byte(out[3 * v]), byte(out[3 * v + 1]), byte(out[3 * v + 2])], key = (r << 16) | (g << 8) | b;
+    if (!found.has(key)) found.set(key, nearestInPalette(palette, r, g, b));
+    const p = found.get(key);
+    out[3 * v] = (p >> 16) / 255;
+    out[3 * v + 1] = ((p >> 8) & 255) / 255;
+    out[3 * v + 2] = (p & 255) / 255;
+  }
+}
+
 /**
  * A coloured model's sRGB colour at a tile's mesh vertices (tileMesh's
  * positions), as world.tile_colours: a format-5 model's read from the
@@ -643,8 +661,10 @@ export async function tileNormals(model, seed, tile, positions, options = PLAIN)
  * world's: in the object there), each the colour around it (`footprint`
  * voxels: a tile's mesh at `scale`, 1 / scale); a format-4 model's (and a
  * coarser tile's, lod > 0) the colour head of the hidden vector there,
- * blended as the occupancy is. A scatter world's ground is grey. Returns
- * Float32Array (V, 3) in [0, 1] (Python's gives them as bytes).
+ * blended as the occupancy is, a format-5 model's coarser tile then the
+ * example's nearest colour (colour.js's examplePalette: its tiles' means).
+ * A scatter world's ground is grey. Returns Float32Array (V, 3) in [0, 1]
+ * (Python's gives them as bytes).
  */
 export async function tileColours(model, seed, tile, positions, options = PLAIN, footprint = null) {
   seed = checkSeed(seed);
@@ -656,6 +676,7 @@ export async function tileColours(model, seed, tile, positions, options = PLAIN,
       if (ground[v]) out.set(GROUND_COLOUR, 3 * v);
       else headColour(model.head, hidden, v * d, out, 3 * v);
     }
+    if (model.tiles) await snapToExample(model.tiles, out, ground);
     return out;
   }
   const sources = [], layout = worldLayout(model.manifest); // each vertex the colour its heaviest window (or its object) reads
