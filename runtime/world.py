@@ -182,6 +182,23 @@ class HeightMap:
 MAX_MAP_BYTES = 64 << 20  # a map file: 4096 x 4096 16-bit pixels fit
 
 
+def read_npy_map(data: bytes, name, field: str) -> np.ndarray:
+    """A map's 2-D numeric array from .npy bytes, its header checked before its data is read."""
+    try:
+        stream = io.BytesIO(data)
+        header = {(1, 0): np.lib.format.read_array_header_1_0,
+                  (2, 0): np.lib.format.read_array_header_2_0}.get(np.lib.format.read_magic(stream))
+        if header is None:
+            raise ValueError("an unknown .npy version")
+        shape, _, dtype = header(stream)
+        if dtype.kind not in "fiu" or len(shape) != 2 or max(shape, default=0) > MAX_MAP_SIDE:
+            raise ValueError(f"{dtype} of shape {shape}")
+        return np.load(io.BytesIO(data), allow_pickle=False)
+    except (ValueError, OSError, EOFError) as error:
+        raise InputError(f"{name}: not a 2-D numeric .npy array of at most {MAX_MAP_SIDE} a side ({error})",
+                         field) from None
+
+
 def parse_height_map(data: bytes, suffix: str, name, relief: float | None = None) -> HeightMap:
     """A height map from a file's bytes: a greyscale image (.png: black 0,
     white `relief` voxels; its columns run along the first horizontal axis,
@@ -194,20 +211,7 @@ def parse_height_map(data: bytes, suffix: str, name, relief: float | None = None
     if suffix == ".npy":
         if relief is not None:
             raise InputError(f"{name}: an array holds heights in voxels; relief scales an image's", "relief")
-        try:
-            stream = io.BytesIO(data)
-            header = {(1, 0): np.lib.format.read_array_header_1_0,
-                      (2, 0): np.lib.format.read_array_header_2_0}.get(np.lib.format.read_magic(stream))
-            if header is None:
-                raise ValueError("an unknown .npy version")
-            shape, _, dtype = header(stream)
-            if dtype.kind not in "fiu" or len(shape) != 2 or max(shape, default=0) > MAX_MAP_SIDE:
-                raise ValueError(f"{dtype} of shape {shape}")
-            heights = np.load(io.BytesIO(data), allow_pickle=False)
-        except (ValueError, OSError, EOFError) as error:
-            raise InputError(f"{name}: not a 2-D numeric .npy array of at most {MAX_MAP_SIDE} a side ({error})",
-                             "heights") from None
-        return HeightMap.of(heights)
+        return HeightMap.of(read_npy_map(data, name, "heights"))
     if suffix != ".png":
         raise InputError(f"{name}: a height map is a .png image or a .npy array, got {suffix or 'no extension'!r}",
                          "heights")
@@ -246,6 +250,82 @@ def read_height_map(path, model, relief: float | None = None) -> HeightMap:
     return parse_height_map(data, path.suffix, path.name, relief)
 
 
+MAX_MODELS = 256  # models in one world: a model map's pixel is a byte
+
+
+@dataclass(frozen=True)
+class ModelMap:
+    """A designer's map of which model goes where in a scattered world: a
+    model's index (0 the world's first model) per tile (r, c), r along the
+    first horizontal axis, from tile (0, 0), as a height map's pixels lie;
+    beyond its edges, its edge. A scatter cell's object comes from the model
+    the pixel under the cell's centre names. Held as bytes, as HeightMap."""
+
+    shape: tuple
+    data: bytes  # uint8, C order
+
+    @classmethod
+    def of(cls, indices) -> "ModelMap":
+        try:
+            values = np.asarray(indices)
+        except (TypeError, ValueError):
+            values = np.empty(0)
+        if values.ndim != 2 or not 0 < min(values.shape) <= max(values.shape) <= MAX_MAP_SIDE:
+            raise InputError(f"a model map is a 2-D array of 1 to {MAX_MAP_SIDE} pixels a side, got shape "
+                             f"{values.shape}", "models_map")
+        numeric = values.dtype.kind in "iub" or values.dtype.kind == "f" and np.isfinite(values).all()
+        if not (numeric and (values == np.round(values)).all() and 0 <= values.min() and values.max() < MAX_MODELS):
+            raise InputError(f"a model map holds models' indices, whole numbers 0 to {MAX_MODELS - 1}", "models_map")
+        return cls(tuple(int(n) for n in values.shape), values.astype(np.uint8).tobytes())
+
+    def array(self) -> np.ndarray:
+        """(R, C) uint8."""
+        return np.frombuffer(self.data, np.uint8).reshape(self.shape)
+
+    def at(self, r: int, c: int) -> int:
+        """The index at tile (r, c), the edge's beyond the map."""
+        return int(self.array()[min(max(r, 0), self.shape[0] - 1), min(max(c, 0), self.shape[1] - 1)])
+
+
+def parse_model_map(data: bytes, suffix: str, name) -> ModelMap:
+    """A model map from a file's bytes: an image (.png: a palette image's
+    indices, or a greyscale image's values, laid out as a height map's
+    image) or an array (.npy: [i, j] tile (i, j)'s model index). `name` says
+    what the bytes are in messages."""
+    if len(data) > MAX_MAP_BYTES:
+        raise InputError(f"{name}: {len(data) >> 20} MB is too large for a model map", "models_map")
+    suffix = suffix.lower()
+    if suffix == ".npy":
+        return ModelMap.of(read_npy_map(data, name, "models_map"))
+    if suffix != ".png":
+        raise InputError(f"{name}: a model map is a .png image or a .npy array, got {suffix or 'no extension'!r}",
+                         "models_map")
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(io.BytesIO(data)) as image:
+            if max(image.size) > MAX_MAP_SIDE:
+                raise InputError(f"{name}: {image.size[0]}x{image.size[1]} pixels; a model map has at most "
+                                 f"{MAX_MAP_SIDE} a side", "models_map")
+            if image.mode not in ("P", "L", "I", "I;16", "1"):
+                raise InputError(f"{name}: a model map is a palette or greyscale image (a model's index per "
+                                 f"pixel), got mode {image.mode}", "models_map")
+            pixels = np.asarray(image)
+    except (UnidentifiedImageError, OSError, Image.DecompressionBombError) as error:
+        raise InputError(f"{name}: not a readable image ({error})", "models_map") from None
+    return ModelMap.of(np.flipud(pixels.astype(np.int64)).T)
+
+
+def read_model_map(path) -> ModelMap:
+    """parse_model_map of a file."""
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except OSError as error:
+        raise InputError(f"{path}: cannot read the model map ({error.strerror})", "models_map") from None
+    return parse_model_map(data, path.suffix, path.name)
+
+
 @dataclass(frozen=True)
 class WorldOptions:
     """How a world is made (its arrangement and height map: every tile of one
@@ -255,6 +335,8 @@ class WorldOptions:
     arrange: str = "blend"
     heights: HeightMap | None = None
     lod: int = 0
+    models: tuple = ()  # a scattered world's models after its first (the `model` its tiles are asked of): 1, 2, ...
+    models_map: ModelMap | None = None  # which of them each scatter cell draws its object from
 
     def __post_init__(self):
         if self.arrange not in ARRANGEMENTS:
@@ -263,6 +345,22 @@ class WorldOptions:
             raise InputError("heights must be a world.HeightMap (HeightMap.of(array))", "heights")
         if not (isinstance(self.lod, numbers.Integral) and not isinstance(self.lod, bool) and 0 <= self.lod):
             raise InputError(f"lod must be a whole number of levels, 0 or more, got {self.lod!r}", "lod")
+        if not isinstance(self.models, tuple) or len(self.models) >= MAX_MODELS:
+            raise InputError(f"models is a tuple of at most {MAX_MODELS - 1} models after the first", "models")
+        if self.models_map is None:
+            if self.models:
+                raise InputError("several models need a model map saying which goes where", "models_map")
+            return
+        if not isinstance(self.models_map, ModelMap):
+            raise InputError("models_map must be a world.ModelMap (ModelMap.of(array))", "models_map")
+        if self.arrange != "scatter":
+            raise InputError("a model map places whole objects: it is for a scatter world (blended models' "
+                             "tiles, voxels and heights differ)", "models_map")
+        named = self.models_map.array()
+        if named.max() > len(self.models):
+            r, c = np.argwhere(named > len(self.models))[0]
+            raise InputError(f"the model map's pixel for tile ({r}, {c}) names model {named[r, c]}, and the world "
+                             f"has {len(self.models) + 1} (0 to {len(self.models)})", "models_map")
 
 
 PLAIN = WorldOptions()
@@ -363,12 +461,30 @@ def scatter_cell(seed: int, a: int, b: int, room: tuple) -> Cell:
                 (bool(draw[3] & 1), bool(draw[3] & 2)))
 
 
-def scatter_geometry(model, layout: Layout) -> tuple:
-    """A scatter world's cell side P per horizontal axis, and an object's extent E - 1 (voxels)."""
-    finest = model.manifest.sizes[-1]
-    h0, h1 = layout.horizontal
-    pitch = (PITCH * layout.stride[h0], PITCH * layout.stride[h1])
-    return pitch, (finest[h0] - 1, finest[h1] - 1)
+def object_model(model, options: WorldOptions, index: int) -> tuple:
+    """A scattered world's model `index` (0 the first, `model`) and its own cut
+    (its axes: an object's first horizontal axis lies along the world's)."""
+    if not index:
+        return model, world_layout(model)
+    other = options.models[index - 1]
+    try:
+        return other, world_layout(other)
+    except InputError as error:
+        raise InputError(f"model {index} of the world: {error}", "models") from None
+
+
+def scatter_geometry(model, layout: Layout, options: WorldOptions = PLAIN) -> tuple:
+    """A scatter world's cell side P per horizontal axis (PITCH strides, or
+    room for its largest model's objects and half a stride), and each
+    model's object extent E - 1 (voxels) along the world's two horizontal axes."""
+    extents = []
+    for index in range(len(options.models) + 1):
+        each, own = object_model(model, options, index)
+        finest = each.manifest.sizes[-1]
+        extents.append((finest[own.horizontal[0]] - 1, finest[own.horizontal[1]] - 1))
+    pitch = tuple(max(PITCH * layout.stride[h], max(extent[n] for extent in extents) + layout.stride[h] // 2)
+                  for n, h in enumerate(layout.horizontal))
+    return pitch, extents
 
 
 @dataclass(frozen=True)
@@ -383,28 +499,36 @@ class Placed:
     extent: tuple  # (2,) E - 1 per horizontal axis
     mirror: tuple
     height: float
+    model: int = 0  # which of the world's models it is a sample of
 
 
-def object_window(model, layout: Layout, seed: int, placed_object: Placed, level: int) -> Window:
-    return window(model, layout, seed, *placed_object.cell, level, "scatter")
+def object_window(model, options: WorldOptions, seed: int, placed_object: Placed, level: int) -> tuple:
+    """An object's model, that model's cut, and the object's planes."""
+    each, own = object_model(model, options, placed_object.model)
+    return each, own, window(each, own, seed, *placed_object.cell, level, "scatter")
 
 
-def objects_near(model, layout: Layout, seed: int, tile: tuple, level: int, heights) -> list:
-    """The objects of a scatter world that reach into tile (i, j), in a fixed order."""
+def objects_near(model, layout: Layout, seed: int, tile: tuple, level: int, options: WorldOptions) -> list:
+    """The objects of a scatter world that reach into tile (i, j), in a fixed
+    order: each from the model its cell's centre's pixel of the model map names."""
     i, j = tile
+    heights = options.heights
     h0, h1 = layout.horizontal
-    (p0, p1), (e0, e1) = scatter_geometry(model, layout)
+    (p0, p1), extents = scatter_geometry(model, layout, options)
     s0, s1 = layout.stride[h0], layout.stride[h1]
     found = []
     for a in range((i * s0) // p0 - 1, ((i + 1) * s0) // p0 + 1):
         for b in range((j * s1) // p1 - 1, ((j + 1) * s1) // p1 + 1):
+            index = 0 if options.models_map is None else \
+                options.models_map.at((2 * a * p0 + p0) // (2 * s0), (2 * b * p1 + p1) // (2 * s1))  # exact, anywhere
+            e0, e1 = extents[index]
             cell = scatter_cell(seed, a, b, (p0 - e0, p1 - e1))
             low = (a * p0 + cell.offset[0], b * p1 + cell.offset[1])  # world voxels, exact integers
             if not cell.present or low[0] > (i + 1) * s0 or low[0] + e0 < i * s0 or low[1] > (j + 1) * s1 \
                     or low[1] + e1 < j * s1:
                 continue
             height = 0.0 if heights is None else object_height(heights, layout, low, (e0, e1))
-            found.append(Placed((a, b), (low[0] - i * s0, low[1] - j * s1), (e0, e1), cell.mirror, height))
+            found.append(Placed((a, b), (low[0] - i * s0, low[1] - j * s1), (e0, e1), cell.mirror, height, index))
     return found
 
 
@@ -494,6 +618,8 @@ def tile_grid(model, layout: Layout, scale: float, options: WorldOptions) -> Gri
             m = max(2, round((stride + 1) * scale * ratio))  # as a sample's grid: m points over the height
             step = stride / (m - 1)
             low, high = options.heights.bounds() if options.heights is not None else (0, 0)
+            cuts = [object_model(model, options, k)[1] for k in range(1, len(options.models) + 1)]
+            high += max([0] + [cut.stride[cut.up] - stride for cut in cuts])  # a taller model's objects
             count = m + math.ceil((high - low) / step)
             positions.append(low + np.arange(count) * step)
         else:
@@ -666,11 +792,11 @@ def tile_logits(model, seed: int, tile, scale: float = 1.0, options: WorldOption
     if options.arrange == "scatter":
         ground = z[None, None, :] - GROUND if heights is None else z[None, None, :] - heights[:, :, None] - GROUND
         out[...] = -np.float32(GROUND_SLOPE) * ground.astype(np.float32)
-        near = objects_near(model, layout, seed, (i, j), level, options.heights)
+        near = objects_near(model, layout, seed, (i, j), level, options)
         for done, placed_object in enumerate(near, 1):
             if progress:
                 progress(done, len(near))
-            scatter_into(out, colours, model, layout, seed, level, placed_object, u0, u1, z)
+            scatter_into(out, colours, model, options, seed, level, placed_object, u0, u1, z)
         return (out, colours) if colour else out
     sources = blend_sources(model, layout, seed, (i, j), level, progress)
     rows = max(1, (1 << 21) // (len(u1) * len(z) * model.manifest.hidden))  # ~8 MB a sum
@@ -694,10 +820,10 @@ def tile_logits(model, seed: int, tile, scale: float = 1.0, options: WorldOption
     return (out, colours) if colour else out
 
 
-def scatter_into(out: np.ndarray, colours, model, layout: Layout, seed: int, level: int, placed_object: Placed,
-                 u0, u1, z) -> None:
-    """One object's logits where they are the largest yet, on the part of a tile's grid inside its box."""
-    h0, h1, up = *layout.horizontal, layout.up
+def scatter_into(out: np.ndarray, colours, model, options: WorldOptions, seed: int, level: int,
+                 placed_object: Placed, u0, u1, z) -> None:
+    """One object's logits where they are the largest yet, on the part of a tile's grid inside its box
+    (its colour there: its own model's, grey for a model without colour)."""
     local = []
     for u, low, extent, mirror in zip((u0, u1), placed_object.corner, placed_object.extent, placed_object.mirror):
         inside = np.flatnonzero((u - low >= 0) & (u - low <= extent))
@@ -706,15 +832,17 @@ def scatter_into(out: np.ndarray, colours, model, layout: Layout, seed: int, lev
     (x, c0), (y, c1) = local
     if not len(x) or not len(y):
         return
-    found = object_window(model, layout, seed, placed_object, level)
-    levels = np.clip(z - placed_object.height, 0, layout.stride[up])[None, None, :]
-    hidden, _ = hidden_on_grid(found, layout, c0 * found.cells[h0], c1 * found.cells[h1], levels * found.cells[up])
-    logits = capped(head_logits(model.head, hidden), (z - placed_object.height - layout.stride[up])[None, None, :])
+    each, own, found = object_window(model, options, seed, placed_object, level)
+    h0, h1, up = *own.horizontal, own.up  # the object's axes, along the world's
+    levels = np.clip(z - placed_object.height, 0, own.stride[up])[None, None, :]
+    hidden, _ = hidden_on_grid(found, own, c0 * found.cells[h0], c1 * found.cells[h1], levels * found.cells[up])
+    logits = capped(head_logits(each.head, hidden), (z - placed_object.height - own.stride[up])[None, None, :])
     part = np.ix_(x, y)
     better = logits > out[part]
     out[part] = np.where(better, logits, out[part])
     if colours is not None:
-        colours[part] = np.where(better[..., None], head_colour(model.head, hidden), colours[part])
+        rgb = head_colour(each.head, hidden) if each.manifest.colour else np.float32(GROUND_COLOUR)
+        colours[part] = np.where(better[..., None], rgb, colours[part])
 
 
 def tile_occupancy(model, seed: int, tile, scale: float = 1.0, memory_limit: int | None = None,
@@ -734,7 +862,7 @@ def tile_occupancy(model, seed: int, tile, scale: float = 1.0, memory_limit: int
     occupancy = np.ascontiguousarray(sigmoid(logits).transpose(order))
     if not colour:
         return occupancy
-    if model.tiles is not None and not options.lod:  # read from the example, as the tile's vertices are
+    if model.tiles is not None and not options.lod or options.models:  # as the tile's vertices are coloured
         grid = tile_grid(model, layout, scale, options)
         points = np.stack(np.meshgrid(*grid.positions, indexing="ij"), axis=-1).reshape(-1, 3)
         return occupancy, tile_colours(model, seed, tile, points, options, 1 / scale)[:, :3].reshape(*occupancy.shape, 3)
@@ -769,7 +897,7 @@ def point_field(model, seed: int, tile, points: np.ndarray, options: WorldOption
         order = np.argsort(which, kind="stable")
         starts = np.searchsorted(which[order], np.arange(len(groups) + 1))
     logits = np.empty(len(points), np.float32)
-    hidden = np.empty((len(points), model.manifest.hidden), np.float32)
+    hidden = np.empty((len(points), hidden_width(model, options)), np.float32)
     ground = np.empty(len(points), bool)
     for group, (t0, t1) in enumerate(groups.tolist()):
         chosen = order[starts[group]:starts[group + 1]]
@@ -795,33 +923,35 @@ def point_tile(model, layout: Layout, seed: int, tile: tuple, points: np.ndarray
             else map_heights(options.heights, layout, u0, u1, tile, outer=False))
     if options.arrange == "scatter":
         logits = (-np.float32(GROUND_SLOPE) * (z - rise - GROUND)).astype(np.float32)
-        hidden = np.zeros((len(points), model.manifest.hidden), np.float32)
+        hidden = np.zeros((len(points), hidden_width(model, options)), np.float32)
         ground = np.ones(len(points), bool)
         owner, owner_cells, objects = np.full(len(points), -1), np.zeros((len(points), 3)), []
-        for placed_object in objects_near(model, layout, seed, tile, level, options.heights):
+        for placed_object in objects_near(model, layout, seed, tile, level, options):
+            each, own = object_model(model, options, placed_object.model)
             inside = np.ones(len(points), bool)
             cells = np.empty((len(points), 3))
-            for axis, u, low, extent, mirror in zip((h0, h1), (u0, u1), placed_object.corner, placed_object.extent,
-                                                    placed_object.mirror):
+            for axis, u, low, extent, mirror in zip(own.horizontal, (u0, u1), placed_object.corner,
+                                                    placed_object.extent, placed_object.mirror):
                 position = u - low
                 inside &= (position >= 0) & (position <= extent)
                 cells[:, axis] = extent - position if mirror else position
             if not inside.any():
                 continue
-            found = object_window(model, layout, seed, placed_object, level)
-            cells[:, up] = np.clip(z - placed_object.height, 0, layout.stride[up])
+            found = object_window(model, options, seed, placed_object, level)[2]
+            cells[:, own.up] = np.clip(z - placed_object.height, 0, own.stride[own.up])
             cells *= np.asarray(found.cells)
             hid = point_hidden(found, cells[inside])
             better = np.zeros(len(points), bool)
-            candidate = capped(head_logits(model.head, hid), (z - placed_object.height - layout.stride[up])[inside])
+            candidate = capped(head_logits(each.head, hid), (z - placed_object.height - own.stride[own.up])[inside])
             better[inside] = candidate > logits[inside]
             logits[better] = candidate[better[inside]]
-            hidden[better] = hid[better[inside]]
+            hidden[better] = 0  # a narrower model's vector leaves the rest zero
+            hidden[better, :hid.shape[1]] = hid[better[inside]]
             ground[better] = False
             if sources is not None:
                 owner[better] = len(objects)
                 owner_cells[better] = cells[better]
-                objects.append((*placed_object.cell, "scatter"))
+                objects.append((*placed_object.cell, "scatter", placed_object.model))
         if sources is not None:
             sources.extend((key, np.flatnonzero(owner == k), owner_cells[owner == k]) for k, key in enumerate(objects))
         return logits, hidden, ground
@@ -844,7 +974,7 @@ def point_tile(model, layout: Layout, seed: int, tile: tuple, points: np.ndarray
                 heavier = weight > heaviest
                 heaviest[heavier], owner[heavier] = weight[heavier], len(keys)
                 owner_cells = cells.copy() if owner_cells is None else np.where(heavier[:, None], cells, owner_cells)
-                keys.append((a, b, "blend"))
+                keys.append((a, b, "blend", 0))
     if sources is not None:
         sources.extend((key, np.flatnonzero(owner == k), owner_cells[owner == k]) for k, key in enumerate(keys))
     total = blend.total()
@@ -893,22 +1023,44 @@ def tile_colours(model, seed: int, tile, vertices: np.ndarray, options: WorldOpt
     example lacks shows in the distance either. A scatter world's ground is
     grey. A vertex on a face two tiles share gets the same colour from
     both. Returns (n, 4) uint8 RGBA."""
-    if model.tiles is None or options.lod:
+    if not options.models and (model.tiles is None or options.lod):
         _, hidden, ground = point_field(model, seed, tile, vertices, options)
         rgb = head_colour(model.head, hidden)
-    else:  # each vertex the colour its heaviest window (or its object) reads from the example
+    else:  # each vertex its heaviest window's (or its object's) colour, read from the example or its model's head
         sources = []
-        _, _, ground = point_field(model, seed, tile, vertices, options, sources)
+        _, hidden, ground = point_field(model, seed, tile, vertices, options, sources)
         rgb = np.empty((len(vertices), 3), np.float32)
-        layout = world_layout(model)
-        for (a, b, arrange), index, cells in sources:
-            if len(index):
-                rgb[index] = window_colouring(model, layout, seed, a, b, arrange)(cells, footprint)
+        palettes = []
+        for (a, b, arrange, k), index, cells in sources:
+            each, own = object_model(model, options, k)
+            if not len(index):
+                continue
+            if each.tiles is not None and not options.lod:
+                rgb[index] = window_colouring(each, own, seed, a, b, arrange)(cells, footprint)
+            elif each.manifest.colour:
+                rgb[index] = head_colour(each.head, hidden[index, :each.manifest.hidden])
+                if each.tiles is not None:
+                    palettes.append((index, each.tiles))
+            else:
+                rgb[index] = GROUND_COLOUR
     rgb[ground] = GROUND_COLOUR
     out = colour_bytes(rgb)
-    if model.tiles is not None and options.lod:
+    if options.models:
+        for index, tiles in palettes:
+            out[index, :3] = nearest_in_palette(out[index, :3], example_palette(tiles))
+    elif model.tiles is not None and options.lod:
         out[~ground, :3] = nearest_in_palette(out[~ground, :3], example_palette(model.tiles))
     return out
+
+
+def coloured(model, options: WorldOptions = PLAIN) -> bool:
+    """Whether a world's tiles carry colour: any of its models has it."""
+    return any(each.manifest.colour for each in (model, *options.models))
+
+
+def hidden_width(model, options: WorldOptions) -> int:
+    """The hidden vectors' width a world's points hold: its widest model's."""
+    return max(each.manifest.hidden for each in (model, *options.models))
 
 
 # Windows' colourings kept for the next tiles, as their planes are (`window`).
@@ -1001,7 +1153,7 @@ def tile_surface(model, seed: int, tile, scale: float = 1.0, options: WorldOptio
     progress: as tile_occupancy's."""
     vertices, faces = tile_mesh(model, seed, tile, scale, memory_limit, options=options, progress=progress)
     normals = tile_normals(model, seed, tile, vertices, options)
-    colours = tile_colours(model, seed, tile, vertices, options, 1 / scale) if model.manifest.colour else None
+    colours = tile_colours(model, seed, tile, vertices, options, 1 / scale) if coloured(model, options) else None
     if options.lod and len(faces):
         layout = world_layout(model)
         grid = tile_grid(model, layout, scale, options)
@@ -1123,7 +1275,7 @@ def block_mesh(model, request, tiles, progress=None, memory_limit: int | None = 
             check_memory(BLOCK_BYTES_PER_VERTEX * max(len(v), 1) * len(tiles),
                          f"a block of {len(tiles)} tiles at scale {request.scale:g} (about {len(v)} vertices each)",
                          memory_limit)
-        if model.manifest.colour:
+        if coloured(model, options):
             colours.append(tile_colours(model, request.sample_seed, tile, v, options, 1 / request.scale))
         vertices.append(np.array(tile_corner(model, tile), np.float64) + v)  # exact on shared borders
         faces.append(f + count)

@@ -229,8 +229,8 @@ def tile_bytes(model, request, name, progress=None) -> tuple:
     options = request.world_options()
     if output_kind(name) == "grid":
         grids = world.tile_occupancy(model, request.sample_seed, request.tile, request.scale,
-                                     colour=model.manifest.colour, options=options, progress=progress)
-        grids = dict(zip(("occupancy", "colour"), grids)) if model.manifest.colour else {"occupancy": grids}
+                                     colour=world.coloured(model, options), options=options, progress=progress)
+        grids = dict(zip(("occupancy", "colour"), grids)) if world.coloured(model, options) else {"occupancy": grids}
         layout = world.world_layout(model)
         grid = world.tile_grid(model, layout, request.scale, options)
         return grid_bytes(**grids, tile=request.tile, corner=world.tile_corner(model, request.tile),

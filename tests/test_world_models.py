@@ -1,0 +1,120 @@
+"""Several models in one scattered world, placed by a model map: each cell's
+object is a sample of the model its pixel names, and the world keeps what
+one model's does (any tile alone, the same bytes in any order, seams equal
+to the bit)."""
+
+import numpy as np
+import pytest
+
+from sinshape.core.errors import InputError
+from sinshape.runtime import load_model, world
+from test_world import identical_windows
+
+# With this map, cells a < 0 (their centres in tiles below 0 along the
+# first horizontal axis) hold model 0's objects and cells a >= 0 model 1's,
+# the edge going on either way.
+SPLIT = world.ModelMap.of([[0], [1]])
+
+
+def objects(model, tile, options) -> list:
+    """Which model each object reaching into a tile is drawn from (the test's premise)."""
+    return [found.model for found in world.objects_near(model, world.world_layout(model), 7, tile, 1, options)]
+
+
+@pytest.fixture(scope="module")
+def model(tiny_model):
+    return load_model(tiny_model, threads=1)
+
+
+@pytest.fixture(scope="module")
+def still(model):
+    """A second model, the first with no noise: the same shape of objects, other contents."""
+    return identical_windows(model)
+
+
+@pytest.fixture(scope="module")
+def coloured(tiny_colour_model):
+    return load_model(tiny_colour_model, threads=1)
+
+
+def fresh_surface(model, tile, options):
+    world._windows.clear()
+    world._colourings.clear()
+    return world.tile_surface(model, 7, tile, options=options)
+
+
+def test_each_object_comes_from_the_model_its_pixel_names(model, still):
+    """Where the map names model 1 the world is, to the bit, model 1's own scattered world, and
+    where it names 0, model 0's: an object drawn from the wrong model changes the grid."""
+    mixed = world.WorldOptions("scatter", models=(still,), models_map=SPLIT)
+    alone = world.WorldOptions("scatter")
+    FAR_LEFT, FAR_RIGHT = (-11, 1), (7, 1)
+    assert objects(model, FAR_LEFT, mixed) == [0] and objects(model, FAR_RIGHT, mixed) == [1]
+    left = world.tile_occupancy(model, 7, FAR_LEFT, options=mixed)
+    right = world.tile_occupancy(model, 7, FAR_RIGHT, options=mixed)
+    assert np.array_equal(left, world.tile_occupancy(model, 7, FAR_LEFT, options=alone))
+    assert np.array_equal(right, world.tile_occupancy(still, 7, FAR_RIGHT, options=alone))
+    assert not np.array_equal(right, world.tile_occupancy(model, 7, FAR_RIGHT, options=alone))
+    everywhere_still = world.WorldOptions("scatter", models=(still,), models_map=world.ModelMap.of([[1]]))
+    assert np.array_equal(world.tile_occupancy(model, 7, FAR_LEFT, options=everywhere_still),
+                          world.tile_occupancy(still, 7, FAR_LEFT, options=alone))
+
+
+@pytest.fixture(scope="module")
+def two_kinds(coloured):
+    """A world of the plain tiny model and, where the map says 1, the coloured one (another
+    size, another up axis, another voxel size)."""
+    return world.WorldOptions("scatter", models=(coloured,), models_map=SPLIT)
+
+
+def test_models_of_other_sizes_meet_without_a_seam_in_any_order(model, two_kinds):
+    layout = world.world_layout(model)
+    h0, h1 = layout.horizontal
+    pairs = (((-4, 0), (-3, 0), h0), ((7, 0), (8, 0), h0), ((7, 0), (7, 1), h1))
+    assert objects(model, (-4, 0), two_kinds) == [0] and objects(model, (7, 0), two_kinds) == [1]
+    for a, b, axis in pairs:
+        grid_a, grid_b = (world.tile_occupancy(model, 7, t, options=two_kinds) for t in (a, b))
+        assert np.array_equal(np.take(grid_a, -1, axis), np.take(grid_b, 0, axis))
+        made = [world.tile_surface(model, 7, t, options=two_kinds) for t in (a, b)]
+        mine = {tuple(v - np.eye(3)[axis] * layout.stride[axis]): (tuple(n), tuple(c))
+                for v, n, c in zip(made[0].vertices, made[0].normals, made[0].colours) if v[axis] == layout.stride[axis]}
+        theirs = {tuple(v): (tuple(n), tuple(c)) for v, n, c in zip(made[1].vertices, made[1].normals, made[1].colours)
+                  if v[axis] == 0}
+        assert len(mine) > 5 and mine == theirs
+    tiles = [(8, 0), (7, 0), (-4, 1)]
+    first = {t: fresh_surface(model, t, two_kinds) for t in tiles}
+    world._windows.clear()
+    world._colourings.clear()
+    after = {t: world.tile_surface(model, 7, t, options=two_kinds) for t in reversed(tiles)}
+    for t in tiles:
+        assert all(np.array_equal(getattr(first[t], f), getattr(after[t], f))
+                   for f in ("vertices", "faces", "normals", "colours"))
+
+
+def test_each_object_is_coloured_by_its_own_model(model, coloured, two_kinds):
+    """The plain model's objects are grey as the ground (it has no colour); the coloured model's
+    show its colours; the coloured model's objects stand taller than the first model's grid."""
+    FAR_LEFT, FAR_RIGHT = (-4, 1), (7, 1)  # cells are wider here: room for the coloured model's objects
+    assert objects(model, FAR_LEFT, two_kinds) == [0] and objects(model, FAR_RIGHT, two_kinds) == [1]
+    left = world.tile_surface(model, 7, FAR_LEFT, options=two_kinds)
+    right = world.tile_surface(model, 7, FAR_RIGHT, options=two_kinds)
+    grey = np.array(world.colour_bytes(np.array([world.GROUND_COLOUR], np.float32))[0])
+    assert len(left.faces) and (left.colours == grey).all()
+    assert (right.colours != grey).any(axis=1).mean() > 0.2
+    up = world.world_layout(model).up
+    cut = world.world_layout(coloured)
+    assert right.vertices[:, up].max() > world.world_layout(model).stride[up]
+    assert right.vertices[:, up].max() <= cut.stride[cut.up] + 0.5
+
+
+@pytest.mark.parametrize("options, says", [
+    (dict(arrange="scatter", models_map=world.ModelMap.of([[0, 2]])), "names model 2, and the world has 2"),
+    (dict(arrange="scatter"), "need a model map"),
+    (dict(arrange="blend", models_map=SPLIT), "for a scatter world"),
+])
+def test_a_bad_model_map_is_refused_in_one_line(still, options, says):
+    with pytest.raises(InputError, match=says):
+        world.WorldOptions(models=(still,), **options)
+    for bad in ([[0.5]], [[-1]], [[256]], [[np.nan]], np.zeros((2, 2, 2)), [[]]):
+        with pytest.raises(InputError, match="a model map"):
+            world.ModelMap.of(bad)
