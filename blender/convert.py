@@ -88,8 +88,9 @@ def check_unchanged(reference: str, path: Path, digest: str, recorded: str) -> N
 SETTINGS = {"seed": "seed", "size": "size", "scale": "scale", "smooth": "smooth", "keep": "keep_box", "grow": "grow",
             "anchor": "anchor", "layout": "layout_bits", "tile": "radius", "arrange": "arrange", "lod": "fine"}
 # ... and those it leaves at their defaults (a mesh in the input's frame, turned to
-# Blender's; no height map). tests/test_blender_options.py holds both to the table.
-LEFT = ("recon", "smoother", "largest", "frame", "heights")
+# Blender's; no height map; a world of one model). tests/test_blender_options.py
+# holds both to the table.
+LEFT = ("recon", "smoother", "largest", "frame", "heights", "models", "models_map")
 
 
 def sample_request(values: dict, up: str) -> SampleRequest:

@@ -25,7 +25,8 @@ from .progress import StageProgress, TrainProgress, format_seconds, progress_bar
 # The options of a sample request (runtime/options.py) the command line takes in
 # a form of its own: {option: (its parameter, its flag)}. The others are
 # `request_option`s, named as the table names them.
-SPELLED = {"layout": ("layout_file", "--layout"), "tile": ("tiles", "--tiles"), "heights": ("height_map", "--map")}
+SPELLED = {"layout": ("layout_file", "--layout"), "tile": ("tiles", "--tiles"), "heights": ("height_map", "--map"),
+           "models": ("others", "MODEL..."), "models_map": ("models_map", "--models-map")}
 # Library errors name a function's parameter; on the command line it is an option
 # (but a seed: a sample's comes from --seed, --seeds or --keep, a run's from train's --seed).
 OPTIONS = {**{name: "--" + name.replace("_", "-") for name in OPTION if name != "seed"},
@@ -407,6 +408,7 @@ def run_job(job, items, unit: str, name) -> None:
 
 @cli.command()
 @MODEL_ARGUMENT
+@click.argument(SPELLED["models"][0], nargs=-1)
 @request_option("seed", default=0, help="The world's seed: the same seed, the same world.")
 @click.option(*reversed(SPELLED["tile"]), type=TILES, required=True, metavar="I0:I1,J0:J1",
               help="The tiles to write, both ends included: -8:8,-8:8 is 17 x 17 tiles around the origin; 3,4 "
@@ -438,10 +440,14 @@ def run_job(job, items, unit: str, name) -> None:
 @click.option("--relief", type=float, default=None,
               help="Voxels from a .png map's black to its white. Default: 4 times the model's height.")
 @request_option("lod")
+@click.option(SPELLED["models_map"][1], type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
+              help=f"{OPTION['models_map'].help} A palette or greyscale .png (a pixel's value is the index, laid "
+                   "out as --map's) or a .npy array of indices, [i, j] for tile i,j. The other models follow the "
+                   "first: sinrun world FIRST SECOND ... --arrange scatter --models-map map.png.")
 @RESTART_OPTION
 @asset_options
-def world(model, seed, tiles, output, suffix, scale, frame, threads, workers, engine, address, arrange, height_map,
-          relief, lod, restart, lods, texture, ao):
+def world(model, others, seed, tiles, output, suffix, scale, frame, threads, workers, engine, address, arrange,
+          height_map, relief, lod, models_map, restart, lods, texture, ao):
     """Write tiles of an endless world: any tile on its own, seamless with its neighbours.
 
     The world spreads along the model's two horizontal axes (the two that are
@@ -450,11 +456,13 @@ def world(model, seed, tiles, output, suffix, scale, frame, threads, workers, en
     whatever was made before, and a tile a billion tiles away costs what
     tile 0,0 costs.
     """
+    from sinshape import models
     from sinshape.runtime import asset as assets, many, request as requests, write
 
     packed = assets.options_of(lods, texture, ao)
     loaded = open_model(model, threads)
-    wanted = requests.world_request(loaded, seed, scale, frame, arrange, height_map, relief, lod)
+    wanted = requests.world_request(loaded, seed, scale, frame, arrange, height_map, relief, lod,
+                                    [models.find(other) for other in others], models_map)
     output = output or Path(f"{loaded.path.stem}_world_seed{seed}")
     suffix = "glb" if packed else suffix
     if output.suffix.lower() in files.MESH_FORMATS and "{tile}" not in output.name:  # one mesh of the block

@@ -170,8 +170,10 @@ def job_record(model, request, pattern: Path, varying: Varying) -> dict:
             continue
         if field.name == "layout" and value is not None:
             value = {"shape": value.shape, "sha256": hashlib.sha256(value.bits).hexdigest(), "resample": value.resample}
-        elif field.name == "heights" and value is not None:
+        elif field.name in ("heights", "models_map") and value is not None:
             value = {"shape": value.shape, "sha256": hashlib.sha256(value.data).hexdigest()}
+        elif field.name == "models":  # what the other models are, wherever their files lie
+            value = [(file_digest(Path(path)) or (None, None))[1] for path in value]
         elif field.name == "keep":
             value = [part if isinstance(part, str) else dataclasses.asdict(part) for part in value]
         fields[field.name] = value

@@ -33,8 +33,10 @@ EDITS = ("keep", "grow", "layout")
 KINDS = ("sample", "tile")  # what a request makes: a sample (plain or edited), or a tile of a world
 # What an option's value is: a seed; a flag; a whole number or any number in
 # its range; factors, one for all three axes or three; one of its choices;
-# kept parts; and the values no text spells (a Layout, a tile, a HeightMap).
-TYPES = ("seed", "bool", "int", "number", "factors", "choice", "parts", "layout", "tile", "heights")
+# kept parts; and the values no text spells (a Layout, a tile, a HeightMap,
+# other models' files, a ModelMap).
+TYPES = ("seed", "bool", "int", "number", "factors", "choice", "parts", "layout", "tile", "heights", "models",
+         "models_map")
 
 
 @dataclass(frozen=True)
@@ -119,6 +121,11 @@ OPTIONS = (
     Option("heights", "heights", None, "The world's large shape: a height in voxels per tile.", ("tile",)),
     Option("lod", "int", 0, "Levels of detail coarser than the finest: a distant tile, cheaper, with a skirt "
            "that hides the crack where it meets a finer one.", ("tile",), 0),
+    Option("models", "models", (), "A scattered world's other models (model files): model 1, 2, ... of its model "
+           "map, the first model being 0.", ("tile",)),
+    Option("models_map", "models_map", None, "Which model goes where in a scattered world: a model's index per "
+           "tile (0 the first model); each object is drawn from the model its cell's centre's pixel names.",
+           ("tile",)),
 )
 OPTION = {option.name: option for option in OPTIONS}
 

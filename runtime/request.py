@@ -15,6 +15,7 @@ the memory a size needs) is checked by `resolved` and `make`, which take it.
 """
 
 import dataclasses
+import functools
 import math
 import numbers
 from dataclasses import dataclass
@@ -27,9 +28,9 @@ from sinshape.core.manifest import MAX_LEVEL_SIDE
 
 from . import edit, generate, layout, mesh, query
 from .edit import Part
-from .load import default_threads
+from .load import default_threads, load_model
 from .options import EDITS, FRAMES, MAX_PARTS, OPTION, OPTIONS  # noqa: F401  the request's table
-from .world import ARRANGEMENTS, HeightMap, WorldOptions, check_tile, read_height_map
+from .world import ARRANGEMENTS, HeightMap, ModelMap, WorldOptions, check_tile, read_height_map, read_model_map
 
 @dataclass(frozen=True)
 class Layout:
@@ -103,7 +104,9 @@ class SampleRequest:
       of a sample: no size, edits or clean-up, which would break its seams.
     For a tile, how its world is made: arrange ('blend' or 'scatter',
       world.ARRANGEMENTS), heights (a world.HeightMap: the world's large
-      shape), and lod (levels coarser than the finest: a distant tile).
+      shape), lod (levels coarser than the finest: a distant tile), models
+      (a scattered world's other models: their files' paths, as text) and
+      models_map (a world.ModelMap: which model each cell's object is of).
     At most one edit:
     keep: parts taken from other samples (edit.Part, or their text form
       'SEED:X0,Y0,Z0:X1,Y1,Z1', read against the model by `resolved`);
@@ -128,6 +131,8 @@ class SampleRequest:
     arrange: str = "blend"
     heights: HeightMap | None = None
     lod: int = 0
+    models: tuple = ()
+    models_map: ModelMap | None = None
 
     def __post_init__(self):
         def set_field(name, value):
@@ -160,6 +165,10 @@ class SampleRequest:
             raise InputError("layout must be a request.Layout (Layout.of(grid))", "layout")
         if self.tile is not None:
             set_field("tile", check_tile(self.tile))
+        models = (self.models,) if isinstance(self.models, str) else self.models
+        if not (isinstance(models, (tuple, list)) and all(isinstance(path, str) for path in models)):
+            raise InputError("models is the world's other models' files, as paths", "models")
+        set_field("models", tuple(models))
         self.world_options()  # its fields' own checks
         self.check_together()
 
@@ -199,13 +208,16 @@ class SampleRequest:
 
     def world_options(self) -> WorldOptions:
         """How a tile's world is made, and how finely the tile."""
-        return WorldOptions(self.arrange, self.heights, self.lod)
+        return WorldOptions(self.arrange, self.heights, self.lod, tuple(map(other_model, self.models)),
+                            self.models_map)
 
     def world_fields(self) -> list:
         """The names of the world's fields given other than their defaults
         (a job of many tiles holds them in a request without a tile)."""
         return [name for name, value in (("arrange", self.arrange != ARRANGEMENTS[0]),
-                                         ("heights", self.heights is not None), ("lod", self.lod)) if value]
+                                         ("heights", self.heights is not None), ("lod", self.lod),
+                                         ("models", self.models), ("models_map", self.models_map is not None))
+                if value]
 
     def edits(self) -> list:
         """The names of the edits given."""
@@ -224,6 +236,12 @@ class SampleRequest:
     def with_seed(self, seed: int) -> "SampleRequest":
         """The same request for another seed (a batch job's samples)."""
         return dataclasses.replace(self, seed=seed)
+
+
+@functools.lru_cache(maxsize=16)  # a world's models, read once per process (a worker's tiles all ask)
+def other_model(path: str):
+    """A world's other model, read from its file (checked as any model is)."""
+    return load_model(path)
 
 
 def resolved(model, request: SampleRequest) -> SampleRequest:
@@ -334,10 +352,13 @@ def warnings(model, request: SampleRequest) -> list:
 
 
 def world_request(model, seed: int, scale: float = 1.0, frame: str = "input", arrange: str | None = None,
-                  height_map=None, relief: float | None = None, lod: int = 0) -> SampleRequest:
+                  height_map=None, relief: float | None = None, lod: int = 0, models=(),
+                  models_map=None) -> SampleRequest:
     """The request of a world's tiles (no tile yet) as a front end is asked
     for it: the model's own arrangement unless one is given, the height map
-    read from its file (world.read_height_map)."""
+    and model map read from their files (world.read_height_map,
+    read_model_map), `models` the other models' files."""
     heights = read_height_map(height_map, model, relief) if height_map else None
+    placed = read_model_map(models_map) if models_map else None
     return SampleRequest(seed, scale=scale, frame=frame, arrange=arrange or model.manifest.arrange, heights=heights,
-                         lod=lod)
+                         lod=lod, models=tuple(str(path) for path in models), models_map=placed)

@@ -81,7 +81,10 @@ FILE_ANSWERS = {
 # The options of a sample request (runtime/options.py) the routes take other than
 # as a query parameter of their name: {option: where it goes}. The others are
 # `option_query`s; tests/test_options.py holds the routes to the table.
-SPELLED = {"layout": "the body of POST .../sample", "tile": "i and j", "heights": "the body of POST .../tile"}
+SPELLED = {"layout": "the body of POST .../sample", "tile": "i and j", "heights": "the body of POST .../tile",
+           # not taken (a query parameter of their names is refused, 422): a world of several models
+           # is made by `sinrun world` and from Python, whose model files a server does not take
+           "models": None, "models_map": None}
 
 
 def option_query(name: str, optional: bool = False, **settings):

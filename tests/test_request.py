@@ -72,7 +72,8 @@ def outcome(fields: dict) -> dict:
         names = list(error.parameter) if isinstance(error, ConflictError) else [error.parameter]
         return {"refused": {"error": type(error).__name__, "fields": names, "message": str(error)}}
     made = {field.name: getattr(request, field.name) for field in dataclasses.fields(request)}
-    made.update({name: list(made[name]) for name in ("size", "keep", "grow", "anchor", "tile") if made[name] is not None})
+    made.update({name: list(made[name]) for name in ("size", "keep", "grow", "anchor", "tile", "models")
+                 if made[name] is not None})
     if request.layout:
         made["layout"] = {"shape": list(request.layout.shape), "cells": request.layout.grid().ravel().astype(int).tolist()}
     if request.heights:

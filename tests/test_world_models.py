@@ -118,3 +118,36 @@ def test_a_bad_model_map_is_refused_in_one_line(still, options, says):
     for bad in ([[0.5]], [[-1]], [[256]], [[np.nan]], np.zeros((2, 2, 2)), [[]]):
         with pytest.raises(InputError, match="a model map"):
             world.ModelMap.of(bad)
+
+
+def test_world_writes_a_world_of_two_models_and_refuses_bad_model_maps(tiny_model, tiny_colour_model, tmp_path):
+    """`sinrun world FIRST SECOND --models-map`: each tile as the library makes it; an image map is
+    read as the array; a rerun with another second model is refused, naming it; bad maps in one line."""
+    from click.testing import CliRunner
+    from PIL import Image
+
+    from sinshape.cli.main import cli
+    from test_cli_train import assert_one_line_error
+
+    np.save(tmp_path / "map.npy", np.array([[0], [1]]))
+    Image.fromarray(np.array([[0, 1]], np.uint8)).save(tmp_path / "map.png")  # columns along the first axis
+    args = ["world", str(tiny_model), str(tiny_colour_model), "--arrange", "scatter", "--seed", "7", "--tiles", "7,0",
+            "--format", "npz", "--frame", "tile"]
+    for name in ("map.npy", "map.png"):
+        made = CliRunner().invoke(cli, [*args, "--models-map", str(tmp_path / name), "-o", str(tmp_path / name[-3:])])
+        assert made.exit_code == 0, made.output
+    assert world.read_model_map(tmp_path / "map.png") == SPLIT
+    grid = np.load(tmp_path / "npy" / "tile_7_0.npz")["occupancy"]
+    options = world.WorldOptions("scatter", models=(load_model(tiny_colour_model),), models_map=SPLIT)
+    assert np.array_equal(grid, world.tile_occupancy(load_model(tiny_model), 7, (7, 0), options=options))
+    assert np.array_equal(grid, np.load(tmp_path / "png" / "tile_7_0.npz")["occupancy"])
+    other = CliRunner().invoke(cli, ["world", str(tiny_model), str(tiny_model), *args[3:], "--models-map",
+                                     str(tmp_path / "map.npy"), "-o", str(tmp_path / "npy")])
+    assert_one_line_error(other, "records another job (models")
+    np.save(tmp_path / "bad.npy", np.array([[0], [2]]))
+    np.save(tmp_path / "half.npy", np.array([[0.5]]))
+    for extra, says in ((["--models-map", str(tmp_path / "bad.npy")], "names model 2"),
+                        (["--models-map", str(tmp_path / "half.npy")], "whole numbers"),
+                        ([], "need a model map"),
+                        (["--models-map", str(tmp_path / "map.npy"), "--arrange", "blend"], "for a scatter world")):
+        assert_one_line_error(CliRunner().invoke(cli, [*args, *extra, "-o", str(tmp_path / "bad")]), says)

@@ -18,6 +18,8 @@ export const OPTIONS = Object.freeze([
   {"name": "arrange", "type": "choice", "default": "blend", "help": "blend: samples blended into one continuing surface (terrain, rock, walls); scatter: whole samples at drawn places on a ground (a temple, a tower).", "goes_with": ["tile"], "low": null, "high": null, "bounds": "[]", "choices": ["blend", "scatter"]},
   {"name": "heights", "type": "heights", "default": null, "help": "The world's large shape: a height in voxels per tile.", "goes_with": ["tile"], "low": null, "high": null, "bounds": "[]", "choices": []},
   {"name": "lod", "type": "int", "default": 0, "help": "Levels of detail coarser than the finest: a distant tile, cheaper, with a skirt that hides the crack where it meets a finer one.", "goes_with": ["tile"], "low": 0, "high": null, "bounds": "[]", "choices": []},
+  {"name": "models", "type": "models", "default": [], "help": "A scattered world's other models (model files): model 1, 2, ... of its model map, the first model being 0.", "goes_with": ["tile"], "low": null, "high": null, "bounds": "[]", "choices": []},
+  {"name": "models_map", "type": "models_map", "default": null, "help": "Which model goes where in a scattered world: a model's index per tile (0 the first model); each object is drawn from the model its cell's centre's pixel names.", "goes_with": ["tile"], "low": null, "high": null, "bounds": "[]", "choices": []},
 ]);
 // The formats a sample is written in (core.files.OUTPUT_FORMATS).
 export const FORMATS = Object.freeze(["ply", "obj", "stl", "off", "glb", "npz"]);
