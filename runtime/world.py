@@ -199,6 +199,20 @@ def read_npy_map(data: bytes, name, field: str) -> np.ndarray:
                          field) from None
 
 
+def image_pixels(data: bytes, name, what: str, field: str, read):
+    """What `read(image)` takes from an image map's bytes, its size checked before its pixels are read."""
+    from PIL import Image, UnidentifiedImageError  # pillow: Blender's Python, which makes worlds, has none
+
+    try:
+        with Image.open(io.BytesIO(data)) as image:
+            if max(image.size) > MAX_MAP_SIDE:
+                raise InputError(f"{name}: {image.size[0]}x{image.size[1]} pixels; {what} has at most "
+                                 f"{MAX_MAP_SIDE} a side", field)
+            return read(image)
+    except (UnidentifiedImageError, OSError, Image.DecompressionBombError) as error:
+        raise InputError(f"{name}: not a readable image ({error})", field) from None
+
+
 def parse_height_map(data: bytes, suffix: str, name, relief: float | None = None) -> HeightMap:
     """A height map from a file's bytes: a greyscale image (.png: black 0,
     white `relief` voxels; its columns run along the first horizontal axis,
@@ -215,20 +229,11 @@ def parse_height_map(data: bytes, suffix: str, name, relief: float | None = None
     if suffix != ".png":
         raise InputError(f"{name}: a height map is a .png image or a .npy array, got {suffix or 'no extension'!r}",
                          "heights")
-    from PIL import Image, UnidentifiedImageError  # pillow: Blender's Python, which makes worlds, has none
-
     if relief is None or not (isinstance(relief, numbers.Real) and 0 < relief <= MAX_RELIEF):
         raise InputError(f"relief must be a number of voxels in (0, {MAX_RELIEF}] for an image, got {relief!r}",
                          "relief")
-    try:
-        with Image.open(io.BytesIO(data)) as image:
-            if max(image.size) > MAX_MAP_SIDE:
-                raise InputError(f"{name}: {image.size[0]}x{image.size[1]} pixels; a height map has at most "
-                                 f"{MAX_MAP_SIDE} a side", "heights")
-            wide = image.mode.startswith("I")
-            pixels = np.asarray(image if wide else image.convert("L"), np.float64)
-    except (UnidentifiedImageError, OSError, Image.DecompressionBombError) as error:
-        raise InputError(f"{name}: not a readable image ({error})", "heights") from None
+    wide, pixels = image_pixels(data, name, "a height map", "heights", lambda image: (
+        image.mode.startswith("I"), np.asarray(image if image.mode.startswith("I") else image.convert("L"), np.float64)))
     full = 65535.0 if wide else 255.0
     return HeightMap.of(np.flipud(np.clip(pixels, 0, full) / full).T * relief)
 
@@ -300,20 +305,14 @@ def parse_model_map(data: bytes, suffix: str, name) -> ModelMap:
     if suffix != ".png":
         raise InputError(f"{name}: a model map is a .png image or a .npy array, got {suffix or 'no extension'!r}",
                          "models_map")
-    from PIL import Image, UnidentifiedImageError
 
-    try:
-        with Image.open(io.BytesIO(data)) as image:
-            if max(image.size) > MAX_MAP_SIDE:
-                raise InputError(f"{name}: {image.size[0]}x{image.size[1]} pixels; a model map has at most "
-                                 f"{MAX_MAP_SIDE} a side", "models_map")
-            if image.mode not in ("P", "L", "I", "I;16", "1"):
-                raise InputError(f"{name}: a model map is a palette or greyscale image (a model's index per "
-                                 f"pixel), got mode {image.mode}", "models_map")
-            pixels = np.asarray(image)
-    except (UnidentifiedImageError, OSError, Image.DecompressionBombError) as error:
-        raise InputError(f"{name}: not a readable image ({error})", "models_map") from None
-    return ModelMap.of(np.flipud(pixels.astype(np.int64)).T)
+    def indices(image) -> np.ndarray:
+        if image.mode not in ("P", "L", "I", "I;16", "1"):
+            raise InputError(f"{name}: a model map is a palette or greyscale image (a model's index per pixel), "
+                             f"got mode {image.mode}", "models_map")
+        return np.asarray(image).astype(np.int64)
+
+    return ModelMap.of(np.flipud(image_pixels(data, name, "a model map", "models_map", indices)).T)
 
 
 def read_model_map(path) -> ModelMap:

@@ -118,6 +118,16 @@ def test_a_bad_model_map_is_refused_in_one_line(still, options, says):
     for bad in ([[0.5]], [[-1]], [[256]], [[np.nan]], np.zeros((2, 2, 2)), [[]]):
         with pytest.raises(InputError, match="a model map"):
             world.ModelMap.of(bad)
+    import io
+
+    from PIL import Image
+
+    coloured_image = io.BytesIO()
+    Image.new("RGB", (2, 2)).save(coloured_image, "png")
+    with pytest.raises(InputError, match="palette or greyscale image"):
+        world.parse_model_map(coloured_image.getvalue(), ".png", "map.png")
+    with pytest.raises(InputError, match="not a readable image"):
+        world.parse_model_map(b"not a png", ".png", "map.png")
 
 
 def test_world_writes_a_world_of_two_models_and_refuses_bad_model_maps(tiny_model, tiny_colour_model, tmp_path):
