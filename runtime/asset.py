@@ -135,7 +135,7 @@ def tile_field(model, seed: int, tile, options) -> bake.Field:
     def colour(points):
         return world.tile_colours(model, seed, tile, points, options)[:, :3]
 
-    return bake.Field(occupancy, colour if model.manifest.colour else None)
+    return bake.Field(occupancy, colour if world.coloured(model, options) else None)
 
 
 def dense_surface(model, request, threads: int | None = None, progress=None) -> Dense:

@@ -502,8 +502,11 @@ class Placed:
 
 
 def object_window(model, options: WorldOptions, seed: int, placed_object: Placed, level: int) -> tuple:
-    """An object's model, that model's cut, and the object's planes."""
+    """An object's model, that model's cut, and the object's planes at the
+    first model's `level` (in the object's model, as many levels from its
+    finest, or its coarsest)."""
     each, own = object_model(model, options, placed_object.model)
+    level = max(len(each.manifest.sizes) - len(model.manifest.sizes) + level, 0)
     return each, own, window(each, own, seed, *placed_object.cell, level, "scatter")
 
 

@@ -161,3 +161,26 @@ def test_world_writes_a_world_of_two_models_and_refuses_bad_model_maps(tiny_mode
                         ([], "need a model map"),
                         (["--models-map", str(tmp_path / "map.npy"), "--arrange", "blend"], "for a scatter world")):
         assert_one_line_error(CliRunner().invoke(cli, [*args, *extra, "-o", str(tmp_path / "bad")]), says)
+
+
+def test_a_coarser_tile_and_a_block_of_two_models(model, coloured, tiny_model, tiny_colour_model, tmp_path):
+    """At lod 1 each object is read at its own model's level as many from its finest, and the
+    tiles still share their faces; a block of a two-model world is one mesh, coloured by its objects' model
+    and grey on the ground."""
+    import trimesh
+
+    from sinshape.runtime import write
+    from sinshape.runtime.request import SampleRequest
+
+    coarse = world.WorldOptions("scatter", lod=1, models=(coloured,), models_map=SPLIT)
+    h0 = world.world_layout(model).horizontal[0]
+    a, b = (world.tile_occupancy(model, 7, t, options=coarse) for t in ((7, 0), (8, 0)))
+    assert np.array_equal(np.take(a, -1, h0), np.take(b, 0, h0))
+    fine = world.tile_occupancy(model, 7, (7, 0), options=world.WorldOptions("scatter", models=(coloured,),
+                                                                               models_map=SPLIT))
+    assert a.shape != fine.shape
+    request = SampleRequest(7, arrange="scatter", models=(str(tiny_colour_model),), models_map=SPLIT, frame="model")
+    write.write_block(model, request, [(7, 0), (8, 0), (7, 1), (8, 1)], tmp_path / "block.ply")
+    block = trimesh.load(tmp_path / "block.ply", process=False)
+    painted = np.asarray(block.visual.vertex_colors)[:, :3]
+    assert (painted != 128).any(axis=1).any() and (painted == 128).all(axis=1).any()
