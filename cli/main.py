@@ -441,9 +441,11 @@ def run_job(job, items, unit: str, name) -> None:
               help="Voxels from a .png map's black to its white. Default: 4 times the model's height.")
 @request_option("lod")
 @click.option(SPELLED["models_map"][1], type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
-              help=f"{OPTION['models_map'].help} A palette or greyscale .png (a pixel's value is the index, laid "
-                   "out as --map's) or a .npy array of indices, [i, j] for tile i,j. The other models follow the "
-                   "first: sinrun world FIRST SECOND ... --arrange scatter --models-map map.png.")
+              help="Which model goes where in a scattered world: a model's index per tile (0 the first model), "
+                   "as a palette or greyscale .png (a pixel's value is the index, laid out as --map's) or a .npy "
+                   "array of indices, [i, j] for tile i,j; each object is drawn from the model its cell's centre's "
+                   "pixel names. The other models follow the first: sinrun world FIRST SECOND ... --arrange "
+                   "scatter --models-map map.png.")
 @RESTART_OPTION
 @asset_options
 def world(model, others, seed, tiles, output, suffix, scale, frame, threads, workers, engine, address, arrange,

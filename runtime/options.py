@@ -121,11 +121,11 @@ OPTIONS = (
     Option("heights", "heights", None, "The world's large shape: a height in voxels per tile.", ("tile",)),
     Option("lod", "int", 0, "Levels of detail coarser than the finest: a distant tile, cheaper, with a skirt "
            "that hides the crack where it meets a finer one.", ("tile",), 0),
-    Option("models", "models", (), "A scattered world's other models (model files): model 1, 2, ... of its model "
-           "map, the first model being 0.", ("tile",)),
+    Option("models", "models", (), "A scattered world's other models (model files; a server's by name): model "
+           "1, 2, ... of its model map, the first model being 0.", ("tile",)),
     Option("models_map", "models_map", None, "Which model goes where in a scattered world: a model's index per "
-           "tile (0 the first model); each object is drawn from the model its cell's centre's pixel names.",
-           ("tile",)),
+           "tile (0 the first model); each object is drawn from the model its cell's centre's pixel names "
+           "(a query's text: rows parted by ';', a row's pixels by ','; 0,1;1,0).", ("tile",)),
 )
 OPTION = {option.name: option for option in OPTIONS}
 

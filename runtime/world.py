@@ -283,6 +283,19 @@ class ModelMap:
             raise InputError(f"a model map holds models' indices, whole numbers 0 to {MAX_MODELS - 1}", "models_map")
         return cls(tuple(int(n) for n in values.shape), values.astype(np.uint8).tobytes())
 
+    @classmethod
+    def of_text(cls, text: str) -> "ModelMap":
+        """A map written as text, rows (along the first horizontal axis) parted
+        by ';' and a row's pixels by ',': '0,1;1,0'."""
+        try:
+            rows = [[int(pixel) for pixel in row.split(",")] for row in text.split(";")]
+        except ValueError:
+            rows = None
+        if not rows or len({len(row) for row in rows}) != 1:
+            raise InputError(f"a model map's text is rows of whole numbers, ',' between pixels and ';' between "
+                             f"rows, all rows as long (0,1;1,0), got {text[:40]!r}", "models_map")
+        return cls.of(rows)
+
     def array(self) -> np.ndarray:
         """(R, C) uint8."""
         return np.frombuffer(self.data, np.uint8).reshape(self.shape)

@@ -81,10 +81,7 @@ FILE_ANSWERS = {
 # The options of a sample request (runtime/options.py) the routes take other than
 # as a query parameter of their name: {option: where it goes}. The others are
 # `option_query`s; tests/test_options.py holds the routes to the table.
-SPELLED = {"layout": "the body of POST .../sample", "tile": "i and j", "heights": "the body of POST .../tile",
-           # not taken (a query parameter of their names is refused, 422): a world of several models
-           # is made by `sinrun world` and from Python, whose model files a server does not take
-           "models": None, "models_map": None}
+SPELLED = {"layout": "the body of POST .../sample", "tile": "i and j", "heights": "the body of POST .../tile"}
 
 
 def option_query(name: str, optional: bool = False, **settings):
@@ -95,6 +92,7 @@ def option_query(name: str, optional: bool = False, **settings):
     read by the runtime as the command line reads them."""
     option = OPTION[name]
     kind = {"seed": int, "bool": bool, "int": int, "number": float, "factors": str, "parts": list[str],
+            "models": list[str], "models_map": str,
             "choice": Literal[option.choices] if option.choices else None}[option.type]
     if optional or option.default is None:
         kind = kind | None
@@ -332,12 +330,17 @@ class TileQuery:
                          "its origin.") = "tile"
     arrange: option_query("arrange", optional=True) = None  # None: what the model records, else blend
     lod: option_query("lod") = 0
+    models: option_query("models") = ()  # this server's models by name, once each: models=a&models=b
+    models_map: option_query("models_map") = None  # as text: 0,1;1,0
 
 
 async def tile_answer(request: Request, q: TileQuery, heights=None, asset=None) -> Response:
     model = find(request, q.name)
+    placed = None if q.models_map is None else world.ModelMap.of_text(q.models_map)
     wanted = SampleRequest.of(dict(seed=q.seed, scale=q.scale, frame=q.frame, tile=(q.i, q.j),
-                                   arrange=q.arrange or model.manifest.arrange, heights=heights, lod=q.lod))
+                                   arrange=q.arrange or model.manifest.arrange, heights=heights, lod=q.lod,
+                                   models=tuple(str(find(request, other).path) for other in q.models),
+                                   models_map=placed))
     response = await answer(request, model, Job(q.name, wanted, q.format, asset=asset))
     response.headers["X-Tile-Corner"] = ",".join(map(str, world.tile_corner(model, (q.i, q.j))))
     return response

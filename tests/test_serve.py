@@ -543,7 +543,8 @@ def test_a_tile_is_the_runtimes_tile_with_its_corner_and_etag(server):
     assert get(url, {"If-None-Match": headers["ETag"]})[0] == 304
     params = {p["name"] for p in json.loads(get(f"{base}/openapi.json")[2])["paths"]["/api/models/{name}/tile"]["get"]
               ["parameters"]}
-    assert params == {"name", "i", "j", "seed", "scale", "format", "frame", "arrange", "lod", "lods", "texture", "ao"}
+    assert params == {"name", "i", "j", "seed", "scale", "format", "frame", "arrange", "lod", "lods", "texture", "ao",
+                      "models", "models_map"}
     for query, code, says in (("i=0", 422, "j: Field required"), (f"i={2**62}&j=0", 422, "i: Input should be less"),
                               ("i=100000000&j=0&frame=input", 400, "give frame tile"), ("i=0&j=0&lod=9", 400, "lod must be 0 to 3"),
                               ("i=0&j=0&arrange=spread", 422, "arrange: Input should be 'blend' or 'scatter'")):
@@ -560,3 +561,15 @@ def test_a_tile_is_the_runtimes_tile_with_its_corner_and_etag(server):
     assert "_scatter_map" in headers["Content-Disposition"] and "_lod1." in headers["Content-Disposition"]
     status, _, body = post(f"{base}/api/models/terrain/tile?i=0&j=0", b"GIF89a")
     assert status == 400 and "neither a .npy array nor a .png image" in json.loads(body)["detail"]
+    # A world of several models: the others this server's, by name, and the model map as text.
+    status, headers, body = get(f"{base}/api/models/terrain/tile?seed=4&i=2&j=1&format=ply&arrange=scatter"
+                                f"&models=terrain&models_map=0,1;1,0")
+    wanted = SampleRequest(4, tile=(2, 1), frame="tile", arrange="scatter", models=(str(models.find("terrain")),),
+                           models_map=world.ModelMap.of([[0, 1], [1, 0]]))
+    assert status == 200 and body == write.request_bytes(terrain, wanted, "t.ply")[0]
+    for query, code, says in (("models=moon&models_map=0,1", 404, "unknown model 'moon'"),
+                              ("models=terrain&models_map=0,1;2", 400, "a model map's text is rows"),
+                              ("models=terrain&models_map=0,2", 400, "names model 2"),
+                              ("models=terrain", 400, "need a model map")):
+        status, _, body = get(f"{base}/api/models/terrain/tile?i=0&j=0&arrange=scatter&{query}")
+        assert status == code and says in json.loads(body)["detail"], body
