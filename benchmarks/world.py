@@ -1,7 +1,7 @@
 """Endless worlds, measured: seams, cost at any distance, and quality.
 
     python benchmarks/world.py [--models terrain acropolis towerruins] [--block 4] [--windows 100]
-                               [--sections seams cost quality repetition] [--blend 1.0]
+                               [--sections seams cost quality repetition map models] [--blend 1.0]
 
 Seams: a block of tiles at scale 1 and 2: the largest occupancy difference
 on shared faces, border vertices matched, and whether the block's union is
@@ -16,6 +16,10 @@ field (evaluate.height_autocorrelation) along each horizontal axis of long
 strips of tiles at S/2 and at the tile period S and its multiples, beside
 ordinary samples as long; and the relief (the spread of column heights) at
 tile corners, at tile centres and over ordinary samples.
+Models: a scattered world of the model and the next one of --models (the
+first's after the last), placed by a checkerboard model map of 4 x 4
+tiles a square: a tile's seconds near the origin and 10^15 tiles out
+beside the model's world alone (alternately, best of 3, nothing kept).
 --blend sets world.BLEND (the share of a stride over which one window gives
 way to the next) for a comparison.
 """
@@ -301,6 +305,32 @@ def large_shape(model, options, tiles: int = 32, relief_factor: float = 4.0) -> 
     return out
 
 
+def several_models(model, other, name: str, other_name: str) -> dict:
+    """Seconds of a tile (mesh, normals and all, nothing kept), the mean
+    over 48 tiles near the origin and 10^15 tiles out, of a scattered world
+    of `model` alone and of `model` and `other` on a checkerboard, measured
+    alternately, best of 3."""
+    checkers = (np.indices((16, 16)).sum(axis=0) // 4) % 2
+    worlds = {f"{name} alone": world.WorldOptions("scatter"),
+              f"{name} + {other_name}": world.WorldOptions("scatter", models=(other,),
+                                                            models_map=world.ModelMap.of(checkers))}
+    places = {"near the origin": (0, 0), "10^15 tiles out": (10**15, -10**15)}
+    best = {}
+    for _ in range(3):
+        for label, options in worlds.items():
+            for where, (i0, j0) in places.items():
+                seconds = 0
+                tiles = [(i0 + i, j0 + j) for i in range(8) for j in range(6)]
+                for tile in tiles:
+                    world._windows.clear()
+                    world._colourings.clear()
+                    started = time.perf_counter()
+                    world.tile_surface(model, 3, tile, options=options)
+                    seconds += (time.perf_counter() - started) / len(tiles)
+                best[label, where] = min(best.get((label, where), np.inf), seconds)
+    return {f"a tile of {label}, {where} (mean of 48): s": f"{seconds:.3f}" for (label, where), seconds in best.items()}
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--models", nargs="+", default=["terrain", "acropolis", "towerruins"])
@@ -318,8 +348,9 @@ def main():
         if getattr(args, name) is not None:
             setattr(world, name.upper(), getattr(args, name))
     print(f"world.BLEND = {world.BLEND}, CONTRAST = {world.CONTRAST}, PITCH = {world.PITCH}, PRESENCE = {world.PRESENCE}")
-    for name in args.models:
+    for number, name in enumerate(args.models):
         model = load_model(models.find(name))
+        other_name = args.models[(number + 1) % len(args.models)]
         options = world.WorldOptions(arrange=args.arrange or model.manifest.arrange)
         layout = world.world_layout(model)
         print(f"\n## {name}: up {model.manifest.up}, tiles of {layout.stride[layout.horizontal[0]]} x "
@@ -330,7 +361,9 @@ def main():
             figures = {"seams": lambda: seams(model, args.block, options), "cost": lambda: cost(model, name, options),
                        "quality": lambda: quality(model, name, args.windows, options),
                        "repetition": lambda: repetition(model, options),
-                       "map": lambda: large_shape(model, options)}[section]()
+                       "map": lambda: large_shape(model, options),
+                       "models": lambda: several_models(model, load_model(models.find(other_name)), name,
+                                                        other_name)}[section]()
             for key, value in figures.items():
                 print(f"| {key} | {value} |", flush=True)
 
