@@ -408,7 +408,7 @@ def run_job(job, items, unit: str, name) -> None:
 
 @cli.command()
 @MODEL_ARGUMENT
-@click.argument(SPELLED["models"][0], nargs=-1)
+@click.argument(SPELLED["models"][0], nargs=-1, metavar="[MODEL]...")
 @request_option("seed", default=0, help="The world's seed: the same seed, the same world.")
 @click.option(*reversed(SPELLED["tile"]), type=TILES, required=True, metavar="I0:I1,J0:J1",
               help="The tiles to write, both ends included: -8:8,-8:8 is 17 x 17 tiles around the origin; 3,4 "

@@ -599,6 +599,9 @@ def write_tiles(model_path, tiles, pattern, request, engine: str = "local", work
     Returns {"written", "skipped", "index"}."""
     if request.tile is not None:
         raise InputError("give the tiles to write, not one tile in the request", "tile")
+    if engine == "ray" and request.models:
+        raise InputError("a Ray cluster is sent the first model only: write a world of several models on this "
+                         "machine's cores (engine local)", "models")
     tiles = iter(tiles)
     first = next(tiles, None)
     if first is None:

@@ -159,7 +159,8 @@ def test_world_writes_a_world_of_two_models_and_refuses_bad_model_maps(tiny_mode
     for extra, says in ((["--models-map", str(tmp_path / "bad.npy")], "names model 2"),
                         (["--models-map", str(tmp_path / "half.npy")], "whole numbers"),
                         ([], "need a model map"),
-                        (["--models-map", str(tmp_path / "map.npy"), "--arrange", "blend"], "for a scatter world")):
+                        (["--models-map", str(tmp_path / "map.npy"), "--arrange", "blend"], "for a scatter world"),
+                        (["--models-map", str(tmp_path / "map.npy"), "--engine", "ray"], "engine local")):
         assert_one_line_error(CliRunner().invoke(cli, [*args, *extra, "-o", str(tmp_path / "bad")]), says)
 
 
