@@ -456,7 +456,9 @@ def world(model, others, seed, tiles, output, suffix, scale, frame, threads, wor
     not its up axis: `sinrun info` names it). Every tile depends only on the
     model, the seed, the map and its place, so tiles join without a crack
     whatever was made before, and a tile a billion tiles away costs what
-    tile 0,0 costs.
+    tile 0,0 costs. Several models scatter their objects over one world
+    where a model map says: sinrun world FIRST SECOND --arrange scatter
+    --models-map map.png.
     """
     from sinshape import models
     from sinshape.runtime import asset as assets, many, request as requests, write
