@@ -100,7 +100,7 @@ def test_each_object_is_coloured_by_its_own_model(model, coloured, two_kinds):
     right = world.tile_surface(model, 7, FAR_RIGHT, options=two_kinds)
     grey = np.array(world.colour_bytes(np.array([world.GROUND_COLOUR], np.float32))[0])
     assert len(left.faces) and (left.colours == grey).all()
-    assert (right.colours != grey).any(axis=1).mean() > 0.2
+    assert (right.colours != grey).any(axis=1).sum() >= 20  # its object's surface (the rest is ground): coloured
     up = world.world_layout(model).up
     cut = world.world_layout(coloured)
     assert right.vertices[:, up].max() > world.world_layout(model).stride[up]
