@@ -351,6 +351,8 @@ def test_a_format_5_tiles_colours_are_pythons_at_the_same_vertices(colour_page, 
     colours = unb64(made["colours"], np.float32, 3)
     ours = []
     _, _, ground = world.point_field(coloured, seed, tile, positions, options, ours)
+    assert all(k == 0 for (*_, k), _, _ in ours)  # a world of one model: its objects are all model 0's
+    ours = [((a, b, arrange_of), index, cells) for (a, b, arrange_of, _), index, cells in ours]
     theirs = [((int(s["key"][0]), int(s["key"][1]), s["key"][2]), unb64(s["index"], np.int32, 1)[:, 0],
                unb64(s["cells"], np.float64, 3)) for s in made["sources"]]
     ours, planes = by_window(ours), {tuple(s["key"]): s["planes"] for s in made["sources"]}
