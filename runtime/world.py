@@ -1300,6 +1300,10 @@ def block_mesh(model, request, tiles, progress=None, memory_limit: int | None = 
     unique, index = np.unique(np.concatenate(vertices), axis=0, return_inverse=True)
     index = index.reshape(-1)
     faces = index[np.concatenate(faces)]
+    # A grid value exactly at the level (a scatter world's ground has them)
+    # puts several of a cell's vertices on one grid point: welded, their
+    # faces have no area and would share edges thrice. Dropped, the block is closed.
+    faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 2] != faces[:, 0])]
     if request.frame == "input":
         unique = np.asarray(model.manifest.origin) + unique * np.asarray(model.manifest.spacing)
     mesh = trimesh.Trimesh(unique, faces, process=False)

@@ -163,6 +163,17 @@ def test_world_refuses_far_tiles_in_absolute_coordinates_in_one_line(tiny_model,
     assert not list((tmp_path / "w").glob("*.ply"))
 
 
+@pytest.mark.parametrize("name", ["towerruins", "acropolis"])
+def test_a_scattered_worlds_block_is_closed(name):
+    """A scatter world's ground holds grid values exactly at the level: the
+    faces they make have no area once the block is welded, and are dropped."""
+    from sinshape import models
+
+    loaded = load_model(models.find(name), threads=1)
+    block = world.block_mesh(loaded, SampleRequest(3, arrange="scatter"), [(0, 0), (0, 1), (1, 0), (1, 1)])
+    assert block.is_watertight and block.volume > 0
+
+
 def test_a_block_written_as_one_mesh_is_closed_and_placed(tiny_model, model, tmp_path):
     import trimesh
 
