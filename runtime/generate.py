@@ -199,26 +199,33 @@ class Noise:
     planes: list
 
 
-def draw_noise(seed: int, sizes: list, channels: int) -> Noise:
-    """The noise a seed stands for, at the given level sizes."""
+def draw_noise(seed: int, sizes: list, channels: int, first: int = 0) -> Noise:
+    """The noise a seed stands for, at the given level sizes, from level
+    `first` on (a chain resumed past level 0 needs none before it: None)."""
     planes = [None] + [
         [noise.plane_noise(seed, level, k, channels, shape) for k, shape in enumerate(plane_sizes(size))]
+        if level >= first else None
         for level, size in enumerate(sizes) if level > 0
     ]
-    return Noise(noise.z0_noise(seed, sizes[0]), planes)
+    return Noise(noise.z0_noise(seed, sizes[0]) if first == 0 else None, planes)
 
 
-def triplane(model, sample: Noise, sizes: list, after_level=None) -> TriPlane:
+def triplane(model, sample: Noise, sizes: list, after_level=None, start: tuple | None = None) -> TriPlane:
     """Chain the levels with the given noise: the final tri-plane.
     `after_level(level, planes)`, if given, sees each level's planes and
-    returns the planes the chain goes on from (editing blends parts in)."""
+    returns the planes the chain goes on from (editing blends parts in).
+    `start` (level, planes): that level's planes, made before, to go on
+    from (a world's window made finer): the same planes as from level 0."""
     m = model.manifest
     amps = m.noise_amps
     after_level = after_level or (lambda level, planes: planes)
-    pooled = adaptive_pool(amps[0] * sample.z0, m.pool_bins)
-    projected = model.projection.run([p[None] for p in pooled])  # 3 x (1, C, H, W)
-    planes = after_level(0, [p[0] for p in model.levels[0].run(projected)])
-    for level in range(1, len(sizes)):
+    if start is None:
+        pooled = adaptive_pool(amps[0] * sample.z0, m.pool_bins)
+        projected = model.projection.run([p[None] for p in pooled])  # 3 x (1, C, H, W)
+        first, planes = 1, after_level(0, [p[0] for p in model.levels[0].run(projected)])
+    else:
+        first, planes = start[0] + 1, start[1]
+    for level in range(first, len(sizes)):
         upsampled = [resize_plane(p, s) for p, s in zip(planes, plane_sizes(sizes[level]))]
         inputs = upsampled
         if sample.planes[level] is not None:

@@ -392,12 +392,14 @@ def check_lod(model, lod: int) -> int:
 class Window:
     """One window's (blend) or object's (scatter) planes at the level a tile
     reads: 3 x (H, W, D) float32, its final planes times the decoder's first
-    layer; its mean over its horizontal extent at each height, (U, D); and
-    per axis how many of the level's cells a finest voxel is."""
+    layer; its mean over its horizontal extent at each height, (U, D); per
+    axis how many of the level's cells a finest voxel is; and the chain's
+    own planes at that level, which a finer level of the window goes on from."""
 
     planes: list
     mean: np.ndarray
     cells: tuple  # (3,) level cells per finest voxel
+    chain: list  # 3 x (C, H, W) float32: the generator's planes at the level
 
 
 def window_sizes(model, layout: Layout, arrange: str) -> list:
@@ -421,8 +423,12 @@ def window(model, layout: Layout, seed: int, a: int, b: int, level: int, arrange
         _windows.move_to_end(key)
         return _windows[key][1]
     sizes = window_sizes(model, layout, arrange)
-    made = triplane(model, draw_noise(window_seed(seed, a, b), sizes[:level + 1], model.manifest.channels),
-                    sizes[:level + 1])
+    # A coarser level of the window made before (a far tile come nearer) is
+    # gone on from: the same planes as the whole chain, the levels below not run again.
+    start = next(((coarser, _windows[key[:3] + (coarser, a, b)][1].chain) for coarser in range(level - 1, -1, -1)
+                  if key[:3] + (coarser, a, b) in _windows), None)
+    made = triplane(model, draw_noise(window_seed(seed, a, b), sizes[:level + 1], model.manifest.channels,
+                                      first=start[0] + 1 if start else 0), sizes[:level + 1], start=start)
     planes = project(model, made).planes
     means = []
     for plane, axes in zip(planes, PLANE_AXES):
@@ -432,7 +438,7 @@ def window(model, layout: Layout, seed: int, a: int, b: int, level: int, arrange
             means.append(plane.mean(axis=1 - axes.index(layout.up)))  # (U, D)
     mean = np.broadcast_to(sum(means), (sizes[level][layout.up], model.manifest.hidden)).astype(np.float32)
     cells = tuple((n - 1) / (f - 1) for n, f in zip(sizes[level], sizes[-1]))
-    _windows[key] = (model, Window(planes, mean, cells))  # the model is held, so its id names it while the entry lives
+    _windows[key] = (model, Window(planes, mean, cells, made.planes))  # the model is held, so its id names it while the entry lives
     while len(_windows) > WINDOWS_KEPT:
         _windows.popitem(last=False)
     return _windows[key][1]

@@ -575,8 +575,9 @@ def test_edit_the_layout_as_blocks(page, terrain, tmp_path):
 
 
 def test_the_world_mode_takes_its_tiles_from_the_tile_route(page, terrain):
-    """World mode on the server: each tile is the tile route's (the Python runtime's own mesh), no
-    browser runtime is loaded, and the download link is the camera's tile, following it."""
+    """World mode on the server: each tile is the tile route's (the Python runtime's own mesh), shown
+    first at the coarsest level, no browser runtime is loaded, and the download link is the camera's
+    tile, following it."""
     from sinshape.runtime import world
 
     page.goto(f"{page.base}/?seed=3&up=z&edit=world&at=-3,7&reach=1")
@@ -584,7 +585,10 @@ def test_the_world_mode_takes_its_tiles_from_the_tile_route(page, terrain):
     requested = [url.removeprefix(page.base) for url in
                  page.evaluate("performance.getEntriesByType('resource').map((entry) => entry.name)")]
     tiles = [url for url in requested if url.startswith("/api/models/terrain/tile?")]
-    assert len(tiles) == 9 and "/api/models/terrain/tile?i=-3&j=7&seed=3&scale=1&format=glb&frame=tile" in tiles
+    full = [url for url in tiles if "lod=" not in url]  # each asked for at the coarsest level first, shown, then at full
+    coarsest = len(terrain.manifest.sizes) - 1
+    assert len(full) == 9 and "/api/models/terrain/tile?i=-3&j=7&seed=3&scale=1&format=glb&frame=tile" in full
+    assert sorted(url.replace(f"&lod={coarsest}", "") for url in tiles if url not in full) == sorted(full)
     assert not [url for url in requested if "onnxruntime-web" in url or url.endswith(("/model.js", "/worker.js"))]
     assert sorted((int(i), int(j)) for i, j, *_ in status["tiles"]) == [(i, j) for i in (-4, -3, -2) for j in (6, 7, 8)]
     for i, j, faces, *_ in status["tiles"]:

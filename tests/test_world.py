@@ -40,6 +40,23 @@ def test_neighbours_agree_on_their_shared_faces_to_the_bit(model, scale):
     assert not np.array_equal(grids[2, -1], grids[3, 0])  # and they are not the same tile
 
 
+def test_a_window_made_finer_goes_on_from_its_coarser_level_to_the_same_planes(model, fresh, monkeypatch):
+    """A far tile come nearer: its windows' finer level runs only the levels
+    past the coarser one kept, and gives the planes of the whole chain."""
+    layout = world.world_layout(model)
+    finest = len(model.manifest.sizes) - 1
+    whole = world.window(model, layout, 5, 2, -1, finest)
+    world._windows.clear()
+    starts = []
+    monkeypatch.setattr(world, "triplane", lambda *args, start=None: starts.append(start and start[0])
+                        or generate.triplane(*args, start=start))
+    world.window(model, layout, 5, 2, -1, finest - 1)
+    refined = world.window(model, layout, 5, 2, -1, finest)
+    assert starts == [None, finest - 1]
+    for a, b in zip(whole.planes + whole.chain, refined.planes + refined.chain):
+        assert np.array_equal(a, b)
+
+
 def block_mesh(model, seed, tiles, scale=1.0):
     """Tiles' meshes put together by their exact corners: (vertices, faces) with shared vertices merged."""
     vertices, faces = [], []
@@ -86,8 +103,8 @@ def test_a_far_tile_does_the_work_a_near_one_does(model, fresh, monkeypatch):
     not here: a timed test fails when the machine is busy, not when the code
     is wrong."""
     drawn = []
-    monkeypatch.setattr(world, "draw_noise",
-                        lambda *args: drawn.append([tuple(size) for size in args[1]]) or generate.draw_noise(*args))
+    monkeypatch.setattr(world, "draw_noise", lambda *args, **kw: drawn.append([tuple(size) for size in args[1]])
+                        or generate.draw_noise(*args, **kw))
     work = []
     for tile in ((0, 0), (10**9, -10**9)):
         drawn.clear()
@@ -291,7 +308,7 @@ def test_a_coarser_tile_is_cheaper_and_its_skirt_covers_the_crack(fresh, monkeyp
     layout = world.world_layout(terrain)
     h0, h1, up = *layout.horizontal, layout.up
     drawn = []
-    monkeypatch.setattr(world, "draw_noise", lambda *args: drawn.append(args) or generate.draw_noise(*args))
+    monkeypatch.setattr(world, "draw_noise", lambda *args, **kw: drawn.append(args) or generate.draw_noise(*args, **kw))
     coarsest = len(terrain.manifest.sizes) - 1
     counted = []
     for lod in (0, coarsest):
@@ -342,7 +359,7 @@ def test_a_tiles_normals_make_none_of_its_neighbours_windows(model, fresh, monke
     """A blended tile, normals and all, makes its own four windows and no other (the points of a
     normal just past a face read only the face's window, which holds the whole weight there)."""
     made = []
-    monkeypatch.setattr(world, "draw_noise", lambda *args: made.append(args[0]) or generate.draw_noise(*args))
+    monkeypatch.setattr(world, "draw_noise", lambda *args, **kw: made.append(args[0]) or generate.draw_noise(*args, **kw))
     surface = world.tile_surface(model, 4, (3, -2))
     assert len(surface.normals) == len(surface.vertices) > 100
     assert sorted(made) == sorted(world.window_seed(4, a, b) for a in (2, 3) for b in (-3, -2))

@@ -112,14 +112,18 @@ def test_neighbouring_tiles_agree_on_their_shared_faces_to_the_bit(site_page, te
 
 def test_a_tile_does_not_depend_on_what_was_made_before(site_page):
     """The same bytes made first, after its neighbours and a far tile (its windows kept from them),
-    and again with no window kept; two tiles side by side share two of their windows."""
+    again with no window kept, and after the same tile at coarser levels of detail (its windows made
+    finer from theirs); two tiles side by side share two of their windows."""
     tile = (7, -4)
     (first,) = tiles_in_page(site_page, "terrain", 11, [tile], fresh=True)
     assert site_page.kept_windows == 4
     others = tiles_in_page(site_page, "terrain", 11, [(8, -4), (6, -5), (10**9, 3), tile])
     assert site_page.kept_windows == 4 + 2 + 3 + 4  # (8, -4) shares two windows with the tile, (6, -5) one
     (fresh,) = tiles_in_page(site_page, "terrain", 11, [tile], fresh=True)
-    for again in (others[-1], fresh):
+    tiles_in_page(site_page, "terrain", 11, [tile], fresh=True, options={"lod": 2})
+    tiles_in_page(site_page, "terrain", 11, [tile], options={"lod": 1})
+    (finer,) = tiles_in_page(site_page, "terrain", 11, [tile])  # its windows' chains gone on from lod 1's
+    for again in (others[-1], fresh, finer):
         for made, expected in zip(again[:3], first[:3]):
             assert made.tobytes() == expected.tobytes()
 
@@ -234,6 +238,8 @@ def test_the_page_flies_over_a_far_world_nearest_first_in_bounded_memory(site_pa
     distance = lambda i, j: math.hypot((int(i) - 10**9 - ahead) * size[0], (int(j) + 10**9) * size[1])  # noqa: E731
     by_order = [distance(i, j) for i, j, *_ in sorted(status["tiles"], key=lambda t: t[3])]
     assert by_order == sorted(by_order) and [t[4] for t in status["tiles"]] == [0] * 9
+    # Each shown first at the coarsest level: the nine made finer last, one after the other.
+    assert sorted(t[3] for t in status["tiles"]) == list(range(first - 8, first + 1)) and status["shown"] == 9
     assert status["farthest"] <= math.hypot(*size) * 1.01  # placed from the camera's tile, not at 10^9 tiles
 
     # Fly on, a tile at a time: tiles behind are dropped and disposed, memory stays bounded by the
@@ -249,7 +255,8 @@ def test_the_page_flies_over_a_far_world_nearest_first_in_bounded_memory(site_pa
         assert counts[-1] <= bound and len(status["tiles"]) <= 5 * 5
         assert status["farthest"] <= 2 * math.hypot(*size) * 1.01
         assert abs(status["camera"][0]) <= size[0] and abs(status["camera"][2]) <= size[1]  # within its tile
-    assert status["dropped"] >= 6 and status["made"] == first + 6 * 3  # a column of three a step, none made twice
+    # A column of three a step, each made coarse and then fine, none more often.
+    assert status["dropped"] >= 6 and status["made"] == first + 6 * 3 * 2
     print(f"GPU geometries flying 6 tiles on: {counts} (bound {bound}, before the world {before['geometries']})")
     page.select_option("#edit", "")
     assert wait_done(page) == "ready", page.text_content("#error")

@@ -117,11 +117,12 @@ export function resizePlane(plane, [h, w]) {
   return { data: out, dims: [c, h, w] };
 }
 
-/** The noise a seed stands for: { z0, planes: [null, [3 x (C, H, W)] per level > 0] }. */
-export function drawNoise(seed, sizes, channels) {
-  const planes = sizes.map((size, level) => (level === 0 ? null
+/** The noise a seed stands for: { z0, planes: [null, [3 x (C, H, W)] per level > 0] }, from level
+ * `first` on (a chain resumed past level 0 needs none before it: null), as generate.draw_noise. */
+export function drawNoise(seed, sizes, channels, first = 0) {
+  const planes = sizes.map((size, level) => (level === 0 || level < first ? null
     : planeSizes(size).map((shape, k) => planeNoise(seed, level, k, channels, shape))));
-  return { z0: z0Noise(seed, sizes[0]), planes };
+  return { z0: first === 0 ? z0Noise(seed, sizes[0]) : null, planes };
 }
 
 const batch = (plane) => ({ data: plane.data, dims: [1, ...plane.dims] });
@@ -131,14 +132,19 @@ const unbatch = (t) => ({ data: t.data, dims: Array.from(t.dims).slice(1) });
  * Chain the levels with the given noise: the final tri-plane { planes, size }.
  * afterLevel(level, planes), if given, returns the planes the chain goes on
  * from (editing blends parts in), as runtime/generate.py's after_level.
+ * start, { level, planes }: that level's planes, made before, to go on from
+ * (a world's window made finer), as its `start`.
  */
-export async function triplane(model, noise, sizes, afterLevel = (level, planes) => planes) {
+export async function triplane(model, noise, sizes, afterLevel = (level, planes) => planes, start = null) {
   const m = model.manifest, amps = m.noiseAmps;
-  const z0 = noise.z0.map((v) => Math.fround(amps[0] * v));
-  const pooled = adaptivePool(z0, sizes[0], m.poolBins);
-  const projected = await model.projection.run(pooled.map(batch));
-  let planes = afterLevel(0, (await model.levels[0].run(projected)).map(unbatch));
-  for (let level = 1; level < sizes.length; level++) {
+  let planes = start?.planes;
+  if (!start) {
+    const z0 = noise.z0.map((v) => Math.fround(amps[0] * v));
+    const pooled = adaptivePool(z0, sizes[0], m.poolBins);
+    const projected = await model.projection.run(pooled.map(batch));
+    planes = afterLevel(0, (await model.levels[0].run(projected)).map(unbatch));
+  }
+  for (let level = start ? start.level + 1 : 1; level < sizes.length; level++) {
     const upsampled = planes.map((p, k) => resizePlane(p, planeSizes(sizes[level])[k]));
     let inputs = upsampled;
     if (noise.planes[level]) {

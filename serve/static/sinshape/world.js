@@ -156,14 +156,24 @@ function kept(cache, model, key, make) {
  * Window (a, b) (or scatter cell (a, b)'s object), its chain stopped at
  * `level`, as world.window: { planes: 3 x { data, dims: [H, W, D] } (times
  * the decoder's first layer), mean: (U, D) its mean over its horizontal
- * extent at each height, cells: [3] level cells per finest voxel }.
+ * extent at each height, cells: [3] level cells per finest voxel, chain: the
+ * generator's planes at the level, which a finer level of it goes on from }.
  */
 export function windowAt(model, layout, seed, a, b, level, arrange) {
-  return kept(windows, model, `${seed}|${arrange}|${level}|${a}|${b}`, async () => {
+  const named = (l) => `${seed}|${arrange}|${l}|${a}|${b}`;
+  return kept(windows, model, named(level), async () => {
     const sizes = windowSizes(model.manifest, layout, arrange).slice(0, level + 1);
-    const tri = await triplane(model, drawNoise(windowSeed(seed, a, b), sizes, model.manifest.channels), sizes);
+    // A coarser level of the window made before (a far tile come nearer) is gone on
+    // from: the same planes as the whole chain, the levels below not run again.
+    let start = null;
+    for (let coarser = level - 1; coarser >= 0 && !start; coarser--) {
+      const found = windows.get(`${modelIds.get(model)}|${named(coarser)}`);
+      if (found) start = { level: coarser, planes: (await found).chain };
+    }
+    const noise = drawNoise(windowSeed(seed, a, b), sizes, model.manifest.channels, start ? start.level + 1 : 0);
+    const tri = await triplane(model, noise, sizes, undefined, start);
     const { planes } = await project(model, tri);
-    return { planes, mean: windowMean(planes, layout, sizes[level][layout.up], model.manifest.hidden),
+    return { planes, mean: windowMean(planes, layout, sizes[level][layout.up], model.manifest.hidden), chain: tri.planes,
              cells: [0, 1, 2].map((axis) => (sizes[level][axis] - 1) / (windowSizes(model.manifest, layout, arrange).at(-1)[axis] - 1)) };
   });
 }

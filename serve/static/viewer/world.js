@@ -2,7 +2,9 @@
 // endless world of the model and seed. Tiles are made around the camera,
 // those ahead of it first, by the page's back end (the tile route, or the
 // worker's world.js), coarser the farther they are (a tile's level of
-// detail follows its distance, and it is made again as that changes), and
+// detail follows its distance, and it is made again as that changes; a
+// tile not shown yet comes first at the coarsest level, so the view fills
+// in a fraction of the time, then sharpens as the finer tiles come), and
 // dropped behind it, their GPU buffers disposed, so memory stays bounded
 // however far one goes. Each tile comes with its normals, the field's
 // gradient, which agree across its borders. The origin floats: the scene's
@@ -145,19 +147,21 @@ function refresh() {
 
 /**
  * Start making the wanted tiles, as many as the back end takes at once:
- * those not shown at all first, then those shown at another level of
- * detail, each nearest first to a point ahead of the camera along its view.
+ * those not made at all first (at the coarsest level), then those shown at
+ * another level of detail, each nearest first to a point ahead of the
+ * camera along its view.
  */
 function pump() {
   const r = run;
   const ahead = camera.getWorldDirection(new THREE.Vector3()).setY(0);
   if (ahead.lengthSq() > 0) ahead.setLength(AHEAD * Math.min(...r.size));
   const at = group.worldToLocal(camera.position.clone().add(ahead)), [h0, h1] = r.layout.horizontal;
-  const distance = (e) => (e.mesh ? 1e30 : 0) + ((Number(e.i - r.origin[0]) + 0.5) * r.size[0] - at.getComponent(h0)) ** 2
+  const distance = (e) => ((Number(e.i - r.origin[0]) + 0.5) * r.size[0] - at.getComponent(h0)) ** 2
     + ((Number(e.j - r.origin[1]) + 0.5) * r.size[1] - at.getComponent(h1)) ** 2;
+  const before = (e, other) => (e.lod === undefined) !== (other.lod === undefined) ? e.lod === undefined : distance(e) < distance(other);
   while (r.making < SLOTS[r.where]) {
     let next = null;
-    for (const entry of r.tiles.values()) if (entry.state === 'wanted' && (!next || distance(entry) < distance(next))) next = entry;
+    for (const entry of r.tiles.values()) if (entry.state === 'wanted' && (!next || before(entry, next))) next = entry;
     if (!next) break;
     make(r, next);
   }
@@ -168,7 +172,7 @@ async function make(r, entry) {
   r.making++;
   entry.state = 'making';
   entry.controller = new AbortController();
-  const lod = entry.want;
+  const lod = entry.lod === undefined ? r.coarsest : entry.want; // shown coarse first; its windows' chains go on from there
   try {
     const request = sampleRequest({ seed: r.seed, scale: r.scale, tile: [entry.i, entry.j], frame: 'tile', arrange: r.arrange,
                                     heights: r.heights, lod });
@@ -233,12 +237,14 @@ function tell() {
 
 /**
  * For the tests and the console: the world in view (the camera's tile, the tiles made as [i, j,
- * faces, the order they were made in, their level of detail], the camera's place, the farthest tile's from the
- * scene's origin and how many tiles show vertex colours), and the camera moved by whole tiles (a scripted flight).
+ * faces, the order they were made in, their level of detail], how many are shown at some level, the camera's
+ * place, the farthest tile's from the scene's origin and how many tiles show vertex colours), and the camera
+ * moved by whole tiles (a scripted flight).
  */
 export const view = {
   status: () => run && {
     at: run.origin.map(String), made: run.made, dropped: run.dropped, size: run.size,
+    shown: [...run.tiles.values()].filter((e) => e.lod !== undefined).length,
     tiles: [...run.tiles.values()].filter((e) => e.state === 'done').map((e) => [String(e.i), String(e.j), e.mesh ? e.mesh.geometry.index.count / 3 : 0, e.order, e.lod]),
     camera: camera.position.toArray(), farthest: Math.max(0, ...group.children.map((m) => m.position.length())),
     coloured: group.children.filter((m) => m.geometry.attributes.color && m.material.vertexColors).length,
