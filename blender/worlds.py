@@ -141,6 +141,7 @@ def refresh(obj, scene=None, force: bool = False) -> None:
             submit(obj.name, model, made, settings.seed, settings.scale, settings.arrange, todo)
     except InputError as error:
         settings.error = str(error)
+        live.MADE.pop(obj.name, None)  # the next asking is made, even one the same as the last made
         raise
 
 
