@@ -1,4 +1,4 @@
-"""The operators: add a sample or a world, regenerate, variations, a keep box, the
+"""The operators: add a sample or a world (and a world's other models), regenerate, variations, a keep box, the
 layout shown as cubes and applied, a game asset exported. Each reports bad input Blender's way
 (one line, {'CANCELLED'}, nothing half made) and leaves the work to live."""
 
@@ -112,6 +112,47 @@ class SINSHAPE_OT_add_world(AddOperator, bpy.types.Operator):
             self.report({"ERROR"}, str(error))
             return {"CANCELLED"}
         self.select(context, obj)
+        return {"FINISHED"}
+
+
+class WorldOperator(bpy.types.Operator):
+    """An operator on the active world (or the world of the active tile)."""
+
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        return worlds.world_of(context.active_object) is not None
+
+
+class SINSHAPE_OT_world_model_add(WorldOperator):
+    """Add a model to the world, the model map's next index: its objects go where the map names it"""
+
+    bl_idname = "sinshape.world_model_add"
+    bl_label = "Add Model"
+
+    def execute(self, context):
+        settings = worlds.world_of(context.active_object).sinshape_world
+        settings.models.add()
+        worlds.changed(settings, context)  # as a changed setting: a refusal goes on the world and in a report
+        return {"FINISHED"}
+
+
+class SINSHAPE_OT_world_model_remove(WorldOperator):
+    """Remove this model from the world: the models after it take the index before theirs"""
+
+    bl_idname = "sinshape.world_model_remove"
+    bl_label = "Remove Model"
+
+    index: IntProperty(name="Index", min=0, description="Which of the other models: 0 is model 1 of the map")
+
+    def execute(self, context):
+        settings = worlds.world_of(context.active_object).sinshape_world
+        if self.index >= len(settings.models):
+            self.report({"ERROR"}, f"no other model has index {self.index}: the world has {len(settings.models)}")
+            return {"CANCELLED"}
+        settings.models.remove(self.index)
+        worlds.changed(settings, context)
         return {"FINISHED"}
 
 
@@ -279,6 +320,6 @@ class SINSHAPE_OT_report(bpy.types.Operator):
         return {"FINISHED"}
 
 
-CLASSES = (SINSHAPE_OT_add_sample, SINSHAPE_OT_add_world, SINSHAPE_OT_regenerate, SINSHAPE_OT_variations,
-           SINSHAPE_OT_keep_box_add, SINSHAPE_OT_layout_show, SINSHAPE_OT_layout_apply, SINSHAPE_OT_export_asset,
-           SINSHAPE_OT_report)
+CLASSES = (SINSHAPE_OT_add_sample, SINSHAPE_OT_add_world, SINSHAPE_OT_world_model_add, SINSHAPE_OT_world_model_remove,
+           SINSHAPE_OT_regenerate, SINSHAPE_OT_variations, SINSHAPE_OT_keep_box_add, SINSHAPE_OT_layout_show,
+           SINSHAPE_OT_layout_apply, SINSHAPE_OT_export_asset, SINSHAPE_OT_report)

@@ -5,8 +5,8 @@ the rest are records (the model file's SHA-256, the applied layout, the
 last error)."""
 
 import bpy
-from bpy.props import (BoolProperty, EnumProperty, FloatProperty, FloatVectorProperty, IntProperty,
-                       IntVectorProperty, PointerProperty, StringProperty)
+from bpy.props import (BoolProperty, CollectionProperty, EnumProperty, FloatProperty, FloatVectorProperty,
+                       IntProperty, IntVectorProperty, PointerProperty, StringProperty)
 
 from sinshape import models
 from sinshape.runtime.options import OPTION
@@ -29,6 +29,11 @@ def model_changed(settings, context):
 def world_model_changed(settings, context):
     settings.model_sha256 = ""
     worlds.changed(settings, context)
+
+
+def other_model_changed(other, context):
+    other.model_sha256 = ""
+    worlds.changed(other.id_data.sinshape_world, context)
 
 
 class SinshapeSettings(bpy.types.PropertyGroup):
@@ -73,6 +78,14 @@ class SinshapeSettings(bpy.types.PropertyGroup):
     error: StringProperty(name="Error", description="Why the last regeneration failed")
 
 
+class SinshapeWorldModel(bpy.types.PropertyGroup):
+    """One of a world's models after its first (model 1, 2, ... of its model map), pinned as the first is."""
+
+    model: StringProperty(name="Model", default=models.DEFAULT, search=model_names, update=other_model_changed,
+                          description="A shipped model's name, or a .onnx file (// is the .blend's folder)")
+    model_sha256: StringProperty(name="Model SHA-256", description="The model's SHA-256 when it was chosen")
+
+
 class SinshapeWorld(bpy.types.PropertyGroup):
     """A world object's settings (worlds.py): its tiles are its children."""
 
@@ -81,6 +94,13 @@ class SinshapeWorld(bpy.types.PropertyGroup):
     model: StringProperty(name="Model", default=models.DEFAULT, search=model_names, update=world_model_changed,
                           description="A shipped model's name, or a .onnx file (// is the .blend's folder)")
     model_sha256: StringProperty(name="Model SHA-256", description="The model's SHA-256 when it was chosen")
+    models: CollectionProperty(name="Other Models", type=SinshapeWorldModel,
+                               description="A scattered world's models after its first: model 1, 2, ... of its "
+                                           "model map, the first being 0")
+    models_map: StringProperty(name="Model Map", subtype="FILE_PATH", update=worlds.changed,
+                               description="Which model goes where in a scattered world: a .png (a palette or "
+                                           "greyscale image) or .npy of models' indices, a pixel per tile, 0 the "
+                                           "first model (// is the .blend's folder)")
     seed: IntProperty(name="Seed", min=OPTION["seed"].low, max=SEED_MAX, update=worlds.changed,
                       description="The same seed gives the same world")
     scale: FloatProperty(name="Scale", default=1.0, min=0.01, soft_min=0.25, soft_max=8.0, update=worlds.changed,
@@ -99,7 +119,7 @@ class SinshapeWorld(bpy.types.PropertyGroup):
     error: StringProperty(name="Error", description="Why the last fill failed")
 
 
-CLASSES = (SinshapeSettings, SinshapeWorld)
+CLASSES = (SinshapeSettings, SinshapeWorldModel, SinshapeWorld)
 
 
 def register() -> None:

@@ -20,7 +20,13 @@ class VIEW3D_PT_sinshape(bpy.types.Panel):
             settings = world.sinshape_world
             self.draw_state(settings)
             column = layout.column()
-            for name in ("model", "seed", "scale", "arrange", "radius", "fine", "follow"):
+            column.prop(settings, "model")
+            for index, other in enumerate(settings.models):  # model 1, 2, ... of the model map
+                row = column.row(align=True)
+                row.prop(other, "model", text=f"Model {index + 1}")
+                row.operator("sinshape.world_model_remove", text="", icon="X").index = index
+            column.operator("sinshape.world_model_add", icon="ADD")
+            for name in ("models_map", "seed", "scale", "arrange", "radius", "fine", "follow"):
                 column.prop(settings, name)
             layout.operator("sinshape.regenerate", icon="FILE_REFRESH")
             return

@@ -17,21 +17,28 @@ with the skirt that covers the crack where they meet finer ones, and made
 again at their new level as the point moves.
 """
 
+import dataclasses
+import hashlib
 import math
 import re
 from dataclasses import dataclass
+from pathlib import Path
 
 import bpy
 import numpy as np
 
 from sinshape.core.errors import InputError
+from sinshape.core.files import check_readable
 from sinshape.runtime import generate, world
 
 from . import convert, live, work
 
 TILE = "sinshape_tile"  # a tile object's custom property: "I,J"
-MADE = "sinshape_made"  # ... and what it was made from: the model file's SHA-256, the seed, the scale, the arrangement, its lod
+MADE = "sinshape_made"  # ... and what it was made from: the model file's SHA-256, the seed, the scale, the
+# arrangement, the other models' SHA-256s, the model map's pixels' SHA-256, its lod
 MAX_RADIUS = 32  # tiles on each side: (2 r + 1)^2 = 4225 tiles at most
+MAPS = {}  # (path, size, mtime) -> (world.ModelMap, its pixels' SHA-256): a map is read again only when it changed
+KEEP_MAPS = 4
 
 
 def followed_point(obj, scene) -> np.ndarray:
@@ -93,6 +100,36 @@ def check_settings(settings) -> None:
         raise InputError(f"radius must be 0 to {MAX_RADIUS} tiles on each side, got {radius}", "radius")
 
 
+def model_map(reference: str) -> tuple:
+    """(the world.ModelMap a world's map setting names ('//' relative to
+    the .blend), its pixels' SHA-256); (None, '') where none is named. Read
+    by the runtime's reader (world.read_model_map), once while the file is unchanged."""
+    if not reference.strip():
+        return None, ""
+    path = check_readable(Path(bpy.path.abspath(reference)), "model map")
+    stat = path.stat()
+    key = (str(path), stat.st_size, stat.st_mtime_ns)
+    if key not in MAPS:
+        if len(MAPS) >= KEEP_MAPS:
+            MAPS.pop(next(iter(MAPS)))
+        placed = world.read_model_map(path)
+        MAPS[key] = placed, hashlib.sha256(repr(placed.shape).encode() + placed.data).hexdigest()
+    return MAPS[key]
+
+
+def world_options(settings, digest: str) -> tuple:
+    """(the world.WorldOptions a world's settings stand for, checked by the
+    runtime as the command line's are; what its tiles are made from: the
+    first model's SHA-256 (`digest`), the seed, the scale, the arrangement,
+    the other models' SHA-256s and the map's)."""
+    others = [live.load_settings(other) for other in settings.models]
+    placed, map_digest = model_map(settings.models_map)
+    options = world.WorldOptions(settings.arrange, models=tuple(each for each, _ in others), models_map=placed)
+    made = (f"{digest}:{settings.seed}:{settings.scale!r}:{settings.arrange}:"
+            f"{','.join(each for _, each in others)}:{map_digest}")
+    return options, made
+
+
 def remove(child) -> None:
     if child.parent is not None and TILE in child:
         try:
@@ -118,11 +155,11 @@ def refresh(obj, scene=None, force: bool = False) -> None:
     try:
         check_settings(settings)
         model, digest = live.load_settings(settings)
+        options, made = world_options(settings, digest)
         layout = world.world_layout(model)
-        world.check_world_scale(layout, settings.scale, model.manifest.hidden, None)
+        world.check_world_scale(layout, settings.scale, world.hidden_width(model, options), None)
         centre = centre_tile(model, layout, followed_point(obj, scene))
         wanted = tiles_around(centre, settings.radius)
-        made = f"{digest}:{settings.seed}:{settings.scale!r}:{settings.arrange}"
         lods = {tile: detail(centre, tile, settings.fine, len(model.manifest.sizes) - 1) for tile in wanted}
         if not force and live.MADE.get(obj.name) == (made, lods):
             return
@@ -138,9 +175,10 @@ def refresh(obj, scene=None, force: bool = False) -> None:
             remove(present.pop(tile))
         settings.error = far_warning(model, wanted)
         if todo:
-            submit(obj.name, model, made, settings.seed, settings.scale, settings.arrange, todo)
+            submit(obj.name, model, made, settings.seed, settings.scale, options, todo)
     except InputError as error:
         settings.error = str(error)
+        live.MADE.pop(obj.name, None)  # the next asking is made, even one the same as the last made
         raise
 
 
@@ -167,15 +205,15 @@ def far_warning(model, tiles: list) -> str:
             f"{limit:.3g} units. Move the world object near them")
 
 
-def submit(name: str, model, made: str, seed: int, scale: float, arrange: str, tiles: list) -> None:
-    """One job for a world's tiles ((tile, level of detail) pairs); a newer one for the same world stops
-    it between two tiles."""
+def submit(name: str, model, made: str, seed: int, scale: float, options, tiles: list) -> None:
+    """One job for a world's tiles ((tile, level of detail) pairs) of a world made as `options` say (its
+    lod aside); a newer one for the same world stops it between two tiles."""
     up = model.manifest.up
 
     def compute(job):
         for done, (tile, lod) in enumerate(tiles):
             job.progress(done, len(tiles))
-            surface = world.tile_surface(model, seed, tile, scale, world.WorldOptions(arrange, lod=lod))
+            surface = world.tile_surface(model, seed, tile, scale, dataclasses.replace(options, lod=lod))
             colours = None if surface.colours is None else convert.byte_colours(surface.colours)
             arrays = live.blender_arrays(world.placed(model, tile, surface.vertices, "tile"), surface.faces, up, colours)
             job.deliver((f"{made}:{lod}", tile, arrays, tile_shade(model, tile, arrays[0], surface.faces)))

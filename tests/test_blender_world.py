@@ -279,3 +279,84 @@ def test_far_tiles_are_made_coarser_with_a_skirt_and_a_scattered_world_is_the_ru
     assert np.abs(convert.to_model(vertices, "z") - world.placed(model, far, surface.vertices, "tile")).max() < 1e-5
     obj.sinshape_world.fine = 2
     assert {int(child["sinshape_made"].rsplit(":", 1)[1]) for child in tiles_of(obj).values()} == {0}
+
+
+def test_a_world_of_two_models_on_a_model_map_is_the_runtimes(scene, tmp_path):
+    """Temples and tower ruins where a 2 x 2 checkerboard map says: each tile
+    world.tile_surface's with the same WorldOptions, not the temples' world
+    alone; the second model changed to the first, the temples' world again."""
+    import bpy
+
+    from blender import convert
+    from sinshape import models
+    from sinshape.runtime import world
+    from sinshape.runtime.load import load_model
+
+    first, second = (load_model(models.find(name), threads=1) for name in ("acropolis", "towerruins"))
+    checkerboard = [[0, 1], [1, 0]]
+    np.save(tmp_path / "map.npy", np.array(checkerboard))
+    options = world.WorldOptions("scatter", models=(second,), models_map=world.ModelMap.of(checkerboard))
+    scene.cursor.location = (0, 0, 0)
+    obj = add_world("acropolis", seed=6, radius=1)  # scattered, as the temple records
+    alone = {tile: convert.mesh_arrays(child.data) for tile, child in tiles_of(obj).items()}
+    layout = world.world_layout(first)
+    assert {found.model for tile in alone for found in world.objects_near(first, layout, 6, tile, 0, options)} \
+        == {0, 1}  # the premise: these tiles hold objects of both models
+    assert bpy.ops.sinshape.world_model_add() == {"FINISHED"}
+    obj.sinshape_world.models[0].model = "towerruins"
+    obj.sinshape_world.models_map = str(tmp_path / "map.npy")  # background mode: every tile made again
+    assert obj.sinshape_world.error == ""
+    tiles = tiles_of(obj)
+    assert set(tiles) == set(alone)
+    changed = 0
+    for tile, child in tiles.items():
+        vertices, faces = convert.mesh_arrays(child.data)
+        surface = world.tile_surface(first, 6, tile, options=options)
+        assert np.array_equal(faces, surface.faces)
+        assert np.abs(convert.to_model(vertices, first.manifest.up)
+                      - world.placed(first, tile, surface.vertices, "tile")).max() < 1e-5
+        changed += not (np.array_equal(vertices, alone[tile][0]) and np.array_equal(faces, alone[tile][1]))
+    assert changed
+    obj.sinshape_world.models[0].model = "acropolis"  # its SHA-256 is the tiles' key: all made again
+    for tile, child in tiles_of(obj).items():
+        vertices, faces = convert.mesh_arrays(child.data)
+        assert np.array_equal(vertices, alone[tile][0]) and np.array_equal(faces, alone[tile][1])
+
+
+@pytest.mark.parametrize("arrange, pixels, said", [
+    ("blend", [[0, 1]], "it is for a scatter world"),
+    ("scatter", None, "several models need a model map"),
+    ("scatter", [[0, 2]], "names model 2, and the world has 2"),
+    ("scatter", "missing.npy", "no such model map"),
+    ("scatter", "broken.png", "not a readable image")])
+def test_a_refused_model_map_is_one_reported_line_and_the_tiles_stay(scene, tiny_model, tmp_path, capfd,
+                                                                     arrange, pixels, said):
+    """The command line's refusals, the runtime's own lines: a map for a blend
+    world, several models without one, a pixel naming a model the world
+    lacks, a map file that is missing or no image. Put right, the error goes."""
+    import bpy
+
+    from blender import live
+
+    (tmp_path / "broken.png").write_bytes(b"not an image")
+    if isinstance(pixels, list):
+        np.save(tmp_path / "map.npy", np.array(pixels))
+    scene.cursor.location = (0, 0, 0)
+    obj = add_world(tiny_model, seed=1, radius=0)
+    before = {tile: len(child.data.vertices) for tile, child in tiles_of(obj).items()}
+    settings = obj.sinshape_world
+    own = settings.arrange
+    with live.suspended():
+        settings.arrange = arrange
+        settings.models.add().model = str(tiny_model)
+        settings.models_map = "" if pixels is None else str(tmp_path / ("map.npy" if isinstance(pixels, list) else pixels))
+    with pytest.raises(RuntimeError, match=said) as raised:
+        bpy.ops.sinshape.regenerate()
+    assert len(str(raised.value).strip().splitlines()) == 1
+    assert said in settings.error and "\n" not in settings.error
+    assert {tile: len(child.data.vertices) for tile, child in tiles_of(obj).items()} == before
+    assert "Traceback" not in capfd.readouterr().err
+    with live.suspended():
+        settings.arrange, settings.models_map = own, ""
+    assert bpy.ops.sinshape.world_model_remove(index=0) == {"FINISHED"}  # the world as it was made
+    assert settings.error == "" and len(settings.models) == 0
