@@ -285,6 +285,40 @@ def hold(page, key, ms) -> dict:
     return after
 
 
+# Runs in the page, in world mode: the drawing resolution (the canvas's width over its width on
+# screen) after frames timed as given, one list of frame times after another, from the full
+# resolution (no frame of the page's own between).
+RESOLUTION_JS = """async (runs) => {
+  const s = await import('./static/viewer/scene.js');
+  const canvas = s.renderer.domElement, out = [];
+  s.setResolution();
+  for (const run of runs) {
+    for (const ms of run) s.frameTook(ms);
+    out.push(canvas.width / canvas.clientWidth);
+  }
+  return out;
+}"""
+
+
+def test_slow_frames_lower_the_worlds_resolution_and_fast_ones_raise_it_again(site_page):
+    """Frames over the budget (40 ms) draw fewer pixels, down to 0.4 of the screen's; frames well
+    within it raise it a tenth every ten; the shape's view, after, is drawn at the screen's."""
+    page = site_page
+    page.goto(f"{page.base}/?seed=3&up=z&edit=world&reach=1")
+    wait_world(page)
+    shown = page.evaluate(RESOLUTION_JS, [[], [160], [1000, 1000], [30] * 50, [5] * 9, [5], [5] * 50])
+    assert shown[0] == pytest.approx(1, abs=0.01)
+    assert shown[1] == pytest.approx(0.5, abs=0.01)  # a quarter of the pixels for a frame four times too long
+    assert shown[2] == pytest.approx(0.4, abs=0.01)  # no lower
+    assert shown[3] == shown[2] and shown[4] == shown[2]  # within the budget, not well within: kept; nine at ease: kept
+    assert shown[5] == pytest.approx(0.5, abs=0.01) and shown[6] == pytest.approx(1, abs=0.01)
+    page.select_option("#edit", "")
+    assert wait_done(page) == "ready"
+    assert page.evaluate("(({ width, clientWidth }) => width / clientWidth)(document.querySelector('#view canvas'))") \
+        == pytest.approx(1, abs=0.01)
+    assert not page.errors
+
+
 def test_keys_and_the_mouse_move_the_camera(site_page):
     """W flies forward and A to the left, level, the way the view looks; the arrows turn; dragging
     the mouse looks around."""

@@ -5,7 +5,7 @@
 //   steer({ side, height, walk, ground, moved })  fly over a world (null: the keys and the view are the page's again)
 //   aim(yaw, pitch)                               look that way; wake() draws the next frame
 import * as THREE from 'three';
-import { camera, render, renderer } from './scene.js';
+import { camera, frameTook, render, renderer } from './scene.js';
 
 const KEYS = { // key -> [forward, right, up], in units of the speed
   w: [1, 0, 0], arrowup: [1, 0, 0], s: [-1, 0, 0], arrowdown: [-1, 0, 0], a: [0, -1, 0], d: [0, 1, 0],
@@ -25,7 +25,7 @@ const held = new Set(); // movement keys down
 const pointers = new Map(); // pointer id -> its last { x, y }, while pressed on the view
 const raycaster = new THREE.Raycaster();
 const down = new THREE.Vector3(0, -1, 0);
-let looping = false, last = 0;
+let looping = false, last = 0, drawn = null; // drawn: the start of the last frame drawn and not yet timed
 
 /** Fly over `world` (the keys and the pointers move the camera), or (null) over nothing. */
 export function steer(world) {
@@ -70,6 +70,7 @@ function loop(now) {
     looping = false;
     return;
   }
+  timeFrame(now);
   const seconds = Math.min(0.1, (now - last) / 1000);
   last = now;
   const step = [0, 0, 0];
@@ -82,8 +83,20 @@ function loop(now) {
   const unit = craft.side * (craft.walk ? 0.4 : 1) * speed * (held.has('shift') ? 4 : 1) * seconds; // flying, a tile a second
   if (step.some((v) => v)) move(step.map((v) => v * unit));
   render();
+  drawn = now;
   if (held.size) requestAnimationFrame(loop);
-  else looping = false;
+  else {
+    looping = false;
+    requestAnimationFrame(timeFrame); // a frame drawn alone (a tile come, a look around) is timed too
+  }
+}
+
+/** The last frame drawn took from its start until `now`, the next frame's start: scene.js's resolution
+ * follows (a frame is drawn at a new one). */
+function timeFrame(now) {
+  const changed = drawn !== null && frameTook(now - drawn);
+  drawn = null;
+  if (changed) wake();
 }
 
 /** Draw the next frame, and go on drawing while a key moves the camera. */

@@ -31,14 +31,20 @@ controls.addEventListener('change', render);
 export const material = new THREE.MeshStandardMaterial({ color: 0xd8c8a8, roughness: 0.85, side: THREE.FrontSide });
 // A coloured model's shapes: white lit by each vertex's colour.
 export const colouredMaterial = new THREE.MeshStandardMaterial({ vertexColors: true, roughness: 0.85, side: THREE.FrontSide });
+// A world's tiles: Lambert's diffuse light, which a rough surface's standard shading nearly is, at
+// about two thirds of its cost per pixel where no GPU draws (a software renderer).
+const worldMaterials = [new THREE.MeshLambertMaterial({ color: material.color, side: THREE.FrontSide }),
+                        new THREE.MeshLambertMaterial({ vertexColors: true, side: THREE.FrontSide })];
 
-/** A mesh's material and, for a coloured model's, its 'color' attribute: the runtime's sRGB turned
- * linear, which three.js's colour management expects of vertex colours. colours: Float32Array (V, 3) or null. */
-export function paint(geometry, colours) {
-  if (!colours) return material;
+/** A mesh's material (a world's tile's when `tile`) and, for a coloured model's, its 'color' attribute: the
+ * runtime's sRGB turned linear, which three.js's colour management expects of vertex colours.
+ * colours: Float32Array (V, 3) or null. */
+export function paint(geometry, colours, tile = false) {
+  const [plain, coloured] = tile ? worldMaterials : [material, colouredMaterial];
+  if (!colours) return plain;
   const linear = colours.map((c) => (c <= 0.04045 ? c / 12.92 : ((c + 0.055) / 1.055) ** 2.4));
   geometry.setAttribute('color', new THREE.BufferAttribute(linear, 3));
-  return colouredMaterial;
+  return coloured;
 }
 const holder = new THREE.Group(); // turned so the model's up axis points up on screen
 const shape = new THREE.Group(); // the sample
@@ -51,6 +57,35 @@ let framed = ''; // what the camera was last framed for: a new extent frames it 
 /** Draw the scene: the page's one render call, made whenever something in view changes. */
 export function render() {
   renderer.render(scene, camera);
+}
+
+// A world's frames where no GPU draws: a software renderer takes 100 ms or more to draw a ring of
+// tiles at full resolution, and a frame that long makes flying stall. While a world is shown, the
+// drawing resolution follows the frame time: fewer pixels (the canvas's scaled up) when a frame
+// takes longer than FRAME_BUDGET, more again after FRAMES_AT_EASE frames well within it.
+const FRAME_BUDGET = 40; // ms
+const FRAMES_AT_EASE = 10;
+const STEPS = 20; // a resolution is a whole number of twentieths of the device's pixel ratio: a canvas resized seldom
+const LOWEST = 8; // twentieths
+let resolution = STEPS, atEase = 0;
+
+/** A world's frame took `ms` (from its start to the next's): the drawing resolution follows. Whether it
+ * changed (the canvas, resized, is blank until drawn again). */
+export function frameTook(ms) {
+  let next = resolution;
+  atEase = ms < FRAME_BUDGET / 2 ? atEase + 1 : 0;
+  if (ms > FRAME_BUDGET) next = Math.max(LOWEST, Math.floor(resolution * Math.sqrt(FRAME_BUDGET / ms)));
+  else if (atEase >= FRAMES_AT_EASE) next = Math.min(STEPS, resolution + 2);
+  if (next === resolution) return false;
+  setResolution(next);
+  return true;
+}
+
+/** Draw at `twentieths` of the device's pixel ratio (all of it, as the shape's view always is, by default). */
+export function setResolution(twentieths = STEPS) {
+  resolution = twentieths;
+  atEase = 0;
+  renderer.setPixelRatio((window.devicePixelRatio * twentieths) / STEPS);
 }
 
 function resize() {
@@ -114,9 +149,11 @@ export function showMesh({ positions, faces, colours = null }, up, extent) {
   framed = extent;
 }
 
-/** The world mode's view (viewer/world.js) in place of the shape's, or (false) the shape again, framed:
- * the world flies the camera itself, so orbiting is off and the shape and its overlay are hidden. */
+/** The world mode's view (viewer/world.js) in place of the shape's, or (false) the shape again, framed
+ * and at full resolution: the world flies the camera itself, so orbiting is off and the shape and its
+ * overlay are hidden. */
 export function worldView(on) {
+  if (!on) setResolution();
   controls.enabled = !on;
   holder.visible = !on;
   camera.fov = on ? 60 : FOV; // a wider view to fly with, as a game's

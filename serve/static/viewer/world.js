@@ -191,7 +191,7 @@ async function make(r, entry) {
       geometry.setAttribute('position', new THREE.BufferAttribute(positions, 3));
       geometry.setAttribute('normal', new THREE.BufferAttribute(normals, 3));
       geometry.setIndex(new THREE.BufferAttribute(faces, 1));
-      entry.mesh = new THREE.Mesh(geometry, paint(geometry, colours));
+      entry.mesh = new THREE.Mesh(geometry, paint(geometry, colours, true));
       entry.mesh.name = entry.key;
       put(r, entry);
       group.add(entry.mesh);
