@@ -54,6 +54,7 @@ import io
 import itertools
 import math
 import numbers
+import threading
 from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
@@ -410,23 +411,29 @@ def window_sizes(model, layout: Layout, arrange: str) -> list:
 
 
 # Windows kept for the next tiles (a tile shares each of its four with a
-# neighbour): the last few made, whatever asked for them. A cache, not state:
-# a window is the same array whether it is made or found.
-WINDOWS_KEPT = 16
+# neighbour; a view of 7 x 7 tiles, coarse first and then finer, goes on from
+# the coarser windows it kept with 64): the last few made, whatever asked for
+# them. A shipped model's window is 0.6 to 2 MB at full detail, a fifth of
+# that or less at the coarsest. A cache, not state: a window is the same
+# array whether it is made or found. A server makes tiles on several threads
+# at once: the lock keeps each look and change whole.
+WINDOWS_KEPT = 64
 _windows = OrderedDict()  # (id(model), seed, arrange, level, a, b) -> (model, Window)
+_windows_lock = threading.Lock()
 
 
 def window(model, layout: Layout, seed: int, a: int, b: int, level: int, arrange: str = "blend") -> Window:
     """Window (a, b) (or scatter cell (a, b)'s object), its chain stopped at `level`."""
     key = (id(model), seed, arrange, level, a, b)
-    if key in _windows:
-        _windows.move_to_end(key)
-        return _windows[key][1]
+    with _windows_lock:
+        if key in _windows:
+            _windows.move_to_end(key)
+            return _windows[key][1]
+        # A coarser level of the window made before (a far tile come nearer) is gone
+        # on from: the same planes as the whole chain, the levels below not run again.
+        start = next(((coarser, _windows[key[:3] + (coarser, a, b)][1].chain) for coarser in range(level - 1, -1, -1)
+                      if key[:3] + (coarser, a, b) in _windows), None)
     sizes = window_sizes(model, layout, arrange)
-    # A coarser level of the window made before (a far tile come nearer) is
-    # gone on from: the same planes as the whole chain, the levels below not run again.
-    start = next(((coarser, _windows[key[:3] + (coarser, a, b)][1].chain) for coarser in range(level - 1, -1, -1)
-                  if key[:3] + (coarser, a, b) in _windows), None)
     made = triplane(model, draw_noise(window_seed(seed, a, b), sizes[:level + 1], model.manifest.channels,
                                       first=start[0] + 1 if start else 0), sizes[:level + 1], start=start)
     planes = project(model, made).planes
@@ -438,10 +445,12 @@ def window(model, layout: Layout, seed: int, a: int, b: int, level: int, arrange
             means.append(plane.mean(axis=1 - axes.index(layout.up)))  # (U, D)
     mean = np.broadcast_to(sum(means), (sizes[level][layout.up], model.manifest.hidden)).astype(np.float32)
     cells = tuple((n - 1) / (f - 1) for n, f in zip(sizes[level], sizes[-1]))
-    _windows[key] = (model, Window(planes, mean, cells, made.planes))  # the model is held, so its id names it while the entry lives
-    while len(_windows) > WINDOWS_KEPT:
-        _windows.popitem(last=False)
-    return _windows[key][1]
+    found = Window(planes, mean, cells, made.planes)
+    with _windows_lock:
+        _windows[key] = (model, found)  # the model is held, so its id names it while the entry lives
+        while len(_windows) > WINDOWS_KEPT:
+            _windows.popitem(last=False)
+    return found
 
 
 def smoothstep(f):
@@ -1094,14 +1103,16 @@ def window_colouring(model, layout: Layout, seed: int, a: int, b: int, arrange: 
     matched once and kept. A window's matches follow its content only, so a
     tile and its neighbour read a window they share alike."""
     key = (id(model), seed, arrange, a, b)
-    if key in _colourings:
-        _colourings.move_to_end(key)
-        return _colourings[key][1]
+    with _windows_lock:
+        if key in _colourings:
+            _colourings.move_to_end(key)
+            return _colourings[key][1]
     found = window(model, layout, seed, a, b, len(model.manifest.sizes) - 1, arrange)
     made = planes_colouring(model, found.planes, window_sizes(model, layout, arrange)[-1])
-    _colourings[key] = (model, made)
-    while len(_colourings) > WINDOWS_KEPT:
-        _colourings.popitem(last=False)
+    with _windows_lock:
+        _colourings[key] = (model, made)
+        while len(_colourings) > WINDOWS_KEPT:
+            _colourings.popitem(last=False)
     return made
 
 

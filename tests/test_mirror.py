@@ -36,7 +36,7 @@ MANIFEST = ("FORMAT_NAME", "FORMAT_VERSION", "COLOUR_VERSION", "TILES_VERSION", 
 LAYOUT = ("FIT_STEPS", "FINER_STEPS", "HOLD_STEPS", "FIT_RATE", "PULL", "MARGIN", "KEEP_WEIGHT", "SLOPE_FLOOR", "SHARE")
 WORLD = ("WORLD_STREAM", "SCATTER_STREAM", "MAX_TILE", "MIN_STRIDE", "UP_AXIS", "BLEND", "CONTRAST", "PITCH", "PRESENCE",
          "GROUND", "GROUND_SLOPE", "NORMAL_STEP", "PLATEAU", "SKIRT", "GROUND_COLOUR", "MAX_MAP_SIDE", "MAX_RELIEF",
-         "MAX_POINTS", "MAX_ABSOLUTE")
+         "MAX_POINTS", "MAX_ABSOLUTE", "WINDOWS_KEPT")
 
 
 def same(name, module=None):
@@ -94,7 +94,6 @@ BROWSER_ONLY = {
     ("sinshape/seal.js", "K"): "SHA-256's round constants (FIPS 180-4; Python has hashlib)",
     ("sinshape/onnx.js", "TEXT"): "a TextDecoder",
     ("sinshape/layout.js", "OWN_KEPT"): "how many of a seed's layouts a page keeps",
-    ("sinshape/world.js", "WINDOWS_KEPT"): "how many windows a page keeps (a page flies over more than a batch writes)",
     ("sinshape/world.js", "PLAIN"): "worldOptions()'s defaults, built by worldOptions",
     ("sinshape/colour.js", "ALONG"): "Python's reads_along spells it inline; the tiles' equality holds it "
                                      "(tests/test_colour_web.py)",

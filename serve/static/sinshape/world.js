@@ -130,7 +130,7 @@ const windowSizes = (manifest, layout, arrange) => scaledSizes(manifest.sizes, a
 // made as the view moves, reuses all it can with 64), and a format-5
 // model's windows' colourings likewise. A cache, not state: a window is the
 // same array, and its colouring the same matches, whether made or found.
-const WINDOWS_KEPT = 64;
+export const WINDOWS_KEPT = 64; // world.WINDOWS_KEPT
 let modelCount = 0;
 const windows = new Map(); // "model|seed|arrange|level|a|b" -> a promise of the window, oldest use first
 const colourings = new Map(); // "model|seed|arrange|a|b" -> a promise of the window's colouring, oldest use first
