@@ -9,7 +9,7 @@
 //   const request = sampleRequest({ seed: 7n, size: [2, 1, 1], keep: ['3:0%,0%,0%:50%,100%,100%'] });
 //   const tri = await make(model, request);                          // as request.make
 //   const tile = await makeTile(model, sampleRequest({ seed: 7n, tile: [5n, -2n], frame: 'tile' }));  // a world's tile: a mesh
-import { ConflictError, InputError, pyRepr, pyStr } from './errors.js';
+import { ConflictError, InputError, pyRepr, pyStr, pyTuple } from './errors.js';
 import { OPTIONS } from './options.js';
 import { sample, scaledSizes } from './generate.js';
 import { checkPart, compose, grow, parsePart } from './edit.js';
@@ -33,8 +33,7 @@ const isNumber = (v) => typeof v === 'number';
 export const Layout = {
   of(grid, shape, resample = false) {
     if (!(Array.isArray(shape) && shape.length === 3 && shape.every((n) => Number.isInteger(n) && n > 0))) {
-      const tuple = Array.isArray(shape) ? `(${shape.map(pyRepr).join(', ')}${shape.length === 1 ? ',' : ''})` : pyRepr(shape);
-      throw new InputError(`a layout is a 3-D grid, got shape ${tuple}`, 'layout');
+      throw new InputError(`a layout is a 3-D grid, got shape ${pyTuple(shape)}`, 'layout');
     }
     if (grid?.length !== shape[0] * shape[1] * shape[2]) {
       throw new InputError(`a layout of ${shape.join('x')} cells needs ${shape[0] * shape[1] * shape[2]} values, got ${grid?.length}`, 'layout');
