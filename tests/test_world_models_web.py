@@ -1,12 +1,16 @@
 """Worlds of several models in the browser: the JavaScript runtime's tiles of
 a scattered world of two models placed by a model map
 (serve/static/sinshape/world.js) against runtime/world.py in Debian's
-headless chromium, and the page's world mode making such a world, in its
-worker on a site written by `sinrun export-web` and from the tile route of
-`sinrun serve`, with the runtime's refusals shown in one line."""
+headless chromium; the page reading a model map's .png as Pillow does (in
+node); and the page's world mode making such a world, in its worker on a
+site written by `sinrun export-web` and from the tile route of `sinrun
+serve`, with the runtime's refusals shown in one line."""
 
 import base64
 import io
+import json
+import struct
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +18,7 @@ import pytest
 from PIL import Image
 
 from browser import open_page, site_server_process, wait_world
+from test_mirror import run_node  # noqa: F401 (node, beside a copy of the browser runtime's modules)
 from test_web import browser, playwright, wait_done  # noqa: F401 (the fixtures of the browser's tests)
 from sinshape import models
 from sinshape.core.errors import InputError
@@ -146,6 +151,83 @@ def refused_as_python(page, message: str) -> None:
     page.wait_for_function("(text) => document.body.dataset.state === 'error' && document.getElementById('error').textContent === text",
                            arg=message, timeout=60_000)
     assert "\n" not in message
+
+
+def png_bytes(pixels: np.ndarray, depth: int, colour: int, interlace: bool) -> bytes:
+    """A .png of one sample per pixel (colour 0 grey, 3 palette; or 2, 4 and 6, whose other channels
+    repeat it), written here byte by byte (Pillow writes no interlaced image, nor 2- or 4-bit grey):
+    each line filtered with the next of the PNG specification's five filters in turn."""
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    def paeth(a, b, c):
+        p = a + b - c
+        return a if abs(p - a) <= abs(p - b) and abs(p - a) <= abs(p - c) else b if abs(p - b) <= abs(p - c) else c
+
+    channels = {0: 1, 2: 3, 3: 1, 4: 2, 6: 4}[colour]
+    step = max(1, depth * channels // 8)
+    passes = ([(0, 0, 8, 8), (4, 0, 8, 8), (0, 4, 4, 8), (2, 0, 4, 4), (0, 2, 2, 4), (1, 0, 2, 2), (0, 1, 1, 2)]
+              if interlace else [(0, 0, 1, 1)])
+    raw, count = b"", 0
+    for x0, y0, dx, dy in passes:
+        part = np.repeat(pixels[y0::dy, x0::dx], channels, axis=1)
+        above = None
+        for row in part:
+            bits = "".join(format(int(v), f"0{depth}b") for v in row)
+            line = bytes(int(bits[k:k + 8].ljust(8, "0"), 2) for k in range(0, len(bits), 8))
+            above = above or bytes(len(line))
+            kind, count = count % 5, count + 1
+            out = bytearray()
+            for k, value in enumerate(line):
+                left, corner = (line[k - step], above[k - step]) if k >= step else (0, 0)
+                out.append((value - (0, left, above[k], (left + above[k]) // 2, paeth(left, above[k], corner))[kind]) & 255)
+            raw += bytes([kind]) + bytes(out)
+            above = line
+    header = struct.pack(">IIBBBBB", pixels.shape[1], pixels.shape[0], depth, colour, 0, 0, int(interlace))
+    palette = chunk(b"PLTE", bytes(3 << depth)) if colour == 3 else b""
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + palette + chunk(b"IDAT", zlib.compress(raw))
+            + chunk(b"IEND", b""))
+
+
+# Runs in node: viewer/heights.js's readModelMap on each file of a folder (argv[2]): its rows, or its message.
+READ_MAPS_JS = """
+import { readFileSync, readdirSync } from 'node:fs';
+const { readModelMap } = await import('./static/viewer/heights.js');
+const out = {};
+for (const name of readdirSync(process.argv[2]).sort()) {
+  try {
+    const map = await readModelMap(new File([readFileSync(`${process.argv[2]}/${name}`)], name));
+    out[name] = Array.from({ length: map.shape[0] }, (_, r) => Array.from(map.data.subarray(r * map.shape[1], (r + 1) * map.shape[1])));
+  } catch (error) {
+    out[name] = error.message;
+  }
+}
+console.log(JSON.stringify(out));
+"""
+
+
+def test_the_page_reads_a_model_map_png_as_pillow_does(run_node, tmp_path):
+    """The page decodes a model map's .png itself (a browser's canvas gives colours, not a palette's
+    indices, and 8 bits): grey of 1, 2, 4, 8 and 16 bits and palettes of 1 to 8, plain and
+    interlaced, every line filter, give world.parse_model_map's map (Pillow's pixels), or its
+    message: a colour image, a 16-bit value past 255."""
+    rng = np.random.default_rng(5)
+    cases = [(depth, colour, interlace) for depth, colour in ((1, 0), (2, 0), (4, 0), (8, 0), (16, 0), (1, 3), (2, 3),
+                                                             (4, 3), (8, 3), (8, 2), (8, 4), (8, 6))
+             for interlace in (False, True)]
+    for depth, colour, interlace in cases:
+        pixels = rng.integers(0, min(1 << depth, 4 if depth >= 8 else 1 << depth), size=(11, 13))
+        (tmp_path / f"{depth}_{colour}_{int(interlace)}.png").write_bytes(png_bytes(pixels, depth, colour, interlace))
+    (tmp_path / "wide.png").write_bytes(png_bytes(np.array([[0, 300]]), 16, 0, False))
+    read = json.loads(run_node(READ_MAPS_JS, str(tmp_path)))
+    assert len(read) == len(cases) + 1
+    for name, got in read.items():
+        try:
+            expected = world.parse_model_map((tmp_path / name).read_bytes(), ".png", name).array().tolist()
+        except InputError as error:
+            expected = str(error)
+        assert got == expected, name
+    assert sum(isinstance(got, str) for got in read.values()) == 7  # RGB, LA and RGBA, plain and interlaced; 300
 
 
 def test_the_page_makes_a_two_model_world_in_its_worker_and_refuses_what_python_refuses(site_page, first, tmp_path):
