@@ -18,6 +18,7 @@ import pytest
 from PIL import Image
 
 from browser import open_page, site_server_process, wait_world
+from test_colour_web import IN_PAGE
 from test_mirror import run_node  # noqa: F401 (node, beside a copy of the browser runtime's modules)
 from test_web import browser, playwright, wait_done  # noqa: F401 (the fixtures of the browser's tests)
 from sinshape import models
@@ -62,25 +63,17 @@ def site_page(tmp_path_factory, browser):  # noqa: F811
 # (or of the first alone, without), made by world.js: each one's occupancy grid and surface, as
 # base64 of their bytes.
 TILES_JS = """async ([names, seed, tiles, map]) => {
-  const s = await import('./static/sinshape/runtime.js');
-  const w = await import('./static/sinshape/world.js');
-  window.models ??= {};
-  for (const name of names) {
-    window.models[name] ??= await s.loadModel(new Uint8Array(await (await fetch(`models/${name}.onnx`)).arrayBuffer()),
-                                              { name: `${name}.onnx` });
+  const name = names[0];""" + IN_PAGE + """
+  for (const other of names.slice(1)) {
+    window.models[other] ??= await s.loadModel(new Uint8Array(await (await fetch(`models/${other}.onnx`)).arrayBuffer()),
+                                               { name: `${other}.onnx` });
   }
-  const [first, ...others] = names.map((name) => window.models[name]);
-  const options = w.worldOptions({ arrange: 'scatter', models: others, models_map: map && w.ModelMap.of(map.flat(), [map.length, map[0].length]) });
-  const b64 = (array) => {
-    const bytes = new Uint8Array(array.buffer, array.byteOffset, array.byteLength);
-    let text = '';
-    for (let i = 0; i < bytes.length; i += 8192) text += String.fromCharCode(...bytes.subarray(i, i + 8192));
-    return btoa(text);
-  };
+  const others = names.slice(1).map((other) => window.models[other]);
+  const options = W.worldOptions({ arrange: 'scatter', models: others, models_map: map && W.ModelMap.of(map.flat(), [map.length, map[0].length]) });
   const out = [];
   for (const tile of tiles.map((t) => t.map(BigInt))) {
-    const grid = await w.tileOccupancy(first, BigInt(seed), tile, 1, options);
-    const surface = await w.tileSurface(first, BigInt(seed), tile, 1, options);
+    const grid = await W.tileOccupancy(model, BigInt(seed), tile, 1, options);
+    const surface = await W.tileSurface(model, BigInt(seed), tile, 1, options);
     out.push({ grid: b64(grid.data), shape: grid.shape, positions: b64(surface.positions), faces: b64(surface.faces),
                normals: b64(surface.normals), colours: surface.colours && b64(surface.colours) });
   }
