@@ -82,10 +82,12 @@ TILES_JS = """async ([names, seed, tiles, map]) => {
 
 
 def tiles_in_page(page, names, tiles, map=None) -> list:
-    """Each tile made in the page: {grid (X, Y, Z), vertices (V, 3), faces (F, 3), normals (V, 3), colours (V, 3) or None}."""
+    """Each tile made in the page: {grid (X, Y, Z), vertices (V, 3), faces (F, 3), normals (V, 3), colours (V, 3)
+    or None}."""
     made = page.evaluate(TILES_JS, [names, 3, [[str(i), str(j)] for i, j in tiles], map])
     array = lambda text, kind, width: np.frombuffer(base64.b64decode(text), kind).reshape(-1, width)  # noqa: E731
-    return [{"grid": array(t["grid"], np.float32, 1).reshape(t["shape"]), "vertices": array(t["positions"], np.float32, 3),
+    return [{"grid": array(t["grid"], np.float32, 1).reshape(t["shape"]),
+             "vertices": array(t["positions"], np.float32, 3),
              "faces": array(t["faces"], np.uint32, 3), "normals": array(t["normals"], np.float32, 3),
              "colours": t["colours"] and array(t["colours"], np.float32, 3)} for t in made]
 
@@ -101,7 +103,8 @@ def test_a_two_model_worlds_tiles_are_the_python_runtimes(site_page, first, monk
     own, its = TILES[second]
     options = world.WorldOptions("scatter", models=(other_model(second),), models_map=world.ModelMap.of(CHECKERBOARD))
     layout = world.world_layout(first)
-    assert [[p.model for p in world.objects_near(first, layout, 3, tile, 0, options)] for tile in (own, its)] == [[0], [1]]
+    drawn = [[p.model for p in world.objects_near(first, layout, 3, tile, 0, options)] for tile in (own, its)]
+    assert drawn == [[0], [1]]
     mixed = tiles_in_page(site_page, [FIRST, second], [own, its], CHECKERBOARD)
     alone = tiles_in_page(site_page, [FIRST], [own, its])
     for tile, made in zip((own, its), mixed):
@@ -141,8 +144,8 @@ def palette_png(indices) -> bytes:
 
 def refused_as_python(page, message: str) -> None:
     """Until the page shows `message` as its error, in one line, as the Python runtime words it."""
-    page.wait_for_function("(text) => document.body.dataset.state === 'error' && document.getElementById('error').textContent === text",
-                           arg=message, timeout=60_000)
+    page.wait_for_function("(text) => document.body.dataset.state === 'error' && "
+                           "document.getElementById('error').textContent === text", arg=message, timeout=60_000)
     assert "\n" not in message
 
 
@@ -173,7 +176,8 @@ def png_bytes(pixels: np.ndarray, depth: int, colour: int, interlace: bool) -> b
             out = bytearray()
             for k, value in enumerate(line):
                 left, corner = (line[k - step], above[k - step]) if k >= step else (0, 0)
-                out.append((value - (0, left, above[k], (left + above[k]) // 2, paeth(left, above[k], corner))[kind]) & 255)
+                guess = (0, left, above[k], (left + above[k]) // 2, paeth(left, above[k], corner))[kind]
+                out.append((value - guess) & 255)
             raw += bytes([kind]) + bytes(out)
             above = line
     header = struct.pack(">IIBBBBB", pixels.shape[1], pixels.shape[0], depth, colour, 0, 0, int(interlace))
@@ -252,15 +256,17 @@ def test_the_page_makes_a_two_model_world_in_its_worker_and_refuses_what_python_
     (tmp_path / "missing.png").write_bytes(missing.getvalue())
     placed = world.read_model_map(tmp_path / "missing.png")
     said = []
-    for refused, change in ((dict(models=towers), lambda: page.set_input_files("#models-map-file", str(tmp_path / "missing.png"))),
-                            ({}, lambda: page.select_option("#models", [])),
-                            (dict(arrange="blend"), lambda: page.select_option("#arrange", "blend"))):
+    changes = ((dict(models=towers), lambda: page.set_input_files("#models-map-file", str(tmp_path / "missing.png"))),
+               ({}, lambda: page.select_option("#models", [])),  # the tower ruin unpicked
+               (dict(arrange="blend"), lambda: page.select_option("#arrange", "blend")))
+    for refused, change in changes:
         with pytest.raises(InputError) as python:
             world.WorldOptions(**{"arrange": "scatter", "models_map": placed, **refused})
         change()
         refused_as_python(page, str(python.value))
         said.append(str(python.value))
-    assert "tile (1, 0) names model 2, and the world has 2" in said[0] and "names model 1, and the world has 1" in said[1]
+    assert "tile (1, 0) names model 2, and the world has 2" in said[0]
+    assert "names model 1, and the world has 1" in said[1]
     assert "for a scatter world" in said[2] and "models=towerruins" not in page.url
     assert not page.errors and not page.outside
 
