@@ -127,7 +127,7 @@ def test_a_two_model_worlds_tiles_are_the_python_runtimes(site_page, first, monk
         objects = (python != 128).any(axis=1).sum()  # the acropolis has no colour: grey, as the ground
         assert objects == 0 if tile == own else objects >= 20
     up = layout.up
-    reach = alone[0]["grid"].shape[up]  # the one-model world's heights; the tower's reach higher
+    reach = alone[0]["grid"].shape[up]  # the one-model world's heights (a taller second model's reach higher)
     assert np.array_equal(np.take(mixed[0]["grid"], range(reach), up).view(np.uint32), alone[0]["grid"].view(np.uint32))
     assert not np.array_equal(np.take(mixed[1]["grid"], range(reach), up), alone[1]["grid"])
     assert len(mixed[1]["faces"]) != len(alone[1]["faces"])
