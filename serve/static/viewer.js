@@ -22,7 +22,7 @@ import * as sampling from './viewer/sampling.js';
 import { camera, frame, memory, orient, renderer, scene, showMesh, summary } from './viewer/scene.js';
 import { STATIC_SITE, canWalk, fileStem, readUrl, record, requestOf, state, walk, worldOptions, writeUrl } from './viewer/state.js';
 import * as world from './viewer/world.js';
-import { readHeightMap } from './viewer/heights.js';
+import { readHeightMap, readModelMap } from './viewer/heights.js';
 
 window.sinshapeView = { // for the tests and the console
   scene, camera, renderer, shape: summary, memory, pick: editor.pick, facePoint: editor.facePoint,
@@ -110,6 +110,7 @@ async function showWorld(request, ticket, options) {
   const { reach, walk: walking } = worldOptions();
   editor.dropLayout();
   const info = await sampling.info(state.where, state.model, options);
+  const others = await Promise.all(request.models.map((name) => sampling.info(state.where, name, options))); // the world's other models
   if (ticket !== latest) return;
   if (!state.arrange) { // as the model records, shown and in the URL
     state.arrange = $('arrange').value = info.arrange ?? 'blend';
@@ -117,8 +118,9 @@ async function showWorld(request, ticket, options) {
     request = requestOf();
   }
   if (document.activeElement === $('edit')) $('edit').blur(); // the keys fly now, not pick another mode
-  world.show({ where: state.where, name: state.model, seed: request.seed ?? 0n, scale: request.scale, tile: request.tile, info, reach, walk: walking,
-    arrange: request.arrange, heights: request.heights }, (status) => showWorldStatus(status, ticket));
+  world.show({ where: state.where, name: state.model, seed: request.seed ?? 0n, scale: request.scale, tile: request.tile, info, others, reach, walk: walking,
+    arrange: request.arrange, heights: request.heights, models: request.models, modelsMap: request.models_map },
+  (status) => showWorldStatus(status, ticket));
 }
 
 /** The world's work so far: the camera's tile in the controls and the URL, what is shown and made. */
@@ -180,35 +182,41 @@ async function openFile(file) {
     return;
   }
   if (ticket !== latest) return;
-  if (![...$('model').options].some((o) => o.value === name)) $('model').add(new Option(name, name));
+  if (![...$('model').options].some((o) => o.value === name)) {
+    $('model').add(new Option(name, name));
+    $('models').add(new Option(name, name));
+  }
   readForm();
   state.model = name;
   toForm();
   load();
 }
 
-let mapName = ''; // the height map's file
+const mapNames = { heights: '', modelsMap: '' }; // the maps' files
 
-/** Shape the world with a height map from a file; the world mode shows it at once. */
-async function openMap(file) {
-  $('map-file').value = ''; // the same file again is a change too
+/** Shape the world with a height map (`which` 'heights') or place its models with a model map ('modelsMap') from a file;
+ * the world mode shows it at once. */
+async function openMap(which, input) {
+  const [file] = input.files;
+  input.value = ''; // the same file again is a change too
   try {
-    const info = await sampling.info(state.where, state.model, {});
-    state.heights = await readHeightMap(file, info);
-    mapName = file.name;
+    state[which] = which === 'heights' ? await readHeightMap(file, await sampling.info(state.where, state.model, {})) : await readModelMap(file);
+    mapNames[which] = file.name;
   } catch (error) {
     fail(error);
     return;
   }
-  showMap();
+  showMaps();
   readForm();
   load();
 }
 
-/** The height map's name on its button, and the button that drops it. */
-function showMap() {
-  $('map-label').firstChild.textContent = state.heights ? `map: ${mapName}` : 'height map';
+/** The maps' names on their buttons, and the buttons that drop them. */
+function showMaps() {
+  $('map-label').firstChild.textContent = state.heights ? `map: ${mapNames.heights}` : 'height map';
   $('map-clear').hidden = !state.heights;
+  $('models-map-label').firstChild.textContent = state.modelsMap ? `model map: ${mapNames.modelsMap}` : 'model map';
+  $('models-map-clear').hidden = !state.modelsMap;
 }
 
 async function start() {
@@ -219,6 +227,7 @@ async function start() {
     const models = await response.json();
     for (const m of models) {
       $('model').add(new Option(`${m.name} (${m.size.join('x')})`, m.name));
+      $('models').add(new Option(m.name, m.name));
       sampling.addModel(m.name, { url: STATIC_SITE ? m.file : `api/models/${encodeURIComponent(m.name)}/onnx`, file: `${m.name}.onnx` });
       ups.set(m.name, m.up ?? 'y');
     }
@@ -236,17 +245,20 @@ async function start() {
   $('prev').addEventListener('click', () => step(-1));
   $('next').addEventListener('click', () => step(+1));
   $('file').addEventListener('change', () => { if ($('file').files.length) openFile($('file').files[0]); });
-  $('map-file').addEventListener('change', () => { if ($('map-file').files.length) openMap($('map-file').files[0]); });
-  $('map-clear').addEventListener('click', () => { state.heights = null; showMap(); load(); });
+  for (const [which, input, clear] of [['heights', 'map-file', 'map-clear'], ['modelsMap', 'models-map-file', 'models-map-clear']]) {
+    $(input).addEventListener('change', () => { if ($(input).files.length) openMap(which, $(input)); });
+    $(clear).addEventListener('click', () => { state[which] = null; showMaps(); load(); });
+  }
   $('model').addEventListener('change', () => {
     readForm();
     state.up = ups.get(state.model) ?? state.up;
     $('up').value = state.up;
-    state.arrange = ''; // another model's world is made as that model records
+    state.arrange = ''; // another model's world is made as that model records...
+    if (state.modelsMap) state.arrange = $('arrange').value = 'scatter'; // ...or, with a model map, scattered
     load();
   });
   const boxes = ['bx0', 'by0', 'bz0', 'bx1', 'by1', 'bz1', 'gx', 'gy', 'gz', 'ax', 'ay', 'az'];
-  for (const id of ['where', 'seed', 'sx', 'sy', 'sz', 'scale', 'smooth', 'edit', 'other', 'at', 'travel', 'reach', 'arrange', ...boxes]) {
+  for (const id of ['where', 'seed', 'sx', 'sy', 'sz', 'scale', 'smooth', 'edit', 'other', 'at', 'travel', 'reach', 'arrange', 'models', ...boxes]) {
     $(id).addEventListener('change', () => { readForm(); load(); });
   }
   for (const id of boxes) { // the box follows as it is typed

@@ -31,6 +31,9 @@ export function pyRepr(value) {
   return String(value);
 }
 
+/** An array as Python writes a tuple, (2, 3) or (2,) (a shape in a message); anything else as repr(). */
+export const pyTuple = (value) => (Array.isArray(value) ? `(${value.map(pyRepr).join(', ')}${value.length === 1 ? ',' : ''})` : pyRepr(value));
+
 /** A value as Python's str() writes it (a string as it is). */
 export const pyStr = (value) => (typeof value === 'string' ? value : pyRepr(value));
 

@@ -4,8 +4,8 @@
 // model's colour tiles.
 import * as ort from '../vendor/onnxruntime-web/ort.wasm.min.mjs';
 import { unseal } from './seal.js';
-import { FLOAT, FormatError, INT8, INT32, UINT8, readModel, stageModel, tensorArray, tupleText } from './onnx.js';
-import { InputError } from './errors.js';
+import { FLOAT, FormatError, INT8, INT32, UINT8, readModel, stageModel, tensorArray } from './onnx.js';
+import { InputError, pyTuple } from './errors.js';
 import { TAB_BYTES, headColour } from './query.js';
 import { Tiles } from './colour.js';
 
@@ -226,7 +226,7 @@ function readWeights(weights, names, shapes, name) {
   const tensors = names.map((n) => weights.get(n));
   const arrays = readArrays(tensors, names.map(() => FLOAT), name);
   if (tensors.some((t, k) => !sameJson(t.dims, shapes[k]))) {
-    throw new InputError(`${name}: decoder head weights have shapes ${tensors.map((t) => tupleText(t.dims)).join(', ')}`);
+    throw new InputError(`${name}: decoder head weights have shapes ${tensors.map((t) => pyTuple(t.dims)).join(', ')}`);
   }
   if (!arrays.every((a) => a.every(Number.isFinite))) throw new InputError(`${name}: decoder head weights are not finite`);
   return arrays;
@@ -251,11 +251,11 @@ function readTiles(model, manifest, name) {
   const [voxels, directions, images, distance] = readArrays(tensors, [INT32, UINT8, UINT8, INT8], name);
   const size = manifest.sizes[manifest.sizes.length - 1];
   if (!sameJson(tensors[0].dims, [count, 3]) || !sameJson(tensors[1].dims, [count]) || !sameJson(tensors[2].dims, [count, side, side, 4])) {
-    throw new InputError(`${name}: colour tiles of shapes ${tensors.slice(0, 3).map((t) => tupleText(t.dims)).join(', ')} `
+    throw new InputError(`${name}: colour tiles of shapes ${tensors.slice(0, 3).map((t) => pyTuple(t.dims)).join(', ')} `
       + `do not match the manifest's ${count} of side ${side}`);
   }
   if (!sameJson(tensors[3].dims, size)) {
-    throw new InputError(`${name}: a colour distance grid of shape ${tupleText(tensors[3].dims)}, not the finest level's ${tupleText(size)}`);
+    throw new InputError(`${name}: a colour distance grid of shape ${pyTuple(tensors[3].dims)}, not the finest level's ${pyTuple(size)}`);
   }
   if (!voxels.every((v, i) => v >= 0 && v < size[i % 3]) || !directions.every((d) => d < 6)) {
     throw new InputError(`${name}: colour tiles lie outside the model's finest level`);

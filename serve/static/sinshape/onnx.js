@@ -8,7 +8,7 @@
 // Field numbers: onnx/onnx.proto (ModelProto, GraphProto, NodeProto, TensorProto,
 // ValueInfoProto, StringStringEntryProto).
 
-import { pyRepr } from './errors.js';
+import { pyRepr, pyTuple } from './errors.js';
 
 export class FormatError extends Error {}
 
@@ -105,9 +105,6 @@ export const FLOAT = 1, UINT8 = 2, INT8 = 3, INT32 = 6; // TensorProto.DataType
 export const MAX_DIM = 2 ** 40; // a weight's side, below it (onnxfile.MAX_DIM)
 export const ARRAYS = { [FLOAT]: ['float32', Float32Array], [UINT8]: ['uint8', Uint8Array], [INT8]: ['int8', Int8Array], [INT32]: ['int32', Int32Array] };
 
-/** A Python tuple's text, as messages print shapes: (3,), (2, 3). */
-export const tupleText = (dims) => `(${dims.join(', ')}${dims.length === 1 ? ',' : ''})`;
-
 /**
  * A tensor of type `wanted` as a typed array in C order (runtime/onnxfile.py:
  * tensor_array): float32 from raw_data or float_data, uint8 or int32 (data,
@@ -125,7 +122,7 @@ export function tensorArray(tensor, wanted = FLOAT) {
     new Uint8Array(values.buffer).set(tensor.data); // a copy, aligned (little-endian, as every browser is)
   } else values = Float32Array.from(tensor.floats);
   if (tensor.dims.some((d) => d >= MAX_DIM) || values.length !== tensor.dims.reduce((a, b) => a * b, 1)) {
-    throw new FormatError(`weight ${name} has ${values.length} values for shape ${tupleText(tensor.dims)}`);
+    throw new FormatError(`weight ${name} has ${values.length} values for shape ${pyTuple(tensor.dims)}`);
   }
   return values;
 }

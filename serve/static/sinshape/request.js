@@ -9,7 +9,9 @@
 //   const request = sampleRequest({ seed: 7n, size: [2, 1, 1], keep: ['3:0%,0%,0%:50%,100%,100%'] });
 //   const tri = await make(model, request);                          // as request.make
 //   const tile = await makeTile(model, sampleRequest({ seed: 7n, tile: [5n, -2n], frame: 'tile' }));  // a world's tile: a mesh
-import { ConflictError, InputError, pyRepr, pyStr } from './errors.js';
+//   const mixed = await makeTile(model, sampleRequest({ seed: 7n, tile: [5n, -2n], frame: 'tile', arrange: 'scatter',
+//     models: ['towerruins'], models_map: ModelMap.of([0, 1, 1, 0], [2, 2]) }), null, [towerruins]);  // two models' world
+import { ConflictError, InputError, pyRepr, pyStr, pyTuple } from './errors.js';
 import { OPTIONS } from './options.js';
 import { sample, scaledSizes } from './generate.js';
 import { checkPart, compose, grow, parsePart } from './edit.js';
@@ -33,8 +35,7 @@ const isNumber = (v) => typeof v === 'number';
 export const Layout = {
   of(grid, shape, resample = false) {
     if (!(Array.isArray(shape) && shape.length === 3 && shape.every((n) => Number.isInteger(n) && n > 0))) {
-      const tuple = Array.isArray(shape) ? `(${shape.map(pyRepr).join(', ')}${shape.length === 1 ? ',' : ''})` : pyRepr(shape);
-      throw new InputError(`a layout is a 3-D grid, got shape ${tuple}`, 'layout');
+      throw new InputError(`a layout is a 3-D grid, got shape ${pyTuple(shape)}`, 'layout');
     }
     if (grid?.length !== shape[0] * shape[1] * shape[2]) {
       throw new InputError(`a layout of ${shape.join('x')} cells needs ${shape[0] * shape[1] * shape[2]} values, got ${grid?.length}`, 'layout');
@@ -90,11 +91,15 @@ export function sampleRequest(fields = {}) {
     layout = Layout.of(layout.grid, layout.shape, layout.resample);
   }
   const tile = given.tile === null ? null : checkTile(given.tile);
-  const { arrange, heights, lod } = worldOptions({ arrange: given.arrange, heights: given.heights, lod: given.lod });
+  const models = typeof given.models === 'string' ? [given.models] : given.models;
+  if (!(Array.isArray(models) && models.every((name) => typeof name === 'string'))) {
+    throw new InputError("models is the world's other models' files, as paths", 'models');
+  }
+  const world = worldOptions({ arrange: given.arrange, heights: given.heights, lod: given.lod, models, models_map: given.models_map });
   const request = Object.freeze({
     ...given, // every option, in the table's order: one this file does not check yet as given (make refuses it)
     seed, recon: Boolean(given.recon), size, scale, smooth, smoother: given.smoother, largest: Boolean(given.largest),
-    frame: given.frame, keep: Object.freeze([...keep]), grow: grown, anchor, layout, tile, arrange, heights, lod,
+    frame: given.frame, keep: Object.freeze([...keep]), grow: grown, anchor, layout, tile, ...world,
   });
   checkTogether(request);
   return request;
@@ -122,15 +127,15 @@ function checkTogether(request) {
 }
 
 /** The world's fields given other than their defaults, as SampleRequest.world_fields. */
-const worldFields = (request) => [['arrange', request.arrange !== DEFAULTS.arrange], ['heights', request.heights !== null], ['lod', request.lod]]
-  .filter(([, value]) => value).map(([name]) => name);
+const worldFields = (request) => [['arrange', request.arrange !== DEFAULTS.arrange], ['heights', request.heights !== null], ['lod', request.lod],
+  ['models', request.models.length], ['models_map', request.models_map !== null]].filter(([, value]) => value).map(([name]) => name);
 
 // The options this runtime makes, for a sample (make) and for a tile (makeTile).
 // Any other given other than its default (Python's smoother 'taubin', largest, a
 // sample's frame, an option added to the table later) is refused, never dropped.
 export const MAKES = Object.freeze({
   sample: Object.freeze(['seed', 'recon', 'size', 'scale', 'smooth', 'keep', 'grow', 'anchor', 'layout']),
-  tile: Object.freeze(['seed', 'scale', 'frame', 'tile', 'arrange', 'heights', 'lod']),
+  tile: Object.freeze(['seed', 'scale', 'frame', 'tile', 'arrange', 'heights', 'lod', 'models', 'models_map']),
 });
 
 /** Refuse what a request asks of an option this runtime does not make for its kind (an InputError naming it). */
@@ -182,12 +187,14 @@ export async function make(model, request, progress = null) {
  * The mesh of a tile request (`tile` given), as write.tile_bytes makes it:
  * { positions: Float32Array (V, 3) in the request's frame, faces, normals,
  * colours (or null), corner: the tile's lowest corner in voxels (BigInts) }.
+ * `models`: the request's other models (its `models` names them), loaded.
  */
-export async function makeTile(model, request, progress = null) {
+export async function makeTile(model, request, progress = null, models = []) {
   refuseUnmade(request, 'tile');
+  if (models.length !== request.models.length) throw new Error(`the request names ${request.models.length} other models, ${models.length} given`);
   checkPlacement(model.manifest, request.tile, request.frame); // refused before the work, not after
   progress?.('making the tile', null);
-  const options = worldOptions(request);
+  const options = worldOptions({ ...request, models });
   const { positions, faces, normals, colours } = await tileSurface(model, sampleSeed(request), request.tile, request.scale, options);
   return { positions: placed(model.manifest, request.tile, positions, request.frame), faces,
            normals: frameNormals(model.manifest, normals, request.frame), colours, corner: tileCorner(worldLayout(model.manifest), request.tile) };

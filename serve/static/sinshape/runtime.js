@@ -20,7 +20,7 @@ export { loadModel, configure, parseManifest } from './model.js';
 export { parseSize, parseTriple, sample, scaledSizes } from './generate.js';
 export { compose, grow, parsePart } from './edit.js';
 export { Layout, make, makeTile, sampleRequest } from './request.js';
-export { tileColours, tileCorner, tileMesh, tileOccupancy, windowSeed, worldLayout } from './world.js';
+export { HeightMap, ModelMap, tileColours, tileCorner, tileMesh, tileOccupancy, windowSeed, worldLayout } from './world.js';
 export { normal, streamKey } from './noise.js';
 export { dense, gridShape, project, projectedColours, projectedDense } from './query.js';
 export { colouring, colours, vertexColours } from './colour.js';

@@ -8,7 +8,8 @@
 //     -> { id, type: 'loaded', backend, threads, seconds, sizes, origin, spacing, up, arrange }  (the manifest's grids, frame and world)
 //   { id, type: 'sample', name, request }  request: a sample request (request.js: sampleRequest, or a
 //       structured clone of one), made as runtime.request.make makes it (request.js: make), or
-//       with a tile, that tile of the world (request.js: makeTile; docs/WORLDS.md)
+//       with a tile, that tile of the world (request.js: makeTile; docs/WORLDS.md), its other
+//       models (the request's `models`) by the names they were loaded under
 //     -> { id, type: 'progress', stage, fraction }  (fraction in [0, 1], or null)
 //     -> { id, type: 'done', positions, faces, colours, seconds }  (the buffers are transferred;
 //        colours: a coloured model's sRGB per vertex, Float32Array (V, 3), else null; a tile's
@@ -48,7 +49,8 @@ async function sample({ name, request }, progress) {
   const model = await loaded(name);
   const started = performance.now();
   if (wanted.tile !== null) { // a tile takes none of the surface options it could not keep seamless (the request says so)
-    const { positions, faces, normals, colours, corner } = await makeTile(model, wanted, progress);
+    const others = await Promise.all(wanted.models.map(loaded));
+    const { positions, faces, normals, colours, corner } = await makeTile(model, wanted, progress, others);
     return { positions, faces, normals, colours, corner: corner.map(String), seconds: (performance.now() - started) / 1000 };
   }
   const tri = await make(model, wanted, progress);

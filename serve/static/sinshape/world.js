@@ -4,8 +4,11 @@
 // of the training extent with their own noise, keyed by (seed, a, b) at
 // lattice point (a, b)), blended with smoothstep weights that sum to one,
 // contrast kept. scatter: whole samples, one in most cells of a coarser
-// lattice at a drawn place, on a ground, the largest occupancy. A height map
-// raises a blend world's columns, and a scatter world's ground and objects.
+// lattice at a drawn place, on a ground, the largest occupancy; of several
+// models, each cell's object is a sample of the model a model map names there
+// (the first model sets the tiles, ground and axes; cells widen only where a
+// larger model needs room). A height map raises a blend world's columns, and
+// a scatter world's ground and objects.
 // A tile depends on the windows that reach into it only, so it costs the
 // same anywhere and whatever was made before; a coarser tile (lod) reads an
 // earlier level and hangs a skirt from its sides. A format-5 model's
@@ -19,10 +22,11 @@
 //
 //   const layout = worldLayout(model.manifest);                         // horizontal axes, up, stride S per axis
 //   const options = worldOptions({ arrange: 'scatter', lod: 1 });       // as world.WorldOptions
+//   const mixed = worldOptions({ arrange: 'scatter', models: [tower], models_map: ModelMap.of([0, 1, 1, 0], [2, 2]) });  // two models
 //   const grid = await tileOccupancy(model, 3n, [5n, -2n], 1, options);  // { data: Float32Array (X, Y, Z), shape }
 //   const mesh = await tileMesh(model, 3n, [5n, -2n], 1, options);       // { positions (voxels from the corner), faces }
 //   const surface = await tileSurface(model, 3n, [5n, -2n], 1, options); // ... and normals, colours, a coarser tile's skirt
-import { InputError, formatG, pyRepr } from './errors.js';
+import { InputError, formatG, pyRepr, pyTuple } from './errors.js';
 import { checkSeed, drawNoise, roundHalfEven, scaledSizes, triplane } from './generate.js';
 import { marchingCubes } from './mesh.js';
 import { GOLDEN, mix64Big, streamKey } from './noise.js';
@@ -46,6 +50,7 @@ export const SKIRT = 2.0; // world.SKIRT: a coarser tile's skirt, in its grid's 
 export const GROUND_COLOUR = [0.5, 0.5, 0.5]; // world.GROUND_COLOUR
 export const MAX_MAP_SIDE = 1 << 12; // world.MAX_MAP_SIDE
 export const MAX_RELIEF = 1 << 14; // world.MAX_RELIEF
+export const MAX_MODELS = 256; // world.MAX_MODELS: models in one world (a model map's pixel is a byte)
 export const MAX_POINTS = 1 << 14; // per axis of a tile, as world.check_world_scale
 export const MAX_ABSOLUTE = 2n ** 18n; // world.MAX_ABSOLUTE: voxels from the origin that float32 still places to 1/64
 
@@ -82,8 +87,7 @@ export const HeightMap = {
   of(values, shape) {
     const sides = Array.isArray(shape) && shape.length === 2 && shape.every((n) => Number.isInteger(n));
     if (!(sides && Math.min(...shape) > 0 && Math.max(...shape) <= MAX_MAP_SIDE)) {
-      const tuple = Array.isArray(shape) ? `(${shape.map(pyRepr).join(', ')}${shape.length === 1 ? ',' : ''})` : pyRepr(shape);
-      throw new InputError(`a height map is a 2-D array of 1 to ${MAX_MAP_SIDE} pixels a side, got shape ${tuple}`, 'heights');
+      throw new InputError(`a height map is a 2-D array of 1 to ${MAX_MAP_SIDE} pixels a side, got shape ${pyTuple(shape)}`, 'heights');
     }
     if (values?.length !== shape[0] * shape[1]) {
       throw new InputError(`a height map of ${shape.join('x')} pixels needs ${shape[0] * shape[1]} values, got ${values?.length}`, 'heights');
@@ -101,14 +105,67 @@ export const HeightMap = {
   },
 };
 
-/** How a world is made and how finely one of its tiles is, checked as world.WorldOptions: { arrange, heights, lod }. */
-export function worldOptions({ arrange = 'blend', heights = null, lod = 0 } = {}) {
+/**
+ * A designer's map of which model goes where in a scattered world, as
+ * world.ModelMap.of: a model's index (0 the world's first) per tile (r, c), r
+ * along the first horizontal axis, from tile (0, 0); beyond its edges, its
+ * edge. { shape, data: Uint8Array (R, C) in C order }.
+ */
+export const ModelMap = {
+  of(values, shape) {
+    const sides = Array.isArray(shape) && shape.length === 2 && shape.every((n) => Number.isInteger(n));
+    if (!(sides && Math.min(...shape) > 0 && Math.max(...shape) <= MAX_MAP_SIDE)) {
+      throw new InputError(`a model map is a 2-D array of 1 to ${MAX_MAP_SIDE} pixels a side, got shape ${pyTuple(shape)}`, 'models_map');
+    }
+    if (values?.length !== shape[0] * shape[1]) {
+      throw new InputError(`a model map of ${shape.join('x')} pixels needs ${shape[0] * shape[1]} values, got ${values?.length}`, 'models_map');
+    }
+    if (!Array.from(values).every((v) => Number.isInteger(v) && v >= 0 && v < MAX_MODELS)) {
+      throw new InputError(`a model map holds models' indices, whole numbers 0 to ${MAX_MODELS - 1}`, 'models_map');
+    }
+    return Object.freeze({ shape: [...shape], data: Uint8Array.from(values) });
+  },
+  /** The index at tile (r, c) (BigInts), the edge's beyond the map, as ModelMap.at. */
+  at(map, r, c) {
+    const clamp = (t, n) => Number(t < 0n ? 0n : t > BigInt(n - 1) ? BigInt(n - 1) : t);
+    return map.data[clamp(r, map.shape[0]) * map.shape[1] + clamp(c, map.shape[1])];
+  },
+};
+
+/**
+ * How a world is made and how finely one of its tiles is, checked as
+ * world.WorldOptions: { arrange, heights, lod, models (a scattered world's
+ * models after its first: 1, 2, ...), models_map (a ModelMap: which of them
+ * each scatter cell draws its object from) }.
+ */
+export function worldOptions({ arrange = 'blend', heights = null, lod = 0, models = [], models_map: map = null } = {}) {
   if (!ARRANGEMENTS.includes(arrange)) throw new InputError(`unknown arrangement ${pyRepr(arrange)}; choose ${ARRANGEMENTS.join(' or ')}`, 'arrange');
   if (heights !== null && !(heights?.data instanceof Float32Array && Array.isArray(heights.shape))) {
     throw new InputError('heights must be a world.HeightMap (HeightMap.of(array))', 'heights');
   }
   if (!(Number.isInteger(lod) && lod >= 0)) throw new InputError(`lod must be a whole number of levels, 0 or more, got ${pyRepr(lod)}`, 'lod');
-  return Object.freeze({ arrange, heights, lod });
+  if (!(Array.isArray(models) && models.length < MAX_MODELS)) {
+    throw new InputError(`models is a tuple of at most ${MAX_MODELS - 1} models after the first`, 'models');
+  }
+  const options = Object.freeze({ arrange, heights, lod, models: Object.freeze([...models]), models_map: map });
+  if (map === null) {
+    if (models.length) throw new InputError('several models need a model map saying which goes where', 'models_map');
+    return options;
+  }
+  if (!(map?.data instanceof Uint8Array && Array.isArray(map.shape))) {
+    throw new InputError('models_map must be a world.ModelMap (ModelMap.of(array))', 'models_map');
+  }
+  if (arrange !== 'scatter') {
+    throw new InputError("a model map places whole objects: it is for a scatter world (blended models' tiles, voxels and "
+      + 'heights differ)', 'models_map');
+  }
+  const named = map.data.findIndex((v) => v > models.length);
+  if (named >= 0) {
+    const [r, c] = [Math.floor(named / map.shape[1]), named % map.shape[1]];
+    throw new InputError(`the model map's pixel for tile (${r}, ${c}) names model ${map.data[named]}, and the world has `
+      + `${models.length + 1} (0 to ${models.length})`, 'models_map');
+  }
+  return options;
 }
 
 const PLAIN = worldOptions();
@@ -227,21 +284,66 @@ function scatterCell(seed, a, b, room) {
            mirror: [(draw[3] & 1n) !== 0n, (draw[3] & 2n) !== 0n] };
 }
 
-/** The objects of a scatter world that reach into tile (i, j), in a fixed order, as world.objects_near (their planes not made). */
-function objectsNear(model, layout, seed, [i, j], level, heights) {
-  const [h0, h1] = layout.horizontal, finest = model.manifest.sizes.at(-1);
-  const s0 = BigInt(layout.stride[h0]), s1 = BigInt(layout.stride[h1]);
-  const p0 = BigInt(PITCH * layout.stride[h0]), p1 = BigInt(PITCH * layout.stride[h1]);
-  const e0 = finest[h0] - 1, e1 = finest[h1] - 1;
+/** A scattered world's model `index` (0 the first, `model`) and its own cut, as world.object_model: [model, layout]. */
+function objectModel(model, options, index) {
+  if (!index) return [model, worldLayout(model.manifest)];
+  const other = options.models[index - 1];
+  try {
+    return [other, worldLayout(other.manifest)];
+  } catch (error) {
+    if (error instanceof InputError) throw new InputError(`model ${index} of the world: ${error.message}`, 'models');
+    throw error;
+  }
+}
+
+/**
+ * A scatter world's cell side per horizontal axis (PITCH strides, or room for
+ * its largest model's objects and half a stride) and each model's object
+ * extent E - 1 along the world's two horizontal axes, as world.scatter_geometry: [pitch, extents].
+ */
+function scatterGeometry(model, layout, options) {
+  const extents = [];
+  for (let index = 0; index <= options.models.length; index++) {
+    const [each, own] = objectModel(model, options, index), finest = each.manifest.sizes.at(-1);
+    extents.push([finest[own.horizontal[0]] - 1, finest[own.horizontal[1]] - 1]);
+  }
+  const pitch = layout.horizontal.map((h, n) => Math.max(PITCH * layout.stride[h], Math.max(...extents.map((extent) => extent[n]))
+    + Math.floor(layout.stride[h] / 2)));
+  return [pitch, extents];
+}
+
+/**
+ * An object's model, that model's cut, and the object's planes at the first
+ * model's `level` (in the object's model, as many levels from its finest, or
+ * its coarsest), as world.object_window: [model, layout, window].
+ */
+async function objectWindow(model, options, seed, placed, level) {
+  const [each, own] = objectModel(model, options, placed.model);
+  level = Math.max(each.manifest.sizes.length - model.manifest.sizes.length + level, 0);
+  return [each, own, await windowAt(each, own, seed, ...placed.cell, level, 'scatter')];
+}
+
+/**
+ * The objects of a scatter world that reach into tile (i, j), in a fixed
+ * order, as world.objects_near (their planes not made): each from the model
+ * its cell's centre's pixel of the model map names.
+ */
+function objectsNear(model, layout, seed, [i, j], level, options) {
+  const { heights, models_map: map } = options, [h0, h1] = layout.horizontal;
+  const [pitch, extents] = scatterGeometry(model, layout, options);
+  const [p0, p1] = pitch.map(BigInt), s0 = BigInt(layout.stride[h0]), s1 = BigInt(layout.stride[h1]);
   const found = [];
   for (let a = floorDiv(i * s0, p0) - 1n; a < floorDiv((i + 1n) * s0, p0) + 1n; a++) {
     for (let b = floorDiv(j * s1, p1) - 1n; b < floorDiv((j + 1n) * s1, p1) + 1n; b++) {
+      const index = map === null ? 0 : ModelMap.at(map, floorDiv(2n * a * p0 + p0, 2n * s0), floorDiv(2n * b * p1 + p1, 2n * s1)); // exact, anywhere
+      const [e0, e1] = extents[index];
       const cell = scatterCell(seed, a, b, [Number(p0) - e0, Number(p1) - e1]);
       const low = [a * p0 + BigInt(cell.offset[0]), b * p1 + BigInt(cell.offset[1])];
       if (!cell.present || low[0] > (i + 1n) * s0 || low[0] + BigInt(e0) < i * s0 || low[1] > (j + 1n) * s1
           || low[1] + BigInt(e1) < j * s1) continue;
       const height = heights === null ? 0 : objectHeight(heights, layout, low, [e0, e1]);
-      found.push({ cell: [a, b], corner: [Number(low[0] - i * s0), Number(low[1] - j * s1)], extent: [e0, e1], mirror: cell.mirror, height });
+      found.push({ cell: [a, b], corner: [Number(low[0] - i * s0), Number(low[1] - j * s1)], extent: [e0, e1], mirror: cell.mirror, height,
+                   model: index });
     }
   }
   return found;
@@ -294,14 +396,20 @@ function behindWeight(u, stride) {
   return Math.fround(smoothstep(Math.min(Math.max((f - 0.5) / BLEND + 0.5, 0), 1)));
 }
 
-/** A tile's grid at `scale` and `lod`, as world.tile_grid: per model axis the positions (horizontal: from the tile's corner; up: from the floor). */
-function tileGrid(manifest, layout, scale, options) {
-  const sizes = manifest.sizes, level = checkLod(manifest, options.lod);
+/**
+ * A tile's grid at `scale` and `lod`, as world.tile_grid: per model axis the
+ * positions (horizontal: from the tile's corner; up: from the floor, to the
+ * world's tallest model's top).
+ */
+function tileGrid(model, layout, scale, options) {
+  const { sizes } = model.manifest, level = checkLod(model.manifest, options.lod);
   return [0, 1, 2].map((axis) => {
     const ratio = (sizes[level][axis] - 1) / (sizes.at(-1)[axis] - 1), stride = layout.stride[axis];
     if (axis === layout.up) {
       const m = Math.max(2, roundHalfEven((stride + 1) * scale * ratio)), step = stride / (m - 1);
-      const [low, high] = options.heights ? HeightMap.bounds(options.heights) : [0, 0];
+      const [low, mapped] = options.heights ? HeightMap.bounds(options.heights) : [0, 0];
+      const cuts = options.models.map((_, k) => objectModel(model, options, k + 1)[1]);
+      const high = mapped + Math.max(0, ...cuts.map((cut) => cut.stride[cut.up] - stride)); // a taller model's objects
       const count = m + Math.ceil((high - low) / step);
       return Float64Array.from({ length: count }, (_, k) => low + k * step);
     }
@@ -424,7 +532,7 @@ async function blendSources(model, layout, seed, [i, j], level) {
  */
 async function tileLogits(model, seed, [i, j], scale, options) {
   const { manifest } = model, d = manifest.hidden, layout = worldLayout(manifest), level = checkLod(manifest, options.lod);
-  const grid = tileGrid(manifest, layout, scale, options);
+  const grid = tileGrid(model, layout, scale, options);
   checkGrid(grid, scale, d);
   const [h0, h1] = layout.horizontal, up = layout.up, top = layout.stride[up];
   const shape = grid.map((p) => p.length), [u0, u1, z] = [grid[h0], grid[h1], grid[up]];
@@ -433,31 +541,10 @@ async function tileLogits(model, seed, [i, j], scale, options) {
   const nx = u0.length, ny = u1.length, nk = z.length;
   const rise = new Float64Array(nx * ny);
   if (options.heights) for (let x = 0; x < nx; x++) for (let y = 0; y < ny; y++) rise[x * ny + y] = mapHeight(options.heights, layout, u0[x], u1[y], [i, j]);
-  const hidden = new Float64Array(d);
   if (options.arrange === 'scatter') {
     for (let x = 0; x < nx; x++) for (let y = 0; y < ny; y++) for (let k = 0; k < nk; k++) out[x * sx + y * sy + k * sk] = -GROUND_SLOPE * (z[k] - rise[x * ny + y] - GROUND);
-    for (const placed of objectsNear(model, layout, seed, [i, j], level, options.heights)) {
-      const inside = [u0, u1].map((u, k) => {
-        const chosen = [], cells = [];
-        u.forEach((at, n) => {
-          const position = at - placed.corner[k];
-          if (position >= 0 && position <= placed.extent[k]) { chosen.push(n); cells.push(placed.mirror[k] ? placed.extent[k] - position : position); }
-        });
-        return { chosen, cells };
-      });
-      if (!inside[0].chosen.length || !inside[1].chosen.length) continue;
-      placed.window = await windowAt(model, layout, seed, ...placed.cell, level, 'scatter');
-      const c0 = Float64Array.from(inside[0].cells, (c) => c * placed.window.cells[h0]), c1 = Float64Array.from(inside[1].cells, (c) => c * placed.window.cells[h1]);
-      const read = readPlanes(placed.window, layout, c0, c1), m1 = inside[1].chosen.length;
-      inside[0].chosen.forEach((x, n0) => inside[1].chosen.forEach((y, n1) => {
-        for (let k = 0; k < nk; k++) {
-          const cell = Math.min(Math.max(z[k] - placed.height, 0), top) * placed.window.cells[up];
-          for (let e = 0; e < d; e++) hidden[e] = read.flat.data[(n0 * m1 + n1) * d + e];
-          for (const v of read.vertical) addUp(v, v.alongFirst ? n0 : n1, cell, hidden);
-          const logit = capped(headLogit(model.head, hidden), z[k] - placed.height - top), where = x * sx + y * sy + k * sk;
-          if (logit > out[where]) out[where] = logit;
-        }
-      }));
+    for (const placed of objectsNear(model, layout, seed, [i, j], level, options)) {
+      await scatterInto(out, [sx, sy, sk], model, options, seed, level, placed, u0, u1, z);
     }
     return { data: out, shape };
   }
@@ -471,7 +558,7 @@ async function tileLogits(model, seed, [i, j], scale, options) {
   const cellsUp = sources[0].window.cells[up], count = reads[0].vertical[0].count, means = sources.map((s) => s.window.mean);
   const alongX = reads.map((r) => r.vertical.find((v) => v.alongFirst).data), alongY = reads.map((r) => r.vertical.find((v) => !v.alongFirst).data);
   const flats = reads.map((r) => r.flat.data);
-  const meanSum = new Float64Array(d), deviation = new Float64Array(d);
+  const hidden = new Float64Array(d), meanSum = new Float64Array(d), deviation = new Float64Array(d);
   for (let x = 0; x < nx; x++) {
     for (let y = 0; y < ny; y++) {
       const lift = rise[x * ny + y];
@@ -504,6 +591,36 @@ async function tileLogits(model, seed, [i, j], scale, options) {
 }
 
 /**
+ * One object's logits where they are the largest yet, on the part of a
+ * tile's grid inside its box, as world.scatter_into: `out` in C order,
+ * `strides` its steps along the tile's axes (h0, h1, up).
+ */
+async function scatterInto(out, [sx, sy, sk], model, options, seed, level, placed, u0, u1, z) {
+  const inside = [u0, u1].map((u, k) => {
+    const chosen = [], cells = [];
+    u.forEach((at, n) => {
+      const position = at - placed.corner[k];
+      if (position >= 0 && position <= placed.extent[k]) { chosen.push(n); cells.push(placed.mirror[k] ? placed.extent[k] - position : position); }
+    });
+    return { chosen, cells };
+  });
+  if (!inside[0].chosen.length || !inside[1].chosen.length) return;
+  const [each, own, found] = await objectWindow(model, options, seed, placed, level);
+  const [h0, h1] = own.horizontal, up = own.up, top = own.stride[up], d = each.manifest.hidden; // the object's axes, along the world's
+  const c0 = Float64Array.from(inside[0].cells, (c) => c * found.cells[h0]), c1 = Float64Array.from(inside[1].cells, (c) => c * found.cells[h1]);
+  const read = readPlanes(found, own, c0, c1), m1 = inside[1].chosen.length, hidden = new Float64Array(d);
+  inside[0].chosen.forEach((x, n0) => inside[1].chosen.forEach((y, n1) => {
+    for (let k = 0; k < z.length; k++) {
+      const cell = Math.min(Math.max(z[k] - placed.height, 0), top) * found.cells[up];
+      for (let e = 0; e < d; e++) hidden[e] = read.flat.data[(n0 * m1 + n1) * d + e];
+      for (const v of read.vertical) addUp(v, v.alongFirst ? n0 : n1, cell, hidden);
+      const logit = capped(headLogit(each.head, hidden), z[k] - placed.height - top), where = x * sx + y * sy + k * sk;
+      if (logit > out[where]) out[where] = logit;
+    }
+  }));
+}
+
+/**
  * Occupancy on tile (i, j)'s grid, as world.tile_occupancy: { data:
  * Float32Array (X, Y, Z) in C order, shape }, its points along each
  * horizontal axis from the tile's lattice point to the next (both included:
@@ -523,15 +640,15 @@ export async function tileOccupancy(model, seed, tile, scale = 1, options = PLAI
  * the tile it falls in, as world.point_field: { logits: Float64Array (n),
  * hidden: Float64Array (n, D), ground: Uint8Array (n) }. With an array
  * `sources`, also what each point reads most, as point_field's: per window
- * or object, { window: [a, b, arrange], index: Int32Array of points, cells:
+ * or object, { window: [a, b, arrange, model], index: Int32Array of points, cells:
  * Float64Array (m, 3) theirs in it }; a blend's window that weighs most (its
  * float32 weight, as numpy's; the first of equals in the order of the sum),
  * a scatter world's object whose logit won (none on the ground).
  */
 export async function pointField(model, seed, [i, j], points, options, sources = null) {
   const { manifest } = model, d = manifest.hidden, layout = worldLayout(manifest), level = checkLod(manifest, options.lod);
-  const [h0, h1] = layout.horizontal, up = layout.up, top = layout.stride[up], n = points.length / 3;
-  const logits = new Float64Array(n), hidden = new Float64Array(n * d), ground = new Uint8Array(n);
+  const [h0, h1] = layout.horizontal, up = layout.up, top = layout.stride[up], n = points.length / 3, width = hiddenWidth(model, options);
+  const logits = new Float64Array(n), hidden = new Float64Array(n * width), ground = new Uint8Array(n);
   const groups = new Map(); // "t0,t1" -> point indices
   for (let p = 0; p < n; p++) {
     const key = `${Math.floor(points[3 * p + h0] / layout.stride[h0])},${Math.floor(points[3 * p + h1] / layout.stride[h1])}`;
@@ -546,16 +663,18 @@ export async function pointField(model, seed, [i, j], points, options, sources =
     // reads the face's own windows alone (PLATEAU), so a tile's normals make none of its neighbour's.
     const found = [];
     if (options.arrange === 'scatter') {
-      for (const placed of objectsNear(model, layout, seed, tile, level, options.heights)) {
+      for (const placed of objectsNear(model, layout, seed, tile, level, options)) {
         const reads = members.some((p) => [h0, h1].every((axis, k) => { const position = local(p, axis) - placed.corner[k]; return position >= 0 && position <= placed.extent[k]; }));
-        if (reads) found.push({ ...placed, window: await windowAt(model, layout, seed, ...placed.cell, level, 'scatter') });
+        if (!reads) continue;
+        const [each, own, window] = await objectWindow(model, options, seed, placed, level);
+        found.push({ ...placed, each, own, window, part: new Float64Array(each.manifest.hidden) });
       }
     } else {
       for (const [a, b] of [[tile[0] - 1n, tile[1] - 1n], [tile[0] - 1n, tile[1]], [tile[0], tile[1] - 1n], [tile[0], tile[1]]]) {
         const behind = [a === tile[0], b === tile[1]];
         const weighs = members.some((p) => [h0, h1].every((axis, k) => { const w = behindWeight(local(p, axis), layout.stride[axis]); return (behind[k] ? w : Math.fround(1 - w)) !== 0; }));
         if (weighs) {
-          found.push({ window: await windowAt(model, layout, seed, a, b, level, 'blend'), behind, cell: [a, b],
+          found.push({ window: await windowAt(model, layout, seed, a, b, level, 'blend'), behind, cell: [a, b], model: 0,
                        offset: [behind[0] ? 0 : layout.stride[h0], behind[1] ? 0 : layout.stride[h1]] });
         }
       }
@@ -571,19 +690,22 @@ export async function pointField(model, seed, [i, j], points, options, sources =
         logits[p] = -GROUND_SLOPE * (at[up] - rise - GROUND);
         ground[p] = 1;
         for (const [n, placed] of found.entries()) {
+          const { each, own, window: win, part } = placed, ownTop = own.stride[own.up];
           let inside = true;
-          [h0, h1].forEach((axis, k) => {
-            const position = at[axis] - placed.corner[k];
+          own.horizontal.forEach((axis, k) => { // the object's axes, along the world's
+            const position = at[layout.horizontal[k]] - placed.corner[k];
             inside &&= position >= 0 && position <= placed.extent[k];
-            cell[axis] = (placed.mirror[k] ? placed.extent[k] - position : position) * placed.window.cells[axis];
+            cell[axis] = (placed.mirror[k] ? placed.extent[k] - position : position) * win.cells[axis];
           });
           if (!inside) continue;
-          cell[up] = Math.min(Math.max(at[up] - placed.height, 0), top) * placed.window.cells[up];
+          cell[own.up] = Math.min(Math.max(at[up] - placed.height, 0), ownTop) * win.cells[own.up];
           part.fill(0);
-          PLANE_AXES.forEach(([a, b], k) => addBilinear(placed.window.planes[k], cell[a], cell[b], part));
-          const logit = capped(headLogit(model.head, part), at[up] - placed.height - top);
+          PLANE_AXES.forEach(([a, b], k) => addBilinear(win.planes[k], cell[a], cell[b], part));
+          const logit = capped(headLogit(each.head, part), at[up] - placed.height - ownTop);
           if (logit > logits[p]) {
-            logits[p] = logit; hidden.set(part, p * d); ground[p] = 0;
+            logits[p] = logit; ground[p] = 0;
+            hidden.fill(0, p * width, p * width + width); // a narrower model's vector leaves the rest zero
+            hidden.set(part, p * width);
             if (sources) { owner[m] = n; ownerCells.set(cell, 3 * m); }
           }
         }
@@ -619,7 +741,7 @@ export async function pointField(model, seed, [i, j], points, options, sources =
     if (!sources) continue;
     found.forEach((s, n) => {
       const chosen = members.flatMap((p, m) => (owner[m] === n ? [m] : []));
-      sources.push({ window: [...s.cell, options.arrange], index: Int32Array.from(chosen, (m) => members[m]),
+      sources.push({ window: [...s.cell, options.arrange, s.model], index: Int32Array.from(chosen, (m) => members[m]),
                      cells: Float64Array.from({ length: 3 * chosen.length }, (_, k) => ownerCells[3 * chosen[Math.floor(k / 3)] + k % 3]) });
     });
   }
@@ -646,15 +768,14 @@ export async function tileNormals(model, seed, tile, positions, options = PLAIN)
   return normals;
 }
 
-/** A coarser tile's colours (out, in place, but the ground's) made the example's nearest: each as Python's
- * bytes (mesh.colour_bytes: clipped, times 255 in float32, rounded half to even), then colour.js's
+/** Some vertices' colours (`index`: their numbers; out, in place) made the example's nearest: each as
+ * Python's bytes (mesh.colour_bytes: clipped, times 255 in float32, rounded half to even), then colour.js's
  * nearestInPalette, once per distinct colour. */
-async function snapToExample(tiles, out, ground) {
+async function snapToExample(tiles, out, index) {
   const { examplePalette, nearestInPalette } = await import('./colour.js');
   const palette = examplePalette(tiles), found = new Map();
   const byte = (x) => roundHalfEven(Math.fround(Math.min(Math.max(x, 0), 1) * 255));
-  for (let v = 0; v < ground.length; v++) {
-    if (ground[v]) continue;
+  for (const v of index) {
     const [r, g, b] = [byte(out[3 * v]), byte(out[3 * v + 1]), byte(out[3 * v + 2])], key = (r << 16) | (g << 8) | b;
     if (!found.has(key)) found.set(key, nearestInPalette(palette, r, g, b));
     const p = found.get(key);
@@ -673,32 +794,49 @@ async function snapToExample(tiles, out, ground) {
  * coarser tile's, lod > 0) the colour head of the hidden vector there,
  * blended as the occupancy is, a format-5 model's coarser tile then the
  * example's nearest colour (colour.js's examplePalette: its tiles' means).
- * A scatter world's ground is grey. Returns Float32Array (V, 3) in [0, 1]
- * (Python's gives them as bytes).
+ * In a world of several models each object is coloured by its own model (a
+ * model without colour is grey). A scatter world's ground is grey. Returns
+ * Float32Array (V, 3) in [0, 1] (Python's gives them as bytes).
  */
 export async function tileColours(model, seed, tile, positions, options = PLAIN, footprint = null) {
   seed = checkSeed(seed);
   const points = Float64Array.from(positions), n = points.length / 3, out = new Float32Array(3 * n);
-  if (!model.tiles || options.lod) {
+  if (!options.models.length && (!model.tiles || options.lod)) {
     const { hidden, ground } = await pointField(model, seed, checkTile(tile), points, options);
     const d = model.manifest.hidden;
     for (let v = 0; v < n; v++) {
       if (ground[v]) out.set(GROUND_COLOUR, 3 * v);
       else headColour(model.head, hidden, v * d, out, 3 * v);
     }
-    if (model.tiles) await snapToExample(model.tiles, out, ground);
+    if (model.tiles) await snapToExample(model.tiles, out, Int32Array.from({ length: n }, (_, v) => v).filter((v) => !ground[v]));
     return out;
   }
-  const sources = [], layout = worldLayout(model.manifest); // each vertex the colour its heaviest window (or its object) reads
-  const { ground } = await pointField(model, seed, checkTile(tile), points, options, sources);
-  for (const { window: [a, b, arrange], index, cells } of sources) {
+  // Each vertex its heaviest window's (or its object's) colour, read from the example or its model's head.
+  const sources = [], palettes = [], width = hiddenWidth(model, options);
+  const { hidden, ground } = await pointField(model, seed, checkTile(tile), points, options, sources);
+  for (const { window: [a, b, arrange, k], index, cells } of sources) {
+    const [each, own] = objectModel(model, options, k);
     if (!index.length) continue;
-    const read = (await windowColouring(model, layout, seed, a, b, arrange))(cells, footprint);
-    index.forEach((v, k) => out.set(read.subarray(3 * k, 3 * k + 3), 3 * v));
+    if (each.tiles && !options.lod) {
+      const read = (await windowColouring(each, own, seed, a, b, arrange))(cells, footprint);
+      index.forEach((v, m) => out.set(read.subarray(3 * m, 3 * m + 3), 3 * v));
+    } else if (each.manifest.colour) {
+      for (const v of index) headColour(each.head, hidden, v * width, out, 3 * v);
+      if (each.tiles) palettes.push([index, each.tiles]);
+    } else {
+      for (const v of index) out.set(GROUND_COLOUR, 3 * v);
+    }
   }
   for (let v = 0; v < n; v++) if (ground[v]) out.set(GROUND_COLOUR, 3 * v);
+  for (const [index, tiles] of palettes) await snapToExample(tiles, out, index);
   return out;
 }
+
+/** Whether a world's tiles carry colour: any of its models has it, as world.coloured. */
+const coloured = (model, options) => [model, ...options.models].some((each) => each.manifest.colour);
+
+/** The hidden vectors' width a world's points hold: its widest model's, as world.hidden_width. */
+const hiddenWidth = (model, options) => Math.max(...[model, ...options.models].map((each) => each.manifest.hidden));
 
 // ---- a tile's surface
 
@@ -710,7 +848,7 @@ export async function tileColours(model, seed, tile, positions, options = PLAIN,
  */
 export async function tileMesh(model, seed, tile, scale = 1, options = PLAIN) {
   const grid = await tileOccupancy(model, seed, tile, scale, options);
-  const layout = worldLayout(model.manifest), positions = tileGrid(model.manifest, layout, scale, options);
+  const layout = worldLayout(model.manifest), positions = tileGrid(model, layout, scale, options);
   const pad = [[0, 0], [0, 0], [0, 0]];
   pad[layout.up] = [1, 1];
   const mesh = marchingCubes(grid, 0.5, null, pad);
@@ -768,9 +906,9 @@ function skirted({ positions, faces }, layout, depth) {
 export async function tileSurface(model, seed, tile, scale = 1, options = PLAIN) {
   const mesh = await tileMesh(model, seed, tile, scale, options);
   let normals = await tileNormals(model, seed, tile, mesh.positions, options);
-  let colours = model.manifest.colour ? await tileColours(model, seed, tile, mesh.positions, options, 1 / scale) : null;
+  let colours = coloured(model, options) ? await tileColours(model, seed, tile, mesh.positions, options, 1 / scale) : null;
   if (!options.lod || !mesh.faces.length) return { ...mesh, normals, colours };
-  const layout = worldLayout(model.manifest), grid = tileGrid(model.manifest, layout, scale, options);
+  const layout = worldLayout(model.manifest), grid = tileGrid(model, layout, scale, options);
   const skirt = skirted(mesh, layout, SKIRT * (grid[layout.up][1] - grid[layout.up][0]));
   const copy = (values) => { const out = new Float32Array(3 * skirt.source.length); skirt.source.forEach((v, n) => out.set(values.subarray(3 * v, 3 * v + 3), 3 * n)); return out; };
   normals = copy(normals);

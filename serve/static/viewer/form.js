@@ -38,6 +38,8 @@ export function toForm() {
   $('sy').value = y ?? x ?? 1;
   $('sz').value = z ?? x ?? 1;
   for (const key of PLAIN) $(key).value = state[key];
+  const others = String(state.models).split(',');
+  for (const option of $('models').options) option.selected = others.includes(option.value);
   for (const [key, ids] of Object.entries(TRIPLES)) {
     const values = String(state[key]).split(',');
     ids.forEach((id, i) => { $(id).value = values[i] ?? (key === 'box' ? '' : values[0] ?? ''); });
@@ -52,6 +54,7 @@ export function fromForm() {
   state.seed = $('seed').value.trim();
   state.size = [$('sx').value, $('sy').value, $('sz').value].map((v) => v.trim()).join(',');
   for (const key of PLAIN) state[key] = $(key).value.trim();
+  state.models = [...$('models').selectedOptions].map((option) => option.value).join(','); // in the list's order
   for (const [key, ids] of Object.entries(TRIPLES)) state[key] = ids.map((id) => $(id).value.trim()).join(',');
   if (state.edit === 'keep' && !state.other) $('other').value = state.other = nextSeed(state.seed);
   const another = [state.model, state.seed, state.size].join('|') !== sample;

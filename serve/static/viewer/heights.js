@@ -1,12 +1,17 @@
-// A height map the user opens for the world mode, read as world.parse_height_map
-// reads it: a greyscale .png (black 0, white RELIEF times the model's height;
-// columns along the first horizontal axis, rows from the bottom up along the
-// second) or a .npy array of heights in voxels ([i, j]: tile i, j's). The
-// browser decodes an image to 8 bits a channel, so a 16-bit .png reads coarser
-// here than with sinrun.
+// The maps the user opens for the world mode. A height map, read as
+// world.parse_height_map reads it: a greyscale .png (black 0, white RELIEF
+// times the model's height; columns along the first horizontal axis, rows
+// from the bottom up along the second) or a .npy array of heights in voxels
+// ([i, j]: tile i, j's); the browser decodes an image to 8 bits a channel, so
+// a 16-bit .png reads coarser here than with sinrun. A model map, read as
+// world.parse_model_map reads it: a palette .png's indices or a greyscale
+// one's values (decoded here, as Pillow reads them, 16 bits included), laid
+// out as a height map's pixels, or a .npy array of models' indices.
 //
 //   const heights = await readHeightMap(file, info);   // world.js's HeightMap
-import { HeightMap, worldLayout } from '../sinshape/world.js';
+//   const placed = await readModelMap(file);           // world.js's ModelMap
+import { InputError } from '../sinshape/errors.js';
+import { HeightMap, MAX_MAP_SIDE, ModelMap, worldLayout } from '../sinshape/world.js';
 
 export const RELIEF = 4; // world.RELIEF: an image's white, in the model's heights
 
@@ -18,10 +23,11 @@ function readNpy(bytes) {
   const start = bytes[6] === 1 ? 10 : 12, header = text.slice(start, start + headerLength);
   const descr = /'descr':\s*'([<|]?)([fiu])(\d)'/.exec(header), shape = /'shape':\s*\((\d+),\s*(\d+)\)/.exec(header);
   if (!descr || !shape || /'fortran_order':\s*True/.test(header)) throw new Error('a 2-D numeric array in C order, as numpy.save writes it');
-  const kind = { f4: Float32Array, f8: Float64Array, i1: Int8Array, i2: Int16Array, i4: Int32Array, u1: Uint8Array, u2: Uint16Array, u4: Uint32Array }[descr[2] + descr[3]];
+  const kind = { f4: Float32Array, f8: Float64Array, i1: Int8Array, i2: Int16Array, i4: Int32Array, i8: BigInt64Array, u1: Uint8Array,
+    u2: Uint16Array, u4: Uint32Array, u8: BigUint64Array }[descr[2] + descr[3]];
   if (!kind) throw new Error(`its numbers (${descr[2]}${descr[3]}) are not ones this page reads`);
   const dims = [Number(shape[1]), Number(shape[2])], data = bytes.slice(start + headerLength);
-  return { values: Array.from(new kind(data.buffer, 0, dims[0] * dims[1])), shape: dims };
+  return { values: Array.from(new kind(data.buffer, 0, dims[0] * dims[1]), Number), shape: dims };
 }
 
 /** A height map from a file (.png or .npy), as world.parse_height_map: a one-line Error where it is not one. */
@@ -48,4 +54,100 @@ export async function readHeightMap(file, info) {
   } catch (error) {
     throw new Error(`${file.name}: not a height map (${error.message})`);
   }
+}
+
+/** A .png's header and its image data, unread: { width, height, depth, colour (its colour type), interlace, mode (Pillow's
+ * name for its kind of pixel), data: the IDAT chunks' bytes }. */
+function pngHeader(bytes) {
+  if (![137, 80, 78, 71, 13, 10, 26, 10].every((b, k) => bytes[k] === b)) throw new Error('not a .png image');
+  const view = new DataView(bytes.buffer, bytes.byteOffset, bytes.byteLength), parts = [];
+  let header = null;
+  for (let at = 8, length = 0; at + 8 <= bytes.length; at += 12 + length) { // chunks: length, type, data, CRC
+    length = view.getUint32(at);
+    const type = String.fromCharCode(...bytes.subarray(at + 4, at + 8)), data = bytes.subarray(at + 8, at + 8 + length);
+    if (type === 'IEND') break;
+    if (type === 'IHDR') header = { width: view.getUint32(at + 8), height: view.getUint32(at + 12), depth: data[8], colour: data[9], interlace: data[12] };
+    if (type === 'IDAT') parts.push(data);
+  }
+  if (!header || !parts.length) throw new Error('a .png without its header or image data');
+  const { depth, colour } = header;
+  const mode = { 0: depth === 1 ? '1' : depth === 16 ? 'I;16' : 'L', 2: 'RGB', 3: 'P', 4: 'LA', 6: 'RGBA' }[colour];
+  return { ...header, mode, data: new Blob(parts) };
+}
+
+/** Paeth's predictor (the PNG specification's filter 4). */
+function paeth(left, up, corner) {
+  const p = left + up - corner, pa = Math.abs(p - left), pb = Math.abs(p - up), pc = Math.abs(p - corner);
+  return pa <= pb && pa <= pc ? left : pb <= pc ? up : corner;
+}
+
+/**
+ * A one-channel .png's pixels (pngHeader's), as Pillow reads a greyscale or
+ * palette image: rows from the top, each sample as it is (a palette's index;
+ * 1-bit grey 0 or 1, 16-bit its value) but 2- and 4-bit grey, widened to 8
+ * bits. Adam7-interlaced images too.
+ */
+async function pngPixels({ width, height, depth, colour, interlace, data }) {
+  const raw = new Uint8Array(await new Response(data.stream().pipeThrough(new DecompressionStream('deflate'))).arrayBuffer());
+  const widen = colour === 0 && (depth === 2 || depth === 4) ? 255 / ((1 << depth) - 1) : 1;
+  const passes = interlace ? [[0, 0, 8, 8], [4, 0, 8, 8], [0, 4, 4, 8], [2, 0, 4, 4], [0, 2, 2, 4], [1, 0, 2, 2], [0, 1, 1, 2]] : [[0, 0, 1, 1]];
+  const pixels = new Array(width * height), step = Math.max(1, depth / 8); // bytes from a pixel to the one before it
+  let at = 0;
+  for (const [x0, y0, dx, dy] of passes) { // (x0, y0, dx, dy): the pixels of a pass, as Adam7 spaces them
+    const w = Math.ceil((width - x0) / dx), h = Math.ceil((height - y0) / dy), length = Math.ceil((w * depth) / 8);
+    let above = new Uint8Array(length);
+    for (let y = 0; w > 0 && y < h; y++) {
+      const filter = raw[at], line = raw.slice(at + 1, at + 1 + length);
+      if (filter > 4 || line.length < length) throw new Error('its image data is damaged');
+      at += 1 + length;
+      for (let k = 0; k < length; k++) {
+        const left = k >= step ? line[k - step] : 0, up = above[k], corner = k >= step ? above[k - step] : 0;
+        line[k] += filter === 1 ? left : filter === 2 ? up : filter === 3 ? (left + up) >> 1 : filter === 4 ? paeth(left, up, corner) : 0;
+      }
+      for (let x = 0; x < w; x++) {
+        const bit = x * depth, sample = depth === 16 ? (line[2 * x] << 8) | line[2 * x + 1]
+          : (line[bit >> 3] >> (8 - depth - (bit & 7))) & ((1 << depth) - 1);
+        pixels[(y0 + y * dy) * width + x0 + x * dx] = sample * widen;
+      }
+      above = line;
+    }
+  }
+  return pixels;
+}
+
+/** A model map from a file (.png or .npy), as world.parse_model_map: an InputError (one line) where it is not one. */
+export async function readModelMap(file) {
+  const bytes = new Uint8Array(await file.arrayBuffer()), { name } = file, suffix = /\.[^.]*$/.exec(name)?.[0].toLowerCase() ?? '';
+  if (suffix === '.npy') {
+    let read;
+    try {
+      read = readNpy(bytes);
+    } catch (error) {
+      throw new InputError(`${name}: not a 2-D numeric .npy array of at most ${MAX_MAP_SIDE} a side (${error.message})`, 'models_map');
+    }
+    return ModelMap.of(read.values, read.shape);
+  }
+  if (suffix !== '.png') {
+    throw new InputError(`${name}: a model map is a .png image or a .npy array, got ${suffix ? `'${suffix}'` : 'no extension'}`, 'models_map');
+  }
+  let image;
+  try {
+    image = pngHeader(bytes);
+  } catch (error) {
+    throw new InputError(`${name}: not a readable image (${error.message})`, 'models_map');
+  }
+  const { width: w, height: h, mode } = image;
+  if (Math.max(w, h) > MAX_MAP_SIDE) throw new InputError(`${name}: ${w}x${h} pixels; a model map has at most ${MAX_MAP_SIDE} a side`, 'models_map');
+  if (!['P', 'L', 'I;16', '1'].includes(mode)) {
+    throw new InputError(`${name}: a model map is a palette or greyscale image (a model's index per pixel), got mode ${mode}`, 'models_map');
+  }
+  let pixels;
+  try {
+    pixels = await pngPixels(image);
+  } catch (error) {
+    throw new InputError(`${name}: not a readable image (${error.message})`, 'models_map');
+  }
+  const values = new Array(w * h);
+  for (let i = 0; i < w; i++) for (let j = 0; j < h; j++) values[i * h + j] = pixels[(h - 1 - j) * w + i]; // the bottom row is j = 0
+  return ModelMap.of(values, [w, h]);
 }

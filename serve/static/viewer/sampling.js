@@ -72,7 +72,9 @@ export function serverRequest(name, request, format, faces = null) {
   query.set('format', format);
   for (const option of OPTIONS) {
     const sent = takes(route, option) && !ALWAYS_SENT[route].includes(option.name) && !SENT_OTHERWISE.includes(option.name);
-    if (sent && !isDefault(request, option)) query.set(option.name, request[option.name]);
+    if (!sent || isDefault(request, option)) continue;
+    if (option.type === 'models') for (const other of request.models) query.append('models', other); // models=a&models=b
+    else query.set(option.name, option.type === 'models_map' ? modelMapText(request.models_map) : request[option.name]);
   }
   if (request.tile) {
     if (asset) throw new Error('the page offers a tile as a mesh; sinrun world --lods writes tiles as assets');
@@ -104,8 +106,6 @@ export function assetQuery(faces) {
   return { lods: lods.join(','), texture: 1024 };
 }
 
-/** The one mesh of a .glb file trimesh wrote: { positions, faces, colours } (no normals, no
- * transform); colours, where it has COLOR_0 (linear, as glTF says), turned back to sRGB, else null. */
 /** A height map ({ shape, data: Float32Array }) as the bytes of a .npy file: the tile route's POST body. */
 function npyBytes({ shape, data }) {
   let header = `{'descr': '<f4', 'fortran_order': False, 'shape': (${shape[0]}, ${shape[1]}), }`;
@@ -117,6 +117,14 @@ function npyBytes({ shape, data }) {
   return bytes;
 }
 
+/** A model map ({ shape, data: Uint8Array }) as the tile route reads it (world.ModelMap.of_text): rows along the first
+ * horizontal axis parted by ';', a row's pixels by ','. */
+function modelMapText({ shape: [rows, cols], data }) {
+  return Array.from({ length: rows }, (_, r) => data.subarray(r * cols, (r + 1) * cols).join(',')).join(';');
+}
+
+/** The one mesh of a .glb file trimesh wrote: { positions, faces, colours } (no normals, no
+ * transform); colours, where it has COLOR_0 (linear, as glTF says), turned back to sRGB, else null. */
 async function glbMesh(data) {
   let geometry = null;
   (await loader.parseAsync(data, '')).scene.traverse((node) => { if (node.isMesh) geometry ??= node.geometry; });
@@ -287,7 +295,7 @@ const browser = {
   }),
 
   tile: (name, request, { signal }) => inTurn(signal, async () => {
-    await loaded(name);
+    for (const each of [name, ...request.models]) await loaded(each); // a world's other models too
     return call({ type: 'sample', name, request });
   }),
 };

@@ -11,20 +11,22 @@ export const STATIC_SITE = document.body.dataset.site === 'static';
 // their defaults: tests/test_options.py holds the two to the table, so that an
 // option added there is placed here too.
 export const PAGE_OPTIONS = Object.freeze({
-  set: ['seed', 'size', 'scale', 'smooth', 'frame', 'keep', 'grow', 'anchor', 'layout', 'tile', 'arrange', 'heights', 'lod'],
-  left: ['recon', 'smoother', 'largest', 'models', 'models_map'],
+  set: ['seed', 'size', 'scale', 'smooth', 'frame', 'keep', 'grow', 'anchor', 'layout', 'tile', 'arrange', 'heights', 'lod', 'models',
+    'models_map'],
+  left: ['recon', 'smoother', 'largest'],
 });
 const FIELDS = ['model', 'where', 'seed', 'size', 'scale', 'smooth', 'up', 'format'];
 // Each edit's fields, in the URL after `edit`: box (6 percentages x0,y0,z0,x1,y1,z1
 // of the sample, from the seed's sample) and other (the seed of the rest); grow
 // and anchor (3 factors, 3 fractions); cells (layout-cells.js's text of the edited cells).
 // The world mode's too (not an edit: the world of the seed, flown over): at (the
-// camera's tile i,j), travel (fly or walk), reach (tiles made on each side) and
-// arrange (blend or scatter; empty: what the model records); its height map, a file the
-// user opened, is not in the URL.
-const EDITS = { keep: ['box', 'other'], grow: ['grow', 'anchor'], layout: ['cells'], world: ['at', 'travel', 'reach', 'arrange'] };
+// camera's tile i,j), travel (fly or walk), reach (tiles made on each side), arrange
+// (blend or scatter; empty: what the model records) and models (the world's other
+// models' names, models 1, 2, ... of its model map, parted by ','); its height map and
+// model map, files the user opened, are not in the URL.
+const EDITS = { keep: ['box', 'other'], grow: ['grow', 'anchor'], layout: ['cells'], world: ['at', 'travel', 'reach', 'arrange', 'models'] };
 const EDIT_DEFAULTS = { edit: '', box: '0,0,0,50,100,100', other: '', grow: '2,1,1', anchor: '0,0,0', cells: '', at: '0,0', travel: 'fly', reach: '3',
-  arrange: '' };
+  arrange: '', models: '' };
 // What makes the shape: a step of the undo history when one of these changes.
 const SHAPE_FIELDS = ['model', 'seed', 'size', 'scale', 'smooth', 'edit', 'box', 'other', 'grow', 'anchor', 'cells'];
 
@@ -32,6 +34,7 @@ export const state = {
   model: '', where: STATIC_SITE ? 'browser' : 'server', seed: 0, size: '1,1,1', scale: '1', smooth: '0', up: 'y', format: 'glb',
   ...EDIT_DEFAULTS,
   heights: null, // the world's height map (world.js's HeightMap), read from a file the user opened
+  modelsMap: null, // the world's model map (world.js's ModelMap), likewise
 };
 
 /** The seed after `seed` (text; BigInt: seeds go to 2^63, past what a Number holds exactly). */
@@ -108,7 +111,7 @@ export function requestOf(layout = null) {
   if (state.edit === 'world') { // the tile under the camera, as the tile route takes it
     const tile = String(state.at).split(',').map((t) => (/^\s*-?\d+\s*$/.test(t) ? BigInt(t) : t));
     return sampleRequest({ seed: seedOf(state.seed), scale: numberOf(state.scale), tile, frame: 'tile', arrange: state.arrange || 'blend',
-                           heights: state.heights });
+                           heights: state.heights, models: state.models ? state.models.split(',') : [], models_map: state.modelsMap });
   }
   const fields = { seed: seedOf(state.seed), size: parseSize(state.size), scale: numberOf(state.scale), smooth: numberOf(state.smooth) };
   if (state.edit === 'keep') {

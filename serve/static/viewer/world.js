@@ -13,7 +13,7 @@
 // tiles out is drawn as precisely as tile (0, 0). The camera's motion is
 // viewer/flight.js's.
 //
-//   show({ where, name, seed, scale, tile, info, reach, walk, arrange, heights }, report)  the world from `tile`
+//   show({ where, name, seed, scale, tile, info, others, reach, walk, arrange, heights, models, modelsMap }, report)  the world from `tile`
 //   stop()                                                                                drop it all, and give the view back to the shape
 import * as THREE from 'three';
 import { sampleRequest } from '../sinshape/request.js';
@@ -38,25 +38,28 @@ const keyOf = (i, j) => `${i},${j}`; // a tile's name
 /**
  * Fly over the world of `seed` (a BigInt) of model `name`, made `where`
  * ('server' or 'browser') at `scale`, from tile `tile` ([i, j] BigInts);
- * `info` is the model's { sizes, spacing, up }, `reach` how many tiles to
+ * `info` is the model's { sizes, spacing, up } (`others`, the world's other
+ * models', whose objects may stand taller), `reach` how many tiles to
  * make on each side of the camera's, `walk` whether to keep to the ground,
- * `arrange` and `heights` how the world is made (the request's fields).
+ * `arrange`, `heights`, `models` and `modelsMap` how the world is made (the
+ * request's arrange, heights, models and models_map).
  * The same world again keeps its tiles and the camera, unless `tile` is
  * another than the camera's (a jump). report({ at, shown, waiting, made,
  * dropped, complete, error }) follows the work.
  */
-export function show({ where, name, seed, scale, tile, info, reach, walk, arrange = 'blend', heights = null }, report) {
-  const key = `${where}|${name}|${seed}|${scale}|${arrange}|${heights ? mapId(heights) : ''}`;
+export function show({ where, name, seed, scale, tile, info, others = [], reach, walk, arrange = 'blend', heights = null, models = [], modelsMap = null },
+  report) {
+  const key = `${where}|${name}|${seed}|${scale}|${arrange}|${heights ? mapId(heights) : ''}|${models.join(',')}|${modelsMap ? mapId(modelsMap) : ''}`;
   const jump = !run || run.key !== key || tile[0] !== run.origin[0] || tile[1] !== run.origin[1];
   if (run?.key !== key) {
     stop(false);
     const layout = worldLayout(info);
-    const [h0, h1] = layout.horizontal;
+    const [h0, h1] = layout.horizontal, top = Math.max(...[info, ...others].map((each) => { const cut = worldLayout(each); return cut.stride[cut.up]; }));
     run = {
-      key, where, name, seed, scale, arrange, heights, layout, report, origin: tile, tiles: new Map(), making: 0, made: 0, dropped: 0, error: null,
+      key, where, name, seed, scale, arrange, heights, models, modelsMap, layout, report, origin: tile, tiles: new Map(), making: 0, made: 0, dropped: 0, error: null,
       coarsest: info.sizes.length - 1,
       size: [layout.stride[h0] * info.spacing[h0], layout.stride[h1] * info.spacing[h1]], // a tile's sides, in the input's units
-      height: (layout.stride[layout.up] + (heights ? Math.max(...heights.data) : 0)) * info.spacing[layout.up],
+      height: (top + (heights ? Math.max(...heights.data) : 0)) * info.spacing[layout.up], // a voxel of any model is one of the world's
     };
     group.rotation.set(layout.up === 2 ? -Math.PI / 2 : 0, 0, 0); // the model's up along the view's y
     group.updateMatrixWorld(true);
@@ -101,7 +104,7 @@ export function stop(giveBack = true) {
   if (giveBack) worldView(false);
 }
 
-const mapIds = new WeakMap(); // a height map -> a number naming it in a world's key
+const mapIds = new WeakMap(); // a height map or model map -> a number naming it in a world's key
 let mapCount = 0;
 const mapId = (heights) => { if (!mapIds.has(heights)) mapIds.set(heights, ++mapCount); return mapIds.get(heights); };
 
@@ -175,7 +178,7 @@ async function make(r, entry) {
   const lod = entry.lod === undefined ? r.coarsest : entry.want; // shown coarse first; its windows' chains go on from there
   try {
     const request = sampleRequest({ seed: r.seed, scale: r.scale, tile: [entry.i, entry.j], frame: 'tile', arrange: r.arrange,
-                                    heights: r.heights, lod });
+                                    heights: r.heights, models: r.models, models_map: r.modelsMap, lod });
     const { positions, faces, normals, colours } = await sampling.tile(r.where, r.name, request, { signal: entry.controller.signal });
     if (r.tiles.get(entry.key) !== entry) return; // dropped meanwhile
     entry.state = lod === entry.want ? 'done' : 'wanted'; // the camera moved meanwhile: made again at its new level
