@@ -290,7 +290,8 @@ def test_on_sinrun_serve_the_page_asks_the_tile_route_for_a_two_model_world(brow
             requested = [url.removeprefix(base) for url in
                          page.evaluate("performance.getEntriesByType('resource').map((entry) => entry.name)")]
             tiles = [url for url in requested if url.startswith(f"/api/models/{FIRST}/tile?")]
-            assert len(tiles) == 9 and all("&models=towerruins&models_map=0%2C1%3B1%2C0" in url for url in tiles), tiles
+            # Each tile asked for at the coarsest level first, then at full detail.
+            assert len(tiles) == 2 * 9 and all("&models=towerruins&models_map=0%2C1%3B1%2C0" in url for url in tiles), tiles
             assert not [url for url in requested if "onnxruntime-web" in url or url.endswith(("/model.js", "/worker.js"))]
             options = world.WorldOptions("scatter", models=(other_model("towerruins"),),
                                          models_map=world.ModelMap.of(CHECKERBOARD))
