@@ -299,12 +299,14 @@ let configured = null;
 
 /**
  * Set up onnxruntime-web once: where its files are (no CDN), and threads.
- * threads: null = all cores when the page is cross-origin isolated, else 1.
+ * threads: null = all cores but one when the page is cross-origin isolated
+ * (the one left draws the page: where no GPU draws, a world streaming on
+ * every core held its frames back 300 ms and more), else 1.
  */
 export function configure({ threads = null, wasmPaths = null } = {}) {
   if (configured) return configured;
   const isolated = globalThis.crossOriginIsolated === true;
-  const wanted = threads ?? (isolated ? Math.min(navigator.hardwareConcurrency || 1, 8) : 1);
+  const wanted = threads ?? (isolated ? Math.min(Math.max(1, (navigator.hardwareConcurrency || 1) - 1), 8) : 1);
   ort.env.wasm.numThreads = isolated ? wanted : 1; // threads need SharedArrayBuffer
   ort.env.wasm.wasmPaths = wasmPaths ?? new URL('../vendor/onnxruntime-web/', import.meta.url).href;
   ort.env.logLevel = 'error';

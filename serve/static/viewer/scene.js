@@ -62,9 +62,10 @@ export function render() {
 // A world's frames where no GPU draws: a software renderer takes 100 ms or more to draw a ring of
 // tiles at full resolution, and a frame that long makes flying stall. While a world is shown, the
 // drawing resolution follows the frame time: fewer pixels (the canvas's scaled up) when a frame
-// takes longer than FRAME_BUDGET, more again after FRAMES_AT_EASE frames well within it.
+// takes longer than FRAME_BUDGET, a step more again after FRAMES_AT_EASE frames well within it
+// (seldom: resizing the canvas costs a software renderer a slow frame of its own).
 const FRAME_BUDGET = 40; // ms
-const FRAMES_AT_EASE = 10;
+const FRAMES_AT_EASE = 30;
 const STEPS = 20; // a resolution is a whole number of twentieths of the device's pixel ratio: a canvas resized seldom
 const LOWEST = 8; // twentieths
 let resolution = STEPS, atEase = 0;
@@ -75,7 +76,7 @@ export function frameTook(ms) {
   let next = resolution;
   atEase = ms < FRAME_BUDGET / 2 ? atEase + 1 : 0;
   if (ms > FRAME_BUDGET) next = Math.max(LOWEST, Math.floor(resolution * Math.sqrt(FRAME_BUDGET / ms)));
-  else if (atEase >= FRAMES_AT_EASE) next = Math.min(STEPS, resolution + 2);
+  else if (atEase >= FRAMES_AT_EASE) next = Math.min(STEPS, resolution + 1);
   if (next === resolution) return false;
   setResolution(next);
   return true;
