@@ -33,7 +33,8 @@ sinrun render towerruins --seeds 3 --scale 8 --zoom 3 --focus 0.5,0.8,1 --image-
 
 # Endless worlds (docs/WORLDS.md): an 8 x 8 block of terrain tiles; 16 x 16 tiles of it shaped by a
 # painted height map (world_map.png: a pixel a tile, white 120 voxels up); temples scattered over the
-# same map; tower ruins scattered on flat ground.
+# same map; tower ruins scattered on flat ground; temples and towers on the same map, a model map
+# (world_models_map.png: 0 temple, 1 tower, a pixel a tile) saying which goes where.
 sinrun world terrain --seed 3 --tiles 0:7,0:7 --scale 2 -o "$work/terrain_world.ply"
 sinrun render "$work/terrain_world.ply" --up z --image-size 640 --elevation 40 --azimuth 30 -o world_terrain.png
 sinrun world terrain --seed 3 --tiles 0:15,0:15 --map world_map.png --relief 120 -o "$work/painted.ply"
@@ -42,4 +43,7 @@ sinrun world acropolis --seed 3 --tiles 0:11,0:11 --map world_map.png --relief 6
 sinrun render "$work/temples.ply" --up z --image-size 900 --elevation 35 --azimuth 210 -o world_acropolis.png
 sinrun world towerruins --seed 3 --tiles 0:11,0:11 -o "$work/towers.ply"
 sinrun render "$work/towers.ply" --up y --image-size 900 --elevation 35 --azimuth 30 -o world_towerruins.png
+sinrun world acropolis towerruins --seed 3 --tiles 0:11,0:11 --models-map world_models_map.png --map world_map.png \
+    --relief 60 -o "$work/temples_and_towers.ply"
+sinrun render "$work/temples_and_towers.ply" --up z --image-size 900 --elevation 35 --azimuth 210 -o world_models.png
 rm -r "$work"
