@@ -355,24 +355,27 @@ def main():
     parser.add_argument("--windows", type=int, default=100)
     parser.add_argument("--sections", nargs="+", default=["seams", "cost", "quality", "repetition", "map"])
     parser.add_argument("--blend", type=float, default=None)
-    parser.add_argument("--contrast", type=float, default=None, help="world.CONTRAST, for a comparison")
+    parser.add_argument("--contrast", type=float, default=None,
+                        help="every model's blend contrast exponent, for a comparison (default: each model's own)")
     parser.add_argument("--pitch", type=int, default=None, help="world.PITCH, for a comparison")
     parser.add_argument("--presence", type=float, default=None, help="world.PRESENCE, for a comparison")
     parser.add_argument("--arrange", choices=world.ARRANGEMENTS, default=None,
                         help="every model's arrangement (default: each model's own, as its manifest records)")
     args = parser.parse_args()
-    for name in ("blend", "contrast", "pitch", "presence"):
+    for name in ("blend", "pitch", "presence"):
         if getattr(args, name) is not None:
             setattr(world, name.upper(), getattr(args, name))
-    print(f"world.BLEND = {world.BLEND}, CONTRAST = {world.CONTRAST}, PITCH = {world.PITCH}, PRESENCE = {world.PRESENCE}")
+    print(f"world.BLEND = {world.BLEND}, PITCH = {world.PITCH}, PRESENCE = {world.PRESENCE}")
     for number, name in enumerate(args.models):
         model = load_model(models.find(name))
+        if args.contrast is not None:
+            model.manifest = dataclasses.replace(model.manifest, contrast=args.contrast)
         other_name = args.models[(number + 1) % len(args.models)]
         options = world.WorldOptions(arrange=args.arrange or model.manifest.arrange)
         layout = world.world_layout(model)
         print(f"\n## {name}: up {model.manifest.up}, tiles of {layout.stride[layout.horizontal[0]]} x "
               f"{layout.stride[layout.horizontal[1]]} voxels, windows {'x'.join(map(str, model.manifest.sizes[-1]))}, "
-              f"{options.arrange}\n")
+              f"{options.arrange}, blend contrast {model.manifest.contrast:g}\n")
         print("| measure | value |\n|---|---|")
         for section in args.sections:
             figures = {"seams": lambda: seams(model, args.block, options), "cost": lambda: cost(model, name, options),

@@ -584,10 +584,14 @@ def info(model):
 @click.option("--arrange", type=click.Choice(["blend", "scatter"]), default=None,
               help="How the model's world is made unless `sinrun world --arrange` says: blend (a landscape: "
                    "terrain, rock) or scatter (one object: a temple, a tower).")
+@click.option("--contrast", type=float, default=None,
+              help="A blended world's contrast exponent (0.5 to 4; a model without one: 1.3): higher keeps "
+                   "more relief where windows blend, in the middle of a tile. benchmarks/world.py's repetition "
+                   "section measures it: the relief at tile centres against corners.")
 @click.option("-o", "--output", type=click.Path(path_type=Path), default=None,
               help="Where to write the changed model (.onnx). Default: the model's own file, changed in "
                    "place (never a shipped model's).")
-def orient(model, up, arrange, output):
+def orient(model, up, arrange, contrast, output):
     """Record which axis of a model points up, or how its world is made, without retraining.
 
     Viewers, pictures, the page and Blender stand a model's samples on that
@@ -599,8 +603,10 @@ def orient(model, up, arrange, output):
     from sinshape.runtime import load
 
     target = models.own_file(model, output)
-    load.write_oriented(open_model(model, threads=1), up, target, arrange)
+    load.write_oriented(open_model(model, threads=1), up, target, arrange, contrast)
     said = [f"{up} points up"] * (up is not None) + [f"its world {arrange}s"] * (arrange is not None)
+    if contrast is not None:
+        said.append(f"blend contrast {contrast:g}")
     click.echo(f"wrote {target} ({', '.join(said)})")
 
 

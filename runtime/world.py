@@ -14,8 +14,9 @@ extent). It is made of samples of the model arranged one of two ways:
   one (per axis smoothstep(f) and 1 - smoothstep(f), f the point's place
   between lattice points), contrast kept: each window's deviation from its
   own mean at that height is summed with the weights and divided by
-  (sum of the squared weights) ** (CONTRAST / 2), so that four independent
-  windows blended at a tile's centre keep the relief one window has.
+  (sum of the squared weights) ** (contrast / 2), the model's own exponent
+  (its manifest's `contrast`), so that four windows blended at a tile's
+  centre keep the relief one window has.
 - scatter (one object: a temple, a tower): whole samples of the training
   size, one in most cells of a lattice of PITCH strides, at a place and
   mirrored as drawn from (seed, a, b), standing on a ground; the occupancy
@@ -78,11 +79,6 @@ SCATTER_STREAM = 3  # (SCATTER_STREAM, a, b): the key of scatter cell (a, b)'s d
 MIN_STRIDE = 4  # voxels: a window of fewer than 2 * 4 + 1 along an axis has no room to blend
 UP_AXIS = {"y": 1, "z": 2}
 BLEND = 1.0  # the share of a stride, around its middle, over which one window gives way to the next
-# The blend's contrast exponent: 1 keeps the variance of independent
-# Gaussian windows; the head's threshold is not linear, and 1 left the
-# terrain's relief at tile centres 18% below its corners', 1.3 within 7%
-# (benchmarks/world.py, repetition).
-CONTRAST = 1.3
 PITCH = 3  # a scatter cell's side, in strides: an object (2S + 1) and up to S of room
 # The share of scatter cells that hold an object: 0.75 left the temple's
 # height field 0.28 correlated at a cell's side (3S), 0.6 under 0.1.
@@ -769,9 +765,10 @@ def window_weight(u, stride: int, behind: bool):
 class ContrastSum:
     """The blend of windows' hidden vectors that keeps their contrast: the
     weighted means plus the weighted deviations over (sum of squared
-    weights) ** (CONTRAST / 2), summed element-wise in the order added."""
+    weights) ** (contrast / 2), summed element-wise in the order added."""
 
-    def __init__(self):
+    def __init__(self, contrast: float):
+        self.contrast = contrast
         self.mean = self.deviation = self.squares = None
 
     def add(self, weight, hidden, mean) -> None:
@@ -783,7 +780,7 @@ class ContrastSum:
                                                        self.squares + terms[2])
 
     def total(self):
-        return self.mean + self.deviation * np.power(self.squares, np.float32(-CONTRAST / 2))
+        return self.mean + self.deviation * np.power(self.squares, np.float32(-self.contrast / 2))
 
 
 def blend_sources(model, layout: Layout, seed: int, tile: tuple, level: int, progress=None) -> list:
@@ -834,7 +831,7 @@ def tile_logits(model, seed: int, tile, scale: float = 1.0, options: WorldOption
         x = slice(x0, min(x0 + rows, len(u0)))
         rise = 0 if heights is None else heights[x, :, None]
         levels = np.clip(z[None, None, :] - rise, 0, layout.stride[up])  # (X, Y, K) or (1, 1, K)
-        blend = ContrastSum()
+        blend = ContrastSum(model.manifest.contrast)
         for found, offset, behind in sources:
             w0 = window_weight(u0[x], layout.stride[h0], behind[0])
             w1 = window_weight(u1, layout.stride[h1], behind[1])
@@ -986,7 +983,7 @@ def point_tile(model, layout: Layout, seed: int, tile: tuple, points: np.ndarray
             sources.extend((key, np.flatnonzero(owner == k), owner_cells[owner == k]) for k, key in enumerate(objects))
         return logits, hidden, ground
     levels = np.clip(z - rise, 0, layout.stride[up])
-    blend = ContrastSum()
+    blend = ContrastSum(model.manifest.contrast)
     i, j = tile
     heaviest, owner, owner_cells, keys = np.full(len(points), -1.0), np.zeros(len(points), np.int64), None, []
     for a in (i - 1, i):

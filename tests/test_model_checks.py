@@ -240,6 +240,8 @@ NONSENSE = {
     "origin_1e300": (set_field(lambda m: m["frame"].update(origin=[1e300, 0, 0])), "origin"),
     "noise_amp_1e30": (set_field(lambda m: m["levels"][1].update(noise_amp=1e30)), "noise_amp"),
     "created_by_list": (set_field(lambda m: m.update(created_by=["x"])), "created_by"),
+    "contrast_9": (set_field(lambda m: m.update(contrast=9)), "contrast must be a number in [0.5, 4]"),
+    "contrast_string": (set_field(lambda m: m.update(contrast="high")), "contrast"),
     "planes_string": (set_field(lambda m: m.update(planes="xy")), "planes"),
     "spacing_1e-300": (set_field(lambda m: m["frame"].update(spacing=[1e-300, 1, 1])), "spacing"),
     "spacing_below_origin_step": (set_field(lambda m: m["frame"].update(origin=[1e9, 0, 0], spacing=[1e-3, 1, 1])),

@@ -102,3 +102,32 @@ def test_orient_records_how_the_models_world_is_made_and_world_follows_it(tiny_m
         fmt.parse(__import__("json").dumps({**before.manifest.raw, "arrange": "pile"}))
     assert_one_line_error(CliRunner().invoke(cli, ["orient", str(tiny_model), "-o", str(tmp_path / "n.onnx")]),
                           "nothing to change")
+
+
+def test_orient_records_a_blended_worlds_contrast_and_its_tiles_follow_it(tiny_model, tmp_path):
+    """--contrast is recorded (and nothing else changes); a blended tile reads it where windows
+    blend, and is unchanged where one window holds the whole weight (the tile's corner column);
+    out of its range it is refused in one line."""
+    import copy
+    import dataclasses
+
+    from sinshape.runtime import world
+
+    out = tmp_path / "c.onnx"
+    result = CliRunner().invoke(cli, ["orient", str(tiny_model), "--contrast", "2", "-o", str(out)])
+    assert result.exit_code == 0 and result.output == f"wrote {out} (blend contrast 2)\n", result.output
+    before, after = load_model(tiny_model, threads=1), load_model(out, threads=1)
+    assert (before.manifest.contrast, after.manifest.contrast) == (fmt.CONTRAST, 2.0)
+    assert {k: v for k, v in after.manifest.raw.items() if k not in ("contrast", "format_version")} == \
+        {k: v for k, v in before.manifest.raw.items() if k != "format_version"}
+    given = copy.copy(before)
+    given.manifest = dataclasses.replace(before.manifest, contrast=2.0)
+    plain, recorded, asked = (world.tile_occupancy(m, 3, (1, 1)) for m in (before, after, given))
+    assert np.array_equal(recorded, asked) and not np.array_equal(recorded, plain)
+    h0, h1 = world.world_layout(before).horizontal
+    corner = [slice(None)] * 3
+    corner[h0] = corner[h1] = 0
+    assert np.array_equal(recorded[tuple(corner)], plain[tuple(corner)])
+    assert_one_line_error(CliRunner().invoke(cli, ["orient", str(tiny_model), "--contrast", "9", "-o",
+                                                   str(tmp_path / "n.onnx")]), "contrast must be in [0.5, 4]")
+    assert not (tmp_path / "n.onnx").exists()

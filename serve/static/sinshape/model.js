@@ -34,6 +34,8 @@ export const MAX_MODEL_BYTES = 512 * 1024 * 1024;
 export const MAX_MANIFEST_CHARS = 2 ** 20;
 export const MAX_DEPTH = 16;
 export const MAX_NOISE_AMP = 100;
+export const CONTRAST = 1.3; // core.manifest.CONTRAST: a blended world's contrast exponent, unless the model records one
+export const CONTRAST_RANGE = [0.5, 4];
 export const MAX_COORD = 1e12;
 // core/manifest.py's messages print these with Python's '%g'.
 export const MAX_COORD_TEXT = '1e+12', SPACING_TEXT = '[1e-09, 2.44141e+08]';
@@ -137,6 +139,9 @@ export function parseManifest(textValue) {
   });
   need(['y', 'z'].includes(raw.up ?? 'y'), 'up must be one of y, z');
   need(['blend', 'scatter'].includes(raw.arrange ?? 'blend'), 'arrange must be one of blend, scatter');
+  const contrast = get(raw, 'contrast', CONTRAST);
+  need(isNumber(contrast) && contrast >= CONTRAST_RANGE[0] && contrast <= CONTRAST_RANGE[1],
+    `contrast must be a number in [${CONTRAST_RANGE[0]}, ${CONTRAST_RANGE[1]}]`);
   const frame = raw.frame;
   need(frame !== null && typeof frame === 'object', 'frame is missing');
   need(Array.isArray(frame.origin) && frame.origin.length === 3 && frame.origin.every((v) => isNumber(v) && Math.abs(v) <= MAX_COORD),
@@ -161,7 +166,7 @@ export function parseManifest(textValue) {
   need(sameJson(raw.stages, stageNames(levels.length, colour)), 'stages do not name the standard tensors for this level count');
   return {
     sizes, noiseAmps: amps, channels: raw.channels, poolBins: raw.pool_bins, hidden: raw.mlp_hidden,
-    reconSeed: BigInt(seedText), origin: frame.origin, spacing: frame.spacing, stages: raw.stages, up: raw.up ?? 'y', arrange: raw.arrange ?? 'blend', colour, tiles, raw,
+    reconSeed: BigInt(seedText), origin: frame.origin, spacing: frame.spacing, stages: raw.stages, up: raw.up ?? 'y', arrange: raw.arrange ?? 'blend', contrast, colour, tiles, raw,
   };
 }
 

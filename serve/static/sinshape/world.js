@@ -39,7 +39,6 @@ export const MIN_STRIDE = 4; // voxels: a window of fewer than 2 * 4 + 1 along a
 export const UP_AXIS = { y: 1, z: 2 };
 export const ARRANGEMENTS = ['blend', 'scatter']; // world.ARRANGEMENTS
 export const BLEND = 1.0; // world.BLEND
-export const CONTRAST = 1.3; // world.CONTRAST: the blend's contrast exponent
 export const PITCH = 3; // world.PITCH: a scatter cell's side, in strides
 export const PRESENCE = 0.6; // world.PRESENCE: the share of scatter cells holding an object
 export const GROUND = 1.0; // world.GROUND: voxels of ground over the map under a scatter world's objects
@@ -581,7 +580,7 @@ async function tileLogits(model, seed, [i, j], scale, options) {
           }
           squares += w * w;
         }
-        const scaleBy = squares ** (-CONTRAST / 2);
+        const scaleBy = squares ** (-model.manifest.contrast / 2);
         for (let e = 0; e < d; e++) hidden[e] = meanSum[e] + deviation[e] * scaleBy;
         out[x * sx + y * sy + k * sk] = capped(headLogit(model.head, hidden), z[k] - lift - top);
       }
@@ -734,7 +733,7 @@ export async function pointField(model, seed, [i, j], points, options, sources =
         }
         squares += w * w;
       }
-      const scaleBy = squares ** (-CONTRAST / 2);
+      const scaleBy = squares ** (-model.manifest.contrast / 2);
       for (let e = 0; e < d; e++) hidden[p * d + e] = total[e] + deviation[e] * scaleBy;
       logits[p] = capped(headLogit(model.head, hidden.subarray(p * d, p * d + d)), at[up] - rise - top);
     }
