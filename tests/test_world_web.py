@@ -88,6 +88,17 @@ def test_a_tile_equals_the_python_runtimes(site_page, terrain, towerruins, monke
     assert np.abs(np.sort(vertices, axis=0) - np.sort(same_vertices, axis=0)).max() < 1e-5
 
 
+def test_a_models_own_contrast_blends_the_browsers_tiles_too(site_page, terrain):  # noqa: F811
+    """A model that records its blend's contrast exponent (sinrun orient --contrast) blends by it
+    in the browser as in Python: the occupancy within 1e-4 of Python's, and not the default's."""
+    path = site_page.folder / "models" / "steep.onnx"
+    load.write_oriented(terrain, None, path, contrast=2.0)
+    steep = load.load_model(path, threads=2)
+    ((grid, *_),) = tiles_in_page(site_page, "steep", 3, [(0, 0)])
+    assert np.abs(grid - world.tile_occupancy(steep, 3, (0, 0))).max() < 1e-4
+    assert np.abs(grid - world.tile_occupancy(terrain, 3, (0, 0))).max() > 1e-2
+
+
 @pytest.mark.parametrize("origin, scale", [((0, 0), 1), ((10**9, -10**9), 1.5)])
 def test_neighbouring_tiles_agree_on_their_shared_faces_to_the_bit(site_page, terrain, origin, scale):  # noqa: F811
     """Made in the browser, a 2 x 2 block: each shared face holds the same float32 bits from both
