@@ -88,6 +88,48 @@ def test_a_tile_equals_the_python_runtimes(site_page, terrain, towerruins, monke
     assert np.abs(np.sort(vertices, axis=0) - np.sort(same_vertices, axis=0)).max() < 1e-5
 
 
+# Runs in the page: viewer/heights.js's readHeightMap on files given as base64, for a model's { sizes, spacing, up }:
+# each map's heights ([i][j], voxels) or its message.
+READ_HEIGHTS_JS = """async ([files, info]) => {
+  const { readHeightMap } = await import('./static/viewer/heights.js');
+  const out = {};
+  for (const [name, text] of Object.entries(files)) {
+    try {
+      const map = await readHeightMap(new File([Uint8Array.from(atob(text), (c) => c.charCodeAt(0))], name), info);
+      out[name] = Array.from({ length: map.shape[0] }, (_, r) => Array.from(map.data.subarray(r * map.shape[1], (r + 1) * map.shape[1])));
+    } catch (error) {
+      out[name] = error.message;
+    }
+  }
+  return out;
+}"""
+
+
+def test_the_page_reads_a_height_map_png_as_sinrun_does(site_page, terrain, tmp_path):  # noqa: F811
+    """A greyscale height map of 8 and 16 bits (the page decodes it itself) and a colour one (the
+    browser decodes it, its luminance taken as Pillow's) give world.read_height_map's heights, to the
+    float32 bit."""
+    from PIL import Image
+
+    rng = np.random.default_rng(8)
+    images = {"grey8.png": Image.fromarray(rng.integers(0, 256, (9, 7), dtype=np.uint8)),
+              "grey16.png": Image.fromarray(rng.integers(0, 65536, (9, 7)).astype(np.uint16)),
+              "colour.png": Image.fromarray(rng.integers(0, 256, (9, 7, 3), dtype=np.uint8))}
+    files = {}
+    for name, image in images.items():
+        image.save(tmp_path / name)
+        files[name] = base64.b64encode((tmp_path / name).read_bytes()).decode()
+    manifest = terrain.manifest
+    if not site_page.url.startswith(site_page.base):
+        site_page.goto(f"{site_page.base}/README.txt")
+    read = site_page.evaluate(READ_HEIGHTS_JS, [files, {"sizes": manifest.sizes, "spacing": manifest.spacing,
+                                                        "up": manifest.up}])
+    assert images["grey16.png"].mode.startswith("I")  # 16 bits as Pillow opens it: the page may not read 8 of them
+    for name in images:
+        expected = world.read_height_map(tmp_path / name, terrain).array()
+        assert np.array_equal(np.array(read[name], np.float32), expected), name
+
+
 def test_a_models_own_contrast_blends_the_browsers_tiles_too(site_page, terrain):  # noqa: F811
     """A model that records its blend's contrast exponent (sinrun orient --contrast) blends by it
     in the browser as in Python: the occupancy within 1e-4 of Python's, and not the default's."""

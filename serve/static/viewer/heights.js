@@ -2,8 +2,8 @@
 // world.parse_height_map reads it: a greyscale .png (black 0, white RELIEF
 // times the model's height; columns along the first horizontal axis, rows
 // from the bottom up along the second) or a .npy array of heights in voxels
-// ([i, j]: tile i, j's); the browser decodes an image to 8 bits a channel, so
-// a 16-bit .png reads coarser here than with sinrun. A model map, read as
+// ([i, j]: tile i, j's); a greyscale .png is decoded here, 16 bits included, as
+// Pillow reads it, a colour one by the browser. A model map, read as
 // world.parse_model_map reads it: a palette .png's indices or a greyscale
 // one's values (decoded here, as Pillow reads them, 16 bits included), laid
 // out as a height map's pixels, or a .npy array of models' indices.
@@ -30,7 +30,11 @@ function readNpy(bytes) {
   return { values: Array.from(new kind(data.buffer, 0, dims[0] * dims[1]), Number), shape: dims };
 }
 
-/** A height map from a file (.png or .npy), as world.parse_height_map: a one-line Error where it is not one. */
+/**
+ * A height map from a file (.png or .npy), as world.parse_height_map: a one-line Error where it is not one.
+ * A greyscale .png (8 or 16 bits, or fewer) is decoded here, so its heights are Pillow's to the bit; a colour
+ * one through the browser's image decoder, its pixels' luminance taken as Pillow's convert('L') takes it.
+ */
 export async function readHeightMap(file, info) {
   const bytes = new Uint8Array(await file.arrayBuffer());
   try {
@@ -38,22 +42,29 @@ export async function readHeightMap(file, info) {
       const { values, shape } = readNpy(bytes);
       return HeightMap.of(values, shape);
     }
-    const image = await createImageBitmap(new Blob([bytes]));
-    const canvas = new OffscreenCanvas(image.width, image.height), context = canvas.getContext('2d');
-    context.drawImage(image, 0, 0);
-    const pixels = context.getImageData(0, 0, image.width, image.height).data;
+    const header = pngHeader(bytes), [w, h] = [header.width, header.height];
+    if (Math.max(w, h) > MAX_MAP_SIDE) throw new Error(`${w}x${h} pixels; a height map has at most ${MAX_MAP_SIDE} a side`);
+    const full = { 'I;16': 65535, 1: 1 }[header.mode] ?? 255;
+    const grey = ['L', 'I;16', '1'].includes(header.mode) ? await pngPixels(header) : await luminance(bytes);
     const layout = worldLayout(info), relief = RELIEF * layout.stride[layout.up];
-    const [w, h] = [image.width, image.height], values = new Array(w * h);
+    const values = new Array(w * h);
     for (let i = 0; i < w; i++) {
-      for (let j = 0; j < h; j++) {
-        const at = 4 * ((h - 1 - j) * w + i); // the bottom row is j = 0
-        values[i * h + j] = ((pixels[at] * 299 + pixels[at + 1] * 587 + pixels[at + 2] * 114) / 1000 / 255) * relief;
-      }
+      for (let j = 0; j < h; j++) values[i * h + j] = (grey[(h - 1 - j) * w + i] / full) * relief; // the bottom row is j = 0
     }
     return HeightMap.of(values, [w, h]);
   } catch (error) {
     throw new Error(`${file.name}: not a height map (${error.message})`);
   }
+}
+
+/** A colour image's pixels' luminance, rows from the top, as Pillow's convert('L'): (19595 R + 38470 G + 7471 B + 2^15) >> 16. */
+async function luminance(bytes) {
+  const image = await createImageBitmap(new Blob([bytes]), { premultiplyAlpha: 'none', colorSpaceConversion: 'none' });
+  const canvas = new OffscreenCanvas(image.width, image.height), context = canvas.getContext('2d');
+  context.drawImage(image, 0, 0);
+  const rgba = context.getImageData(0, 0, image.width, image.height).data, out = new Array(image.width * image.height);
+  for (let k = 0; k < out.length; k++) out[k] = (rgba[4 * k] * 19595 + rgba[4 * k + 1] * 38470 + rgba[4 * k + 2] * 7471 + 0x8000) >> 16;
+  return out;
 }
 
 /** A .png's header and its image data, unread: { width, height, depth, colour (its colour type), interlace, mode (Pillow's
