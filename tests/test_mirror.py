@@ -77,6 +77,7 @@ MIRROR = [
     *[("sinshape/world.js", *same(name, world)) for name in WORLD],
     *[("sinshape/colour.js", *same(name, colour)) for name in COLOUR],
     ("viewer/heights.js", *same("RELIEF", world)),
+    ("viewer/heights.js", *same("MAX_MAP_BYTES", world)),
     ("viewer/layout-cells.js", "MAX_SIDE", "runtime.layout.MAX_LAYOUT_SIDE", layout.MAX_LAYOUT_SIDE),
     ("viewer/layout-cells.js", *same("VOX_VERSION", layout)),
     ("sinshape/world.js", "ARRANGEMENTS", "core.manifest.ARRANGEMENTS", fmt.ARRANGEMENTS),

@@ -227,6 +227,26 @@ def test_the_page_reads_a_model_map_png_as_pillow_does(run_node, tmp_path):
     assert sum(isinstance(got, str) for got in read.values()) == 7  # RGB, LA and RGBA, plain and interlaced; 300
 
 
+# Runs in node: a map file of more bytes than world.MAX_MAP_BYTES opened by each reader, whose bytes are never read.
+TOO_LARGE_JS = """
+const { readHeightMap, readModelMap } = await import('./static/viewer/heights.js');
+const file = { name: 'huge.png', size: 65 * 2 ** 20, arrayBuffer: () => { throw new Error('read'); } };
+const out = [];
+for (const read of [readHeightMap, readModelMap]) {
+  try { await read(file, null); out.push('made'); } catch (error) { out.push(error.message); }
+}
+console.log(JSON.stringify(out));
+"""
+
+
+def test_a_map_file_too_large_is_refused_unread_in_pythons_words(run_node):
+    messages = json.loads(run_node(TOO_LARGE_JS))
+    for message, parse, what in zip(messages, (world.parse_height_map, world.parse_model_map), ("height", "model")):
+        with pytest.raises(InputError) as refused:
+            parse(bytes(65 << 20), ".png", "huge.png")
+        assert message == str(refused.value) == f"huge.png: 65 MB is too large for a {what} map"
+
+
 def test_the_page_makes_a_two_model_world_in_its_worker_and_refuses_what_python_refuses(site_page, first, tmp_path):
     """World mode in the browser, another model picked (in the URL, then in the world controls): until
     a model map is opened the request is refused; a palette .png opened as the map (read as sinrun

@@ -14,6 +14,13 @@ import { InputError } from '../sinshape/errors.js';
 import { HeightMap, MAX_MAP_SIDE, ModelMap, worldLayout } from '../sinshape/world.js';
 
 export const RELIEF = 4; // world.RELIEF: an image's white, in the model's heights
+export const MAX_MAP_BYTES = 64 << 20; // world.MAX_MAP_BYTES: a map file
+
+/** A map file's bytes; one of more than MAX_MAP_BYTES is refused, unread, as world.parse_height_map and parse_model_map refuse it. */
+async function mapBytes(file, what, field) {
+  if (file.size > MAX_MAP_BYTES) throw new InputError(`${file.name}: ${Math.floor(file.size / 2 ** 20)} MB is too large for ${what}`, field);
+  return new Uint8Array(await file.arrayBuffer());
+}
 
 /** The .npy array's values, [i][j] in C order, and its shape: little-endian floats and integers only. */
 function readNpy(bytes) {
@@ -36,7 +43,7 @@ function readNpy(bytes) {
  * one through the browser's image decoder, its pixels' luminance taken as Pillow's convert('L') takes it.
  */
 export async function readHeightMap(file, info) {
-  const bytes = new Uint8Array(await file.arrayBuffer());
+  const bytes = await mapBytes(file, 'a height map', 'heights');
   try {
     if (/\.npy$/i.test(file.name)) {
       const { values, shape } = readNpy(bytes);
@@ -128,7 +135,7 @@ async function pngPixels({ width, height, depth, colour, interlace, data }) {
 
 /** A model map from a file (.png or .npy), as world.parse_model_map: an InputError (one line) where it is not one. */
 export async function readModelMap(file) {
-  const bytes = new Uint8Array(await file.arrayBuffer()), { name } = file, suffix = /\.[^.]*$/.exec(name)?.[0].toLowerCase() ?? '';
+  const bytes = await mapBytes(file, 'a model map', 'models_map'), { name } = file, suffix = /\.[^.]*$/.exec(name)?.[0].toLowerCase() ?? '';
   if (suffix === '.npy') {
     let read;
     try {
