@@ -811,7 +811,7 @@ def tile_logits(model, seed: int, tile, scale: float = 1.0, options: WorldOption
     level = check_lod(model, options.lod)
     grid = tile_grid(model, layout, scale, options)
     h0, h1, up = *layout.horizontal, layout.up
-    check_world_scale(layout, scale, model.manifest.hidden, memory_limit, grid.shape)
+    check_world_scale(layout, scale, hidden_width(model, options), memory_limit, grid.shape)
     u0, u1, z = grid.positions[h0], grid.positions[h1], grid.positions[up]
     heights = None if options.heights is None else map_heights(options.heights, layout, u0, u1, (i, j))
     out = np.empty((len(u0), len(u1), len(z)), np.float32)

@@ -185,3 +185,14 @@ def test_a_coarser_tile_and_a_block_of_two_models(model, coloured, tiny_model, t
     block = trimesh.load(tmp_path / "block.ply", process=False)
     painted = np.asarray(block.visual.vertex_colors)[:, :3]
     assert (painted != 128).any(axis=1).any() and (painted == 128).all(axis=1).any()
+
+
+def test_a_tiles_memory_is_counted_at_its_widest_models_width(model, still, monkeypatch):
+    """The memory check before a tile's grid counts the hidden vectors its points hold: the widest
+    model's (hidden_width), not only the first's (the shipped and test models are all 32 wide, so the
+    width is made to differ here)."""
+    counted = []
+    monkeypatch.setattr(world, "hidden_width", lambda first, options: first.manifest.hidden + 7 * len(options.models))
+    monkeypatch.setattr(world, "check_world_scale", lambda layout, scale, hidden, *rest: counted.append(hidden))
+    world.tile_occupancy(model, 7, (0, 0), options=world.WorldOptions("scatter", models=(still,), models_map=SPLIT))
+    assert counted == [model.manifest.hidden + 7]
