@@ -84,13 +84,13 @@ def check_unchanged(reference: str, path: Path, digest: str, recorded: str) -> N
 # The options of a sample request (runtime/options.py) the extension sets, and
 # the setting that sets each: a sample object's (props.SinshapeSettings), or a
 # world object's (props.SinshapeWorld: its tiles around the followed point,
-# each tile's lod from the fine radius, its other models and model map) ...
+# each tile's lod from the fine radius, its other models, model map and height map) ...
 SETTINGS = {"seed": "seed", "size": "size", "scale": "scale", "smooth": "smooth", "keep": "keep_box", "grow": "grow",
             "anchor": "anchor", "layout": "layout_bits", "tile": "radius", "arrange": "arrange", "lod": "fine",
-            "models": "models", "models_map": "models_map"}
+            "models": "models", "models_map": "models_map", "heights": "heights"}
 # ... and those it leaves at their defaults (a mesh in the input's frame, turned to
-# Blender's; no height map). tests/test_blender_options.py holds both to the table.
-LEFT = ("recon", "smoother", "largest", "frame", "heights")
+# Blender's). tests/test_blender_options.py holds both to the table.
+LEFT = ("recon", "smoother", "largest", "frame")
 
 
 def sample_request(values: dict, up: str) -> SampleRequest:

@@ -10,6 +10,7 @@ from bpy.props import (BoolProperty, CollectionProperty, EnumProperty, FloatProp
 
 from sinshape import models
 from sinshape.runtime.options import OPTION
+from sinshape.runtime.world import MAX_RELIEF
 
 from . import live, worlds
 
@@ -101,6 +102,14 @@ class SinshapeWorld(bpy.types.PropertyGroup):
                                description="Which model goes where in a scattered world: a .png (a palette or "
                                            "greyscale image) or .npy of models' indices, a pixel per tile, 0 the "
                                            "first model (// is the .blend's folder)")
+    heights: StringProperty(name="Height Map", subtype="FILE_PATH", update=worlds.changed,
+                            description="The world's large shape, painted: a greyscale .png (black low, white "
+                                        "Relief voxels high) or .npy of heights in voxels, a pixel per tile "
+                                        "(// is the .blend's folder)")
+    relief: FloatProperty(name="Relief", default=0.0, min=0.0, max=MAX_RELIEF, soft_max=400.0,
+                          update=worlds.changed,
+                          description="Voxels an image height map's white stands for (0: four times the "
+                                      "model's height)")
     seed: IntProperty(name="Seed", min=OPTION["seed"].low, max=SEED_MAX, update=worlds.changed,
                       description="The same seed gives the same world")
     scale: FloatProperty(name="Scale", default=1.0, min=0.01, soft_min=0.25, soft_max=8.0, update=worlds.changed,

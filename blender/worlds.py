@@ -35,9 +35,11 @@ from . import convert, live, work
 
 TILE = "sinshape_tile"  # a tile object's custom property: "I,J"
 MADE = "sinshape_made"  # ... and what it was made from: the model file's SHA-256, the seed, the scale, the
-# arrangement, the other models' SHA-256s, the model map's pixels' SHA-256, its lod
+# arrangement, the other models' SHA-256s, the model map's and height map's pixels' SHA-256s, its lod
 MAX_RADIUS = 32  # tiles on each side: (2 r + 1)^2 = 4225 tiles at most
-MAPS = {}  # (path, size, mtime) -> (world.ModelMap, its pixels' SHA-256): a map is read again only when it changed
+# (what, path, size, mtime, relief) -> (world.ModelMap or HeightMap, its pixels' SHA-256): a map is read again
+# only when it changed
+MAPS = {}
 KEEP_MAPS = 4
 
 
@@ -100,33 +102,38 @@ def check_settings(settings) -> None:
         raise InputError(f"radius must be 0 to {MAX_RADIUS} tiles on each side, got {radius}", "radius")
 
 
-def model_map(reference: str) -> tuple:
-    """(the world.ModelMap a world's map setting names ('//' relative to
-    the .blend), its pixels' SHA-256); (None, '') where none is named. Read
-    by the runtime's reader (world.read_model_map), once while the file is unchanged."""
+def read_map(reference: str, what: str, read, relief: float = 0.0) -> tuple:
+    """(the map a world's map setting names ('//' relative to the .blend),
+    read by the runtime's reader `read(path)`, its pixels' SHA-256); (None,
+    '') where none is named. Read once while the file (and the relief) is unchanged."""
     if not reference.strip():
         return None, ""
-    path = check_readable(Path(bpy.path.abspath(reference)), "model map")
+    path = check_readable(Path(bpy.path.abspath(reference)), what)
     stat = path.stat()
-    key = (str(path), stat.st_size, stat.st_mtime_ns)
+    key = (what, str(path), stat.st_size, stat.st_mtime_ns, relief)
     if key not in MAPS:
         if len(MAPS) >= KEEP_MAPS:
             MAPS.pop(next(iter(MAPS)))
-        placed = world.read_model_map(path)
-        MAPS[key] = placed, hashlib.sha256(repr(placed.shape).encode() + placed.data).hexdigest()
+        found = read(path)
+        MAPS[key] = found, hashlib.sha256(repr(found.shape).encode() + found.data).hexdigest()
     return MAPS[key]
 
 
-def world_options(settings, digest: str) -> tuple:
-    """(the world.WorldOptions a world's settings stand for, checked by the
-    runtime as the command line's are; what its tiles are made from: the
+def world_options(settings, model, digest: str) -> tuple:
+    """(the world.WorldOptions a world's settings stand for (`model`, its
+    first, measures an image height map's white), checked by the runtime as
+    the command line's are; what its tiles are made from: the
     first model's SHA-256 (`digest`), the seed, the scale, the arrangement,
-    the other models' SHA-256s and the map's)."""
+    the other models' SHA-256s and the maps')."""
     others = [live.load_settings(other) for other in settings.models]
-    placed, map_digest = model_map(settings.models_map)
-    options = world.WorldOptions(settings.arrange, models=tuple(each for each, _ in others), models_map=placed)
+    placed, placed_digest = read_map(settings.models_map, "model map", world.read_model_map)
+    relief = settings.relief or None  # 0: an image's white is world.RELIEF times the model's height
+    heights, heights_digest = read_map(settings.heights, "height map",
+                                       lambda path: world.read_height_map(path, model, relief), settings.relief)
+    options = world.WorldOptions(settings.arrange, heights=heights, models=tuple(each for each, _ in others),
+                                 models_map=placed)
     made = (f"{digest}:{settings.seed}:{settings.scale!r}:{settings.arrange}:"
-            f"{','.join(each for _, each in others)}:{map_digest}")
+            f"{','.join(each for _, each in others)}:{placed_digest}:{heights_digest}")
     return options, made
 
 
@@ -155,7 +162,7 @@ def refresh(obj, scene=None, force: bool = False) -> None:
     try:
         check_settings(settings)
         model, digest = live.load_settings(settings)
-        options, made = world_options(settings, digest)
+        options, made = world_options(settings, model, digest)
         layout = world.world_layout(model)
         world.check_world_scale(layout, settings.scale, world.hidden_width(model, options), None)
         centre = centre_tile(model, layout, followed_point(obj, scene))

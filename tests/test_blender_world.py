@@ -323,6 +323,40 @@ def test_a_world_of_two_models_on_a_model_map_is_the_runtimes(scene, tmp_path):
         assert np.array_equal(vertices, alone[tile][0]) and np.array_equal(faces, alone[tile][1])
 
 
+def test_a_painted_height_map_shapes_the_world_as_sinrun_worlds_map_does(scene, tiny_model, tmp_path):
+    """A greyscale .png height map: each tile world.tile_surface's with read_height_map's heights
+    (white RELIEF times the model's height, or the Relief given), not the flat world's; the Relief
+    changed, the tiles made again from it."""
+    from PIL import Image
+
+    from blender import convert
+    from sinshape.runtime import world
+    from sinshape.runtime.load import load_model
+
+    model = load_model(tiny_model, threads=1)
+    Image.fromarray(np.array([[0, 255], [128, 60]], np.uint8)).save(tmp_path / "hills.png")
+    scene.cursor.location = (0, 0, 0)
+    obj = add_world(tiny_model, seed=4, radius=1)
+    flat = {tile: convert.mesh_arrays(child.data) for tile, child in tiles_of(obj).items()}
+    for relief in (0.0, 30.0):
+        obj.sinshape_world.relief = relief
+        obj.sinshape_world.heights = str(tmp_path / "hills.png")  # background mode: every tile made again
+        assert obj.sinshape_world.error == ""
+        heights = world.read_height_map(tmp_path / "hills.png", model, relief or None)
+        options = world.WorldOptions("blend", heights=heights)
+        tiles = tiles_of(obj)
+        assert set(tiles) == set(flat)
+        for tile, child in tiles.items():
+            vertices, faces = convert.mesh_arrays(child.data)
+            surface = world.tile_surface(model, 4, tile, options=options)
+            assert np.array_equal(faces, surface.faces)
+            assert np.abs(convert.to_model(vertices, model.manifest.up)
+                          - world.placed(model, tile, surface.vertices, "tile")).max() < 1e-5
+        assert any(len(faces) != len(flat[tile][1]) or not np.array_equal(vertices, flat[tile][0])
+                   for tile, (vertices, faces) in ((t, convert.mesh_arrays(c.data)) for t, c in tiles.items()))
+        obj.sinshape_world.heights = ""
+
+
 @pytest.mark.parametrize("arrange, pixels, said", [
     ("blend", [[0, 1]], "it is for a scatter world"),
     ("scatter", None, "several models need a model map"),
