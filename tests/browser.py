@@ -120,6 +120,20 @@ def open_page(browser, base: str):
     return page
 
 
+@contextlib.contextmanager
+def exported_site_page(browser, models: list, folder: Path):
+    """`sinrun export-web MODELS -o folder`, served as its README says, open in a page of `browser` (page.base)."""
+    from sinshape.serve import site
+
+    site.export_site(models, folder)
+    with site_server_process(folder) as base:
+        page = open_page(browser, base)
+        page.base = base
+        page.goto(f"{base}/README.txt")
+        yield page
+        page.close()
+
+
 # ---- the page's layout editor (tests/test_serve_page.py on the server, tests/test_web.py in the browser)
 # The first full cell whose face `normal` a click in the view picks (that cell and that face), with
 # `room` empty cells beyond the face inside the layout, in none of the columns `skip` ([[i, j], ...]):

@@ -18,13 +18,12 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from browser import site_server_process, open_page, wait_world
+from browser import exported_site_page, open_page, wait_world
 from test_web import browser, load_in_page, playwright, wait_done  # noqa: F401 (the fixtures of the browser's tests)
 from sinshape.core import manifest as fmt
 from sinshape.core.errors import InputError
 from sinshape.runtime import colour, load, mesh, query, world
 from sinshape.runtime.generate import sample
-from sinshape.serve import site
 
 COLOUR_ONNX = Path(__file__).parent / "data" / "tiny_colour.onnx"  # format 5: colour tiles
 HEAD_ONNX = Path(__file__).parent / "data" / "tiny_colour_v4.onnx"  # format 4: a colour head
@@ -84,14 +83,9 @@ def headed():
 @pytest.fixture(scope="module")
 def colour_page(tmp_path_factory, browser):  # noqa: F811
     """A site of the coloured models (and the terrain, grey), in chromium."""
-    folder = tmp_path_factory.mktemp("colour") / "site"
-    site.export_site([str(COLOUR_ONNX), str(HEAD_ONNX), "terrain"], folder)
-    with site_server_process(folder) as base:
-        page = open_page(browser, base)
-        page.base = base
-        page.goto(f"{base}/README.txt")
+    with exported_site_page(browser, [str(COLOUR_ONNX), str(HEAD_ONNX), "terrain"],
+                            tmp_path_factory.mktemp("colour") / "site") as page:
         yield page
-        page.close()
 
 
 def colours_in_page(page, seed, tile=None, name=NAME, scale=1, arrange="blend", lod=0) -> tuple:

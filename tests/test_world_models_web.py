@@ -17,14 +17,13 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from browser import open_page, site_server_process, wait_world
+from browser import exported_site_page, open_page, wait_world
 from test_colour_web import IN_PAGE
 from test_mirror import run_node  # noqa: F401 (node, beside a copy of the browser runtime's modules)
 from test_web import browser, playwright, wait_done  # noqa: F401 (the fixtures of the browser's tests)
 from sinshape import models
 from sinshape.core.errors import InputError
 from sinshape.runtime import load, world
-from sinshape.serve import site
 
 HEAD_ONNX = Path(__file__).parent / "data" / "tiny_colour_v4.onnx"  # format 4: a colour head, another up axis
 # Models' indices over tiles (0..1, 0..1), the edge going on beyond: cells whose centres lie
@@ -49,14 +48,9 @@ def other_model(name):
 @pytest.fixture(scope="module")
 def site_page(tmp_path_factory, browser):  # noqa: F811
     """`sinrun export-web acropolis towerruins tiny_colour_v4.onnx`, served as its README says, in chromium."""
-    folder = tmp_path_factory.mktemp("models_web") / "site"
-    site.export_site([FIRST, "towerruins", str(HEAD_ONNX)], folder)
-    with site_server_process(folder) as base:
-        page = open_page(browser, base)
-        page.base = base
-        page.goto(f"{base}/README.txt")
+    with exported_site_page(browser, [FIRST, "towerruins", str(HEAD_ONNX)],
+                            tmp_path_factory.mktemp("models_web") / "site") as page:
         yield page
-        page.close()
 
 
 # Runs in the page: tiles of the world of `names` (the first, then models 1, 2, ...) placed by `map`

@@ -51,7 +51,7 @@ export async function readHeightMap(file, info) {
     }
     const header = pngHeader(bytes), [w, h] = [header.width, header.height];
     if (Math.max(w, h) > MAX_MAP_SIDE) throw new Error(`${w}x${h} pixels; a height map has at most ${MAX_MAP_SIDE} a side`);
-    const full = { 'I;16': 65535, 1: 1 }[header.mode] ?? 255;
+    const full = { 'I;16': 65535, '1': 1 }[header.mode] ?? 255; // white: Pillow's 16-bit, 1-bit and 8-bit grey
     const grey = ['L', 'I;16', '1'].includes(header.mode) ? await pngPixels(header) : await luminance(bytes);
     const layout = worldLayout(info), relief = RELIEF * layout.stride[layout.up];
     const values = new Array(w * h);
