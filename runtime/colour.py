@@ -9,23 +9,32 @@ the example's own detail: no colour is made up, so a sample has no hue its
 example lacks, and a brick wall's mortar lines stay as sharp as its
 texture's, whatever the voxel grid.
 
-Matching is PatchMatch (Barnes et al. 2009) on the voxel grid. Each voxel u
-of the sample's surface band gets the example voxel J(u) whose patch of
-hidden sums (the decoder's first layer, at a voxel and its six neighbours)
-is nearest in squared distance. Voxels picked by their content (about one
-in SEED_RATE) search the whole example; the rest start at random and, in
-ITERATIONS rounds, take a neighbour's match shifted by the step between
-them when it is nearer (so matches grow into large coherent pieces of the
-example), or a random voxel near their own match. A point p then stands for
-q = J(u) + (p - u), u = round(p), and reads the tile of q's voxel: within a
-voxel, the example's texture at full resolution.
+Matching runs coarse to fine, so that neighbouring voxels copy neighbouring
+places of the example over regions many voxels wide (a brick course goes
+on, a mortar line stays whole). The hidden sums are averaged over blocks of
+2^LEVELS voxels a side (exactly: they are sums of three planes, so a block's
+mean is the planes' means), and the sample's blocks are matched to the
+example's by PatchMatch (Barnes et al. 2009): each block u gets the block
+J(u) whose patch (its hidden sums and its six neighbours') is nearest.
+Blocks picked by their content (about one in SEED_RATE) search the whole
+example; the rest start at random and, in ITERATIONS rounds, take a
+neighbour's match shifted by the step between them when it is nearer, or a
+random block near their own match. Each finer level halves the blocks: a
+child inherits its parent's match, twice as far, plus its place in the
+parent (Lefebvre and Hoppe 2005), and in REFINE rounds takes a neighbour's
+match continued, or its own moved by one, when that fits clearly better. A
+match continued (inherited, or a neighbour's) is weighed at COHERENT of its
+distance, so a piece stays whole unless another place fits better. A point
+p then stands for q = J(u) + (p - u), u = round(p), and reads the tile of
+q's voxel: within a voxel, the example's texture at full resolution.
 
 The same sample matches the same way everywhere: hidden sums are compared
-as integers (steps of 1/QUANTUM), whose squared distances are exact in
-float64 in any order, and every random choice is drawn from the specified
-noise (core/noise.py) keyed by the voxel's own content, not its place, so a
-part of a sample that another sample shares (a kept box, a world tile's
-neighbourhood) matches alike there. The browser's runtime repeats it
+as integers (each plane in steps of 1/QUANTUM, blocks' means rounded down),
+whose squared distances are exact in float64 in any order, and every random
+choice is drawn from the specified noise (core/noise.py) keyed by the
+block's own content, not its place, so a part of a sample that another
+sample shares (a kept box) matches alike there, and so does the same
+content moved by a whole number of the coarsest blocks. The browser's runtime repeats it
 (serve/static/sinshape/colour.js).
 """
 
@@ -43,17 +52,19 @@ from . import generate, query
 # The patch: a voxel and its six neighbours.
 PATCH = np.array([(0, 0, 0), (1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1), (0, 0, -1)])
 QUANTUM = 256  # hidden sums are compared in steps of 1/QUANTUM
-KEY_VALUES, KEY_QUANTUM = 8, 4  # a voxel's random choices are keyed by its first 8 hidden sums in steps of 1/4
-ITERATIONS = 4
-PROPAGATION = (1, 2, 4)  # neighbours this many voxels away along each axis offer their match
+KEY_VALUES, KEY_QUANTUM = 8, 4  # a block's random choices are keyed by its first 8 hidden sums in steps of 1/4
+LEVELS = 3  # matched first on blocks of 2^LEVELS voxels a side, then refined by halves down to voxels
+ITERATIONS = 4  # PatchMatch's rounds on the coarsest blocks
+REFINE = 2  # rounds at each finer level
+PROPAGATION = (1,)  # neighbours this many voxels away along each axis offer their match
 SEARCH = (8, 4, 2, 1)  # random candidates within this many voxels of the current match
-SEED_RATE = 32  # about one voxel in this many searches the whole example
-# A neighbour's match continued (the same piece of the example, shifted by
-# the step) is weighed at this share of its distance: pieces stay whole
-# unless another place fits clearly better (Ashikhmin 2001's coherence).
-COHERENT = 0.8
+SEED_RATE = 32  # about one block in this many searches the whole example
+# A match continued (a parent's, or a neighbour's shifted by the step: the
+# same piece of the example) is weighed at this share of its distance:
+# pieces stay whole unless another place fits clearly better (Ashikhmin
+# 2001's coherence).
+COHERENT = 0.5
 MATCH_STREAM = 2  # core/noise's stream id of the matching's random choices (0 and 1 are the generator's)
-PROJECTIONS = 2  # Newton steps that take a point to the example's surface
 # A point reads the tiles of each direction of its own voxel and of those
 # along the tile's axis, this many voxels away: the surface nearest it wins,
 # a tile counted TURN voxels farther for each unit its axis turns from the
@@ -224,22 +235,65 @@ def surface_band(model, hidden_at, size) -> np.ndarray:
     return np.argwhere(band)
 
 
+class Pyramid:
+    """Hidden sums (b1 added) of projected planes spanning `size` as
+    integers, at voxels (level 0) and at blocks of 2^level voxels a side:
+    each plane rounded to steps of 1/QUANTUM (halves to even), a block's
+    value the floor of its mean. A block's mean of the sum of three planes
+    is the sum of their means over its faces, so each plane is pooled alone;
+    blocks past the grid's end repeat its last voxels. Values are integers
+    below 2^24, held in float32."""
+
+    def __init__(self, planes: list, bias: np.ndarray, size):
+        self.size = np.array(size, np.int64)
+        self.planes = [np.rint(plane * np.float32(QUANTUM)).astype(np.int64) for plane in planes]
+        self.bias = np.rint(bias * np.float32(QUANTUM)).astype(np.int64)
+        self.pooled = {}
+
+    def at(self, level: int):
+        """The hidden sums of level `level`'s blocks, (n, 3) int -> (n, D)
+        float32, clamped to that level's grid."""
+        if level not in self.pooled:
+            side = 1 << level
+            blocks = -(-self.size // side)
+            pooled = []
+            for plane, (a, b) in zip(self.planes, ((0, 1), (0, 2), (1, 2))):
+                rows = np.minimum(np.arange(blocks[a] * side), self.size[a] - 1)
+                columns = np.minimum(np.arange(blocks[b] * side), self.size[b] - 1)
+                cells = plane[rows][:, columns]
+                pooled.append(cells.reshape(blocks[a], side, blocks[b], side, -1).sum(axis=(1, 3)))
+            self.pooled[level] = (pooled, blocks)
+        (xy, xz, yz), blocks = self.pooled[level]
+        area = 1 << (2 * level)
+        bias = self.bias * area
+
+        def hidden(voxels: np.ndarray) -> np.ndarray:
+            i, j, k = np.clip(voxels, 0, blocks - 1).T
+            return ((xy[i, j] + xz[i, k] + yz[j, k] + bias) // area).astype(np.float32)
+        return hidden
+
+
+def pyramid(model, planes: list, size) -> Pyramid:
+    """A sample's (or the reconstruction's) Pyramid."""
+    return Pyramid(planes, model.head.bias1, size)
+
+
 def patches(hidden_at, voxels: np.ndarray) -> np.ndarray:
-    """The patch of each voxel, (n, 3) -> (n, 7 * D) float32: hidden sums
-    rounded to steps of 1/QUANTUM and held as integers (|values| < 2^24),
-    so squared distances are integers below 2^53, exact in float64 in any
-    order of summation (a matrix product included)."""
-    return np.concatenate([np.rint(hidden_at(voxels + offset) * np.float32(QUANTUM)) for offset in PATCH], axis=1)
+    """The patch of each voxel, (n, 3) -> (n, 7 * D) float32: its integer
+    hidden sums and its six neighbours' (|values| < 2^24), so squared
+    distances are integers below 2^53, exact in float64 in any order of
+    summation (a matrix product included)."""
+    return np.concatenate([hidden_at(voxels + offset) for offset in PATCH], axis=1)
 
 
 def content_keys(hidden: np.ndarray) -> np.ndarray:
-    """A key per voxel from its own hidden sums (n, D): the random choices
-    made for a voxel follow what is there, not where. Its first KEY_VALUES
-    sums rounded coarsely (steps of 1/KEY_QUANTUM): two runtimes whose
-    floats differ in the last bits give a voxel the same key but where a
-    value lies within that difference of a step's edge. uint64."""
+    """A key per block from its own integer hidden sums (n, D): the random
+    choices made for a block follow what is there, not where. Its first
+    KEY_VALUES sums in steps of 1/KEY_QUANTUM (rounded down): two runtimes
+    whose floats differ in the last bits give a block the same key but where
+    a value lies within that difference of a step's edge. uint64."""
     key = np.full(len(hidden), noise.stream_key(0, MATCH_STREAM), np.uint64)
-    values = np.rint(hidden[:, :KEY_VALUES] * np.float32(KEY_QUANTUM)).astype(np.int64)
+    values = np.floor_divide(hidden[:, :KEY_VALUES].astype(np.int64), QUANTUM // KEY_QUANTUM)
     with np.errstate(over="ignore"):
         for value in values.T:
             key = noise.mix64(key + np.uint64(noise.GOLDEN) * (value.astype(np.uint64) + np.uint64(1)))
@@ -247,7 +301,7 @@ def content_keys(hidden: np.ndarray) -> np.ndarray:
 
 
 def draw(keys: np.ndarray, slot: int) -> np.ndarray:
-    """The random bits of draw `slot` for each voxel's key: SplitMix64's
+    """The random bits of draw `slot` for each block's key: SplitMix64's
     output number key + 1 from state `slot` (core/noise.bits). uint64."""
     return noise.bits(slot, keys)
 
@@ -260,20 +314,46 @@ def squared_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.einsum("nk,nk->n", diff, diff, dtype=np.float64)
 
 
-class Matcher:
-    """The example's side of matching: the voxels a match may land in (every
-    voxel with tiles to read) and the reconstruction's patch at each."""
+def axis_steps(length: int) -> list:
+    """The six steps of `length` along the axes, in the order +x, -x, +y, -y, +z, -z."""
+    out = []
+    for axis in range(3):
+        for sign in (1, -1):
+            step = np.zeros(3, np.int64)
+            step[axis] = sign * length
+            out.append(step)
+    return out
 
-    def __init__(self, tiles: Tiles, reference_at):
-        self.band = tiles.band()  # (B, 3)
-        self.row = np.full(tiles.along.shape[:3], -1, np.int64)
+
+def improve(level: "Level", sample: np.ndarray, current: np.ndarray, best: np.ndarray, candidates: list) -> None:
+    """Each voxel's match replaced by the first candidate strictly nearer
+    than its best, in the candidates' order: (voxels (n, 3), whether offered
+    (n,) bool, coherent). A coherent candidate (a match continued) is
+    weighed at COHERENT of its distance. `current`, `best` change in place."""
+    for candidate, offered, coherent in candidates:
+        new = np.flatnonzero(offered & np.any(candidate != current, axis=1))  # the current one is known
+        d = level.distance(sample[new], candidate[new])
+        if coherent:
+            d = d * COHERENT
+        won = d < best[new]
+        current[new[won]], best[new[won]] = candidate[new[won]], d[won]
+
+
+class Level:
+    """One level of the example's side of matching: the blocks a match may
+    land in (those holding a voxel with tiles to read) and the
+    reconstruction's patch at each."""
+
+    def __init__(self, band: np.ndarray, reference_at, size):
+        self.band = band  # (B, 3), in C order
+        self.row = np.full(tuple(size), -1, np.int64)
         self.row[tuple(self.band.T)] = np.arange(len(self.band))
         self.reference = patches(reference_at, self.band)  # (B, K)
         reference = self.reference.astype(np.float64)
         self.norms = np.einsum("mk,mk->m", reference, reference)
 
     def rows(self, voxels: np.ndarray) -> np.ndarray:
-        """The band row of each (n, 3) example voxel, -1 outside the band."""
+        """The band row of each (n, 3) example block, -1 outside the band."""
         size = np.array(self.row.shape)
         inside = np.all((voxels >= 0) & (voxels < size), axis=1)
         out = np.full(len(voxels), -1, np.int64)
@@ -281,7 +361,7 @@ class Matcher:
         return out
 
     def distance(self, sample: np.ndarray, candidates: np.ndarray) -> np.ndarray:
-        """Patch distances of sample patches (n, K) to candidate example voxels
+        """Patch distances of sample patches (n, K) to candidate example blocks
         (n, 3); infinite where a candidate is outside the band."""
         row = self.rows(candidates)
         d = squared_distances(sample, self.reference[np.maximum(row, 0)])
@@ -289,7 +369,7 @@ class Matcher:
         return d
 
     def nearest(self, sample: np.ndarray, chunk: int = 256) -> np.ndarray:
-        """The nearest band voxel of each patch (n, K) of all: (n, 3), the
+        """The nearest band block of each patch (n, K) of all: (n, 3), the
         first of equals. |s - r|^2 - |s|^2 = |r|^2 - 2 s.r, exact integers."""
         out = np.empty(len(sample), np.int64)
         reference = self.reference.astype(np.float64)
@@ -298,52 +378,95 @@ class Matcher:
             out[start:start + chunk] = np.argmin(self.norms[None, :] - 2 * (block @ reference.T), axis=1)
         return self.band[out]
 
-    def match(self, sample_at, voxels: np.ndarray) -> np.ndarray:
-        """The example voxel J(u) of each voxel u (n, 3) of a sample's band,
-        whose hidden sums `sample_at` gives: (n, 3) int64."""
-        check_memory(len(voxels) * self.reference.shape[1] * 16 + len(self.band) * 8 * 64,
-                     f"matching {len(voxels)} voxels to the example")
-        sample = patches(sample_at, voxels)
-        keys = content_keys(sample_at(voxels))
+    def search(self, sample_at, blocks: np.ndarray) -> np.ndarray:
+        """PatchMatch: the example block J(u) of each block u (n, 3) of a
+        sample, whose hidden sums `sample_at` gives: (n, 3) int64."""
+        sample = patches(sample_at, blocks)
+        keys = content_keys(sample_at(blocks))
         band, count = self.band, len(self.band)
-        lookup = voxel_lookup(voxels)
+        lookup = voxel_lookup(blocks)
         current = band[(draw(keys, 0) % np.uint64(count)).astype(np.int64)]
         seeds = np.flatnonzero(draw(keys, 1) % np.uint64(SEED_RATE) == 0)
         if len(seeds):
             current[seeds] = self.nearest(sample[seeds])
         best = self.distance(sample, current)
-        changed = np.ones(len(voxels), bool)  # whose match changed last round: only their offers are new
-        everyone = np.ones(len(voxels), bool)
+        changed = np.ones(len(blocks), bool)  # whose match changed last round: only their offers are new
+        everyone = np.ones(len(blocks), bool)
         slot = 2
         for _ in range(ITERATIONS):
             previous = current.copy()
             candidates = []
-            for step in PROPAGATION:
-                for axis in range(3):
-                    for sign in (1, -1):
-                        shift = np.zeros(3, np.int64)
-                        shift[axis] = sign * step
-                        neighbour = lookup(voxels - shift)
-                        offered = previous[np.maximum(neighbour, 0)] + shift
-                        candidates.append((offered, (neighbour >= 0) & changed[np.maximum(neighbour, 0)]))
-            offers = len(candidates)
+            for length in PROPAGATION:
+                for shift in axis_steps(length):
+                    neighbour = lookup(blocks - shift)
+                    candidates.append((previous[np.maximum(neighbour, 0)] + shift,
+                                       (neighbour >= 0) & changed[np.maximum(neighbour, 0)], True))
             for radius in SEARCH:
                 bits = draw(keys, slot)
                 slot += 1
                 offsets = np.stack([((bits >> np.uint64(16 * a)) & np.uint64(0xFFFF)).astype(np.int64)
                                     % (2 * radius + 1) for a in range(3)], axis=1) - radius
-                candidates.append((previous + offsets, everyone))
-            candidates.append((band[(draw(keys, slot) % np.uint64(count)).astype(np.int64)], everyone))
+                candidates.append((previous + offsets, everyone, False))
+            candidates.append((band[(draw(keys, slot) % np.uint64(count)).astype(np.int64)], everyone, False))
             slot += 1
-            for index, (candidate, offered) in enumerate(candidates):  # in this order: the first of equals stays
-                new = np.flatnonzero(offered & np.any(candidate != current, axis=1))  # the current one is known
-                d = self.distance(sample[new], candidate[new])
-                if index < offers:  # a neighbour's match continued: the same piece of the example
-                    d = d * COHERENT
-                won = d < best[new]
-                current[new[won]], best[new[won]] = candidate[new[won]], d[won]
+            improve(self, sample, current, best, candidates)
             changed = np.any(current != previous, axis=1)
         return current
+
+    def refine(self, sample_at, blocks: np.ndarray, inherited: np.ndarray) -> np.ndarray:
+        """Each block u (n, 3) of a sample starting from its `inherited`
+        match (a match continued), in REFINE rounds offered each neighbour's
+        match continued, then its own moved by one block along each axis.
+        One whose inherited match is off the band searches the whole
+        example. (n, 3) int64."""
+        sample = patches(sample_at, blocks)
+        lookup = voxel_lookup(blocks)
+        current = inherited.copy()
+        best = self.distance(sample, current) * COHERENT
+        lost = np.flatnonzero(~np.isfinite(best))
+        if len(lost):
+            current[lost] = self.nearest(sample[lost])
+            best[lost] = self.distance(sample[lost], current[lost])
+        everyone = np.ones(len(blocks), bool)
+        for _ in range(REFINE):
+            previous = current.copy()
+            candidates = []
+            for shift in axis_steps(1):
+                neighbour = lookup(blocks - shift)
+                candidates.append((previous[np.maximum(neighbour, 0)] + shift, neighbour >= 0, True))
+            candidates += [(previous + step, everyone, False) for step in axis_steps(1)]
+            improve(self, sample, current, best, candidates)
+        return current
+
+
+class Matcher:
+    """The example's side of matching, at every level: level l's blocks are
+    2^l voxels a side, and its band the blocks that hold a voxel with tiles
+    to read (a match lands where there is colour to read)."""
+
+    def __init__(self, tiles: Tiles, reference: Pyramid):
+        band = tiles.band()
+        self.levels = []
+        for level in range(LEVELS + 1):
+            blocks = np.unique(band >> level, axis=0)
+            self.levels.append(Level(blocks, reference.at(level), -(-reference.size // (1 << level))))
+
+    def match(self, sample: Pyramid, voxels: np.ndarray) -> np.ndarray:
+        """The example voxel J(u) of each voxel u (n, 3) of a sample's grid,
+        coarse to fine: (n, 3) int64."""
+        check_memory(len(voxels) * self.levels[0].reference.shape[1] * 16 + len(self.levels[0].band) * 8 * 64,
+                     f"matching {len(voxels)} voxels to the example")
+        if not len(voxels):
+            return np.zeros((0, 3), np.int64)
+        blocks = np.unique(voxels >> LEVELS, axis=0)
+        matched = self.levels[LEVELS].search(sample.at(LEVELS), blocks)
+        for level in range(LEVELS - 1, -1, -1):
+            finer = np.unique(voxels >> level, axis=0) if level else voxels
+            parents = finer >> 1
+            inherited = 2 * matched[voxel_lookup(blocks)(parents)] + (finer - 2 * parents)
+            matched = self.levels[level].refine(sample.at(level), finer, inherited)
+            blocks = finer
+        return matched
 
 
 def voxel_lookup(voxels: np.ndarray):
@@ -362,12 +485,36 @@ def voxel_lookup(voxels: np.ndarray):
     return lookup
 
 
+def piece_sizes(voxels: np.ndarray, matched: np.ndarray) -> np.ndarray:
+    """For each voxel (n, 3) of a sample, the size of its piece: the voxels
+    joined to it through neighbours (along an axis) that copy neighbouring
+    places of the example, J(u + e) = J(u) + e. A patchwork shows as small
+    pieces, a coherent copy as large ones. (n,) int64."""
+    lookup = voxel_lookup(voxels)
+    pairs = []
+    for step in axis_steps(1)[::2]:
+        neighbour = lookup(voxels + step)
+        has = np.flatnonzero(neighbour >= 0)
+        same = np.all(matched[neighbour[has]] == matched[has] + step, axis=1)
+        pairs.append(np.stack([has[same], neighbour[has[same]]], axis=1))
+    a, b = np.concatenate(pairs).T if pairs else (np.zeros(0, np.int64),) * 2
+    label = np.arange(len(voxels))
+    while True:  # each piece labelled by its least voxel: spread the least label along pairs, then jump
+        low = np.minimum(label[a], label[b])
+        before = label.copy()
+        np.minimum.at(label, a, low)
+        np.minimum.at(label, b, low)
+        label = label[label]
+        if np.array_equal(label, before):
+            return np.bincount(label, minlength=len(voxels))[label]
+
+
 def matcher(model) -> Matcher:
     """The model's matcher, made once: the reconstruction's patches at every
-    voxel of the example's band."""
+    level of the example's band."""
     if model.matcher is None:
         recon = generate.sample(model, None)
-        model.matcher = Matcher(model.tiles, grid_hidden(model, query.project(model, recon).planes, recon.size))
+        model.matcher = Matcher(model.tiles, pyramid(model, query.project(model, recon).planes, recon.size))
     return model.matcher
 
 
@@ -384,9 +531,8 @@ class Correspondence:
     def __init__(self, model, planes: list, size):
         self.size = np.array(size)
         example = matcher(model)
-        hidden = grid_hidden(model, planes, size)
-        self.band = surface_band(model, hidden, size)
-        self.matched = example.match(hidden, self.band) if len(self.band) else np.zeros((0, 3), np.int64)
+        self.band = surface_band(model, grid_hidden(model, planes, size), size)
+        self.matched = example.match(pyramid(model, planes, size), self.band)
         self.lookup = voxel_lookup(self.band)
         self.field = None
 
@@ -497,18 +643,6 @@ def read_colours(tiles: Tiles, matched, points: np.ndarray, grid, footprint: flo
     images = tiles.mips[level]
     n = images.shape[1]
     return bilinear_tiles(images, tile, (across[:, 0] + 0.5) * n - 0.5, (across[:, 1] + 0.5) * n - 0.5)
-
-
-def to_surface(distance: np.ndarray, points: np.ndarray) -> tuple:
-    """Points (n, 3) moved to where the signed distance grid (X, Y, Z) is
-    zero, by PROJECTIONS Newton steps along its gradient (trilinear, voxel
-    centres at integers): ((n, 3) float64, the gradient there (n, 3): the
-    surface's outward normal, unnormalised)."""
-    for _ in range(PROJECTIONS):
-        value, gradient = trilinear(distance, points)
-        length = np.einsum("nc,nc->n", gradient, gradient)
-        points = points - np.where(length > 1e-12, value / np.maximum(length, 1e-12), 0)[:, None] * gradient
-    return points, trilinear(distance, points)[1]
 
 
 def trilinear(grid: np.ndarray, points: np.ndarray) -> tuple:
