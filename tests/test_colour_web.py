@@ -128,10 +128,10 @@ MATCH_JS = """async ([name, seed, scale, given]) => {""" + IN_PAGE + """
   const planes = (texts, size) => texts.map((text, k) => ({ data: new Float32Array(bytes(text)),
     dims: [...[[0, 1], [0, 2], [1, 2]][k].map((a) => size[a]), model.manifest.hidden] }));
   const reconPlanes = planes(given.recon, given.reconSize);
-  const example = new C.Matcher(model.tiles, C.gridHidden(model, reconPlanes, given.reconSize));
+  const example = new C.Matcher(model.tiles, C.pyramid(model, reconPlanes, given.reconSize));
   const theirs = planes(given.sample, tri.size);
   const matched = new C.Correspondence(example, model, theirs, tri.size);
-  const slab = example.match(C.gridHidden(model, theirs, tri.size), new Int32Array(bytes(given.slab)));
+  const slab = example.match(C.pyramid(model, theirs, tri.size), new Int32Array(bytes(given.slab)));
   const { origin, spacing } = model.manifest;
   const coords = Float64Array.from(m.positions, (p, i) => (p - origin[i % 3]) / spacing[i % 3]);
   const read = C.readColours(model.tiles, (voxels) => matched.call(voxels), coords, tri.size, 1 / scale);
@@ -169,7 +169,7 @@ def test_a_format_5_samples_matches_and_colours_are_pythons(colour_page, coloure
     ours = colour.Correspondence(coloured, planes, triplane.size)
     np.testing.assert_array_equal(unb64(made["givenBand"], np.int32, 3), ours.band)
     np.testing.assert_array_equal(unb64(made["givenMatched"], np.int32, 3), ours.matched)
-    slab_matched = colour.matcher(coloured).match(colour.grid_hidden(coloured, planes, triplane.size), slab)
+    slab_matched = colour.matcher(coloured).match(colour.pyramid(coloured, planes, triplane.size), slab)
     np.testing.assert_array_equal(unb64(made["slab"], np.int32, 3), slab_matched)
     assert len(np.unique(slab_matched, axis=0)) > len(slab) / 4  # matches spread over the example, not one voxel
     positions = unb64(made["positions"], np.float32, 3)

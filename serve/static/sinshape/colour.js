@@ -1,17 +1,18 @@
 // A sample's colour, as runtime/colour.py: read from the example by
 // correspondence (format 5), or from the decoder's colour head (format 4).
 //
-// A voxel of the sample's surface band is matched to the example voxel J(u)
-// whose patch of hidden sums is nearest (PatchMatch, seeded and randomised by
-// the voxel's own content), and a point p reads the example's colour tile at
+// A voxel of the sample's surface band is matched to an example voxel J(u)
+// coarse to fine: blocks of 2^LEVELS voxels by PatchMatch (seeded and
+// randomised by the block's own content), then by halves, each child starting
+// from its parent's match; a point p reads the example's colour tile at
 // J(u) + (p - u), u = round(p). Each function below is its Python namesake's
 // mirror, step for step, so that a sample has the same colours here as in
 // Python:
 // - hidden sums, logits and tile coordinates are float32 where Python's are
 //   (Math.fround after every operation numpy does in float32), the bilinear
 //   blend float64 where numpy's is;
-// - patches are integers (numpy's rint: halves to even), so distances are
-//   exact in any order of summation;
+// - patches are integers (each plane rounded as numpy's rint: halves to even,
+//   blocks' means rounded down), so distances are exact in any order of summation;
 // - every random choice is SplitMix64's output (noise.js's 32-bit halves),
 //   reduced modulo a count exactly (uint64 % count, 16 bits at a time);
 // - candidates are tried in Python's order and only a strictly nearer one
@@ -26,12 +27,16 @@ import { TAB_BYTES, project, projectedColours } from './query.js';
 // The patch: a voxel and its six neighbours.
 export const PATCH = [[0, 0, 0], [1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]];
 export const QUANTUM = 256; // hidden sums are compared in steps of 1/QUANTUM
-export const KEY_VALUES = 8, KEY_QUANTUM = 4; // a voxel's random choices are keyed by its first 8 hidden sums in steps of 1/4
-export const ITERATIONS = 4;
-export const PROPAGATION = [1, 2, 4]; // neighbours this many voxels away along each axis offer their match
-export const SEARCH = [8, 4, 2, 1]; // random candidates within this many voxels of the current match
-export const SEED_RATE = 32; // about one voxel in this many searches the whole example
-export const COHERENT = 0.8; // a neighbour's match continued is weighed at this share of its distance
+export const KEY_VALUES = 8, KEY_QUANTUM = 4; // a block's random choices are keyed by its first 8 hidden sums in steps of 1/4
+export const LEVELS = 3; // matched first on blocks of 2^LEVELS voxels a side, then refined by halves down to voxels
+export const ITERATIONS = 4; // PatchMatch's rounds on the coarsest blocks
+export const REFINE = 2; // rounds at each finer level
+export const PROPAGATION = [1]; // neighbours this many blocks away along each axis offer their match
+export const SEARCH = [8, 4, 2, 1]; // random candidates within this many blocks of the current match
+export const SEED_RATE = 32; // about one block in this many searches the whole example
+export const COHERENT = 0.5; // a match continued (a parent's, a neighbour's) is weighed at this share of its distance
+// The six steps of one block along the axes, in the order +x, -x, +y, -y, +z, -z (Python's axis_steps).
+export const AXIS_STEPS = [[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]];
 export const MATCH_STREAM = 2; // noise.js's stream id of the matching's random choices
 export const DEPTH_RANGE = 0.5; // a tile's depth byte spans this many voxels either side of its centre
 export const DISTANCE_STEP = 1 / 63.5; // voxels per unit of the signed distance grid
@@ -244,8 +249,55 @@ export function surfaceBand(model, hiddenAt, size) {
   return Int32Array.from(out);
 }
 
-/** The patch of each voxel, (n, 3) -> (n, 7 D) Float32Array: hidden sums rounded (halves to even) to steps of
- * 1/QUANTUM and held as integers, so squared distances are exact in any order of summation. */
+/** Hidden sums (b1 added) of projected planes spanning `size` as integers, at voxels (level 0) and at blocks
+ * of 2^level voxels a side, as Python's Pyramid: each plane rounded to steps of 1/QUANTUM (halves to even), a
+ * block's value the floor of its mean (the planes' sums over its faces, past the grid's end its last voxels). */
+export class Pyramid {
+  constructor(planes, bias, size) {
+    this.size = size;
+    this.d = bias.length;
+    this.planes = planes.map((p) => Float64Array.from(p.data, (v) => roundHalfEven(f32(v * QUANTUM))));
+    this.bias = Float64Array.from(bias, (v) => roundHalfEven(f32(v * QUANTUM)));
+    this.pooled = new Map();
+  }
+
+  /** The hidden sums of level `level`'s blocks, as a function of (n, 3) blocks -> (n, D) Float32Array, clamped
+   * to that level's grid. */
+  at(level) {
+    const side = 1 << level, d = this.d, blocks = this.size.map((n) => Math.ceil(n / side));
+    if (!this.pooled.has(level)) {
+      this.pooled.set(level, [[0, 1], [0, 2], [1, 2]].map(([a, b], p) => {
+        const plane = this.planes[p], A = this.size[a], B = this.size[b], out = new Float64Array(blocks[a] * blocks[b] * d);
+        for (let i = 0; i < blocks[a] * side; i++) {
+          for (let j = 0; j < blocks[b] * side; j++) {
+            const from = (Math.min(i, A - 1) * B + Math.min(j, B - 1)) * d, to = (Math.floor(i / side) * blocks[b] + Math.floor(j / side)) * d;
+            for (let c = 0; c < d; c++) out[to + c] += plane[from + c];
+          }
+        }
+        return out;
+      }));
+    }
+    const [xy, xz, yz] = this.pooled.get(level), area = side * side, [X, Y, Z] = blocks, bias = this.bias;
+    return (voxels) => {
+      const n = voxels.length / 3, out = new Float32Array(n * d);
+      for (let v = 0; v < n; v++) {
+        const i = Math.min(Math.max(voxels[3 * v], 0), X - 1), j = Math.min(Math.max(voxels[3 * v + 1], 0), Y - 1);
+        const k = Math.min(Math.max(voxels[3 * v + 2], 0), Z - 1);
+        const a = (i * Y + j) * d, b = (i * Z + k) * d, e = (j * Z + k) * d;
+        for (let c = 0; c < d; c++) out[v * d + c] = Math.floor((xy[a + c] + xz[b + c] + yz[e + c] + bias[c] * area) / area);
+      }
+      return out;
+    };
+  }
+}
+
+/** A sample's (or the reconstruction's) Pyramid. */
+export function pyramid(model, planes, size) {
+  return new Pyramid(planes, model.head.bias1, size);
+}
+
+/** The patch of each voxel, (n, 3) -> (n, 7 D) Float32Array: its integer hidden sums and its six neighbours',
+ * so squared distances are exact in any order of summation. */
 export function patches(hiddenAt, voxels) {
   const n = voxels.length / 3, shifted = new Int32Array(voxels.length);
   let out = null, d = 0;
@@ -253,23 +305,21 @@ export function patches(hiddenAt, voxels) {
     for (let i = 0; i < voxels.length; i++) shifted[i] = voxels[i] + offset[i % 3];
     const hidden = hiddenAt(shifted);
     if (!out) { d = hidden.length / Math.max(n, 1); out = new Float32Array(n * PATCH.length * d); }
-    for (let v = 0; v < n; v++) {
-      for (let c = 0; c < d; c++) out[(v * PATCH.length + o) * d + c] = roundHalfEven(f32(hidden[v * d + c] * QUANTUM));
-    }
+    for (let v = 0; v < n; v++) out.set(hidden.subarray(v * d, (v + 1) * d), (v * PATCH.length + o) * d);
   });
   return out;
 }
 
-/** A key per voxel from its own hidden sums (n, D): its first KEY_VALUES sums rounded (halves to even) to steps
- * of 1/KEY_QUANTUM, as int64 then uint64: the random choices made for a voxel follow what is there, not where.
- * Uint32Array (n, 2): high and low halves. */
+/** A key per block from its own integer hidden sums (n, D): its first KEY_VALUES sums in steps of
+ * 1/KEY_QUANTUM (rounded down), as int64 then uint64: the random choices made for a block follow what is
+ * there, not where. Uint32Array (n, 2): high and low halves. */
 export function contentKeys(hidden, n) {
   const d = hidden.length / Math.max(n, 1), start = streamKey(0, MATCH_STREAM);
   const startHi = Number(start >> 32n), startLo = Number(start & 0xffffffffn), out = new Uint32Array(2 * n);
   for (let v = 0; v < n; v++) {
     let hi = startHi, lo = startLo;
     for (let c = 0; c < KEY_VALUES; c++) {
-      const value = roundHalfEven(f32(hidden[v * d + c] * KEY_QUANTUM)); // an integer: its two's complement halves
+      const value = Math.floor(hidden[v * d + c] / (QUANTUM / KEY_QUANTUM)); // an integer: its two's complement halves
       add64(Math.floor(value / 2 ** 32) >>> 0, value >>> 0, 0, 1);
       mul64(hiOut, loOut, GOLDEN_HI, GOLDEN_LO);
       add64(hi, lo, hiOut, loOut);
@@ -282,7 +332,7 @@ export function contentKeys(hidden, n) {
   return out;
 }
 
-/** The random bits of draw `slot` for each voxel's key: SplitMix64's output number key + 1 from state `slot`
+/** The random bits of draw `slot` for each block's key: SplitMix64's output number key + 1 from state `slot`
  * (noise.js's bits). Uint32Array (n, 2). */
 export function draw(keys, slot) {
   const out = new Uint32Array(keys.length);
@@ -318,39 +368,53 @@ function squaredDistance(first, a, second, b, k, bound = Infinity) {
   return total;
 }
 
-/** The example's side of matching: the voxels a match may land in (every voxel with tiles to read) and the
- * reconstruction's patch at each. */
-export class Matcher {
-  constructor(tiles, referenceAt) {
-    this.band = tiles.band(); // (B, 3)
-    this.size = tiles.size;
-    const [X, Y, Z] = this.size, count = this.band.length / 3;
+/** Voxels (n, 3) in lexicographic order, once each, as numpy's unique(axis=0) gives them (all within `size`). */
+function uniqueVoxels(voxels, size) {
+  const [, Y, Z] = size, keys = [];
+  for (let i = 0; i < voxels.length; i += 3) keys.push((voxels[i] * Y + voxels[i + 1]) * Z + voxels[i + 2]);
+  const sorted = Float64Array.from(new Set(keys)).sort(), out = new Int32Array(3 * sorted.length);
+  sorted.forEach((key, r) => { out[3 * r] = Math.floor(key / (Y * Z)); out[3 * r + 1] = Math.floor(key / Z) % Y; out[3 * r + 2] = key % Z; });
+  return out;
+}
+
+/** Voxels (n, 3) shifted right by `level` bits: the blocks of that level holding them. */
+function shifted(voxels, level) {
+  return Int32Array.from(voxels, (v) => v >> level);
+}
+
+/** One level of the example's side of matching: the blocks a match may land in and the reconstruction's
+ * patch at each (Python's Level). */
+export class Level {
+  constructor(band, referenceAt, size) {
+    this.band = band; // (B, 3)
+    this.size = size;
+    const [X, Y, Z] = size, count = band.length / 3;
     this.row = new Int32Array(X * Y * Z).fill(-1);
-    for (let r = 0; r < count; r++) this.row[(this.band[3 * r] * Y + this.band[3 * r + 1]) * Z + this.band[3 * r + 2]] = r;
-    this.reference = patches(referenceAt, this.band); // (B, K)
+    for (let r = 0; r < count; r++) this.row[(band[3 * r] * Y + band[3 * r + 1]) * Z + band[3 * r + 2]] = r;
+    this.reference = patches(referenceAt, band); // (B, K)
     this.width = this.reference.length / Math.max(count, 1); // K
   }
 
-  /** The band row of example voxel (x, y, z), -1 outside the band. */
+  /** The band row of example block (x, y, z), -1 outside the band. */
   rowOf(x, y, z) {
     const [X, Y, Z] = this.size;
     return x < 0 || y < 0 || z < 0 || x >= X || y >= Y || z >= Z ? -1 : this.row[(x * Y + y) * Z + z];
   }
 
-  /** The band row of each (n, 3) example voxel, -1 outside the band. */
+  /** The band row of each (n, 3) example block, -1 outside the band. */
   rows(voxels) {
     const n = voxels.length / 3;
     return Int32Array.from({ length: n }, (_, i) => this.rowOf(voxels[3 * i], voxels[3 * i + 1], voxels[3 * i + 2]));
   }
 
-  /** Patch distances of sample patches (n, K) to candidate example voxels (n, 3); infinite where a candidate is
+  /** Patch distances of sample patches (n, K) to candidate example blocks (n, 3); infinite where a candidate is
    * outside the band. Float64Array (n,). */
   distance(sample, candidates) {
     const rows = this.rows(candidates);
     return Float64Array.from(rows, (r, i) => (r < 0 ? Infinity : squaredDistance(sample, i, this.reference, r, this.width)));
   }
 
-  /** The nearest band voxel of each patch (n, K) of all: (n, 3), the first of equals. Python takes the
+  /** The nearest band block of each patch (n, K) of all: (n, 3), the first of equals. Python takes the
    * argmin of |r|^2 - 2 s.r, which is |s - r|^2 - |s|^2 in exact integers: the same order and the same
    * ties as |s - r|^2, which is measured here, a candidate given up once it is no nearer. */
   nearest(sample) {
@@ -366,14 +430,29 @@ export class Matcher {
     return out;
   }
 
-  /** The example voxel J(u) of each voxel u (n, 3) of a sample's band, whose hidden sums `sampleAt` gives:
-   * (n, 3) Int32Array. */
-  match(sampleAt, voxels) {
-    const n = voxels.length / 3, count = this.band.length / 3, k = this.width, band = this.band;
-    checkBytes(n * k * 16 + count * 8 * 64, `matching ${n} voxels to the example`);
-    const sample = patches(sampleAt, voxels);
-    const keys = contentKeys(sampleAt(voxels), n);
-    const lookup = voxelLookup(voxels);
+  /** One block's candidate (x, y, z), tried against its current match: only a strictly nearer one replaces
+   * it. A candidate outside the band (Python's distance: infinite) and one equal to the current match (exactly
+   * as far) cannot, so neither is measured. A match continued is weighed at COHERENT of its distance (Python
+   * multiplies, then compares); the early stop's bound is widened a hair so that a distance it stops is one
+   * that loses in Python too. */
+  offer(sample, current, best, v, x, y, z, coherent) {
+    if (x === current[3 * v] && y === current[3 * v + 1] && z === current[3 * v + 2]) return;
+    const row = this.rowOf(x, y, z);
+    if (row < 0) return;
+    const bound = coherent ? (best[v] / COHERENT) * (1 + 1e-12) : best[v];
+    let d = squaredDistance(sample, v, this.reference, row, this.width, bound);
+    if (d >= bound) return;
+    if (coherent) d *= COHERENT;
+    if (d < best[v]) { best[v] = d; current[3 * v] = x; current[3 * v + 1] = y; current[3 * v + 2] = z; }
+  }
+
+  /** PatchMatch: the example block J(u) of each block u (n, 3) of a sample, whose hidden sums `sampleAt`
+   * gives: (n, 3) Int32Array. */
+  search(sampleAt, blocks) {
+    const n = blocks.length / 3, count = this.band.length / 3, k = this.width, band = this.band;
+    const sample = patches(sampleAt, blocks);
+    const keys = contentKeys(sampleAt(blocks), n);
+    const lookup = voxelLookup(blocks);
     const current = new Int32Array(3 * n);
     let bits = draw(keys, 0);
     for (let v = 0; v < n; v++) {
@@ -392,49 +471,106 @@ export class Matcher {
     const best = this.distance(sample, current);
     let changed = new Uint8Array(n).fill(1); // whose match changed last round: only their offers are new
     let slot = 2;
-    // One voxel's candidate (x, y, z), tried against its current match: only a strictly nearer one
-    // replaces it. A candidate outside the band (Python's distance: infinite) and one equal to the
-    // current match (exactly as far) cannot, so neither is measured.
-    // A neighbour's match continued is weighed at COHERENT of its distance (Python multiplies, then compares);
-    // the early stop's bound is widened a hair so that a distance it stops is one that loses in Python too.
-    const offer = (v, x, y, z, coherent = false) => {
-      if (x === current[3 * v] && y === current[3 * v + 1] && z === current[3 * v + 2]) return;
-      const row = this.rowOf(x, y, z);
-      if (row < 0) return;
-      const bound = coherent ? (best[v] / COHERENT) * (1 + 1e-12) : best[v];
-      let d = squaredDistance(sample, v, this.reference, row, k, bound);
-      if (d >= bound) return;
-      if (coherent) d *= COHERENT;
-      if (d < best[v]) { best[v] = d; current[3 * v] = x; current[3 * v + 1] = y; current[3 * v + 2] = z; }
-    };
     for (let iteration = 0; iteration < ITERATIONS; iteration++) {
       const previous = current.slice();
       const searches = SEARCH.map(() => draw(keys, slot++)); // the random draws of this round, in slot order
       const anywhere = draw(keys, slot++);
       for (let v = 0; v < n; v++) { // the candidates in Python's order
-        const x = voxels[3 * v], y = voxels[3 * v + 1], z = voxels[3 * v + 2];
-        for (const step of PROPAGATION) { // each neighbour's previous match, shifted by the step between them
-          for (let axis = 0; axis < 3; axis++) {
-            for (const shift of [step, -step]) {
-              const neighbour = lookup(x - (axis === 0 ? shift : 0), y - (axis === 1 ? shift : 0), z - (axis === 2 ? shift : 0));
-              if (neighbour < 0 || !changed[neighbour]) continue; // none, or the offer it made last round
-              offer(v, previous[3 * neighbour] + (axis === 0 ? shift : 0), previous[3 * neighbour + 1] + (axis === 1 ? shift : 0),
-                previous[3 * neighbour + 2] + (axis === 2 ? shift : 0), true);
-            }
+        const x = blocks[3 * v], y = blocks[3 * v + 1], z = blocks[3 * v + 2];
+        for (const length of PROPAGATION) { // each neighbour's previous match, shifted by the step between them
+          for (const [a, b, c] of AXIS_STEPS) {
+            const neighbour = lookup(x - a * length, y - b * length, z - c * length);
+            if (neighbour < 0 || !changed[neighbour]) continue; // none, or the offer it made last round
+            this.offer(sample, current, best, v, previous[3 * neighbour] + a * length, previous[3 * neighbour + 1] + b * length,
+              previous[3 * neighbour + 2] + c * length, true);
           }
         }
-        SEARCH.forEach((radius, s) => { // a voxel near the previous match: offsets from bits 0-15, 16-31, 32-47
+        SEARCH.forEach((radius, s) => { // a block near the previous match: offsets from bits 0-15, 16-31, 32-47
           const hi = searches[s][2 * v], lo = searches[s][2 * v + 1], span = 2 * radius + 1;
-          offer(v, previous[3 * v] + ((lo & 0xffff) % span) - radius, previous[3 * v + 1] + ((lo >>> 16) % span) - radius,
-            previous[3 * v + 2] + ((hi & 0xffff) % span) - radius);
+          this.offer(sample, current, best, v, previous[3 * v] + ((lo & 0xffff) % span) - radius,
+            previous[3 * v + 1] + ((lo >>> 16) % span) - radius, previous[3 * v + 2] + ((hi & 0xffff) % span) - radius, false);
         });
         const r = modulo(anywhere[2 * v], anywhere[2 * v + 1], count); // anywhere in the band
-        offer(v, band[3 * r], band[3 * r + 1], band[3 * r + 2]);
+        this.offer(sample, current, best, v, band[3 * r], band[3 * r + 1], band[3 * r + 2], false);
       }
       changed = Uint8Array.from({ length: n }, (_, v) => (current[3 * v] !== previous[3 * v]
         || current[3 * v + 1] !== previous[3 * v + 1] || current[3 * v + 2] !== previous[3 * v + 2] ? 1 : 0));
     }
     return current;
+  }
+
+  /** Each block u (n, 3) of a sample starting from its `inherited` match (a match continued), in REFINE rounds
+   * offered each neighbour's match continued, then its own moved by one block along each axis; one whose
+   * inherited match is off the band searches the whole example. (n, 3) Int32Array. */
+  refine(sampleAt, blocks, inherited) {
+    const n = blocks.length / 3, k = this.width;
+    const sample = patches(sampleAt, blocks);
+    const lookup = voxelLookup(blocks);
+    const current = inherited.slice();
+    const best = this.distance(sample, current).map((d) => d * COHERENT);
+    const lost = [];
+    for (let v = 0; v < n; v++) if (!Number.isFinite(best[v])) lost.push(v);
+    if (lost.length) {
+      const missing = new Float32Array(lost.length * k);
+      lost.forEach((v, i) => missing.set(sample.subarray(v * k, (v + 1) * k), i * k));
+      const found = this.nearest(missing);
+      lost.forEach((v, i) => {
+        current.set(found.subarray(3 * i, 3 * i + 3), 3 * v);
+        best[v] = squaredDistance(sample, v, this.reference, this.rowOf(found[3 * i], found[3 * i + 1], found[3 * i + 2]), k);
+      });
+    }
+    for (let round = 0; round < REFINE; round++) {
+      const previous = current.slice();
+      for (let v = 0; v < n; v++) {
+        const x = blocks[3 * v], y = blocks[3 * v + 1], z = blocks[3 * v + 2];
+        for (const [a, b, c] of AXIS_STEPS) { // each neighbour's match continued
+          const neighbour = lookup(x - a, y - b, z - c);
+          if (neighbour >= 0) {
+            this.offer(sample, current, best, v, previous[3 * neighbour] + a, previous[3 * neighbour + 1] + b,
+              previous[3 * neighbour + 2] + c, true);
+          }
+        }
+        for (const [a, b, c] of AXIS_STEPS) { // its own moved by one block
+          this.offer(sample, current, best, v, previous[3 * v] + a, previous[3 * v + 1] + b, previous[3 * v + 2] + c, false);
+        }
+      }
+    }
+    return current;
+  }
+}
+
+/** The example's side of matching at every level (Python's Matcher): level l's blocks are 2^l voxels a side,
+ * its band the blocks that hold a voxel with tiles to read. */
+export class Matcher {
+  constructor(tiles, reference) {
+    const band = tiles.band();
+    this.levels = [];
+    for (let level = 0; level <= LEVELS; level++) {
+      const size = reference.size.map((n) => Math.ceil(n / (1 << level)));
+      this.levels.push(new Level(level ? uniqueVoxels(shifted(band, level), size) : band, reference.at(level), size));
+    }
+  }
+
+  /** The example voxel J(u) of each voxel u (n, 3) of a sample's grid (`sample` its Pyramid), coarse to fine:
+   * (n, 3) Int32Array. */
+  match(sample, voxels) {
+    const n = voxels.length / 3, fine = this.levels[0];
+    checkBytes(n * fine.width * 16 + (fine.band.length / 3) * 8 * 64, `matching ${n} voxels to the example`);
+    if (!n) return new Int32Array(0);
+    const grid = (level) => sample.size.map((m) => Math.ceil(m / (1 << level)));
+    let blocks = uniqueVoxels(shifted(voxels, LEVELS), grid(LEVELS));
+    let matched = this.levels[LEVELS].search(sample.at(LEVELS), blocks);
+    for (let level = LEVELS - 1; level >= 0; level--) {
+      const finer = level ? uniqueVoxels(shifted(voxels, level), grid(level)) : voxels;
+      const lookup = voxelLookup(blocks), inherited = new Int32Array(finer.length);
+      for (let v = 0; v < finer.length; v += 3) {
+        const row = lookup(finer[v] >> 1, finer[v + 1] >> 1, finer[v + 2] >> 1);
+        for (let a = 0; a < 3; a++) inherited[v + a] = 2 * matched[3 * row + a] + (finer[v + a] & 1);
+      }
+      matched = this.levels[level].refine(sample.at(level), finer, inherited);
+      blocks = finer;
+    }
+    return matched;
   }
 }
 
@@ -460,12 +596,12 @@ export function voxelLookup(voxels) {
   };
 }
 
-/** The model's matcher, made once: the reconstruction's patches at every voxel of the example's band. */
+/** The model's matcher, made once: the reconstruction's patches at every level of the example's band. */
 export async function matcher(model) {
   if (!model.matcher) {
     model.matcher = (async () => {
       const recon = await sample(model, null);
-      return new Matcher(model.tiles, gridHidden(model, (await project(model, recon)).planes, recon.size));
+      return new Matcher(model.tiles, pyramid(model, (await project(model, recon)).planes, recon.size));
     })();
     model.matcher.catch(() => { model.matcher = null; }); // a failure is not kept: the next sample tries again
   }
@@ -477,9 +613,8 @@ export async function matcher(model) {
 export class Correspondence {
   constructor(example, model, planes, size) {
     this.size = size;
-    const hidden = gridHidden(model, planes, size);
-    this.band = surfaceBand(model, hidden, size);
-    this.matched = this.band.length ? example.match(hidden, this.band) : new Int32Array(0);
+    this.band = surfaceBand(model, gridHidden(model, planes, size), size);
+    this.matched = example.match(pyramid(model, planes, size), this.band);
     this.lookup = voxelLookup(this.band);
     this.field = null;
   }
