@@ -371,6 +371,11 @@ def brick_ruin(seed: int = 0, detail: int = 16) -> trimesh.Trimesh:
     return textured.brick_ruin(seed, detail)
 
 
+def relief_wall(seed: int = 0, detail: int = 10) -> trimesh.Trimesh:
+    """A ruined wall whose bricks stand out of recessed mortar (prep/textured.py)."""
+    return textured.relief_wall(seed, detail)
+
+
 def lichen_rock(seed: int = 0, detail: int = 5) -> trimesh.Trimesh:
     """A twisted rock with a 512x512 atlas of stone and lichen (prep/textured.py)."""
     return textured.lichen_rock(seed, detail)
@@ -385,8 +390,9 @@ SHAPES: dict[str, Callable[..., trimesh.Trimesh]] = {
     "cheese": cheese,
     "brick_ruin": brick_ruin,
     "lichen_rock": lichen_rock,
+    "relief_wall": relief_wall,
 }
-TEXTURED = ("brick_ruin", "lichen_rock")
+TEXTURED = ("brick_ruin", "lichen_rock", "relief_wall")
 TEXTURED_FORMATS = (".glb", ".obj")  # a textured shape keeps its texture in these (an .obj beside its .mtl and .png)
 
 

@@ -72,6 +72,11 @@ MATCH_STREAM = 2  # core/noise's stream id of the matching's random choices (0 a
 # decides, farther off the normal does, so that the choice does not flicker.
 REACH_ORDER = (0, -1, 1)
 TURN = 0.25
+# A sample's vertex moves by the example's relief at most this many voxels
+# (a tile's depths span half a voxel either side of its centre), and only on
+# a mesh at least RELIEF_SCALE times finer than the voxels: on a coarser one
+# its vertices are too far apart to carry detail finer than a voxel.
+RELIEF, RELIEF_SCALE = 0.5, 2
 ACROSS = np.array([(1, 2), (0, 2), (0, 1)])  # a tile's rows and columns run along these axes, by its axis
 
 
@@ -592,29 +597,38 @@ def nearest_in_palette(colours: np.ndarray, palette: np.ndarray, chunk: int = 25
     return palette[nearest[inverse.ravel()]]
 
 
-def read_colours(tiles: Tiles, matched, points: np.ndarray, grid, footprint: float | None = None) -> np.ndarray:
-    """The colour at points (n, 3) (sample model units) of a sample whose
-    voxels `matched` maps to example voxels: (n, 3) float32 sRGB. `grid`:
-    the sample's size; a point beyond its last voxel (a mesh closes half a
-    voxel outside) belongs to that voxel.
+@dataclass(frozen=True)
+class Under:
+    """What lies under points of a sample in the example (`surface_under`)."""
+
+    tile: np.ndarray  # (n,) int64: the tile read
+    across: np.ndarray  # (n, 2): where on the tile's plane, in voxels from its centre
+    height: np.ndarray  # (n,) float64: how far the point lies outside the tile's surface, along its normal (voxels)
+    smooth: np.ndarray  # (n,) float64: the signed distance grid's value there (voxels, positive outside)
+    normal: np.ndarray  # (n, 3) float64: the example's outward unit normal there (the grid's gradient)
+    found: np.ndarray  # (n,) bool: whether any tile lies there
+
+
+def surface_under(tiles: Tiles, matched, points: np.ndarray, grid) -> Under:
+    """The example's surface under points (n, 3) (sample model units) of a
+    sample whose voxels `matched` maps to example voxels. `grid`: the
+    sample's size; a point beyond its last voxel (a mesh closes half a voxel
+    outside) belongs to that voxel.
 
     Point p in voxel u = round(p) stands for q = J(u) + (p - u) in the
-    example, near its surface but rarely on it. It reads, of the tiles of
-    its voxel and of those beside it along each tile's axis, the one whose
-    surface is nearest q (REACH_ORDER, TURN), at that surface's point
-    nearest q. `footprint`: the length a colour stands for (voxels), e.g.
-    a vertex's spacing: its mip level averages the texture over it (None:
-    full detail)."""
+    example, near its surface but rarely on it. Of the tiles of its voxel
+    and of those beside it along each tile's axis, the one whose surface is
+    nearest q (REACH_ORDER, TURN) is read, at that surface's point nearest q."""
     # Halves up, as in every runtime (numpy's rint rounds them to even).
     u = np.clip(np.floor(points + 0.5).astype(np.int64), 0, np.asarray(grid) - 1)
     q = matched(u) + (points - u)
-    _, normal = trilinear(tiles.distance, q)
+    smooth, normal = trilinear(tiles.distance, q)
     normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
     voxel = np.clip(np.floor(q + 0.5).astype(np.int64), 0, np.array(tiles.distance.shape) - 1)
-    rows = np.arange(len(points))
     best = np.full(len(points), np.inf)
     tile = np.zeros(len(points), np.int64)
     across = np.zeros((len(points), 2))
+    height = np.zeros(len(points))
     for direction, reach in itertools.product(range(6), REACH_ORDER):
         axis, positive = divmod(direction, 2)
         step = np.zeros(3, np.int64)
@@ -635,7 +649,18 @@ def read_colours(tiles: Tiles, matched, points: np.ndarray, grid, footprint: flo
         better = has & (score < best)
         best[better], tile[better] = score[better], candidate[better]
         across[better] = (plane + above[:, None] * slope)[better]
-    tile, across = across_tiles(tiles, tile, across)
+        height[better] = (above * np.sqrt(lean) * (1 if positive else -1))[better]
+    return Under(tile, across, height, smooth, normal, np.isfinite(best))
+
+
+def read_colours(tiles: Tiles, matched, points: np.ndarray, grid, footprint: float | None = None) -> np.ndarray:
+    """The colour at points (n, 3) (sample model units) of a sample whose
+    voxels `matched` maps to example voxels, read where `surface_under`
+    says: (n, 3) float32 sRGB. `footprint`: the length a colour stands for
+    (voxels), e.g. a vertex's spacing: its mip level averages the texture
+    over it (None: full detail)."""
+    under = surface_under(tiles, matched, points, grid)
+    tile, across = across_tiles(tiles, under.tile, under.across)
     side = tiles.depth.shape[1]
     level = 0
     if footprint is not None and footprint > 0:
@@ -643,6 +668,19 @@ def read_colours(tiles: Tiles, matched, points: np.ndarray, grid, footprint: flo
     images = tiles.mips[level]
     n = images.shape[1]
     return bilinear_tiles(images, tile, (across[:, 0] + 0.5) * n - 0.5, (across[:, 1] + 0.5) * n - 0.5)
+
+
+def relief(tiles: Tiles, matched, points: np.ndarray, grid) -> np.ndarray:
+    """Points (n, 3) of a sample's surface moved by the example's relief
+    under them: along the example's normal, by how far its surface at full
+    detail (the tiles' depths) stands out of its smooth surface at the
+    voxels' detail (the signed distance grid, trilinear), at most RELIEF
+    voxels. Where the sample's surface and the example's smooth one differ
+    by d, both distances differ by d, so only the detail is carried: bricks
+    stand out of their mortar, a course's groove sinks. (n, 3) float64."""
+    under = surface_under(tiles, matched, points, grid)
+    lift = np.where(under.found, np.clip(under.smooth - under.height, -RELIEF, RELIEF), 0)
+    return points + lift[:, None] * under.normal
 
 
 def trilinear(grid: np.ndarray, points: np.ndarray) -> tuple:
@@ -715,27 +753,57 @@ def bilinear_tiles(images: np.ndarray, tile: np.ndarray, x: np.ndarray, y: np.nd
 def colouring(model, triplane, chunk: int = 1 << 16):
     """A coloured model's colour of one sample as a function of points:
     (n, 3) model coordinates -> (n, 3) float32 sRGB, with an optional
-    footprint (the length in voxels a colour stands for). A format-5 model
-    matches the sample once; a format-4 model reads its colour head."""
+    footprint (the length in voxels a colour stands for), and its `relief`
+    (points -> points moved by the example's relief). A format-5 model
+    matches the sample once; a format-4 model reads its colour head, and
+    has no relief."""
     if model.tiles is None:
-        head = query.colouring(model, triplane, chunk)
-        return lambda points, footprint=None: head(points)
+        return HeadColouring(query.colouring(model, triplane, chunk))
     return planes_colouring(model, query.project(model, triplane).planes, triplane.size, chunk)
 
 
-def planes_colouring(model, planes: list, size, chunk: int = 1 << 16):
-    """`colouring` of a format-5 sample given as its projected planes
-    (query.project) and its size: a world's windows come so."""
-    matched = Correspondence(model, planes, size)
-    grid = np.array(size)
+class HeadColouring:
+    """A format-4 sample's colour: its decoder's colour head, no relief."""
 
-    def colour(points, footprint=None) -> np.ndarray:
+    def __init__(self, head):
+        self.head = head
+
+    def __call__(self, points, footprint=None) -> np.ndarray:
+        return self.head(points)
+
+    def relief(self, points) -> np.ndarray:
+        return query.point_array(points)
+
+
+class SampleSurface:
+    """A format-5 sample's surface as its example's: matched once
+    (Correspondence), then read at any points for colour and relief."""
+
+    def __init__(self, model, planes: list, size, chunk: int = 1 << 16):
+        self.tiles, self.chunk = model.tiles, chunk
+        self.matched = Correspondence(model, planes, size)
+        self.grid = np.array(size)
+
+    def __call__(self, points, footprint=None) -> np.ndarray:
         points = query.point_array(points)
         out = np.empty((len(points), 3), np.float32)
-        for start in range(0, len(points), chunk):
-            out[start:start + chunk] = read_colours(model.tiles, matched, points[start:start + chunk], grid, footprint)
+        for start in range(0, len(points), self.chunk):
+            out[start:start + self.chunk] = read_colours(self.tiles, self.matched, points[start:start + self.chunk],
+                                                         self.grid, footprint)
         return out
-    return colour
+
+    def relief(self, points) -> np.ndarray:
+        points = query.point_array(points)
+        out = np.empty((len(points), 3))
+        for start in range(0, len(points), self.chunk):
+            out[start:start + self.chunk] = relief(self.tiles, self.matched, points[start:start + self.chunk], self.grid)
+        return out
+
+
+def planes_colouring(model, planes: list, size, chunk: int = 1 << 16) -> SampleSurface:
+    """`colouring` of a format-5 sample given as its projected planes
+    (query.project) and its size: a world's windows come so."""
+    return SampleSurface(model, planes, size, chunk)
 
 
 def colours(model, triplane, coords, footprint: float | None = None) -> np.ndarray:

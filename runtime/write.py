@@ -27,7 +27,7 @@ from sinshape.core.manifest import srgb_to_linear
 
 from . import mesh, world
 from .asset import asset_bytes
-from .colour import colouring, dense_grids
+from .colour import RELIEF_SCALE, colouring, dense_grids
 from .generate import interpolate
 from .mesh import held_per_face
 from .request import make
@@ -162,9 +162,11 @@ def write_sample(model, triplane, path, scale: float = 1.0, smooth: int = 0, smo
     mesh.check_frame(frame)
     pieces = mesh.pieces(model, triplane, scale, progress=mesh_progress, threads=threads)
     colour = model.manifest.colour
-    if colour:  # each piece's new vertices coloured as they come: the cost is per vertex
-        paint = colouring(model, triplane)
-        pieces = ((v, f, mesh.colour_bytes(paint(v, 1 / scale))) for v, f in pieces)
+    if colour:  # each piece's new vertices moved by relief and coloured as they come (mesh.paint): the cost is per vertex
+        surface = colouring(model, triplane)
+        if scale >= RELIEF_SCALE:
+            pieces = ((surface.relief(v), f) for v, f in pieces)
+        pieces = ((v, f, mesh.colour_bytes(surface(v, 1 / scale))) for v, f in pieces)
     if frame == "input":
         pieces = ((mesh.in_frame(v, model.manifest), *rest) for v, *rest in pieces)
 

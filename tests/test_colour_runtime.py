@@ -14,6 +14,7 @@ from scipy.spatial import cKDTree
 
 from sinshape.cli.main import cli
 from sinshape.core import manifest as fmt
+from sinshape.core.manifest import DEPTH_RANGE, DISTANCE_STEP
 from sinshape.runtime import colour, edit, generate, load_model, query
 from sinshape.runtime.request import SampleRequest, make
 
@@ -243,3 +244,51 @@ def test_a_box_painted_by_height_gives_its_high_vertices_the_top_colour(tmp_path
     z, rgb = vertices[:, 2], colours.astype(int)
     top, bottom = rgb[z > np.quantile(z, 0.8)].mean(axis=0), rgb[z < np.quantile(z, 0.2)].mean(axis=0)
     assert top[0] > top[2] + 100 and bottom[2] > bottom[0] + 100, (top, bottom)
+
+
+@pytest.mark.parametrize("scale", [1, 2])
+def test_a_fine_meshs_vertices_move_by_the_examples_relief(model, tmp_path, scale):
+    # On a grid at least RELIEF_SCALE times finer, every output's vertices are the mesh's moved by
+    # the example's relief under them (the streamed .ply and the whole mesh alike); coarser, unmoved.
+    from sinshape.runtime import mesh as meshing
+
+    triplane = generate.sample(model, 4)
+    plain = meshing.band_mesh(model, triplane, scale).vertices
+    expected = colour.colouring(model, triplane).relief(plain) if scale >= colour.RELIEF_SCALE else plain
+    for suffix in (".ply", ".obj"):
+        out = tmp_path / f"s{suffix}"
+        sinrun("sample", model.path, "--seed", 4, "--scale", scale, "--frame", "model", "-o", out)
+        vertices = read_ply(out)[0] if suffix == ".ply" else trimesh.load(out, process=False).vertices
+        assert len(vertices) == len(plain)
+        moved = np.abs(vertices - plain).max(axis=1)
+        assert np.abs(vertices - expected).max() < 1e-4
+        assert (moved.max() > 0.05) == (scale >= colour.RELIEF_SCALE)
+
+
+def striped_floor(side: int = 8) -> colour.Tiles:
+    """The colour tiles of a floor at z = 2 of a 6^3 grid, looking up, whose every voxel's tile
+    stands up a quarter voxel in its middle rows along x (a brick) and sinks as far at its edges (mortar)."""
+    voxels = np.array([(x, y, 2) for x in range(1, 5) for y in range(1, 5)])
+    height = np.where((np.arange(side) >= side // 4) & (np.arange(side) < side - side // 4), 0.25, -0.25)
+    depth = np.round((height / (2 * DEPTH_RANGE) + 0.5) * 255).astype(np.uint8)
+    images = np.zeros((len(voxels), side, side, 4), np.uint8)
+    images[..., 3] = depth[None, :, None]
+    z = np.arange(6)[None, None, :] - 2.0
+    distance = np.round(np.broadcast_to(z, (6, 6, 6)) / DISTANCE_STEP)
+    return colour.Tiles.of(voxels, np.full(len(voxels), 5), images, distance)
+
+
+def test_relief_raises_a_point_by_the_examples_depth_under_it():
+    tiles = striped_floor()
+    x = np.linspace(1.6, 3.4, 37)
+    points = np.stack([x, np.full_like(x, 2.0), np.full_like(x, 2.0)], axis=1)
+    moved = colour.relief(tiles, lambda voxels: voxels, points, np.array([6, 6, 6]))
+    np.testing.assert_allclose(moved[:, :2], points[:, :2])  # along the floor's normal only
+    rows = (x + 0.5) % 1 * 8  # texel rows along x within each voxel's tile
+    brick, mortar = (rows > 2.6) & (rows < 5.4), (rows < 1.4) | (rows > 6.6)
+    assert brick.sum() > 5 and mortar.sum() > 5
+    np.testing.assert_allclose(moved[brick, 2], 2.25, atol=0.01)
+    np.testing.assert_allclose(moved[mortar, 2], 1.75, atol=0.01)
+    # A point off the floor's smooth surface takes the same detail: only the relief is carried.
+    lifted = colour.relief(tiles, lambda voxels: voxels, points + (0, 0, 0.2), np.array([6, 6, 6]))
+    np.testing.assert_allclose(lifted[:, 2] - 0.2, moved[:, 2], atol=0.005)  # the grid holds distances in steps of 1/63.5

@@ -135,13 +135,16 @@ MATCH_JS = """async ([name, seed, scale, given]) => {""" + IN_PAGE + """
   const { origin, spacing } = model.manifest;
   const coords = Float64Array.from(m.positions, (p, i) => (p - origin[i % 3]) / spacing[i % 3]);
   const read = C.readColours(model.tiles, (voxels) => matched.call(voxels), coords, tri.size, 1 / scale);
+  const moved = C.relief(model.tiles, (voxels) => matched.call(voxels), coords, tri.size);
+  const painted = await s.paintMesh(model, tri, m.positions, scale);
   const row = C.voxelLookup(new Int32Array(bytes(given.slab)));
   const slabJ = (voxels) => Int32Array.from(voxels, (_, i) => slab[3 * row(...voxels.subarray(i - i % 3, i - i % 3 + 3)) + i % 3]);
   const slabRead = C.readColours(model.tiles, slabJ, new Float64Array(bytes(given.points)), tri.size, 1 / scale);
   return { positions: b64(m.positions), colours: b64(colours), band: b64(own.band), matched: b64(own.matched),
            planes: ownPlanes.map((p) => b64(p.data)),
            givenBand: b64(matched.band), givenMatched: b64(matched.matched), slab: b64(slab), given: b64(read),
-           slabRead: b64(slabRead), along: b64(model.tiles.along) };
+           slabRead: b64(slabRead), along: b64(model.tiles.along), moved: b64(moved),
+           paintedPositions: b64(painted.positions), paintedColours: b64(painted.colours) };
 }"""
 
 
@@ -176,6 +179,10 @@ def test_a_format_5_samples_matches_and_colours_are_pythons(colour_page, coloure
     coords = (positions - np.asarray(coloured.manifest.origin)) / np.asarray(coloured.manifest.spacing)
     given = colour.read_colours(coloured.tiles, ours, coords, np.array(triplane.size), 1 / scale)
     np.testing.assert_array_equal(unb64(made["given"], np.float32, 3), given)
+    # The example's relief under the same points, to the bit: the points it moves, and where.
+    moved = colour.relief(coloured.tiles, ours, coords, np.array(triplane.size))
+    np.testing.assert_array_equal(unb64(made["moved"], np.float64, 3), moved)
+    assert np.abs(moved - coords).max() > 0.01
     # The tiles read where the slab's matches say, at points all over its voxels: the example's colours.
     slab_read = colour.read_colours(coloured.tiles, lambda voxels: slab_matched[colour.voxel_lookup(slab)(voxels)],
                                     points, np.array(triplane.size), 1 / scale)
@@ -196,6 +203,17 @@ def test_a_format_5_samples_matches_and_colours_are_pythons(colour_page, coloure
                                                                1 / scale))
     expected = colour.colours(coloured, triplane, coords, 1 / scale)
     equal = (mesh.colour_bytes(colours) == mesh.colour_bytes(expected)).all(axis=1)
+    # The worker's mesh as runtime.mesh.paint makes it: moved by the relief, then coloured there.
+    painted = unb64(made["paintedPositions"], np.float32, 3)
+    surface = colour.colouring(coloured, triplane)
+    relieved = surface.relief(coords)
+    # Near-ties apart (the browser matched on its own planes), each vertex where Python moves it.
+    placed = (np.abs(painted - mesh.in_frame(relieved, coloured.manifest)) < 1e-5).all(axis=1)
+    assert placed.mean() >= SAME_BYTES, f"{placed.mean():.4%} of the vertices placed as Python places them"
+    assert np.abs(painted - positions).max() > 1e-3  # it moved
+    same = (mesh.colour_bytes(unb64(made["paintedColours"], np.float32, 3))
+            == mesh.colour_bytes(surface(relieved, 1 / scale))).all(axis=1)
+    assert same.mean() >= SAME_BYTES
     assert len(colours) > 500 and equal.mean() >= SAME_BYTES, f"{equal.mean():.4%} of the vertices' colours equal"
     assert len(np.unique(mesh.colour_bytes(expected), axis=0)) > 2  # the sample shows the example's colours
 

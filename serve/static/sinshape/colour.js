@@ -44,6 +44,8 @@ export const DISTANCE_STEP = 1 / 63.5; // voxels per unit of the signed distance
 // axis: the surface nearest it wins, a tile counted TURN voxels farther per unit its axis turns from the normal.
 export const REACH_ORDER = [0, -1, 1];
 export const TURN = 0.25;
+// A vertex moves by the example's relief at most RELIEF voxels, on a mesh at least RELIEF_SCALE times finer.
+export const RELIEF = 0.5, RELIEF_SCALE = 2;
 export const ACROSS = [[1, 2], [0, 2], [0, 1]]; // a tile's rows and columns run along these axes, by its axis
 // reads_along: the voxels along a tile's axis whose tile a voxel without its own reads, by the side it looks from.
 export const ALONG = { positive: [-1, 1, -2, 2], negative: [1, -1, 2, -2] };
@@ -697,48 +699,62 @@ export function nearestInPalette(palette, r, g, b) {
   return found;
 }
 
-/**
- * The colour at points (n, 3) (sample model units, Float64Array) of a sample whose voxels `matched` maps to
- * example voxels: (n, 3) Float32Array sRGB. `grid`: the sample's size; a point beyond its last voxel belongs
- * to that voxel. Point p in voxel u = round(p) stands for q = J(u) + (p - u); of the tiles of q's voxel and of
- * those beside it along each tile's axis, the one whose surface is nearest q (REACH_ORDER, TURN) is read, at
- * that surface's point nearest q. `footprint`: the length a colour stands for (voxels): its mip level
- * averages the texture over it (null: full detail).
- */
-export function readColours(tiles, matched, points, grid, footprint = null) {
+/** The example's surface under points (n, 3) (Float64Array, sample model units) of a sample whose voxels
+ * `matched` maps to example voxels, as runtime/colour.py's surface_under: { tile Int32Array (n,), across
+ * Float64Array (n, 2), height (n,): how far outside the tile's surface, smooth (n,): the signed distance grid's
+ * value, normal (n, 3): the example's unit normal, found Uint8Array (n,) }. A point beyond the grid's last voxel
+ * belongs to that voxel. */
+export function surfaceUnder(tiles, matched, points, grid) {
   const n = points.length / 3, u = new Int32Array(3 * n);
   for (let i = 0; i < 3 * n; i++) u[i] = Math.min(Math.max(Math.floor(points[i] + 0.5), 0), grid[i % 3] - 1); // halves up
   const example = matched(u);
-  const tile = new Int32Array(n), across = new Float64Array(2 * n), q = [0, 0, 0], normal = [0, 0, 0], voxel = [0, 0, 0];
+  const tile = new Int32Array(n), across = new Float64Array(2 * n), height = new Float64Array(n);
+  const smooth = new Float64Array(n), normals = new Float64Array(3 * n), found = new Uint8Array(n);
+  const q = [0, 0, 0], normal = [0, 0, 0], voxel = [0, 0, 0];
   const [X, Y, Z] = tiles.size, side = tiles.side;
   for (let i = 0; i < n; i++) {
     for (let a = 0; a < 3; a++) q[a] = example[3 * i + a] + (points[3 * i + a] - u[3 * i + a]);
-    trilinear(tiles.distance, tiles.size, q, normal);
+    smooth[i] = trilinear(tiles.distance, tiles.size, q, normal);
     const length = Math.max(Math.sqrt(normal[0] * normal[0] + normal[1] * normal[1] + normal[2] * normal[2]), 1e-12);
     for (let a = 0; a < 3; a++) normal[a] /= length;
+    normals.set(normal, 3 * i);
     for (let a = 0; a < 3; a++) voxel[a] = Math.min(Math.max(Math.floor(q[a] + 0.5), 0), [X, Y, Z][a] - 1);
-    let best = Infinity, chosen = 0, first = 0, second = 0;
+    let best = Infinity, chosen = 0, first = 0, second = 0, outside = 0;
     for (let direction = 0; direction < 6; direction++) {
       const axis = direction >> 1, positive = direction & 1, [pa, pb] = ACROSS[axis];
       for (const reach of REACH_ORDER) {
         const at = [voxel[0], voxel[1], voxel[2]];
         at[axis] += reach;
-        const found = tiles.ownTile(at[0], at[1], at[2], direction);
-        if (found < 0) continue;
-        const la = q[axis] - tiles.voxels[3 * found + axis];
-        const a = q[pa] - tiles.voxels[3 * found + pa], b = q[pb] - tiles.voxels[3 * found + pb];
-        const sa = tiles.slopes[2 * found], sb = tiles.slopes[2 * found + 1];
+        const own = tiles.ownTile(at[0], at[1], at[2], direction);
+        if (own < 0) continue;
+        const la = q[axis] - tiles.voxels[3 * own + axis];
+        const a = q[pa] - tiles.voxels[3 * own + pa], b = q[pb] - tiles.voxels[3 * own + pb];
+        const sa = tiles.slopes[2 * own], sb = tiles.slopes[2 * own + 1];
         const lean = 1 + (sa * sa + sb * sb);
-        const above = (la - bilinearDepth(tiles.depth, side, found, a, b)) / lean;
+        const above = (la - bilinearDepth(tiles.depth, side, own, a, b)) / lean;
         const facing = normal[axis] * (positive ? 1 : -1);
         const score = Math.abs(above) * Math.sqrt(lean) + TURN * (1 - facing);
-        if (score < best) { best = score; chosen = found; first = a + above * sa; second = b + above * sb; }
+        if (score < best) {
+          best = score; chosen = own; first = a + above * sa; second = b + above * sb;
+          outside = above * Math.sqrt(lean) * (positive ? 1 : -1);
+        }
       }
     }
     tile[i] = chosen;
     across[2 * i] = first;
     across[2 * i + 1] = second;
+    height[i] = outside;
+    found[i] = best < Infinity ? 1 : 0;
   }
+  return { tile, across, height, smooth, normal: normals, found };
+}
+
+/** The colour at points (n, 3) (Float64Array, sample model units) of a sample whose voxels `matched` maps to
+ * example voxels (a function of an Int32Array (n, 3)), read where surfaceUnder says: (n, 3) Float32Array sRGB,
+ * as runtime/colour.py's read_colours. */
+export function readColours(tiles, matched, points, grid, footprint = null) {
+  const n = points.length / 3, side = tiles.side;
+  const { tile, across } = surfaceUnder(tiles, matched, points, grid);
   acrossTiles(tiles, tile, across);
   let level = 0;
   if (footprint !== null && footprint > 0) {
@@ -748,6 +764,20 @@ export function readColours(tiles, matched, points, grid, footprint = null) {
   const x = Float32Array.from({ length: n }, (_, i) => (across[2 * i] + 0.5) * m - 0.5);
   const y = Float32Array.from({ length: n }, (_, i) => (across[2 * i + 1] + 0.5) * m - 0.5);
   return bilinearTiles(tiles.mips[level], m, tile, x, y);
+}
+
+/** Points (n, 3) of a sample's surface moved by the example's relief under them, as runtime/colour.py's
+ * relief: along the example's normal by how far its surface at full detail stands out of its smooth surface,
+ * at most RELIEF voxels. Float64Array (n, 3). */
+export function relief(tiles, matched, points, grid) {
+  const { height, smooth, normal, found } = surfaceUnder(tiles, matched, points, grid);
+  const out = Float64Array.from(points);
+  for (let i = 0; i < points.length / 3; i++) {
+    if (!found[i]) continue;
+    const lift = Math.min(Math.max(smooth[i] - height[i], -RELIEF), RELIEF);
+    for (let a = 0; a < 3; a++) out[3 * i + a] = points[3 * i + a] + lift * normal[3 * i + a];
+  }
+  return out;
 }
 
 /** A grid (X, Y, Z) at point q (clamped to it), trilinear with voxel centres at integers, and its gradient
@@ -842,15 +872,23 @@ function bilinearOne(values, n, tile, x, y) {
  */
 export async function colouring(model, tri) {
   const proj = await project(model, tri);
-  if (!model.tiles) return (points) => projectedColours(model, proj, points);
+  if (!model.tiles) {
+    const head = (points) => projectedColours(model, proj, points);
+    head.relief = (points) => Float64Array.from(points); // the colour head has no relief
+    return head;
+  }
   return planesColouring(model, proj.planes, tri.size);
 }
 
 /** `colouring` of a format-5 sample given as its projected planes (query.js's project) and its size: a world's
- * windows come so (world.js's windowColouring), as runtime/colour.py's planes_colouring. */
+ * windows come so (world.js's windowColouring), as runtime/colour.py's planes_colouring. Its `relief` moves points
+ * by the example's relief. */
 export async function planesColouring(model, planes, size) {
   const matched = new Correspondence(await matcher(model), model, planes, size);
-  return (points, footprint = null) => readColours(model.tiles, (voxels) => matched.call(voxels), points, size, footprint);
+  const at = (voxels) => matched.call(voxels);
+  const colour = (points, footprint = null) => readColours(model.tiles, at, points, size, footprint);
+  colour.relief = (points) => relief(model.tiles, at, points, size);
+  return colour;
 }
 
 /** A coloured model's sRGB colour at points of a sample (model coordinates): (n, 3) Float32Array in [0, 1]. */
@@ -859,9 +897,21 @@ export async function colours(model, tri, coords, footprint = null) {
 }
 
 /** The colours at a sample's mesh vertices (positions in the training input's frame, as surface gives them),
- * each standing for `footprint` voxels (a mesh `scale` times finer: 1 / scale), as runtime.mesh.paint. */
+ * each standing for `footprint` voxels (a mesh `scale` times finer: 1 / scale). */
 export async function vertexColours(model, tri, positions, footprint = null) {
   const { origin, spacing } = model.manifest;
   const coords = Float64Array.from(positions, (p, i) => (p - origin[i % 3]) / spacing[i % 3]);
   return colours(model, tri, coords, footprint);
+}
+
+/** A coloured sample's mesh given its relief and colour, as runtime.mesh.paint: on a grid `scale` times finer
+ * than the voxels, at least RELIEF_SCALE, a format-5 model's vertices (`positions`, the input's frame) move by its
+ * example's relief; then each takes the colour around it (1 / scale voxels). { positions Float32Array, colours }. */
+export async function paintMesh(model, tri, positions, scale) {
+  const { origin, spacing } = model.manifest;
+  const surface = await colouring(model, tri);
+  let coords = Float64Array.from(positions, (p, i) => (p - origin[i % 3]) / spacing[i % 3]);
+  if (scale >= RELIEF_SCALE) coords = surface.relief(coords);
+  return { positions: Float32Array.from(coords, (c, i) => origin[i % 3] + c * spacing[i % 3]),
+           colours: surface(coords, 1 / scale) };
 }

@@ -23,6 +23,6 @@ export { Layout, make, makeTile, sampleRequest } from './request.js';
 export { HeightMap, ModelMap, tileColours, tileCorner, tileMesh, tileOccupancy, windowSeed, worldLayout } from './world.js';
 export { normal, streamKey } from './noise.js';
 export { dense, gridShape, project, projectedColours, projectedDense } from './query.js';
-export { colouring, colours, vertexColours } from './colour.js';
+export { colouring, colours, paintMesh, vertexColours } from './colour.js';
 export { fromLayout, layout } from './layout.js';
 export { marchingCubes, massProperties, smooth, surface } from './mesh.js';

@@ -57,9 +57,10 @@ async function sample({ name, request }, progress) {
   const grid = await sinshape.dense(model, tri, wanted.scale, (f) => progress('querying the grid', f));
   const mesh = sinshape.surface(grid, tri.size, model.manifest, (f) => progress('meshing', f));
   sinshape.smooth(mesh, wanted.smooth, 0.5, (f) => progress('smoothing', f));
-  // Each vertex's colour stands for the spacing of the grid it came from (runtime.mesh.paint's footprint).
-  const colours = model.manifest.colour ? await sinshape.vertexColours(model, tri, mesh.positions, 1 / wanted.scale) : null;
-  return { positions: mesh.positions, faces: mesh.faces, colours, seconds: (performance.now() - started) / 1000 };
+  // A coloured sample's relief and colour, as runtime.mesh.paint (each colour stands for the grid's spacing).
+  const { positions, colours } = model.manifest.colour ? await sinshape.paintMesh(model, tri, mesh.positions, wanted.scale)
+    : { positions: mesh.positions, colours: null };
+  return { positions, faces: mesh.faces, colours, seconds: (performance.now() - started) / 1000 };
 }
 
 self.onmessage = async ({ data: job }) => {
