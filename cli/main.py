@@ -674,9 +674,9 @@ def shape(name, output, seed, detail):
     """Write a procedural example shape to train on (z is up).
 
     NAME is terrain, painted_terrain (with vertex colours), acropolis,
-    stairs, wall, cheese, brick_ruin, lichen_rock or relief_wall (textured:
-    written as .glb, or as .obj beside its .mtl and .png; relief_wall's
-    bricks stand out of recessed mortar).
+    stairs, wall, cheese, relief_wall (vertex colours; its bricks stand out
+    of recessed mortar), brick_ruin or lichen_rock (textured: written as
+    .glb, or as .obj beside its .mtl and .png).
     """
     from sinshape.prep import shapes
 

@@ -223,6 +223,8 @@ def cast(surface: Surface, triangles, voxels, faces, tile, count: int, axis: int
         z = w0 * tri[:, 0, axis, None, None] + w1 * tri[:, 1, axis, None, None] + w2 * tri[:, 2, axis, None, None]
         inside &= np.abs(z) <= REACH
         pair, row, column = np.nonzero(inside)
+        if not len(pair):  # faces smaller than a texel, between the rays: none hit
+            continue
         key = (t[pair] * side + row) * side + column
         distance = np.abs(z[pair, row, column])
         distance[distance > DEPTH_RANGE + 1e-9] += 2 * REACH  # a hit inside the voxel first

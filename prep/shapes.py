@@ -371,9 +371,62 @@ def brick_ruin(seed: int = 0, detail: int = 16) -> trimesh.Trimesh:
     return textured.brick_ruin(seed, detail)
 
 
+# relief_wall's joints between bricks and how far its bricks stand out of
+# them (units): about half a voxel each at res 48.
+MORTAR_GAP, RELIEF_DEPTH = 0.04, 0.04
+
+
 def relief_wall(seed: int = 0, detail: int = 10) -> trimesh.Trimesh:
-    """A ruined wall whose bricks stand out of recessed mortar (prep/textured.py)."""
-    return textured.relief_wall(seed, detail)
+    """A straight ruined wall `detail` bricks long and one brick thick, whose
+    bricks stand out RELIEF_DEPTH from recessed mortar on both faces, with
+    MORTAR_GAP joints between them: running bond, broken down to uneven
+    heights in half-brick steps, each brick its own red (vertex colours),
+    the mortar pale. The detail an artist's brick wall has in its geometry,
+    not only in its texture, and finer than a voxel at the usual training
+    resolutions."""
+    rng = np.random.default_rng(seed)
+    length, thickness = detail * textured.BRICK_LENGTH, textured.BRICK_LENGTH
+    course = textured.BRICK_LENGTH * textured.COURSE_PX / textured.BRICK_PX
+    half = textured.BRICK_LENGTH / 2
+    courses = max(4, round(detail * 1.2))
+    columns = np.arange(2 * detail)  # half-brick columns: where the broken top steps
+    profile = 0.65 + 0.35 * value_noise_1d(rng, columns / 6)
+    tops = np.clip(np.round(courses * profile) - rng.integers(0, 3, len(columns)) * (rng.random(len(columns)) < 0.3),
+                   2, courses).astype(int)
+    solid = _Solid((0, 0, 0), (length, thickness, courses * course), step=MORTAR_GAP / 4)
+    bricks = []  # (x0, x1, z0, z1) of each brick's face
+    for k in range(courses):
+        for x0 in np.arange(-(k % 2) * half, length, textured.BRICK_LENGTH):
+            x0, x1 = max(x0, 0.0), min(x0 + textured.BRICK_LENGTH, length)
+            cells = columns[(columns * half >= x0 - 1e-9) & (columns * half < x1 - 1e-9)]
+            if not len(cells) or k >= tops[cells].min():
+                continue
+            z0, z1 = k * course, (k + 1) * course
+            solid.box((x0, RELIEF_DEPTH, z0), (x1, thickness - RELIEF_DEPTH, z1 + (k + 1 < tops[cells].min()) * 1e-3))
+            brick = (x0 + MORTAR_GAP / 2, x1 - MORTAR_GAP / 2, z0 + MORTAR_GAP / 2, z1 - MORTAR_GAP / 2)
+            solid.box((brick[0], 0.0, brick[2]), (brick[1], thickness, brick[3]))
+            bricks.append(brick)
+    mesh = solid.mesh()
+    bricks = np.array(bricks)
+    reds = textured.BRICK_REDS[rng.integers(len(textured.BRICK_REDS), size=len(bricks))] * rng.uniform(0.9, 1.08, (len(bricks), 1))
+    v = np.asarray(mesh.vertices)
+    tolerance = solid.step
+    on = ((v[:, None, 0] > bricks[None, :, 0] - tolerance) & (v[:, None, 0] < bricks[None, :, 1] + tolerance)
+          & (v[:, None, 2] > bricks[None, :, 2] - tolerance) & (v[:, None, 2] < bricks[None, :, 3] + tolerance))
+    brick_of = np.where(on.any(axis=1), on.argmax(axis=1), -1)
+    # Out of the mortar's plane (or on a brick's own top or end): the brick's colour; in it, mortar.
+    proud = (v[:, 1] < RELIEF_DEPTH - tolerance) | (v[:, 1] > thickness - RELIEF_DEPTH + tolerance)
+    inside_face = (v[:, 1] > RELIEF_DEPTH + tolerance) & (v[:, 1] < thickness - RELIEF_DEPTH - tolerance)
+    is_brick = (brick_of >= 0) & (proud | inside_face)
+    rgb = np.where(is_brick[:, None], reds[np.maximum(brick_of, 0)], np.asarray(textured.MORTAR))
+    rgb = np.clip(rgb + rng.normal(0, 0.02, rgb.shape), 0, 1)
+    colours = np.concatenate([np.round(rgb * 255), np.full((len(rgb), 1), 255)], axis=1).astype(np.uint8)
+    return trimesh.Trimesh(mesh.vertices, mesh.faces, vertex_colors=colours, process=False)
+
+
+def value_noise_1d(rng, t: np.ndarray) -> np.ndarray:
+    """Smooth noise in [-1, 1] along a line (textured.value_noise on the x axis)."""
+    return textured.value_noise(rng, np.stack([t, np.zeros_like(t), np.zeros_like(t)], 1).astype(float), 1.0)
 
 
 def lichen_rock(seed: int = 0, detail: int = 5) -> trimesh.Trimesh:
@@ -392,7 +445,7 @@ SHAPES: dict[str, Callable[..., trimesh.Trimesh]] = {
     "lichen_rock": lichen_rock,
     "relief_wall": relief_wall,
 }
-TEXTURED = ("brick_ruin", "lichen_rock", "relief_wall")
+TEXTURED = ("brick_ruin", "lichen_rock")
 TEXTURED_FORMATS = (".glb", ".obj")  # a textured shape keeps its texture in these (an .obj beside its .mtl and .png)
 
 

@@ -19,7 +19,6 @@ from PIL import Image
 BRICK_PX, COURSE_PX, MORTAR_PX = 64, 24, 2
 BRICKS, COURSES = 16, 32
 BRICK_LENGTH = 0.4  # units; a course is BRICK_LENGTH * COURSE_PX / BRICK_PX high
-MORTAR_GAP, RELIEF_DEPTH = 0.04, 0.04  # a relief wall's joints between bricks, and how far its bricks stand out
 TEXTURE_UNITS = (BRICKS * BRICK_LENGTH, COURSES * BRICK_LENGTH * COURSE_PX / BRICK_PX)  # what one image covers
 MORTAR = (0.74, 0.71, 0.65)
 BRICK_REDS = np.array([(0.56, 0.23, 0.17), (0.63, 0.29, 0.20), (0.50, 0.21, 0.16), (0.68, 0.36, 0.26),
@@ -165,78 +164,6 @@ def brick_ruin(seed: int = 0, detail: int = 16) -> trimesh.Trimesh:
     visual = trimesh.visual.TextureVisuals(uv=uv, material=trimesh.visual.material.PBRMaterial(
         baseColorTexture=image, metallicFactor=0.0, roughnessFactor=0.9))
     return trimesh.Trimesh(vertices, faces, visual=visual, process=False)
-
-
-def textured_box(low, high, rect) -> tuple:
-    """The six quads of the box [low, high] (corners (6, 4, 3),
-    counter-clockwise seen from outside) and their UVs (6, 4, 2), every face
-    spread over the pixel rectangle `rect` (x0, y0, x1, y1) of the brick
-    image (v up, the image's rows down)."""
-    height, width = COURSES * COURSE_PX, BRICKS * BRICK_PX
-    x0, y0, x1, y1 = rect
-    low, high = np.asarray(low, float), np.asarray(high, float)
-    quads, uvs = [], []
-    for axis in range(3):
-        a, b = [k for k in range(3) if k != axis]
-        for side in (0, 1):
-            corners = []
-            for s, t in ((0, 0), (1, 0), (1, 1), (0, 1)):
-                point = low.copy()
-                point[axis] = (low, high)[side][axis]
-                point[a], point[b] = (low, high)[s][a], (low, high)[t][b]
-                corners.append(point)
-            normal = np.zeros(3)
-            normal[axis] = 1 if side else -1
-            if np.dot(np.cross(corners[1] - corners[0], corners[2] - corners[0]), normal) < 0:
-                corners = corners[::-1]
-            quads.append(corners)
-            local = np.array([[(c[a] - low[a]) / (high[a] - low[a]), (c[b] - low[b]) / (high[b] - low[b])] for c in corners])
-            uvs.append(np.stack([(x0 + local[:, 0] * (x1 - x0)) / width, 1 - (y0 + local[:, 1] * (y1 - y0)) / height], 1))
-    return np.array(quads), np.array(uvs)
-
-
-def relief_wall(seed: int = 0, detail: int = 10) -> trimesh.Trimesh:
-    """A straight ruined wall, `detail` bricks long and one brick thick,
-    whose bricks stand out of recessed mortar: each brick a box of its own
-    red (a brick of the tiling brick image spread over each face), set
-    RELIEF_DEPTH out of a mortar core on both faces, with MORTAR_GAP between
-    neighbours; running bond, broken down to uneven heights in half-brick
-    steps. The detail an artist's brick wall has in its geometry, not only
-    in its texture: a mortar joint is about half a voxel at res 48."""
-    rng = np.random.default_rng(seed)
-    gap, depth, thickness = MORTAR_GAP, RELIEF_DEPTH, BRICK_LENGTH
-    height = BRICK_LENGTH * COURSE_PX / BRICK_PX
-    courses = max(4, round(detail * 1.2))
-    columns = np.arange(2 * detail)  # half-brick columns: where the broken top steps
-    profile = 0.65 + 0.35 * value_noise(rng, np.stack([columns / 6, np.zeros_like(columns), np.zeros_like(columns)], 1), 1.0)
-    tops = np.clip(np.round(courses * profile) - rng.integers(0, 3, len(columns)) * (rng.random(len(columns)) < 0.3),
-                   2, courses).astype(int)
-    quads, uvs = [], []
-    mortar_row = 5 * COURSE_PX  # a mortar joint of the image, read for the core
-    mortar_rect = (40, mortar_row + 0.3, BRICKS * BRICK_PX - 40, mortar_row + 1.7)
-    for course in range(courses):
-        offset = (course % 2) * BRICK_LENGTH / 2
-        starts = np.arange(-offset, detail * BRICK_LENGTH, BRICK_LENGTH)
-        for index, x0 in enumerate(starts):
-            x0, x1 = max(x0, 0.0), min(x0 + BRICK_LENGTH, detail * BRICK_LENGTH)
-            half = np.arange(int(round(x0 / (BRICK_LENGTH / 2))), int(round(x1 / (BRICK_LENGTH / 2))))
-            if x1 - x0 < 1e-9 or not len(half) or course >= tops[half].min():
-                continue
-            z0, z1 = course * height, (course + 1) * height
-            image_course = (course * 7 + index * 3) % (COURSES - 2) + 1  # which of the image's bricks this one shows
-            image_brick = (index * 5 + course) % (BRICKS - 2) + 1
-            bx = image_brick * BRICK_PX - (image_course % 2) * (BRICK_PX // 2)
-            brick_rect = (bx + 4, image_course * COURSE_PX + 4, bx + BRICK_PX - 3, image_course * COURSE_PX + COURSE_PX - 3)
-            for low, high, rect in (((x0, depth, z0), (x1, thickness - depth, z1), mortar_rect),
-                                    ((x0 + gap / 2, 0.0, z0 + gap / 2), (x1 - gap / 2, thickness, z1 - gap / 2), brick_rect)):
-                q, uv = textured_box(low, high, rect)
-                quads.append(q)
-                uvs.append(uv)
-    quads, uvs = np.concatenate(quads), np.concatenate(uvs)
-    faces = (np.arange(len(quads))[:, None, None] * 4 + np.array([[0, 1, 2], [0, 2, 3]])).reshape(-1, 3)
-    visual = trimesh.visual.TextureVisuals(uv=uvs.reshape(-1, 2), material=trimesh.visual.material.PBRMaterial(
-        baseColorTexture=Image.fromarray(brick_texture(seed)), metallicFactor=0.0, roughnessFactor=0.9))
-    return trimesh.Trimesh(quads.reshape(-1, 3), faces, visual=visual, process=False)
 
 
 def rock_colour(rng_seed: int, points: np.ndarray) -> np.ndarray:

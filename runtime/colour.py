@@ -77,6 +77,9 @@ TURN = 0.25
 # a mesh at least RELIEF_SCALE times finer than the voxels: on a coarser one
 # its vertices are too far apart to carry detail finer than a voxel.
 RELIEF, RELIEF_SCALE = 0.5, 2
+# Relief is carried in full where the tile read faces the example's normal
+# there with a cosine of FACING[1] or more, not at all below FACING[0].
+FACING = (0.7, 0.95)
 ACROSS = np.array([(1, 2), (0, 2), (0, 1)])  # a tile's rows and columns run along these axes, by its axis
 
 
@@ -606,6 +609,7 @@ class Under:
     height: np.ndarray  # (n,) float64: how far the point lies outside the tile's surface, along its normal (voxels)
     smooth: np.ndarray  # (n,) float64: the signed distance grid's value there (voxels, positive outside)
     normal: np.ndarray  # (n, 3) float64: the example's outward unit normal there (the grid's gradient)
+    facing: np.ndarray  # (n,) float64: the cosine between that normal and the tile's direction
     found: np.ndarray  # (n,) bool: whether any tile lies there
 
 
@@ -629,6 +633,7 @@ def surface_under(tiles: Tiles, matched, points: np.ndarray, grid) -> Under:
     tile = np.zeros(len(points), np.int64)
     across = np.zeros((len(points), 2))
     height = np.zeros(len(points))
+    facings = np.zeros(len(points))
     for direction, reach in itertools.product(range(6), REACH_ORDER):
         axis, positive = divmod(direction, 2)
         step = np.zeros(3, np.int64)
@@ -650,7 +655,8 @@ def surface_under(tiles: Tiles, matched, points: np.ndarray, grid) -> Under:
         best[better], tile[better] = score[better], candidate[better]
         across[better] = (plane + above[:, None] * slope)[better]
         height[better] = (above * np.sqrt(lean) * (1 if positive else -1))[better]
-    return Under(tile, across, height, smooth, normal, np.isfinite(best))
+        facings[better] = facing[better]
+    return Under(tile, across, height, smooth, normal, facings, np.isfinite(best))
 
 
 def read_colours(tiles: Tiles, matched, points: np.ndarray, grid, footprint: float | None = None) -> np.ndarray:
@@ -677,10 +683,13 @@ def relief(tiles: Tiles, matched, points: np.ndarray, grid) -> np.ndarray:
     voxels' detail (the signed distance grid, trilinear), at most RELIEF
     voxels. Where the sample's surface and the example's smooth one differ
     by d, both distances differ by d, so only the detail is carried: bricks
-    stand out of their mortar, a course's groove sinks. (n, 3) float64."""
+    stand out of their mortar, a course's groove sinks. It fades out where
+    the tile read turns from the surface (FACING: at an edge or a corner,
+    where the smooth surface rounds what tiles of two directions hold).
+    (n, 3) float64."""
     under = surface_under(tiles, matched, points, grid)
     lift = np.where(under.found, np.clip(under.smooth - under.height, -RELIEF, RELIEF), 0)
-    return points + lift[:, None] * under.normal
+    return points + (lift * np.clip((under.facing - FACING[0]) / (FACING[1] - FACING[0]), 0, 1))[:, None] * under.normal
 
 
 def trilinear(grid: np.ndarray, points: np.ndarray) -> tuple:

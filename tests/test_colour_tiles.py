@@ -82,6 +82,20 @@ def test_tiles_keep_stripes_finer_than_a_voxel(tmp_path):
     assert near[0].any() and near[1].any()
 
 
+def test_faces_that_no_texels_ray_meets_make_tiles_too(tmp_path):
+    # A thin plate's edges are strips narrower than a texel: no ray along x or y through a texel
+    # meets them (all miss), and the tiles are made from the faces that are met.
+    path = tmp_path / "plate.ply"
+    mesh = trimesh.creation.box(extents=(2.0, 1.0, 0.01))
+    mesh.apply_translation((0, 0, 0.031))
+    colours = np.tile(np.array([[200, 60, 40, 255]], np.uint8), (len(mesh.vertices), 1))
+    trimesh.Trimesh(mesh.vertices, mesh.faces, vertex_colors=colours, process=False).export(path)
+    scene, box_low, spacing, solid = grid_of(path, res=8)
+    tiles = appearance.example_tiles(appearance.coloured_surface(scene, path), box_low, spacing, solid, 1 << 10)
+    assert set(tiles.directions) >= {4, 5} and len(tiles.voxels) >= 16
+    assert (np.abs(tiles.images[..., :3].astype(int) - (200, 60, 40)).max(axis=-1) <= 2).mean() > 0.9
+
+
 def off_the_line(rgb, a, b) -> np.ndarray:
     """Each colour's distance (8-bit steps) from the nearest blend of colours
     a and b, and where along a..b it lies: ((n,), (n,) in [0, 1])."""

@@ -46,6 +46,7 @@ export const REACH_ORDER = [0, -1, 1];
 export const TURN = 0.25;
 // A vertex moves by the example's relief at most RELIEF voxels, on a mesh at least RELIEF_SCALE times finer.
 export const RELIEF = 0.5, RELIEF_SCALE = 2;
+export const FACING = [0.7, 0.95]; // relief in full where the tile read faces the normal this much (cosine), none below
 export const ACROSS = [[1, 2], [0, 2], [0, 1]]; // a tile's rows and columns run along these axes, by its axis
 // reads_along: the voxels along a tile's axis whose tile a voxel without its own reads, by the side it looks from.
 export const ALONG = { positive: [-1, 1, -2, 2], negative: [1, -1, 2, -2] };
@@ -709,7 +710,7 @@ export function surfaceUnder(tiles, matched, points, grid) {
   for (let i = 0; i < 3 * n; i++) u[i] = Math.min(Math.max(Math.floor(points[i] + 0.5), 0), grid[i % 3] - 1); // halves up
   const example = matched(u);
   const tile = new Int32Array(n), across = new Float64Array(2 * n), height = new Float64Array(n);
-  const smooth = new Float64Array(n), normals = new Float64Array(3 * n), found = new Uint8Array(n);
+  const smooth = new Float64Array(n), normals = new Float64Array(3 * n), found = new Uint8Array(n), facings = new Float64Array(n);
   const q = [0, 0, 0], normal = [0, 0, 0], voxel = [0, 0, 0];
   const [X, Y, Z] = tiles.size, side = tiles.side;
   for (let i = 0; i < n; i++) {
@@ -719,7 +720,7 @@ export function surfaceUnder(tiles, matched, points, grid) {
     for (let a = 0; a < 3; a++) normal[a] /= length;
     normals.set(normal, 3 * i);
     for (let a = 0; a < 3; a++) voxel[a] = Math.min(Math.max(Math.floor(q[a] + 0.5), 0), [X, Y, Z][a] - 1);
-    let best = Infinity, chosen = 0, first = 0, second = 0, outside = 0;
+    let best = Infinity, chosen = 0, first = 0, second = 0, outside = 0, faced = 0;
     for (let direction = 0; direction < 6; direction++) {
       const axis = direction >> 1, positive = direction & 1, [pa, pb] = ACROSS[axis];
       for (const reach of REACH_ORDER) {
@@ -737,6 +738,7 @@ export function surfaceUnder(tiles, matched, points, grid) {
         if (score < best) {
           best = score; chosen = own; first = a + above * sa; second = b + above * sb;
           outside = above * Math.sqrt(lean) * (positive ? 1 : -1);
+          faced = facing;
         }
       }
     }
@@ -744,9 +746,10 @@ export function surfaceUnder(tiles, matched, points, grid) {
     across[2 * i] = first;
     across[2 * i + 1] = second;
     height[i] = outside;
+    facings[i] = faced;
     found[i] = best < Infinity ? 1 : 0;
   }
-  return { tile, across, height, smooth, normal: normals, found };
+  return { tile, across, height, smooth, normal: normals, facing: facings, found };
 }
 
 /** The colour at points (n, 3) (Float64Array, sample model units) of a sample whose voxels `matched` maps to
@@ -768,13 +771,14 @@ export function readColours(tiles, matched, points, grid, footprint = null) {
 
 /** Points (n, 3) of a sample's surface moved by the example's relief under them, as runtime/colour.py's
  * relief: along the example's normal by how far its surface at full detail stands out of its smooth surface,
- * at most RELIEF voxels. Float64Array (n, 3). */
+ * at most RELIEF voxels, fading out where the tile read turns from the normal (FACING). Float64Array (n, 3). */
 export function relief(tiles, matched, points, grid) {
-  const { height, smooth, normal, found } = surfaceUnder(tiles, matched, points, grid);
+  const { height, smooth, normal, facing, found } = surfaceUnder(tiles, matched, points, grid);
   const out = Float64Array.from(points);
   for (let i = 0; i < points.length / 3; i++) {
     if (!found[i]) continue;
-    const lift = Math.min(Math.max(smooth[i] - height[i], -RELIEF), RELIEF);
+    const lift = Math.min(Math.max(smooth[i] - height[i], -RELIEF), RELIEF)
+      * Math.min(Math.max((facing[i] - FACING[0]) / (FACING[1] - FACING[0]), 0), 1);
     for (let a = 0; a < 3; a++) out[3 * i + a] = points[3 * i + a] + lift * normal[3 * i + a];
   }
   return out;
