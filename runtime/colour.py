@@ -425,16 +425,12 @@ class Level:
         """Each block u (n, 3) of a sample starting from its `inherited`
         match (a match continued), in REFINE rounds offered each neighbour's
         match continued, then its own moved by one block along each axis.
-        One whose inherited match is off the band searches the whole
+        One whose match is off the band after them searches the whole
         example. (n, 3) int64."""
         sample = patches(sample_at, blocks)
         lookup = voxel_lookup(blocks)
         current = inherited.copy()
         best = self.distance(sample, current) * COHERENT
-        lost = np.flatnonzero(~np.isfinite(best))
-        if len(lost):
-            current[lost] = self.nearest(sample[lost])
-            best[lost] = self.distance(sample[lost], current[lost])
         everyone = np.ones(len(blocks), bool)
         for _ in range(REFINE):
             previous = current.copy()
@@ -444,6 +440,9 @@ class Level:
                 candidates.append((previous[np.maximum(neighbour, 0)] + shift, neighbour >= 0, True))
             candidates += [(previous + step, everyone, False) for step in axis_steps(1)]
             improve(self, sample, current, best, candidates)
+        lost = np.flatnonzero(~np.isfinite(best))  # off the band still: the whole example searched
+        if len(lost):
+            current[lost] = self.nearest(sample[lost])
         return current
 
 
@@ -606,11 +605,15 @@ class Under:
 
     tile: np.ndarray  # (n,) int64: the tile read
     across: np.ndarray  # (n, 2): where on the tile's plane, in voxels from its centre
-    height: np.ndarray  # (n,) float64: how far the point lies outside the tile's surface, along its normal (voxels)
     smooth: np.ndarray  # (n,) float64: the signed distance grid's value there (voxels, positive outside)
     normal: np.ndarray  # (n, 3) float64: the example's outward unit normal there (the grid's gradient)
-    facing: np.ndarray  # (n,) float64: the cosine between that normal and the tile's direction
-    found: np.ndarray  # (n,) bool: whether any tile lies there
+    # Of the tiles of the one direction nearest that normal (the first of
+    # equals), the one whose surface is nearest: how far the point lies
+    # outside it along its normal (voxels), the cosine between the normal
+    # and that direction, and whether there is one.
+    height: np.ndarray  # (n,) float64
+    facing: np.ndarray  # (n,) float64
+    found: np.ndarray  # (n,) bool
 
 
 def surface_under(tiles: Tiles, matched, points: np.ndarray, grid) -> Under:
@@ -632,8 +635,10 @@ def surface_under(tiles: Tiles, matched, points: np.ndarray, grid) -> Under:
     best = np.full(len(points), np.inf)
     tile = np.zeros(len(points), np.int64)
     across = np.zeros((len(points), 2))
+    facings = np.stack([normal[:, d // 2] * (1 if d % 2 else -1) for d in range(6)], axis=1)
+    dominant = np.argmax(facings, axis=1)
+    nearest = np.full(len(points), np.inf)
     height = np.zeros(len(points))
-    facings = np.zeros(len(points))
     for direction, reach in itertools.product(range(6), REACH_ORDER):
         axis, positive = divmod(direction, 2)
         step = np.zeros(3, np.int64)
@@ -654,9 +659,10 @@ def surface_under(tiles: Tiles, matched, points: np.ndarray, grid) -> Under:
         better = has & (score < best)
         best[better], tile[better] = score[better], candidate[better]
         across[better] = (plane + above[:, None] * slope)[better]
-        height[better] = (above * np.sqrt(lean) * (1 if positive else -1))[better]
-        facings[better] = facing[better]
-    return Under(tile, across, height, smooth, normal, facings, np.isfinite(best))
+        closer = has & (dominant == direction) & (np.abs(above) * np.sqrt(lean) < nearest)
+        nearest[closer] = (np.abs(above) * np.sqrt(lean))[closer]
+        height[closer] = (above * np.sqrt(lean) * (1 if positive else -1))[closer]
+    return Under(tile, across, smooth, normal, height, facings[np.arange(len(points)), dominant], np.isfinite(nearest))
 
 
 def read_colours(tiles: Tiles, matched, points: np.ndarray, grid, footprint: float | None = None) -> np.ndarray:
@@ -683,9 +689,11 @@ def relief(tiles: Tiles, matched, points: np.ndarray, grid) -> np.ndarray:
     voxels' detail (the signed distance grid, trilinear), at most RELIEF
     voxels. Where the sample's surface and the example's smooth one differ
     by d, both distances differ by d, so only the detail is carried: bricks
-    stand out of their mortar, a course's groove sinks. It fades out where
-    the tile read turns from the surface (FACING: at an edge or a corner,
-    where the smooth surface rounds what tiles of two directions hold).
+    stand out of their mortar, a course's groove sinks. The surface is read
+    from the tiles of the direction nearest the normal (the face the point
+    lies on, not a groove's side), and the relief fades out where that
+    direction turns from the normal (FACING: at an edge or a corner, where
+    the smooth surface rounds what tiles of two directions hold).
     (n, 3) float64."""
     under = surface_under(tiles, matched, points, grid)
     lift = np.where(under.found, np.clip(under.smooth - under.height, -RELIEF, RELIEF), 0)

@@ -5,10 +5,10 @@ import pytest
 import trimesh
 
 from sinshape.core.errors import InputError
-from sinshape.prep import shapes
+from sinshape.prep import shapes, textured
 
 # Small versions, each made in well under a second.
-SMALL = {"terrain": 32, "painted_terrain": 32, "acropolis": 4, "stairs": 6, "wall": 6, "cheese": 40}
+SMALL = {"terrain": 32, "painted_terrain": 32, "acropolis": 4, "stairs": 6, "wall": 6, "cheese": 40, "relief_wall": 3}
 # The textured ones: quads and charts of their own (not one welded solid), and their texture.
 TEXTURED = {"brick_ruin": (4, (768, 1024)), "lichen_rock": (2, (512, 512))}
 
@@ -149,3 +149,14 @@ def test_bad_requests_raise_input_error(tmp_path):
     with pytest.raises(InputError, match=r"\.obj"):
         shapes.write_shape("wall", tmp_path / "wall.blend", detail=SMALL["wall"])
     assert not list(tmp_path.iterdir())
+
+
+def test_the_relief_walls_bricks_stand_out_of_their_mortar():
+    mesh = shapes.make_shape("relief_wall", detail=3)
+    rgb = np.asarray(mesh.visual.vertex_colors)[:, :3] / 255
+    mortar = np.linalg.norm(rgb - textured.MORTAR, axis=1) < 0.12
+    front = mesh.vertex_normals[:, 1] < -0.9  # the face looking -y, its joints recessed
+    y = np.asarray(mesh.vertices)[:, 1]
+    assert (front & mortar).sum() > 100 and (front & ~mortar).sum() > 100
+    np.testing.assert_allclose(np.median(y[front & ~mortar]), 0, atol=0.003)
+    np.testing.assert_allclose(np.median(y[front & mortar]), shapes.RELIEF_DEPTH, atol=0.003)

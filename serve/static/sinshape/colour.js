@@ -503,25 +503,14 @@ export class Level {
   }
 
   /** Each block u (n, 3) of a sample starting from its `inherited` match (a match continued), in REFINE rounds
-   * offered each neighbour's match continued, then its own moved by one block along each axis; one whose
-   * inherited match is off the band searches the whole example. (n, 3) Int32Array. */
+   * offered each neighbour's match continued, then its own moved by one block along each axis; one whose match is
+   * off the band after them searches the whole example. (n, 3) Int32Array. */
   refine(sampleAt, blocks, inherited) {
     const n = blocks.length / 3, k = this.width;
     const sample = patches(sampleAt, blocks);
     const lookup = voxelLookup(blocks);
     const current = inherited.slice();
     const best = this.distance(sample, current).map((d) => d * COHERENT);
-    const lost = [];
-    for (let v = 0; v < n; v++) if (!Number.isFinite(best[v])) lost.push(v);
-    if (lost.length) {
-      const missing = new Float32Array(lost.length * k);
-      lost.forEach((v, i) => missing.set(sample.subarray(v * k, (v + 1) * k), i * k));
-      const found = this.nearest(missing);
-      lost.forEach((v, i) => {
-        current.set(found.subarray(3 * i, 3 * i + 3), 3 * v);
-        best[v] = squaredDistance(sample, v, this.reference, this.rowOf(found[3 * i], found[3 * i + 1], found[3 * i + 2]), k);
-      });
-    }
     for (let round = 0; round < REFINE; round++) {
       const previous = current.slice();
       for (let v = 0; v < n; v++) {
@@ -537,6 +526,14 @@ export class Level {
           this.offer(sample, current, best, v, previous[3 * v] + a, previous[3 * v + 1] + b, previous[3 * v + 2] + c, false);
         }
       }
+    }
+    const lost = []; // off the band still: the whole example searched
+    for (let v = 0; v < n; v++) if (!Number.isFinite(best[v])) lost.push(v);
+    if (lost.length) {
+      const missing = new Float32Array(lost.length * k);
+      lost.forEach((v, i) => missing.set(sample.subarray(v * k, (v + 1) * k), i * k));
+      const found = this.nearest(missing);
+      lost.forEach((v, i) => current.set(found.subarray(3 * i, 3 * i + 3), 3 * v));
     }
     return current;
   }
@@ -702,8 +699,9 @@ export function nearestInPalette(palette, r, g, b) {
 
 /** The example's surface under points (n, 3) (Float64Array, sample model units) of a sample whose voxels
  * `matched` maps to example voxels, as runtime/colour.py's surface_under: { tile Int32Array (n,), across
- * Float64Array (n, 2), height (n,): how far outside the tile's surface, smooth (n,): the signed distance grid's
- * value, normal (n, 3): the example's unit normal, found Uint8Array (n,) }. A point beyond the grid's last voxel
+ * Float64Array (n, 2), smooth (n,): the signed distance grid's value, normal (n, 3): the example's unit normal;
+ * of the tiles of the direction nearest the normal, the nearest: height (n,): how far outside its surface, facing
+ * (n,): the cosine of that direction to the normal, found Uint8Array (n,): whether there is one }. A point beyond the grid's last voxel
  * belongs to that voxel. */
 export function surfaceUnder(tiles, matched, points, grid) {
   const n = points.length / 3, u = new Int32Array(3 * n);
@@ -720,7 +718,11 @@ export function surfaceUnder(tiles, matched, points, grid) {
     for (let a = 0; a < 3; a++) normal[a] /= length;
     normals.set(normal, 3 * i);
     for (let a = 0; a < 3; a++) voxel[a] = Math.min(Math.max(Math.floor(q[a] + 0.5), 0), [X, Y, Z][a] - 1);
-    let best = Infinity, chosen = 0, first = 0, second = 0, outside = 0, faced = 0;
+    let dominant = 0; // the direction nearest the normal, the first of equals (numpy's argmax)
+    for (let direction = 1; direction < 6; direction++) {
+      if (normal[direction >> 1] * (direction & 1 ? 1 : -1) > normal[dominant >> 1] * (dominant & 1 ? 1 : -1)) dominant = direction;
+    }
+    let best = Infinity, chosen = 0, first = 0, second = 0, nearest = Infinity, outside = 0;
     for (let direction = 0; direction < 6; direction++) {
       const axis = direction >> 1, positive = direction & 1, [pa, pb] = ACROSS[axis];
       for (const reach of REACH_ORDER) {
@@ -735,10 +737,10 @@ export function surfaceUnder(tiles, matched, points, grid) {
         const above = (la - bilinearDepth(tiles.depth, side, own, a, b)) / lean;
         const facing = normal[axis] * (positive ? 1 : -1);
         const score = Math.abs(above) * Math.sqrt(lean) + TURN * (1 - facing);
-        if (score < best) {
-          best = score; chosen = own; first = a + above * sa; second = b + above * sb;
+        if (score < best) { best = score; chosen = own; first = a + above * sa; second = b + above * sb; }
+        if (direction === dominant && Math.abs(above) * Math.sqrt(lean) < nearest) {
+          nearest = Math.abs(above) * Math.sqrt(lean);
           outside = above * Math.sqrt(lean) * (positive ? 1 : -1);
-          faced = facing;
         }
       }
     }
@@ -746,8 +748,8 @@ export function surfaceUnder(tiles, matched, points, grid) {
     across[2 * i] = first;
     across[2 * i + 1] = second;
     height[i] = outside;
-    facings[i] = faced;
-    found[i] = best < Infinity ? 1 : 0;
+    facings[i] = normal[dominant >> 1] * (dominant & 1 ? 1 : -1);
+    found[i] = nearest < Infinity ? 1 : 0;
   }
   return { tile, across, height, smooth, normal: normals, facing: facings, found };
 }
