@@ -394,7 +394,7 @@ def relief_wall(seed: int = 0, detail: int = 10) -> trimesh.Trimesh:
     profile = 0.65 + 0.35 * value_noise_1d(rng, columns / 6)
     tops = np.clip(np.round(courses * profile) - rng.integers(0, 3, len(columns)) * (rng.random(len(columns)) < 0.3),
                    2, courses).astype(int)
-    solid = _Solid((0, 0, 0), (length, thickness, courses * course), step=MORTAR_GAP / 3)
+    solid = _Solid((0, 0, 0), (length, thickness, courses * course), step=MORTAR_GAP / 4)
     bricks = []  # (x0, x1, z0, z1) of each brick's face
     for k in range(courses):
         for x0 in np.arange(-(k % 2) * half, length, textured.BRICK_LENGTH):
@@ -416,8 +416,8 @@ def relief_wall(seed: int = 0, detail: int = 10) -> trimesh.Trimesh:
           & (v[:, None, 2] > bricks[None, :, 2] - tolerance) & (v[:, None, 2] < bricks[None, :, 3] + tolerance))
     brick_of = np.where(on.any(axis=1), on.argmax(axis=1), -1)
     # Out of the mortar's plane (or on a brick's own top or end): the brick's colour; in it, mortar.
-    proud = (v[:, 1] < RELIEF_DEPTH / 2) | (v[:, 1] > thickness - RELIEF_DEPTH / 2)
-    inside_face = (v[:, 1] > RELIEF_DEPTH * 1.5) & (v[:, 1] < thickness - RELIEF_DEPTH * 1.5)
+    proud = (v[:, 1] < RELIEF_DEPTH - tolerance) | (v[:, 1] > thickness - RELIEF_DEPTH + tolerance)
+    inside_face = (v[:, 1] > RELIEF_DEPTH + tolerance) & (v[:, 1] < thickness - RELIEF_DEPTH - tolerance)
     is_brick = (brick_of >= 0) & (proud | inside_face)
     rgb = np.where(is_brick[:, None], reds[np.maximum(brick_of, 0)], np.asarray(textured.MORTAR))
     rgb = np.clip(rgb + rng.normal(0, 0.02, rgb.shape), 0, 1)

@@ -27,8 +27,9 @@ from sinshape.runtime import colour, cubes, edit, generate, layout, load, onnxfi
 STATIC = Path(__file__).resolve().parents[1] / "serve" / "static"
 MODULES = sorted(STATIC.glob("sinshape/*.js")) + [STATIC / "viewer" / "heights.js", STATIC / "viewer" / "layout-cells.js"]
 
-COLOUR = ("PATCH", "QUANTUM", "KEY_VALUES", "KEY_QUANTUM", "ITERATIONS", "PROPAGATION", "SEARCH", "SEED_RATE",
-          "COHERENT", "MATCH_STREAM", "DEPTH_RANGE", "DISTANCE_STEP", "REACH_ORDER", "TURN", "ACROSS", "STEPS")
+COLOUR = ("PATCH", "QUANTUM", "KEY_VALUES", "KEY_QUANTUM", "LEVELS", "ITERATIONS", "REFINE", "PROPAGATION", "SEARCH",
+          "SEED_RATE", "COHERENT", "MATCH_STREAM", "DEPTH_RANGE", "DISTANCE_STEP", "REACH_ORDER", "TURN", "RELIEF",
+          "RELIEF_SCALE", "FACING", "ACROSS", "STEPS")
 MANIFEST = ("FORMAT_NAME", "FORMAT_VERSION", "COLOUR_VERSION", "TILES_VERSION", "READ_VERSION", "COLOUR_SPACE",
             "TILE_TENSORS", "MAX_TILE_SIDE", "METADATA_KEY", "NOISE_SCHEME", "PLANES", "HEAD_WEIGHTS", "COLOUR_WEIGHTS",
             "MAX_LEVELS", "MIN_LEVEL_SIDE", "MAX_LEVEL_SIDE", "MIN_SPACING", "MAX_MANIFEST_CHARS", "MAX_DEPTH",
@@ -98,6 +99,8 @@ BROWSER_ONLY = {
     ("sinshape/world.js", "PLAIN"): "worldOptions()'s defaults, built by worldOptions",
     ("sinshape/colour.js", "ALONG"): "Python's reads_along spells it inline; the tiles' equality holds it "
                                      "(tests/test_colour_web.py)",
+    ("sinshape/colour.js", "AXIS_STEPS"): "Python's axis_steps(1) makes it; the matches' equality holds it "
+                                          "(tests/test_colour_web.py)",
     ("sinshape/decode-wasm.js", "DECODE_WASM"): "the fit's WebAssembly, built from decode.wat (tests/test_wasm.py)",
 }
 # The table of a sample's options and the output formats: options.js is written from Python and

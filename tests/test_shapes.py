@@ -71,8 +71,10 @@ def test_proportions(name, check):
 
 
 def test_default_details_make_modest_meshes():
+    # The relief wall is meshed finer than its joints (0.04 units, a quarter of that a step) so that its
+    # relief (0.012) is exact: 310k faces.
     for name in shapes.SHAPES:
-        assert len(shapes.make_shape(name).faces) < 200_000
+        assert len(shapes.make_shape(name).faces) < (400_000 if name == "relief_wall" else 200_000)
 
 
 def test_terrain_has_relief_on_a_flat_bottom():
