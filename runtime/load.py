@@ -128,6 +128,8 @@ def read_model(path: Path) -> tuple:
     bad_ops = sorted({n.op_type for n in model.nodes if n.domain not in ("", "ai.onnx") or n.op_type not in ALLOWED_OPS})
     if bad_ops:
         raise InputError(f"{path}: uses ops a sinshape model never has ({', '.join(bad_ops[:5])})")
+    if model.repeated_weights:  # ONNX names each initializer once: which copy is the weight? neither
+        raise InputError(f"{path}: corrupt model: it holds the weight {min(model.repeated_weights)} twice")
     return data, model, sealed
 
 

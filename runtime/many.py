@@ -523,6 +523,11 @@ def run_job(model_path, items, pattern, varying: Varying, request, engine: str =
     write.output_kind(pattern)
     if asset is not None and pattern.suffix.lower() != ".glb":
         raise InputError(f"{pattern.name}: an asset is written as .glb (glTF's binary), not {pattern.suffix}", "lods")
+    if not pattern.parent.exists():  # a job's folder is made for it, as a world's tiles' is
+        try:
+            pattern.parent.mkdir(parents=True)
+        except OSError as error:
+            raise InputError(f"{pattern.parent}: cannot make the folder ({error.strerror})") from None
     files.check_writable(pattern.with_name(pattern.name.replace(varying.placeholder, "0")), [model_path])
     check_existing_outputs(pattern, [model_path], varying)
     identity = job_record(load_model(model_path, threads=1), request, pattern, varying)  # a bad model: one line here
@@ -612,12 +617,6 @@ def write_tiles(model_path, tiles, pattern, request, engine: str = "local", work
     if request.frame != "tile":
         world.check_placement(loaded, first, request.frame)
     tiles = itertools.chain([first], tiles)
-    folder = Path(pattern).parent
-    if not folder.exists():
-        try:
-            folder.mkdir(parents=True)
-        except OSError as error:
-            raise InputError(f"{folder}: cannot make the folder ({error.strerror})") from None
     if engine == "local" and workers is None:
         workers = LOCAL_WORKERS
     return run_job(model_path, tiles, pattern, TILES, request, engine, workers, threads, address, progress, restart,

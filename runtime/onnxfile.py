@@ -106,6 +106,7 @@ class OnnxModel:
     has_functions: bool = False
     nodes: list = field(default_factory=list)
     weights: dict = field(default_factory=dict)  # name -> Tensor
+    repeated_weights: set = field(default_factory=set)  # initializer names given more than once
     has_sparse: bool = False
     inputs: dict = field(default_factory=dict)  # name -> raw entry
     outputs: dict = field(default_factory=dict)
@@ -154,6 +155,8 @@ def read_graph(model: OnnxModel, span: tuple) -> None:
                     name = text(data, v)
                 elif n == TENSOR_EXTERNAL or (n == TENSOR_LOCATION and w == 0 and v == 1):
                     external = True
+            if name in model.weights:
+                model.repeated_weights.add(name)
             model.weights[name] = Tensor(name, data[first:last], data[value[0]:value[1]], external)
         elif number == GRAPH_SPARSE_INITIALIZER:
             model.has_sparse = True

@@ -110,6 +110,20 @@ def test_many_seeds_need_seed_in_the_file_name(tiny_model, tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_a_jobs_folder_is_made_for_it_but_not_for_a_refused_one(tiny_model, tmp_path):
+    # As a world's tiles' folder is (sinrun world): `-o job/{seed}.ply` needs no mkdir first.
+    many.sample_many(tiny_model, range(2), tmp_path / "job" / "deeper" / "{seed}.ply", workers=1)
+    assert sorted(p.name for p in (tmp_path / "job" / "deeper").iterdir()) == ["0.ply", "1.ply", "index.jsonl"]
+    with pytest.raises(many.InputError, match="fills in the file's name"):
+        many.sample_many(tiny_model, range(2), tmp_path / "{seed}" / "s{seed}.ply")
+    (tmp_path / "file").write_text("")
+    with pytest.raises(many.InputError, match="is a file, not a folder"):
+        many.sample_many(tiny_model, range(2), tmp_path / "file" / "{seed}.ply")
+    with pytest.raises(many.InputError, match="cannot make the folder"):
+        many.sample_many(tiny_model, range(2), tmp_path / "file" / "sub" / "{seed}.ply")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file", "job"]
+
+
 def test_the_ray_engine_without_ray_is_one_line(tiny_model, tmp_path, monkeypatch):
     monkeypatch.setitem(sys.modules, "ray", None)  # import ray fails, as where it is not installed
     result = sinrun("sample", tiny_model, "--seeds", "0-3", "--engine", "ray", "-o", tmp_path / "{seed}.ply")

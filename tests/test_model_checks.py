@@ -273,3 +273,19 @@ def test_info_escapes_control_characters(v3_model, tmp_path):
 def test_eval_refuses_a_wrongly_typed_source(v3_model, tmp_path, tiny_pyramid):
     path = altered(v3_model, tmp_path / "source.onnx", set_field(lambda m: m.update(source=7)))
     assert_one_line_error(sinrun("eval", path, "--reference", tiny_pyramid), "source")
+
+
+def test_a_weight_given_twice_is_named_corrupt(tmp_path):
+    # ONNX names each initializer once; a resealed file with a second, all-zero copy of a weight
+    # (which a reader would take, the last one winning) is refused, naming it.
+    from conftest import TINY_COLOUR_ONNX
+
+    proto = onnx.load(TINY_COLOUR_ONNX)
+    tensor = next(t for t in proto.graph.initializer if t.name == "colour_tiles.images")
+    copy = proto.graph.initializer.add()
+    copy.CopyFrom(tensor)
+    copy.raw_data = bytes(len(copy.raw_data))
+    path = tmp_path / "twice.onnx"
+    path.write_bytes(sealed_bytes(proto))
+    with pytest.raises(InputError, match="corrupt model: it holds the weight colour_tiles.images twice"):
+        load_model(path)

@@ -569,6 +569,13 @@ def foreign_op(proto):
     proto.graph.node[0].op_type = "Softmax"
 
 
+def weight_twice(proto):
+    """A second, all-zero copy of the last weight: protobuf keeps both, and a reader the last."""
+    copy = proto.graph.initializer.add()
+    copy.CopyFrom(proto.graph.initializer[len(proto.graph.initializer) - 2])
+    copy.raw_data = bytes(len(copy.raw_data))
+
+
 def sealed_twice(path: Path) -> Path:
     """The terrain model with a second sinshape.manifest entry, sealed (protobuf keeps the last: which is the model's?)."""
     from sinshape.core import manifest as fmt
@@ -633,7 +640,8 @@ def test_files_are_refused_as_the_python_loader_refuses_them(site_page, tmp_path
              altered_terrain(tmp_path / "shrink.onnx", edit_manifest(lambda m: m["levels"][1].update(size=[9, 9, 9]))),
              altered_terrain(tmp_path / "spacing.onnx", edit_manifest(lambda m: m["frame"].update(spacing=[1e-300, 1, 1]))),
              altered_terrain(tmp_path / "step.onnx", edit_manifest(lambda m: m["frame"].update(origin=[1e9, 0, 0]))),
-             sealed_twice(tmp_path / "twice.onnx")]
+             sealed_twice(tmp_path / "twice.onnx"),
+             altered_terrain(tmp_path / "weight.onnx", weight_twice)]
     messages = load_in_page(page, files)
     for path, message in zip(files, messages):
         with pytest.raises(InputError) as python:
@@ -646,6 +654,7 @@ def test_files_are_refused_as_the_python_loader_refuses_them(site_page, tmp_path
     assert "source" in messages[11] and "config" in messages[12] and "training seconds" in messages[13]
     assert "levels grow" in messages[14] and "spacing" in messages[15] and "float32's step" in messages[16]
     assert "corrupt model: it holds sinshape.manifest twice" in messages[17]
+    assert "corrupt model: it holds the weight " in messages[18] and messages[18].endswith(" twice")
     # The page reads formats 3 to 5 only (sinrun serve and export-web seal older models on the way out).
     (message,) = load_in_page(page, [Path(__file__).parent / "data" / "tiny_v2.onnx"])
     assert message == "tiny_v2.onnx: a format 2 model; the browser reads formats 3 to 5, which `sinrun serve` and " \

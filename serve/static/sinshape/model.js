@@ -194,6 +194,9 @@ export function readChecked(bytes, name) {
   const bad = [...new Set(graph.nodes.filter((n) => !['', 'ai.onnx'].includes(n.domain) || !ALLOWED_OPS.has(n.opType))
     .map((n) => n.opType))].sort();
   if (bad.length) throw new InputError(`${name}: uses ops a sinshape model never has (${bad.slice(0, 5).join(', ')})`);
+  const names = graph.initializers.map((t) => t.name).sort(); // ONNX names each initializer once: which copy is it? neither
+  const twice = names.find((n, i) => i > 0 && names[i - 1] === n);
+  if (twice !== undefined) throw new InputError(`${name}: corrupt model: it holds the weight ${twice} twice`);
   if (model.repeated.has(METADATA_KEY)) throw new InputError(`${name}: corrupt model: it holds ${METADATA_KEY} twice`);
   if (!(METADATA_KEY in model.metadata)) {
     throw new InputError(`${name}: an ONNX model, but not a sinshape model (no ${METADATA_KEY} metadata)`);
