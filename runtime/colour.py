@@ -529,19 +529,35 @@ def matcher(model) -> Matcher:
 # has one, in this order, shifted by the step: the band's matches carried
 # outwards (and inwards) one voxel a round.
 STEPS = np.array([(-1, 0, 0), (1, 0, 0), (0, -1, 0), (0, 1, 0), (0, 0, -1), (0, 0, 1)])
+# A kept box (edit.compose) is the part's own sample deeper than edit.MARGIN
+# voxels inside it; its matches are the part's own deeper than this.
+KEPT_MARGIN = 5
 
 
 class Correspondence:
     """J of one sample: its surface band matched to the example as a whole,
-    and the rest of its grid, when asked for, from the band outwards."""
+    and the rest of its grid, when asked for, from the band outwards. A
+    composed sample's `kept` parts ((low, high, their projected planes),
+    TriPlane.kept) give its band deep in each box their own matches, so a
+    kept box keeps its colour whatever the matches around it (a later part
+    wins where boxes overlap)."""
 
-    def __init__(self, model, planes: list, size):
+    def __init__(self, model, planes: list, size, kept=()):
         self.size = np.array(size)
         example = matcher(model)
         self.band = surface_band(model, grid_hidden(model, planes, size), size)
         self.matched = example.match(pyramid(model, planes, size), self.band)
         self.lookup = voxel_lookup(self.band)
         self.field = None
+        for low, high, part_planes in kept:
+            low, high = np.asarray(low), np.asarray(high)
+            # Deeper than the join inside the box (a box reaching the grid's edge has no join there).
+            deep = np.all(((self.band >= low + KEPT_MARGIN) | (low <= 0))
+                          & ((self.band <= high - KEPT_MARGIN) | (high >= self.size - 1)), axis=1)
+            own = Correspondence(model, part_planes, size)
+            row = own.lookup(self.band[deep])
+            index = np.flatnonzero(deep)[row >= 0]
+            self.matched[index] = own.matched[row[row >= 0]]
 
     def __call__(self, voxels: np.ndarray) -> np.ndarray:
         """The example voxel of each (n, 3) voxel of the sample's grid."""
@@ -776,7 +792,8 @@ def colouring(model, triplane, chunk: int = 1 << 16):
     has no relief."""
     if model.tiles is None:
         return HeadColouring(query.colouring(model, triplane, chunk))
-    return planes_colouring(model, query.project(model, triplane).planes, triplane.size, chunk)
+    kept = [(low, high, query.project(model, part).planes) for low, high, part in triplane.kept]
+    return planes_colouring(model, query.project(model, triplane).planes, triplane.size, chunk, kept)
 
 
 class HeadColouring:
@@ -796,9 +813,9 @@ class SampleSurface:
     """A format-5 sample's surface as its example's: matched once
     (Correspondence), then read at any points for colour and relief."""
 
-    def __init__(self, model, planes: list, size, chunk: int = 1 << 16):
+    def __init__(self, model, planes: list, size, chunk: int = 1 << 16, kept=()):
         self.tiles, self.chunk = model.tiles, chunk
-        self.matched = Correspondence(model, planes, size)
+        self.matched = Correspondence(model, planes, size, kept)
         self.grid = np.array(size)
 
     def __call__(self, points, footprint=None) -> np.ndarray:
@@ -817,10 +834,11 @@ class SampleSurface:
         return out
 
 
-def planes_colouring(model, planes: list, size, chunk: int = 1 << 16) -> SampleSurface:
+def planes_colouring(model, planes: list, size, chunk: int = 1 << 16, kept=()) -> SampleSurface:
     """`colouring` of a format-5 sample given as its projected planes
-    (query.project) and its size: a world's windows come so."""
-    return SampleSurface(model, planes, size, chunk)
+    (query.project) and its size (a world's windows come so), and a composed
+    sample's kept parts' (Correspondence)."""
+    return SampleSurface(model, planes, size, chunk, kept)
 
 
 def colours(model, triplane, coords, footprint: float | None = None) -> np.ndarray:

@@ -23,6 +23,7 @@ outside. A voxel reads one cell of each plane, so:
 A face on the sample's own edge needs no join; its margin is not taken off.
 """
 
+import dataclasses
 import numbers
 from dataclasses import dataclass
 
@@ -267,8 +268,10 @@ def compose(model, seed: int, parts, factors=(1.0, 1.0, 1.0), memory_limit: int 
     base_noise = draw_noise(check_seed(seed), sizes, channels)
     placed = [place(model, part, sizes, factors) for part in parts]
     base = chain(model, base_noise, sizes)
-    return triplane(model, compose_noise(base_noise, parts, placed, sizes), sizes, after_level=lambda level, planes: blend(
+    made = triplane(model, compose_noise(base_noise, parts, placed, sizes), sizes, after_level=lambda level, planes: blend(
         base[level], planes, parts, [p.planes[level] for p in placed], sizes[-1], sizes[level]))
+    return dataclasses.replace(made, kept=tuple((part.low, part.high, TriPlane(p.planes[-1], sizes[-1]))
+                                                for part, p in zip(parts, placed)))
 
 
 def grow(model, seed: int, by, anchor=(0.0, 0.0, 0.0), factors=(1.0, 1.0, 1.0),

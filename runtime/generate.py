@@ -181,10 +181,14 @@ def resize_plane(plane: np.ndarray, size) -> np.ndarray:
 @dataclass
 class TriPlane:
     """A generated tri-plane: 3 x (C, H, W) float32 planes (xy, xz, yz)
-    spanning a grid of `size` (X, Y, Z) finest-level voxels."""
+    spanning a grid of `size` (X, Y, Z) finest-level voxels. A composed one
+    (edit.compose) holds its parts as `kept`: (low, high, the part's own
+    TriPlane placed on this grid), so that deep in a kept box the colour is
+    the part's own."""
 
     planes: list
     size: tuple
+    kept: tuple = ()
 
 
 @dataclass

@@ -553,3 +553,35 @@ def test_on_sinrun_serve_the_servers_glb_colours_reach_the_page_as_the_browsers_
             if name == HEAD_NAME:  # (how a sample's tiles vary is the example's: tests/test_colour_tiles.py)
                 assert shown["server"].std(axis=0).max() > 0.005
         page.close()
+
+
+# Runs in the page: a sample of `seed` keeping a box of another seed, its mesh at `scale` painted as the
+# worker paints it (relief, then colour).
+KEPT_JS = """async ([name, seed, keep, scale]) => {""" + IN_PAGE + """
+  const request = s.sampleRequest({ seed: BigInt(seed), keep: [keep] });
+  const tri = await s.make(model, request);
+  const mesh = s.surface(await s.dense(model, tri, scale), tri.size, model.manifest);
+  const painted = await s.paintMesh(model, tri, mesh.positions, scale);
+  return { plain: b64(mesh.positions), positions: b64(painted.positions), colours: b64(painted.colours) };
+}"""
+
+
+def test_a_kept_boxs_colour_and_relief_in_the_page_are_pythons(colour_page, coloured):
+    """Deep in a kept box the page reads the part's own matches, as Python does (TriPlane.kept):
+    the same relief and colour at the same vertices, near-ties apart."""
+    from sinshape.runtime import edit
+    from sinshape.runtime.request import SampleRequest, make
+
+    keep, scale = "3:0%,0%,0%:60%,100%,100%", 2
+    made = colour_page.evaluate(KEPT_JS, [NAME, 7, keep, scale])
+    plain = unb64(made["plain"], np.float32, 3)
+    coords = (plain - np.asarray(coloured.manifest.origin)) / np.asarray(coloured.manifest.spacing)
+    part = edit.parse_part(keep, coloured.manifest, coloured.manifest.sizes[-1])
+    triplane = make(coloured, SampleRequest(seed=7, keep=(part,)))
+    assert len(triplane.kept) == 1
+    surface = colour.colouring(coloured, triplane)
+    relieved = surface.relief(coords)
+    placed = (np.abs(unb64(made["positions"], np.float32, 3) - mesh.in_frame(relieved, coloured.manifest)) < 1e-5).all(axis=1)
+    same = (mesh.colour_bytes(unb64(made["colours"], np.float32, 3))
+            == mesh.colour_bytes(surface(relieved, 1 / scale))).all(axis=1)
+    assert len(plain) > 500 and placed.mean() >= SAME_BYTES and same.mean() >= SAME_BYTES, (placed.mean(), same.mean())

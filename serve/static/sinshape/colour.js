@@ -52,6 +52,8 @@ export const ACROSS = [[1, 2], [0, 2], [0, 1]]; // a tile's rows and columns run
 export const ALONG = { positive: [-1, 1, -2, 2], negative: [1, -1, 2, -2] };
 // A voxel outside the band takes the match of the first voxel beside it that has one, in this order.
 export const STEPS = [[-1, 0, 0], [1, 0, 0], [0, -1, 0], [0, 1, 0], [0, 0, -1], [0, 0, 1]];
+// A kept box's matches are the part's own deeper than this inside it (Python's KEPT_MARGIN).
+export const KEPT_MARGIN = 5;
 
 const f32 = Math.fround;
 
@@ -611,12 +613,26 @@ export async function matcher(model) {
 /** J of one sample: its surface band matched to the example as a whole (`example`, matcher's), and the rest
  * of its grid, when asked for, from the band outwards. */
 export class Correspondence {
-  constructor(example, model, planes, size) {
+  /** `kept`: a composed sample's parts, [{ low, high, planes (projected) }], whose band deep in each box takes
+   * their own matches (a later part wins where boxes overlap), as Python's. */
+  constructor(example, model, planes, size, kept = []) {
     this.size = size;
     this.band = surfaceBand(model, gridHidden(model, planes, size), size);
     this.matched = example.match(pyramid(model, planes, size), this.band);
     this.lookup = voxelLookup(this.band);
     this.field = null;
+    for (const { low, high, planes: partPlanes } of kept) {
+      const own = new Correspondence(example, model, partPlanes, size);
+      for (let r = 0; r < this.band.length / 3; r++) {
+        let deep = true; // deeper than the join inside the box (a box reaching the grid's edge has no join there)
+        for (let a = 0; a < 3; a++) {
+          const v = this.band[3 * r + a];
+          if (!((v >= low[a] + KEPT_MARGIN || low[a] <= 0) && (v <= high[a] - KEPT_MARGIN || high[a] >= size[a] - 1))) deep = false;
+        }
+        const row = deep ? own.lookup(this.band[3 * r], this.band[3 * r + 1], this.band[3 * r + 2]) : -1;
+        if (row >= 0) this.matched.set(own.matched.subarray(3 * row, 3 * row + 3), 3 * r);
+      }
+    }
   }
 
   /** The example voxel of each (n, 3) voxel of the sample's grid (Python's __call__). */
@@ -883,14 +899,16 @@ export async function colouring(model, tri) {
     head.relief = (points) => Float64Array.from(points); // the colour head has no relief
     return head;
   }
-  return planesColouring(model, proj.planes, tri.size);
+  const kept = [];
+  for (const part of tri.kept ?? []) kept.push({ low: part.low, high: part.high, planes: (await project(model, part.tri)).planes });
+  return planesColouring(model, proj.planes, tri.size, kept);
 }
 
 /** `colouring` of a format-5 sample given as its projected planes (query.js's project) and its size: a world's
  * windows come so (world.js's windowColouring), as runtime/colour.py's planes_colouring. Its `relief` moves points
  * by the example's relief. */
-export async function planesColouring(model, planes, size) {
-  const matched = new Correspondence(await matcher(model), model, planes, size);
+export async function planesColouring(model, planes, size, kept = []) {
+  const matched = new Correspondence(await matcher(model), model, planes, size, kept);
   const at = (voxels) => matched.call(voxels);
   const colour = (points, footprint = null) => readColours(model.tiles, at, points, size, footprint);
   colour.relief = (points) => relief(model.tiles, at, points, size);

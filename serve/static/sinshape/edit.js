@@ -213,8 +213,10 @@ export async function compose(model, seed, parts, factors = [1, 1, 1]) {
   for (const part of checked) placed.push(await place(model, part, sizes));
   const base = await chain(model, baseNoise, sizes);
   const finest = sizes[sizes.length - 1];
-  return triplane(model, composeNoise(baseNoise, checked, placed, sizes), sizes, (level, planes) => blend(
+  const made = await triplane(model, composeNoise(baseNoise, checked, placed, sizes), sizes, (level, planes) => blend(
     base[level], planes, checked, placed.map((p) => p.planes[level]), finest, sizes[level]));
+  // Its parts, each placed on this grid, so that deep in a kept box the colour is the part's own (runtime.edit.compose).
+  return { ...made, kept: checked.map((part, i) => ({ low: part.low, high: part.high, tri: { planes: placed[i].planes.at(-1), size: finest } })) };
 }
 
 /**
