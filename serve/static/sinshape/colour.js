@@ -189,7 +189,14 @@ export function mipLevels(images, count, side) {
 /** Hidden pre-activations (b1 added) at the grid points of scale 1 of projected planes spanning `size`, as a
  * function of (n, 3) voxels -> (n, D) Float32Array, clamped to the grid: ((xy + xz) + yz) + b1 in float32. */
 export function gridHidden(model, planes, size) {
-  const [xy, xz, yz] = planes.map((p) => p.data), bias = model.head.bias1, d = bias.length;
+  const [xy, xz, yz] = planes.map((p) => p.data), bias = model.head.bias1;
+  return perVoxel(size, bias.length, (a, b, e, c) => f32(f32(f32(xy[a] + xz[b]) + yz[e]) + bias[c]));
+}
+
+/** A function of (n, 3) voxels, clamped to a grid of `size`, -> (n, D) Float32Array: channel c of each voxel is
+ * value(a, b, e, c), given the places of channel c of the voxel's cells in its xy, xz and yz planes (each
+ * (., ., D) in C order). */
+function perVoxel(size, d, value) {
   const [X, Y, Z] = size;
   return (voxels) => {
     const n = voxels.length / 3, out = new Float32Array(n * d);
@@ -197,7 +204,7 @@ export function gridHidden(model, planes, size) {
       const i = Math.min(Math.max(voxels[3 * v], 0), X - 1), j = Math.min(Math.max(voxels[3 * v + 1], 0), Y - 1);
       const k = Math.min(Math.max(voxels[3 * v + 2], 0), Z - 1);
       const a = (i * Y + j) * d, b = (i * Z + k) * d, e = (j * Z + k) * d;
-      for (let c = 0; c < d; c++) out[v * d + c] = f32(f32(f32(xy[a + c] + xz[b + c]) + yz[e + c]) + bias[c]);
+      for (let c = 0; c < d; c++) out[v * d + c] = value(a + c, b + c, e + c, c);
     }
     return out;
   };
@@ -282,17 +289,8 @@ export class Pyramid {
         return out;
       }));
     }
-    const [xy, xz, yz] = this.pooled.get(level), area = side * side, [X, Y, Z] = blocks, bias = this.bias;
-    return (voxels) => {
-      const n = voxels.length / 3, out = new Float32Array(n * d);
-      for (let v = 0; v < n; v++) {
-        const i = Math.min(Math.max(voxels[3 * v], 0), X - 1), j = Math.min(Math.max(voxels[3 * v + 1], 0), Y - 1);
-        const k = Math.min(Math.max(voxels[3 * v + 2], 0), Z - 1);
-        const a = (i * Y + j) * d, b = (i * Z + k) * d, e = (j * Z + k) * d;
-        for (let c = 0; c < d; c++) out[v * d + c] = Math.floor((xy[a + c] + xz[b + c] + yz[e + c] + bias[c] * area) / area);
-      }
-      return out;
-    };
+    const [xy, xz, yz] = this.pooled.get(level), area = side * side, bias = this.bias;
+    return perVoxel(blocks, d, (a, b, e, c) => Math.floor((xy[a] + xz[b] + yz[e] + bias[c] * area) / area));
   }
 }
 
