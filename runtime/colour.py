@@ -819,18 +819,18 @@ class SampleSurface:
         self.grid = np.array(size)
 
     def __call__(self, points, footprint=None) -> np.ndarray:
-        points = query.point_array(points)
-        out = np.empty((len(points), 3), np.float32)
-        for start in range(0, len(points), self.chunk):
-            out[start:start + self.chunk] = read_colours(self.tiles, self.matched, points[start:start + self.chunk],
-                                                         self.grid, footprint)
-        return out
+        return self.chunked(points, np.float32, lambda part: read_colours(self.tiles, self.matched, part, self.grid,
+                                                                          footprint))
 
     def relief(self, points) -> np.ndarray:
+        return self.chunked(points, np.float64, lambda part: relief(self.tiles, self.matched, part, self.grid))
+
+    def chunked(self, points, dtype, read) -> np.ndarray:
+        """read(points) (n, 3) -> (n, 3), `chunk` points at a time (bounded temporaries)."""
         points = query.point_array(points)
-        out = np.empty((len(points), 3))
+        out = np.empty((len(points), 3), dtype)
         for start in range(0, len(points), self.chunk):
-            out[start:start + self.chunk] = relief(self.tiles, self.matched, points[start:start + self.chunk], self.grid)
+            out[start:start + self.chunk] = read(points[start:start + self.chunk])
         return out
 
 

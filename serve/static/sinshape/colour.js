@@ -380,8 +380,8 @@ function uniqueVoxels(voxels, size) {
   return out;
 }
 
-/** Voxels (n, 3) shifted right by `level` bits: the blocks of that level holding them. */
-function shifted(voxels, level) {
+/** The blocks of level `level` holding voxels (n, 3): each coordinate shifted right by `level` bits. */
+function blocksOf(voxels, level) {
   return Int32Array.from(voxels, (v) => v >> level);
 }
 
@@ -547,7 +547,7 @@ export class Matcher {
     this.levels = [];
     for (let level = 0; level <= LEVELS; level++) {
       const size = reference.size.map((n) => Math.ceil(n / (1 << level)));
-      this.levels.push(new Level(level ? uniqueVoxels(shifted(band, level), size) : band, reference.at(level), size));
+      this.levels.push(new Level(level ? uniqueVoxels(blocksOf(band, level), size) : band, reference.at(level), size));
     }
   }
 
@@ -558,10 +558,10 @@ export class Matcher {
     checkBytes(n * fine.width * 16 + (fine.band.length / 3) * 8 * 64, `matching ${n} voxels to the example`);
     if (!n) return new Int32Array(0);
     const grid = (level) => sample.size.map((m) => Math.ceil(m / (1 << level)));
-    let blocks = uniqueVoxels(shifted(voxels, LEVELS), grid(LEVELS));
+    let blocks = uniqueVoxels(blocksOf(voxels, LEVELS), grid(LEVELS));
     let matched = this.levels[LEVELS].search(sample.at(LEVELS), blocks);
     for (let level = LEVELS - 1; level >= 0; level--) {
-      const finer = level ? uniqueVoxels(shifted(voxels, level), grid(level)) : voxels;
+      const finer = level ? uniqueVoxels(blocksOf(voxels, level), grid(level)) : voxels;
       const lookup = voxelLookup(blocks), inherited = new Int32Array(finer.length);
       for (let v = 0; v < finer.length; v += 3) {
         const row = lookup(finer[v] >> 1, finer[v + 1] >> 1, finer[v + 2] >> 1);
