@@ -19,17 +19,20 @@ from .errors import InputError
 FORMAT_NAME = "sinshape"
 # 3 seals the file's bytes with a SHA-256 at its end; 2 had a `checksum`
 # field over the weights and manifest only; 1 had none. 4 is 3 with a colour
-# head (`colour`); 5 is 4 with the example's colour as tiles, read by
-# correspondence (`colour.tiles`). A geometry-only model is still written as
-# 3. All five load.
+# head (`colour`); 5 carries the example's surface as tiles, read by
+# correspondence: a coloured model's colour and relief (`colour.tiles`), or a
+# geometry-only model's relief alone (`relief.tiles`). A geometry-only model
+# without a mesh to take relief from (a voxel pyramid) is still written as 3.
+# All five load.
 FORMAT_VERSION = 3
 COLOUR_VERSION = 4
 TILES_VERSION = 5
 READ_VERSION = TILES_VERSION  # the newest version this code reads
 COLOUR_SPACE = {"space": "srgb"}  # manifest `colour`: values are sRGB-encoded in [0, 1]
 # Initializers of a format-5 model's tiles (prep/appearance.py, docs/FORMAT.md):
-# (N, 3) int32 voxels, (N,) uint8 directions, (N, T, T, 4) uint8 images, and
-# the finest level's (X, Y, Z) int8 signed distance to the example's surface.
+# (N, 3) int32 voxels, (N,) uint8 directions, (N, T, T, 4) uint8 images (sRGB
+# and depth; a relief-only model's (N, T, T, 1), depth alone), and the finest
+# level's (X, Y, Z) int8 signed distance to the example's surface.
 TILE_TENSORS = ("colour_tiles.voxels", "colour_tiles.directions", "colour_tiles.images", "colour_tiles.distance")
 MAX_TILE_SIDE = 64
 # How colour_tiles encode where the surface lies (docs/FORMAT.md): prep writes them, the runtime reads them.
@@ -118,7 +121,12 @@ class Manifest:
     arrange: str = "blend"  # how its world is made unless asked: "blend" (a landscape) or "scatter" (an object)
     contrast: float = CONTRAST  # a blended world's contrast exponent
     colour: bool = False  # the decoder also gives sRGB colour (format 4)
-    tiles: tuple | None = None  # format 5: (count, side) of the example's colour tiles
+    tiles: tuple | None = None  # format 5: (count, side) of the example's surface tiles
+
+    @property
+    def tile_channels(self) -> int:
+        """Bytes per texel of its tiles: sRGB and depth, or a relief-only model's depth."""
+        return 4 if self.colour else 1
 
 
 def _require(ok: bool, message: str) -> None:
@@ -226,18 +234,24 @@ def parse(text: str) -> Manifest:
     colour = version >= COLOUR_VERSION
     tiles = None
     if version >= TILES_VERSION:
-        field = raw.get("colour")
+        # A coloured model's tiles are under `colour`, a relief-only model's under `relief`: one of the two.
+        kind = "colour" if "colour" in raw else "relief"
+        field = raw.get(kind)
         tiles = field.get("tiles") if isinstance(field, dict) else None
-        _require(isinstance(field, dict) and set(field) == {"space", "tiles"} and field["space"] == "srgb"
+        _require(not ("colour" in raw and "relief" in raw), f"format {TILES_VERSION} has colour or relief, not both")
+        _require(isinstance(field, dict) and set(field) == ({"space", "tiles"} if kind == "colour" else {"tiles"})
+                 and field.get("space", "srgb") == "srgb"
                  and isinstance(tiles, dict) and set(tiles) == {"count", "side"}
                  and _is_int(tiles["count"], 1, 2**31 - 1) and _is_int(tiles["side"], 1, MAX_TILE_SIDE)
                  and tiles["side"] & (tiles["side"] - 1) == 0,
-                 f'colour must be {{"space": "srgb", "tiles": {{"count": N, "side": T}}}} in format {TILES_VERSION}, '
-                 f"T a power of two up to {MAX_TILE_SIDE}")
+                 f'format {TILES_VERSION} needs colour {{"space": "srgb", "tiles": {{"count": N, "side": T}}}} or '
+                 f'relief {{"tiles": {{"count": N, "side": T}}}}, T a power of two up to {MAX_TILE_SIDE}')
+        colour = kind == "colour"
         tiles = (tiles["count"], tiles["side"])
     else:
         _require(raw.get("colour") == (COLOUR_SPACE if colour else None),
                  f"colour must be {json.dumps(COLOUR_SPACE)} in format {COLOUR_VERSION} and absent before it")
+        _require("relief" not in raw, f"relief is read from format {TILES_VERSION} on, not {version}")
     if version == 2:
         _require(isinstance(raw.get("checksum"), str) and CHECKSUM_RE.fullmatch(raw["checksum"]) is not None,
                  "checksum must be 'sha256:' and 64 hex digits")
@@ -356,6 +370,10 @@ def describe(raw: dict) -> list:
         lines.append(f"colour      {printable(raw['colour'].get('space'))} RGB, " + (
             f"read from the example by correspondence: {tiles['count']} tiles of {tiles['side']}x{tiles['side']}"
             if tiles else "from the decoder's colour head"))
+    if raw.get("relief"):
+        tiles = raw["relief"]["tiles"]
+        lines.append(f"relief      read from the example by correspondence: {tiles['count']} depth tiles of "
+                     f"{tiles['side']}x{tiles['side']}")
     lines += [
         f"networks    {raw['channels']} channels, {raw['pool_bins']} pooling bins, MLP hidden {raw['mlp_hidden']}",
         f"frame       voxel (0, 0, 0) at ({origin}), voxel size ({spacing}); {raw.get('up', 'y')} points up",

@@ -1,5 +1,5 @@
-"""The example's appearance at its own detail, for colour by correspondence:
-small colour tiles of every surface voxel of the finest level.
+"""The example's appearance at its own detail, for colour and relief by
+correspondence: small tiles of every surface voxel of the finest level.
 
 A coloured model's sample takes its colour from the example
 (runtime/appearance.py): each point of a sample is matched to a point of
@@ -17,6 +17,10 @@ surface reads the colour of the surface beside it along the axis. T follows
 the texture's own density: a power of two from 2 to MAX_TILE, at least
 twice its texels across a voxel, halved while all the tiles would exceed
 MAX_TILE_BYTES.
+
+A geometry-only example's tiles hold the depth alone (relief_surface): its
+samples take the example's relief finer than a voxel the same way, and T
+follows how finely its faces are cut.
 
 numpy, scipy and Pillow only (no torch).
 """
@@ -44,16 +48,16 @@ class Tiles:
 
     voxels: np.ndarray  # (N, 3) int32: the finest-level voxel each tile belongs to, sorted
     directions: np.ndarray  # (N,) uint8: 2 * axis + (1 if it looks from + else 0)
-    images: np.ndarray  # (N, T, T, 4) uint8: sRGB, and the surface's depth (0..255 for -0.5..0.5 voxel)
+    images: np.ndarray  # (N, T, T, 4) uint8: sRGB, and the surface's depth (0..255 for -0.5..0.5 voxel); or depth alone (N, T, T, 1)
     distance: np.ndarray  # (X, Y, Z) int8: signed distance to the surface at voxel centres, DISTANCE_STEP a unit
 
 
 @dataclass(frozen=True)
 class Surface:
-    """A coloured scene's triangles (input frame) and the colour at any point of them."""
+    """A scene's triangles (input frame) and the colour at any point of them (None: geometry only)."""
 
     triangles: np.ndarray  # (F, 3, 3) float64
-    colour: object  # (face (n,), weights (n, 3)) -> (n, 3) sRGB float32
+    colour: object  # (face (n,), weights (n, 3)) -> (n, 3) sRGB float32, or None
     density: float  # colour samples (texels or vertices) per unit of length, typical
 
 
@@ -68,6 +72,21 @@ def coloured_surface(scene, path) -> Surface | None:
     areas = [triangle_areas(vertices[faces]).sum() for _, vertices, faces, _ in parts]
     densities = [samples_per_length(geometry, vertices) for _, vertices, _, geometry in parts]
     return Surface(triangles, paint, float(np.average(densities, weights=np.maximum(areas, 1e-30))))
+
+
+def relief_surface(scene) -> Surface:
+    """A read scene's triangles without colour, for depth tiles. Their
+    density is how finely its shape varies: per unit of length, one over
+    its faces' shortest edges (the median by area: a ridge's long thin faces
+    count across the ridge, slivers hardly at all)."""
+    parts = scene_parts(scene)
+    triangles = np.concatenate([vertices[faces] for _, vertices, faces, _ in parts])
+    edges = np.stack([np.linalg.norm(triangles[:, a] - triangles[:, b], axis=1) for a, b in ((0, 1), (1, 2), (2, 0))])
+    finest = 1 / np.maximum(edges.min(axis=0), 1e-30)
+    order = np.argsort(finest)
+    areas = np.cumsum(triangle_areas(triangles)[order])
+    density = float(finest[order][np.searchsorted(areas, areas[-1] / 2)]) if areas[-1] > 0 else 0.0
+    return Surface(triangles, None, density)
 
 
 def triangle_areas(triangles: np.ndarray) -> np.ndarray:
@@ -101,8 +120,8 @@ def samples_per_length(geometry, vertices: np.ndarray) -> float:
 
 
 def example_tiles(surface: Surface, box_low, spacing, solid: np.ndarray, max_bytes: int = MAX_TILE_BYTES) -> Tiles:
-    """The tiles of every voxel of the finest level `solid` (X, Y, Z) bool
-    the surface passes through (voxel (i, j, k) centred at box_low + (i +
+    """The tiles (4 channels, or a colourless surface's 1) of every voxel of
+    the finest level `solid` (X, Y, Z) bool the surface passes through (voxel (i, j, k) centred at box_low + (i +
     0.5) * spacing, input frame), and the signed distance at every voxel;
     the tiles' side is halved while they would pass `max_bytes`.
 
@@ -125,18 +144,20 @@ def example_tiles(surface: Surface, box_low, spacing, solid: np.ndarray, max_byt
     # Each (voxel, direction) with a facing face is a tile; a voxel's tiles are kept together.
     keys = np.concatenate([key_of(v, shape) * 6 + 2 * a + p for a, p, v, _ in pairs])
     unique = np.unique(keys)
-    while len(unique) * side * side * 4 > max_bytes and side > 2:
+    channels = 1 if surface.colour is None else 4
+    while len(unique) * side * side * channels > max_bytes and side > 2:
         side //= 2
-    check_memory(len(unique) * side * side * 120, f"the colour tiles of {len(unique)} surface directions")
-    images = np.zeros((len(unique), side, side, 4), np.uint8)
+    check_memory(len(unique) * side * side * 120, f"the tiles of {len(unique)} surface directions")
+    images = np.zeros((len(unique), side, side, channels), np.uint8)
     hit_any = np.zeros(len(unique), bool)
     offsets = -0.5 + (np.arange(side) + 0.5) / side
     for axis, positive, v, f in pairs:
         tile = np.searchsorted(unique, key_of(v, shape) * 6 + 2 * axis + positive)
         colour, depth, hit, own = cast(surface, triangles, v, f, tile, len(unique), axis, offsets)
         mine = np.unique(tile)
-        images[mine, ..., :3] = np.round(colour[mine] * 255)
-        images[mine, ..., 3] = np.round((np.clip(depth[mine], -DEPTH_RANGE, DEPTH_RANGE) / DEPTH_RANGE + 1) * 127.5)
+        if channels == 4:
+            images[mine, ..., :3] = np.round(colour[mine] * 255)
+        images[mine, ..., -1] = np.round((np.clip(depth[mine], -DEPTH_RANGE, DEPTH_RANGE) / DEPTH_RANGE + 1) * 127.5)
         images[mine] = fill_misses(images[mine], hit[mine])
         hit_any[mine] = own[mine].any(axis=(1, 2))  # a tile shows a surface inside its voxel
     kept = unique[hit_any]
@@ -197,7 +218,7 @@ def cast(surface: Surface, triangles, voxels, faces, tile, count: int, axis: int
     (voxel, face) pair): the colour and depth of the nearest hit inside the
     voxel, or failing that within REACH, per tile texel; which texels were
     hit at all, and which inside the voxel. ((count, T, T, 3), (count, T, T),
-    (count, T, T) bool, (count, T, T) bool)."""
+    (count, T, T) bool, (count, T, T) bool); colour None for a colourless surface."""
     side = len(offsets)
     b, c = [k for k in range(3) if k != axis]
     depth = np.full((count, side, side), np.inf)
@@ -240,8 +261,10 @@ def cast(surface: Surface, triangles, voxels, faces, tile, count: int, axis: int
         best_weights.reshape(-1, 3)[key] = np.stack([w0[pair, row, column], w1[pair, row, column],
                                                      w2[pair, row, column]], axis=1)
     hit = np.isfinite(depth)
-    colour = np.zeros((count, side, side, 3), np.float32)
-    colour[hit] = surface.colour(best_face[hit], best_weights[hit])
+    colour = None
+    if surface.colour is not None:
+        colour = np.zeros((count, side, side, 3), np.float32)
+        colour[hit] = surface.colour(best_face[hit], best_weights[hit])
     return colour, np.where(hit, depth, 0.0), hit, rank <= DEPTH_RANGE + 1e-9
 
 

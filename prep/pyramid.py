@@ -71,8 +71,9 @@ class Pyramid:
     files_sha256: str = ""
     colour_read: str = ""
     colour_warnings: tuple = ()
-    # A coloured mesh's surface colour at its own detail, as tiles of the
-    # finest level's surface voxels (prep.appearance.Tiles), or None.
+    # A mesh's surface at its own detail (a coloured one's colour and depth,
+    # else its depth alone), as tiles of the finest level's surface voxels
+    # (prep.appearance.Tiles); None for an .h5 pyramid.
     tiles: object = None
 
     @property
@@ -136,13 +137,14 @@ def file_sha256(path: Path) -> str:
 def pyramid_from_mesh(path: Path, res: int, levels: int | None = None,
                       factor: float = LEVEL_FACTOR, min_size: int = MIN_SIZE, check=None,
                       colour: bool = True, asset_folder: Path | None = None,
-                      tile_bytes: int = appearance.MAX_TILE_BYTES) -> Pyramid:
+                      tile_bytes: int = appearance.MAX_TILE_BYTES, tiles: bool = True) -> Pyramid:
     """Voxelise a mesh file at every level of its pyramid. check(sizes), if
     given, sees the level sizes before any is voxelised (to refuse work up
     front); voxelising that would not fit in memory is refused too. With
     `colour`, a mesh that has colour gets its colour field at every level;
     without, its colour is not read at all (nor its materials and textures).
-    The files it names are read from its folder, or `asset_folder`."""
+    The files it names are read from its folder, or `asset_folder`. With
+    `tiles`, its surface's tiles are made too (the grids alone without)."""
     try:
         scene, data = voxelize.read_scene(path, materials=colour, asset_folder=asset_folder)
     except InputError as error:  # a texture or material that cannot be read: say what gets past it
@@ -180,8 +182,10 @@ def pyramid_from_mesh(path: Path, res: int, levels: int | None = None,
             raise InputError(f"{path.name}: the mesh gives an empty {size} grid; is it a closed solid?")
     fields = [colours.colour_grid(surface, box_low, box / np.array(size), size) for size in sizes] if surface else None
     spacing = box / np.array(sizes[-1])
-    tiles = appearance.example_tiles(appearance.coloured_surface(scene, path), box_low, spacing, grids[-1],
-                                     tile_bytes) if surface else None
+    # The example's surface at its own detail: colour and relief, or (geometry only) relief alone.
+    detail = appearance.example_tiles(appearance.coloured_surface(scene, path) if surface
+                                      else appearance.relief_surface(scene), box_low, spacing, grids[-1],
+                                      tile_bytes) if tiles else None
     return Pyramid(
         levels=grids,
         origin=tuple(float(v) for v in box_low + spacing / 2),
@@ -194,7 +198,7 @@ def pyramid_from_mesh(path: Path, res: int, levels: int | None = None,
         files_sha256=scene.metadata[voxelize.REFERENCES].sha256,
         colour_read=surface.read if surface else "",
         colour_warnings=surface.warnings if surface else (),
-        tiles=tiles,
+        tiles=detail,
     )
 
 
@@ -289,20 +293,20 @@ def _occupancy(grid: np.ndarray, name: str) -> np.ndarray:
 
 def load_pyramid(path, res: int, levels: int | None = None, factor: float = LEVEL_FACTOR, min_size: int = MIN_SIZE,
                  check=None, colour: bool = True, asset_folder: Path | None = None,
-                 tile_bytes: int = appearance.MAX_TILE_BYTES) -> Pyramid:
+                 tile_bytes: int = appearance.MAX_TILE_BYTES, tiles: bool = True) -> Pyramid:
     """The pyramid of a mesh file (voxelised at `res`) or of an SSG .h5 file
     (which has no colour). check(sizes), if given, sees the level sizes
     before a mesh is voxelised, after an .h5 file is read. `colour`: read a
     mesh's colour, if it has any; `asset_folder`: where the files a mesh
     names may lie (default: its own folder); `tile_bytes`: the most its
-    colour tiles may take."""
+    tiles may take; `tiles`: make them (a mesh's surface at its detail)."""
     path = check_readable(path, "mesh or .h5 file")
     if path.suffix.lower() in PYRAMID_SUFFIXES:
         pyramid = pyramid_from_h5(path, levels)
         if check:
             check(pyramid.sizes)
         return pyramid
-    return pyramid_from_mesh(path, res, levels, factor, min_size, check, colour, asset_folder, tile_bytes)
+    return pyramid_from_mesh(path, res, levels, factor, min_size, check, colour, asset_folder, tile_bytes, tiles)
 
 
 def reference_grid(path, manifest, scale: float = 1.0) -> np.ndarray:
@@ -318,4 +322,4 @@ def reference_grid(path, manifest, scale: float = 1.0) -> np.ndarray:
         raise InputError("scale needs a mesh reference: an .h5 pyramid has one resolution", "scale")
     res = round(config.get("res", max(manifest.sizes[-1])) * scale)
     return load_pyramid(path, res=res, levels=1, factor=config.get("level_factor", LEVEL_FACTOR),
-                        min_size=config.get("min_size", MIN_SIZE), colour=False).levels[-1]
+                        min_size=config.get("min_size", MIN_SIZE), colour=False, tiles=False).levels[-1]

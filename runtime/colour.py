@@ -91,7 +91,7 @@ class Tiles:
 
     voxels: np.ndarray  # (N, 3) int64: the voxel of each tile
     directions: np.ndarray  # (N,) int64: 2 * axis + (1 looking from +, else 0)
-    mips: list  # RGB [(N, T, T, 3) uint8, (N, T/2, T/2, 3), ..., (N, 1, 1, 3)]
+    mips: list  # RGB [(N, T, T, 3) uint8, (N, T/2, T/2, 3), ..., (N, 1, 1, 3)]; [] for relief alone
     depth: np.ndarray  # (N, T, T) uint8: where the surface is along the tile's axis, 0..255 for -0.5..0.5 voxel
     slopes: np.ndarray  # (N, 2) float64: the surface's mean slope across the tile (depth per voxel along its rows, columns)
     along: np.ndarray  # (X, Y, Z, 6) int32: per voxel and direction, the tile it reads (-1: none)
@@ -100,12 +100,14 @@ class Tiles:
 
     @classmethod
     def of(cls, voxels: np.ndarray, directions: np.ndarray, images: np.ndarray, distance: np.ndarray) -> "Tiles":
+        """From a model's arrays: images (N, T, T, 4) sRGB and depth, or (N, T, T, 1) depth alone."""
         voxels, directions = voxels.astype(np.int64), directions.astype(np.int64)
-        depth = np.ascontiguousarray(images[..., 3])
+        depth = np.ascontiguousarray(images[..., -1])
         size = distance.shape
         own = np.full((*size, 6), -1, np.int32)
         own[voxels[:, 0], voxels[:, 1], voxels[:, 2], directions] = np.arange(len(voxels), dtype=np.int32)
-        return cls(voxels, directions, mip_levels(np.ascontiguousarray(images[..., :3])), depth, slopes(depth),
+        mips = mip_levels(np.ascontiguousarray(images[..., :3])) if images.shape[-1] == 4 else []
+        return cls(voxels, directions, mips, depth, slopes(depth),
                    reads_along(own), own, distance.astype(np.float32) * np.float32(DISTANCE_STEP))
 
     @staticmethod

@@ -84,9 +84,14 @@ class Model:
     decoder_planes: Stage
     decoder_head: Stage
     head: HeadWeights
-    tiles: object = None  # format 5: the example's colour (colour.Tiles), read by correspondence
-    matcher: object = None  # its matcher, made on the first coloured sample (colour.matcher)
+    tiles: object = None  # format 5: the example's surface (colour.Tiles), read by correspondence
+    matcher: object = None  # its matcher, made on the first sample that reads the tiles (colour.matcher)
     faces_per_voxel: float | None = None  # its reconstruction's, at scale 1: measured when first needed (mesh.py)
+
+    @property
+    def colour_tiles(self):
+        """Its tiles where they hold colour (a coloured format-5 model), else None (relief alone, or none)."""
+        return self.tiles if self.manifest.colour else None
 
 
 def default_threads() -> int:
@@ -270,33 +275,36 @@ def read_head(model: onnxfile.OnnxModel, manifest: fmt.Manifest, path: Path) -> 
 
 
 def read_tiles(model: onnxfile.OnnxModel, manifest: fmt.Manifest, path: Path):
-    """A format-5 model's colour tiles, checked against its manifest and its
-    finest level: (N, 3) voxels inside it, (N,) directions below 6, each
-    pair once and a voxel's tiles together, (N, T, T, 4) images, and the
-    level's (X, Y, Z) signed distance grid."""
+    """A format-5 model's surface tiles, checked against its manifest and
+    its finest level: (N, 3) voxels inside it, (N, ) directions below 6, each
+    pair once and a voxel's tiles together, (N, T, T, 4) images (a
+    relief-only model's (N, T, T, 1)), and the level's (X, Y, Z) signed
+    distance grid."""
     count, side = manifest.tiles
+    kind = "colour" if manifest.colour else "relief"
     names = fmt.TILE_TENSORS
     if any(name not in model.weights for name in names):
-        raise InputError(f"{path}: its colour tiles are missing ({', '.join(names)})")
+        raise InputError(f"{path}: its {kind} tiles are missing ({', '.join(names)})")
     try:
         voxels, directions, images, distance = (
-            onnxfile.tensor_array(model.weights[name], kind) for name, kind in
+            onnxfile.tensor_array(model.weights[name], dtype) for name, dtype in
             zip(names, (onnxfile.INT32, onnxfile.UINT8, onnxfile.UINT8, onnxfile.INT8)))
     except ValueError as error:
         raise InputError(f"{path}: corrupt model: {error}") from None
     size = np.array(manifest.sizes[-1])
-    if voxels.shape != (count, 3) or directions.shape != (count,) or images.shape != (count, side, side, 4):
-        raise InputError(f"{path}: colour tiles of shapes {voxels.shape}, {directions.shape}, {images.shape} "
+    channels = manifest.tile_channels
+    if voxels.shape != (count, 3) or directions.shape != (count,) or images.shape != (count, side, side, channels):
+        raise InputError(f"{path}: {kind} tiles of shapes {voxels.shape}, {directions.shape}, {images.shape} "
                          f"do not match the manifest's {count} of side {side}")
     if distance.shape != tuple(size):
-        raise InputError(f"{path}: a colour distance grid of shape {distance.shape}, not the finest level's "
+        raise InputError(f"{path}: a {kind} distance grid of shape {distance.shape}, not the finest level's "
                          f"{tuple(int(n) for n in size)}")
     if not (np.all((voxels >= 0) & (voxels < size)) and np.all(directions < 6)):
-        raise InputError(f"{path}: colour tiles lie outside the model's finest level")
+        raise InputError(f"{path}: {kind} tiles lie outside the model's finest level")
     key = ((voxels[:, 0].astype(np.int64) * size[1] + voxels[:, 1]) * size[2] + voxels[:, 2]) * 6 + directions
     if np.any(np.diff(key) <= 0):
-        raise InputError(f"{path}: colour tiles are not each once, in order of their voxel")
-    check_memory(Tiles.bytes(count, side, size), f"the colour tiles of {path.name}")
+        raise InputError(f"{path}: {kind} tiles are not each once, in order of their voxel")
+    check_memory(Tiles.bytes(count, side, size), f"the {kind} tiles of {path.name}")
     return Tiles.of(voxels, directions, images, distance)
 
 

@@ -231,17 +231,20 @@ def held_per_face(smooth: int = 0, suffix: str = ".ply", largest: bool = False) 
 
 
 def paint(mesh, model, triplane, scale: float = 1.0) -> None:
-    """Give a mesh in model coordinates a coloured model's relief and colour
-    at its vertices (their final places, after smoothing): on a grid at
-    least colour.RELIEF_SCALE times finer than the voxels, a format-5
-    model's vertices move by its example's relief; then each takes 8-bit
-    sRGB, the colour around it (a vertex of a grid `scale` times finer
-    stands for 1 / scale voxels). A geometry-only model's mesh is left as
-    it is."""
-    if model.manifest.colour and len(mesh.vertices):
-        surface = colour.colouring(model, triplane)
-        if scale >= colour.RELIEF_SCALE:
-            mesh.vertices = surface.relief(mesh.vertices)
+    """Give a mesh in model coordinates its model's relief and colour at its
+    vertices (their final places, after smoothing): on a grid at least
+    colour.RELIEF_SCALE times finer than the voxels, a format-5 model's
+    vertices move by its example's relief; then a coloured model's each take
+    8-bit sRGB, the colour around it (a vertex of a grid `scale` times finer
+    stands for 1 / scale voxels). A model with neither leaves the mesh as it
+    is."""
+    relief = model.tiles is not None and scale >= colour.RELIEF_SCALE
+    if not len(mesh.vertices) or not (relief or model.manifest.colour):
+        return
+    surface = colour.colouring(model, triplane)
+    if relief:
+        mesh.vertices = surface.relief(mesh.vertices)
+    if model.manifest.colour:
         mesh.visual.vertex_colors = colour_bytes(surface(mesh.vertices, 1 / scale))
 
 

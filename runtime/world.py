@@ -889,7 +889,7 @@ def tile_occupancy(model, seed: int, tile, scale: float = 1.0, memory_limit: int
     occupancy = np.ascontiguousarray(sigmoid(logits).transpose(order))
     if not colour:
         return occupancy
-    if model.tiles is not None and not options.lod or options.models:  # as the tile's vertices are coloured
+    if model.colour_tiles is not None and not options.lod or options.models:  # as the tile's vertices are coloured
         grid = tile_grid(model, layout, scale, options)
         points = np.stack(np.meshgrid(*grid.positions, indexing="ij"), axis=-1).reshape(-1, 3)
         return occupancy, tile_colours(model, seed, tile, points, options, 1 / scale)[:, :3].reshape(*occupancy.shape, 3)
@@ -1050,7 +1050,7 @@ def tile_colours(model, seed: int, tile, vertices: np.ndarray, options: WorldOpt
     example lacks shows in the distance either. A scatter world's ground is
     grey. A vertex on a face two tiles share gets the same colour from
     both. Returns (n, 4) uint8 RGBA."""
-    if not options.models and (model.tiles is None or options.lod):
+    if not options.models and (model.colour_tiles is None or options.lod):
         _, hidden, ground = point_field(model, seed, tile, vertices, options)
         rgb = head_colour(model.head, hidden)
     else:  # each vertex its heaviest window's (or its object's) colour, read from the example or its model's head
@@ -1062,12 +1062,12 @@ def tile_colours(model, seed: int, tile, vertices: np.ndarray, options: WorldOpt
             each, own = object_model(model, options, k)
             if not len(index):
                 continue
-            if each.tiles is not None and not options.lod:
+            if each.colour_tiles is not None and not options.lod:
                 rgb[index] = window_colouring(each, own, seed, a, b, arrange)(cells, footprint)
             elif each.manifest.colour:
                 rgb[index] = head_colour(each.head, hidden[index, :each.manifest.hidden])
-                if each.tiles is not None:
-                    palettes.append((index, each.tiles))
+                if each.colour_tiles is not None:
+                    palettes.append((index, each.colour_tiles))
             else:
                 rgb[index] = GROUND_COLOUR
     rgb[ground] = GROUND_COLOUR
@@ -1075,8 +1075,8 @@ def tile_colours(model, seed: int, tile, vertices: np.ndarray, options: WorldOpt
     if options.models:
         for index, tiles in palettes:
             out[index, :3] = nearest_in_palette(out[index, :3], example_palette(tiles))
-    elif model.tiles is not None and options.lod:
-        out[~ground, :3] = nearest_in_palette(out[~ground, :3], example_palette(model.tiles))
+    elif model.colour_tiles is not None and options.lod:
+        out[~ground, :3] = nearest_in_palette(out[~ground, :3], example_palette(model.colour_tiles))
     return out
 
 

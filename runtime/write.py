@@ -162,10 +162,13 @@ def write_sample(model, triplane, path, scale: float = 1.0, smooth: int = 0, smo
     mesh.check_frame(frame)
     pieces = mesh.pieces(model, triplane, scale, progress=mesh_progress, threads=threads)
     colour = model.manifest.colour
-    if colour:  # each piece's new vertices moved by relief and coloured as they come (mesh.paint): the cost is per vertex
+    # Each piece's new vertices moved by relief and coloured as they come (mesh.paint): the cost is per vertex.
+    relief = model.tiles is not None and scale >= RELIEF_SCALE
+    if relief or colour:
         surface = colouring(model, triplane)
-        if scale >= RELIEF_SCALE:
-            pieces = ((surface.relief(v), f) for v, f in pieces)
+    if relief:
+        pieces = ((surface.relief(v), f) for v, f in pieces)
+    if colour:
         pieces = ((v, f, mesh.colour_bytes(surface(v, 1 / scale))) for v, f in pieces)
     if frame == "input":
         pieces = ((mesh.in_frame(v, model.manifest), *rest) for v, *rest in pieces)

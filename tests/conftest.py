@@ -145,6 +145,19 @@ def tiny_colour_model(tmp_path_factory):
     return trained_or_committed(tmp_path_factory, PAINTED_BOX, TINY_COLOUR_ONNX)
 
 
+# A geometry-only model with its example's relief (format 5, `relief`), made by the real trainer once with
+#   sinrun train tests/data/relief/ridged_box.ply -o tiny_relief.onnx --preset tiny --iters 60 --lr 1e-3 --up z
+# on the block whose top carries ridges finer than a voxel (tests/data/relief).
+TINY_RELIEF_ONNX = Path(__file__).parent / "data" / "tiny_relief.onnx"
+RIDGED_BOX = Path(__file__).parent / "data" / "relief" / "ridged_box.ply"
+
+
+@pytest.fixture(scope="session")
+def tiny_relief_model(tmp_path_factory):
+    """tiny_model's counterpart with relief, on the ridged block (see trained_or_committed)."""
+    return trained_or_committed(tmp_path_factory, RIDGED_BOX, TINY_RELIEF_ONNX)
+
+
 @pytest.fixture(scope="session")
 def addon():
     """The Blender extension (blender/), registered in this process's Blender

@@ -96,6 +96,29 @@ def test_faces_that_no_texels_ray_meets_make_tiles_too(tmp_path):
     assert (np.abs(tiles.images[..., :3].astype(int) - (200, 60, 40)).max(axis=-1) <= 2).mean() > 0.9
 
 
+def test_a_geometry_only_examples_depth_tiles_keep_its_relief_finer_than_a_voxel():
+    # The ridged block (tests/data/relief) at res 16: voxels of 0.125, ridges 0.03 high (a quarter
+    # voxel) over 0.19 of every 0.25. Its tiles hold depth alone, as finely as its faces are cut.
+    from conftest import RIDGED_BOX
+
+    scene, box_low, spacing, solid = grid_of(RIDGED_BOX)
+    surface = appearance.relief_surface(scene)
+    assert surface.colour is None
+    tiles = appearance.example_tiles(surface, box_low, spacing, solid)
+    assert tiles.images.shape[1:] == (16, 16, 1)  # its profile's columns 1/64 apart, 8 a voxel: twice that
+    read = colour.Tiles.of(tiles.voxels, tiles.directions, tiles.images, tiles.distance)
+    # Points along the top, flat (where a voxel grid's smooth surface would put them), take its ridges.
+    x = np.linspace(-0.95, 0.95, 400)
+    flat = np.stack([x, np.zeros_like(x), np.full_like(x, 1.015)], axis=1)
+    moved = colour.relief(read, lambda voxels: voxels, (flat - box_low) / spacing - 0.5, np.array(solid.shape))
+    height = box_low[2] + (moved[:, 2] + 0.5) * spacing[2]
+    phase = (x + 1) % 0.25
+    ridge, joint = (phase > 0.03) & (phase < 0.16), (phase > 0.2) & (phase < 0.24)
+    assert ridge.sum() > 100 and joint.sum() > 30
+    assert 0.022 < height[ridge].mean() - height[joint].mean() < 0.038
+    assert height[ridge].min() > height[joint].max()  # every ridge above every joint
+
+
 def off_the_line(rgb, a, b) -> np.ndarray:
     """Each colour's distance (8-bit steps) from the nearest blend of colours
     a and b, and where along a..b it lies: ((n,), (n,) in [0, 1])."""

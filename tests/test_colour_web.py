@@ -27,7 +27,8 @@ from sinshape.runtime.generate import sample
 
 COLOUR_ONNX = Path(__file__).parent / "data" / "tiny_colour.onnx"  # format 5: colour tiles
 HEAD_ONNX = Path(__file__).parent / "data" / "tiny_colour_v4.onnx"  # format 4: a colour head
-NAME, HEAD_NAME = COLOUR_ONNX.stem, HEAD_ONNX.stem
+RELIEF_ONNX = Path(__file__).parent / "data" / "tiny_relief.onnx"  # format 5: geometry only, relief tiles
+NAME, HEAD_NAME, RELIEF_NAME = COLOUR_ONNX.stem, HEAD_ONNX.stem, RELIEF_ONNX.stem
 TOLERANCE = 1e-4  # the runtimes' occupancy agrees within it (tests/test_web.py): so must a colour head's colours
 SAME_BYTES = 0.995  # the share of vertices whose colour bytes must be Python's, a format-5 sample made by each runtime
 SAME_MATCHES = 0.97  # ...and of the band's voxels whose match must be (a match moved moves a few vertices' colour)
@@ -82,8 +83,8 @@ def headed():
 
 @pytest.fixture(scope="module")
 def colour_page(tmp_path_factory, browser):  # noqa: F811
-    """A site of the coloured models (and the terrain, grey), in chromium."""
-    with exported_site_page(browser, [str(COLOUR_ONNX), str(HEAD_ONNX), "terrain"],
+    """A site of the coloured models, the relief-only one and the terrain (grey), in chromium."""
+    with exported_site_page(browser, [str(COLOUR_ONNX), str(HEAD_ONNX), str(RELIEF_ONNX), "terrain"],
                             tmp_path_factory.mktemp("colour") / "site") as page:
         yield page
 
@@ -218,13 +219,39 @@ def test_a_format_5_samples_matches_and_colours_are_pythons(colour_page, coloure
     assert len(np.unique(mesh.colour_bytes(expected), axis=0)) > 2  # the sample shows the example's colours
 
 
-def altered(path: Path, change) -> Path:
-    """The format-5 model with its proto changed, sealed again (the change is what is checked)."""
+# Runs in the page: a sample's mesh at `scale` as the browser meshes it, and as its worker paints it.
+RELIEF_JS = """async ([name, seed, scale]) => {""" + IN_PAGE + """
+  const tri = await s.sample(model, seed, [1, 1, 1]);
+  const mesh = s.surface(await s.dense(model, tri, scale), tri.size, model.manifest);
+  const painted = await s.paintMesh(model, tri, mesh.positions, scale);
+  return { positions: b64(mesh.positions), painted: b64(painted.positions), colours: painted.colours };
+}"""
+
+
+@pytest.mark.parametrize("scale", [1, 2])
+def test_a_geometry_only_models_relief_in_the_page_is_pythons(colour_page, scale):
+    # A relief-only model's mesh in the browser: at scale 2 each vertex where Python's relief moves
+    # it (near-ties apart, as for colour), at scale 1 where it lies; never coloured.
+    model = load.load_model(RELIEF_ONNX, threads=2)
+    assert not model.manifest.colour and model.tiles is not None
+    made = colour_page.evaluate(RELIEF_JS, [RELIEF_NAME, 4, scale])
+    assert made["colours"] is None
+    positions, painted = unb64(made["positions"], np.float32, 3), unb64(made["painted"], np.float32, 3)
+    coords = (positions - np.asarray(model.manifest.origin)) / np.asarray(model.manifest.spacing)
+    expected = colour.colouring(model, sample(model, 4)).relief(coords) if scale >= colour.RELIEF_SCALE else coords
+    placed = (np.abs(painted - mesh.in_frame(expected, model.manifest)) < 1e-5).all(axis=1)
+    assert len(placed) > 1000 and placed.mean() >= SAME_BYTES, f"{placed.mean():.4%} placed as Python places them"
+    moved = np.abs(painted - positions).max() / min(model.manifest.spacing)  # in voxels
+    assert (moved > 0.05) == (scale >= colour.RELIEF_SCALE)
+
+
+def altered(path: Path, change, source: Path = COLOUR_ONNX) -> Path:
+    """A format-5 model (`source`) with its proto changed, sealed again (the change is what is checked)."""
     import onnx
 
     from conftest import sealed_bytes
 
-    proto = onnx.load(COLOUR_ONNX)
+    proto = onnx.load(source)
     change(proto)
     path.write_bytes(sealed_bytes(proto))
     return path
@@ -294,6 +321,41 @@ def test_damaged_tiles_are_refused_as_the_python_loader_refuses_them(colour_page
     assert "buffer size must be a multiple of element size" in messages["ragged"]
     assert "T a power of two up to 64" in messages["side"]
     assert "a colour distance grid of shape" in messages["distance"]
+
+
+def manifest_edit(edit):
+    """A change of the model: its manifest's JSON edited by edit(dict)."""
+    def change(proto):
+        import json
+
+        prop = next(p for p in proto.metadata_props if p.key == fmt.METADATA_KEY)
+        manifest = json.loads(prop.value)
+        edit(manifest)
+        prop.value = json.dumps(manifest)
+    return change
+
+
+def test_a_relief_models_damaged_tiles_and_manifest_are_refused_as_python_refuses_them(colour_page, tmp_path):
+    tiles = {"count": 1, "side": 2}
+    cases = {
+        "four_channels": tile_array("colour_tiles.images", lambda a: np.repeat(a, 4, axis=-1)),
+        "missing": tile_array("colour_tiles.distance", None),
+        "both": manifest_edit(lambda m: m.update(colour={"space": "srgb", "tiles": tiles})),
+        "space": manifest_edit(lambda m: m["relief"].update(space="srgb")),
+        "v3": manifest_edit(lambda m: m.update(format_version=3)),
+        "v4": manifest_edit(lambda m: m.update(format_version=4, colour={"space": "srgb"})),
+    }
+    files = [altered(tmp_path / f"{name}.onnx", change, RELIEF_ONNX) for name, change in cases.items()]
+    messages = dict(zip(cases, load_in_page(colour_page, files)))
+    for path, message in zip(files, messages.values()):
+        with pytest.raises(InputError) as python:
+            load.load_model(path)
+        assert message == str(python.value).replace(str(path), path.name)
+    assert "relief tiles of shapes" in messages["four_channels"]
+    assert "its relief tiles are missing" in messages["missing"]
+    assert "colour or relief, not both" in messages["both"] and "needs colour" in messages["space"]
+    assert "relief is read from format 5 on, not 3" in messages["v3"]
+    assert "relief is read from format 5 on, not 4" in messages["v4"]
 
 
 # Runs in the page: a format-5 tile's mesh and colours as the browser makes them, and what they come

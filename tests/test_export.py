@@ -55,6 +55,47 @@ def test_a_coloured_model_is_format_5_and_a_plain_one_format_3(tiny_model, tiny_
     assert weights["colour_tiles.distance"].dtype == np.int8
 
 
+def manifest_of(path) -> dict:
+    return json.loads({p.key: p.value for p in onnx.load(path).metadata_props}[manifest.METADATA_KEY])
+
+
+def test_a_geometry_only_mesh_model_is_format_5_with_its_relief_alone(tiny_relief_model):
+    m = manifest_of(tiny_relief_model)
+    assert m["format_version"] == 5 and "colour" not in m and set(m["relief"]) == {"tiles"}
+    count, side = m["relief"]["tiles"]["count"], m["relief"]["tiles"]["side"]
+    assert m["stages"]["decoder_head"]["outputs"] == ["decoder_head.occupancy"]
+    weights = {t.name: onnx.numpy_helper.to_array(t) for t in onnx.load(tiny_relief_model).graph.initializer}
+    assert weights["colour_tiles.images"].shape == (count, side, side, 1) and side >= 4
+
+
+def test_relief_added_to_a_model_trained_before_it_is_the_trainers_own(tiny_relief_model, tmp_path):
+    # The relief model as a format-3 file (what training gave before relief), then export.add_relief
+    # from the same mesh: the tiles and manifest the trainer wrote, to the byte; another mesh is refused.
+    from conftest import PAINTED_BOX, RIDGED_BOX, sealed_bytes
+    from sinshape.core.errors import InputError
+    from sinshape.trainer.export import add_relief
+
+    proto = onnx.load(tiny_relief_model)
+    for tensor in [t for t in proto.graph.initializer if t.name in manifest.TILE_TENSORS]:
+        proto.graph.initializer.remove(tensor)
+    old = manifest_of(tiny_relief_model)
+    plain = {k: v for k, v in old.items() if k != "relief"} | {"format_version": 3}
+    next(p for p in proto.metadata_props if p.key == manifest.METADATA_KEY).value = json.dumps(plain)
+    before = tmp_path / "before.onnx"
+    before.write_bytes(sealed_bytes(proto))
+    assert load.load_model(before).tiles is None
+    after = tmp_path / "after.onnx"
+    assert add_relief(before, RIDGED_BOX, after) == old
+    tiles, again = load.load_model(tiny_relief_model).tiles, load.load_model(after).tiles
+    for name in ("voxels", "directions", "depth", "distance"):
+        np.testing.assert_array_equal(getattr(again, name), getattr(tiles, name))
+    with pytest.raises(InputError, match="not the file"):
+        add_relief(before, PAINTED_BOX, tmp_path / "wrong.onnx")
+    with pytest.raises(InputError, match="not a geometry-only model without tiles"):
+        add_relief(after, RIDGED_BOX, tmp_path / "twice.onnx")
+    assert not (tmp_path / "wrong.onnx").exists() and not (tmp_path / "twice.onnx").exists()
+
+
 @pytest.mark.parametrize("seed, factors", [(None, (1, 1, 1)), (11, (1, 1, 1)), (12, (1.5, 1, 0.7))])
 @pytest.mark.parametrize("coloured", [False, True])
 def test_onnxruntime_equals_torch(tiny_model, tiny_colour_model, seed, factors, coloured):

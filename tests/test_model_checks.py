@@ -255,6 +255,15 @@ NONSENSE = {
     "v4_linear": (set_field(lambda m: m.update(format_version=4, colour={"space": "linear"})), "colour must be"),
     "v4_without_colour_output": (set_field(lambda m: m.update(format_version=4, colour={"space": "srgb"})),
                                  "stages"),
+    # relief: only from format 5, alone or as colour's tiles, never both
+    "relief_in_v3": (set_field(lambda m: m.update(relief={"tiles": {"count": 1, "side": 2}})),
+                     "relief is read from format 5 on, not 3"),
+    "v5_without_tiles": (set_field(lambda m: m.update(format_version=5)), "needs colour"),
+    "v5_relief_in_srgb": (set_field(lambda m: m.update(format_version=5, relief={
+        "space": "srgb", "tiles": {"count": 1, "side": 2}})), "needs colour"),
+    "v5_colour_and_relief": (set_field(lambda m: m.update(format_version=5, relief={"tiles": {"count": 1, "side": 2}},
+                                                          colour={"space": "srgb", "tiles": {"count": 1, "side": 2}})),
+                             "colour or relief, not both"),
 }
 
 

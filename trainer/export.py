@@ -13,6 +13,7 @@ outputs; the runtime cuts the graph into one session per stage.
 
 import importlib.metadata
 import json
+from pathlib import Path
 
 import numpy as np
 import onnx
@@ -126,7 +127,7 @@ def add_decoder(g: GraphBuilder, decoder, plane_names: dict, head_names: dict) -
 
 def build_model(generator, manifest: dict, tiles=None) -> onnx.ModelProto:
     """The ONNX model of a generator with its manifest in the metadata, and
-    a coloured example's tiles (prep.appearance.Tiles) as data."""
+    its example's surface tiles (prep.appearance.Tiles) as data."""
     stages = manifest["stages"]
     g = GraphBuilder()
     add_projection(g, generator.projection, stages["projection"])
@@ -156,10 +157,13 @@ def build_model(generator, manifest: dict, tiles=None) -> onnx.ModelProto:
 
 def make_manifest(generator, *, sizes, noise_amps, config, pyramid, seconds, ran_on: dict) -> dict:
     """The manifest dict (build_model checks it): format 5 with `colour` and
-    its tiles for a coloured example, format 4 for a coloured decoder
-    without tiles, else format 3, as before colour."""
+    its tiles for a coloured example, format 5 with `relief` and its depth
+    tiles for a geometry-only example that had a mesh, format 4 for a
+    coloured decoder without tiles, else format 3, as before colour."""
     colour = generator.decoder.fc_colour is not None
-    tiles = getattr(pyramid, "tiles", None) if colour else None
+    tiles = getattr(pyramid, "tiles", None)
+    if tiles is not None and (tiles.images.shape[-1] == 4) != colour:
+        raise ValueError("a coloured model needs colour tiles, a geometry-only one depth tiles")
     version = fmt.TILES_VERSION if tiles is not None else fmt.COLOUR_VERSION if colour else fmt.FORMAT_VERSION
     manifest = {
         "format": fmt.FORMAT_NAME,
@@ -184,8 +188,11 @@ def make_manifest(generator, *, sizes, noise_amps, config, pyramid, seconds, ran
             **ran_on,
         },
     }
-    if tiles is not None:
-        manifest["colour"] = {**fmt.COLOUR_SPACE, "tiles": {"count": len(tiles.voxels), "side": tiles.images.shape[1]}}
+    counts = {"count": len(tiles.voxels), "side": tiles.images.shape[1]} if tiles is not None else None
+    if tiles is not None and colour:
+        manifest["colour"] = {**fmt.COLOUR_SPACE, "tiles": counts}
+    elif tiles is not None:
+        manifest["relief"] = {"tiles": counts}
     elif colour:
         manifest["colour"] = fmt.COLOUR_SPACE
     return manifest
@@ -201,4 +208,46 @@ def export_model(generator, *, sizes, noise_amps, config, pyramid, seconds, path
     model = build_model(generator, manifest, tiles)
     data = fmt.seal(model.SerializeToString())  # what onnx.save_model writes, then the seal
     atomic_write(path, lambda f: f.write(data))
+    return manifest
+
+
+def add_relief(model_path, source_path, out_path) -> dict:
+    """A geometry-only model (format 3) written again with its example's
+    relief (format 5, `relief`): the depth tiles the trainer would have made
+    from the mesh it was trained on, so that a model trained before relief
+    need not be trained again. The mesh is voxelised with the model's own
+    settings, and refused unless its file's SHA-256, its level sizes and its
+    frame are the model's. Returns the new manifest."""
+    from sinshape.core.errors import InputError
+    from sinshape.prep.pyramid import LEVEL_FACTOR, MIN_SIZE, pyramid_from_mesh
+
+    model = onnx.load_model(str(model_path))
+    props = {p.key: p.value for p in model.metadata_props}
+    manifest = json.loads(props[fmt.METADATA_KEY])
+    parsed = fmt.parse(props[fmt.METADATA_KEY])
+    if parsed.colour or parsed.tiles:
+        raise InputError(f"{model_path}: not a geometry-only model without tiles (format {manifest['format_version']})")
+    config = manifest.get("config", {})
+    pyramid = pyramid_from_mesh(Path(source_path), config.get("res", max(parsed.sizes[-1])), len(parsed.sizes),
+                                config.get("level_factor", LEVEL_FACTOR), config.get("min_size", MIN_SIZE),
+                                colour=False)
+    if pyramid.source_sha256 != manifest["source"]["sha256"]:
+        raise InputError(f"{source_path}: not the file {model_path} was trained on (its SHA-256 differs)")
+    if pyramid.sizes != parsed.sizes or not (np.allclose(pyramid.origin, parsed.origin, rtol=0, atol=1e-9)
+                                             and np.allclose(pyramid.spacing, parsed.spacing, rtol=0, atol=1e-12)):
+        raise InputError(f"{source_path}: voxelised as {pyramid.sizes}, not as {model_path} was ({parsed.sizes})")
+    tiles = pyramid.tiles
+    manifest["format_version"] = fmt.TILES_VERSION
+    manifest.pop("checksum", None)
+    manifest["relief"] = {"tiles": {"count": len(tiles.voxels), "side": tiles.images.shape[1]}}
+    text = json.dumps(manifest, indent=1)
+    fmt.parse(text)
+    for name, array, dtype in zip(fmt.TILE_TENSORS, (tiles.voxels, tiles.directions, tiles.images, tiles.distance),
+                                  (np.int32, np.uint8, np.uint8, np.int8)):
+        model.graph.initializer.append(numpy_helper.from_array(np.ascontiguousarray(array.astype(dtype)), name))
+    del model.metadata_props[:]  # the seal among them: it is made again below
+    helper.set_model_props(model, {**{k: v for k, v in props.items() if k != fmt.SEAL_KEY}, fmt.METADATA_KEY: text})
+    onnx.checker.check_model(model, full_check=True)
+    data = fmt.seal(model.SerializeToString())
+    atomic_write(out_path, lambda f: f.write(data))
     return manifest

@@ -71,20 +71,23 @@ export class Tiles {
     Object.assign(this, { voxels, directions, mips, depth, slopes, along, own, distance, size, side });
   }
 
-  /** images: Uint8Array (N, T, T, 4), RGB and depth, of side T; distance: Int8Array (X, Y, Z). */
+  /** images: Uint8Array (N, T, T, 4), RGB and depth, or (N, T, T, 1) depth alone, of side T; distance:
+   * Int8Array (X, Y, Z). A relief-only model's tiles have no mips. */
   static of(voxels, directions, images, distance, size, side) {
-    const count = directions.length;
-    const rgb = new Uint8Array(count * side * side * 3), depth = new Uint8Array(count * side * side);
+    const count = directions.length, channels = images.length / (count * side * side);
+    const rgb = channels === 4 ? new Uint8Array(count * side * side * 3) : null, depth = new Uint8Array(count * side * side);
     for (let t = 0; t < count * side * side; t++) {
-      rgb[3 * t] = images[4 * t];
-      rgb[3 * t + 1] = images[4 * t + 1];
-      rgb[3 * t + 2] = images[4 * t + 2];
-      depth[t] = images[4 * t + 3];
+      if (rgb) {
+        rgb[3 * t] = images[4 * t];
+        rgb[3 * t + 1] = images[4 * t + 1];
+        rgb[3 * t + 2] = images[4 * t + 2];
+      }
+      depth[t] = images[channels * t + channels - 1];
     }
     const [X, Y, Z] = size, own = new Int32Array(X * Y * Z * 6).fill(-1);
     for (let t = 0; t < count; t++) own[6 * ((voxels[3 * t] * Y + voxels[3 * t + 1]) * Z + voxels[3 * t + 2]) + directions[t]] = t;
     const step = f32(DISTANCE_STEP);
-    return new Tiles(voxels, directions, mipLevels(rgb, count, side), depth, slopes(depth, count, side), readsAlong(own, size),
+    return new Tiles(voxels, directions, rgb ? mipLevels(rgb, count, side) : [], depth, slopes(depth, count, side), readsAlong(own, size),
       own, Float32Array.from(distance, (v) => f32(v * step)), size, side);
   }
 
@@ -926,14 +929,15 @@ export async function vertexColours(model, tri, positions, footprint = null) {
   return colours(model, tri, coords, footprint);
 }
 
-/** A coloured sample's mesh given its relief and colour, as runtime.mesh.paint: on a grid `scale` times finer
- * than the voxels, at least RELIEF_SCALE, a format-5 model's vertices (`positions`, the input's frame) move by its
- * example's relief; then each takes the colour around it (1 / scale voxels). { positions Float32Array, colours }. */
+/** A sample's mesh given its relief and colour, as runtime.mesh.paint: on a grid `scale` times finer than the
+ * voxels, at least RELIEF_SCALE, a format-5 model's vertices (`positions`, the input's frame) move by its
+ * example's relief; then a coloured model's each take the colour around it (1 / scale voxels).
+ * { positions Float32Array, colours (null for a geometry-only model) }. */
 export async function paintMesh(model, tri, positions, scale) {
   const { origin, spacing } = model.manifest;
   const surface = await colouring(model, tri);
   let coords = Float64Array.from(positions, (p, i) => (p - origin[i % 3]) / spacing[i % 3]);
-  if (scale >= RELIEF_SCALE) coords = surface.relief(coords);
+  if (model.tiles && scale >= RELIEF_SCALE) coords = surface.relief(coords);
   return { positions: Float32Array.from(coords, (c, i) => origin[i % 3] + c * spacing[i % 3]),
-           colours: surface(coords, 1 / scale) };
+           colours: model.manifest.colour ? surface(coords, 1 / scale) : null };
 }

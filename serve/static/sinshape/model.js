@@ -14,7 +14,7 @@ export { InputError };
 export const FORMAT_NAME = 'sinshape';
 export const FORMAT_VERSION = 3;  // 3 seals the file's bytes (seal.js); the page reads no older one
 export const COLOUR_VERSION = 4;  // 3 with a colour head (manifest `colour`)
-export const TILES_VERSION = 5;  // 4 with the example's colour as tiles, read by correspondence (`colour.tiles`)
+export const TILES_VERSION = 5;  // the example's surface as tiles, read by correspondence (`colour.tiles`, or `relief.tiles` alone)
 export const READ_VERSION = TILES_VERSION; // the newest version this code reads
 export const COLOUR_SPACE = { space: 'srgb' }; // manifest `colour`: values are sRGB-encoded in [0, 1]
 // Initializers of a format-5 model's tiles: (N, 3) int32 voxels, (N,) uint8 directions, (N, T, T, 4) uint8 images.
@@ -96,21 +96,26 @@ export function parseManifest(textValue) {
   if (version > READ_VERSION) {
     throw new InputError(`model format version ${version} is newer than this sinshape reads (${READ_VERSION}); upgrade sinshape`);
   }
-  const colour = version >= COLOUR_VERSION;
+  let colour = version >= COLOUR_VERSION;
   let tiles = null;
   if (version >= TILES_VERSION) {
-    const field = get(raw, 'colour', null);
+    // A coloured model's tiles are under `colour`, a relief-only model's under `relief`: one of the two.
+    const kind = 'colour' in raw ? 'colour' : 'relief';
+    const field = get(raw, kind, null);
     tiles = isObject(field) ? get(field, 'tiles', null) : null;
     const keys = (obj) => JSON.stringify(Object.keys(obj).sort());
-    need(isObject(field) && keys(field) === '["space","tiles"]' && field.space === 'srgb'
+    need(!('colour' in raw && 'relief' in raw), `format ${TILES_VERSION} has colour or relief, not both`);
+    need(isObject(field) && keys(field) === (kind === 'colour' ? '["space","tiles"]' : '["tiles"]') && (field.space ?? 'srgb') === 'srgb'
       && isObject(tiles) && keys(tiles) === '["count","side"]'
       && isInt(tiles.count, 1, 2 ** 31 - 1) && isInt(tiles.side, 1, MAX_TILE_SIDE) && (tiles.side & (tiles.side - 1)) === 0,
-    `colour must be {"space": "srgb", "tiles": {"count": N, "side": T}} in format ${TILES_VERSION}, `
-      + `T a power of two up to ${MAX_TILE_SIDE}`);
+    `format ${TILES_VERSION} needs colour {"space": "srgb", "tiles": {"count": N, "side": T}} or `
+      + `relief {"tiles": {"count": N, "side": T}}, T a power of two up to ${MAX_TILE_SIDE}`);
+    colour = kind === 'colour';
     tiles = [tiles.count, tiles.side];
   } else {
     need(colour ? sameJson(get(raw, 'colour', null), COLOUR_SPACE) : get(raw, 'colour', null) === null,
       `colour must be {"space": "srgb"} in format ${COLOUR_VERSION} and absent before it`);
+    need(!('relief' in raw), `relief is read from format ${TILES_VERSION} on, not ${version}`);
   }
   if (version === 2) {
     need(typeof raw.checksum === 'string' && /^sha256:[0-9a-f]{64}$/.test(raw.checksum), "checksum must be 'sha256:' and 64 hex digits");
@@ -248,32 +253,32 @@ function readHead(model, manifest, name) {
   return { bias1, weight2, bias2: bias2[0], weightColour, biasColour };
 }
 
-/** A format-5 model's colour tiles, checked against its manifest and its finest level (runtime/load.py:
+/** A format-5 model's surface tiles, checked against its manifest and its finest level (runtime/load.py:
  * read_tiles): (N, 3) voxels inside it, (N,) directions below 6, each pair once and a voxel's tiles
- * together, (N, T, T, 4) images. */
+ * together, (N, T, T, 4) images (a relief-only model's (N, T, T, 1)). */
 function readTiles(model, manifest, name) {
-  const [count, side] = manifest.tiles;
+  const [count, side] = manifest.tiles, kind = manifest.colour ? 'colour' : 'relief';
   const weights = new Map(model.graph.initializers.map((t) => [t.name, t]));
-  if (TILE_TENSORS.some((n) => !weights.has(n))) throw new InputError(`${name}: its colour tiles are missing (${TILE_TENSORS.join(', ')})`);
+  if (TILE_TENSORS.some((n) => !weights.has(n))) throw new InputError(`${name}: its ${kind} tiles are missing (${TILE_TENSORS.join(', ')})`);
   const tensors = TILE_TENSORS.map((n) => weights.get(n));
   const [voxels, directions, images, distance] = readArrays(tensors, [INT32, UINT8, UINT8, INT8], name);
   const size = manifest.sizes[manifest.sizes.length - 1];
-  if (!sameJson(tensors[0].dims, [count, 3]) || !sameJson(tensors[1].dims, [count]) || !sameJson(tensors[2].dims, [count, side, side, 4])) {
-    throw new InputError(`${name}: colour tiles of shapes ${tensors.slice(0, 3).map((t) => pyTuple(t.dims)).join(', ')} `
+  if (!sameJson(tensors[0].dims, [count, 3]) || !sameJson(tensors[1].dims, [count]) || !sameJson(tensors[2].dims, [count, side, side, manifest.colour ? 4 : 1])) {
+    throw new InputError(`${name}: ${kind} tiles of shapes ${tensors.slice(0, 3).map((t) => pyTuple(t.dims)).join(', ')} `
       + `do not match the manifest's ${count} of side ${side}`);
   }
   if (!sameJson(tensors[3].dims, size)) {
-    throw new InputError(`${name}: a colour distance grid of shape ${pyTuple(tensors[3].dims)}, not the finest level's ${pyTuple(size)}`);
+    throw new InputError(`${name}: a ${kind} distance grid of shape ${pyTuple(tensors[3].dims)}, not the finest level's ${pyTuple(size)}`);
   }
   if (!voxels.every((v, i) => v >= 0 && v < size[i % 3]) || !directions.every((d) => d < 6)) {
-    throw new InputError(`${name}: colour tiles lie outside the model's finest level`);
+    throw new InputError(`${name}: ${kind} tiles lie outside the model's finest level`);
   }
   for (let i = 1; i < count; i++) { // each (voxel, direction) once, in order: keys rise
     const key = (t) => ((voxels[3 * t] * size[1] + voxels[3 * t + 1]) * size[2] + voxels[3 * t + 2]) * 6 + directions[t];
-    if (key(i) <= key(i - 1)) throw new InputError(`${name}: colour tiles are not each once, in order of their voxel`);
+    if (key(i) <= key(i - 1)) throw new InputError(`${name}: ${kind} tiles are not each once, in order of their voxel`);
   }
   if (Tiles.bytes(count, side, size) > TAB_BYTES) {
-    throw new InputError(`${name}: its colour tiles need more memory than a page should take`);
+    throw new InputError(`${name}: its ${kind} tiles need more memory than a page should take`);
   }
   return Tiles.of(voxels, directions, images, distance, size, side);
 }
@@ -322,12 +327,17 @@ export function configure({ threads = null, wasmPaths = null } = {}) {
   return configured;
 }
 
+/** Its tiles where they hold colour (a coloured format-5 model), else null (relief alone, or none): runtime/load.py's Model.colour_tiles. */
+export function colourTiles(model) {
+  return model.manifest.colour ? model.tiles : null;
+}
+
 /**
  * Load and check a model from its bytes (Uint8Array). Its stages run on
  * onnxruntime-web's WASM backend, on `threads` threads (configure's default
  * when null). Returns { name, manifest, projection, levels, decoderPlanes,
  * decoderHead, head, tiles (format 5: colour.js's Tiles, else null), matcher
- * (made by colour.js on the first coloured sample), backend: 'wasm', threads }.
+ * (made by colour.js on the first sample that reads the tiles), backend: 'wasm', threads }.
  */
 export async function loadModel(bytes, { name = 'model.onnx', threads = null } = {}) {
   const { model, manifest } = readChecked(bytes, name);

@@ -57,8 +57,8 @@ async function sample({ name, request }, progress) {
   const grid = await sinshape.dense(model, tri, wanted.scale, (f) => progress('querying the grid', f));
   const mesh = sinshape.surface(grid, tri.size, model.manifest, (f) => progress('meshing', f));
   sinshape.smooth(mesh, wanted.smooth, 0.5, (f) => progress('smoothing', f));
-  // A coloured sample's relief and colour, as runtime.mesh.paint (each colour stands for the grid's spacing).
-  const { positions, colours } = model.manifest.colour ? await sinshape.paintMesh(model, tri, mesh.positions, wanted.scale)
+  // A sample's relief and colour, as runtime.mesh.paint (each colour stands for the grid's spacing).
+  const { positions, colours } = model.manifest.colour || model.tiles ? await sinshape.paintMesh(model, tri, mesh.positions, wanted.scale)
     : { positions: mesh.positions, colours: null };
   return { positions, faces: mesh.faces, colours, seconds: (performance.now() - started) / 1000 };
 }

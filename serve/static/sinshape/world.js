@@ -29,6 +29,7 @@
 import { InputError, formatG, pyRepr, pyTuple } from './errors.js';
 import { checkSeed, drawNoise, roundHalfEven, scaledSizes, triplane } from './generate.js';
 import { marchingCubes } from './mesh.js';
+import { colourTiles } from './model.js';
 import { GOLDEN, mix64Big, streamKey } from './noise.js';
 import { PLANE_AXES, TAB_BYTES, addBilinear, headColour, project } from './query.js';
 
@@ -800,14 +801,14 @@ async function snapToExample(tiles, out, index) {
 export async function tileColours(model, seed, tile, positions, options = PLAIN, footprint = null) {
   seed = checkSeed(seed);
   const points = Float64Array.from(positions), n = points.length / 3, out = new Float32Array(3 * n);
-  if (!options.models.length && (!model.tiles || options.lod)) {
+  if (!options.models.length && (!colourTiles(model) || options.lod)) {
     const { hidden, ground } = await pointField(model, seed, checkTile(tile), points, options);
     const d = model.manifest.hidden;
     for (let v = 0; v < n; v++) {
       if (ground[v]) out.set(GROUND_COLOUR, 3 * v);
       else headColour(model.head, hidden, v * d, out, 3 * v);
     }
-    if (model.tiles) await snapToExample(model.tiles, out, Int32Array.from({ length: n }, (_, v) => v).filter((v) => !ground[v]));
+    if (colourTiles(model)) await snapToExample(colourTiles(model), out, Int32Array.from({ length: n }, (_, v) => v).filter((v) => !ground[v]));
     return out;
   }
   // Each vertex its heaviest window's (or its object's) colour, read from the example or its model's head.
@@ -816,12 +817,12 @@ export async function tileColours(model, seed, tile, positions, options = PLAIN,
   for (const { window: [a, b, arrange, k], index, cells } of sources) {
     const [each, own] = objectModel(model, options, k);
     if (!index.length) continue;
-    if (each.tiles && !options.lod) {
+    if (colourTiles(each) && !options.lod) {
       const read = (await windowColouring(each, own, seed, a, b, arrange))(cells, footprint);
       index.forEach((v, m) => out.set(read.subarray(3 * m, 3 * m + 3), 3 * v));
     } else if (each.manifest.colour) {
       for (const v of index) headColour(each.head, hidden, v * width, out, 3 * v);
-      if (each.tiles) palettes.push([index, each.tiles]);
+      if (colourTiles(each)) palettes.push([index, colourTiles(each)]);
     } else {
       for (const v of index) out.set(GROUND_COLOUR, 3 * v);
     }
