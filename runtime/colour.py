@@ -617,70 +617,66 @@ def nearest_in_palette(colours: np.ndarray, palette: np.ndarray, chunk: int = 25
     return palette[nearest[inverse.ravel()]]
 
 
-@dataclass(frozen=True)
-class Under:
-    """What lies under points of a sample in the example (`surface_under`)."""
-
-    tile: np.ndarray  # (n,) int64: the tile read
-    across: np.ndarray  # (n, 2): where on the tile's plane, in voxels from its centre
-    smooth: np.ndarray  # (n,) float64: the signed distance grid's value there (voxels, positive outside)
-    normal: np.ndarray  # (n, 3) float64: the example's outward unit normal there (the grid's gradient)
-    # Of the tiles of the one direction nearest that normal (the first of
-    # equals), the one whose surface is nearest: how far the point lies
-    # outside it along its normal (voxels), the cosine between the normal
-    # and that direction, and whether there is one.
-    height: np.ndarray  # (n,) float64
-    facing: np.ndarray  # (n,) float64
-    found: np.ndarray  # (n,) bool
-
-
-def surface_under(tiles: Tiles, matched, points: np.ndarray, grid) -> Under:
-    """The example's surface under points (n, 3) (sample model units) of a
-    sample whose voxels `matched` maps to example voxels. `grid`: the
-    sample's size; a point beyond its last voxel (a mesh closes half a voxel
-    outside) belongs to that voxel.
-
-    Point p in voxel u = round(p) stands for q = J(u) + (p - u) in the
-    example, near its surface but rarely on it. Of the tiles of its voxel
-    and of those beside it along each tile's axis, the one whose surface is
-    nearest q (REACH_ORDER, TURN) is read, at that surface's point nearest q."""
+def example_points(tiles: Tiles, matched, points: np.ndarray, grid) -> tuple:
+    """Where points (n, 3) (sample model units) of a sample whose voxels
+    `matched` maps to example voxels stand in the example, and what its
+    smooth surface is there. `grid`: the sample's size; a point beyond its
+    last voxel (a mesh closes half a voxel outside) belongs to that voxel.
+    Point p in voxel u = round(p) stands for q = J(u) + (p - u), near the
+    example's surface but rarely on it. Returns q (n, 3), the signed
+    distance grid's value there (n,) (voxels, positive outside), the
+    example's outward unit normal (n, 3) (the grid's gradient) and q's
+    voxel (n, 3) int64."""
     # Halves up, as in every runtime (numpy's rint rounds them to even).
     u = np.clip(np.floor(points + 0.5).astype(np.int64), 0, np.asarray(grid) - 1)
     q = matched(u) + (points - u)
     smooth, normal = trilinear(tiles.distance, q)
     normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
     voxel = np.clip(np.floor(q + 0.5).astype(np.int64), 0, np.array(tiles.distance.shape) - 1)
+    return q, smooth, normal, voxel
+
+
+def tile_under(tiles: Tiles, q: np.ndarray, voxel: np.ndarray, direction: np.ndarray, reach: int) -> tuple:
+    """The tile of each point's (n,) direction at its voxel moved `reach`
+    along the direction's axis, and that tile's surface under q (n, 3) as a
+    plane of its slope through its depth there: (tile (n,) int64, -1 for
+    none; q's distance outside it along its normal, scaled by 1 / lean;
+    where q lies on the tile's plane (n, 2); the slope (n, 2); lean =
+    1 + |slope|^2 (n,)). (Along the plane's normal, so that tiles of two
+    axes agree where they overlap.)"""
+    rows = np.arange(len(q))
+    axis = direction // 2
+    moved = voxel.copy()
+    moved[rows, axis] += reach
+    candidate = tiles.own_tiles(moved, direction)
+    safe = np.maximum(candidate, 0)
+    local = q - tiles.voxels[safe]
+    plane = np.take_along_axis(local, ACROSS[axis], axis=1)
+    slope = tiles.slopes[safe]
+    lean = 1 + np.einsum("nc,nc->n", slope, slope)
+    above = (local[rows, axis] - bilinear_depth(tiles.depth, safe, plane)) / lean
+    return candidate, above, plane, slope, lean
+
+
+def surface_under(tiles: Tiles, matched, points: np.ndarray, grid) -> tuple:
+    """The example's surface under points (n, 3) (sample model units) of a
+    sample whose voxels `matched` maps to example voxels (example_points):
+    of the tiles of q's voxel and of those beside it along each tile's axis,
+    the one whose surface is nearest q (REACH_ORDER, TURN), and where on
+    its plane that surface's point nearest q lies: ((n,) int64, (n, 2))."""
+    q, _, normal, voxel = example_points(tiles, matched, points, grid)
     best = np.full(len(points), np.inf)
     tile = np.zeros(len(points), np.int64)
     across = np.zeros((len(points), 2))
-    facings = np.stack([normal[:, d // 2] * (1 if d % 2 else -1) for d in range(6)], axis=1)
-    dominant = np.argmax(facings, axis=1)
-    nearest = np.full(len(points), np.inf)
-    height = np.zeros(len(points))
     for direction, reach in itertools.product(range(6), REACH_ORDER):
         axis, positive = divmod(direction, 2)
-        step = np.zeros(3, np.int64)
-        step[axis] = reach
-        candidate = tiles.own_tiles(voxel + step, np.full(len(points), direction))
-        has = candidate >= 0
-        candidate = np.maximum(candidate, 0)
-        local = q - tiles.voxels[candidate]
-        plane = local[:, ACROSS[axis]]
-        # The tile's surface under q as a plane of its slope through its
-        # depth there: q's distance to it, and its nearest point, along its
-        # normal (so that tiles of two axes agree where they overlap).
-        slope = tiles.slopes[candidate]
-        lean = 1 + np.einsum("nc,nc->n", slope, slope)
-        above = (local[:, axis] - bilinear_depth(tiles.depth, candidate, plane)) / lean
+        candidate, above, plane, slope, lean = tile_under(tiles, q, voxel, np.full(len(q), direction), reach)
         facing = normal[:, axis] * (1 if positive else -1)
         score = np.abs(above) * np.sqrt(lean) + TURN * (1 - facing)
-        better = has & (score < best)
+        better = (candidate >= 0) & (score < best)
         best[better], tile[better] = score[better], candidate[better]
         across[better] = (plane + above[:, None] * slope)[better]
-        closer = has & (dominant == direction) & (np.abs(above) * np.sqrt(lean) < nearest)
-        nearest[closer] = (np.abs(above) * np.sqrt(lean))[closer]
-        height[closer] = (above * np.sqrt(lean) * (1 if positive else -1))[closer]
-    return Under(tile, across, smooth, normal, height, facings[np.arange(len(points)), dominant], np.isfinite(nearest))
+    return tile, across
 
 
 def read_colours(tiles: Tiles, matched, points: np.ndarray, grid, footprint: float | None = None) -> np.ndarray:
@@ -689,8 +685,7 @@ def read_colours(tiles: Tiles, matched, points: np.ndarray, grid, footprint: flo
     says: (n, 3) float32 sRGB. `footprint`: the length a colour stands for
     (voxels), e.g. a vertex's spacing: its mip level averages the texture
     over it (None: full detail)."""
-    under = surface_under(tiles, matched, points, grid)
-    tile, across = across_tiles(tiles, under.tile, under.across)
+    tile, across = across_tiles(tiles, *surface_under(tiles, matched, points, grid))
     side = tiles.depth.shape[1]
     level = 0
     if footprint is not None and footprint > 0:
@@ -713,9 +708,20 @@ def relief(tiles: Tiles, matched, points: np.ndarray, grid) -> np.ndarray:
     direction turns from the normal (FACING: at an edge or a corner, where
     the smooth surface rounds what tiles of two directions hold).
     (n, 3) float64."""
-    under = surface_under(tiles, matched, points, grid)
-    lift = np.where(under.found, np.clip(under.smooth - under.height, -RELIEF, RELIEF), 0)
-    return points + (lift * np.clip((under.facing - FACING[0]) / (FACING[1] - FACING[0]), 0, 1))[:, None] * under.normal
+    q, smooth, normal, voxel = example_points(tiles, matched, points, grid)
+    facings = np.stack([normal[:, d // 2] * (1 if d % 2 else -1) for d in range(6)], axis=1)
+    dominant = np.argmax(facings, axis=1)  # the direction nearest the normal, the first of equals
+    nearest = np.full(len(points), np.inf)
+    height = np.zeros(len(points))  # how far q lies outside the nearest of that direction's tiles, along its normal
+    sign = np.where(dominant % 2, 1.0, -1.0)
+    for reach in REACH_ORDER:
+        candidate, above, _, _, lean = tile_under(tiles, q, voxel, dominant, reach)
+        closer = (candidate >= 0) & (np.abs(above) * np.sqrt(lean) < nearest)
+        nearest[closer] = (np.abs(above) * np.sqrt(lean))[closer]
+        height[closer] = (above * np.sqrt(lean) * sign)[closer]
+    lift = np.where(np.isfinite(nearest), np.clip(smooth - height, -RELIEF, RELIEF), 0)
+    fade = np.clip((facings[np.arange(len(points)), dominant] - FACING[0]) / (FACING[1] - FACING[0]), 0, 1)
+    return points + (lift * fade)[:, None] * normal
 
 
 def trilinear(grid: np.ndarray, points: np.ndarray) -> tuple:

@@ -714,61 +714,65 @@ export function nearestInPalette(palette, r, g, b) {
   return found;
 }
 
-/** The example's surface under points (n, 3) (Float64Array, sample model units) of a sample whose voxels
- * `matched` maps to example voxels, as runtime/colour.py's surface_under: { tile Int32Array (n,), across
- * Float64Array (n, 2), smooth (n,): the signed distance grid's value, normal (n, 3): the example's unit normal;
- * of the tiles of the direction nearest the normal, the nearest: height (n,): how far outside its surface, facing
- * (n,): the cosine of that direction to the normal, found Uint8Array (n,): whether there is one }. A point beyond the grid's last voxel
- * belongs to that voxel. */
-export function surfaceUnder(tiles, matched, points, grid) {
+/** Where points (n, 3) (Float64Array, sample model units) of a sample whose voxels `matched` maps to example
+ * voxels stand in the example, as runtime/colour.py's example_points: calls at(i, q, smooth, normal, voxel) for
+ * each point i with q (3), the signed distance grid's value there, the example's unit normal (3) and q's voxel
+ * (3). A point beyond the grid's last voxel belongs to that voxel. */
+function examplePoints(tiles, matched, points, grid, at) {
   const n = points.length / 3, u = new Int32Array(3 * n);
   for (let i = 0; i < 3 * n; i++) u[i] = Math.min(Math.max(Math.floor(points[i] + 0.5), 0), grid[i % 3] - 1); // halves up
   const example = matched(u);
-  const tile = new Int32Array(n), across = new Float64Array(2 * n), height = new Float64Array(n);
-  const smooth = new Float64Array(n), normals = new Float64Array(3 * n), found = new Uint8Array(n), facings = new Float64Array(n);
   const q = [0, 0, 0], normal = [0, 0, 0], voxel = [0, 0, 0];
-  const [X, Y, Z] = tiles.size, side = tiles.side;
   for (let i = 0; i < n; i++) {
     for (let a = 0; a < 3; a++) q[a] = example[3 * i + a] + (points[3 * i + a] - u[3 * i + a]);
-    smooth[i] = trilinear(tiles.distance, tiles.size, q, normal);
+    const smooth = trilinear(tiles.distance, tiles.size, q, normal);
     const length = Math.max(Math.sqrt(normal[0] * normal[0] + normal[1] * normal[1] + normal[2] * normal[2]), 1e-12);
     for (let a = 0; a < 3; a++) normal[a] /= length;
-    normals.set(normal, 3 * i);
-    for (let a = 0; a < 3; a++) voxel[a] = Math.min(Math.max(Math.floor(q[a] + 0.5), 0), [X, Y, Z][a] - 1);
-    let dominant = 0; // the direction nearest the normal, the first of equals (numpy's argmax)
-    for (let direction = 1; direction < 6; direction++) {
-      if (normal[direction >> 1] * (direction & 1 ? 1 : -1) > normal[dominant >> 1] * (dominant & 1 ? 1 : -1)) dominant = direction;
-    }
-    let best = Infinity, chosen = 0, first = 0, second = 0, nearest = Infinity, outside = 0;
+    for (let a = 0; a < 3; a++) voxel[a] = Math.min(Math.max(Math.floor(q[a] + 0.5), 0), tiles.size[a] - 1);
+    at(i, q, smooth, normal, voxel);
+  }
+}
+
+/** The tile of `direction` at `voxel` moved `reach` along its axis, and its surface under q as a plane of its
+ * slope through its depth there, as runtime/colour.py's tile_under: null for none, else { tile, above: q's
+ * distance outside it along its normal over lean, a, b: where q lies on the tile's plane, sa, sb: the slope, lean }. */
+function tileUnder(tiles, q, voxel, direction, reach) {
+  const axis = direction >> 1, [pa, pb] = ACROSS[axis];
+  const at = [voxel[0], voxel[1], voxel[2]];
+  at[axis] += reach;
+  const own = tiles.ownTile(at[0], at[1], at[2], direction);
+  if (own < 0) return null;
+  const la = q[axis] - tiles.voxels[3 * own + axis];
+  const a = q[pa] - tiles.voxels[3 * own + pa], b = q[pb] - tiles.voxels[3 * own + pb];
+  const sa = tiles.slopes[2 * own], sb = tiles.slopes[2 * own + 1];
+  const lean = 1 + (sa * sa + sb * sb);
+  return { tile: own, above: (la - bilinearDepth(tiles.depth, tiles.side, own, a, b)) / lean, a, b, sa, sb, lean };
+}
+
+/** The example's surface under points (n, 3) (Float64Array, sample model units) of a sample whose voxels
+ * `matched` maps to example voxels, as runtime/colour.py's surface_under: of the tiles of q's voxel and of those
+ * beside it along each tile's axis, the one whose surface is nearest q, and where on its plane: { tile Int32Array
+ * (n,), across Float64Array (n, 2) }. */
+export function surfaceUnder(tiles, matched, points, grid) {
+  const n = points.length / 3, tile = new Int32Array(n), across = new Float64Array(2 * n);
+  examplePoints(tiles, matched, points, grid, (i, q, smooth, normal, voxel) => {
+    let best = Infinity;
     for (let direction = 0; direction < 6; direction++) {
-      const axis = direction >> 1, positive = direction & 1, [pa, pb] = ACROSS[axis];
       for (const reach of REACH_ORDER) {
-        const at = [voxel[0], voxel[1], voxel[2]];
-        at[axis] += reach;
-        const own = tiles.ownTile(at[0], at[1], at[2], direction);
-        if (own < 0) continue;
-        const la = q[axis] - tiles.voxels[3 * own + axis];
-        const a = q[pa] - tiles.voxels[3 * own + pa], b = q[pb] - tiles.voxels[3 * own + pb];
-        const sa = tiles.slopes[2 * own], sb = tiles.slopes[2 * own + 1];
-        const lean = 1 + (sa * sa + sb * sb);
-        const above = (la - bilinearDepth(tiles.depth, side, own, a, b)) / lean;
-        const facing = normal[axis] * (positive ? 1 : -1);
-        const score = Math.abs(above) * Math.sqrt(lean) + TURN * (1 - facing);
-        if (score < best) { best = score; chosen = own; first = a + above * sa; second = b + above * sb; }
-        if (direction === dominant && Math.abs(above) * Math.sqrt(lean) < nearest) {
-          nearest = Math.abs(above) * Math.sqrt(lean);
-          outside = above * Math.sqrt(lean) * (positive ? 1 : -1);
+        const found = tileUnder(tiles, q, voxel, direction, reach);
+        if (found === null) continue;
+        const facing = normal[direction >> 1] * (direction & 1 ? 1 : -1);
+        const score = Math.abs(found.above) * Math.sqrt(found.lean) + TURN * (1 - facing);
+        if (score < best) {
+          best = score;
+          tile[i] = found.tile;
+          across[2 * i] = found.a + found.above * found.sa;
+          across[2 * i + 1] = found.b + found.above * found.sb;
         }
       }
     }
-    tile[i] = chosen;
-    across[2 * i] = first;
-    across[2 * i + 1] = second;
-    height[i] = outside;
-    facings[i] = normal[dominant >> 1] * (dominant & 1 ? 1 : -1);
-    found[i] = nearest < Infinity ? 1 : 0;
-  }
-  return { tile, across, height, smooth, normal: normals, facing: facings, found };
+  });
+  return { tile, across };
 }
 
 /** The colour at points (n, 3) (Float64Array, sample model units) of a sample whose voxels `matched` maps to
@@ -789,17 +793,29 @@ export function readColours(tiles, matched, points, grid, footprint = null) {
 }
 
 /** Points (n, 3) of a sample's surface moved by the example's relief under them, as runtime/colour.py's
- * relief: along the example's normal by how far its surface at full detail stands out of its smooth surface,
- * at most RELIEF voxels, fading out where the tile read turns from the normal (FACING). Float64Array (n, 3). */
+ * relief: along the example's normal by how far its surface at full detail (the nearest of the tiles of the
+ * direction nearest the normal) stands out of its smooth surface, at most RELIEF voxels, fading out where that
+ * direction turns from the normal (FACING). Float64Array (n, 3). */
 export function relief(tiles, matched, points, grid) {
-  const { height, smooth, normal, facing, found } = surfaceUnder(tiles, matched, points, grid);
   const out = Float64Array.from(points);
-  for (let i = 0; i < points.length / 3; i++) {
-    if (!found[i]) continue;
-    const lift = Math.min(Math.max(smooth[i] - height[i], -RELIEF), RELIEF)
-      * Math.min(Math.max((facing[i] - FACING[0]) / (FACING[1] - FACING[0]), 0), 1);
-    for (let a = 0; a < 3; a++) out[3 * i + a] = points[3 * i + a] + lift * normal[3 * i + a];
-  }
+  examplePoints(tiles, matched, points, grid, (i, q, smooth, normal, voxel) => {
+    let dominant = 0; // the direction nearest the normal, the first of equals (numpy's argmax)
+    for (let direction = 1; direction < 6; direction++) {
+      if (normal[direction >> 1] * (direction & 1 ? 1 : -1) > normal[dominant >> 1] * (dominant & 1 ? 1 : -1)) dominant = direction;
+    }
+    let nearest = Infinity, height = 0;
+    for (const reach of REACH_ORDER) {
+      const found = tileUnder(tiles, q, voxel, dominant, reach);
+      if (found === null || !(Math.abs(found.above) * Math.sqrt(found.lean) < nearest)) continue;
+      nearest = Math.abs(found.above) * Math.sqrt(found.lean);
+      height = found.above * Math.sqrt(found.lean) * (dominant & 1 ? 1 : -1);
+    }
+    if (nearest === Infinity) return;
+    const facing = normal[dominant >> 1] * (dominant & 1 ? 1 : -1);
+    const lift = Math.min(Math.max(smooth - height, -RELIEF), RELIEF)
+      * Math.min(Math.max((facing - FACING[0]) / (FACING[1] - FACING[0]), 0), 1);
+    for (let a = 0; a < 3; a++) out[3 * i + a] = points[3 * i + a] + lift * normal[a];
+  });
   return out;
 }
 
