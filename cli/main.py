@@ -243,7 +243,8 @@ def train(input_path, output, preset, device, no_colour, asset_folder, resume, c
     except training.TrainingDiverged as error:  # OPTIONS has no seed: sample's come from --seed, --seeds, --keep
         raise click.ClickException(command_line_message(error, {"seed": "--seed"})) from None
     sizes = ", ".join("x".join(map(str, level["size"])) for level in manifest["levels"])
-    click.echo(f"wrote {output} ({'coloured, ' * ('colour' in manifest)}{len(manifest['levels'])} levels: {sizes}; "
+    said = "coloured, " if "colour" in manifest else "with its example's relief, " if "relief" in manifest else ""
+    click.echo(f"wrote {output} ({said}{len(manifest['levels'])} levels: {sizes}; "
                f"trained in {format_seconds(manifest['training']['seconds'])})")
 
 
@@ -257,6 +258,7 @@ SIZE_OPTION = request_option("size", default="1")
 def mesh_options(command):
     """Options shared by the commands that write meshes: how a sample's surface is made."""
     for option in reversed([request_option("smooth"), request_option("smoother"), request_option("largest"),
+                            request_option("detail"),
                             request_option("frame", type=click.Choice(OPTION["frame"].choices[:2]))]):
         command = option(command)
     return command
@@ -519,7 +521,8 @@ def layout_command(model, seed, level, size, output):
               help="Output name; _stepK_aALPHA is added for each shape (or fill {step} and {alpha}).")
 @mesh_options
 @THREADS_OPTION
-def interpolate(model, seeds, steps, alpha_range, scale, size, output, smooth, smoother, largest, frame, threads):
+def interpolate(model, seeds, steps, alpha_range, scale, size, output, smooth, smoother, largest, detail, frame,
+                threads):
     """Blend the coarse noise of two seeds: shapes morphing from one to the other.
 
     The input noise is (1 - a) z0(A) + a z0(B); the finer levels' noise of
@@ -533,7 +536,7 @@ def interpolate(model, seeds, steps, alpha_range, scale, size, output, smooth, s
     alpha = generate.blend_weights(*alpha_range, steps)  # refused before a name is made from them
     loaded = open_model(model, threads)
     request = SampleRequest(seeds[0], size=size, scale=scale, smooth=smooth, smoother=smoother, largest=largest,
-                            frame=frame)
+                            detail=detail, frame=frame)
     show_warnings(loaded, request)
 
     def path(k):
@@ -619,6 +622,7 @@ def orient(model, up, arrange, contrast, output):
 @SCALE_OPTION
 @SIZE_OPTION
 @request_option("smooth")
+@request_option("detail")
 @click.option("--views", type=int, default=1, show_default=True,
               help="Views per shape, turning around the up axis (a turntable row per shape).")
 @click.option("--up", type=click.Choice(["y", "z"]), default=None,
@@ -635,7 +639,7 @@ def orient(model, up, arrange, contrast, output):
 @click.option("--elevation", type=float, default=25.0, show_default=True, help="Camera angle above the ground.")
 @ASSET_FOLDER_OPTION
 @THREADS_OPTION
-def render(inputs, output, seeds, recon, scale, size, smooth, views, up, columns, image_size, zoom, focus,
+def render(inputs, output, seeds, recon, scale, size, smooth, detail, views, up, columns, image_size, zoom, focus,
            azimuth, elevation, asset_folder, threads):
     """Draw shaded pictures of meshes or of a model's samples, headless.
 
@@ -656,7 +660,7 @@ def render(inputs, output, seeds, recon, scale, size, smooth, views, up, columns
     draw.check_view(zoom, azimuth, elevation)  # before any model is loaded
     items = [Path(item) if draw.is_mesh_file(item) else open_model(item, threads) for item in inputs]
     with StageProgress() as show:
-        picture = draw.draw_shapes(items, seeds, recon, SampleRequest(size=size, scale=scale, smooth=smooth), views,
+        picture = draw.draw_shapes(items, seeds, recon, SampleRequest(size=size, scale=scale, smooth=smooth, detail=detail), views,
                                    up, columns, image_size, zoom, focus, azimuth, elevation, progress=show,
                                    asset_folder=asset_folder,
                                    warn=lambda said: click.echo(f"Warning: {command_line_message(said)}", err=True))

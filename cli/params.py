@@ -172,8 +172,10 @@ def request_option(name: str, *flags: str, more_help: str = "", **settings):
     types = {"seed": int, "int": int, "number": float, "choice": click.Choice(option.choices),
              "factors": FRACTIONS if option.high == 1 else SIZE}
     made = dict(help=" ".join(filter(None, (option.help, more_help))), default=option.default)
-    if option.type == "bool":
+    if option.type == "bool":  # a flag; one on by default is turned off by --no-NAME
         made["is_flag"] = True
+        if option.default and not flags:
+            flags = (f"--{name.replace('_', '-')}/--no-{name.replace('_', '-')}",)
     elif option.type == "parts":
         made.update(multiple=True, metavar="SEED:X0,Y0,Z0:X1,Y1,Z1")
     elif option.type in types:

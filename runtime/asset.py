@@ -108,12 +108,13 @@ class Dense:
     lock_border: bool
 
 
-def sample_field(model, triplane) -> bake.Field:
+def sample_field(model, triplane, detail: bool = True) -> bake.Field:
     """The field of a sample (or an edit's composed tri-plane) and its colour
-    at full detail (a format-5 model's tiles, read at each texel's point)."""
+    at full detail (a format-5 model's tiles, read at each texel's point;
+    without `detail`, its colour head's)."""
     colour = None
     if model.manifest.colour:
-        paint = colouring.colouring(model, triplane)
+        paint = colouring.colouring(model, triplane, detail=detail)
 
         def colour(points):
             return mesh.colour_bytes(paint(points))[:, :3]
@@ -156,7 +157,7 @@ def dense_surface(model, request, threads: int | None = None, progress=None) -> 
         vertices, faces = np.asarray(surface.vertices), np.asarray(surface.faces)
         offset, scale = ((np.asarray(model.manifest.origin, np.float64), spacing) if request.frame == "input"
                          else (np.zeros(3), np.ones(3)))
-        field, lock = sample_field(model, triplane), False
+        field, lock = sample_field(model, triplane, request.detail), False
     frame = bake.Frame(offset, scale)
     return Dense(offset + vertices * scale, np.asarray(faces, np.int64), field, frame, float(np.max(scale)), lock)
 

@@ -791,14 +791,14 @@ def bilinear_tiles(images: np.ndarray, tile: np.ndarray, x: np.ndarray, y: np.nd
     return ((top * (1 - fx) + bottom * fx) / np.float32(255)).astype(np.float32)
 
 
-def colouring(model, triplane, chunk: int = 1 << 16):
+def colouring(model, triplane, chunk: int = 1 << 16, detail: bool = True):
     """A coloured model's colour of one sample as a function of points:
     (n, 3) model coordinates -> (n, 3) float32 sRGB, with an optional
     footprint (the length in voxels a colour stands for), and its `relief`
     (points -> points moved by the example's relief). A format-5 model
     matches the sample once; a format-4 model reads its colour head, and
-    has no relief."""
-    if model.tiles is None:
+    has no relief, as does any without `detail`."""
+    if model.tiles is None or not detail:
         return HeadColouring(query.colouring(model, triplane, chunk))
     kept = [(low, high, query.project(model, part).planes) for low, high, part in triplane.kept]
     return planes_colouring(model, query.project(model, triplane).planes, triplane.size, chunk, kept)
@@ -865,14 +865,15 @@ def surface_painter(model, triplane, vertices: np.ndarray, faces: np.ndarray):
     return lambda face, weights: read(np.einsum("nk,nkc->nc", weights, corners[face]))
 
 
-def dense_grids(model, triplane, scale: float = 1.0) -> dict:
+def dense_grids(model, triplane, scale: float = 1.0, detail: bool = True) -> dict:
     """What an .npz sample holds: {"occupancy"} on a grid `scale` times
     finer, and a coloured model's {"colour"} there, (X, Y, Z, 3) uint8 sRGB,
-    each point's colour around it (1 / scale voxels)."""
+    each point's colour around it (1 / scale voxels); without `detail`, the
+    colour head's."""
     occupancy = query.dense(model, triplane, scale)
     if not model.manifest.colour:
         return {"occupancy": occupancy}
-    if model.tiles is None:
+    if model.tiles is None or not detail:
         return {"occupancy": occupancy, "colour": query.dense(model, triplane, scale, colour=True)[1]}
     check_memory(occupancy.size * 3 * 8, f"the colours of a {'x'.join(map(str, occupancy.shape))} grid")
     steps = [(np.array(triplane.size[a]) - 1) / max(occupancy.shape[a] - 1, 1) for a in range(3)]

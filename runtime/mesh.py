@@ -208,9 +208,11 @@ def estimate_seconds(model, triplane, scale: float) -> float:
 
 def extract(model, triplane, scale: float = 1.0, smooth: int = 0, smoother: str = "laplacian",
             largest: bool = False, frame: str = "input", progress=None,
-            memory_limit: int | None = None, threads: int | None = None, per_face: int | None = None):
-    """A sample's mesh: band marching cubes, clean-up, then the chosen frame
-    ('input': overlays the training mesh; 'model': finest-voxel units).
+            memory_limit: int | None = None, threads: int | None = None, per_face: int | None = None,
+            detail: bool = True):
+    """A sample's mesh: band marching cubes, clean-up, its relief and colour
+    (`paint`), then the chosen frame ('input': overlays the training mesh;
+    'model': finest-voxel units).
     Meshing that needs more than memory_limit bytes (None: the memory
     available) is refused up front, and stopped as soon as its faces, at
     `per_face` bytes each (None: held_per_face's), pass it; threads: see
@@ -219,7 +221,7 @@ def extract(model, triplane, scale: float = 1.0, smooth: int = 0, smoother: str 
     per_face = held_per_face(smooth, largest=largest) if per_face is None else per_face
     mesh = finish(band_mesh(model, triplane, scale, progress=progress, memory_limit=memory_limit, threads=threads,
                             per_face=per_face), smooth, smoother, largest)
-    paint(mesh, model, triplane, scale)
+    paint(mesh, model, triplane, scale, detail)
     return to_frame(mesh, model.manifest) if frame == "input" else mesh
 
 
@@ -230,18 +232,18 @@ def held_per_face(smooth: int = 0, suffix: str = ".ply", largest: bool = False) 
     return TEXT_BYTES_PER_FACE if suffix.lower() in (".obj", ".off") else MESH_BYTES_PER_FACE
 
 
-def paint(mesh, model, triplane, scale: float = 1.0) -> None:
+def paint(mesh, model, triplane, scale: float = 1.0, detail: bool = True) -> None:
     """Give a mesh in model coordinates its model's relief and colour at its
     vertices (their final places, after smoothing): on a grid at least
     colour.RELIEF_SCALE times finer than the voxels, a format-5 model's
     vertices move by its example's relief; then a coloured model's each take
     8-bit sRGB, the colour around it (a vertex of a grid `scale` times finer
     stands for 1 / scale voxels). A model with neither leaves the mesh as it
-    is."""
-    relief = model.tiles is not None and scale >= colour.RELIEF_SCALE
+    is. Without `detail`, no relief, and colour from the decoder's head."""
+    relief = detail and model.tiles is not None and scale >= colour.RELIEF_SCALE
     if not len(mesh.vertices) or not (relief or model.manifest.colour):
         return
-    surface = colour.colouring(model, triplane)
+    surface = colour.colouring(model, triplane, detail=detail)
     if relief:
         mesh.vertices = surface.relief(mesh.vertices)
     if model.manifest.colour:

@@ -93,13 +93,17 @@ OPTIONS = (
     Option("size", "factors", (1.0, 1.0, 1.0), "Sample size as factors of the training size: one factor, or "
            "three for another aspect ratio (2,1,1 is twice as long along x).", low=0, bounds="()"),
     Option("scale", "number", 1.0, "Query the shape on a grid this many times finer per axis (any positive "
-           "number). Finer grids give smoother surfaces, not new detail.", ("sample", "tile"), 0, bounds="()"),
+           "number). Finer grids give smoother surfaces; from 2 on, a sample also takes its example's relief "
+           "finer than a voxel (see detail).", ("sample", "tile"), 0, bounds="()"),
     Option("smooth", "int", 0, f"Smoothing iterations, 0 to {MAX_SMOOTH} (the paper uses 3 Laplacian iterations); "
            f"{MAX_SMOOTH} already blurs over about 10 grid steps, the size of the patches the model learnt.",
            low=0, high=MAX_SMOOTH),
     Option("smoother", "choice", SMOOTHERS[0], "Laplacian (as the paper) or Taubin (keeps volume).",
            choices=SMOOTHERS),
     Option("largest", "bool", False, "Keep only the largest connected piece."),
+    Option("detail", "bool", True, "The example's own surface detail, read by correspondence: its relief finer "
+           "than a voxel on a mesh at scale 2 or finer, and a coloured model's colour. Off: the voxels' surface "
+           "and the decoder's colour, several times faster at scale 2 and above."),
     Option("frame", "choice", FRAMES[0], "Vertex coordinates: the training mesh's frame (samples overlay it), "
            "finest-voxel units, or, for a tile, the training mesh's units from the tile's own corner (any tile).",
            ("sample", "tile"), choices=FRAMES),

@@ -412,7 +412,7 @@ def draw_shapes(items: list, seeds, recon: bool = False, request=None, views: in
             wanted = replace(request, seed=None, recon=True, size=1.0) if seed is None else request.with_seed(seed)
             triplane = make(item, wanted)
             shapes.append(meshing.extract(item, triplane, **{**wanted.mesh_options(), "frame": "model"}))
-            if item.colour_tiles is not None:  # its colour read at each pixel: the example's texture, not vertex colours
+            if item.colour_tiles is not None and wanted.detail:  # its colour read at each pixel: the example's texture, not vertex colours
                 shapes[-1].metadata[PAINT] = surface_painter(item, triplane, shapes[-1].vertices, shapes[-1].faces)
             meshing.to_frame(shapes[-1], item.manifest)
             if not len(shapes[-1].faces):

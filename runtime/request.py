@@ -96,7 +96,9 @@ class SampleRequest:
     size: factors of the training size, one or per axis (any size and aspect ratio).
     scale: the surface is queried on a grid this many times finer per axis.
     smooth, smoother: smoothing iterations (0 to MAX_SMOOTH) and which (SMOOTHERS);
-    largest: keep only the largest connected piece; frame: the vertices'
+    largest: keep only the largest connected piece; detail: the example's
+      relief (on a mesh at scale 2 or finer) and colour, read by
+      correspondence (off: the voxels' surface and the colour head); frame: the vertices'
       frame ('input': the training mesh's, 'model': finest voxels; for a
       tile, 'tile': the input's units from the tile's lowest corner, precise
       at any distance from the world's origin).
@@ -122,6 +124,7 @@ class SampleRequest:
     smooth: int = 0
     smoother: str = "laplacian"
     largest: bool = False
+    detail: bool = True
     frame: str = "input"
     keep: tuple = ()
     grow: tuple | None = None
@@ -231,7 +234,7 @@ class SampleRequest:
     def mesh_options(self) -> dict:
         """How the surface is made: keyword arguments of mesh.extract and write.write_sample."""
         return dict(scale=self.scale, smooth=self.smooth, smoother=self.smoother, largest=self.largest,
-                    frame=self.frame)
+                    frame=self.frame, detail=self.detail)
 
     def with_seed(self, seed: int) -> "SampleRequest":
         """The same request for another seed (a batch job's samples)."""

@@ -147,7 +147,7 @@ def write_mesh(mesh, path) -> None:
 
 def write_sample(model, triplane, path, scale: float = 1.0, smooth: int = 0, smoother: str = "laplacian",
                  largest: bool = False, frame: str = "input", threads: int | None = None,
-                 mesh_progress=None) -> None:
+                 mesh_progress=None, detail: bool = True) -> None:
     """One sample as the file its extension names: a mesh, or the .npz grid.
     A .ply without smoothing or --largest (which need the whole mesh) is
     streamed slab by slab: any size fits in memory. mesh_progress(done,
@@ -156,16 +156,16 @@ def write_sample(model, triplane, path, scale: float = 1.0, smooth: int = 0, smo
     path = Path(path)
     if output_kind(path) == "grid" or path.suffix.lower() != ".ply" or smooth or largest:
         data, _ = sample_bytes(model, triplane, path, scale, smooth, smoother, largest, frame, threads,
-                               mesh_progress)
+                               mesh_progress, detail)
         atomic_write(path, lambda f: f.write(data))
         return
     mesh.check_frame(frame)
     pieces = mesh.pieces(model, triplane, scale, progress=mesh_progress, threads=threads)
     colour = model.manifest.colour
     # Each piece's new vertices moved by relief and coloured as they come (mesh.paint): the cost is per vertex.
-    relief = model.tiles is not None and scale >= RELIEF_SCALE
+    relief = detail and model.tiles is not None and scale >= RELIEF_SCALE
     if relief or colour:
-        surface = colouring(model, triplane)
+        surface = colouring(model, triplane, detail=detail)
     if relief:
         pieces = ((surface.relief(v), f) for v, f in pieces)
     if colour:
@@ -255,7 +255,7 @@ def tile_bytes(model, request, name, progress=None) -> tuple:
 
 def sample_bytes(model, triplane, path, scale: float = 1.0, smooth: int = 0, smoother: str = "laplacian",
                  largest: bool = False, frame: str = "input", threads: int | None = None,
-                 mesh_progress=None) -> tuple:
+                 mesh_progress=None, detail: bool = True) -> tuple:
     """One sample as the bytes of the file `path` names, made in memory, and
     its mesh (None for a grid): what write_sample writes, for a caller that
     writes elsewhere or wants the mesh too. mesh_progress(done, total) as
@@ -264,9 +264,9 @@ def sample_bytes(model, triplane, path, scale: float = 1.0, smooth: int = 0, smo
     if output_kind(path) == "grid":
         if mesh_progress:  # nothing done of the grid yet: a server's job given up meanwhile stops here
             mesh_progress(0, 1)
-        return grid_bytes(**dense_grids(model, triplane, scale), size=triplane.size, scale=scale), None
+        return grid_bytes(**dense_grids(model, triplane, scale, detail), size=triplane.size, scale=scale), None
     result = mesh.extract(model, triplane, scale, smooth, smoother, largest, frame, progress=mesh_progress,
-                          threads=threads, per_face=mesh.held_per_face(smooth, path.suffix, largest))
+                          threads=threads, per_face=mesh.held_per_face(smooth, path.suffix, largest), detail=detail)
     if not len(result.faces):
         raise no_surface(path)
     return mesh_bytes(result, path.suffix), result

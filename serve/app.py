@@ -151,6 +151,7 @@ class SampleQuery:
     smooth: option_query("smooth") = 0
     smoother: option_query("smoother") = OPTION["smoother"].default
     largest: option_query("largest") = False
+    detail: option_query("detail") = True
     frame: option_query("frame") = OPTION["frame"].default
     format: FormatQuery = "glb"
 

@@ -289,6 +289,25 @@ def test_a_geometry_only_models_fine_mesh_takes_its_examples_relief_and_no_colou
         assert (np.abs(vertices - plain).max() > 0.05) == (scale >= colour.RELIEF_SCALE)
 
 
+def test_without_detail_a_mesh_has_no_relief_and_its_colour_heads_colours(relief_model, model, tmp_path):
+    # --no-detail: a relief model's fine mesh is the voxels' surface; a coloured one's colours are its head's.
+    from sinshape.runtime import mesh as meshing
+
+    triplane = generate.sample(relief_model, 4)
+    plain = meshing.band_mesh(relief_model, triplane, 2).vertices
+    out = tmp_path / "plain.ply"
+    sinrun("sample", relief_model.path, "--seed", 4, "--scale", 2, "--frame", "model", "--no-detail", "-o", out)
+    np.testing.assert_allclose(read_ply(out)[0], plain, atol=1e-5)
+    triplane = generate.sample(model, 4)
+    head = meshing.band_mesh(model, triplane, 2)
+    sinrun("sample", model.path, "--seed", 4, "--scale", 2, "--frame", "model", "--no-detail", "-o", out)
+    vertices, colours = read_ply(out)
+    np.testing.assert_allclose(vertices, head.vertices, atol=1e-5)
+    expected = np.round(np.clip(query.colouring(model, triplane)(head.vertices), 0, 1) * 255)
+    assert np.abs(colours.astype(int) - expected).max() <= 1
+    assert np.abs(colours.astype(int) - np.round(colour.colours(model, triplane, head.vertices, 0.5) * 255)).max() > 20
+
+
 def ridge_height(model, vertices: np.ndarray) -> float:
     """How far the ridged block's ridges (tests/data/relief) stand above its joints on a mesh's top:
     the mean height of the top's vertices in the middle of the ridges less that in the middle of

@@ -45,7 +45,9 @@ def test_no_colour_trains_geometry_only_from_the_same_mesh(missing_texture, tmp_
     out = tmp_path / "m.onnx"
     result = sinrun("train", missing_texture, "-o", out, "--preset", "tiny", "--iters", 1, "-q", "--no-colour")
     assert result.exit_code == 0, result.output
-    assert "coloured" not in result.output and version(out) == 3
+    assert "coloured" not in result.output and "with its example's relief" in result.output
+    manifest = json.loads({p.key: p.value for p in onnx.load(out).metadata_props}[fmt.METADATA_KEY])
+    assert manifest["format_version"] == 5 and "colour" not in manifest and "relief" in manifest
 
 
 def test_the_voxel_baseline_asks_for_no_colour(tmp_path):

@@ -220,29 +220,30 @@ def test_a_format_5_samples_matches_and_colours_are_pythons(colour_page, coloure
 
 
 # Runs in the page: a sample's mesh at `scale` as the browser meshes it, and as its worker paints it.
-RELIEF_JS = """async ([name, seed, scale]) => {""" + IN_PAGE + """
+RELIEF_JS = """async ([name, seed, scale, detail]) => {""" + IN_PAGE + """
   const tri = await s.sample(model, seed, [1, 1, 1]);
   const mesh = s.surface(await s.dense(model, tri, scale), tri.size, model.manifest);
-  const painted = await s.paintMesh(model, tri, mesh.positions, scale);
+  const painted = await s.paintMesh(model, tri, mesh.positions, scale, detail);
   return { positions: b64(mesh.positions), painted: b64(painted.positions), colours: painted.colours };
 }"""
 
 
-@pytest.mark.parametrize("scale", [1, 2])
-def test_a_geometry_only_models_relief_in_the_page_is_pythons(colour_page, scale):
+@pytest.mark.parametrize("scale, detail", [(1, True), (2, True), (2, False)])
+def test_a_geometry_only_models_relief_in_the_page_is_pythons(colour_page, scale, detail):
     # A relief-only model's mesh in the browser: at scale 2 each vertex where Python's relief moves
-    # it (near-ties apart, as for colour), at scale 1 where it lies; never coloured.
+    # it (near-ties apart, as for colour), at scale 1 or without detail where it lies; never coloured.
     model = load.load_model(RELIEF_ONNX, threads=2)
     assert not model.manifest.colour and model.tiles is not None
-    made = colour_page.evaluate(RELIEF_JS, [RELIEF_NAME, 4, scale])
+    made = colour_page.evaluate(RELIEF_JS, [RELIEF_NAME, 4, scale, detail])
     assert made["colours"] is None
     positions, painted = unb64(made["positions"], np.float32, 3), unb64(made["painted"], np.float32, 3)
     coords = (positions - np.asarray(model.manifest.origin)) / np.asarray(model.manifest.spacing)
-    expected = colour.colouring(model, sample(model, 4)).relief(coords) if scale >= colour.RELIEF_SCALE else coords
+    moves = detail and scale >= colour.RELIEF_SCALE
+    expected = colour.colouring(model, sample(model, 4)).relief(coords) if moves else coords
     placed = (np.abs(painted - mesh.in_frame(expected, model.manifest)) < 1e-5).all(axis=1)
     assert len(placed) > 1000 and placed.mean() >= SAME_BYTES, f"{placed.mean():.4%} placed as Python places them"
     moved = np.abs(painted - positions).max() / min(model.manifest.spacing)  # in voxels
-    assert (moved > 0.05) == (scale >= colour.RELIEF_SCALE)
+    assert (moved > 0.05) == moves
 
 
 def altered(path: Path, change, source: Path = COLOUR_ONNX) -> Path:

@@ -179,7 +179,8 @@ def test_a_request_is_what_a_replaced_seed_makes():
     grown = SampleRequest(grow=2, anchor=0.5, smooth=3)
     assert grown.with_seed(9) == dataclasses.replace(grown, seed=9) and grown.with_seed(9).smooth == 3
     assert json.dumps(grown.mesh_options()) == json.dumps(
-        {"scale": 1.0, "smooth": 3, "smoother": "laplacian", "largest": False, "frame": "input"})
+        {"scale": 1.0, "smooth": 3, "smoother": "laplacian", "largest": False, "frame": "input",
+         "detail": True})
 
 
 def test_make_refuses_a_tile_it_has_no_tri_plane_for(model):

@@ -62,10 +62,12 @@ def train(input_path, output_path, config: TrainConfig | None, *, resume: bool =
           asset_folder=None):
     """Train on a mesh or SSG pyramid and export the model to `output_path`.
 
-    A mesh with colour trains a coloured model (format 4) unless `colour` is
-    False, which reads no colour at all (a resumed run keeps its checkpoint's,
-    and refuses False for a coloured one). The files a mesh names are read
-    from its folder, or `asset_folder`.
+    A mesh with colour trains a coloured model (format 5, its colour and
+    relief as tiles) unless `colour` is False, which reads no colour at all
+    (a resumed run keeps its checkpoint's, and refuses False for a coloured
+    one); a mesh without it, a geometry-only model with its relief (format
+    5), an .h5 pyramid one without (format 3). The files a mesh names are
+    read from its folder, or `asset_folder`.
 
     With resume, `config` must be None: the checkpoint's config is used (the
     device may differ from the one the run started on). `progress(Progress)`

@@ -907,11 +907,11 @@ function bilinearOne(values, n, tile, x, y) {
 /**
  * A coloured model's colour of one sample as a function of points: (n, 3) model coordinates (Float64Array)
  * -> (n, 3) Float32Array sRGB, with an optional footprint (the length in voxels a colour stands for). A
- * format-5 model matches the sample once; a format-4 model reads its colour head.
+ * format-5 model matches the sample once; a format-4 model reads its colour head, as does any without `detail`.
  */
-export async function colouring(model, tri) {
+export async function colouring(model, tri, detail = true) {
   const proj = await project(model, tri);
-  if (!model.tiles) {
+  if (!model.tiles || !detail) {
     const head = (points) => projectedColours(model, proj, points);
     head.relief = (points) => Float64Array.from(points); // the colour head has no relief
     return head;
@@ -947,13 +947,16 @@ export async function vertexColours(model, tri, positions, footprint = null) {
 
 /** A sample's mesh given its relief and colour, as runtime.mesh.paint: on a grid `scale` times finer than the
  * voxels, at least RELIEF_SCALE, a format-5 model's vertices (`positions`, the input's frame) move by its
- * example's relief; then a coloured model's each take the colour around it (1 / scale voxels).
- * { positions Float32Array, colours (null for a geometry-only model) }. */
-export async function paintMesh(model, tri, positions, scale) {
+ * example's relief; then a coloured model's each take the colour around it (1 / scale voxels). Without
+ * `detail`, no relief, and colour from the colour head. { positions Float32Array, colours (null for a
+ * geometry-only model) }. */
+export async function paintMesh(model, tri, positions, scale, detail = true) {
   const { origin, spacing } = model.manifest;
-  const surface = await colouring(model, tri);
+  const relief = detail && model.tiles && scale >= RELIEF_SCALE;
+  if (!relief && !model.manifest.colour) return { positions, colours: null };
+  const surface = await colouring(model, tri, detail);
   let coords = Float64Array.from(positions, (p, i) => (p - origin[i % 3]) / spacing[i % 3]);
-  if (model.tiles && scale >= RELIEF_SCALE) coords = surface.relief(coords);
+  if (relief) coords = surface.relief(coords);
   return { positions: Float32Array.from(coords, (c, i) => origin[i % 3] + c * spacing[i % 3]),
            colours: model.manifest.colour ? surface(coords, 1 / scale) : null };
 }

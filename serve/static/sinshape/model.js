@@ -327,11 +327,6 @@ export function configure({ threads = null, wasmPaths = null } = {}) {
   return configured;
 }
 
-/** Its tiles where they hold colour (a coloured format-5 model), else null (relief alone, or none): runtime/load.py's Model.colour_tiles. */
-export function colourTiles(model) {
-  return model.manifest.colour ? model.tiles : null;
-}
-
 /**
  * Load and check a model from its bytes (Uint8Array). Its stages run on
  * onnxruntime-web's WASM backend, on `threads` threads (configure's default

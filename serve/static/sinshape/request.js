@@ -99,6 +99,7 @@ export function sampleRequest(fields = {}) {
   const request = Object.freeze({
     ...given, // every option, in the table's order: one this file does not check yet as given (make refuses it)
     seed, recon: Boolean(given.recon), size, scale, smooth, smoother: given.smoother, largest: Boolean(given.largest),
+    detail: Boolean(given.detail),
     frame: given.frame, keep: Object.freeze([...keep]), grow: grown, anchor, layout, tile, ...world,
   });
   checkTogether(request);
@@ -134,7 +135,7 @@ const worldFields = (request) => [['arrange', request.arrange !== DEFAULTS.arran
 // Any other given other than its default (Python's smoother 'taubin', largest, a
 // sample's frame, an option added to the table later) is refused, never dropped.
 export const MAKES = Object.freeze({
-  sample: Object.freeze(['seed', 'recon', 'size', 'scale', 'smooth', 'keep', 'grow', 'anchor', 'layout']),
+  sample: Object.freeze(['seed', 'recon', 'size', 'scale', 'smooth', 'detail', 'keep', 'grow', 'anchor', 'layout']),
   tile: Object.freeze(['seed', 'scale', 'frame', 'tile', 'arrange', 'heights', 'lod', 'models', 'models_map']),
 });
 

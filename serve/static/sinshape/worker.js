@@ -58,8 +58,7 @@ async function sample({ name, request }, progress) {
   const mesh = sinshape.surface(grid, tri.size, model.manifest, (f) => progress('meshing', f));
   sinshape.smooth(mesh, wanted.smooth, 0.5, (f) => progress('smoothing', f));
   // A sample's relief and colour, as runtime.mesh.paint (each colour stands for the grid's spacing).
-  const { positions, colours } = model.manifest.colour || model.tiles ? await sinshape.paintMesh(model, tri, mesh.positions, wanted.scale)
-    : { positions: mesh.positions, colours: null };
+  const { positions, colours } = await sinshape.paintMesh(model, tri, mesh.positions, wanted.scale, wanted.detail);
   return { positions, faces: mesh.faces, colours, seconds: (performance.now() - started) / 1000 };
 }
 

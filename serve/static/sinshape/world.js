@@ -29,7 +29,6 @@
 import { InputError, formatG, pyRepr, pyTuple } from './errors.js';
 import { checkSeed, drawNoise, roundHalfEven, scaledSizes, triplane } from './generate.js';
 import { marchingCubes } from './mesh.js';
-import { colourTiles } from './model.js';
 import { GOLDEN, mix64Big, streamKey } from './noise.js';
 import { PLANE_AXES, TAB_BYTES, addBilinear, headColour, project } from './query.js';
 
@@ -798,6 +797,10 @@ async function snapToExample(tiles, out, index) {
  * model without colour is grey). A scatter world's ground is grey. Returns
  * Float32Array (V, 3) in [0, 1] (Python's gives them as bytes).
  */
+/** A model's tiles where they hold colour (a coloured format-5 model), else null (relief alone, or none):
+ * runtime/load.py's Model.colour_tiles. */
+const colourTiles = (model) => (model.manifest.colour ? model.tiles : null);
+
 export async function tileColours(model, seed, tile, positions, options = PLAIN, footprint = null) {
   seed = checkSeed(seed);
   const points = Float64Array.from(positions), n = points.length / 3, out = new Float32Array(3 * n);
