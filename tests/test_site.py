@@ -12,10 +12,9 @@ from pathlib import Path
 import pytest
 
 from browser import site_server_process
-from sinshape import models
 from sinshape.serve import site, site_server
 
-TERRAIN = models.find("terrain")
+TINY = Path(__file__).parent / "data" / "tiny.onnx"  # float weights alone, which gzip shrinks by about a tenth
 
 WASM = "static/vendor/onnxruntime-web/ort-wasm-simd-threaded.wasm"
 
@@ -25,8 +24,8 @@ def site_files(folder: Path) -> dict:
 
 
 def test_the_sites_gz_copies_are_its_files_and_two_exports_are_byte_identical(tmp_path):
-    site.export_site(["terrain"], tmp_path / "one")
-    site.export_site(["terrain"], tmp_path / "two")
+    site.export_site([str(TINY)], tmp_path / "one")
+    site.export_site([str(TINY)], tmp_path / "two")
     files = site_files(tmp_path / "one")
     assert site_files(tmp_path / "two") == files
     packed = {name for name in files if name.endswith(".gz")}
@@ -40,7 +39,7 @@ def test_the_sites_gz_copies_are_its_files_and_two_exports_are_byte_identical(tm
         assert data[8] == 2, f"{name}: not gzip's level 9"  # XFL: maximum compression
     assert len(files[f"{WASM}.gz"]) < len(files[WASM]) / 3
     # A model's float weights shrink by about a tenth: no second copy; nor for small files.
-    assert "models/terrain.onnx.gz" not in files and "models.json.gz" not in files
+    assert "models/tiny.onnx.gz" not in files and "models.json.gz" not in files
 
 
 def fetch(base: str, path: str, **headers) -> tuple:
@@ -56,7 +55,7 @@ def fetch(base: str, path: str, **headers) -> tuple:
 
 def test_the_sites_serve_py_sends_gzip_types_and_cache_headers(tmp_path):
     out = tmp_path / "site"
-    site.export_site(["terrain"], out)
+    site.export_site([str(TINY)], out)
     rules = (out / "_headers").read_text().splitlines()
     assert rules[0] == "/*" and {"  Cache-Control: no-cache", "  Cross-Origin-Opener-Policy: same-origin",
                                  "  Cross-Origin-Embedder-Policy: require-corp"} == set(rules[1:])
@@ -82,8 +81,8 @@ def test_the_sites_serve_py_sends_gzip_types_and_cache_headers(tmp_path):
             assert fetch(base, path, If_Modified_Since=plain["Last-Modified"])[0] == 304
             assert fetch(base, path, Accept_Encoding="gzip", If_None_Match=plain["ETag"])[0] == 200
         assert "Content-Encoding" not in fetch(base, WASM, Accept_Encoding="gzip;q=0, identity")[1]
-        status, answer, body = fetch(base, "models/terrain.onnx", Accept_Encoding="gzip")  # no .gz: as it is
-        assert status == 200 and body == TERRAIN.read_bytes() and "Content-Encoding" not in answer
+        status, answer, body = fetch(base, "models/tiny.onnx", Accept_Encoding="gzip")  # no .gz: as it is
+        assert status == 200 and body == TINY.read_bytes() and "Content-Encoding" not in answer
         assert answer["Content-Type"] == "application/octet-stream" and answer["Cache-Control"] == "no-cache"
         assert fetch(base, "static")[0] == 301 and fetch(base, "nope.js")[0] == 404
 

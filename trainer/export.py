@@ -21,7 +21,9 @@ import torch
 from onnx import TensorProto, helper, numpy_helper
 
 from sinshape.core import manifest as fmt
+from sinshape.core.errors import InputError
 from sinshape.core.files import atomic_write
+from sinshape.prep.pyramid import LEVEL_FACTOR, MIN_SIZE, pyramid_from_mesh
 
 # ONNX IR 8 / opset 17: read by every onnxruntime since 1.14; newer onnx
 # releases write newer IR versions by default, which older runtimes reject.
@@ -218,9 +220,6 @@ def add_relief(model_path, source_path, out_path) -> dict:
     need not be trained again. The mesh is voxelised with the model's own
     settings, and refused unless its file's SHA-256, its level sizes and its
     frame are the model's. Returns the new manifest."""
-    from sinshape.core.errors import InputError
-    from sinshape.prep.pyramid import LEVEL_FACTOR, MIN_SIZE, pyramid_from_mesh
-
     model = onnx.load_model(str(model_path))
     props = {p.key: p.value for p in model.metadata_props}
     manifest = json.loads(props[fmt.METADATA_KEY])

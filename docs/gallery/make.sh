@@ -46,7 +46,12 @@ sinrun render "$work/towers.ply" --up y --image-size 900 --elevation 35 --azimut
 sinrun world acropolis towerruins --seed 3 --tiles 0:11,0:11 --models-map world_models_map.png --map world_map.png \
     --relief 60 -o "$work/temples_and_towers.ply"
 sinrun render "$work/temples_and_towers.ply" --up z --image-size 900 --elevation 35 --azimuth 210 -o world_models.png
-rm -r "$work"
+
+# Relief of a geometry-only model: the tower, seed 3 at scale 4, close up on its wall: the example, then
+# the sample without its example's relief (--no-detail) and with it.
+sinrun sample towerruins --seed 3 --scale 4 --no-detail -o "$work/tower_plain.ply"
+sinrun sample towerruins --seed 3 --scale 4 -o "$work/tower_relief.ply"
+sinrun render "$tower" "$work/tower_plain.ply" "$work/tower_relief.ply" --zoom 2.5 --focus 0.5,0.55,0.9 --columns 3 --image-size 360 -o tower_relief.png
 
 # A wall whose bricks stand out of recessed mortar, trained here (about 4 minutes), close up at scale 4: its
 # reconstruction and two samples, read coarse to fine with the example's relief (docs/BENCHMARKS.md, "Relief";
@@ -54,3 +59,4 @@ rm -r "$work"
 sinrun shape relief_wall -o "$work/relief_wall.ply"
 OMP_NUM_THREADS=1 sinrun train "$work/relief_wall.ply" -o "$work/wall.onnx" --res 48 --iters 300 --up z
 sinrun render "$work/relief_wall.ply" "$work/wall.onnx" --recon --seeds 1,2 --scale 4 --up z --zoom 3 --focus 0.3,0.0,0.4 --azimuth 20 --elevation 10 --columns 4 --image-size 320 -o relief_wall_now.png
+rm -r "$work"
