@@ -59,9 +59,10 @@ def main():
 
     import trimesh
 
+    from sinshape import models
     from sinshape.runtime import colour, generate, load_model, mesh as meshing
 
-    model = load_model(args.model)
+    model = load_model(models.find(args.model))
     if model.tiles is None:
         raise SystemExit(f"{args.model} has no tiles: nothing to compare (give a format-5 model)")
     origin, spacing = np.asarray(model.manifest.origin), np.asarray(model.manifest.spacing)

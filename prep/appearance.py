@@ -40,6 +40,7 @@ MAX_TILE = 64
 MAX_TILE_BYTES = 48 << 20  # tiles above this get coarser (halved sides) until they fit
 FACING = 0.2  # a tile along axis a, side s, shows the faces whose normal has s * n_a above this
 REACH = 1.5  # a ray that meets no surface inside its voxel takes the nearest it meets this far out
+SIGN_REACH = 1.0  # voxels: nearer the surface than this, a centre's side is its nearest face's (signed_distance)
 
 
 @dataclass(frozen=True)
@@ -169,19 +170,29 @@ def example_tiles(surface: Surface, box_low, spacing, solid: np.ndarray, max_byt
 
 def signed_distance(triangles: np.ndarray, solid: np.ndarray) -> np.ndarray:
     """The distance from each voxel centre to the surface (model units:
-    triangles (F, 3, 3) in voxels), negative inside `solid`, to within
-    about a twentieth of a voxel (its nearest of 64 samples per voxel face
-    of area), clamped to +-2 voxels: (X, Y, Z) int8 in DISTANCE_STEPs.
-    A point near the surface finds the surface point nearest it from it."""
+    triangles (F, 3, 3) in voxels), negative inside, to within about a
+    twentieth of a voxel (its nearest of 64 samples per voxel face of area),
+    clamped to +-2 voxels: (X, Y, Z) int8 in DISTANCE_STEPs. A point near
+    the surface finds the surface point nearest it from it. Within a voxel's
+    reach of the surface the sign is the side of the nearest face the centre
+    lies on: `solid` counts every voxel the surface passes through as
+    inside, which would move the grid's zero up to half a voxel out (the
+    relief a sample takes is measured from it); farther, it is `solid`'s."""
     from scipy.spatial import cKDTree
 
     face, weights = colours.sample_faces(triangles, 64.0, np.random.default_rng(1))
     tree = cKDTree(np.einsum("nk,nkc->nc", weights, triangles[face]))
     centres = np.argwhere(np.ones(solid.shape, bool)).astype(np.float64)
-    distance, _ = tree.query(centres, distance_upper_bound=3.0, workers=-1)
-    distance = np.minimum(distance, 2.0).reshape(solid.shape)
-    distance[solid] *= -1
-    return np.round(distance / DISTANCE_STEP).astype(np.int8)
+    distance, nearest = tree.query(centres, distance_upper_bound=3.0, workers=-1)
+    distance = np.minimum(distance, 2.0)
+    inside = solid.reshape(-1).copy()
+    near = distance < SIGN_REACH
+    normals = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
+    points = np.einsum("nk,nkc->nc", weights, triangles[face])
+    towards = np.einsum("nc,nc->n", centres[near] - points[nearest[near]], normals[face[nearest[near]]])
+    inside[near] = towards < 0
+    distance[inside] *= -1
+    return np.round(distance.reshape(solid.shape) / DISTANCE_STEP).astype(np.int8)
 
 
 def key_of(voxels: np.ndarray, shape) -> np.ndarray:

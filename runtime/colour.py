@@ -706,8 +706,10 @@ def relief(tiles: Tiles, matched, points: np.ndarray, grid) -> np.ndarray:
     from the tiles of the direction nearest the normal (the face the point
     lies on, not a groove's side), and the relief fades out where that
     direction turns from the normal (FACING: at an edge or a corner, where
-    the smooth surface rounds what tiles of two directions hold).
-    (n, 3) float64."""
+    the smooth surface rounds what tiles of two directions hold). A tile
+    whose depth reaches the end of its range where it is read (the surface
+    left the voxel there: a slope, a step) is passed over for the voxel's
+    neighbour's along the axis, or none. (n, 3) float64."""
     q, smooth, normal, voxel = example_points(tiles, matched, points, grid)
     facings = np.stack([normal[:, d // 2] * (1 if d % 2 else -1) for d in range(6)], axis=1)
     dominant = np.argmax(facings, axis=1)  # the direction nearest the normal, the first of equals
@@ -715,8 +717,9 @@ def relief(tiles: Tiles, matched, points: np.ndarray, grid) -> np.ndarray:
     height = np.zeros(len(points))  # how far q lies outside the nearest of that direction's tiles, along its normal
     sign = np.where(dominant % 2, 1.0, -1.0)
     for reach in REACH_ORDER:
-        candidate, above, _, _, lean = tile_under(tiles, q, voxel, dominant, reach)
-        closer = (candidate >= 0) & (np.abs(above) * np.sqrt(lean) < nearest)
+        candidate, above, plane, _, lean = tile_under(tiles, q, voxel, dominant, reach)
+        inside = (candidate >= 0) & ~depth_clipped(tiles.depth, np.maximum(candidate, 0), plane)
+        closer = inside & (np.abs(above) * np.sqrt(lean) < nearest)
         nearest[closer] = (np.abs(above) * np.sqrt(lean))[closer]
         height[closer] = (above * np.sqrt(lean) * sign)[closer]
     lift = np.where(np.isfinite(nearest), np.clip(smooth - height, -RELIEF, RELIEF), 0)
@@ -777,14 +780,33 @@ def bilinear_depth(depth: np.ndarray, tile: np.ndarray, plane: np.ndarray) -> np
     return bilinear_tiles(depth[..., None], tile, x, y)[:, 0].astype(np.float64) * (2 * DEPTH_RANGE) - DEPTH_RANGE
 
 
-def bilinear_tiles(images: np.ndarray, tile: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Bilinear lookup in tiles (N, T, T, 3) uint8 at texel coordinates x (rows), y (columns), clamped."""
-    n = images.shape[1]
+def depth_clipped(depth: np.ndarray, tile: np.ndarray, plane: np.ndarray) -> np.ndarray:
+    """Whether any of the four texels `bilinear_depth` reads at in-plane
+    points (n, 2) holds the end of the depth range (0 or 255): the tile's
+    surface left the voxel there, and its depth is not where the surface is.
+    (n,) bool."""
+    side = depth.shape[1]
+    x, y = ((plane + 0.5) * side - 0.5).T
+    x0, y0, x1, y1 = texel_corners(x, y, side)
+    corners = np.stack([depth[tile, a, b] for a, b in ((x0, y0), (x0, y1), (x1, y0), (x1, y1))], axis=1)
+    return np.any((corners == 0) | (corners == 255), axis=1)
+
+
+def texel_corners(x: np.ndarray, y: np.ndarray, n: int) -> tuple:
+    """The texels (x0, y0, x1, y1) a bilinear lookup at texel coordinates x, y of tiles of side n blends."""
     x = np.clip(x, 0, n - 1).astype(np.float32)
     y = np.clip(y, 0, n - 1).astype(np.float32)
     x0 = np.minimum(np.floor(x).astype(np.int64), max(n - 2, 0))
     y0 = np.minimum(np.floor(y).astype(np.int64), max(n - 2, 0))
-    x1, y1 = np.minimum(x0 + 1, n - 1), np.minimum(y0 + 1, n - 1)
+    return x0, y0, np.minimum(x0 + 1, n - 1), np.minimum(y0 + 1, n - 1)
+
+
+def bilinear_tiles(images: np.ndarray, tile: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Bilinear lookup in tiles (N, T, T, 3) uint8 at texel coordinates x (rows), y (columns), clamped."""
+    n = images.shape[1]
+    x0, y0, x1, y1 = texel_corners(x, y, n)
+    x = np.clip(x, 0, n - 1).astype(np.float32)
+    y = np.clip(y, 0, n - 1).astype(np.float32)
     fx, fy = (x - x0)[:, None], (y - y0)[:, None]
     top = images[tile, x0, y0] * (1 - fy) + images[tile, x0, y1] * fy
     bottom = images[tile, x1, y0] * (1 - fy) + images[tile, x1, y1] * fy

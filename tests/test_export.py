@@ -69,11 +69,11 @@ def test_a_geometry_only_mesh_model_is_format_5_with_its_relief_alone(tiny_relie
 
 
 def test_relief_added_to_a_model_trained_before_it_is_the_trainers_own(tiny_relief_model, tmp_path):
-    # The relief model as a format-3 file (what training gave before relief), then export.add_relief
+    # The relief model as a format-3 file (what training gave before relief), then export.remake_tiles
     # from the same mesh: the tiles and manifest the trainer wrote, to the byte; another mesh is refused.
     from conftest import PAINTED_BOX, RIDGED_BOX, sealed_bytes
     from sinshape.core.errors import InputError
-    from sinshape.trainer.export import add_relief
+    from sinshape.trainer.export import remake_tiles
 
     proto = onnx.load(tiny_relief_model)
     for tensor in [t for t in proto.graph.initializer if t.name in manifest.TILE_TENSORS]:
@@ -85,15 +85,29 @@ def test_relief_added_to_a_model_trained_before_it_is_the_trainers_own(tiny_reli
     before.write_bytes(sealed_bytes(proto))
     assert load.load_model(before).tiles is None
     after = tmp_path / "after.onnx"
-    assert add_relief(before, RIDGED_BOX, after) == old
+    assert remake_tiles(before, RIDGED_BOX, after) == old
     tiles, again = load.load_model(tiny_relief_model).tiles, load.load_model(after).tiles
     for name in ("voxels", "directions", "depth", "distance"):
         np.testing.assert_array_equal(getattr(again, name), getattr(tiles, name))
     with pytest.raises(InputError, match="not the file"):
-        add_relief(before, PAINTED_BOX, tmp_path / "wrong.onnx")
-    with pytest.raises(InputError, match="not a geometry-only model without tiles"):
-        add_relief(after, RIDGED_BOX, tmp_path / "twice.onnx")
-    assert not (tmp_path / "wrong.onnx").exists() and not (tmp_path / "twice.onnx").exists()
+        remake_tiles(before, PAINTED_BOX, tmp_path / "wrong.onnx")
+    assert not (tmp_path / "wrong.onnx").exists()
+
+
+def test_a_coloured_models_tiles_made_again_are_the_trainers_own(tiny_colour_model, tmp_path):
+    # Tiles a model already has, replaced by those made again from its mesh: the same, here (this
+    # version made both), in place of the old initializers, not beside them.
+    from conftest import PAINTED_BOX
+    from sinshape.trainer.export import remake_tiles
+
+    out = tmp_path / "again.onnx"
+    assert remake_tiles(tiny_colour_model, PAINTED_BOX, out) == manifest_of(tiny_colour_model)
+    names = [t.name for t in onnx.load(out).graph.initializer]
+    assert all(names.count(name) == 1 for name in manifest.TILE_TENSORS)
+    tiles, again = load.load_model(tiny_colour_model).tiles, load.load_model(out).tiles
+    for name in ("voxels", "depth", "distance"):
+        np.testing.assert_array_equal(getattr(again, name), getattr(tiles, name))
+    np.testing.assert_array_equal(again.mips[0], tiles.mips[0])
 
 
 @pytest.mark.parametrize("seed, factors", [(None, (1, 1, 1)), (11, (1, 1, 1)), (12, (1.5, 1, 0.7))])

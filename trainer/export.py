@@ -213,34 +213,47 @@ def export_model(generator, *, sizes, noise_amps, config, pyramid, seconds, path
     return manifest
 
 
-def add_relief(model_path, source_path, out_path) -> dict:
-    """A geometry-only model (format 3) written again with its example's
-    relief (format 5, `relief`): the depth tiles the trainer would have made
-    from the mesh it was trained on, so that a model trained before relief
-    need not be trained again. The mesh is voxelised with the model's own
-    settings, and refused unless its file's SHA-256, its level sizes and its
-    frame are the model's. Returns the new manifest."""
+def remake_tiles(model_path, source_path, out_path, asset_folder=None) -> dict:
+    """A model trained on a mesh written again with the tiles this version
+    of the trainer makes from that mesh, its weights as they are: a
+    geometry-only model of format 3 (trained before relief) gets its
+    example's relief (format 5, `relief`), a format-5 model fresh tiles of
+    its kind (colour, or relief alone) in place of those an older version
+    made. The mesh is voxelised with the model's own settings (and its
+    colour read, for a coloured one, from its folder or `asset_folder`), and
+    refused unless its file's SHA-256, its level sizes and its frame are the
+    model's. Returns the new manifest."""
     model = onnx.load_model(str(model_path))
     props = {p.key: p.value for p in model.metadata_props}
     manifest = json.loads(props[fmt.METADATA_KEY])
     parsed = fmt.parse(props[fmt.METADATA_KEY])
-    if parsed.colour or parsed.tiles:
-        raise InputError(f"{model_path}: not a geometry-only model without tiles (format {manifest['format_version']})")
+    if parsed.colour and not parsed.tiles:
+        raise InputError(f"{model_path}: a colour head without tiles (format {manifest['format_version']}): "
+                         "train it again to read colour from its example")
     config = manifest.get("config", {})
     pyramid = pyramid_from_mesh(Path(source_path), config.get("res", max(parsed.sizes[-1])), len(parsed.sizes),
                                 config.get("level_factor", LEVEL_FACTOR), config.get("min_size", MIN_SIZE),
-                                colour=False)
+                                colour=parsed.colour, asset_folder=asset_folder,
+                                tile_bytes=int(config.get("colour_mb", 48.0) * 2**20))
     if pyramid.source_sha256 != manifest["source"]["sha256"]:
         raise InputError(f"{source_path}: not the file {model_path} was trained on (its SHA-256 differs)")
     if pyramid.sizes != parsed.sizes or not (np.allclose(pyramid.origin, parsed.origin, rtol=0, atol=1e-9)
                                              and np.allclose(pyramid.spacing, parsed.spacing, rtol=0, atol=1e-12)):
         raise InputError(f"{source_path}: voxelised as {pyramid.sizes}, not as {model_path} was ({parsed.sizes})")
     tiles = pyramid.tiles
+    if tiles is None or (tiles.images.shape[-1] == 4) != parsed.colour:
+        raise InputError(f"{source_path}: gives no {'colour' if parsed.colour else 'relief'} tiles")
     manifest["format_version"] = fmt.TILES_VERSION
     manifest.pop("checksum", None)
-    manifest["relief"] = {"tiles": {"count": len(tiles.voxels), "side": tiles.images.shape[1]}}
+    counts = {"count": len(tiles.voxels), "side": tiles.images.shape[1]}
+    if parsed.colour:
+        manifest["colour"] = {**fmt.COLOUR_SPACE, "tiles": counts}
+    else:
+        manifest["relief"] = {"tiles": counts}
     text = json.dumps(manifest, indent=1)
     fmt.parse(text)
+    for old in [t for t in model.graph.initializer if t.name in fmt.TILE_TENSORS]:
+        model.graph.initializer.remove(old)
     for name, array, dtype in zip(fmt.TILE_TENSORS, (tiles.voxels, tiles.directions, tiles.images, tiles.distance),
                                   (np.int32, np.uint8, np.uint8, np.int8)):
         model.graph.initializer.append(numpy_helper.from_array(np.ascontiguousarray(array.astype(dtype)), name))
