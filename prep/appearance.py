@@ -40,7 +40,7 @@ MAX_TILE = 64
 MAX_TILE_BYTES = 48 << 20  # tiles above this get coarser (halved sides) until they fit
 FACING = 0.2  # a tile along axis a, side s, shows the faces whose normal has s * n_a above this
 REACH = 1.5  # a ray that meets no surface inside its voxel takes the nearest it meets this far out
-SIGN_REACH = 1.0  # voxels: nearer the surface than this, a centre's side is its nearest face's (signed_distance)
+REFERENCE_BLUR = 0.5  # voxels: the trainer's default blur of its targets (trainer/config.py, blur_sigma)
 
 
 @dataclass(frozen=True)
@@ -122,7 +122,8 @@ def samples_per_length(geometry, vertices: np.ndarray) -> float:
 
 def example_tiles(surface: Surface, box_low, spacing, solid: np.ndarray, max_bytes: int = MAX_TILE_BYTES) -> Tiles:
     """The tiles (4 channels, or a colourless surface's 1) of every voxel of
-    the finest level `solid` (X, Y, Z) bool the surface passes through (voxel (i, j, k) centred at box_low + (i +
+    the finest level `solid` (X, Y, Z) bool (the training grid) the surface
+    passes through (voxel (i, j, k) centred at box_low + (i +
     0.5) * spacing, input frame), and the signed distance at every voxel;
     the tiles' side is halved while they would pass `max_bytes`.
 
@@ -158,41 +159,47 @@ def example_tiles(surface: Surface, box_low, spacing, solid: np.ndarray, max_byt
         mine = np.unique(tile)
         if channels == 4:
             images[mine, ..., :3] = np.round(colour[mine] * 255)
-        images[mine, ..., -1] = np.round((np.clip(depth[mine], -DEPTH_RANGE, DEPTH_RANGE) / DEPTH_RANGE + 1) * 127.5)
+        # Depth in 1..254 where the ray met the surface inside the voxel; 0 and 255 say it lies beyond.
+        level = np.round((np.clip(depth[mine], -DEPTH_RANGE, DEPTH_RANGE) / DEPTH_RANGE + 1) * 127.5)
+        images[mine, ..., -1] = np.where(own[mine], np.clip(level, 1, 254), level)
         images[mine] = fill_misses(images[mine], hit[mine])
         hit_any[mine] = own[mine].any(axis=(1, 2))  # a tile shows a surface inside its voxel
     kept = unique[hit_any]
     direction = (kept % 6).astype(np.uint8)
     flat = kept // 6
     voxels = np.stack([flat // (shape[1] * shape[2]), flat // shape[2] % shape[1], flat % shape[2]], axis=1)
-    return Tiles(voxels.astype(np.int32), direction, images[hit_any], signed_distance(triangles, solid))
+    return Tiles(voxels.astype(np.int32), direction, images[hit_any], signed_distance(solid))
 
 
-def signed_distance(triangles: np.ndarray, solid: np.ndarray) -> np.ndarray:
-    """The distance from each voxel centre to the surface (model units:
-    triangles (F, 3, 3) in voxels), negative inside, to within about a
-    twentieth of a voxel (its nearest of 64 samples per voxel face of area),
-    clamped to +-2 voxels: (X, Y, Z) int8 in DISTANCE_STEPs. A point near
-    the surface finds the surface point nearest it from it. Within a voxel's
-    reach of the surface the sign is the side of the nearest face the centre
-    lies on: `solid` counts every voxel the surface passes through as
-    inside, which would move the grid's zero up to half a voxel out (the
-    relief a sample takes is measured from it); farther, it is `solid`'s."""
+def signed_distance(solid: np.ndarray) -> np.ndarray:
+    """The signed distance from each voxel centre to the surface a model can
+    learn of the example: the 0.5 level of the training grid `solid`
+    blurred as the trainer blurs its targets (REFERENCE_BLUR voxels), which
+    has the voxels' shape but neither their staircase on a slope nor
+    anything finer (beyond the grid is outside). A sample's surface is one
+    of these; relief moves it from there onto the tiles' surface at full
+    detail. The level's own surface (marching cubes of the blurred grid,
+    padded with outside), 64 samples per voxel face of area, the nearest
+    found from each centre; negative where the blurred grid is above 0.5,
+    clamped to +-2 voxels: (X, Y, Z) int8 in DISTANCE_STEPs."""
+    from scipy import ndimage
     from scipy.spatial import cKDTree
+    from skimage import measure
 
-    face, weights = colours.sample_faces(triangles, 64.0, np.random.default_rng(1))
-    tree = cKDTree(np.einsum("nk,nkc->nc", weights, triangles[face]))
-    centres = np.argwhere(np.ones(solid.shape, bool)).astype(np.float64)
-    distance, nearest = tree.query(centres, distance_upper_bound=3.0, workers=-1)
-    distance = np.minimum(distance, 2.0)
-    inside = solid.reshape(-1).copy()
-    near = distance < SIGN_REACH
-    normals = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
-    points = np.einsum("nk,nkc->nc", weights, triangles[face])
-    towards = np.einsum("nc,nc->n", centres[near] - points[nearest[near]], normals[face[nearest[near]]])
-    inside[near] = towards < 0
+    pad = 3
+    blurred = ndimage.gaussian_filter(np.pad(solid, pad).astype(np.float64), REFERENCE_BLUR, mode="constant")
+    distance = np.full(solid.shape, 2.0)
+    if blurred.max() > 0.5:
+        vertices, faces, _, _ = measure.marching_cubes(blurred, 0.5)
+        triangles = vertices[faces] - pad
+        face, weights = colours.sample_faces(triangles, 64.0, np.random.default_rng(1))
+        tree = cKDTree(np.einsum("nk,nkc->nc", weights, triangles[face]))
+        centres = np.argwhere(np.ones(solid.shape, bool)).astype(np.float64)
+        found, _ = tree.query(centres, distance_upper_bound=3.0, workers=-1)
+        distance = np.minimum(found, 2.0).reshape(solid.shape)
+    inside = blurred[(slice(pad, -pad),) * 3] > 0.5
     distance[inside] *= -1
-    return np.round(distance.reshape(solid.shape) / DISTANCE_STEP).astype(np.int8)
+    return np.round(distance / DISTANCE_STEP).astype(np.int8)
 
 
 def key_of(voxels: np.ndarray, shape) -> np.ndarray:

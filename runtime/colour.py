@@ -73,10 +73,12 @@ MATCH_STREAM = 2  # core/noise's stream id of the matching's random choices (0 a
 REACH_ORDER = (0, -1, 1)
 TURN = 0.25
 # A sample's vertex moves by the example's relief at most this many voxels
-# (a tile's depths span half a voxel either side of its centre), and only on
+# (a tile's depths span half a voxel either side of its centre, and the
+# surface a model learns lies up to half a voxel out of the example's, the
+# training grid holding every voxel the surface passes through), and only on
 # a mesh at least RELIEF_SCALE times finer than the voxels: on a coarser one
 # its vertices are too far apart to carry detail finer than a voxel.
-RELIEF, RELIEF_SCALE = 0.5, 2
+RELIEF, RELIEF_SCALE = 1.0, 2
 # Relief is carried in full where the tile read faces the example's normal
 # there with a cosine of FACING[1] or more, not at all below FACING[0].
 FACING = (0.7, 0.95)
@@ -728,11 +730,13 @@ def relief(tiles: Tiles, matched, points: np.ndarray, grid) -> np.ndarray:
 
 
 def trilinear(grid: np.ndarray, points: np.ndarray) -> tuple:
-    """A grid (X, Y, Z) at points (n, 3), clamped to it, and its gradient:
-    ((n,), (n, 3)) float64."""
+    """A grid (X, Y, Z) at points (n, 3), and its gradient: ((n,), (n, 3))
+    float64. Past the outer voxel centres (a surface at the grid's edge lies
+    up to half a voxel beyond them) the outer cells go on linearly, up to a
+    voxel out; farther, clamped."""
     size = np.array(grid.shape)
-    p = np.clip(points, 0, size - 1)
-    low = np.minimum(np.floor(p).astype(np.int64), np.maximum(size - 2, 0))
+    p = np.clip(points, -1, size)
+    low = np.clip(np.floor(p).astype(np.int64), 0, np.maximum(size - 2, 0))
     f = p - low
     high = np.minimum(low + 1, size - 1)
     value = np.zeros(len(points))

@@ -107,36 +107,18 @@ def test_a_geometry_only_examples_depth_tiles_keep_its_relief_finer_than_a_voxel
     tiles = appearance.example_tiles(surface, box_low, spacing, solid)
     assert tiles.images.shape[1:] == (16, 16, 1)  # its profile's columns 1/64 apart, 8 a voxel: twice that
     read = colour.Tiles.of(tiles.voxels, tiles.directions, tiles.images, tiles.distance)
-    # Points along the top, flat (where a voxel grid's smooth surface would put them), take its ridges.
+    # Points along the top where a model's surface lies (the distance grid's zero: flat, 0.6 voxel
+    # above the joints) take its ridges and joints: within a tenth of a voxel of the block's own top.
     x = np.linspace(-0.95, 0.95, 400)
-    flat = np.stack([x, np.zeros_like(x), np.full_like(x, 1.015)], axis=1)
+    flat = np.stack([x, np.zeros_like(x), np.full_like(x, 1.07)], axis=1)
     moved = colour.relief(read, lambda voxels: voxels, (flat - box_low) / spacing - 0.5, np.array(solid.shape))
     height = box_low[2] + (moved[:, 2] + 0.5) * spacing[2]
+    top = 1.0 + 0.03 * ((x + 1) % 0.25 < 0.19)
+    assert np.abs(height - top).mean() < 0.1 * spacing[2]
     phase = (x + 1) % 0.25
     ridge, joint = (phase > 0.03) & (phase < 0.16), (phase > 0.2) & (phase < 0.24)
     assert ridge.sum() > 100 and joint.sum() > 30
-    assert 0.022 < height[ridge].mean() - height[joint].mean() < 0.038
     assert height[ridge].min() > height[joint].max()  # every ridge above every joint
-
-
-def test_the_distance_grid_is_zero_on_the_examples_own_surface(tmp_path):
-    # A box turned 30 degrees: its faces cross voxels anywhere. On them the distance grid reads about
-    # zero (-0.08 voxels on average, its edges rounded; a voxel the surface passes through counted
-    # inside would put its zero up to half a voxel out: -0.30 measured), and relief read at the
-    # example's own places moves them little (0.02 voxels).
-    path = tmp_path / "turned.ply"
-    box = trimesh.creation.box(extents=(2.0, 1.0, 1.0))
-    box.apply_transform(trimesh.transformations.rotation_matrix(np.radians(30), (1, 0, 0)))
-    box.export(path)
-    scene, box_low, spacing, solid = grid_of(path)
-    tiles = appearance.example_tiles(appearance.relief_surface(scene), box_low, spacing, solid)
-    read = colour.Tiles.of(tiles.voxels, tiles.directions, tiles.images, tiles.distance)
-    mesh = trimesh.load(path)
-    points = (trimesh.sample.sample_surface(mesh, 5000, seed=1)[0] - box_low) / spacing - 0.5
-    smooth, _ = colour.trilinear(read.distance, points)
-    assert abs(smooth.mean()) < 0.15
-    moved = colour.relief(read, lambda voxels: voxels, points, np.array(solid.shape))
-    assert np.linalg.norm(moved - points, axis=1).mean() < 0.05
 
 
 def off_the_line(rgb, a, b) -> np.ndarray:

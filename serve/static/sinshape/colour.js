@@ -45,7 +45,7 @@ export const DISTANCE_STEP = 1 / 63.5; // voxels per unit of the signed distance
 export const REACH_ORDER = [0, -1, 1];
 export const TURN = 0.25;
 // A vertex moves by the example's relief at most RELIEF voxels, on a mesh at least RELIEF_SCALE times finer.
-export const RELIEF = 0.5, RELIEF_SCALE = 2;
+export const RELIEF = 1.0, RELIEF_SCALE = 2;
 export const FACING = [0.7, 0.95]; // relief in full where the tile read faces the normal this much (cosine), none below
 export const ACROSS = [[1, 2], [0, 2], [0, 1]]; // a tile's rows and columns run along these axes, by its axis
 // reads_along: the voxels along a tile's axis whose tile a voxel without its own reads, by the side it looks from.
@@ -794,8 +794,8 @@ export function readColours(tiles, matched, points, grid, footprint = null) {
 
 /** Points (n, 3) of a sample's surface moved by the example's relief under them, as runtime/colour.py's
  * relief: along the example's normal by how far its surface at full detail (the nearest of the tiles of the
- * direction nearest the normal) stands out of its smooth surface, at most RELIEF voxels, fading out where that
- * direction turns from the normal (FACING). Float64Array (n, 3). */
+ * direction nearest the normal, passing over one read where its depth is clipped) stands out of its smooth
+ * surface, at most RELIEF voxels, fading out where that direction turns from the normal (FACING). Float64Array (n, 3). */
 export function relief(tiles, matched, points, grid) {
   const out = Float64Array.from(points);
   examplePoints(tiles, matched, points, grid, (i, q, smooth, normal, voxel) => {
@@ -806,7 +806,8 @@ export function relief(tiles, matched, points, grid) {
     let nearest = Infinity, height = 0;
     for (const reach of REACH_ORDER) {
       const found = tileUnder(tiles, q, voxel, dominant, reach);
-      if (found === null || !(Math.abs(found.above) * Math.sqrt(found.lean) < nearest)) continue;
+      if (found === null || depthClipped(tiles.depth, tiles.side, found.tile, found.a, found.b)) continue;
+      if (!(Math.abs(found.above) * Math.sqrt(found.lean) < nearest)) continue;
       nearest = Math.abs(found.above) * Math.sqrt(found.lean);
       height = found.above * Math.sqrt(found.lean) * (dominant & 1 ? 1 : -1);
     }
@@ -819,13 +820,14 @@ export function relief(tiles, matched, points, grid) {
   return out;
 }
 
-/** A grid (X, Y, Z) at point q (clamped to it), trilinear with voxel centres at integers, and its gradient
- * into `gradient` (3): float64, as runtime/colour.py's trilinear. Returns the value. */
+/** A grid (X, Y, Z) at point q, trilinear with voxel centres at integers (past the outer centres, the outer cells
+ * go on linearly up to a voxel out; farther, clamped), and its gradient into `gradient` (3): float64, as
+ * runtime/colour.py's trilinear. Returns the value. */
 export function trilinear(grid, size, q, gradient) {
   const low = [0, 0, 0], high = [0, 0, 0], f = [0, 0, 0];
   for (let a = 0; a < 3; a++) {
-    const p = Math.min(Math.max(q[a], 0), size[a] - 1);
-    low[a] = Math.min(Math.floor(p), Math.max(size[a] - 2, 0));
+    const p = Math.min(Math.max(q[a], -1), size[a]);
+    low[a] = Math.min(Math.max(Math.floor(p), 0), Math.max(size[a] - 2, 0));
     f[a] = p - low[a];
     high[a] = Math.min(low[a] + 1, size[a] - 1);
   }
@@ -892,6 +894,19 @@ export function bilinearTiles(images, n, tile, x, y) {
 }
 
 /** One channel's bilinear lookup, as bilinearTiles of values (N, n, n, 1): float32. */
+/** Whether any of the four texels bilinearDepth reads holds the end of the depth range (0 or 255): the tile's
+ * surface left the voxel there, as runtime/colour.py's depth_clipped. */
+export function depthClipped(depth, side, tile, a, b) {
+  const x = Math.min(Math.max(f32((a + 0.5) * side - 0.5), 0), side - 1), y = Math.min(Math.max(f32((b + 0.5) * side - 0.5), 0), side - 1);
+  const last = Math.max(side - 2, 0);
+  const x0 = Math.min(Math.floor(x), last), y0 = Math.min(Math.floor(y), last);
+  const x1 = Math.min(x0 + 1, side - 1), y1 = Math.min(y0 + 1, side - 1);
+  return [[x0, y0], [x0, y1], [x1, y0], [x1, y1]].some(([r, c]) => {
+    const value = depth[(tile * side + r) * side + c];
+    return value === 0 || value === 255;
+  });
+}
+
 function bilinearOne(values, n, tile, x, y) {
   const last = Math.max(n - 2, 0);
   const xi = Math.min(Math.max(x, 0), n - 1), yi = Math.min(Math.max(y, 0), n - 1);
