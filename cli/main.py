@@ -83,11 +83,25 @@ class Sinrun(click.Group):
             raise click.ClickException(f"this needs {top}, which is not installed: "
                                        f"pip install 'sinshape[{EXTRAS[top]}]'") from None
         except ImportError as error:  # a signal while a compiled module (onnxruntime) initialises
-            if not isinstance(error.__cause__ or error.__context__, KeyboardInterrupt):
+            stop = interruption(error)
+            if stop is None:
                 raise
-            exit_stopped(error.__cause__ or error.__context__)
+            exit_stopped(stop)
         except KeyboardInterrupt as stop:
             exit_stopped(stop)
+
+
+def interruption(error: BaseException):
+    """The Ctrl-C or SIGTERM behind an import that failed, anywhere down its
+    chain of causes (onnxruntime turns one that lands while it imports numpy
+    into a fresh ImportError), or after SIGTERM was seen; else None."""
+    seen = set()
+    while error is not None and id(error) not in seen:
+        if isinstance(error, KeyboardInterrupt):
+            return error
+        seen.add(id(error))
+        error = error.__cause__ or error.__context__
+    return Terminated() if Terminated.seen else None
 
 
 def exit_stopped(stop: BaseException, message: str | None = None) -> None:

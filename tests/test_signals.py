@@ -139,3 +139,18 @@ def test_train_terminated_saves_a_checkpoint(tmp_path, tiny_pyramid):
                 break
         assert stop(process, signal.SIGTERM).endswith("; --resume continues from it")
     assert out.with_name("m.ckpt.pt").exists() and not out.exists()
+
+
+def test_a_signal_inside_an_import_is_found_down_the_chain_of_causes():
+    # onnxruntime turns a SIGTERM that lands while it imports numpy into a fresh ImportError, whose
+    # context is another error of the import: the stop is read from anywhere down the chain.
+    from sinshape.cli import main
+
+    def chained(*errors):
+        for outer, inner in zip(errors, errors[1:]):
+            outer.__context__ = inner
+        return errors[0]
+
+    stop = main.Terminated()
+    assert main.interruption(chained(ImportError("import numpy failed"), ImportError("numpy"), stop)) is stop
+    assert main.interruption(chained(ImportError("no such module"), ValueError("bad"))) is None
