@@ -94,14 +94,16 @@ class Sinrun(click.Group):
 def interruption(error: BaseException):
     """The Ctrl-C or SIGTERM behind an import that failed, anywhere down its
     chain of causes (onnxruntime turns one that lands while it imports numpy
-    into a fresh ImportError), or after SIGTERM was seen; else None."""
+    into a fresh ImportError), or after either signal was seen; else None."""
     seen = set()
     while error is not None and id(error) not in seen:
         if isinstance(error, KeyboardInterrupt):
             return error
         seen.add(id(error))
         error = error.__cause__ or error.__context__
-    return Terminated() if Terminated.seen else None
+    if Terminated.seen:
+        return Terminated()
+    return KeyboardInterrupt() if interrupt.seen else None
 
 
 def exit_stopped(stop: BaseException, message: str | None = None) -> None:
@@ -837,8 +839,21 @@ def terminate(signum, frame):
     raise Terminated
 
 
+def interrupt(signum, frame):
+    """Ctrl-C as Python's own handler takes it, remembered: onnxruntime
+    turns one that lands while it imports numpy into an ImportError that
+    does not hold it (`interruption`)."""
+    interrupt.seen = True
+    raise KeyboardInterrupt
+
+
+interrupt.seen = False
+
+
 def main():
     signal.signal(signal.SIGTERM, terminate)
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:  # not where the shell ignores it
+        signal.signal(signal.SIGINT, interrupt)
     try:
         cli(prog_name="sinrun")
     except SystemExit as done:

@@ -154,3 +154,12 @@ def test_a_signal_inside_an_import_is_found_down_the_chain_of_causes():
     stop = main.Terminated()
     assert main.interruption(chained(ImportError("import numpy failed"), ImportError("numpy"), stop)) is stop
     assert main.interruption(chained(ImportError("no such module"), ValueError("bad"))) is None
+    # Ctrl-C that left no trace in the chain: the handler remembers it.
+    try:
+        main.interrupt(signal.SIGINT, None)
+    except KeyboardInterrupt:
+        pass
+    try:
+        assert isinstance(main.interruption(ImportError("import numpy failed")), KeyboardInterrupt)
+    finally:
+        main.interrupt.seen = False
