@@ -246,23 +246,31 @@ def test_a_box_painted_by_height_gives_its_high_vertices_the_top_colour(tmp_path
     assert top[0] > top[2] + 100 and bottom[2] > bottom[0] + 100, (top, bottom)
 
 
-@pytest.mark.parametrize("scale", [1, 2])
-def test_a_fine_meshs_vertices_move_by_the_examples_relief(model, tmp_path, scale):
-    # On a grid at least RELIEF_SCALE times finer, every output's vertices are the mesh's moved by
-    # the example's relief under them (the streamed .ply and the whole mesh alike); coarser, unmoved.
+def sampled_with_relief(model, tmp_path, scale) -> list:
+    """`sinrun sample` of seed 4 at `scale` as .ply and .obj, each file's vertices checked to be the
+    mesh's moved by the example's relief under them (on a grid at least RELIEF_SCALE times finer;
+    coarser, unmoved): each file's colours (None for the .obj and a geometry-only .ply)."""
     from sinshape.runtime import mesh as meshing
 
     triplane = generate.sample(model, 4)
     plain = meshing.band_mesh(model, triplane, scale).vertices
     expected = colour.colouring(model, triplane).relief(plain) if scale >= colour.RELIEF_SCALE else plain
+    found = []
     for suffix in (".ply", ".obj"):
         out = tmp_path / f"s{suffix}"
         sinrun("sample", model.path, "--seed", 4, "--scale", scale, "--frame", "model", "-o", out)
-        vertices = read_ply(out)[0] if suffix == ".ply" else trimesh.load(out, process=False).vertices
+        vertices, colours = read_ply(out) if suffix == ".ply" else (trimesh.load(out, process=False).vertices, None)
         assert len(vertices) == len(plain)
-        moved = np.abs(vertices - plain).max(axis=1)
         assert np.abs(vertices - expected).max() < 1e-4
-        assert (moved.max() > 0.05) == (scale >= colour.RELIEF_SCALE)
+        assert (np.abs(vertices - plain).max() > 0.05) == (scale >= colour.RELIEF_SCALE)
+        found.append(colours)
+    return found
+
+
+@pytest.mark.parametrize("scale", [1, 2])
+def test_a_fine_meshs_vertices_move_by_the_examples_relief(model, tmp_path, scale):
+    # Every output (the streamed .ply and the whole mesh alike) takes the relief.
+    sampled_with_relief(model, tmp_path, scale)
 
 
 @pytest.fixture(scope="module")
@@ -272,21 +280,10 @@ def relief_model(tiny_relief_model):
 
 @pytest.mark.parametrize("scale", [1, 2])
 def test_a_geometry_only_models_fine_mesh_takes_its_examples_relief_and_no_colour(relief_model, tmp_path, scale):
-    from sinshape.runtime import mesh as meshing
-
     model = relief_model
     assert model.manifest.raw["format_version"] == fmt.TILES_VERSION and model.tiles is not None
     assert not model.manifest.colour and model.tiles.mips == []
-    triplane = generate.sample(model, 4)
-    plain = meshing.band_mesh(model, triplane, scale).vertices
-    expected = colour.colouring(model, triplane).relief(plain) if scale >= colour.RELIEF_SCALE else plain
-    for suffix in (".ply", ".obj"):
-        out = tmp_path / f"s{suffix}"
-        sinrun("sample", model.path, "--seed", 4, "--scale", scale, "--frame", "model", "-o", out)
-        vertices, colours = read_ply(out) if suffix == ".ply" else (trimesh.load(out, process=False).vertices, None)
-        assert colours is None and len(vertices) == len(plain)
-        assert np.abs(vertices - expected).max() < 1e-4
-        assert (np.abs(vertices - plain).max() > 0.05) == (scale >= colour.RELIEF_SCALE)
+    assert sampled_with_relief(model, tmp_path, scale) == [None, None]
 
 
 def test_without_detail_a_mesh_has_no_relief_and_its_colour_heads_colours(relief_model, model, tmp_path):

@@ -43,10 +43,6 @@ class GraphBuilder:
         self.initializers.append(numpy_helper.from_array(array.astype(np.float32), name))
         return name
 
-    def data(self, name: str, array: np.ndarray) -> None:
-        """An initializer no stage reads, of its own type: data the runtime reads by name."""
-        self.initializers.append(numpy_helper.from_array(np.ascontiguousarray(array), name))
-
     def node(self, op: str, inputs: list, output: str | None = None, **attrs) -> str:
         self.counter += 1
         output = output or f"{inputs[0]}/{op}{self.counter}"
@@ -139,9 +135,7 @@ def build_model(generator, manifest: dict, tiles=None) -> onnx.ModelProto:
         add_level(g, level, names, scale, bias)
     add_decoder(g, generator.decoder, stages["decoder_planes"], stages["decoder_head"])
     if tiles is not None:
-        for name, array, dtype in zip(fmt.TILE_TENSORS, (tiles.voxels, tiles.directions, tiles.images, tiles.distance),
-                                      (np.int32, np.uint8, np.uint8, np.int8)):
-            g.data(name, array.astype(dtype))
+        g.initializers += tile_initializers(tiles)
     graph = helper.make_graph(g.nodes, "sinshape", g.inputs, g.outputs, g.initializers)
     model = helper.make_model(
         graph,
@@ -155,6 +149,13 @@ def build_model(generator, manifest: dict, tiles=None) -> onnx.ModelProto:
     helper.set_model_props(model, {fmt.METADATA_KEY: text})
     onnx.checker.check_model(model, full_check=True)
     return model
+
+
+def tile_initializers(tiles) -> list:
+    """An example's tiles (prep.appearance.Tiles) as the initializers docs/FORMAT.md names, of their own types."""
+    return [numpy_helper.from_array(np.ascontiguousarray(array.astype(dtype)), name) for name, array, dtype in
+            zip(fmt.TILE_TENSORS, (tiles.voxels, tiles.directions, tiles.images, tiles.distance),
+                (np.int32, np.uint8, np.uint8, np.int8))]
 
 
 def make_manifest(generator, *, sizes, noise_amps, config, pyramid, seconds, ran_on: dict) -> dict:
@@ -254,9 +255,7 @@ def remake_tiles(model_path, source_path, out_path, asset_folder=None) -> dict:
     fmt.parse(text)
     for old in [t for t in model.graph.initializer if t.name in fmt.TILE_TENSORS]:
         model.graph.initializer.remove(old)
-    for name, array, dtype in zip(fmt.TILE_TENSORS, (tiles.voxels, tiles.directions, tiles.images, tiles.distance),
-                                  (np.int32, np.uint8, np.uint8, np.int8)):
-        model.graph.initializer.append(numpy_helper.from_array(np.ascontiguousarray(array.astype(dtype)), name))
+    model.graph.initializer.extend(tile_initializers(tiles))
     del model.metadata_props[:]  # the seal among them: it is made again below
     helper.set_model_props(model, {**{k: v for k, v in props.items() if k != fmt.SEAL_KEY}, fmt.METADATA_KEY: text})
     onnx.checker.check_model(model, full_check=True)
