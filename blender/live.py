@@ -96,10 +96,10 @@ def keep_part(obj, model) -> str:
     box = settings.keep_box
     if box is None:
         if not settings.keep_part:
-            raise InputError("choose a box object to keep (Add Keep Box)", "keep")
+            raise InputError("choose a box object to `keep` (Add Keep Box)", "keep")
         if len(settings.keep_part) > MAX_PART_TEXT:  # the runtime would echo all of it
             raise InputError(f"the kept part recorded on the object is {len(settings.keep_part)} characters, not a "
-                             "part's SEED:X0,Y0,Z0:X1,Y1,Z1: choose a box object to keep (Add Keep Box)", "keep")
+                             "part's SEED:X0,Y0,Z0:X1,Y1,Z1: choose a box object to `keep` (Add Keep Box)", "keep")
         return settings.keep_part
     corners = points_between([tuple(corner) for corner in box.bound_box], box, obj)
     up = model.manifest.up

@@ -99,7 +99,7 @@ def check_settings(settings) -> None:
     generate.check_seed(settings.seed)
     radius = settings.radius
     if not 0 <= radius <= MAX_RADIUS:
-        raise InputError(f"radius must be 0 to {MAX_RADIUS} tiles on each side, got {radius}", "radius")
+        raise InputError(f"`radius` must be 0 to {MAX_RADIUS} tiles on each side, got {radius}", "radius")
 
 
 def read_map(reference: str, what: str, read, relief: float = 0.0) -> tuple:

@@ -6,7 +6,6 @@ Heavy imports (torch, onnxruntime, trimesh) happen inside the commands, so
 
 import math
 import os
-import re
 import signal
 import sys
 import time
@@ -15,7 +14,7 @@ from pathlib import Path
 import click
 
 from sinshape.core import files
-from sinshape.core.errors import ConflictError, InputError
+from sinshape.core.errors import ConflictError, InputError, NamesParameters, spelled
 
 from sinshape.runtime.options import OPTION
 
@@ -41,7 +40,7 @@ OPTIONS = {**{name: "--" + name.replace("_", "-") for name in OPTION if name != 
            "output": "--output", "force": "--force",
            "no_colour": "--no-colour", "d_steps": "--d-steps", "d_rate": "--d-rate", "colour_mb": "--colour-mb",
            "asset_folder": "--asset-folder", "restart": "--restart", "lods": "--lods", "texture": "--texture",
-           "ao": "--ao", "relief": "--relief"}
+           "ao": "--ao", "relief": "--relief", "contrast": "--contrast"}
 # ctx.meta key: {parameter: what set it} where a command's value came from elsewhere than OPTIONS says.
 SOURCES = "sinrun.sources"
 # The extra that installs each optional module (pyproject.toml): a command
@@ -52,17 +51,11 @@ EXTRAS = {"torch": "train", "onnx": "train", "scipy": "prep", "h5py": "prep", "s
 
 
 def command_line_message(error: Exception, options: dict = OPTIONS) -> str:
-    """The error's message with its parameter (each, for a tuple) written as the option that sets it:
-    an InputError's, or any other's that names one the same way (training's stops)."""
-    message = str(error)
-    names = error.parameter if isinstance(error.parameter, tuple) else (error.parameter,)
-    lasts = []
-    for name in names:
-        words = list(re.finditer(rf"\b{name}\b", message)) if name in options else []
-        if words:
-            lasts.append((words[-1], options[name]))
-    for last, option in sorted(lasts, key=lambda found: found[0].start(), reverse=True):  # later words first
-        message = message[:last.start()] + option + message[last.end():]
+    """The error's message with each parameter it names (core.errors marks
+    them) written as the option that sets it: an InputError's, or any other's
+    that names one the same way (training's stops)."""
+    template = error.template if isinstance(error, NamesParameters) else str(error)
+    message = spelled(template, lambda name: options.get(name, name))
     return message.replace("\r", "\\r").replace("\n", "\\n")  # one line, whatever a value held
 
 
@@ -367,7 +360,7 @@ def sample(model, seeds, layout_file, resample_layout, output, lods, texture, ao
     from sinshape.runtime.request import Layout, SampleRequest
 
     if seeds is None and (workers is not None or engine != "local" or address is not None or restart):
-        raise ConflictError("workers, engine, address and restart are for many samples: give seeds",
+        raise ConflictError("`workers`, `engine`, `address` and `restart` are for many samples: give `seeds`",
                             ("workers", "engine", "address", "restart", "seeds"))
     packed = assets.options_of(lods, texture, ao)
     loaded = open_model(model, threads)

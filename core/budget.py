@@ -69,7 +69,7 @@ def check_memory(needed: int, what: str, limit: int | None = None) -> None:
     """Refuse work up front, with the figure, if it needs more than `limit`
     bytes (None: the memory available now)."""
     if limit is not None and not isinstance(limit, numbers.Real):
-        raise InputError(f"memory_limit must be a number of bytes, got {limit!r}", "memory_limit")
+        raise InputError(f"`memory_limit` must be a number of bytes, got {limit!r}", "memory_limit")
     limit = available_memory() if limit is None else limit
     if needed > limit:
         raise MemoryLimitError(f"{what} needs about {gib(needed)} GiB of memory (limit {gib(limit)} GiB)")

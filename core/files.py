@@ -13,8 +13,10 @@ every command alike (`written_path`).
 
 import errno
 import os
+import stat
 from pathlib import Path
 
+from .budget import check_memory
 from .errors import InputError
 
 # The mesh formats sinshape writes, by extension: trimesh's names for them.
@@ -56,17 +58,60 @@ def check_writable(path, inputs=()) -> None:
 
 
 def check_readable(path, what: str = "file") -> Path:
-    """A regular file to read, or one line saying what it is instead."""
+    """A regular file to read, or one line saying what it is instead (the
+    words of read_regular's)."""
     path = Path(path)
-    if path.is_dir():
-        raise InputError(f"{path}: a directory, not a {what}")
     if path.is_symlink() and not path.exists():
-        raise InputError(f"{path}: a symbolic link that leads nowhere (or round in a loop)")
-    if path.exists() and not path.is_file():
-        raise InputError(f"{path}: not a regular file (a pipe or a device); give a {what}")
-    if not path.exists():
-        raise InputError(f"{path}: no such {what}")
+        raise InputError(f"the {what} {path} is a symbolic link that leads nowhere (or round in a loop)")
+    try:
+        mode = path.stat().st_mode
+    except FileNotFoundError:
+        raise InputError(f"the {what} {path} is missing") from None
+    except OSError as error:
+        raise InputError(f"the {what} {path} cannot be read ({error.strerror})") from None
+    if not stat.S_ISREG(mode):
+        raise InputError(f"the {what} {path} is {kind_of(mode)}, not a regular file")
     return path
+
+
+def kind_of(mode: int) -> str:
+    """What a file that is not a regular one is, from its st_mode."""
+    return ("a folder" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode)
+            else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "a socket")
+
+
+def read_regular(path, label: str, limit: int | None, per_byte: int = 1, field: str | None = None) -> bytes:
+    """The bytes of the regular file `path` leads to, for every file a user
+    names (a model, a map, a layout, a mesh and the files it names). Opened
+    without blocking and looked at before a byte is read: anything else (a
+    FIFO would wait for a writer, a device never ends) is refused, so is a
+    file above `limit` bytes or whose memory (`per_byte` times its size)
+    is not free; then at most its size is read, so a file that grows as it
+    is read stays bounded. `label` says what the file is in the messages
+    (`the height map x.npy`); `field` is the InputError's parameter."""
+    try:
+        handle = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_NOCTTY", 0))
+    except FileNotFoundError:
+        lost = os.path.islink(path)
+        raise InputError(f"{label} is {'a symbolic link that leads nowhere' if lost else 'missing'}", field) from None
+    except OSError as error:
+        loop = error.errno == errno.ELOOP
+        raise InputError(f"{label} {'is a symbolic link that goes round in a loop' if loop else 'cannot be read'}"
+                         f"{'' if loop else f' ({error.strerror})'}", field) from None
+    try:
+        mode = os.fstat(handle)
+        if not stat.S_ISREG(mode.st_mode):
+            raise InputError(f"{label} is {kind_of(mode.st_mode)}, not a regular file", field)
+        if limit is not None and mode.st_size > limit:
+            raise InputError(f"{label} is {mode.st_size / 2**20:.1f} MiB; at most {limit / 2**20:.0f} MiB is read "
+                             "for it", field)
+        check_memory(mode.st_size * per_byte, f"reading {label}")
+        with os.fdopen(handle, "rb", closefd=False) as file:  # a regular file: reading it cannot block
+            return file.read(mode.st_size)
+    except OSError as error:
+        raise InputError(f"{label} cannot be read ({error.strerror})", field) from None
+    finally:
+        os.close(handle)
 
 
 def check_not_input(path, inputs) -> None:

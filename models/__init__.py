@@ -41,6 +41,6 @@ def own_file(name_or_path: str | None, output) -> Path:
         return Path(output)
     path = find(name_or_path)
     if path in available().values():
-        raise InputError(f"{path.stem} is a shipped model: write the change to a file of your own with output",
+        raise InputError(f"{path.stem} is a shipped model: write the change to a file of your own with `output`",
                          "output")
     return path

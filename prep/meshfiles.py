@@ -42,6 +42,7 @@ from PIL import Image
 
 from sinshape.core.budget import check_memory
 from sinshape.core.errors import InputError
+from sinshape.core.files import read_regular
 
 # An image file larger than this is refused unread: 2^27 pixels (the most a
 # texture may have) of 16-bit RGBA, uncompressed, fit in 1 GiB.
@@ -96,39 +97,14 @@ class MeshFolder:
         path = Path(os.path.realpath(self.folder / name.strip()))
         if not path.is_relative_to(self.root):
             raise InputError(f"{self.label(name, what, named_in)} lies outside {self.where()}, and a mesh's files "
-                             "are read from there only (asset_folder widens it)", "asset_folder")
+                             "are read from there only (`asset_folder` widens it)", "asset_folder")
         return path
 
     def read(self, name: str, what: str, limit: int | None = None, per_byte: int = 1, named_in: str = "") -> bytes:
         """The bytes of the regular file `name` leads to, opened without
         blocking; at most `limit` bytes, and their memory (`per_byte` times
         their size) checked before they are read."""
-        path = self.resolve(name, what, named_in)
-        label = self.label(name, what, named_in)
-        try:
-            handle = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_NOCTTY", 0))
-        except FileNotFoundError:
-            raise InputError(f"{label} is missing") from None
-        except OSError as error:
-            raise InputError(f"{label} cannot be read ({error.strerror})") from None
-        try:
-            mode = os.fstat(handle)
-            if not stat.S_ISREG(mode.st_mode):
-                kind = ("a folder" if stat.S_ISDIR(mode.st_mode) else "a FIFO" if stat.S_ISFIFO(mode.st_mode)
-                        else "a device" if stat.S_ISCHR(mode.st_mode) or stat.S_ISBLK(mode.st_mode) else "a socket")
-                raise InputError(f"{label} is {kind}, not a regular file")
-            if limit is not None and mode.st_size > limit:
-                raise InputError(f"{label} is {mode.st_size / 2**20:.1f} MiB; at most {limit / 2**20:.0f} MiB "
-                                 "is read for it")
-            check_memory(mode.st_size * per_byte, f"reading {label}")
-        except BaseException:
-            os.close(handle)
-            raise
-        with os.fdopen(handle, "rb") as file:  # a regular file: reading it cannot block
-            try:
-                data = file.read(mode.st_size)
-            except OSError as error:
-                raise InputError(f"{label} cannot be read ({error.strerror})") from None
+        data = read_regular(self.resolve(name, what, named_in), self.label(name, what, named_in), limit, per_byte)
         self.digest.update(hashlib.sha256(name.strip().encode("utf-8", "replace")).digest())
         self.digest.update(hashlib.sha256(data).digest())
         self.read_before[name.strip()] = data
@@ -347,7 +323,7 @@ def gltf_images(data: bytes, folder: MeshFolder, materials: bool = True) -> list
 def colour_input(error: InputError) -> InputError:
     """A refusal of what a mesh's colour is read from, marked so (its
     parameters include no_colour): reading without colour gets past it."""
-    return type(error)(str(error), parameters(error) + ("no_colour",))
+    return type(error)(error.template, parameters(error) + ("no_colour",))
 
 
 def parameters(error: InputError) -> tuple:

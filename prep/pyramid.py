@@ -112,7 +112,7 @@ def level_sizes(finest: tuple, count: int, factor: float = LEVEL_FACTOR, min_siz
     if max(chain[0]) < min_size:
         raise InputError(
             f"{count} levels shrink the coarsest level's longest side to {max(chain[0])} voxels, "
-            f"below the {min_size}-voxel minimum; use fewer levels or a higher res", "res"
+            f"below the {min_size}-voxel minimum; use fewer levels or a higher `res`", "res"
         )
     return [tuple(max(n, min_size) for n in size) for size in chain]
 
@@ -150,7 +150,7 @@ def pyramid_from_mesh(path: Path, res: int, levels: int | None = None,
     except InputError as error:  # a texture or material that cannot be read: say what gets past it
         if "no_colour" not in meshfiles.parameters(error):
             raise
-        raise type(error)(f"{error} (no_colour trains geometry only)", error.parameter) from None
+        raise type(error)(f"{error.template} (`no_colour` trains geometry only)", error.parameter) from None
     mesh = voxelize.scene_mesh(scene, path)
     corners = mesh.vertices[mesh.faces.reshape(-1)]
     low, high = corners.min(axis=0), corners.max(axis=0)
@@ -172,7 +172,7 @@ def pyramid_from_mesh(path: Path, res: int, levels: int | None = None,
     try:
         surface = colours.surface_colour(scene, path, data, voxel) if colour else None
     except InputError as error:  # what to do about it, where it is raised
-        raise InputError(f"{error} (no_colour trains geometry only)", "no_colour") from None
+        raise InputError(f"{error.template} (`no_colour` trains geometry only)", "no_colour") from None
     if surface:
         check_memory(colours.BYTES_PER_VOXEL * sum(math.prod(size) for size in sizes),
                      f"colouring the levels of a {'x'.join(map(str, sizes[-1]))} grid")
@@ -228,7 +228,7 @@ def pyramid_from_h5(path: Path, levels: int | None = None) -> Pyramid:
                              f"(level {i} is {coarse.shape}, level {i + 1} {fine.shape})")
     if levels is not None:
         if levels > len(grids):
-            raise InputError(f"{path.name} has {len(grids)} levels; levels {levels} asks for more", "levels")
+            raise InputError(f"{path.name} has {len(grids)} levels; `levels` {levels} asks for more", "levels")
         grids = grids[len(grids) - levels:]
     return Pyramid(
         levels=grids,
@@ -319,7 +319,7 @@ def reference_grid(path, manifest, scale: float = 1.0) -> np.ndarray:
     path = Path(path)
     config = manifest.raw.get("config", {})
     if scale != 1 and path.suffix.lower() in PYRAMID_SUFFIXES:
-        raise InputError("scale needs a mesh reference: an .h5 pyramid has one resolution", "scale")
+        raise InputError("`scale` needs a mesh reference: an .h5 pyramid has one resolution", "scale")
     res = round(config.get("res", max(manifest.sizes[-1])) * scale)
     return load_pyramid(path, res=res, levels=1, factor=config.get("level_factor", LEVEL_FACTOR),
                         min_size=config.get("min_size", MIN_SIZE), colour=False, tiles=False).levels[-1]

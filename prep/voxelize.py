@@ -71,6 +71,7 @@ import trimesh
 
 from sinshape.core.budget import check_memory
 from sinshape.core.errors import InputError
+from sinshape.core.files import read_regular
 
 from . import meshfiles
 
@@ -122,17 +123,12 @@ def read_scene(path: Path, materials: bool = True, asset_folder: Path | None = N
     read from its folder (or `asset_folder`), checked first
     (prep.meshfiles): what was read is the scene's metadata[REFERENCES]."""
     formats = sorted(trimesh.exchange.load.mesh_formats())
-    if not path.exists():
-        raise InputError(f"{path}: no such file")
-    if not path.is_file():
-        raise InputError(f"{path}: a directory, not a mesh file" if path.is_dir() else f"{path}: not a file")
     file_type = path.suffix.lower().lstrip(".")
     if file_type not in formats:
         works = ", ".join("." + f for f in formats)
         found = f"mesh format '{path.suffix}'" if path.suffix else "file name without extension"
         raise InputError(f"{path}: unsupported {found} (use one of {works})")
-    check_memory(path.stat().st_size * MESH_BYTES_PER_FILE_BYTE, f"loading the mesh {path.name}")
-    data = path.read_bytes()
+    data = read_regular(path, f"the mesh {path}", None, MESH_BYTES_PER_FILE_BYTE)
     if not data:
         raise InputError(f"{path}: empty file")
     data = _as_text(data, file_type, path)

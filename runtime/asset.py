@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sinshape.core.budget import check_memory
-from sinshape.core.errors import ConflictError, InputError
+from sinshape.core.errors import ConflictError, InputError, named
 
 from . import bake, colour as colouring, gltf, mesh, query, world
 from .request import make
@@ -56,18 +56,18 @@ class AssetOptions:
             lods = ()
         if not (1 <= len(lods) <= MAX_LODS and all(isinstance(n, (int, np.integer)) and not isinstance(n, bool)
                                                     for n in lods)):
-            raise InputError(f"lods must be 1 to {MAX_LODS} triangle counts, finest first, got {self.lods!r}",
+            raise InputError(f"`lods` must be 1 to {MAX_LODS} triangle counts, finest first, got {self.lods!r}",
                              "lods")
         low = [n for n in lods if n < MIN_TRIANGLES]
         if low:
-            raise InputError(f"lods asks for {low[0]} triangles; a level needs at least {MIN_TRIANGLES}", "lods")
+            raise InputError(f"`lods` asks for {low[0]} triangles; a level needs at least {MIN_TRIANGLES}", "lods")
         if any(b >= a for a, b in zip(lods, lods[1:])):
-            raise InputError(f"lods must fall level by level, finest first, got {','.join(map(str, lods))}", "lods")
+            raise InputError(f"`lods` must fall level by level, finest first, got {','.join(map(str, lods))}", "lods")
         object.__setattr__(self, "lods", tuple(int(n) for n in lods))
         size = self.texture
         if not (isinstance(size, (int, np.integer)) and not isinstance(size, bool)
                 and MIN_TEXTURE <= size <= MAX_TEXTURE and size & (size - 1) == 0):
-            raise InputError(f"texture must be a power of two from {MIN_TEXTURE} to {MAX_TEXTURE} texels, "
+            raise InputError(f"`texture` must be a power of two from {MIN_TEXTURE} to {MAX_TEXTURE} texels, "
                              f"got {size!r}", "texture")
         object.__setattr__(self, "texture", int(size))
 
@@ -84,7 +84,7 @@ def parse_lods(text: str) -> tuple:
     try:
         return tuple(int(part) for part in str(text).split(","))
     except ValueError:
-        raise InputError(f"lods must be triangle counts like 20000,5000,1200, got {text!r}", "lods") from None
+        raise InputError(f"`lods` must be triangle counts like 20000,5000,1200, got {text!r}", "lods") from None
 
 
 def check_asset_memory(options: AssetOptions, memory_limit: int | None = None) -> None:
@@ -179,7 +179,7 @@ def simplify(vertices: np.ndarray, faces: np.ndarray, target: int, lock_border: 
                                    result_error=error)
     if count // 3 > target:
         why = " (a world tile keeps every vertex of its border)" if lock_border else ""
-        raise InputError(f"lods asks for {target} triangles, but the surface simplifies to no fewer than "
+        raise InputError(f"`lods` asks for {target} triangles, but the surface simplifies to no fewer than "
                          f"{count // 3}{why}", "lods")
     kept = out[:count].reshape(-1, 3).astype(np.int64)
     used = np.unique(kept)
@@ -250,7 +250,7 @@ def asset_bytes(model, request, options: AssetOptions, name: str = "sample", thr
     if not len(dense.faces):
         raise InputError("the sample has no surface at this scale and size; nothing written")
     if options.lods[0] > len(dense.faces):
-        raise InputError(f"lods asks for {options.lods[0]} triangles, more than the "
+        raise InputError(f"`lods` asks for {options.lods[0]} triangles, more than the "
                          f"{'tile' if request.tile is not None else 'sample'}'s full-resolution mesh has "
                          f"({len(dense.faces)}): ask for fewer, or a larger scale", "lods")
     timings = {"sample": time.perf_counter() - started}
@@ -275,7 +275,7 @@ def options_of(lods=None, texture: int | None = None, ao: bool = False) -> Asset
     if lods is None:
         given = [name for name, value in (("texture", texture is not None), ("ao", ao)) if value]
         if given:
-            raise ConflictError(f"{' and '.join(given)} {'are' if len(given) > 1 else 'is'} for an asset: give lods "
+            raise ConflictError(f"{named(given, ' and ')} {'are' if len(given) > 1 else 'is'} for an asset: give `lods` "
                                 "too (its levels' triangle counts, like 20000,5000,1200)", (*given, "lods"))
         return None
     lods = parse_lods(lods) if isinstance(lods, str) else lods

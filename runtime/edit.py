@@ -119,7 +119,7 @@ def check_part(part: Part, size: tuple, in_units=None) -> Part:
                              f"needs more than {2 * MARGIN}{also(axis, 2 * MARGIN, True)} (a {MARGIN}-voxel join "
                              "on each side inside the sample)", "keep")
     if not (len(part.offset) == 3 and all(isinstance(v, (int, np.integer)) for v in part.offset)):
-        raise InputError(f"a part's offset must be 3 whole voxels, got {part.offset!r}", "offset")
+        raise InputError(f"a part's `offset` must be 3 whole voxels, got {part.offset!r}", "offset")
     return Part(int(part.seed), tuple(float(v) for v in part.low), tuple(float(v) for v in part.high),
                 tuple(int(v) for v in part.offset), part.factors)
 
@@ -281,7 +281,7 @@ def grow(model, seed: int, by, anchor=(0.0, 0.0, 0.0), factors=(1.0, 1.0, 1.0),
     0 at the low side, 1 at the high side, 0.5 centred) and the new ground
     around it joins it as `compose` joins a part."""
     if not (len(by) == 3 and all(isinstance(f, numbers.Real) and 1 <= f < float("inf") for f in by)):
-        raise InputError(f"grow factors must be 3 numbers of at least 1, got {by!r}", "grow")
+        raise InputError(f"`grow` factors must be 3 numbers of at least 1, got {by!r}", "grow")
     if not (len(anchor) == 3 and all(isinstance(a, numbers.Real) and 0 <= a <= 1 for a in anchor)):
         raise InputError(f"an anchor is 3 numbers in [0, 1], got {anchor!r}", "anchor")
     old = scaled_sizes(model.manifest.sizes, factors)[-1]

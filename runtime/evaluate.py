@@ -247,7 +247,7 @@ def check_evaluation_memory(model, samples: int, scale: float, limit: int | None
     pairwise overlaps are a few (n, n) float64 matrices and (n, VOXEL_CHUNK)
     float32 chunks; one sample is queried densely at a time."""
     if samples < 1:
-        raise InputError(f"samples must be at least 1, got {samples}", "samples")
+        raise InputError(f"`samples` must be at least 1, got {samples}", "samples")
     voxels = int(np.prod(grid_shape(model.manifest.sizes[-1], scale)))
     needed = samples * voxels + 4 * 8 * samples**2 + 4 * VOXEL_CHUNK * samples + 8 * voxels
     check_memory(needed, f"scoring {samples} samples of {voxels} voxels", limit)

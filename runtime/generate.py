@@ -53,12 +53,12 @@ def scaled_sizes(sizes: list, factors=(1.0, 1.0, 1.0)) -> list:
     """Every level's grid for a sample `factors` times the training size per axis."""
     if not (isinstance(factors, (tuple, list, np.ndarray)) and len(factors) == 3
             and all(isinstance(f, numbers.Real) and 0 < f < float("inf") for f in factors)):
-        raise InputError(f"factors must be 3 positive numbers, got {factors!r}", "factors")
+        raise InputError(f"`factors` must be 3 positive numbers, got {factors!r}", "factors")
     longest = max(n * f for size in sizes for n, f in zip(size, factors))
     out = [] if longest > MAX_GRID_SIDE else [tuple(max(MIN_SIDE, round(n * f)) for n, f in zip(size, factors))
                                               for size in sizes]  # round() overflows for 1e308
     if longest > MAX_GRID_SIDE or max(max(size) for size in out) > MAX_GRID_SIDE:
-        raise InputError(f"factors {','.join(f'{f:g}' for f in factors)} make a level longer than {MAX_GRID_SIDE} "
+        raise InputError(f"`factors` {','.join(f'{f:g}' for f in factors)} make a level longer than {MAX_GRID_SIDE} "
                          f"voxels, the most a sample may have per axis", "factors")
     return out
 
@@ -285,7 +285,7 @@ def check_generation_memory(sizes: list, channels: int, factors, limit: int | No
 
 def check_seed(seed: int) -> int:
     if not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**63:
-        raise InputError(f"a seed must be an integer in [0, 2**63), got {seed}", "seed")
+        raise InputError(f"`seed` must be an integer in [0, 2**63), got {seed}", "seed")
     return int(seed)
 
 
@@ -300,14 +300,14 @@ def sample(model, seed: int | None = None, factors=(1.0, 1.0, 1.0), memory_limit
     check_generation_memory(sizes, model.manifest.channels, factors, memory_limit)
     if seed is None:
         if sizes != [tuple(s) for s in model.manifest.sizes]:
-            raise InputError("the reconstruction exists only at the training size; drop factors", "factors")
+            raise InputError("the reconstruction exists only at the training size; drop `factors`", "factors")
         return triplane(model, reconstruction_noise(model, sizes), sizes)
     return triplane(model, draw_noise(check_seed(seed), sizes, model.manifest.channels), sizes)
 
 
 def check_alpha(alpha: float) -> None:
     if not (isinstance(alpha, numbers.Real) and -MAX_ALPHA <= alpha <= MAX_ALPHA):
-        raise InputError(f"alpha must be a number in [-{MAX_ALPHA}, {MAX_ALPHA}], got {alpha}", "alpha")
+        raise InputError(f"`alpha` must be a number in [-{MAX_ALPHA}, {MAX_ALPHA}], got {alpha}", "alpha")
 
 
 def blend_weights(low: float, high: float, steps: int):

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from sinshape.core.errors import InputError
-from sinshape.core.files import MESH_FORMATS, atomic_write
+from sinshape.core.files import MESH_FORMATS, atomic_write, read_regular
 from sinshape.core.manifest import MAX_LEVEL_SIDE, PLANE_AXES
 
 from .generate import TriPlane, check_seed, draw_noise, resize_matrix, scaled_sizes, triplane
@@ -53,7 +53,7 @@ FIT_BYTES = 12
 def check_level(model, level: int) -> int:
     levels = len(model.manifest.sizes)
     if not (isinstance(level, (int, np.integer)) and 0 <= level < levels - 1):
-        raise InputError(f"level must be 0 to {levels - 2} (a layout needs a finer level after it), got {level}",
+        raise InputError(f"`level` must be 0 to {levels - 2} (a layout needs a finer level after it), got {level}",
                          "level")
     return int(level)
 
@@ -413,14 +413,7 @@ def write_layout(grid: np.ndarray, path) -> None:
 def read_layout(path) -> np.ndarray:
     """A layout file as a bool grid, checked: bounded size, one 3-D grid."""
     path = check_layout_path(path)
-    try:
-        if path.stat().st_size > MAX_LAYOUT_BYTES:
-            raise InputError(f"{path}: {path.stat().st_size >> 20} MB is too large for a layout")
-        data = path.read_bytes()
-    except FileNotFoundError:
-        raise InputError(f"{path}: no such layout file") from None
-    except OSError as error:
-        raise InputError(f"{path}: cannot read ({error.strerror})") from None
+    data = read_regular(path, f"the layout {path}", MAX_LAYOUT_BYTES, field="layout")
     return parse_layout(data, path.suffix.lower(), path)
 
 

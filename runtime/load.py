@@ -29,7 +29,7 @@ import onnxruntime as ort  # noqa: E402
 from sinshape.core import manifest as fmt
 from sinshape.core.budget import check_memory
 from sinshape.core.errors import InputError
-from sinshape.core.files import atomic_write, check_readable, check_writable
+from sinshape.core.files import atomic_write, check_writable, read_regular
 
 from . import onnxfile
 from .colour import Tiles
@@ -107,14 +107,7 @@ def read_model(path: Path) -> tuple:
     """(bytes, parsed ONNX, sealed): the file's seal checked first, so that a
     corrupt byte anywhere is named corrupt before anything reads it; then
     parsed as ONNX, refusing what could reach beyond the file."""
-    check_readable(path, "model file")
-    size = path.stat().st_size
-    if size > MAX_MODEL_BYTES:
-        raise InputError(f"{path}: {size / 2**20:.0f} MB is too large for a sinshape model")
-    try:
-        data = path.read_bytes()
-    except OSError as error:
-        raise InputError(f"{path}: cannot read ({error.strerror})") from None
+    data = read_regular(path, f"the model {path}", MAX_MODEL_BYTES)
     _, sealed, intact = fmt.unseal(data)
     if sealed and not intact:
         raise InputError(f"{path}: corrupt model: its bytes do not match the SHA-256 sealed at its end")
@@ -190,14 +183,14 @@ def write_oriented(model: Model, up: str | None, path, arrange: str | None = Non
     old one). How the model runs does not change: only viewers, pictures
     and worlds read them."""
     if up is None and arrange is None and contrast is None:
-        raise InputError("give up, arrange or contrast: nothing to change", "up")
+        raise InputError("give `up`, `arrange` or `contrast`: nothing to change", "up")
     if up is not None and up not in fmt.UP_AXES:
-        raise InputError(f"up must be one of {', '.join(fmt.UP_AXES)}, got {up!r}", "up")
+        raise InputError(f"`up` must be one of {', '.join(fmt.UP_AXES)}, got {up!r}", "up")
     if arrange is not None and arrange not in fmt.ARRANGEMENTS:
-        raise InputError(f"arrange must be one of {', '.join(fmt.ARRANGEMENTS)}, got {arrange!r}", "arrange")
+        raise InputError(f"`arrange` must be one of {', '.join(fmt.ARRANGEMENTS)}, got {arrange!r}", "arrange")
     low, high = fmt.CONTRAST_RANGE
     if contrast is not None and not low <= contrast <= high:
-        raise InputError(f"contrast must be in [{low:g}, {high:g}], got {contrast:g}", "contrast")
+        raise InputError(f"`contrast` must be in [{low:g}, {high:g}], got {contrast:g}", "contrast")
     path = Path(path)
     if path.suffix.lower() != ".onnx":
         raise InputError(f"{path}: a model is written as .onnx")
@@ -371,11 +364,11 @@ def check_colour_head(model: Model) -> None:
 def load_model(path, threads: int | None = None) -> Model:
     """Read, check and prepare a model; `threads` per session (default: all cores)."""
     if not isinstance(path, (str, os.PathLike)):
-        raise InputError(f"path must be a file name, got {path!r}", "path")
+        raise InputError(f"`path` must be a file name, got {path!r}", "path")
     path = Path(path)
     threads = default_threads() if threads is None else threads
     if not (isinstance(threads, numbers.Integral) and 1 <= threads <= MAX_THREADS):
-        raise InputError(f"threads must be 1 to {MAX_THREADS}, got {threads}", "threads")
+        raise InputError(f"`threads` must be 1 to {MAX_THREADS}, got {threads}", "threads")
     data, proto, sealed = read_model(path)
     manifest = read_manifest(proto, sealed, path)
 

@@ -118,8 +118,7 @@ def scan_index(path: Path, varying: Varying = SEEDS) -> IndexFile | None:
     except OSError as error:
         raise InputError(f"{path}: cannot read the job's index ({error.strerror})") from None
     if not stat.S_ISREG(mode.st_mode):
-        kind = "a folder" if stat.S_ISDIR(mode.st_mode) else "a FIFO" if stat.S_ISFIFO(mode.st_mode) else "not a file"
-        raise InputError(f"{path}: the job's index is {kind}, not a regular file; move it away or choose another "
+        raise InputError(f"{path}: the job's index is {files.kind_of(mode.st_mode)}, not a regular file; move it away or choose another "
                          "output name")
     check_memory(mode.st_size * INDEX_BYTES_PER_BYTE, f"reading the job's index {path}")
     job, records, lines, whole = None, {}, 0, True
@@ -209,7 +208,7 @@ def check_same_job(index: IndexFile | None, job: dict, path: Path, restart: bool
     if not restart:
         what = (f"records another job ({job_difference(index.job, job)})" if index.job is not None else
                 "records no job (an index from before sinshape recorded its jobs), so it cannot vouch for its files")
-        raise InputError(f"{path}: {what}; restart makes the files again, or choose another output name", "restart")
+        raise InputError(f"{path}: {what}; `restart` makes the files again, or choose another output name", "restart")
     return None
 
 
@@ -406,7 +405,7 @@ class RayActors:
             workers = max(1, cpus // threads)
         if workers * threads > cpus:  # Ray would wait for CPUs it cannot get, for ever
             self.close()
-            raise InputError(f"workers {workers} of {threads} thread{'s' * (threads > 1)} each need "
+            raise InputError(f"`workers` {workers} of {threads} thread{'s' * (threads > 1)} each need "
                              f"{workers * threads} CPUs; the Ray cluster has {cpus}", "workers")
         actor = ray.remote(num_cpus=threads)(Worker)
         model = ray.put(Path(model_path).read_bytes())
@@ -494,7 +493,7 @@ def sample_many(model_path, seeds, pattern, engine: str = "local", workers: int 
     request = dataclasses.replace(request or SampleRequest(), **fields)
     if request.seed is not None or request.recon:
         one = "recon" if request.recon else "seed"
-        raise ConflictError(f"give seeds or {one}, not both", ("seeds", one))
+        raise ConflictError(f"give `seeds` or `{one}`, not both", ("seeds", one))
     return run_job(model_path, seeds, pattern, SEEDS, request, engine, workers, threads, address, progress, restart,
                    asset)
 
@@ -515,11 +514,11 @@ def run_job(model_path, items, pattern, varying: Varying, request, engine: str =
         raise InputError(f"{pattern.name}: many {varying.field}s need {varying.placeholder} in the output file "
                          "name", "pattern")
     if engine not in ENGINES:
-        raise InputError(f"unknown engine {engine!r}; choose {' or '.join(ENGINES)}", "engine")
+        raise InputError(f"unknown `engine` {engine!r}; choose {' or '.join(ENGINES)}", "engine")
     if workers is not None and workers < 1:
-        raise InputError(f"workers must be at least 1, got {workers}", "workers")
+        raise InputError(f"`workers` must be at least 1, got {workers}", "workers")
     if threads is not None and threads < 1:
-        raise InputError(f"threads must be at least 1, got {threads}", "threads")
+        raise InputError(f"`threads` must be at least 1, got {threads}", "threads")
     write.output_kind(pattern)
     if asset is not None and pattern.suffix.lower() != ".glb":
         raise InputError(f"{pattern.name}: an asset is written as .glb (glTF's binary), not {pattern.suffix}", "lods")
@@ -544,7 +543,7 @@ def run_job(model_path, items, pattern, varying: Varying, request, engine: str =
         pool = RayActors(*job, workers, address, asset=asset)
     else:
         if workers is not None and workers > default_threads():
-            raise InputError(f"workers must be 1 to {default_threads()} (this machine's cores), got {workers}",
+            raise InputError(f"`workers` must be 1 to {default_threads()} (this machine's cores), got {workers}",
                              "workers")
         workers = default_threads() if workers is None else workers
         job = (model_path, pattern.suffix, threads or max(1, default_threads() // workers), request, varying.field)

@@ -113,7 +113,7 @@ def pieces(model, triplane, scale: float = 1.0, progress=None, memory_limit: int
     """
     threads = default_threads() if threads is None else threads
     if threads < 1:
-        raise InputError(f"threads must be at least 1, got {threads}", "threads")
+        raise InputError(f"`threads` must be at least 1, got {threads}", "threads")
     search = query.Band(model, triplane, scale, memory_limit=memory_limit, slabs_at_once=2 * threads)
     shape = search.grid.shape
     # Padded grid index -> grid index -> model coordinates.
@@ -259,7 +259,7 @@ def colour_bytes(rgb: np.ndarray) -> np.ndarray:
 
 def check_frame(frame: str) -> None:
     if frame not in ("input", "model"):
-        raise InputError(f"unknown frame {frame!r}; choose input or model", "frame")
+        raise InputError(f"unknown `frame` {frame!r}; choose input or model", "frame")
 
 
 def to_frame(mesh, manifest):
@@ -276,9 +276,9 @@ def in_frame(vertices: np.ndarray, manifest) -> np.ndarray:
 def finish(mesh, smooth: int = 0, smoother: str = "laplacian", largest: bool = False):
     """Optional clean-up: keep the largest component, then smooth."""
     if not (isinstance(smooth, numbers.Integral) and 0 <= smooth <= MAX_SMOOTH):
-        raise InputError(f"smooth must be 0 to {MAX_SMOOTH} iterations, got {smooth}", "smooth")
+        raise InputError(f"`smooth` must be 0 to {MAX_SMOOTH} iterations, got {smooth}", "smooth")
     if smoother not in SMOOTHERS:
-        raise InputError(f"unknown smoother {smoother!r}; choose {' or '.join(SMOOTHERS)}", "smoother")
+        raise InputError(f"unknown `smoother` {smoother!r}; choose {' or '.join(SMOOTHERS)}", "smoother")
     if largest and len(mesh.faces):
         mesh = largest_part(mesh)
     if smooth and len(mesh.faces):

@@ -149,7 +149,7 @@ def bilinear(plane: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 def check_scale(scale: float) -> None:
     if not isinstance(scale, numbers.Real) or not 0 < scale < float("inf"):
-        raise InputError(f"scale must be a positive number, got {scale}", "scale")
+        raise InputError(f"`scale` must be a positive number, got {scale}", "scale")
 
 
 def grid_shape(size, scale: float) -> tuple:
@@ -157,7 +157,7 @@ def grid_shape(size, scale: float) -> tuple:
     check_scale(scale)
     if max(size) * scale > MAX_GRID_SIDE:  # before round(), which overflows for 1e308
         points = "x".join(f"{n * scale:.0f}" for n in size)  # inf past a float's range
-        raise InputError(f"scale {scale} asks for a {points} grid; at most {MAX_GRID_SIDE} points per axis are supported",
+        raise InputError(f"`scale` {scale} asks for a {points} grid; at most {MAX_GRID_SIDE} points per axis are supported",
                          "scale")
     return tuple(max(2, round(n * scale)) for n in size)
 

@@ -136,7 +136,7 @@ def mesh_file(path: Path, asset_folder: Path | None = None, warn=None) -> trimes
     except InputError as error:
         if warn is None or "no_colour" not in meshfiles.parameters(error):
             raise
-        warn(InputError(f"{error}; drawn without its colour", error.parameter))
+        warn(InputError(f"{error.template}; drawn without its colour", error.parameter))
         scene, paint = voxelize.read_scene(path, materials=False, asset_folder=asset_folder)[0], None
     mesh = voxelize.scene_mesh(scene, path, solid=False)
     if paint is not None:
@@ -239,7 +239,7 @@ def crop(mesh: trimesh.Trimesh, zoom: float, focus=(0.5, 0.5, 0.5)) -> trimesh.T
     centre = mesh.bounds[0] + np.asarray(focus) * mesh.extents
     keep = (abs(mesh.triangles_center - centre) <= mesh.extents / (2 * zoom)).all(axis=1)
     if not keep.any():
-        raise InputError(f"no part of the shape lies in the zoomed box at focus {','.join(map(str, focus))}", "focus")
+        raise InputError(f"no part of the shape lies in the zoomed box at `focus` {','.join(map(str, focus))}", "focus")
     kept = keep.nonzero()[0]
     part = mesh.submesh([kept], append=True)
     paint = mesh.metadata.get(PAINT)
@@ -271,10 +271,10 @@ def save_png(image: np.ndarray, path) -> None:
 def check_view(zoom: float = 1.0, azimuth: float = 0.0, elevation: float = 0.0) -> None:
     """A close-up factor of 1 or more and finite camera angles (inf and NaN drew blank pictures)."""
     if not (isinstance(zoom, numbers.Real) and 1 <= zoom < float("inf")):
-        raise InputError(f"zoom must be 1 or more, got {zoom}", "zoom")
+        raise InputError(f"`zoom` must be 1 or more, got {zoom}", "zoom")
     for name, angle in (("azimuth", azimuth), ("elevation", elevation)):
         if not (isinstance(angle, numbers.Real) and math.isfinite(angle)):
-            raise InputError(f"{name} must be a finite angle in degrees, got {angle}", name)
+            raise InputError(f"`{name}` must be a finite angle in degrees, got {angle}", name)
 
 
 def camera_axes(azimuth: float, elevation: float, up: str) -> np.ndarray:

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sinshape.core import budget
-from sinshape.core.errors import ConflictError, InputError, MemoryLimitError
+from sinshape.core.errors import ConflictError, InputError, MemoryLimitError, named
 from sinshape.core.manifest import MAX_LEVEL_SIDE
 
 from . import edit, generate, layout, mesh, query
@@ -82,7 +82,7 @@ def per_axis(value, field: str, valid, wanted: str):
         values = ()
     if not (len(values) == 3 and all(isinstance(v, numbers.Real) and not isinstance(v, bool) and valid(v)
                                      for v in values)):
-        raise InputError(f"{field} must be {wanted}, got {value!r}", field)
+        raise InputError(f"`{field}` must be {wanted}, got {value!r}", field)
     return tuple(float(v) for v in values)
 
 
@@ -143,21 +143,26 @@ class SampleRequest:
 
         if self.seed is not None and not (isinstance(self.seed, (int, np.integer)) and not isinstance(self.seed, bool)
                                           and OPTION["seed"].admits(self.seed)):
-            raise InputError(f"a seed must be an integer in [0, 2**63), got {self.seed!r}", "seed")
+            raise InputError(f"`seed` must be an integer in [0, 2**63), got {self.seed!r}", "seed")
         set_field("seed", None if self.seed is None else int(self.seed))
         set_field("size", per_axis(self.size, "size", OPTION["size"].admits, "one or three positive factors"))
         if not (isinstance(self.scale, numbers.Real) and OPTION["scale"].admits(self.scale)):
-            raise InputError(f"scale must be a positive number, got {self.scale}", "scale")
+            raise InputError(f"`scale` must be a positive number, got {self.scale}", "scale")
         smooth = OPTION["smooth"]
         if not (isinstance(self.smooth, numbers.Integral) and smooth.admits(self.smooth)):
-            raise InputError(f"smooth must be {smooth.low} to {smooth.high} iterations, got {self.smooth}", "smooth")
+            raise InputError(f"`smooth` must be {smooth.low} to {smooth.high} iterations, got {self.smooth}", "smooth")
         for name in ("smoother", "frame"):
             if getattr(self, name) not in OPTION[name].choices:
-                raise InputError(f"unknown {name} {getattr(self, name)!r}; choose {' or '.join(OPTION[name].choices)}",
+                raise InputError(f"unknown `{name}` {getattr(self, name)!r}; choose {' or '.join(OPTION[name].choices)}",
                                  name)
-        keep = (self.keep,) if isinstance(self.keep, (str, Part)) else tuple(self.keep)
+        for name in (option.name for option in OPTIONS if option.type == "bool"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise InputError(f"`{name}` is true or false, got {getattr(self, name)!r}", name)
+            set_field(name, bool(getattr(self, name)))
+        keep = (self.keep,) if isinstance(self.keep, (str, Part)) else self.keep
+        keep = tuple(keep) if isinstance(keep, (tuple, list)) else (None,)
         if not OPTION["keep"].admits(len(keep)) or not all(isinstance(part, (str, Part)) for part in keep):
-            raise InputError(f"keep takes at most {OPTION['keep'].high} parts, each a Part or its text "
+            raise InputError(f"`keep` takes at most {OPTION['keep'].high} parts, each a Part or its text "
                              f"SEED:X0,Y0,Z0:X1,Y1,Z1", "keep")
         set_field("keep", keep)
         if self.grow is not None:
@@ -165,12 +170,12 @@ class SampleRequest:
         if self.anchor is not None:
             set_field("anchor", per_axis(self.anchor, "anchor", OPTION["anchor"].admits, "three fractions in [0, 1]"))
         if self.layout is not None and not isinstance(self.layout, Layout):
-            raise InputError("layout must be a request.Layout (Layout.of(grid))", "layout")
+            raise InputError("`layout` must be a request.Layout (Layout.of(grid))", "layout")
         if self.tile is not None:
             set_field("tile", check_tile(self.tile))
         models = (self.models,) if isinstance(self.models, str) else self.models
         if not (isinstance(models, (tuple, list)) and all(isinstance(path, str) for path in models)):
-            raise InputError("models is the world's other models' files, as paths", "models")
+            raise InputError("`models` is the world's other models' files, as paths", "models")
         set_field("models", tuple(models))
         self.world_options()  # its fields' own checks
         self.check_together()
@@ -189,24 +194,24 @@ class SampleRequest:
         """The rules of which fields go together."""
         given = self.edits()
         if len(given) > 1:
-            raise ConflictError(f"give one of {', '.join(given)}", tuple(given))
+            raise ConflictError(f"give one of {named(given)}", tuple(given))
         if self.anchor is not None and self.grow is None:
-            raise ConflictError("anchor is for grow", ("anchor", "grow"))
+            raise ConflictError("`anchor` is for `grow`", ("anchor", "grow"))
         if self.recon:
             if self.seed is not None:
-                raise ConflictError("give seed or recon, not both", ("seed", "recon"))
+                raise ConflictError("give `seed` or `recon`, not both", ("seed", "recon"))
             if given:
-                raise ConflictError(f"{given[0]} edits a new sample, and recon is the training shape: "
-                                    "give seed, not recon", (given[0], "recon", "seed"))
+                raise ConflictError(f"`{given[0]}` edits a new sample, and `recon` is the training shape: "
+                                    "give `seed`, not `recon`", (given[0], "recon", "seed"))
             if self.size != (1.0, 1.0, 1.0):
-                raise InputError("the reconstruction exists only at the training size; drop size", "size")
+                raise InputError("the reconstruction exists only at the training size; drop `size`", "size")
         if self.tile is not None:
             kept = [name for name, value in (("recon", self.recon), *((edit, True) for edit in given),
                                              ("size", self.size != (1.0, 1.0, 1.0)), ("smooth", self.smooth),
                                              ("largest", self.largest)) if value]
             if kept:
-                raise ConflictError(f"a tile shares its border with its neighbours, which {kept[0]} would break: "
-                                    f"give tile or {', '.join(kept)}", ("tile", *kept))
+                raise ConflictError(f"a tile shares its border with its neighbours, which `{kept[0]}` would break: "
+                                    f"give `tile` or {named(kept)}", ("tile", *kept))
 
 
     def world_options(self) -> WorldOptions:
@@ -277,7 +282,7 @@ def check_memory(model, request: SampleRequest, output: str = "mesh", per_face: 
     of the model's reconstruction, once) only where their most possible
     would not fit."""
     if output not in OUTPUTS:
-        raise InputError(f"unknown output {output!r}; choose {', '.join(OUTPUTS)}", "output")
+        raise InputError(f"unknown `output` {output!r}; choose {', '.join(OUTPUTS)}", "output")
     if request.tile is not None:  # a world's tile is bounded by world.check_world_scale
         return
     factors = request.size if request.grow is None else tuple(f * g for f, g in zip(request.size, request.grow))
@@ -321,11 +326,11 @@ def make(model, request: SampleRequest, memory_limit: int | None = None, output:
         raise InputError("a tile of a world has no tri-plane of its own: make its mesh with world.tile_mesh, or "
                          "its file with write.request_bytes", "tile")
     if request.frame == "tile":
-        raise InputError("frame tile (coordinates from a tile's corner) is for the tiles of a world; a sample "
-                         "is placed in frame input or model", "frame")
+        raise InputError("`frame` tile (coordinates from a tile's corner) is for the tiles of a world; a sample "
+                         "is placed in `frame` input or model", "frame")
     if request.world_fields():
         field = request.world_fields()[0]
-        raise InputError(f"{field} is for the tiles of a world; a sample has none", field)
+        raise InputError(f"`{field}` is for the tiles of a world; a sample has none", field)
     request = resolved(model, request)
     check_memory(model, request, output, per_face, memory_limit)
     seed, size = request.sample_seed, request.size
@@ -346,10 +351,10 @@ def warnings(model, request: SampleRequest) -> list:
     sizes = generate.scaled_sizes(model.manifest.sizes, request.size)  # refuses what is too large to round
     said = []
     if any(round(n * f) < generate.MIN_SIDE for size in model.manifest.sizes for n, f in zip(size, request.size)):
-        said.append(InputError(f"size {','.join(f'{f:g}' for f in request.size)} shrinks some levels below "
+        said.append(InputError(f"`size` {','.join(f'{f:g}' for f in request.size)} shrinks some levels below "
                                f"{generate.MIN_SIDE} voxels; they are clamped, so the shape is not to scale", "size"))
     if any(n * request.scale < 1.5 for n in sizes[-1]):  # a side that rounds below 2 points
-        said.append(InputError(f"scale {request.scale:g} leaves under 2 grid points on an axis; the grid is "
+        said.append(InputError(f"`scale` {request.scale:g} leaves under 2 grid points on an axis; the grid is "
                                "clamped to 2 and the shape barely resolved", "scale"))
     return said
 

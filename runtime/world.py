@@ -65,6 +65,7 @@ import numpy as np
 from sinshape.core import noise
 from sinshape.core.budget import check_memory
 from sinshape.core.errors import InputError
+from sinshape.core.files import read_regular
 from sinshape.core.manifest import ARRANGEMENTS, PLANE_AXES
 
 from . import cubes
@@ -129,7 +130,7 @@ def check_tile(tile) -> tuple:
     if not (isinstance(tile, (tuple, list)) and len(tile) == 2
             and all(isinstance(t, (int, np.integer)) and not isinstance(t, bool) and -MAX_TILE < t < MAX_TILE
                     for t in tile)):
-        raise InputError(f"a tile is two integers (i, j) of magnitude below 2**62, got {tile!r}", "tile")
+        raise InputError(f"`tile` must be two integers (i, j) of magnitude below 2**62, got {tile!r}", "tile")
     return int(tile[0]), int(tile[1])
 
 
@@ -162,7 +163,7 @@ class HeightMap:
             raise InputError(f"a height map is a 2-D array of 1 to {MAX_MAP_SIDE} pixels a side, got shape "
                              f"{heights.shape}", "heights")
         if not (np.isfinite(heights).all() and np.abs(heights).max() <= MAX_RELIEF):
-            raise InputError(f"a height map holds heights in voxels within +-{MAX_RELIEF}: no NaN or infinities",
+            raise InputError(f"a height map holds values in voxels within +-{MAX_RELIEF}: no NaN or infinities",
                              "heights")
         return cls(tuple(int(n) for n in heights.shape), heights.astype("<f4").tobytes())
 
@@ -221,13 +222,13 @@ def parse_height_map(data: bytes, suffix: str, name, relief: float | None = None
     suffix = suffix.lower()
     if suffix == ".npy":
         if relief is not None:
-            raise InputError(f"{name}: an array holds heights in voxels; relief scales an image's", "relief")
+            raise InputError(f"{name}: an array holds heights in voxels; `relief` scales an image's", "relief")
         return HeightMap.of(read_npy_map(data, name, "heights"))
     if suffix != ".png":
         raise InputError(f"{name}: a height map is a .png image or a .npy array, got {suffix or 'no extension'!r}",
                          "heights")
     if relief is None or not (isinstance(relief, numbers.Real) and 0 < relief <= MAX_RELIEF):
-        raise InputError(f"relief must be a number of voxels in (0, {MAX_RELIEF}] for an image, got {relief!r}",
+        raise InputError(f"`relief` must be a number of voxels in (0, {MAX_RELIEF}] for an image, got {relief!r}",
                          "relief")
     wide, pixels = image_pixels(data, name, "a height map", "heights", lambda image: (
         image.mode.startswith("I"), np.asarray(image if image.mode.startswith("I") else image.convert("L"), np.float64)))
@@ -242,10 +243,7 @@ def read_height_map(path, model, relief: float | None = None) -> HeightMap:
     """parse_height_map of a file; an image's white is `relief` voxels
     (default RELIEF times the model's height)."""
     path = Path(path)
-    try:
-        data = path.read_bytes()
-    except OSError as error:
-        raise InputError(f"{path}: cannot read the height map ({error.strerror})", "heights") from None
+    data = read_regular(path, f"the height map {path}", MAX_MAP_BYTES, field="heights")
     if relief is None and path.suffix.lower() == ".png":
         layout = world_layout(model)
         relief = RELIEF * layout.stride[layout.up]
@@ -328,10 +326,7 @@ def parse_model_map(data: bytes, suffix: str, name) -> ModelMap:
 def read_model_map(path) -> ModelMap:
     """parse_model_map of a file."""
     path = Path(path)
-    try:
-        data = path.read_bytes()
-    except OSError as error:
-        raise InputError(f"{path}: cannot read the model map ({error.strerror})", "models_map") from None
+    data = read_regular(path, f"the model map {path}", MAX_MAP_BYTES, field="models_map")
     return parse_model_map(data, path.suffix, path.name)
 
 
@@ -349,19 +344,19 @@ class WorldOptions:
 
     def __post_init__(self):
         if self.arrange not in ARRANGEMENTS:
-            raise InputError(f"unknown arrangement {self.arrange!r}; choose {' or '.join(ARRANGEMENTS)}", "arrange")
+            raise InputError(f"unknown `arrange` {self.arrange!r}; choose {' or '.join(ARRANGEMENTS)}", "arrange")
         if self.heights is not None and not isinstance(self.heights, HeightMap):
-            raise InputError("heights must be a world.HeightMap (HeightMap.of(array))", "heights")
+            raise InputError("`heights` must be a world.HeightMap (HeightMap.of(array))", "heights")
         if not (isinstance(self.lod, numbers.Integral) and not isinstance(self.lod, bool) and 0 <= self.lod):
-            raise InputError(f"lod must be a whole number of levels, 0 or more, got {self.lod!r}", "lod")
+            raise InputError(f"`lod` must be a whole number of levels, 0 or more, got {self.lod!r}", "lod")
         if not isinstance(self.models, tuple) or len(self.models) >= MAX_MODELS:
-            raise InputError(f"models is a tuple of at most {MAX_MODELS - 1} models after the first", "models")
+            raise InputError(f"a world takes at most {MAX_MODELS - 1} `models` after the first", "models")
         if self.models_map is None:
             if self.models:
                 raise InputError("several models need a model map saying which goes where", "models_map")
             return
         if not isinstance(self.models_map, ModelMap):
-            raise InputError("models_map must be a world.ModelMap (ModelMap.of(array))", "models_map")
+            raise InputError("`models_map` must be a world.ModelMap (ModelMap.of(array))", "models_map")
         if self.arrange != "scatter":
             raise InputError("a model map places whole objects: it is for a scatter world (blended models' "
                              "tiles, voxels and heights differ)", "models_map")
@@ -379,7 +374,7 @@ def check_lod(model, lod: int) -> int:
     """The level a tile of `lod` reads its detail from."""
     levels = len(model.manifest.sizes)
     if lod >= levels:
-        raise InputError(f"lod must be 0 to {levels - 1} (the model has {levels} levels), got {lod}", "lod")
+        raise InputError(f"`lod` must be 0 to {levels - 1} (the model has {levels} levels), got {lod}", "lod")
     return levels - 1 - lod
 
 
@@ -493,7 +488,7 @@ def object_model(model, options: WorldOptions, index: int) -> tuple:
     try:
         return other, world_layout(other)
     except InputError as error:
-        raise InputError(f"model {index} of the world: {error}", "models") from None
+        raise InputError(f"model {index} of the world: {error.template}", error.parameter) from None
 
 
 def scatter_geometry(model, layout: Layout, options: WorldOptions = PLAIN) -> tuple:
@@ -666,7 +661,7 @@ def check_world_scale(layout: Layout, scale: float, hidden: int, memory_limit: i
         points = [round(layout.stride[a] * scale) + 1 if a != layout.up
                   else max(2, round((layout.stride[a] + 1) * scale)) for a in range(3)]
     if max(points) > MAX_POINTS:
-        raise InputError(f"scale {scale:g} makes a tile of {'x'.join(map(str, points))} points; at most "
+        raise InputError(f"`scale` {scale:g} makes a tile of {'x'.join(map(str, points))} points; at most "
                          f"{MAX_POINTS} per axis", "scale")
     h0, h1 = layout.horizontal
     # The grid, a row's sums and gathered planes, and the interpolated horizontal planes.
@@ -1239,7 +1234,7 @@ def check_placement(model, tile, frame: str) -> None:
     far = max(abs(c) for c in tile_corner(model, tile))
     if frame != "tile" and far > MAX_ABSOLUTE:
         raise InputError(f"tile {tuple(tile)} lies {far} voxels from the world's origin, where float32 "
-                         "coordinates lose the shape's detail: give frame tile (coordinates from the tile's "
+                         "coordinates lose the shape's detail: give `frame` tile (coordinates from the tile's "
                          "corner)", "frame")
 
 
@@ -1288,10 +1283,10 @@ def block_mesh(model, request, tiles, progress=None, memory_limit: int | None = 
         raise InputError(f"a block is 1 to {MAX_BLOCK_TILES} tiles, got {got}; write more as a folder of tiles",
                          "tile")
     if request.frame == "tile":
-        raise InputError("a block is placed in the world: give frame input or model", "frame")
+        raise InputError("a block is placed in the world: give `frame` input or model", "frame")
     options = request.world_options()
     if options.lod:
-        raise InputError("a block is one closed surface, at one level of detail: give lod 0", "lod")
+        raise InputError("a block is one closed surface, at one level of detail: give `lod` 0", "lod")
     h0, h1 = world_layout(model).horizontal
     low, high = np.min(tiles, axis=0), np.max(tiles, axis=0)
     vertices, faces, colours, count = [], [], [], 0

@@ -297,7 +297,7 @@ def write_interpolation(model, request, seed_b: int, alpha, steps: int, path, pr
     refused = [name for name, given in (("recon", request.recon), ("tile", request.tile is not None)) if given]
     refused += request.edits() + request.world_fields()
     if refused:
-        raise InputError(f"a blend of two seeds is a plain sample; it takes no {refused[0]}", refused[0])
+        raise InputError(f"a blend of two seeds is a plain sample; it takes no `{refused[0]}`", refused[0])
     first = path(0)
     output_kind(first)
     check_writable(first, [model.path])

@@ -421,7 +421,7 @@ def create_app(loaded: dict, slots: int | None = None, timeout: float = 60.0,
     a name of its own at this address, DNS rebinding, is refused).
     """
     if not (isinstance(timeout, (int, float)) and 0 < timeout < float("inf")):
-        raise InputError(f"timeout must be a positive number of seconds, got {timeout}", "timeout")
+        raise InputError(f"`timeout` must be a positive number of seconds, got {timeout}", "timeout")
     slots = slots or load.default_threads()
 
     @asynccontextmanager

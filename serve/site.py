@@ -212,7 +212,7 @@ def export_site(names, out, version: str = "", force: bool = False) -> dict:
     foreign = in_the_way(out)
     if foreign and not force:
         shown = ", ".join(foreign[:SHOWN]) + (f" and {len(foreign) - SHOWN} more" if len(foreign) > SHOWN else "")
-        raise InputError(f"{out}: holds files export-web did not write ({shown}); move them away, or force to "
+        raise InputError(f"{out}: holds files export-web did not write ({shown}); move them away, or `force` to "
                          "keep them and replace the rest", "force")
     models = resolve(names)
     for model in models.values():  # replacing the folder would delete them

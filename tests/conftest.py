@@ -6,6 +6,7 @@ prep/shapes.py, or read from tests/data (see its README for licences).
 
 import signal
 import sys
+import threading
 from pathlib import Path
 
 import h5py
@@ -74,6 +75,26 @@ def bounded_memory(request):
     if limit and before is not None and after is not None:
         assert not before <= limit < after, (f"{request.node.nodeid}: this process's resident memory peaked at "
                                              f"{after:.0f} MB, past --max-rss-mb {limit}")
+
+
+def finishes(call, seconds: float = 30.0):
+    """call()'s result, or its exception raised here; fails if it does not
+    return within `seconds` (a read that blocks: the thread is left behind)."""
+    result = {}
+
+    def target():
+        try:
+            result["value"] = call()
+        except BaseException as error:  # noqa: BLE001 (handed back to the test)
+            result["error"] = error
+
+    worker = threading.Thread(target=target, daemon=True)
+    worker.start()
+    worker.join(seconds)
+    assert not worker.is_alive(), f"still running after {seconds} s: a read blocked"
+    if "error" in result:
+        raise result["error"]
+    return result["value"]
 
 
 def write_pyramid(path, sizes):

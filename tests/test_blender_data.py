@@ -113,7 +113,7 @@ def test_a_tile_object_that_names_no_tile_is_refused(scene, tiny_model, value):
     obj = add_world(tiny_model, radius=0)
     (child,) = obj.children
     child["sinshape_tile"] = value
-    with pytest.raises(RuntimeError, match="not a tile I,J|a tile is two integers"):
+    with pytest.raises(RuntimeError, match="not a tile I,J|tile must be two integers"):
         bpy.ops.sinshape.regenerate()
     assert "\n" not in obj.sinshape_world.error and obj.sinshape_world.error
     assert list(obj.children) == [child]  # nothing removed or made

@@ -30,7 +30,7 @@ def test_eval_needs_no_torch(tiny_model, tiny_pyramid):
 def test_eval_refuses_bad_requests(tiny_model, tiny_pyramid, tmp_path):
     assert_one_line_error(sinrun("eval", tiny_model, "--reference", tiny_pyramid, "-n", 2, "--scale", 2),
                           "needs a mesh reference")
-    assert_one_line_error(sinrun("eval", tiny_model, "--reference", tmp_path / "none.obj", "-n", 2), "no such mesh or .h5 file")
+    assert_one_line_error(sinrun("eval", tiny_model, "--reference", tmp_path / "none.obj", "-n", 2), "is missing")
     assert sinrun("eval", tiny_model, "--reference", tiny_pyramid, "-n", 1).exit_code == 2
 
 

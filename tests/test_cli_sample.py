@@ -150,10 +150,10 @@ def test_library_errors_name_parameters_and_the_cli_names_options():
     from sinshape.cli.main import command_line_message
     from sinshape.core.errors import InputError
 
-    levels = InputError("t.h5 has 3 levels; levels 5 asks for more", "levels")
+    levels = InputError("t.h5 has 3 levels; `levels` 5 asks for more", "levels")
     assert command_line_message(levels) == "t.h5 has 3 levels; --levels 5 asks for more"
-    assert command_line_message(InputError("factors must be 3 positive numbers", "factors")).startswith("--size must")
-    assert command_line_message(InputError("a seed must be an integer", "seed")) == "a seed must be an integer"
+    assert command_line_message(InputError("`factors` must be 3 positive numbers", "factors")).startswith("--size must")
+    assert command_line_message(InputError("`seed` must be an integer", "seed")) == "seed must be an integer"
 
 
 def test_help_for_every_command():

@@ -72,6 +72,37 @@ def test_library_messages_name_parameters_not_options():
     assert not found, f"library strings that name options (name the parameter; the CLI writes its option): {found}"
 
 
+
+def marked_names(source: str) -> list:
+    """(name, its error's parameters) for each name a message of an
+    InputError, ConflictError or MemoryLimitError marks (`scale`)."""
+    found = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Call) and getattr(node.func, "id", None) in ("InputError", "ConflictError",
+                                                                               "MemoryLimitError"):
+            given = node.args[1] if len(node.args) > 1 else None
+            parameters = {e.value for e in (given.elts if isinstance(given, ast.Tuple) else [given])
+                          if isinstance(e, ast.Constant)}
+            texts = [c.value for c in ast.walk(node.args[0]) if isinstance(c, ast.Constant) and isinstance(c.value, str)]
+            found += [(name, parameters) for text in texts for name in re.findall(r"`(\w+)`", text)]
+    return found
+
+
+def test_the_names_a_message_marks_are_parameters_the_front_ends_know():
+    """A marked name is its error's parameter or an option the command line
+    spells: a misspelt mark would print as written, naming nothing."""
+    from sinshape.cli.main import OPTIONS
+
+    strays = {}
+    for package in (*LIBRARY, "blender"):
+        for path in sorted((ROOT / package).rglob("*.py")):
+            names = marked_names(path.read_text())
+            if stray := [name for name, parameters in names if name not in parameters | set(OPTIONS) | {"seed"}]:
+                strays[str(path.relative_to(ROOT))] = stray
+    assert not strays, strays
+    assert marked_names('raise InputError(f"`scle` must be {x}", "scale")') == [("scle", {"scale"})]
+
+
 def test_the_search_finds_options_in_messages_not_in_docstrings():
     source = 'def f(seed):\n    """As `sinrun sample --seed`."""\n    raise InputError(f"{seed}: try --seed 3")\n'
     assert strings_naming_options(source) == [": try --seed 3"]
@@ -79,11 +110,12 @@ def test_the_search_finds_options_in_messages_not_in_docstrings():
 
 
 def test_parameters_given_together_are_named_each_as_its_option():
-    error = ConflictError("resume continues with the checkpoint's settings; leave out iters, min_iters",
+    error = ConflictError("`resume` continues with the checkpoint's settings; leave out `iters`, `min_iters`",
                           ("resume", "iters", "min_iters"))
     assert command_line_message(error, {"resume": "--resume", "iters": "--iters", "min_iters": "--min-iters"}) == (
         "--resume continues with the checkpoint's settings; leave out --iters, --min-iters")
-    assert command_line_message(InputError("give iters", ("iters", "minutes"))) == "give --iters"
+    assert command_line_message(InputError("give `iters`", ("iters", "minutes"))) == "give --iters"
+    assert command_line_message(InputError("iters and minutes", "iters")) == "iters and minutes"  # words, unmarked
 
 
 def test_the_training_config_refuses_what_contradicts_itself():

@@ -68,7 +68,7 @@ def write(path, text):
 @pytest.fixture
 def bad_inputs(tmp_path):
     return {
-        "missing": (tmp_path / "nothing.obj", "no such mesh or .h5 file"),
+        "missing": (tmp_path / "nothing.obj", "is missing"),
         "format": (write(tmp_path / "notes.txt", "hello"), "notes.txt"),
         "empty": (write(tmp_path / "empty.obj", "# nothing\n"), "empty.obj"),
         "flat": (write(tmp_path / "flat.obj", "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3\nf 1 3 4\n"), "flat.obj"),

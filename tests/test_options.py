@@ -107,6 +107,46 @@ def test_the_command_line_names_each_option_in_its_errors():
     assert result.exit_code == 0 and "--arrange [blend|scatter]" in result.output and "--lod INTEGER" in result.output
 
 
+
+HOSTILE = (-1, 10**30, float("nan"), "none of them", (0.0, 0.0), ("x",) * 20, object())
+
+
+@pytest.mark.parametrize("name", [option.name for option in OPTIONS])
+def test_every_refusal_of_an_option_names_it_as_each_front_end_spells_it(name):
+    """Whatever hostile value an option is given, its refusal marks the
+    option's name (core.errors), so the command line writes the option the
+    user typed and nothing else: every other word of the sentence stays as
+    written (a field name that is also an ordinary word is not one)."""
+    from sinshape.cli.main import OPTIONS as FLAGS, command_line_message
+
+    context = {"grow": 2} if name == "anchor" else {}
+    refused = []
+    for value in HOSTILE:
+        try:
+            SampleRequest(**{name: value, **context})
+        except InputError as error:
+            refused += [error] if error.parameter == name else []
+    assert refused, f"no hostile value of {name} is refused as {name}'s"
+    flag = FLAGS.get(name, name)  # a sample's seed has three options: the message keeps its name
+    for error in refused:
+        assert f"`{name}`" in error.template, error.template
+        typed, plain = command_line_message(error), str(error)
+        assert "`" not in typed + plain and flag in typed
+        assert plain == error.template.replace("`", "") and typed.replace(flag, name) == plain
+
+
+def test_a_word_that_is_also_a_field_stays_a_word_on_the_command_line():
+    from sinshape.cli.main import command_line_message
+    from sinshape.runtime.world import HeightMap, WorldOptions
+
+    with pytest.raises(InputError) as heights:
+        HeightMap.of([[0.0, float("nan")]])
+    assert command_line_message(heights.value) == "a height map holds values in voxels within +-16384: no NaN or infinities"
+    with pytest.raises(InputError) as models:
+        WorldOptions(arrange="scatter", models=("m.onnx",) * 256)
+    assert command_line_message(models.value) == "a world takes at most 255 MODEL... after the first"
+
+
 # ---- the HTTP routes
 
 

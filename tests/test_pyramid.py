@@ -85,7 +85,7 @@ def test_bad_h5_files_are_refused(tmp_path):
     for path, message in [(no_attr, "n_scales"), (missing, "scale1"), (empty, "empty"), (garbage, "HDF5")]:
         with pytest.raises(InputError, match=message):
             pyramid.load_pyramid(path, res=64)
-    with pytest.raises(InputError, match="no such mesh or .h5 file"):
+    with pytest.raises(InputError, match="mesh or .h5 file .* is missing"):
         pyramid.load_pyramid(tmp_path / "nothing.h5", res=64)
 
 
@@ -208,7 +208,7 @@ def test_soft_h5_occupancy_is_read_from_0_5(tmp_path):
 @pytest.mark.parametrize("name", ["shapes.obj", "pyramid.h5", "folder"])
 def test_a_directory_is_named_as_one(tmp_path, name):
     (tmp_path / name).mkdir()
-    with pytest.raises(InputError, match="a directory, not a mesh or .h5 file"):
+    with pytest.raises(InputError, match="the mesh or .h5 file .* is a folder, not a regular file"):
         pyramid.load_pyramid(tmp_path / name, res=64)
 
 
@@ -246,7 +246,7 @@ def test_inputs_that_are_not_regular_files_say_what_they_are(tmp_path):
     loop.symlink_to(loop)
     with pytest.raises(InputError, match="not a regular file"):
         pyramid.load_pyramid(fifo, 32)
-    with pytest.raises(InputError, match="leads nowhere"):
+    with pytest.raises(InputError, match="symbolic link that goes round in a loop"):
         load_model(loop)
     blocker = tmp_path / "model.sha"
     blocker.write_text("a file")

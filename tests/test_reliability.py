@@ -10,6 +10,7 @@ import socket
 import struct
 import tracemalloc
 import zipfile
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -21,7 +22,7 @@ from sinshape.core.errors import InputError, MemoryLimitError
 from sinshape.runtime import edit, load_model
 from sinshape.runtime import layout as L
 from sinshape.runtime.request import MAX_PARTS, Layout, SampleRequest
-from conftest import TINY_ONNX as TINY
+from conftest import TINY_ONNX as TINY, finishes
 from test_cli_train import assert_one_line_error
 
 
@@ -230,7 +231,7 @@ def test_a_mesh_is_read_within_its_folder_and_its_memory(tmp_path, monkeypatch):
         voxelize.load_mesh(tmp_path / "out.gltf")
     trimesh.creation.icosphere().export(tmp_path / "ball.stl")  # 64 kB, 1.5 MB to load
     monkeypatch.setattr(budget, "available_memory", lambda: 1 << 20)
-    with pytest.raises(MemoryLimitError, match="loading the mesh ball.stl needs about"):
+    with pytest.raises(MemoryLimitError, match="reading the mesh .*ball.stl needs about"):
         voxelize.load_mesh(tmp_path / "ball.stl")
 
 
@@ -508,3 +509,60 @@ def test_an_output_name_with_a_control_character_is_refused_in_one_line(tmp_path
     result = run("sample", TINY, "-o", tmp_path / name)
     assert_one_line_error(result, "a file name with a control character")
     assert list(tmp_path.iterdir()) == []
+
+
+# -- every file a user names is looked at before a byte of it is read ------------------------------
+
+def special_file(tmp_path, kind: str, suffix: str) -> Path:
+    """A FIFO, /dev/zero or a link to it, named like the file asked for."""
+    if kind == "device":
+        return Path("/dev/zero")
+    path = tmp_path / f"special{suffix}"
+    if kind == "fifo":
+        os.mkfifo(path)
+    else:
+        path.symlink_to("/dev/zero")
+    return path
+
+
+FILES = [(["world", "terrain", "--tiles", "0:0,0:0", "-o", "{out}", "--map"], ".npy", "the height map"),
+         (["world", "terrain", "--tiles", "0:0,0:0", "-o", "{out}", "--map"], ".png", "the height map"),
+         (["world", "terrain", "--tiles", "0:0,0:0", "--arrange", "scatter", "-o", "{out}", "--models-map"], ".png",
+          "the model map"),
+         (["sample", "terrain", "-o", "{out}.ply", "--layout"], ".npz", "the layout"),
+         (["sample", "-o", "{out}.ply"], ".onnx", "the model"),
+         (["train", "-o", "{out}.onnx"], ".obj", "the mesh or .h5 file")]
+
+
+# /dev/zero itself where no file type is read from the name (a map's is its content's)
+SPECIAL = [(kind, *file) for file in FILES for kind in ("fifo", "link", *(("device",) if "map" in file[2] else ()))]
+
+
+@pytest.mark.parametrize("kind, command, suffix, what", SPECIAL,
+                         ids=[f"{k}-{c[0]}-{w.split()[-1]}{s}" for k, c, s, w in SPECIAL])
+def test_a_named_file_that_is_not_a_regular_file_is_refused_before_it_is_read(tmp_path, kind, command, suffix, what):
+    """A FIFO as a map hung `sinrun world` for ever; /dev/zero (or a link to
+    it) was read until memory ran out, ending in a MemoryError traceback."""
+    path = special_file(tmp_path, kind, suffix)
+    args = [a.replace("{out}", str(tmp_path / "out")) for a in command] + [path]
+    if command[0] == "train":
+        args = ["train", path, *args[1:-1]]
+    elif command[0] == "sample" and suffix == ".onnx":
+        args = ["sample", path, *args[1:-1]]
+    result = finishes(lambda: run(*args))
+    device = "a FIFO" if kind == "fifo" else "a device"
+    assert result.exit_code != 0 and f"{what} {path} is {device}, not a regular file" in result.output, result.output
+    assert result.output.count("\n") == 1 and not list(tmp_path.glob("out*"))
+
+
+def test_a_map_too_large_is_refused_by_its_size_before_it_is_read(tmp_path):
+    """A 2 GB sparse .npy map was refused only after 2.1 GB had been read into memory."""
+    path = tmp_path / "s.npy"
+    with open(path, "wb") as file:
+        file.truncate(1 << 30)
+    tracemalloc.start()
+    result = run("world", "terrain", "--tiles", "0:0,0:0", "--map", path, "-o", tmp_path / "w")
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert result.exit_code == 1 and f"the height map {path} is 1024.0 MiB; at most 64 MiB is read for it" in result.output
+    assert peak < 64 << 20, f"{peak >> 20} MiB held before the refusal"

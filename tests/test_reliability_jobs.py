@@ -17,7 +17,7 @@ import urllib.request
 import pytest
 from click.testing import CliRunner
 
-from conftest import TINY_ONNX as TINY
+from conftest import TINY_ONNX as TINY, finishes
 from sinshape.cli.main import cli
 from sinshape.core import budget
 from sinshape.core.errors import InputError
@@ -27,16 +27,6 @@ from test_cli_train import assert_one_line_error
 
 def run(*args):
     return CliRunner().invoke(cli, [str(a) for a in args])
-
-
-def finishes(call, seconds: float = 30.0):
-    """call()'s result; fails if it does not return within `seconds` (a read that blocks)."""
-    result = {}
-    worker = threading.Thread(target=lambda: result.update(value=call()), daemon=True)
-    worker.start()
-    worker.join(seconds)
-    assert not worker.is_alive(), f"still running after {seconds} s: it blocked"
-    return result["value"]
 
 
 # -- 3. a resume checks that it is the job its index records --------------------------------------

@@ -10,7 +10,6 @@ import os
 import re
 import shutil
 import struct
-import threading
 import tracemalloc
 import zlib
 from pathlib import Path
@@ -25,6 +24,7 @@ from sinshape.core import budget
 from sinshape.core.errors import InputError, MemoryLimitError
 from sinshape.prep import colour, meshfiles, voxelize
 from sinshape.prep.pyramid import load_pyramid
+from conftest import finishes
 from test_cli_train import assert_one_line_error
 
 DATA = Path(__file__).parent / "data" / "colour"
@@ -66,26 +66,6 @@ def textured_gltf(folder: Path, change=None, image_file: bool = True) -> Path:
         change(meta)
     (folder / "box.gltf").write_text(json.dumps(meta))
     return folder / "box.gltf"
-
-
-def finishes(call, seconds: float = 20.0):
-    """call()'s result, or its exception raised here; fails if it does not
-    return within `seconds` (a read that blocks: the thread is left behind)."""
-    result = {}
-
-    def target():
-        try:
-            result["value"] = call()
-        except BaseException as error:  # noqa: BLE001 (handed back to the test)
-            result["error"] = error
-
-    worker = threading.Thread(target=target, daemon=True)
-    worker.start()
-    worker.join(seconds)
-    assert not worker.is_alive(), f"still running after {seconds} s: a read blocked"
-    if "error" in result:
-        raise result["error"]
-    return result["value"]
 
 
 def png(width: int, height: int, bits: int = 8, colour_type: int = 2, rows: bytes | None = None) -> bytes:

@@ -600,7 +600,7 @@ def test_the_world_mode_takes_its_tiles_from_the_tile_route(page, terrain):
     assert page.get_attribute("#download", "href").endswith("tile?i=-3&j=6&seed=3&scale=1&format=glb&frame=tile")
     page.goto(f"{page.base}/?seed=3&up=z&edit=world&at=4611686018427387904,0")  # 2**62: the request's own message
     page.wait_for_function("document.body.dataset.state === 'error'")
-    assert page.text_content("#error") == "a tile is two integers (i, j) of magnitude below 2**62, got [4611686018427387904, 0]"
+    assert page.text_content("#error") == "tile must be two integers (i, j) of magnitude below 2**62, got [4611686018427387904, 0]"
     assert not page.errors and not page.outside
 
 

@@ -367,7 +367,7 @@ def _export(mesh):
 
 
 BAD_FILES = [  # (file name, how to write it or None, part of the message)
-    ("absent.obj", None, "no such file"),
+    ("absent.obj", None, "is missing"),
     ("shape.abc", _write_text("v 0 0 0\n"), ".obj"),
     ("empty.obj", _write_text(""), "empty file"),
     ("points.obj", _write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\n"), "no triangles"),

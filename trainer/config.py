@@ -8,7 +8,7 @@ plain ints; only the run (`train` and the parts it calls) reads a config.
 import dataclasses
 from dataclasses import dataclass
 
-from sinshape.core.errors import ConflictError, InputError
+from sinshape.core.errors import ConflictError, InputError, named
 from sinshape.prep.pyramid import LEVEL_FACTOR, MIN_SIZE
 
 
@@ -82,28 +82,28 @@ class TrainConfig:
 
     def __post_init__(self):
         checks = [  # (fine, parameter, message): the command line writes the parameter as its option
-            (self.res >= self.min_size, "res", f"res {self.res} is below the {self.min_size}-voxel minimum of every level"),
-            (self.levels is None or self.levels >= 1, "levels", f"levels must be at least 1, got {self.levels}"),
+            (self.res >= self.min_size, "res", f"`res` {self.res} is below the {self.min_size}-voxel minimum of every level"),
+            (self.levels is None or self.levels >= 1, "levels", f"`levels` must be at least 1, got {self.levels}"),
             (self.generator in ("triplane", "voxel"), "generator",
-             f"generator must be triplane or voxel, got {self.generator!r}"),
-            (self.iters >= 1, "iters", f"iters must be at least 1, got {self.iters}"),
-            (self.d_steps >= 1 and self.g_steps >= 1, "d_steps", "d_steps and g_steps must be at least 1"),
-            (self.train_depth >= 1, "train_depth", f"train_depth must be at least 1, got {self.train_depth}"),
-            (0 < self.lr_scale <= 1, None, f"lr_scale must be in (0, 1], got {self.lr_scale}"),
-            (self.lr > 0, "lr", f"lr must be positive, got {self.lr}"),
-            (self.d_rate > 0, "d_rate", f"d_rate must be positive, got {self.d_rate}"),
-            (0 < self.colour_mb <= 1024, "colour_mb", f"colour_mb must be in (0, 1024] MB, got {self.colour_mb}"),
-            (self.lr_total is None or self.lr_total > 0, None, f"lr_total must be positive, got {self.lr_total}"),
-            (self.lr_total is None or self.lr_max >= self.lr, None, f"lr_max {self.lr_max} is below lr {self.lr}"),
-            (self.min_iters >= 1, "min_iters", f"min_iters must be at least 1, got {self.min_iters}"),
+             f"`generator` must be triplane or voxel, got {self.generator!r}"),
+            (self.iters >= 1, "iters", f"`iters` must be at least 1, got {self.iters}"),
+            (self.d_steps >= 1 and self.g_steps >= 1, "d_steps", "`d_steps` and g_steps must be at least 1"),
+            (self.train_depth >= 1, "train_depth", f"`train_depth` must be at least 1, got {self.train_depth}"),
+            (0 < self.lr_scale <= 1, None, f"`lr_scale` must be in (0, 1], got {self.lr_scale}"),
+            (self.lr > 0, "lr", f"`lr` must be positive, got {self.lr}"),
+            (self.d_rate > 0, "d_rate", f"`d_rate` must be positive, got {self.d_rate}"),
+            (0 < self.colour_mb <= 1024, "colour_mb", f"`colour_mb` must be in (0, 1024] MB, got {self.colour_mb}"),
+            (self.lr_total is None or self.lr_total > 0, None, f"`lr_total` must be positive, got {self.lr_total}"),
+            (self.lr_total is None or self.lr_max >= self.lr, None, f"`lr_max` {self.lr_max} is below lr {self.lr}"),
+            (self.min_iters >= 1, "min_iters", f"`min_iters` must be at least 1, got {self.min_iters}"),
             (self.minutes is None or 0 < self.minutes <= 60 * 24 * 365, "minutes",
-             f"minutes must be positive (and at most a year), got {self.minutes}"),
+             f"`minutes` must be positive (and at most a year), got {self.minutes}"),
             (self.precision in ("auto", "fp32", "bf16"), "precision",
-             f"precision must be auto, fp32 or bf16, got {self.precision!r}"),
+             f"`precision` must be auto, fp32 or bf16, got {self.precision!r}"),
             (self.box == 0 or self.box >= 16, "box",
-             f"box must be 0 (whole grids) or at least 16 voxels (the critic's field is 11), got {self.box}"),
-            (0 <= self.seed < 2**63, "seed", f"seed must be in [0, 2**63), got {self.seed}"),
-            (self.up in (None, "y", "z"), "up", f"up must be y or z, got {self.up!r}"),
+             f"`box` must be 0 (whole grids) or at least 16 voxels (the critic's field is 11), got {self.box}"),
+            (0 <= self.seed < 2**63, "seed", f"`seed` must be in [0, 2**63), got {self.seed}"),
+            (self.up in (None, "y", "z"), "up", f"`up` must be y or z, got {self.up!r}"),
         ]
         for ok, parameter, message in checks:
             if not ok:
@@ -153,11 +153,11 @@ def make_config(preset: str | None = None, resume: bool = False, **overrides) ->
         raise TypeError(f"TrainConfig has no field {', '.join(sorted(set(overrides) - set(names)))}")
     changes = {name: overrides[name] for name in names if overrides.get(name) is not None}
     if "iters" in changes and "minutes" in changes:
-        raise ConflictError("give iters or minutes, not both: a time budget plans the iterations", ("iters", "minutes"))
+        raise ConflictError("give `iters` or `minutes`, not both: a time budget plans the iterations", ("iters", "minutes"))
     if resume:
         given = ([] if preset is None else ["preset"]) + list(changes)
         if given:
-            raise ConflictError(f"resume continues with the checkpoint's settings; leave out {', '.join(given)}",
+            raise ConflictError(f"`resume` continues with the checkpoint's settings; leave out {named(given)}",
                                 ("resume", *given))
         return None
     preset = "default" if preset is None else preset

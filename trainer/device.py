@@ -133,6 +133,6 @@ def choose(device: str = "auto", precision: str = "auto") -> Placement:
     if native_bf16():
         return Placement(picked, "bf16", reason + "; bf16 autocast: this CPU has native bf16")
     if precision == "bf16":
-        raise InputError("precision bf16: this CPU has no native bf16 (AVX512-BF16 or AMX), where it is "
-                         "many times slower than float32; use precision fp32 or auto", "precision")
+        raise InputError("`precision` bf16: this CPU has no native bf16 (AVX512-BF16 or AMX), where it is "
+                         "many times slower than float32; use `precision` fp32 or auto", "precision")
     return Placement(picked, "fp32", reason + "; float32: this CPU has no native bf16")

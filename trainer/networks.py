@@ -394,7 +394,7 @@ def make_generator(kind: str, channels: int, bins: int, hidden: int, colour: boo
     if kind == "triplane":
         return TriplaneGenerator(channels, bins, hidden, colour)
     if kind == "voxel" and colour:
-        raise InputError("the voxel baseline learns geometry only; train it with no_colour", "no_colour")
+        raise InputError("the voxel baseline learns geometry only; train it with `no_colour`", "no_colour")
     if kind == "voxel":
         return VoxelGenerator(channels)
     raise ValueError(f"unknown generator {kind!r}; choose triplane or voxel")

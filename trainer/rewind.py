@@ -8,12 +8,14 @@ the third time, the run stops with its last good checkpoint.
 
 import math
 
+from sinshape.core.errors import NamesParameters
+
 LOSS_LIMIT = 1e6  # a loss beyond this (or NaN) means training has diverged
 KEEP_EVERY = 20
 REWINDS = 2
 
 
-class TrainingDiverged(RuntimeError):
+class TrainingDiverged(NamesParameters, RuntimeError):
     """A level's losses exploded even at a quarter of its rate; the last
     good checkpoint is kept.
     `parameter`, as in InputError, names what the message suggests changing."""
@@ -40,7 +42,7 @@ class Rewinds:
             raise TrainingDiverged(
                 f"training diverged at level {level + 1}, iteration {trainer.iteration + 1} ({bad}) "
                 f"after {REWINDS} halvings of its learning rate; "
-                f"the last good checkpoint is {self.checkpoint_path}; try another seed"
+                f"the last good checkpoint is {self.checkpoint_path}; try another `seed`"
             )
         trainer.rewind(self.kept[0])
         self.kept = [self.kept[0]] * 2

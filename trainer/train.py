@@ -18,7 +18,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from sinshape.core.errors import InputError
+from sinshape.core.errors import InputError, NamesParameters
 from sinshape.core.files import check_writable, is_same_file
 from sinshape.prep.pyramid import load_pyramid
 
@@ -31,7 +31,7 @@ from .rewind import Rewinds, TrainingDiverged  # TrainingDiverged: one of the er
 from .steps import Trainer
 
 
-class Interrupted(RuntimeError):
+class Interrupted(NamesParameters, RuntimeError):
     """Ctrl-C during training; a checkpoint was saved first. `parameter`, as
     in InputError, names what the message says continues it."""
 
@@ -87,7 +87,7 @@ def train(input_path, output_path, config: TrainConfig | None, *, resume: bool =
             train_level(trainer, budget, checkpoints, progress, log)
     except KeyboardInterrupt:
         checkpoints.save(trainer)
-        raise Interrupted(f"interrupted; progress saved to {checkpoint_path}; resume continues from it") from None
+        raise Interrupted(f"interrupted; progress saved to {checkpoint_path}; `resume` continues from it") from None
     return export_run(trainer, budget, output_path)
 
 
@@ -104,7 +104,7 @@ def open_run(input_path, output_path: Path, config: TrainConfig | None, resume: 
         config = TrainConfig.from_dict(state["config"])
         if not colour and state.get("colour", False):
             raise InputError(f"{checkpoint_path}: this checkpoint trains colour, which a resumed run keeps; "
-                             "drop no_colour, or train afresh", ("no_colour", "resume"))
+                             "drop `no_colour`, or train afresh", ("no_colour", "resume"))
         colour = state.get("colour", False)  # checkpoints from before colour had none
     check_outputs(input_path, output_path, checkpoint_path, config.generator)
     placement = devices.choose(device, config.precision)
@@ -262,7 +262,7 @@ def time_levels(config: TrainConfig, pyramid, placement, seconds: float, refuse:
                 raise InputError(f"the time budget of {seconds / 60:.3g} min cannot give {config.min_iters} "
                                  f"iterations to each of {len(trainer.sizes)} levels: they need at least "
                                  f"{at_least / 60:.2g} min here (the {len(costs)} measured so far cost "
-                                 f"{sum(costs):.2f} s per iteration); give more minutes or lower min_iters",
+                                 f"{sum(costs):.2f} s per iteration); give more `minutes` or lower `min_iters`",
                                  ("minutes", "min_iters"))
         if level >= 2:
             cost = schedule.extrapolated(works[level], list(zip(works, costs)))

@@ -174,7 +174,7 @@ export function checkSeed(seed) {
   } catch {
     value = -1n;
   }
-  if (value < 0n || value >= 2n ** 63n) throw new InputError(`a seed must be an integer in [0, 2**63), got ${seed}`, 'seed');
+  if (value < 0n || value >= 2n ** 63n) throw new InputError(`seed must be an integer in [0, 2**63), got ${seed}`, 'seed');
   return value;
 }
 

@@ -71,7 +71,7 @@ export function sampleRequest(fields = {}) {
   let { seed, scale, smooth, keep, layout } = given;
   if (seed !== null) {
     const whole = typeof seed === 'bigint' || Number.isInteger(seed);
-    if (!(whole && BigInt(seed) >= BigInt(OPTION.seed.low) && BigInt(seed) < BigInt(OPTION.seed.high))) throw new InputError(`a seed must be an integer in [0, 2**63), got ${pyRepr(seed)}`, 'seed');
+    if (!(whole && BigInt(seed) >= BigInt(OPTION.seed.low) && BigInt(seed) < BigInt(OPTION.seed.high))) throw new InputError(`seed must be an integer in [0, 2**63), got ${pyRepr(seed)}`, 'seed');
     seed = BigInt(seed);
   }
   const size = perAxis(given.size, 'size', (f) => admits(OPTION.size, f), 'one or three positive factors');
@@ -79,6 +79,9 @@ export function sampleRequest(fields = {}) {
   if (!(Number.isInteger(smooth) && smooth >= 0 && smooth <= MAX_SMOOTH)) throw new InputError(`smooth must be 0 to ${MAX_SMOOTH} iterations, got ${pyStr(smooth)}`, 'smooth');
   if (!SMOOTHERS.includes(given.smoother)) throw new InputError(`unknown smoother ${pyRepr(given.smoother)}; choose ${SMOOTHERS.join(' or ')}`, 'smoother');
   if (!FRAMES.includes(given.frame)) throw new InputError(`unknown frame ${pyRepr(given.frame)}; choose ${FRAMES.join(' or ')}`, 'frame');
+  for (const option of OPTIONS.filter((o) => o.type === 'bool')) {
+    if (typeof given[option.name] !== 'boolean') throw new InputError(`${option.name} is true or false, got ${pyRepr(given[option.name])}`, option.name);
+  }
   const isPart = (part) => typeof part === 'string' || (part !== null && typeof part === 'object' && 'low' in part && 'high' in part);
   keep = isPart(keep) ? [keep] : keep;
   if (!(Array.isArray(keep) && keep.length <= MAX_PARTS && keep.every(isPart))) {
@@ -98,8 +101,7 @@ export function sampleRequest(fields = {}) {
   const world = worldOptions({ arrange: given.arrange, heights: given.heights, lod: given.lod, models, models_map: given.models_map });
   const request = Object.freeze({
     ...given, // every option, in the table's order: one this file does not check yet as given (make refuses it)
-    seed, recon: Boolean(given.recon), size, scale, smooth, smoother: given.smoother, largest: Boolean(given.largest),
-    detail: Boolean(given.detail),
+    seed, size, scale, smooth, smoother: given.smoother,
     frame: given.frame, keep: Object.freeze([...keep]), grow: grown, anchor, layout, tile, ...world,
   });
   checkTogether(request);

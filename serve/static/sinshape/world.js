@@ -138,7 +138,7 @@ export const ModelMap = {
  * each scatter cell draws its object from) }.
  */
 export function worldOptions({ arrange = 'blend', heights = null, lod = 0, models = [], models_map: map = null } = {}) {
-  if (!ARRANGEMENTS.includes(arrange)) throw new InputError(`unknown arrangement ${pyRepr(arrange)}; choose ${ARRANGEMENTS.join(' or ')}`, 'arrange');
+  if (!ARRANGEMENTS.includes(arrange)) throw new InputError(`unknown arrange ${pyRepr(arrange)}; choose ${ARRANGEMENTS.join(' or ')}`, 'arrange');
   if (heights !== null && !(heights?.data instanceof Float32Array && Array.isArray(heights.shape))) {
     throw new InputError('heights must be a world.HeightMap (HeightMap.of(array))', 'heights');
   }
@@ -421,7 +421,7 @@ function tileGrid(model, layout, scale, options) {
 export function checkTile(tile) {
   const whole = (t) => typeof t === 'bigint' || Number.isInteger(t);
   if (!(Array.isArray(tile) && tile.length === 2 && tile.every((t) => whole(t) && -MAX_TILE < BigInt(t) && BigInt(t) < MAX_TILE))) {
-    throw new InputError(`a tile is two integers (i, j) of magnitude below 2**62, got ${pyRepr(tile)}`, 'tile');
+    throw new InputError(`tile must be two integers (i, j) of magnitude below 2**62, got ${pyRepr(tile)}`, 'tile');
   }
   return Object.freeze(tile.map(BigInt));
 }
