@@ -53,7 +53,11 @@ LayoutFormat = Literal["json", "vox", "npz"]
 MEDIA_TYPES = {"glb": "model/gltf-binary", "obj": "model/obj", "stl": "model/stl",
                "json": "application/json"}  # others: octet-stream
 # What the library raises -> the status it is answered with, {"detail": its message}; the closest class counts.
-STATUSES = {InputError: 400, MemoryLimitError: 413, NoSlot: 503, OutOfTime: 504}
+class BodyTooLarge(InputError):
+    """An upload larger than the route takes (its declared length, or what arrived)."""
+
+
+STATUSES = {InputError: 400, MemoryLimitError: 413, BodyTooLarge: 413, NoSlot: 503, OutOfTime: 504}
 log = logging.getLogger("sinshape.serve")
 
 
@@ -65,7 +69,7 @@ class Detail(BaseModel):
 
 def errors(*statuses) -> dict:
     """OpenAPI descriptions of a route's error answers (422 replaces FastAPI's list form)."""
-    meaning = {400: "a value the runtime refuses", 404: "no such model", 413: "over the memory limit",
+    meaning = {400: "a value the runtime refuses", 404: "no such model", 413: "over the memory limit, or a body too large",
                422: "a value of the wrong type or range", 503: "no sampling slot free in time",
                504: "over the time limit"}
     return {status: {"model": Detail, "description": meaning[status]} for status in statuses}
@@ -166,6 +170,25 @@ class SampleQuery:
 
 
 MAX_UPLOAD_BYTES = 4 << 20  # a layout of a coarse level is a few kB; a height map of 1024 x 1024 float32
+
+
+async def upload(request: Request, what: str) -> bytes:
+    """The request's body, of 1 byte to MAX_UPLOAD_BYTES: refused by its
+    declared length before a byte of it is read, and read in chunks, each
+    counted, when no length is declared (chunked), so that a large body
+    costs the service nothing. A client gone midway is a ClientDisconnect (499)."""
+    wanted = f"send {what} as the request body (1 byte to {MAX_UPLOAD_BYTES >> 20} MB)"
+    declared = request.headers.get("content-length")
+    if declared is not None and declared.isdigit() and int(declared) > MAX_UPLOAD_BYTES:
+        raise BodyTooLarge(f"{wanted}; it declares {int(declared) / 2**20:.1f} MB")
+    body = bytearray()
+    async for chunk in request.stream():
+        body += chunk
+        if len(body) > MAX_UPLOAD_BYTES:
+            raise BodyTooLarge(f"{wanted}; it sent more")
+    if not body:
+        raise InputError(wanted)
+    return bytes(body)
 
 
 def layout_suffix(data: bytes) -> str:
@@ -282,9 +305,7 @@ async def sample_from_layout(
     resample_layout: Annotated[bool, Query(description="Fit a layout of another grid size to level 0's.")] = False,
 ):
     """The body is the layout file (.vox or .npz, as `sinrun layout` writes it, edited), at most 4 MB."""
-    body = await request.body()  # ClientDisconnect: gone before its layout arrived (499)
-    if not body or len(body) > MAX_UPLOAD_BYTES:
-        raise InputError(f"send the layout file as the request body (1 byte to {MAX_UPLOAD_BYTES >> 20} MB)")
+    body = await upload(request, "the layout file")
     model = find(request, q.name)
     grid = await run_in_threadpool(layout.parse_layout, body, layout_suffix(body), "the layout")
     wanted = SampleRequest.of({**q.fields(), "layout": Layout.of(grid, resample_layout)})
@@ -365,9 +386,7 @@ async def tile_of_map(
 ):
     """The body is the height map (.npy heights in voxels, or a greyscale .png), at most 4 MB: every tile
     of the world asks with the same map."""
-    body = await request.body()  # ClientDisconnect: gone before its map arrived (499)
-    if not body or len(body) > MAX_UPLOAD_BYTES:
-        raise InputError(f"send the height map as the request body (1 byte to {MAX_UPLOAD_BYTES >> 20} MB)")
+    body = await upload(request, "the height map")
     suffix = ".npy" if body.startswith(b"\x93NUMPY") else ".png" if body.startswith(b"\x89PNG") else None
     if suffix is None:
         raise InputError("the height map is neither a .npy array nor a .png image")

@@ -2,6 +2,7 @@
 
 import contextlib
 import gzip
+import http.client
 import io
 import json
 import os
@@ -301,6 +302,50 @@ def test_a_layout_uploaded_samples_as_the_command_line_does(server, tmp_path):
     assert status == 400 and "neither a MagicaVoxel .vox nor an .npz" in json.loads(body)["detail"]
     status, _, body = post(sample_url(base, seed=4), vox.read_bytes()[:40])
     assert status == 400 and "not a readable MagicaVoxel file" in json.loads(body)["detail"]
+
+
+
+def raw_post(base: str, path: str, headers: dict, body: bytes = b"") -> tuple:
+    """(status, detail) of a POST with exactly these headers and `body` as
+    given (chunked already, or shorter than its declared length): the answer
+    is read without sending more."""
+    connection = http.client.HTTPConnection(base.removeprefix("http://"), timeout=GUARD_SECONDS)
+    try:
+        connection.putrequest("POST", path)
+        for name, value in headers.items():
+            connection.putheader(name, value)
+        connection.endheaders(body)
+        answer = connection.getresponse()
+        return answer.status, json.loads(answer.read())["detail"]
+    finally:
+        connection.close()
+
+
+CHUNKED = {"Transfer-Encoding": "chunked"}
+UPLOADS = [("/api/models/terrain/sample?seed=1", "the layout file"),
+           ("/api/models/terrain/tile?i=0&j=0", "the height map")]
+
+
+@pytest.mark.parametrize("path, what", UPLOADS)
+def test_an_upload_is_refused_by_its_declared_length_before_it_is_read(server, path, what):
+    """A 400 MB body was read whole (800 MB of the server's memory) before
+    its 4 MB test: now the answer comes with none of the body sent."""
+    base, _ = server
+    status, detail = raw_post(base, path, {"Content-Length": 400 << 20})
+    assert status == 413 and detail == f"send {what} as the request body (1 byte to 4 MB); it declares 400.0 MB"
+
+
+@pytest.mark.parametrize("path, what", UPLOADS)
+def test_an_upload_without_a_length_is_counted_as_it_arrives(server, path, what):
+    base, process = server
+    chunk = b"x" * (64 << 10)
+    body = b"".join(b"%x\r\n%s\r\n" % (len(chunk), chunk) for _ in range(65)) + b"0\r\n\r\n"
+    grown = peak_mb(process.pid, lambda: raw_post(base, path, CHUNKED, body)) - memory_mb(
+        process.pid, "VmRSS")
+    assert raw_post(base, path, CHUNKED, body) == (
+        413, f"send {what} as the request body (1 byte to 4 MB); it sent more")
+    assert grown < 32, f"the server grew by {grown:.0f} MB for a 4 MB body"
+    assert raw_post(base, path, {"Content-Length": 0}) == (400, f"send {what} as the request body (1 byte to 4 MB)")
 
 
 def test_a_sample_is_the_file_sinrun_sample_writes(server, tmp_path):
