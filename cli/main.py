@@ -94,14 +94,15 @@ def interruption(error: BaseException):
             return error
         seen.add(id(error))
         error = error.__cause__ or error.__context__
-    if Terminated.seen:
-        return Terminated()
-    return KeyboardInterrupt() if interrupt.seen else None
+    if stopped.first is None:
+        return None
+    return Terminated() if stopped.first == signal.SIGTERM else KeyboardInterrupt()
 
 
 def exit_stopped(stop: BaseException, message: str | None = None) -> None:
-    """Exit as a shell reports the signal: 143 after SIGTERM (Terminated), 130 after Ctrl-C."""
-    terminated = isinstance(stop, Terminated) or Terminated.seen
+    """Exit as a shell reports the signal that came first: 143 after SIGTERM
+    (Terminated), 130 after Ctrl-C."""
+    terminated = stopped.first == signal.SIGTERM if stopped.first else isinstance(stop, Terminated)
     click.echo(message or ("terminated" if terminated else "interrupted"), err=True)
     sys.exit(143 if terminated else 130)
 
@@ -821,32 +822,28 @@ def list_models():
 
 class Terminated(KeyboardInterrupt):
     """SIGTERM, raised where Ctrl-C would be, so that it unwinds the same way:
-    temporary files removed, a training checkpoint saved. `seen` stays set
-    where a library turns it into a plain KeyboardInterrupt (Ray's wait)."""
-
-    seen = False
+    temporary files removed, a training checkpoint saved."""
 
 
-def terminate(signum, frame):
-    Terminated.seen = True
-    raise Terminated
+def stopped(signum, frame):
+    """SIGINT and SIGTERM: the first raises (KeyboardInterrupt, Terminated)
+    and is remembered in `stopped.first`, since a library may turn it into
+    another error (onnxruntime, into an ImportError that does not hold it;
+    Ray's wait, into a plain KeyboardInterrupt). Any later one, while the
+    command unwinds, is let pass: a second Ctrl-C must not cut short the
+    removal of a temporary file or the saving of a checkpoint."""
+    if stopped.first is None:
+        stopped.first = signum
+        raise Terminated if signum == signal.SIGTERM else KeyboardInterrupt
 
 
-def interrupt(signum, frame):
-    """Ctrl-C as Python's own handler takes it, remembered: onnxruntime
-    turns one that lands while it imports numpy into an ImportError that
-    does not hold it (`interruption`)."""
-    interrupt.seen = True
-    raise KeyboardInterrupt
-
-
-interrupt.seen = False
+stopped.first = None
 
 
 def main():
-    signal.signal(signal.SIGTERM, terminate)
+    signal.signal(signal.SIGTERM, stopped)
     if signal.getsignal(signal.SIGINT) is signal.default_int_handler:  # not where the shell ignores it
-        signal.signal(signal.SIGINT, interrupt)
+        signal.signal(signal.SIGINT, stopped)
     try:
         cli(prog_name="sinrun")
     except SystemExit as done:

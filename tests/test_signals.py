@@ -2,9 +2,12 @@
 (SIGINT, sent to the whole process group as a terminal does) and 143 after
 SIGTERM (`kill`, sent to the command alone), with one line on stderr, no
 traceback, and no partial output file. Each command runs as a real process
-and is signalled once its work is under way. Commands that finish at once
-(info, models, layout, shape, export-web) have no work to stop; they share
-the handler in cli.main.Sinrun with the ones tested here."""
+and is signalled at stated points of its work (importing, loading, working,
+writing: tests/stop_at.py finds them with the interpreter's profiling hook),
+so that no test passes or fails by when its signal lands; the others are
+signalled once a line or a process says where they are. Commands that
+finish at once (info, models, layout, shape, export-web) have no work to
+stop; they share the handler in cli.main with the ones tested here."""
 
 import contextlib
 import os
@@ -46,14 +49,6 @@ def wait_for(process, ready, what: str) -> None:
         time.sleep(0.05)
 
 
-def loaded(process, library="onnxruntime"):
-    """Ready once the command's body has begun: it imports its library there."""
-    def ready():
-        with open(f"/proc/{process.pid}/maps") as maps:
-            return library in maps.read()
-    return ready
-
-
 def stop(process, signum) -> str:
     """Send the signal as it comes in use; assert the exit status; returns stderr's last line."""
     if signum == signal.SIGINT:
@@ -75,24 +70,38 @@ def lines_in(path):
     return lambda: path.is_file() and path.read_bytes().count(b"\n") > 0
 
 
-# Each runs for minutes unless stopped; the signal comes once onnxruntime is loaded.
+# Each command, and the points of it the signal is sent at (tests/stop_at.py finds them).
 COMMANDS = {
-    "sample": ["sample", "terrain", "--scale", 12, "--threads", 1, "-o", "out.ply"],
-    "interpolate": ["interpolate", "terrain", "--seeds", 0, 1, "--steps", 50, "--scale", 8, "-o", "out.ply"],
-    "render": ["render", "terrain", "--seeds", "0-99", "--scale", 6, "-o", "out.png"],
-    "eval": ["eval", "terrain", "--reference", "box.obj", "-n", 1000, "--json", "out.json"],
+    "sample": ["sample", "terrain", "--scale", 2, "-o", "out.ply"],
+    "interpolate": ["interpolate", "terrain", "--seeds", 0, 1, "--steps", 2, "-o", "out.ply"],
+    "render": ["render", "terrain", "--seeds", "0", "--image-size", 64, "-o", "out.png"],
+    "eval": ["eval", "terrain", "--reference", "box.obj", "-n", 2, "--json", "out.json"],
 }
+POINTS = {"importing": "import:onnxruntime",  # the command's lazy import of its runtime
+          "loading": "call:read_model",  # the model file being opened
+          "working": "call:run@onnxruntime",  # a level of the generator running
+          "writing": "c_call:fsync"}  # the output, written to its temporary, flushed to disk
+# sample at every point with either signal; the others at every point, with one or the other
+CASES = [(command, point, signals) for command in COMMANDS for number, point in enumerate(POINTS)
+         for signals in (("INT", "TERM") if command == "sample" else (("INT", "TERM")[number % 2],))]
+CASES += [("sample", "writing", "INT+INT"), ("sample", "writing", "TERM+INT"), ("sample", "importing", "INT+TERM")]
+STOP_AT = Path(__file__).with_name("stop_at.py")
 
 
-@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
-@pytest.mark.parametrize("command", COMMANDS)
-def test_a_command_stopped_at_work(tmp_path, command, signum):
+@pytest.mark.parametrize("command, point, signals", CASES, ids=["-".join(case) for case in CASES])
+def test_a_command_stopped_at_a_stated_point(tmp_path, command, point, signals):
+    """Ctrl-C or SIGTERM at each stated point ends the command in one line,
+    with the status of the signal that came first, and no output or
+    temporary file; a second signal in the clean-up is let pass."""
     import trimesh
 
     trimesh.creation.box((2, 1, 1)).export(tmp_path / "box.obj")
-    with running(COMMANDS[command], tmp_path) as process:
-        wait_for(process, loaded(process), "loaded onnxruntime")
-        assert stop(process, signum) == ENDINGS[signum][1]
+    args = [sys.executable, STOP_AT, POINTS[point], signals, *COMMANDS[command]]
+    process = subprocess.run([str(a) for a in args], cwd=tmp_path, capture_output=True, text=True, timeout=300,
+                             start_new_session=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    status, line = ENDINGS[signal.Signals["SIG" + signals.split("+")[0]]]
+    assert process.returncode == status and "Traceback" not in process.stderr, process.stderr
+    assert process.stderr.strip().splitlines()[-1] == line
     assert sorted(p.name for p in tmp_path.iterdir()) == ["box.obj"]
 
 
@@ -154,12 +163,12 @@ def test_a_signal_inside_an_import_is_found_down_the_chain_of_causes():
     stop = main.Terminated()
     assert main.interruption(chained(ImportError("import numpy failed"), ImportError("numpy"), stop)) is stop
     assert main.interruption(chained(ImportError("no such module"), ValueError("bad"))) is None
-    # Ctrl-C that left no trace in the chain: the handler remembers it.
+    # Ctrl-C that left no trace in the chain: the handler remembers it, and lets a second one pass.
     try:
-        main.interrupt(signal.SIGINT, None)
-    except KeyboardInterrupt:
-        pass
-    try:
+        with pytest.raises(KeyboardInterrupt):
+            main.stopped(signal.SIGINT, None)
+        main.stopped(signal.SIGTERM, None)  # while the first unwinds: no second exception
         assert isinstance(main.interruption(ImportError("import numpy failed")), KeyboardInterrupt)
+        assert not isinstance(main.interruption(ImportError("import numpy failed")), main.Terminated)
     finally:
-        main.interrupt.seen = False
+        main.stopped.first = None
