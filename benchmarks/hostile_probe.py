@@ -1,8 +1,12 @@
-"""The fourth hostile probe, case by case: textured meshes whose files lie
-elsewhere or block, glTF structure and images of hostile size, colour input
-a user would be surprised by, resumed jobs of another job, unbounded world
-blocks and indexes, a tile left by its client, a colour head that overflows,
-the exported site's serve.py and a checkpoint that cannot be written.
+"""The hostile probes, case by case. The fourth's: textured meshes whose
+files lie elsewhere or block, glTF structure and images of hostile size,
+colour input a user would be surprised by, resumed jobs of another job,
+unbounded world blocks and indexes, a tile left by its client, a colour head
+that overflows, the exported site's serve.py and a checkpoint that cannot be
+written. The fifth's (classes 7-11): maps and models that are pipes,
+devices or sparse giants, uploads larger than the route takes, a weight held
+twice, messages that name fields, signals at stated points and output
+folders of many files.
 
 Each case runs `sinrun` (or a few lines of Python) in a child process, with
 a time limit, against whatever sinshape that Python imports, and is "held"
@@ -85,6 +89,109 @@ def replace_in(path: Path, old: str, new: str) -> Path:
 def fifo(path: Path) -> None:
     path.unlink(missing_ok=True)
     os.mkfifo(path)
+
+
+def special_map(kind: str, suffix: str, option: str):
+    """A world whose map (`option`) is a FIFO, /dev/zero or a link to it."""
+    def setup(folder):
+        path = Path("/dev/zero") if kind == "device" else folder / f"map{suffix}"
+        if kind == "fifo":
+            fifo(path)
+        elif kind == "link":
+            path.symlink_to("/dev/zero")
+        scatter = ["--arrange", "scatter"] if option == "--models-map" else []
+        return ["world", "terrain", "--tiles", "0:0,0:0", *scatter, option, path, "-o", folder / "out"]
+    return setup
+
+
+def sparse_map(folder):
+    return ("python", f"""
+import resource, subprocess, sys
+with open("{{f}}/s.npy", "wb") as file:
+    file.truncate(2 << 30)
+result = subprocess.run([sys.executable, "-c", {SINRUN!r}, "world", "terrain", "--tiles", "0:0,0:0", "--map",
+                         "{{f}}/s.npy", "-o", "{{f}}/out"], capture_output=True, text=True)
+peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
+lines = result.stderr.strip().splitlines()
+print("HELD" if result.returncode == 1 and len(lines) == 1 and peak < 200 else "FAILED", f"peak {{peak:.0f}} MB:", lines[-1][:120])
+""")
+
+
+def upload(path: str, how: str):
+    """A body larger than the route takes, declared (and never sent) or chunked."""
+    def setup(folder):
+        return ("python", f"""
+import http.client, json, socket, subprocess, sys, time
+with socket.socket() as free:
+    free.bind(("127.0.0.1", 0))
+    port = free.getsockname()[1]
+server = subprocess.Popen([sys.executable, "-c", {SINRUN!r}, "serve", "terrain", "--port", str(port)],
+                          stderr=subprocess.PIPE, text=True)
+assert "Ctrl-C stops" in server.stderr.readline()
+connection = http.client.HTTPConnection(f"127.0.0.1:{{port}}", timeout=60)
+connection.putrequest("POST", {path!r})
+if {how!r} == "declared":
+    connection.putheader("Content-Length", str(400 << 20))
+    connection.endheaders()
+else:
+    connection.putheader("Transfer-Encoding", "chunked")
+    connection.endheaders()
+    chunk = b"x" * (64 << 10)
+    for _ in range(80):
+        connection.send(b"%x\\r\\n%s\\r\\n" % (len(chunk), chunk))
+answer = connection.getresponse()
+detail = json.loads(answer.read())["detail"]
+rss = int(open(f"/proc/{{server.pid}}/status").read().split("VmHWM:")[1].split()[0]) / 1024
+server.terminate()
+log = server.communicate()[1]
+print("HELD" if answer.status == 413 and "Traceback" not in log else "FAILED", answer.status, f"peak {{rss:.0f}} MB:", detail)
+""")
+    return setup
+
+
+def doubled_weight(folder):
+    """tiny_colour.onnx with a second, all-zero colour_tiles.images, resealed."""
+    code = f"""
+import onnx, numpy as np
+from onnx import numpy_helper
+from sinshape.core import manifest
+model = onnx.load({str(DATA / "tiny_colour.onnx")!r})
+first = next(t for t in model.graph.initializer if t.name == "colour_tiles.images")
+model.graph.initializer.append(numpy_helper.from_array(np.zeros_like(numpy_helper.to_array(first)), first.name))
+open({str(folder / "twice.onnx")!r}, "wb").write(manifest.seal(model.SerializeToString()))
+"""
+    subprocess.run([sys.executable, "-c", code], check=True)
+    return ["sample", folder / "twice.onnx", "-o", folder / "out.ply"]
+
+
+def nan_map(folder):
+    import numpy as np
+
+    np.save(folder / "nan.npy", np.array([[0.0, np.nan], [np.inf, 1e30]]))
+    return ["world", "terrain", "--tiles", "0:0,0:0", "--map", folder / "nan.npy", "-o", folder / "out"]
+
+
+def many_models(folder):
+    return ["world", "terrain", *["terrain"] * 256, "--arrange", "scatter", "--tiles", "0:0,0:0", "-o", folder / "out"]
+
+
+def stopped_at(point: str, signals: str, args: list):
+    """sinrun ARGS sent `signals` at `point` (tests/stop_at.py): one line, the first signal's status, no file."""
+    def setup(folder):
+        return ("python", f"""
+import signal, subprocess, sys, trimesh
+trimesh.creation.box((2, 1, 1)).export("{{f}}/box.obj")
+result = subprocess.run([sys.executable, {str(ROOT / "tests" / "stop_at.py")!r}, {point!r}, {signals!r},
+                         *[a.replace("{{{{f}}}}", "{{f}}") for a in {args!r}]], capture_output=True, text=True,
+                        start_new_session=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+status = 130 if {signals!r}.startswith("INT") else 143
+lines = result.stderr.strip().splitlines()
+import pathlib
+left = [p.name for p in pathlib.Path("{{f}}").iterdir() if p.name != "box.obj"]
+print("HELD" if result.returncode == status and "Traceback" not in result.stderr and not left else "FAILED",
+      result.returncode, lines[-1][:100] if lines else "", left)
+""")
+    return setup
 
 
 # -- cases: (class, name, setup(folder) -> argv for sinrun, or ("python", code); what holds) ------
@@ -479,6 +586,29 @@ CASES = [
     ("6. serve.py, checkpoints", "serve.py 70000 (out of range)", site_port("70000"), "python"),
     ("6. serve.py, checkpoints", "serve.py on a taken port", site_port("taken"), "python"),
     ("6. serve.py, checkpoints", "a checkpoint under a file-size limit", checkpoint_limit, "python"),
+    # 7. every file a user names is looked at before a byte of it is read (the fifth probe)
+    ("7. files looked at first", "a FIFO as a .npy height map", special_map("fifo", ".npy", "--map"), "refused"),
+    ("7. files looked at first", "a FIFO as a .png height map", special_map("fifo", ".png", "--map"), "refused"),
+    ("7. files looked at first", "a FIFO as the model map", special_map("fifo", ".png", "--models-map"), "refused"),
+    ("7. files looked at first", "/dev/zero as the height map", special_map("device", "", "--map"), "refused"),
+    ("7. files looked at first", "a link to /dev/zero as the height map", special_map("link", ".npy", "--map"), "refused"),
+    ("7. files looked at first", "/dev/zero as the model map", special_map("device", "", "--models-map"), "refused"),
+    ("7. files looked at first", "a FIFO as the model", lambda f: (fifo(f / "m.onnx"), ["sample", f / "m.onnx", "-o", f / "out.ply"])[1], "refused"),
+    ("7. files looked at first", "a FIFO as the layout", lambda f: (fifo(f / "l.npz"), ["sample", "terrain", "--layout", f / "l.npz", "-o", f / "out.ply"])[1], "refused"),
+    ("7. files looked at first", "a 2 GiB sparse map, under 200 MB of memory", sparse_map, "python"),
+    # 8. uploads refused before they are held
+    ("8. uploads bounded", "a declared 400 MB layout", upload("/api/models/terrain/sample?seed=1", "declared"), "python"),
+    ("8. uploads bounded", "a declared 400 MB height map", upload("/api/models/terrain/tile?i=0&j=0", "declared"), "python"),
+    ("8. uploads bounded", "a chunked 5 MB height map", upload("/api/models/terrain/tile?i=0&j=0", "chunked"), "python"),
+    # 9. a weight twice
+    ("9. one weight of each name", "colour_tiles.images twice, resealed", doubled_weight, "refused"),
+    # 10. messages that name fields
+    ("10. messages as typed", "NaN in a .npy height map", nan_map, "error:a height map holds values in voxels"),
+    ("10. messages as typed", "256 models after the first", many_models, "error:a world takes at most 255 MODEL..."),
+    # 11. signals at stated points, output folders
+    ("11. signals, folders", "Ctrl-C as eval imports onnxruntime", stopped_at("import:onnxruntime", "INT", ["eval", "terrain", "-n", "2", "--reference", "{f}/box.obj"]), "python"),
+    ("11. signals, folders", "SIGTERM as sample writes, then Ctrl-C", stopped_at("c_call:fsync", "TERM+INT", ["sample", "terrain", "-o", "{f}/out.ply"]), "python"),
+    ("11. signals, folders", "--seeds with -o job/{seed}.glb makes job", lambda f: ["sample", "terrain", "--seeds", "0-1", "--lods", "200", "-o", f / "job" / "{seed}.glb"], "ok:wrote"),
 ]
 
 
