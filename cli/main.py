@@ -4,6 +4,7 @@ Heavy imports (torch, onnxruntime, trimesh) happen inside the commands, so
 `--help` is instant and everything but `train` works without torch.
 """
 
+import functools
 import math
 import os
 import signal
@@ -26,22 +27,24 @@ from .progress import StageProgress, TrainProgress, format_seconds, progress_bar
 # `request_option`s, named as the table names them.
 SPELLED = {"layout": ("layout_file", "--layout"), "tile": ("tiles", "--tiles"), "heights": ("height_map", "--map"),
            "models": ("others", "MODEL..."), "models_map": ("models_map", "--models-map")}
-# Library errors name a function's parameter; on the command line it is an option
-# (but a seed: a sample's comes from --seed, --seeds or --keep, a run's from train's --seed).
-OPTIONS = {**{name: "--" + name.replace("_", "-") for name in OPTION if name != "seed"},
-           **{name: flag for name, (_, flag) in SPELLED.items()},
-           "factors": "--size", "threads": "--threads",
-           "levels": "--levels", "res": "--res", "workers": "--workers", "detail": "--detail",
-           "alpha": "--range", "samples": "--samples", "zoom": "--zoom", "azimuth": "--azimuth",
-           "elevation": "--elevation", "timeout": "--timeout", "level": "--level",
-           "generator": "--generator", "iters": "--iters", "lr": "--lr",
-           "min_iters": "--min-iters", "minutes": "--minutes", "precision": "--precision", "box": "--box",
-           "train_depth": "--train-depth", "focus": "--focus", "up": "--up", "resume": "--resume",
-           "output": "--output", "force": "--force",
-           "no_colour": "--no-colour", "d_steps": "--d-steps", "d_rate": "--d-rate", "colour_mb": "--colour-mb",
-           "asset_folder": "--asset-folder", "restart": "--restart", "lods": "--lods", "texture": "--texture",
-           "ao": "--ao", "relief": "--relief", "contrast": "--contrast"}
-# ctx.meta key: {parameter: what set it} where a command's value came from elsewhere than OPTIONS says.
+# Library parameters the command line spells otherwise than as an option of
+# their own name: how a message naming one says it.
+RENAMED = {**{name: flag for name, (_, flag) in SPELLED.items()}, "factors": "--size", "alpha": "--range"}
+
+
+@functools.cache
+def option_names() -> dict:
+    """{parameter: the option that sets it} for every option of every
+    command, and RENAMED: how the command line writes the names a library
+    message marks. Not a seed: a sample's comes from --seed, --seeds or
+    --keep, a run's from train's --seed."""
+    names = {param.name: next(opt for opt in param.opts if opt.startswith("--"))
+             for command in cli.commands.values() for param in command.params
+             if isinstance(param, click.Option) and param.name != "seed"}
+    return {**names, **RENAMED}
+
+
+# ctx.meta key: {parameter: what set it} where a command's value came from elsewhere than its option.
 SOURCES = "sinrun.sources"
 # The extra that installs each optional module (pyproject.toml): a command
 # that needs a missing one says which extra to install.
@@ -50,11 +53,12 @@ EXTRAS = {"torch": "train", "onnx": "train", "scipy": "prep", "h5py": "prep", "s
           "meshoptimizer": "assets"}
 
 
-def command_line_message(error: Exception, options: dict = OPTIONS) -> str:
+def command_line_message(error: Exception, options: dict | None = None) -> str:
     """The error's message with each parameter it names (core.errors marks
     them) written as the option that sets it: an InputError's, or any other's
     that names one the same way (training's stops)."""
     template = error.template if isinstance(error, NamesParameters) else str(error)
+    options = option_names() if options is None else options
     message = spelled(template, lambda name: options.get(name, name))
     return message.replace("\r", "\\r").replace("\n", "\\n")  # one line, whatever a value held
 
@@ -67,7 +71,7 @@ class Sinrun(click.Group):
             return super().invoke(ctx)
         except InputError as error:
             # A command may say that a value came from elsewhere than its option.
-            options = {**OPTIONS, **ctx.meta.get(SOURCES, {})}
+            options = {**option_names(), **ctx.meta.get(SOURCES, {})}
             raise click.ClickException(command_line_message(error, options)) from None
         except ModuleNotFoundError as error:
             top = (error.name or "").partition(".")[0]
@@ -126,7 +130,7 @@ class Command(click.Command):
             return super().invoke(ctx)
         except ConflictError as error:
             options = {name: "--" + name.replace("_", "-") for name in error.parameter}
-            raise click.UsageError(command_line_message(error, {**options, **OPTIONS}), ctx) from None
+            raise click.UsageError(command_line_message(error, {**options, **option_names()}), ctx) from None
 
 
 cli.command_class = Command
@@ -250,7 +254,7 @@ def train(input_path, output, preset, device, no_colour, asset_folder, resume, c
                                       asset_folder=asset_folder)
     except training.Interrupted as error:  # Ctrl-C or `kill` (Terminated): a checkpoint was saved
         exit_stopped(error.__context__, command_line_message(error))
-    except training.TrainingDiverged as error:  # OPTIONS has no seed: sample's come from --seed, --seeds, --keep
+    except training.TrainingDiverged as error:  # option_names has no seed: sample's come from --seed, --seeds, --keep
         raise click.ClickException(command_line_message(error, {"seed": "--seed"})) from None
     sizes = ", ".join("x".join(map(str, level["size"])) for level in manifest["levels"])
     said = "coloured, " if "colour" in manifest else "with its example's relief, " if "relief" in manifest else ""

@@ -91,13 +91,13 @@ def marked_names(source: str) -> list:
 def test_the_names_a_message_marks_are_parameters_the_front_ends_know():
     """A marked name is its error's parameter or an option the command line
     spells: a misspelt mark would print as written, naming nothing."""
-    from sinshape.cli.main import OPTIONS
+    from sinshape.cli.main import option_names
 
     strays = {}
     for package in (*LIBRARY, "blender"):
         for path in sorted((ROOT / package).rglob("*.py")):
             names = marked_names(path.read_text())
-            if stray := [name for name, parameters in names if name not in parameters | set(OPTIONS) | {"seed"}]:
+            if stray := [name for name, parameters in names if name not in parameters | set(option_names()) | {"seed"}]:
                 strays[str(path.relative_to(ROOT))] = stray
     assert not strays, strays
     assert marked_names('raise InputError(f"`scle` must be {x}", "scale")') == [("scle", {"scale"})]

@@ -98,9 +98,9 @@ def test_the_command_line_offers_every_option_from_the_table():
 def test_the_command_line_names_each_option_in_its_errors():
     from click.testing import CliRunner
 
-    from sinshape.cli.main import OPTIONS as FLAGS, SPELLED, cli
+    from sinshape.cli.main import SPELLED, cli, option_names
 
-    assert all(FLAGS[name] == (SPELLED[name][1] if name in SPELLED else f"--{name}") for name in OPTION if name != "seed")
+    assert all(option_names()[name] == (SPELLED[name][1] if name in SPELLED else f"--{name}") for name in OPTION if name != "seed")
     result = CliRunner().invoke(cli, ["sample", "--smooth", "101", "--smoother", "gauss"])
     assert result.exit_code == 2 and "'gauss' is not one of 'laplacian', 'taubin'" in result.output
     result = CliRunner().invoke(cli, ["world", "--help"])
@@ -117,7 +117,7 @@ def test_every_refusal_of_an_option_names_it_as_each_front_end_spells_it(name):
     option's name (core.errors), so the command line writes the option the
     user typed and nothing else: every other word of the sentence stays as
     written (a field name that is also an ordinary word is not one)."""
-    from sinshape.cli.main import OPTIONS as FLAGS, command_line_message
+    from sinshape.cli.main import command_line_message, option_names
 
     context = {"grow": 2} if name == "anchor" else {}
     refused = []
@@ -127,7 +127,7 @@ def test_every_refusal_of_an_option_names_it_as_each_front_end_spells_it(name):
         except InputError as error:
             refused += [error] if error.parameter == name else []
     assert refused, f"no hostile value of {name} is refused as {name}'s"
-    flag = FLAGS.get(name, name)  # a sample's seed has three options: the message keeps its name
+    flag = option_names().get(name, name)  # a sample's seed has three options: the message keeps its name
     for error in refused:
         assert f"`{name}`" in error.template, error.template
         typed, plain = command_line_message(error), str(error)
