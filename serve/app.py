@@ -269,7 +269,7 @@ async def describe(request: Request, name: str):
 
 
 @routes.get("/api/models/{name}/onnx", summary="The model file, as loaded and checked at start-up, sealed "
-            "as format 3 (what the browser reads)", response_class=Response,
+            "(format 3 or later: what the browser reads)", response_class=Response,
             responses={200: {"content": {"application/octet-stream": {}}},
                        304: {"description": "Not modified: If-None-Match named its ETag"}, **errors(404)})
 async def model_file(request: Request, name: str):

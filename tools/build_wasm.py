@@ -5,7 +5,7 @@
 serve/static/sinshape/decode.wat -> serve/static/sinshape/decode-wasm.js, the
 module's bytes as base64 in a JavaScript module (so the page and its worker
 load it with the code, with no file type for a server to know). The test
-suite checks that the committed file is the source's (tests/test_web.py).
+suite checks that the committed file is the source's (tests/test_wasm.py).
 """
 
 import base64
