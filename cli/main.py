@@ -241,7 +241,7 @@ def train(input_path, output, preset, device, no_colour, asset_folder, resume, c
     Checkpoints are written after every level and every 5 minutes; Ctrl-C
     saves one and stops; --resume continues.
     """
-    from sinshape.trainer import config as configs, train as training
+    from sinshape.trainer import config as configs, rewind, train as training
 
     config = configs.make_config(preset, resume, **settings)  # every other option is a TrainConfig field
     if settings["levels"] is None:  # an .h5 file with fewer levels blames where the count came from
@@ -254,7 +254,7 @@ def train(input_path, output, preset, device, no_colour, asset_folder, resume, c
                                       asset_folder=asset_folder)
     except training.Interrupted as error:  # Ctrl-C or `kill` (Terminated): a checkpoint was saved
         exit_stopped(error.__context__, command_line_message(error))
-    except training.TrainingDiverged as error:  # option_names has no seed: sample's come from --seed, --seeds, --keep
+    except rewind.TrainingDiverged as error:  # option_names has no seed: sample's come from --seed, --seeds, --keep
         raise click.ClickException(command_line_message(error, {"seed": "--seed"})) from None
     sizes = ", ".join("x".join(map(str, level["size"])) for level in manifest["levels"])
     said = "coloured, " if "colour" in manifest else "with its example's relief, " if "relief" in manifest else ""

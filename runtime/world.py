@@ -1108,18 +1108,10 @@ def window_colouring(model, layout: Layout, seed: int, a: int, b: int, arrange: 
     return made
 
 
-def tile_hidden(model, seed: int, tile, points: np.ndarray, options: WorldOptions = PLAIN) -> np.ndarray:
-    """The decoder's hidden pre-activations (b1 not added) at points of tile
-    (i, j) (model units from its corner along the horizontal axes, from the
-    floor along up), as the occupancy has them there: the windows' blended
-    with their contrast kept, or a scatter world's object's (zero on its
-    ground). (n, D) float32."""
-    return point_field(model, seed, tile, points, options)[1]
-
-
 def tile_points(model, seed: int, tile, points: np.ndarray, options: WorldOptions = PLAIN) -> np.ndarray:
-    """The world's occupancy at any points of tile (i, j) (as tile_hidden's):
-    (n,) float32, what its grid holds where a point is one of the grid's."""
+    """The world's occupancy at any points of tile (i, j) (model units from
+    its corner along the horizontal axes, from the floor along up): (n,)
+    float32, what its grid holds where a point is one of the grid's."""
     return sigmoid(point_field(model, seed, tile, points, options)[0])
 
 

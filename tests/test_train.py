@@ -8,7 +8,7 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from sinshape.trainer import checkpoint, train  # noqa: E402
+from sinshape.trainer import checkpoint, rewind, train  # noqa: E402
 from sinshape.trainer.config import PRESETS, make_config  # noqa: E402
 from sinshape.core.errors import InputError  # noqa: E402
 
@@ -174,7 +174,7 @@ def test_a_diverging_level_goes_back_and_ends_with_a_model(tmp_path, tiny_pyrami
 def test_a_level_that_keeps_diverging_stops_and_keeps_the_last_good_checkpoint(tmp_path, tiny_pyramid, monkeypatch):
     calls = diverge_at(monkeypatch, 1, lambda n: True)
     out = tmp_path / "m.onnx"
-    with pytest.raises(train.TrainingDiverged,
+    with pytest.raises(rewind.TrainingDiverged,
                        match="level 2, iteration 1.*D loss nan.*after 2 halvings.*; try another seed$"):
         train.train(tiny_pyramid, out, make_config("tiny", iters=2))
     assert calls == [0, 0, 0]  # twice back at half the rate, then stopped

@@ -27,7 +27,7 @@ from . import export, schedule
 from .checkpoint import Checkpoints, default_checkpoint_path, load_checkpoint
 from .config import TrainConfig
 from .memory import check_training_memory
-from .rewind import Rewinds, TrainingDiverged  # TrainingDiverged: one of the errors train raises
+from .rewind import Rewinds
 from .steps import Trainer
 
 
