@@ -10,7 +10,9 @@ classes (values out of range, unknown models, a body of 400 MB declared or
 5 MB chunked, a layout that is not one, too many kept parts). It reports
 requests served, answers by status, latency percentiles per kind, the
 server's resident memory every minute, tracebacks in its log, and whether
-every sampling slot is free at the end.
+every sampling slot is free at the end. The cache of finished files
+(256 MB by default) fills as the run goes: its size is printed beside the
+memory, to tell it from a leak.
 
     python benchmarks/soak.py                    # 20 minutes, 3 clients
     python benchmarks/soak.py --minutes 2        # a short look
@@ -201,15 +203,17 @@ def main() -> None:
     began = time.monotonic()
     for thread in threads:
         thread.start()
-    memory = []
+    memory, cached = [], []
     while any(thread.is_alive() for thread in threads):
         minute = len(memory) + 1
         while time.monotonic() < began + 60 * minute and any(t.is_alive() for t in threads):
             time.sleep(1)
         memory.append(resident_mb(server.pid))
+        cached.append(json.loads(client.send("GET", "/health")[1])["cached_bytes"] / 2**20)
         with lock:
             served = sum(sum(c.values()) for c in statuses.values())
-        print(f"minute {minute}: {served} requests, server {memory[-1]:.0f} MB", file=sys.stderr, flush=True)
+        print(f"minute {minute}: {served} requests, server {memory[-1]:.0f} MB, its cache {cached[-1]:.0f} MB",
+              file=sys.stderr, flush=True)
     time.sleep(2)  # the last hung-up clients' jobs end
     health = json.loads(client.send("GET", "/health")[1])
     server.terminate()
@@ -231,6 +235,7 @@ def main() -> None:
               f"| {percentile(times, 99):.3f} |")
     later = memory[1:] or memory
     print("\nserver memory each minute (MB):", " ".join(f"{m:.0f}" for m in memory))
+    print("of it, finished files in its cache (MB):", " ".join(f"{m:.0f}" for m in cached))
     print(f"after the first minute: {min(later):.0f} to {max(later):.0f} MB, "
           f"{100 * (max(later) / memory[0] - 1):+.1f}% at most against the first minute's {memory[0]:.0f} MB")
     print(f"5xx: {sum(n for s, n in every.items() if s >= 500)}; tracebacks in the log: {text.count('Traceback')}; "

@@ -107,7 +107,7 @@ def read_model(path: Path) -> tuple:
     """(bytes, parsed ONNX, sealed): the file's seal checked first, so that a
     corrupt byte anywhere is named corrupt before anything reads it; then
     parsed as ONNX, refusing what could reach beyond the file."""
-    data = read_regular(path, f"the model {path}", MAX_MODEL_BYTES)
+    data = read_regular(path, f"the model file {path}", MAX_MODEL_BYTES)
     _, sealed, intact = fmt.unseal(data)
     if sealed and not intact:
         raise InputError(f"{path}: corrupt model: its bytes do not match the SHA-256 sealed at its end")

@@ -139,7 +139,7 @@ def test_a_keep_box_works_wherever_the_sample_stands(scene, tiny_model, tmp_path
     lost = add(moved, seed=7)
     moved.unlink()  # the sample cannot be made again
     objects = len(bpy.data.objects)
-    with pytest.raises(RuntimeError, match="no such model file"):
+    with pytest.raises(RuntimeError, match="is missing"):
         bpy.ops.sinshape.keep_box_add()
     assert len(bpy.data.objects) == objects and lost.sinshape.edit == "NONE" and lost.sinshape.keep_box is None
 
@@ -403,7 +403,7 @@ def foreign_onnx(tmp_path: Path) -> Path:
 
 
 BAD_INPUTS = {
-    "missing": (lambda m, t: t / "missing.onnx", {}, "no such model file"),
+    "missing": (lambda m, t: t / "missing.onnx", {}, "is missing"),
     "corrupt": (corrupt_copy, {}, "corrupt model"),
     "foreign": (lambda m, t: foreign_onnx(t), {}, "not a sinshape model"),
     "memory": (lambda m, t: m, {"scale": 3000.0}, "needs about"),

@@ -74,7 +74,7 @@ def test_a_saved_file_reopens_in_a_new_blender_and_makes_the_same_meshes(scene, 
     for name in ("shipped", "kept"):  # by name, and by path with its SHA-256 unchanged
         assert result[name] == dict(error_on_open="", report="", error="", vertices=counts[name], same=True)
     assert "has changed since" in result["changed"]["error_on_open"]  # said on the object as the file opens
-    assert "no such model file" in result["missing"]["error_on_open"]
+    assert "is missing" in result["missing"]["error_on_open"]
     for name in ("changed", "missing"):  # reported, never silently replaced: the mesh is as it was saved
         assert result[name]["report"] and result[name]["error"] in result[name]["report"]
         assert result[name]["same"] and result[name]["vertices"] == counts[name]

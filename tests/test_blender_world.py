@@ -197,7 +197,7 @@ def test_tiles_far_from_the_world_origin_say_where_float32_ends(scene, tiny_mode
     assert obj.sinshape_world.error == ""
 
 
-@pytest.mark.parametrize("options, said", [({"model": "missing.onnx"}, "no such model file"),
+@pytest.mark.parametrize("options, said", [({"model": "missing.onnx"}, "is missing"),
                                             ({"scale": 3000.0}, "scale")])
 def test_bad_world_input_is_one_reported_line_and_nothing_half_made(scene, tiny_model, tmp_path, capfd,
                                                                     options, said):

@@ -198,7 +198,7 @@ def test_bad_models_are_refused_in_one_line(tiny_model, tmp_path):
     garbage = tmp_path / "garbage.onnx"
     garbage.write_bytes(b"\x00\x01 not a protobuf at all \xff" * 10)
     cases = [
-        (tmp_path / "missing.onnx", "no such model file"),
+        (tmp_path / "missing.onnx", "is missing"),
         (garbage, "not an ONNX file"),
         (foreign_model(tmp_path / "foreign.onnx"), "not a sinshape model"),
         (rewrite_manifest(tiny_model, tmp_path / "newer.onnx", lambda m: m.update(format_version=99)),

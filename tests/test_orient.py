@@ -72,7 +72,7 @@ def test_orient_refuses_what_it_cannot_change(tiny_model, tmp_path):
     assert_one_line_error(CliRunner().invoke(cli, ["orient", str(tiny_model), "--up", "z", "-o",
                                                    str(tmp_path / "x.ply")]), "written as .onnx")
     assert_one_line_error(CliRunner().invoke(cli, ["orient", str(tmp_path / "none.onnx"), "--up", "z"]),
-                          "no such model file")
+                          "is missing")
     assert CliRunner().invoke(cli, ["orient", str(tiny_model), "--up", "x"]).exit_code == 2
     assert sorted(p.name for p in tmp_path.iterdir()) == []
 

@@ -530,7 +530,7 @@ FILES = [(["world", "terrain", "--tiles", "0:0,0:0", "-o", "{out}", "--map"], ".
          (["world", "terrain", "--tiles", "0:0,0:0", "--arrange", "scatter", "-o", "{out}", "--models-map"], ".png",
           "the model map"),
          (["sample", "terrain", "-o", "{out}.ply", "--layout"], ".npz", "the layout"),
-         (["sample", "-o", "{out}.ply"], ".onnx", "the model"),
+         (["sample", "-o", "{out}.ply"], ".onnx", "the model file"),
          (["train", "-o", "{out}.onnx"], ".obj", "the mesh or .h5 file")]
 
 

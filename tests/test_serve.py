@@ -547,7 +547,7 @@ def test_serve_refuses_a_taken_port_and_a_missing_model_in_one_line():
         assert_one_line_error(CliRunner().invoke(cli, ["serve", "terrain", "--port", port]),
                               f"cannot listen on 127.0.0.1:{port}")
     assert_one_line_error(CliRunner().invoke(cli, ["serve", "nope"]), "neither a model file nor a shipped model")
-    assert_one_line_error(CliRunner().invoke(cli, ["serve", "missing.onnx"]), "no such model file")
+    assert_one_line_error(CliRunner().invoke(cli, ["serve", "missing.onnx"]), "is missing")
 
 
 def test_serve_without_the_extra_says_how_to_get_it(monkeypatch):
