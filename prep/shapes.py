@@ -459,7 +459,7 @@ def make_shape(name: str, seed: int = 0, detail: int | None = None) -> trimesh.T
     if detail is None:
         return SHAPES[name](seed)
     if not 2 <= detail <= MAX_DETAIL:
-        raise InputError(f"shape detail must be in [2, {MAX_DETAIL}], got {detail}", "detail")
+        raise InputError(f"shape `detail` must be in [2, {MAX_DETAIL}], got {detail}", "detail")
     return SHAPES[name](seed, detail)
 
 

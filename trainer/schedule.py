@@ -145,14 +145,14 @@ class Budget:
         count = self.affordable(0)
         if count >= self.min_iters:
             return
-        options = [f"minutes {self.minutes_for(self.min_iters):g} gives {self.min_iters} iterations per level"]
+        options = [f"`minutes` {self.minutes_for(self.min_iters):g} gives {self.min_iters} iterations per level"]
         if from_mesh:
             for levels in range(len(sizes) - 1, 0, -1):  # drop the finest levels until it fits
                 if self.affordable(0, levels) >= self.min_iters:
-                    options.append(f"res {max(sizes[levels - 1])} (about {levels} levels) fits")
+                    options.append(f"`res` {max(sizes[levels - 1])} (about {levels} levels) fits")
                     break
         if count >= 1:
-            options.append(f"min_iters {count} trains with the {count} that fit")
+            options.append(f"`min_iters` {count} trains with the {count} that fit")
         raise InputError(f"the time budget gives {count} iterations per level (all {len(sizes)} levels take "
                          f"{self.per_round()}), fewer than the minimum of {self.min_iters}; "
                          + "; ".join(options), ("minutes", "res", "min_iters"))

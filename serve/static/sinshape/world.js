@@ -92,7 +92,7 @@ export const HeightMap = {
       throw new InputError(`a height map of ${shape.join('x')} pixels needs ${shape[0] * shape[1]} values, got ${values?.length}`, 'heights');
     }
     if (!Array.from(values).every((v) => typeof v === 'number' && Number.isFinite(v) && Math.abs(v) <= MAX_RELIEF)) {
-      throw new InputError(`a height map holds heights in voxels within +-${MAX_RELIEF}: no NaN or infinities`, 'heights');
+      throw new InputError(`a height map holds values in voxels within +-${MAX_RELIEF}: no NaN or infinities`, 'heights');
     }
     return Object.freeze({ shape: [...shape], data: Float32Array.from(values) });
   },
