@@ -95,9 +95,9 @@ def read_regular(path, label: str, limit: int | None, per_byte: int = 1, field: 
         lost = os.path.islink(path)
         raise InputError(f"{label} is {'a symbolic link that leads nowhere' if lost else 'missing'}", field) from None
     except OSError as error:
-        loop = error.errno == errno.ELOOP
-        raise InputError(f"{label} {'is a symbolic link that goes round in a loop' if loop else 'cannot be read'}"
-                         f"{'' if loop else f' ({error.strerror})'}", field) from None
+        if error.errno == errno.ELOOP:
+            raise InputError(f"{label} is a symbolic link that goes round in a loop", field) from None
+        raise InputError(f"{label} cannot be read ({error.strerror})", field) from None
     try:
         mode = os.fstat(handle)
         if not stat.S_ISREG(mode.st_mode):

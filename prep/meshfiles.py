@@ -31,7 +31,6 @@ import json
 import math
 import os
 import re
-import stat
 import struct
 import warnings
 from dataclasses import dataclass
