@@ -361,7 +361,7 @@ def test_a_painted_height_map_shapes_the_world_as_sinrun_worlds_map_does(scene, 
     ("blend", [[0, 1]], "it is for a scatter world"),
     ("scatter", None, "several models need a model map"),
     ("scatter", [[0, 2]], "names model 2, and the world has 2"),
-    ("scatter", "missing.npy", "no such model map"),
+    ("scatter", "missing.npy", "missing.npy is missing"),
     ("scatter", "broken.png", "not a readable image")])
 def test_a_refused_model_map_is_one_reported_line_and_the_tiles_stay(scene, tiny_model, tmp_path, capfd,
                                                                      arrange, pixels, said):
