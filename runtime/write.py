@@ -122,11 +122,15 @@ def mesh_bytes(mesh, suffix: str, normals: bool = False) -> bytes:
         vertex_normals = mesh.vertex_normals if normals else None
         return (ply_header(len(mesh.vertices), len(mesh.faces), colours is not None, normals)
                 + ply_vertices(mesh.vertices, colours, vertex_normals) + ply_faces(mesh.faces))
+    kept_normals = mesh.vertex_normals if normals else None
     if colours is not None and suffix.lower() == ".glb":  # glTF's COLOR_0 is linear
         mesh = mesh.copy()
         linear = srgb_to_linear(np.asarray(colours[:, :3], np.float64) / 255)
         mesh.visual.vertex_colors = np.concatenate([np.round(linear * 255), colours[:, 3:]], axis=1).astype(np.uint8)
-    data = mesh.export(file_type=MESH_FORMATS[suffix.lower()])
+        if normals:  # new colours clear the cache that held the given normals: trimesh would write none
+            mesh.vertex_normals = kept_normals
+    extra = {"include_normals": True} if normals and suffix.lower() == ".glb" else {}
+    data = mesh.export(file_type=MESH_FORMATS[suffix.lower()], **extra)
     return data.encode() if isinstance(data, str) else data
 
 

@@ -22,22 +22,17 @@ import pytest
 
 from sinshape.core import manifest as fmt
 from sinshape.core import noise
-from sinshape.runtime import colour, cubes, edit, generate, layout, load, onnxfile, world
+from sinshape.runtime import cubes, edit, generate, layout, load, onnxfile, world
 
 STATIC = Path(__file__).resolve().parents[1] / "serve" / "static"
 MODULES = sorted(STATIC.glob("sinshape/*.js")) + [STATIC / "viewer" / "heights.js", STATIC / "viewer" / "layout-cells.js"]
 
-COLOUR = ("PATCH", "QUANTUM", "KEY_VALUES", "KEY_QUANTUM", "LEVELS", "ITERATIONS", "REFINE", "PROPAGATION", "SEARCH",
-          "SEED_RATE", "COHERENT", "MATCH_STREAM", "DEPTH_RANGE", "DISTANCE_STEP", "REACH_ORDER", "TURN", "RELIEF",
-          "RELIEF_SCALE", "FACING", "ACROSS", "STEPS", "KEPT_MARGIN")
 MANIFEST = ("FORMAT_NAME", "FORMAT_VERSION", "COLOUR_VERSION", "TILES_VERSION", "READ_VERSION", "COLOUR_SPACE",
-            "TILE_TENSORS", "MAX_TILE_SIDE", "METADATA_KEY", "NOISE_SCHEME", "PLANES", "HEAD_WEIGHTS", "COLOUR_WEIGHTS",
+            "MAX_TILE_SIDE", "METADATA_KEY", "NOISE_SCHEME", "PLANES", "HEAD_WEIGHTS",
             "MAX_LEVELS", "MIN_LEVEL_SIDE", "MAX_LEVEL_SIDE", "MIN_SPACING", "MAX_MANIFEST_CHARS", "MAX_DEPTH",
             "MAX_NOISE_AMP", "MAX_COORD", "CONTRAST", "CONTRAST_RANGE")
 LAYOUT = ("FIT_STEPS", "FINER_STEPS", "HOLD_STEPS", "FIT_RATE", "PULL", "MARGIN", "KEEP_WEIGHT", "SLOPE_FLOOR", "SHARE")
-WORLD = ("WORLD_STREAM", "SCATTER_STREAM", "MAX_TILE", "MIN_STRIDE", "UP_AXIS", "BLEND", "PITCH", "PRESENCE",
-         "GROUND", "GROUND_SLOPE", "NORMAL_STEP", "PLATEAU", "SKIRT", "GROUND_COLOUR", "MAX_MAP_SIDE", "MAX_RELIEF",
-         "MAX_POINTS", "MAX_ABSOLUTE", "WINDOWS_KEPT", "MAX_MODELS")
+WORLD = ("MAX_TILE", "MIN_STRIDE", "UP_AXIS", "MAX_MAP_SIDE", "MAX_RELIEF", "MAX_MODELS")
 
 
 def same(name, module=None):
@@ -76,7 +71,6 @@ MIRROR = [
     ("sinshape/edit.js", *same("MARGIN", edit)),
     *[("sinshape/layout.js", *same(name, layout)) for name in LAYOUT],
     *[("sinshape/world.js", *same(name, world)) for name in WORLD],
-    *[("sinshape/colour.js", *same(name, colour)) for name in COLOUR],
     ("viewer/heights.js", *same("RELIEF", world)),
     ("viewer/heights.js", *same("MAX_MAP_BYTES", world)),
     ("viewer/layout-cells.js", "MAX_SIDE", "runtime.layout.MAX_LAYOUT_SIDE", layout.MAX_LAYOUT_SIDE),
@@ -96,11 +90,6 @@ BROWSER_ONLY = {
     ("sinshape/seal.js", "K"): "SHA-256's round constants (FIPS 180-4; Python has hashlib)",
     ("sinshape/onnx.js", "TEXT"): "a TextDecoder",
     ("sinshape/layout.js", "OWN_KEPT"): "how many of a seed's layouts a page keeps",
-    ("sinshape/world.js", "PLAIN"): "worldOptions()'s defaults, built by worldOptions",
-    ("sinshape/colour.js", "ALONG"): "Python's reads_along spells it inline; the tiles' equality holds it "
-                                     "(tests/test_colour_web.py)",
-    ("sinshape/colour.js", "AXIS_STEPS"): "Python's axis_steps(1) makes it; the matches' equality holds it "
-                                          "(tests/test_colour_web.py)",
     ("sinshape/decode-wasm.js", "DECODE_WASM"): "the fit's WebAssembly, built from decode.wat (tests/test_wasm.py)",
 }
 # The table of a sample's options and the output formats: options.js is written from Python and

@@ -5,8 +5,9 @@
 // A sample is made on the server (its API) or in this browser (the JavaScript
 // runtime in sinshape/, on onnxruntime-web); a static site from
 // `sinrun export-web` (body data-site="static") has no server and samples in
-// the browser only. The world mode flies over the endless world of the model
-// and seed instead. This module wires the page's jobs together, one module each:
+// the browser only. The browser's runtime makes geometry: a model's colour and
+// relief, and the world mode (the endless world of the model and seed, flown
+// over), come from the server (docs/WEB.md, "One runtime"). This module wires the page's jobs together, one module each:
 //
 //   viewer/state.js     the state: the URL, undo and redo, the sample request it stands for
 //   viewer/form.js      the controls and the status line
@@ -118,7 +119,7 @@ async function showWorld(request, ticket, options) {
     request = requestOf();
   }
   if (document.activeElement === $('edit')) $('edit').blur(); // the keys fly now, not pick another mode
-  world.show({ where: state.where, name: state.model, seed: request.seed ?? 0n, scale: request.scale, tile: request.tile, info, others, reach, walk: walking,
+  world.show({ name: state.model, seed: request.seed ?? 0n, scale: request.scale, tile: request.tile, info, others, reach, walk: walking,
     arrange: request.arrange, heights: request.heights, models: request.models, modelsMap: request.models_map },
   (status) => showWorldStatus(status, ticket));
 }

@@ -1,13 +1,14 @@
 // Load a sinshape .onnx file in the browser: check it as runtime/load.py does
 // (the same refusals, in one line each), cut it into one onnxruntime-web
-// session per stage, and read the decoder head's weights and a format-5
-// model's colour tiles.
+// session per stage, and read the decoder head's occupancy weights. The
+// browser makes geometry only: a model's colour and relief (its colour head,
+// its tiles) are read by the Python runtime alone (docs/WEB.md, "One
+// runtime"), so this reads the manifest's word for them and not their
+// tensors.
 import * as ort from '../vendor/onnxruntime-web/ort.wasm.min.mjs';
 import { unseal } from './seal.js';
-import { FLOAT, FormatError, INT8, INT32, UINT8, readModel, stageModel, tensorArray } from './onnx.js';
+import { FLOAT, FormatError, readModel, stageModel, tensorArray } from './onnx.js';
 import { InputError, pyTuple } from './errors.js';
-import { TAB_BYTES, headColour } from './query.js';
-import { Tiles } from './colour.js';
 
 export { InputError };
 
@@ -17,15 +18,11 @@ export const COLOUR_VERSION = 4;  // 3 with a colour head (manifest `colour`)
 export const TILES_VERSION = 5;  // the example's surface as tiles, read by correspondence (`colour.tiles`, or `relief.tiles` alone)
 export const READ_VERSION = TILES_VERSION; // the newest version this code reads
 export const COLOUR_SPACE = { space: 'srgb' }; // manifest `colour`: values are sRGB-encoded in [0, 1]
-// Initializers of a format-5 model's tiles: (N, 3) int32 voxels, (N,) uint8 directions, (N, T, T, 4) uint8 images.
-export const TILE_TENSORS = ['colour_tiles.voxels', 'colour_tiles.directions', 'colour_tiles.images', 'colour_tiles.distance'];
 export const MAX_TILE_SIDE = 64;
 export const METADATA_KEY = 'sinshape.manifest';
 export const NOISE_SCHEME = 'splitmix64-boxmuller-v1';
 export const PLANES = ['xy', 'xz', 'yz'];
 export const HEAD_WEIGHTS = ['decoder_head.bias1', 'decoder_head.weight2', 'decoder_head.bias2'];
-// A coloured model's colour head, (D, 3), (3,): RGB = sigmoid(relu(h + b1) @ w + b).
-export const COLOUR_WEIGHTS = ['decoder_head.weight_colour', 'decoder_head.bias_colour'];
 export const MAX_LEVELS = 64;
 export const MIN_LEVEL_SIDE = 8;
 export const MAX_LEVEL_SIDE = 4096;
@@ -249,38 +246,7 @@ function readHead(model, manifest, name) {
   const weights = new Map(model.graph.initializers.map((t) => [t.name, t]));
   const hidden = manifest.hidden;
   const [bias1, weight2, bias2] = readWeights(weights, HEAD_WEIGHTS, [[hidden], [hidden, 1], [1]], name);
-  const [weightColour, biasColour] = manifest.colour ? readWeights(weights, COLOUR_WEIGHTS, [[hidden, 3], [3]], name) : [null, null];
-  return { bias1, weight2, bias2: bias2[0], weightColour, biasColour };
-}
-
-/** A format-5 model's surface tiles, checked against its manifest and its finest level (runtime/load.py:
- * read_tiles): (N, 3) voxels inside it, (N,) directions below 6, each pair once and a voxel's tiles
- * together, (N, T, T, 4) images (a relief-only model's (N, T, T, 1)). */
-function readTiles(model, manifest, name) {
-  const [count, side] = manifest.tiles, kind = manifest.colour ? 'colour' : 'relief';
-  const weights = new Map(model.graph.initializers.map((t) => [t.name, t]));
-  if (TILE_TENSORS.some((n) => !weights.has(n))) throw new InputError(`${name}: its ${kind} tiles are missing (${TILE_TENSORS.join(', ')})`);
-  const tensors = TILE_TENSORS.map((n) => weights.get(n));
-  const [voxels, directions, images, distance] = readArrays(tensors, [INT32, UINT8, UINT8, INT8], name);
-  const size = manifest.sizes[manifest.sizes.length - 1];
-  if (!sameJson(tensors[0].dims, [count, 3]) || !sameJson(tensors[1].dims, [count]) || !sameJson(tensors[2].dims, [count, side, side, manifest.colour ? 4 : 1])) {
-    throw new InputError(`${name}: ${kind} tiles of shapes ${tensors.slice(0, 3).map((t) => pyTuple(t.dims)).join(', ')} `
-      + `do not match the manifest's ${count} of side ${side}`);
-  }
-  if (!sameJson(tensors[3].dims, size)) {
-    throw new InputError(`${name}: a ${kind} distance grid of shape ${pyTuple(tensors[3].dims)}, not the finest level's ${pyTuple(size)}`);
-  }
-  if (!voxels.every((v, i) => v >= 0 && v < size[i % 3]) || !directions.every((d) => d < 6)) {
-    throw new InputError(`${name}: ${kind} tiles lie outside the model's finest level`);
-  }
-  for (let i = 1; i < count; i++) { // each (voxel, direction) once, in order: keys rise
-    const key = (t) => ((voxels[3 * t] * size[1] + voxels[3 * t + 1]) * size[2] + voxels[3 * t + 2]) * 6 + directions[t];
-    if (key(i) <= key(i - 1)) throw new InputError(`${name}: ${kind} tiles are not each once, in order of their voxel`);
-  }
-  if (Tiles.bytes(count, side, size) > TAB_BYTES) {
-    throw new InputError(`${name}: its ${kind} tiles need more memory than a page should take`);
-  }
-  return Tiles.of(voxels, directions, images, distance, size, side);
+  return { bias1, weight2, bias2: bias2[0] };
 }
 
 /** One runnable stage: a session and its tensor names, in plane order. */
@@ -331,13 +297,11 @@ export function configure({ threads = null, wasmPaths = null } = {}) {
  * Load and check a model from its bytes (Uint8Array). Its stages run on
  * onnxruntime-web's WASM backend, on `threads` threads (configure's default
  * when null). Returns { name, manifest, projection, levels, decoderPlanes,
- * decoderHead, head, tiles (format 5: colour.js's Tiles, else null), matcher
- * (made by colour.js on the first sample that reads the tiles), backend: 'wasm', threads }.
+ * decoderHead, head, backend: 'wasm', threads }.
  */
 export async function loadModel(bytes, { name = 'model.onnx', threads = null } = {}) {
   const { model, manifest } = readChecked(bytes, name);
   const head = readHead(model, manifest, name);
-  const tiles = manifest.tiles ? readTiles(model, manifest, name) : null;
   const setup = configure({ threads });
   const sessions = []; // released if a stage fails
   const make = async (names) => {
@@ -355,7 +319,7 @@ export async function loadModel(bytes, { name = 'model.onnx', threads = null } =
   try {
     const stages = manifest.stages;
     const loaded = {
-      name, manifest, head, tiles, matcher: null, backend: 'wasm', threads: setup.threads,
+      name, manifest, head, backend: 'wasm', threads: setup.threads,
       projection: await make(stages.projection),
       levels: [],
       decoderPlanes: await make(stages.decoder_planes),
@@ -394,15 +358,12 @@ async function checkStages(model) {
       throw new InputError(`${model.name}: stage ${stage.inputs[0].split('.')[0]} gives shape (${wrong.dims}), expected (${shape})`);
     }
   }
-  // The head evaluated here must be the graph's head.
+  // The head evaluated here must be the graph's head (its occupancy: the colour a coloured head adds is Python's to read).
   const n = 16, hidden = Array.from({ length: 3 }, (_, k) => Float32Array.from({ length: n * h }, (_, i) => Math.sin(i * 1.7 + k)));
-  const [graph, colour] = await model.decoderHead.run(hidden.map((data) => ({ data, dims: [n, 1, 1, h] })));
+  const [graph] = await model.decoderHead.run(hidden.map((data) => ({ data, dims: [n, 1, 1, h] })));
   const sum = new Float32Array(n * h).map((_, i) => hidden[0][i] + hidden[1][i] + hidden[2][i]);
-  const rgb = new Float32Array(3);
   for (let i = 0; i < n; i++) {
-    const colourWrong = model.manifest.colour && (!sameJson(Array.from(colour.dims), [n, 1, 1, 3])
-      || headColour(model.head, sum, i * h, rgb).some((v, k) => !(Math.abs(colour.data[3 * i + k] - v) <= 1e-5)));
-    if (Math.abs(graph.data[i] - headValue(model.head, sum, i * h)) > 1e-5 || colourWrong) {
+    if (Math.abs(graph.data[i] - headValue(model.head, sum, i * h)) > 1e-5) {
       throw new InputError(`${model.name}: the decoder head graph does not match its weights`);
     }
   }

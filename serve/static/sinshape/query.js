@@ -1,5 +1,4 @@
-// Occupancy on a grid from a tri-plane, as runtime/query.py's dense (and a
-// format-4 model's colour head at points, as its colouring): the
+// Occupancy on a grid from a tri-plane, as runtime/query.py's dense: the
 // decoder's first layer is applied to each plane once (stage decoder_planes),
 // bilinear interpolation commutes with it, so a grid point costs three vector
 // adds, a ReLU and a dot product.
@@ -7,21 +6,6 @@ import { InputError } from './errors.js';
 import { resizeWeights, roundHalfEven } from './generate.js';
 
 export const PLANE_AXES = [[0, 1], [0, 2], [1, 2]]; // the grid axes each plane keeps, in PLANES order
-
-/** A coloured model's colour head (runtime/query.py: head_colour): sigmoid(relu(h + b1) @ w_colour + b_colour)
- * of one pre-activation vector, its sRGB into out[outAt..outAt + 2]. */
-export function headColour(head, hidden, at = 0, out = new Float32Array(3), outAt = 0) {
-  const { bias1, weightColour: w, biasColour: b } = head;
-  let r = b[0], g = b[1], bl = b[2];
-  for (let c = 0; c < bias1.length; c++) {
-    const h = hidden[at + c] + bias1[c];
-    if (h > 0) { r += h * w[3 * c]; g += h * w[3 * c + 1]; bl += h * w[3 * c + 2]; }
-  }
-  out[outAt] = 1 / (1 + Math.exp(-r));
-  out[outAt + 1] = 1 / (1 + Math.exp(-g));
-  out[outAt + 2] = 1 / (1 + Math.exp(-bl));
-  return out;
-}
 
 export const MAX_GRID_SIDE = 1 << 16;
 export const TAB_BYTES = 2 * 2 ** 30; // what one piece of work may take in a browser tab: well under its memory
@@ -101,34 +85,4 @@ export function projectedDense(model, proj, scale = 1, progress = null) {
  * (progress(fraction), if given, after each x slice). */
 export async function dense(model, tri, scale = 1, progress = null) {
   return projectedDense(model, await project(model, tri), scale, progress);
-}
-
-/** A (H, W, D) plane at a real cell position (u, v), bilinear as runtime/query.py's bilinear, added into out (D). */
-export function addBilinear(plane, u, v, out) {
-  const [h, w, d] = plane.dims, src = plane.data;
-  const u0 = Math.min(Math.max(Math.floor(u), 0), Math.max(h - 2, 0)), v0 = Math.min(Math.max(Math.floor(v), 0), Math.max(w - 2, 0));
-  const u1 = Math.min(u0 + 1, h - 1), v1 = Math.min(v0 + 1, w - 1);
-  const fu = u - u0, fv = v - v0;
-  const a = (u0 * w + v0) * d, b = (u0 * w + v1) * d, c = (u1 * w + v0) * d, e = (u1 * w + v1) * d;
-  for (let k = 0; k < d; k++) {
-    out[k] += (src[a + k] * (1 - fv) + src[b + k] * fv) * (1 - fu) + (src[c + k] * (1 - fv) + src[e + k] * fv) * fu;
-  }
-}
-
-/**
- * A format-4 model's sRGB colour at points, as runtime/query.py's colouring:
- * coords (n, 3) in finest voxels (grid point (i, j, k) of the sample at
- * scale 1 at (i, j, k)); a point outside the tri-plane takes the colour of
- * the nearest point inside. Returns Float32Array (n, 3) in [0, 1].
- */
-export function projectedColours(model, proj, coords) {
-  const n = coords.length / 3, d = model.manifest.hidden, size = proj.size;
-  const out = new Float32Array(3 * n), hidden = new Float64Array(d), at = [0, 0, 0];
-  for (let i = 0; i < n; i++) {
-    for (let a = 0; a < 3; a++) at[a] = Math.min(Math.max(coords[3 * i + a], 0), size[a] - 1);
-    hidden.fill(0);
-    PLANE_AXES.forEach(([a, b], k) => addBilinear(proj.planes[k], at[a], at[b], hidden));
-    headColour(model.head, hidden, 0, out, 3 * i);
-  }
-  return out;
 }

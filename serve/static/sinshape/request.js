@@ -4,19 +4,17 @@
 // checks it, field for field as Python's SampleRequest does, with the same
 // messages: a bad value is an InputError naming its field, values that do
 // not go together a ConflictError naming them all. The page builds one for
-// either back end; the worker makes it with `make`.
+// either back end; the worker makes a sample's tri-plane with `make`. A
+// tile of a world is the server's to make (world.js checks its fields).
 //
 //   const request = sampleRequest({ seed: 7n, size: [2, 1, 1], keep: ['3:0%,0%,0%:50%,100%,100%'] });
 //   const tri = await make(model, request);                          // as request.make
-//   const tile = await makeTile(model, sampleRequest({ seed: 7n, tile: [5n, -2n], frame: 'tile' }));  // a world's tile: a mesh
-//   const mixed = await makeTile(model, sampleRequest({ seed: 7n, tile: [5n, -2n], frame: 'tile', arrange: 'scatter',
-//     models: ['towerruins'], models_map: ModelMap.of([0, 1, 1, 0], [2, 2]) }), null, [towerruins]);  // two models' world
 import { ConflictError, InputError, pyRepr, pyStr, pyTuple } from './errors.js';
 import { OPTIONS } from './options.js';
 import { sample, scaledSizes } from './generate.js';
 import { checkPart, compose, grow, parsePart } from './edit.js';
 import { fromLayout } from './layout.js';
-import { checkPlacement, checkTile, frameNormals, placed, tileCorner, tileSurface, worldLayout, worldOptions } from './world.js';
+import { checkTile, worldOptions } from './world.js';
 
 // The options' ranges, choices and defaults: runtime/options.py's table (options.js, its copy).
 export const OPTION = Object.freeze(Object.fromEntries(OPTIONS.map((option) => [option.name, option])));
@@ -133,19 +131,18 @@ function checkTogether(request) {
 const worldFields = (request) => [['arrange', request.arrange !== DEFAULTS.arrange], ['heights', request.heights !== null], ['lod', request.lod],
   ['models', request.models.length], ['models_map', request.models_map !== null]].filter(([, value]) => value).map(([name]) => name);
 
-// The options this runtime makes, for a sample (make) and for a tile (makeTile).
-// Any other given other than its default (Python's smoother 'taubin', largest, a
-// sample's frame, an option added to the table later) is refused, never dropped.
-export const MAKES = Object.freeze({
-  sample: Object.freeze(['seed', 'recon', 'size', 'scale', 'smooth', 'detail', 'keep', 'grow', 'anchor', 'layout']),
-  tile: Object.freeze(['seed', 'scale', 'frame', 'tile', 'arrange', 'heights', 'lod', 'models', 'models_map']),
-});
+// The options this runtime makes. Any other given other than its default
+// (Python's smoother 'taubin', largest, a sample's frame, a tile, an option
+// added to the table later) is refused, never dropped. `detail` is taken
+// and makes nothing here: a model's colour and relief are the Python
+// runtime's (the worker's answer says what it left out).
+export const MAKES = Object.freeze(['seed', 'recon', 'size', 'scale', 'smooth', 'detail', 'keep', 'grow', 'anchor', 'layout']);
 
-/** Refuse what a request asks of an option this runtime does not make for its kind (an InputError naming it). */
-function refuseUnmade(request, kind) {
+/** Refuse what a request asks of an option this runtime does not make (an InputError naming it). */
+function refuseUnmade(request) {
   for (const option of OPTIONS) {
     const { name, default: value } = option;
-    if (MAKES[kind].includes(name) || JSON.stringify(request[name]) === JSON.stringify(value)) continue;
+    if (MAKES.includes(name) || JSON.stringify(request[name]) === JSON.stringify(value)) continue;
     throw new InputError(`the browser runtime makes ${value === null ? `no ${name}` : `${name} ${value} only`}`, name);
   }
 }
@@ -159,13 +156,13 @@ const sampleSeed = (request) => (request.recon ? null : request.seed ?? 0n);
  * if given, names the work as it starts.
  */
 export async function make(model, request, progress = null) {
-  if (request.tile !== null) throw new InputError('a tile is a mesh of its own, not a tri-plane: make it with makeTile', 'tile');
+  if (request.tile !== null) throw new InputError("the browser runtime makes no tile: a world's tiles come from sinrun serve", 'tile');
   if (request.frame === 'tile') {
     throw new InputError("frame tile (coordinates from a tile's corner) is for the tiles of a world; a sample is placed in frame input or model", 'frame');
   }
   const world = worldFields(request);
   if (world.length) throw new InputError(`${world[0]} is for the tiles of a world; a sample has none`, world[0]);
-  refuseUnmade(request, 'sample');
+  refuseUnmade(request);
   const seed = sampleSeed(request), { size, layout } = request;
   if (layout) {
     if (layout.resample) throw new InputError('the browser fits a layout of one level\'s own size only; resample it with sinrun', 'layout');
@@ -184,21 +181,4 @@ export async function make(model, request, progress = null) {
   }
   progress?.('sampling', null);
   return sample(model, seed, size);
-}
-
-/**
- * The mesh of a tile request (`tile` given), as write.tile_bytes makes it:
- * { positions: Float32Array (V, 3) in the request's frame, faces, normals,
- * colours (or null), corner: the tile's lowest corner in voxels (BigInts) }.
- * `models`: the request's other models (its `models` names them), loaded.
- */
-export async function makeTile(model, request, progress = null, models = []) {
-  refuseUnmade(request, 'tile');
-  if (models.length !== request.models.length) throw new Error(`the request names ${request.models.length} other models, ${models.length} given`);
-  checkPlacement(model.manifest, request.tile, request.frame); // refused before the work, not after
-  progress?.('making the tile', null);
-  const options = worldOptions({ ...request, models });
-  const { positions, faces, normals, colours } = await tileSurface(model, sampleSeed(request), request.tile, request.scale, options);
-  return { positions: placed(model.manifest, request.tile, positions, request.frame), faces,
-           normals: frameNormals(model.manifest, normals, request.frame), colours, corner: tileCorner(worldLayout(model.manifest), request.tile) };
 }

@@ -7,18 +7,16 @@
 //   { id, type: 'load', name, bytes, file }  load and check a model (bytes: Uint8Array)
 //     -> { id, type: 'loaded', backend, threads, seconds, sizes, origin, spacing, up, arrange }  (the manifest's grids, frame and world)
 //   { id, type: 'sample', name, request }  request: a sample request (request.js: sampleRequest, or a
-//       structured clone of one), made as runtime.request.make makes it (request.js: make), or
-//       with a tile, that tile of the world (request.js: makeTile; docs/WORLDS.md), its other
-//       models (the request's `models`) by the names they were loaded under
+//       structured clone of one), made as runtime.request.make makes it (request.js: make)
 //     -> { id, type: 'progress', stage, fraction }  (fraction in [0, 1], or null)
-//     -> { id, type: 'done', positions, faces, colours, seconds }  (the buffers are transferred;
-//        colours: a coloured model's sRGB per vertex, Float32Array (V, 3), else null; a tile's
-//        normals (unit, Float32Array (V, 3)) and corner too, in voxels, as digit strings)
+//     -> { id, type: 'done', positions, faces, seconds, without }  (the buffers are transferred;
+//        without: what the model has and the browser leaves to the Python runtime, of
+//        'colour' and 'relief', where the request asked for its detail)
 //   { id, type: 'layout', name, seed, factors }  the level-0 layout of the sample of `seed`, as runtime.layout.layout
 //     -> { id, type: 'done', grid, shape }  (grid: Uint8Array in C order, 1 full)
 //   any of them -> { id, type: 'error', message, input }  (input: an InputError, a message for the user)
 import * as sinshape from './runtime.js';
-import { make, makeTile, sampleRequest } from './request.js';
+import { make, sampleRequest } from './request.js';
 
 const models = new Map(); // name -> a promise of the loaded model
 
@@ -44,22 +42,17 @@ async function loaded(name) {
 
 async function sample({ name, request }, progress) {
   // A clone has lost its freezing: checked again, as cheap as it is, and first. A field it does not
-  // know, or one make and makeTile do not make (request.js: MAKES), is refused, never dropped.
+  // know, or one make does not make (request.js: MAKES), is refused, never dropped.
   const wanted = sampleRequest(request);
   const model = await loaded(name);
   const started = performance.now();
-  if (wanted.tile !== null) { // a tile takes none of the surface options it could not keep seamless (the request says so)
-    const others = await Promise.all(wanted.models.map(loaded));
-    const { positions, faces, normals, colours, corner } = await makeTile(model, wanted, progress, others);
-    return { positions, faces, normals, colours, corner: corner.map(String), seconds: (performance.now() - started) / 1000 };
-  }
   const tri = await make(model, wanted, progress);
   const grid = await sinshape.dense(model, tri, wanted.scale, (f) => progress('querying the grid', f));
   const mesh = sinshape.surface(grid, tri.size, model.manifest, (f) => progress('meshing', f));
   sinshape.smooth(mesh, wanted.smooth, 0.5, (f) => progress('smoothing', f));
-  // A sample's relief and colour, as runtime.mesh.paint (each colour stands for the grid's spacing).
-  const { positions, colours } = await sinshape.paintMesh(model, tri, mesh.positions, wanted.scale, wanted.detail);
-  return { positions, faces: mesh.faces, colours, seconds: (performance.now() - started) / 1000 };
+  const { colour, tiles } = model.manifest;
+  const without = wanted.detail ? [colour && 'colour', tiles && 'relief'].filter(Boolean) : [];
+  return { positions: mesh.positions, faces: mesh.faces, seconds: (performance.now() - started) / 1000, without };
 }
 
 self.onmessage = async ({ data: job }) => {
@@ -78,7 +71,7 @@ self.onmessage = async ({ data: job }) => {
       self.postMessage({ id, type: 'done', grid, shape }, [grid.buffer]);
     } else if (job.type === 'sample') {
       const result = await sample(job, progress);
-      const buffers = [result.positions, result.faces, result.normals, result.colours].filter(Boolean).map((array) => array.buffer);
+      const buffers = [result.positions, result.faces].map((array) => array.buffer);
       self.postMessage({ id, type: 'done', ...result }, buffers);
     } else {
       throw new Error(`unknown job type '${job.type}'`);

@@ -2,7 +2,7 @@
 // them the state calls for, and the status line under them.
 import { FORMATS } from '../sinshape/options.js';
 import { OPTION } from '../sinshape/request.js';
-import { STATIC_SITE, nextSeed, state } from './state.js';
+import { STATIC_SITE, keepToBackEnd, nextSeed, state } from './state.js';
 
 export const $ = (id) => document.getElementById(id);
 
@@ -54,6 +54,7 @@ export function fromForm() {
   state.seed = $('seed').value.trim();
   state.size = [$('sx').value, $('sy').value, $('sz').value].map((v) => v.trim()).join(',');
   for (const key of PLAIN) state[key] = $(key).value.trim();
+  keepToBackEnd();
   state.models = [...$('models').selectedOptions].map((option) => option.value).join(','); // in the list's order
   for (const [key, ids] of Object.entries(TRIPLES)) state[key] = ids.map((id) => $(id).value.trim()).join(',');
   if (state.edit === 'keep' && !state.other) $('other').value = state.other = nextSeed(state.seed);
@@ -71,6 +72,9 @@ export function showMode() {
   $('format').disabled = blob; // the browser writes .ply, a shape from a layout comes as .glb, and the box says so
   $('format').value = browser ? 'ply' : blob ? 'glb' : state.format;
   $('backend').hidden = !browser;
+  const worldMode = $('edit').querySelector('option[value="world"]');
+  worldMode.disabled = browser;
+  worldMode.title = browser ? "the server's: this browser's runtime makes a model's geometry, not its worlds" : '';
   for (const edit of ['keep', 'grow', 'layout', 'world']) $(`${edit}-controls`).hidden = state.edit !== edit;
   // A world has no size nor smoothing, its own up, and the world's controls, not orbiting.
   for (const id of ['size-label', 'smooth-label', 'up-label', 'orbit-help']) $(id).hidden = state.edit === 'world';

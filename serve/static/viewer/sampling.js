@@ -7,7 +7,8 @@
 // use, so the server mode never fetches onnxruntime-web's 14 MB of WASM and
 // a sample never freezes the page). `info` and `layout` give what the editor
 // draws from the same place: a model's grids, frame and up axis, a seed's
-// layout; `tile` a tile of a world, for the world mode (viewer/world.js).
+// layout; `tile` a tile of a world, for the world mode (viewer/world.js),
+// from the server only: the browser's runtime makes geometry, no worlds.
 // An aborted `signal` gives up a request (the server stops making it); in
 // the browser a request waits for the one before it, and is skipped if a
 // newer one aborted it meanwhile. `stop` ends the worker (cancel).
@@ -252,17 +253,15 @@ async function loaded(name, progress = null) {
   }
 }
 
-/** A binary PLY file of a mesh, with a coloured model's vertex colours as sRGB bytes (as the Python runtime writes them). */
-function plyBlob({ positions, faces, colours = null }) {
-  const vertices = positions.length / 3, stride = colours ? 15 : 12;
+/** A binary PLY file of a mesh (as the Python runtime writes one without colour). */
+function plyBlob({ positions, faces }) {
+  const vertices = positions.length / 3, stride = 12;
   const header = `ply\nformat binary_little_endian 1.0\nelement vertex ${vertices}\n`
     + 'property float x\nproperty float y\nproperty float z\n'
-    + (colours ? 'property uchar red\nproperty uchar green\nproperty uchar blue\n' : '')
     + `element face ${faces.length / 3}\nproperty list uchar int vertex_indices\nend_header\n`;
   const body = new DataView(new ArrayBuffer(vertices * stride + (faces.length / 3) * 13));
   for (let v = 0; v < vertices; v++) {
     for (let k = 0; k < 3; k++) body.setFloat32(v * stride + 4 * k, positions[3 * v + k], true);
-    if (colours) for (let k = 0; k < 3; k++) body.setUint8(v * stride + 12 + k, Math.round(Math.min(Math.max(colours[3 * v + k], 0), 1) * 255));
   }
   let at = vertices * stride;
   for (let f = 0; f < faces.length; f += 3) {
@@ -288,15 +287,11 @@ const browser = {
     const faces = (mesh.faces.length / 3).toLocaleString('en');
     const threads = model.threads === 1 ? '1 thread' : `${model.threads} threads`;
     const isolation = crossOriginIsolated ? '' : ' (the page is not cross-origin isolated, so WASM runs single-threaded)';
+    const left = mesh.without.length ? ` · without its ${mesh.without.join(' and ')}: sinrun serve makes them` : '';
     return {
-      ...mesh, status: `${faces} faces · ${mesh.seconds.toFixed(2)} s · in this browser`, file: plyBlob(mesh), extension: 'ply',
+      ...mesh, colours: null, status: `${faces} faces · ${mesh.seconds.toFixed(2)} s · in this browser${left}`, file: plyBlob(mesh), extension: 'ply',
       backend: `onnxruntime-web on WASM, ${threads}${isolation}; model loaded and checked in ${model.seconds.toFixed(2)} s`,
     };
-  }),
-
-  tile: (name, request, { signal }) => inTurn(signal, async () => {
-    for (const each of [name, ...request.models]) await loaded(each); // a world's other models too
-    return call({ type: 'sample', name, request });
   }),
 };
 
@@ -329,8 +324,12 @@ export const info = (where, name, options) => backends[where].info(name, options
  * backend (how the browser ran it) }. */
 export const sample = (where, name, request, options) => backends[where].sample(name, request, options);
 
-/** The tile of a tile request (frame 'tile'): { positions, faces, colours }, none where the tile has no surface. */
-export const tile = (where, name, request, options) => backends[where].tile(name, request, options);
+/** The tile of a tile request (frame 'tile'): { positions, faces, normals, colours, corner }, none where the tile
+ * has no surface. The server makes it: the browser's runtime makes no worlds. */
+export const tile = (where, name, request, options) => {
+  if (where !== 'server') throw new Error("a world's tiles come from sinrun serve: the browser runtime makes no worlds");
+  return server.tile(name, request, options);
+};
 
 /** The seed's own layout (level 0 at `size`): { shape, grid }, kept once made. */
 export function layout(where, name, seed, size, options) {

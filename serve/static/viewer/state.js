@@ -40,11 +40,17 @@ export const state = {
 /** The seed after `seed` (text; BigInt: seeds go to 2^63, past what a Number holds exactly). */
 export const nextSeed = (seed) => (/^\d+$/.test(seed) && BigInt(seed) < 2n ** 63n - 1n ? String(BigInt(seed) + 1n) : '1');
 
+/** The world mode is the server's: the browser's runtime makes no worlds (docs/WEB.md, "One runtime"). */
+export function keepToBackEnd() {
+  if (state.edit === 'world' && state.where === 'browser') state.edit = '';
+}
+
 export function readUrl() {
   const query = new URLSearchParams(location.search);
   for (const key of [...FIELDS, ...Object.keys(EDIT_DEFAULTS)]) if (query.has(key)) state[key] = query.get(key);
   if (STATIC_SITE || !['server', 'browser'].includes(state.where)) state.where = STATIC_SITE ? 'browser' : 'server';
   if (!(state.edit in EDITS)) state.edit = '';
+  keepToBackEnd();
   if (state.edit === 'keep' && !state.other) state.other = nextSeed(String(state.seed));
 }
 

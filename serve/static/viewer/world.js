@@ -1,7 +1,7 @@
 // The world mode (docs/WORLDS.md, "In the browser"): fly or walk over the
 // endless world of the model and seed. Tiles are made around the camera,
-// those ahead of it first, by the page's back end (the tile route, or the
-// worker's world.js), coarser the farther they are (a tile's level of
+// those ahead of it first, by the server's tile route (the Python runtime
+// makes worlds; the browser's runtime makes none), coarser the farther they are (a tile's level of
 // detail follows its distance, and it is made again as that changes; a
 // tile not shown yet comes first at the coarsest level, so the view fills
 // in a fraction of the time, then sharpens as the finer tiles come), and
@@ -13,7 +13,7 @@
 // tiles out is drawn as precisely as tile (0, 0). The camera's motion is
 // viewer/flight.js's.
 //
-//   show({ where, name, seed, scale, tile, info, others, reach, walk, arrange, heights, models, modelsMap }, report)  the world from `tile`
+//   show({ name, seed, scale, tile, info, others, reach, walk, arrange, heights, models, modelsMap }, report)  the world from `tile`
 //   stop()                                                                                drop it all, and give the view back to the shape
 import * as THREE from 'three';
 import { sampleRequest } from '../sinshape/request.js';
@@ -22,7 +22,7 @@ import { aim, settle, steer, wake } from './flight.js';
 import * as sampling from './sampling.js';
 import { camera, paint, scene, worldView } from './scene.js';
 
-const SLOTS = { server: 2, browser: 1 }; // tiles asked for at once: the worker makes one at a time
+const SLOTS = 2; // tiles asked of the server at once
 const HOLD = 1; // tiles kept this far past the reach before they are dropped: a step back makes none again
 const FINE = 1; // tiles this far from the camera's (and its own) at the finest level; each tile farther, a level coarser
 const AHEAD = 1.5; // tiles: the point ahead of the camera, along its view, that the nearest tiles are counted from
@@ -36,8 +36,7 @@ let run = null; // the world in view
 const keyOf = (i, j) => `${i},${j}`; // a tile's name
 
 /**
- * Fly over the world of `seed` (a BigInt) of model `name`, made `where`
- * ('server' or 'browser') at `scale`, from tile `tile` ([i, j] BigInts);
+ * Fly over the world of `seed` (a BigInt) of model `name`, made by the server at `scale`, from tile `tile` ([i, j] BigInts);
  * `info` is the model's { sizes, spacing, up } (`others`, the world's other
  * models', whose objects may stand taller), `reach` how many tiles to
  * make on each side of the camera's, `walk` whether to keep to the ground,
@@ -47,16 +46,16 @@ const keyOf = (i, j) => `${i},${j}`; // a tile's name
  * another than the camera's (a jump). report({ at, shown, waiting, made,
  * dropped, complete, error }) follows the work.
  */
-export function show({ where, name, seed, scale, tile, info, others = [], reach, walk, arrange = 'blend', heights = null, models = [], modelsMap = null },
+export function show({ name, seed, scale, tile, info, others = [], reach, walk, arrange = 'blend', heights = null, models = [], modelsMap = null },
   report) {
-  const key = `${where}|${name}|${seed}|${scale}|${arrange}|${heights ? mapId(heights) : ''}|${models.join(',')}|${modelsMap ? mapId(modelsMap) : ''}`;
+  const key = `${name}|${seed}|${scale}|${arrange}|${heights ? mapId(heights) : ''}|${models.join(',')}|${modelsMap ? mapId(modelsMap) : ''}`;
   const jump = !run || run.key !== key || tile[0] !== run.origin[0] || tile[1] !== run.origin[1];
   if (run?.key !== key) {
     stop(false);
     const layout = worldLayout(info);
     const [h0, h1] = layout.horizontal, top = Math.max(...[info, ...others].map((each) => { const cut = worldLayout(each); return cut.stride[cut.up]; }));
     run = {
-      key, where, name, seed, scale, arrange, heights, models, modelsMap, layout, report, origin: tile, tiles: new Map(), making: 0, made: 0, dropped: 0, error: null,
+      key, name, seed, scale, arrange, heights, models, modelsMap, layout, report, origin: tile, tiles: new Map(), making: 0, made: 0, dropped: 0, error: null,
       coarsest: info.sizes.length - 1,
       size: [layout.stride[h0] * info.spacing[h0], layout.stride[h1] * info.spacing[h1]], // a tile's sides, in the input's units
       height: (top + (heights ? Math.max(...heights.data) : 0)) * info.spacing[layout.up], // a voxel of any model is one of the world's
@@ -162,7 +161,7 @@ function pump() {
   const distance = (e) => ((Number(e.i - r.origin[0]) + 0.5) * r.size[0] - at.getComponent(h0)) ** 2
     + ((Number(e.j - r.origin[1]) + 0.5) * r.size[1] - at.getComponent(h1)) ** 2;
   const before = (e, other) => (e.lod === undefined) !== (other.lod === undefined) ? e.lod === undefined : distance(e) < distance(other);
-  while (r.making < SLOTS[r.where]) {
+  while (r.making < SLOTS) {
     let next = null;
     for (const entry of r.tiles.values()) if (entry.state === 'wanted' && (!next || before(entry, next))) next = entry;
     if (!next) break;
@@ -179,7 +178,7 @@ async function make(r, entry) {
   try {
     const request = sampleRequest({ seed: r.seed, scale: r.scale, tile: [entry.i, entry.j], frame: 'tile', arrange: r.arrange,
                                     heights: r.heights, models: r.models, models_map: r.modelsMap, lod });
-    const { positions, faces, normals, colours } = await sampling.tile(r.where, r.name, request, { signal: entry.controller.signal });
+    const { positions, faces, normals, colours } = await sampling.tile('server', r.name, request, { signal: entry.controller.signal });
     if (r.tiles.get(entry.key) !== entry) return; // dropped meanwhile
     entry.state = lod === entry.want ? 'done' : 'wanted'; // the camera moved meanwhile: made again at its new level
     entry.order = ++r.made;
