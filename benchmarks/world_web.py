@@ -1,31 +1,18 @@
-"""Endless worlds in the browser: tiles made in the page's worker at each
-level of detail, the page's first view filled, and its frame times while
-tiles stream, in headless chromium (WebGL drawn by its software renderer,
-SwiftShader: no GPU), from the page's worker and from `sinrun serve`, with
-the Python runtime beside them.
+"""Endless worlds on the page: its first view filled and its frame times
+while tiles stream, in headless chromium (WebGL drawn by its software
+renderer, SwiftShader: no GPU), every tile from `sinrun serve MODEL`'s tile
+route (the Python runtime makes worlds), with the Python runtime beside it.
 
-    python benchmarks/world_web.py [MODEL] [--arrange blend|scatter] [--reach 3] [--seconds 10] [--repeats 5]
-                                   [--seed 3] [--shots PNG]
+    python benchmarks/world_web.py [MODEL] [--arrange blend|scatter] [--reach 3] [--seconds 10] [--seed 3] [--shots PNG]
 
-Exports MODEL (default: the shipped terrain) with `sinrun export-web`, serves
-it with the site's own serve.py (cross-origin isolated: WASM on threads) and
-opens it in headless chromium (the tests' harness, tests/browser.py):
-
-- The worker: a worker of its own (static/sinshape/worker.js, as the page
-  starts it) makes tiles with no window kept at every level of detail (far
-  apart: four new windows each; at lod 0 near the origin and 10^9 tiles
-  away, in turn), along a row at full detail (two new windows
-  each) and again (none new: the decoding, the mesh and its normals only),
-  and, to compare, samples of the training size; the median of `--repeats`
-  each, after a warm-up.
-- The page, in browser mode and then from `sinrun serve MODEL`: world mode
-  at `--reach` tiles around the camera's (each a level coarser per tile past
-  the first ring), from choosing it (the model already loaded) until every
-  tile is made, with the frame intervals (requestAnimationFrame) meanwhile:
-  the worst, the 95th percentile and the median.
-- Flying (browser mode): the frame intervals for `--seconds` while the camera
-  flies forward at its speed (tiles made meanwhile, and dropped behind),
-  then, every tile made, while it turns in place.
+- The page: world mode at `--reach` tiles around the camera's (each a level
+  coarser per tile past the first ring), from choosing it (the model
+  already loaded) until every tile is made, with the frame intervals
+  (requestAnimationFrame) meanwhile: the worst, the 95th percentile and
+  the median.
+- Flying: the frame intervals for `--seconds` while the camera flies
+  forward at its speed (tiles made meanwhile, and dropped behind), then,
+  every tile made, while it turns in place.
 - The Python runtime makes the same ring at the same levels, in the same
   order, on one thread.
 
@@ -45,51 +32,10 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
-from browser import chromium, open_page, server_process, site_server_process, wait_world  # noqa: E402
+from browser import chromium, open_page, server_process, wait_world  # noqa: E402
 
 from sinshape import models  # noqa: E402
 from sinshape.runtime import load, world  # noqa: E402
-from sinshape.serve import site  # noqa: E402
-
-WORKER_JS = """async ([file, seed, repeats, arrange, levels]) => {
-  const { sampleRequest } = await import('./static/sinshape/request.js');
-  const worker = new Worker('static/sinshape/worker.js', { type: 'module' });
-  let ids = 0;
-  const call = (message) => new Promise((resolve, reject) => {
-    const id = ++ids;
-    const listen = ({ data }) => {
-      if (data.id !== id || data.type === 'progress') return;
-      worker.removeEventListener('message', listen);
-      if (data.type === 'error') reject(new Error(data.message));
-      else resolve(data);
-    };
-    worker.addEventListener('message', listen);
-    worker.postMessage({ id, ...message });
-  });
-  const bytes = new Uint8Array(await (await fetch(file)).arrayBuffer());
-  const loaded = await call({ type: 'load', name: 'model', bytes, file });
-  const tile = async (i, j, lod = 0) => {
-    const started = performance.now();
-    await call({ type: 'sample', name: 'model', request: sampleRequest({ seed: BigInt(seed), tile: [BigInt(i), BigInt(j)], frame: 'tile', arrange, lod }) });
-    return performance.now() - started;
-  };
-  await tile(-7777, 0);  // the warm-up: the JIT, onnxruntime's first runs
-  const cold = Array.from({ length: levels }, () => []), far = [], row = [], warm = [], sample = [];
-  for (let k = 1; k <= repeats; k++) {
-    const started = performance.now();
-    await call({ type: 'sample', name: 'model', request: sampleRequest({ seed: BigInt(seed + k) }) });
-    sample.push(performance.now() - started);
-  }
-  for (let k = 1; k <= repeats; k++) {  // near and far in turn
-    for (let lod = 0; lod < levels; lod++) cold[lod].push(await tile(1000 * k + 100 * lod, 0, lod));
-    far.push(await tile(1e9 + 1000 * k, -1e9));
-  }
-  await tile(50000, 0);
-  for (let k = 1; k <= repeats; k++) row.push(await tile(50000 + k, 0));
-  for (let k = 1; k <= repeats; k++) warm.push(await tile(50000 + repeats, 0));
-  worker.terminate();
-  return { cold, far, row, warm, sample, threads: loaded.threads };
-}"""
 
 # Frame times (requestAnimationFrame) while `recording` is set.
 RECORD_JS = """() => {
@@ -183,23 +129,20 @@ def main():
     parser.add_argument("--arrange", choices=world.ARRANGEMENTS, default=None, help="default: the model's own")
     parser.add_argument("--reach", type=int, default=3)
     parser.add_argument("--seconds", type=float, default=10)
-    parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--seed", type=int, default=3)
     parser.add_argument("--shots", type=Path)
     args = parser.parse_args()
 
     path = models.find(args.model)
     manifest = load.load_model(path, threads=1).manifest
-    arrange, levels = args.arrange or manifest.arrange, len(manifest.sizes)
+    arrange = args.arrange or manifest.arrange
     load_before = os.getloadavg()[0]
     with tempfile.TemporaryDirectory() as tmp:
-        folder = Path(tmp) / "site"
-        site.export_site([args.model], folder)
-        with site_server_process(folder) as base, chromium() as browser:
+        sinrun = Path(sys.executable).with_name("sinrun")
+        with server_process([str(sinrun), "serve", args.model, "--port"], Path(tmp), "sinrun serve") as base, \
+                chromium() as browser:
             page = open_page(browser, base)
-            page.goto(f"{base}/README.txt")
-            worker = page.evaluate(WORKER_JS, [f"models/{args.model}.onnx", args.seed, args.repeats, arrange, levels])
-            in_browser = first_view(page, base, args.seed, args.reach, arrange)
+            view = first_view(page, base, args.seed, args.reach, arrange)
             before = page.evaluate("window.sinshapeView.world.status()")
             flying = frames_while(page, "w", args.seconds)
             after = page.evaluate("window.sinshapeView.world.status()")
@@ -209,35 +152,18 @@ def main():
             assert not page.errors, page.errors
             if args.shots:
                 shots(browser, base, args.seed, args.shots)
-        sinrun = Path(sys.executable).with_name("sinrun")
-        with server_process([str(sinrun), "serve", args.model, "--port"], Path(tmp), "sinrun serve") as base, \
-                chromium() as browser:
-            page = open_page(browser, base)
-            from_server = first_view(page, base, args.seed, args.reach, arrange)
-            assert not page.errors, page.errors
     python = python_ring(path, args.seed, args.reach, arrange)
 
-    ms = lambda values: f"{statistics.median(values):.0f} ms"  # noqa: E731
     frames = lambda f: (f"worst {f['worst']:.0f} ms, 95th percentile {f['p95']:.0f} ms, median {f['median']:.0f} ms, "  # noqa: E731
                         f"{f['fps']:.1f} frames/s")
-    print(f"{args.model} ({arrange}), seed {args.seed}: headless chromium, WebGL on SwiftShader (software), "
-          f"WASM on {worker['threads']} threads; load average {load_before:.1f} before, {os.getloadavg()[0]:.1f} after\n")
-    print("| the browser's worker, a tile (mesh and normals) | median |")
-    print("|---|---|")
-    for lod, values in enumerate(worker["cold"]):
-        print(f"| no window kept (4 made), lod {lod} | {ms(values)} ({statistics.median(values) / statistics.median(worker['cold'][0]):.2f}x) |")
-    print(f"| ... 10^9 tiles away, lod 0 | {ms(worker['far'])} ({statistics.median(worker['far']) / statistics.median(worker['cold'][0]):.2f}x) |")
-    print(f"| along a row (2 made), lod 0 | {ms(worker['row'])} |")
-    print(f"| every window kept (the decoding, the mesh and its normals) | {ms(worker['warm'])} |")
-    print(f"| a sample at the training size, for comparison | {ms(worker['sample'])} |")
-    for label, view in (("in the browser", in_browser), ("from sinrun serve", from_server)):
-        lods = sorted({t[4] for t in view["tiles"]})
-        count = len(view["tiles"])
-        print(f"\nthe page's first view {label}, reach {args.reach}: {count} tiles shown in {view['filled']:.1f} s, "
-              f"each at its level of detail ({lods}) in {view['seconds']:.1f} s; "
-              f"frames meanwhile: {frames(view['frames'])}")
+    print(f"{args.model} ({arrange}), seed {args.seed}: headless chromium, WebGL on SwiftShader (software), tiles from "
+          f"sinrun serve; load average {load_before:.1f} before, {os.getloadavg()[0]:.1f} after\n")
+    lods = sorted({t[4] for t in view["tiles"]})
+    count = len(view["tiles"])
+    print(f"the page's first view, reach {args.reach}: {count} tiles shown in {view['filled']:.1f} s, "
+          f"each at its level of detail ({lods}) in {view['seconds']:.1f} s; frames meanwhile: {frames(view['frames'])}")
     print(f"(the Python runtime, 1 thread, the same tiles at the same levels: {python:.1f} s, {count / python:.1f} tiles/s)")
-    print(f"\nflying {args.seconds:g} s (browser): {frames(flying)}; {after['made'] - before['made']} tiles made, "
+    print(f"\nflying {args.seconds:g} s: {frames(flying)}; {after['made'] - before['made']} tiles made, "
           f"{after['dropped'] - before['dropped']} dropped, tile {', '.join(before['at'])} to {', '.join(after['at'])}; "
           f"GPU geometries after: {memory['geometries']}")
     print(f"turning in place {args.seconds:g} s, no tile made: {frames(still)}")
