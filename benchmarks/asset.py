@@ -387,7 +387,6 @@ print("RESULT" + json.dumps(results))
 
 
 def speed(args) -> None:
-    import trimesh
 
     from sinshape.runtime import asset, gltf, write
     from sinshape.runtime.request import SampleRequest

@@ -113,7 +113,7 @@ def sampling(path: str, seeds: int, scales=(1, 4)) -> None:
             medians = {name: float(np.median(t[1:])) for name, t in times.items()}
             print(f"sampling a .ply at scale {scale} (median of {seeds} seeds): "
                   + ", ".join(f"{name} {m:.3f} s" for name, m in medians.items())
-                  + f"; ratios to geometry: " + ", ".join(f"{name} {m / medians['geometry']:.2f}"
+                  + "; ratios to geometry: " + ", ".join(f"{name} {m / medians['geometry']:.2f}"
                                                           for name, m in medians.items() if name != "geometry"),
                   flush=True)
     for name in [n for n in ways if n != "geometry"]:

@@ -638,7 +638,7 @@ def run_case(setup, expect, python: str) -> tuple:
         if expect == "refused":
             written = set(folder.rglob("out*")) - there
             one = result.returncode != 0 and "Traceback" not in output and len(errors) == 1 and not written
-            return one and len([l for l in lines if not l.startswith(("Warning:", "warning:"))]) == 1, last
+            return one and len([line for line in lines if not line.startswith(("Warning:", "warning:"))]) == 1, last
         kind, _, text = expect.partition(":")
         if kind == "error":
             return result.returncode != 0 and "Traceback" not in output and len(errors) == 1 and text in errors[0], last

@@ -15,7 +15,6 @@ vertex, in voxels.
 """
 
 import argparse
-import json
 import os
 import subprocess
 import sys

@@ -317,7 +317,7 @@ def large_shape(model, options, tiles: int = 32, relief_factor: float = 4.0) -> 
         out[f"{tiles}x{tiles} tiles, {label}: large-scale relief (std of tile means) / model's band"] = \
             f"{means.std():.2f} / {band:.2f} voxels ({means.std() / band:.1f}x)"
         if chosen is painted:
-            out[f"... correlation of tile means with the painted heights"] = \
+            out["... correlation of tile means with the painted heights"] = \
                 f"{np.corrcoef(means.ravel(), heights.ravel())[0, 1]:.3f}"
     return out
 

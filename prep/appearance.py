@@ -138,7 +138,7 @@ def example_tiles(surface: Surface, box_low, spacing, solid: np.ndarray, max_byt
     normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-30)
     voxel, face = voxel_faces(triangles, shape)
     side = tile_side(surface.density, spacing)
-    tiles_voxel, tiles_direction, pairs = [], [], []
+    pairs = []
     for axis in range(3):
         for positive in (False, True):
             facing = normals[face, axis] * (1 if positive else -1) > FACING

@@ -480,7 +480,7 @@ def check_npz_header(shape: tuple, dtype, name) -> None:
             and all(1 <= n <= MAX_LEVEL_SIDE for n in shape) and np.prod(shape, dtype=object) <= MAX_LAYOUT_CELLS):
         raise InputError(f"{name}: needs an array 'layout' of 3 axes, 1 to {MAX_LEVEL_SIDE} each and at most "
                          f"{MAX_LAYOUT_CELLS} cells, got shape {shape}")
-    if not (dtype == bool or np.issubdtype(dtype, np.integer) or np.issubdtype(dtype, np.floating)) \
+    if not (dtype.kind == "b" or np.issubdtype(dtype, np.integer) or np.issubdtype(dtype, np.floating)) \
             or dtype.hasobject or dtype.itemsize > 8:
         raise InputError(f"{name}: 'layout' holds {dtype}, not occupancy")
 

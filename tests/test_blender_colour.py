@@ -7,7 +7,6 @@ world's tiles. Marked `blender`; skipped where bpy cannot be imported."""
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 from test_blender import add, pytestmark, sinrun_sample  # noqa: F401 (marked and skipped as the Blender tests are)
 from test_blender_world import add_world, tiles_of

@@ -13,7 +13,6 @@ from click.testing import CliRunner
 from conftest import TINY_ONNX, sealed_bytes
 
 from sinshape.cli.main import cli
-from sinshape.runtime import load
 from sinshape.core import manifest as fmt
 from test_cli_train import BLOCK_TORCH, assert_one_line_error
 

@@ -323,7 +323,6 @@ def test_corrupted_models_are_refused_or_work(folder, data):
 
     import onnx
 
-    from sinshape.runtime import load
     from sinshape.core import manifest as fmt
 
     source = data.draw(st.sampled_from([TINY_ONNX, TINY_ONNX.with_name("tiny_v2.onnx")]))

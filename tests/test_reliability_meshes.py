@@ -22,7 +22,7 @@ from click.testing import CliRunner
 from sinshape.cli.main import cli
 from sinshape.core import budget
 from sinshape.core.errors import InputError, MemoryLimitError
-from sinshape.prep import colour, meshfiles, voxelize
+from sinshape.prep import meshfiles, voxelize
 from sinshape.prep.pyramid import load_pyramid
 from conftest import finishes
 from test_cli_train import assert_one_line_error

@@ -15,7 +15,7 @@ from onnx import TensorProto, helper
 
 from browser import (CHROMIUM, CLICKABLE_JS, edits_text, http_server_process, launch, layout_in_page, open_page,
                      site_server_process, wait_cells)
-from conftest import sealed_bytes
+from conftest import TINY_ONNX as TINY, sealed_bytes
 from sinshape import models
 from sinshape.cli.main import cli
 from sinshape.runtime import cubes, load, mesh, query
@@ -525,10 +525,10 @@ def foreign_model(path: Path) -> Path:
     return path
 
 
-def altered_terrain(path: Path, change, seal=True) -> Path:
-    """The terrain model changed, resealed (so that the change itself is what
+def altered_terrain(path: Path, change, seal=True, source=TERRAIN) -> Path:
+    """The terrain model (or `source`) changed, resealed (so that the change itself is what
     is checked), or with its old seal, as an editor that knows nothing of seals leaves it."""
-    proto = onnx.load(TERRAIN)
+    proto = onnx.load(source)
     change(proto)
     path.write_bytes(sealed_bytes(proto) if seal else proto.SerializeToString())
     return path
@@ -628,23 +628,25 @@ def test_files_are_refused_as_the_python_loader_refuses_them(site_page, tmp_path
 
     (tmp_path / "text.onnx").write_text("hello, not a model")
     (tmp_path / "empty.onnx").write_bytes(b"")
+    # Made from the tiny test model: the page hashes every byte of each (its seal), a quarter of the terrain's.
+    altered = lambda path, change, seal=True: altered_terrain(path, change, seal, source=TINY)  # noqa: E731
     files = [foreign, tmp_path / "text.onnx", tmp_path / "empty.onnx",
-             altered_terrain(tmp_path / "newer.onnx", newer_version),
-             altered_terrain(tmp_path / "external.onnx", external_data),
-             altered_terrain(tmp_path / "op.onnx", foreign_op),
-             altered_terrain(tmp_path / "flipped.onnx", flipped_weight, seal=False),
-             altered_terrain(tmp_path / "sealed.onnx", edit_manifest(lambda m: m.update(seed_note="edited")), seal=False),
-             altered_terrain(tmp_path / "unsealed.onnx", drop_seal, seal=False),
-             altered_terrain(tmp_path / "amp.onnx", edit_manifest(lambda m: m["levels"][1].update(noise_amp=1e30))),
-             altered_terrain(tmp_path / "origin.onnx", edit_manifest(lambda m: m["frame"].update(origin=[1e300, 0, 0]))),
-             altered_terrain(tmp_path / "source.onnx", edit_manifest(lambda m: m.update(source=None))),
-             altered_terrain(tmp_path / "config.onnx", edit_manifest(lambda m: m["config"].update(iters={"a": 1}))),
-             altered_terrain(tmp_path / "seconds.onnx", edit_manifest(lambda m: m["training"].update(level_seconds=5))),
-             altered_terrain(tmp_path / "shrink.onnx", edit_manifest(lambda m: m["levels"][1].update(size=[9, 9, 9]))),
-             altered_terrain(tmp_path / "spacing.onnx", edit_manifest(lambda m: m["frame"].update(spacing=[1e-300, 1, 1]))),
-             altered_terrain(tmp_path / "step.onnx", edit_manifest(lambda m: m["frame"].update(origin=[1e9, 0, 0]))),
+             altered(tmp_path / "newer.onnx", newer_version),
+             altered(tmp_path / "external.onnx", external_data),
+             altered(tmp_path / "op.onnx", foreign_op),
+             altered(tmp_path / "flipped.onnx", flipped_weight, seal=False),
+             altered(tmp_path / "sealed.onnx", edit_manifest(lambda m: m.update(seed_note="edited")), seal=False),
+             altered(tmp_path / "unsealed.onnx", drop_seal, seal=False),
+             altered(tmp_path / "amp.onnx", edit_manifest(lambda m: m["levels"][1].update(noise_amp=1e30))),
+             altered(tmp_path / "origin.onnx", edit_manifest(lambda m: m["frame"].update(origin=[1e300, 0, 0]))),
+             altered(tmp_path / "source.onnx", edit_manifest(lambda m: m.update(source=None))),
+             altered(tmp_path / "config.onnx", edit_manifest(lambda m: m["config"].update(iters={"a": 1}))),
+             altered(tmp_path / "seconds.onnx", edit_manifest(lambda m: m["training"].update(level_seconds=5))),
+             altered(tmp_path / "shrink.onnx", edit_manifest(lambda m: m["levels"][1].update(size=[9, 9, 9]))),
+             altered(tmp_path / "spacing.onnx", edit_manifest(lambda m: m["frame"].update(spacing=[1e-300, 1, 1]))),
+             altered(tmp_path / "step.onnx", edit_manifest(lambda m: m["frame"].update(origin=[1e9, 0, 0]))),
              sealed_twice(tmp_path / "twice.onnx"),
-             altered_terrain(tmp_path / "weight.onnx", weight_twice)]
+             altered(tmp_path / "weight.onnx", weight_twice)]
     messages = load_in_page(page, files)
     for path, message in zip(files, messages):
         with pytest.raises(InputError) as python:

@@ -486,8 +486,8 @@ def one_channel_conv(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor |
     out_size = [n - k + 1 for n in size]
     out = None
     for tap, tap_grid in enumerate(taps.unbind(1)):  # unbind: each tap's gradient is its own small tensor
-        i, j, l = tap // (k * k), tap // k % k, tap % k
-        part = tap_grid[:, i:i + out_size[0], j:j + out_size[1], l:l + out_size[2]]
+        i, j, h = tap // (k * k), tap // k % k, tap % k
+        part = tap_grid[:, i:i + out_size[0], j:j + out_size[1], h:h + out_size[2]]
         if out is None:  # one output tensor, summed into in place
             out = part.clone() if bias is None else part + bias
         else:
