@@ -73,24 +73,21 @@ def test_the_page_flies_over_a_far_world_nearest_first_in_bounded_memory(page, t
 
 
 def camera_pose(page) -> dict:
-    return page.evaluate("({ at: window.sinshapeView.world.status().at, position: window.sinshapeView.camera.position.toArray(),"
-                         " forward: window.sinshapeView.camera.getWorldDirection(window.sinshapeView.camera.position.clone()).toArray(),"
-                         " quaternion: window.sinshapeView.camera.quaternion.toArray() })")
+    """The camera's tile, its position from tile (0, 0)'s mesh (in the scene's frame: what the floating
+    origin moves, camera and tiles alike, cancels), its view direction and its rotation."""
+    return page.evaluate("""() => { const { camera, scene } = window.sinshapeView; let tile = null;
+      scene.traverse((n) => { if (n.isMesh && n.name === '0,0') tile = n; });
+      const from = camera.position.clone().sub(tile.getWorldPosition(camera.position.clone()));
+      return { at: window.sinshapeView.world.status().at, position: from.toArray(),
+               forward: camera.getWorldDirection(camera.position.clone()).toArray(), quaternion: camera.quaternion.toArray() }; }""")
 
 
 def hold(page, key, ms) -> dict:
-    """Hold a key down for `ms`: the camera's pose after, its position in the world's frame of the start."""
-    before = camera_pose(page)
+    """Hold a key down for `ms`: the camera's pose after."""
     page.keyboard.down(key)
     page.wait_for_timeout(ms)
     page.keyboard.up(key)
-    after = camera_pose(page)
-    size = page.evaluate("window.sinshapeView.world.status().size")
-    # Crossing into another tile moves the scene's origin with the camera (the terrain's up is z: the
-    # view's x is the model's x, its z the model's -y).
-    after["position"][0] += (int(after["at"][0]) - int(before["at"][0])) * size[0]
-    after["position"][2] -= (int(after["at"][1]) - int(before["at"][1])) * size[1]
-    return after
+    return camera_pose(page)
 
 
 # Runs in the page, in world mode: the drawing resolution (the canvas's width over its width on
