@@ -168,6 +168,26 @@ def test_geometry_only_outputs_have_no_colour(tiny_model, tmp_path):
     assert all("COLOR_0" not in p["attributes"] for mesh in meta["meshes"] for p in mesh["primitives"])
 
 
+def test_a_coloured_tiles_glb_carries_the_fields_normals(model):
+    """A coloured tile's .glb holds its colours and the normals the runtime made (the field's gradient,
+    which agree across tiles): colouring it for glTF must not drop them for normals of its faces."""
+    from sinshape.runtime import world, write
+
+    data, _ = write.request_bytes(model, SampleRequest(seed=3, tile=(0, 0), frame="tile"), "t.glb")
+    length = struct.unpack_from("<I", data, 12)[0]
+    meta = json.loads(data[20:20 + length])
+    (primitive,) = meta["meshes"][0]["primitives"]
+    assert {"POSITION", "NORMAL", "COLOR_0"} <= primitive["attributes"].keys()
+    view = meta["bufferViews"][meta["accessors"][primitive["attributes"]["NORMAL"]]["bufferView"]]
+    start = 20 + length + 8 + view.get("byteOffset", 0)
+    normals = np.frombuffer(data[start:start + view["byteLength"]], np.float32).reshape(-1, 3)
+    surface = world.tile_surface(model, 3, (0, 0), 1.0, SampleRequest(seed=3, tile=(0, 0)).world_options())
+    expected = world.frame_normals(model, surface.normals)
+    assert np.abs(normals - expected).max() < 1e-6
+    faces = trimesh.Trimesh(surface.vertices, surface.faces, process=False).vertex_normals
+    assert np.abs(normals - faces).max() > 1e-3  # not the faces' normals, which the field's differ from
+
+
 def test_world_tiles_are_coloured_seamlessly(model, tmp_path):
     from sinshape.runtime import world
 
