@@ -85,7 +85,6 @@ export const ModelMap = {
     }
     return Object.freeze({ shape: [...shape], data: Uint8Array.from(values) });
   },
-
 };
 
 /**
