@@ -54,16 +54,20 @@ def load(name: str, threads: int = 2):
 
 
 def make_asset(model, seed: int, scale: float, lods: tuple, texture: int) -> tuple:
-    """(the dense mesh (vertices, faces) in the input frame, its vertex colours
-    (uint8, None for a geometry-only model), the .glb, info)."""
-    from sinshape.runtime import asset
+    """(the sample's mesh (vertices, faces) in the input frame, as `sinrun
+    sample` makes it (with its example's relief at scale 2 and up), its
+    vertex colours (uint8, None for a geometry-only model), the .glb, info)."""
+    from sinshape.runtime import asset, colour
     from sinshape.runtime.request import SampleRequest
 
     request = SampleRequest(seed, scale=scale)
     dense = asset.dense_surface(model, request)
+    vertices = dense.frame.to_model(dense.vertices)
+    if dense.field.relief is not None and scale >= colour.RELIEF_SCALE:
+        vertices = dense.field.relief(vertices)
     data, info = asset.asset_bytes(model, request, asset.AssetOptions(lods, texture), model.path.stem)
-    colours = dense.field.colour(dense.frame.to_model(dense.vertices)) if dense.field.colour else None
-    return (dense.vertices, dense.faces), colours, data, info
+    colours = dense.field.colour(vertices) if dense.field.colour else None
+    return (dense.frame.from_model(vertices), dense.faces), colours, data, info
 
 
 # --- drawing -------------------------------------------------------------------------------------------

@@ -9,7 +9,7 @@ with fast-simplification in docs/ASSETS.md), with a world tile's border
 locked so that every level of a tile meets every level of its neighbours.
 UVs come from xatlas, charts padded so that mip-maps do not bleed. The maps
 are baked from the model itself (bake.py): the normal from its field's
-gradient, the colour from the one function that colours a sample's
+gradient, or from its example's relief where the model carries it, the colour from the one function that colours a sample's
 vertices (colour.colouring; a world tile's blend, world.tile_colours).
 """
 
@@ -109,16 +109,19 @@ class Dense:
 
 
 def sample_field(model, triplane, detail: bool = True) -> bake.Field:
-    """The field of a sample (or an edit's composed tri-plane) and its colour
+    """The field of a sample (or an edit's composed tri-plane), its colour
     at full detail (a format-5 model's tiles, read at each texel's point;
-    without `detail`, its colour head's)."""
-    colour = None
-    if model.manifest.colour:
-        paint = colouring.colouring(model, triplane, detail=detail)
+    without `detail`, its colour head's) and its example's relief (a model
+    with tiles, with `detail`)."""
+    relief = detail and model.tiles is not None
+    if not (model.manifest.colour or relief):
+        return bake.Field(query.occupying(model, triplane), None)
+    surface = colouring.colouring(model, triplane, detail=detail)
 
-        def colour(points):
-            return mesh.colour_bytes(paint(points))[:, :3]
-    return bake.Field(query.occupying(model, triplane), colour)
+    def colour(points):
+        return mesh.colour_bytes(surface(points))[:, :3]
+    return bake.Field(query.occupying(model, triplane), colour if model.manifest.colour else None,
+                      surface.relief if relief else None)
 
 
 def tile_field(model, seed: int, tile, options) -> bake.Field:

@@ -19,6 +19,14 @@ The model's detail is a voxel's (its planes are bilinear within one), so a
 texel's surface point and normal are interpolated from its lattice triangle;
 its colour is then asked of the model at that point, texel by texel, so that
 colour detail finer than a voxel (a texture) is kept.
+
+A model carrying its example's relief (detail finer than a voxel: bricks
+standing out of their mortar) moves each texel's point onto the example's
+surface, texel by texel, and the normal map takes the normal of the moved
+surface: the cross product of the moved points' differences to the texels
+beside it in the map (those of the same chart), so that the relief shades
+on any level, however few its triangles. Its colour is read at the moved
+point, as a sample's vertices are.
 """
 
 import os
@@ -45,11 +53,15 @@ AO_REACH = (0.75, 1.5, 3.0, 6.0)
 @dataclass(frozen=True)
 class Field:
     """A sample's surface as the model defines it, in model coordinates:
-    occupancy (n, 3) -> (n,) float32 in [0, 1], and for a coloured model
-    colour (n, 3) -> (n, 3) uint8 sRGB (None for geometry only)."""
+    occupancy (n, 3) -> (n,) float32 in [0, 1]; for a coloured model
+    colour (n, 3) -> (n, 3) uint8 sRGB (None for geometry only); for a model
+    carrying its example's relief, relief (n, 3) -> (n, 3): points of the
+    field's surface moved onto the example's surface at full detail
+    (colour.SampleSurface.relief; None without)."""
 
     occupancy: Callable
     colour: Callable | None
+    relief: Callable | None = None
 
 
 @dataclass(frozen=True)
@@ -61,6 +73,9 @@ class Frame:
 
     def to_model(self, points: np.ndarray) -> np.ndarray:
         return (points - self.offset) / self.scale
+
+    def from_model(self, points: np.ndarray) -> np.ndarray:
+        return self.offset + points * self.scale
 
     def normals_out(self, normals: np.ndarray) -> np.ndarray:
         """Model-frame normals as the asset frame's (the inverse transpose), unit."""
@@ -340,21 +355,38 @@ def bake(field: Field, frame: Frame, vertices: np.ndarray, faces: np.ndarray, uv
     points, found = surface_points(field, frame, starts, rays, voxel, reach, threads)
     surface = field_normals(field, frame, points, threads)
     surface = np.where(np.linalg.norm(surface, axis=1, keepdims=True) > 0, surface, rays)
-    values = [tangent_space(level_normals, level_tangents, surface)]
-    if field.colour is not None:
-        values.append(points)
+    # What each texel interpolates from its lattice triangle, by name: (values (P, C), its columns).
+    named = {"normal": tangent_space(level_normals, level_tangents, surface)}
+    if field.colour is not None or field.relief is not None:
+        named["point"] = points
+    if field.relief is not None:  # the frame a texel's own normal is put in, and the smooth surface's normal
+        named.update(level_normal=level_normals, level_tangent=level_tangents, surface=surface)
     if ao:
-        values.append(occlusion(field, frame, points, surface, voxel, threads)[:, None])
-    values = np.concatenate(values, axis=1).astype(np.float32)
+        named["occlusion"] = occlusion(field, frame, points, surface, voxel, threads)[:, None]
+    columns, start = {}, 0
+    for name, value in named.items():
+        columns[name] = slice(start, start + value.shape[1])
+        start += value.shape[1]
+    values = np.concatenate(list(named.values()), axis=1).astype(np.float32)
 
-    # Texels: each interpolates the lattice triangle it falls in, then asks for its own colour.
+    # Texels: each interpolates the lattice triangle it falls in, then asks for its own relief and colour.
     texels, small, weights = rasterise_uv(np.einsum("pk,pkc->pc", w, uvs[at]), lattice.triangles, size)
     texel_values = np.einsum("tk,tkc->tc", weights, values[lattice.triangles[small]])
-    channels = [unit(texel_values[:, :3]) * 0.5 + 0.5]
+    normal = unit(texel_values[:, columns["normal"]])
+    if field.colour is not None or field.relief is not None:
+        point = texel_values[:, columns["point"]].astype(np.float64)
+    if field.relief is not None:
+        smooth = unit(texel_values[:, columns["surface"]].astype(np.float64))
+        moved = frame.from_model(in_chunks(field.relief, frame.to_model(point), threads))
+        normal = tangent_space(texel_values[:, columns["level_normal"]].astype(np.float64),
+                               texel_values[:, columns["level_tangent"]].astype(np.float64),
+                               relief_normals(point, moved, smooth, texels, size, texel))
+        point = moved
+    channels = [normal * 0.5 + 0.5]
     if field.colour is not None:
-        channels.append(texel_colours(field, frame, texel_values[:, 3:6].astype(np.float64), threads) / 255)
+        channels.append(texel_colours(field, frame, point, threads) / 255)
     if ao:
-        channels.append(texel_values[:, -1:])
+        channels.append(texel_values[:, columns["occlusion"]])
     image = np.zeros((size * size, sum(c.shape[1] for c in channels)), np.float32)
     image[texels] = np.concatenate(channels, axis=1)
     filled = np.zeros(size * size, bool)
@@ -365,6 +397,41 @@ def bake(field: Field, frame: Frame, vertices: np.ndarray, faces: np.ndarray, uv
     maps = np.round(np.clip(image, 0, 1) * 255).astype(np.uint8)
     colour = maps[..., 3:6] if field.colour is not None else None
     return Maps(maps[..., :3], colour, maps[..., -1:] if ao else None, float(found.mean()) if len(found) else 1.0)
+
+
+# Texels beside each other in the map belong to one chart when their points
+# are at most this many texels apart on the surface (their own spacing is about one).
+SAME_CHART = 3.0
+
+
+def relief_normals(points: np.ndarray, moved: np.ndarray, smooth: np.ndarray, texels: np.ndarray, size: int,
+                   texel: float) -> np.ndarray:
+    """The unit normal of the surface through texels' moved points (k, 3)
+    (asset frame; `points` before they moved) at flat map indices `texels`
+    of a size x size map: the cross product of the moved points'
+    differences along the map's columns and rows (central where both
+    neighbours are of the texel's chart, else one-sided), turned to the side
+    of the smooth surface's normal (k, 3), which a texel with no neighbour
+    on either axis keeps. texel: a texel's size on the surface, about."""
+    grid = np.full(size * size, -1, np.int64)
+    grid[texels] = np.arange(len(texels))
+    rows, cols = np.divmod(texels, size)
+    steps = []
+    for d_row, d_col in ((0, 1), (1, 0)):
+        ends = []
+        for sign in (1, -1):
+            r, c = rows + sign * d_row, cols + sign * d_col
+            inside = (r >= 0) & (r < size) & (c >= 0) & (c < size)
+            other = np.where(inside, grid[np.where(inside, r * size + c, 0)], -1)
+            near = other >= 0
+            near[near] = np.linalg.norm(points[other[near]] - points[near], axis=1) <= SAME_CHART * texel
+            ends.append(np.where(near[:, None], moved[np.maximum(other, 0)], moved))
+        steps.append(ends[0] - ends[1])
+    normal = np.cross(steps[0], steps[1])
+    normal *= np.where(np.einsum("kc,kc->k", normal, smooth) < 0, -1.0, 1.0)[:, None]
+    flat = np.linalg.norm(normal, axis=1) < 1e-20
+    normal[flat] = smooth[flat]
+    return unit(normal)
 
 
 def texel_colours(field: Field, frame: Frame, points: np.ndarray, threads: int) -> np.ndarray:

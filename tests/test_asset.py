@@ -199,6 +199,77 @@ def test_the_normal_map_turns_a_coarse_level_into_the_fields_surface():
     assert np.abs(maps.colour[rows, columns].astype(int) - colour(surface)).mean() < 2
 
 
+def ball(points: np.ndarray) -> np.ndarray:
+    """A smooth ball of radius 10, occupancy in [0, 1]."""
+    return 1 / (1 + np.exp(-4 * (10 - np.linalg.norm(points, axis=1))))
+
+
+def ridges(directions: np.ndarray) -> np.ndarray:
+    """The relief of `ball`'s example: how far out its surface stands along each unit direction (n, 3)."""
+    return 0.6 * np.sin(8 * directions[:, 0]) * np.cos(6 * directions[:, 1])
+
+
+def ridged(points: np.ndarray) -> np.ndarray:
+    """Points of `ball`'s surface moved onto the ridged one: what a model's relief does."""
+    directions = points / np.linalg.norm(points, axis=1, keepdims=True)
+    return directions * (10 + ridges(directions))[:, None]
+
+
+def test_the_normal_map_carries_relief_finer_than_the_field():
+    """With the example's relief, the decoded normal map is the normal of the
+    surface moved by it (here: a ball whose ridges the smooth field lacks),
+    found independently of the bake by differences across the ridged
+    surface; baked without the relief, it is the smooth ball's, far off."""
+    import trimesh
+
+    from sinshape.runtime import bake
+
+    sphere = trimesh.creation.icosphere(2, radius=10)
+    options = asset.AssetOptions((len(sphere.faces),), 256)
+    vertices, faces = np.asarray(sphere.vertices), np.asarray(sphere.faces)
+    source, split, uvs = asset.unwrap(vertices, faces, options)
+    normals = bake.vertex_normals(vertices, faces)[source]
+    tangents = bake.vertex_tangents(vertices[source], split, uvs, normals)
+    frame = bake.Frame(np.zeros(3), np.ones(3))
+    arrays = {"position": vertices[source], "normal": normals, "tangent": tangents, "texcoord_0": uvs, "faces": split}
+    points, rows, columns, at_normals, at_tangents = texel_centres(arrays, 256)
+    d = along_normals(ball, points, at_normals)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    # Two directions across each point, and the ridged surface's normal from its differences along them.
+    u = np.cross(d, np.where(np.abs(d[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]]))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    v = np.cross(d, u)
+    e = 1e-4
+    truth = np.cross(ridged(d + e * u) - ridged(d - e * u), ridged(d + e * v) - ridged(d - e * v))
+    truth *= np.sign((truth * d).sum(axis=1, keepdims=True)) / np.linalg.norm(truth, axis=1, keepdims=True)
+    angles = {}
+    for relief in (ridged, None):
+        maps = bake.bake(bake.Field(ball, None, relief), frame, vertices[source], split, uvs, normals, tangents, 256,
+                         voxel=1.0, reach=2.0, padding=options.padding, threads=1)
+        decoded = decoded_normals({**arrays, "normal_map": maps.normal}, rows, columns, at_normals, at_tangents)
+        angles[relief] = np.degrees(np.arccos(np.clip((decoded * truth).sum(axis=1), -1, 1)))
+    tilt = np.degrees(np.arccos(np.clip((truth * d).sum(axis=1), -1, 1)))
+    assert len(tilt) > 200 and np.percentile(tilt, 90) > 15  # the ridges tilt the surface
+    assert np.median(angles[ridged]) < 1 and np.percentile(angles[ridged], 90) < 2
+    assert np.median(angles[None]) > 5 * np.median(angles[ridged])
+
+
+def test_a_relief_models_asset_bakes_its_relief_into_the_normal_map_only(tiny_relief_model):
+    """The same levels either way (the smooth surface simplified), and their
+    normal maps turned by the example's relief, unless `detail` is off."""
+    model = load_model(tiny_relief_model, threads=1)
+    maps = {}
+    for detail in (True, False):
+        data, info = asset.asset_bytes(model, SampleRequest(2, scale=2, detail=detail), asset.AssetOptions((600,), 64),
+                                       threads=1)
+        document, binary = gltf.read(data)
+        arrays = gltf.level_arrays(document, binary, 0)
+        maps[detail] = (arrays["position"], arrays["normal_map"].astype(int))
+    assert np.array_equal(maps[True][0], maps[False][0])
+    changed = np.abs(maps[True][1] - maps[False][1]).max(axis=2) > 8
+    assert 0.05 < changed.mean() < 0.9
+
+
 def test_an_edit_is_packed_as_it_is_sampled():
     """A grown sample's asset is the grown sample's: its full mesh is the one `sinrun sample --grow` makes."""
     from sinshape.runtime import write
