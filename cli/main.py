@@ -456,6 +456,7 @@ def run_job(job, items, unit: str, name) -> None:
 @click.option("--relief", type=float, default=None,
               help="Voxels from a .png map's black to its white. Default: 4 times the model's height.")
 @request_option("lod")
+@request_option("detail")
 @click.option(SPELLED["models_map"][1], type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
               help="Which model goes where in a scattered world: a model's index per tile (0 the first model), "
                    "as a palette or greyscale .png (a pixel's value is the index, laid out as --map's) or a .npy "
@@ -465,7 +466,7 @@ def run_job(job, items, unit: str, name) -> None:
 @RESTART_OPTION
 @asset_options
 def world(model, others, seed, tiles, output, suffix, scale, frame, threads, workers, engine, address, arrange,
-          height_map, relief, lod, models_map, restart, lods, texture, ao):
+          height_map, relief, lod, detail, models_map, restart, lods, texture, ao):
     """Write tiles of an endless world: any tile on its own, seamless with its neighbours.
 
     The world spreads along the model's two horizontal axes (the two that are
@@ -482,7 +483,7 @@ def world(model, others, seed, tiles, output, suffix, scale, frame, threads, wor
     packed = assets.options_of(lods, texture, ao)
     loaded = open_model(model, threads)
     wanted = requests.world_request(loaded, seed, scale, frame, arrange, height_map, relief, lod,
-                                    [models.find(other) for other in others], models_map)
+                                    [models.find(other) for other in others], models_map, detail)
     output = output or Path(f"{loaded.path.stem}_world_seed{seed}")
     suffix = "glb" if packed else suffix
     if output.suffix.lower() in files.MESH_FORMATS and "{tile}" not in output.name:  # one mesh of the block

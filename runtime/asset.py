@@ -126,8 +126,8 @@ def sample_field(model, triplane, detail: bool = True) -> bake.Field:
 
 def tile_field(model, seed: int, tile, options) -> bake.Field:
     """The field of world tile (i, j) (its world made as world.WorldOptions
-    `options` say), in model units from its corner, and its colour: empty
-    above and below the world's heights, as its mesh is."""
+    `options` say), in model units from its corner, its colour and its
+    example's relief: empty above and below the world's heights, as its mesh is."""
     layout = world.world_layout(model)
     heights = world.tile_grid(model, layout, 1.0, options).positions[layout.up]
 
@@ -139,7 +139,11 @@ def tile_field(model, seed: int, tile, options) -> bake.Field:
     def colour(points):
         return world.tile_colours(model, seed, tile, points, options)[:, :3]
 
-    return bake.Field(occupancy, colour if world.coloured(model, options) else None)
+    def relief(points):
+        return world.tile_relief(model, seed, tile, points, options)
+
+    return bake.Field(occupancy, colour if world.coloured(model, options) else None,
+                      relief if world.relieved(model, options, colouring.RELIEF_SCALE) else None)
 
 
 def dense_surface(model, request, threads: int | None = None, progress=None) -> Dense:

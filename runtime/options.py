@@ -103,7 +103,7 @@ OPTIONS = (
     Option("largest", "bool", False, "Keep only the largest connected piece."),
     Option("detail", "bool", True, "The example's own surface detail, read by correspondence: its relief finer "
            "than a voxel on a mesh at scale 2 or finer, and a coloured model's colour. Off: the voxels' surface "
-           "and the decoder's colour, several times faster at scale 2 and above."),
+           "and the decoder's colour, several times faster at scale 2 and above.", ("sample", "tile")),
     Option("frame", "choice", FRAMES[0], "Vertex coordinates: the training mesh's frame (samples overlay it), "
            "finest-voxel units, or, for a tile, the training mesh's units from the tile's own corner (any tile).",
            ("sample", "tile"), choices=FRAMES),

@@ -217,7 +217,7 @@ class SampleRequest:
     def world_options(self) -> WorldOptions:
         """How a tile's world is made, and how finely the tile."""
         return WorldOptions(self.arrange, self.heights, self.lod, tuple(map(other_model, self.models)),
-                            self.models_map)
+                            self.models_map, self.detail)
 
     def world_fields(self) -> list:
         """The names of the world's fields given other than their defaults
@@ -361,7 +361,7 @@ def warnings(model, request: SampleRequest) -> list:
 
 def world_request(model, seed: int, scale: float = 1.0, frame: str = "input", arrange: str | None = None,
                   height_map=None, relief: float | None = None, lod: int = 0, models=(),
-                  models_map=None) -> SampleRequest:
+                  models_map=None, detail: bool = True) -> SampleRequest:
     """The request of a world's tiles (no tile yet) as a front end is asked
     for it: the model's own arrangement unless one is given, the height map
     and model map read from their files (world.read_height_map,
@@ -369,4 +369,4 @@ def world_request(model, seed: int, scale: float = 1.0, frame: str = "input", ar
     heights = read_height_map(height_map, model, relief) if height_map else None
     placed = read_model_map(models_map) if models_map else None
     return SampleRequest(seed, scale=scale, frame=frame, arrange=arrange or model.manifest.arrange, heights=heights,
-                         lod=lod, models=tuple(str(path) for path in models), models_map=placed)
+                         lod=lod, models=tuple(str(path) for path in models), models_map=placed, detail=detail)

@@ -69,7 +69,8 @@ from sinshape.core.files import read_regular
 from sinshape.core.manifest import ARRANGEMENTS, PLANE_AXES
 
 from . import cubes
-from .colour import example_palette, nearest_in_palette, planes_colouring
+from .bake import vertex_normals
+from .colour import RELIEF_SCALE, example_palette, nearest_in_palette, planes_colouring
 from .generate import check_seed, draw_noise, scaled_sizes, triplane
 from .mesh import colour_bytes
 from .options import MAX_TILE  # a tile request's range, declared with its options
@@ -341,8 +342,11 @@ class WorldOptions:
     lod: int = 0
     models: tuple = ()  # a scattered world's models after its first (the `model` its tiles are asked of): 1, 2, ...
     models_map: ModelMap | None = None  # which of them each scatter cell draws its object from
+    detail: bool = True  # the example's relief and colour by correspondence (off: the decoder's colour, no relief)
 
     def __post_init__(self):
+        if not isinstance(self.detail, bool):
+            raise InputError(f"`detail` must be true or false, got {self.detail!r}", "detail")
         if self.arrange not in ARRANGEMENTS:
             raise InputError(f"unknown `arrange` {self.arrange!r}; choose {' or '.join(ARRANGEMENTS)}", "arrange")
         if self.heights is not None and not isinstance(self.heights, HeightMap):
@@ -901,7 +905,9 @@ def point_field(model, seed: int, tile, points: np.ndarray, options: WorldOption
     in the neighbour's): (logits (n,) float32, hidden (n, D) float32, on the
     ground (n,) bool: a scatter world's points outside every object). With a
     list `sources`, also what each point reads most: the list gets, per
-    window or object, (its key for `window`, point indices, their cells in it)."""
+    window or object, (its key for `window`, point indices, their cells in
+    it, back: the (3, 3) map of a move in its cells to one of the points, a
+    row per cell axis)."""
     i, j = check_tile(tile)
     layout = world_layout(model)
     level = check_lod(model, options.lod)
@@ -930,7 +936,7 @@ def point_field(model, seed: int, tile, points: np.ndarray, options: WorldOption
         logits[chosen], hidden[chosen], ground[chosen] = point_tile(model, layout, seed, (i + t0, j + t1), local,
                                                                      level, options, found)
         if sources is not None:
-            sources.extend((key, chosen[index], cells) for key, index, cells in found)
+            sources.extend((key, chosen[index], cells, back) for key, index, cells, back in found)
     return logits, hidden, ground
 
 
@@ -952,16 +958,21 @@ def point_tile(model, layout: Layout, seed: int, tile: tuple, points: np.ndarray
             each, own = object_model(model, options, placed_object.model)
             inside = np.ones(len(points), bool)
             cells = np.empty((len(points), 3))
-            for axis, u, low, extent, mirror in zip(own.horizontal, (u0, u1), placed_object.corner,
-                                                    placed_object.extent, placed_object.mirror):
+            back = np.zeros((3, 3))
+            for axis, world_axis, u, low, extent, mirror in zip(own.horizontal, (h0, h1), (u0, u1),
+                                                                placed_object.corner, placed_object.extent,
+                                                                placed_object.mirror):
                 position = u - low
                 inside &= (position >= 0) & (position <= extent)
                 cells[:, axis] = extent - position if mirror else position
+                back[axis, world_axis] = -1.0 if mirror else 1.0
             if not inside.any():
                 continue
             found = object_window(model, options, seed, placed_object, level)[2]
             cells[:, own.up] = np.clip(z - placed_object.height, 0, own.stride[own.up])
+            back[own.up, up] = 1.0
             cells *= np.asarray(found.cells)
+            back /= np.asarray(found.cells, np.float64)[:, None]
             hid = point_hidden(found, cells[inside])
             better = np.zeros(len(points), bool)
             candidate = capped(head_logits(each.head, hid), (z - placed_object.height - own.stride[own.up])[inside])
@@ -973,9 +984,10 @@ def point_tile(model, layout: Layout, seed: int, tile: tuple, points: np.ndarray
             if sources is not None:
                 owner[better] = len(objects)
                 owner_cells[better] = cells[better]
-                objects.append((*placed_object.cell, "scatter", placed_object.model))
+                objects.append(((*placed_object.cell, "scatter", placed_object.model), back))
         if sources is not None:
-            sources.extend((key, np.flatnonzero(owner == k), owner_cells[owner == k]) for k, key in enumerate(objects))
+            sources.extend((key, np.flatnonzero(owner == k), owner_cells[owner == k], back)
+                           for k, (key, back) in enumerate(objects))
         return logits, hidden, ground
     levels = np.clip(z - rise, 0, layout.stride[up])
     blend = ContrastSum(model.manifest.contrast)
@@ -997,8 +1009,9 @@ def point_tile(model, layout: Layout, seed: int, tile: tuple, points: np.ndarray
                 heaviest[heavier], owner[heavier] = weight[heavier], len(keys)
                 owner_cells = cells.copy() if owner_cells is None else np.where(heavier[:, None], cells, owner_cells)
                 keys.append((a, b, "blend", 0))
-    if sources is not None:
-        sources.extend((key, np.flatnonzero(owner == k), owner_cells[owner == k]) for k, key in enumerate(keys))
+    if sources is not None:  # a window's cells run along the world's axes
+        sources.extend((key, np.flatnonzero(owner == k), owner_cells[owner == k],
+                        np.diag(1 / np.asarray(found.cells, np.float64))) for k, key in enumerate(keys))
     total = blend.total()
     return capped(head_logits(model.head, total), z - rise - layout.stride[up]), total, np.zeros(len(points), bool)
 
@@ -1038,14 +1051,15 @@ def tile_colours(model, seed: int, tile, vertices: np.ndarray, options: WorldOpt
     the tile's corner, as tile_mesh gives them): a format-5 model's, read
     from the example by correspondence in the window that weighs most there
     (a scatter world's: in the object there), each the colour around it
-    (`footprint` voxels); a format-4 model's (and a coarser tile's, `lod`),
-    the colour head of the hidden vector there, blended as the occupancy
+    (`footprint` voxels); a format-4 model's (and a coarser tile's, `lod`,
+    or any without `detail`), the colour head of the hidden vector there, blended as the occupancy
     is; a format-5 model's coarser tile then takes the example's nearest
     colour (colour.example_palette: its tiles' means), so that no hue the
-    example lacks shows in the distance either. A scatter world's ground is
+    example lacks shows in the distance either (and without `detail`). A scatter world's ground is
     grey. A vertex on a face two tiles share gets the same colour from
     both. Returns (n, 4) uint8 RGBA."""
-    if not options.models and (model.colour_tiles is None or options.lod):
+    by_correspondence = options.detail and not options.lod
+    if not options.models and (model.colour_tiles is None or not by_correspondence):
         _, hidden, ground = point_field(model, seed, tile, vertices, options)
         rgb = head_colour(model.head, hidden)
     else:  # each vertex its heaviest window's (or its object's) colour, read from the example or its model's head
@@ -1053,11 +1067,11 @@ def tile_colours(model, seed: int, tile, vertices: np.ndarray, options: WorldOpt
         _, hidden, ground = point_field(model, seed, tile, vertices, options, sources)
         rgb = np.empty((len(vertices), 3), np.float32)
         palettes = []
-        for (a, b, arrange, k), index, cells in sources:
+        for (a, b, arrange, k), index, cells, _ in sources:
             each, own = object_model(model, options, k)
             if not len(index):
                 continue
-            if each.colour_tiles is not None and not options.lod:
+            if each.colour_tiles is not None and by_correspondence:
                 rgb[index] = window_colouring(each, own, seed, a, b, arrange)(cells, footprint)
             elif each.manifest.colour:
                 rgb[index] = head_colour(each.head, hidden[index, :each.manifest.hidden])
@@ -1070,9 +1084,55 @@ def tile_colours(model, seed: int, tile, vertices: np.ndarray, options: WorldOpt
     if options.models:
         for index, tiles in palettes:
             out[index, :3] = nearest_in_palette(out[index, :3], example_palette(tiles))
-    elif model.colour_tiles is not None and options.lod:
+    elif model.colour_tiles is not None and not by_correspondence:
         out[~ground, :3] = nearest_in_palette(out[~ground, :3], example_palette(model.colour_tiles))
     return out
+
+
+def tile_relief(model, seed: int, tile, points: np.ndarray, options: WorldOptions = PLAIN) -> np.ndarray:
+    """Points of tile (i, j)'s surface (model units from its corner, as
+    tile_mesh gives them) moved by the example's relief under them (as a
+    sample's vertices are: colour.SampleSurface.relief), read in the window
+    that weighs most at each (a scatter world's: in its object), as its
+    colour is; points of a model without relief tiles (or a scatter world's
+    ground) stay. A point on a face two tiles share moves alike in both.
+    (n, 3) float64."""
+    sources = []
+    point_field(model, seed, tile, points, options, sources)
+    moved = np.array(points, np.float64).reshape(-1, 3)
+    for (a, b, arrange, k), index, cells, back in sources:
+        each, own = object_model(model, options, k)
+        if each.tiles is None or not len(index):
+            continue
+        surface = window_colouring(each, own, seed, a, b, arrange)
+        moved[index] += (surface.relief(cells) - cells) @ back
+    return moved
+
+
+def relieved(model, options: WorldOptions, scale: float) -> bool:
+    """Whether a tile's mesh takes its example's relief: at full detail, on
+    a mesh fine enough to carry it (colour.RELIEF_SCALE), a model with relief
+    tiles among the world's."""
+    return (options.detail and not options.lod and scale >= RELIEF_SCALE
+            and any(each.tiles is not None for each in (model, *options.models)))
+
+
+def relief_normals(model, seed: int, tile, points: np.ndarray, normals: np.ndarray, step: float,
+                   options: WorldOptions = PLAIN) -> np.ndarray:
+    """The unit normals (n, 3) of the relief surface (tile_relief) at a tile's
+    points (before they moved), whatever mesh they belong to: the cross
+    product of the moved points' differences `step` voxels either side
+    along two directions across the field's `normals` there (so that two
+    tiles give a vertex they share the same normal)."""
+    across = np.cross(normals, np.where(np.abs(normals[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]]))
+    across /= np.linalg.norm(across, axis=1, keepdims=True)
+    other = np.cross(normals, across)
+    probes = np.concatenate([points + sign * step * d for d in (across, other) for sign in (1, -1)])
+    moved = tile_relief(model, seed, tile, probes, options).reshape(4, len(points), 3)
+    out = np.cross(moved[0] - moved[1], moved[2] - moved[3])
+    length = np.linalg.norm(out, axis=1, keepdims=True)
+    out = np.where(length > 0, out / np.where(length > 0, length, 1), normals)
+    return out * np.where(np.einsum("nc,nc->n", out, normals) < 0, -1.0, 1.0)[:, None]
 
 
 def coloured(model, options: WorldOptions = PLAIN) -> bool:
@@ -1169,6 +1229,16 @@ def tile_surface(model, seed: int, tile, scale: float = 1.0, options: WorldOptio
     progress: as tile_occupancy's."""
     vertices, faces = tile_mesh(model, seed, tile, scale, memory_limit, options=options, progress=progress)
     normals = tile_normals(model, seed, tile, vertices, options)
+    if relieved(model, options, scale) and len(vertices):
+        layout = world_layout(model)
+        border = np.any([(vertices[:, h] == 0) | (vertices[:, h] == layout.stride[h]) for h in layout.horizontal],
+                        axis=0)
+        moved = tile_relief(model, seed, tile, vertices, options)
+        # The moved mesh's own normals inside; on the border, normals its neighbour gives alike.
+        inside = vertex_normals(moved, faces)
+        inside[border] = relief_normals(model, seed, tile, vertices[border], normals[border].astype(np.float64),
+                                        0.5 / scale, options)
+        vertices, normals = moved, inside.astype(np.float32)
     colours = tile_colours(model, seed, tile, vertices, options, 1 / scale) if coloured(model, options) else None
     if options.lod and len(faces):
         layout = world_layout(model)

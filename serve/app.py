@@ -354,6 +354,7 @@ class TileQuery:
     lod: option_query("lod") = 0
     models: option_query("models") = ()  # this server's models by name, once each: models=a&models=b
     models_map: option_query("models_map") = None  # as text: 0,1;1,0
+    detail: option_query("detail") = True
 
 
 async def tile_answer(request: Request, q: TileQuery, heights=None, asset=None) -> Response:
@@ -362,7 +363,7 @@ async def tile_answer(request: Request, q: TileQuery, heights=None, asset=None) 
     wanted = SampleRequest.of(dict(seed=q.seed, scale=q.scale, frame=q.frame, tile=(q.i, q.j),
                                    arrange=q.arrange or model.manifest.arrange, heights=heights, lod=q.lod,
                                    models=tuple(str(find(request, other).path) for other in q.models),
-                                   models_map=placed))
+                                   models_map=placed, detail=q.detail))
     response = await answer(request, model, Job(q.name, wanted, q.format, asset=asset))
     response.headers["X-Tile-Corner"] = ",".join(map(str, world.tile_corner(model, (q.i, q.j))))
     return response

@@ -363,3 +363,33 @@ def test_a_tiles_normals_make_none_of_its_neighbours_windows(model, fresh, monke
     surface = world.tile_surface(model, 4, (3, -2))
     assert len(surface.normals) == len(surface.vertices) > 100
     assert sorted(made) == sorted(world.window_seed(4, a, b) for a in (2, 3) for b in (-3, -2))
+
+
+def test_a_fine_tile_takes_its_examples_relief_and_meets_its_neighbour_to_the_bit(tiny_relief_model):
+    """At scale 2 a relief model's tile moves its vertices by the example's
+    relief (at most colour.RELIEF voxels) and shades the moved surface; two
+    neighbours still share every border vertex and its normal exactly.
+    Without `detail`, or at scale 1, the tile is the voxels' surface."""
+    from sinshape.runtime import colour
+
+    model = load_model(tiny_relief_model, threads=1)
+    layout = world.world_layout(model)
+    h0 = layout.horizontal[0]
+    made = {t: world.tile_surface(model, 5, t, 2) for t in ((0, 0), (1, 0))}
+    plain = world.tile_surface(model, 5, (0, 0), 2, world.WorldOptions(detail=False))
+    vertices, _ = world.tile_mesh(model, 5, (0, 0), 2)
+    assert np.array_equal(plain.vertices, vertices) and np.array_equal(made[0, 0].faces, plain.faces)
+    moved = np.linalg.norm(made[0, 0].vertices - plain.vertices, axis=1)
+    assert np.percentile(moved, 90) > 0.05 and moved.max() <= colour.RELIEF + 1e-9
+    turned = np.einsum("nc,nc->n", made[0, 0].normals, plain.normals)
+    assert np.percentile(turned, 10) < 0.99 and np.allclose(np.linalg.norm(made[0, 0].normals, axis=1), 1, atol=1e-5)
+    # The border's vertices, found where they were before the relief moved them.
+    plain_right = world.tile_surface(model, 5, (1, 0), 2, world.WorldOptions(detail=False))
+    on_border = [plain.vertices[:, h0] == layout.stride[h0], plain_right.vertices[:, h0] == 0]
+    mine = {tuple(np.round(v - np.eye(3)[h0] * layout.stride[h0], 12)): tuple(n)
+            for v, n in zip(made[0, 0].vertices[on_border[0]], made[0, 0].normals[on_border[0]])}
+    theirs = {tuple(np.round(v, 12)): tuple(n)
+              for v, n in zip(made[1, 0].vertices[on_border[1]], made[1, 0].normals[on_border[1]])}
+    assert len(mine) > 5 and mine == theirs
+    coarse = world.tile_surface(model, 5, (0, 0), 1)
+    assert np.array_equal(coarse.vertices, world.tile_mesh(model, 5, (0, 0), 1)[0])
