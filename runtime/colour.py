@@ -22,7 +22,8 @@ neighbour's match shifted by the step between them when it is nearer, or a
 random block near their own match. Each finer level halves the blocks: a
 child inherits its parent's match, twice as far, plus its place in the
 parent (Lefebvre and Hoppe 2005), and in REFINE rounds takes a neighbour's
-match continued, or its own moved by one, when that fits clearly better. A
+match continued, or its own moved by one, when that fits clearly better
+(at the finest level, voxels compared alone in FINEST_REFINE rounds). A
 match continued (inherited, or a neighbour's) is weighed at COHERENT of its
 distance, so a piece stays whole unless another place fits better. A point
 p then stands for q = J(u) + (p - u), u = round(p), and reads the tile of
@@ -49,13 +50,19 @@ from sinshape.core.manifest import DEPTH_RANGE, DISTANCE_STEP
 
 from . import generate, query
 
-# The patch: a voxel and its six neighbours.
+# The patch of a block: the block and its six neighbours. At the finest
+# level (voxels), where a match comes from its parent block and its
+# neighbours and only fine-tunes them, a voxel alone (FINEST_PATCH): 7 times
+# less to compare, 2.6 to 2.9 times faster matching for 1-2% more distance
+# (docs/BENCHMARKS.md, "Coherent pieces").
 PATCH = np.array([(0, 0, 0), (1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1), (0, 0, -1)])
+FINEST_PATCH = PATCH[:1]
 QUANTUM = 256  # hidden sums are compared in steps of 1/QUANTUM
 KEY_VALUES, KEY_QUANTUM = 8, 4  # a block's random choices are keyed by its first 8 hidden sums in steps of 1/4
 LEVELS = 3  # matched first on blocks of 2^LEVELS voxels a side, then refined by halves down to voxels
 ITERATIONS = 4  # PatchMatch's rounds on the coarsest blocks
-REFINE = 2  # rounds at each finer level
+REFINE = 2  # rounds at each finer level but the finest
+FINEST_REFINE = 1  # rounds at the finest
 PROPAGATION = (1,)  # neighbours this many voxels away along each axis offer their match
 SEARCH = (8, 4, 2, 1)  # random candidates within this many voxels of the current match
 SEED_RATE = 32  # about one block in this many searches the whole example
@@ -290,12 +297,12 @@ def pyramid(model, planes: list, size) -> Pyramid:
     return Pyramid(planes, model.head.bias1, size)
 
 
-def patches(hidden_at, voxels: np.ndarray) -> np.ndarray:
-    """The patch of each voxel, (n, 3) -> (n, 7 * D) float32: its integer
-    hidden sums and its six neighbours' (|values| < 2^24), so squared
-    distances are integers below 2^53, exact in float64 in any order of
-    summation (a matrix product included)."""
-    return np.concatenate([hidden_at(voxels + offset) for offset in PATCH], axis=1)
+def patches(hidden_at, voxels: np.ndarray, offsets: np.ndarray = PATCH) -> np.ndarray:
+    """The patch of each voxel, (n, 3) -> (n, len(offsets) * D) float32: its
+    integer hidden sums and those of the voxels `offsets` away (|values| <
+    2^24), so squared distances are integers below 2^53, exact in float64
+    in any order of summation (a matrix product included)."""
+    return np.concatenate([hidden_at(voxels + offset) for offset in offsets], axis=1)
 
 
 def content_keys(hidden: np.ndarray) -> np.ndarray:
@@ -353,14 +360,15 @@ def improve(level: "Level", sample: np.ndarray, current: np.ndarray, best: np.nd
 
 class Level:
     """One level of the example's side of matching: the blocks a match may
-    land in (those holding a voxel with tiles to read) and the
-    reconstruction's patch at each."""
+    land in (those holding a voxel with tiles to read), the reconstruction's
+    patch at each (of `offsets`), and the refinement's rounds there."""
 
-    def __init__(self, band: np.ndarray, reference_at, size):
+    def __init__(self, band: np.ndarray, reference_at, size, offsets: np.ndarray = PATCH, rounds: int = REFINE):
         self.band = band  # (B, 3), in C order
+        self.offsets, self.rounds = offsets, rounds
         self.row = np.full(tuple(size), -1, np.int64)
         self.row[tuple(self.band.T)] = np.arange(len(self.band))
-        self.reference = patches(reference_at, self.band)  # (B, K)
+        self.reference = patches(reference_at, self.band, offsets)  # (B, K)
         reference = self.reference.astype(np.float64)
         self.norms = np.einsum("mk,mk->m", reference, reference)
 
@@ -393,7 +401,7 @@ class Level:
     def search(self, sample_at, blocks: np.ndarray) -> np.ndarray:
         """PatchMatch: the example block J(u) of each block u (n, 3) of a
         sample, whose hidden sums `sample_at` gives: (n, 3) int64."""
-        sample = patches(sample_at, blocks)
+        sample = patches(sample_at, blocks, self.offsets)
         keys = content_keys(sample_at(blocks))
         band, count = self.band, len(self.band)
         lookup = voxel_lookup(blocks)
@@ -427,16 +435,16 @@ class Level:
 
     def refine(self, sample_at, blocks: np.ndarray, inherited: np.ndarray) -> np.ndarray:
         """Each block u (n, 3) of a sample starting from its `inherited`
-        match (a match continued), in REFINE rounds offered each neighbour's
-        match continued, then its own moved by one block along each axis.
-        One whose match is off the band after them searches the whole
-        example. (n, 3) int64."""
-        sample = patches(sample_at, blocks)
+        match (a match continued), in the level's rounds offered each
+        neighbour's match continued, then its own moved by one block along
+        each axis. One whose match is off the band after them searches the
+        whole example. (n, 3) int64."""
+        sample = patches(sample_at, blocks, self.offsets)
         lookup = voxel_lookup(blocks)
         current = inherited.copy()
         best = self.distance(sample, current) * COHERENT
         everyone = np.ones(len(blocks), bool)
-        for _ in range(REFINE):
+        for _ in range(self.rounds):
             previous = current.copy()
             candidates = []
             for shift in axis_steps(1):
@@ -457,9 +465,9 @@ class Matcher:
 
     def __init__(self, tiles: Tiles, reference: Pyramid):
         band = tiles.band()
-        self.levels = []
-        for level in range(LEVELS + 1):
-            blocks = np.unique(band >> level, axis=0)
+        self.levels = [Level(band, reference.at(0), reference.size, FINEST_PATCH, FINEST_REFINE)]
+        for level in range(1, LEVELS + 1):
+            blocks = unique_voxels(band >> level)
             self.levels.append(Level(blocks, reference.at(level), -(-reference.size // (1 << level))))
 
     def match(self, sample: Pyramid, voxels: np.ndarray) -> np.ndarray:
@@ -469,15 +477,25 @@ class Matcher:
                      f"matching {len(voxels)} voxels to the example")
         if not len(voxels):
             return np.zeros((0, 3), np.int64)
-        blocks = np.unique(voxels >> LEVELS, axis=0)
+        blocks = unique_voxels(voxels >> LEVELS)
         matched = self.levels[LEVELS].search(sample.at(LEVELS), blocks)
         for level in range(LEVELS - 1, -1, -1):
-            finer = np.unique(voxels >> level, axis=0) if level else voxels
+            finer = unique_voxels(voxels >> level) if level else voxels
             parents = finer >> 1
             inherited = 2 * matched[voxel_lookup(blocks)(parents)] + (finer - 2 * parents)
             matched = self.levels[level].refine(sample.at(level), finer, inherited)
             blocks = finer
         return matched
+
+
+def unique_voxels(voxels: np.ndarray) -> np.ndarray:
+    """np.unique(voxels, axis=0) of (n, 3) non-negative voxels, in the same
+    (C) order, by one integer per voxel: several times faster than
+    comparing rows."""
+    if not len(voxels):
+        return voxels.reshape(0, 3)
+    size = voxels.max(axis=0) + 1
+    return np.stack(np.unravel_index(np.unique(np.ravel_multi_index(voxels.T, size)), size), axis=1)
 
 
 def voxel_lookup(voxels: np.ndarray):
