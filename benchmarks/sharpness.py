@@ -23,20 +23,28 @@ import numpy as np
 PER_AREA, PROBES, RADIUS = 16.0, 4000, 1.0
 
 
-def deviation(vertices: np.ndarray, faces: np.ndarray, seed: int = 0) -> float:
-    """RMS distance, in the vertices' units, of surface points from the plane fitted to the points within RADIUS."""
-    from scipy.spatial import cKDTree
-
+def surface_points(vertices: np.ndarray, faces: np.ndarray, per_area: float = PER_AREA,
+                   rng: np.random.Generator | None = None) -> np.ndarray:
+    """Points drawn uniformly on a mesh's surface, `per_area` per square unit."""
     triangles = vertices[faces]
     areas = 0.5 * np.linalg.norm(np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0]), axis=1)
-    rng = np.random.default_rng(seed)
-    count = int(areas.sum() * PER_AREA)
+    rng = rng or np.random.default_rng(0)
+    count = int(areas.sum() * per_area)
     face = rng.choice(len(faces), count, p=areas / areas.sum())
     u, v = rng.random(count), rng.random(count)
     flip = u + v > 1
     u[flip], v[flip] = 1 - u[flip], 1 - v[flip]
-    points = triangles[face, 0] + u[:, None] * (triangles[face, 1] - triangles[face, 0]) \
+    return triangles[face, 0] + u[:, None] * (triangles[face, 1] - triangles[face, 0]) \
         + v[:, None] * (triangles[face, 2] - triangles[face, 0])
+
+
+def deviation(vertices: np.ndarray, faces: np.ndarray, seed: int = 0) -> float:
+    """RMS distance, in the vertices' units, of surface points from the plane fitted to the points within RADIUS."""
+    from scipy.spatial import cKDTree
+
+    rng = np.random.default_rng(seed)
+    points = surface_points(vertices, faces, PER_AREA, rng)
+    count = len(points)
     tree = cKDTree(points)
     probes = points[rng.choice(count, min(PROBES, count), replace=False)]
     out = []
