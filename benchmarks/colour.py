@@ -98,7 +98,9 @@ def sampling(path: str, seeds: int, scales=(1, 4)) -> None:
     from sinshape.runtime import generate, load_model, write
 
     coloured = load_model(path)
-    ways = {"geometry": dataclasses.replace(coloured, manifest=dataclasses.replace(coloured.manifest, colour=False)),
+    # Geometry alone: no colour and no tiles (which would give its mesh the example's relief at scale 2 and up).
+    ways = {"geometry": dataclasses.replace(coloured, manifest=dataclasses.replace(coloured.manifest, colour=False),
+                                            tiles=None),
             "colour head": dataclasses.replace(coloured, tiles=None)}
     if coloured.tiles is not None:
         ways["correspondence"] = coloured

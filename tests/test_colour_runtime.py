@@ -371,7 +371,7 @@ def test_relief_raises_a_point_by_the_examples_depth_under_it():
     tiles = striped_floor()
     x = np.linspace(1.6, 3.4, 37)
     points = np.stack([x, np.full_like(x, 2.0), np.full_like(x, 2.0)], axis=1)
-    moved = colour.relief(tiles, lambda voxels: voxels, points, np.array([6, 6, 6]))
+    moved = colour.relief(tiles, lambda voxels: voxels, points, np.array([6, 6, 6]), tiles.distance)
     np.testing.assert_allclose(moved[:, :2], points[:, :2])  # along the floor's normal only
     rows = (x + 0.5) % 1 * 8  # texel rows along x within each voxel's tile
     brick, mortar = (rows > 2.6) & (rows < 5.4), (rows < 1.4) | (rows > 6.6)
@@ -379,7 +379,7 @@ def test_relief_raises_a_point_by_the_examples_depth_under_it():
     np.testing.assert_allclose(moved[brick, 2], 2.25, atol=0.01)
     np.testing.assert_allclose(moved[mortar, 2], 1.75, atol=0.01)
     # A point off the floor's smooth surface takes the same detail: only the relief is carried.
-    lifted = colour.relief(tiles, lambda voxels: voxels, points + (0, 0, 0.2), np.array([6, 6, 6]))
+    lifted = colour.relief(tiles, lambda voxels: voxels, points + (0, 0, 0.2), np.array([6, 6, 6]), tiles.distance)
     np.testing.assert_allclose(lifted[:, 2] - 0.2, moved[:, 2], atol=0.005)  # the grid holds distances in steps of 1/63.5
 
 

@@ -111,7 +111,8 @@ def test_a_geometry_only_examples_depth_tiles_keep_its_relief_finer_than_a_voxel
     # above the joints) take its ridges and joints: within a tenth of a voxel of the block's own top.
     x = np.linspace(-0.95, 0.95, 400)
     flat = np.stack([x, np.zeros_like(x), np.full_like(x, 1.07)], axis=1)
-    moved = colour.relief(read, lambda voxels: voxels, (flat - box_low) / spacing - 0.5, np.array(solid.shape))
+    moved = colour.relief(read, lambda voxels: voxels, (flat - box_low) / spacing - 0.5, np.array(solid.shape),
+                          read.distance)
     height = box_low[2] + (moved[:, 2] + 0.5) * spacing[2]
     top = 1.0 + 0.03 * ((x + 1) % 0.25 < 0.19)
     assert np.abs(height - top).mean() < 0.1 * spacing[2]
