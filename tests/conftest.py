@@ -13,6 +13,8 @@ import h5py
 import numpy as np
 import pytest
 
+from browser import CHROMIUM
+
 
 # How this process takes each signal when the session starts.
 SESSION_HANDLERS = {signum: signal.getsignal(signum) for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGALRM)}
@@ -56,6 +58,24 @@ def peak_rss_mb():
         return None
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     return peak / (1 << 20 if sys.platform == "darwin" else 1 << 10)  # bytes on macOS, kB on Linux
+
+
+# The marker a test gets for asking for a fixture: those that drive a real
+# browser (tests/browser.py's chromium) and node (test_mirror.run_node).
+MARKED_BY_FIXTURE = {"browser": "browser", "page": "browser", "run_node": "node"}
+
+
+def pytest_collection_modifyitems(config, items):
+    """Mark the tests that drive chromium `browser` and those that run node
+    `node` (`pytest -m "not browser"` leaves them out), and skip the browser
+    ones, saying why, where chromium is missing: the rest of their modules
+    still run. (run_node skips its own where node is missing.)"""
+    missing = None if Path(CHROMIUM).is_file() else "needs Debian's chromium (apt-get install chromium; .ci/run does)"
+    for item in items:
+        for name in {MARKED_BY_FIXTURE[f] for f in getattr(item, "fixturenames", ()) if f in MARKED_BY_FIXTURE}:
+            item.add_marker(getattr(pytest.mark, name))
+            if name == "browser" and missing:
+                item.add_marker(pytest.mark.skip(reason=missing))
 
 
 @pytest.hookimpl(tryfirst=True)

@@ -3,7 +3,6 @@
 import io
 import json
 import re
-import shutil
 import time
 from pathlib import Path
 
@@ -12,13 +11,10 @@ import pytest
 import trimesh
 from PIL import Image
 
-from browser import CLICKABLE_JS, GUARD_SECONDS, edits_text, layout_in_page, wait_cells, wait_world
+from browser import CHROMIUM, CLICKABLE_JS, GUARD_SECONDS, edits_text, layout_in_page, wait_cells, wait_world
 from test_serve import running_server
 
 sync_api = pytest.importorskip("playwright.sync_api", reason="needs playwright (the test extra)")
-CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
-if not shutil.which(CHROMIUM):
-    pytest.skip("needs Debian's chromium (apt-get install chromium; .ci/run does)", allow_module_level=True)
 
 BACKGROUND = np.array([0x20, 0x24, 0x2A])  # the view's background colour (serve/static/viewer/scene.js)
 # WebGL without a GPU: chromium's software renderer.

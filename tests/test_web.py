@@ -13,7 +13,7 @@ import pytest
 from click.testing import CliRunner
 from onnx import TensorProto, helper
 
-from browser import (CHROMIUM, CLICKABLE_JS, edits_text, http_server_process, launch, layout_in_page, open_page,
+from browser import (CLICKABLE_JS, edits_text, http_server_process, launch, layout_in_page, open_page,
                      site_server_process, wait_cells)
 from conftest import TINY_ONNX as TINY, sealed_bytes
 from sinshape import models
@@ -26,9 +26,6 @@ from sinshape.serve import site
 from test_cli_train import assert_one_line_error
 from test_request import expected as expected_outcome
 
-pytest.importorskip("playwright.sync_api", reason="needs playwright (the test extra)")
-if not Path(CHROMIUM).is_file():
-    pytest.skip("needs Debian's chromium (apt-get install chromium; .ci/run does)", allow_module_level=True)
 
 VECTORS = json.loads((Path(__file__).parent / "data" / "noise_vectors.json").read_text())
 TERRAIN = models.find("terrain")
