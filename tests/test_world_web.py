@@ -4,11 +4,12 @@ the browser's runtime makes none), nearest first, in bounded memory; the
 camera flies and walks by keys, the mouse and fingers."""
 
 import math
+import time
 
 import numpy as np
 import pytest
 
-from browser import wait_world
+from browser import GUARD_SECONDS, wait_world
 from test_serve_page import page  # noqa: F401 (the served page's fixture)
 from test_web import terrain, wait_done  # noqa: F401
 from sinshape.runtime import world
@@ -82,12 +83,27 @@ def camera_pose(page) -> dict:
                forward: camera.getWorldDirection(camera.position.clone()).toArray(), quaternion: camera.quaternion.toArray() }; }""")
 
 
+def settled(page, before: dict) -> dict:
+    """The camera's pose once it has moved from `before` and stopped (the
+    same on two looks a frame or more apart): what an input did, however
+    long the page took to draw it. Polled; the guard only stops a hang."""
+    last, deadline = camera_pose(page), time.monotonic() + GUARD_SECONDS
+    while time.monotonic() < deadline:
+        page.wait_for_timeout(50)
+        now = camera_pose(page)
+        if now == last and now != before:
+            return now
+        last = now
+    raise AssertionError(f"the camera did not move and settle within {GUARD_SECONDS} s")
+
+
 def hold(page, key, ms) -> dict:
-    """Hold a key down for `ms`: the camera's pose after."""
+    """Hold a key down for `ms` (how far the camera goes): its pose once it has stopped."""
+    before = camera_pose(page)
     page.keyboard.down(key)
     page.wait_for_timeout(ms)
     page.keyboard.up(key)
-    return camera_pose(page)
+    return settled(page, before)
 
 
 # Runs in the page, in world mode: the drawing resolution (the canvas's width over its width on
@@ -136,10 +152,7 @@ def test_keys_and_the_mouse_move_the_camera(page):
     left = np.subtract(hold(page, "a", 300)["position"], moved["position"])
     assert left[1] == 0 and abs(np.dot(left, level)) < 1e-6 * np.linalg.norm(left) and np.cross(level, left)[1] > 0
     moved = camera_pose(page)
-    page.keyboard.down("ArrowLeft")
-    page.wait_for_timeout(300)
-    page.keyboard.up("ArrowLeft")
-    turned = camera_pose(page)
+    turned = hold(page, "ArrowLeft", 300)
     assert turned["position"] == moved["position"] and turned["quaternion"] != moved["quaternion"]
     box = page.locator("#view canvas").bounding_box()
     x, y = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
@@ -147,8 +160,7 @@ def test_keys_and_the_mouse_move_the_camera(page):
     page.mouse.down()
     page.mouse.move(x + 60, y + 40, steps=4)
     page.mouse.up()
-    page.wait_for_timeout(100)
-    looked = camera_pose(page)
+    looked = settled(page, turned)
     assert looked["position"] == turned["position"] and looked["forward"][1] < turned["forward"][1]  # dragged down: looks down
     assert not page.errors and not page.outside
 
@@ -167,12 +179,12 @@ def test_on_a_phone_fingers_look_and_move_and_walking_keeps_to_the_ground(page):
 
         def swipe(fingers, dx, dy):
             points = lambda k: [{"x": fx + dx * k / 5, "y": y + dy * k / 5, "id": n} for n, fx in enumerate(fingers)]  # noqa: E731
+            before = camera_pose(page)
             touch.send("Input.dispatchTouchEvent", {"type": "touchStart", "touchPoints": points(0)})
             for k in range(1, 6):
                 touch.send("Input.dispatchTouchEvent", {"type": "touchMove", "touchPoints": points(k)})
             touch.send("Input.dispatchTouchEvent", {"type": "touchEnd", "touchPoints": []})
-            page.wait_for_timeout(100)
-            return camera_pose(page)
+            return settled(page, before)
 
         start = camera_pose(page)
         turned = swipe([x], 60, 0)
