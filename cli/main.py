@@ -422,10 +422,31 @@ def run_job(job, items, unit: str, name) -> None:
                f"index {result['index']}")
 
 
+# What `world` says of a request option beyond the table's words.
+WORLD_SETTINGS = {
+    "seed": dict(default=0, help="The world's seed: the same seed, the same world."),
+    "frame": dict(more_help="A tile in the training mesh's frame or finest voxels is placed where it lies in the world "
+                            "(near the origin: float32 cannot place tiles far out); with 'tile' the index gives each "
+                            "tile's corner."),
+    "arrange": dict(default=None, show_default=False,
+                    more_help="Default: what the model records (`sinrun orient --arrange`), else blend."),
+}
+
+
+def world_options(command):
+    """Every option of a tile request (runtime/options.py), each made from
+    the table, but those SPELLED otherwise: a new option of a tile reaches
+    `world` and its request without a line here."""
+    for option in reversed(OPTION.values()):
+        if "tile" in option.goes_with and option.name not in SPELLED:
+            command = request_option(option.name, **WORLD_SETTINGS.get(option.name, {}))(command)
+    return command
+
+
 @cli.command()
 @MODEL_ARGUMENT
 @click.argument(SPELLED["models"][0], nargs=-1, metavar="[MODEL]...")
-@request_option("seed", default=0, help="The world's seed: the same seed, the same world.")
+@world_options
 @click.option(*reversed(SPELLED["tile"]), type=TILES, required=True, metavar="I0:I1,J0:J1",
               help="The tiles to write, both ends included: -8:8,-8:8 is 17 x 17 tiles around the origin; 3,4 "
                    "is one. A tile is half the training extent along each horizontal axis.")
@@ -436,10 +457,6 @@ def run_job(job, items, unit: str, name) -> None:
                    "MODEL_world_seedN/.")
 @click.option("--format", "suffix", type=click.Choice(files.OUTPUT_FORMATS), default="ply",
               show_default=True, help="The tiles' format, for a folder: a mesh, or npz for the occupancy grid.")
-@SCALE_OPTION
-@request_option("frame", more_help="A tile in the training mesh's frame or finest voxels is placed where it lies in "
-                                   "the world (near the origin: float32 cannot place tiles far out); with 'tile' the "
-                                   "index gives each tile's corner.")
 @THREADS_OPTION
 @click.option("--workers", type=int, default=None,
               help="Worker processes (default: one, on every core's threads: neighbouring tiles share work a "
@@ -447,16 +464,12 @@ def run_job(job, items, unit: str, name) -> None:
 @click.option("--engine", type=click.Choice(["local", "ray"]), default="local", show_default=True,
               help="This machine's cores, or a Ray cluster (pip install 'sinshape[ray]').")
 @click.option("--address", default=None, help="With --engine ray: the cluster's address.")
-@request_option("arrange", default=None, show_default=False,
-                more_help="Default: what the model records (`sinrun orient --arrange`), else blend.")
 @click.option(*reversed(SPELLED["heights"]), type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
               help="The world's large shape: a greyscale .png (black low, white --relief voxels high; a column "
                    "per tile along the first horizontal axis, a row per tile up the second, from tile 0,0) or a "
                    ".npy array of heights in voxels, [i, j] for tile i,j. Beyond it, its edge goes on.")
 @click.option("--relief", type=float, default=None,
               help="Voxels from a .png map's black to its white. Default: 4 times the model's height.")
-@request_option("lod")
-@request_option("detail")
 @click.option(SPELLED["models_map"][1], type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
               help="Which model goes where in a scattered world: a model's index per tile (0 the first model), "
                    "as a palette or greyscale .png (a pixel's value is the index, laid out as --map's) or a .npy "
@@ -465,8 +478,8 @@ def run_job(job, items, unit: str, name) -> None:
                    "scatter --models-map map.png.")
 @RESTART_OPTION
 @asset_options
-def world(model, others, seed, tiles, output, suffix, scale, frame, threads, workers, engine, address, arrange,
-          height_map, relief, lod, detail, models_map, restart, lods, texture, ao):
+def world(model, others, tiles, output, suffix, threads, workers, engine, address, height_map, relief, models_map,
+          restart, lods, texture, ao, **fields):
     """Write tiles of an endless world: any tile on its own, seamless with its neighbours.
 
     The world spreads along the model's two horizontal axes (the two that are
@@ -482,9 +495,9 @@ def world(model, others, seed, tiles, output, suffix, scale, frame, threads, wor
 
     packed = assets.options_of(lods, texture, ao)
     loaded = open_model(model, threads)
-    wanted = requests.world_request(loaded, seed, scale, frame, arrange, height_map, relief, lod,
-                                    [models.find(other) for other in others], models_map, detail)
-    output = output or Path(f"{loaded.path.stem}_world_seed{seed}")
+    wanted = requests.world_request(loaded, fields, height_map, relief, [models.find(other) for other in others],
+                                    models_map)
+    output = output or Path(f"{loaded.path.stem}_world_seed{wanted.sample_seed}")
     suffix = "glb" if packed else suffix
     if output.suffix.lower() in files.MESH_FORMATS and "{tile}" not in output.name:  # one mesh of the block
         if packed:

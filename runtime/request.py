@@ -359,14 +359,14 @@ def warnings(model, request: SampleRequest) -> list:
     return said
 
 
-def world_request(model, seed: int, scale: float = 1.0, frame: str = "input", arrange: str | None = None,
-                  height_map=None, relief: float | None = None, lod: int = 0, models=(),
-                  models_map=None, detail: bool = True) -> SampleRequest:
+def world_request(model, fields: dict, height_map=None, relief: float | None = None, models=(),
+                  models_map=None) -> SampleRequest:
     """The request of a world's tiles (no tile yet) as a front end is asked
-    for it: the model's own arrangement unless one is given, the height map
-    and model map read from their files (world.read_height_map,
-    read_model_map), `models` the other models' files."""
+    for it: `fields` the tile's options by name (runtime.options: seed,
+    scale, frame, lod, ...), the model's own arrangement unless one is given,
+    the height map and model map read from their files
+    (world.read_height_map, read_model_map), `models` the other models' files."""
     heights = read_height_map(height_map, model, relief) if height_map else None
     placed = read_model_map(models_map) if models_map else None
-    return SampleRequest(seed, scale=scale, frame=frame, arrange=arrange or model.manifest.arrange, heights=heights,
-                         lod=lod, models=tuple(str(path) for path in models), models_map=placed, detail=detail)
+    return SampleRequest.of({**fields, "arrange": fields.get("arrange") or model.manifest.arrange, "heights": heights,
+                             "models": tuple(str(path) for path in models), "models_map": placed})

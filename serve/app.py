@@ -23,6 +23,7 @@ import importlib.metadata
 import logging
 import socket
 from contextlib import asynccontextmanager
+import dataclasses
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
@@ -39,7 +40,7 @@ from starlette.requests import ClientDisconnect
 from sinshape.core import files
 from sinshape.core.errors import InputError, MemoryLimitError
 from sinshape.runtime import asset, generate, layout, load, world
-from sinshape.runtime.options import OPTION
+from sinshape.runtime.options import OPTION, OPTIONS
 from sinshape.runtime.request import Layout, SampleRequest, resolved
 from sinshape.serve import catalog, http
 from sinshape.serve.catalog import load_models  # noqa: F401  the API: app.load_models, app.create_app, app.run
@@ -142,31 +143,39 @@ class AssetQuery:
         return options
 
 
-@dataclass
-class SampleQuery:
-    """What both sample routes take: the model's name (the path's) and the
-    query parameters of a sample."""
+def query_model(name: str, kind: str, first: list, special: dict, doc: str, namespace: dict | None = None):
+    """The query parameters of a route that makes `kind` (a sample or a
+    tile), as a dataclass FastAPI reads with Depends(): the fields `first`
+    (the path's and the route's own, no default), every option of the table
+    (runtime.options.OPTIONS) for `kind` that travels as a query parameter of
+    its name (not SPELLED), as option_query makes it with the table's
+    default unless `special` gives (annotation, default), and the format.
+    A new option of the table reaches the route without a line here."""
+    fields = list(first)
+    for option in OPTIONS:
+        if kind in option.goes_with and option.name not in SPELLED:
+            annotation, default = special.get(option.name) or (option_query(option.name), option.default)
+            fields.append((option.name, annotation, dataclasses.field(default=default)))
+    fields.append(("format", FormatQuery, dataclasses.field(default="glb")))
+    made = dataclasses.make_dataclass(name, fields, namespace=namespace)
+    made.__doc__ = doc
+    return made
 
-    name: str
-    seed: option_query("seed") = None
-    recon: option_query("recon") = False
-    size: SizeQuery = "1"
-    scale: ScaleQuery = 1.0
-    smooth: option_query("smooth") = 0
-    smoother: option_query("smoother") = OPTION["smoother"].default
-    largest: option_query("largest") = False
-    detail: option_query("detail") = True
-    frame: option_query("frame") = OPTION["frame"].default
-    format: FormatQuery = "glb"
 
-    def fields(self) -> dict:
-        """The request's options given as query parameters, by name (the
-        size's text read; no seed: 0, one request for one sample and one
-        cache entry, but for the reconstruction)."""
-        given = {name: getattr(self, name) for name in OPTION if hasattr(self, name)}
-        given["size"] = generate.parse_size(self.size)
-        given["seed"] = 0 if self.seed is None and not self.recon else self.seed
-        return given
+def sample_fields(self) -> dict:
+    """The request's options given as query parameters, by name (the size's
+    text read; no seed: 0, one request for one sample and one cache entry,
+    but for the reconstruction)."""
+    given = {name: getattr(self, name) for name in OPTION if hasattr(self, name)}
+    given["size"] = generate.parse_size(self.size)
+    given["seed"] = 0 if self.seed is None and not self.recon else self.seed
+    return given
+
+
+SampleQuery = query_model(
+    "SampleQuery", "sample", [("name", str)], {"size": (SizeQuery, "1")},
+    "What both sample routes take: the model's name (the path's) and the query parameters of a sample.",
+    {"fields": sample_fields})
 
 
 MAX_UPLOAD_BYTES = 4 << 20  # a layout of a coarse level is a few kB; a height map of 1024 x 1024 float32
@@ -336,34 +345,24 @@ async def sample_layout(
 TileIndex = Annotated[int, Query(gt=-2**62, lt=2**62, description="A tile index along one horizontal axis.")]
 
 
-@dataclass
-class TileQuery:
-    """What both tile routes take: the model's name (the path's), the tile
-    and how its world and it are made."""
-
-    name: str
-    i: TileIndex
-    j: TileIndex
-    seed: SeedQuery = 0
-    scale: ScaleQuery = 1.0
-    format: FormatQuery = "glb"
-    frame: option_query("frame", description="tile: the training mesh's units from the tile's own corner (any "
-                         "tile; X-Tile-Corner gives the corner in voxels); input or model: placed in the world, near "
-                         "its origin.") = "tile"
-    arrange: option_query("arrange", optional=True) = None  # None: what the model records, else blend
-    lod: option_query("lod") = 0
-    models: option_query("models") = ()  # this server's models by name, once each: models=a&models=b
-    models_map: option_query("models_map") = None  # as text: 0,1;1,0
-    detail: option_query("detail") = True
+TileQuery = query_model(
+    "TileQuery", "tile", [("name", str), ("i", TileIndex), ("j", TileIndex)], {
+        "seed": (SeedQuery, 0),
+        "frame": (option_query("frame", description="tile: the training mesh's units from the tile's own corner "
+                               "(any tile; X-Tile-Corner gives the corner in voxels); input or model: placed in the "
+                               "world, near its origin."), "tile"),
+        "arrange": (option_query("arrange", optional=True), None),  # None: what the model records, else blend
+        # models: this server's models by name, once each (models=a&models=b); models_map as text: 0,1;1,0
+    },
+    "What both tile routes take: the model's name (the path's), the tile and how its world and it are made.")
 
 
 async def tile_answer(request: Request, q: TileQuery, heights=None, asset=None) -> Response:
     model = find(request, q.name)
-    placed = None if q.models_map is None else world.ModelMap.of_text(q.models_map)
-    wanted = SampleRequest.of(dict(seed=q.seed, scale=q.scale, frame=q.frame, tile=(q.i, q.j),
-                                   arrange=q.arrange or model.manifest.arrange, heights=heights, lod=q.lod,
-                                   models=tuple(str(find(request, other).path) for other in q.models),
-                                   models_map=placed, detail=q.detail))
+    given = {name: getattr(q, name) for name in OPTION if hasattr(q, name)}
+    wanted = SampleRequest.of({**given, "tile": (q.i, q.j), "arrange": q.arrange or model.manifest.arrange,
+                               "heights": heights, "models": tuple(str(find(request, other).path) for other in q.models),
+                               "models_map": None if q.models_map is None else world.ModelMap.of_text(q.models_map)})
     response = await answer(request, model, Job(q.name, wanted, q.format, asset=asset))
     response.headers["X-Tile-Corner"] = ",".join(map(str, world.tile_corner(model, (q.i, q.j))))
     return response
