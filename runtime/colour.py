@@ -749,7 +749,37 @@ def read_colours(tiles: Tiles, matched, points: np.ndarray, grid, footprint: flo
 
 def relief(tiles: Tiles, matched, points: np.ndarray, grid, learnt: np.ndarray) -> np.ndarray:
     """Points (n, 3) of a sample's surface moved by the example's relief
-    under them: along the example's normal, by how far its surface at full
+    under them (relief_moves, at the place q of the example a point stands
+    for). Where a neighbouring voxel copies another place of the example
+    (a seam between two pieces), the point's move is blended with the move
+    that voxel's match gives it, weighed by how near the point is to the
+    face between them (0 at its voxel's centre, half at the face), so that
+    the seam is a ramp a voxel wide, not a step. (n, 3) float64."""
+    points = np.asarray(points, np.float64)
+    size = np.asarray(grid) - 1
+    # Halves up, as in example_points.
+    u = np.clip(np.floor(points + 0.5).astype(np.int64), 0, size)
+    offset = matched(u) - u
+    own = relief_moves(tiles, points + offset, learnt)
+    moves, weights = np.zeros_like(points), np.zeros(len(points))
+    for axis in range(3):
+        across = points[:, axis] - u[:, axis]
+        beside = u.copy()
+        beside[:, axis] += np.where(across >= 0, 1, -1)
+        beside = np.clip(beside, 0, size)
+        other = matched(beside) - beside
+        rows = np.flatnonzero(np.any(other != offset, axis=1) & np.any(beside != u, axis=1))
+        weight = np.minimum(np.abs(across[rows]), 0.5)
+        moves[rows] += weight[:, None] * relief_moves(tiles, points[rows] + other[rows], learnt)
+        weights[rows] += weight
+    keep = np.maximum(1 - weights, 0)
+    moves += keep[:, None] * own
+    return points + moves / (keep + weights)[:, None]
+
+
+def relief_moves(tiles: Tiles, q: np.ndarray, learnt: np.ndarray) -> np.ndarray:
+    """How points of a sample's surface standing for places q (n, 3) of the
+    example move by the example's relief under them: along the example's normal, by how far its surface at full
     detail (the tiles' depths) stands out of the surface the model decodes
     for it (`learnt`: learnt_distance's grid, trilinear), at most RELIEF
     voxels. Where the sample's surface and the example's smooth one differ
@@ -764,10 +794,12 @@ def relief(tiles: Tiles, matched, points: np.ndarray, grid, learnt: np.ndarray) 
     normal enough. Of the texels read, those where the tile's surface left
     the voxel (a slope, a step) are left out (held_depth); a tile with none
     left is passed over for the voxel's neighbour's along the axis, or
-    none. (n, 3) float64."""
-    q, smooth, normal, voxel = example_points(tiles, matched, points, grid, learnt)
-    total = np.zeros(len(points))  # the weights of the directions read
-    blended = np.zeros(len(points))  # their heights, weighed
+    none. (n, 3) float64 moves."""
+    smooth, normal = trilinear(learnt, q)
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
+    voxel = np.clip(np.floor(q + 0.5).astype(np.int64), 0, np.array(learnt.shape) - 1)
+    total = np.zeros(len(q))  # the weights of the directions read
+    blended = np.zeros(len(q))  # their heights, weighed
     for direction in range(6):
         sign = 1.0 if direction % 2 else -1.0
         weight = np.clip((normal[:, direction // 2] * sign - FACING[0]) / (FACING[1] - FACING[0]), 0, 1)
@@ -788,9 +820,9 @@ def relief(tiles: Tiles, matched, points: np.ndarray, grid, learnt: np.ndarray) 
         total[rows[found]] += weight[rows[found]]
         blended[rows[found]] += (weight[rows] * height)[found]
     read = total > 0
-    lift = np.zeros(len(points))
+    lift = np.zeros(len(q))
     lift[read] = np.clip(smooth[read] - blended[read] / total[read], -RELIEF, RELIEF) * np.minimum(total[read], 1)
-    return points + lift[:, None] * normal
+    return lift[:, None] * normal
 
 
 def trilinear(grid: np.ndarray, points: np.ndarray) -> tuple:
