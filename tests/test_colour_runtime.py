@@ -415,14 +415,17 @@ def reference_at_voxels(model) -> tuple:
     return reference.at(0), reference.size
 
 
-def test_relief_ramps_across_a_seam_between_two_pieces_instead_of_stepping(relief_model):
+def test_relief_ramps_across_a_seam_between_two_pieces_instead_of_stepping():
     """Where neighbouring voxels copy different places of the example, a
     point just either side of the face between them moves alike (each
     blends the two pieces' moves, half and half at the face), where each
-    piece's own move differs."""
+    piece's own move differs. On the committed model (trained 60
+    iterations: a model of a few iterations, as tiny_relief_model is where
+    torch is, copies other pieces)."""
+    from conftest import TINY_RELIEF_ONNX
     from sinshape.runtime import query
 
-    model = relief_model
+    model = load_model(TINY_RELIEF_ONNX, threads=1)
     triplane = generate.sample(model, 4)
     surface = colour.planes_colouring(model, query.project(model, triplane).planes, triplane.size)
     matched, learnt = surface.matched, surface.learnt
@@ -436,8 +439,8 @@ def test_relief_ramps_across_a_seam_between_two_pieces_instead_of_stepping(relie
     apart = [colour.relief_moves(model.tiles, face + (matched(v) - v), learnt) for v in (band[seam], beside[seam])]
     stepped = np.linalg.norm(apart[0] - apart[1], axis=1)
     gap = np.linalg.norm(low - high, axis=1)
-    # Measured: the pieces' own moves 0.23 voxel apart at the median, the blended ones 1e-7 (a few faces
-    # still step where the tile read itself changes from one voxel to the next); without the blend, 0.62
-    # at the 75th percentile.
-    assert np.median(stepped) > 0.05
+    # Measured: the pieces' own moves 0.16 voxel apart at the 75th percentile, the blended ones 1e-7 (a few
+    # faces still step where the tile read itself changes from one voxel to the next: a mean of 0.007
+    # against 0.18); without the blend, 0.17 and 0.18.
+    assert np.percentile(stepped, 75) > 0.05
     assert np.percentile(gap, 75) < 1e-4 and np.mean(gap) < 0.2 * np.mean(stepped)
