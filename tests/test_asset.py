@@ -162,10 +162,10 @@ def bumpy_sphere(points: np.ndarray) -> np.ndarray:
     return 1 / (1 + np.exp(-4 * (radius - r)))
 
 
-def test_the_normal_map_turns_a_coarse_level_into_the_fields_surface():
-    """Baked onto a 320-face sphere from a bumpy ball, the decoded normal map
-    is the field's normal at each texel's surface point, and the colour the
-    field's colour there; the level's own normals are far from it."""
+def sphere_level():
+    """A 320-face sphere of radius 10 as an asset's level with 256-texel
+    maps: (options, its vertices (V', 3) split at UV seams, faces, UVs,
+    normals, tangents)."""
     import trimesh
 
     from sinshape.runtime import bake
@@ -175,16 +175,26 @@ def test_the_normal_map_turns_a_coarse_level_into_the_fields_surface():
     vertices, faces = np.asarray(sphere.vertices), np.asarray(sphere.faces)
     source, split, uvs = asset.unwrap(vertices, faces, options)
     normals = bake.vertex_normals(vertices, faces)[source]
-    tangents = bake.vertex_tangents(vertices[source], split, uvs, normals)
+    split_vertices = vertices[source]
+    return options, split_vertices, split, uvs, normals, bake.vertex_tangents(split_vertices, split, uvs, normals)
+
+
+def test_the_normal_map_turns_a_coarse_level_into_the_fields_surface():
+    """Baked onto a 320-face sphere from a bumpy ball, the decoded normal map
+    is the field's normal at each texel's surface point, and the colour the
+    field's colour there; the level's own normals are far from it."""
+    from sinshape.runtime import bake
+
+    options, vertices, split, uvs, normals, tangents = sphere_level()
 
     def colour(points):
         return np.round(np.clip(points / 24 + 0.5, 0, 1) * 255).astype(np.uint8)
 
     field, frame = bake.Field(bumpy_sphere, colour), bake.Frame(np.zeros(3), np.ones(3))
-    maps = bake.bake(field, frame, vertices[source], split, uvs, normals, tangents, 256, voxel=1.0, reach=2.0,
+    maps = bake.bake(field, frame, vertices, split, uvs, normals, tangents, 256, voxel=1.0, reach=2.0,
                      padding=options.padding, ao=True, threads=1)
     assert maps.occlusion.mean() > 0.9 * 255  # a ball has no hollows
-    arrays = {"position": vertices[source], "normal": normals, "tangent": tangents, "texcoord_0": uvs,
+    arrays = {"position": vertices, "normal": normals, "tangent": tangents, "texcoord_0": uvs,
               "faces": split, "normal_map": maps.normal}
     points, rows, columns, at_normals, at_tangents = texel_centres(arrays, 256)
     surface = along_normals(bumpy_sphere, points, at_normals)
@@ -220,18 +230,11 @@ def test_the_normal_map_carries_relief_finer_than_the_field():
     surface moved by it (here: a ball whose ridges the smooth field lacks),
     found independently of the bake by differences across the ridged
     surface; baked without the relief, it is the smooth ball's, far off."""
-    import trimesh
-
     from sinshape.runtime import bake
 
-    sphere = trimesh.creation.icosphere(2, radius=10)
-    options = asset.AssetOptions((len(sphere.faces),), 256)
-    vertices, faces = np.asarray(sphere.vertices), np.asarray(sphere.faces)
-    source, split, uvs = asset.unwrap(vertices, faces, options)
-    normals = bake.vertex_normals(vertices, faces)[source]
-    tangents = bake.vertex_tangents(vertices[source], split, uvs, normals)
+    options, vertices, split, uvs, normals, tangents = sphere_level()
     frame = bake.Frame(np.zeros(3), np.ones(3))
-    arrays = {"position": vertices[source], "normal": normals, "tangent": tangents, "texcoord_0": uvs, "faces": split}
+    arrays = {"position": vertices, "normal": normals, "tangent": tangents, "texcoord_0": uvs, "faces": split}
     points, rows, columns, at_normals, at_tangents = texel_centres(arrays, 256)
     d = along_normals(ball, points, at_normals)
     d /= np.linalg.norm(d, axis=1, keepdims=True)
@@ -244,7 +247,7 @@ def test_the_normal_map_carries_relief_finer_than_the_field():
     truth *= np.sign((truth * d).sum(axis=1, keepdims=True)) / np.linalg.norm(truth, axis=1, keepdims=True)
     angles = {}
     for relief in (ridged, None):
-        maps = bake.bake(bake.Field(ball, None, relief), frame, vertices[source], split, uvs, normals, tangents, 256,
+        maps = bake.bake(bake.Field(ball, None, relief), frame, vertices, split, uvs, normals, tangents, 256,
                          voxel=1.0, reach=2.0, padding=options.padding, threads=1)
         decoded = decoded_normals({**arrays, "normal_map": maps.normal}, rows, columns, at_normals, at_tangents)
         angles[relief] = np.degrees(np.arccos(np.clip((decoded * truth).sum(axis=1), -1, 1)))
