@@ -248,13 +248,30 @@ def occlusion(field: Field, frame: Frame, points: np.ndarray, normals: np.ndarra
 
 
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Per-vertex unit normals: the area-weighted mean of their faces'."""
+    """Per-vertex unit normals: the area-weighted mean of their faces'. A
+    vertex whose faces have no area (or cancel) takes the mean of the
+    normals of the vertices it shares a face with, spread until every vertex
+    has one (a lone one: +z), so that every normal is of unit length, as
+    glTF requires."""
     p0, p1, p2 = (vertices[faces[:, k]] for k in range(3))
     face_normals = np.cross(p1 - p0, p2 - p0)  # length: twice the area
     normals = np.zeros_like(vertices, dtype=np.float64)
     for k in range(3):
         np.add.at(normals, faces[:, k], face_normals)
-    return unit(normals)
+    normals = unit(normals)
+    flat = np.linalg.norm(normals, axis=1) < 0.5
+    while flat.any():
+        spread = np.zeros_like(normals)
+        for k in range(3):
+            for other in ((k + 1) % 3, (k + 2) % 3):
+                np.add.at(spread, faces[:, k], normals[faces[:, other]])
+        filled = flat & (np.linalg.norm(spread, axis=1) > 0)
+        if not filled.any():
+            normals[flat] = (0.0, 0.0, 1.0)
+            break
+        normals[filled] = unit(spread[filled])
+        flat &= ~filled
+    return normals
 
 
 def vertex_tangents(vertices: np.ndarray, faces: np.ndarray, uvs: np.ndarray, normals: np.ndarray) -> np.ndarray:

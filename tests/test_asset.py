@@ -441,3 +441,15 @@ def test_godot_imports_every_level_with_its_maps(coloured_asset, tmp_path):
     assert [(m["name"], m["albedo"], m["normal"]) for m in meshes] == [("box_LOD0", TEXTURE, TEXTURE),
                                                                         ("box_LOD1", TEXTURE, TEXTURE)]
     assert [m["triangles"] <= n for m, n in zip(meshes, LODS)] == [True, True]
+
+
+def test_a_vertex_whose_faces_have_no_area_still_gets_a_unit_normal():
+    """A simplified level can leave a vertex whose faces are all degenerate:
+    its normal comes from its neighbours' (glTF requires unit normals)."""
+    from sinshape.runtime import bake
+
+    vertices = np.array([(0, 0, 0), (1, 0, 0), (0, 1, 0), (0.5, 0, 0), (3, 3, 3)], float)
+    faces = np.array([(0, 1, 2), (0, 3, 1)])  # vertex 3 lies on the edge 0-1: its only face has no area
+    normals = bake.vertex_normals(vertices, faces)
+    np.testing.assert_allclose(normals[:4], [(0, 0, 1)] * 4)
+    np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1)  # vertex 4 is in no face
