@@ -87,6 +87,7 @@ class Model:
     tiles: object = None  # format 5: the example's surface (colour.Tiles), read by correspondence
     matcher: object = None  # its matcher, made on the first sample that reads the tiles (colour.matcher)
     faces_per_voxel: float | None = None  # its reconstruction's, at scale 1: measured when first needed (mesh.py)
+    threads: int = 1  # threads per session, and the runtime's own numpy work's (colour.SampleSurface)
 
     @property
     def colour_tiles(self):
@@ -387,6 +388,7 @@ def load_model(path, threads: int | None = None) -> Model:
         decoder_head=make(stages["decoder_head"]),
         head=read_head(proto, manifest, path),
         tiles=read_tiles(proto, manifest, path) if manifest.tiles else None,
+        threads=threads,
     )
     check_stages(model)
     return model

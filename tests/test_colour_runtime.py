@@ -444,3 +444,25 @@ def test_relief_ramps_across_a_seam_between_two_pieces_instead_of_stepping():
     # against 0.18); without the blend, 0.17 and 0.18.
     assert np.percentile(stepped, 75) > 0.05
     assert np.percentile(gap, 75) < 1e-4 and np.mean(gap) < 0.2 * np.mean(stepped)
+
+
+def test_relief_and_colour_are_the_same_on_any_number_of_threads(model):
+    """SampleSurface reads its points in chunks on the model's threads: each
+    point is read alone, so one thread and two, in chunks of any size, give
+    the same bits (and a chunk lost or read twice would not)."""
+    from sinshape.runtime import mesh as meshing
+
+    triplane = generate.sample(model, 2)
+    points = meshing.band_mesh(model, triplane, 2).vertices
+    alone = colour.planes_colouring(model, query.project(model, triplane).planes, triplane.size, chunk=len(points))
+    moved, painted = alone.relief(points), alone(points, 0.5)
+    assert np.abs(moved - points).max() > 0.01  # the relief moves points: the comparison below sees it
+    threads = model.threads
+    try:
+        for model.threads in (1, 2):
+            chunked = colour.planes_colouring(model, query.project(model, triplane).planes, triplane.size,
+                                              chunk=len(points) // 7 + 1)
+            assert np.array_equal(chunked.relief(points), moved)
+            assert np.array_equal(chunked(points, 0.5), painted)
+    finally:
+        model.threads = threads
