@@ -18,6 +18,7 @@ import dataclasses
 import functools
 import math
 import numbers
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -246,9 +247,20 @@ class SampleRequest:
         return dataclasses.replace(self, seed=seed)
 
 
-@functools.lru_cache(maxsize=16)  # a world's models, read once per process (a worker's tiles all ask)
 def other_model(path: str):
-    """A world's other model, read from its file (checked as any model is)."""
+    """A world's other model, read from its file (checked as any model is)
+    once per process while the file stays as it is (a worker's tiles all
+    ask): a file written again since is read again."""
+    try:
+        found = os.stat(path)
+    except OSError:
+        return load_model(path)  # its own clear error
+    return model_as_written(path, found.st_mtime_ns, found.st_size)
+
+
+@functools.lru_cache(maxsize=16)
+def model_as_written(path: str, modified: int, size: int):
+    """The model in `path` as it was when last modified at `modified` (ns) with `size` bytes."""
     return load_model(path)
 
 

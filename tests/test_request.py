@@ -3,6 +3,8 @@ the runtime's own functions give, for every front end that builds it."""
 
 import dataclasses
 import json
+import os
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -190,3 +192,18 @@ def test_make_refuses_a_tile_it_has_no_tri_plane_for(model):
     with pytest.raises(InputError, match="frame tile .* is for the tiles of a world") as refused:
         make(model, SampleRequest(3, frame="tile"))
     assert refused.value.parameter == "frame"
+
+
+def test_a_worlds_other_model_is_read_again_once_its_file_is_written_again(tmp_path):
+    """A world's models are read once per process, but a file written since is read anew, not served stale."""
+    from conftest import TINY_ONNX, TINY_RELIEF_ONNX
+    from sinshape.runtime.request import other_model
+
+    path = tmp_path / "other.onnx"
+    shutil.copy(TINY_ONNX, path)
+    first = other_model(str(path))
+    assert other_model(str(path)) is first  # read once while the file stays
+    shutil.copy(TINY_RELIEF_ONNX, path)
+    os.utime(path, ns=(os.stat(path).st_atime_ns, os.stat(path).st_mtime_ns + 10**9))  # past the clock's grain
+    again = other_model(str(path))
+    assert again is not first and again.tiles is not None and first.tiles is None
