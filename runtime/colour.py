@@ -39,6 +39,7 @@ content moved by a whole number of the coarsest blocks. The browser's runtime re
 (serve/static/sinshape/colour.js).
 """
 
+import functools
 import itertools
 import threading
 from concurrent.futures import ThreadPoolExecutor
@@ -994,12 +995,21 @@ class SampleSurface:
             out[start:start + self.chunk] = read(points[start:start + self.chunk])
 
         if self.threads > 1 and len(starts) > 1:
-            with ThreadPoolExecutor(min(self.threads, len(starts))) as pool:
-                list(pool.map(one, starts))
+            list(readers().map(one, starts))
         else:
             for start in starts:
                 one(start)
         return out
+
+
+@functools.lru_cache(maxsize=1)
+def readers() -> ThreadPoolExecutor:
+    """The threads every sample's reads share, one per core, made once: a
+    pool per sample would start new threads, each growing its own
+    allocator arena, and a server making samples at once would hold them all."""
+    from .load import default_threads  # load reads colour.Tiles: imported here, not at the top
+
+    return ThreadPoolExecutor(default_threads(), thread_name_prefix="sinshape-read")
 
 
 def planes_colouring(model, planes: list, size, chunk: int = READ_CHUNK, kept=()) -> SampleSurface:
