@@ -995,21 +995,19 @@ class SampleSurface:
             out[start:start + self.chunk] = read(points[start:start + self.chunk])
 
         if self.threads > 1 and len(starts) > 1:
-            list(readers().map(one, starts))
+            list(readers(self.threads).map(one, starts))
         else:
             for start in starts:
                 one(start)
         return out
 
 
-@functools.lru_cache(maxsize=1)
-def readers() -> ThreadPoolExecutor:
-    """The threads every sample's reads share, one per core, made once: a
-    pool per sample would start new threads, each growing its own
+@functools.lru_cache(maxsize=None)
+def readers(threads: int) -> ThreadPoolExecutor:
+    """The `threads` threads every sample's reads share, made once per
+    count: a pool per sample would start new threads, each growing its own
     allocator arena, and a server making samples at once would hold them all."""
-    from .load import default_threads  # load reads colour.Tiles: imported here, not at the top
-
-    return ThreadPoolExecutor(default_threads(), thread_name_prefix="sinshape-read")
+    return ThreadPoolExecutor(threads, thread_name_prefix="sinshape-read")
 
 
 def planes_colouring(model, planes: list, size, chunk: int = READ_CHUNK, kept=()) -> SampleSurface:
