@@ -38,7 +38,7 @@ import numpy as np
 from sinshape import models
 from sinshape.prep import shapes
 from sinshape.prep.pyramid import reference_grid
-from sinshape.runtime import evaluate, load_model, world
+from sinshape.runtime import evaluate, load_model, world, world_maps, world_points, world_tiles
 from sinshape.runtime.generate import sample
 from sinshape.runtime.query import dense
 
@@ -54,7 +54,7 @@ def world_grid(model, seed: int, rows: range, columns: range, scale: float = 1.0
     h0, h1 = world.world_layout(model).horizontal
     strips = []
     for i in rows:
-        row = [world.tile_occupancy(model, seed, (i, j), scale, options=options) for j in columns]
+        row = [world_tiles.tile_occupancy(model, seed, (i, j), scale, options=options) for j in columns]
         row = [np.take(t, range(0 if k == 0 else 1, t.shape[h1]), axis=h1) for k, t in enumerate(row)]
         strips.append(np.concatenate(row, axis=h1))
     strips = [np.take(s, range(0 if k == 0 else 1, s.shape[h0]), axis=h0) for k, s in enumerate(strips)]
@@ -66,7 +66,7 @@ def seams(model, block: int, options) -> dict:
     h0, h1 = layout.horizontal
     out = {}
     for scale in (1.0, 2.0):
-        grids = {(i, j): world.tile_occupancy(model, 3, (i, j), scale, options=options) for i in range(block) for j in range(block)}
+        grids = {(i, j): world_tiles.tile_occupancy(model, 3, (i, j), scale, options=options) for i in range(block) for j in range(block)}
         worst = 0.0
         for (i, j), grid in grids.items():
             for di, dj, axis in ((1, 0, h0), (0, 1, h1)):
@@ -76,15 +76,15 @@ def seams(model, block: int, options) -> dict:
         out[f"face difference, scale {scale:g}"] = worst
     matched = total = 0
     for i in range(block - 1):
-        a, b = (world.tile_mesh(model, 3, (i, 0), options=options)[0],
-                world.tile_mesh(model, 3, (i + 1, 0), options=options)[0])
+        a, b = (world_tiles.tile_mesh(model, 3, (i, 0), options=options)[0],
+                world_tiles.tile_mesh(model, 3, (i + 1, 0), options=options)[0])
         on_a = {tuple(v) for v in a[a[:, h0] == layout.stride[h0]] - np.eye(3)[h0] * layout.stride[h0]}
         on_b = {tuple(v) for v in b[b[:, h0] == 0]}
         matched, total = matched + len(on_a & on_b), total + len(on_a | on_b)
     out["border vertices matched"] = f"{matched} of {total}"
     same = total_normals = 0
     for i in range(block - 1):
-        a, b = (world.tile_surface(model, 3, (i, 0), options=options), world.tile_surface(model, 3, (i + 1, 0), options=options))
+        a, b = (world_tiles.tile_surface(model, 3, (i, 0), options=options), world_tiles.tile_surface(model, 3, (i + 1, 0), options=options))
         on_a = {tuple(v - np.eye(3)[h0] * layout.stride[h0]): tuple(n) for v, n in zip(a.vertices, a.normals)
                 if v[h0] == layout.stride[h0]}
         on_b = {tuple(v): tuple(n) for v, n in zip(b.vertices, b.normals) if v[h0] == 0}
@@ -95,8 +95,8 @@ def seams(model, block: int, options) -> dict:
     count = 0
     for i in range(block):
         for j in range(block):
-            v, f = world.tile_mesh(model, 3, (i, j), options=options)
-            vertices.append(v + np.array(world.tile_corner(model, (i, j))))
+            v, f = world_tiles.tile_mesh(model, 3, (i, j), options=options)
+            vertices.append(v + np.array(world_tiles.tile_corner(model, (i, j))))
             faces.append(f + count)
             count += len(v)
     unique, index = np.unique(np.concatenate(vertices), axis=0, return_inverse=True)
@@ -134,12 +134,12 @@ def cost(model, name: str, options) -> dict:
             for k in range(RUN):
                 world._windows.clear()
                 started = time.perf_counter()
-                world.tile_surface(model, 3, (d + k, -d), options=chosen)
+                world_tiles.tile_surface(model, 3, (d + k, -d), options=chosen)
                 seconds += (time.perf_counter() - started) / RUN
                 # The memory in a run of its own: tracing slows Python's own work (a coarser tile's most) 2 to 3 times.
                 world._windows.clear()
                 tracemalloc.start()
-                world.tile_surface(model, 3, (d + k, -d), options=chosen)
+                world_tiles.tile_surface(model, 3, (d + k, -d), options=chosen)
                 peak = max(peak, tracemalloc.get_traced_memory()[1])
                 tracemalloc.stop()
             best[kind] = (min(best[kind][0], seconds), max(best[kind][1], peak))
@@ -157,7 +157,7 @@ def cost(model, name: str, options) -> dict:
             started = time.perf_counter()
             for i in range(BLOCK):
                 for j in range(BLOCK):
-                    world.tile_surface(model, 3, (i, j), options=dataclasses.replace(options, lod=lod))
+                    world_tiles.tile_surface(model, 3, (i, j), options=dataclasses.replace(options, lod=lod))
             block[lod] = min(block[lod], (time.perf_counter() - started) / BLOCK**2)
     out[f"a tile of a {BLOCK} x {BLOCK} block, windows kept, lod 0 / lod {levels[-1]}: s"] = (
         f"{block[0]:.3f} / {block[levels[-1]]:.3f} ({block[levels[-1]] / block[0]:.2f}x)")
@@ -291,7 +291,7 @@ def world_heights(model, seed: int, tiles: int, options) -> np.ndarray:
     layout = world.world_layout(model)
     rows = []
     for i in range(tiles):
-        row = [evaluate.height_field(world.tile_occupancy(model, seed, (i, j), options=options), layout.up)
+        row = [evaluate.height_field(world_tiles.tile_occupancy(model, seed, (i, j), options=options), layout.up)
                for j in range(tiles)]
         row = [t[:, (0 if k == 0 else 1):] for k, t in enumerate(row)]
         rows.append(np.concatenate(row, axis=1))
@@ -307,7 +307,7 @@ def large_shape(model, options, tiles: int = 32, relief_factor: float = 4.0) -> 
     layout = world.world_layout(model)
     relief = relief_factor * layout.stride[layout.up]
     heights = painted_map(tiles, relief)
-    painted = dataclasses.replace(options, heights=world.HeightMap.of(heights))
+    painted = dataclasses.replace(options, heights=world_maps.HeightMap.of(heights))
     out = {}
     band = float(np.std(evaluate.height_field(dense(model, sample(model, 7)), layout.up)))
     for label, chosen in (("plain", options), (f"painted, relief {relief:g} voxels", painted)):
@@ -330,7 +330,7 @@ def several_models(model, other, name: str, other_name: str) -> dict:
     checkers = (np.indices((16, 16)).sum(axis=0) // 4) % 2
     worlds = {f"{name} alone": world.WorldOptions("scatter"),
               f"{name} + {other_name}": world.WorldOptions("scatter", models=(other,),
-                                                            models_map=world.ModelMap.of(checkers))}
+                                                            models_map=world_maps.ModelMap.of(checkers))}
     places = {"near the origin": (0, 0), "10^15 tiles out": (10**15, -10**15)}
     best = {}
     for _ in range(3):
@@ -340,9 +340,9 @@ def several_models(model, other, name: str, other_name: str) -> dict:
                 tiles = [(i0 + i, j0 + j) for i in range(8) for j in range(6)]
                 for tile in tiles:
                     world._windows.clear()
-                    world._colourings.clear()
+                    world_points._colourings.clear()
                     started = time.perf_counter()
-                    world.tile_surface(model, 3, tile, options=options)
+                    world_tiles.tile_surface(model, 3, tile, options=options)
                     seconds += (time.perf_counter() - started) / len(tiles)
                 best[label, where] = min(best.get((label, where), np.inf), seconds)
     return {f"a tile of {label}, {where} (mean of 48): s": f"{seconds:.3f}" for (label, where), seconds in best.items()}

@@ -9,7 +9,7 @@ import argparse
 import time
 
 from sinshape import models, runtime
-from sinshape.runtime import world
+from sinshape.runtime import world, world_points, world_tiles
 
 
 def main() -> None:
@@ -19,13 +19,13 @@ def main() -> None:
     args = parser.parse_args()
     for name in args.models:
         model = runtime.load_model(models.find(name), threads=2)
-        world.tile_surface(model, 9, (50, 50), args.scale)  # the example's side of matching, made once per model
+        world_tiles.tile_surface(model, 9, (50, 50), args.scale)  # the example's side of matching, made once per model
         seconds, count = {False: [], True: []}, 0
         for detail in (False, True, False, True):
             world._windows.clear()
-            world._colourings.clear()
+            world_points._colourings.clear()
             started = time.perf_counter()
-            count = sum(len(world.tile_surface(model, 3, (i, j), args.scale, world.WorldOptions(detail=detail)).vertices)
+            count = sum(len(world_tiles.tile_surface(model, 3, (i, j), args.scale, world.WorldOptions(detail=detail)).vertices)
                         for i in range(3) for j in range(3))
             seconds[detail].append(time.perf_counter() - started)
         print(f"{name}: 3 x 3 tiles at scale {args.scale:g} ({count} vertices): without detail "

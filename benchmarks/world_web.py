@@ -35,7 +35,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from browser import chromium, open_page, server_process, wait_world  # noqa: E402
 
 from sinshape import models  # noqa: E402
-from sinshape.runtime import load, world  # noqa: E402
+from sinshape.runtime import load, world, world_tiles  # noqa: E402
 
 # Frame times (requestAnimationFrame) while `recording` is set.
 RECORD_JS = """() => {
@@ -93,12 +93,12 @@ def python_ring(path: Path, seed: int, reach: int, arrange: str) -> float:
     model = load.load_model(path, threads=1)
     layout = world.world_layout(model)
     size = [layout.stride[a] * model.manifest.spacing[a] for a in layout.horizontal]
-    world.tile_surface(model, seed, (-7777, 0))  # the warm-up
+    world_tiles.tile_surface(model, seed, (-7777, 0))  # the warm-up
     world._windows.clear()
     coarsest = len(model.manifest.sizes) - 1
     started = time.perf_counter()
     for tile, lod in ring(reach, size):
-        world.tile_surface(model, seed, tile, options=world.WorldOptions(arrange, lod=min(lod, coarsest)))
+        world_tiles.tile_surface(model, seed, tile, options=world.WorldOptions(arrange, lod=min(lod, coarsest)))
     return time.perf_counter() - started
 
 

@@ -10,7 +10,7 @@ from bpy.props import (BoolProperty, CollectionProperty, EnumProperty, FloatProp
 
 from sinshape import models
 from sinshape.runtime.options import OPTION
-from sinshape.runtime.world import MAX_RELIEF
+from sinshape.runtime.world_maps import MAX_RELIEF
 
 from . import live, worlds
 

@@ -7,7 +7,7 @@ moving, turning or scaling it moves the whole world. It follows its
 `follow` object (the camera, say), or the 3D cursor where none is set.
 
 One child mesh object per tile, not one joined mesh: each tile is made on
-its own (world.tile_surface) and shown as soon as it is done, a tile left
+its own (world_tiles.tile_surface) and shown as soon as it is done, a tile left
 behind is one object removed, and nothing already shown is rebuilt when
 the point moves on; a joined mesh would be rebuilt whole for every tile
 that comes or goes. The runtime's tiles share their border vertices
@@ -29,7 +29,7 @@ import numpy as np
 
 from sinshape.core.errors import InputError
 from sinshape.core.files import check_readable
-from sinshape.runtime import generate, world
+from sinshape.runtime import generate, world, world_maps, world_tiles
 
 from . import convert, live, work
 
@@ -37,7 +37,7 @@ TILE = "sinshape_tile"  # a tile object's custom property: "I,J"
 MADE = "sinshape_made"  # ... and what it was made from: the model file's SHA-256, the seed, the scale, the
 # arrangement, the other models' SHA-256s, the model map's and height map's pixels' SHA-256s, its lod
 MAX_RADIUS = 32  # tiles on each side: (2 r + 1)^2 = 4225 tiles at most
-# (what, path, size, mtime, relief) -> (world.ModelMap or HeightMap, its pixels' SHA-256): a map is read again
+# (what, path, size, mtime, relief) -> (world_maps.ModelMap or HeightMap, its pixels' SHA-256): a map is read again
 # only when it changed
 MAPS = {}
 KEEP_MAPS = 4
@@ -126,10 +126,10 @@ def world_options(settings, model, digest: str) -> tuple:
     first model's SHA-256 (`digest`), the seed, the scale, the arrangement,
     the other models' SHA-256s and the maps')."""
     others = [live.load_settings(other) for other in settings.models]
-    placed, placed_digest = read_map(settings.models_map, "model map", world.read_model_map)
-    relief = settings.relief or None  # 0: an image's white is world.RELIEF times the model's height
+    placed, placed_digest = read_map(settings.models_map, "model map", world_maps.read_model_map)
+    relief = settings.relief or None  # 0: an image's white is world_maps.RELIEF times the model's height
     heights, heights_digest = read_map(settings.heights, "height map",
-                                       lambda path: world.read_height_map(path, model, relief), settings.relief)
+                                       lambda path: world_maps.read_height_map(path, model, relief), settings.relief)
     options = world.WorldOptions(settings.arrange, heights=heights, models=tuple(each for each, _ in others),
                                  models_map=placed)
     made = (f"{digest}:{settings.seed}:{settings.scale!r}:{settings.arrange}:"
@@ -200,7 +200,7 @@ def far_warning(model, tiles: list) -> str:
     VISIBLE_CRACK of a voxel, opening cracks between them; else ''."""
     manifest = model.manifest
     voxel = float(np.min(manifest.spacing))
-    corners = [np.asarray(manifest.origin) + np.array(world.tile_corner(model, tile)) * np.asarray(manifest.spacing)
+    corners = [np.asarray(manifest.origin) + np.array(world_tiles.tile_corner(model, tile)) * np.asarray(manifest.spacing)
                for tile in (tiles[0], tiles[-1])]  # the centre and the farthest
     far = float(max(np.abs(corner).max() for corner in corners))
     step = float(np.spacing(np.float32(far)))
@@ -220,9 +220,9 @@ def submit(name: str, model, made: str, seed: int, scale: float, options, tiles:
     def compute(job):
         for done, (tile, lod) in enumerate(tiles):
             job.progress(done, len(tiles))
-            surface = world.tile_surface(model, seed, tile, scale, dataclasses.replace(options, lod=lod))
+            surface = world_tiles.tile_surface(model, seed, tile, scale, dataclasses.replace(options, lod=lod))
             colours = None if surface.colours is None else convert.byte_colours(surface.colours)
-            arrays = live.blender_arrays(world.placed(model, tile, surface.vertices, "tile"), surface.faces, up, colours)
+            arrays = live.blender_arrays(world_tiles.placed(model, tile, surface.vertices, "tile"), surface.faces, up, colours)
             job.deliver((f"{made}:{lod}", tile, arrays, tile_shade(model, tile, arrays[0], surface.faces)))
         job.deliver(None)  # all made: the tiles left behind go
 
@@ -272,7 +272,7 @@ def apply_tile(name: str, model, made: str, tile: tuple, arrays, shade) -> None:
             collection.objects.link(child)
         child.parent = obj
         manifest = model.manifest
-        corner = np.asarray(manifest.origin) + np.array(world.tile_corner(model, tile)) * np.asarray(manifest.spacing)
+        corner = np.asarray(manifest.origin) + np.array(world_tiles.tile_corner(model, tile)) * np.asarray(manifest.spacing)
         child.location = convert.to_blender([corner], manifest.up)[0]
     live.put_mesh(child.data, arrays, True)
     child[MADE] = made

@@ -42,6 +42,7 @@ METADATA_KEY = "sinshape.manifest"  # key of the manifest in the ONNX metadata_p
 SEAL_KEY = "sinshape.sha256"  # key of the last metadata_props entry: the seal (format 3 on)
 NOISE_SCHEME = "splitmix64-boxmuller-v1"  # core/noise.py
 UP_AXES = ("y", "z")  # manifest `up`: which input-frame axis points up (absent: y)
+UP_AXIS = {"y": 1, "z": 2}  # the index of each
 ARRANGEMENTS = ("blend", "scatter")  # manifest `arrange`: how the model's world is made unless asked (absent: blend)
 # Manifest `contrast`: a blended world's contrast exponent (absent: CONTRAST).
 # 1 keeps the variance of independent Gaussian windows; the head's threshold

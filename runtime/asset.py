@@ -10,7 +10,7 @@ locked so that every level of a tile meets every level of its neighbours.
 UVs come from xatlas, charts padded so that mip-maps do not bleed. The maps
 are baked from the model itself (bake.py): the normal from its field's
 gradient, or from its example's relief where the model carries it, the colour from the one function that colours a sample's
-vertices (colour.colouring; a world tile's blend, world.tile_colours).
+vertices (colour.colouring; a world tile's blend, world_points.tile_colours).
 """
 
 import math
@@ -23,7 +23,7 @@ import numpy as np
 from sinshape.core.budget import check_memory
 from sinshape.core.errors import ConflictError, InputError, named
 
-from . import bake, colour as colouring, gltf, mesh, query, world
+from . import bake, colour as colouring, gltf, mesh, query, world, world_points, world_tiles
 from .request import make
 
 MAX_LODS = 8
@@ -132,18 +132,18 @@ def tile_field(model, seed: int, tile, options) -> bake.Field:
     heights = world.tile_grid(model, layout, 1.0, options).positions[layout.up]
 
     def occupancy(points):
-        out = world.tile_points(model, seed, tile, points, options)
+        out = world_points.tile_points(model, seed, tile, points, options)
         out[(points[:, layout.up] < heights[0]) | (points[:, layout.up] > heights[-1])] = 0
         return out
 
     def colour(points):
-        return world.tile_colours(model, seed, tile, points, options)[:, :3]
+        return world_points.tile_colours(model, seed, tile, points, options)[:, :3]
 
     def relief(points):
-        return world.tile_relief(model, seed, tile, points, options)
+        return world_points.tile_relief(model, seed, tile, points, options)
 
     return bake.Field(occupancy, colour if world.coloured(model, options) else None,
-                      relief if world.relieved(model, options, colouring.RELIEF_SCALE) else None)
+                      relief if world_points.relieved(model, options, colouring.RELIEF_SCALE) else None)
 
 
 def dense_surface(model, request, threads: int | None = None, progress=None) -> Dense:
@@ -151,10 +151,10 @@ def dense_surface(model, request, threads: int | None = None, progress=None) -> 
     world tile) in its frame, and the field behind it."""
     spacing = np.asarray(model.manifest.spacing, np.float64)
     if request.tile is not None:
-        vertices, faces = world.tile_mesh(model, request.sample_seed, request.tile, request.scale, progress=progress,
+        vertices, faces = world_tiles.tile_mesh(model, request.sample_seed, request.tile, request.scale, progress=progress,
                                           options=request.world_options())
-        offset = world.placed(model, request.tile, np.zeros((1, 3)), request.frame)[0]
-        scale = world.placed(model, request.tile, np.ones((1, 3)), request.frame)[0] - offset
+        offset = world_tiles.placed(model, request.tile, np.zeros((1, 3)), request.frame)[0]
+        scale = world_tiles.placed(model, request.tile, np.ones((1, 3)), request.frame)[0] - offset
         field, lock = tile_field(model, request.sample_seed, request.tile, request.world_options()), True
     else:
         triplane = make(model, request)

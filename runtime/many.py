@@ -39,7 +39,7 @@ from sinshape.core import files
 from sinshape.core.budget import check_memory
 from sinshape.core.errors import ConflictError, InputError
 
-from . import world, write
+from . import world, world_tiles, write
 from .load import default_threads, load_model
 from .request import SampleRequest
 
@@ -263,7 +263,7 @@ class Worker:
                                          asset=self.asset)
         record = {self.field: item, "vertices": None, "faces": None, "watertight": None, "volume": None}
         if self.field == "tile":  # where the tile lies: its files may hold it in its own frame
-            record["corner"] = world.tile_corner(self.model, item)
+            record["corner"] = world_tiles.tile_corner(self.model, item)
         if self.asset is not None:  # an asset's figures: the full mesh's counts and each level's
             record.update(vertices=mesh["dense_vertices"], faces=mesh["dense_triangles"], levels=mesh["levels"])
         elif mesh is not None:
@@ -614,7 +614,7 @@ def write_tiles(model_path, tiles, pattern, request, engine: str = "local", work
     loaded = load_model(model_path, threads=1)
     world.check_lod(loaded, request.lod)
     if request.frame != "tile":
-        world.check_placement(loaded, first, request.frame)
+        world_tiles.check_placement(loaded, first, request.frame)
     tiles = itertools.chain([first], tiles)
     if engine == "local" and workers is None:
         workers = LOCAL_WORKERS

@@ -31,7 +31,8 @@ from . import edit, generate, layout, mesh, query
 from .edit import Part
 from .load import default_threads, load_model
 from .options import EDITS, FRAMES, MAX_PARTS, OPTION, OPTIONS  # noqa: F401  the request's table
-from .world import ARRANGEMENTS, HeightMap, ModelMap, WorldOptions, check_tile, read_height_map, read_model_map
+from .world import ARRANGEMENTS, WorldOptions, check_tile
+from .world_maps import HeightMap, ModelMap, read_height_map, read_model_map
 
 @dataclass(frozen=True)
 class Layout:
@@ -106,10 +107,10 @@ class SampleRequest:
     tile: (i, j), a tile of the endless world of `seed` (world.py) instead
       of a sample: no size, edits or clean-up, which would break its seams.
     For a tile, how its world is made: arrange ('blend' or 'scatter',
-      world.ARRANGEMENTS), heights (a world.HeightMap: the world's large
+      world.ARRANGEMENTS), heights (a world_maps.HeightMap: the world's large
       shape), lod (levels coarser than the finest: a distant tile), models
       (a scattered world's other models: their files' paths, as text) and
-      models_map (a world.ModelMap: which model each cell's object is of).
+      models_map (a world_maps.ModelMap: which model each cell's object is of).
     At most one edit:
     keep: parts taken from other samples (edit.Part, or their text form
       'SEED:X0,Y0,Z0:X1,Y1,Z1', read against the model by `resolved`);
@@ -335,7 +336,7 @@ def make(model, request: SampleRequest, memory_limit: int | None = None, output:
     it is made for included, is refused up front with MemoryLimitError
     (check_memory)."""
     if request.tile is not None:
-        raise InputError("a tile of a world has no tri-plane of its own: make its mesh with world.tile_mesh, or "
+        raise InputError("a tile of a world has no tri-plane of its own: make its mesh with world_tiles.tile_mesh, or "
                          "its file with write.request_bytes", "tile")
     if request.frame == "tile":
         raise InputError("`frame` tile (coordinates from a tile's corner) is for the tiles of a world; a sample "
@@ -377,7 +378,7 @@ def world_request(model, fields: dict, height_map=None, relief: float | None = N
     for it: `fields` the tile's options by name (runtime.options: seed,
     scale, frame, lod, ...), the model's own arrangement unless one is given,
     the height map and model map read from their files
-    (world.read_height_map, read_model_map), `models` the other models' files."""
+    (world_maps.read_height_map, read_model_map), `models` the other models' files."""
     heights = read_height_map(height_map, model, relief) if height_map else None
     placed = read_model_map(models_map) if models_map else None
     return SampleRequest.of({**fields, "arrange": fields.get("arrange") or model.manifest.arrange, "heights": heights,

@@ -51,35 +51,27 @@ Why this holds:
 """
 
 import functools
-import io
-import itertools
 import math
 import numbers
 import threading
 from collections import OrderedDict
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from sinshape.core import noise
 from sinshape.core.budget import check_memory
 from sinshape.core.errors import InputError
-from sinshape.core.files import read_regular
-from sinshape.core.manifest import ARRANGEMENTS, PLANE_AXES
+from sinshape.core.manifest import ARRANGEMENTS, PLANE_AXES, UP_AXIS
 
-from . import cubes
-from .bake import vertex_normals
-from .colour import RELIEF_SCALE, example_palette, nearest_in_palette, planes_colouring
-from .generate import check_seed, draw_noise, scaled_sizes, triplane
-from .mesh import colour_bytes
+from .generate import draw_noise, scaled_sizes, triplane
 from .options import MAX_TILE  # a tile request's range, declared with its options
-from .query import bilinear, check_scale, head_colour, project, sigmoid
+from .query import check_scale, head_colour, project, sigmoid
+from .world_maps import MAX_MODELS, HeightMap, ModelMap
 
 WORLD_STREAM = 2  # (WORLD_STREAM, a, b): the key of window (a, b)'s noise, absorbed after the world's seed
 SCATTER_STREAM = 3  # (SCATTER_STREAM, a, b): the key of scatter cell (a, b)'s draws (presence, place, mirrors)
 MIN_STRIDE = 4  # voxels: a window of fewer than 2 * 4 + 1 along an axis has no room to blend
-UP_AXIS = {"y": 1, "z": 2}
 BLEND = 1.0  # the share of a stride, around its middle, over which one window gives way to the next
 PITCH = 3  # a scatter cell's side, in strides: an object (2S + 1) and up to S of room
 # The share of scatter cells that hold an object: 0.75 left the temple's
@@ -89,14 +81,12 @@ GROUND = 1.0  # voxels of ground above the map's height under a scatter world's 
 # The ground's logit per voxel: nearly linear across a grid step, so that
 # marching cubes places a sloping ground without terraces (4 drew them).
 GROUND_SLOPE = 1.0
+GROUND_COLOUR = (0.5, 0.5, 0.5)  # sRGB of a scatter world's ground, which no model colours
 NORMAL_STEP = 0.25  # voxels: a normal's differences, a power of two (exact steps from a face), under PLATEAU
 # Voxels either side of a lattice line where the window whose line it is
 # holds the whole weight: a normal's points just past a face need no window
 # but the face's own, so a tile's normals make no neighbour's windows.
 PLATEAU = 0.5
-SKIRT = 2.0  # a coarser tile's skirt, in its grid's steps along up
-MAX_MAP_SIDE = 1 << 12  # pixels of a height map along each axis
-MAX_RELIEF = 1 << 14  # voxels: a height map's values in +-MAX_RELIEF
 
 
 @dataclass(frozen=True)
@@ -141,195 +131,7 @@ def window_seed(seed: int, a: int, b: int) -> int:
     return noise.stream_key(seed, WORLD_STREAM, a & mask, b & mask)
 
 
-# ---- the world's options: its arrangement, its height map, a tile's detail
-
-@dataclass(frozen=True)
-class HeightMap:
-    """A designer's map of the world's large shape: heights in voxels at the
-    centres of tiles (r, c), r along the first horizontal axis, from tile
-    (0, 0); between them its cubic B-spline (smooth, and within the map's
-    lowest and highest values), beyond its edges its edge. Held as bytes,
-    so that a request stays a hashable value."""
-
-    shape: tuple
-    data: bytes  # float32, little-endian, C order
-
-    @classmethod
-    def of(cls, heights) -> "HeightMap":
-        try:
-            heights = np.asarray(heights, np.float64)
-        except (TypeError, ValueError):
-            raise InputError("a height map is a 2-D array of heights in voxels", "heights") from None
-        if heights.ndim != 2 or not 0 < min(heights.shape) <= max(heights.shape) <= MAX_MAP_SIDE:
-            raise InputError(f"a height map is a 2-D array of 1 to {MAX_MAP_SIDE} pixels a side, got shape "
-                             f"{heights.shape}", "heights")
-        if not (np.isfinite(heights).all() and np.abs(heights).max() <= MAX_RELIEF):
-            raise InputError(f"a height map holds values in voxels within +-{MAX_RELIEF}: no NaN or infinities",
-                             "heights")
-        return cls(tuple(int(n) for n in heights.shape), heights.astype("<f4").tobytes())
-
-    def array(self) -> np.ndarray:
-        """(R, C) float32."""
-        return np.frombuffer(self.data, "<f4").reshape(self.shape)
-
-    def bounds(self) -> tuple:
-        """The lowest and highest heights, rounded out to whole voxels."""
-        heights = self.array()
-        return math.floor(heights.min()), math.ceil(heights.max())
-
-
-MAX_MAP_BYTES = 64 << 20  # a map file: 4096 x 4096 16-bit pixels fit
-
-
-def read_npy_map(data: bytes, name, field: str) -> np.ndarray:
-    """A map's 2-D numeric array from .npy bytes, its header checked before its data is read."""
-    try:
-        stream = io.BytesIO(data)
-        header = {(1, 0): np.lib.format.read_array_header_1_0,
-                  (2, 0): np.lib.format.read_array_header_2_0}.get(np.lib.format.read_magic(stream))
-        if header is None:
-            raise ValueError("an unknown .npy version")
-        shape, _, dtype = header(stream)
-        if dtype.kind not in "fiu" or len(shape) != 2 or max(shape, default=0) > MAX_MAP_SIDE:
-            raise ValueError(f"{dtype} of shape {shape}")
-        return np.load(io.BytesIO(data), allow_pickle=False)
-    except (ValueError, OSError, EOFError) as error:
-        raise InputError(f"{name}: not a 2-D numeric .npy array of at most {MAX_MAP_SIDE} a side ({error})",
-                         field) from None
-
-
-def image_pixels(data: bytes, name, what: str, field: str, read):
-    """What `read(image)` takes from an image map's bytes, its size checked before its pixels are read."""
-    from PIL import Image, UnidentifiedImageError  # pillow: Blender's Python, which makes worlds, has none
-
-    try:
-        with Image.open(io.BytesIO(data)) as image:
-            if max(image.size) > MAX_MAP_SIDE:
-                raise InputError(f"{name}: {image.size[0]}x{image.size[1]} pixels; {what} has at most "
-                                 f"{MAX_MAP_SIDE} a side", field)
-            return read(image)
-    except (UnidentifiedImageError, OSError, Image.DecompressionBombError) as error:
-        raise InputError(f"{name}: not a readable image ({error})", field) from None
-
-
-def parse_height_map(data: bytes, suffix: str, name, relief: float | None = None) -> HeightMap:
-    """A height map from a file's bytes: a greyscale image (.png: black 0,
-    white `relief` voxels; its columns run along the first horizontal axis,
-    its rows from the bottom up along the second, as a map seen from above)
-    or an array (.npy: heights in voxels, [i, j] tile (i, j)'s). `name`
-    says what the bytes are in messages."""
-    if len(data) > MAX_MAP_BYTES:
-        raise InputError(f"{name}: {len(data) >> 20} MB is too large for a height map")
-    suffix = suffix.lower()
-    if suffix == ".npy":
-        if relief is not None:
-            raise InputError(f"{name}: an array holds heights in voxels; `relief` scales an image's", "relief")
-        return HeightMap.of(read_npy_map(data, name, "heights"))
-    if suffix != ".png":
-        raise InputError(f"{name}: a height map is a .png image or a .npy array, got {suffix or 'no extension'!r}",
-                         "heights")
-    if relief is None or not (isinstance(relief, numbers.Real) and 0 < relief <= MAX_RELIEF):
-        raise InputError(f"`relief` must be a number of voxels in (0, {MAX_RELIEF}] for an image, got {relief!r}",
-                         "relief")
-    wide, pixels = image_pixels(data, name, "a height map", "heights", lambda image: (
-        image.mode.startswith("I"), np.asarray(image if image.mode.startswith("I") else image.convert("L"), np.float64)))
-    full = 65535.0 if wide else 255.0
-    return HeightMap.of(np.flipud(np.clip(pixels, 0, full) / full).T * relief)
-
-
-RELIEF = 4  # an image map's white, in the model's heights, unless a relief is given
-
-
-def read_height_map(path, model, relief: float | None = None) -> HeightMap:
-    """parse_height_map of a file; an image's white is `relief` voxels
-    (default RELIEF times the model's height)."""
-    path = Path(path)
-    data = read_regular(path, f"the height map {path}", MAX_MAP_BYTES, field="heights")
-    if relief is None and path.suffix.lower() == ".png":
-        layout = world_layout(model)
-        relief = RELIEF * layout.stride[layout.up]
-    return parse_height_map(data, path.suffix, path.name, relief)
-
-
-MAX_MODELS = 256  # models in one world: a model map's pixel is a byte
-
-
-@dataclass(frozen=True)
-class ModelMap:
-    """A designer's map of which model goes where in a scattered world: a
-    model's index (0 the world's first model) per tile (r, c), r along the
-    first horizontal axis, from tile (0, 0), as a height map's pixels lie;
-    beyond its edges, its edge. A scatter cell's object comes from the model
-    the pixel under the cell's centre names. Held as bytes, as HeightMap."""
-
-    shape: tuple
-    data: bytes  # uint8, C order
-
-    @classmethod
-    def of(cls, indices) -> "ModelMap":
-        try:
-            values = np.asarray(indices)
-        except (TypeError, ValueError):
-            values = np.empty(0)
-        if values.ndim != 2 or not 0 < min(values.shape) <= max(values.shape) <= MAX_MAP_SIDE:
-            raise InputError(f"a model map is a 2-D array of 1 to {MAX_MAP_SIDE} pixels a side, got shape "
-                             f"{values.shape}", "models_map")
-        numeric = values.dtype.kind in "iub" or values.dtype.kind == "f" and np.isfinite(values).all()
-        if not (numeric and (values == np.round(values)).all() and 0 <= values.min() and values.max() < MAX_MODELS):
-            raise InputError(f"a model map holds models' indices, whole numbers 0 to {MAX_MODELS - 1}", "models_map")
-        return cls(tuple(int(n) for n in values.shape), values.astype(np.uint8).tobytes())
-
-    @classmethod
-    def of_text(cls, text: str) -> "ModelMap":
-        """A map written as text, rows (along the first horizontal axis) parted
-        by ';' and a row's pixels by ',': '0,1;1,0'."""
-        try:
-            rows = [[int(pixel) for pixel in row.split(",")] for row in text.split(";")]
-        except ValueError:
-            rows = None
-        if not rows or len({len(row) for row in rows}) != 1:
-            raise InputError(f"a model map's text is rows of whole numbers, ',' between pixels and ';' between "
-                             f"rows, all rows as long (0,1;1,0), got {text[:40]!r}", "models_map")
-        return cls.of(rows)
-
-    def array(self) -> np.ndarray:
-        """(R, C) uint8."""
-        return np.frombuffer(self.data, np.uint8).reshape(self.shape)
-
-    def at(self, r: int, c: int) -> int:
-        """The index at tile (r, c), the edge's beyond the map."""
-        return int(self.array()[min(max(r, 0), self.shape[0] - 1), min(max(c, 0), self.shape[1] - 1)])
-
-
-def parse_model_map(data: bytes, suffix: str, name) -> ModelMap:
-    """A model map from a file's bytes: an image (.png: a palette image's
-    indices, or a greyscale image's values, laid out as a height map's
-    image) or an array (.npy: [i, j] tile (i, j)'s model index). `name` says
-    what the bytes are in messages."""
-    if len(data) > MAX_MAP_BYTES:
-        raise InputError(f"{name}: {len(data) >> 20} MB is too large for a model map", "models_map")
-    suffix = suffix.lower()
-    if suffix == ".npy":
-        return ModelMap.of(read_npy_map(data, name, "models_map"))
-    if suffix != ".png":
-        raise InputError(f"{name}: a model map is a .png image or a .npy array, got {suffix or 'no extension'!r}",
-                         "models_map")
-
-    def indices(image) -> np.ndarray:
-        if image.mode not in ("P", "L", "I", "I;16", "1"):
-            raise InputError(f"{name}: a model map is a palette or greyscale image (a model's index per pixel), "
-                             f"got mode {image.mode}", "models_map")
-        return np.asarray(image).astype(np.int64)
-
-    return ModelMap.of(np.flipud(image_pixels(data, name, "a model map", "models_map", indices)).T)
-
-
-def read_model_map(path) -> ModelMap:
-    """parse_model_map of a file."""
-    path = Path(path)
-    data = read_regular(path, f"the model map {path}", MAX_MAP_BYTES, field="models_map")
-    return parse_model_map(data, path.suffix, path.name)
-
+# ---- the world's options: its arrangement, its maps (world_maps), a tile's detail
 
 @dataclass(frozen=True)
 class WorldOptions:
@@ -350,7 +152,7 @@ class WorldOptions:
         if self.arrange not in ARRANGEMENTS:
             raise InputError(f"unknown `arrange` {self.arrange!r}; choose {' or '.join(ARRANGEMENTS)}", "arrange")
         if self.heights is not None and not isinstance(self.heights, HeightMap):
-            raise InputError("`heights` must be a world.HeightMap (HeightMap.of(array))", "heights")
+            raise InputError("`heights` must be a world_maps.HeightMap (HeightMap.of(array))", "heights")
         if not (isinstance(self.lod, numbers.Integral) and not isinstance(self.lod, bool) and 0 <= self.lod):
             raise InputError(f"`lod` must be a whole number of levels, 0 or more, got {self.lod!r}", "lod")
         if not isinstance(self.models, tuple) or len(self.models) >= MAX_MODELS:
@@ -360,7 +162,7 @@ class WorldOptions:
                 raise InputError("several models need a model map saying which goes where", "models_map")
             return
         if not isinstance(self.models_map, ModelMap):
-            raise InputError("`models_map` must be a world.ModelMap (ModelMap.of(array))", "models_map")
+            raise InputError("`models_map` must be a world_maps.ModelMap (ModelMap.of(array))", "models_map")
         if self.arrange != "scatter":
             raise InputError("a model map places whole objects: it is for a scatter world (blended models' "
                              "tiles, voxels and heights differ)", "models_map")
@@ -380,6 +182,16 @@ def check_lod(model, lod: int) -> int:
     if lod >= levels:
         raise InputError(f"`lod` must be 0 to {levels - 1} (the model has {levels} levels), got {lod}", "lod")
     return levels - 1 - lod
+
+
+def coloured(model, options: WorldOptions = PLAIN) -> bool:
+    """Whether a world's tiles carry colour: any of its models has it."""
+    return any(each.manifest.colour for each in (model, *options.models))
+
+
+def hidden_width(model, options: WorldOptions) -> int:
+    """The hidden vectors' width a world's points hold: its widest model's."""
+    return max(each.manifest.hidden for each in (model, *options.models))
 
 
 # ---- windows and objects: samples whose planes a tile reads
@@ -869,517 +681,3 @@ def scatter_into(out: np.ndarray, colours, model, options: WorldOptions, seed: i
     if colours is not None:
         rgb = head_colour(each.head, hidden) if each.manifest.colour else np.float32(GROUND_COLOUR)
         colours[part] = np.where(better[..., None], rgb, colours[part])
-
-
-def tile_occupancy(model, seed: int, tile, scale: float = 1.0, memory_limit: int | None = None,
-                   colour: bool = False, options: WorldOptions = PLAIN, progress=None):
-    """Occupancy on tile (i, j)'s grid: (X, Y, Z) float32, its points along
-    each horizontal axis from the tile's lattice point to the next (both
-    included: the faces it shares), along up the world's heights. With
-    `colour` (a coloured model), also its colour there, tile_colours' at a
-    format-5 model's full-detail tile: (occupancy, (X, Y, Z, 3) uint8
-    sRGB). progress(done, total) after each window and
-    each slab of rows (a server stops a job there)."""
-    check_seed(seed)
-    layout = world_layout(model)
-    made = tile_logits(model, seed, tile, scale, options, memory_limit, colour, progress)
-    logits, colours = made if colour else (made, None)
-    order = np.argsort([*layout.horizontal, layout.up])  # tile order -> the model's axes
-    occupancy = np.ascontiguousarray(sigmoid(logits).transpose(order))
-    if not colour:
-        return occupancy
-    if model.colour_tiles is not None and not options.lod or options.models:  # as the tile's vertices are coloured
-        grid = tile_grid(model, layout, scale, options)
-        points = np.stack(np.meshgrid(*grid.positions, indexing="ij"), axis=-1).reshape(-1, 3)
-        return occupancy, tile_colours(model, seed, tile, points, options, 1 / scale)[:, :3].reshape(*occupancy.shape, 3)
-    return occupancy, np.round(np.ascontiguousarray(colours.transpose(*order, 3)) * 255).astype(np.uint8)
-
-
-# ---- the field at any points of a tile (normals, colours)
-
-def point_field(model, seed: int, tile, points: np.ndarray, options: WorldOptions = PLAIN,
-                sources: list | None = None) -> tuple:
-    """The logits and hidden vectors at points of tile (i, j) ((n, 3), voxels
-    from the tile's corner along the horizontal axes, from the model's floor
-    along up), each read in the tile it falls in (a point just past a face,
-    in the neighbour's): (logits (n,) float32, hidden (n, D) float32, on the
-    ground (n,) bool: a scatter world's points outside every object). With a
-    list `sources`, also what each point reads most: the list gets, per
-    window or object, (its key for `window`, point indices, their cells in
-    it, back: the (3, 3) map of a move in its cells to one of the points, a
-    row per cell axis)."""
-    i, j = check_tile(tile)
-    layout = world_layout(model)
-    level = check_lod(model, options.lod)
-    h0, h1 = layout.horizontal
-    points = np.asarray(points, np.float64).reshape(-1, 3)
-    t0, t1 = (np.floor(points[:, axis] / layout.stride[axis]).astype(np.int64) for axis in (h0, h1))
-    low0, low1 = (int(t0.min()), int(t1.min())) if len(points) else (0, 0)
-    span = int(t1.max()) - low1 + 1 if len(points) else 1
-    keys = (t0 - low0) * span + (t1 - low1)  # the tile each point falls in, as one number
-    codes, which = np.unique(keys, return_inverse=True)
-    groups = np.stack([codes // span + low0, codes % span + low1], axis=1)
-    if len(groups) == 1:
-        order, starts = np.arange(len(points)), np.array([0, len(points)])
-    else:
-        order = np.argsort(which, kind="stable")
-        starts = np.searchsorted(which[order], np.arange(len(groups) + 1))
-    logits = np.empty(len(points), np.float32)
-    hidden = np.empty((len(points), hidden_width(model, options)), np.float32)
-    ground = np.empty(len(points), bool)
-    for group, (t0, t1) in enumerate(groups.tolist()):
-        chosen = order[starts[group]:starts[group + 1]]
-        local = points[chosen]
-        local[:, h0] -= t0 * layout.stride[h0]  # exact: a power-of-two step from an integer
-        local[:, h1] -= t1 * layout.stride[h1]
-        found = [] if sources is not None else None
-        logits[chosen], hidden[chosen], ground[chosen] = point_tile(model, layout, seed, (i + t0, j + t1), local,
-                                                                     level, options, found)
-        if sources is not None:
-            sources.extend((key, chosen[index], cells, back) for key, index, cells, back in found)
-    return logits, hidden, ground
-
-
-def point_tile(model, layout: Layout, seed: int, tile: tuple, points: np.ndarray, level: int,
-               options: WorldOptions, sources: list | None = None) -> tuple:
-    """point_field for points inside one tile (`sources`: as point_field's,
-    with indices into `points`: the window that weighs most, the first of
-    equals, or the object a point lies in)."""
-    h0, h1, up = *layout.horizontal, layout.up
-    u0, u1, z = points[:, h0], points[:, h1], points[:, up]
-    rise = (np.zeros(len(points)) if options.heights is None
-            else map_heights(options.heights, layout, u0, u1, tile, outer=False))
-    if options.arrange == "scatter":
-        logits = (-np.float32(GROUND_SLOPE) * (z - rise - GROUND)).astype(np.float32)
-        hidden = np.zeros((len(points), hidden_width(model, options)), np.float32)
-        ground = np.ones(len(points), bool)
-        owner, owner_cells, objects = np.full(len(points), -1), np.zeros((len(points), 3)), []
-        for placed_object in objects_near(model, layout, seed, tile, level, options):
-            each, own = object_model(model, options, placed_object.model)
-            inside = np.ones(len(points), bool)
-            cells = np.empty((len(points), 3))
-            back = np.zeros((3, 3))
-            for axis, world_axis, u, low, extent, mirror in zip(own.horizontal, (h0, h1), (u0, u1),
-                                                                placed_object.corner, placed_object.extent,
-                                                                placed_object.mirror):
-                position = u - low
-                inside &= (position >= 0) & (position <= extent)
-                cells[:, axis] = extent - position if mirror else position
-                back[axis, world_axis] = -1.0 if mirror else 1.0
-            if not inside.any():
-                continue
-            found = object_window(model, options, seed, placed_object, level)[2]
-            cells[:, own.up] = np.clip(z - placed_object.height, 0, own.stride[own.up])
-            back[own.up, up] = 1.0
-            cells *= np.asarray(found.cells)
-            back /= np.asarray(found.cells, np.float64)[:, None]
-            hid = point_hidden(found, cells[inside])
-            better = np.zeros(len(points), bool)
-            candidate = capped(head_logits(each.head, hid), (z - placed_object.height - own.stride[own.up])[inside])
-            better[inside] = candidate > logits[inside]
-            logits[better] = candidate[better[inside]]
-            hidden[better] = 0  # a narrower model's vector leaves the rest zero
-            hidden[better, :hid.shape[1]] = hid[better[inside]]
-            ground[better] = False
-            if sources is not None:
-                owner[better] = len(objects)
-                owner_cells[better] = cells[better]
-                objects.append(((*placed_object.cell, "scatter", placed_object.model), back))
-        if sources is not None:
-            sources.extend((key, np.flatnonzero(owner == k), owner_cells[owner == k], back)
-                           for k, (key, back) in enumerate(objects))
-        return logits, hidden, ground
-    levels = np.clip(z - rise, 0, layout.stride[up])
-    blend = ContrastSum(model.manifest.contrast)
-    i, j = tile
-    heaviest, owner, owner_cells, keys = np.full(len(points), -1.0), np.zeros(len(points), np.int64), None, []
-    for a in (i - 1, i):
-        for b in (j - 1, j):
-            weight = window_weight(u0, layout.stride[h0], a == i) * window_weight(u1, layout.stride[h1], b == j)
-            if not weight.any():  # adds exact zeros: its planes are not needed (a point just past a face)
-                continue
-            found = window(model, layout, seed, a, b, level)
-            cells = np.empty((len(points), 3))
-            cells[:, h0] = (u0 + (layout.stride[h0] if a < i else 0)) * found.cells[h0]
-            cells[:, h1] = (u1 + (layout.stride[h1] if b < j else 0)) * found.cells[h1]
-            cells[:, up] = levels * found.cells[up]
-            blend.add(weight[:, None], point_hidden(found, cells), along(found.mean, cells[:, up], 0))
-            if sources is not None:
-                heavier = weight > heaviest
-                heaviest[heavier], owner[heavier] = weight[heavier], len(keys)
-                owner_cells = cells.copy() if owner_cells is None else np.where(heavier[:, None], cells, owner_cells)
-                keys.append((a, b, "blend", 0))
-    if sources is not None:  # a window's cells run along the world's axes
-        sources.extend((key, np.flatnonzero(owner == k), owner_cells[owner == k],
-                        np.diag(1 / np.asarray(found.cells, np.float64))) for k, key in enumerate(keys))
-    total = blend.total()
-    return capped(head_logits(model.head, total), z - rise - layout.stride[up]), total, np.zeros(len(points), bool)
-
-
-def point_hidden(window: Window, cells: np.ndarray) -> np.ndarray:
-    """A window's hidden sum at points given in its level's cells: (n, D) float32."""
-    return sum(bilinear(plane, cells[:, a], cells[:, b]) for plane, (a, b) in zip(window.planes, PLANE_AXES))
-
-
-def tile_normals(model, seed: int, tile, vertices: np.ndarray, options: WorldOptions = PLAIN) -> np.ndarray:
-    """Unit normals at a tile's vertices (model units from its corner, as
-    tile_mesh gives them): the field's gradient, by differences over
-    NORMAL_STEP voxels along each axis from the vertex, pointing out of the
-    solid. A vertex on a face two tiles share gets the same normal from both
-    (the same points, each read in the tile it falls in: just past a face,
-    only the face's own windows count, so none of the neighbour's is made).
-    (V, 3) float32."""
-    step = NORMAL_STEP
-    vertices = np.asarray(vertices, np.float64)
-    offsets = np.concatenate([np.zeros((1, 3)), np.eye(3) * step])  # (4, 3): the vertex, then a step along each axis
-    probes = (vertices[:, None, :] + offsets[None]).reshape(-1, 3)
-    logits = point_field(model, seed, tile, probes, options)[0].astype(np.float64).reshape(-1, 4)
-    gradient = logits[:, 1:] - logits[:, :1]
-    length = np.linalg.norm(gradient, axis=1, keepdims=True)
-    up = np.zeros(3)
-    up[world_layout(model).up] = 1
-    normals = np.where(length > 0, -gradient / np.where(length > 0, length, 1), up)
-    return normals.astype(np.float32)
-
-
-GROUND_COLOUR = (0.5, 0.5, 0.5)  # sRGB of a scatter world's ground, which no model colours
-
-
-def tile_colours(model, seed: int, tile, vertices: np.ndarray, options: WorldOptions = PLAIN,
-                 footprint: float | None = None) -> np.ndarray:
-    """A coloured model's colour at tile (i, j)'s vertices (model units from
-    the tile's corner, as tile_mesh gives them): a format-5 model's, read
-    from the example by correspondence in the window that weighs most there
-    (a scatter world's: in the object there), each the colour around it
-    (`footprint` voxels); a format-4 model's (and a coarser tile's, `lod`,
-    or any without `detail`), the colour head of the hidden vector there, blended as the occupancy
-    is; a format-5 model's coarser tile then takes the example's nearest
-    colour (colour.example_palette: its tiles' means), so that no hue the
-    example lacks shows in the distance either (and without `detail`). A scatter world's ground is
-    grey. A vertex on a face two tiles share gets the same colour from
-    both. Returns (n, 4) uint8 RGBA."""
-    by_correspondence = options.detail and not options.lod
-    if not options.models and (model.colour_tiles is None or not by_correspondence):
-        _, hidden, ground = point_field(model, seed, tile, vertices, options)
-        rgb = head_colour(model.head, hidden)
-    else:  # each vertex its heaviest window's (or its object's) colour, read from the example or its model's head
-        sources = []
-        _, hidden, ground = point_field(model, seed, tile, vertices, options, sources)
-        rgb = np.empty((len(vertices), 3), np.float32)
-        palettes = []
-        for (a, b, arrange, k), index, cells, _ in sources:
-            each, own = object_model(model, options, k)
-            if not len(index):
-                continue
-            if each.colour_tiles is not None and by_correspondence:
-                rgb[index] = window_colouring(each, own, seed, a, b, arrange)(cells, footprint)
-            elif each.manifest.colour:
-                rgb[index] = head_colour(each.head, hidden[index, :each.manifest.hidden])
-                if each.colour_tiles is not None:
-                    palettes.append((index, each.colour_tiles))
-            else:
-                rgb[index] = GROUND_COLOUR
-    rgb[ground] = GROUND_COLOUR
-    out = colour_bytes(rgb)
-    if options.models:
-        for index, tiles in palettes:
-            out[index, :3] = nearest_in_palette(out[index, :3], example_palette(tiles))
-    elif model.colour_tiles is not None and not by_correspondence:
-        out[~ground, :3] = nearest_in_palette(out[~ground, :3], example_palette(model.colour_tiles))
-    return out
-
-
-def tile_relief(model, seed: int, tile, points: np.ndarray, options: WorldOptions = PLAIN) -> np.ndarray:
-    """Points of tile (i, j)'s surface (model units from its corner, as
-    tile_mesh gives them) moved by the example's relief under them (as a
-    sample's vertices are: colour.SampleSurface.relief), read in the window
-    that weighs most at each (a scatter world's: in its object), as its
-    colour is; points of a model without relief tiles (or a scatter world's
-    ground) stay. A point on a face two tiles share moves alike in both.
-    (n, 3) float64."""
-    sources = []
-    point_field(model, seed, tile, points, options, sources)
-    moved = np.array(points, np.float64).reshape(-1, 3)
-    for (a, b, arrange, k), index, cells, back in sources:
-        each, own = object_model(model, options, k)
-        if each.tiles is None or not len(index):
-            continue
-        surface = window_colouring(each, own, seed, a, b, arrange)
-        moved[index] += (surface.relief(cells) - cells) @ back
-    return moved
-
-
-def relieved(model, options: WorldOptions, scale: float) -> bool:
-    """Whether a tile's mesh takes its example's relief: at full detail, on
-    a mesh fine enough to carry it (colour.RELIEF_SCALE), a model with relief
-    tiles among the world's."""
-    return (options.detail and not options.lod and scale >= RELIEF_SCALE
-            and any(each.tiles is not None for each in (model, *options.models)))
-
-
-def relief_normals(model, seed: int, tile, points: np.ndarray, normals: np.ndarray, step: float,
-                   options: WorldOptions = PLAIN) -> np.ndarray:
-    """The unit normals (n, 3) of the relief surface (tile_relief) at a tile's
-    points (before they moved), whatever mesh they belong to: the cross
-    product of the moved points' differences `step` voxels either side
-    along two directions across the field's `normals` there (so that two
-    tiles give a vertex they share the same normal)."""
-    across = np.cross(normals, np.where(np.abs(normals[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]]))
-    across /= np.linalg.norm(across, axis=1, keepdims=True)
-    other = np.cross(normals, across)
-    probes = np.concatenate([points + sign * step * d for d in (across, other) for sign in (1, -1)])
-    moved = tile_relief(model, seed, tile, probes, options).reshape(4, len(points), 3)
-    out = np.cross(moved[0] - moved[1], moved[2] - moved[3])
-    length = np.linalg.norm(out, axis=1, keepdims=True)
-    out = np.where(length > 0, out / np.where(length > 0, length, 1), normals)
-    return out * np.where(np.einsum("nc,nc->n", out, normals) < 0, -1.0, 1.0)[:, None]
-
-
-def coloured(model, options: WorldOptions = PLAIN) -> bool:
-    """Whether a world's tiles carry colour: any of its models has it."""
-    return any(each.manifest.colour for each in (model, *options.models))
-
-
-def hidden_width(model, options: WorldOptions) -> int:
-    """The hidden vectors' width a world's points hold: its widest model's."""
-    return max(each.manifest.hidden for each in (model, *options.models))
-
-
-# Windows' colourings kept for the next tiles, as their planes are (`window`).
-_colourings = OrderedDict()  # (id(model), seed, arrange, a, b) -> (model, colouring)
-
-
-def window_colouring(model, layout: Layout, seed: int, a: int, b: int, arrange: str):
-    """A format-5 window's (or object's) colour at points in its finest
-    cells: its own sample's colour by correspondence (colour.planes_colouring),
-    matched once and kept. A window's matches follow its content only, so a
-    tile and its neighbour read a window they share alike."""
-    key = (id(model), seed, arrange, a, b)
-    with _windows_lock:
-        if key in _colourings:
-            _colourings.move_to_end(key)
-            return _colourings[key][1]
-    found = window(model, layout, seed, a, b, len(model.manifest.sizes) - 1, arrange)
-    made = planes_colouring(model, found.planes, window_sizes(model, layout, arrange)[-1])
-    with _windows_lock:
-        _colourings[key] = (model, made)
-        while len(_colourings) > WINDOWS_KEPT:
-            _colourings.popitem(last=False)
-    return made
-
-
-def tile_points(model, seed: int, tile, points: np.ndarray, options: WorldOptions = PLAIN) -> np.ndarray:
-    """The world's occupancy at any points of tile (i, j) (model units from
-    its corner along the horizontal axes, from the floor along up): (n,)
-    float32, what its grid holds where a point is one of the grid's."""
-    return sigmoid(point_field(model, seed, tile, points, options)[0])
-
-
-# ---- a tile's surface
-
-def tile_mesh(model, seed: int, tile, scale: float = 1.0, memory_limit: int | None = None,
-              closed: tuple = (), options: WorldOptions = PLAIN, progress=None) -> tuple:
-    """Tile (i, j)'s surface: (vertices (V, 3) float64 in model units
-    relative to the tile's lowest corner along the horizontal axes and to
-    the model's floor along up, faces (F, 3) int64). Closed at the top and
-    bottom, open on the four sides it shares with its neighbours, whose
-    border vertices it shares exactly, except the sides in `closed` ((axis,
-    0 or 1) pairs: the low or high side along a horizontal axis), closed as
-    a sample's sides are (where a block of tiles ends). progress: as tile_occupancy's."""
-    values = tile_occupancy(model, seed, tile, scale, memory_limit, options=options, progress=progress)
-    layout = world_layout(model)
-    grid = tile_grid(model, layout, scale, options)
-    pad = [[0, 0], [0, 0], [0, 0]]
-    pad[layout.up] = [1, 1]
-    for axis, side in closed:
-        pad[axis][side] = 1
-    padded = np.pad(values, pad)
-    corners = np.stack([padded[dx:padded.shape[0] - 1 + dx, dy:padded.shape[1] - 1 + dy, dz:padded.shape[2] - 1 + dz]
-                        < cubes.LEVEL for dx in (0, 1) for dy in (0, 1) for dz in (0, 1)])
-    crossing = np.argwhere(corners.any(axis=0) & ~corners.all(axis=0))
-    _, vertices, faces = cubes.march(padded, crossing, 1)
-    for axis in range(3):
-        vertices[:, axis] -= pad[axis][0]
-        intervals = values.shape[axis] - 1
-        if axis == layout.up:
-            low, step = grid.positions[axis][0], grid.positions[axis][1] - grid.positions[axis][0]
-            vertices[:, axis] = low + vertices[:, axis] * step
-        else:
-            vertices[:, axis] = vertices[:, axis] * layout.stride[axis] / intervals  # exact at the faces: m S / m = S
-    return vertices, faces
-
-
-@dataclass(frozen=True)
-class Surface:
-    """A tile as its file holds it: vertices and faces (tile_mesh's, then a
-    coarser tile's skirt), unit normals, and a coloured model's colours."""
-
-    vertices: np.ndarray  # (V, 3) float64
-    faces: np.ndarray  # (F, 3) int64
-    normals: np.ndarray  # (V, 3) float32
-    colours: np.ndarray | None  # (V, 4) uint8
-
-
-def tile_surface(model, seed: int, tile, scale: float = 1.0, options: WorldOptions = PLAIN,
-                 memory_limit: int | None = None, progress=None) -> Surface:
-    """Tile (i, j)'s mesh with its normals (and colours), and at lod > 0 a
-    skirt: every edge on the tile's sides extruded SKIRT grid steps down, so
-    that a finer neighbour's border, which its own does not meet, shows no
-    gap. Skirt vertices take the normal and colour of the vertex above.
-    progress: as tile_occupancy's."""
-    vertices, faces = tile_mesh(model, seed, tile, scale, memory_limit, options=options, progress=progress)
-    normals = tile_normals(model, seed, tile, vertices, options)
-    if relieved(model, options, scale) and len(vertices):
-        layout = world_layout(model)
-        border = np.any([(vertices[:, h] == 0) | (vertices[:, h] == layout.stride[h]) for h in layout.horizontal],
-                        axis=0)
-        moved = tile_relief(model, seed, tile, vertices, options)
-        # The moved mesh's own normals inside; on the border, normals its neighbour gives alike.
-        inside = vertex_normals(moved, faces)
-        inside[border] = relief_normals(model, seed, tile, vertices[border], normals[border].astype(np.float64),
-                                        0.5 / scale, options)
-        vertices, normals = moved, inside.astype(np.float32)
-    colours = tile_colours(model, seed, tile, vertices, options, 1 / scale) if coloured(model, options) else None
-    if options.lod and len(faces):
-        layout = world_layout(model)
-        grid = tile_grid(model, layout, scale, options)
-        depth = SKIRT * (grid.positions[layout.up][1] - grid.positions[layout.up][0])
-        vertices, faces, source = skirted(vertices, faces, layout, depth)
-        normals = normals[source]
-        colours = None if colours is None else colours[source]
-    return Surface(vertices, faces, normals, colours)
-
-
-def skirted(vertices: np.ndarray, faces: np.ndarray, layout: Layout, depth: float) -> tuple:
-    """The mesh with a skirt: each edge lying on one of the tile's four sides
-    (an edge of one face only) gets a quad hanging `depth` below it, wound as
-    the face beside it. Returns (vertices, faces, the vertex each new vertex
-    copies: an index per vertex)."""
-    edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    key = np.minimum(edges[:, 0], edges[:, 1]) * len(vertices) + np.maximum(edges[:, 0], edges[:, 1])
-    _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
-    open_edges = edges[counts[inverse.reshape(-1)] == 1]
-    on_side = np.zeros(len(open_edges), bool)
-    for axis in layout.horizontal:
-        for at in (0, layout.stride[axis]):
-            on_side |= (vertices[open_edges, axis] == at).all(axis=1)
-    open_edges = open_edges[on_side]
-    used, index = np.unique(open_edges, return_inverse=True)
-    hanging = vertices[used].copy()
-    hanging[:, layout.up] -= depth
-    base = len(vertices)
-    lower = base + index.reshape(-1, 2)
-    a, b = open_edges[:, 0], open_edges[:, 1]
-    skirt = np.concatenate([np.stack([b, a, lower[:, 0]], axis=1), np.stack([b, lower[:, 0], lower[:, 1]], axis=1)])
-    return (np.concatenate([vertices, hanging]), np.concatenate([faces, skirt]),
-            np.concatenate([np.arange(base), used]))
-
-
-def tile_corner(model, tile) -> tuple:
-    """Tile (i, j)'s lowest corner in model units (exact integers, for any tile)."""
-    i, j = check_tile(tile)
-    layout = world_layout(model)
-    corner = [0, 0, 0]
-    corner[layout.horizontal[0]], corner[layout.horizontal[1]] = i * layout.stride[layout.horizontal[0]], \
-        j * layout.stride[layout.horizontal[1]]
-    return tuple(corner)
-
-
-# Beyond this many voxels from the world's origin, absolute float32
-# coordinates keep less than 1/64 of a voxel: a tile there is written in its
-# own frame ('tile').
-MAX_ABSOLUTE = 1 << 18
-
-
-def check_placement(model, tile, frame: str) -> None:
-    """A tile far from the world's origin is written in its own frame only."""
-    far = max(abs(c) for c in tile_corner(model, tile))
-    if frame != "tile" and far > MAX_ABSOLUTE:
-        raise InputError(f"tile {tuple(tile)} lies {far} voxels from the world's origin, where float32 "
-                         "coordinates lose the shape's detail: give `frame` tile (coordinates from the tile's "
-                         "corner)", "frame")
-
-
-def placed(model, tile, vertices: np.ndarray, frame: str) -> np.ndarray:
-    """Tile-relative model units -> the request's frame: 'tile' (input units
-    from the tile's corner), 'model' (voxels) or 'input' (the training mesh's
-    frame), the last two from the world's origin."""
-    manifest = model.manifest
-    check_placement(model, tile, frame)
-    if frame == "tile":
-        return vertices * np.asarray(manifest.spacing)
-    absolute = np.array(tile_corner(model, tile), np.float64) + vertices  # exact on shared borders: integers plus the same offsets
-    return absolute if frame == "model" else np.asarray(manifest.origin) + absolute * np.asarray(manifest.spacing)
-
-
-def frame_normals(model, normals: np.ndarray) -> np.ndarray:
-    """Normals in voxel units -> the input's frame (its spacing may differ per axis)."""
-    scaled = normals / np.asarray(model.manifest.spacing)
-    return (scaled / np.linalg.norm(scaled, axis=1, keepdims=True)).astype(np.float32)
-
-
-MAX_BLOCK_TILES = 4096  # tiles written as one mesh; more is a folder of tiles (write_tiles)
-# Peak bytes a block holds per vertex of its tiles (their arrays, the joined
-# ones, welding's sort, the mesh and its file's bytes): 296 to 422 measured
-# on blocks of 144 and 256 terrain tiles at scales 2 and 1, counting the
-# first tile's vertices for every tile; it stands for the others, which may
-# hold more.
-BLOCK_BYTES_PER_VERTEX = 500
-
-
-def block_mesh(model, request, tiles, progress=None, memory_limit: int | None = None):
-    """A block of tiles (a rectangle of them) as one trimesh mesh in the
-    request's frame ('input' or 'model': placed in the world), shared border
-    vertices welded and the block's outer sides closed: one closed surface.
-    Its count is bounded before a tile is listed, and its memory (the first
-    tile's surface times the count) before the second is made.
-    progress(done, total) after each tile."""
-    import trimesh  # half a second to import, for a block's whole mesh only (runtime/mesh.py's tiles stream)
-
-    sized = hasattr(tiles, "__len__")
-    count = len(tiles) if sized else None  # a block's count is checked before its tiles are listed
-    tiles = list(itertools.islice(tiles, MAX_BLOCK_TILES + 1)) if not sized or count <= MAX_BLOCK_TILES else []
-    count = count if sized else len(tiles)
-    if not 0 < count <= MAX_BLOCK_TILES:
-        got = count if sized else f"more than {MAX_BLOCK_TILES}"
-        raise InputError(f"a block is 1 to {MAX_BLOCK_TILES} tiles, got {got}; write more as a folder of tiles",
-                         "tile")
-    if request.frame == "tile":
-        raise InputError("a block is placed in the world: give `frame` input or model", "frame")
-    options = request.world_options()
-    if options.lod:
-        raise InputError("a block is one closed surface, at one level of detail: give `lod` 0", "lod")
-    h0, h1 = world_layout(model).horizontal
-    low, high = np.min(tiles, axis=0), np.max(tiles, axis=0)
-    vertices, faces, colours, count = [], [], [], 0
-    for done, tile in enumerate(tiles, 1):
-        check_placement(model, tile, request.frame)
-        ends = [(axis, side) for n, axis in enumerate((h0, h1)) for side, end in enumerate((low, high))
-                if tile[n] == end[n]]
-        v, f = tile_mesh(model, request.sample_seed, tile, request.scale, memory_limit, closed=ends, options=options)
-        if done == 1:
-            check_memory(BLOCK_BYTES_PER_VERTEX * max(len(v), 1) * len(tiles),
-                         f"a block of {len(tiles)} tiles at scale {request.scale:g} (about {len(v)} vertices each)",
-                         memory_limit)
-        if coloured(model, options):
-            colours.append(tile_colours(model, request.sample_seed, tile, v, options, 1 / request.scale))
-        vertices.append(np.array(tile_corner(model, tile), np.float64) + v)  # exact on shared borders
-        faces.append(f + count)
-        count += len(v)
-        if progress:
-            progress(done, len(tiles))
-    unique, index = np.unique(np.concatenate(vertices), axis=0, return_inverse=True)
-    index = index.reshape(-1)
-    faces = index[np.concatenate(faces)]
-    # A grid value exactly at the level (a scatter world's ground has them)
-    # puts several of a cell's vertices on one grid point: welded, their
-    # faces have no area and would share edges thrice. Dropped, the block is closed.
-    faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 2] != faces[:, 0])]
-    if request.frame == "input":
-        unique = np.asarray(model.manifest.origin) + unique * np.asarray(model.manifest.spacing)
-    mesh = trimesh.Trimesh(unique, faces, process=False)
-    if colours:  # a welded vertex's tiles gave it the same colour
-        painted = np.empty((len(unique), 4), np.uint8)
-        painted[index] = np.concatenate(colours)
-        mesh.visual.vertex_colors = painted
-    return mesh

@@ -25,7 +25,7 @@ from sinshape.core.errors import InputError
 from sinshape.core.files import GRID_FORMATS, MESH_FORMATS, atomic_write, check_writable
 from sinshape.core.manifest import srgb_to_linear
 
-from . import mesh, world
+from . import mesh, world, world_tiles
 from .asset import asset_bytes
 from .colour import RELIEF_SCALE, colouring, dense_grids
 from .generate import interpolate
@@ -233,24 +233,24 @@ def request_bytes(model, request, name, threads: int | None = None, mesh_progres
 def tile_bytes(model, request, name, progress=None) -> tuple:
     """A tile request (request.SampleRequest with `tile`) as the bytes of the
     file `name` names, and its mesh (None for an .npz grid). progress: as
-    world.tile_occupancy's."""
+    world_tiles.tile_occupancy's."""
     suffix = Path(name).suffix.lower()
     options = request.world_options()
     if output_kind(name) == "grid":
-        grids = world.tile_occupancy(model, request.sample_seed, request.tile, request.scale,
+        grids = world_tiles.tile_occupancy(model, request.sample_seed, request.tile, request.scale,
                                      colour=world.coloured(model, options), options=options, progress=progress)
         grids = dict(zip(("occupancy", "colour"), grids)) if world.coloured(model, options) else {"occupancy": grids}
         layout = world.world_layout(model)
         grid = world.tile_grid(model, layout, request.scale, options)
-        return grid_bytes(**grids, tile=request.tile, corner=world.tile_corner(model, request.tile),
+        return grid_bytes(**grids, tile=request.tile, corner=world_tiles.tile_corner(model, request.tile),
                           scale=request.scale, lod=options.lod, heights=grid.positions[layout.up]), None
     import trimesh  # half a second to import: a streamed .ply of a sample does without it
 
-    surface = world.tile_surface(model, request.sample_seed, request.tile, request.scale, options, progress=progress)
+    surface = world_tiles.tile_surface(model, request.sample_seed, request.tile, request.scale, options, progress=progress)
     if not len(surface.faces):
         raise no_surface(Path(name))
-    vertices = world.placed(model, request.tile, surface.vertices, request.frame)
-    normals = surface.normals if request.frame == "model" else world.frame_normals(model, surface.normals)
+    vertices = world_tiles.placed(model, request.tile, surface.vertices, request.frame)
+    normals = surface.normals if request.frame == "model" else world_tiles.frame_normals(model, surface.normals)
     tile = trimesh.Trimesh(vertices, surface.faces, vertex_normals=normals, process=False)
     if surface.colours is not None:
         tile.visual.vertex_colors = surface.colours
@@ -311,12 +311,12 @@ def write_interpolation(model, request, seed_b: int, alpha, steps: int, path, pr
 
 
 def write_block(model, request, tiles, path, progress=None) -> None:
-    """A block of tiles of the world of `request` (world.block_mesh) as one
+    """A block of tiles of the world of `request` (world_tiles.block_mesh) as one
     mesh file, checked before any work."""
     if output_kind(path) != "mesh":
         raise InputError(f"{path}: a block is written as a mesh ({', '.join(MESH_FORMATS)})")
     check_writable(path, [model.path])
-    block = world.block_mesh(model, request, tiles, progress)
+    block = world_tiles.block_mesh(model, request, tiles, progress)
     if not len(block.faces):
         raise no_surface(Path(path))
     write_mesh(block, path)

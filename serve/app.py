@@ -39,7 +39,7 @@ from starlette.requests import ClientDisconnect
 
 from sinshape.core import files
 from sinshape.core.errors import InputError, MemoryLimitError
-from sinshape.runtime import asset, generate, layout, load, world
+from sinshape.runtime import asset, generate, layout, load, world, world_maps, world_tiles
 from sinshape.runtime.options import OPTION, OPTIONS
 from sinshape.runtime.request import Layout, SampleRequest, resolved
 from sinshape.serve import catalog, http
@@ -362,9 +362,9 @@ async def tile_answer(request: Request, q: TileQuery, heights=None, asset=None) 
     given = {name: getattr(q, name) for name in OPTION if hasattr(q, name)}
     wanted = SampleRequest.of({**given, "tile": (q.i, q.j), "arrange": q.arrange or model.manifest.arrange,
                                "heights": heights, "models": tuple(str(find(request, other).path) for other in q.models),
-                               "models_map": None if q.models_map is None else world.ModelMap.of_text(q.models_map)})
+                               "models_map": None if q.models_map is None else world_maps.ModelMap.of_text(q.models_map)})
     response = await answer(request, model, Job(q.name, wanted, q.format, asset=asset))
-    response.headers["X-Tile-Corner"] = ",".join(map(str, world.tile_corner(model, (q.i, q.j))))
+    response.headers["X-Tile-Corner"] = ",".join(map(str, world_tiles.tile_corner(model, (q.i, q.j))))
     return response
 
 
@@ -392,8 +392,8 @@ async def tile_of_map(
         raise InputError("the height map is neither a .npy array nor a .png image")
     if suffix == ".png" and relief is None:
         layout = world.world_layout(find(request, q.name))
-        relief = world.RELIEF * layout.stride[layout.up]
-    heights = await run_in_threadpool(world.parse_height_map, body, suffix, "the height map", relief)
+        relief = world_maps.RELIEF * layout.stride[layout.up]
+    heights = await run_in_threadpool(world_maps.parse_height_map, body, suffix, "the height map", relief)
     return await tile_answer(request, q, heights, a.options(q.format))
 
 

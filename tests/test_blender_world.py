@@ -59,7 +59,7 @@ def assert_tiles_are_the_command_lines(obj, tmp_path, model_path, seed) -> None:
     corner (frame 'tile'), in the model's frame (Z up turned back); placed
     at the tile's corner, in the world's space it is `sinrun world`'s."""
     from blender import convert
-    from sinshape.runtime import world
+    from sinshape.runtime import world_tiles
     from sinshape.runtime.load import load_model
 
     model = load_model(model_path, threads=1)
@@ -67,9 +67,9 @@ def assert_tiles_are_the_command_lines(obj, tmp_path, model_path, seed) -> None:
     placed = sinrun_world(tmp_path, model_path, seed, list(tiles), "input")
     for tile, child in tiles.items():
         vertices, faces = convert.mesh_arrays(child.data)
-        expected, expected_faces = world.tile_mesh(model, seed, tile)
+        expected, expected_faces = world_tiles.tile_mesh(model, seed, tile)
         assert vertices.shape == expected.shape and np.array_equal(faces, expected_faces)
-        assert np.abs(convert.to_model(vertices, "z") - world.placed(model, tile, expected, "tile")).max() < 1e-5
+        assert np.abs(convert.to_model(vertices, "z") - world_tiles.placed(model, tile, expected, "tile")).max() < 1e-5
         in_world = vertices @ np.array(child.matrix_parent_inverse)[:3, :3].T + np.array(child.location)
         assert np.array_equal(faces, placed[tile][1])
         assert np.abs(convert.to_model(in_world, "z") - placed[tile][0]).max() < 1e-4
@@ -258,10 +258,10 @@ def test_a_saved_world_reopens_and_makes_the_same_tiles(scene, tiny_model, tmp_p
 
 
 def test_far_tiles_are_made_coarser_with_a_skirt_and_a_scattered_world_is_the_runtimes(scene, tiny_model):
-    """Past the fine radius a tile is a level coarser per tile (world.tile_surface at that lod: the
+    """Past the fine radius a tile is a level coarser per tile (world_tiles.tile_surface at that lod: the
     runtime's mesh and its skirt); a wider fine radius remakes those at full detail."""
     from blender import convert
-    from sinshape.runtime import world
+    from sinshape.runtime import world, world_tiles
     from sinshape.runtime.load import load_model
 
     model = load_model(tiny_model, threads=1)
@@ -272,30 +272,30 @@ def test_far_tiles_are_made_coarser_with_a_skirt_and_a_scattered_world_is_the_ru
     lods = {tile: int(child["sinshape_made"].rsplit(":", 1)[1]) for tile, child in tiles_of(obj).items()}
     assert lods == {(ci + di, cj + dj): min(1, max(0, max(abs(di), abs(dj)) - 1)) for di in range(-2, 3) for dj in range(-2, 3)}
     far = (ci + 2, cj)
-    surface = world.tile_surface(model, 3, far, options=world.WorldOptions("scatter", lod=1))
+    surface = world_tiles.tile_surface(model, 3, far, options=world.WorldOptions("scatter", lod=1))
     vertices, faces = convert.mesh_arrays(tiles_of(obj)[far].data)
-    assert len(faces) > len(world.tile_mesh(model, 3, far, options=world.WorldOptions("scatter", lod=1))[1])
+    assert len(faces) > len(world_tiles.tile_mesh(model, 3, far, options=world.WorldOptions("scatter", lod=1))[1])
     assert np.array_equal(faces, surface.faces)
-    assert np.abs(convert.to_model(vertices, "z") - world.placed(model, far, surface.vertices, "tile")).max() < 1e-5
+    assert np.abs(convert.to_model(vertices, "z") - world_tiles.placed(model, far, surface.vertices, "tile")).max() < 1e-5
     obj.sinshape_world.fine = 2
     assert {int(child["sinshape_made"].rsplit(":", 1)[1]) for child in tiles_of(obj).values()} == {0}
 
 
 def test_a_world_of_two_models_on_a_model_map_is_the_runtimes(scene, tmp_path):
     """Temples and tower ruins where a 2 x 2 checkerboard map says: each tile
-    world.tile_surface's with the same WorldOptions, not the temples' world
+    world_tiles.tile_surface's with the same WorldOptions, not the temples' world
     alone; the second model changed to the first, the temples' world again."""
     import bpy
 
     from blender import convert
     from sinshape import models
-    from sinshape.runtime import world
+    from sinshape.runtime import world, world_maps, world_tiles
     from sinshape.runtime.load import load_model
 
     first, second = (load_model(models.find(name), threads=1) for name in ("acropolis", "towerruins"))
     checkerboard = [[0, 1], [1, 0]]
     np.save(tmp_path / "map.npy", np.array(checkerboard))
-    options = world.WorldOptions("scatter", models=(second,), models_map=world.ModelMap.of(checkerboard))
+    options = world.WorldOptions("scatter", models=(second,), models_map=world_maps.ModelMap.of(checkerboard))
     scene.cursor.location = (0, 0, 0)
     obj = add_world("acropolis", seed=6, radius=1)  # scattered, as the temple records
     alone = {tile: convert.mesh_arrays(child.data) for tile, child in tiles_of(obj).items()}
@@ -311,10 +311,10 @@ def test_a_world_of_two_models_on_a_model_map_is_the_runtimes(scene, tmp_path):
     changed = 0
     for tile, child in tiles.items():
         vertices, faces = convert.mesh_arrays(child.data)
-        surface = world.tile_surface(first, 6, tile, options=options)
+        surface = world_tiles.tile_surface(first, 6, tile, options=options)
         assert np.array_equal(faces, surface.faces)
         assert np.abs(convert.to_model(vertices, first.manifest.up)
-                      - world.placed(first, tile, surface.vertices, "tile")).max() < 1e-5
+                      - world_tiles.placed(first, tile, surface.vertices, "tile")).max() < 1e-5
         changed += not (np.array_equal(vertices, alone[tile][0]) and np.array_equal(faces, alone[tile][1]))
     assert changed
     obj.sinshape_world.models[0].model = "acropolis"  # its SHA-256 is the tiles' key: all made again
@@ -324,13 +324,13 @@ def test_a_world_of_two_models_on_a_model_map_is_the_runtimes(scene, tmp_path):
 
 
 def test_a_painted_height_map_shapes_the_world_as_sinrun_worlds_map_does(scene, tiny_model, tmp_path):
-    """A greyscale .png height map: each tile world.tile_surface's with read_height_map's heights
+    """A greyscale .png height map: each tile world_tiles.tile_surface's with read_height_map's heights
     (white RELIEF times the model's height, or the Relief given), not the flat world's; the Relief
     changed, the tiles made again from it."""
     from PIL import Image
 
     from blender import convert
-    from sinshape.runtime import world
+    from sinshape.runtime import world, world_maps, world_tiles
     from sinshape.runtime.load import load_model
 
     model = load_model(tiny_model, threads=1)
@@ -342,16 +342,16 @@ def test_a_painted_height_map_shapes_the_world_as_sinrun_worlds_map_does(scene, 
         obj.sinshape_world.relief = relief
         obj.sinshape_world.heights = str(tmp_path / "hills.png")  # background mode: every tile made again
         assert obj.sinshape_world.error == ""
-        heights = world.read_height_map(tmp_path / "hills.png", model, relief or None)
+        heights = world_maps.read_height_map(tmp_path / "hills.png", model, relief or None)
         options = world.WorldOptions("blend", heights=heights)
         tiles = tiles_of(obj)
         assert set(tiles) == set(flat)
         for tile, child in tiles.items():
             vertices, faces = convert.mesh_arrays(child.data)
-            surface = world.tile_surface(model, 4, tile, options=options)
+            surface = world_tiles.tile_surface(model, 4, tile, options=options)
             assert np.array_equal(faces, surface.faces)
             assert np.abs(convert.to_model(vertices, model.manifest.up)
-                          - world.placed(model, tile, surface.vertices, "tile")).max() < 1e-5
+                          - world_tiles.placed(model, tile, surface.vertices, "tile")).max() < 1e-5
         assert any(len(faces) != len(flat[tile][1]) or not np.array_equal(vertices, flat[tile][0])
                    for tile, (vertices, faces) in ((t, convert.mesh_arrays(c.data)) for t, c in tiles.items()))
         obj.sinshape_world.heights = ""

@@ -171,7 +171,7 @@ def test_geometry_only_outputs_have_no_colour(tiny_model, tmp_path):
 def test_a_coloured_tiles_glb_carries_the_fields_normals(model):
     """A coloured tile's .glb holds its colours and the normals the runtime made (the field's gradient,
     which agree across tiles): colouring it for glTF must not drop them for normals of its faces."""
-    from sinshape.runtime import world, write
+    from sinshape.runtime import world_tiles, write
 
     data, _ = write.request_bytes(model, SampleRequest(seed=3, tile=(0, 0), frame="tile"), "t.glb")
     length = struct.unpack_from("<I", data, 12)[0]
@@ -181,40 +181,40 @@ def test_a_coloured_tiles_glb_carries_the_fields_normals(model):
     view = meta["bufferViews"][meta["accessors"][primitive["attributes"]["NORMAL"]]["bufferView"]]
     start = 20 + length + 8 + view.get("byteOffset", 0)
     normals = np.frombuffer(data[start:start + view["byteLength"]], np.float32).reshape(-1, 3)
-    surface = world.tile_surface(model, 3, (0, 0), 1.0, SampleRequest(seed=3, tile=(0, 0)).world_options())
-    expected = world.frame_normals(model, surface.normals)
+    surface = world_tiles.tile_surface(model, 3, (0, 0), 1.0, SampleRequest(seed=3, tile=(0, 0)).world_options())
+    expected = world_tiles.frame_normals(model, surface.normals)
     assert np.abs(normals - expected).max() < 1e-6
     faces = trimesh.Trimesh(surface.vertices, surface.faces, process=False).vertex_normals
     assert np.abs(normals - faces).max() > 1e-3  # not the faces' normals, which the field's differ from
 
 
 def test_world_tiles_are_coloured_seamlessly(model, tmp_path):
-    from sinshape.runtime import world
+    from sinshape.runtime import world, world_points, world_tiles
 
     # tile_colours at the tile grid's own points is the grid's colour, made the other way.
-    occupancy, grid = world.tile_occupancy(model, 3, (0, 1), colour=True)
+    occupancy, grid = world_tiles.tile_occupancy(model, 3, (0, 1), colour=True)
     layout = world.world_layout(model)
     points = np.argwhere(occupancy > -1)[::29].astype(np.float64)
     positions = points * np.array(layout.stride) / (np.array(occupancy.shape) - 1)
-    np.testing.assert_allclose(world.tile_colours(model, 3, (0, 1), positions)[:, :3].astype(int),
+    np.testing.assert_allclose(world_points.tile_colours(model, 3, (0, 1), positions)[:, :3].astype(int),
                                grid[tuple(points.astype(int).T)].astype(int), atol=1)
     # Neighbours give the vertices of the face they share the same colour.
     h0 = layout.horizontal[0]
-    a, _ = world.tile_mesh(model, 3, (0, 0))
-    b, _ = world.tile_mesh(model, 3, (1, 0))
+    a, _ = world_tiles.tile_mesh(model, 3, (0, 0))
+    b, _ = world_tiles.tile_mesh(model, 3, (1, 0))
     on_a = a[np.isclose(a[:, h0], layout.stride[h0])]
     on_b = b[np.isclose(b[:, h0], 0)]
     assert len(on_a) > 3
     shift = np.zeros(3)
     shift[h0] = layout.stride[h0]
-    np.testing.assert_array_equal(world.tile_colours(model, 3, (0, 0), on_a),
-                                  world.tile_colours(model, 3, (1, 0), on_a - shift))
+    np.testing.assert_array_equal(world_points.tile_colours(model, 3, (0, 0), on_a),
+                                  world_points.tile_colours(model, 3, (1, 0), on_a - shift))
     assert len(on_b) == len(on_a)
     # Read from the example in the windows, not the colour head's: the box's red and blue, or blends of them.
     from sinshape.runtime.query import head_colour
 
-    rgb = world.tile_colours(model, 3, (0, 0), a)[:, :3].astype(float)
-    head = np.round(head_colour(model.head, world.point_field(model, 3, (0, 0), a)[1]) * 255)
+    rgb = world_points.tile_colours(model, 3, (0, 0), a)[:, :3].astype(float)
+    head = np.round(head_colour(model.head, world_points.point_field(model, 3, (0, 0), a)[1]) * 255)
     assert np.mean(np.abs(rgb - head).max(axis=1) <= 1) < 0.5
     red, blue = np.array([220, 40, 30]), np.array([30, 60, 200])
     t = np.clip(((rgb - blue) @ (red - blue)) / ((red - blue) @ (red - blue)), 0, 1)

@@ -10,7 +10,7 @@ from PIL import Image
 
 from sinshape.core.errors import InputError
 from sinshape.prep import appearance, colour as example_colour, voxelize
-from sinshape.runtime import colour, generate, load_model, world
+from sinshape.runtime import colour, generate, load_model, world, world_tiles
 
 STRIPES = ((230, 200, 40), (40, 60, 160))  # sRGB
 
@@ -220,7 +220,7 @@ def test_a_samples_colours_are_the_examples(model):
 def test_a_coarser_world_tile_shows_only_the_examples_colours(model):
     """A coarser tile (lod > 0) has no finest planes to match: the colour head's colour there is
     made the nearest of the example's tiles' means, so no hue the example lacks shows far away."""
-    got = world.tile_surface(model, 5, (3, -2), options=world.WorldOptions(lod=1)).colours[:, :3]
+    got = world_tiles.tile_surface(model, 5, (3, -2), options=world.WorldOptions(lod=1)).colours[:, :3]
     palette = {tuple(c) for c in colour.example_palette(model.tiles)}
     assert len(got) > 100 and all(tuple(c) in palette for c in got)  # the head's own: none of them (measured)
 

@@ -22,7 +22,7 @@ import pytest
 
 from sinshape.core import manifest as fmt
 from sinshape.core import noise
-from sinshape.runtime import cubes, edit, generate, layout, load, onnxfile, world
+from sinshape.runtime import cubes, edit, generate, layout, load, onnxfile, world, world_maps
 
 STATIC = Path(__file__).resolve().parents[1] / "serve" / "static"
 MODULES = sorted(STATIC.glob("sinshape/*.js")) + [STATIC / "viewer" / "heights.js", STATIC / "viewer" / "layout-cells.js"]
@@ -32,7 +32,8 @@ MANIFEST = ("FORMAT_NAME", "FORMAT_VERSION", "COLOUR_VERSION", "TILES_VERSION", 
             "MAX_LEVELS", "MIN_LEVEL_SIDE", "MAX_LEVEL_SIDE", "MIN_SPACING", "MAX_MANIFEST_CHARS", "MAX_DEPTH",
             "MAX_NOISE_AMP", "MAX_COORD", "CONTRAST", "CONTRAST_RANGE")
 LAYOUT = ("FIT_STEPS", "FINER_STEPS", "HOLD_STEPS", "FIT_RATE", "PULL", "MARGIN", "KEEP_WEIGHT", "SLOPE_FLOOR", "SHARE")
-WORLD = ("MAX_TILE", "MIN_STRIDE", "UP_AXIS", "MAX_MAP_SIDE", "MAX_RELIEF", "MAX_MODELS")
+WORLD = ("MAX_TILE", "MIN_STRIDE")
+WORLD_MAPS = ("MAX_MAP_SIDE", "MAX_RELIEF", "MAX_MODELS")
 
 
 def same(name, module=None):
@@ -71,8 +72,10 @@ MIRROR = [
     ("sinshape/edit.js", *same("MARGIN", edit)),
     *[("sinshape/layout.js", *same(name, layout)) for name in LAYOUT],
     *[("sinshape/world.js", *same(name, world)) for name in WORLD],
-    ("viewer/heights.js", *same("RELIEF", world)),
-    ("viewer/heights.js", *same("MAX_MAP_BYTES", world)),
+    ("sinshape/world.js", *same("UP_AXIS", fmt)),
+    *[("sinshape/world.js", *same(name, world_maps)) for name in WORLD_MAPS],
+    ("viewer/heights.js", *same("RELIEF", world_maps)),
+    ("viewer/heights.js", *same("MAX_MAP_BYTES", world_maps)),
     ("viewer/layout-cells.js", "MAX_SIDE", "runtime.layout.MAX_LAYOUT_SIDE", layout.MAX_LAYOUT_SIDE),
     ("viewer/layout-cells.js", *same("VOX_VERSION", layout)),
     ("sinshape/world.js", "ARRANGEMENTS", "core.manifest.ARRANGEMENTS", fmt.ARRANGEMENTS),

@@ -111,7 +111,7 @@ def test_orient_records_a_blended_worlds_contrast_and_its_tiles_follow_it(tiny_m
     import copy
     import dataclasses
 
-    from sinshape.runtime import world
+    from sinshape.runtime import world, world_tiles
 
     out = tmp_path / "c.onnx"
     result = CliRunner().invoke(cli, ["orient", str(tiny_model), "--contrast", "2", "-o", str(out)])
@@ -122,7 +122,7 @@ def test_orient_records_a_blended_worlds_contrast_and_its_tiles_follow_it(tiny_m
         {k: v for k, v in before.manifest.raw.items() if k != "format_version"}
     given = copy.copy(before)
     given.manifest = dataclasses.replace(before.manifest, contrast=2.0)
-    plain, recorded, asked = (world.tile_occupancy(m, 3, (1, 1)) for m in (before, after, given))
+    plain, recorded, asked = (world_tiles.tile_occupancy(m, 3, (1, 1)) for m in (before, after, given))
     assert np.array_equal(recorded, asked) and not np.array_equal(recorded, plain)
     h0, h1 = world.world_layout(before).horizontal
     corner = [slice(None)] * 3

@@ -78,11 +78,11 @@ def test_a_huge_block_of_tiles_is_refused_before_it_is_listed():
 
 def test_a_block_that_would_not_fit_is_refused_with_the_figure(tmp_path, monkeypatch):
     """4096 tiles at scale 2 under a 2.5 GiB limit: refused after its first tile, with the figure."""
-    from sinshape.runtime import world
+    from sinshape.runtime import world_tiles
 
     made = []
-    tile_mesh = world.tile_mesh
-    monkeypatch.setattr(world, "tile_mesh", lambda *a, **k: made.append(a[2]) or tile_mesh(*a, **k))
+    tile_mesh = world_tiles.tile_mesh
+    monkeypatch.setattr(world_tiles, "tile_mesh", lambda *a, **k: made.append(a[2]) or tile_mesh(*a, **k))
     monkeypatch.setattr(budget, "available_memory", lambda: int(2.5 * 2**30))
     assert_one_line_error(run("world", "terrain", "--tiles", "0:63,0:63", "--scale", 2, "-o", tmp_path / "b.ply"),
                           "a block of 4096 tiles at scale 2 (about", "needs about", "(limit 2.5 GiB)")

@@ -575,14 +575,14 @@ def test_the_runtime_knows_nothing_about_http():
 
 def test_a_tile_is_the_runtimes_tile_with_its_corner_and_etag(server):
     from sinshape import models
-    from sinshape.runtime import load_model, world, write
+    from sinshape.runtime import load_model, world_maps, world_tiles, write
     from sinshape.runtime.request import SampleRequest
 
     base, _ = server
     terrain = load_model(models.find("terrain"), threads=1)
     url = f"{base}/api/models/terrain/tile?seed=4&i=-3&j=7&format=ply"
     status, headers, body = get(url)
-    assert status == 200 and headers["X-Tile-Corner"] == ",".join(map(str, world.tile_corner(terrain, (-3, 7))))
+    assert status == 200 and headers["X-Tile-Corner"] == ",".join(map(str, world_tiles.tile_corner(terrain, (-3, 7))))
     assert body == write.request_bytes(terrain, SampleRequest(4, tile=(-3, 7), frame="tile"), "t.ply")[0]
     assert headers["Content-Disposition"] == 'attachment; filename="terrain_seed4_tile-3_7.ply"'
     assert get(url, {"If-None-Match": headers["ETag"]})[0] == 304
@@ -601,7 +601,7 @@ def test_a_tile_is_the_runtimes_tile_with_its_corner_and_etag(server):
     np.save(npy, heights)
     status, headers, body = post(f"{base}/api/models/terrain/tile?seed=4&i=1&j=0&format=ply&arrange=scatter&lod=1",
                                  npy.getvalue())
-    wanted = SampleRequest(4, tile=(1, 0), frame="tile", arrange="scatter", lod=1, heights=world.HeightMap.of(heights))
+    wanted = SampleRequest(4, tile=(1, 0), frame="tile", arrange="scatter", lod=1, heights=world_maps.HeightMap.of(heights))
     assert status == 200 and body == write.request_bytes(terrain, wanted, "t.ply")[0]
     assert "_scatter_map" in headers["Content-Disposition"] and "_lod1." in headers["Content-Disposition"]
     status, _, body = post(f"{base}/api/models/terrain/tile?i=0&j=0", b"GIF89a")
@@ -610,7 +610,7 @@ def test_a_tile_is_the_runtimes_tile_with_its_corner_and_etag(server):
     status, headers, body = get(f"{base}/api/models/terrain/tile?seed=4&i=2&j=1&format=ply&arrange=scatter"
                                 f"&models=terrain&models_map=0,1;1,0")
     wanted = SampleRequest(4, tile=(2, 1), frame="tile", arrange="scatter", models=(str(models.find("terrain")),),
-                           models_map=world.ModelMap.of([[0, 1], [1, 0]]))
+                           models_map=world_maps.ModelMap.of([[0, 1], [1, 0]]))
     assert status == 200 and body == write.request_bytes(terrain, wanted, "t.ply")[0]
     for query, code, says in (("models=moon&models_map=0,1", 404, "unknown model 'moon'"),
                               ("models=terrain&models_map=0,1;2", 400, "a model map's text is rows"),

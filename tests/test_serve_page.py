@@ -574,7 +574,7 @@ def test_the_world_mode_takes_its_tiles_from_the_tile_route(page, terrain):
     """World mode on the server: each tile is the tile route's (the Python runtime's own mesh), shown
     first at the coarsest level, no browser runtime is loaded, and the download link is the camera's
     tile, following it."""
-    from sinshape.runtime import world
+    from sinshape.runtime import world_tiles
 
     page.goto(f"{page.base}/?seed=3&up=z&edit=world&at=-3,7&reach=1")
     status = wait_world(page)
@@ -588,7 +588,7 @@ def test_the_world_mode_takes_its_tiles_from_the_tile_route(page, terrain):
     assert not [url for url in requested if "onnxruntime-web" in url or url.endswith(("/model.js", "/worker.js"))]
     assert sorted((int(i), int(j)) for i, j, *_ in status["tiles"]) == [(i, j) for i in (-4, -3, -2) for j in (6, 7, 8)]
     for i, j, faces, *_ in status["tiles"]:
-        assert faces == len(world.tile_mesh(terrain, 3, (int(i), int(j)))[1])
+        assert faces == len(world_tiles.tile_mesh(terrain, 3, (int(i), int(j)))[1])
     assert page.get_attribute("#download", "href").endswith("tile?i=-3&j=7&seed=3&scale=1&format=glb&frame=tile")
     page.evaluate("window.sinshapeView.world.moveBy(0, -1)")
     status = wait_world(page)
@@ -605,7 +605,7 @@ def test_the_world_mode_makes_far_tiles_coarser_and_remakes_them_as_they_come_ne
     detail, those two tiles out a level coarser (asked for with lod=1), each the runtime's tile with
     its normals (unit, one per vertex); a step on remakes the tiles that came near at full detail;
     a height map opened shapes the world (posted to the tile route with every tile)."""
-    from sinshape.runtime import world
+    from sinshape.runtime import world, world_maps, world_tiles
 
     page.goto(f"{page.base}/?seed=3&up=z&edit=world&at=0,0&reach=2&arrange=scatter")
     status = wait_world(page)
@@ -614,8 +614,8 @@ def test_the_world_mode_makes_far_tiles_coarser_and_remakes_them_as_they_come_ne
     requested = page.evaluate("performance.getEntriesByType('resource').map((entry) => entry.name)")
     assert any("i=2&j=0&" in url and "arrange=scatter" in url and "lod=1" in url for url in requested)
     faces = {(int(i), int(j)): count for i, j, count, *_ in status["tiles"]}
-    coarse = world.tile_surface(terrain, 3, (2, 0), options=world.WorldOptions("scatter", lod=1))
-    assert faces[2, 0] == len(coarse.faces) > len(world.tile_mesh(terrain, 3, (2, 0), options=world.WorldOptions(
+    coarse = world_tiles.tile_surface(terrain, 3, (2, 0), options=world.WorldOptions("scatter", lod=1))
+    assert faces[2, 0] == len(coarse.faces) > len(world_tiles.tile_mesh(terrain, 3, (2, 0), options=world.WorldOptions(
         "scatter", lod=1))[1])  # its skirt's faces too
     lengths = page.evaluate("""() => {
       const out = [];
@@ -637,8 +637,8 @@ def test_the_world_mode_makes_far_tiles_coarser_and_remakes_them_as_they_come_ne
     page.wait_for_function("document.getElementById('map-label').textContent === 'map: hills.npy'")
     status = wait_world(page)
     faces = {(int(i), int(j)): count for i, j, count, *_ in status["tiles"]}
-    painted = world.WorldOptions("scatter", heights=world.HeightMap.of(heights))
-    assert faces[1, 0] == len(world.tile_surface(terrain, 3, (1, 0), options=painted).faces)
+    painted = world.WorldOptions("scatter", heights=world_maps.HeightMap.of(heights))
+    assert faces[1, 0] == len(world_tiles.tile_surface(terrain, 3, (1, 0), options=painted).faces)
     assert not page.errors and not page.outside
 
 

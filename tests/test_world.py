@@ -10,7 +10,7 @@ from click.testing import CliRunner
 
 from sinshape.cli.main import cli
 from sinshape.core.errors import InputError, MemoryLimitError
-from sinshape.runtime import generate, load_model, world, write
+from sinshape.runtime import generate, load_model, world, world_maps, world_tiles, write
 from sinshape.runtime.request import SampleRequest
 from test_cli_train import assert_one_line_error
 
@@ -31,7 +31,7 @@ def fresh():
 @pytest.mark.parametrize("scale", [1, 2.5])
 def test_neighbours_agree_on_their_shared_faces_to_the_bit(model, scale):
     h0, h1 = world.world_layout(model).horizontal
-    grids = {(i, j): world.tile_occupancy(model, 7, (i, j), scale) for i in (2, 3) for j in (-1, 0)}
+    grids = {(i, j): world_tiles.tile_occupancy(model, 7, (i, j), scale) for i in (2, 3) for j in (-1, 0)}
     for (i, j), grid in grids.items():
         if (i + 1, j) in grids:
             assert np.array_equal(np.take(grid, -1, h0), np.take(grids[i + 1, j], 0, h0))
@@ -62,8 +62,8 @@ def block_mesh(model, seed, tiles, scale=1.0):
     vertices, faces = [], []
     count = 0
     for tile in tiles:
-        v, f = world.tile_mesh(model, seed, tile, scale)
-        vertices.append(v + np.array(world.tile_corner(model, tile)))
+        v, f = world_tiles.tile_mesh(model, seed, tile, scale)
+        vertices.append(v + np.array(world_tiles.tile_corner(model, tile)))
         faces.append(f + count)
         count += len(v)
     vertices = np.concatenate(vertices)
@@ -90,7 +90,7 @@ def test_a_block_of_tiles_is_one_surface_open_only_on_its_outer_sides(model):
 def test_a_tile_is_the_same_whatever_was_made_before(model, fresh):
     alone = write.request_bytes(model, SampleRequest(11, tile=(5, 3)), "t.ply")[0]
     for tile in [(4, 3), (5, 2), (6, 4), (-70, 9)]:
-        world.tile_mesh(model, 11, tile)
+        world_tiles.tile_mesh(model, 11, tile)
     assert write.request_bytes(model, SampleRequest(11, tile=(5, 3)), "t.ply")[0] == alone
     world._windows.clear()
     assert write.request_bytes(model, SampleRequest(11, tile=(5, 3)), "t.ply")[0] == alone
@@ -109,7 +109,7 @@ def test_a_far_tile_does_the_work_a_near_one_does(model, fresh, monkeypatch):
     for tile in ((0, 0), (10**9, -10**9)):
         drawn.clear()
         world._windows.clear()
-        grid = world.tile_occupancy(model, 3, tile)
+        grid = world_tiles.tile_occupancy(model, 3, tile)
         work.append(sorted(drawn))
         assert np.isfinite(grid).all() and 0 < grid.mean() < 1
     assert work[0] == work[1] and len(work[0]) > 1
@@ -124,7 +124,7 @@ def test_no_two_windows_share_their_noise(model):
 def test_bad_tiles_are_refused_in_one_line(model, tmp_path):
     for tile in [(2**62, 0), (0, -2**62), (1.5, 0), (1,), "3,4", (True, 0)]:
         with pytest.raises(InputError) as refused:
-            world.tile_occupancy(model, 0, tile)
+            world_tiles.tile_occupancy(model, 0, tile)
         assert refused.value.parameter == "tile"
     with pytest.raises(MemoryLimitError):
         world.check_world_scale(world.world_layout(model), 200, model.manifest.hidden, 1 << 20)
@@ -150,7 +150,7 @@ def test_world_writes_a_resumable_folder_of_tiles(tiny_model, model, tmp_path):
     job, *records = [json.loads(line) for line in (out / "tile_index.jsonl").read_text().splitlines()]
     assert job["job"]["request"]["seed"] == 4 and "tile" not in job["job"]["request"]  # the world, not one tile
     assert [r["tile"] for r in records] == [[-1, 2], [0, 2]]
-    assert records[0]["corner"] == list(world.tile_corner(model, (-1, 2)))
+    assert records[0]["corner"] == list(world_tiles.tile_corner(model, (-1, 2)))
     assert (out / "tile_0_2.ply").read_bytes() == write.request_bytes(model, SampleRequest(4, tile=(0, 2)), "x.ply")[0]
     again = CliRunner().invoke(cli, ["world", str(tiny_model), "--seed", "4", "--tiles", "-1:0,2", "-o", str(out),
                                      "--workers", "1"])
@@ -159,7 +159,7 @@ def test_world_writes_a_resumable_folder_of_tiles(tiny_model, model, tmp_path):
                                     "--format", "npz", "--workers", "1"])
     assert grid.exit_code == 0, grid.output
     with np.load(tmp_path / "g" / "tile_0_0.npz") as npz:
-        assert np.array_equal(npz["occupancy"], world.tile_occupancy(model, 0, (0, 0)))
+        assert np.array_equal(npz["occupancy"], world_tiles.tile_occupancy(model, 0, (0, 0)))
         assert tuple(npz["tile"]) == (0, 0)
 
 
@@ -187,7 +187,7 @@ def test_a_scattered_worlds_block_is_closed(name):
     from sinshape import models
 
     loaded = load_model(models.find(name), threads=1)
-    block = world.block_mesh(loaded, SampleRequest(3, arrange="scatter"), [(0, 0), (0, 1), (1, 0), (1, 1)])
+    block = world_tiles.block_mesh(loaded, SampleRequest(3, arrange="scatter"), [(0, 0), (0, 1), (1, 0), (1, 1)])
     assert block.is_watertight and block.volume > 0
 
 
@@ -237,7 +237,7 @@ def strip_heights(model, options, tiles=12) -> tuple:
     h0, h1 = layout.horizontal
     rows = []
     for i in range(tiles):
-        row = [world.tile_occupancy(model, 5, (i, j), options=options) for j in (0, 1)]
+        row = [world_tiles.tile_occupancy(model, 5, (i, j), options=options) for j in (0, 1)]
         rows.append(np.concatenate([row[0], np.take(row[1], range(1, row[1].shape[h1]), axis=h1)], axis=h1))
     strip = np.concatenate([rows[0]] + [np.take(r, range(1, r.shape[h0]), axis=h0) for r in rows[1:]], axis=h0)
     return strip, layout.stride[h0]
@@ -260,15 +260,15 @@ def test_a_scattered_world_of_identical_samples_has_no_period(model, fresh):
 
 
 @pytest.mark.parametrize("options", [world.WorldOptions("scatter"), world.WorldOptions("blend", lod=1),
-                                     world.WorldOptions("scatter", heights=world.HeightMap.of([[0.0, 25.0], [40.0, 7.5]]))],
+                                     world.WorldOptions("scatter", heights=world_maps.HeightMap.of([[0.0, 25.0], [40.0, 7.5]]))],
                          ids=["scatter", "lod", "scatter-map"])
 def test_neighbours_agree_on_faces_and_normals_to_the_bit_however_the_world_is_made(model, options):
     layout = world.world_layout(model)
     h0, h1 = layout.horizontal
     for a, b, axis in (((0, 0), (1, 0), h0), ((1, 0), (1, 1), h1)):
-        grid_a, grid_b = (world.tile_occupancy(model, 7, t, options=options) for t in (a, b))
+        grid_a, grid_b = (world_tiles.tile_occupancy(model, 7, t, options=options) for t in (a, b))
         assert np.array_equal(np.take(grid_a, -1, axis), np.take(grid_b, 0, axis))
-        made = [world.tile_surface(model, 7, t, options=options) for t in (a, b)]
+        made = [world_tiles.tile_surface(model, 7, t, options=options) for t in (a, b)]
         mine = {tuple(v - np.eye(3)[axis] * layout.stride[axis]): tuple(n)
                 for v, n in zip(made[0].vertices, made[0].normals) if v[axis] == layout.stride[axis]}
         theirs = {tuple(v): tuple(n) for v, n in zip(made[1].vertices, made[1].normals) if v[axis] == 0}
@@ -282,12 +282,12 @@ def test_a_height_map_raises_the_world_where_it_is_painted(model):
     where it was, and goes on beyond the map's edges as its edge."""
     plateau = np.zeros((6, 6))
     plateau[:4, :4] = 50
-    heights = world.HeightMap.of(plateau)
+    heights = world_maps.HeightMap.of(plateau)
     up = world.world_layout(model).up
 
     def surface(tile, options) -> float:
         """The mean height of the highest solid point of each column that has one."""
-        grid = np.moveaxis(world.tile_occupancy(model, 2, tile, options=options) > 0.5, up, -1)
+        grid = np.moveaxis(world_tiles.tile_occupancy(model, 2, tile, options=options) > 0.5, up, -1)
         z = world.tile_grid(model, world.world_layout(model), 1.0, options).positions[up]
         solid = grid.any(axis=-1)
         return float(np.mean(z[grid.shape[-1] - 1 - np.argmax(grid[..., ::-1], axis=-1)][solid]))
@@ -314,13 +314,13 @@ def test_a_coarser_tile_is_cheaper_and_its_skirt_covers_the_crack(fresh, monkeyp
     for lod in (0, coarsest):
         world._windows.clear()
         drawn.clear()
-        grid = world.tile_occupancy(terrain, 3, (0, 0), options=world.WorldOptions(lod=lod))
+        grid = world_tiles.tile_occupancy(terrain, 3, (0, 0), options=world.WorldOptions(lod=lod))
         values = sum(np.prod(size) for args in drawn for size in args[1])
         counted.append((values, grid.size))
     assert counted[1][0] < counted[0][0] / 4 and counted[1][1] < counted[0][1] / 4
-    fine = world.tile_surface(terrain, 3, (0, 0))
-    coarse = world.tile_surface(terrain, 3, (1, 0), options=world.WorldOptions(lod=1))
-    depth = world.SKIRT * np.diff(world.tile_grid(terrain, layout, 1.0, world.WorldOptions(lod=1)).positions[up][:2])[0]
+    fine = world_tiles.tile_surface(terrain, 3, (0, 0))
+    coarse = world_tiles.tile_surface(terrain, 3, (1, 0), options=world.WorldOptions(lod=1))
+    depth = world_tiles.SKIRT * np.diff(world.tile_grid(terrain, layout, 1.0, world.WorldOptions(lod=1)).positions[up][:2])[0]
     border = fine.vertices[(fine.vertices[:, h0] == layout.stride[h0]) & (fine.vertices[:, up] > 1)]  # not the bottom's
     top = coarse.vertices[(coarse.vertices[:, h0] == 0) & (coarse.vertices[:, up] > 1)]
     highest = np.array([top[np.abs(top[:, h1] - t) <= 1.0, up].max() for t in border[:, h1]])
@@ -336,7 +336,7 @@ def test_world_writes_a_painted_scattered_coarser_world_and_refuses_a_bad_map(ti
     pixels = np.zeros((2, 3), np.uint8)  # rows from the top: the second axis's last row first
     pixels[1, 2] = 255  # bottom row, third column: tile (2, 0)
     Image.fromarray(pixels).save(tmp_path / "map.png")
-    heights = world.read_height_map(tmp_path / "map.png", model, 40.0)
+    heights = world_maps.read_height_map(tmp_path / "map.png", model, 40.0)
     assert heights.shape == (3, 2) and heights.array()[2, 0] == 40 and heights.array().sum() == 40
     result = CliRunner().invoke(cli, ["world", str(tiny_model), "--seed", "4", "--tiles", "1:2,0", "--map",
                                       str(tmp_path / "map.png"), "--relief", "40", "--arrange", "scatter", "--lod", "1",
@@ -360,7 +360,7 @@ def test_a_tiles_normals_make_none_of_its_neighbours_windows(model, fresh, monke
     normal just past a face read only the face's window, which holds the whole weight there)."""
     made = []
     monkeypatch.setattr(world, "draw_noise", lambda *args, **kw: made.append(args[0]) or generate.draw_noise(*args, **kw))
-    surface = world.tile_surface(model, 4, (3, -2))
+    surface = world_tiles.tile_surface(model, 4, (3, -2))
     assert len(surface.normals) == len(surface.vertices) > 100
     assert sorted(made) == sorted(world.window_seed(4, a, b) for a in (2, 3) for b in (-3, -2))
 
@@ -375,21 +375,21 @@ def test_a_fine_tile_takes_its_examples_relief_and_meets_its_neighbour_to_the_bi
     model = load_model(tiny_relief_model, threads=1)
     layout = world.world_layout(model)
     h0 = layout.horizontal[0]
-    made = {t: world.tile_surface(model, 5, t, 2) for t in ((0, 0), (1, 0))}
-    plain = world.tile_surface(model, 5, (0, 0), 2, world.WorldOptions(detail=False))
-    vertices, _ = world.tile_mesh(model, 5, (0, 0), 2)
+    made = {t: world_tiles.tile_surface(model, 5, t, 2) for t in ((0, 0), (1, 0))}
+    plain = world_tiles.tile_surface(model, 5, (0, 0), 2, world.WorldOptions(detail=False))
+    vertices, _ = world_tiles.tile_mesh(model, 5, (0, 0), 2)
     assert np.array_equal(plain.vertices, vertices) and np.array_equal(made[0, 0].faces, plain.faces)
     moved = np.linalg.norm(made[0, 0].vertices - plain.vertices, axis=1)
     assert np.percentile(moved, 90) > 0.05 and moved.max() <= colour.RELIEF + 1e-9
     turned = np.einsum("nc,nc->n", made[0, 0].normals, plain.normals)
     assert np.percentile(turned, 10) < 0.99 and np.allclose(np.linalg.norm(made[0, 0].normals, axis=1), 1, atol=1e-5)
     # The border's vertices, found where they were before the relief moved them.
-    plain_right = world.tile_surface(model, 5, (1, 0), 2, world.WorldOptions(detail=False))
+    plain_right = world_tiles.tile_surface(model, 5, (1, 0), 2, world.WorldOptions(detail=False))
     on_border = [plain.vertices[:, h0] == layout.stride[h0], plain_right.vertices[:, h0] == 0]
     mine = {tuple(np.round(v - np.eye(3)[h0] * layout.stride[h0], 12)): tuple(n)
             for v, n in zip(made[0, 0].vertices[on_border[0]], made[0, 0].normals[on_border[0]])}
     theirs = {tuple(np.round(v, 12)): tuple(n)
               for v, n in zip(made[1, 0].vertices[on_border[1]], made[1, 0].normals[on_border[1]])}
     assert len(mine) > 5 and mine == theirs
-    coarse = world.tile_surface(model, 5, (0, 0), 1)
-    assert np.array_equal(coarse.vertices, world.tile_mesh(model, 5, (0, 0), 1)[0])
+    coarse = world_tiles.tile_surface(model, 5, (0, 0), 1)
+    assert np.array_equal(coarse.vertices, world_tiles.tile_mesh(model, 5, (0, 0), 1)[0])

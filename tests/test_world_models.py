@@ -7,13 +7,13 @@ import numpy as np
 import pytest
 
 from sinshape.core.errors import InputError
-from sinshape.runtime import load_model, world
+from sinshape.runtime import load_model, mesh, world, world_maps, world_points, world_tiles
 from test_world import identical_windows
 
 # With this map, cells a < 0 (their centres in tiles below 0 along the
 # first horizontal axis) hold model 0's objects and cells a >= 0 model 1's,
 # the edge going on either way.
-SPLIT = world.ModelMap.of([[0], [1]])
+SPLIT = world_maps.ModelMap.of([[0], [1]])
 
 
 def objects(model, tile, options) -> list:
@@ -39,8 +39,8 @@ def coloured(tiny_colour_model):
 
 def fresh_surface(model, tile, options):
     world._windows.clear()
-    world._colourings.clear()
-    return world.tile_surface(model, 7, tile, options=options)
+    world_points._colourings.clear()
+    return world_tiles.tile_surface(model, 7, tile, options=options)
 
 
 def test_each_object_comes_from_the_model_its_pixel_names(model, still):
@@ -50,14 +50,14 @@ def test_each_object_comes_from_the_model_its_pixel_names(model, still):
     alone = world.WorldOptions("scatter")
     FAR_LEFT, FAR_RIGHT = (-11, 1), (7, 1)
     assert objects(model, FAR_LEFT, mixed) == [0] and objects(model, FAR_RIGHT, mixed) == [1]
-    left = world.tile_occupancy(model, 7, FAR_LEFT, options=mixed)
-    right = world.tile_occupancy(model, 7, FAR_RIGHT, options=mixed)
-    assert np.array_equal(left, world.tile_occupancy(model, 7, FAR_LEFT, options=alone))
-    assert np.array_equal(right, world.tile_occupancy(still, 7, FAR_RIGHT, options=alone))
-    assert not np.array_equal(right, world.tile_occupancy(model, 7, FAR_RIGHT, options=alone))
-    everywhere_still = world.WorldOptions("scatter", models=(still,), models_map=world.ModelMap.of([[1]]))
-    assert np.array_equal(world.tile_occupancy(model, 7, FAR_LEFT, options=everywhere_still),
-                          world.tile_occupancy(still, 7, FAR_LEFT, options=alone))
+    left = world_tiles.tile_occupancy(model, 7, FAR_LEFT, options=mixed)
+    right = world_tiles.tile_occupancy(model, 7, FAR_RIGHT, options=mixed)
+    assert np.array_equal(left, world_tiles.tile_occupancy(model, 7, FAR_LEFT, options=alone))
+    assert np.array_equal(right, world_tiles.tile_occupancy(still, 7, FAR_RIGHT, options=alone))
+    assert not np.array_equal(right, world_tiles.tile_occupancy(model, 7, FAR_RIGHT, options=alone))
+    everywhere_still = world.WorldOptions("scatter", models=(still,), models_map=world_maps.ModelMap.of([[1]]))
+    assert np.array_equal(world_tiles.tile_occupancy(model, 7, FAR_LEFT, options=everywhere_still),
+                          world_tiles.tile_occupancy(still, 7, FAR_LEFT, options=alone))
 
 
 @pytest.fixture(scope="module")
@@ -73,9 +73,9 @@ def test_models_of_other_sizes_meet_without_a_seam_in_any_order(model, two_kinds
     pairs = (((-4, 0), (-3, 0), h0), ((7, 0), (8, 0), h0), ((7, 0), (7, 1), h1))
     assert objects(model, (-4, 0), two_kinds) == [0] and objects(model, (7, 0), two_kinds) == [1]
     for a, b, axis in pairs:
-        grid_a, grid_b = (world.tile_occupancy(model, 7, t, options=two_kinds) for t in (a, b))
+        grid_a, grid_b = (world_tiles.tile_occupancy(model, 7, t, options=two_kinds) for t in (a, b))
         assert np.array_equal(np.take(grid_a, -1, axis), np.take(grid_b, 0, axis))
-        made = [world.tile_surface(model, 7, t, options=two_kinds) for t in (a, b)]
+        made = [world_tiles.tile_surface(model, 7, t, options=two_kinds) for t in (a, b)]
         mine = {tuple(v - np.eye(3)[axis] * layout.stride[axis]): (tuple(n), tuple(c))
                 for v, n, c in zip(made[0].vertices, made[0].normals, made[0].colours) if v[axis] == layout.stride[axis]}
         theirs = {tuple(v): (tuple(n), tuple(c)) for v, n, c in zip(made[1].vertices, made[1].normals, made[1].colours)
@@ -84,8 +84,8 @@ def test_models_of_other_sizes_meet_without_a_seam_in_any_order(model, two_kinds
     tiles = [(8, 0), (7, 0), (-4, 1)]
     first = {t: fresh_surface(model, t, two_kinds) for t in tiles}
     world._windows.clear()
-    world._colourings.clear()
-    after = {t: world.tile_surface(model, 7, t, options=two_kinds) for t in reversed(tiles)}
+    world_points._colourings.clear()
+    after = {t: world_tiles.tile_surface(model, 7, t, options=two_kinds) for t in reversed(tiles)}
     for t in tiles:
         assert all(np.array_equal(getattr(first[t], f), getattr(after[t], f))
                    for f in ("vertices", "faces", "normals", "colours"))
@@ -96,9 +96,9 @@ def test_each_object_is_coloured_by_its_own_model(model, coloured, two_kinds):
     show its colours; the coloured model's objects stand taller than the first model's grid."""
     FAR_LEFT, FAR_RIGHT = (-4, 1), (7, 1)  # cells are wider here: room for the coloured model's objects
     assert objects(model, FAR_LEFT, two_kinds) == [0] and objects(model, FAR_RIGHT, two_kinds) == [1]
-    left = world.tile_surface(model, 7, FAR_LEFT, options=two_kinds)
-    right = world.tile_surface(model, 7, FAR_RIGHT, options=two_kinds)
-    grey = np.array(world.colour_bytes(np.array([world.GROUND_COLOUR], np.float32))[0])
+    left = world_tiles.tile_surface(model, 7, FAR_LEFT, options=two_kinds)
+    right = world_tiles.tile_surface(model, 7, FAR_RIGHT, options=two_kinds)
+    grey = np.array(mesh.colour_bytes(np.array([world.GROUND_COLOUR], np.float32))[0])
     assert len(left.faces) and (left.colours == grey).all()
     assert (right.colours != grey).any(axis=1).sum() >= 20  # its object's surface (the rest is ground): coloured
     up = world.world_layout(model).up
@@ -108,7 +108,7 @@ def test_each_object_is_coloured_by_its_own_model(model, coloured, two_kinds):
 
 
 @pytest.mark.parametrize("options, says", [
-    (dict(arrange="scatter", models_map=world.ModelMap.of([[0, 2]])), "names model 2, and the world has 2"),
+    (dict(arrange="scatter", models_map=world_maps.ModelMap.of([[0, 2]])), "names model 2, and the world has 2"),
     (dict(arrange="scatter"), "need a model map"),
     (dict(arrange="blend", models_map=SPLIT), "for a scatter world"),
 ])
@@ -117,7 +117,7 @@ def test_a_bad_model_map_is_refused_in_one_line(still, options, says):
         world.WorldOptions(models=(still,), **options)
     for bad in ([[0.5]], [[-1]], [[256]], [[np.nan]], np.zeros((2, 2, 2)), [[]]):
         with pytest.raises(InputError, match="a model map"):
-            world.ModelMap.of(bad)
+            world_maps.ModelMap.of(bad)
     import io
 
     from PIL import Image
@@ -125,9 +125,9 @@ def test_a_bad_model_map_is_refused_in_one_line(still, options, says):
     coloured_image = io.BytesIO()
     Image.new("RGB", (2, 2)).save(coloured_image, "png")
     with pytest.raises(InputError, match="palette or greyscale image"):
-        world.parse_model_map(coloured_image.getvalue(), ".png", "map.png")
+        world_maps.parse_model_map(coloured_image.getvalue(), ".png", "map.png")
     with pytest.raises(InputError, match="not a readable image"):
-        world.parse_model_map(b"not a png", ".png", "map.png")
+        world_maps.parse_model_map(b"not a png", ".png", "map.png")
 
 
 def test_world_writes_a_world_of_two_models_and_refuses_bad_model_maps(tiny_model, tiny_colour_model, tmp_path):
@@ -146,10 +146,10 @@ def test_world_writes_a_world_of_two_models_and_refuses_bad_model_maps(tiny_mode
     for name in ("map.npy", "map.png"):
         made = CliRunner().invoke(cli, [*args, "--models-map", str(tmp_path / name), "-o", str(tmp_path / name[-3:])])
         assert made.exit_code == 0, made.output
-    assert world.read_model_map(tmp_path / "map.png") == SPLIT
+    assert world_maps.read_model_map(tmp_path / "map.png") == SPLIT
     grid = np.load(tmp_path / "npy" / "tile_7_0.npz")["occupancy"]
     options = world.WorldOptions("scatter", models=(load_model(tiny_colour_model),), models_map=SPLIT)
-    assert np.array_equal(grid, world.tile_occupancy(load_model(tiny_model), 7, (7, 0), options=options))
+    assert np.array_equal(grid, world_tiles.tile_occupancy(load_model(tiny_model), 7, (7, 0), options=options))
     assert np.array_equal(grid, np.load(tmp_path / "png" / "tile_7_0.npz")["occupancy"])
     other = CliRunner().invoke(cli, ["world", str(tiny_model), str(tiny_model), *args[3:], "--models-map",
                                      str(tmp_path / "map.npy"), "-o", str(tmp_path / "npy")])
@@ -175,9 +175,9 @@ def test_a_coarser_tile_and_a_block_of_two_models(model, coloured, tiny_model, t
 
     coarse = world.WorldOptions("scatter", lod=1, models=(coloured,), models_map=SPLIT)
     h0 = world.world_layout(model).horizontal[0]
-    a, b = (world.tile_occupancy(model, 7, t, options=coarse) for t in ((7, 0), (8, 0)))
+    a, b = (world_tiles.tile_occupancy(model, 7, t, options=coarse) for t in ((7, 0), (8, 0)))
     assert np.array_equal(np.take(a, -1, h0), np.take(b, 0, h0))
-    fine = world.tile_occupancy(model, 7, (7, 0), options=world.WorldOptions("scatter", models=(coloured,),
+    fine = world_tiles.tile_occupancy(model, 7, (7, 0), options=world.WorldOptions("scatter", models=(coloured,),
                                                                                models_map=SPLIT))
     assert a.shape != fine.shape
     request = SampleRequest(7, arrange="scatter", models=(str(tiny_colour_model),), models_map=SPLIT, frame="model")
@@ -194,5 +194,5 @@ def test_a_tiles_memory_is_counted_at_its_widest_models_width(model, still, monk
     counted = []
     monkeypatch.setattr(world, "hidden_width", lambda first, options: first.manifest.hidden + 7 * len(options.models))
     monkeypatch.setattr(world, "check_world_scale", lambda layout, scale, hidden, *rest: counted.append(hidden))
-    world.tile_occupancy(model, 7, (0, 0), options=world.WorldOptions("scatter", models=(still,), models_map=SPLIT))
+    world_tiles.tile_occupancy(model, 7, (0, 0), options=world.WorldOptions("scatter", models=(still,), models_map=SPLIT))
     assert counted == [model.manifest.hidden + 7]

@@ -17,7 +17,7 @@ from test_mirror import run_node  # noqa: F401 (node, beside a copy of the brows
 from test_web import browser, playwright, wait_done  # noqa: F401 (the fixtures of the browser's tests)
 from sinshape import models
 from sinshape.core.errors import InputError
-from sinshape.runtime import load, world
+from sinshape.runtime import load, world, world_maps, world_tiles
 
 # Models' indices over tiles (0..1, 0..1), the edge going on beyond: cells whose centres lie
 # where exactly one of i, j is negative draw model 1's objects, the others model 0's.
@@ -107,7 +107,7 @@ console.log(JSON.stringify(out));
 def test_the_page_reads_a_model_map_png_as_pillow_does(run_node, tmp_path):
     """The page decodes a model map's .png itself (a browser's canvas gives colours, not a palette's
     indices, and 8 bits): grey of 1, 2, 4, 8 and 16 bits and palettes of 1 to 8, plain and
-    interlaced, every line filter, give world.parse_model_map's map (Pillow's pixels), or its
+    interlaced, every line filter, give world_maps.parse_model_map's map (Pillow's pixels), or its
     message: a colour image, a 16-bit value past 255."""
     rng = np.random.default_rng(5)
     cases = [(depth, colour, interlace) for depth, colour in ((1, 0), (2, 0), (4, 0), (8, 0), (16, 0), (1, 3), (2, 3),
@@ -121,14 +121,14 @@ def test_the_page_reads_a_model_map_png_as_pillow_does(run_node, tmp_path):
     assert len(read) == len(cases) + 1
     for name, got in read.items():
         try:
-            expected = world.parse_model_map((tmp_path / name).read_bytes(), ".png", name).array().tolist()
+            expected = world_maps.parse_model_map((tmp_path / name).read_bytes(), ".png", name).array().tolist()
         except InputError as error:
             expected = str(error)
         assert got == expected, name
     assert sum(isinstance(got, str) for got in read.values()) == 7  # RGB, LA and RGBA, plain and interlaced; 300
 
 
-# Runs in node: a map file of more bytes than world.MAX_MAP_BYTES opened by each reader, whose bytes are never read.
+# Runs in node: a map file of more bytes than world_maps.MAX_MAP_BYTES opened by each reader, whose bytes are never read.
 TOO_LARGE_JS = """
 const { readHeightMap, readModelMap } = await import('./static/viewer/heights.js');
 const file = { name: 'huge.png', size: 65 * 2 ** 20, arrayBuffer: () => { throw new Error('read'); } };
@@ -142,7 +142,7 @@ console.log(JSON.stringify(out));
 
 def test_a_map_file_too_large_is_refused_unread_in_pythons_words(run_node):
     messages = json.loads(run_node(TOO_LARGE_JS))
-    for message, parse, what in zip(messages, (world.parse_height_map, world.parse_model_map), ("height", "model")):
+    for message, parse, what in zip(messages, (world_maps.parse_height_map, world_maps.parse_model_map), ("height", "model")):
         with pytest.raises(InputError) as refused:
             parse(bytes(65 << 20), ".png", "huge.png")
         assert message == str(refused.value) == f"huge.png: 65 MB is too large for a {what} map"
@@ -171,9 +171,9 @@ def test_on_sinrun_serve_the_page_asks_the_tile_route_for_a_two_model_world(brow
             assert len(tiles) == 2 * 9 and all("&models=towerruins&models_map=0%2C1%3B1%2C0" in url for url in tiles), tiles
             assert not [url for url in requested if "onnxruntime-web" in url or url.endswith(("/model.js", "/worker.js"))]
             options = world.WorldOptions("scatter", models=(other_model("towerruins"),),
-                                         models_map=world.ModelMap.of(CHECKERBOARD))
+                                         models_map=world_maps.ModelMap.of(CHECKERBOARD))
             faces = {(int(i), int(j)): count for i, j, count, *_ in status["tiles"]}
-            assert faces[1, -4] == len(world.tile_surface(first, 3, (1, -4), options=options).faces) > 4000
+            assert faces[1, -4] == len(world_tiles.tile_surface(first, 3, (1, -4), options=options).faces) > 4000
             assert page.get_attribute("#download", "href").endswith("models=towerruins&models_map=0%2C1%3B1%2C0")
             assert not page.errors and not page.outside
         finally:

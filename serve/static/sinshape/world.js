@@ -14,9 +14,9 @@ export const MAX_TILE = 2n ** 62n; // world.MAX_TILE: |i|, |j| below it
 export const MIN_STRIDE = 4; // voxels: a window of fewer than 2 * 4 + 1 along an axis has no room to blend
 export const UP_AXIS = { y: 1, z: 2 };
 export const ARRANGEMENTS = ['blend', 'scatter']; // world.ARRANGEMENTS
-export const MAX_MAP_SIDE = 1 << 12; // world.MAX_MAP_SIDE
-export const MAX_RELIEF = 1 << 14; // world.MAX_RELIEF
-export const MAX_MODELS = 256; // world.MAX_MODELS: models in one world (a model map's pixel is a byte)
+export const MAX_MAP_SIDE = 1 << 12; // world_maps.MAX_MAP_SIDE
+export const MAX_RELIEF = 1 << 14; // world_maps.MAX_RELIEF
+export const MAX_MODELS = 256; // world_maps.MAX_MODELS: models in one world (a model map's pixel is a byte)
 
 /**
  * The world's cut for a model's manifest ({ sizes, up }), as world.world_layout:
@@ -42,7 +42,7 @@ export function worldLayout({ sizes, up: upName = 'y' }) {
 
 // ---- the world's options
 
-/** A designer's map of heights in voxels at the centres of tiles (r, c), as world.HeightMap.of: { shape, data: Float32Array }. */
+/** A designer's map of heights in voxels at the centres of tiles (r, c), as world_maps.HeightMap.of: { shape, data: Float32Array }. */
 export const HeightMap = {
   of(values, shape) {
     const sides = Array.isArray(shape) && shape.length === 2 && shape.every((n) => Number.isInteger(n));
@@ -67,7 +67,7 @@ export const HeightMap = {
 
 /**
  * A designer's map of which model goes where in a scattered world, as
- * world.ModelMap.of: a model's index (0 the world's first) per tile (r, c), r
+ * world_maps.ModelMap.of: a model's index (0 the world's first) per tile (r, c), r
  * along the first horizontal axis, from tile (0, 0); beyond its edges, its
  * edge. { shape, data: Uint8Array (R, C) in C order }.
  */
@@ -96,7 +96,7 @@ export const ModelMap = {
 export function worldOptions({ arrange = 'blend', heights = null, lod = 0, models = [], models_map: map = null } = {}) {
   if (!ARRANGEMENTS.includes(arrange)) throw new InputError(`unknown arrange ${pyRepr(arrange)}; choose ${ARRANGEMENTS.join(' or ')}`, 'arrange');
   if (heights !== null && !(heights?.data instanceof Float32Array && Array.isArray(heights.shape))) {
-    throw new InputError('heights must be a world.HeightMap (HeightMap.of(array))', 'heights');
+    throw new InputError('heights must be a world_maps.HeightMap (HeightMap.of(array))', 'heights');
   }
   if (!(Number.isInteger(lod) && lod >= 0)) throw new InputError(`lod must be a whole number of levels, 0 or more, got ${pyRepr(lod)}`, 'lod');
   if (!(Array.isArray(models) && models.length < MAX_MODELS)) {
@@ -108,7 +108,7 @@ export function worldOptions({ arrange = 'blend', heights = null, lod = 0, model
     return options;
   }
   if (!(map?.data instanceof Uint8Array && Array.isArray(map.shape))) {
-    throw new InputError('models_map must be a world.ModelMap (ModelMap.of(array))', 'models_map');
+    throw new InputError('models_map must be a world_maps.ModelMap (ModelMap.of(array))', 'models_map');
   }
   if (arrange !== 'scatter') {
     throw new InputError("a model map places whole objects: it is for a scatter world (blended models' tiles, voxels and "

@@ -1,10 +1,10 @@
 // The maps the user opens for the world mode. A height map, read as
-// world.parse_height_map reads it: a greyscale .png (black 0, white RELIEF
+// world_maps.parse_height_map reads it: a greyscale .png (black 0, white RELIEF
 // times the model's height; columns along the first horizontal axis, rows
 // from the bottom up along the second) or a .npy array of heights in voxels
 // ([i, j]: tile i, j's); a greyscale .png is decoded here, 16 bits included, as
 // Pillow reads it, a colour one by the browser. A model map, read as
-// world.parse_model_map reads it: a palette .png's indices or a greyscale
+// world_maps.parse_model_map reads it: a palette .png's indices or a greyscale
 // one's values (decoded here, as Pillow reads them, 16 bits included), laid
 // out as a height map's pixels, or a .npy array of models' indices.
 //
@@ -13,10 +13,10 @@
 import { InputError } from '../sinshape/errors.js';
 import { HeightMap, MAX_MAP_SIDE, ModelMap, worldLayout } from '../sinshape/world.js';
 
-export const RELIEF = 4; // world.RELIEF: an image's white, in the model's heights
-export const MAX_MAP_BYTES = 64 << 20; // world.MAX_MAP_BYTES: a map file
+export const RELIEF = 4; // world_maps.RELIEF: an image's white, in the model's heights
+export const MAX_MAP_BYTES = 64 << 20; // world_maps.MAX_MAP_BYTES: a map file
 
-/** A map file's bytes; one of more than MAX_MAP_BYTES is refused, unread, as world.parse_height_map and parse_model_map refuse it. */
+/** A map file's bytes; one of more than MAX_MAP_BYTES is refused, unread, as world_maps.parse_height_map and parse_model_map refuse it. */
 async function mapBytes(file, what, field) {
   if (file.size > MAX_MAP_BYTES) throw new InputError(`${file.name}: ${Math.floor(file.size / 2 ** 20)} MB is too large for ${what}`, field);
   return new Uint8Array(await file.arrayBuffer());
@@ -38,7 +38,7 @@ function readNpy(bytes) {
 }
 
 /**
- * A height map from a file (.png or .npy), as world.parse_height_map: a one-line Error where it is not one.
+ * A height map from a file (.png or .npy), as world_maps.parse_height_map: a one-line Error where it is not one.
  * A greyscale .png (8 or 16 bits, or fewer) is decoded here, so its heights are Pillow's to the bit; a colour
  * one through the browser's image decoder, its pixels' luminance taken as Pillow's convert('L') takes it.
  */
@@ -133,7 +133,7 @@ async function pngPixels({ width, height, depth, colour, interlace, data }) {
   return pixels;
 }
 
-/** A model map from a file (.png or .npy), as world.parse_model_map: an InputError (one line) where it is not one. */
+/** A model map from a file (.png or .npy), as world_maps.parse_model_map: an InputError (one line) where it is not one. */
 export async function readModelMap(file) {
   const bytes = await mapBytes(file, 'a model map', 'models_map'), { name } = file, suffix = /\.[^.]*$/.exec(name)?.[0].toLowerCase() ?? '';
   if (suffix === '.npy') {
