@@ -35,7 +35,7 @@ from sinshape import models
 from sinshape.prep import shapes
 from sinshape.prep.pyramid import reference_grid
 from sinshape.runtime import dense, extract, load_model, sample
-from sinshape.runtime import layout as layouts
+from sinshape.runtime import layout as layouts, layout_files
 from sinshape.runtime.edit import MARGIN, compose, parse_part
 from sinshape.runtime.evaluate import diversity, lp_metrics
 
@@ -129,7 +129,7 @@ def measure_layouts(name: str, count: int, folder: Path) -> list:
                      "diversity": diversity(r["grids"]),
                      "seconds": seconds(lambda: extract(model, layouts.from_layout(model, 0, target)))})
     path = folder / "layout.vox"
-    io_seconds = seconds(lambda: (layouts.write_layout(target, path), layouts.read_layout(path)))
+    io_seconds = seconds(lambda: (layout_files.write_layout(target, path), layout_files.read_layout(path)))
     return out, seconds(lambda: extract(model, sample(model, 0))), io_seconds
 
 

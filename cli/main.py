@@ -361,7 +361,7 @@ def sample(model, seeds, layout_file, resample_layout, output, lods, texture, ao
     (`sinrun models` lists them); without it, the default shipped model.
     Needs no torch.
     """
-    from sinshape.runtime import asset as assets, layout, write
+    from sinshape.runtime import asset as assets, layout_files, write
     from sinshape.runtime.request import Layout, SampleRequest
 
     if seeds is None and (workers is not None or engine != "local" or address is not None or restart):
@@ -369,7 +369,7 @@ def sample(model, seeds, layout_file, resample_layout, output, lods, texture, ao
                             ("workers", "engine", "address", "restart", "seeds"))
     packed = assets.options_of(lods, texture, ao)
     loaded = open_model(model, threads)
-    laid_out = Layout.of(layout.read_any(loaded, layout_file, fields["size"]), resample_layout) if layout_file else None
+    laid_out = Layout.of(layout_files.read_any(loaded, layout_file, fields["size"]), resample_layout) if layout_file else None
     request = SampleRequest.of({**fields, "layout": laid_out})
     show_warnings(loaded, request)
     output = output or Path(f"{loaded.path.stem}_{'recon' if request.recon else 'seed{seed}'}."
@@ -528,11 +528,11 @@ def layout_command(model, seed, level, size, output):
     voxels in any voxel editor; `sinrun sample MODEL --seed N --layout FILE`
     then makes a shape with that structure and the model's detail.
     """
-    from sinshape.runtime import layout
+    from sinshape.runtime import layout_files
 
     loaded = open_model(model, threads=None)
     files.check_writable(output, [loaded.path])
-    shape = layout.export(loaded, seed, output, level, size)
+    shape = layout_files.export(loaded, seed, output, level, size)
     click.echo(f"wrote {output} ({'x'.join(map(str, shape))} voxels, level {level})")
 
 

@@ -39,7 +39,7 @@ from starlette.requests import ClientDisconnect
 
 from sinshape.core import files
 from sinshape.core.errors import InputError, MemoryLimitError
-from sinshape.runtime import asset, generate, layout, load, world, world_maps, world_tiles
+from sinshape.runtime import asset, generate, layout, layout_files, load, world, world_maps, world_tiles
 from sinshape.runtime.options import OPTION, OPTIONS
 from sinshape.runtime.request import Layout, SampleRequest, resolved
 from sinshape.serve import catalog, http
@@ -316,7 +316,7 @@ async def sample_from_layout(
     """The body is the layout file (.vox or .npz, as `sinrun layout` writes it, edited), at most 4 MB."""
     body = await upload(request, "the layout file")
     model = find(request, q.name)
-    grid = await run_in_threadpool(layout.parse_layout, body, layout_suffix(body), "the layout")
+    grid = await run_in_threadpool(layout_files.parse_layout, body, layout_suffix(body), "the layout")
     wanted = SampleRequest.of({**q.fields(), "layout": Layout.of(grid, resample_layout)})
     return await answer(request, model, Job(q.name, wanted, q.format))
 
@@ -337,7 +337,7 @@ async def sample_layout(
     POST sample takes back, edited."""
     model = find(request, name)
     factors = generate.parse_size(size)
-    layout.check_fits(layout.grid_size(model, level, factors), format, "the layout")  # before making it
+    layout_files.check_fits(layout.grid_size(model, level, factors), format, "the layout")  # before making it
     wanted = Job(name, SampleRequest(seed, size=factors), format, layout.check_level(model, level))
     return await answer(request, model, wanted)
 

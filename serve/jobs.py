@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sinshape.runtime import layout, write
+from sinshape.runtime import layout, layout_files, write
 from sinshape.runtime.asset import AssetOptions
 from sinshape.runtime.request import SampleRequest
 from sinshape.serve.http import entity_tag
@@ -75,8 +75,8 @@ def layout_file(grid: np.ndarray, level: int, format: str) -> bytes:
     """A layout as `sinrun layout` writes it (.vox, .npz), or as JSON: {shape,
     level, occupancy}, occupancy a string of '0' and '1' per cell, x slowest, z fastest."""
     if format == "vox":
-        layout.check_fits(grid.shape, format, "the layout")
-        return layout.vox_bytes(grid)
+        layout_files.check_fits(grid.shape, format, "the layout")
+        return layout_files.vox_bytes(grid)
     if format == "npz":
         buffer = io.BytesIO()
         np.savez_compressed(buffer, layout=grid.astype(bool))

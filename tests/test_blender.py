@@ -225,7 +225,7 @@ def test_an_edited_layout_is_the_command_lines_layout(scene, tiny_model, tmp_pat
     import bpy
 
     from blender import convert
-    from sinshape.runtime import layout
+    from sinshape.runtime import layout, layout_files
     from sinshape.runtime.load import load_model
 
     obj = add(tiny_model, seed=3)
@@ -252,7 +252,7 @@ def test_an_edited_layout_is_the_command_lines_layout(scene, tiny_model, tmp_pat
     corner, spacing, _ = layout.cells(model.manifest)
     kept = corner[0] + (np.arange(own.shape[0]) + 1) * spacing[0] <= middle + 1e-6
     assert np.array_equal(applied, own & kept[:, None, None])  # the cells whose cubes are left
-    layout.write_layout(applied, tmp_path / "edited.vox")
+    layout_files.write_layout(applied, tmp_path / "edited.vox")
     assert_same_mesh(obj, "z", sinrun_sample(tmp_path, tiny_model, "--seed", 3, "--layout", tmp_path / "edited.vox"))
 
 

@@ -169,12 +169,12 @@ def test_evaluation_checks_warns_and_writes_its_json(tiny_model, tiny_pyramid, t
 
 
 def test_one_edited_sample_never_overwrites_its_layout(tiny_model, tmp_path):
-    from sinshape.runtime import layout, load, write
+    from sinshape.runtime import layout_files, load, write
     from sinshape.runtime.request import Layout, SampleRequest
 
     model, vox = load.load_model(tiny_model), tmp_path / "l.vox"
-    layout.export(model, 3, vox)
-    request = SampleRequest(4, layout=Layout.of(layout.read_layout(vox)))
+    layout_files.export(model, 3, vox)
+    request = SampleRequest(4, layout=Layout.of(layout_files.read_layout(vox)))
     with pytest.raises(InputError, match="is the input"):
         write.write_request(model, request, vox, inputs=[vox])
     write.write_request(model, request, tmp_path / "e.npz", inputs=[vox])

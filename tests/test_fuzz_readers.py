@@ -28,7 +28,7 @@ from hypothesis import strategies as st
 
 from sinshape.core.errors import InputError
 from sinshape.prep import meshfiles
-from sinshape.runtime import layout as L
+from sinshape.runtime import layout_files
 from sinshape.runtime import many
 
 RUNS = int(os.environ.get("SINSHAPE_FUZZ_EXAMPLES", "0"))
@@ -60,7 +60,7 @@ def refused_or(read, check):
 
 def a_layout(grid):
     assert grid.dtype == bool and grid.ndim == 3 and 0 not in grid.shape
-    assert grid.size <= L.MAX_LAYOUT_CELLS
+    assert grid.size <= layout_files.MAX_LAYOUT_CELLS
 
 
 @READERS
@@ -75,7 +75,7 @@ def test_vox_fields(version, main, size, count, voxels, chunks, honest):
     body += voxels + b"".join(name + struct.pack("<2i", a, b) + extra for name, a, b, extra in chunks)
     content, children = (0, len(body)) if honest else main
     data = b"VOX " + struct.pack("<i", version) + b"MAIN" + struct.pack("<2i", content, children) + body
-    refused_or(lambda: L.parse_layout(data, ".vox", "l.vox"), a_layout)
+    refused_or(lambda: layout_files.parse_layout(data, ".vox", "l.vox"), a_layout)
 
 
 DTYPES = ["|b1", "<f8", ">f4", "<f2", "<i4", "|u1", "<i8", "|O", "<U3", "<c16", "|V8", "<M8[s]", "[('a', '<f4')]"]
@@ -98,7 +98,7 @@ def test_npz_fields(names, shape, descr, fortran, data, fill, stored):
             if fill is not None and descr in ("<f8", ">f4", "<f2") and all(0 < n < 40 for n in shape):
                 body = np.full(shape, fill, np.dtype(descr)).tobytes()
             archive.writestr(name, header.getvalue() + body)
-    refused_or(lambda: L.parse_layout(out.getvalue(), ".npz", "l.npz"), a_layout)
+    refused_or(lambda: layout_files.parse_layout(out.getvalue(), ".npz", "l.npz"), a_layout)
 
 
 @READERS

@@ -10,7 +10,7 @@ from click.testing import CliRunner
 from sinshape import models
 from sinshape.cli.main import cli
 from sinshape.runtime import dense, load_model, sample
-from sinshape.runtime import layout as L
+from sinshape.runtime import layout as L, layout_files
 from sinshape.core.errors import InputError
 from test_cli_train import assert_one_line_error
 
@@ -97,12 +97,12 @@ def test_the_layout_is_the_sample_averaged_over_a_level(acropolis):
 @pytest.mark.parametrize("suffix", [".vox", ".npz"])
 def test_layout_files_round_trip(tmp_path, seed3, suffix):
     path = tmp_path / f"l{suffix}"
-    L.write_layout(seed3, path)
-    assert np.array_equal(L.read_layout(path), seed3)
+    layout_files.write_layout(seed3, path)
+    assert np.array_equal(layout_files.read_layout(path), seed3)
 
 
 def test_vox_files_are_magicavoxel_chunks(tmp_path, seed3):
-    data = L.vox_bytes(seed3)
+    data = layout_files.vox_bytes(seed3)
     assert data[:8] == b"VOX " + struct.pack("<i", 150) and data[8:12] == b"MAIN"
     assert struct.unpack_from("<3i", data, 32) == seed3.shape  # SIZE's content
     assert struct.unpack_from("<i", data, 56)[0] == seed3.sum()  # XYZI's count
@@ -110,7 +110,7 @@ def test_vox_files_are_magicavoxel_chunks(tmp_path, seed3):
     rgba = b"RGBA" + struct.pack("<2i", 1024, 0) + bytes(1024)
     path = tmp_path / "palette.vox"
     path.write_bytes(data + rgba)
-    assert np.array_equal(L.read_layout(path), seed3)
+    assert np.array_equal(layout_files.read_layout(path), seed3)
 
 
 def vox(size=(4, 4, 4), voxels=((0, 0, 0, 1),), models=1) -> bytes:
@@ -136,7 +136,7 @@ def test_bad_layout_files_are_refused_in_one_line(tmp_path, name, data, fragment
     path = tmp_path / name
     path.write_bytes(data)
     with pytest.raises(InputError, match=fragment):
-        L.read_layout(path)
+        layout_files.read_layout(path)
     out = tmp_path / "s.ply"
     assert_one_line_error(CliRunner().invoke(cli, ["sample", "acropolis", "--layout", str(path), "-o", str(out)]),
                           fragment)
@@ -145,7 +145,7 @@ def test_bad_layout_files_are_refused_in_one_line(tmp_path, name, data, fragment
 
 def test_a_layout_of_another_size_is_refused_or_resampled(acropolis, tmp_path, seed3):
     path = tmp_path / "big.npz"
-    L.write_layout(np.repeat(seed3, 2, axis=0), path)
+    layout_files.write_layout(np.repeat(seed3, 2, axis=0), path)
     out = tmp_path / "s.npz"
     result = CliRunner().invoke(cli, ["sample", "acropolis", "--layout", str(path), "-o", str(out)])
     assert_one_line_error(result, "the layout is 54x16x15", "27x16x15", "resample")
@@ -160,7 +160,7 @@ def test_the_three_commands_of_a_level_designer(tmp_path, acropolis, seed3):
     vox_path, out = tmp_path / "l.vox", tmp_path / "s.npz"
     result = CliRunner().invoke(cli, ["layout", "acropolis", "--seed", "3", "-o", str(vox_path)])
     assert result.exit_code == 0 and "27x16x15 voxels, level 0" in result.output
-    L.write_layout(edits(L.read_layout(vox_path))["removed"], vox_path)  # the edit a user makes elsewhere
+    layout_files.write_layout(edits(layout_files.read_layout(vox_path))["removed"], vox_path)  # the edit a user makes elsewhere
     result = CliRunner().invoke(cli, ["sample", "acropolis", "--seed", "3", "--layout", str(vox_path), "-o", str(out)])
     assert result.exit_code == 0, result.output
     expected = dense(acropolis, L.from_layout(acropolis, 3, edits(seed3)["removed"]))
@@ -183,12 +183,12 @@ def test_a_rough_mesh_is_a_layout(acropolis, tmp_path):
     path = tmp_path / "rough.obj"
     trimesh.util.concatenate([box((0, 0, 0), (1, 1, 0.15)), box((0.1, 0.3, 0), (0.3, 0.7, 0.9)),
                               box((0.7, 0.3, 0), (0.9, 0.7, 0.9))]).export(path)
-    target = L.mesh_layout(acropolis, path)
+    target = layout_files.mesh_layout(acropolis, path)
     assert target.shape == tuple(m.sizes[0]) and 0.2 < target.mean() < 0.5
     assert target[:, :, 0].all() and not target[13, 8, 10]  # the floor, and air between the towers
-    pooled = L.pool(dense(acropolis, L.from_layout(acropolis, 3, L.read_any(acropolis, path))), target.shape) > 0.5
+    pooled = L.pool(dense(acropolis, L.from_layout(acropolis, 3, layout_files.read_any(acropolis, path))), target.shape) > 0.5
     assert np.mean(pooled == target) >= 0.9 and (pooled & target).sum() / (pooled | target).sum() >= 0.8
     far = tmp_path / "far.obj"
     trimesh.creation.box(bounds=[origin + 10 * extent, origin + 11 * extent]).export(far)
     with pytest.raises(InputError, match="lies outside the sample's box"):
-        L.mesh_layout(acropolis, far)
+        layout_files.mesh_layout(acropolis, far)

@@ -22,7 +22,7 @@ import pytest
 
 from sinshape.core import manifest as fmt
 from sinshape.core import noise
-from sinshape.runtime import cubes, edit, generate, layout, load, onnxfile, world, world_maps
+from sinshape.runtime import cubes, edit, generate, layout, layout_files, load, onnxfile, world, world_maps
 
 STATIC = Path(__file__).resolve().parents[1] / "serve" / "static"
 MODULES = sorted(STATIC.glob("sinshape/*.js")) + [STATIC / "viewer" / "heights.js", STATIC / "viewer" / "layout-cells.js"]
@@ -76,10 +76,10 @@ MIRROR = [
     *[("sinshape/world.js", *same(name, world_maps)) for name in WORLD_MAPS],
     ("viewer/heights.js", *same("RELIEF", world_maps)),
     ("viewer/heights.js", *same("MAX_MAP_BYTES", world_maps)),
-    ("viewer/layout-cells.js", "MAX_SIDE", "runtime.layout.MAX_LAYOUT_SIDE", layout.MAX_LAYOUT_SIDE),
-    ("viewer/layout-cells.js", *same("VOX_VERSION", layout)),
+    ("viewer/layout-cells.js", "MAX_SIDE", "runtime.layout_files.MAX_LAYOUT_SIDE", layout_files.MAX_LAYOUT_SIDE),
+    ("viewer/layout-cells.js", *same("VOX_VERSION", layout_files)),
     ("sinshape/world.js", "ARRANGEMENTS", "core.manifest.ARRANGEMENTS", fmt.ARRANGEMENTS),
-    ("viewer/layout-cells.js", *same("VOX_COLOUR", layout)),
+    ("viewer/layout-cells.js", *same("VOX_COLOUR", layout_files)),
 ]
 
 # Upper-case constants of those modules with no Python counterpart, and why.

@@ -20,7 +20,7 @@ from sinshape import models
 from sinshape.cli.main import cli
 from sinshape.core.errors import InputError, MemoryLimitError
 from sinshape.runtime import edit, load_model
-from sinshape.runtime import layout as L
+from sinshape.runtime import layout as L, layout_files
 from sinshape.runtime.request import MAX_PARTS, Layout, SampleRequest
 from conftest import TINY_ONNX as TINY, finishes
 from test_cli_train import assert_one_line_error
@@ -61,11 +61,11 @@ def test_an_npz_layout_is_read_from_the_member_its_header_was_checked_in():
     archive with both is refused, whatever either holds."""
     data = npz(layout__npy=npy(np.zeros((4, 4, 4), bool)), layout=npy(np.ones((300, 300, 300), bool)))
     with pytest.raises(InputError, match="holds 'layout.npy', 'layout'"):
-        L.parse_layout(data, ".npz", "l.npz")
+        layout_files.parse_layout(data, ".npz", "l.npz")
     for members in ({"layout": npy(np.ones((4, 4, 4), bool))},  # no .npy: np.load reads it, the check did not
                     {"layout__npy": npy(np.ones((4, 4, 4), bool)), "notes__txt": b"x"}, {}):
         with pytest.raises(InputError, match="one array, layout.npy"):
-            L.parse_layout(npz(**members), ".npz", "l.npz")
+            layout_files.parse_layout(npz(**members), ".npz", "l.npz")
 
 
 def refusal_peak(data: bytes, fragment: str) -> int:
@@ -74,7 +74,7 @@ def refusal_peak(data: bytes, fragment: str) -> int:
     tracemalloc.start()
     try:
         with pytest.raises(InputError, match=fragment):
-            L.parse_layout(data, ".npz", "l.npz")
+            layout_files.parse_layout(data, ".npz", "l.npz")
         return tracemalloc.get_traced_memory()[1]
     finally:
         tracemalloc.stop()
@@ -99,7 +99,7 @@ def test_an_npz_layout_is_bounded_before_its_data_is_decompressed():
     short = npz(layout__npy=npy(header={"descr": "|b1", "fortran_order": False, "shape": (64, 64, 64)},
                                 data=bytes(1000)))
     with pytest.raises(InputError, match="its data is 1000 bytes and its header declares 262144"):
-        L.parse_layout(short, ".npz", "l.npz")
+        layout_files.parse_layout(short, ".npz", "l.npz")
 
 
 def test_an_npz_layout_compressed_to_unpack_at_once_is_refused():
@@ -110,7 +110,7 @@ def test_an_npz_layout_compressed_to_unpack_at_once_is_refused():
         archive.writestr("layout.npy", npy(np.zeros((256, 256, 256), bool)))
     assert len(out.getvalue()) < 400
     with pytest.raises(InputError, match="compressed other than as NumPy writes it"):
-        L.parse_layout(out.getvalue(), ".npz", "l.npz")
+        layout_files.parse_layout(out.getvalue(), ".npz", "l.npz")
 
 
 def test_grow_is_refused_up_front_with_the_figure_that_it_needs(terrain, monkeypatch):
@@ -168,7 +168,7 @@ def test_a_vox_with_hostile_sizes_is_one_line(tmp_path, data, fragment):
     path = tmp_path / "l.vox"
     path.write_bytes(data)
     with pytest.raises(InputError, match=re.escape(fragment)):
-        L.read_layout(path)
+        layout_files.read_layout(path)
     assert_one_line_error(run("sample", "terrain", "--layout", path, "-o", tmp_path / "s.ply"), fragment)
 
 

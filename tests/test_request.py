@@ -13,7 +13,7 @@ from click.testing import CliRunner
 
 from sinshape.cli.main import cli
 from sinshape.core.errors import ConflictError, InputError
-from sinshape.runtime import dense, edit, generate, layout, load_model, many
+from sinshape.runtime import dense, edit, generate, layout, layout_files, load_model, many
 from sinshape.runtime.request import MAX_PARTS, OPTIONS, Layout, SampleRequest, make, resolved, warnings
 from sinshape.runtime.world import HeightMap
 
@@ -170,7 +170,7 @@ def test_a_batch_job_edits_every_seed_as_one_sample_would(tiny_model, model, tmp
 ])
 def test_the_command_line_says_a_conflict_once_with_its_options(tiny_model, tmp_path, options, says):
     if "--layout" in options:
-        layout.export(load_model(tiny_model), 1, tmp_path / "x.vox")
+        layout_files.export(load_model(tiny_model), 1, tmp_path / "x.vox")
         options = [str(tmp_path / o) if o == "x.vox" else o for o in options]
     result = CliRunner().invoke(cli, ["sample", str(tiny_model), *options, "-o", str(tmp_path / "s_{seed}.ply")])
     assert result.exit_code == 2 and says in result.output and "Traceback" not in result.output, result.output

@@ -275,7 +275,7 @@ def test_cancel_gives_up_a_server_sample_and_the_page_goes_on(page):
 # ---- the editor: keep a box, grow, edit the layout; undo, redo and the URL
 from sinshape import models  # noqa: E402
 from sinshape.runtime import edit, load, mesh  # noqa: E402
-from sinshape.runtime import layout as layouts  # noqa: E402
+from sinshape.runtime import layout as layouts, layout_files  # noqa: E402
 from sinshape.runtime.request import SampleRequest, make  # noqa: E402
 
 
@@ -462,7 +462,7 @@ def test_the_layout_route_is_the_librarys(page, terrain):
     np.testing.assert_array_equal(grid, expected)
     assert 0.1 < expected.mean() < 0.9
     status, headers, body = get(f"{page.base}/api/models/terrain/layout?seed=3&level=1&format=vox")
-    assert status == 200 and body == layouts.vox_bytes(layouts.layout(terrain, 3, level=1))
+    assert status == 200 and body == layout_files.vox_bytes(layouts.layout(terrain, 3, level=1))
     assert headers["Content-Disposition"] == 'attachment; filename="terrain_seed3_layout1.vox"'
     status, _, body = get(f"{page.base}/api/models/terrain/layout?seed=3&level=3")
     assert status == 400 and json.loads(body)["detail"] == "level must be 0 to 2 (a layout needs a finer level after it), got 3"
@@ -534,12 +534,12 @@ def test_edit_the_layout_as_blocks(page, terrain, tmp_path):
     with page.expect_download() as download:
         page.click("#vox-export")
     assert download.value.suggested_filename == "terrain_seed3_layout.vox"
-    assert Path(download.value.path()).read_bytes() == layouts.vox_bytes(expected)
+    assert Path(download.value.path()).read_bytes() == layout_files.vox_bytes(expected)
 
     # Import: a layout edited elsewhere (a slab of the top removed), then the URL replays it.
     imported = base.copy()
     imported[10:20, :, 6:] = False
-    (tmp_path / "edited.vox").write_bytes(layouts.vox_bytes(imported))
+    (tmp_path / "edited.vox").write_bytes(layout_files.vox_bytes(imported))
     page.set_input_files("#vox-file", tmp_path / "edited.vox")
     wait_cells(page, edits_text(imported, base))
     shown = assert_same_shape(page, terrain, layouts.from_layout(terrain, 3, imported))
@@ -549,12 +549,12 @@ def test_edit_the_layout_as_blocks(page, terrain, tmp_path):
     assert shape(page)["digest"] == shown["digest"]
 
     # Files that are not this sample's layout: a message, nothing changed.
-    (tmp_path / "small.vox").write_bytes(layouts.vox_bytes(np.ones((3, 3, 3), bool)))
+    (tmp_path / "small.vox").write_bytes(layout_files.vox_bytes(np.ones((3, 3, 3), bool)))
     page.set_input_files("#vox-file", tmp_path / "small.vox")
     page.wait_for_selector("#error:not([hidden])")
     assert page.text_content("#error") == ("small.vox: a layout of 3×3×3 cells; this sample's is 27×18×15 "
                                            "(level 0 of terrain at size 1,1,1)")
-    (tmp_path / "broken.vox").write_bytes(layouts.vox_bytes(imported)[:60])
+    (tmp_path / "broken.vox").write_bytes(layout_files.vox_bytes(imported)[:60])
     page.set_input_files("#vox-file", tmp_path / "broken.vox")
     page.wait_for_function("document.getElementById('error').textContent.startsWith('broken.vox')")
     assert page.text_content("#error") == "broken.vox: not a readable MagicaVoxel file (chunk 'XYZI' runs past the end)"

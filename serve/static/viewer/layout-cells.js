@@ -3,7 +3,7 @@
 // .vox files as runtime/layout.py writes and reads them; and the text of an
 // edit kept in the URL: the cells that differ from the seed's own layout,
 // 'a' for a cell added and 'r' for one removed, like "a3.4.5,r10.2.0".
-export const MAX_SIDE = 256; // MagicaVoxel's limit per axis, as runtime/layout.py's MAX_LAYOUT_SIDE
+export const MAX_SIDE = 256; // MagicaVoxel's limit per axis, as runtime/layout_files.py's MAX_LAYOUT_SIDE
 export const VOX_VERSION = 150;
 export const VOX_COLOUR = 1; // the palette index cells are written with (any non-zero index reads as full)
 
@@ -23,7 +23,7 @@ export function fullCells(grid, [x, y, z]) {
   return out;
 }
 
-/** The .vox file of a layout: MAIN holding SIZE and XYZI, byte for byte as runtime/layout.py's vox_bytes. */
+/** The .vox file of a layout: MAIN holding SIZE and XYZI, byte for byte as runtime/layout_files.py's vox_bytes. */
 export function voxBytes(grid, shape) {
   if (Math.max(...shape) > MAX_SIDE) throw new LayoutError(`a ${shape.join('x')} layout; .vox holds at most ${MAX_SIDE} cells per axis`);
   const cells = fullCells(grid, shape);
@@ -43,7 +43,7 @@ export function voxBytes(grid, shape) {
   return new Uint8Array(out.buffer);
 }
 
-/** The one model of a .vox file: { grid, shape }, checked as runtime/layout.py's read_vox checks it. */
+/** The one model of a .vox file: { grid, shape }, checked as runtime/layout_files.py's read_vox checks it. */
 export function readVox(bytes, name) {
   const corrupt = (why) => new LayoutError(`${name}: not a readable MagicaVoxel file (${why})`);
   const view = new DataView(bytes.buffer, bytes.byteOffset, bytes.byteLength);
