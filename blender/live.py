@@ -18,7 +18,7 @@ import numpy as np
 
 from sinshape.core.errors import InputError
 from sinshape.core.files import check_readable
-from sinshape.runtime import asset, layout, load, many, mesh, write
+from sinshape.runtime import asset, layout, load, many_index, many_workers, mesh, write
 from sinshape.runtime import request as requests
 from sinshape.runtime.load import default_threads
 
@@ -44,7 +44,7 @@ def model_file(reference: str, recorded: str = "") -> tuple:
     stat = path.stat()
     key = (str(path), stat.st_size, stat.st_mtime_ns)
     if key not in DIGESTS:
-        digest = many.file_digest(path)
+        digest = many_index.file_digest(path)
         if digest is None:
             raise InputError(f"{path}: cannot read the model file")
         DIGESTS[key] = digest[1]
@@ -314,9 +314,9 @@ def variation_pool(model_path: Path, request, count: int):
     workers = min(default_threads(), count)
     threads = max(1, default_threads() // workers)
     if workers == 1:
-        return many.InProcess(model_path, ".ply", threads, request)
+        return many_workers.InProcess(model_path, ".ply", threads, request)
     with plain_main():
-        return many.Processes(model_path, ".ply", threads, request, "seed", workers)
+        return many_workers.Processes(model_path, ".ply", threads, request, "seed", workers)
 
 
 @contextlib.contextmanager

@@ -354,9 +354,9 @@ def test_world_tiles_as_assets_meet_at_their_border_at_every_level(tmp_path):
     result = CliRunner().invoke(cli, ["world", str(TINY_ONNX), "--tiles", "0:1,0:0", "--lods", "700,450",
                                       "--texture", "32", "--frame", "model", "-o", str(tmp_path / "w")])
     assert result.exit_code == 0, result.output
-    from sinshape.runtime import many
+    from sinshape.runtime import many_index
 
-    records = many.read_index(tmp_path / "w" / "tile_index.jsonl", many.TILES)
+    records = many_index.read_index(tmp_path / "w" / "tile_index.jsonl", many_index.TILES)
     assert sorted(records) == [(0, 0), (1, 0)] and all(len(r["levels"]) == 2 for r in records.values())
     again = CliRunner().invoke(cli, ["world", str(TINY_ONNX), "--tiles", "0:1,0:0", "--lods", "700",
                                      "--texture", "32", "--frame", "model", "-o", str(tmp_path / "w")])

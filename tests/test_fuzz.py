@@ -538,7 +538,7 @@ def test_a_resumed_job_redoes_exactly_its_damaged_seeds(finished_job, tmp_path_f
     import json
     import shutil
 
-    from sinshape.runtime import many
+    from sinshape.runtime import many_workers
 
     job, reference = finished_job
     root = tmp_path_factory.mktemp("resumed")
@@ -568,7 +568,7 @@ def test_a_resumed_job_redoes_exactly_its_damaged_seeds(finished_job, tmp_path_f
         lines.append(line[:data.draw(st.integers(1, len(line) - 2))])  # no newline: a crash mid-write
     (folder / "index.jsonl").write_text("".join([job, *lines]))
 
-    made, run = [], many.Worker.run
+    made, run = [], many_workers.Worker.run
 
     def counted(self, seed):
         if stop is not None and len(made) + 1 == stop:
@@ -579,7 +579,7 @@ def test_a_resumed_job_redoes_exactly_its_damaged_seeds(finished_job, tmp_path_f
 
     try:
         with pytest.MonkeyPatch.context() as patch:
-            patch.setattr(many.Worker, "run", counted)
+            patch.setattr(many_workers.Worker, "run", counted)
             result = sinrun_job(root, JOB - 1 + more)
             expected = sorted(damages) + list(range(JOB, JOB + more))
             if stop is not None and stop <= len(expected):

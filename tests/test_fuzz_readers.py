@@ -29,7 +29,7 @@ from hypothesis import strategies as st
 from sinshape.core.errors import InputError
 from sinshape.prep import meshfiles
 from sinshape.runtime import layout_files
-from sinshape.runtime import many
+from sinshape.runtime import many_index
 
 RUNS = int(os.environ.get("SINSHAPE_FUZZ_EXAMPLES", "0"))
 EXAMPLES = RUNS or 60
@@ -147,9 +147,9 @@ def test_index_fields(tmp_path_factory, records, raw):
 
     def check(found):
         assert all(isinstance(seed, int) and 0 <= seed < 2**63 for seed in found)
-        many.verified(found, folder / "{seed}.npz")  # looks each file up by the name its seed makes
+        many_index.verified(found, folder / "{seed}.npz")  # looks each file up by the name its seed makes
 
-    refused_or(lambda: many.read_index(folder / "index.jsonl"), check)
+    refused_or(lambda: many_index.read_index(folder / "index.jsonl"), check)
 
 
 NUMBERS = st.one_of(st.floats(-10, 10), st.sampled_from(["nan", "inf", "-inf", "1e400", "1e308", "x", "-0"]))

@@ -8,7 +8,7 @@ import pytest
 from click.testing import CliRunner
 
 from sinshape.cli.main import cli
-from sinshape.runtime import many
+from sinshape.runtime import many, many_workers
 from test_cli_train import assert_one_line_error
 
 SCALE = 1.5  # a little meshing work per seed, still fast
@@ -77,8 +77,8 @@ def test_an_interrupted_job_resumes_without_redoing_seeds(tiny_model, sequential
     # A crash in the middle of an index line: the line is dropped, its seed redone.
     with open(tmp_path / "index.jsonl", "a") as f:
         f.write('{"seed": 7, "fi')
-    runs, run = [], many.Worker.run
-    monkeypatch.setattr(many.Worker, "run", lambda self, seed: runs.append(seed) or run(self, seed))
+    runs, run = [], many_workers.Worker.run
+    monkeypatch.setattr(many_workers.Worker, "run", lambda self, seed: runs.append(seed) or run(self, seed))
     result = many.sample_many(tiny_model, range(8), tmp_path / "{seed}.ply", workers=1, scale=SCALE)
     assert runs == [3, 4, 5, 6, 7] and result["written"] == 5 and result["skipped"] == 3
     assert index_seeds(tmp_path) == list(range(8))
@@ -96,8 +96,8 @@ def test_a_rerun_redoes_damaged_and_missing_files_and_keeps_one_line_per_seed(ti
     data = bytearray((tmp_path / "1.ply").read_bytes())  # same size, one byte changed
     data[-1] ^= 1
     (tmp_path / "1.ply").write_bytes(bytes(data))
-    runs, run = [], many.Worker.run
-    monkeypatch.setattr(many.Worker, "run", lambda self, seed: runs.append(seed) or run(self, seed))
+    runs, run = [], many_workers.Worker.run
+    monkeypatch.setattr(many_workers.Worker, "run", lambda self, seed: runs.append(seed) or run(self, seed))
     result = many.sample_many(tiny_model, range(6), tmp_path / "{seed}.ply", workers=1, scale=SCALE)
     assert sorted(runs) == [1, 3, 5] and result["skipped"] == 3
     assert sorted(index_seeds(tmp_path)) == list(range(6))  # one line per seed
@@ -140,7 +140,7 @@ def test_a_world_size_sample_that_does_not_fit_is_refused(tmp_path):
 @pytest.fixture(scope="module")
 def local_ray():
     ray = pytest.importorskip("ray", reason="the ray extra is not installed: pip install 'sinshape[ray]'")
-    with many.handler_kept(signal.SIGTERM):  # Ray's own would outlive the fixture
+    with many_workers.handler_kept(signal.SIGTERM):  # Ray's own would outlive the fixture
         ray.init(num_cpus=2, include_dashboard=False, logging_level="ERROR", log_to_driver=False)
     yield ray
     ray.shutdown()

@@ -206,12 +206,12 @@ def test_a_batch_index_with_a_hostile_seed_is_one_line_on_resume(tmp_path, seed)
 @pytest.mark.parametrize("line", ['{"seed": 2, "bytes": -1}', '{"seed": 2, "sha256": 7}', '"' + "x" * 5000 + '"',
                                   "[" * 3000 + "]" * 3000, '{"seed": 2, "bytes": 1e400}'])
 def test_a_batch_index_with_hostile_fields_is_one_line(tmp_path, line):
-    from sinshape.runtime import many
+    from sinshape.runtime import many_index
 
     index = tmp_path / "index.jsonl"
     index.write_text(line + "\n")
     with pytest.raises(InputError, match="line 1 is not a seed's JSON record"):
-        many.read_index(index)
+        many_index.read_index(index)
 
 
 def test_a_mesh_is_read_within_its_folder_and_its_memory(tmp_path, monkeypatch):
