@@ -51,7 +51,7 @@ TRAINING_INPUTS = {"terrain": "shape", "acropolis": "shape", "towerruins": ROOT 
 def world_grid(model, seed: int, rows: range, columns: range, scale: float = 1.0,
                options: world.WorldOptions = world.PLAIN) -> np.ndarray:
     """Occupancy of a block of tiles as one grid (each shared face once)."""
-    h0, h1 = world.world_layout(model).horizontal
+    h0, h1 = world.world_tiling(model).horizontal
     strips = []
     for i in rows:
         row = [world_tiles.tile_occupancy(model, seed, (i, j), scale, options=options) for j in columns]
@@ -62,8 +62,8 @@ def world_grid(model, seed: int, rows: range, columns: range, scale: float = 1.0
 
 
 def seams(model, block: int, options) -> dict:
-    layout = world.world_layout(model)
-    h0, h1 = layout.horizontal
+    tiling = world.world_tiling(model)
+    h0, h1 = tiling.horizontal
     out = {}
     for scale in (1.0, 2.0):
         grids = {(i, j): world_tiles.tile_occupancy(model, 3, (i, j), scale, options=options) for i in range(block) for j in range(block)}
@@ -78,15 +78,15 @@ def seams(model, block: int, options) -> dict:
     for i in range(block - 1):
         a, b = (world_tiles.tile_mesh(model, 3, (i, 0), options=options)[0],
                 world_tiles.tile_mesh(model, 3, (i + 1, 0), options=options)[0])
-        on_a = {tuple(v) for v in a[a[:, h0] == layout.stride[h0]] - np.eye(3)[h0] * layout.stride[h0]}
+        on_a = {tuple(v) for v in a[a[:, h0] == tiling.stride[h0]] - np.eye(3)[h0] * tiling.stride[h0]}
         on_b = {tuple(v) for v in b[b[:, h0] == 0]}
         matched, total = matched + len(on_a & on_b), total + len(on_a | on_b)
     out["border vertices matched"] = f"{matched} of {total}"
     same = total_normals = 0
     for i in range(block - 1):
         a, b = (world_tiles.tile_surface(model, 3, (i, 0), options=options), world_tiles.tile_surface(model, 3, (i + 1, 0), options=options))
-        on_a = {tuple(v - np.eye(3)[h0] * layout.stride[h0]): tuple(n) for v, n in zip(a.vertices, a.normals)
-                if v[h0] == layout.stride[h0]}
+        on_a = {tuple(v - np.eye(3)[h0] * tiling.stride[h0]): tuple(n) for v, n in zip(a.vertices, a.normals)
+                if v[h0] == tiling.stride[h0]}
         on_b = {tuple(v): tuple(n) for v, n in zip(b.vertices, b.normals) if v[h0] == 0}
         same += sum(on_a[v] == on_b.get(v) for v in on_a)
         total_normals += len(on_a)
@@ -106,7 +106,7 @@ def seams(model, block: int, options) -> dict:
     ends = unique[edge[counts == 1]]
     outer = np.zeros(len(ends), bool)
     for axis in (h0, h1):
-        for at in (0, block * layout.stride[axis]):
+        for at in (0, block * tiling.stride[axis]):
             outer |= (ends[:, :, axis] == at).all(axis=1)
     out[f"{block}x{block} union"] = ("closed but for its outer sides" if outer.all() and counts.max() == 2
                                      else f"{int((~outer).sum())} open edges inside, {int((counts > 2).sum())} non-manifold")
@@ -180,8 +180,8 @@ def reference_of(name: str, model, folder: Path) -> np.ndarray:
 
 
 def quality(model, name: str, windows: int, options) -> dict:
-    layout = world.world_layout(model)
-    h0, h1 = layout.horizontal
+    tiling = world.world_tiling(model)
+    h0, h1 = tiling.horizontal
     finest = model.manifest.sizes[-1]
     rng = np.random.default_rng(0)
     with tempfile.TemporaryDirectory() as folder:
@@ -217,8 +217,8 @@ def quality(model, name: str, windows: int, options) -> dict:
 def strips(model, seeds, options) -> dict:
     """Per horizontal axis, long strips of the world (STRIP tiles along it,
     3 across) and ordinary samples as large, one of each per seed."""
-    layout = world.world_layout(model)
-    h0, h1 = layout.horizontal
+    tiling = world.world_tiling(model)
+    h0, h1 = tiling.horizontal
     finest = model.manifest.sizes[-1]
     out = {}
     for axis, other in ((h0, h1), (h1, h0)):
@@ -231,14 +231,14 @@ def strips(model, seeds, options) -> dict:
     return out
 
 
-def zones(grid: np.ndarray, layout, width: float = 0.1) -> dict:
+def zones(grid: np.ndarray, tiling, width: float = 0.1) -> dict:
     """Height-field columns of a world grid (a block from tile (0, 0)) near the
     tiles' corners (within `width` of a stride from a border along both
     horizontal axes) and near their centres (within `width` of the middle
     along both): (n,) heights each."""
-    h0, h1 = layout.horizontal
-    height = evaluate.height_field(grid, layout.up)  # (h0, h1)
-    fraction = [(np.arange(height.shape[k]) % layout.stride[a]) / layout.stride[a] for k, a in enumerate((h0, h1))]
+    h0, h1 = tiling.horizontal
+    height = evaluate.height_field(grid, tiling.up)  # (h0, h1)
+    fraction = [(np.arange(height.shape[k]) % tiling.stride[a]) / tiling.stride[a] for k, a in enumerate((h0, h1))]
     corner = [np.minimum(f, 1 - f) <= width for f in fraction]
     centre = [np.abs(f - 0.5) <= width for f in fraction]
     return {"corners": height[np.ix_(*corner)].ravel(), "centres": height[np.ix_(*centre)].ravel()}
@@ -249,20 +249,20 @@ def repetition(model, options, seeds=(7, 8)) -> dict:
     multiples along each horizontal axis, world against ordinary samples as
     long (mean over `seeds`); and the relief (std of heights) at tile
     corners, centres and over ordinary samples."""
-    layout = world.world_layout(model)
+    tiling = world.world_tiling(model)
     out = {}
     relief = {"corners": [], "centres": [], "ordinary": []}
     for axis, (worlds, ordinary) in strips(model, seeds, options).items():
-        period = layout.stride[axis]
+        period = tiling.stride[axis]
         lags = [period // 2, period, 2 * period, 3 * period]
         for label, grids in (("world", worlds), ("an ordinary sample as long", ordinary)):
-            values = np.mean([evaluate.height_autocorrelation(g, layout.up, axis, lags) for g in grids], axis=0)
+            values = np.mean([evaluate.height_autocorrelation(g, tiling.up, axis, lags) for g in grids], axis=0)
             out[f"height autocorrelation along {'xyz'[axis]} at S/2, S, 2S, 3S ({lags}), {label}"] = \
                 " ".join(f"{v:+.3f}" for v in values)
         for grid in worlds:
-            for key, heights in zones(grid, layout).items():
+            for key, heights in zones(grid, tiling).items():
                 relief[key].append(heights)
-        relief["ordinary"] += [evaluate.height_field(g, layout.up).ravel() for g in ordinary]
+        relief["ordinary"] += [evaluate.height_field(g, tiling.up).ravel() for g in ordinary]
     if options.arrange != "blend":  # tiles neither blend at their centres nor hold one window at their corners
         relief.pop("corners"), relief.pop("centres")
         out["relief (std of heights, voxels): ordinary samples"] = f"{np.std(np.concatenate(relief['ordinary'])):.2f}"
@@ -288,10 +288,10 @@ def painted_map(tiles: int, relief: float) -> np.ndarray:
 def world_heights(model, seed: int, tiles: int, options) -> np.ndarray:
     """The height field (occupied voxels per column) of tiles x tiles from
     (0, 0), each tile's shared faces once: (tiles S0 + 1, tiles S1 + 1)."""
-    layout = world.world_layout(model)
+    tiling = world.world_tiling(model)
     rows = []
     for i in range(tiles):
-        row = [evaluate.height_field(world_tiles.tile_occupancy(model, seed, (i, j), options=options), layout.up)
+        row = [evaluate.height_field(world_tiles.tile_occupancy(model, seed, (i, j), options=options), tiling.up)
                for j in range(tiles)]
         row = [t[:, (0 if k == 0 else 1):] for k, t in enumerate(row)]
         rows.append(np.concatenate(row, axis=1))
@@ -304,15 +304,15 @@ def large_shape(model, options, tiles: int = 32, relief_factor: float = 4.0) -> 
     tile's mean height) against the model's own height band (the std of an
     ordinary sample's heights) and the plain world's, and how it follows
     the map (correlation of each tile's mean height with its pixel)."""
-    layout = world.world_layout(model)
-    relief = relief_factor * layout.stride[layout.up]
+    tiling = world.world_tiling(model)
+    relief = relief_factor * tiling.stride[tiling.up]
     heights = painted_map(tiles, relief)
     painted = dataclasses.replace(options, heights=world_maps.HeightMap.of(heights))
     out = {}
-    band = float(np.std(evaluate.height_field(dense(model, sample(model, 7)), layout.up)))
+    band = float(np.std(evaluate.height_field(dense(model, sample(model, 7)), tiling.up)))
     for label, chosen in (("plain", options), (f"painted, relief {relief:g} voxels", painted)):
         field = world_heights(model, 7, tiles, chosen)
-        s0, s1 = layout.stride[layout.horizontal[0]], layout.stride[layout.horizontal[1]]
+        s0, s1 = tiling.stride[tiling.horizontal[0]], tiling.stride[tiling.horizontal[1]]
         means = field[:tiles * s0, :tiles * s1].reshape(tiles, s0, tiles, s1).mean(axis=(1, 3))
         out[f"{tiles}x{tiles} tiles, {label}: large-scale relief (std of tile means) / model's band"] = \
             f"{means.std():.2f} / {band:.2f} voxels ({means.std() / band:.1f}x)"
@@ -372,9 +372,9 @@ def main():
             model.manifest = dataclasses.replace(model.manifest, contrast=args.contrast)
         other_name = args.models[(number + 1) % len(args.models)]
         options = world.WorldOptions(arrange=args.arrange or model.manifest.arrange)
-        layout = world.world_layout(model)
-        print(f"\n## {name}: up {model.manifest.up}, tiles of {layout.stride[layout.horizontal[0]]} x "
-              f"{layout.stride[layout.horizontal[1]]} voxels, windows {'x'.join(map(str, model.manifest.sizes[-1]))}, "
+        tiling = world.world_tiling(model)
+        print(f"\n## {name}: up {model.manifest.up}, tiles of {tiling.stride[tiling.horizontal[0]]} x "
+              f"{tiling.stride[tiling.horizontal[1]]} voxels, windows {'x'.join(map(str, model.manifest.sizes[-1]))}, "
               f"{options.arrange}, blend contrast {model.manifest.contrast:g}\n")
         print("| measure | value |\n|---|---|")
         for section in args.sections:

@@ -91,8 +91,8 @@ def ring(reach: int, size) -> list:
 def python_ring(path: Path, seed: int, reach: int, arrange: str) -> float:
     """Seconds for the Python runtime, one thread, to make the ring's tiles at their levels in the page's order."""
     model = load.load_model(path, threads=1)
-    layout = world.world_layout(model)
-    size = [layout.stride[a] * model.manifest.spacing[a] for a in layout.horizontal]
+    tiling = world.world_tiling(model)
+    size = [tiling.stride[a] * model.manifest.spacing[a] for a in tiling.horizontal]
     world_tiles.tile_surface(model, seed, (-7777, 0))  # the warm-up
     world._windows.clear()
     coarsest = len(model.manifest.sizes) - 1

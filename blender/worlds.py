@@ -50,11 +50,11 @@ def followed_point(obj, scene) -> np.ndarray:
     return np.array(obj.matrix_world.inverted() @ location, float)
 
 
-def centre_tile(model, layout: world.Layout, point) -> tuple:
+def centre_tile(model, tiling: world.Tiling, point) -> tuple:
     """The tile (i, j) holding a point given in the world object's space."""
     manifest = model.manifest
     voxels = (convert.to_model([point], manifest.up)[0] - np.asarray(manifest.origin)) / np.asarray(manifest.spacing)
-    along = [voxels[axis] / layout.stride[axis] for axis in layout.horizontal]
+    along = [voxels[axis] / tiling.stride[axis] for axis in tiling.horizontal]
     if not all(math.isfinite(value) and abs(value) < world.MAX_TILE for value in along):
         raise InputError("the followed point lies beyond the world's last tile (2**62 tiles from its origin)",
                          "follow")
@@ -163,9 +163,9 @@ def refresh(obj, scene=None, force: bool = False) -> None:
         check_settings(settings)
         model, digest = live.load_settings(settings)
         options, made = world_options(settings, model, digest)
-        layout = world.world_layout(model)
-        world.check_world_scale(layout, settings.scale, world.hidden_width(model, options), None)
-        centre = centre_tile(model, layout, followed_point(obj, scene))
+        tiling = world.world_tiling(model)
+        world.check_world_scale(tiling, settings.scale, world.hidden_width(model, options), None)
+        centre = centre_tile(model, tiling, followed_point(obj, scene))
         wanted = tiles_around(centre, settings.radius)
         lods = {tile: detail(centre, tile, settings.fine, len(model.manifest.sizes) - 1) for tile in wanted}
         if not force and live.MADE.get(obj.name) == (made, lods):
@@ -321,16 +321,16 @@ def border_keys(model, tile: tuple, vertices: np.ndarray) -> dict:
     j, ...) on a line between two columns of tiles, ('b', i, line, ...)
     between two rows, ('c', line, line, up) on a corner's column, with its
     coordinates along the line, as the tile's neighbours name it too."""
-    layout = world.world_layout(model)
+    tiling = world.world_tiling(model)
     manifest = model.manifest
     turn = convert.TURNS[manifest.up]
     axes, sides, ends = [], [], []
-    for a in layout.horizontal:  # model axis a lies along Blender axis b, in direction sign
+    for a in tiling.horizontal:  # model axis a lies along Blender axis b, in direction sign
         b = int(np.abs(turn[:, a]).argmax())
         axes.append(b)
-        ends.append(float(np.float32(turn[b, a] * layout.stride[a] * manifest.spacing[a])))
+        ends.append(float(np.float32(turn[b, a] * tiling.stride[a] * manifest.spacing[a])))
         sides.append((vertices[:, b] == 0) * 1 + (vertices[:, b] == ends[-1]) * 2)  # 1 low, 2 high, 0 neither
-    up = int(np.abs(turn[:, layout.up]).argmax())
+    up = int(np.abs(turn[:, tiling.up]).argmax())
     (b0, b1), (s0, s1), (i, j) = axes, sides, tile
     keys = {}
     for index in np.flatnonzero((s0 > 0) | (s1 > 0)):

@@ -128,12 +128,12 @@ def tile_field(model, seed: int, tile, options) -> bake.Field:
     """The field of world tile (i, j) (its world made as world.WorldOptions
     `options` say), in model units from its corner, its colour and its
     example's relief: empty above and below the world's heights, as its mesh is."""
-    layout = world.world_layout(model)
-    heights = world.tile_grid(model, layout, 1.0, options).positions[layout.up]
+    tiling = world.world_tiling(model)
+    heights = world.tile_grid(model, tiling, 1.0, options).positions[tiling.up]
 
     def occupancy(points):
         out = world_points.tile_points(model, seed, tile, points, options)
-        out[(points[:, layout.up] < heights[0]) | (points[:, layout.up] > heights[-1])] = 0
+        out[(points[:, tiling.up] < heights[0]) | (points[:, tiling.up] > heights[-1])] = 0
         return out
 
     def colour(points):

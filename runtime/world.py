@@ -90,7 +90,7 @@ PLATEAU = 0.5
 
 
 @dataclass(frozen=True)
-class Layout:
+class Tiling:
     """How a model's world is cut: which axes are horizontal, the stride S
     per axis (None along up), the windows' size factors."""
 
@@ -100,7 +100,7 @@ class Layout:
     factors: tuple  # a window's size, as factors of the training size
 
 
-def world_layout(model) -> Layout:
+def world_tiling(model) -> Tiling:
     """The world's cut for a model: refused where a world means nothing."""
     finest = model.manifest.sizes[-1]
     up = UP_AXIS[model.manifest.up]
@@ -113,7 +113,7 @@ def world_layout(model) -> Layout:
                              f"needs windows of at least {2 * MIN_STRIDE + 1} to blend")
     stride[up] = finest[up] - 1
     factors = tuple((2 * stride[a] + 1) / finest[a] if a != up else 1.0 for a in range(3))
-    return Layout(horizontal, up, tuple(stride), factors)
+    return Tiling(horizontal, up, tuple(stride), factors)
 
 
 def check_tile(tile) -> tuple:
@@ -210,10 +210,10 @@ class Window:
     chain: list  # 3 x (C, H, W) float32: the generator's planes at the level
 
 
-def window_sizes(model, layout: Layout, arrange: str) -> list:
+def window_sizes(model, tiling: Tiling, arrange: str) -> list:
     """Every level's size of a window (blend: 2S + 1 along each horizontal
     axis) or an object (scatter: the training size)."""
-    factors = layout.factors if arrange == "blend" else (1.0, 1.0, 1.0)
+    factors = tiling.factors if arrange == "blend" else (1.0, 1.0, 1.0)
     return scaled_sizes(model.manifest.sizes, factors)
 
 
@@ -229,7 +229,7 @@ _windows = OrderedDict()  # (id(model), seed, arrange, level, a, b) -> (model, W
 _windows_lock = threading.Lock()
 
 
-def window(model, layout: Layout, seed: int, a: int, b: int, level: int, arrange: str = "blend") -> Window:
+def window(model, tiling: Tiling, seed: int, a: int, b: int, level: int, arrange: str = "blend") -> Window:
     """Window (a, b) (or scatter cell (a, b)'s object), its chain stopped at `level`."""
     key = (id(model), seed, arrange, level, a, b)
     with _windows_lock:
@@ -240,17 +240,17 @@ def window(model, layout: Layout, seed: int, a: int, b: int, level: int, arrange
         # on from: the same planes as the whole chain, the levels below not run again.
         start = next(((coarser, _windows[key[:3] + (coarser, a, b)][1].chain) for coarser in range(level - 1, -1, -1)
                       if key[:3] + (coarser, a, b) in _windows), None)
-    sizes = window_sizes(model, layout, arrange)
+    sizes = window_sizes(model, tiling, arrange)
     made = triplane(model, draw_noise(window_seed(seed, a, b), sizes[:level + 1], model.manifest.channels,
                                       first=start[0] + 1 if start else 0), sizes[:level + 1], start=start)
     planes = project(model, made).planes
     means = []
     for plane, axes in zip(planes, PLANE_AXES):
-        if layout.up not in axes:
+        if tiling.up not in axes:
             means.append(plane.mean(axis=(0, 1)))  # (D,): the same at every height
         else:
-            means.append(plane.mean(axis=1 - axes.index(layout.up)))  # (U, D)
-    mean = np.broadcast_to(sum(means), (sizes[level][layout.up], model.manifest.hidden)).astype(np.float32)
+            means.append(plane.mean(axis=1 - axes.index(tiling.up)))  # (U, D)
+    mean = np.broadcast_to(sum(means), (sizes[level][tiling.up], model.manifest.hidden)).astype(np.float32)
     cells = tuple((n - 1) / (f - 1) for n, f in zip(sizes[level], sizes[-1]))
     found = Window(planes, mean, cells, made.planes)
     with _windows_lock:
@@ -299,15 +299,15 @@ def object_model(model, options: WorldOptions, index: int) -> tuple:
     """A scattered world's model `index` (0 the first, `model`) and its own cut
     (its axes: an object's first horizontal axis lies along the world's)."""
     if not index:
-        return model, world_layout(model)
+        return model, world_tiling(model)
     other = options.models[index - 1]
     try:
-        return other, world_layout(other)
+        return other, world_tiling(other)
     except InputError as error:
         raise InputError(f"model {index} of the world: {error.template}", error.parameter) from None
 
 
-def scatter_geometry(model, layout: Layout, options: WorldOptions = PLAIN) -> tuple:
+def scatter_geometry(model, tiling: Tiling, options: WorldOptions = PLAIN) -> tuple:
     """A scatter world's cell side P per horizontal axis (PITCH strides, or
     room for its largest model's objects and half a stride), and each
     model's object extent E - 1 (voxels) along the world's two horizontal axes."""
@@ -316,8 +316,8 @@ def scatter_geometry(model, layout: Layout, options: WorldOptions = PLAIN) -> tu
         each, own = object_model(model, options, index)
         finest = each.manifest.sizes[-1]
         extents.append((finest[own.horizontal[0]] - 1, finest[own.horizontal[1]] - 1))
-    pitch = tuple(max(PITCH * layout.stride[h], max(extent[n] for extent in extents) + layout.stride[h] // 2)
-                  for n, h in enumerate(layout.horizontal))
+    pitch = tuple(max(PITCH * tiling.stride[h], max(extent[n] for extent in extents) + tiling.stride[h] // 2)
+                  for n, h in enumerate(tiling.horizontal))
     return pitch, extents
 
 
@@ -345,14 +345,14 @@ def object_window(model, options: WorldOptions, seed: int, placed_object: Placed
     return each, own, window(each, own, seed, *placed_object.cell, level, "scatter")
 
 
-def objects_near(model, layout: Layout, seed: int, tile: tuple, level: int, options: WorldOptions) -> list:
+def objects_near(model, tiling: Tiling, seed: int, tile: tuple, level: int, options: WorldOptions) -> list:
     """The objects of a scatter world that reach into tile (i, j), in a fixed
     order: each from the model its cell's centre's pixel of the model map names."""
     i, j = tile
     heights = options.heights
-    h0, h1 = layout.horizontal
-    (p0, p1), extents = scatter_geometry(model, layout, options)
-    s0, s1 = layout.stride[h0], layout.stride[h1]
+    h0, h1 = tiling.horizontal
+    (p0, p1), extents = scatter_geometry(model, tiling, options)
+    s0, s1 = tiling.stride[h0], tiling.stride[h1]
     found = []
     for a in range((i * s0) // p0 - 1, ((i + 1) * s0) // p0 + 1):
         for b in range((j * s1) // p1 - 1, ((j + 1) * s1) // p1 + 1):
@@ -364,7 +364,7 @@ def objects_near(model, layout: Layout, seed: int, tile: tuple, level: int, opti
             if not cell.present or low[0] > (i + 1) * s0 or low[0] + e0 < i * s0 or low[1] > (j + 1) * s1 \
                     or low[1] + e1 < j * s1:
                 continue
-            height = 0.0 if heights is None else object_height(heights, layout, low, (e0, e1))
+            height = 0.0 if heights is None else object_height(heights, tiling, low, (e0, e1))
             found.append(Placed((a, b), (low[0] - i * s0, low[1] - j * s1), (e0, e1), cell.mirror, height, index))
     return found
 
@@ -406,23 +406,23 @@ def spline(values: np.ndarray, q0: np.ndarray, q1: np.ndarray, outer: bool) -> n
     return out
 
 
-def map_heights(heights: HeightMap, layout: Layout, u0, u1, tile: tuple, outer: bool = True) -> np.ndarray:
+def map_heights(heights: HeightMap, tiling: Tiling, u0, u1, tile: tuple, outer: bool = True) -> np.ndarray:
     """The map's height (voxels, float64) at points of tile (i, j), u0 and u1
     voxels from its corner along the two horizontal axes: at every pair
     ((len(u0), len(u1))) or, not `outer`, at each point ((n,))."""
     values = heights.array().astype(np.float64)
-    h0, h1 = layout.horizontal
-    return spline(values, map_coordinates(values.shape[0], tile[0], u0, layout.stride[h0]),
-                  map_coordinates(values.shape[1], tile[1], u1, layout.stride[h1]), outer)
+    h0, h1 = tiling.horizontal
+    return spline(values, map_coordinates(values.shape[0], tile[0], u0, tiling.stride[h0]),
+                  map_coordinates(values.shape[1], tile[1], u1, tiling.stride[h1]), outer)
 
 
-def object_height(heights: HeightMap, layout: Layout, low: tuple, extent: tuple) -> float:
+def object_height(heights: HeightMap, tiling: Tiling, low: tuple, extent: tuple) -> float:
     """The map's height under the centre of an object whose lowest corner is
     at world voxels `low` (exact integers, however far): the same for every
     tile that sees it."""
     values = heights.array().astype(np.float64)
-    q = [np.array([min(max((2 * c + e) / (2 * layout.stride[h]) - 0.5, -2.0), n + 1.0)])
-         for c, e, h, n in zip(low, extent, layout.horizontal, values.shape)]
+    q = [np.array([min(max((2 * c + e) / (2 * tiling.stride[h]) - 0.5, -2.0), n + 1.0)])
+         for c, e, h, n in zip(low, extent, tiling.horizontal, values.shape)]
     return float(spline(values, q[0], q[1], False)[0])
 
 
@@ -442,7 +442,7 @@ class Grid:
         return tuple(len(p) for p in self.positions)
 
 
-def tile_grid(model, layout: Layout, scale: float, options: WorldOptions) -> Grid:
+def tile_grid(model, tiling: Tiling, scale: float, options: WorldOptions) -> Grid:
     """The grid of a tile at `scale` and `options.lod`: the finest level's
     grid at lod 0 (m = S scale points per stride), a level's own otherwise."""
     sizes = model.manifest.sizes
@@ -450,8 +450,8 @@ def tile_grid(model, layout: Layout, scale: float, options: WorldOptions) -> Gri
     positions = []
     for axis in range(3):
         ratio = (sizes[level][axis] - 1) / (sizes[-1][axis] - 1)
-        stride = layout.stride[axis]
-        if axis == layout.up:
+        stride = tiling.stride[axis]
+        if axis == tiling.up:
             m = max(2, round((stride + 1) * scale * ratio))  # as a sample's grid: m points over the height
             step = stride / (m - 1)
             low, high = options.heights.bounds() if options.heights is not None else (0, 0)
@@ -468,20 +468,20 @@ def tile_grid(model, layout: Layout, scale: float, options: WorldOptions) -> Gri
 MAX_POINTS = 1 << 14  # a tile's grid points per axis, at most
 
 
-def check_world_scale(layout: Layout, scale: float, hidden: int, memory_limit: int | None,
+def check_world_scale(tiling: Tiling, scale: float, hidden: int, memory_limit: int | None,
                       points: tuple | None = None) -> None:
     """A tile's grid (`points` per axis; at lod 0 with no map unless given)
     refused where it is too large or needs more memory than there is."""
     check_scale(scale)
     if points is None:
-        points = [round(layout.stride[a] * scale) + 1 if a != layout.up
-                  else max(2, round((layout.stride[a] + 1) * scale)) for a in range(3)]
+        points = [round(tiling.stride[a] * scale) + 1 if a != tiling.up
+                  else max(2, round((tiling.stride[a] + 1) * scale)) for a in range(3)]
     if max(points) > MAX_POINTS:
         raise InputError(f"`scale` {scale:g} makes a tile of {'x'.join(map(str, points))} points; at most "
                          f"{MAX_POINTS} per axis", "scale")
-    h0, h1 = layout.horizontal
+    h0, h1 = tiling.horizontal
     # The grid, a row's sums and gathered planes, and the interpolated horizontal planes.
-    row = points[h1] * points[layout.up] * hidden * 4 * 6
+    row = points[h1] * points[tiling.up] * hidden * 4 * 6
     planes = 4 * hidden * 4 * sum(points[a] * points[b] for a, b in PLANE_AXES)
     check_memory(math.prod(points) * 4 * 3 + row + planes, f"a {'x'.join(map(str, points))} tile", memory_limit)
 
@@ -520,21 +520,21 @@ def along_up(values: np.ndarray, runs_along: int, up_cells: np.ndarray) -> np.nd
     return values[index, low] * (np.float32(1) - frac) + values[index, high] * frac
 
 
-def hidden_on_grid(window: Window, layout: Layout, c0: np.ndarray, c1: np.ndarray, up_cells: np.ndarray):
+def hidden_on_grid(window: Window, tiling: Tiling, c0: np.ndarray, c1: np.ndarray, up_cells: np.ndarray):
     """A window's hidden sum (b1 not added) on a grid in tile order (h0, h1,
     up): c0, c1 its cells along the horizontal axes, up_cells (X, Y, K) or
     (1, 1, K) along up. Returns (hidden (X, Y, K, D), mean at those heights)."""
-    h0, h1 = layout.horizontal
+    h0, h1 = tiling.horizontal
     cells = {h0: c0, h1: c1}
     flat, vertical = None, []
     for plane, (r, c) in zip(window.planes, PLANE_AXES):
-        if layout.up not in (r, c):  # the horizontal plane
+        if tiling.up not in (r, c):  # the horizontal plane
             flat = interpolate(plane, cells[r], cells[c])
             flat = flat if r == h0 else flat.transpose(1, 0, 2)
         else:
-            h = c if r == layout.up else r
-            read = along(plane, cells[h], 1 if r == layout.up else 0)
-            read = read.transpose(1, 0, 2) if r == layout.up else read  # (N, U, D)
+            h = c if r == tiling.up else r
+            read = along(plane, cells[h], 1 if r == tiling.up else 0)
+            read = read.transpose(1, 0, 2) if r == tiling.up else read  # (N, U, D)
             vertical.append(along_up(read, 0 if h == h0 else 1, up_cells))
     hidden = flat[:, :, None] + vertical[0] + vertical[1]
     mean = along_up(window.mean[None], 0, up_cells)
@@ -594,18 +594,18 @@ class ContrastSum:
         return self.mean + self.deviation * np.power(self.squares, np.float32(-self.contrast / 2))
 
 
-def blend_sources(model, layout: Layout, seed: int, tile: tuple, level: int, progress=None) -> list:
+def blend_sources(model, tiling: Tiling, seed: int, tile: tuple, level: int, progress=None) -> list:
     """Tile (i, j)'s four windows in the fixed order of the sum, each with
     its offset (voxels from its lattice point to the tile's) along the two
     horizontal axes and whether it is the one behind along each.
     progress(0, 1) after each window made or found."""
     i, j = tile
-    h0, h1 = layout.horizontal
+    h0, h1 = tiling.horizontal
     sources = []
     for a in (i - 1, i):
         for b in (j - 1, j):
-            sources.append((window(model, layout, seed, a, b, level),
-                            (layout.stride[h0] if a < i else 0, layout.stride[h1] if b < j else 0), (a == i, b == j)))
+            sources.append((window(model, tiling, seed, a, b, level),
+                            (tiling.stride[h0] if a < i else 0, tiling.stride[h1] if b < j else 0), (a == i, b == j)))
             if progress:
                 progress(0, 1)
     return sources
@@ -618,39 +618,39 @@ def tile_logits(model, seed: int, tile, scale: float = 1.0, options: WorldOption
     K, 3) float32 sRGB, from the blended hidden vector or the object's).
     progress(done, total) after each window and each slab of rows."""
     i, j = check_tile(tile)
-    layout = world_layout(model)
+    tiling = world_tiling(model)
     level = check_lod(model, options.lod)
-    grid = tile_grid(model, layout, scale, options)
-    h0, h1, up = *layout.horizontal, layout.up
-    check_world_scale(layout, scale, hidden_width(model, options), memory_limit, grid.shape)
+    grid = tile_grid(model, tiling, scale, options)
+    h0, h1, up = *tiling.horizontal, tiling.up
+    check_world_scale(tiling, scale, hidden_width(model, options), memory_limit, grid.shape)
     u0, u1, z = grid.positions[h0], grid.positions[h1], grid.positions[up]
-    heights = None if options.heights is None else map_heights(options.heights, layout, u0, u1, (i, j))
+    heights = None if options.heights is None else map_heights(options.heights, tiling, u0, u1, (i, j))
     out = np.empty((len(u0), len(u1), len(z)), np.float32)
     colours = np.zeros((*out.shape, 3), np.float32) if colour else None
     if options.arrange == "scatter":
         ground = z[None, None, :] - GROUND if heights is None else z[None, None, :] - heights[:, :, None] - GROUND
         out[...] = -np.float32(GROUND_SLOPE) * ground.astype(np.float32)
-        near = objects_near(model, layout, seed, (i, j), level, options)
+        near = objects_near(model, tiling, seed, (i, j), level, options)
         for done, placed_object in enumerate(near, 1):
             if progress:
                 progress(done, len(near))
             scatter_into(out, colours, model, options, seed, level, placed_object, u0, u1, z)
         return (out, colours) if colour else out
-    sources = blend_sources(model, layout, seed, (i, j), level, progress)
+    sources = blend_sources(model, tiling, seed, (i, j), level, progress)
     rows = max(1, (1 << 21) // (len(u1) * len(z) * model.manifest.hidden))  # ~8 MB a sum
     for x0 in range(0, len(u0), rows):
         x = slice(x0, min(x0 + rows, len(u0)))
         rise = 0 if heights is None else heights[x, :, None]
-        levels = np.clip(z[None, None, :] - rise, 0, layout.stride[up])  # (X, Y, K) or (1, 1, K)
+        levels = np.clip(z[None, None, :] - rise, 0, tiling.stride[up])  # (X, Y, K) or (1, 1, K)
         blend = ContrastSum(model.manifest.contrast)
         for found, offset, behind in sources:
-            w0 = window_weight(u0[x], layout.stride[h0], behind[0])
-            w1 = window_weight(u1, layout.stride[h1], behind[1])
-            hidden, mean = hidden_on_grid(found, layout, (u0[x] + offset[0]) * found.cells[h0],
+            w0 = window_weight(u0[x], tiling.stride[h0], behind[0])
+            w1 = window_weight(u1, tiling.stride[h1], behind[1])
+            hidden, mean = hidden_on_grid(found, tiling, (u0[x] + offset[0]) * found.cells[h0],
                                           (u1 + offset[1]) * found.cells[h1], levels * found.cells[up])
             blend.add((w0[:, None] * w1[None, :])[:, :, None, None], hidden, mean)
         total = blend.total()
-        out[x] = capped(head_logits(model.head, total), z[None, None, :] - rise - layout.stride[up])
+        out[x] = capped(head_logits(model.head, total), z[None, None, :] - rise - tiling.stride[up])
         if colour:
             colours[x] = head_colour(model.head, total)
         if progress:

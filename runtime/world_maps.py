@@ -121,7 +121,7 @@ def read_height_map(path, model, relief: float | None = None) -> HeightMap:
     (default RELIEF times the model's height)."""
     path = Path(path)
     data = read_regular(path, f"the height map {path}", MAX_MAP_BYTES, field="heights")
-    if relief is None and path.suffix.lower() == ".png":  # the model's height: world.world_layout's stride along up
+    if relief is None and path.suffix.lower() == ".png":  # the model's height: world.world_tiling's stride along up
         relief = RELIEF * (model.manifest.sizes[-1][UP_AXIS[model.manifest.up]] - 1)
     return parse_height_map(data, path.suffix, path.name, relief)
 

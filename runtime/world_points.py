@@ -13,9 +13,9 @@ from sinshape.core.manifest import PLANE_AXES
 from .colour import RELIEF_SCALE, example_palette, nearest_in_palette, planes_colouring
 from .mesh import colour_bytes
 from .query import bilinear, head_colour, sigmoid
-from .world import (GROUND, GROUND_COLOUR, GROUND_SLOPE, NORMAL_STEP, PLAIN, WINDOWS_KEPT, ContrastSum, Layout,
+from .world import (GROUND, GROUND_COLOUR, GROUND_SLOPE, NORMAL_STEP, PLAIN, WINDOWS_KEPT, ContrastSum, Tiling,
                     Window, WorldOptions, along, capped, check_lod, check_tile, head_logits, hidden_width, map_heights,
-                    object_model, object_window, objects_near, window, window_sizes, window_weight, world_layout)
+                    object_model, object_window, objects_near, window, window_sizes, window_weight, world_tiling)
 
 
 def point_field(model, seed: int, tile, points: np.ndarray, options: WorldOptions = PLAIN,
@@ -30,11 +30,11 @@ def point_field(model, seed: int, tile, points: np.ndarray, options: WorldOption
     it, back: the (3, 3) map of a move in its cells to one of the points, a
     row per cell axis)."""
     i, j = check_tile(tile)
-    layout = world_layout(model)
+    tiling = world_tiling(model)
     level = check_lod(model, options.lod)
-    h0, h1 = layout.horizontal
+    h0, h1 = tiling.horizontal
     points = np.asarray(points, np.float64).reshape(-1, 3)
-    t0, t1 = (np.floor(points[:, axis] / layout.stride[axis]).astype(np.int64) for axis in (h0, h1))
+    t0, t1 = (np.floor(points[:, axis] / tiling.stride[axis]).astype(np.int64) for axis in (h0, h1))
     low0, low1 = (int(t0.min()), int(t1.min())) if len(points) else (0, 0)
     span = int(t1.max()) - low1 + 1 if len(points) else 1
     keys = (t0 - low0) * span + (t1 - low1)  # the tile each point falls in, as one number
@@ -51,31 +51,31 @@ def point_field(model, seed: int, tile, points: np.ndarray, options: WorldOption
     for group, (t0, t1) in enumerate(groups.tolist()):
         chosen = order[starts[group]:starts[group + 1]]
         local = points[chosen]
-        local[:, h0] -= t0 * layout.stride[h0]  # exact: a power-of-two step from an integer
-        local[:, h1] -= t1 * layout.stride[h1]
+        local[:, h0] -= t0 * tiling.stride[h0]  # exact: a power-of-two step from an integer
+        local[:, h1] -= t1 * tiling.stride[h1]
         found = [] if sources is not None else None
-        logits[chosen], hidden[chosen], ground[chosen] = point_tile(model, layout, seed, (i + t0, j + t1), local,
+        logits[chosen], hidden[chosen], ground[chosen] = point_tile(model, tiling, seed, (i + t0, j + t1), local,
                                                                      level, options, found)
         if sources is not None:
             sources.extend((key, chosen[index], cells, back) for key, index, cells, back in found)
     return logits, hidden, ground
 
 
-def point_tile(model, layout: Layout, seed: int, tile: tuple, points: np.ndarray, level: int,
+def point_tile(model, tiling: Tiling, seed: int, tile: tuple, points: np.ndarray, level: int,
                options: WorldOptions, sources: list | None = None) -> tuple:
     """point_field for points inside one tile (`sources`: as point_field's,
     with indices into `points`: the window that weighs most, the first of
     equals, or the object a point lies in)."""
-    h0, h1, up = *layout.horizontal, layout.up
+    h0, h1, up = *tiling.horizontal, tiling.up
     u0, u1, z = points[:, h0], points[:, h1], points[:, up]
     rise = (np.zeros(len(points)) if options.heights is None
-            else map_heights(options.heights, layout, u0, u1, tile, outer=False))
+            else map_heights(options.heights, tiling, u0, u1, tile, outer=False))
     if options.arrange == "scatter":
         logits = (-np.float32(GROUND_SLOPE) * (z - rise - GROUND)).astype(np.float32)
         hidden = np.zeros((len(points), hidden_width(model, options)), np.float32)
         ground = np.ones(len(points), bool)
         owner, owner_cells, objects = np.full(len(points), -1), np.zeros((len(points), 3)), []
-        for placed_object in objects_near(model, layout, seed, tile, level, options):
+        for placed_object in objects_near(model, tiling, seed, tile, level, options):
             each, own = object_model(model, options, placed_object.model)
             inside = np.ones(len(points), bool)
             cells = np.empty((len(points), 3))
@@ -110,19 +110,19 @@ def point_tile(model, layout: Layout, seed: int, tile: tuple, points: np.ndarray
             sources.extend((key, np.flatnonzero(owner == k), owner_cells[owner == k], back)
                            for k, (key, back) in enumerate(objects))
         return logits, hidden, ground
-    levels = np.clip(z - rise, 0, layout.stride[up])
+    levels = np.clip(z - rise, 0, tiling.stride[up])
     blend = ContrastSum(model.manifest.contrast)
     i, j = tile
     heaviest, owner, owner_cells, keys = np.full(len(points), -1.0), np.zeros(len(points), np.int64), None, []
     for a in (i - 1, i):
         for b in (j - 1, j):
-            weight = window_weight(u0, layout.stride[h0], a == i) * window_weight(u1, layout.stride[h1], b == j)
+            weight = window_weight(u0, tiling.stride[h0], a == i) * window_weight(u1, tiling.stride[h1], b == j)
             if not weight.any():  # adds exact zeros: its planes are not needed (a point just past a face)
                 continue
-            found = window(model, layout, seed, a, b, level)
+            found = window(model, tiling, seed, a, b, level)
             cells = np.empty((len(points), 3))
-            cells[:, h0] = (u0 + (layout.stride[h0] if a < i else 0)) * found.cells[h0]
-            cells[:, h1] = (u1 + (layout.stride[h1] if b < j else 0)) * found.cells[h1]
+            cells[:, h0] = (u0 + (tiling.stride[h0] if a < i else 0)) * found.cells[h0]
+            cells[:, h1] = (u1 + (tiling.stride[h1] if b < j else 0)) * found.cells[h1]
             cells[:, up] = levels * found.cells[up]
             blend.add(weight[:, None], point_hidden(found, cells), along(found.mean, cells[:, up], 0))
             if sources is not None:
@@ -134,7 +134,7 @@ def point_tile(model, layout: Layout, seed: int, tile: tuple, points: np.ndarray
         sources.extend((key, np.flatnonzero(owner == k), owner_cells[owner == k],
                         np.diag(1 / np.asarray(found.cells, np.float64))) for k, key in enumerate(keys))
     total = blend.total()
-    return capped(head_logits(model.head, total), z - rise - layout.stride[up]), total, np.zeros(len(points), bool)
+    return capped(head_logits(model.head, total), z - rise - tiling.stride[up]), total, np.zeros(len(points), bool)
 
 
 def point_hidden(window: Window, cells: np.ndarray) -> np.ndarray:
@@ -158,7 +158,7 @@ def tile_normals(model, seed: int, tile, vertices: np.ndarray, options: WorldOpt
     gradient = logits[:, 1:] - logits[:, :1]
     length = np.linalg.norm(gradient, axis=1, keepdims=True)
     up = np.zeros(3)
-    up[world_layout(model).up] = 1
+    up[world_tiling(model).up] = 1
     normals = np.where(length > 0, -gradient / np.where(length > 0, length, 1), up)
     return normals.astype(np.float32)
 
@@ -258,7 +258,7 @@ _colourings = OrderedDict()  # (id(model), seed, arrange, a, b) -> (model, colou
 _colourings_lock = threading.Lock()
 
 
-def window_colouring(model, layout: Layout, seed: int, a: int, b: int, arrange: str):
+def window_colouring(model, tiling: Tiling, seed: int, a: int, b: int, arrange: str):
     """A format-5 window's (or object's) colour at points in its finest
     cells: its own sample's colour by correspondence (colour.planes_colouring),
     matched once and kept. A window's matches follow its content only, so a
@@ -268,8 +268,8 @@ def window_colouring(model, layout: Layout, seed: int, a: int, b: int, arrange: 
         if key in _colourings:
             _colourings.move_to_end(key)
             return _colourings[key][1]
-    found = window(model, layout, seed, a, b, len(model.manifest.sizes) - 1, arrange)
-    made = planes_colouring(model, found.planes, window_sizes(model, layout, arrange)[-1])
+    found = window(model, tiling, seed, a, b, len(model.manifest.sizes) - 1, arrange)
+    made = planes_colouring(model, found.planes, window_sizes(model, tiling, arrange)[-1])
     with _colourings_lock:
         _colourings[key] = (model, made)
         while len(_colourings) > WINDOWS_KEPT:

@@ -15,7 +15,7 @@ from . import cubes
 from .bake import vertex_normals
 from .generate import check_seed
 from .query import sigmoid
-from .world import PLAIN, Layout, WorldOptions, check_tile, coloured, tile_grid, tile_logits, world_layout
+from .world import PLAIN, Tiling, WorldOptions, check_tile, coloured, tile_grid, tile_logits, world_tiling
 from .world_points import relief_normals, relieved, tile_colours, tile_normals, tile_relief
 
 SKIRT = 2.0  # a coarser tile's skirt, in its grid's steps along up
@@ -33,15 +33,15 @@ def tile_occupancy(model, seed: int, tile, scale: float = 1.0, memory_limit: int
     sRGB). progress(done, total) after each window and
     each slab of rows (a server stops a job there)."""
     check_seed(seed)
-    layout = world_layout(model)
+    tiling = world_tiling(model)
     made = tile_logits(model, seed, tile, scale, options, memory_limit, colour, progress)
     logits, colours = made if colour else (made, None)
-    order = np.argsort([*layout.horizontal, layout.up])  # tile order -> the model's axes
+    order = np.argsort([*tiling.horizontal, tiling.up])  # tile order -> the model's axes
     occupancy = np.ascontiguousarray(sigmoid(logits).transpose(order))
     if not colour:
         return occupancy
     if model.colour_tiles is not None and not options.lod or options.models:  # as the tile's vertices are coloured
-        grid = tile_grid(model, layout, scale, options)
+        grid = tile_grid(model, tiling, scale, options)
         points = np.stack(np.meshgrid(*grid.positions, indexing="ij"), axis=-1).reshape(-1, 3)
         return occupancy, tile_colours(model, seed, tile, points, options, 1 / scale)[:, :3].reshape(*occupancy.shape, 3)
     return occupancy, np.round(np.ascontiguousarray(colours.transpose(*order, 3)) * 255).astype(np.uint8)
@@ -59,10 +59,10 @@ def tile_mesh(model, seed: int, tile, scale: float = 1.0, memory_limit: int | No
     0 or 1) pairs: the low or high side along a horizontal axis), closed as
     a sample's sides are (where a block of tiles ends). progress: as tile_occupancy's."""
     values = tile_occupancy(model, seed, tile, scale, memory_limit, options=options, progress=progress)
-    layout = world_layout(model)
-    grid = tile_grid(model, layout, scale, options)
+    tiling = world_tiling(model)
+    grid = tile_grid(model, tiling, scale, options)
     pad = [[0, 0], [0, 0], [0, 0]]
-    pad[layout.up] = [1, 1]
+    pad[tiling.up] = [1, 1]
     for axis, side in closed:
         pad[axis][side] = 1
     padded = np.pad(values, pad)
@@ -73,11 +73,11 @@ def tile_mesh(model, seed: int, tile, scale: float = 1.0, memory_limit: int | No
     for axis in range(3):
         vertices[:, axis] -= pad[axis][0]
         intervals = values.shape[axis] - 1
-        if axis == layout.up:
+        if axis == tiling.up:
             low, step = grid.positions[axis][0], grid.positions[axis][1] - grid.positions[axis][0]
             vertices[:, axis] = low + vertices[:, axis] * step
         else:
-            vertices[:, axis] = vertices[:, axis] * layout.stride[axis] / intervals  # exact at the faces: m S / m = S
+            vertices[:, axis] = vertices[:, axis] * tiling.stride[axis] / intervals  # exact at the faces: m S / m = S
     return vertices, faces
 
 
@@ -102,8 +102,8 @@ def tile_surface(model, seed: int, tile, scale: float = 1.0, options: WorldOptio
     vertices, faces = tile_mesh(model, seed, tile, scale, memory_limit, options=options, progress=progress)
     normals = tile_normals(model, seed, tile, vertices, options)
     if relieved(model, options, scale) and len(vertices):
-        layout = world_layout(model)
-        border = np.any([(vertices[:, h] == 0) | (vertices[:, h] == layout.stride[h]) for h in layout.horizontal],
+        tiling = world_tiling(model)
+        border = np.any([(vertices[:, h] == 0) | (vertices[:, h] == tiling.stride[h]) for h in tiling.horizontal],
                         axis=0)
         moved = tile_relief(model, seed, tile, vertices, options)
         # The moved mesh's own normals inside; on the border, normals its neighbour gives alike.
@@ -113,16 +113,16 @@ def tile_surface(model, seed: int, tile, scale: float = 1.0, options: WorldOptio
         vertices, normals = moved, inside.astype(np.float32)
     colours = tile_colours(model, seed, tile, vertices, options, 1 / scale) if coloured(model, options) else None
     if options.lod and len(faces):
-        layout = world_layout(model)
-        grid = tile_grid(model, layout, scale, options)
-        depth = SKIRT * (grid.positions[layout.up][1] - grid.positions[layout.up][0])
-        vertices, faces, source = skirted(vertices, faces, layout, depth)
+        tiling = world_tiling(model)
+        grid = tile_grid(model, tiling, scale, options)
+        depth = SKIRT * (grid.positions[tiling.up][1] - grid.positions[tiling.up][0])
+        vertices, faces, source = skirted(vertices, faces, tiling, depth)
         normals = normals[source]
         colours = None if colours is None else colours[source]
     return Surface(vertices, faces, normals, colours)
 
 
-def skirted(vertices: np.ndarray, faces: np.ndarray, layout: Layout, depth: float) -> tuple:
+def skirted(vertices: np.ndarray, faces: np.ndarray, tiling: Tiling, depth: float) -> tuple:
     """The mesh with a skirt: each edge lying on one of the tile's four sides
     (an edge of one face only) gets a quad hanging `depth` below it, wound as
     the face beside it. Returns (vertices, faces, the vertex each new vertex
@@ -132,13 +132,13 @@ def skirted(vertices: np.ndarray, faces: np.ndarray, layout: Layout, depth: floa
     _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
     open_edges = edges[counts[inverse.reshape(-1)] == 1]
     on_side = np.zeros(len(open_edges), bool)
-    for axis in layout.horizontal:
-        for at in (0, layout.stride[axis]):
+    for axis in tiling.horizontal:
+        for at in (0, tiling.stride[axis]):
             on_side |= (vertices[open_edges, axis] == at).all(axis=1)
     open_edges = open_edges[on_side]
     used, index = np.unique(open_edges, return_inverse=True)
     hanging = vertices[used].copy()
-    hanging[:, layout.up] -= depth
+    hanging[:, tiling.up] -= depth
     base = len(vertices)
     lower = base + index.reshape(-1, 2)
     a, b = open_edges[:, 0], open_edges[:, 1]
@@ -150,10 +150,10 @@ def skirted(vertices: np.ndarray, faces: np.ndarray, layout: Layout, depth: floa
 def tile_corner(model, tile) -> tuple:
     """Tile (i, j)'s lowest corner in model units (exact integers, for any tile)."""
     i, j = check_tile(tile)
-    layout = world_layout(model)
+    tiling = world_tiling(model)
     corner = [0, 0, 0]
-    corner[layout.horizontal[0]], corner[layout.horizontal[1]] = i * layout.stride[layout.horizontal[0]], \
-        j * layout.stride[layout.horizontal[1]]
+    corner[tiling.horizontal[0]], corner[tiling.horizontal[1]] = i * tiling.stride[tiling.horizontal[0]], \
+        j * tiling.stride[tiling.horizontal[1]]
     return tuple(corner)
 
 
@@ -221,7 +221,7 @@ def block_mesh(model, request, tiles, progress=None, memory_limit: int | None = 
     options = request.world_options()
     if options.lod:
         raise InputError("a block is one closed surface, at one level of detail: give `lod` 0", "lod")
-    h0, h1 = world_layout(model).horizontal
+    h0, h1 = world_tiling(model).horizontal
     low, high = np.min(tiles, axis=0), np.max(tiles, axis=0)
     vertices, faces, colours, count = [], [], [], 0
     for done, tile in enumerate(tiles, 1):

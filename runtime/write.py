@@ -240,10 +240,10 @@ def tile_bytes(model, request, name, progress=None) -> tuple:
         grids = world_tiles.tile_occupancy(model, request.sample_seed, request.tile, request.scale,
                                      colour=world.coloured(model, options), options=options, progress=progress)
         grids = dict(zip(("occupancy", "colour"), grids)) if world.coloured(model, options) else {"occupancy": grids}
-        layout = world.world_layout(model)
-        grid = world.tile_grid(model, layout, request.scale, options)
+        tiling = world.world_tiling(model)
+        grid = world.tile_grid(model, tiling, request.scale, options)
         return grid_bytes(**grids, tile=request.tile, corner=world_tiles.tile_corner(model, request.tile),
-                          scale=request.scale, lod=options.lod, heights=grid.positions[layout.up]), None
+                          scale=request.scale, lod=options.lod, heights=grid.positions[tiling.up]), None
     import trimesh  # half a second to import: a streamed .ply of a sample does without it
 
     surface = world_tiles.tile_surface(model, request.sample_seed, request.tile, request.scale, options, progress=progress)

@@ -391,8 +391,8 @@ async def tile_of_map(
     if suffix is None:
         raise InputError("the height map is neither a .npy array nor a .png image")
     if suffix == ".png" and relief is None:
-        layout = world.world_layout(find(request, q.name))
-        relief = world_maps.RELIEF * layout.stride[layout.up]
+        tiling = world.world_tiling(find(request, q.name))
+        relief = world_maps.RELIEF * tiling.stride[tiling.up]
     heights = await run_in_threadpool(world_maps.parse_height_map, body, suffix, "the height map", relief)
     return await tile_answer(request, q, heights, a.options(q.format))
 

@@ -362,11 +362,11 @@ def test_world_tiles_as_assets_meet_at_their_border_at_every_level(tmp_path):
                                      "--texture", "32", "--frame", "model", "-o", str(tmp_path / "w")])
     assert again.exit_code == 1 and 'asset {"lods": [700, 450]' in again.output  # another job: not resumed
     model = load_model(TINY_ONNX, threads=1)
-    from sinshape.runtime.world import world_layout
+    from sinshape.runtime.world import world_tiling
 
-    layout = world_layout(model)
-    axis = layout.horizontal[0]
-    border = layout.stride[axis]  # the face tiles (0, 0) and (1, 0) share
+    tiling = world_tiling(model)
+    axis = tiling.horizontal[0]
+    border = tiling.stride[axis]  # the face tiles (0, 0) and (1, 0) share
     sides = []
     for name in ("tile_0_0.glb", "tile_1_0.glb"):
         document, binary = gltf.read((tmp_path / "w" / name).read_bytes())

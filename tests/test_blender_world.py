@@ -51,7 +51,7 @@ def tile_at(model_path, point, obj) -> tuple:
     from sinshape.runtime.load import load_model
 
     model = load_model(model_path, threads=1)
-    return worlds.centre_tile(model, world.world_layout(model), obj.matrix_world.inverted() @ Vector(point))
+    return worlds.centre_tile(model, world.world_tiling(model), obj.matrix_world.inverted() @ Vector(point))
 
 
 def assert_tiles_are_the_command_lines(obj, tmp_path, model_path, seed) -> None:
@@ -299,8 +299,8 @@ def test_a_world_of_two_models_on_a_model_map_is_the_runtimes(scene, tmp_path):
     scene.cursor.location = (0, 0, 0)
     obj = add_world("acropolis", seed=6, radius=1)  # scattered, as the temple records
     alone = {tile: convert.mesh_arrays(child.data) for tile, child in tiles_of(obj).items()}
-    layout = world.world_layout(first)
-    assert {found.model for tile in alone for found in world.objects_near(first, layout, 6, tile, 0, options)} \
+    tiling = world.world_tiling(first)
+    assert {found.model for tile in alone for found in world.objects_near(first, tiling, 6, tile, 0, options)} \
         == {0, 1}  # the premise: these tiles hold objects of both models
     assert bpy.ops.sinshape.world_model_add() == {"FINISHED"}
     obj.sinshape_world.models[0].model = "towerruins"

@@ -193,20 +193,20 @@ def test_world_tiles_are_coloured_seamlessly(model, tmp_path):
 
     # tile_colours at the tile grid's own points is the grid's colour, made the other way.
     occupancy, grid = world_tiles.tile_occupancy(model, 3, (0, 1), colour=True)
-    layout = world.world_layout(model)
+    tiling = world.world_tiling(model)
     points = np.argwhere(occupancy > -1)[::29].astype(np.float64)
-    positions = points * np.array(layout.stride) / (np.array(occupancy.shape) - 1)
+    positions = points * np.array(tiling.stride) / (np.array(occupancy.shape) - 1)
     np.testing.assert_allclose(world_points.tile_colours(model, 3, (0, 1), positions)[:, :3].astype(int),
                                grid[tuple(points.astype(int).T)].astype(int), atol=1)
     # Neighbours give the vertices of the face they share the same colour.
-    h0 = layout.horizontal[0]
+    h0 = tiling.horizontal[0]
     a, _ = world_tiles.tile_mesh(model, 3, (0, 0))
     b, _ = world_tiles.tile_mesh(model, 3, (1, 0))
-    on_a = a[np.isclose(a[:, h0], layout.stride[h0])]
+    on_a = a[np.isclose(a[:, h0], tiling.stride[h0])]
     on_b = b[np.isclose(b[:, h0], 0)]
     assert len(on_a) > 3
     shift = np.zeros(3)
-    shift[h0] = layout.stride[h0]
+    shift[h0] = tiling.stride[h0]
     np.testing.assert_array_equal(world_points.tile_colours(model, 3, (0, 0), on_a),
                                   world_points.tile_colours(model, 3, (1, 0), on_a - shift))
     assert len(on_b) == len(on_a)
@@ -226,9 +226,9 @@ def test_world_tiles_are_coloured_seamlessly(model, tmp_path):
     tile, tile_colours = read_ply(tmp_path / "t" / "tile_0_0.ply")
     assert block_colours is not None and tile_colours is not None
     tree = cKDTree(block)
-    distance, index = tree.query(tile[tile[:, h0] < layout.stride[h0] - 1])
+    distance, index = tree.query(tile[tile[:, h0] < tiling.stride[h0] - 1])
     assert distance.max() < 1e-4
-    np.testing.assert_array_equal(block_colours[index], tile_colours[tile[:, h0] < layout.stride[h0] - 1])
+    np.testing.assert_array_equal(block_colours[index], tile_colours[tile[:, h0] < tiling.stride[h0] - 1])
 
 
 def test_batch_jobs_write_the_coloured_sample_itself(model, tmp_path):

@@ -124,7 +124,7 @@ def test_orient_records_a_blended_worlds_contrast_and_its_tiles_follow_it(tiny_m
     given.manifest = dataclasses.replace(before.manifest, contrast=2.0)
     plain, recorded, asked = (world_tiles.tile_occupancy(m, 3, (1, 1)) for m in (before, after, given))
     assert np.array_equal(recorded, asked) and not np.array_equal(recorded, plain)
-    h0, h1 = world.world_layout(before).horizontal
+    h0, h1 = world.world_tiling(before).horizontal
     corner = [slice(None)] * 3
     corner[h0] = corner[h1] = 0
     assert np.array_equal(recorded[tuple(corner)], plain[tuple(corner)])

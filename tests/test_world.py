@@ -30,7 +30,7 @@ def fresh():
 
 @pytest.mark.parametrize("scale", [1, 2.5])
 def test_neighbours_agree_on_their_shared_faces_to_the_bit(model, scale):
-    h0, h1 = world.world_layout(model).horizontal
+    h0, h1 = world.world_tiling(model).horizontal
     grids = {(i, j): world_tiles.tile_occupancy(model, 7, (i, j), scale) for i in (2, 3) for j in (-1, 0)}
     for (i, j), grid in grids.items():
         if (i + 1, j) in grids:
@@ -43,15 +43,15 @@ def test_neighbours_agree_on_their_shared_faces_to_the_bit(model, scale):
 def test_a_window_made_finer_goes_on_from_its_coarser_level_to_the_same_planes(model, fresh, monkeypatch):
     """A far tile come nearer: its windows' finer level runs only the levels
     past the coarser one kept, and gives the planes of the whole chain."""
-    layout = world.world_layout(model)
+    tiling = world.world_tiling(model)
     finest = len(model.manifest.sizes) - 1
-    whole = world.window(model, layout, 5, 2, -1, finest)
+    whole = world.window(model, tiling, 5, 2, -1, finest)
     world._windows.clear()
     starts = []
     monkeypatch.setattr(world, "triplane", lambda *args, start=None: starts.append(start and start[0])
                         or generate.triplane(*args, start=start))
-    world.window(model, layout, 5, 2, -1, finest - 1)
-    refined = world.window(model, layout, 5, 2, -1, finest)
+    world.window(model, tiling, 5, 2, -1, finest - 1)
+    refined = world.window(model, tiling, 5, 2, -1, finest)
     assert starts == [None, finest - 1]
     for a, b in zip(whole.planes + whole.chain, refined.planes + refined.chain):
         assert np.array_equal(a, b)
@@ -72,15 +72,15 @@ def block_mesh(model, seed, tiles, scale=1.0):
 
 
 def test_a_block_of_tiles_is_one_surface_open_only_on_its_outer_sides(model):
-    layout = world.world_layout(model)
-    h0, h1 = layout.horizontal
+    tiling = world.world_tiling(model)
+    h0, h1 = tiling.horizontal
     vertices, faces = block_mesh(model, 5, [(i, j) for i in range(3) for j in range(3)], scale=1.5)
     edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
     unique, counts = np.unique(edges, axis=0, return_counts=True)
     assert counts.max() == 2  # a manifold: no edge in three faces (no doubled border)
     open_edges = unique[counts == 1]
     ends = vertices[open_edges]  # (E, 2, 3)
-    outer = [(axis, side * 3 * layout.stride[axis]) for axis in (h0, h1) for side in (0, 1)]
+    outer = [(axis, side * 3 * tiling.stride[axis]) for axis in (h0, h1) for side in (0, 1)]
     on_outer_side = np.zeros(len(open_edges), bool)
     for axis, at in outer:
         on_outer_side |= (ends[:, :, axis] == at).all(axis=1)
@@ -127,7 +127,7 @@ def test_bad_tiles_are_refused_in_one_line(model, tmp_path):
             world_tiles.tile_occupancy(model, 0, tile)
         assert refused.value.parameter == "tile"
     with pytest.raises(MemoryLimitError):
-        world.check_world_scale(world.world_layout(model), 200, model.manifest.hidden, 1 << 20)
+        world.check_world_scale(world.world_tiling(model), 200, model.manifest.hidden, 1 << 20)
     with pytest.raises(InputError, match="give frame tile"):
         write.request_bytes(model, SampleRequest(0, tile=(10**9, 0)), "far.ply")
     assert write.request_bytes(model, SampleRequest(0, tile=(10**9, 0), frame="tile"), "far.ply")[0]
@@ -138,7 +138,7 @@ def test_a_world_needs_room_to_blend_along_its_horizontal_axes(model):
     narrow.manifest = type(narrow.manifest)(**{**narrow.manifest.__dict__,
                                                "sizes": [(s[0], 8, s[2]) for s in narrow.manifest.sizes]})
     with pytest.raises(InputError, match="a world needs windows of at least 9"):
-        world.world_layout(narrow)
+        world.world_tiling(narrow)
 
 
 def test_world_writes_a_resumable_folder_of_tiles(tiny_model, model, tmp_path):
@@ -200,9 +200,9 @@ def test_a_block_written_as_one_mesh_is_closed_and_placed(tiny_model, model, tmp
     assert result.exit_code == 0 and "(6 tiles)" in result.output, result.output
     block = trimesh.load(out)
     assert block.is_watertight and block.volume > 0
-    layout = world.world_layout(model)
-    h0, h1 = layout.horizontal
-    assert block.bounds[0][h0] < -layout.stride[h0] + 1 and block.bounds[1][h1] > 2 * layout.stride[h1] - 1
+    tiling = world.world_tiling(model)
+    h0, h1 = tiling.horizontal
+    assert block.bounds[0][h0] < -tiling.stride[h0] + 1 and block.bounds[1][h1] > 2 * tiling.stride[h1] - 1
     tile_frame = CliRunner().invoke(cli, ["world", str(tiny_model), "--tiles", "0,0", "-o", str(tmp_path / "b.ply"),
                                           "--frame", "tile"])
     assert tile_frame.exit_code == 1 and "a block is placed in the world: give --frame input or model" in \
@@ -233,14 +233,14 @@ def identical_windows(model):
 
 def strip_heights(model, options, tiles=12) -> tuple:
     """A strip of tiles along the first horizontal axis, two across: (its height field's grid, stride)."""
-    layout = world.world_layout(model)
-    h0, h1 = layout.horizontal
+    tiling = world.world_tiling(model)
+    h0, h1 = tiling.horizontal
     rows = []
     for i in range(tiles):
         row = [world_tiles.tile_occupancy(model, 5, (i, j), options=options) for j in (0, 1)]
         rows.append(np.concatenate([row[0], np.take(row[1], range(1, row[1].shape[h1]), axis=h1)], axis=h1))
     strip = np.concatenate([rows[0]] + [np.take(r, range(1, r.shape[h0]), axis=h0) for r in rows[1:]], axis=h0)
-    return strip, layout.stride[h0]
+    return strip, tiling.stride[h0]
 
 
 def test_a_scattered_world_of_identical_samples_has_no_period(model, fresh):
@@ -249,8 +249,8 @@ def test_a_scattered_world_of_identical_samples_has_no_period(model, fresh):
     from sinshape.runtime import evaluate
 
     same = identical_windows(model)
-    up = world.world_layout(same).up
-    h0 = world.world_layout(same).horizontal[0]
+    up = world.world_tiling(same).up
+    h0 = world.world_tiling(same).horizontal[0]
     blended, stride = strip_heights(same, world.WorldOptions("blend"))
     assert min(evaluate.height_autocorrelation(blended, up, h0, [stride, 2 * stride])) > 0.9
     scattered, _ = strip_heights(same, world.WorldOptions("scatter"))
@@ -263,14 +263,14 @@ def test_a_scattered_world_of_identical_samples_has_no_period(model, fresh):
                                      world.WorldOptions("scatter", heights=world_maps.HeightMap.of([[0.0, 25.0], [40.0, 7.5]]))],
                          ids=["scatter", "lod", "scatter-map"])
 def test_neighbours_agree_on_faces_and_normals_to_the_bit_however_the_world_is_made(model, options):
-    layout = world.world_layout(model)
-    h0, h1 = layout.horizontal
+    tiling = world.world_tiling(model)
+    h0, h1 = tiling.horizontal
     for a, b, axis in (((0, 0), (1, 0), h0), ((1, 0), (1, 1), h1)):
         grid_a, grid_b = (world_tiles.tile_occupancy(model, 7, t, options=options) for t in (a, b))
         assert np.array_equal(np.take(grid_a, -1, axis), np.take(grid_b, 0, axis))
         made = [world_tiles.tile_surface(model, 7, t, options=options) for t in (a, b)]
-        mine = {tuple(v - np.eye(3)[axis] * layout.stride[axis]): tuple(n)
-                for v, n in zip(made[0].vertices, made[0].normals) if v[axis] == layout.stride[axis]}
+        mine = {tuple(v - np.eye(3)[axis] * tiling.stride[axis]): tuple(n)
+                for v, n in zip(made[0].vertices, made[0].normals) if v[axis] == tiling.stride[axis]}
         theirs = {tuple(v): tuple(n) for v, n in zip(made[1].vertices, made[1].normals) if v[axis] == 0}
         assert len(mine) > 5 and mine == theirs
         assert np.allclose(np.linalg.norm(made[0].normals, axis=1), 1, atol=1e-5)
@@ -283,12 +283,12 @@ def test_a_height_map_raises_the_world_where_it_is_painted(model):
     plateau = np.zeros((6, 6))
     plateau[:4, :4] = 50
     heights = world_maps.HeightMap.of(plateau)
-    up = world.world_layout(model).up
+    up = world.world_tiling(model).up
 
     def surface(tile, options) -> float:
         """The mean height of the highest solid point of each column that has one."""
         grid = np.moveaxis(world_tiles.tile_occupancy(model, 2, tile, options=options) > 0.5, up, -1)
-        z = world.tile_grid(model, world.world_layout(model), 1.0, options).positions[up]
+        z = world.tile_grid(model, world.world_tiling(model), 1.0, options).positions[up]
         solid = grid.any(axis=-1)
         return float(np.mean(z[grid.shape[-1] - 1 - np.argmax(grid[..., ::-1], axis=-1)][solid]))
 
@@ -305,8 +305,8 @@ def test_a_coarser_tile_is_cheaper_and_its_skirt_covers_the_crack(fresh, monkeyp
     from sinshape import models
 
     terrain = load_model(models.find("terrain"), threads=1)
-    layout = world.world_layout(terrain)
-    h0, h1, up = *layout.horizontal, layout.up
+    tiling = world.world_tiling(terrain)
+    h0, h1, up = *tiling.horizontal, tiling.up
     drawn = []
     monkeypatch.setattr(world, "draw_noise", lambda *args, **kw: drawn.append(args) or generate.draw_noise(*args, **kw))
     coarsest = len(terrain.manifest.sizes) - 1
@@ -320,8 +320,8 @@ def test_a_coarser_tile_is_cheaper_and_its_skirt_covers_the_crack(fresh, monkeyp
     assert counted[1][0] < counted[0][0] / 4 and counted[1][1] < counted[0][1] / 4
     fine = world_tiles.tile_surface(terrain, 3, (0, 0))
     coarse = world_tiles.tile_surface(terrain, 3, (1, 0), options=world.WorldOptions(lod=1))
-    depth = world_tiles.SKIRT * np.diff(world.tile_grid(terrain, layout, 1.0, world.WorldOptions(lod=1)).positions[up][:2])[0]
-    border = fine.vertices[(fine.vertices[:, h0] == layout.stride[h0]) & (fine.vertices[:, up] > 1)]  # not the bottom's
+    depth = world_tiles.SKIRT * np.diff(world.tile_grid(terrain, tiling, 1.0, world.WorldOptions(lod=1)).positions[up][:2])[0]
+    border = fine.vertices[(fine.vertices[:, h0] == tiling.stride[h0]) & (fine.vertices[:, up] > 1)]  # not the bottom's
     top = coarse.vertices[(coarse.vertices[:, h0] == 0) & (coarse.vertices[:, up] > 1)]
     highest = np.array([top[np.abs(top[:, h1] - t) <= 1.0, up].max() for t in border[:, h1]])
     assert len(border) > 10 and (border[:, up] >= highest - depth - 1.0).all()
@@ -373,8 +373,8 @@ def test_a_fine_tile_takes_its_examples_relief_and_meets_its_neighbour_to_the_bi
     from sinshape.runtime import colour
 
     model = load_model(tiny_relief_model, threads=1)
-    layout = world.world_layout(model)
-    h0 = layout.horizontal[0]
+    tiling = world.world_tiling(model)
+    h0 = tiling.horizontal[0]
     made = {t: world_tiles.tile_surface(model, 5, t, 2) for t in ((0, 0), (1, 0))}
     plain = world_tiles.tile_surface(model, 5, (0, 0), 2, world.WorldOptions(detail=False))
     vertices, _ = world_tiles.tile_mesh(model, 5, (0, 0), 2)
@@ -385,8 +385,8 @@ def test_a_fine_tile_takes_its_examples_relief_and_meets_its_neighbour_to_the_bi
     assert np.percentile(turned, 10) < 0.99 and np.allclose(np.linalg.norm(made[0, 0].normals, axis=1), 1, atol=1e-5)
     # The border's vertices, found where they were before the relief moved them.
     plain_right = world_tiles.tile_surface(model, 5, (1, 0), 2, world.WorldOptions(detail=False))
-    on_border = [plain.vertices[:, h0] == layout.stride[h0], plain_right.vertices[:, h0] == 0]
-    mine = {tuple(np.round(v - np.eye(3)[h0] * layout.stride[h0], 12)): tuple(n)
+    on_border = [plain.vertices[:, h0] == tiling.stride[h0], plain_right.vertices[:, h0] == 0]
+    mine = {tuple(np.round(v - np.eye(3)[h0] * tiling.stride[h0], 12)): tuple(n)
             for v, n in zip(made[0, 0].vertices[on_border[0]], made[0, 0].normals[on_border[0]])}
     theirs = {tuple(np.round(v, 12)): tuple(n)
               for v, n in zip(made[1, 0].vertices[on_border[1]], made[1, 0].normals[on_border[1]])}

@@ -18,7 +18,7 @@ SPLIT = world_maps.ModelMap.of([[0], [1]])
 
 def objects(model, tile, options) -> list:
     """Which model each object reaching into a tile is drawn from (the test's premise)."""
-    return [found.model for found in world.objects_near(model, world.world_layout(model), 7, tile, 1, options)]
+    return [found.model for found in world.objects_near(model, world.world_tiling(model), 7, tile, 1, options)]
 
 
 @pytest.fixture(scope="module")
@@ -68,16 +68,16 @@ def two_kinds(coloured):
 
 
 def test_models_of_other_sizes_meet_without_a_seam_in_any_order(model, two_kinds):
-    layout = world.world_layout(model)
-    h0, h1 = layout.horizontal
+    tiling = world.world_tiling(model)
+    h0, h1 = tiling.horizontal
     pairs = (((-4, 0), (-3, 0), h0), ((7, 0), (8, 0), h0), ((7, 0), (7, 1), h1))
     assert objects(model, (-4, 0), two_kinds) == [0] and objects(model, (7, 0), two_kinds) == [1]
     for a, b, axis in pairs:
         grid_a, grid_b = (world_tiles.tile_occupancy(model, 7, t, options=two_kinds) for t in (a, b))
         assert np.array_equal(np.take(grid_a, -1, axis), np.take(grid_b, 0, axis))
         made = [world_tiles.tile_surface(model, 7, t, options=two_kinds) for t in (a, b)]
-        mine = {tuple(v - np.eye(3)[axis] * layout.stride[axis]): (tuple(n), tuple(c))
-                for v, n, c in zip(made[0].vertices, made[0].normals, made[0].colours) if v[axis] == layout.stride[axis]}
+        mine = {tuple(v - np.eye(3)[axis] * tiling.stride[axis]): (tuple(n), tuple(c))
+                for v, n, c in zip(made[0].vertices, made[0].normals, made[0].colours) if v[axis] == tiling.stride[axis]}
         theirs = {tuple(v): (tuple(n), tuple(c)) for v, n, c in zip(made[1].vertices, made[1].normals, made[1].colours)
                   if v[axis] == 0}
         assert len(mine) > 5 and mine == theirs
@@ -101,9 +101,9 @@ def test_each_object_is_coloured_by_its_own_model(model, coloured, two_kinds):
     grey = np.array(mesh.colour_bytes(np.array([world.GROUND_COLOUR], np.float32))[0])
     assert len(left.faces) and (left.colours == grey).all()
     assert (right.colours != grey).any(axis=1).sum() >= 20  # its object's surface (the rest is ground): coloured
-    up = world.world_layout(model).up
-    cut = world.world_layout(coloured)
-    assert right.vertices[:, up].max() > world.world_layout(model).stride[up]
+    up = world.world_tiling(model).up
+    cut = world.world_tiling(coloured)
+    assert right.vertices[:, up].max() > world.world_tiling(model).stride[up]
     assert right.vertices[:, up].max() <= cut.stride[cut.up] + 0.5
 
 
@@ -174,7 +174,7 @@ def test_a_coarser_tile_and_a_block_of_two_models(model, coloured, tiny_model, t
     from sinshape.runtime.request import SampleRequest
 
     coarse = world.WorldOptions("scatter", lod=1, models=(coloured,), models_map=SPLIT)
-    h0 = world.world_layout(model).horizontal[0]
+    h0 = world.world_tiling(model).horizontal[0]
     a, b = (world_tiles.tile_occupancy(model, 7, t, options=coarse) for t in ((7, 0), (8, 0)))
     assert np.array_equal(np.take(a, -1, h0), np.take(b, 0, h0))
     fine = world_tiles.tile_occupancy(model, 7, (7, 0), options=world.WorldOptions("scatter", models=(coloured,),
@@ -193,6 +193,6 @@ def test_a_tiles_memory_is_counted_at_its_widest_models_width(model, still, monk
     width is made to differ here)."""
     counted = []
     monkeypatch.setattr(world, "hidden_width", lambda first, options: first.manifest.hidden + 7 * len(options.models))
-    monkeypatch.setattr(world, "check_world_scale", lambda layout, scale, hidden, *rest: counted.append(hidden))
+    monkeypatch.setattr(world, "check_world_scale", lambda tiling, scale, hidden, *rest: counted.append(hidden))
     world_tiles.tile_occupancy(model, 7, (0, 0), options=world.WorldOptions("scatter", models=(still,), models_map=SPLIT))
     assert counted == [model.manifest.hidden + 7]

@@ -19,7 +19,7 @@ export { loadModel, configure, parseManifest } from './model.js';
 export { parseSize, parseTriple, sample, scaledSizes } from './generate.js';
 export { compose, grow, parsePart } from './edit.js';
 export { Layout, make, sampleRequest } from './request.js';
-export { HeightMap, ModelMap, worldLayout } from './world.js';
+export { HeightMap, ModelMap, worldTiling } from './world.js';
 export { normal, streamKey } from './noise.js';
 export { dense, gridShape, project, projectedDense } from './query.js';
 export { fromLayout, layout } from './layout.js';

@@ -6,7 +6,7 @@
 // route: docs/WEB.md, "One runtime"), so a change to how worlds are made is
 // made once.
 //
-//   const layout = worldLayout(info);                                   // horizontal axes, up, stride S per axis
+//   const tiling = worldTiling(info);                                   // horizontal axes, up, stride S per axis
 //   const options = worldOptions({ arrange: 'scatter', models: ['tower'], models_map: ModelMap.of([0, 1, 1, 0], [2, 2]) });
 import { InputError, pyRepr, pyTuple } from './errors.js';
 
@@ -19,11 +19,11 @@ export const MAX_RELIEF = 1 << 14; // world_maps.MAX_RELIEF
 export const MAX_MODELS = 256; // world_maps.MAX_MODELS: models in one world (a model map's pixel is a byte)
 
 /**
- * The world's cut for a model's manifest ({ sizes, up }), as world.world_layout:
+ * The world's cut for a model's manifest ({ sizes, up }), as world.world_tiling:
  * { horizontal: the two horizontal axes, up, stride: [3] voxels per tile (the
  * up axis's entry its whole height - 1), factors: a window's size factors }.
  */
-export function worldLayout({ sizes, up: upName = 'y' }) {
+export function worldTiling({ sizes, up: upName = 'y' }) {
   const finest = sizes.at(-1), up = UP_AXIS[upName];
   const horizontal = [0, 1, 2].filter((a) => a !== up);
   const stride = [0, 0, 0];

@@ -11,7 +11,7 @@
 //   const heights = await readHeightMap(file, info);   // world.js's HeightMap
 //   const placed = await readModelMap(file);           // world.js's ModelMap
 import { InputError } from '../sinshape/errors.js';
-import { HeightMap, MAX_MAP_SIDE, ModelMap, worldLayout } from '../sinshape/world.js';
+import { HeightMap, MAX_MAP_SIDE, ModelMap, worldTiling } from '../sinshape/world.js';
 
 export const RELIEF = 4; // world_maps.RELIEF: an image's white, in the model's heights
 export const MAX_MAP_BYTES = 64 << 20; // world_maps.MAX_MAP_BYTES: a map file
@@ -53,7 +53,7 @@ export async function readHeightMap(file, info) {
     if (Math.max(w, h) > MAX_MAP_SIDE) throw new Error(`${w}x${h} pixels; a height map has at most ${MAX_MAP_SIDE} a side`);
     const full = { 'I;16': 65535, '1': 1 }[header.mode] ?? 255; // white: Pillow's 16-bit, 1-bit and 8-bit grey
     const grey = ['L', 'I;16', '1'].includes(header.mode) ? await pngPixels(header) : await luminance(bytes);
-    const layout = worldLayout(info), relief = RELIEF * layout.stride[layout.up];
+    const tiling = worldTiling(info), relief = RELIEF * tiling.stride[tiling.up];
     const values = new Array(w * h);
     for (let i = 0; i < w; i++) {
       for (let j = 0; j < h; j++) values[i * h + j] = (grey[(h - 1 - j) * w + i] / full) * relief; // the bottom row is j = 0

@@ -17,7 +17,7 @@
 //   stop()                                                                                drop it all, and give the view back to the shape
 import * as THREE from 'three';
 import { sampleRequest } from '../sinshape/request.js';
-import { worldLayout } from '../sinshape/world.js';
+import { worldTiling } from '../sinshape/world.js';
 import { aim, settle, steer, wake } from './flight.js';
 import * as sampling from './sampling.js';
 import { camera, paint, scene, worldView } from './scene.js';
@@ -52,15 +52,15 @@ export function show({ name, seed, scale, tile, info, others = [], reach, walk, 
   const jump = !run || run.key !== key || tile[0] !== run.origin[0] || tile[1] !== run.origin[1];
   if (run?.key !== key) {
     stop(false);
-    const layout = worldLayout(info);
-    const [h0, h1] = layout.horizontal, top = Math.max(...[info, ...others].map((each) => { const cut = worldLayout(each); return cut.stride[cut.up]; }));
+    const tiling = worldTiling(info);
+    const [h0, h1] = tiling.horizontal, top = Math.max(...[info, ...others].map((each) => { const cut = worldTiling(each); return cut.stride[cut.up]; }));
     run = {
-      key, name, seed, scale, arrange, heights, models, modelsMap, layout, report, origin: tile, tiles: new Map(), making: 0, made: 0, dropped: 0, error: null,
+      key, name, seed, scale, arrange, heights, models, modelsMap, tiling, report, origin: tile, tiles: new Map(), making: 0, made: 0, dropped: 0, error: null,
       coarsest: info.sizes.length - 1,
-      size: [layout.stride[h0] * info.spacing[h0], layout.stride[h1] * info.spacing[h1]], // a tile's sides, in the input's units
-      height: (top + (heights ? Math.max(...heights.data) : 0)) * info.spacing[layout.up], // a voxel of any model is one of the world's
+      size: [tiling.stride[h0] * info.spacing[h0], tiling.stride[h1] * info.spacing[h1]], // a tile's sides, in the input's units
+      height: (top + (heights ? Math.max(...heights.data) : 0)) * info.spacing[tiling.up], // a voxel of any model is one of the world's
     };
-    group.rotation.set(layout.up === 2 ? -Math.PI / 2 : 0, 0, 0); // the model's up along the view's y
+    group.rotation.set(tiling.up === 2 ? -Math.PI / 2 : 0, 0, 0); // the model's up along the view's y
     group.updateMatrixWorld(true);
   }
   Object.assign(run, { reach, walk, report });
@@ -83,11 +83,11 @@ function place(tile) {
   run.origin = tile;
   for (const entry of run.tiles.values()) drop(entry);
   const start = new THREE.Vector3();
-  start.setComponent(run.layout.horizontal[0], run.size[0] / 2);
-  start.setComponent(run.layout.horizontal[1], run.size[1] / 2);
-  start.setComponent(run.layout.up, run.height + Math.min(...run.size));
+  start.setComponent(run.tiling.horizontal[0], run.size[0] / 2);
+  start.setComponent(run.tiling.horizontal[1], run.size[1] / 2);
+  start.setComponent(run.tiling.up, run.height + Math.min(...run.size));
   camera.position.copy(group.localToWorld(start));
-  const along = new THREE.Vector3().setComponent(run.layout.horizontal[0], 1).applyQuaternion(group.quaternion);
+  const along = new THREE.Vector3().setComponent(run.tiling.horizontal[0], 1).applyQuaternion(group.quaternion);
   aim(Math.atan2(-along.x, -along.z), -0.5);
 }
 
@@ -157,7 +157,7 @@ function pump() {
   const r = run;
   const ahead = camera.getWorldDirection(new THREE.Vector3()).setY(0);
   if (ahead.lengthSq() > 0) ahead.setLength(AHEAD * Math.min(...r.size));
-  const at = group.worldToLocal(camera.position.clone().add(ahead)), [h0, h1] = r.layout.horizontal;
+  const at = group.worldToLocal(camera.position.clone().add(ahead)), [h0, h1] = r.tiling.horizontal;
   const distance = (e) => ((Number(e.i - r.origin[0]) + 0.5) * r.size[0] - at.getComponent(h0)) ** 2
     + ((Number(e.j - r.origin[1]) + 0.5) * r.size[1] - at.getComponent(h1)) ** 2;
   const before = (e, other) => (e.lod === undefined) !== (other.lod === undefined) ? e.lod === undefined : distance(e) < distance(other);
@@ -211,14 +211,14 @@ async function make(r, entry) {
 
 /** A tile's mesh where it lies from the camera's tile (a small number, whatever the tile). */
 function put(r, entry) {
-  const [h0, h1] = r.layout.horizontal;
+  const [h0, h1] = r.tiling.horizontal;
   entry.mesh.position.setComponent(h0, Number(entry.i - r.origin[0]) * r.size[0]);
   entry.mesh.position.setComponent(h1, Number(entry.j - r.origin[1]) * r.size[1]);
 }
 
 /** The camera crossed into another tile: that tile becomes the origin, and the camera and the tiles move by as much. */
 function rebase() {
-  const at = cameraInModel(), [h0, h1] = run.layout.horizontal;
+  const at = cameraInModel(), [h0, h1] = run.tiling.horizontal;
   const di = Math.floor(at.getComponent(h0) / run.size[0]), dj = Math.floor(at.getComponent(h1) / run.size[1]);
   if (!di && !dj) return;
   run.origin = [run.origin[0] + BigInt(di), run.origin[1] + BigInt(dj)];
@@ -252,7 +252,7 @@ export const view = {
     coloured: group.children.filter((m) => m.geometry.attributes.color && m.material.vertexColors).length,
   },
   moveBy(d0, d1) {
-    const shift = new THREE.Vector3().setComponent(run.layout.horizontal[0], d0 * run.size[0]).setComponent(run.layout.horizontal[1], d1 * run.size[1]);
+    const shift = new THREE.Vector3().setComponent(run.tiling.horizontal[0], d0 * run.size[0]).setComponent(run.tiling.horizontal[1], d1 * run.size[1]);
     camera.position.add(shift.applyQuaternion(group.quaternion));
     rebase();
     settle();
