@@ -100,9 +100,9 @@ def sampling(path: str, seeds: int, scales=(1, 4)) -> None:
     coloured = load_model(path)
     # Geometry alone: no colour and no tiles (which would give its mesh the example's relief at scale 2 and up).
     ways = {"geometry": dataclasses.replace(coloured, manifest=dataclasses.replace(coloured.manifest, colour=False),
-                                            tiles=None),
-            "colour head": dataclasses.replace(coloured, tiles=None)}
-    if coloured.tiles is not None:
+                                            example_tiles=None),
+            "colour head": dataclasses.replace(coloured, example_tiles=None)}
+    if coloured.example_tiles is not None:
         ways["correspondence"] = coloured
     with tempfile.TemporaryDirectory() as folder:
         for scale in scales:
@@ -132,7 +132,7 @@ def sampling_peak(path: str, way: str) -> int:
 
     model = load_model(path)
     if way == "colour head":
-        model = dataclasses.replace(model, tiles=None)
+        model = dataclasses.replace(model, example_tiles=None)
     with tempfile.TemporaryDirectory() as folder:
         write.write_sample(model, generate.sample(model, 1), Path(folder) / "s.ply")
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024

@@ -31,7 +31,7 @@ def seven_voxel_level(model) -> colour.Level:
     if not hasattr(model, "seven_voxel_level"):
         recon = generate.sample(model, None)
         reference = colour.pyramid(model, query.project(model, recon).planes, recon.size)
-        model.seven_voxel_level = colour.Level(model.tiles.band(), reference.at(0), reference.size)
+        model.seven_voxel_level = colour.Level(model.example_tiles.band(), reference.at(0), reference.size)
     return model.seven_voxel_level
 
 

@@ -124,7 +124,7 @@ def main():
     from sinshape.runtime import colour, generate, load_model, mesh, query
 
     model = load_model(args.model)
-    if model.tiles is None:
+    if model.example_tiles is None:
         raise SystemExit("a format-5 model (colour tiles) is needed: it carries both colourings")
     manifest = model.manifest
     origin, spacing = np.asarray(manifest.origin), np.asarray(manifest.spacing)

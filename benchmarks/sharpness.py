@@ -71,7 +71,7 @@ def main():
     from sinshape.runtime import colour, generate, load_model, mesh as meshing
 
     model = load_model(models.find(args.model))
-    if model.tiles is None:
+    if model.example_tiles is None:
         raise SystemExit(f"{args.model} has no tiles: nothing to compare (give a format-5 model)")
     origin, spacing = np.asarray(model.manifest.origin), np.asarray(model.manifest.spacing)
     example = trimesh.load(args.example, force="mesh", process=False)

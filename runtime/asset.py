@@ -113,7 +113,7 @@ def sample_field(model, triplane, detail: bool = True) -> bake.Field:
     at full detail (a format-5 model's tiles, read at each texel's point;
     without `detail`, its colour head's) and its example's relief (a model
     with tiles, with `detail`)."""
-    relief = detail and model.tiles is not None
+    relief = detail and model.example_tiles is not None
     if not (model.manifest.colour or relief):
         return bake.Field(query.occupying(model, triplane), None)
     surface = colouring.colouring(model, triplane, detail=detail)

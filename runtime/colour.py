@@ -556,7 +556,7 @@ def matcher(model) -> Matcher:
     level of the example's band, and the surface it decodes (learnt_distance)."""
     if model.matcher is None:
         recon = generate.sample(model, None)
-        model.matcher = Matcher(model.tiles, pyramid(model, query.project(model, recon).planes, recon.size))
+        model.matcher = Matcher(model.example_tiles, pyramid(model, query.project(model, recon).planes, recon.size))
         model.matcher.learnt = learnt_distance(model, recon)
     return model.matcher
 
@@ -945,7 +945,7 @@ def colouring(model, triplane, detail: bool = True):
     (points -> points moved by the example's relief). A format-5 model
     matches the sample once; a format-4 model reads its colour head, and
     has no relief, as does any without `detail`."""
-    if model.tiles is None or not detail:
+    if model.example_tiles is None or not detail:
         return HeadColouring(query.colouring(model, triplane))
     kept = [(low, high, query.project(model, part).planes) for low, high, part in triplane.kept]
     return planes_colouring(model, query.project(model, triplane).planes, triplane.size, kept=kept)
@@ -969,7 +969,7 @@ class SampleSurface:
     (Correspondence), then read at any points for colour and relief."""
 
     def __init__(self, model, planes: list, size, chunk: int = READ_CHUNK, kept=()):
-        self.tiles, self.chunk, self.threads = model.tiles, chunk, model.threads
+        self.tiles, self.chunk, self.threads = model.example_tiles, chunk, model.threads
         self.matched = Correspondence(model, planes, size, kept)
         self.learnt = matcher(model).learnt
         self.grid = np.array(size)
@@ -1041,7 +1041,7 @@ def dense_grids(model, triplane, scale: float = 1.0, detail: bool = True) -> dic
     occupancy = query.dense(model, triplane, scale)
     if not model.manifest.colour:
         return {"occupancy": occupancy}
-    if model.tiles is None or not detail:
+    if model.example_tiles is None or not detail:
         return {"occupancy": occupancy, "colour": query.dense(model, triplane, scale, colour=True)[1]}
     check_memory(occupancy.size * 3 * 8, f"the colours of a {'x'.join(map(str, occupancy.shape))} grid")
     steps = [(np.array(triplane.size[a]) - 1) / max(occupancy.shape[a] - 1, 1) for a in range(3)]

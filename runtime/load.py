@@ -84,7 +84,7 @@ class Model:
     decoder_planes: Stage
     decoder_head: Stage
     head: HeadWeights
-    tiles: object = None  # format 5: the example's surface (colour.Tiles), read by correspondence
+    example_tiles: object = None  # format 5: the example's surface (colour.Tiles), read by correspondence
     matcher: object = None  # its matcher, made on the first sample that reads the tiles (colour.matcher)
     faces_per_voxel: float | None = None  # its reconstruction's, at scale 1: measured when first needed (mesh.py)
     threads: int = 1  # threads per session, and the runtime's own numpy work's (colour.SampleSurface)
@@ -92,7 +92,7 @@ class Model:
     @property
     def colour_tiles(self):
         """Its tiles where they hold colour (a coloured format-5 model), else None (relief alone, or none)."""
-        return self.tiles if self.manifest.colour else None
+        return self.example_tiles if self.manifest.colour else None
 
 
 def default_threads() -> int:
@@ -387,7 +387,7 @@ def load_model(path, threads: int | None = None) -> Model:
         decoder_planes=make(stages["decoder_planes"]),
         decoder_head=make(stages["decoder_head"]),
         head=read_head(proto, manifest, path),
-        tiles=read_tiles(proto, manifest, path) if manifest.tiles else None,
+        example_tiles=read_tiles(proto, manifest, path) if manifest.tiles else None,
         threads=threads,
     )
     check_stages(model)

@@ -240,7 +240,7 @@ def paint(mesh, model, triplane, scale: float = 1.0, detail: bool = True) -> Non
     8-bit sRGB, the colour around it (a vertex of a grid `scale` times finer
     stands for 1 / scale voxels). A model with neither leaves the mesh as it
     is. Without `detail`, no relief, and colour from the decoder's head."""
-    relief = detail and model.tiles is not None and scale >= colour.RELIEF_SCALE
+    relief = detail and model.example_tiles is not None and scale >= colour.RELIEF_SCALE
     if not len(mesh.vertices) or not (relief or model.manifest.colour):
         return
     surface = colour.colouring(model, triplane, detail=detail)

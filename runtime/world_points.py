@@ -220,7 +220,7 @@ def tile_relief(model, seed: int, tile, points: np.ndarray, options: WorldOption
     moved = np.array(points, np.float64).reshape(-1, 3)
     for (a, b, arrange, k), index, cells, back in sources:
         each, own = object_model(model, options, k)
-        if each.tiles is None or not len(index):
+        if each.example_tiles is None or not len(index):
             continue
         surface = window_colouring(each, own, seed, a, b, arrange)
         moved[index] += (surface.relief(cells) - cells) @ back
@@ -232,7 +232,7 @@ def relieved(model, options: WorldOptions, scale: float) -> bool:
     a mesh fine enough to carry it (colour.RELIEF_SCALE), a model with relief
     tiles among the world's."""
     return (options.detail and not options.lod and scale >= RELIEF_SCALE
-            and any(each.tiles is not None for each in (model, *options.models)))
+            and any(each.example_tiles is not None for each in (model, *options.models)))
 
 
 def relief_normals(model, seed: int, tile, points: np.ndarray, normals: np.ndarray, step: float,

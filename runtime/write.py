@@ -167,7 +167,7 @@ def write_sample(model, triplane, path, scale: float = 1.0, smooth: int = 0, smo
     pieces = mesh.pieces(model, triplane, scale, progress=mesh_progress, threads=threads)
     colour = model.manifest.colour
     # Each piece's new vertices moved by relief and coloured as they come (mesh.paint): the cost is per vertex.
-    relief = detail and model.tiles is not None and scale >= RELIEF_SCALE
+    relief = detail and model.example_tiles is not None and scale >= RELIEF_SCALE
     if relief or colour:
         surface = colouring(model, triplane, detail=detail)
     if relief:

@@ -301,8 +301,8 @@ def relief_model(tiny_relief_model):
 @pytest.mark.parametrize("scale", [1, 2])
 def test_a_geometry_only_models_fine_mesh_takes_its_examples_relief_and_no_colour(relief_model, tmp_path, scale):
     model = relief_model
-    assert model.manifest.raw["format_version"] == fmt.TILES_VERSION and model.tiles is not None
-    assert not model.manifest.colour and model.tiles.mips == []
+    assert model.manifest.raw["format_version"] == fmt.TILES_VERSION and model.example_tiles is not None
+    assert not model.manifest.colour and model.example_tiles.mips == []
     assert sampled_with_relief(model, tmp_path, scale) == [None, None]
 
 
@@ -392,7 +392,7 @@ def test_neighbouring_voxels_copy_coherent_pieces_of_the_example(model):
     from sinshape.runtime import query
 
     small, medians, alone_small = [], [], []
-    finest = colour.Level(model.tiles.band(), *reference_at_voxels(model))
+    finest = colour.Level(model.example_tiles.band(), *reference_at_voxels(model))
     for seed in (1, 2, 3):
         triplane = generate.sample(model, seed)
         planes = query.project(model, triplane).planes
@@ -436,7 +436,7 @@ def test_relief_ramps_across_a_seam_between_two_pieces_instead_of_stepping():
     assert len(seam) > 20
     face = band[seam] + (0.5, 0, 0)
     low, high = (surface.relief(face + (d, 0, 0)) - (face + (d, 0, 0)) for d in (-1e-7, 1e-7))
-    apart = [colour.relief_moves(model.tiles, face + (matched(v) - v), learnt) for v in (band[seam], beside[seam])]
+    apart = [colour.relief_moves(model.example_tiles, face + (matched(v) - v), learnt) for v in (band[seam], beside[seam])]
     stepped = np.linalg.norm(apart[0] - apart[1], axis=1)
     gap = np.linalg.norm(low - high, axis=1)
     # Measured: the pieces' own moves 0.16 voxel apart at the 75th percentile, the blended ones 1e-7 (a few

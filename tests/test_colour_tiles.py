@@ -144,7 +144,7 @@ def test_every_colour_a_tile_holds_is_the_examples(tmp_path):
 @pytest.fixture(scope="module")
 def model(tiny_colour_model):
     loaded = load_model(tiny_colour_model, threads=1)
-    assert loaded.tiles is not None and loaded.manifest.raw["format_version"] == 5
+    assert loaded.example_tiles is not None and loaded.manifest.raw["format_version"] == 5
     return loaded
 
 
@@ -221,7 +221,7 @@ def test_a_coarser_world_tile_shows_only_the_examples_colours(model):
     """A coarser tile (lod > 0) has no finest planes to match: the colour head's colour there is
     made the nearest of the example's tiles' means, so no hue the example lacks shows far away."""
     got = world_tiles.tile_surface(model, 5, (3, -2), options=world.WorldOptions(lod=1)).colours[:, :3]
-    palette = {tuple(c) for c in colour.example_palette(model.tiles)}
+    palette = {tuple(c) for c in colour.example_palette(model.example_tiles)}
     assert len(got) > 100 and all(tuple(c) in palette for c in got)  # the head's own: none of them (measured)
 
 

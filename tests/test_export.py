@@ -83,10 +83,10 @@ def test_relief_added_to_a_model_trained_before_it_is_the_trainers_own(tiny_reli
     next(p for p in proto.metadata_props if p.key == manifest.METADATA_KEY).value = json.dumps(plain)
     before = tmp_path / "before.onnx"
     before.write_bytes(sealed_bytes(proto))
-    assert load.load_model(before).tiles is None
+    assert load.load_model(before).example_tiles is None
     after = tmp_path / "after.onnx"
     assert remake_tiles(before, RIDGED_BOX, after) == old
-    tiles, again = load.load_model(tiny_relief_model).tiles, load.load_model(after).tiles
+    tiles, again = load.load_model(tiny_relief_model).example_tiles, load.load_model(after).example_tiles
     for name in ("voxels", "directions", "depth", "distance"):
         np.testing.assert_array_equal(getattr(again, name), getattr(tiles, name))
     with pytest.raises(InputError, match="not the file"):
@@ -104,7 +104,7 @@ def test_a_coloured_models_tiles_made_again_are_the_trainers_own(tiny_colour_mod
     assert remake_tiles(tiny_colour_model, PAINTED_BOX, out) == manifest_of(tiny_colour_model)
     names = [t.name for t in onnx.load(out).graph.initializer]
     assert all(names.count(name) == 1 for name in manifest.TILE_TENSORS)
-    tiles, again = load.load_model(tiny_colour_model).tiles, load.load_model(out).tiles
+    tiles, again = load.load_model(tiny_colour_model).example_tiles, load.load_model(out).example_tiles
     for name in ("voxels", "depth", "distance"):
         np.testing.assert_array_equal(getattr(again, name), getattr(tiles, name))
     np.testing.assert_array_equal(again.mips[0], tiles.mips[0])

@@ -206,4 +206,4 @@ def test_a_worlds_other_model_is_read_again_once_its_file_is_written_again(tmp_p
     shutil.copy(TINY_RELIEF_ONNX, path)
     os.utime(path, ns=(os.stat(path).st_atime_ns, os.stat(path).st_mtime_ns + 10**9))  # past the clock's grain
     again = other_model(str(path))
-    assert again is not first and again.tiles is not None and first.tiles is None
+    assert again is not first and again.example_tiles is not None and first.example_tiles is None
