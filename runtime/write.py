@@ -113,10 +113,17 @@ def write_ply_pieces(file, pieces, folder, colour: bool = False) -> tuple:
     return tuple(counts)
 
 
-def mesh_bytes(mesh, suffix: str, normals: bool = False) -> bytes:
+# (x, y, z) -> (x, z, -y): a quarter turn about x, z up to glTF's +Y (gltf.Z_UP_TO_Y_UP as a matrix).
+Z_UP_TO_Y_UP = np.array([[1, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]], np.float64)
+
+
+def mesh_bytes(mesh, suffix: str, normals: bool = False, up: str = "y") -> bytes:
     """A trimesh mesh as the file bytes of a mesh format ('.ply', '.glb', ...),
     with its vertex colours where it has them (8-bit sRGB, see the top),
-    and with `normals` its vertex normals (.ply, .glb, .obj)."""
+    and with `normals` its vertex normals (.ply, .glb, .obj). up: the axis
+    of the mesh's frame that points up; glTF's up is +Y, so a .glb of a z-up
+    frame turns its node a quarter turn about x (as an asset's), the
+    vertices kept as they are."""
     colours = mesh.visual.vertex_colors if mesh.visual.kind == "vertex" else None
     if suffix.lower() == ".ply":  # the bytes a streamed write (write_ply_pieces) makes of the same mesh
         vertex_normals = mesh.vertex_normals if normals else None
@@ -130,6 +137,12 @@ def mesh_bytes(mesh, suffix: str, normals: bool = False) -> bytes:
         if normals:  # new colours clear the cache that held the given normals: trimesh would write none
             mesh.vertex_normals = kept_normals
     extra = {"include_normals": True} if normals and suffix.lower() == ".glb" else {}
+    if suffix.lower() == ".glb" and up == "z":
+        import trimesh  # what made `mesh`: already imported
+
+        scene = trimesh.Scene()
+        scene.add_geometry(mesh, transform=Z_UP_TO_Y_UP)  # one node, turned
+        mesh = scene
     data = mesh.export(file_type=MESH_FORMATS[suffix.lower()], **extra)
     return data.encode() if isinstance(data, str) else data
 
@@ -143,9 +156,9 @@ def grid_bytes(occupancy: np.ndarray, **fields) -> bytes:
     return buffer.getvalue()
 
 
-def write_mesh(mesh, path) -> None:
-    """Export a trimesh mesh in the format its extension names."""
-    data = mesh_bytes(mesh, Path(path).suffix)
+def write_mesh(mesh, path, up: str = "y") -> None:
+    """Export a trimesh mesh in the format its extension names (up: as mesh_bytes)."""
+    data = mesh_bytes(mesh, Path(path).suffix, up=up)
     atomic_write(path, lambda f: f.write(data))
 
 
@@ -254,7 +267,7 @@ def tile_bytes(model, request, name, progress=None) -> tuple:
     tile = trimesh.Trimesh(vertices, surface.faces, vertex_normals=normals, process=False)
     if surface.colours is not None:
         tile.visual.vertex_colors = surface.colours
-    return mesh_bytes(tile, suffix, normals=True), tile
+    return mesh_bytes(tile, suffix, normals=True, up=model.manifest.up), tile
 
 
 def sample_bytes(model, triplane, path, scale: float = 1.0, smooth: int = 0, smoother: str = "laplacian",
@@ -273,7 +286,7 @@ def sample_bytes(model, triplane, path, scale: float = 1.0, smooth: int = 0, smo
                           threads=threads, per_face=mesh.held_per_face(smooth, path.suffix, largest), detail=detail)
     if not len(result.faces):
         raise no_surface(path)
-    return mesh_bytes(result, path.suffix), result
+    return mesh_bytes(result, path.suffix, up=model.manifest.up), result
 
 
 def no_surface(path: Path) -> InputError:
@@ -319,4 +332,4 @@ def write_block(model, request, tiles, path, progress=None) -> None:
     block = world_tiles.block_mesh(model, request, tiles, progress)
     if not len(block.faces):
         raise no_surface(Path(path))
-    write_mesh(block, path)
+    write_mesh(block, path, model.manifest.up)

@@ -57,6 +57,25 @@ def test_orient_changes_up_and_nothing_else(tiny_model, tmp_path):
     assert load_model(out, threads=1).manifest.up == before.manifest.up
 
 
+def test_a_glb_stands_on_the_models_up_as_gltf_asks(tiny_model, tmp_path):
+    """glTF's up is +Y: a z-up model's .glb turns its node a quarter turn about x, so that the
+    model's z runs along the file's +Y; a y-up model's is written as it is. The .ply keeps the
+    frame's own axes either way."""
+    import trimesh
+
+    for up in ("y", "z"):
+        turned = tmp_path / f"{up}.onnx"
+        assert CliRunner().invoke(cli, ["orient", str(tiny_model), "--up", up, "-o", str(turned)]).exit_code == 0
+        for suffix in (".glb", ".ply"):
+            result = CliRunner().invoke(cli, ["sample", str(turned), "--seed", "2", "-o", str(tmp_path / f"{up}{suffix}")])
+            assert result.exit_code == 0, result.output
+    frame = trimesh.load(tmp_path / "y.ply", process=False).vertices
+    assert np.allclose(trimesh.load(tmp_path / "z.ply", process=False).vertices, frame)
+    assert np.allclose(trimesh.load(tmp_path / "y.glb", force="mesh", process=False).vertices, frame, atol=1e-5)
+    stood = trimesh.load(tmp_path / "z.glb", force="mesh", process=False).vertices
+    assert np.allclose(stood, frame[:, [0, 2, 1]] * (1, 1, -1), atol=1e-5)  # (x, y, z) -> (x, z, -y)
+
+
 def test_orient_upgrades_an_old_format_and_seals_it(tmp_path):
     old = tmp_path / "v1.onnx"
     old.write_bytes((Path(__file__).parent / "data" / "tiny_v1.onnx").read_bytes())
