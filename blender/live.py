@@ -454,7 +454,9 @@ def export_asset(obj, path: Path, lods: str, texture: int, ao: bool, add_objects
     added = [other for other in bpy.data.objects if other not in before]
     for other in added:
         if other.parent is None:
-            other.matrix_world = obj.matrix_world @ other.matrix_world
+            placed = other.matrix_world.copy()
+            placed.translation = (0.0, 0.0, 0.0)  # the file stands on its base at the origin; here it overlays the sample
+            other.matrix_world = obj.matrix_world @ placed
         if other.name in bpy.context.view_layer.objects:  # not the coarser levels, in an excluded collection
             other.select_set(False)
     obj.select_set(True)  # the sample stays the active object, as before the export

@@ -289,6 +289,10 @@ def asset_options(command):
                      help="With --lods: texels per side of each level's maps, a power of two up to 8192. "
                           "Default 1024."),
         click.option("--ao", is_flag=True, help="With --lods: bake ambient occlusion too."),
+        click.option("--height", type=float, default=None, metavar="METRES",
+                     help="With --lods: the asset's height in metres, base to top (glTF's unit). Default: one unit "
+                          "of the training mesh is a metre. A sample's asset stands with the centre of its base "
+                          "at the origin."),
     ]):
         command = option(command)
     return command
@@ -353,8 +357,8 @@ def sample_options(command):
               help="With --engine ray: the cluster's address. Default: Ray's own (RAY_ADDRESS, else a "
                    "local Ray on this machine).")
 @RESTART_OPTION
-def sample(model, seeds, layout_file, resample_layout, output, lods, texture, ao, threads, workers, engine, address,
-           restart, **fields):
+def sample(model, seeds, layout_file, resample_layout, output, lods, texture, ao, height, threads, workers, engine,
+           address, restart, **fields):
     """Generate new shapes from a model and write them as meshes.
 
     MODEL is a .onnx file from `sinrun train` or the name of a shipped model
@@ -367,7 +371,7 @@ def sample(model, seeds, layout_file, resample_layout, output, lods, texture, ao
     if seeds is None and (workers is not None or engine != "local" or address is not None or restart):
         raise ConflictError("`workers`, `engine`, `address` and `restart` are for many samples: give `seeds`",
                             ("workers", "engine", "address", "restart", "seeds"))
-    packed = assets.options_of(lods, texture, ao)
+    packed = assets.options_of(lods, texture, ao, height)
     loaded = open_model(model, threads)
     laid_out = Layout.of(layout_files.read_any(loaded, layout_file, fields["size"]), resample_layout) if layout_file else None
     request = SampleRequest.of({**fields, "layout": laid_out})
@@ -479,7 +483,7 @@ def world_options(command):
 @RESTART_OPTION
 @asset_options
 def world(model, others, tiles, output, suffix, threads, workers, engine, address, height_map, relief, models_map,
-          restart, lods, texture, ao, **fields):
+          restart, lods, texture, ao, height, **fields):
     """Write tiles of an endless world: any tile on its own, seamless with its neighbours.
 
     The world spreads along the model's two horizontal axes (the two that are
@@ -493,7 +497,7 @@ def world(model, others, tiles, output, suffix, threads, workers, engine, addres
     from sinshape import models
     from sinshape.runtime import asset as assets, many, request as requests, write
 
-    packed = assets.options_of(lods, texture, ao)
+    packed = assets.options_of(lods, texture, ao, height)
     loaded = open_model(model, threads)
     wanted = requests.world_request(loaded, fields, height_map, relief, [models.find(other) for other in others],
                                     models_map)

@@ -22,6 +22,7 @@ import numpy as np
 
 from sinshape.core.budget import check_memory
 from sinshape.core.errors import ConflictError, InputError, named
+from sinshape.core.manifest import UP_AXIS
 
 from . import bake, colour as colouring, gltf, mesh, query, world, world_points, world_tiles
 from .request import make
@@ -30,6 +31,7 @@ MAX_LODS = 8
 MIN_TRIANGLES = 4  # the fewest a closed surface has
 MAX_TEXTURE = 8192
 MIN_TEXTURE = 16
+MIN_HEIGHT, MAX_HEIGHT = 0.001, 10000.0  # metres: a pebble to a mountain
 FILL = 0.6  # the share of an atlas xatlas's charts are expected to cover (0.65-0.72 measured), for its scale
 BAKE_BYTES_PER_TEXEL = 160  # peak bytes per texel of one level's bake and file: 118-138 measured (tracemalloc, 1024 and 2048)
 
@@ -41,12 +43,15 @@ class AssetOptions:
     lods: the levels' triangle counts, finest first (each at most its
       predecessor's; the first at most the full mesh's);
     texture: texels per side of each level's maps, a power of two up to
-      MAX_TEXTURE; ao: bake ambient occlusion too (an occlusion map).
+      MAX_TEXTURE; ao: bake ambient occlusion too (an occlusion map);
+    height: the asset's height in metres (glTF's unit), base to top, as the
+      file's nodes scale it (None: one unit of the frame is a metre).
     """
 
     lods: tuple = (20000, 5000, 1200)
     texture: int = 1024
     ao: bool = False
+    height: float | None = None  # metres from the asset's base to its top; None: a frame unit is a metre
 
     def __post_init__(self):
         lods = (self.lods,) if isinstance(self.lods, int) else self.lods
@@ -70,6 +75,12 @@ class AssetOptions:
             raise InputError(f"`texture` must be a power of two from {MIN_TEXTURE} to {MAX_TEXTURE} texels, "
                              f"got {size!r}", "texture")
         object.__setattr__(self, "texture", int(size))
+        if self.height is not None:
+            if not (isinstance(self.height, (int, float, np.number)) and not isinstance(self.height, bool)
+                    and MIN_HEIGHT <= self.height <= MAX_HEIGHT):
+                raise InputError(f"`height` must be metres from {MIN_HEIGHT:g} to {MAX_HEIGHT:g}, got {self.height!r}",
+                                 "height")
+            object.__setattr__(self, "height", float(self.height))
 
     @property
     def padding(self) -> int:
@@ -251,6 +262,9 @@ def asset_bytes(model, request, options: AssetOptions, name: str = "sample", thr
     import xatlas  # noqa: F401
 
     check_asset_memory(options, memory_limit)
+    if request.tile is not None and options.height is not None:
+        raise InputError("`height` scales one asset; a world's tiles keep the world's frame, so that they meet",
+                         "height")
     threads = threads or os.cpu_count() or 1
     started = time.perf_counter()
     dense = dense_surface(model, request, threads, progress)
@@ -269,21 +283,38 @@ def asset_bytes(model, request, options: AssetOptions, name: str = "sample", thr
     written = time.perf_counter()
     extras = {"sinshape": {"seed": request.sample_seed, "tile": list(request.tile) if request.tile else None,
                            "lods": list(options.lods), "texture": options.texture}}
-    data = gltf.glb_bytes(levels, name, extras, model.manifest.up)
+    place = None
+    if request.tile is None:  # a tile keeps its frame, so that its neighbours meet it
+        place = on_its_base(dense.vertices, UP_AXIS[model.manifest.up], options.height)
+        extras["sinshape"].update(pivot="the centre of its base", height_m=round(place.height, 6))
+    data = gltf.glb_bytes(levels, name, extras, model.manifest.up, place)
     timings["write"] = time.perf_counter() - written
     info = {"dense_triangles": len(dense.faces), "dense_vertices": len(dense.vertices), "levels": figures,
             "seconds": {k: round(v, 3) for k, v in timings.items()}, "bytes": len(data)}
     return data, info
 
 
-def options_of(lods=None, texture: int | None = None, ao: bool = False) -> AssetOptions | None:
+def on_its_base(vertices: np.ndarray, up: int, height: float | None) -> gltf.Placement:
+    """Where an asset's nodes put it: the centre of its base (the middle of
+    its bounds across, their lowest point along `up`) at the origin, scaled
+    to `height` metres from base to top (None: as it is)."""
+    low, high = vertices.min(axis=0), vertices.max(axis=0)
+    base = (low + high) / 2
+    base[up] = low[up]
+    tall = float(high[up] - low[up])
+    scale = height / tall if height and tall > 0 else 1.0
+    return gltf.Placement(base, scale, tall * scale)
+
+
+def options_of(lods=None, texture: int | None = None, ao: bool = False, height: float | None = None) -> AssetOptions | None:
     """The asset a front end's values ask for: None without lods (a plain
-    sample), which texture and ao need. lods: counts, or their text."""
+    sample), which texture, ao and height need. lods: counts, or their text."""
     if lods is None:
-        given = [name for name, value in (("texture", texture is not None), ("ao", ao)) if value]
+        given = [name for name, value in (("texture", texture is not None), ("ao", ao), ("height", height is not None))
+                 if value]
         if given:
             raise ConflictError(f"{named(given, ' and ')} {'are' if len(given) > 1 else 'is'} for an asset: give `lods` "
                                 "too (its levels' triangle counts, like 20000,5000,1200)", (*given, "lods"))
         return None
     lods = parse_lods(lods) if isinstance(lods, str) else lods
-    return AssetOptions(lods, AssetOptions.texture if texture is None else texture, bool(ao))
+    return AssetOptions(lods, AssetOptions.texture if texture is None else texture, bool(ao), height)

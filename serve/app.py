@@ -125,22 +125,34 @@ LodsQuery = Annotated[str | None, Query(description="A game asset (format glb): 
 TextureQuery = Annotated[int | None, Query(description="With lods: texels per side of each level's maps, a power "
                                            "of two up to 8192 (default 1024).")]
 AoQuery = Annotated[bool, Query(description="With lods: bake ambient occlusion too.")]
+HeightQuery = Annotated[float | None, Query(description="With lods: the asset's height in metres, base to top "
+                                            "(default: one unit of the training mesh is a metre).")]
 
 
 @dataclass
 class AssetQuery:
-    """What makes a sample or a tile a game asset."""
+    """What makes a tile a game asset (a tile keeps its world's frame)."""
 
     lods: LodsQuery = None
     texture: TextureQuery = None
     ao: AoQuery = False
 
-    def options(self, format: str):
+    def options(self, format: str, height: float | None = None):
         """The runtime's asset options (None: a plain file); an asset is a .glb."""
-        options = asset.options_of(self.lods, self.texture, self.ao)
+        options = asset.options_of(self.lods, self.texture, self.ao, height)
         if options is not None and format != "glb":
             raise InputError(f"an asset is written as glb (glTF's binary), not {format}")
         return options
+
+
+@dataclass
+class SampleAssetQuery(AssetQuery):
+    """What makes a sample a game asset: a tile's, and the height it stands."""
+
+    height: HeightQuery = None
+
+    def options(self, format: str):
+        return super().options(format, self.height)
 
 
 def query_model(name: str, kind: str, first: list, special: dict, doc: str, namespace: dict | None = None):
@@ -293,7 +305,7 @@ async def model_file(request: Request, name: str):
 async def sample(
     request: Request,
     q: Annotated[SampleQuery, Depends()],
-    a: Annotated[AssetQuery, Depends()],
+    a: Annotated[SampleAssetQuery, Depends()],
     keep: option_query("keep") = [],
     grow: option_query("grow") = None,
     anchor: option_query("anchor") = None,

@@ -303,6 +303,7 @@ def test_a_geometry_only_model_gets_a_normal_map_no_colour_map_and_occlusion_if_
 @pytest.mark.parametrize("options, message", [
     (dict(lods=(0,)), "at least 4"), (dict(lods=(-5,)), "at least 4"), (dict(lods=(100, 200)), "fall level by level"),
     (dict(lods=()), "1 to 8"), (dict(texture=1000), "power of two"), (dict(texture=16384), "8192"),
+    (dict(height=0), "metres from"), (dict(height=float("nan")), "metres from"), (dict(height="3m"), "metres from"),
 ])
 def test_bad_options_are_refused_in_one_line(options, message):
     with pytest.raises(InputError, match=message) as error:
@@ -321,14 +322,17 @@ def test_more_triangles_than_the_sample_has_or_memory_it_lacks_are_refused():
 def test_sinrun_writes_an_asset_and_nothing_for_bad_values(tmp_path):
     out = tmp_path / "rock.glb"
     result = CliRunner().invoke(cli, ["sample", str(TINY_ONNX), "--seed", "2", "--lods", "600,150", "--texture", "64",
-                                      "-o", str(out)])
+                                      "--height", "3", "-o", str(out)])
     assert result.exit_code == 0, result.output
     document, _ = gltf.read(out.read_bytes())
     assert [n["name"] for n in document["nodes"]] == ["rock_LOD0", "rock_LOD1"]
+    assert document["nodes"][0]["extras"]["sinshape"]["height_m"] == 3
     for args, said in [(["--lods", "600", "--texture", "100"], "--texture must be a power of two"),
                        (["--lods", "0"], "--lods asks for 0 triangles"),
                        (["--lods", "9999999"], "more than the sample's full-resolution mesh"),
-                       (["--texture", "64"], "--texture is for an asset: give --lods")]:
+                       (["--texture", "64"], "--texture is for an asset: give --lods"),
+                       (["--height", "3"], "--height is for an asset: give --lods"),
+                       (["--lods", "600", "--height", "-1"], "--height must be metres from")]:
         bad = tmp_path / "bad.glb"
         result = CliRunner().invoke(cli, ["sample", str(TINY_ONNX), *args, "-o", str(bad)])
         assert result.exit_code != 0 and said in result.output and not bad.exists(), result.output
@@ -375,6 +379,46 @@ def test_world_tiles_as_assets_meet_at_their_border_at_every_level(tmp_path):
     assert sides[0][0] and all(sides[0][a] == sides[1][b] for a in range(2) for b in range(2))
 
 
+def placed_levels(document: dict, binary: bytes) -> list:
+    """Each level's positions where its node puts them: translation + rotation(scale * p), glTF's
+    order; the one rotation the writer uses is z up to +Y, (x, y, z) -> (x, z, -y)."""
+    out = []
+    for k, node in enumerate(document["nodes"]):
+        p = gltf.level_arrays(document, binary, k)["position"].astype(np.float64) * node.get("scale", [1.0])[0]
+        if "rotation" in node:
+            assert np.allclose(node["rotation"], gltf.Z_UP_TO_Y_UP)
+            p = np.stack([p[:, 0], p[:, 2], -p[:, 1]], axis=1)
+        out.append(p + node.get("translation", [0.0, 0.0, 0.0]))
+    return out
+
+
+@pytest.mark.parametrize("height", [None, 2.5])
+def test_a_samples_asset_stands_on_the_centre_of_its_base_at_its_height_in_metres(height):
+    """glTF's unit is the metre and its up +Y: every level stands on y = 0 with the centre of
+    its base at the origin, `height` metres tall (else as tall as the sample is in its frame)."""
+    model = load_model(TINY_COLOUR_ONNX, threads=1)
+    options = asset.AssetOptions(LODS, TEXTURE, height=height)
+    data, _ = asset.asset_bytes(model, SampleRequest(3), options, "box", threads=1)
+    document, binary = gltf.read(data)
+    tall = document["nodes"][0]["extras"]["sinshape"]["height_m"]
+    assert height is None or tall == height
+    for placed in placed_levels(document, binary):
+        low, high = placed.min(axis=0), placed.max(axis=0)
+        assert abs(low[1]) < 0.03 * tall and abs(high[1] - tall) < 0.03 * tall  # a level may lose a little
+        across = (low + high)[[0, 2]] / 2
+        assert np.abs(across).max() < 0.03 * max(high - low), (low, high)
+    assert (height is None) == all("scale" not in node for node in document["nodes"])  # else the frame's own units
+
+
+def test_a_tiles_asset_keeps_the_worlds_frame_and_takes_no_height():
+    model = load_model(TINY_ONNX, threads=1)
+    data, _ = asset.asset_bytes(model, SampleRequest(3, tile=(1, 0)), asset.AssetOptions((400,), 32), "t", threads=1)
+    document, _ = gltf.read(data)
+    assert all("translation" not in node and "scale" not in node for node in document["nodes"])
+    with pytest.raises(InputError, match="a world's tiles keep the world's frame"):
+        asset.asset_bytes(model, SampleRequest(3, tile=(1, 0)), asset.AssetOptions((400,), 32, height=2.0))
+
+
 def test_the_web_api_hands_out_assets_and_refuses_bad_values_in_one_line_of_json():
     from test_serve import get, running_server
 
@@ -393,6 +437,10 @@ def test_the_web_api_hands_out_assets_and_refuses_bad_values_in_one_line_of_json
             assert status == 400 and said in json.loads(body)["detail"] and b"\n" not in body, body
         status, _, body = get(f"{route}/tile?i=0&j=0&lods=500&texture=32")
         assert status == 200 and gltf.read(body)[0]["nodes"][0]["name"].endswith("_LOD0")
+        status, _, body = get(f"{route}/sample?seed=3&lods=300&texture=32&height=2")
+        assert status == 200 and gltf.read(body)[0]["nodes"][0]["extras"]["sinshape"]["height_m"] == 2
+        assert get(f"{route}/sample?seed=3&lods=300&texture=32&height=0")[0] == 400
+        assert get(f"{route}/tile?i=0&j=0&lods=500&texture=32&height=2")[0] == 422  # a tile keeps its world's frame
 
 
 @pytest.mark.blender

@@ -122,7 +122,7 @@ def test_openapi_describes_every_route(server):
     assert "post" in paths["/api/models/{name}/sample"]
     params = {p["name"] for p in paths["/api/models/{name}/sample"]["get"]["parameters"]}
     # and the options of a sample request, which tests/test_options.py holds to their table
-    assert params - set(OPTION) == {"name", "format", "lods", "texture", "ao"} and {"seed", "smooth"} <= params
+    assert params - set(OPTION) == {"name", "format", "lods", "texture", "ao", "height"} and {"seed", "smooth"} <= params
 
 
 def test_the_page_and_its_offline_scripts(server):
