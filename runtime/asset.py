@@ -25,6 +25,7 @@ from sinshape.core.errors import ConflictError, InputError, named
 from sinshape.core.manifest import UP_AXIS
 
 from . import bake, colour as colouring, gltf, mesh, query, world, world_points, world_tiles
+from .options import NAMINGS
 from .request import make
 
 MAX_LODS = 8
@@ -45,13 +46,21 @@ class AssetOptions:
     texture: texels per side of each level's maps, a power of two up to
       MAX_TEXTURE; ao: bake ambient occlusion too (an occlusion map);
     height: the asset's height in metres (glTF's unit), base to top, as the
-      file's nodes scale it (None: one unit of the frame is a metre).
+      file's nodes scale it (None: one unit of the frame is a metre);
+    collision: the triangles of a collision mesh (no maps), 0 for none;
+    naming: "gltf" (MSFT_lod; the coarser levels and the collision mesh
+      outside the scene, for engines that read MSFT_lod or pick meshes by
+      name) or "godot" (Godot's import hints: the coarser levels `-noimp`,
+      so that one level shows, and the collision mesh `-colonly`, which
+      Godot makes a static body's collision shape).
     """
 
     lods: tuple = (20000, 5000, 1200)
     texture: int = 1024
     ao: bool = False
     height: float | None = None  # metres from the asset's base to its top; None: a frame unit is a metre
+    collision: int = 0  # triangles of a collision mesh simplified from the full one; 0: none
+    naming: str = "gltf"  # how levels and collision are named: options.NAMINGS
 
     def __post_init__(self):
         lods = (self.lods,) if isinstance(self.lods, int) else self.lods
@@ -81,6 +90,13 @@ class AssetOptions:
                 raise InputError(f"`height` must be metres from {MIN_HEIGHT:g} to {MAX_HEIGHT:g}, got {self.height!r}",
                                  "height")
             object.__setattr__(self, "height", float(self.height))
+        if not (isinstance(self.collision, (int, np.integer)) and not isinstance(self.collision, bool)
+                and (self.collision == 0 or MIN_TRIANGLES <= self.collision <= self.lods[0])):
+            raise InputError(f"`collision` must be 0 (none) or {MIN_TRIANGLES} to {self.lods[0]} triangles (the finest "
+                             f"level's), got {self.collision!r}", "collision")
+        object.__setattr__(self, "collision", int(self.collision))
+        if self.naming not in NAMINGS:
+            raise InputError(f"unknown `naming` {self.naming!r}; choose {' or '.join(NAMINGS)}", "naming")
 
     @property
     def padding(self) -> int:
@@ -280,6 +296,11 @@ def asset_bytes(model, request, options: AssetOptions, name: str = "sample", thr
         built, described = level(dense, target, options, threads, timings)
         levels.append(built)
         figures.append(described)
+    collision = None
+    if options.collision:
+        vertices, faces, _ = simplify(dense.vertices, dense.faces, options.collision, dense.lock_border)
+        collision = (vertices, faces)
+        figures_collision = {"triangles": len(faces), "vertices": len(vertices)}
     written = time.perf_counter()
     extras = {"sinshape": {"seed": request.sample_seed, "tile": list(request.tile) if request.tile else None,
                            "lods": list(options.lods), "texture": options.texture}}
@@ -287,10 +308,12 @@ def asset_bytes(model, request, options: AssetOptions, name: str = "sample", thr
     if request.tile is None:  # a tile keeps its frame, so that its neighbours meet it
         place = on_its_base(dense.vertices, UP_AXIS[model.manifest.up], options.height)
         extras["sinshape"].update(pivot="the centre of its base", height_m=round(place.height, 6))
-    data = gltf.glb_bytes(levels, name, extras, model.manifest.up, place)
+    data = gltf.glb_bytes(levels, name, extras, model.manifest.up, place, collision, options.naming)
     timings["write"] = time.perf_counter() - written
     info = {"dense_triangles": len(dense.faces), "dense_vertices": len(dense.vertices), "levels": figures,
             "seconds": {k: round(v, 3) for k, v in timings.items()}, "bytes": len(data)}
+    if collision is not None:
+        info["collision"] = figures_collision
     return data, info
 
 
@@ -306,15 +329,16 @@ def on_its_base(vertices: np.ndarray, up: int, height: float | None) -> gltf.Pla
     return gltf.Placement(base, scale, tall * scale)
 
 
-def options_of(lods=None, texture: int | None = None, ao: bool = False, height: float | None = None) -> AssetOptions | None:
+def options_of(lods=None, texture: int | None = None, ao: bool = False, height: float | None = None,
+               collision: int = 0, naming: str = "gltf") -> AssetOptions | None:
     """The asset a front end's values ask for: None without lods (a plain
-    sample), which texture, ao and height need. lods: counts, or their text."""
+    sample), which the others need. lods: counts, or their text."""
     if lods is None:
-        given = [name for name, value in (("texture", texture is not None), ("ao", ao), ("height", height is not None))
-                 if value]
+        given = [name for name, value in (("texture", texture is not None), ("ao", ao), ("height", height is not None),
+                                          ("collision", collision), ("naming", naming != "gltf")) if value]
         if given:
             raise ConflictError(f"{named(given, ' and ')} {'are' if len(given) > 1 else 'is'} for an asset: give `lods` "
                                 "too (its levels' triangle counts, like 20000,5000,1200)", (*given, "lods"))
         return None
     lods = parse_lods(lods) if isinstance(lods, str) else lods
-    return AssetOptions(lods, AssetOptions.texture if texture is None else texture, bool(ao), height)
+    return AssetOptions(lods, AssetOptions.texture if texture is None else texture, bool(ao), height, collision, naming)

@@ -118,6 +118,14 @@ class Builder:
             {"attributes": attributes, "indices": indices, "material": self.material(level, pngs, name)}]})
         return len(self.json["meshes"]) - 1
 
+    def bare_mesh(self, positions: np.ndarray, faces: np.ndarray, name: str) -> int:
+        """A mesh of positions and triangles alone (a collision mesh: no normals, UVs or material)."""
+        index_type = np.uint16 if len(positions) < 65535 else np.uint32
+        self.json["meshes"].append({"name": name, "primitives": [{
+            "attributes": {"POSITION": self.accessor(np.asarray(positions, np.float32), "VEC3", ARRAY_BUFFER, True)},
+            "indices": self.accessor(np.asarray(faces).astype(index_type).ravel(), "SCALAR", ELEMENT_ARRAY_BUFFER)}]})
+        return len(self.json["meshes"]) - 1
+
     def glb(self) -> bytes:
         binary = self.binary.getvalue()
         binary += b"\0" * (-len(binary) % 4)
@@ -158,28 +166,40 @@ def encoded_maps(levels: list) -> list:
 
 
 def glb_bytes(levels: list, name: str, extras: dict | None = None, up: str = "y",
-              place: Placement | None = None) -> bytes:
+              place: Placement | None = None, collision: tuple | None = None, naming: str = "gltf") -> bytes:
     """The levels (finest first) as one .glb; `extras` (plain values) go into
     the finest node's extras, beside the screen coverages. up: the axis of
     the levels' frame that points up; glTF's up is +Y, so a z-up frame's
     nodes turn it there (a quarter turn about x), the vertices kept as they
-    are. place: where the nodes put the levels (None: where they are)."""
+    are. place: where the nodes put the levels (None: where they are).
+    collision: (vertices, faces) of a collision mesh in the levels' frame.
+    naming (options.NAMINGS): "gltf" keeps the coarser levels and the collision
+    mesh outside the scene, the levels listed by the finest one's MSFT_lod;
+    "godot" names them with Godot's import hints as well: the coarser
+    levels `-noimp` (not imported: one level shows), the collision mesh
+    `-colonly` in the scene (a static body's collision shape, not drawn)."""
     builder = Builder()
     nodes = builder.json["nodes"]
+    godot = naming == "godot"
     for k, (level, pngs) in enumerate(zip(levels, encoded_maps(levels))):
-        nodes.append({"name": f"{name}_LOD{k}", "mesh": builder.mesh(level, pngs, f"{name}_LOD{k}")})
+        label = f"{name}_LOD{k}" + ("-noimp" if godot and k else "")
+        nodes.append({"name": label, "mesh": builder.mesh(level, pngs, label)})
+    if collision is not None:
+        label = f"{name}-colonly" if godot else f"{name}_collision"
+        nodes.append({"name": label, "mesh": builder.bare_mesh(*collision, label)})
+    for node in nodes:
         if up == "z":
-            nodes[-1]["rotation"] = Z_UP_TO_Y_UP
+            node["rotation"] = Z_UP_TO_Y_UP
         if place is not None:  # a node is translation * rotation * scale: the base, scaled and turned, moved to 0
             x, y, z = np.asarray(place.base, np.float64) * place.scale
-            nodes[-1]["translation"] = [float(-x), float(-z), float(y)] if up == "z" else [float(-x), float(-y), float(-z)]
+            node["translation"] = [float(-x), float(-z), float(y)] if up == "z" else [float(-x), float(-y), float(-z)]
             if place.scale != 1:
-                nodes[-1]["scale"] = [place.scale] * 3
+                node["scale"] = [place.scale] * 3
     if len(levels) > 1:
         nodes[0]["extensions"] = {"MSFT_lod": {"ids": list(range(1, len(levels)))}}
         builder.json["extensionsUsed"] = ["MSFT_lod"]
     nodes[0]["extras"] = {"MSFT_screencoverage": screen_coverage(len(levels)), **(extras or {})}
-    builder.json["scenes"] = [{"name": name, "nodes": [0]}]
+    builder.json["scenes"] = [{"name": name, "nodes": [0] + ([len(nodes) - 1] if godot and collision is not None else [])}]
     builder.json["scene"] = 0
     return builder.glb()
 

@@ -40,7 +40,7 @@ from starlette.requests import ClientDisconnect
 from sinshape.core import files
 from sinshape.core.errors import InputError, MemoryLimitError
 from sinshape.runtime import asset, generate, layout, layout_files, load, world, world_maps, world_tiles
-from sinshape.runtime.options import OPTION, OPTIONS
+from sinshape.runtime.options import NAMINGS, OPTION, OPTIONS
 from sinshape.runtime.request import Layout, SampleRequest, resolved
 from sinshape.serve import catalog, http
 from sinshape.serve.catalog import load_models  # noqa: F401  the API: app.load_models, app.create_app, app.run
@@ -125,6 +125,10 @@ LodsQuery = Annotated[str | None, Query(description="A game asset (format glb): 
 TextureQuery = Annotated[int | None, Query(description="With lods: texels per side of each level's maps, a power "
                                            "of two up to 8192 (default 1024).")]
 AoQuery = Annotated[bool, Query(description="With lods: bake ambient occlusion too.")]
+CollisionQuery = Annotated[int, Query(description="With lods: the triangles of a collision mesh simplified from the "
+                                      "full-resolution surface; 0, the default, for none.")]
+NamingQuery = Annotated[Literal[NAMINGS], Query(description="With lods: how the levels and the collision mesh "
+                                                         "are named: gltf (MSFT_lod) or godot (Godot's import hints).")]
 HeightQuery = Annotated[float | None, Query(description="With lods: the asset's height in metres, base to top "
                                             "(default: one unit of the training mesh is a metre).")]
 
@@ -136,10 +140,12 @@ class AssetQuery:
     lods: LodsQuery = None
     texture: TextureQuery = None
     ao: AoQuery = False
+    collision: CollisionQuery = 0
+    naming: NamingQuery = "gltf"
 
     def options(self, format: str, height: float | None = None):
         """The runtime's asset options (None: a plain file); an asset is a .glb."""
-        options = asset.options_of(self.lods, self.texture, self.ao, height)
+        options = asset.options_of(self.lods, self.texture, self.ao, height, self.collision, self.naming)
         if options is not None and format != "glb":
             raise InputError(f"an asset is written as glb (glTF's binary), not {format}")
         return options

@@ -304,6 +304,8 @@ def test_a_geometry_only_model_gets_a_normal_map_no_colour_map_and_occlusion_if_
     (dict(lods=(0,)), "at least 4"), (dict(lods=(-5,)), "at least 4"), (dict(lods=(100, 200)), "fall level by level"),
     (dict(lods=()), "1 to 8"), (dict(texture=1000), "power of two"), (dict(texture=16384), "8192"),
     (dict(height=0), "metres from"), (dict(height=float("nan")), "metres from"), (dict(height="3m"), "metres from"),
+    (dict(collision=2), "0 \\(none\\) or 4 to"), (dict(lods=(500,), collision=600), "to 500 triangles"),
+    (dict(naming="unreal"), "choose gltf or godot"),
 ])
 def test_bad_options_are_refused_in_one_line(options, message):
     with pytest.raises(InputError, match=message) as error:
@@ -464,31 +466,77 @@ print("RESULT" + json.dumps({{"objects": objects, "nodes": nodes, "images": imag
     assert [TEXTURE, TEXTURE] in result["images"].values() and len(result["images"]) >= 2
 
 
-@pytest.mark.skipif(not shutil.which("godot3-server"), reason="needs Godot 3's headless build: apt-get install "
-                    "godot3-server (not on CI: the time)")
-def test_godot_imports_every_level_with_its_maps(coloured_asset, tmp_path):
-    """Godot's own glTF import (its editor's, headless), then the scene loaded by a script."""
-    shutil.copy(coloured_asset[0], tmp_path / "box.glb")
-    (tmp_path / "project.godot").write_text("config_version=4\n")
-    # The editor imports the file, then may stay open (Godot 3.2 headless): it is stopped once the import is there.
-    editor = subprocess.Popen(["godot3-server", "--path", str(tmp_path), "--editor", "--quit"],
+def godot_import(glb: Path, tmp_path: Path) -> dict:
+    """What Godot 3 makes of an asset: its editor's own glTF import (headless), then the scene
+    loaded by a script (tools/godot/list_meshes.gd): {"meshes": [...], "collision": [...]}."""
+    if not shutil.which("godot3-server"):
+        if os.environ.get("CI"):
+            pytest.fail("godot3-server is not installed (.ci/run installs it)")
+        pytest.skip("needs Godot 3's headless build: apt-get install godot3-server")
+    project = tmp_path / glb.stem
+    project.mkdir()
+    shutil.copy(glb, project / glb.name)
+    (project / "project.godot").write_text("config_version=4\n")
+    # The editor imports the file, then stays open (Godot 3.2 headless, --quit or not): it is stopped once the
+    # import is written, its .md5 record last (after the scene and the .import file).
+    editor = subprocess.Popen(["godot3-server", "--path", str(project), "--editor", "--quit"],
                               stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+    def imported() -> bool:
+        return any("dest_md5" in record.read_text() for record in project.glob(f".import/{glb.name}-*.md5"))
     try:
-        for _ in range(600):
-            if editor.poll() is not None or (list(tmp_path.glob(".import/box.glb-*.scn"))
-                                             and (tmp_path / "box.glb.import").exists()):
+        for _ in range(1200):
+            if editor.poll() is not None or imported():
                 break
-            time.sleep(0.2)
-        time.sleep(1)  # the import's last files
+            time.sleep(0.1)
     finally:
         editor.kill()
         editor.wait()
-    done = subprocess.run(["godot3-server", "--path", str(tmp_path), "-s", str(ROOT / "tools" / "godot" / "list_meshes.gd"),
-                           "res://box.glb"], capture_output=True, text=True, timeout=300)
-    meshes = json.loads(next(line[7:] for line in done.stdout.splitlines() if line.startswith("RESULT ")))
+    done = subprocess.run(["godot3-server", "--path", str(project), "-s", str(ROOT / "tools" / "godot" / "list_meshes.gd"),
+                           f"res://{glb.name}"], capture_output=True, text=True, timeout=300)
+    return json.loads(next(line[7:] for line in done.stdout.splitlines() if line.startswith("RESULT ")))
+
+
+def test_godot_imports_every_level_with_its_maps(coloured_asset, tmp_path):
+    """gltf naming: Godot 3 reads no MSFT_lod, and makes a mesh of every level (stacked in one place)."""
+    found = godot_import(coloured_asset[0], tmp_path)
+    meshes = found["meshes"]
     assert [(m["name"], m["albedo"], m["normal"]) for m in meshes] == [("box_LOD0", TEXTURE, TEXTURE),
                                                                         ("box_LOD1", TEXTURE, TEXTURE)]
-    assert [m["triangles"] <= n for m, n in zip(meshes, LODS)] == [True, True]
+    assert [m["triangles"] <= n for m, n in zip(meshes, LODS)] == [True, True] and found["collision"] == []
+
+
+def test_godot_naming_shows_one_level_and_makes_the_collision_mesh_a_static_bodys_shape(tmp_path):
+    """godot naming: Godot 3's import hints take the coarser level out (-noimp) and make the collision
+    mesh a static body's concave shape, not drawn (-colonly)."""
+    model = load_model(TINY_COLOUR_ONNX, threads=1)
+    options = asset.AssetOptions(LODS, TEXTURE, collision=200, naming="godot")
+    data, info = asset.asset_bytes(model, SampleRequest(3), options, "box", threads=1)
+    assert info["collision"]["triangles"] <= 200
+    (tmp_path / "box.glb").write_bytes(data)
+    report = validate(tmp_path / "box.glb")
+    assert report["issues"]["numErrors"] == 0 and report["issues"]["numWarnings"] == 0, report["issues"]["messages"]
+    found = godot_import(tmp_path / "box.glb", tmp_path)
+    assert [(m["name"], m["albedo"], m["normal"]) for m in found["meshes"]] == [("box_LOD0", TEXTURE, TEXTURE)]
+    assert found["collision"] == [{"body": "StaticBody", "shape": "ConcavePolygonShape",
+                                   "triangles": info["collision"]["triangles"]}]
+
+
+def test_a_collision_mesh_is_placed_as_the_levels_and_kept_out_of_the_scene_under_gltf_naming():
+    model = load_model(TINY_COLOUR_ONNX, threads=1)
+    data, info = asset.asset_bytes(model, SampleRequest(3), asset.AssetOptions(LODS, TEXTURE, collision=120), "box",
+                                   threads=1)
+    document, binary = gltf.read(data)
+    names = [node["name"] for node in document["nodes"]]
+    assert names == ["box_LOD0", "box_LOD1", "box_collision"] and document["scenes"][0]["nodes"] == [0]
+    collision = document["nodes"][2]
+    assert "material" not in document["meshes"][collision["mesh"]]["primitives"][0]
+    assert {k: v for k, v in collision.items() if k not in ("name", "mesh")} == \
+        {k: v for k, v in document["nodes"][1].items() if k not in ("name", "mesh")}  # placed as a level is
+    primitive = document["meshes"][collision["mesh"]]["primitives"][0]
+    triangles = document["accessors"][primitive["indices"]]["count"] // 3
+    assert list(primitive["attributes"]) == ["POSITION"]
+    assert triangles == info["collision"]["triangles"] <= 120 and triangles > 60
 
 
 def test_a_vertex_whose_faces_have_no_area_still_gets_a_unit_normal():
