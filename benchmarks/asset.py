@@ -425,7 +425,7 @@ def speed(args) -> None:
         np.savez(low_path, vertices=low["position"], faces=low["faces"], uvs=low["texcoord_0"])
         reach = max(level["error"] for level in info["levels"]) + 2 * max(model.manifest.spacing)
         result = blender(BLENDER_BAKE.format(root=str(ROOT), dense=str(dense_path), low=str(low_path),
-                                             size=args.texture, threads=2, reach=reach, margin=options.padding))
+                                             size=args.texture, threads=2, reach=reach, margin=asset.padding(options.texture)))
     if result is None:
         print("  Blender's bake: bpy is not installed")
         return

@@ -286,8 +286,8 @@ def asset_options(command):
                           "e.g. 20000,5000,1200, simplified from the full-resolution surface, each with its own "
                           "UVs and maps baked from the model (normal, and colour for a coloured model)."),
         click.option("--texture", type=int, default=None,
-                     help="With --lods: texels per side of each level's maps, a power of two up to 8192. "
-                          "Default 1024."),
+                     help="With --lods: texels per side of the finest level's maps, a power of two up to 8192, "
+                          "halved level by level. Default 1024."),
         click.option("--ao", is_flag=True, help="With --lods: bake ambient occlusion too."),
         click.option("--height", type=float, default=None, metavar="METRES",
                      help="With --lods: the asset's height in metres, base to top (glTF's unit). Default: one unit "

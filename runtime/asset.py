@@ -43,8 +43,8 @@ class AssetOptions:
 
     lods: the levels' triangle counts, finest first (each at most its
       predecessor's; the first at most the full mesh's);
-    texture: texels per side of each level's maps, a power of two up to
-      MAX_TEXTURE; ao: bake ambient occlusion too (an occlusion map);
+    texture: texels per side of the finest level's maps, a power of two up
+      to MAX_TEXTURE, halved level by level (level_texture); ao: bake ambient occlusion too (an occlusion map);
     height: the asset's height in metres (glTF's unit), base to top, as the
       file's nodes scale it (None: one unit of the frame is a metre);
     collision: the triangles of a collision mesh (no maps), 0 for none;
@@ -98,11 +98,17 @@ class AssetOptions:
         if self.naming not in NAMINGS:
             raise InputError(f"unknown `naming` {self.naming!r}; choose {' or '.join(NAMINGS)}", "naming")
 
-    @property
-    def padding(self) -> int:
-        """Texels between charts (and grown around each): four at 1024, so
-        that mip-maps to an eighth of the size still read a chart's own."""
-        return max(2, self.texture // 256)
+    def level_texture(self, k: int) -> int:
+        """Level k's maps' texels per side: `texture` halved level by level
+        (at least MIN_TEXTURE), as its screen coverage halves (gltf.screen_coverage):
+        a level shown half as large needs half the texels a side."""
+        return max(MIN_TEXTURE, self.texture >> k)
+
+
+def padding(size: int) -> int:
+    """Texels between charts (and grown around each) in maps of `size`: four
+    at 1024, so that mip-maps to an eighth of the size still read a chart's own."""
+    return max(2, size // 256)
 
 
 def parse_lods(text: str) -> tuple:
@@ -223,18 +229,17 @@ def simplify(vertices: np.ndarray, faces: np.ndarray, target: int, lock_border: 
     return vertices[used], remap[kept], float(error[0]) * extent
 
 
-def unwrap(vertices: np.ndarray, faces: np.ndarray, options: AssetOptions) -> tuple:
+def unwrap(vertices: np.ndarray, faces: np.ndarray, size: int) -> tuple:
     """xatlas's charts and packing: (the original vertex of each new vertex
     (V',), faces (F, 3) of new vertices, UVs (V', 2) in [0, 1] of a square
-    texture, glTF's: u right, v down). Charts are `options.padding` texels
-    apart at the texture's size."""
+    texture of `size` texels a side, glTF's: u right, v down). Charts are
+    padding(size) texels apart."""
     import xatlas  # the assets extra
 
-    size = options.texture
     atlas = xatlas.Atlas()
     atlas.add_mesh(np.ascontiguousarray(vertices, np.float32), np.ascontiguousarray(faces, np.uint32))
     pack = xatlas.PackOptions()
-    pack.padding, pack.bilinear = options.padding, True
+    pack.padding, pack.bilinear = padding(size), True
     # Scale the charts so that the packed atlas comes out about the texture's size.
     pack.texels_per_unit = size * math.sqrt(FILL / max(bake.area(vertices[faces]).sum(), 1e-30))
     atlas.generate(xatlas.ChartOptions(), pack)
@@ -246,24 +251,24 @@ def unwrap(vertices: np.ndarray, faces: np.ndarray, options: AssetOptions) -> tu
     return source.astype(np.int64), new_faces.astype(np.int64), uvs
 
 
-def level(dense: Dense, target: int, options: AssetOptions, threads: int | None, timings: dict) -> tuple:
-    """One level of detail, baked: (gltf.Level, its figures)."""
+def level(dense: Dense, target: int, size: int, options: AssetOptions, threads: int | None, timings: dict) -> tuple:
+    """One level of detail of `target` triangles and maps of `size`, baked: (gltf.Level, its figures)."""
     started = time.perf_counter()
     vertices, faces, error = simplify(dense.vertices, dense.faces, target, dense.lock_border)
     simplified = time.perf_counter()
-    source, split_faces, uvs = unwrap(vertices, faces, options)
+    source, split_faces, uvs = unwrap(vertices, faces, size)
     unwrapped = time.perf_counter()
     normals = bake.vertex_normals(vertices, faces)[source]  # smooth across UV seams
     positions = vertices[source]
     tangents = bake.vertex_tangents(positions, split_faces, uvs, normals)
-    maps = bake.bake(dense.field, dense.frame, positions, split_faces, uvs, normals, tangents, options.texture,
-                     dense.voxel, reach=error + 2 * dense.voxel, padding=options.padding, ao=options.ao,
+    maps = bake.bake(dense.field, dense.frame, positions, split_faces, uvs, normals, tangents, size,
+                     dense.voxel, reach=error + 2 * dense.voxel, padding=padding(size), ao=options.ao,
                      threads=threads)
     baked = time.perf_counter()
     for stage, seconds in (("simplify", simplified - started), ("unwrap", unwrapped - simplified),
                            ("bake", baked - unwrapped)):
         timings[stage] = timings.get(stage, 0) + seconds
-    figures = {"triangles": len(split_faces), "vertices": len(positions), "error": round(error, 6),
+    figures = {"triangles": len(split_faces), "vertices": len(positions), "texture": size, "error": round(error, 6),
                "surface_found": round(maps.found, 4)}
     return gltf.Level(positions, normals, tangents, uvs, split_faces, maps.normal, maps.colour, maps.occlusion), figures
 
@@ -292,8 +297,8 @@ def asset_bytes(model, request, options: AssetOptions, name: str = "sample", thr
                          f"({len(dense.faces)}): ask for fewer, or a larger scale", "lods")
     timings = {"sample": time.perf_counter() - started}
     levels, figures = [], []
-    for target in options.lods:
-        built, described = level(dense, target, options, threads, timings)
+    for k, target in enumerate(options.lods):
+        built, described = level(dense, target, options.level_texture(k), options, threads, timings)
         levels.append(built)
         figures.append(described)
     collision = None
@@ -303,7 +308,7 @@ def asset_bytes(model, request, options: AssetOptions, name: str = "sample", thr
         figures_collision = {"triangles": len(faces), "vertices": len(vertices)}
     written = time.perf_counter()
     extras = {"sinshape": {"seed": request.sample_seed, "tile": list(request.tile) if request.tile else None,
-                           "lods": list(options.lods), "texture": options.texture}}
+                           "lods": list(options.lods), "textures": [f["texture"] for f in figures]}}
     place = None
     if request.tile is None:  # a tile keeps its frame, so that its neighbours meet it
         place = on_its_base(dense.vertices, UP_AXIS[model.manifest.up], options.height)

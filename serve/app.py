@@ -122,8 +122,8 @@ FormatQuery = Annotated[Format, Query(description=f"{' '.join(files.MESH_FORMATS
 LodsQuery = Annotated[str | None, Query(description="A game asset (format glb): levels of detail of these triangle "
                                          "counts, finest first, like 20000,5000,1200, each with its UVs and maps "
                                          "baked from the model.")]
-TextureQuery = Annotated[int | None, Query(description="With lods: texels per side of each level's maps, a power "
-                                           "of two up to 8192 (default 1024).")]
+TextureQuery = Annotated[int | None, Query(description="With lods: texels per side of the finest level's maps, a "
+                                           "power of two up to 8192 (default 1024), halved level by level.")]
 AoQuery = Annotated[bool, Query(description="With lods: bake ambient occlusion too.")]
 CollisionQuery = Annotated[int, Query(description="With lods: the triangles of a collision mesh simplified from the "
                                       "full-resolution surface; 0, the default, for none.")]

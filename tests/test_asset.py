@@ -59,8 +59,10 @@ def test_the_khronos_validator_finds_no_error_or_warning_and_the_levels_keep_the
     assert [node["name"] for node in document["nodes"]] == ["box_LOD0", "box_LOD1"]
     assert document["nodes"][0]["extensions"]["MSFT_lod"]["ids"] == [1]
     for node, target in enumerate(LODS):
-        faces = gltf.level_arrays(document, binary, node)["faces"]
-        assert target * 0.8 <= len(faces) <= target  # at most the count asked for, and near it
+        arrays = gltf.level_arrays(document, binary, node)
+        assert target * 0.8 <= len(arrays["faces"]) <= target  # at most the count asked for, and near it
+        size = TEXTURE >> node  # a coarser level's maps are half as wide: it shows half as large
+        assert [arrays[name].shape[:2] for name in ("normal_map", "colour_map", "occlusion_map")] == [(size, size)] * 3
     assert report["info"]["totalTriangleCount"] == sum(len(gltf.level_arrays(document, binary, k)["faces"]) for k in range(2))
     assert info["dense_triangles"] > LODS[0]
 
@@ -144,7 +146,7 @@ def test_the_colour_map_holds_the_models_colour_at_each_texels_surface_point(col
     _, model, _ = coloured_asset
     document, binary = gltf.read(coloured_asset[0].read_bytes())
     arrays = gltf.level_arrays(document, binary, 1)  # the coarsest level: its surface is furthest from the model's
-    points, rows, columns, normals, _ = texel_centres(arrays, TEXTURE)
+    points, rows, columns, normals, _ = texel_centres(arrays, TEXTURE // 2)  # its maps are half as wide
     triplane = generate.sample(model, 3)
     surface = along_normals(lambda p: query.points(model, triplane, p), points, normals)
     baked = arrays["colour_map"][rows, columns].astype(float)
@@ -173,7 +175,7 @@ def sphere_level():
     sphere = trimesh.creation.icosphere(2, radius=10)
     options = asset.AssetOptions((len(sphere.faces),), 256)
     vertices, faces = np.asarray(sphere.vertices), np.asarray(sphere.faces)
-    source, split, uvs = asset.unwrap(vertices, faces, options)
+    source, split, uvs = asset.unwrap(vertices, faces, options.texture)
     normals = bake.vertex_normals(vertices, faces)[source]
     split_vertices = vertices[source]
     return options, split_vertices, split, uvs, normals, bake.vertex_tangents(split_vertices, split, uvs, normals)
@@ -192,7 +194,7 @@ def test_the_normal_map_turns_a_coarse_level_into_the_fields_surface():
 
     field, frame = bake.Field(bumpy_sphere, colour), bake.Frame(np.zeros(3), np.ones(3))
     maps = bake.bake(field, frame, vertices, split, uvs, normals, tangents, 256, voxel=1.0, reach=2.0,
-                     padding=options.padding, ao=True, threads=1)
+                     padding=asset.padding(options.texture), ao=True, threads=1)
     assert maps.occlusion.mean() > 0.9 * 255  # a ball has no hollows
     arrays = {"position": vertices, "normal": normals, "tangent": tangents, "texcoord_0": uvs,
               "faces": split, "normal_map": maps.normal}
@@ -248,7 +250,7 @@ def test_the_normal_map_carries_relief_finer_than_the_field():
     angles = {}
     for relief in (ridged, None):
         maps = bake.bake(bake.Field(ball, None, relief), frame, vertices, split, uvs, normals, tangents, 256,
-                         voxel=1.0, reach=2.0, padding=options.padding, threads=1)
+                         voxel=1.0, reach=2.0, padding=asset.padding(options.texture), threads=1)
         decoded = decoded_normals({**arrays, "normal_map": maps.normal}, rows, columns, at_normals, at_tangents)
         angles[relief] = np.degrees(np.arccos(np.clip((decoded * truth).sum(axis=1), -1, 1)))
     tilt = np.degrees(np.arccos(np.clip((truth * d).sum(axis=1), -1, 1)))
@@ -502,7 +504,7 @@ def test_godot_imports_every_level_with_its_maps(coloured_asset, tmp_path):
     found = godot_import(coloured_asset[0], tmp_path)
     meshes = found["meshes"]
     assert [(m["name"], m["albedo"], m["normal"]) for m in meshes] == [("box_LOD0", TEXTURE, TEXTURE),
-                                                                        ("box_LOD1", TEXTURE, TEXTURE)]
+                                                                        ("box_LOD1", TEXTURE // 2, TEXTURE // 2)]
     assert [m["triangles"] <= n for m, n in zip(meshes, LODS)] == [True, True] and found["collision"] == []
 
 
