@@ -53,8 +53,8 @@ EXTRAS = {"torch": "train", "onnx": "train", "scipy": "prep", "h5py": "prep", "s
           "meshoptimizer": "assets"}
 
 
-def command_line_message(error: Exception, options: dict | None = None) -> str:
-    """The error's message with each parameter it names (core.errors marks
+def command_line_message(error: Exception | str, options: dict | None = None) -> str:
+    """The error's (or a note's) message with each parameter it names (core.errors marks
     them) written as the option that sets it: an InputError's, or any other's
     that names one the same way (training's stops)."""
     template = error.template if isinstance(error, NamesParameters) else str(error)
@@ -389,9 +389,9 @@ def sample(model, seeds, layout_file, resample_layout, output, lods, texture, ao
         return sample_seeds(loaded, seeds, output, engine, workers, threads, address, request, restart, packed)
     path = named_output(output, seed=request.sample_seed) if "{" in str(output) else output
     with StageProgress() as show:
-        write.write_request(loaded, request, path, [layout_file] if layout_file else [], threads,
-                            lambda done, total: show("meshing", done, total), packed)
-    click.echo(f"wrote {path}")
+        note = write.write_request(loaded, request, path, [layout_file] if layout_file else [], threads,
+                                   lambda done, total: show("meshing", done, total), packed)
+    report_written(path, note)
 
 
 def sample_seeds(model, seeds, output, engine, workers, threads, address, request, restart=False,
@@ -597,6 +597,13 @@ def say_how_long(model, seeds, request) -> None:
     if seconds > 30:
         click.echo(f"--scale {request.scale:g}: about {format_seconds(seconds)} (h:mm:ss) "
                    f"for {count} sample{'s' if count > 1 else ''}", err=True)
+
+
+def report_written(path, note: str | None = None) -> None:
+    """`wrote PATH`, after a note (on stderr) of what was made other than asked (an asset's levels capped)."""
+    if note:
+        click.echo(f"Note: {command_line_message(note)}", err=True)
+    click.echo(f"wrote {path}")
 
 
 def show_warnings(model, request) -> None:

@@ -42,7 +42,8 @@ class AssetOptions:
     """How a sample is packed as an asset.
 
     lods: the levels' triangle counts, finest first (each at most its
-      predecessor's; the first at most the full mesh's);
+      predecessor's; those above the full mesh's triangles are capped to
+      it: capped_lods);
     texture: texels per side of the finest level's maps, a power of two up
       to MAX_TEXTURE, halved level by level (level_texture); ao: bake ambient occlusion too (an occlusion map);
     height: the asset's height in metres (glTF's unit), base to top, as the
@@ -291,13 +292,10 @@ def asset_bytes(model, request, options: AssetOptions, name: str = "sample", thr
     dense = dense_surface(model, request, threads, progress)
     if not len(dense.faces):
         raise InputError("the sample has no surface at this scale and size; nothing written")
-    if options.lods[0] > len(dense.faces):
-        raise InputError(f"`lods` asks for {options.lods[0]} triangles, more than the "
-                         f"{'tile' if request.tile is not None else 'sample'}'s full-resolution mesh has "
-                         f"({len(dense.faces)}): ask for fewer, or a larger scale", "lods")
+    lods = capped_lods(options.lods, len(dense.faces))
     timings = {"sample": time.perf_counter() - started}
     levels, figures = [], []
-    for k, target in enumerate(options.lods):
+    for k, target in enumerate(lods):
         built, described = level(dense, target, options.level_texture(k), options, threads, timings)
         levels.append(built)
         figures.append(described)
@@ -308,7 +306,9 @@ def asset_bytes(model, request, options: AssetOptions, name: str = "sample", thr
         figures_collision = {"triangles": len(faces), "vertices": len(vertices)}
     written = time.perf_counter()
     extras = {"sinshape": {"seed": request.sample_seed, "tile": list(request.tile) if request.tile else None,
-                           "lods": list(options.lods), "textures": [f["texture"] for f in figures]}}
+                           "lods": list(lods), "textures": [f["texture"] for f in figures]}}
+    if lods != options.lods:
+        extras["sinshape"]["asked_lods"] = list(options.lods)
     place = None
     if request.tile is None:  # a tile keeps its frame, so that its neighbours meet it
         place = on_its_base(dense.vertices, UP_AXIS[model.manifest.up], options.height)
@@ -319,7 +319,24 @@ def asset_bytes(model, request, options: AssetOptions, name: str = "sample", thr
             "seconds": {k: round(v, 3) for k, v in timings.items()}, "bytes": len(data)}
     if collision is not None:
         info["collision"] = figures_collision
+    if lods != options.lods:
+        info["capped"] = (f"`lods` {','.join(map(str, options.lods))} asked for more triangles than the "
+                          f"{'tile' if request.tile is not None else 'sample'}'s full-resolution mesh has "
+                          f"({len(dense.faces)}): made {','.join(map(str, lods))}")
+
     return data, info
+
+
+def capped_lods(lods: tuple, available: int) -> tuple:
+    """The levels a mesh of `available` triangles can fill: each capped to
+    it, and those that then no longer fall below the one before left out
+    (20000,5000,1200 of an 11,736-triangle mesh: 11736,5000,1200)."""
+    out = []
+    for n in lods:
+        n = min(n, available)
+        if not out or n < out[-1]:
+            out.append(n)
+    return tuple(out)
 
 
 def on_its_base(vertices: np.ndarray, up: int, height: float | None) -> gltf.Placement:

@@ -198,17 +198,18 @@ def write_sample(model, triplane, path, scale: float = 1.0, smooth: int = 0, smo
 
 
 def write_request(model, request, path, inputs=(), threads: int | None = None, mesh_progress=None,
-                  asset=None) -> None:
+                  asset=None) -> str | None:
     """The sample a request.SampleRequest asks for, made by `request.make`
     and written to `path` with `write_sample`, or as a game asset with
     `asset` (an asset.AssetOptions; path a .glb). The path is checked first,
     against the model and `inputs` (a layout's file) too, so that a bad one
-    costs no work."""
+    costs no work. Returns what a user should be told of what was made
+    differently from what was asked (an asset's levels capped), or None."""
     check_writable(path, [model.path, *inputs])
     if request.tile is not None or asset is not None:
-        data, _ = request_bytes(model, request, path, threads, mesh_progress, asset)
+        data, made = request_bytes(model, request, path, threads, mesh_progress, asset)
         atomic_write(path, lambda f: f.write(data))
-        return
+        return made.get("capped") if asset is not None else None
     write_sample(model, make(model, request, **made_for(path, request)), path, threads=threads,
                  mesh_progress=mesh_progress, **request.mesh_options())
 

@@ -315,10 +315,16 @@ def test_bad_options_are_refused_in_one_line(options, message):
     assert "\n" not in str(error.value)
 
 
-def test_more_triangles_than_the_sample_has_or_memory_it_lacks_are_refused():
+def test_levels_the_mesh_cannot_fill_are_capped_with_a_note_and_memory_it_lacks_is_refused():
     model = load_model(TINY_ONNX, threads=1)
-    with pytest.raises(InputError, match=r"more than the sample's full-resolution mesh has \(\d+\)"):
-        asset.asset_bytes(model, SampleRequest(1), asset.AssetOptions((10**7,), 64))
+    data, info = asset.asset_bytes(model, SampleRequest(1), asset.AssetOptions((10**7, 10**6, 300), 64))
+    full = info["dense_triangles"]
+    assert [level["triangles"] for level in info["levels"]][0] == full and len(info["levels"]) == 2
+    assert f"more triangles than the sample's full-resolution mesh has ({full}): made {full},300" in info["capped"]
+    assert gltf.read(data)[0]["nodes"][0]["extras"]["sinshape"]["asked_lods"] == [10**7, 10**6, 300]
+    assert "capped" not in asset.asset_bytes(model, SampleRequest(1), asset.AssetOptions((300,), 64))[1]
+    assert asset.capped_lods((20000, 5000, 1200), 11736) == (11736, 5000, 1200)
+    assert asset.capped_lods((20000, 15000, 1200), 11736) == (11736, 1200)
     with pytest.raises(MemoryLimitError, match=r"baking 8192x8192 maps needs about \d+\.\d GiB"):
         asset.asset_bytes(model, SampleRequest(1), asset.AssetOptions((100,), 8192), memory_limit=1 << 30)
 
@@ -333,13 +339,15 @@ def test_sinrun_writes_an_asset_and_nothing_for_bad_values(tmp_path):
     assert document["nodes"][0]["extras"]["sinshape"]["height_m"] == 3
     for args, said in [(["--lods", "600", "--texture", "100"], "--texture must be a power of two"),
                        (["--lods", "0"], "--lods asks for 0 triangles"),
-                       (["--lods", "9999999"], "more than the sample's full-resolution mesh"),
                        (["--texture", "64"], "--texture is for an asset: give --lods"),
                        (["--height", "3"], "--height is for an asset: give --lods"),
                        (["--lods", "600", "--height", "-1"], "--height must be metres from")]:
         bad = tmp_path / "bad.glb"
         result = CliRunner().invoke(cli, ["sample", str(TINY_ONNX), *args, "-o", str(bad)])
         assert result.exit_code != 0 and said in result.output and not bad.exists(), result.output
+    capped = CliRunner().invoke(cli, ["sample", str(TINY_ONNX), "--seed", "2", "--lods", "9999999",
+                                      "--texture", "32", "-o", str(tmp_path / "all.glb")])
+    assert capped.exit_code == 0 and "Note: --lods 9999999 asked for more triangles than the sample's" in capped.stderr
     assert "--lods" in CliRunner().invoke(cli, ["sample", "--help"]).output
     job = ["sample", str(TINY_ONNX), "--seeds", "0-1", "--workers", "1", "--lods", "300", "--texture", "32",
            "-o", str(tmp_path / "many" / "{seed}.glb")]
