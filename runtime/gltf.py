@@ -145,7 +145,7 @@ def screen_coverage(count: int) -> list:
 
 def png_bytes(image: np.ndarray) -> bytes:
     """A (size, size, 1 or 3) uint8 map as a PNG file."""
-    from PIL import Image  # pillow: Blender's Python has none, and imports this module (an asset's bake)
+    from PIL import Image  # pillow: only a map's image needs it, and Blender imports this module (its own copy, bundled)
 
     png = io.BytesIO()
     Image.fromarray(image[..., 0] if image.shape[2] == 1 else image).save(png, "PNG", compress_level=PNG_LEVEL)

@@ -76,7 +76,7 @@ def read_npy_map(data: bytes, name, field: str) -> np.ndarray:
 
 def image_pixels(data: bytes, name, what: str, field: str, read):
     """What `read(image)` takes from an image map's bytes, its size checked before its pixels are read."""
-    from PIL import Image, UnidentifiedImageError  # pillow: Blender's Python, which makes worlds, has none
+    from PIL import Image, UnidentifiedImageError  # pillow: only an image map needs it (Blender's, bundled)
 
     try:
         with Image.open(io.BytesIO(data)) as image:

@@ -12,8 +12,11 @@ import sys
 import zipfile
 from pathlib import Path
 
+import numpy as np
 import pytest
+from PIL import Image
 
+from sinshape.runtime import load, world_maps
 from test_blender import HAS_BPY, ROOT, add
 
 pytestmark = [pytest.mark.blender,
@@ -85,16 +88,19 @@ import sys, json
 sys.path.insert(0, {path!r})
 import bpy
 bpy.ops.extensions.package_install_files(filepath={zip!r}, repo="user_default", enable_on_install=True)
-import sinshape, onnxruntime, trimesh
+import sinshape, onnxruntime, trimesh, PIL
 from sinshape import models
-from sinshape.runtime import generate, load, mesh
+from sinshape.runtime import generate, load, mesh, world_maps
 bpy.ops.sinshape.add_sample(model="towerruins", seed=3)
 obj = bpy.context.active_object
 model = load.load_model(models.find("towerruins"))
 expected = mesh.extract(model, generate.sample(model, 3))
-print("RESULT" + json.dumps(dict(modules=[m.__file__ or str(list(m.__path__)) for m in (sinshape, onnxruntime, trimesh)],
+heights = world_maps.read_height_map({heights!r}, model).array()  # a .png map: Blender's Python has no pillow
+placed = world_maps.read_model_map({placed!r}).array()
+print("RESULT" + json.dumps(dict(modules=[m.__file__ or str(list(m.__path__)) for m in (sinshape, onnxruntime, trimesh, PIL)],
                                  vertices=len(obj.data.vertices), expected=len(expected.vertices),
-                                 faces=len(obj.data.polygons), expected_faces=len(expected.faces))))
+                                 faces=len(obj.data.polygons), expected_faces=len(expected.faces),
+                                 heights=heights.tolist(), placed=placed.tolist())))
 """
 
 
@@ -123,13 +129,21 @@ def test_the_built_zip_installs_in_blender_and_samples_from_its_own_wheels(tmp_p
     home = tmp_path / "home"  # nothing may be written there (onnxruntime's telemetry was)
     home.mkdir()
     env = {"BLENDER_USER_RESOURCES": str(tmp_path / "user"), "PATH": "/usr/bin:/bin", "HOME": str(home)}
-    done = subprocess.run([sys.executable, "-I", "-S", "-c", INSTALL.format(path=str(only), zip=str(out))],
-                          capture_output=True, text=True, timeout=600, env=env)
+    grey = np.array([[0, 255, 128], [64, 32, 16]], np.uint8)  # rows from the top, as an image holds them
+    Image.fromarray(grey).save(tmp_path / "hills.png")
+    Image.fromarray(np.array([[0, 1], [1, 0]], np.uint8)).save(tmp_path / "placed.png")
+    script = INSTALL.format(path=str(only), zip=str(out), heights=str(tmp_path / "hills.png"),
+                            placed=str(tmp_path / "placed.png"))
+    done = subprocess.run([sys.executable, "-I", "-S", "-c", script], capture_output=True, text=True, timeout=600,
+                          env=env)
     assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-3000:]
     result = json.loads(done.stdout.split("RESULT", 1)[1])
     extensions = str(tmp_path / "user" / "extensions")
     assert all(extensions in module for module in result["modules"])
     assert result["vertices"] == result["expected"] > 0 and result["faces"] == result["expected_faces"]
+    tower = load.load_model(ROOT / "models" / "towerruins.onnx", threads=1)  # the maps, as read outside Blender
+    assert np.allclose(result["heights"], world_maps.read_height_map(tmp_path / "hills.png", tower).array())
+    assert result["placed"] == world_maps.read_model_map(tmp_path / "placed.png").array().tolist()
     written = [str(p.relative_to(home)) for p in home.rglob("*") if p.is_file()]
     assert written == [], written
 

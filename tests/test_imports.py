@@ -381,7 +381,7 @@ LATER = {
     "uvicorn": "the serve extra",
     "h11": "the serve extra's (uvicorn's) HTTP parser",
     "trimesh": "half a second to import: only a whole mesh in memory needs it, a streamed .ply does not",
-    "PIL": "pillow: Blender's Python has none (tools/build_blender.py does not bundle it), and the extension "
+    "PIL": "pillow: Blender's Python has none of its own (tools/build_blender.py bundles it), and the extension "
            "imports the runtime's worlds and assets; only an image needs it",
     "importlib.metadata": "costs more than the rest of an import, and only __version__ needs it",
     "resource": "Unix only: Windows has none",

@@ -8,8 +8,9 @@ Blender's Preferences > Get Extensions > Install from Disk.
 The zip holds blender/ (the add-on and its manifest, filled in here) and the
 wheels the add-on imports, so that Blender downloads nothing: sinshape's own,
 built from the checkout (pip wheel --no-deps .), and those of the runtime's
-dependencies that Blender lacks (BUNDLED: onnxruntime per platform, trimesh,
-threadpoolctl; Blender ships numpy). They are fetched with `pip download` for
+dependencies that Blender lacks (BUNDLED: onnxruntime and pillow per
+platform, trimesh, threadpoolctl; Blender ships numpy; pillow reads a
+world's .png height and model maps). They are fetched with `pip download` for
 each platform (this needs the network once) into a cache folder, reused
 after. --offline needs no network: it builds for this machine's platform
 only, from this environment's installed packages, each packed back into a
@@ -35,7 +36,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 ADDON = ROOT / "blender"
 BLENDER_PYTHON = "3.11"  # Blender 4.2 to 5.x
-BUNDLED = ("onnxruntime", "trimesh", "threadpoolctl")  # the runtime's dependencies the add-on imports, less numpy
+BUNDLED = ("onnxruntime", "trimesh", "threadpoolctl", "pillow")  # the runtime's dependencies the add-on imports, less numpy
 # Blender's platforms and pip's tags for each: glibc 2.28 and macOS 11, the
 # oldest systems Blender 4.2 runs on. Linux on ARM has no Blender release.
 PLATFORMS = {
