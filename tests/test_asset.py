@@ -181,11 +181,15 @@ def sphere_level():
     return options, split_vertices, split, uvs, normals, bake.vertex_tangents(split_vertices, split, uvs, normals)
 
 
-def test_the_normal_map_turns_a_coarse_level_into_the_fields_surface():
+@pytest.mark.parametrize("part", [asset.UNWRAP_PART, 90])
+def test_the_normal_map_turns_a_coarse_level_into_the_fields_surface(part, monkeypatch):
     """Baked onto a 320-face sphere from a bumpy ball, the decoded normal map
     is the field's normal at each texel's surface point, and the colour the
-    field's colour there; the level's own normals are far from it."""
+    field's colour there; the level's own normals are far from it. Charted
+    whole, or in four parts packed together (as a large level is)."""
     from sinshape.runtime import bake
+
+    monkeypatch.setattr(asset, "UNWRAP_PART", part)
 
     options, vertices, split, uvs, normals, tangents = sphere_level()
 
@@ -209,6 +213,31 @@ def test_the_normal_map_turns_a_coarse_level_into_the_fields_surface():
     assert len(angles) > 200 and np.median(angles) < 2 and np.percentile(angles, 95) < 6
     assert np.median(level_angles) > 5 * np.median(angles)
     assert np.abs(maps.colour[rows, columns].astype(int) - colour(surface)).mean() < 2
+
+
+def test_a_level_charted_in_parts_keeps_every_face_once_and_no_two_overlap(monkeypatch):
+    """Charted in parts (UNWRAP_PART faces at a time), the level is the same
+    triangles, each once, and the packed charts of all parts share no texel."""
+    import trimesh
+
+    monkeypatch.setattr(asset, "UNWRAP_PART", 300)
+    sphere = trimesh.creation.icosphere(3, radius=10)  # 1,280 faces: five parts
+    vertices, faces = np.asarray(sphere.vertices), np.asarray(sphere.faces)
+    source, split, uvs = asset.unwrap(vertices, faces, 256)
+    assert sorted(map(tuple, np.sort(source[split], axis=1))) == sorted(map(tuple, np.sort(faces, axis=1)))
+    assert uvs.min() >= 0 and uvs.max() <= 1
+    size = 256
+    covered = np.zeros((size, size), np.int64)
+    centres = (np.stack(np.meshgrid(np.arange(size), np.arange(size), indexing="ij"), axis=-1) + 0.5) / size
+    for triangle in uvs[split]:
+        a, b, c = triangle
+        low, high = np.floor(triangle.min(axis=0) * size).astype(int), np.ceil(triangle.max(axis=0) * size).astype(int)
+        box = centres[low[0]:high[0], low[1]:high[1]]
+        d = (b - a)[0] * (c - a)[1] - (b - a)[1] * (c - a)[0]
+        w1 = ((box[..., 0] - a[0]) * (c - a)[1] - (box[..., 1] - a[1]) * (c - a)[0]) / d
+        w2 = ((b - a)[0] * (box[..., 1] - a[1]) - (b - a)[1] * (box[..., 0] - a[0])) / d
+        covered[low[0]:high[0], low[1]:high[1]] += (w1 > 1e-6) & (w2 > 1e-6) & (1 - w1 - w2 > 1e-6)
+    assert covered.max() == 1 and covered.sum() > 0.3 * size * size  # charts apart, the atlas well filled
 
 
 def ball(points: np.ndarray) -> np.ndarray:
