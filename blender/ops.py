@@ -6,7 +6,7 @@ from pathlib import Path
 
 import bpy
 import numpy as np
-from bpy.props import BoolProperty, EnumProperty, FloatVectorProperty, IntProperty, StringProperty
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, FloatVectorProperty, IntProperty, StringProperty
 
 from sinshape import models
 from sinshape.core.errors import InputError
@@ -271,6 +271,15 @@ class SINSHAPE_OT_export_asset(SampleOperator):
     texture: IntProperty(name="Maps", default=1024, min=16, max=8192, subtype="PIXEL",
                          description="Texels per side of each level's maps, a power of two")
     ao: BoolProperty(name="Ambient occlusion", description="Bake an ambient occlusion map too")
+    height: FloatProperty(name="Height", default=0.0, min=0.0, max=10000.0,
+                          description="The asset's height in metres, base to top (0: one unit of the model's frame "
+                                      "is a metre); it stands with the centre of its base at the file's origin")
+    collision: IntProperty(name="Collision", default=0, min=0,
+                           description="Triangles of a collision mesh simplified from the full surface (0: none)")
+    naming: EnumProperty(name="Naming", default="gltf", description="How the levels and the collision mesh are named",
+                         items=[("gltf", "glTF", "The finest level shown, the coarser ones listed by MSFT_lod"),
+                                ("godot", "Godot", "Godot's import hints: one level shown, the collision mesh made "
+                                                   "a static body's shape")])
     add_objects: BoolProperty(name="Add to scene", default=True,
                               description="Import the written asset's levels, textured, where the sample is")
 
@@ -282,7 +291,8 @@ class SINSHAPE_OT_export_asset(SampleOperator):
 
     def execute(self, context):
         return reported(self, live.export_asset, sample_object(context), Path(bpy.path.abspath(self.filepath)),
-                        self.lods, self.texture, self.ao, self.add_objects)
+                        self.lods, self.texture, self.ao, self.add_objects, self.height or None, self.collision,
+                        self.naming)
 
 
 class SINSHAPE_OT_layout_show(SampleOperator):

@@ -528,6 +528,12 @@ def test_export_asset_writes_the_samples_asset_and_adds_its_levels_where_the_sam
 
     assert np.abs(corners(level).min(axis=0) - corners(obj).min(axis=0)).max() < 1.0  # in place, to a voxel
     assert np.abs(corners(level).max(axis=0) - corners(obj).max(axis=0)).max() < 1.0
+    godot = tmp_path / "godot.glb"
+    assert bpy.ops.sinshape.export_asset(filepath=str(godot), lods="800,200", texture=64, height=2.0, collision=100,
+                                         naming="godot", add_objects=False) == {"FINISHED"}
+    document, _ = gltf.read(godot.read_bytes())
+    assert [node["name"] for node in document["nodes"]] == ["godot_LOD0", "godot_LOD1-noimp", "godot-colonly"]
+    assert document["nodes"][0]["extras"]["sinshape"]["height_m"] == 2.0
     bad = tmp_path / "bad.glb"
     with pytest.raises(RuntimeError, match="lods asks for 0 triangles") as raised:  # the ERROR report, one line
         bpy.ops.sinshape.export_asset(filepath=str(bad), lods="0", texture=64)
