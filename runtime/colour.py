@@ -851,16 +851,23 @@ def trilinear(grid: np.ndarray, points: np.ndarray) -> tuple:
     low = np.clip(np.floor(p).astype(np.int64), 0, np.maximum(size - 2, 0))
     f = p - low
     high = np.minimum(low + 1, size - 1)
+    flat = grid.ravel()
+    # Each axis's corner offsets into the flat grid and weights, for corner bit 0 (low) and 1 (high).
+    strides = (size[1] * size[2], size[2], 1)
+    offset = [(low[:, a] * strides[a], high[:, a] * strides[a]) for a in range(3)]
+    weight = [(1 - f[:, a], f[:, a]) for a in range(3)]
     value = np.zeros(len(points))
     gradient = np.zeros((len(points), 3))
-    for corner in itertools.product((0, 1), repeat=3):
-        index = tuple(np.where(corner[a], high[:, a], low[:, a]) for a in range(3))
-        v = grid[index].astype(np.float64)
-        w = [np.where(corner[a], f[:, a], 1 - f[:, a]) for a in range(3)]
-        value += v * w[0] * w[1] * w[2]
-        for a in range(3):
-            dw = [w[b] if b != a else np.where(corner[a], 1.0, -1.0) for b in range(3)]
-            gradient[:, a] += v * dw[0] * dw[1] * dw[2]
+    for cx, cy, cz in itertools.product((0, 1), repeat=3):
+        v = flat[offset[0][cx] + offset[1][cy] + offset[2][cz]].astype(np.float64)
+        vx = v * weight[0][cx]
+        vxy = vx * weight[1][cy]
+        value += vxy * weight[2][cz]
+        # The gradient's terms, each the value's with its own axis's weight
+        # replaced by -1 or +1 (exact: a sign flips no rounding).
+        gradient[:, 0] += (v * weight[1][cy] * weight[2][cz]) * (1.0 if cx else -1.0)
+        gradient[:, 1] += (vx * weight[2][cz]) * (1.0 if cy else -1.0)
+        gradient[:, 2] += vxy * (1.0 if cz else -1.0)
     return value, gradient
 
 
