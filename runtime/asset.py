@@ -320,13 +320,12 @@ def asset_bytes(model, request, options: AssetOptions, name: str = "sample", thr
         figures.append(described)
     collision = None
     if options.collision:
-        vertices, faces, _ = simplify(dense.vertices, dense.faces, options.collision, dense.lock_border)
-        collision = (vertices, faces)
-        figures_collision = {"triangles": len(faces), "vertices": len(vertices)}
+        collision = simplify(dense.vertices, dense.faces, options.collision, dense.lock_border)[:2]
     written = time.perf_counter()
     extras = {"sinshape": {"seed": request.sample_seed, "tile": list(request.tile) if request.tile else None,
                            "lods": list(lods), "textures": [f["texture"] for f in figures]}}
-    if lods != options.lods:
+    capped = lods != options.lods
+    if capped:
         extras["sinshape"]["asked_lods"] = list(options.lods)
     place = None
     if request.tile is None:  # a tile keeps its frame, so that its neighbours meet it
@@ -337,8 +336,8 @@ def asset_bytes(model, request, options: AssetOptions, name: str = "sample", thr
     info = {"dense_triangles": len(dense.faces), "dense_vertices": len(dense.vertices), "levels": figures,
             "seconds": {k: round(v, 3) for k, v in timings.items()}, "bytes": len(data)}
     if collision is not None:
-        info["collision"] = figures_collision
-    if lods != options.lods:
+        info["collision"] = {"triangles": len(collision[1]), "vertices": len(collision[0])}
+    if capped:
         info["capped"] = (f"`lods` {','.join(map(str, options.lods))} asked for more triangles than the "
                           f"{'tile' if request.tile is not None else 'sample'}'s full-resolution mesh has "
                           f"({len(dense.faces)}): made {','.join(map(str, lods))}")
