@@ -70,7 +70,8 @@ def tiles_around(centre, radius: int) -> list:
 
 
 def detail(centre, tile, fine: int, coarsest: int) -> int:
-    """The level of detail of a tile: 0 within `fine` tiles of the centre's, a level coarser per tile beyond."""
+    """The level of detail of a tile: 0 within `fine` tiles of the centre's, a level coarser per tile beyond,
+    down to `coarsest` (world.farthest_lod: not the sketch)."""
     return min(coarsest, max(0, max(abs(tile[0] - centre[0]), abs(tile[1] - centre[1])) - fine))
 
 
@@ -131,7 +132,7 @@ def world_options(settings, model, digest: str) -> tuple:
     heights, heights_digest = read_map(settings.heights, "height map",
                                        lambda path: world_maps.read_height_map(path, model, relief), settings.relief)
     options = world.WorldOptions(settings.arrange, heights=heights, models=tuple(each for each, _ in others),
-                                 models_map=placed)
+                                 models_map=placed, skirt=True)  # a full tile beside a coarser one hides the crack too
     made = (f"{digest}:{settings.seed}:{settings.scale!r}:{settings.arrange}:"
             f"{','.join(each for _, each in others)}:{placed_digest}:{heights_digest}")
     return options, made
@@ -167,7 +168,7 @@ def refresh(obj, scene=None, force: bool = False) -> None:
         world.check_world_scale(tiling, settings.scale, world.hidden_width(model, options), None)
         centre = centre_tile(model, tiling, followed_point(obj, scene))
         wanted = tiles_around(centre, settings.radius)
-        lods = {tile: detail(centre, tile, settings.fine, len(model.manifest.sizes) - 1) for tile in wanted}
+        lods = {tile: detail(centre, tile, settings.fine, world.farthest_lod(model)) for tile in wanted}
         if not force and live.MADE.get(obj.name) == (made, lods):
             return
         live.MADE[obj.name] = (made, lods)

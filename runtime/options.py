@@ -126,6 +126,8 @@ OPTIONS = (
     Option("heights", "heights", None, "The world's large shape: a height in voxels per tile.", ("tile",)),
     Option("lod", "int", 0, "Levels of detail coarser than the finest: a distant tile, cheaper, with a skirt "
            "that hides the crack where it meets a finer one.", ("tile",), 0),
+    Option("skirt", "bool", False, "A skirt at lod 0 too: a full tile beside a coarser one, so that the crack "
+           "between them is hidden from the coarser side as well.", ("tile",)),
     Option("models", "models", (), "A scattered world's other models (model files; a server's by name): model "
            "1, 2, ... of its model map, the first model being 0.", ("tile",)),
     Option("models_map", "models_map", None, "Which model goes where in a scattered world: a model's index per "

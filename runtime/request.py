@@ -108,7 +108,8 @@ class SampleRequest:
       of a sample: no size, edits or clean-up, which would break its seams.
     For a tile, how its world is made: arrange ('blend' or 'scatter',
       world.ARRANGEMENTS), heights (a world_maps.HeightMap: the world's large
-      shape), lod (levels coarser than the finest: a distant tile), models
+      shape), lod (levels coarser than the finest: a distant tile), skirt
+      (a skirt at lod 0 too, for a full tile beside a coarser one), models
       (a scattered world's other models: their files' paths, as text) and
       models_map (a world_maps.ModelMap: which model each cell's object is of).
     At most one edit:
@@ -136,6 +137,7 @@ class SampleRequest:
     arrange: str = "blend"
     heights: HeightMap | None = None
     lod: int = 0
+    skirt: bool = False
     models: tuple = ()
     models_map: ModelMap | None = None
 
@@ -219,13 +221,14 @@ class SampleRequest:
     def world_options(self) -> WorldOptions:
         """How a tile's world is made, and how finely the tile."""
         return WorldOptions(self.arrange, self.heights, self.lod, tuple(map(other_model, self.models)),
-                            self.models_map, self.detail)
+                            self.models_map, self.detail, self.skirt)
 
     def world_fields(self) -> list:
         """The names of the world's fields given other than their defaults
         (a job of many tiles holds them in a request without a tile)."""
         return [name for name, value in (("arrange", self.arrange != ARRANGEMENTS[0]),
                                          ("heights", self.heights is not None), ("lod", self.lod),
+                                         ("skirt", self.skirt),
                                          ("models", self.models), ("models_map", self.models_map is not None))
                 if value]
 

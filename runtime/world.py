@@ -47,7 +47,8 @@ Why this holds:
   vertex (differences of the same field, each point read in the tile it
   falls in), so they too agree across a face.
 - Tiles of different `lod` meet with a crack; a coarser tile hangs a skirt
-  from its sides (SKIRT of its grid steps straight down) that covers it.
+  from its sides straight down to its grid's floor, and a finer one asked
+  with `skirt` too, so that the crack is covered from both sides.
 """
 
 import functools
@@ -145,10 +146,12 @@ class WorldOptions:
     models: tuple = ()  # a scattered world's models after its first (the `model` its tiles are asked of): 1, 2, ...
     models_map: ModelMap | None = None  # which of them each scatter cell draws its object from
     detail: bool = True  # the example's relief and colour by correspondence (off: the decoder's colour, no relief)
+    skirt: bool = False  # a skirt at lod 0 too (a coarser tile always has one): a finer tile beside a coarser one
 
     def __post_init__(self):
-        if not isinstance(self.detail, bool):
-            raise InputError(f"`detail` must be true or false, got {self.detail!r}", "detail")
+        for name in ("detail", "skirt"):
+            if not isinstance(getattr(self, name), bool):
+                raise InputError(f"`{name}` must be true or false, got {getattr(self, name)!r}", name)
         if self.arrange not in ARRANGEMENTS:
             raise InputError(f"unknown `arrange` {self.arrange!r}; choose {' or '.join(ARRANGEMENTS)}", "arrange")
         if self.heights is not None and not isinstance(self.heights, HeightMap):
@@ -177,11 +180,35 @@ PLAIN = WorldOptions()
 
 
 def check_lod(model, lod: int) -> int:
-    """The level a tile of `lod` reads its detail from."""
+    """The level whose grid a tile of `lod` has."""
     levels = len(model.manifest.sizes)
     if lod >= levels:
         raise InputError(f"`lod` must be 0 to {levels - 1} (the model has {levels} levels), got {lod}", "lod")
     return levels - 1 - lod
+
+
+def planes_level(model, lod: int) -> int:
+    """The level whose planes a tile of `lod` reads: the finest at lod 0, the
+    one below it at every lod between (each level adds shape as well as
+    detail: a tile two levels down read at its own level correlated 0.87 in
+    height with its finest self, read one level down 0.96), and the coarsest
+    level's own at the coarsest lod, a sketch at a tenth of a tile's cost
+    (a view filled before its tiles come at their levels)."""
+    level = check_lod(model, lod)
+    return level if level == 0 else max(level, len(model.manifest.sizes) - 2)
+
+
+def sketch(model, lod: int) -> bool:
+    """Whether a tile of `lod` is the coarsest level's sketch (planes_level)."""
+    return lod > 0 and planes_level(model, lod) == 0
+
+
+def farthest_lod(model) -> int:
+    """The coarsest lod a view's far tiles are made at: the coarsest true to
+    its full tile (every lod but the sketch), or the sketch of a model of
+    two levels, which has no other."""
+    levels = len(model.manifest.sizes)
+    return levels - 2 if levels > 2 else levels - 1
 
 
 def coloured(model, options: WorldOptions = PLAIN) -> bool:
@@ -341,8 +368,13 @@ def object_window(model, options: WorldOptions, seed: int, placed_object: Placed
     first model's `level` (in the object's model, as many levels from its
     finest, or its coarsest)."""
     each, own = object_model(model, options, placed_object.model)
-    level = max(len(each.manifest.sizes) - len(model.manifest.sizes) + level, 0)
-    return each, own, window(each, own, seed, *placed_object.cell, level, "scatter")
+    return each, own, window(each, own, seed, *placed_object.cell, level_in(each, model, level), "scatter")
+
+
+def level_in(each, model, level: int) -> int:
+    """The first model's `level` in another of the world's models: as many
+    levels from its finest, or its coarsest."""
+    return max(len(each.manifest.sizes) - len(model.manifest.sizes) + level, 0)
 
 
 def objects_near(model, tiling: Tiling, seed: int, tile: tuple, level: int, options: WorldOptions) -> list:
@@ -619,7 +651,7 @@ def tile_logits(model, seed: int, tile, scale: float = 1.0, options: WorldOption
     progress(done, total) after each window and each slab of rows."""
     i, j = check_tile(tile)
     tiling = world_tiling(model)
-    level = check_lod(model, options.lod)
+    level = planes_level(model, options.lod)
     grid = tile_grid(model, tiling, scale, options)
     h0, h1, up = *tiling.horizontal, tiling.up
     check_world_scale(tiling, scale, hidden_width(model, options), memory_limit, grid.shape)

@@ -12,10 +12,12 @@ from sinshape.core.manifest import PLANE_AXES
 
 from .colour import RELIEF_SCALE, example_palette, nearest_in_palette, planes_colouring
 from .mesh import colour_bytes
+from .generate import resize_plane
 from .query import bilinear, head_colour, sigmoid
 from .world import (GROUND, GROUND_COLOUR, GROUND_SLOPE, NORMAL_STEP, PLAIN, WINDOWS_KEPT, ContrastSum, Tiling,
-                    Window, WorldOptions, along, capped, check_lod, check_tile, head_logits, hidden_width, map_heights,
-                    object_model, object_window, objects_near, window, window_sizes, window_weight, world_tiling)
+                    Window, WorldOptions, along, capped, check_tile, head_logits, hidden_width, map_heights,
+                    level_in, object_model, object_window, objects_near, planes_level, sketch, window, window_sizes,
+                    window_weight, world_tiling)
 
 
 def point_field(model, seed: int, tile, points: np.ndarray, options: WorldOptions = PLAIN,
@@ -31,7 +33,7 @@ def point_field(model, seed: int, tile, points: np.ndarray, options: WorldOption
     row per cell axis)."""
     i, j = check_tile(tile)
     tiling = world_tiling(model)
-    level = check_lod(model, options.lod)
+    level = planes_level(model, options.lod)
     h0, h1 = tiling.horizontal
     points = np.asarray(points, np.float64).reshape(-1, 3)
     t0, t1 = (np.floor(points[:, axis] / tiling.stride[axis]).astype(np.int64) for axis in (h0, h1))
@@ -169,14 +171,17 @@ def tile_colours(model, seed: int, tile, vertices: np.ndarray, options: WorldOpt
     the tile's corner, as tile_mesh gives them): a format-5 model's, read
     from the example by correspondence in the window that weighs most there
     (a scatter world's: in the object there), each the colour around it
-    (`footprint` voxels); a format-4 model's (and a coarser tile's, `lod`,
-    or any without `detail`), the colour head of the hidden vector there, blended as the occupancy
-    is; a format-5 model's coarser tile then takes the example's nearest
-    colour (colour.example_palette: its tiles' means), so that no hue the
-    example lacks shows in the distance either (and without `detail`). A scatter world's ground is
+    (`footprint` voxels), a coarser tile's in its windows at the level it
+    reads (window_colouring); a format-4 model's (and the coarsest lod's
+    sketch, or any without `detail`), the colour head of the hidden vector
+    there, blended as the occupancy is; a format-5 model's sketch then takes
+    the example's nearest colour (colour.example_palette: its tiles' means),
+    so that no hue the example lacks shows in the distance either (and
+    without `detail`). A scatter world's ground is
     grey. A vertex on a face two tiles share gets the same colour from
     both. Returns (n, 4) uint8 RGBA."""
-    by_correspondence = options.detail and not options.lod
+    by_correspondence = options.detail and not sketch(model, options.lod)
+    level = planes_level(model, options.lod)
     if not options.models and (model.colour_tiles is None or not by_correspondence):
         _, hidden, ground = point_field(model, seed, tile, vertices, options)
         rgb = head_colour(model.head, hidden)
@@ -190,7 +195,9 @@ def tile_colours(model, seed: int, tile, vertices: np.ndarray, options: WorldOpt
             if not len(index):
                 continue
             if each.colour_tiles is not None and by_correspondence:
-                rgb[index] = window_colouring(each, own, seed, a, b, arrange)(cells, footprint)
+                own_level = level_in(each, model, level)
+                finest = cells / np.asarray(window(each, own, seed, a, b, own_level, arrange).cells)
+                rgb[index] = window_colouring(each, own, seed, a, b, arrange, own_level)(finest, footprint)
             elif each.manifest.colour:
                 rgb[index] = head_colour(each.head, hidden[index, :each.manifest.hidden])
                 if each.colour_tiles is not None:
@@ -254,22 +261,32 @@ def relief_normals(model, seed: int, tile, points: np.ndarray, normals: np.ndarr
 
 
 # Windows' colourings kept for the next tiles, as their planes are (`window`).
-_colourings = OrderedDict()  # (id(model), seed, arrange, a, b) -> (model, colouring)
+_colourings = OrderedDict()  # (id(model), seed, arrange, a, b, level) -> (model, colouring)
 _colourings_lock = threading.Lock()
 
 
-def window_colouring(model, tiling: Tiling, seed: int, a: int, b: int, arrange: str):
+def window_colouring(model, tiling: Tiling, seed: int, a: int, b: int, arrange: str, level: int | None = None):
     """A format-5 window's (or object's) colour at points in its finest
     cells: its own sample's colour by correspondence (colour.planes_colouring),
     matched once and kept. A window's matches follow its content only, so a
-    tile and its neighbour read a window they share alike."""
-    key = (id(model), seed, arrange, a, b)
+    tile and its neighbour read a window they share alike. At a `level`
+    below the finest (a coarser tile's), its planes there, resized to the
+    finest size and matched as the finest are: the example's colours as
+    they lie on the shape the tile shows, which from afar look as the
+    finer tile's do (the colour head's differ by up to 40 sRGB levels)."""
+    finest = len(model.manifest.sizes) - 1
+    level = finest if level is None else level
+    key = (id(model), seed, arrange, a, b, level)
     with _colourings_lock:
         if key in _colourings:
             _colourings.move_to_end(key)
             return _colourings[key][1]
-    found = window(model, tiling, seed, a, b, len(model.manifest.sizes) - 1, arrange)
-    made = planes_colouring(model, found.planes, window_sizes(model, tiling, arrange)[-1])
+    size = window_sizes(model, tiling, arrange)[-1]
+    planes = window(model, tiling, seed, a, b, level, arrange).planes
+    if level < finest:
+        planes = [np.ascontiguousarray(resize_plane(plane.transpose(2, 0, 1), [size[axis] for axis in axes])
+                                       .transpose(1, 2, 0)) for plane, axes in zip(planes, PLANE_AXES)]
+    made = planes_colouring(model, planes, size)
     with _colourings_lock:
         _colourings[key] = (model, made)
         while len(_colourings) > WINDOWS_KEPT:

@@ -15,10 +15,8 @@ from . import cubes
 from .bake import vertex_normals
 from .generate import check_seed
 from .query import sigmoid
-from .world import PLAIN, Tiling, WorldOptions, check_tile, coloured, tile_grid, tile_logits, world_tiling
+from .world import PLAIN, Tiling, WorldOptions, check_tile, coloured, sketch, tile_grid, tile_logits, world_tiling
 from .world_points import relief_normals, relieved, tile_colours, tile_normals, tile_relief
-
-SKIRT = 2.0  # a coarser tile's skirt, in its grid's steps along up
 
 
 # ---- a tile's grid
@@ -40,11 +38,32 @@ def tile_occupancy(model, seed: int, tile, scale: float = 1.0, memory_limit: int
     occupancy = np.ascontiguousarray(sigmoid(logits).transpose(order))
     if not colour:
         return occupancy
-    if model.colour_tiles is not None and not options.lod or options.models:  # as the tile's vertices are coloured
+    if model.colour_tiles is not None and not sketch(model, options.lod) or options.models:  # as its vertices are
         grid = tile_grid(model, tiling, scale, options)
         points = np.stack(np.meshgrid(*grid.positions, indexing="ij"), axis=-1).reshape(-1, 3)
         return occupancy, tile_colours(model, seed, tile, points, options, 1 / scale)[:, :3].reshape(*occupancy.shape, 3)
     return occupancy, np.round(np.ascontiguousarray(colours.transpose(*order, 3)) * 255).astype(np.uint8)
+
+
+def tile_heights(model, seed: int, tile, scale: float = 1.0, options: WorldOptions = PLAIN) -> tuple:
+    """Tile (i, j)'s height field, seen from above: on its grid's columns,
+    the height (voxels from the model's floor) where the occupancy last
+    crosses the surface level going up, as its mesh's top vertex there
+    lies; NaN over a column with nothing in it. Returns (positions along
+    the first horizontal axis, along the second, (n0, n1) heights): what a
+    coarser tile is compared with its finer self by, and a border with its
+    neighbour's."""
+    tiling = world_tiling(model)
+    grid = tile_grid(model, tiling, scale, options)
+    h0, h1, up = *tiling.horizontal, tiling.up
+    columns = np.moveaxis(tile_occupancy(model, seed, tile, scale, options=options), (h0, h1, up), (0, 1, 2))
+    columns = np.pad(columns, [(0, 0), (0, 0), (0, 1)])  # empty above the grid, as tile_mesh closes the top
+    inside = columns >= cubes.LEVEL
+    top = columns.shape[2] - 1 - np.argmax(inside[:, :, ::-1], axis=2)  # the highest point inside
+    at, over = (np.take_along_axis(columns, k[..., None], axis=2)[..., 0] for k in (top, np.minimum(top + 1, columns.shape[2] - 1)))
+    positions = grid.positions[up]
+    heights = positions[0] + (top + (at - cubes.LEVEL) / np.maximum(at - over, 1e-12)) * (positions[1] - positions[0])
+    return grid.positions[h0], grid.positions[h1], np.where(inside.any(axis=2), heights, np.nan)
 
 
 # ---- a tile's surface
@@ -94,11 +113,13 @@ class Surface:
 
 def tile_surface(model, seed: int, tile, scale: float = 1.0, options: WorldOptions = PLAIN,
                  memory_limit: int | None = None, progress=None) -> Surface:
-    """Tile (i, j)'s mesh with its normals (and colours), and at lod > 0 a
-    skirt: every edge on the tile's sides extruded SKIRT grid steps down, so
-    that a finer neighbour's border, which its own does not meet, shows no
-    gap. Skirt vertices take the normal and colour of the vertex above.
-    progress: as tile_occupancy's."""
+    """Tile (i, j)'s mesh with its normals (and colours), and at lod > 0 (or
+    with options.skirt) a skirt: every edge on the tile's sides extruded
+    straight down to the floor of its grid, so that a neighbour of another
+    level, whose border its own does not meet, shows no gap from either
+    side (the finer side sees the coarser tile's skirt, the coarser side the
+    finer tile's). Skirt vertices take the normal and colour of the vertex
+    above. progress: as tile_occupancy's."""
     vertices, faces = tile_mesh(model, seed, tile, scale, memory_limit, options=options, progress=progress)
     normals = tile_normals(model, seed, tile, vertices, options)
     if relieved(model, options, scale) and len(vertices):
@@ -112,33 +133,41 @@ def tile_surface(model, seed: int, tile, scale: float = 1.0, options: WorldOptio
                                         0.5 / scale, options)
         vertices, normals = moved, inside.astype(np.float32)
     colours = tile_colours(model, seed, tile, vertices, options, 1 / scale) if coloured(model, options) else None
-    if options.lod and len(faces):
+    if (options.lod or options.skirt) and len(faces):
         tiling = world_tiling(model)
-        grid = tile_grid(model, tiling, scale, options)
-        depth = SKIRT * (grid.positions[tiling.up][1] - grid.positions[tiling.up][0])
-        vertices, faces, source = skirted(vertices, faces, tiling, depth)
+        floor = tile_grid(model, tiling, scale, options).positions[tiling.up][0]
+        vertices, faces, source = skirted(vertices, faces, tiling, floor)
         normals = normals[source]
         colours = None if colours is None else colours[source]
     return Surface(vertices, faces, normals, colours)
 
 
-def skirted(vertices: np.ndarray, faces: np.ndarray, tiling: Tiling, depth: float) -> tuple:
+def skirted(vertices: np.ndarray, faces: np.ndarray, tiling: Tiling, floor: float) -> tuple:
     """The mesh with a skirt: each edge lying on one of the tile's four sides
-    (an edge of one face only) gets a quad hanging `depth` below it, wound as
-    the face beside it. Returns (vertices, faces, the vertex each new vertex
-    copies: an index per vertex)."""
+    (an edge of one face only) above `floor` gets a quad hanging from it
+    down to `floor`, wound as the face beside it, facing out of the tile.
+    The bottom's edges (below the floor) and those climbing to it at a
+    side's ends get none, nor does the edge of an overhang, whose quad would
+    face into the tile (the edges above it cover the side there). Returns
+    (vertices, faces, the vertex each new vertex copies: an index per vertex)."""
     edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
     key = np.minimum(edges[:, 0], edges[:, 1]) * len(vertices) + np.maximum(edges[:, 0], edges[:, 1])
     _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
     open_edges = edges[counts[inverse.reshape(-1)] == 1]
-    on_side = np.zeros(len(open_edges), bool)
+    open_edges = open_edges[(vertices[open_edges, tiling.up] > floor).all(axis=1)]
+    hung = []
     for axis in tiling.horizontal:
-        for at in (0, tiling.stride[axis]):
-            on_side |= (vertices[open_edges, axis] == at).all(axis=1)
-    open_edges = open_edges[on_side]
+        for at, outward in ((0, -1), (tiling.stride[axis], 1)):
+            side = open_edges[(vertices[open_edges, axis] == at).all(axis=1)]
+            a, b = vertices[side[:, 0]], vertices[side[:, 1]]
+            below = a.copy()
+            below[:, tiling.up] = floor
+            facing = np.cross(a - b, below - b)[:, axis]  # the quad's first triangle (b, a, a below)
+            hung.append(side[facing * outward > 0])
+    open_edges = np.concatenate(hung)
     used, index = np.unique(open_edges, return_inverse=True)
     hanging = vertices[used].copy()
-    hanging[:, tiling.up] -= depth
+    hanging[:, tiling.up] = floor
     base = len(vertices)
     lower = base + index.reshape(-1, 2)
     a, b = open_edges[:, 0], open_edges[:, 1]
@@ -200,9 +229,10 @@ BLOCK_BYTES_PER_VERTEX = 500
 
 
 def block_mesh(model, request, tiles, progress=None, memory_limit: int | None = None):
-    """A block of tiles (a rectangle of them) as one trimesh mesh in the
-    request's frame ('input' or 'model': placed in the world), shared border
-    vertices welded and the block's outer sides closed: one closed surface.
+    """A block of tiles (a rectangle of them, all at the request's `lod`) as
+    one trimesh mesh in the request's frame ('input' or 'model': placed in
+    the world), shared border vertices welded and the block's outer sides
+    closed: one closed surface.
     Its count is bounded before a tile is listed, and its memory (the first
     tile's surface times the count) before the second is made.
     progress(done, total) after each tile."""
@@ -219,8 +249,9 @@ def block_mesh(model, request, tiles, progress=None, memory_limit: int | None = 
     if request.frame == "tile":
         raise InputError("a block is placed in the world: give `frame` input or model", "frame")
     options = request.world_options()
-    if options.lod:
-        raise InputError("a block is one closed surface, at one level of detail: give `lod` 0", "lod")
+    if options.skirt:
+        raise InputError("a block is one closed surface, its tiles of one level: `skirt` is for a tile beside "
+                         "a coarser one", "skirt")
     h0, h1 = world_tiling(model).horizontal
     low, high = np.min(tiles, axis=0), np.max(tiles, axis=0)
     vertices, faces, colours, count = [], [], [], 0

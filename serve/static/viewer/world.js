@@ -3,8 +3,9 @@
 // those ahead of it first, by the server's tile route (the Python runtime
 // makes worlds; the browser's runtime makes none), coarser the farther they are (a tile's level of
 // detail follows its distance, and it is made again as that changes; a
-// tile not shown yet comes first at the coarsest level, so the view fills
-// in a fraction of the time, then sharpens as the finer tiles come), and
+// tile not shown yet comes first at the coarsest level, a sketch, so the view fills
+// in a fraction of the time, then sharpens as the finer tiles come; each hangs
+// a skirt, so that no crack shows between tiles of two levels), and
 // dropped behind it, their GPU buffers disposed, so memory stays bounded
 // however far one goes. Each tile comes with its normals, the field's
 // gradient, which agree across its borders. The origin floats: the scene's
@@ -120,8 +121,13 @@ function drop(entry) {
 /** Where the camera is in the world's frame: the model's axes, from the camera's tile's lowest corner. */
 const cameraInModel = () => group.worldToLocal(camera.position.clone());
 
-/** The level of detail a tile this many tiles from the camera's is made at. */
-const detail = (away) => Math.min(run.coarsest, Math.max(0, away - FINE));
+/**
+ * The level of detail a tile this many tiles from the camera's is made at,
+ * down to world.farthest_lod: never the coarsest, a sketch (world.planes_level)
+ * that only fills the view until a tile comes at its level, unless the model
+ * has no other (two levels).
+ */
+const detail = (away) => Math.min(run.coarsest > 1 ? run.coarsest - 1 : run.coarsest, Math.max(0, away - FINE));
 
 /**
  * Tiles within the reach of the camera's wanted, at the level of detail
@@ -177,7 +183,8 @@ async function make(r, entry) {
   const lod = entry.lod === undefined ? r.coarsest : entry.want; // shown coarse first; its windows' chains go on from there
   try {
     const request = sampleRequest({ seed: r.seed, scale: r.scale, tile: [entry.i, entry.j], frame: 'tile', arrange: r.arrange,
-                                    heights: r.heights, models: r.models, models_map: r.modelsMap, lod });
+                                    heights: r.heights, models: r.models, models_map: r.modelsMap, lod,
+                                    skirt: true }); // hidden beside a coarser neighbour from either side
     const { positions, faces, normals, colours } = await sampling.tile('server', r.name, request, { signal: entry.controller.signal });
     if (r.tiles.get(entry.key) !== entry) return; // dropped meanwhile
     entry.state = lod === entry.want ? 'done' : 'wanted'; // the camera moved meanwhile: made again at its new level
