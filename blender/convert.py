@@ -90,7 +90,7 @@ SETTINGS = {"seed": "seed", "size": "size", "scale": "scale", "smooth": "smooth"
             "models": "models", "models_map": "models_map", "heights": "heights"}
 # ... and those it leaves at their defaults (a mesh in the input's frame, turned to
 # Blender's). tests/test_blender_options.py holds both to the table.
-LEFT = ("recon", "smoother", "largest", "detail", "frame")
+LEFT = ("recon", "smoother", "largest", "detail", "frame", "skirt")
 
 
 def sample_request(values: dict, up: str) -> SampleRequest:

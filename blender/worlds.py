@@ -132,7 +132,7 @@ def world_options(settings, model, digest: str) -> tuple:
     heights, heights_digest = read_map(settings.heights, "height map",
                                        lambda path: world_maps.read_height_map(path, model, relief), settings.relief)
     options = world.WorldOptions(settings.arrange, heights=heights, models=tuple(each for each, _ in others),
-                                 models_map=placed, skirt=True)  # a full tile beside a coarser one hides the crack too
+                                 models_map=placed)
     made = (f"{digest}:{settings.seed}:{settings.scale!r}:{settings.arrange}:"
             f"{','.join(each for _, each in others)}:{placed_digest}:{heights_digest}")
     return options, made

@@ -574,7 +574,7 @@ def test_the_world_mode_takes_its_tiles_from_the_tile_route(page, terrain):
     """World mode on the server: each tile is the tile route's (the Python runtime's own mesh), shown
     first at the coarsest level, no browser runtime is loaded, and the download link is the camera's
     tile, following it."""
-    from sinshape.runtime import world_tiles
+    from sinshape.runtime import world, world_tiles
 
     page.goto(f"{page.base}/?seed=3&up=z&edit=world&at=-3,7&reach=1")
     status = wait_world(page)
@@ -583,12 +583,13 @@ def test_the_world_mode_takes_its_tiles_from_the_tile_route(page, terrain):
     tiles = [url for url in requested if url.startswith("/api/models/terrain/tile?")]
     full = [url for url in tiles if "lod=" not in url]  # each asked for at the coarsest level first, shown, then at full
     coarsest = len(terrain.manifest.sizes) - 1
-    assert len(full) == 9 and "/api/models/terrain/tile?i=-3&j=7&seed=3&scale=1&format=glb&frame=tile" in full
+    assert len(full) == 9 and "/api/models/terrain/tile?i=-3&j=7&seed=3&scale=1&format=glb&frame=tile&skirt=true" in full
     assert sorted(url.replace(f"&lod={coarsest}", "") for url in tiles if url not in full) == sorted(full)
     assert not [url for url in requested if "onnxruntime-web" in url or url.endswith(("/model.js", "/worker.js"))]
     assert sorted((int(i), int(j)) for i, j, *_ in status["tiles"]) == [(i, j) for i in (-4, -3, -2) for j in (6, 7, 8)]
+    skirted = world.WorldOptions(skirt=True)  # beside a coarser tile, hidden from either side
     for i, j, faces, *_ in status["tiles"]:
-        assert faces == len(world_tiles.tile_mesh(terrain, 3, (int(i), int(j)))[1])
+        assert faces == len(world_tiles.tile_surface(terrain, 3, (int(i), int(j)), options=skirted).faces)
     assert page.get_attribute("#download", "href").endswith("tile?i=-3&j=7&seed=3&scale=1&format=glb&frame=tile")
     page.evaluate("window.sinshapeView.world.moveBy(0, -1)")
     status = wait_world(page)
@@ -637,7 +638,7 @@ def test_the_world_mode_makes_far_tiles_coarser_and_remakes_them_as_they_come_ne
     page.wait_for_function("document.getElementById('map-label').textContent === 'map: hills.npy'")
     status = wait_world(page)
     faces = {(int(i), int(j)): count for i, j, count, *_ in status["tiles"]}
-    painted = world.WorldOptions("scatter", heights=world_maps.HeightMap.of(heights))
+    painted = world.WorldOptions("scatter", heights=world_maps.HeightMap.of(heights), skirt=True)
     assert faces[1, 0] == len(world_tiles.tile_surface(terrain, 3, (1, 0), options=painted).faces)
     assert not page.errors and not page.outside
 
