@@ -276,10 +276,14 @@ class SINSHAPE_OT_export_asset(SampleOperator):
                                       "is a metre); it stands with the centre of its base at the file's origin")
     collision: IntProperty(name="Collision", default=0, min=0,
                            description="Triangles of a collision mesh simplified from the full surface (0: none)")
+    hulls: IntProperty(name="Hulls", default=0, min=0, max=64,
+                       description="Convex hulls of a collision decomposition, at most (CoACD; 0: none)")
     naming: EnumProperty(name="Naming", default="gltf", description="How the levels and the collision mesh are named",
                          items=[("gltf", "glTF", "The finest level shown, the coarser ones listed by MSFT_lod"),
-                                ("godot", "Godot", "Godot's import hints: one level shown, the collision mesh made "
-                                                   "a static body's shape")])
+                                ("godot", "Godot", "Godot's import hints: one level shown, the collision made "
+                                                   "a static body's shapes"),
+                                ("unreal", "Unreal", "The hulls named UCX_: Unreal's convex collision of the finest "
+                                                     "level")])
     add_objects: BoolProperty(name="Add to scene", default=True,
                               description="Import the written asset's levels, textured, where the sample is")
 
@@ -292,7 +296,7 @@ class SINSHAPE_OT_export_asset(SampleOperator):
     def execute(self, context):
         return reported(self, live.export_asset, sample_object(context), Path(bpy.path.abspath(self.filepath)),
                         self.lods, self.texture, self.ao, self.add_objects, self.height or None, self.collision,
-                        self.naming)
+                        self.naming, self.hulls)
 
 
 class SINSHAPE_OT_layout_show(SampleOperator):

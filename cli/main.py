@@ -296,10 +296,14 @@ def asset_options(command):
         click.option("--collision", type=int, default=0, metavar="TRIANGLES",
                      help="With --lods: add a collision mesh of this many triangles, simplified from the "
                           "full-resolution surface (no maps). Default 0: none."),
+        click.option("--hulls", type=int, default=0, metavar="N",
+                     help="With --lods: add a collision of at most N convex hulls (CoACD's decomposition; a second or "
+                          "two), what engines simulate fastest and Unreal's only collision. Default 0: none."),
         click.option("--naming", type=click.Choice(NAMINGS), default="gltf", show_default=True,
                      help="With --lods: how the levels and the collision mesh are named. gltf: the finest level "
                           "shows, the coarser ones listed by MSFT_lod (Babylon.js, UnityGLTF); godot: Godot's "
-                          "import hints, one level shown and the collision mesh made a static body's shape."),
+                          "import hints, one level shown and the collision made a static body's shapes; unreal: "
+                          "the hulls named UCX_, Unreal's convex collision of the finest level."),
     ]):
         command = option(command)
     return command
@@ -364,8 +368,8 @@ def sample_options(command):
               help="With --engine ray: the cluster's address. Default: Ray's own (RAY_ADDRESS, else a "
                    "local Ray on this machine).")
 @RESTART_OPTION
-def sample(model, seeds, layout_file, resample_layout, output, lods, texture, ao, height, collision, naming, threads,
-           workers, engine, address, restart, **fields):
+def sample(model, seeds, layout_file, resample_layout, output, lods, texture, ao, height, collision, hulls, naming,
+           threads, workers, engine, address, restart, **fields):
     """Generate new shapes from a model and write them as meshes.
 
     MODEL is a .onnx file from `sinrun train` or the name of a shipped model
@@ -378,7 +382,7 @@ def sample(model, seeds, layout_file, resample_layout, output, lods, texture, ao
     if seeds is None and (workers is not None or engine != "local" or address is not None or restart):
         raise ConflictError("`workers`, `engine`, `address` and `restart` are for many samples: give `seeds`",
                             ("workers", "engine", "address", "restart", "seeds"))
-    packed = assets.options_of(lods, texture, ao, height, collision, naming)
+    packed = assets.options_of(lods, texture, ao, height, collision, naming, hulls)
     loaded = open_model(model, threads)
     laid_out = Layout.of(layout_files.read_any(loaded, layout_file, fields["size"]), resample_layout) if layout_file else None
     request = SampleRequest.of({**fields, "layout": laid_out})
@@ -490,7 +494,7 @@ def world_options(command):
 @RESTART_OPTION
 @asset_options
 def world(model, others, tiles, output, suffix, threads, workers, engine, address, height_map, relief, models_map,
-          restart, lods, texture, ao, height, collision, naming, **fields):
+          restart, lods, texture, ao, height, collision, hulls, naming, **fields):
     """Write tiles of an endless world: any tile on its own, seamless with its neighbours.
 
     The world spreads along the model's two horizontal axes (the two that are
@@ -504,7 +508,7 @@ def world(model, others, tiles, output, suffix, threads, workers, engine, addres
     from sinshape import models
     from sinshape.runtime import asset as assets, many, request as requests, write
 
-    packed = assets.options_of(lods, texture, ao, height, collision, naming)
+    packed = assets.options_of(lods, texture, ao, height, collision, naming, hulls)
     loaded = open_model(model, threads)
     wanted = requests.world_request(loaded, fields, height_map, relief, [models.find(other) for other in others],
                                     models_map)

@@ -34,6 +34,12 @@ MAX_TEXTURE = 8192
 MIN_TEXTURE = 16
 UNWRAP_PART = 5000  # faces charted at a time (unwrap)
 MIN_HEIGHT, MAX_HEIGHT = 0.001, 10000.0  # metres: a pebble to a mountain
+MAX_HULLS = 64  # convex hulls of one asset's collision: engines step each every frame
+HULL_SOURCE = 2000  # triangles of the surface the hulls are decomposed from (CoACD's time grows with them)
+# CoACD's concavity thresholds, tried in turn until its hulls keep to the count
+# asked: 0.1 held every shipped model's solid as closely as 0.05 in a third of
+# the time, where 0.05 left the temple 16 hulls for 8, 1.5 times its volume over.
+HULL_THRESHOLDS = (0.1, 0.2, 0.4, 0.8)
 FILL = 0.6  # the share of an atlas xatlas's charts are expected to cover (0.65-0.72 measured), for its scale
 BAKE_BYTES_PER_TEXEL = 160  # peak bytes per texel of one level's bake and file: 118-138 measured (tracemalloc, 1024 and 2048)
 
@@ -50,11 +56,16 @@ class AssetOptions:
     height: the asset's height in metres (glTF's unit), base to top, as the
       file's nodes scale it (None: one unit of the frame is a metre);
     collision: the triangles of a collision mesh (no maps), 0 for none;
-    naming: "gltf" (MSFT_lod; the coarser levels and the collision mesh
+    hulls: at most this many convex hulls of the surface (CoACD's
+      decomposition), 0 for none: the collision most engines simulate
+      fastest, and the only kind Unreal reads from a file;
+    naming: "gltf" (MSFT_lod; the coarser levels and the collision
       outside the scene, for engines that read MSFT_lod or pick meshes by
-      name) or "godot" (Godot's import hints: the coarser levels `-noimp`,
-      so that one level shows, and the collision mesh `-colonly`, which
-      Godot makes a static body's collision shape).
+      name), "godot" (Godot's import hints: the coarser levels `-noimp`,
+      so that one level shows, the collision mesh `-colonly` and each hull
+      `-convcolonly`, which Godot makes a static body's collision shapes)
+      or "unreal" (the hulls `UCX_NAME_LOD0_NN` in the scene, which
+      Unreal's importer makes the finest level's convex collision).
     """
 
     lods: tuple = (20000, 5000, 1200)
@@ -62,6 +73,7 @@ class AssetOptions:
     ao: bool = False
     height: float | None = None  # metres from the asset's base to its top; None: a frame unit is a metre
     collision: int = 0  # triangles of a collision mesh simplified from the full one; 0: none
+    hulls: int = 0  # convex hulls of a collision decomposition, at most; 0: none
     naming: str = "gltf"  # how levels and collision are named: options.NAMINGS
 
     def __post_init__(self):
@@ -97,8 +109,13 @@ class AssetOptions:
             raise InputError(f"`collision` must be 0 (none) or {MIN_TRIANGLES} to {self.lods[0]} triangles (the finest "
                              f"level's), got {self.collision!r}", "collision")
         object.__setattr__(self, "collision", int(self.collision))
+        if not (isinstance(self.hulls, (int, np.integer)) and not isinstance(self.hulls, bool)
+                and 0 <= self.hulls <= MAX_HULLS):
+            raise InputError(f"`hulls` must be 0 (none) to {MAX_HULLS} convex hulls, got {self.hulls!r}", "hulls")
+        object.__setattr__(self, "hulls", int(self.hulls))
         if self.naming not in NAMINGS:
-            raise InputError(f"unknown `naming` {self.naming!r}; choose {' or '.join(NAMINGS)}", "naming")
+            raise InputError(f"unknown `naming` {self.naming!r}; choose {', '.join(NAMINGS[:-1])} or {NAMINGS[-1]}",
+                             "naming")
 
     def level_texture(self, k: int) -> int:
         """Level k's maps' texels per side: `texture` halved level by level
@@ -271,6 +288,31 @@ def unwrap(vertices: np.ndarray, faces: np.ndarray, size: int) -> tuple:
     return np.concatenate(sources).astype(np.int64), np.concatenate(new_faces), uvs
 
 
+def convex_hulls(vertices: np.ndarray, faces: np.ndarray, count: int) -> list:
+    """At most `count` convex hulls covering a closed surface, [(vertices,
+    faces), ...]: CoACD's decomposition (compared in docs/ASSETS.md) of the
+    surface simplified to HULL_SOURCE triangles, fewer where the surface
+    needs fewer. Its settings trade a little of its search for time (1-3 s
+    a tower, against 12-70 at its defaults), and its own remeshing is off:
+    a sample's surface is closed already, and remeshing a simplified one
+    took a minute. Its merge can leave more hulls than asked (the temple's
+    surface, 16 for 8): then it is redone at a coarser concavity threshold
+    (HULL_THRESHOLDS; no shipped model needed more than the second).
+    Seeded, so the same surface gives the same hulls."""
+    import coacd  # the assets extra; imported after onnxruntime (the other order crashes in coacd 1.0.14)
+
+    if len(faces) > HULL_SOURCE:
+        vertices, faces, _ = simplify(vertices, faces, HULL_SOURCE, False)
+    coacd.set_log_level("off")
+    surface = coacd.Mesh(np.asarray(vertices, np.float64), np.asarray(faces, np.int32))
+    for threshold in HULL_THRESHOLDS:
+        hulls = coacd.run_coacd(surface, threshold=threshold, max_convex_hull=count, preprocess_mode="off",
+                                resolution=1000, mcts_nodes=10, mcts_iterations=50, mcts_max_depth=2, seed=0)
+        if len(hulls) <= count:
+            break
+    return [(np.asarray(v, np.float64), np.asarray(f, np.int64)) for v, f in hulls]
+
+
 def level(dense: Dense, target: int, size: int, options: AssetOptions, threads: int | None, timings: dict) -> tuple:
     """One level of detail of `target` triangles and maps of `size`, baked: (gltf.Level, its figures)."""
     started = time.perf_counter()
@@ -306,6 +348,14 @@ def asset_bytes(model, request, options: AssetOptions, name: str = "sample", thr
     if request.tile is not None and options.height is not None:
         raise InputError("`height` scales one asset; a world's tiles keep the world's frame, so that they meet",
                          "height")
+    if request.tile is not None and options.hulls:
+        raise InputError("`hulls` decomposes a closed surface, and a world tile is open at its sides: give "
+                         "`collision` (a mesh of its triangles) instead", "hulls")
+    if options.hulls:
+        try:
+            import coacd  # noqa: F401
+        except ImportError:
+            raise InputError("`hulls` needs CoACD: pip install 'sinshape[assets]'", "hulls") from None
     threads = threads or os.cpu_count() or 1
     started = time.perf_counter()
     dense = dense_surface(model, request, threads, progress)
@@ -321,6 +371,11 @@ def asset_bytes(model, request, options: AssetOptions, name: str = "sample", thr
     collision = None
     if options.collision:
         collision = simplify(dense.vertices, dense.faces, options.collision, dense.lock_border)[:2]
+    hulls = []
+    if options.hulls:
+        decomposed = time.perf_counter()
+        hulls = convex_hulls(dense.vertices, dense.faces, options.hulls)
+        timings["hulls"] = time.perf_counter() - decomposed
     written = time.perf_counter()
     extras = {"sinshape": {"seed": request.sample_seed, "tile": list(request.tile) if request.tile else None,
                            "lods": list(lods), "textures": [f["texture"] for f in figures]}}
@@ -331,12 +386,14 @@ def asset_bytes(model, request, options: AssetOptions, name: str = "sample", thr
     if request.tile is None:  # a tile keeps its frame, so that its neighbours meet it
         place = on_its_base(dense.vertices, UP_AXIS[model.manifest.up], options.height)
         extras["sinshape"].update(pivot="the centre of its base", height_m=round(place.height, 6))
-    data = gltf.glb_bytes(levels, name, extras, model.manifest.up, place, collision, options.naming)
+    data = gltf.glb_bytes(levels, name, extras, model.manifest.up, place, collision, options.naming, hulls)
     timings["write"] = time.perf_counter() - written
     info = {"dense_triangles": len(dense.faces), "dense_vertices": len(dense.vertices), "levels": figures,
             "seconds": {k: round(v, 3) for k, v in timings.items()}, "bytes": len(data)}
     if collision is not None:
         info["collision"] = {"triangles": len(collision[1]), "vertices": len(collision[0])}
+    if hulls:
+        info["hulls"] = [len(v) for v, _ in hulls]  # each hull's vertices
     if capped:
         info["capped"] = (f"`lods` {','.join(map(str, options.lods))} asked for more triangles than the "
                           f"{'tile' if request.tile is not None else 'sample'}'s full-resolution mesh has "
@@ -370,15 +427,17 @@ def on_its_base(vertices: np.ndarray, up: int, height: float | None) -> gltf.Pla
 
 
 def options_of(lods=None, texture: int | None = None, ao: bool = False, height: float | None = None,
-               collision: int = 0, naming: str = "gltf") -> AssetOptions | None:
+               collision: int = 0, naming: str = "gltf", hulls: int = 0) -> AssetOptions | None:
     """The asset a front end's values ask for: None without lods (a plain
     sample), which the others need. lods: counts, or their text."""
     if lods is None:
         given = [name for name, value in (("texture", texture is not None), ("ao", ao), ("height", height is not None),
-                                          ("collision", collision), ("naming", naming != "gltf")) if value]
+                                          ("collision", collision), ("hulls", hulls),
+                                          ("naming", naming != "gltf")) if value]
         if given:
             raise ConflictError(f"{named(given, ' and ')} {'are' if len(given) > 1 else 'is'} for an asset: give `lods` "
                                 "too (its levels' triangle counts, like 20000,5000,1200)", (*given, "lods"))
         return None
     lods = parse_lods(lods) if isinstance(lods, str) else lods
-    return AssetOptions(lods, AssetOptions.texture if texture is None else texture, bool(ao), height, collision, naming)
+    return AssetOptions(lods, AssetOptions.texture if texture is None else texture, bool(ao), height, collision,
+                        hulls, naming)

@@ -166,27 +166,40 @@ def encoded_maps(levels: list) -> list:
 
 
 def glb_bytes(levels: list, name: str, extras: dict | None = None, up: str = "y",
-              place: Placement | None = None, collision: tuple | None = None, naming: str = "gltf") -> bytes:
+              place: Placement | None = None, collision: tuple | None = None, naming: str = "gltf",
+              hulls: list = ()) -> bytes:
     """The levels (finest first) as one .glb; `extras` (plain values) go into
     the finest node's extras, beside the screen coverages. up: the axis of
     the levels' frame that points up; glTF's up is +Y, so a z-up frame's
     nodes turn it there (a quarter turn about x), the vertices kept as they
     are. place: where the nodes put the levels (None: where they are).
-    collision: (vertices, faces) of a collision mesh in the levels' frame.
-    naming (options.NAMINGS): "gltf" keeps the coarser levels and the collision
-    mesh outside the scene, the levels listed by the finest one's MSFT_lod;
-    "godot" names them with Godot's import hints as well: the coarser
-    levels `-noimp` (not imported: one level shows), the collision mesh
-    `-colonly` in the scene (a static body's collision shape, not drawn)."""
+    collision: (vertices, faces) of a collision mesh in the levels' frame;
+    hulls: [(vertices, faces), ...] of convex hulls, the same.
+    naming (options.NAMINGS): "gltf" keeps the coarser levels and the
+    collision outside the scene, the levels listed by the finest one's
+    MSFT_lod; "godot" names them with Godot's import hints as well: the
+    coarser levels `-noimp` (not imported: one level shows), the collision
+    mesh `-colonly` and each hull `-convcolonly` in the scene (a static
+    body's collision shapes, not drawn); "unreal" puts the hulls in the
+    scene as `UCX_<finest level>_NN`, Unreal's convex collision of the mesh
+    of that name (its importer reads no concave collision from a file, so
+    the collision mesh stays outside the scene, as under "gltf")."""
     builder = Builder()
     nodes = builder.json["nodes"]
-    godot = naming == "godot"
+    godot, unreal = naming == "godot", naming == "unreal"
     for k, (level, pngs) in enumerate(zip(levels, encoded_maps(levels))):
         label = f"{name}_LOD{k}" + ("-noimp" if godot and k else "")
         nodes.append({"name": label, "mesh": builder.mesh(level, pngs, label)})
+    shown = [0]
     if collision is not None:
         label = f"{name}-colonly" if godot else f"{name}_collision"
         nodes.append({"name": label, "mesh": builder.bare_mesh(*collision, label)})
+        shown += [len(nodes) - 1] if godot else []
+    for k, hull in enumerate(hulls):
+        label = (f"{name}_hull{k:02d}-convcolonly" if godot else f"UCX_{name}_LOD0_{k:02d}" if unreal
+                 else f"{name}_hull{k:02d}")
+        nodes.append({"name": label, "mesh": builder.bare_mesh(*hull, label)})
+        shown += [len(nodes) - 1] if godot or unreal else []
     for node in nodes:
         if up == "z":
             node["rotation"] = Z_UP_TO_Y_UP
@@ -199,7 +212,7 @@ def glb_bytes(levels: list, name: str, extras: dict | None = None, up: str = "y"
         nodes[0]["extensions"] = {"MSFT_lod": {"ids": list(range(1, len(levels)))}}
         builder.json["extensionsUsed"] = ["MSFT_lod"]
     nodes[0]["extras"] = {"MSFT_screencoverage": screen_coverage(len(levels)), **(extras or {})}
-    builder.json["scenes"] = [{"name": name, "nodes": [0] + ([len(nodes) - 1] if godot and collision is not None else [])}]
+    builder.json["scenes"] = [{"name": name, "nodes": shown}]
     builder.json["scene"] = 0
     return builder.glb()
 

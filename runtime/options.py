@@ -30,7 +30,7 @@ MAX_TILE = 1 << 62  # |i|, |j| below this: a window index and its neighbour fit 
 FRAMES = ("input", "model", "tile")
 MAX_PARTS = 16  # boxes kept in one sample: each runs a whole chain of its own
 EDITS = ("keep", "grow", "layout")
-NAMINGS = ("gltf", "godot")  # how an asset's levels and collision mesh are named (asset.AssetOptions.naming)
+NAMINGS = ("gltf", "godot", "unreal")  # how an asset's levels and collision mesh are named (asset.AssetOptions.naming)
 KINDS = ("sample", "tile")  # what a request makes: a sample (plain or edited), or a tile of a world
 # What an option's value is: a seed; a flag; a whole number or any number in
 # its range; factors, one for all three axes or three; one of its choices;

@@ -127,8 +127,11 @@ TextureQuery = Annotated[int | None, Query(description="With lods: texels per si
 AoQuery = Annotated[bool, Query(description="With lods: bake ambient occlusion too.")]
 CollisionQuery = Annotated[int, Query(description="With lods: the triangles of a collision mesh simplified from the "
                                       "full-resolution surface; 0, the default, for none.")]
-NamingQuery = Annotated[Literal[NAMINGS], Query(description="With lods: how the levels and the collision mesh "
-                                                         "are named: gltf (MSFT_lod) or godot (Godot's import hints).")]
+HullsQuery = Annotated[int, Query(description="With lods: a collision of at most this many convex hulls (CoACD's "
+                                  "decomposition, a second or two); 0, the default, for none.")]
+NamingQuery = Annotated[Literal[NAMINGS], Query(description="With lods: how the levels and the collision are named: "
+                                                         "gltf (MSFT_lod), godot (Godot's import hints) or unreal "
+                                                         "(the hulls as UCX_ meshes).")]
 HeightQuery = Annotated[float | None, Query(description="With lods: the asset's height in metres, base to top "
                                             "(default: one unit of the training mesh is a metre).")]
 
@@ -143,9 +146,9 @@ class AssetQuery:
     collision: CollisionQuery = 0
     naming: NamingQuery = "gltf"
 
-    def options(self, format: str, height: float | None = None):
+    def options(self, format: str, height: float | None = None, hulls: int = 0):
         """The runtime's asset options (None: a plain file); an asset is a .glb."""
-        options = asset.options_of(self.lods, self.texture, self.ao, height, self.collision, self.naming)
+        options = asset.options_of(self.lods, self.texture, self.ao, height, self.collision, self.naming, hulls)
         if options is not None and format != "glb":
             raise InputError(f"an asset is written as glb (glTF's binary), not {format}")
         return options
@@ -153,12 +156,14 @@ class AssetQuery:
 
 @dataclass
 class SampleAssetQuery(AssetQuery):
-    """What makes a sample a game asset: a tile's, and the height it stands."""
+    """What makes a sample a game asset: a tile's, the height it stands and
+    its convex hulls (a tile, open at its sides, has none)."""
 
     height: HeightQuery = None
+    hulls: HullsQuery = 0
 
     def options(self, format: str):
-        return super().options(format, self.height)
+        return super().options(format, self.height, self.hulls)
 
 
 def query_model(name: str, kind: str, first: list, special: dict, doc: str, namespace: dict | None = None):

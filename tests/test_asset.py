@@ -152,9 +152,10 @@ def test_the_colour_map_holds_the_models_colour_at_each_texels_surface_point(col
     baked = arrays["colour_map"][rows, columns].astype(float)
     truth = np.round(colour.colours(model, triplane, surface) * 255)
     assert len(truth) > 100 and truth.std(axis=0).max() > 30  # red above, blue below: a wrong place shows
-    assert np.abs(baked - truth).mean() < 4
-    shuffled = np.abs(baked - truth[np.random.default_rng(0).permutation(len(truth))]).mean()
-    assert shuffled > 5 * np.abs(baked - truth).mean()
+    # Texels whose centre lies within a texel of the red-blue border may read either side (5% on some machines).
+    close = (np.abs(baked - truth).max(axis=1) <= 8).mean()
+    shuffled = (np.abs(baked - truth[np.random.default_rng(0).permutation(len(truth))]).max(axis=1) <= 8).mean()
+    assert close > 0.9 and shuffled < close - 0.25, (close, shuffled)
 
 
 def bumpy_sphere(points: np.ndarray) -> np.ndarray:
@@ -317,8 +318,8 @@ def test_an_edit_is_packed_as_it_is_sampled():
 
 def test_a_geometry_only_model_gets_a_normal_map_no_colour_map_and_occlusion_if_asked(tmp_path):
     model = load_model(TINY_ONNX, threads=1)
-    data, _ = asset.asset_bytes(model, SampleRequest(1), asset.AssetOptions((800,), 64, ao=True), threads=1)
-    again, _ = asset.asset_bytes(model, SampleRequest(1), asset.AssetOptions((800,), 64, ao=True), threads=2)
+    data, _ = asset.asset_bytes(model, SampleRequest(1), asset.AssetOptions((800,), 64, ao=True, hulls=4), threads=1)
+    again, _ = asset.asset_bytes(model, SampleRequest(1), asset.AssetOptions((800,), 64, ao=True, hulls=4), threads=2)
     assert again == data  # the same request, the same bytes, on any number of threads
     document, binary = gltf.read(data)
     arrays = gltf.level_arrays(document, binary, 0)
@@ -336,7 +337,8 @@ def test_a_geometry_only_model_gets_a_normal_map_no_colour_map_and_occlusion_if_
     (dict(lods=()), "1 to 8"), (dict(texture=1000), "power of two"), (dict(texture=16384), "8192"),
     (dict(height=0), "metres from"), (dict(height=float("nan")), "metres from"), (dict(height="3m"), "metres from"),
     (dict(collision=2), "0 \\(none\\) or 4 to"), (dict(lods=(500,), collision=600), "to 500 triangles"),
-    (dict(naming="unreal"), "choose gltf or godot"),
+    (dict(naming="unity"), "choose gltf, godot or unreal"), (dict(hulls=-1), "0 \\(none\\) to 64"),
+    (dict(hulls=65), "to 64 convex hulls"), (dict(hulls=2.5), "to 64 convex hulls"),
 ])
 def test_bad_options_are_refused_in_one_line(options, message):
     with pytest.raises(InputError, match=message) as error:
@@ -482,6 +484,10 @@ def test_the_web_api_hands_out_assets_and_refuses_bad_values_in_one_line_of_json
         assert status == 200 and gltf.read(body)[0]["nodes"][0]["extras"]["sinshape"]["height_m"] == 2
         assert get(f"{route}/sample?seed=3&lods=300&texture=32&height=0")[0] == 400
         assert get(f"{route}/tile?i=0&j=0&lods=500&texture=32&height=2")[0] == 422  # a tile keeps its world's frame
+        status, _, body = get(f"{route}/sample?seed=3&lods=300&texture=32&hulls=2&naming=unreal")
+        assert status == 200 and gltf.read(body)[0]["nodes"][1]["name"] == "UCX_tiny_colour_seed3_asset300_LOD0_00"
+        assert "to 64 convex hulls" in json.loads(get(f"{route}/sample?seed=3&lods=300&hulls=65")[2])["detail"]
+        assert get(f"{route}/tile?i=0&j=0&lods=500&texture=32&hulls=2")[0] == 422  # a tile is open: no hulls
 
 
 @pytest.mark.blender
@@ -558,7 +564,7 @@ def test_godot_naming_shows_one_level_and_makes_the_collision_mesh_a_static_body
     found = godot_import(tmp_path / "box.glb", tmp_path)
     assert [(m["name"], m["albedo"], m["normal"]) for m in found["meshes"]] == [("box_LOD0", TEXTURE, TEXTURE)]
     assert found["collision"] == [{"body": "StaticBody", "shape": "ConcavePolygonShape",
-                                   "triangles": info["collision"]["triangles"]}]
+                                   "triangles": info["collision"]["triangles"], "points": 0}]
 
 
 def test_a_collision_mesh_is_placed_as_the_levels_and_kept_out_of_the_scene_under_gltf_naming():
@@ -576,6 +582,85 @@ def test_a_collision_mesh_is_placed_as_the_levels_and_kept_out_of_the_scene_unde
     triangles = document["accessors"][primitive["indices"]]["count"] // 3
     assert list(primitive["attributes"]) == ["POSITION"]
     assert triangles == info["collision"]["triangles"] <= 120 and triangles > 60
+
+
+def inside_hulls(points: np.ndarray, hulls: list) -> np.ndarray:
+    """Which points lie inside some convex hull (on the inner side of each of its faces' planes)."""
+    inside = np.zeros(len(points), bool)
+    for vertices, faces in hulls:
+        corners = vertices[faces]
+        normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        offsets = np.einsum("ij,ij->i", normals, corners[:, 0])
+        outward = np.sign(offsets - normals @ vertices.mean(axis=0))
+        inside |= np.all((points @ normals.T - offsets) * outward <= 1e-9, axis=1)
+    return inside
+
+
+@pytest.fixture(scope="module")
+def hulled():
+    """The tiny coloured model's sample, its dense surface and its convex hulls (4 at most)."""
+    model = load_model(TINY_COLOUR_ONNX, threads=1)
+    dense = asset.dense_surface(model, SampleRequest(3), threads=1)
+    return model, dense, asset.convex_hulls(dense.vertices, dense.faces, 4)
+
+
+def test_convex_hulls_are_convex_and_hold_the_solid(hulled):
+    model, dense, hulls = hulled
+    assert 1 <= len(hulls) <= 4
+    for vertices, faces in hulls:  # every vertex of a hull lies on or inside all of its planes
+        corners = vertices[faces]
+        normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        distances = (vertices @ normals.T - np.einsum("ij,ij->i", normals, corners[:, 0]))
+        outward = np.sign(-normals @ vertices.mean(axis=0) + np.einsum("ij,ij->i", normals, corners[:, 0]))
+        assert np.all(distances * outward <= 1e-6 * np.abs(normals).max())
+    low, high = dense.vertices.min(axis=0), dense.vertices.max(axis=0)
+    points = low + np.random.default_rng(0).random((20_000, 3)) * (high - low)
+    solid = dense.field.occupancy(dense.frame.to_model(points)) > 0.5
+    inside = inside_hulls(points, hulls)
+    assert solid.mean() > 0.1 and inside[solid].mean() > 0.95  # the hulls hold the solid
+    assert (inside & ~solid).sum() < 0.5 * solid.sum()  # and not its whole box
+    again = asset.convex_hulls(dense.vertices, dense.faces, 4)
+    assert all(np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1]) for a, b in zip(hulls, again))
+
+
+@pytest.mark.parametrize("naming, names, in_scene", [
+    ("gltf", ["box_hull{:02d}"], False), ("godot", ["box_hull{:02d}-convcolonly"], True),
+    ("unreal", ["UCX_box_LOD0_{:02d}"], True)])
+def test_hulls_are_named_for_each_engine_and_placed_as_the_levels(naming, names, in_scene):
+    model = load_model(TINY_COLOUR_ONNX, threads=1)
+    data, info = asset.asset_bytes(model, SampleRequest(3), asset.AssetOptions(LODS, TEXTURE, hulls=4, naming=naming),
+                                   "box", threads=1)
+    document, _ = gltf.read(data)
+    hulls = document["nodes"][len(LODS):]
+    assert [node["name"] for node in hulls] == [names[0].format(k) for k in range(len(info["hulls"]))]
+    scene = document["scenes"][0]["nodes"]
+    assert all((k in scene) == in_scene for k in range(len(LODS), len(document["nodes"])))
+    for node in hulls:
+        primitive = document["meshes"][node["mesh"]]["primitives"][0]
+        assert list(primitive["attributes"]) == ["POSITION"] and "material" not in primitive
+        assert {k: v for k, v in node.items() if k not in ("name", "mesh")} == \
+            {k: v for k, v in document["nodes"][1].items() if k not in ("name", "mesh")}  # placed as a level is
+
+
+def test_godot_makes_each_hull_a_convex_shape_of_a_static_body(tmp_path):
+    model = load_model(TINY_COLOUR_ONNX, threads=1)
+    options = asset.AssetOptions(LODS, TEXTURE, collision=200, hulls=4, naming="godot")
+    data, info = asset.asset_bytes(model, SampleRequest(3), options, "box", threads=1)
+    (tmp_path / "box.glb").write_bytes(data)
+    report = validate(tmp_path / "box.glb")
+    assert report["issues"]["numErrors"] == 0 and report["issues"]["numWarnings"] == 0, report["issues"]["messages"]
+    found = godot_import(tmp_path / "box.glb", tmp_path)
+    shapes = sorted((c["body"], c["shape"]) for c in found["collision"])
+    assert shapes == sorted([("StaticBody", "ConcavePolygonShape")] + [("StaticBody", "ConvexPolygonShape")]
+                            * len(info["hulls"]))
+    assert all(c["points"] >= 4 for c in found["collision"] if c["shape"] == "ConvexPolygonShape")
+    assert [m["name"] for m in found["meshes"]] == ["box_LOD0"]  # no hull is drawn
+
+
+def test_a_tile_takes_no_hulls():
+    model = load_model(TINY_ONNX, threads=1)
+    with pytest.raises(InputError, match="world tile is open at its sides"):
+        asset.asset_bytes(model, SampleRequest(3, tile=(0, 0)), asset.AssetOptions((400,), 32, hulls=4), "t")
 
 
 def test_a_vertex_whose_faces_have_no_area_still_gets_a_unit_normal():

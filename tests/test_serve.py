@@ -122,7 +122,8 @@ def test_openapi_describes_every_route(server):
     assert "post" in paths["/api/models/{name}/sample"]
     params = {p["name"] for p in paths["/api/models/{name}/sample"]["get"]["parameters"]}
     # and the options of a sample request, which tests/test_options.py holds to their table
-    assert params - set(OPTION) == {"name", "format", "lods", "texture", "ao", "height", "collision", "naming"} \
+    assert params - set(OPTION) == {"name", "format", "lods", "texture", "ao", "height", "collision", "hulls",
+                                       "naming"} \
         and {"seed", "smooth"} <= params
 
 

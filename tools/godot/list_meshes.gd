@@ -3,7 +3,8 @@
 # in a project whose editor import (godot3-server --path PROJECT --editor --quit)
 # has run. Prints RESULT and, as JSON, {"meshes": each drawn mesh's name,
 # triangles and the widths of its material's albedo and normal textures,
-# "collision": each collision shape's body, kind and triangles}.
+# "collision": each collision shape's body, kind, triangles (a concave
+# shape's) and points (a convex shape's)}.
 extends SceneTree
 
 func _init():
@@ -20,8 +21,9 @@ func _init():
 				"albedo": albedo.get_width() if albedo else 0, "normal": normal.get_width() if normal else 0})
 		elif node is CollisionShape:
 			var faces = node.shape.get_faces().size() / 3 if node.shape is ConcavePolygonShape else 0
+			var points = node.shape.points.size() if node.shape is ConvexPolygonShape else 0
 			collision.append({"body": node.get_parent().get_class(), "shape": node.shape.get_class(),
-				"triangles": faces})
+				"triangles": faces, "points": points})
 	print("RESULT " + to_json({"meshes": meshes, "collision": collision}))
 	quit()
 
