@@ -5,6 +5,7 @@
     python benchmarks/asset.py speed [--model towerruins] [--scale 4] [--lods 5000] [--texture 2048] [--repeats 3]
     python benchmarks/asset.py cycles [--model towerruins] [--scale 2] [--lods 1200] [--texture 1024] --pictures DIR
     python benchmarks/asset.py hulls [--models towerruins acropolis terrain brickruin] [--scale 1]
+    python benchmarks/asset.py base [--models towerruins acropolis terrain brickruin] [--scale 1] [--lods 5000]
 
 fidelity: the sample's asset, each level drawn with its normal map, beside
 the full-resolution mesh drawn with its own smooth normals, from 6 views
@@ -36,6 +37,11 @@ installed): seconds, hulls,
 and, from 200,000 random points in the sample's bounds judged by the
 model's own field, the share of the solid inside some hull (covered) and
 the hulls' volume outside the solid, as a share of the solid's (excess).
+
+base: the share of a level's atlas the faces of its base take (those on
+the ground: asset.on_the_ground), charted with the others and charted
+apart as unseen (asset.unwrap), and how many more texels per unit of
+surface the other faces get for it.
 """
 
 import argparse
@@ -559,6 +565,31 @@ def hulls(args) -> None:
                   f"{np.sum(inside & ~solid) / max(np.sum(solid), 1):.3f} |", flush=True)
 
 
+def base(args) -> None:
+    from sinshape.runtime import SampleRequest, asset, bake
+
+    print(f"seed {args.seed} scale {args.scale:g}, a {args.lods[0]}-triangle level, maps {args.texture}")
+    print("| model | base faces | atlas filled, base charted with the rest / apart | the base's share of the filled "
+          "texels | texels per area of the rest, apart / with |")
+    print("|---|---|---|---|---|")
+    for name in args.models:
+        model = load(name)
+        dense = asset.dense_surface(model, SampleRequest(args.seed, scale=args.scale))
+        vertices, faces, _ = asset.simplify(dense.vertices, dense.faces, args.lods[0], False)
+        unseen = asset.on_the_ground(vertices, faces, dense.up, dense.voxel)
+        index = {tuple(sorted(face)): k for k, face in enumerate(faces.tolist())}
+        figures = []
+        for mask in (None, unseen):
+            source, split, uvs = asset.unwrap(vertices, faces, args.texture, mask)
+            texels, owner, _ = bake.rasterise_uv(uvs, split, args.texture)
+            on_base = unseen[[index[tuple(sorted(face))] for face in source[split].tolist()]][owner]
+            figures.append((len(texels) / args.texture ** 2, on_base.mean(),
+                            np.sum(~on_base) / bake.area(vertices[faces[~unseen]]).sum()))
+        (filled, share, density), (filled_apart, share_apart, density_apart) = figures
+        print(f"| {name} | {unseen.sum()} of {len(faces)} | {filled:.2f} / {filled_apart:.2f} | {share:.3f} / "
+              f"{share_apart:.4f} | {density_apart / density:.2f}x |", flush=True)
+
+
 def asset_options(args):
     from sinshape.runtime import asset
 
@@ -567,7 +598,7 @@ def asset_options(args):
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("what", choices=["fidelity", "speed", "cycles", "hulls"])
+    parser.add_argument("what", choices=["fidelity", "speed", "cycles", "hulls", "base"])
     parser.add_argument("--models", nargs="+", default=["towerruins", "acropolis", "terrain", "brickruin"])
     parser.add_argument("--model", default="towerruins")
     parser.add_argument("--seed", type=int, default=3)
@@ -578,8 +609,9 @@ def main() -> None:
     parser.add_argument("--gltfpack", default=None)
     parser.add_argument("--pictures", default=None)
     args = parser.parse_args()
-    args.lods = tuple(int(n) for n in (args.lods or ("5000" if args.what == "speed" else "20000,5000,1200")).split(","))
-    {"fidelity": fidelity, "speed": speed, "cycles": cycles, "hulls": hulls}[args.what](args)
+    args.lods = tuple(int(n) for n in (args.lods or ("5000" if args.what in ("speed", "base") else "20000,5000,1200"))
+                      .split(","))
+    {"fidelity": fidelity, "speed": speed, "cycles": cycles, "hulls": hulls, "base": base}[args.what](args)
 
 
 if __name__ == "__main__":

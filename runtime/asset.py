@@ -40,6 +40,8 @@ HULL_SOURCE = 2000  # triangles of the surface the hulls are decomposed from (Co
 # asked: 0.1 held every shipped model's solid as closely as 0.05 in a third of
 # the time, where 0.05 left the temple 16 hulls for 8, 1.5 times its volume over.
 HULL_THRESHOLDS = (0.1, 0.2, 0.4, 0.8)
+UNSEEN_SCALE = 1 / 16  # how much smaller a side the charts of faces nobody sees are (a base: unwrap)
+BASE_ANGLE = 30  # degrees from straight down within which a face at a sample's base faces the ground
 FILL = 0.6  # the share of an atlas xatlas's charts are expected to cover (0.65-0.72 measured), for its scale
 BAKE_BYTES_PER_TEXEL = 160  # peak bytes per texel of one level's bake and file: 118-138 measured (tracemalloc, 1024 and 2048)
 
@@ -149,8 +151,9 @@ def check_asset_memory(options: AssetOptions, memory_limit: int | None = None) -
 class Dense:
     """A sample's full-resolution surface and what the bake reads: vertices
     (V, 3) and faces (F, 3) in the asset's frame, the model's field, the
-    frame's map, a voxel's size in the frame, and whether borders are locked
-    (a world tile's)."""
+    frame's map, a voxel's size in the frame, whether borders are locked
+    (a world tile's), and the up axis of a sample standing on its base
+    (None for a tile, which has no base)."""
 
     vertices: np.ndarray
     faces: np.ndarray
@@ -158,6 +161,7 @@ class Dense:
     frame: bake.Frame
     voxel: float
     lock_border: bool
+    up: int | None
 
 
 def sample_field(model, triplane, detail: bool = True) -> bake.Field:
@@ -207,7 +211,7 @@ def dense_surface(model, request, threads: int | None = None, progress=None) -> 
                                           options=request.world_options())
         offset = world_tiles.placed(model, request.tile, np.zeros((1, 3)), request.frame)[0]
         scale = world_tiles.placed(model, request.tile, np.ones((1, 3)), request.frame)[0] - offset
-        field, lock = tile_field(model, request.sample_seed, request.tile, request.world_options()), True
+        field, lock, up = tile_field(model, request.sample_seed, request.tile, request.world_options()), True, None
     else:
         triplane = make(model, request)
         options = request.mesh_options()
@@ -216,9 +220,9 @@ def dense_surface(model, request, threads: int | None = None, progress=None) -> 
         vertices, faces = np.asarray(surface.vertices), np.asarray(surface.faces)
         offset, scale = ((np.asarray(model.manifest.origin, np.float64), spacing) if request.frame == "input"
                          else (np.zeros(3), np.ones(3)))
-        field, lock = sample_field(model, triplane, request.detail), False
+        field, lock, up = sample_field(model, triplane, request.detail), False, UP_AXIS[model.manifest.up]
     frame = bake.Frame(offset, scale)
-    return Dense(offset + vertices * scale, np.asarray(faces, np.int64), field, frame, float(np.max(scale)), lock)
+    return Dense(offset + vertices * scale, np.asarray(faces, np.int64), field, frame, float(np.max(scale)), lock, up)
 
 
 def simplify(vertices: np.ndarray, faces: np.ndarray, target: int, lock_border: bool) -> tuple:
@@ -248,31 +252,41 @@ def simplify(vertices: np.ndarray, faces: np.ndarray, target: int, lock_border: 
     return vertices[used], remap[kept], float(error[0]) * extent
 
 
-def unwrap(vertices: np.ndarray, faces: np.ndarray, size: int) -> tuple:
+def unwrap(vertices: np.ndarray, faces: np.ndarray, size: int, unseen: np.ndarray | None = None) -> tuple:
     """xatlas's charts and packing: (the original vertex of each new vertex
     (V',), faces (F, 3) of new vertices, UVs (V', 2) in [0, 1] of a square
     texture of `size` texels a side, glTF's: u right, v down). Charts are
     padding(size) texels apart. xatlas's charting costs more than linearly
     in a mesh's faces (20,000 faces: 3.0 s; four parts of 5,000: 1.1 s, the
     atlas as full), so the faces are charted in parts of at most
-    UNWRAP_PART, cut across the longest axis, and packed together."""
+    UNWRAP_PART, cut across the longest axis, and packed together.
+    unseen: a mask of faces nobody sees (a sample's base, on the ground):
+    charted apart, UNSEEN_SCALE times smaller a side, their texels left to
+    the rest, which the atlas's scale grows into."""
     import xatlas  # the assets extra
 
+    unseen = np.zeros(len(faces), bool) if unseen is None else unseen
     centres = vertices[faces].mean(axis=1)
     axis = int(np.argmax(np.ptp(vertices, axis=0)))
-    count = -(-len(faces) // UNWRAP_PART)
-    part = np.searchsorted(np.quantile(centres[:, axis], np.linspace(0, 1, count + 1)[1:-1]), centres[:, axis])
+    seen = np.flatnonzero(~unseen)
+    count = max(1, -(-len(seen) // UNWRAP_PART))
+    part = np.full(len(faces), count, np.int64)  # the unseen faces: a part of their own
+    part[seen] = np.searchsorted(np.quantile(centres[seen, axis], np.linspace(0, 1, count + 1)[1:-1]),
+                                 centres[seen, axis])
     atlas, kept = xatlas.Atlas(), []
-    for k in range(count):
+    for k in range(count + bool(unseen.any())):
         mine = faces[part == k]
         used = np.unique(mine)
         kept.append(used)
-        atlas.add_mesh(np.ascontiguousarray(vertices[used], np.float32),
+        positions = vertices[used] if k < count else vertices[used].mean(axis=0) + (
+            vertices[used] - vertices[used].mean(axis=0)) * UNSEEN_SCALE
+        atlas.add_mesh(np.ascontiguousarray(positions, np.float32),
                        np.ascontiguousarray(np.searchsorted(used, mine), np.uint32))
     pack = xatlas.PackOptions()
     pack.padding, pack.bilinear = padding(size), True
     # Scale the charts so that the packed atlas comes out about the texture's size.
-    pack.texels_per_unit = size * math.sqrt(FILL / max(bake.area(vertices[faces]).sum(), 1e-30))
+    area = bake.area(vertices[faces[seen]]).sum() + bake.area(vertices[faces[unseen]]).sum() * UNSEEN_SCALE ** 2
+    pack.texels_per_unit = size * math.sqrt(FILL / max(area, 1e-30))
     atlas.generate(xatlas.ChartOptions(), pack)
     sources, new_faces, uvs, start = [], [], [], 0
     for k, used in enumerate(kept):
@@ -286,6 +300,16 @@ def unwrap(vertices: np.ndarray, faces: np.ndarray, size: int) -> tuple:
     # square holds the atlas as it is, or shrunk to fit if it came out larger.
     uvs = np.concatenate(uvs) * side / max(size, side.max())
     return np.concatenate(sources).astype(np.int64), np.concatenate(new_faces), uvs
+
+
+def on_the_ground(vertices: np.ndarray, faces: np.ndarray, up: int, reach: float) -> np.ndarray:
+    """The faces of a sample's base: facing the ground (their normal within
+    BASE_ANGLE of straight down) and within `reach` of its lowest point."""
+    corners = vertices[faces]
+    normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    length = np.linalg.norm(normals, axis=1)
+    down = -normals[:, up] > np.cos(np.radians(BASE_ANGLE)) * np.maximum(length, 1e-30)
+    return down & (corners[:, :, up].max(axis=1) <= vertices[:, up].min() + reach)
 
 
 def convex_hulls(vertices: np.ndarray, faces: np.ndarray, count: int) -> list:
@@ -318,7 +342,8 @@ def level(dense: Dense, target: int, size: int, options: AssetOptions, threads: 
     started = time.perf_counter()
     vertices, faces, error = simplify(dense.vertices, dense.faces, target, dense.lock_border)
     simplified = time.perf_counter()
-    source, split_faces, uvs = unwrap(vertices, faces, size)
+    unseen = None if dense.up is None else on_the_ground(vertices, faces, dense.up, dense.voxel)
+    source, split_faces, uvs = unwrap(vertices, faces, size, unseen)
     unwrapped = time.perf_counter()
     normals = bake.vertex_normals(vertices, faces)[source]  # smooth across UV seams
     positions = vertices[source]
@@ -331,7 +356,7 @@ def level(dense: Dense, target: int, size: int, options: AssetOptions, threads: 
                            ("bake", baked - unwrapped)):
         timings[stage] = timings.get(stage, 0) + seconds
     figures = {"triangles": len(split_faces), "vertices": len(positions), "texture": size, "error": round(error, 6),
-               "surface_found": round(maps.found, 4)}
+               "surface_found": round(maps.found, 4), "base_faces": int(0 if unseen is None else unseen.sum())}
     return gltf.Level(positions, normals, tangents, uvs, split_faces, maps.normal, maps.colour, maps.occlusion), figures
 
 

@@ -216,15 +216,18 @@ def test_the_normal_map_turns_a_coarse_level_into_the_fields_surface(part, monke
     assert np.abs(maps.colour[rows, columns].astype(int) - colour(surface)).mean() < 2
 
 
-def test_a_level_charted_in_parts_keeps_every_face_once_and_no_two_overlap(monkeypatch):
-    """Charted in parts (UNWRAP_PART faces at a time), the level is the same
-    triangles, each once, and the packed charts of all parts share no texel."""
+@pytest.mark.parametrize("with_unseen", [False, True])
+def test_a_level_charted_in_parts_keeps_every_face_once_and_no_two_overlap(monkeypatch, with_unseen):
+    """Charted in parts (UNWRAP_PART faces at a time, and the unseen faces
+    apart), the level is the same triangles, each once, and the packed
+    charts of all parts share no texel."""
     import trimesh
 
     monkeypatch.setattr(asset, "UNWRAP_PART", 300)
     sphere = trimesh.creation.icosphere(3, radius=10)  # 1,280 faces: five parts
     vertices, faces = np.asarray(sphere.vertices), np.asarray(sphere.faces)
-    source, split, uvs = asset.unwrap(vertices, faces, 256)
+    unseen = vertices[faces].mean(axis=1)[:, 2] < -8 if with_unseen else None
+    source, split, uvs = asset.unwrap(vertices, faces, 256, unseen)
     assert sorted(map(tuple, np.sort(source[split], axis=1))) == sorted(map(tuple, np.sort(faces, axis=1)))
     assert uvs.min() >= 0 and uvs.max() <= 1
     size = 256
@@ -239,6 +242,43 @@ def test_a_level_charted_in_parts_keeps_every_face_once_and_no_two_overlap(monke
         w2 = ((b - a)[0] * (box[..., 1] - a[1]) - (b - a)[1] * (box[..., 0] - a[0])) / d
         covered[low[0]:high[0], low[1]:high[1]] += (w1 > 1e-6) & (w2 > 1e-6) & (1 - w1 - w2 > 1e-6)
     assert covered.max() == 1 and covered.sum() > 0.3 * size * size  # charts apart, the atlas well filled
+
+
+def test_a_samples_base_is_found_and_charted_small_so_that_the_rest_gets_its_texels():
+    """A slab's two faces on the ground are its base (a third of its area);
+    charted with them unseen, they hold 1/256 of the texels per area the
+    other faces hold, and the other faces more than they held before."""
+    import trimesh
+
+    from sinshape.runtime import bake
+
+    box = trimesh.creation.box((4, 4, 1))
+    vertices, faces = np.asarray(box.vertices), np.asarray(box.faces)
+    base = asset.on_the_ground(vertices, faces, 2, 0.1)
+    assert np.flatnonzero(base).tolist() == np.flatnonzero(vertices[faces][:, :, 2].max(axis=1) < -0.4).tolist() \
+        and base.sum() == 2
+    assert not asset.on_the_ground(vertices, faces, 1, 0.1)[base].any()  # with y up, the z faces are walls
+
+    def density(unseen):  # UV area per unit of surface, of the base's faces and of the others
+        source, split, uvs = asset.unwrap(vertices, faces, 256, unseen)
+        original = np.array([np.flatnonzero((np.sort(faces, axis=1) == np.sort(source[f])).all(axis=1))[0] for f in split])
+        uv_area = np.abs(np.cross(uvs[split][:, 1] - uvs[split][:, 0], uvs[split][:, 2] - uvs[split][:, 0])) / 2
+        world = bake.area(vertices[faces][original])
+        return uv_area[base[original]].sum() / world[base[original]].sum(), \
+            uv_area[~base[original]].sum() / world[~base[original]].sum()
+
+    base_before, rest_before = density(None)
+    base_after, rest_after = density(base)
+    assert base_before == pytest.approx(rest_before, rel=0.05)
+    assert base_after == pytest.approx(rest_after * asset.UNSEEN_SCALE ** 2, rel=0.2)
+    assert rest_after > 1.2 * rest_before
+
+
+def test_a_tiles_asset_has_no_base_and_a_samples_counts_its_own(coloured_asset):
+    assert all(level["base_faces"] > 0 for level in coloured_asset[2]["levels"])
+    model = load_model(TINY_ONNX, threads=1)
+    _, info = asset.asset_bytes(model, SampleRequest(3, tile=(1, 0)), asset.AssetOptions((400,), 32), "t", threads=1)
+    assert info["levels"][0]["base_faces"] == 0
 
 
 def ball(points: np.ndarray) -> np.ndarray:
