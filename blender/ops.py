@@ -284,6 +284,8 @@ class SINSHAPE_OT_export_asset(SampleOperator):
                                                    "a static body's shapes"),
                                 ("unreal", "Unreal", "The hulls named UCX_: Unreal's convex collision of the finest "
                                                      "level")])
+    quantise: BoolProperty(name="Quantise", description="Store the vertices as 8- and 16-bit integers "
+                                                        "(KHR_mesh_quantization, a required extension)")
     add_objects: BoolProperty(name="Add to scene", default=True,
                               description="Import the written asset's levels, textured, where the sample is")
 
@@ -296,7 +298,7 @@ class SINSHAPE_OT_export_asset(SampleOperator):
     def execute(self, context):
         return reported(self, live.export_asset, sample_object(context), Path(bpy.path.abspath(self.filepath)),
                         self.lods, self.texture, self.ao, self.add_objects, self.height or None, self.collision,
-                        self.naming, self.hulls)
+                        self.naming, self.hulls, self.quantise)
 
 
 class SINSHAPE_OT_layout_show(SampleOperator):

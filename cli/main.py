@@ -304,6 +304,10 @@ def asset_options(command):
                           "shows, the coarser ones listed by MSFT_lod (Babylon.js, UnityGLTF); godot: Godot's "
                           "import hints, one level shown and the collision made a static body's shapes; unreal: "
                           "the hulls named UCX_, Unreal's convex collision of the finest level."),
+        click.option("--quantise", is_flag=True,
+                     help="With --lods: store the vertices as 8- and 16-bit integers (KHR_mesh_quantization, "
+                          "a required extension: three.js, Babylon.js, Blender, glTFast and Godot 4 read it; "
+                          "Godot 3 does not)."),
     ]):
         command = option(command)
     return command
@@ -369,7 +373,7 @@ def sample_options(command):
                    "local Ray on this machine).")
 @RESTART_OPTION
 def sample(model, seeds, layout_file, resample_layout, output, lods, texture, ao, height, collision, hulls, naming,
-           threads, workers, engine, address, restart, **fields):
+           quantise, threads, workers, engine, address, restart, **fields):
     """Generate new shapes from a model and write them as meshes.
 
     MODEL is a .onnx file from `sinrun train` or the name of a shipped model
@@ -382,7 +386,7 @@ def sample(model, seeds, layout_file, resample_layout, output, lods, texture, ao
     if seeds is None and (workers is not None or engine != "local" or address is not None or restart):
         raise ConflictError("`workers`, `engine`, `address` and `restart` are for many samples: give `seeds`",
                             ("workers", "engine", "address", "restart", "seeds"))
-    packed = assets.options_of(lods, texture, ao, height, collision, naming, hulls)
+    packed = assets.options_of(lods, texture, ao, height, collision, naming, hulls, quantise)
     loaded = open_model(model, threads)
     laid_out = Layout.of(layout_files.read_any(loaded, layout_file, fields["size"]), resample_layout) if layout_file else None
     request = SampleRequest.of({**fields, "layout": laid_out})
@@ -494,7 +498,7 @@ def world_options(command):
 @RESTART_OPTION
 @asset_options
 def world(model, others, tiles, output, suffix, threads, workers, engine, address, height_map, relief, models_map,
-          restart, lods, texture, ao, height, collision, hulls, naming, **fields):
+          restart, lods, texture, ao, height, collision, hulls, naming, quantise, **fields):
     """Write tiles of an endless world: any tile on its own, seamless with its neighbours.
 
     The world spreads along the model's two horizontal axes (the two that are
@@ -508,7 +512,7 @@ def world(model, others, tiles, output, suffix, threads, workers, engine, addres
     from sinshape import models
     from sinshape.runtime import asset as assets, many, request as requests, write
 
-    packed = assets.options_of(lods, texture, ao, height, collision, naming, hulls)
+    packed = assets.options_of(lods, texture, ao, height, collision, naming, hulls, quantise)
     loaded = open_model(model, threads)
     wanted = requests.world_request(loaded, fields, height_map, relief, [models.find(other) for other in others],
                                     models_map)

@@ -67,7 +67,10 @@ class AssetOptions:
       so that one level shows, the collision mesh `-colonly` and each hull
       `-convcolonly`, which Godot makes a static body's collision shapes)
       or "unreal" (the hulls `UCX_NAME_LOD0_NN` in the scene, which
-      Unreal's importer makes the finest level's convex collision).
+      Unreal's importer makes the finest level's convex collision);
+    quantise: store the vertices as 8- and 16-bit integers
+      (KHR_mesh_quantization, then a required extension: Godot 3 refuses
+      such a file; three.js, Babylon.js, Blender, glTFast and Godot 4 read it).
     """
 
     lods: tuple = (20000, 5000, 1200)
@@ -77,6 +80,7 @@ class AssetOptions:
     collision: int = 0  # triangles of a collision mesh simplified from the full one; 0: none
     hulls: int = 0  # convex hulls of a collision decomposition, at most; 0: none
     naming: str = "gltf"  # how levels and collision are named: options.NAMINGS
+    quantise: bool = False  # vertices as integers (KHR_mesh_quantization): 20 bytes a vertex instead of 48
 
     def __post_init__(self):
         lods = (self.lods,) if isinstance(self.lods, int) else self.lods
@@ -411,7 +415,8 @@ def asset_bytes(model, request, options: AssetOptions, name: str = "sample", thr
     if request.tile is None:  # a tile keeps its frame, so that its neighbours meet it
         place = on_its_base(dense.vertices, UP_AXIS[model.manifest.up], options.height)
         extras["sinshape"].update(pivot="the centre of its base", height_m=round(place.height, 6))
-    data = gltf.glb_bytes(levels, name, extras, model.manifest.up, place, collision, options.naming, hulls)
+    data = gltf.glb_bytes(levels, name, extras, model.manifest.up, place, collision, options.naming, hulls,
+                          options.quantise)
     timings["write"] = time.perf_counter() - written
     info = {"dense_triangles": len(dense.faces), "dense_vertices": len(dense.vertices), "levels": figures,
             "seconds": {k: round(v, 3) for k, v in timings.items()}, "bytes": len(data)}
@@ -452,17 +457,18 @@ def on_its_base(vertices: np.ndarray, up: int, height: float | None) -> gltf.Pla
 
 
 def options_of(lods=None, texture: int | None = None, ao: bool = False, height: float | None = None,
-               collision: int = 0, naming: str = "gltf", hulls: int = 0) -> AssetOptions | None:
+               collision: int = 0, naming: str = "gltf", hulls: int = 0,
+               quantise: bool = False) -> AssetOptions | None:
     """The asset a front end's values ask for: None without lods (a plain
     sample), which the others need. lods: counts, or their text."""
     if lods is None:
         given = [name for name, value in (("texture", texture is not None), ("ao", ao), ("height", height is not None),
                                           ("collision", collision), ("hulls", hulls),
-                                          ("naming", naming != "gltf")) if value]
+                                          ("naming", naming != "gltf"), ("quantise", quantise)) if value]
         if given:
             raise ConflictError(f"{named(given, ' and ')} {'are' if len(given) > 1 else 'is'} for an asset: give `lods` "
                                 "too (its levels' triangle counts, like 20000,5000,1200)", (*given, "lods"))
         return None
     lods = parse_lods(lods) if isinstance(lods, str) else lods
     return AssetOptions(lods, AssetOptions.texture if texture is None else texture, bool(ao), height, collision,
-                        hulls, naming)
+                        hulls, naming, bool(quantise))

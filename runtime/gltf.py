@@ -2,13 +2,17 @@
 mesh with normals, tangents and UVs and a PBR metallic-roughness material
 of its own baked maps (PNG), in one buffer.
 
-Levels of detail follow two conventions at once. MSFT_lod (Babylon.js,
-UnityGLTF, Unreal's glTFRuntime): the finest level's node lists the coarser
-levels' nodes, which stand outside the scene, with MSFT_screencoverage in
-its extras; a reader that knows no MSFT_lod shows the finest level alone,
-as the extension asks. Names: each level's node and mesh is NAME_LOD0,
-NAME_LOD1, ..., the suffix Unity, Unreal and Godot's importers read as
-levels of one object, and what a person sees in Blender's outliner.
+Levels of detail: with MSFT_lod (Babylon.js, UnityGLTF), the finest
+level's node lists the coarser levels' nodes, which stand outside the
+scene, with MSFT_screencoverage in its extras; a reader that knows no
+MSFT_lod shows the finest level alone, as the extension asks. Each level's
+node and mesh is NAME_LOD0, NAME_LOD1, ..., what a person sees in an
+outliner; engines' own conventions (Godot's and Unreal's names) are the
+`naming` of glb_bytes (docs/ASSETS.md says what each engine reads).
+
+With a Grid, the vertices are quantised (KHR_mesh_quantization): positions
+as 16-bit integers on a grid the nodes' transforms undo, normals and
+tangents as 8-bit, UVs as 16-bit: 20 bytes a vertex instead of 48.
 """
 
 import io
@@ -22,7 +26,10 @@ from dataclasses import dataclass
 import numpy as np
 
 ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER = 34962, 34963
-FLOAT, UNSIGNED_SHORT, UNSIGNED_INT = 5126, 5123, 5125
+BYTE, SHORT, FLOAT, UNSIGNED_SHORT, UNSIGNED_INT = 5120, 5122, 5126, 5123, 5125
+COMPONENTS = {np.dtype("int8"): BYTE, np.dtype("int16"): SHORT, np.dtype("float32"): FLOAT,
+              np.dtype("uint16"): UNSIGNED_SHORT, np.dtype("uint32"): UNSIGNED_INT}
+NORMALISED = {BYTE: 127, SHORT: 32767, UNSIGNED_SHORT: 65535}  # what a normalised integer's 1.0 is stored as
 LINEAR, LINEAR_MIPMAP_LINEAR, CLAMP_TO_EDGE = 9729, 9987, 33071
 GLB_MAGIC, GLB_JSON, GLB_BIN = 0x46546C67, 0x4E4F534A, 0x004E4942
 ROUGHNESS = 0.9  # stone, earth, plaster: what sinshape's shapes are; not metal
@@ -40,6 +47,33 @@ class Placement:
     base: np.ndarray
     scale: float
     height: float
+
+
+@dataclass(frozen=True)
+class Grid:
+    """The grid quantised positions are stored on: p = centre + half * q, q
+    in [-1, 1] (16-bit normalised integers); every node's transform
+    carries it, so a reader sees the positions in their frame."""
+
+    centre: np.ndarray  # (3,)
+    half: float  # one scale for all axes, so that normals and tangents need no correction
+
+    @classmethod
+    def around(cls, positions: list) -> "Grid":
+        low = np.min([p.min(axis=0) for p in positions], axis=0)
+        high = np.max([p.max(axis=0) for p in positions], axis=0)
+        return cls((low + high) / 2, float(max(np.max(high - low) / 2, 1e-12)))
+
+
+def normalised(values: np.ndarray, dtype, width: int | None = None) -> np.ndarray:
+    """Values in [-1, 1] (or [0, 1] for an unsigned type) as normalised
+    integers, padded with zeros to `width` components (a vertex attribute's
+    4-byte stride)."""
+    top = NORMALISED[COMPONENTS[np.dtype(dtype)]]
+    out = np.round(np.clip(values, -1, 1) * top).astype(dtype)
+    if width and width > out.shape[1]:
+        out = np.concatenate([out, np.zeros((len(out), width - out.shape[1]), dtype)], axis=1)
+    return np.ascontiguousarray(out)
 
 
 @dataclass
@@ -60,31 +94,48 @@ class Level:
 class Builder:
     """glTF's JSON and its one binary buffer, filled as parts are added."""
 
-    def __init__(self):
+    def __init__(self, grid: Grid | None = None):
+        self.grid = grid
         self.json = {"asset": {"version": "2.0", "generator": "sinshape"}, "buffers": [], "bufferViews": [],
                      "accessors": [], "images": [], "textures": [], "samplers": [], "materials": [],
                      "meshes": [], "nodes": []}
         self.binary = io.BytesIO()
 
-    def view(self, data: bytes, target: int | None = None) -> int:
+    def view(self, data: bytes, target: int | None = None, stride: int | None = None) -> int:
         """A buffer view of `data`, 4-byte aligned (what every accessor type needs)."""
         self.binary.write(b"\0" * (-self.binary.tell() % 4))
         view = {"buffer": 0, "byteOffset": self.binary.tell(), "byteLength": len(data)}
         if target:
             view["target"] = target
+        if stride:
+            view["byteStride"] = stride
         self.binary.write(data)
         self.json["bufferViews"].append(view)
         return len(self.json["bufferViews"]) - 1
 
-    def accessor(self, array: np.ndarray, kind: str, target: int, bounds: bool = False) -> int:
-        component = {np.dtype("float32"): FLOAT, np.dtype("uint16"): UNSIGNED_SHORT,
-                     np.dtype("uint32"): UNSIGNED_INT}[array.dtype]
-        entry = {"bufferView": self.view(array.tobytes(), target), "componentType": component,
-                 "count": len(array) if array.ndim > 1 else array.size, "type": kind}
-        if bounds:  # POSITION needs its bounds, as float32 values
-            entry["min"], entry["max"] = array.min(axis=0).tolist(), array.max(axis=0).tolist()
+    def accessor(self, array: np.ndarray, kind: str, target: int, bounds: bool = False,
+                 normalised: bool = False) -> int:
+        """An accessor of `array`; an integer vertex attribute padded to a
+        4-byte stride (normalised: read as [-1, 1] or [0, 1]) keeps its
+        padding out of `kind`'s components."""
+        component = COMPONENTS[array.dtype]
+        width = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}[kind]
+        padded = array.ndim > 1 and array.shape[1] > width
+        entry = {"bufferView": self.view(array.tobytes(), target, array.strides[0] if padded else None),
+                 "componentType": component, "count": len(array) if array.ndim > 1 else array.size, "type": kind}
+        if normalised:
+            entry["normalized"] = True
+        if bounds:  # POSITION needs its bounds, in the stored values
+            values = array[:, :width]
+            entry["min"], entry["max"] = values.min(axis=0).tolist(), values.max(axis=0).tolist()
         self.json["accessors"].append(entry)
         return len(self.json["accessors"]) - 1
+
+    def positions(self, positions: np.ndarray) -> int:
+        if self.grid is None:
+            return self.accessor(np.asarray(positions, np.float32), "VEC3", ARRAY_BUFFER, True)
+        stored = normalised((positions - self.grid.centre) / self.grid.half, np.int16, 4)
+        return self.accessor(stored, "VEC3", ARRAY_BUFFER, True, True)
 
     def texture(self, png: bytes, name: str) -> int:
         self.json["images"].append({"name": name, "mimeType": "image/png", "bufferView": self.view(png)})
@@ -108,10 +159,16 @@ class Builder:
         return len(self.json["materials"]) - 1
 
     def mesh(self, level: Level, pngs: dict, name: str) -> int:
-        attributes = {"POSITION": self.accessor(level.positions.astype(np.float32), "VEC3", ARRAY_BUFFER, True),
-                      "NORMAL": self.accessor(level.normals.astype(np.float32), "VEC3", ARRAY_BUFFER),
-                      "TANGENT": self.accessor(level.tangents.astype(np.float32), "VEC4", ARRAY_BUFFER),
-                      "TEXCOORD_0": self.accessor(level.uvs.astype(np.float32), "VEC2", ARRAY_BUFFER)}
+        if self.grid is None:
+            attributes = {"NORMAL": self.accessor(level.normals.astype(np.float32), "VEC3", ARRAY_BUFFER),
+                          "TANGENT": self.accessor(level.tangents.astype(np.float32), "VEC4", ARRAY_BUFFER),
+                          "TEXCOORD_0": self.accessor(level.uvs.astype(np.float32), "VEC2", ARRAY_BUFFER)}
+        else:
+            attributes = {
+                "NORMAL": self.accessor(normalised(level.normals, np.int8, 4), "VEC3", ARRAY_BUFFER, normalised=True),
+                "TANGENT": self.accessor(normalised(level.tangents, np.int8), "VEC4", ARRAY_BUFFER, normalised=True),
+                "TEXCOORD_0": self.accessor(normalised(level.uvs, np.uint16), "VEC2", ARRAY_BUFFER, normalised=True)}
+        attributes = {"POSITION": self.positions(level.positions), **attributes}
         index_type = np.uint16 if len(level.positions) < 65535 else np.uint32
         indices = self.accessor(level.faces.astype(index_type).ravel(), "SCALAR", ELEMENT_ARRAY_BUFFER)
         self.json["meshes"].append({"name": name, "primitives": [
@@ -122,7 +179,7 @@ class Builder:
         """A mesh of positions and triangles alone (a collision mesh: no normals, UVs or material)."""
         index_type = np.uint16 if len(positions) < 65535 else np.uint32
         self.json["meshes"].append({"name": name, "primitives": [{
-            "attributes": {"POSITION": self.accessor(np.asarray(positions, np.float32), "VEC3", ARRAY_BUFFER, True)},
+            "attributes": {"POSITION": self.positions(positions)},
             "indices": self.accessor(np.asarray(faces).astype(index_type).ravel(), "SCALAR", ELEMENT_ARRAY_BUFFER)}]})
         return len(self.json["meshes"]) - 1
 
@@ -167,7 +224,7 @@ def encoded_maps(levels: list) -> list:
 
 def glb_bytes(levels: list, name: str, extras: dict | None = None, up: str = "y",
               place: Placement | None = None, collision: tuple | None = None, naming: str = "gltf",
-              hulls: list = ()) -> bytes:
+              hulls: list = (), quantise: bool = False) -> bytes:
     """The levels (finest first) as one .glb; `extras` (plain values) go into
     the finest node's extras, beside the screen coverages. up: the axis of
     the levels' frame that points up; glTF's up is +Y, so a z-up frame's
@@ -183,8 +240,13 @@ def glb_bytes(levels: list, name: str, extras: dict | None = None, up: str = "y"
     body's collision shapes, not drawn); "unreal" puts the hulls in the
     scene as `UCX_<finest level>_NN`, Unreal's convex collision of the mesh
     of that name (its importer reads no concave collision from a file, so
-    the collision mesh stays outside the scene, as under "gltf")."""
-    builder = Builder()
+    the collision mesh stays outside the scene, as under "gltf").
+    quantise: store the vertices quantised (KHR_mesh_quantization, a
+    required extension: Grid)."""
+    meshes = [level.positions for level in levels] + [shape[0] for shape in ([collision] if collision else [])
+                                                       + list(hulls)]
+    grid = Grid.around(meshes) if quantise else None
+    builder = Builder(grid)
     nodes = builder.json["nodes"]
     godot, unreal = naming == "godot", naming == "unreal"
     for k, (level, pngs) in enumerate(zip(levels, encoded_maps(levels))):
@@ -200,18 +262,31 @@ def glb_bytes(levels: list, name: str, extras: dict | None = None, up: str = "y"
                  else f"{name}_hull{k:02d}")
         nodes.append({"name": label, "mesh": builder.bare_mesh(*hull, label)})
         shown += [len(nodes) - 1] if godot or unreal else []
+    # A node is translation * rotation * scale: the base (less the grid's centre), scaled and turned, moved to 0.
+    base = np.zeros(3) if place is None else np.asarray(place.base, np.float64)
+    size = 1.0 if place is None else place.scale
+    shift = (base - (0 if grid is None else grid.centre)) * size
+    node_scale = size * (1 if grid is None else grid.half)
+    turned = [shift[0], shift[2], -shift[1]] if up == "z" else list(shift)
     for node in nodes:
         if up == "z":
             node["rotation"] = Z_UP_TO_Y_UP
-        if place is not None:  # a node is translation * rotation * scale: the base, scaled and turned, moved to 0
-            x, y, z = np.asarray(place.base, np.float64) * place.scale
-            node["translation"] = [float(-x), float(-z), float(y)] if up == "z" else [float(-x), float(-y), float(-z)]
-            if place.scale != 1:
-                node["scale"] = [place.scale] * 3
+        if shift.any():
+            node["translation"] = [float(-t) for t in turned]
+        if node_scale != 1:
+            node["scale"] = [float(node_scale)] * 3
+    used = []
     if len(levels) > 1:
         nodes[0]["extensions"] = {"MSFT_lod": {"ids": list(range(1, len(levels)))}}
-        builder.json["extensionsUsed"] = ["MSFT_lod"]
+        used.append("MSFT_lod")
+    if grid is not None:  # a reader that cannot dequantise would draw nothing right: it must refuse the file
+        used.append("KHR_mesh_quantization")
+        builder.json["extensionsRequired"] = ["KHR_mesh_quantization"]
+    if used:
+        builder.json["extensionsUsed"] = used
     nodes[0]["extras"] = {"MSFT_screencoverage": screen_coverage(len(levels)), **(extras or {})}
+    if grid is not None:
+        nodes[0]["extras"].setdefault("sinshape", {})["grid"] = {"centre": grid.centre.tolist(), "half": grid.half}
     builder.json["scenes"] = [{"name": name, "nodes": shown}]
     builder.json["scene"] = 0
     return builder.glb()
@@ -228,18 +303,23 @@ def read(data: bytes) -> tuple:
 
 
 def level_arrays(document: dict, binary: bytes, node: int) -> dict:
-    """A level's arrays (position, normal, tangent, texcoord_0, faces) and
-    maps (normal_map, colour_map, occlusion_map: None where the material has
+    """A level's arrays (position, normal, tangent, texcoord_0, faces; float
+    where they were quantised, positions in the levels' frame) and maps
+    (normal_map, colour_map, occlusion_map: None where the material has
     none), by its node."""
     from PIL import Image  # pillow, as png_bytes
 
     def accessor(index):
         a = document["accessors"][index]
         view = document["bufferViews"][a["bufferView"]]
-        dtype = {FLOAT: np.float32, UNSIGNED_SHORT: np.uint16, UNSIGNED_INT: np.uint32}[a["componentType"]]
+        dtype = {v: k for k, v in COMPONENTS.items()}[a["componentType"]]
         width = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}[a["type"]]
-        values = np.frombuffer(binary, dtype, a["count"] * width, view["byteOffset"])
-        return values.reshape(a["count"], width) if width > 1 else values
+        stride = view.get("byteStride", width * dtype.itemsize) // dtype.itemsize
+        values = np.frombuffer(binary, dtype, a["count"] * stride, view["byteOffset"]).reshape(a["count"], stride)
+        values = values[:, :width]
+        if a.get("normalized"):
+            values = np.maximum(values / NORMALISED[a["componentType"]], -1.0).astype(np.float32)
+        return values if width > 1 else values[:, 0]
 
     def image(texture):
         if texture is None:
@@ -249,6 +329,9 @@ def level_arrays(document: dict, binary: bytes, node: int) -> dict:
 
     primitive = document["meshes"][document["nodes"][node]["mesh"]]["primitives"][0]
     out = {name.lower(): accessor(index) for name, index in primitive["attributes"].items()}
+    grid = document["nodes"][0]["extras"].get("sinshape", {}).get("grid")
+    if grid:  # quantised: positions back in the levels' frame
+        out["position"] = (np.asarray(grid["centre"]) + grid["half"] * out["position"]).astype(np.float32)
     out["faces"] = accessor(primitive["indices"]).reshape(-1, 3).astype(np.int64)
     material = document["materials"][primitive["material"]]
     out["normal_map"] = image(material["normalTexture"])

@@ -132,6 +132,8 @@ HullsQuery = Annotated[int, Query(description="With lods: a collision of at most
 NamingQuery = Annotated[Literal[NAMINGS], Query(description="With lods: how the levels and the collision are named: "
                                                          "gltf (MSFT_lod), godot (Godot's import hints) or unreal "
                                                          "(the hulls as UCX_ meshes).")]
+QuantiseQuery = Annotated[bool, Query(description="With lods: store the vertices as 8- and 16-bit integers "
+                                      "(KHR_mesh_quantization, a required extension).")]
 HeightQuery = Annotated[float | None, Query(description="With lods: the asset's height in metres, base to top "
                                             "(default: one unit of the training mesh is a metre).")]
 
@@ -145,10 +147,12 @@ class AssetQuery:
     ao: AoQuery = False
     collision: CollisionQuery = 0
     naming: NamingQuery = "gltf"
+    quantise: QuantiseQuery = False
 
     def options(self, format: str, height: float | None = None, hulls: int = 0):
         """The runtime's asset options (None: a plain file); an asset is a .glb."""
-        options = asset.options_of(self.lods, self.texture, self.ao, height, self.collision, self.naming, hulls)
+        options = asset.options_of(self.lods, self.texture, self.ao, height, self.collision, self.naming, hulls,
+                                   self.quantise)
         if options is not None and format != "glb":
             raise InputError(f"an asset is written as glb (glTF's binary), not {format}")
         return options

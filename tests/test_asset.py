@@ -703,6 +703,46 @@ def test_a_tile_takes_no_hulls():
         asset.asset_bytes(model, SampleRequest(3, tile=(0, 0)), asset.AssetOptions((400,), 32, hulls=4), "t")
 
 
+def placed(node: dict, positions: np.ndarray) -> np.ndarray:
+    """Positions where a node's transform (translation * rotation * scale) puts them."""
+    x, y, z, w = node.get("rotation", (0, 0, 0, 1))
+    turn = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+    return np.asarray(node.get("translation", (0, 0, 0))) + (positions * node.get("scale", (1, 1, 1))) @ turn.T
+
+
+def test_a_quantised_asset_is_valid_and_puts_every_vertex_where_the_float_one_does(tmp_path):
+    model = load_model(TINY_COLOUR_ONNX, threads=1)
+    files = {quantise: asset.asset_bytes(model, SampleRequest(3), asset.AssetOptions(
+        LODS, TEXTURE, collision=120, quantise=quantise), "box", threads=1)[0] for quantise in (False, True)}
+    (tmp_path / "box.glb").write_bytes(files[True])
+    report = validate(tmp_path / "box.glb")
+    assert report["issues"]["numErrors"] == 0 and report["issues"]["numWarnings"] == 0, report["issues"]["messages"]
+    (floats, float_binary), (ints, int_binary) = gltf.read(files[False]), gltf.read(files[True])
+    assert ints["extensionsRequired"] == ["KHR_mesh_quantization"] and "extensionsRequired" not in floats
+    for k in range(len(LODS)):
+        exact, stored = gltf.level_arrays(floats, float_binary, k), gltf.level_arrays(ints, int_binary, k)
+        assert ints["accessors"][ints["meshes"][k]["primitives"][0]["attributes"]["POSITION"]]["componentType"] \
+            == gltf.SHORT
+        extent = np.ptp(exact["position"], axis=0).max()
+        raw = np.frombuffer(int_binary, np.int16, 4 * len(stored["position"]),  # as an engine reads them
+                            ints["bufferViews"][ints["accessors"][ints["meshes"][k]["primitives"][0]["attributes"][
+                                "POSITION"]]["bufferView"]]["byteOffset"]).reshape(-1, 4)[:, :3] / 32767
+        np.testing.assert_allclose(placed(ints["nodes"][k], raw), placed(floats["nodes"][k], exact["position"]),
+                                   atol=1e-4 * extent)
+        assert np.degrees(np.arccos(np.clip((exact["normal"] * stored["normal"]).sum(axis=1)
+                                            / np.linalg.norm(stored["normal"], axis=1), -1, 1))).max() < 1
+        np.testing.assert_allclose(stored["texcoord_0"], exact["texcoord_0"], atol=1e-5)
+        assert np.array_equal(stored["faces"], exact["faces"])
+    collision = [n for n in ints["nodes"] if n["name"] == "box_collision"][0]
+    assert collision["scale"] == ints["nodes"][0]["scale"] != [1, 1, 1]  # one grid for every mesh, placed alike
+
+    def geometry(document, data):
+        return len(data) - sum(document["bufferViews"][image["bufferView"]]["byteLength"] for image in document["images"])
+    assert geometry(ints, files[True]) < 0.6 * geometry(floats, files[False])
+
+
 def test_a_vertex_whose_faces_have_no_area_still_gets_a_unit_normal():
     """A simplified level can leave a vertex whose faces are all degenerate:
     its normal comes from its neighbours' (glTF requires unit normals)."""
