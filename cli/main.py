@@ -306,8 +306,8 @@ def asset_options(command):
                           "the hulls named UCX_, Unreal's convex collision of the finest level."),
         click.option("--quantise", is_flag=True,
                      help="With --lods: store the vertices as 8- and 16-bit integers (KHR_mesh_quantization, "
-                          "a required extension: three.js, Babylon.js, Blender, glTFast and Godot 4 read it; "
-                          "Godot 3 does not)."),
+                          "a required extension: Blender, three.js, Babylon.js and glTFast read it; Godot 3 "
+                          "does not, so not with --naming godot)."),
     ]):
         command = option(command)
     return command

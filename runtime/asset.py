@@ -69,8 +69,9 @@ class AssetOptions:
       or "unreal" (the hulls `UCX_NAME_LOD0_NN` in the scene, which
       Unreal's importer makes the finest level's convex collision);
     quantise: store the vertices as 8- and 16-bit integers
-      (KHR_mesh_quantization, then a required extension: Godot 3 refuses
-      such a file; three.js, Babylon.js, Blender, glTFast and Godot 4 read it).
+      (KHR_mesh_quantization, then a required extension: Blender, three.js,
+      Babylon.js and glTFast read it; Godot 3 ignores it and reads the
+      integers unscaled, so it is refused with naming "godot").
     """
 
     lods: tuple = (20000, 5000, 1200)
@@ -122,6 +123,9 @@ class AssetOptions:
         if self.naming not in NAMINGS:
             raise InputError(f"unknown `naming` {self.naming!r}; choose {', '.join(NAMINGS[:-1])} or {NAMINGS[-1]}",
                              "naming")
+        if self.quantise and self.naming == "godot":
+            raise ConflictError("`quantise` and `naming` godot do not go together: Godot 3 reads quantised vertices "
+                                "as whole numbers, an asset 32767 times its size", ("quantise", "naming"))
 
     def level_texture(self, k: int) -> int:
         """Level k's maps' texels per side: `texture` halved level by level

@@ -379,6 +379,7 @@ def test_a_geometry_only_model_gets_a_normal_map_no_colour_map_and_occlusion_if_
     (dict(collision=2), "0 \\(none\\) or 4 to"), (dict(lods=(500,), collision=600), "to 500 triangles"),
     (dict(naming="unity"), "choose gltf, godot or unreal"), (dict(hulls=-1), "0 \\(none\\) to 64"),
     (dict(hulls=65), "to 64 convex hulls"), (dict(hulls=2.5), "to 64 convex hulls"),
+    (dict(quantise=True, naming="godot"), "Godot 3 reads quantised vertices as whole numbers"),
 ])
 def test_bad_options_are_refused_in_one_line(options, message):
     with pytest.raises(InputError, match=message) as error:
@@ -549,6 +550,32 @@ print("RESULT" + json.dumps({{"objects": objects, "nodes": nodes, "images": imag
     assert result["objects"]["box_LOD0"] <= LODS[0]
     assert {"TEX_IMAGE", "NORMAL_MAP", "BSDF_PRINCIPLED"} <= set(result["nodes"])
     assert [TEXTURE, TEXTURE] in result["images"].values() and len(result["images"]) >= 2
+
+
+@pytest.mark.blender
+def test_blender_reads_a_quantised_asset_where_it_reads_the_float_one(tmp_path):
+    """Blender's importer reads KHR_mesh_quantization: the finest level lands where the float file's does."""
+    pytest.importorskip("bpy", reason="needs bpy: pip install 'sinshape[blender]'")
+    model = load_model(TINY_COLOUR_ONNX, threads=1)
+    for quantise in (False, True):
+        data, _ = asset.asset_bytes(model, SampleRequest(3), asset.AssetOptions(LODS, TEXTURE, quantise=quantise),
+                                    "box", threads=1)
+        (tmp_path / f"box_{quantise}.glb").write_bytes(data)
+    script = f"""
+import json, bpy
+out = {{}}
+for quantise in (False, True):
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.import_scene.gltf(filepath={str(tmp_path)!r} + f"/box_{{quantise}}.glb")
+    obj = bpy.data.objects["box_LOD0"]
+    out[str(quantise)] = [list(obj.matrix_world @ v.co) for v in obj.data.vertices]
+print("RESULT" + json.dumps(out))
+"""
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
+    result = json.loads(next(line[6:] for line in done.stdout.splitlines() if line.startswith("RESULT")))
+    exact, stored = np.array(result["False"]), np.array(result["True"])
+    assert len(exact) == len(stored) > 100
+    np.testing.assert_allclose(stored, exact, atol=1e-4 * np.ptp(exact, axis=0).max())
 
 
 def godot_import(glb: Path, tmp_path: Path) -> dict:
