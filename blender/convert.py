@@ -88,9 +88,13 @@ def check_unchanged(reference: str, path: Path, digest: str, recorded: str) -> N
 SETTINGS = {"seed": "seed", "size": "size", "scale": "scale", "smooth": "smooth", "keep": "keep_box", "grow": "grow",
             "anchor": "anchor", "layout": "layout_bits", "tile": "radius", "arrange": "arrange", "lod": "fine",
             "models": "models", "models_map": "models_map", "heights": "heights"}
-# ... and those it leaves at their defaults (a mesh in the input's frame, turned to
-# Blender's). tests/test_blender_options.py holds both to the table.
-LEFT = ("recon", "smoother", "largest", "detail", "frame", "skirt")
+# ... those it leaves at their defaults (a mesh in the input's frame, turned to
+# Blender's) ...
+LEFT = ("recon", "smoother", "largest", "detail", "frame")
+# ... and those it sets to one value (worlds.world_options): every tile with a
+# skirt, so that a border between levels is closed from both sides.
+# tests/test_blender_options.py holds the three to the table.
+FIXED = {"skirt": True}
 
 
 def sample_request(values: dict, up: str) -> SampleRequest:

@@ -132,7 +132,7 @@ def world_options(settings, model, digest: str) -> tuple:
     heights, heights_digest = read_map(settings.heights, "height map",
                                        lambda path: world_maps.read_height_map(path, model, relief), settings.relief)
     options = world.WorldOptions(settings.arrange, heights=heights, models=tuple(each for each, _ in others),
-                                 models_map=placed)
+                                 models_map=placed, **convert.FIXED)
     made = (f"{digest}:{settings.seed}:{settings.scale!r}:{settings.arrange}:"
             f"{','.join(each for _, each in others)}:{placed_digest}:{heights_digest}")
     return options, made
@@ -300,9 +300,17 @@ class Shade:
 
 def tile_shade(model, tile: tuple, vertices, faces) -> Shade:
     """A tile's Shade, from its mesh as Blender holds it (float32, its own
-    space along Blender's axes)."""
+    space along Blender's axes). A skirt's faces (those lying in one of the
+    tile's sides, hanging from its border) are left out of the sums, so
+    that a border vertex shades as the surface it borders."""
     vertices = np.asarray(vertices, np.float32).astype(np.float64)
     faces = np.asarray(faces, np.int64).reshape(-1, 3)
+    _, sides, _ = tile_sides(model, np.asarray(vertices, np.float32))
+    in_a_side = np.zeros(len(faces), bool)
+    for side in sides:
+        for end in (1, 2):
+            in_a_side |= (side[faces] == end).all(axis=1)
+    faces = faces[~in_a_side]
     sums = np.zeros_like(vertices)
     if len(faces):
         corners = vertices[faces]  # (m, 3 corners, 3)
@@ -317,22 +325,29 @@ def tile_shade(model, tile: tuple, vertices, faces) -> Shade:
     return Shade(sums, border_keys(model, tile, np.asarray(vertices, np.float32)))
 
 
+def tile_sides(model, vertices: np.ndarray) -> tuple:
+    """Where a tile's vertices lie on its sides: (the Blender axis of each
+    of the two horizontal model axes, per axis 1 for a vertex on its low
+    side, 2 on its high side, 0 on neither, and Blender's up axis)."""
+    tiling = world.world_tiling(model)
+    manifest = model.manifest
+    turn = convert.TURNS[manifest.up]
+    axes, sides = [], []
+    for a in tiling.horizontal:  # model axis a lies along Blender axis b, in direction sign
+        b = int(np.abs(turn[:, a]).argmax())
+        axes.append(b)
+        end = float(np.float32(turn[b, a] * tiling.stride[a] * manifest.spacing[a]))
+        sides.append((vertices[:, b] == 0) * 1 + (vertices[:, b] == end) * 2)  # 1 low, 2 high, 0 neither
+    return axes, sides, int(np.abs(turn[:, tiling.up]).argmax())
+
+
 def border_keys(model, tile: tuple, vertices: np.ndarray) -> dict:
     """Where each of a tile's vertices on its four sides lies: ('a', line,
     j, ...) on a line between two columns of tiles, ('b', i, line, ...)
     between two rows, ('c', line, line, up) on a corner's column, with its
     coordinates along the line, as the tile's neighbours name it too."""
-    tiling = world.world_tiling(model)
-    manifest = model.manifest
-    turn = convert.TURNS[manifest.up]
-    axes, sides, ends = [], [], []
-    for a in tiling.horizontal:  # model axis a lies along Blender axis b, in direction sign
-        b = int(np.abs(turn[:, a]).argmax())
-        axes.append(b)
-        ends.append(float(np.float32(turn[b, a] * tiling.stride[a] * manifest.spacing[a])))
-        sides.append((vertices[:, b] == 0) * 1 + (vertices[:, b] == ends[-1]) * 2)  # 1 low, 2 high, 0 neither
-    up = int(np.abs(turn[:, tiling.up]).argmax())
-    (b0, b1), (s0, s1), (i, j) = axes, sides, tile
+    (b0, b1), (s0, s1), up = tile_sides(model, vertices)
+    i, j = tile
     keys = {}
     for index in np.flatnonzero((s0 > 0) | (s1 > 0)):
         line0, line1 = i + (s0[index] == 2), j + (s1[index] == 2)

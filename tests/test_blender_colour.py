@@ -43,7 +43,7 @@ def test_a_coloured_samples_vertices_carry_the_command_lines_colours(scene, tiny
 
 def test_a_coloured_worlds_tiles_carry_the_runtimes_colours(scene):
     from blender import convert
-    from sinshape.runtime import world_tiles
+    from sinshape.runtime import world, world_tiles
     from sinshape.runtime.load import load_model
 
     model = load_model(COLOUR_ONNX, threads=1)
@@ -52,7 +52,8 @@ def test_a_coloured_worlds_tiles_carry_the_runtimes_colours(scene):
     tiles = tiles_of(obj)
     assert len(tiles) == 9
     for tile, child in tiles.items():
-        surface = world_tiles.tile_surface(model, 4, tile)  # what `sinrun world` writes for the tile
+        # what `sinrun world --skirt` writes for the tile
+        surface = world_tiles.tile_surface(model, 4, tile, options=world.WorldOptions(**convert.FIXED))
         if len(surface.vertices):
             assert len(convert.mesh_vertices(child.data)) == len(surface.vertices)
             assert_shows_its_colours(child.data, convert.byte_colours(surface.colours))

@@ -1,6 +1,6 @@
 """The Blender extension held to the table of a sample's options
-(runtime/options.py): every option is set by one of its settings or left at
-its default, each setting takes the table's range, and the request it
+(runtime/options.py): every option is set by one of its settings, left at
+its default or set to one value, each setting takes the table's range, and the request it
 builds refuses a field no option has. Marked `blender`; skipped where bpy
 cannot be imported (Python 3.11 only: the blender extra)."""
 
@@ -20,8 +20,8 @@ pytestmark = [pytest.mark.blender,
 def test_every_option_is_set_by_a_setting_or_left_at_its_default(addon):
     from blender import convert, props
 
-    assert set(convert.SETTINGS).isdisjoint(convert.LEFT)
-    assert set(convert.SETTINGS) | set(convert.LEFT) == set(OPTION)
+    groups = [set(convert.SETTINGS), set(convert.LEFT), set(convert.FIXED)]
+    assert sum(map(len, groups)) == len(set().union(*groups)) and set().union(*groups) == set(OPTION)
     tile_options = {option.name for option in OPTIONS if "tile" in option.goes_with}
     for name, setting in convert.SETTINGS.items():
         group = props.SinshapeWorld if name in tile_options else props.SinshapeSettings

@@ -24,14 +24,15 @@ def add_world(model, **options):
 
 
 def sinrun_world(tmp_path, model, seed, tiles, frame) -> dict:
-    """`sinrun world` for `tiles` (a list of (i, j)) in `frame`, read back: (i, j) -> (vertices, faces)."""
+    """`sinrun world` for `tiles` (a list of (i, j)) in `frame`, with skirts as Blender's, read back:
+    (i, j) -> (vertices, faces)."""
     from blender import convert
     from sinshape.cli.main import cli
 
     out = tmp_path / f"world_{frame}_{seed}"
     (i0, j0), (i1, j1) = np.min(tiles, axis=0), np.max(tiles, axis=0)
     result = CliRunner().invoke(cli, ["world", str(model), "--seed", str(seed), "--tiles", f"{i0}:{i1},{j0}:{j1}",
-                                      "--frame", frame, "-o", str(out)])
+                                      "--frame", frame, "--skirt", "-o", str(out)])
     assert result.exit_code == 0, result.output
     return {tuple(tile): convert.ply_arrays((out / f"tile_{tile[0]}_{tile[1]}.ply").read_bytes()) for tile in tiles}
 
@@ -59,7 +60,7 @@ def assert_tiles_are_the_command_lines(obj, tmp_path, model_path, seed) -> None:
     corner (frame 'tile'), in the model's frame (Z up turned back); placed
     at the tile's corner, in the world's space it is `sinrun world`'s."""
     from blender import convert
-    from sinshape.runtime import world_tiles
+    from sinshape.runtime import world, world_tiles
     from sinshape.runtime.load import load_model
 
     model = load_model(model_path, threads=1)
@@ -67,7 +68,8 @@ def assert_tiles_are_the_command_lines(obj, tmp_path, model_path, seed) -> None:
     placed = sinrun_world(tmp_path, model_path, seed, list(tiles), "input")
     for tile, child in tiles.items():
         vertices, faces = convert.mesh_arrays(child.data)
-        expected, expected_faces = world_tiles.tile_mesh(model, seed, tile)
+        surface = world_tiles.tile_surface(model, seed, tile, options=world.WorldOptions(**convert.FIXED))
+        expected, expected_faces = surface.vertices, surface.faces
         assert vertices.shape == expected.shape and np.array_equal(faces, expected_faces)
         assert np.abs(convert.to_model(vertices, "z") - world_tiles.placed(model, tile, expected, "tile")).max() < 1e-5
         in_world = vertices @ np.array(child.matrix_parent_inverse)[:3, :3].T + np.array(child.location)
@@ -124,10 +126,24 @@ def test_a_changed_seed_remakes_every_tile(scene, tiny_model, tmp_path):
     assert_tiles_are_the_command_lines(obj, tmp_path, tiny_model, 9)
 
 
-def border_normals(obj, first, second) -> float:
+def border_normals(obj, first, second, model_path) -> float:
     """The largest difference between the normals Blender shades two
-    neighbouring tiles with at the vertices they share (in the world's space)."""
+    neighbouring tiles with at the surface's vertices they share (in the
+    world's space; not their skirts' own, which hang inside the solid
+    facing away from each other)."""
+    from blender import worlds
+    from sinshape.runtime.load import load_model
+
     tiles = tiles_of(obj)
+    model = load_model(model_path, threads=1)
+
+    def on_surface(child) -> np.ndarray:  # the vertices of a face that lies in none of the tile's sides
+        from blender import convert
+
+        vertices, faces = convert.mesh_arrays(child.data)
+        _, sides, _ = worlds.tile_sides(model, vertices.astype(np.float32))
+        in_side = np.any([(side[faces] == end).all(axis=1) for side in sides for end in (1, 2)], axis=0)
+        return np.isin(np.arange(len(vertices)), faces[~in_side])
 
     def shading(child):
         from blender import convert
@@ -141,11 +157,12 @@ def border_normals(obj, first, second) -> float:
         return places, corners, normals.reshape(-1, 3)
 
     (places_a, corners_a, normals_a), (places_b, corners_b, normals_b) = shading(tiles[first]), shading(tiles[second])
-    index = {tuple(np.round(p, 4)): i for i, p in enumerate(places_a)}
+    surface_a, surface_b = on_surface(tiles[first]), on_surface(tiles[second])
+    index = {tuple(np.round(p, 4)): i for i, p in enumerate(places_a) if surface_a[i]}
     worst, shared = 0.0, 0
     for j, place in enumerate(places_b):
         i = index.get(tuple(np.round(place, 4)))
-        if i is not None:
+        if i is not None and surface_b[j]:
             shared += 1
             worst = max(worst, np.abs(normals_a[corners_a == i] - normals_b[corners_b == j][:1]).max())
     assert shared > 5
@@ -158,8 +175,47 @@ def test_tiles_shade_as_one_surface_across_their_borders(scene, tiny_model):
     scene.cursor.location = (0, 0, 0)
     obj = add_world(tiny_model, seed=2, radius=1)
     centre = sorted(tiles_of(obj))[4]
-    assert border_normals(obj, centre, (centre[0] + 1, centre[1])) < 0.01  # Blender keeps custom normals to ~1e-3
-    assert border_normals(obj, centre, (centre[0], centre[1] + 1)) < 0.01
+    assert border_normals(obj, centre, (centre[0] + 1, centre[1]), tiny_model) < 0.01  # Blender keeps custom normals to ~1e-3
+    assert border_normals(obj, centre, (centre[0], centre[1] + 1), tiny_model) < 0.01
+
+
+def test_a_border_with_no_tile_beyond_shades_as_its_surface_not_as_its_skirt(scene, tiny_model):
+    """Every tile hangs a skirt; on a border with no tile beyond it, a vertex
+    shades by the surface's faces alone (angle-weighted, as Blender weighs
+    them), not tilted out by the skirt hanging from it."""
+    from blender import convert, worlds
+    from sinshape.runtime.load import load_model
+
+    model = load_model(tiny_model, threads=1)
+    scene.cursor.location = (0, 0, 0)
+    obj = add_world(tiny_model, seed=2, radius=0)  # one tile: no border has a tile beyond it
+    ((_, child),) = tiles_of(obj).items()
+    vertices, faces = convert.mesh_arrays(child.data)
+    vertices = vertices.astype(np.float64)
+    _, sides, _ = worlds.tile_sides(model, vertices.astype(np.float32))
+    in_side = np.any([(side[faces] == end).all(axis=1) for side in sides for end in (1, 2)], axis=0)
+    assert in_side.sum() > 10  # the premise: it has a skirt
+    surface = faces[~in_side]
+    expected = np.zeros_like(vertices)
+    for k in range(3):
+        a, b, c = (vertices[surface[:, (k + m) % 3]] for m in range(3))
+        normal = np.cross(b - a, c - a)
+        normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+        angle = np.arccos(np.clip(np.einsum("ij,ij->i", b - a, c - a)
+                                  / (np.linalg.norm(b - a, axis=1) * np.linalg.norm(c - a, axis=1)), -1, 1))
+        np.add.at(expected, surface[:, k], normal * angle[:, None])
+    expected /= np.maximum(np.linalg.norm(expected, axis=1, keepdims=True), 1e-300)
+    mesh = child.data
+    corners = np.empty(len(mesh.loops), np.int32)
+    mesh.attributes[".corner_vert"].data.foreach_get("value", corners)
+    shaded = np.empty(len(mesh.loops) * 3, np.float32)
+    mesh.corner_normals.foreach_get("vector", shaded)
+    shaded = shaded.reshape(-1, 3)
+    border = np.flatnonzero((sides[0] > 0) | (sides[1] > 0))
+    border = border[np.isin(border, surface)]
+    assert len(border) > 5
+    worst = max(np.abs(shaded[corners == v] - expected[v]).max() for v in border)
+    assert worst < 0.01, worst
 
 
 def test_a_jump_keeps_the_old_tiles_until_the_new_ones_are_made(scene, tiny_model, monkeypatch):
@@ -295,7 +351,8 @@ def test_a_world_of_two_models_on_a_model_map_is_the_runtimes(scene, tmp_path):
     first, second = (load_model(models.find(name), threads=1) for name in ("acropolis", "towerruins"))
     checkerboard = [[0, 1], [1, 0]]
     np.save(tmp_path / "map.npy", np.array(checkerboard))
-    options = world.WorldOptions("scatter", models=(second,), models_map=world_maps.ModelMap.of(checkerboard))
+    options = world.WorldOptions("scatter", models=(second,), models_map=world_maps.ModelMap.of(checkerboard),
+                                 **convert.FIXED)
     scene.cursor.location = (0, 0, 0)
     obj = add_world("acropolis", seed=6, radius=1)  # scattered, as the temple records
     alone = {tile: convert.mesh_arrays(child.data) for tile, child in tiles_of(obj).items()}
@@ -343,7 +400,7 @@ def test_a_painted_height_map_shapes_the_world_as_sinrun_worlds_map_does(scene, 
         obj.sinshape_world.heights = str(tmp_path / "hills.png")  # background mode: every tile made again
         assert obj.sinshape_world.error == ""
         heights = world_maps.read_height_map(tmp_path / "hills.png", model, relief or None)
-        options = world.WorldOptions("blend", heights=heights)
+        options = world.WorldOptions("blend", heights=heights, **convert.FIXED)
         tiles = tiles_of(obj)
         assert set(tiles) == set(flat)
         for tile, child in tiles.items():
