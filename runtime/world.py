@@ -18,8 +18,8 @@ extent). It is made of samples of the model arranged one of two ways:
   (its manifest's `contrast`), so that four windows blended at a tile's
   centre keep the relief one window has.
 - scatter (one object: a temple, a tower): whole samples of the training
-  size, one in most cells of a lattice of PITCH strides, at a place and
-  mirrored as drawn from (seed, a, b), standing on a ground; the occupancy
+  size, one in most cells of a lattice of PITCH strides, at a place,
+  turned and mirrored as drawn from (seed, a, b), standing on a ground; the occupancy
   is the largest of theirs and the ground's. Nothing is blended, so every
   object is whole, and their places follow no period.
 
@@ -303,23 +303,32 @@ def behind_weight(u, stride: int):
 @dataclass(frozen=True)
 class Cell:
     """Scatter cell (a, b)'s draws: whether it holds an object, where (its
-    lowest corner, in voxels from the cell's), and whether it is mirrored
-    along each horizontal axis."""
+    lowest corner, in voxels from the cell's), whether it is turned a
+    quarter about the up axis (its two horizontal axes swapped: `extent`
+    is its extent along the world's), and whether it is mirrored along
+    each of the world's horizontal axes: with the turn, all eight ways an
+    object can face."""
 
     present: bool
     offset: tuple  # (2,) along the two horizontal axes
     mirror: tuple  # (2,) bool
+    turned: bool
+    extent: tuple  # (2,) E - 1 along the world's two horizontal axes, turned
 
 
 @functools.lru_cache(maxsize=1024)  # a pure function, asked again for each tile and point group near the cell
-def scatter_cell(seed: int, a: int, b: int, room: tuple) -> Cell:
-    """The draws of cell (a, b): `room` is how far (voxels) an object may move
-    along each horizontal axis inside its cell."""
+def scatter_cell(seed: int, a: int, b: int, extent: tuple, pitch: tuple) -> Cell:
+    """The draws of cell (a, b) of side `pitch` (voxels) for an object of
+    `extent` (E - 1 along its own two horizontal axes): it moves inside its
+    cell by as much room as its turned extent leaves."""
     mask = (1 << 64) - 1
     key = noise.stream_key(seed, SCATTER_STREAM, a & mask, b & mask)
     draw = [noise.mix64((key + noise.GOLDEN * (n + 1)) & mask) for n in range(4)]
+    turned = bool(draw[3] & 4)
+    placed = extent[::-1] if turned else extent
+    room = (pitch[0] - placed[0], pitch[1] - placed[1])
     return Cell((draw[0] >> 11) < PRESENCE * 2**53, (draw[1] % (room[0] + 1), draw[2] % (room[1] + 1)),
-                (bool(draw[3] & 1), bool(draw[3] & 2)))
+                (bool(draw[3] & 1), bool(draw[3] & 2)), turned, tuple(placed))
 
 
 def object_model(model, options: WorldOptions, index: int) -> tuple:
@@ -336,31 +345,38 @@ def object_model(model, options: WorldOptions, index: int) -> tuple:
 
 def scatter_geometry(model, tiling: Tiling, options: WorldOptions = PLAIN) -> tuple:
     """A scatter world's cell side P per horizontal axis (PITCH strides, or
-    room for its largest model's objects and half a stride), and each
-    model's object extent E - 1 (voxels) along the world's two horizontal axes."""
+    room for its largest model's objects, turned either way, and half a
+    stride), and each model's object extent E - 1 (voxels) along its own two
+    horizontal axes (the world's, unturned)."""
     extents = []
     for index in range(len(options.models) + 1):
         each, own = object_model(model, options, index)
         finest = each.manifest.sizes[-1]
         extents.append((finest[own.horizontal[0]] - 1, finest[own.horizontal[1]] - 1))
-    pitch = tuple(max(PITCH * tiling.stride[h], max(extent[n] for extent in extents) + tiling.stride[h] // 2)
-                  for n, h in enumerate(tiling.horizontal))
+    widest = max(max(extent) for extent in extents)  # turned or not, an object fits its cell
+    pitch = tuple(max(PITCH * tiling.stride[h], widest + tiling.stride[h] // 2) for h in tiling.horizontal)
     return pitch, extents
 
 
 @dataclass(frozen=True)
 class Placed:
     """An object of a scatter world where a tile sees it: its cell, its
-    lowest corner relative to the tile's (integer voxels), mirrors, and the
-    height it stands at. Its planes are made (`object_window`) only when a
-    point asks for them."""
+    lowest corner relative to the tile's (integer voxels), its extent
+    along the world's axes, mirrors, whether it is turned (its first
+    horizontal axis along the world's second), and the height it stands at.
+    Its planes are made (`object_window`) only when a point asks for them."""
 
     cell: tuple  # (a, b)
     corner: tuple  # (2,) ints, relative to the tile's lowest corner
-    extent: tuple  # (2,) E - 1 per horizontal axis
+    extent: tuple  # (2,) E - 1 along the world's horizontal axes
     mirror: tuple
     height: float
     model: int = 0  # which of the world's models it is a sample of
+    turned: bool = False
+
+    def axes(self, own: "Tiling") -> tuple:
+        """The object's own horizontal axes that lie along the world's first and second."""
+        return own.horizontal[::-1] if self.turned else own.horizontal
 
 
 def object_window(model, options: WorldOptions, seed: int, placed_object: Placed, level: int) -> tuple:
@@ -390,14 +406,15 @@ def objects_near(model, tiling: Tiling, seed: int, tile: tuple, level: int, opti
         for b in range((j * s1) // p1 - 1, ((j + 1) * s1) // p1 + 1):
             index = 0 if options.models_map is None else \
                 options.models_map.at((2 * a * p0 + p0) // (2 * s0), (2 * b * p1 + p1) // (2 * s1))  # exact, anywhere
-            e0, e1 = extents[index]
-            cell = scatter_cell(seed, a, b, (p0 - e0, p1 - e1))
+            cell = scatter_cell(seed, a, b, extents[index], (p0, p1))
+            e0, e1 = cell.extent
             low = (a * p0 + cell.offset[0], b * p1 + cell.offset[1])  # world voxels, exact integers
             if not cell.present or low[0] > (i + 1) * s0 or low[0] + e0 < i * s0 or low[1] > (j + 1) * s1 \
                     or low[1] + e1 < j * s1:
                 continue
             height = 0.0 if heights is None else object_height(heights, tiling, low, (e0, e1))
-            found.append(Placed((a, b), (low[0] - i * s0, low[1] - j * s1), (e0, e1), cell.mirror, height, index))
+            found.append(Placed((a, b), (low[0] - i * s0, low[1] - j * s1), (e0, e1), cell.mirror, height, index,
+                                cell.turned))
     return found
 
 
@@ -703,9 +720,13 @@ def scatter_into(out: np.ndarray, colours, model, options: WorldOptions, seed: i
     if not len(x) or not len(y):
         return
     each, own, found = object_window(model, options, seed, placed_object, level)
-    h0, h1, up = *own.horizontal, own.up  # the object's axes, along the world's
+    h0, h1, up = *own.horizontal, own.up  # the object's axes
     levels = np.clip(z - placed_object.height, 0, own.stride[up])[None, None, :]
-    hidden, _ = hidden_on_grid(found, own, c0 * found.cells[h0], c1 * found.cells[h1], levels * found.cells[up])
+    if placed_object.turned:  # its grid is made in its own axes' order, then turned to the world's
+        hidden, _ = hidden_on_grid(found, own, c1 * found.cells[h0], c0 * found.cells[h1], levels * found.cells[up])
+        hidden = hidden.swapaxes(0, 1)
+    else:
+        hidden, _ = hidden_on_grid(found, own, c0 * found.cells[h0], c1 * found.cells[h1], levels * found.cells[up])
     logits = capped(head_logits(each.head, hidden), (z - placed_object.height - own.stride[up])[None, None, :])
     part = np.ix_(x, y)
     better = logits > out[part]

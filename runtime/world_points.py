@@ -82,7 +82,7 @@ def point_tile(model, tiling: Tiling, seed: int, tile: tuple, points: np.ndarray
             inside = np.ones(len(points), bool)
             cells = np.empty((len(points), 3))
             back = np.zeros((3, 3))
-            for axis, world_axis, u, low, extent, mirror in zip(own.horizontal, (h0, h1), (u0, u1),
+            for axis, world_axis, u, low, extent, mirror in zip(placed_object.axes(own), (h0, h1), (u0, u1),
                                                                 placed_object.corner, placed_object.extent,
                                                                 placed_object.mirror):
                 position = u - low

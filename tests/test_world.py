@@ -270,6 +270,48 @@ def test_a_scattered_world_of_identical_samples_has_no_period(model, fresh):
     assert abs(at_stride) < 0.5 and abs(at_twice) < 0.5 and abs(at_pitch) < 0.3  # one per cell, unmoved: 0.52
 
 
+def test_scattered_objects_face_all_eight_ways_each_the_same_shape_turned(model):
+    """With no noise every object is one shape; the world shows it turned a
+    quarter about the up axis or not and mirrored along either horizontal
+    axis (all eight ways), each its unturned self's height field turned and
+    flipped so, on the turned footprint (the tiny model's is 20 x 18)."""
+    from sinshape.runtime import world_points
+
+    same = identical_windows(model)
+    tiling = world.world_tiling(same)
+    (h0, h1), up = tiling.horizontal, tiling.up
+    options = world.WorldOptions("scatter")
+    found = {}
+    for i in range(0, 60, 2):
+        for j in range(0, 12, 2):
+            for placed in world.objects_near(same, tiling, 5, (i, j), 0, options):
+                found.setdefault((placed.turned, placed.mirror), ((i, j), placed))
+    assert len(found) == 8
+
+    def heights(tile, placed) -> np.ndarray:  # solid voxels per column over the object's footprint
+        e0, e1 = placed.extent
+        x, y, z = np.meshgrid(np.arange(e0 + 1), np.arange(e1 + 1), np.arange(tiling.stride[up] + 1), indexing="ij")
+        points = np.zeros((x.size, 3))
+        points[:, h0], points[:, h1], points[:, up] = (x.ravel() + placed.corner[0], y.ravel() + placed.corner[1],
+                                                       z.ravel())
+        logits = world_points.point_field(same, 5, tile, points, options)[0]
+        return (logits > 0).reshape(x.shape).sum(axis=2)
+
+    reference = heights(*found[(False, (False, False))])
+    assert reference.shape == (20, 18) and reference.std() > 0.5  # a shape, not a slab
+    for (turned, mirror), (tile, placed) in found.items():
+        expected = reference.T if turned else reference
+        for axis in (0, 1):
+            expected = np.flip(expected, axis) if mirror[axis] else expected
+        assert np.array_equal(heights(tile, placed), expected), (turned, mirror)
+    # A tile's grid (made a row at a time, not point by point) holds the same turned objects.
+    tile = found[(True, (False, False))][0]
+    grid = world_tiles.tile_occupancy(same, 5, tile, options=options)
+    axes = np.meshgrid(*(np.arange(n) for n in grid.shape), indexing="ij")
+    points = np.stack([a.ravel() for a in axes], axis=1).astype(np.float64)
+    assert np.array_equal(grid.ravel() > 0.5, world_points.point_field(same, 5, tile, points, options)[0] > 0)
+
+
 @pytest.mark.parametrize("options", [world.WorldOptions("scatter"), world.WorldOptions("blend", lod=1),
                                      world.WorldOptions("scatter", heights=world_maps.HeightMap.of([[0.0, 25.0], [40.0, 7.5]]))],
                          ids=["scatter", "lod", "scatter-map"])

@@ -70,8 +70,8 @@ def two_kinds(coloured):
 def test_models_of_other_sizes_meet_without_a_seam_in_any_order(model, two_kinds):
     tiling = world.world_tiling(model)
     h0, h1 = tiling.horizontal
-    pairs = (((-4, 0), (-3, 0), h0), ((7, 0), (8, 0), h0), ((7, 0), (7, 1), h1))
-    assert objects(model, (-4, 0), two_kinds) == [0] and objects(model, (7, 0), two_kinds) == [1]
+    pairs = (((-3, 1), (-2, 1), h0), ((8, 0), (9, 0), h0), ((8, 0), (8, 1), h1))
+    assert objects(model, (-3, 1), two_kinds) == [0] and objects(model, (8, 0), two_kinds) == [1]
     for a, b, axis in pairs:
         grid_a, grid_b = (world_tiles.tile_occupancy(model, 7, t, options=two_kinds) for t in (a, b))
         assert np.array_equal(np.take(grid_a, -1, axis), np.take(grid_b, 0, axis))
@@ -81,7 +81,7 @@ def test_models_of_other_sizes_meet_without_a_seam_in_any_order(model, two_kinds
         theirs = {tuple(v): (tuple(n), tuple(c)) for v, n, c in zip(made[1].vertices, made[1].normals, made[1].colours)
                   if v[axis] == 0}
         assert len(mine) > 5 and mine == theirs
-    tiles = [(8, 0), (7, 0), (-4, 1)]
+    tiles = [(9, 0), (8, 0), (-3, 1)]
     first = {t: fresh_surface(model, t, two_kinds) for t in tiles}
     world._windows.clear()
     world_points._colourings.clear()
@@ -94,7 +94,7 @@ def test_models_of_other_sizes_meet_without_a_seam_in_any_order(model, two_kinds
 def test_each_object_is_coloured_by_its_own_model(model, coloured, two_kinds):
     """The plain model's objects are grey as the ground (it has no colour); the coloured model's
     show its colours; the coloured model's objects stand taller than the first model's grid."""
-    FAR_LEFT, FAR_RIGHT = (-4, 1), (7, 1)  # cells are wider here: room for the coloured model's objects
+    FAR_LEFT, FAR_RIGHT = (-3, 1), (8, 1)  # cells are wider here: room for the coloured model's objects
     assert objects(model, FAR_LEFT, two_kinds) == [0] and objects(model, FAR_RIGHT, two_kinds) == [1]
     left = world_tiles.tile_surface(model, 7, FAR_LEFT, options=two_kinds)
     right = world_tiles.tile_surface(model, 7, FAR_RIGHT, options=two_kinds)
