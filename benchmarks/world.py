@@ -357,21 +357,22 @@ def main():
     parser.add_argument("--blend", type=float, default=None)
     parser.add_argument("--contrast", type=float, default=None,
                         help="every model's blend contrast exponent, for a comparison (default: each model's own)")
-    parser.add_argument("--pitch", type=int, default=None, help="world.PITCH, for a comparison")
-    parser.add_argument("--presence", type=float, default=None, help="world.PRESENCE, for a comparison")
+    parser.add_argument("--spacing", type=float, default=None, help="a scattered world's spacing, for a comparison")
+    parser.add_argument("--density", type=float, default=None, help="a scattered world's density, for a comparison")
     parser.add_argument("--arrange", choices=world.ARRANGEMENTS, default=None,
                         help="every model's arrangement (default: each model's own, as its manifest records)")
     args = parser.parse_args()
-    for name in ("blend", "pitch", "presence"):
-        if getattr(args, name) is not None:
-            setattr(world, name.upper(), getattr(args, name))
-    print(f"world.BLEND = {world.BLEND}, PITCH = {world.PITCH}, PRESENCE = {world.PRESENCE}")
+    if args.blend is not None:
+        world.BLEND = args.blend
+    scattered = {name: getattr(args, name) for name in ("spacing", "density") if getattr(args, name) is not None}
+    print(f"world.BLEND = {world.BLEND}, scattered worlds' {scattered or 'defaults'}")
     for number, name in enumerate(args.models):
         model = load_model(models.find(name))
         if args.contrast is not None:
             model.manifest = dataclasses.replace(model.manifest, contrast=args.contrast)
         other_name = args.models[(number + 1) % len(args.models)]
-        options = world.WorldOptions(arrange=args.arrange or model.manifest.arrange)
+        arrange = args.arrange or model.manifest.arrange
+        options = world.WorldOptions(arrange=arrange, **(scattered if arrange == "scatter" else {}))
         tiling = world.world_tiling(model)
         print(f"\n## {name}: up {model.manifest.up}, tiles of {tiling.stride[tiling.horizontal[0]]} x "
               f"{tiling.stride[tiling.horizontal[1]]} voxels, windows {'x'.join(map(str, model.manifest.sizes[-1]))}, "

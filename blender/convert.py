@@ -87,7 +87,8 @@ def check_unchanged(reference: str, path: Path, digest: str, recorded: str) -> N
 # each tile's lod from the fine radius, its other models, model map and height map) ...
 SETTINGS = {"seed": "seed", "size": "size", "scale": "scale", "smooth": "smooth", "keep": "keep_box", "grow": "grow",
             "anchor": "anchor", "layout": "layout_bits", "tile": "radius", "arrange": "arrange", "lod": "fine",
-            "models": "models", "models_map": "models_map", "heights": "heights"}
+            "models": "models", "models_map": "models_map", "heights": "heights", "density": "density",
+            "spacing": "spacing"}
 # ... those it leaves at their defaults (a mesh in the input's frame, turned to
 # Blender's) ...
 LEFT = ("recon", "smoother", "largest", "detail", "frame")

@@ -119,6 +119,11 @@ class SinshapeWorld(bpy.types.PropertyGroup):
     arrange: EnumProperty(name="Arrange", update=worlds.changed, default="blend",
                           items=[("blend", "Blend", "Samples blended into one landscape (terrain, rock)"),
                                  ("scatter", "Scatter", "Whole samples at drawn places on a ground (a temple, a tower)")])
+    density: FloatProperty(name="Density", default=OPTION["density"].default, min=0.01, max=OPTION["density"].high,
+                           update=worlds.changed, description=OPTION["density"].help)
+    spacing: FloatProperty(name="Spacing", default=OPTION["spacing"].default, min=OPTION["spacing"].low,
+                           max=OPTION["spacing"].high, soft_max=12.0, update=worlds.changed,
+                           description=OPTION["spacing"].help)
     fine: IntProperty(name="Fine Radius", default=1, min=0, max=32, soft_max=8, update=worlds.changed,
                       description="Tiles on each side of the followed point's made at full detail; each tile "
                                   "farther, a level coarser (with a skirt over the crack)")

@@ -26,7 +26,8 @@ class VIEW3D_PT_sinshape(bpy.types.Panel):
                 row.prop(other, "model", text=f"Model {index + 1}")
                 row.operator("sinshape.world_model_remove", text="", icon="X").index = index
             column.operator("sinshape.world_model_add", icon="ADD")
-            for name in ("models_map", "heights", "relief", "seed", "scale", "arrange", "radius", "fine", "follow"):
+            for name in ("models_map", "heights", "relief", "seed", "scale", "arrange", "density", "spacing", "radius",
+                         "fine", "follow"):
                 column.prop(settings, name)
             layout.operator("sinshape.regenerate", icon="FILE_REFRESH")
             return

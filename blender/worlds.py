@@ -35,7 +35,8 @@ from . import convert, live, work
 
 TILE = "sinshape_tile"  # a tile object's custom property: "I,J"
 MADE = "sinshape_made"  # ... and what it was made from: the model file's SHA-256, the seed, the scale, the
-# arrangement, the other models' SHA-256s, the model map's and height map's pixels' SHA-256s, its lod
+# arrangement, the other models' SHA-256s, the model map's and height map's pixels' SHA-256s, the density
+# and spacing, its lod
 MAX_RADIUS = 32  # tiles on each side: (2 r + 1)^2 = 4225 tiles at most
 # (what, path, size, mtime, relief) -> (world_maps.ModelMap or HeightMap, its pixels' SHA-256): a map is read again
 # only when it changed
@@ -131,10 +132,12 @@ def world_options(settings, model, digest: str) -> tuple:
     relief = settings.relief or None  # 0: an image's white is world_maps.RELIEF times the model's height
     heights, heights_digest = read_map(settings.heights, "height map",
                                        lambda path: world_maps.read_height_map(path, model, relief), settings.relief)
+    scattered = {"density": settings.density, "spacing": settings.spacing} if settings.arrange == "scatter" else {}
     options = world.WorldOptions(settings.arrange, heights=heights, models=tuple(each for each, _ in others),
-                                 models_map=placed, **convert.FIXED)
+                                 models_map=placed, **scattered, **convert.FIXED)
     made = (f"{digest}:{settings.seed}:{settings.scale!r}:{settings.arrange}:"
-            f"{','.join(each for _, each in others)}:{placed_digest}:{heights_digest}")
+            f"{','.join(each for _, each in others)}:{placed_digest}:{heights_digest}:{options.density!r}:"
+            f"{options.spacing!r}")
     return options, made
 
 

@@ -27,6 +27,14 @@ SMOOTHERS = ("laplacian", "taubin")  # mesh.smoothed's filters
 MAX_SMOOTH = 100
 MAX_TILE = 1 << 62  # |i|, |j| below this: a window index and its neighbour fit in 64 bits in every runtime
 
+# A scattered world's defaults. The share of its cells that hold an object:
+# 0.75 left the temple's height field 0.28 correlated at a cell's side (3
+# tiles), 0.6 under 0.1. A cell's side in tiles: an object (2S + 1) and up to
+# S of room.
+DENSITY = 0.6
+SPACING = 3.0
+MAX_SPACING = 64.0  # tiles: an object in every 64 x 64 tiles at most
+
 FRAMES = ("input", "model", "tile")
 MAX_PARTS = 16  # boxes kept in one sample: each runs a whole chain of its own
 EDITS = ("keep", "grow", "layout")
@@ -128,6 +136,10 @@ OPTIONS = (
            "that hides the crack where it meets a finer one.", ("tile",), 0),
     Option("skirt", "bool", False, "A skirt at lod 0 too: a full tile beside a coarser one, so that the crack "
            "between them is hidden from the coarser side as well.", ("tile",)),
+    Option("density", "number", DENSITY, "A scattered world's share of cells that hold an object, above 0 and "
+           "at most 1.", ("tile",), 0.0, 1.0, "(]"),
+    Option("spacing", "number", SPACING, "A scattered world's cell side in tiles (one object at most per cell, "
+           "anywhere in it; at least its widest object and half a tile).", ("tile",), 1.0, MAX_SPACING),
     Option("models", "models", (), "A scattered world's other models (model files; a server's by name): model "
            "1, 2, ... of its model map, the first model being 0.", ("tile",)),
     Option("models_map", "models_map", None, "Which model goes where in a scattered world: a model's index per "

@@ -109,7 +109,9 @@ class SampleRequest:
     For a tile, how its world is made: arrange ('blend' or 'scatter',
       world.ARRANGEMENTS), heights (a world_maps.HeightMap: the world's large
       shape), lod (levels coarser than the finest: a distant tile), skirt
-      (a skirt at lod 0 too, for a full tile beside a coarser one), models
+      (a skirt at lod 0 too, for a full tile beside a coarser one), density
+      and spacing (a scattered world's share of cells holding an object and
+      its cells' side in tiles), models
       (a scattered world's other models: their files' paths, as text) and
       models_map (a world_maps.ModelMap: which model each cell's object is of).
     At most one edit:
@@ -138,6 +140,8 @@ class SampleRequest:
     heights: HeightMap | None = None
     lod: int = 0
     skirt: bool = False
+    density: float = OPTION["density"].default
+    spacing: float = OPTION["spacing"].default
     models: tuple = ()
     models_map: ModelMap | None = None
 
@@ -221,7 +225,7 @@ class SampleRequest:
     def world_options(self) -> WorldOptions:
         """How a tile's world is made, and how finely the tile."""
         return WorldOptions(self.arrange, self.heights, self.lod, tuple(map(other_model, self.models)),
-                            self.models_map, self.detail, self.skirt)
+                            self.models_map, self.detail, self.skirt, self.density, self.spacing)
 
     def world_fields(self) -> list:
         """The names of the world's fields given other than their defaults
@@ -229,6 +233,8 @@ class SampleRequest:
         return [name for name, value in (("arrange", self.arrange != ARRANGEMENTS[0]),
                                          ("heights", self.heights is not None), ("lod", self.lod),
                                          ("skirt", self.skirt),
+                                         ("density", self.density != OPTION["density"].default),
+                                         ("spacing", self.spacing != OPTION["spacing"].default),
                                          ("models", self.models), ("models_map", self.models_map is not None))
                 if value]
 

@@ -18,7 +18,7 @@ extent). It is made of samples of the model arranged one of two ways:
   (its manifest's `contrast`), so that four windows blended at a tile's
   centre keep the relief one window has.
 - scatter (one object: a temple, a tower): whole samples of the training
-  size, one in most cells of a lattice of PITCH strides, at a place,
+  size, one in most cells of a lattice of `spacing` strides, at a place,
   turned and mirrored as drawn from (seed, a, b), standing on a ground; the occupancy
   is the largest of theirs and the ground's. Nothing is blended, so every
   object is whole, and their places follow no period.
@@ -66,18 +66,14 @@ from sinshape.core.errors import InputError
 from sinshape.core.manifest import ARRANGEMENTS, PLANE_AXES, UP_AXIS
 
 from .generate import draw_noise, scaled_sizes, triplane
-from .options import MAX_TILE  # a tile request's range, declared with its options
+from .options import DENSITY, MAX_SPACING, MAX_TILE, OPTION, SPACING  # a tile request's range, a scatter world's
 from .query import check_scale, head_colour, project, sigmoid
 from .world_maps import MAX_MODELS, HeightMap, ModelMap
 
 WORLD_STREAM = 2  # (WORLD_STREAM, a, b): the key of window (a, b)'s noise, absorbed after the world's seed
-SCATTER_STREAM = 3  # (SCATTER_STREAM, a, b): the key of scatter cell (a, b)'s draws (presence, place, mirrors)
+SCATTER_STREAM = 3  # (SCATTER_STREAM, a, b): the key of scatter cell (a, b)'s draws (presence, place, turn, mirrors)
 MIN_STRIDE = 4  # voxels: a window of fewer than 2 * 4 + 1 along an axis has no room to blend
 BLEND = 1.0  # the share of a stride, around its middle, over which one window gives way to the next
-PITCH = 3  # a scatter cell's side, in strides: an object (2S + 1) and up to S of room
-# The share of scatter cells that hold an object: 0.75 left the temple's
-# height field 0.28 correlated at a cell's side (3S), 0.6 under 0.1.
-PRESENCE = 0.6
 GROUND = 1.0  # voxels of ground above the map's height under a scatter world's objects
 # The ground's logit per voxel: nearly linear across a grid step, so that
 # marching cubes places a sloping ground without terraces (4 drew them).
@@ -147,6 +143,8 @@ class WorldOptions:
     models_map: ModelMap | None = None  # which of them each scatter cell draws its object from
     detail: bool = True  # the example's relief and colour by correspondence (off: the decoder's colour, no relief)
     skirt: bool = False  # a skirt at lod 0 too (a coarser tile always has one): a finer tile beside a coarser one
+    density: float = DENSITY  # the share of a scattered world's cells that hold an object
+    spacing: float = SPACING  # a scattered world's cell side, in tiles (at least its widest object's)
 
     def __post_init__(self):
         for name in ("detail", "skirt"):
@@ -154,6 +152,13 @@ class WorldOptions:
                 raise InputError(f"`{name}` must be true or false, got {getattr(self, name)!r}", name)
         if self.arrange not in ARRANGEMENTS:
             raise InputError(f"unknown `arrange` {self.arrange!r}; choose {' or '.join(ARRANGEMENTS)}", "arrange")
+        for name, wanted in (("density", "above 0 and at most 1"), ("spacing", f"1 to {MAX_SPACING:g} tiles")):
+            value = getattr(self, name)
+            if not (isinstance(value, numbers.Real) and not isinstance(value, bool) and OPTION[name].admits(value)):
+                raise InputError(f"`{name}` must be {wanted}, got {value!r}", name)
+            object.__setattr__(self, name, float(value))
+            if self.arrange != "scatter" and value != OPTION[name].default:
+                raise InputError(f"`{name}` places whole objects: it is for a scatter world", name)
         if self.heights is not None and not isinstance(self.heights, HeightMap):
             raise InputError("`heights` must be a world_maps.HeightMap (HeightMap.of(array))", "heights")
         if not (isinstance(self.lod, numbers.Integral) and not isinstance(self.lod, bool) and 0 <= self.lod):
@@ -317,17 +322,18 @@ class Cell:
 
 
 @functools.lru_cache(maxsize=1024)  # a pure function, asked again for each tile and point group near the cell
-def scatter_cell(seed: int, a: int, b: int, extent: tuple, pitch: tuple) -> Cell:
+def scatter_cell(seed: int, a: int, b: int, extent: tuple, pitch: tuple, density: float = DENSITY) -> Cell:
     """The draws of cell (a, b) of side `pitch` (voxels) for an object of
-    `extent` (E - 1 along its own two horizontal axes): it moves inside its
-    cell by as much room as its turned extent leaves."""
+    `extent` (E - 1 along its own two horizontal axes): present in a share
+    `density` of cells, moved inside its cell by as much room as its turned
+    extent leaves."""
     mask = (1 << 64) - 1
     key = noise.stream_key(seed, SCATTER_STREAM, a & mask, b & mask)
     draw = [noise.mix64((key + noise.GOLDEN * (n + 1)) & mask) for n in range(4)]
     turned = bool(draw[3] & 4)
     placed = extent[::-1] if turned else extent
     room = (pitch[0] - placed[0], pitch[1] - placed[1])
-    return Cell((draw[0] >> 11) < PRESENCE * 2**53, (draw[1] % (room[0] + 1), draw[2] % (room[1] + 1)),
+    return Cell((draw[0] >> 11) < density * 2**53, (draw[1] % (room[0] + 1), draw[2] % (room[1] + 1)),
                 (bool(draw[3] & 1), bool(draw[3] & 2)), turned, tuple(placed))
 
 
@@ -344,7 +350,7 @@ def object_model(model, options: WorldOptions, index: int) -> tuple:
 
 
 def scatter_geometry(model, tiling: Tiling, options: WorldOptions = PLAIN) -> tuple:
-    """A scatter world's cell side P per horizontal axis (PITCH strides, or
+    """A scatter world's cell side P per horizontal axis (`spacing` strides, or
     room for its largest model's objects, turned either way, and half a
     stride), and each model's object extent E - 1 (voxels) along its own two
     horizontal axes (the world's, unturned)."""
@@ -354,7 +360,8 @@ def scatter_geometry(model, tiling: Tiling, options: WorldOptions = PLAIN) -> tu
         finest = each.manifest.sizes[-1]
         extents.append((finest[own.horizontal[0]] - 1, finest[own.horizontal[1]] - 1))
     widest = max(max(extent) for extent in extents)  # turned or not, an object fits its cell
-    pitch = tuple(max(PITCH * tiling.stride[h], widest + tiling.stride[h] // 2) for h in tiling.horizontal)
+    pitch = tuple(max(math.floor(options.spacing * tiling.stride[h] + 0.5), widest + tiling.stride[h] // 2)
+                  for h in tiling.horizontal)
     return pitch, extents
 
 
@@ -406,7 +413,7 @@ def objects_near(model, tiling: Tiling, seed: int, tile: tuple, level: int, opti
         for b in range((j * s1) // p1 - 1, ((j + 1) * s1) // p1 + 1):
             index = 0 if options.models_map is None else \
                 options.models_map.at((2 * a * p0 + p0) // (2 * s0), (2 * b * p1 + p1) // (2 * s1))  # exact, anywhere
-            cell = scatter_cell(seed, a, b, extents[index], (p0, p1))
+            cell = scatter_cell(seed, a, b, extents[index], (p0, p1), options.density)
             e0, e1 = cell.extent
             low = (a * p0 + cell.offset[0], b * p1 + cell.offset[1])  # world voxels, exact integers
             if not cell.present or low[0] > (i + 1) * s0 or low[0] + e0 < i * s0 or low[1] > (j + 1) * s1 \

@@ -380,6 +380,29 @@ def test_a_world_of_two_models_on_a_model_map_is_the_runtimes(scene, tmp_path):
         assert np.array_equal(vertices, alone[tile][0]) and np.array_equal(faces, alone[tile][1])
 
 
+def test_a_scattered_worlds_density_and_spacing_are_the_runtimes(scene, tiny_model):
+    """Density and Spacing make the tiles runtime.world makes with them; a blended world leaves them be."""
+    from blender import convert
+    from sinshape.runtime import world, world_tiles
+    from sinshape.runtime.load import load_model
+
+    model = load_model(tiny_model, threads=1)
+    scene.cursor.location = (0, 0, 0)
+    obj = add_world(tiny_model, seed=4, radius=1)
+    obj.sinshape_world.density, obj.sinshape_world.spacing = 0.9, 4.0  # blended: no change, no error
+    assert obj.sinshape_world.error == ""
+    obj.sinshape_world.arrange = "scatter"
+    assert obj.sinshape_world.error == ""
+    options = world.WorldOptions("scatter", density=0.9, spacing=4.0, **convert.FIXED)
+    assert any(world.objects_near(model, world.world_tiling(model), 4, tile, 0, options) for tile in tiles_of(obj))
+    for tile, child in tiles_of(obj).items():
+        vertices, faces = convert.mesh_arrays(child.data)
+        surface = world_tiles.tile_surface(model, 4, tile, options=options)
+        assert np.array_equal(faces, surface.faces)
+        assert np.abs(convert.to_model(vertices, model.manifest.up)
+                      - world_tiles.placed(model, tile, surface.vertices, "tile")).max() < 1e-5
+
+
 def test_a_painted_height_map_shapes_the_world_as_sinrun_worlds_map_does(scene, tiny_model, tmp_path):
     """A greyscale .png height map: each tile world_tiles.tile_surface's with read_height_map's heights
     (white RELIEF times the model's height, or the Relief given), not the flat world's; the Relief

@@ -377,6 +377,7 @@ LATER = {
     "skimage": "the prep extra",
     "meshoptimizer": "the assets extra",
     "xatlas": "the assets extra",
+    "coacd": "the assets extra, for convex hulls alone",
     "ray": "the ray extra",
     "uvicorn": "the serve extra",
     "h11": "the serve extra's (uvicorn's) HTTP parser",

@@ -43,7 +43,7 @@ def test_sample_request_checks_each_range_the_table_gives(name, end):
     value = option.low if end == "low" else option.high
     closed = option.bounds[0 if end == "low" else 1] in "[]"
     step = 1 if option.type in ("seed", "int") else 1e-9
-    context = {"grow": 2} if name == "anchor" else {}
+    context = {"grow": 2} if name == "anchor" else {"arrange": "scatter"} if name in ("density", "spacing") else {}
     if closed:
         assert getattr(SampleRequest(**{name: value, **context}), name) in (value, (value,) * 3)
     with pytest.raises(InputError) as refused:
@@ -119,7 +119,7 @@ def test_every_refusal_of_an_option_names_it_as_each_front_end_spells_it(name):
     written (a field name that is also an ordinary word is not one)."""
     from sinshape.cli.main import command_line_message, option_names
 
-    context = {"grow": 2} if name == "anchor" else {}
+    context = {"grow": 2} if name == "anchor" else {"arrange": "scatter"} if name in ("density", "spacing") else {}
     refused = []
     for value in HOSTILE:
         try:

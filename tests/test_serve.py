@@ -590,7 +590,8 @@ def test_a_tile_is_the_runtimes_tile_with_its_corner_and_etag(server):
     assert get(url, {"If-None-Match": headers["ETag"]})[0] == 304
     params = {p["name"] for p in json.loads(get(f"{base}/openapi.json")[2])["paths"]["/api/models/{name}/tile"]["get"]
               ["parameters"]}
-    assert params == {"name", "i", "j", "seed", "scale", "format", "frame", "arrange", "lod", "skirt", "lods", "texture",
+    assert params == {"name", "i", "j", "seed", "scale", "format", "frame", "arrange", "lod", "skirt", "density",
+                      "spacing", "lods", "texture",
                       "ao", "collision", "naming", "quantise",
                       "models", "models_map", "detail"}
     for query, code, says in (("i=0", 422, "j: Field required"), (f"i={2**62}&j=0", 422, "i: Input should be less"),

@@ -265,8 +265,8 @@ def test_a_scattered_world_of_identical_samples_has_no_period(model, fresh):
     blended, stride = strip_heights(same, world.WorldOptions("blend"))
     assert min(evaluate.height_autocorrelation(blended, up, h0, [stride, 2 * stride])) > 0.9
     scattered, _ = strip_heights(same, world.WorldOptions("scatter"))
-    at_stride, at_twice, at_pitch = evaluate.height_autocorrelation(scattered, up, h0, [stride, 2 * stride,
-                                                                                        world.PITCH * stride])
+    pitch = world.scatter_geometry(same, world.world_tiling(same), world.WorldOptions("scatter"))[0][0]
+    at_stride, at_twice, at_pitch = evaluate.height_autocorrelation(scattered, up, h0, [stride, 2 * stride, pitch])
     assert abs(at_stride) < 0.5 and abs(at_twice) < 0.5 and abs(at_pitch) < 0.3  # one per cell, unmoved: 0.52
 
 
@@ -310,6 +310,39 @@ def test_scattered_objects_face_all_eight_ways_each_the_same_shape_turned(model)
     axes = np.meshgrid(*(np.arange(n) for n in grid.shape), indexing="ij")
     points = np.stack([a.ravel() for a in axes], axis=1).astype(np.float64)
     assert np.array_equal(grid.ravel() > 0.5, world_points.point_field(same, 5, tile, points, options)[0] > 0)
+
+
+def test_density_and_spacing_set_how_many_objects_a_scattered_world_holds(model):
+    """`density` is the share of cells holding an object; `spacing` a cell's
+    side in tiles (never less than its widest object turned either way)."""
+    tiling = world.world_tiling(model)
+    (h0, h1), extent = tiling.horizontal, world.scatter_geometry(model, tiling)[1][0]
+    for density in (0.2, 0.9):
+        options = world.WorldOptions("scatter", density=density)
+        pitch = world.scatter_geometry(model, tiling, options)[0]
+        present = [world.scatter_cell(5, a, b, extent, pitch, options.density).present
+                   for a in range(50) for b in range(40)]
+        assert abs(np.mean(present) - density) < 0.03
+    wide = world.WorldOptions("scatter", spacing=7.5)
+    assert world.scatter_geometry(model, tiling, wide)[0] == tuple(round(7.5 * tiling.stride[h]) for h in (h0, h1))
+    narrow = world.scatter_geometry(model, tiling, world.WorldOptions("scatter", spacing=1))[0]
+    assert narrow == (max(extent) + tiling.stride[h0] // 2, max(extent) + tiling.stride[h1] // 2)  # an object fits
+    sparse = {placed.cell for i in range(12) for j in range(12)
+              for placed in world.objects_near(model, tiling, 5, (i, j), 0, wide)}
+    dense = {placed.cell for i in range(12) for j in range(12)
+             for placed in world.objects_near(model, tiling, 5, (i, j), 0, world.WorldOptions("scatter"))}
+    assert 0 < len(sparse) < len(dense) / 3
+
+
+@pytest.mark.parametrize("fields, said", [
+    (dict(density=0.3), "density places whole objects: it is for a scatter world"),
+    (dict(arrange="scatter", density=0), "density must be above 0 and at most 1, got 0"),
+    (dict(arrange="scatter", density=1.5), "at most 1"), (dict(arrange="scatter", spacing=0.5), "1 to 64 tiles"),
+    (dict(arrange="scatter", spacing=float("nan")), "1 to 64 tiles"), (dict(spacing=5), "for a scatter world")])
+def test_bad_density_and_spacing_are_refused_in_one_line(fields, said):
+    with pytest.raises(InputError, match=said) as error:
+        SampleRequest(3, tile=(0, 0), **fields)
+    assert "\n" not in str(error.value)
 
 
 @pytest.mark.parametrize("options", [world.WorldOptions("scatter"), world.WorldOptions("blend", lod=1),

@@ -129,7 +129,8 @@ function checkTogether(request) {
 
 /** The world's fields given other than their defaults, as SampleRequest.world_fields. */
 const worldFields = (request) => [['arrange', request.arrange !== DEFAULTS.arrange], ['heights', request.heights !== null], ['lod', request.lod],
-  ['skirt', request.skirt], ['models', request.models.length], ['models_map', request.models_map !== null]].filter(([, value]) => value).map(([name]) => name);
+  ['skirt', request.skirt], ['density', request.density !== DEFAULTS.density], ['spacing', request.spacing !== DEFAULTS.spacing],
+  ['models', request.models.length], ['models_map', request.models_map !== null]].filter(([, value]) => value).map(([name]) => name);
 
 // The options this runtime makes. Any other given other than its default
 // (Python's smoother 'taubin', largest, a sample's frame, a tile, an option

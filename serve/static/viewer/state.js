@@ -13,7 +13,7 @@ export const STATIC_SITE = document.body.dataset.site === 'static';
 export const PAGE_OPTIONS = Object.freeze({
   set: ['seed', 'size', 'scale', 'smooth', 'frame', 'keep', 'grow', 'anchor', 'layout', 'tile', 'arrange', 'heights', 'lod', 'skirt', 'models',
     'models_map'],
-  left: ['recon', 'smoother', 'largest', 'detail'],
+  left: ['recon', 'smoother', 'largest', 'detail', 'density', 'spacing'],
 });
 const FIELDS = ['model', 'where', 'seed', 'size', 'scale', 'smooth', 'up', 'format'];
 // Each edit's fields, in the URL after `edit`: box (6 percentages x0,y0,z0,x1,y1,z1
