@@ -628,10 +628,13 @@ def info(model):
     """Show how a model was made: levels, sizes, training input, config, time."""
     from sinshape.core.manifest import describe, printable
 
+    from sinshape.runtime import world
+
     loaded = open_model(model, threads=1)
     click.echo(printable(loaded.path))
     for line in describe(loaded.manifest.raw):
         click.echo("  " + line)
+    click.echo(f"  {'tiles':<11} {world.tiles_said(loaded)}")
 
 
 @cli.command()

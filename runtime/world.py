@@ -113,6 +113,17 @@ def world_tiling(model) -> Tiling:
     return Tiling(horizontal, up, tuple(stride), factors)
 
 
+def tiles_said(model) -> str:
+    """A model's world tiles in words, for a designer painting a map: their
+    size, and what a map's pixel covers (a tile, so a map drawn with square
+    pixels is stretched by the tiles' aspect)."""
+    tiling = world_tiling(model)
+    (h0, h1), names = tiling.horizontal, "xyz"
+    s0, s1 = tiling.stride[h0], tiling.stride[h1]
+    return (f"{s0} x {s1} voxels along {names[h0]} and {names[h1]}; a map's pixel is a tile, so paint at "
+            f"{s0}:{s1} to keep a circle round")
+
+
 def check_tile(tile) -> tuple:
     """(i, j): two integers of magnitude below MAX_TILE."""
     if not (isinstance(tile, (tuple, list)) and len(tile) == 2
