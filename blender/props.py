@@ -100,12 +100,12 @@ class SinshapeWorld(bpy.types.PropertyGroup):
                                            "model map, the first being 0")
     models_map: StringProperty(name="Model Map", subtype="FILE_PATH", update=worlds.changed,
                                description="Which model goes where in a scattered world: a .png (a palette or "
-                                           "greyscale image) or .npy of models' indices, a pixel per tile, 0 the "
-                                           "first model (// is the .blend's folder)")
+                                           "greyscale image) or .npy of models' indices, laid as the Height "
+                                           "Map's pixels, 0 the first model (// is the .blend's folder)")
     heights: StringProperty(name="Height Map", subtype="FILE_PATH", update=worlds.changed,
                             description="The world's large shape, painted: a greyscale .png (black low, white "
-                                        "Relief voxels high) or .npy of heights in voxels, a pixel per tile "
-                                        "(// is the .blend's folder)")
+                                        "Relief voxels high) or .npy of heights in voxels, each pixel a "
+                                        "square of the tiles' longer side (// is the .blend's folder)")
     relief: FloatProperty(name="Relief", default=0.0, min=0.0, max=MAX_RELIEF, soft_max=400.0,
                           update=worlds.changed,
                           description="Voxels an image height map's white stands for (0: four times the "

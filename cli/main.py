@@ -484,15 +484,16 @@ def world_options(command):
               help="This machine's cores, or a Ray cluster (pip install 'sinshape[ray]').")
 @click.option("--address", default=None, help="With --engine ray: the cluster's address.")
 @click.option(*reversed(SPELLED["heights"]), type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
-              help="The world's large shape: a greyscale .png (black low, white --relief voxels high; a column "
-                   "per tile along the first horizontal axis, a row per tile up the second, from tile 0,0) or a "
-                   ".npy array of heights in voxels, [i, j] for tile i,j. Beyond it, its edge goes on.")
+              help="The world's large shape: a greyscale .png (black low, white --relief voxels high; columns "
+                   "along the first horizontal axis, rows up the second, from the world's origin; each pixel a "
+                   "square of the tiles' longer side, which `sinrun info` gives) or a .npy array of heights in "
+                   "voxels, [i, j] for pixel i,j. Beyond it, its edge goes on.")
 @click.option("--relief", type=float, default=None,
               help="Voxels from a .png map's black to its white. Default: 4 times the model's height.")
 @click.option(SPELLED["models_map"][1], type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
-              help="Which model goes where in a scattered world: a model's index per tile (0 the first model), "
-                   "as a palette or greyscale .png (a pixel's value is the index, laid out as --map's) or a .npy "
-                   "array of indices, [i, j] for tile i,j; each object is drawn from the model its cell's centre's "
+              help="Which model goes where in a scattered world: a model's index per pixel (0 the first "
+                   "model), as a palette or greyscale .png (a pixel's value is the index, laid out as --map's) or "
+                   "a .npy array of indices, [i, j] for pixel i,j; each object is drawn from the model its cell's centre's "
                    "pixel names. The other models follow the first: sinrun world FIRST SECOND ... --arrange "
                    "scatter --models-map map.png.")
 @RESTART_OPTION

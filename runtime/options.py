@@ -131,7 +131,8 @@ OPTIONS = (
     Option("arrange", "choice", ARRANGEMENTS[0], "blend: samples blended into one continuing surface (terrain, "
            "rock, walls); scatter: whole samples at drawn places on a ground (a temple, a tower).", ("tile",),
            choices=ARRANGEMENTS),
-    Option("heights", "heights", None, "The world's large shape: a height in voxels per tile.", ("tile",)),
+    Option("heights", "heights", None, "The world's large shape: a height in voxels per pixel, each a square "
+           "of the tiles' longer side.", ("tile",)),
     Option("lod", "int", 0, "Levels of detail coarser than the finest: a distant tile, cheaper, with a skirt "
            "that hides the crack where it meets a finer one.", ("tile",), 0),
     Option("skirt", "bool", False, "A skirt at lod 0 too: a full tile beside a coarser one, so that the crack "
@@ -143,7 +144,7 @@ OPTIONS = (
     Option("models", "models", (), "A scattered world's other models (model files; a server's by name): model "
            "1, 2, ... of its model map, the first model being 0.", ("tile",)),
     Option("models_map", "models_map", None, "Which model goes where in a scattered world: a model's index per "
-           "tile (0 the first model); each object is drawn from the model its cell's centre's pixel names "
+           "pixel, laid as the height map's (0 the first model); each object is drawn from the model its cell's centre's pixel names "
            "(a query's text: rows parted by ';', a row's pixels by ','; 0,1;1,0).", ("tile",)),
 )
 OPTION = {option.name: option for option in OPTIONS}

@@ -23,8 +23,8 @@ extent). It is made of samples of the model arranged one of two ways:
   is the largest of theirs and the ground's. Nothing is blended, so every
   object is whole, and their places follow no period.
 
-A height map (HeightMap: heights in voxels over the tiles, a designer's
-painting) gives the world its large shape: a blend world's columns are
+A height map (HeightMap: heights in voxels, a pixel a square of the
+tiles' longer side, a designer's painting) gives the world its large shape: a blend world's columns are
 raised by the map's height there (its cubic B-spline, so the landform is
 smooth), a scatter world's ground follows it and each object stands at the
 map's height under its centre. A tile can be made coarser (`lod`): its
@@ -115,13 +115,12 @@ def world_tiling(model) -> Tiling:
 
 def tiles_said(model) -> str:
     """A model's world tiles in words, for a designer painting a map: their
-    size, and what a map's pixel covers (a tile, so a map drawn with square
-    pixels is stretched by the tiles' aspect)."""
+    size, and what a map's pixel covers (map_pixel)."""
     tiling = world_tiling(model)
     (h0, h1), names = tiling.horizontal, "xyz"
     s0, s1 = tiling.stride[h0], tiling.stride[h1]
-    return (f"{s0} x {s1} voxels along {names[h0]} and {names[h1]}; a map's pixel is a tile, so paint at "
-            f"{s0}:{s1} to keep a circle round")
+    return (f"{s0} x {s1} voxels along {names[h0]} and {names[h1]}; a map's pixel is a square of "
+            f"{map_pixel(tiling)} voxels a side")
 
 
 def check_tile(tile) -> tuple:
@@ -419,11 +418,12 @@ def objects_near(model, tiling: Tiling, seed: int, tile: tuple, level: int, opti
     h0, h1 = tiling.horizontal
     (p0, p1), extents = scatter_geometry(model, tiling, options)
     s0, s1 = tiling.stride[h0], tiling.stride[h1]
+    pixel = map_pixel(tiling)
     found = []
     for a in range((i * s0) // p0 - 1, ((i + 1) * s0) // p0 + 1):
         for b in range((j * s1) // p1 - 1, ((j + 1) * s1) // p1 + 1):
             index = 0 if options.models_map is None else \
-                options.models_map.at((2 * a * p0 + p0) // (2 * s0), (2 * b * p1 + p1) // (2 * s1))  # exact, anywhere
+                options.models_map.at((2 * a * p0 + p0) // (2 * pixel), (2 * b * p1 + p1) // (2 * pixel))  # exact
             cell = scatter_cell(seed, a, b, extents[index], (p0, p1), options.density)
             e0, e1 = cell.extent
             low = (a * p0 + cell.offset[0], b * p1 + cell.offset[1])  # world voxels, exact integers
@@ -445,13 +445,22 @@ def spline_weights(t: np.ndarray) -> list:
             t * t * t / 6]
 
 
-def map_coordinates(count: int, tile: int, u: np.ndarray, stride: int) -> np.ndarray:
+def map_pixel(tiling: Tiling) -> int:
+    """The side of a map's pixel in voxels: the tiles' longer side, the same
+    along both axes, so that what is painted keeps its aspect (a circle
+    stays round) on tiles that are not square."""
+    return max(tiling.stride[h] for h in tiling.horizontal)
+
+
+def map_coordinates(count: int, tile: int, u: np.ndarray, stride: int, pixel: int) -> np.ndarray:
     """Where points u voxels past tile `tile`'s corner fall among a map's
-    `count` pixels along one axis (pixel r at the centre of tile r), clamped
-    where all four of a spline's pixels are the edge's: the same float from
-    any tile that computes it (a face's points are integers from both)."""
-    near = min(max(tile, -4), count + 4)  # farther tiles are all past the clamp
-    return np.clip((near - 0.5) + np.asarray(u, np.float64) / stride, -2.0, count + 1.0)
+    `count` pixels of `pixel` voxels along one axis (pixel r centred
+    (r + 1/2) pixels from the world's origin), clamped where all four of a
+    spline's pixels are the edge's: the same float from any tile that
+    computes it (a face's points are integers from both)."""
+    low, high = -(2 * pixel // stride) - 2, -(-(count + 2) * pixel // stride) + 1  # farther tiles: past the clamp
+    near = min(max(tile, low), high)
+    return np.clip((near * stride + np.asarray(u, np.float64)) / pixel - 0.5, -2.0, count + 1.0)
 
 
 def spline(values: np.ndarray, q0: np.ndarray, q1: np.ndarray, outer: bool) -> np.ndarray:
@@ -479,8 +488,9 @@ def map_heights(heights: HeightMap, tiling: Tiling, u0, u1, tile: tuple, outer: 
     ((len(u0), len(u1))) or, not `outer`, at each point ((n,))."""
     values = heights.array().astype(np.float64)
     h0, h1 = tiling.horizontal
-    return spline(values, map_coordinates(values.shape[0], tile[0], u0, tiling.stride[h0]),
-                  map_coordinates(values.shape[1], tile[1], u1, tiling.stride[h1]), outer)
+    pixel = map_pixel(tiling)
+    return spline(values, map_coordinates(values.shape[0], tile[0], u0, tiling.stride[h0], pixel),
+                  map_coordinates(values.shape[1], tile[1], u1, tiling.stride[h1], pixel), outer)
 
 
 def object_height(heights: HeightMap, tiling: Tiling, low: tuple, extent: tuple) -> float:
@@ -488,8 +498,8 @@ def object_height(heights: HeightMap, tiling: Tiling, low: tuple, extent: tuple)
     at world voxels `low` (exact integers, however far): the same for every
     tile that sees it."""
     values = heights.array().astype(np.float64)
-    q = [np.array([min(max((2 * c + e) / (2 * tiling.stride[h]) - 0.5, -2.0), n + 1.0)])
-         for c, e, h, n in zip(low, extent, tiling.horizontal, values.shape)]
+    pixel = map_pixel(tiling)
+    q = [np.array([min(max((2 * c + e) / (2 * pixel) - 0.5, -2.0), n + 1.0)]) for c, e, n in zip(low, extent, values.shape)]
     return float(spline(values, q[0], q[1], False)[0])
 
 

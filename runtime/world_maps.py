@@ -132,8 +132,8 @@ MAX_MODELS = 256  # models in one world: a model map's pixel is a byte
 @dataclass(frozen=True)
 class ModelMap:
     """A designer's map of which model goes where in a scattered world: a
-    model's index (0 the world's first model) per tile (r, c), r along the
-    first horizontal axis, from tile (0, 0), as a height map's pixels lie;
+    model's index (0 the world's first model) per pixel (r, c), r along the
+    first horizontal axis, as a height map's pixels lie (world.map_pixel);
     beyond its edges, its edge. A scatter cell's object comes from the model
     the pixel under the cell's centre names. Held as bytes, as HeightMap."""
 
@@ -172,7 +172,7 @@ class ModelMap:
         return np.frombuffer(self.data, np.uint8).reshape(self.shape)
 
     def at(self, r: int, c: int) -> int:
-        """The index at tile (r, c), the edge's beyond the map."""
+        """The index at pixel (r, c), the edge's beyond the map."""
         return int(self.array()[min(max(r, 0), self.shape[0] - 1), min(max(c, 0), self.shape[1] - 1)])
 
 

@@ -132,7 +132,7 @@ def test_info_shows_the_manifest(tiny_model, tiny_pyramid):
     result = sinrun("info", tiny_model)
     assert result.exit_code == 0
     for text in (f"sinshape {fmt.FORMAT_VERSION}", tiny_pyramid.name, "20x18x15", "15x15x15", "iterations per level",
-                 "tiles       9 x 8 voxels along x and y; a map's pixel is a tile, so paint at 9:8"):
+                 "tiles       9 x 8 voxels along x and y; a map's pixel is a square of 9 voxels a side"):
         assert text in result.output
 
 

@@ -312,6 +312,30 @@ def test_scattered_objects_face_all_eight_ways_each_the_same_shape_turned(model)
     assert np.array_equal(grid.ravel() > 0.5, world_points.point_field(same, 5, tile, points, options)[0] > 0)
 
 
+def test_a_painted_circle_stays_round_on_tiles_that_are_not_square(model):
+    """A map's pixel is a square of the tiles' longer side (the tiny model's
+    tiles are 9 x 8 voxels): a disc painted on it raises a round plateau,
+    however the tiles cut it, and neighbouring tiles agree where they meet."""
+    tiling = world.world_tiling(model)
+    (h0, h1), pixel = tiling.horizontal, world.map_pixel(tiling)
+    assert tiling.stride[h0] != tiling.stride[h1] and pixel == max(tiling.stride[h0], tiling.stride[h1])
+    rows, columns = np.mgrid[:24, :24]
+    heights = world_maps.HeightMap.of(((columns - 11.5) ** 2 + (rows - 11.5) ** 2 <= 36) * 40.0)
+    s0, s1 = tiling.stride[h0], tiling.stride[h1]
+    count0, count1 = 24 * pixel // s0 + 1, 24 * pixel // s1 + 1
+    field = np.full((count0 * s0, count1 * s1), np.nan)
+    for i in range(count0):
+        for j in range(count1):
+            part = world.map_heights(heights, tiling, np.arange(s0 + 1.0), np.arange(s1 + 1.0), (i, j))
+            if j + 1 < count1:  # a shared face: the same heights from both tiles
+                beside = world.map_heights(heights, tiling, np.arange(s0 + 1.0), np.zeros(1), (i, j + 1))
+                assert np.array_equal(part[:, -1:], beside)
+            field[i * s0:(i + 1) * s0, j * s1:(j + 1) * s1] = part[:-1, :-1]
+    raised = field > 20
+    across = [np.ptp(np.flatnonzero(raised.any(axis=1 - axis))) for axis in (0, 1)]
+    assert across[0] > 8 * pixel and abs(across[0] - across[1]) <= 1  # round, to a voxel (was 9:8)
+
+
 def test_density_and_spacing_set_how_many_objects_a_scattered_world_holds(model):
     """`density` is the share of cells holding an object; `spacing` a cell's
     side in tiles (never less than its widest object turned either way)."""

@@ -31,19 +31,20 @@ sinrun render towerruins --seeds 5 --size 2,1,2 --scale 2 --image-size 384 -o to
 sinrun render towerruins --seeds 3 --scale 1 --zoom 3 --focus 0.5,0.8,1 --image-size 384 -o closeup_scale1.png
 sinrun render towerruins --seeds 3 --scale 8 --zoom 3 --focus 0.5,0.8,1 --image-size 384 -o closeup_scale8.png
 
-# Endless worlds (docs/WORLDS.md): an 8 x 8 block of terrain tiles; 16 x 16 tiles of it shaped by a
-# painted height map (world_map.png: a pixel a tile, white 120 voxels up); temples scattered over the
-# same map; tower ruins scattered on flat ground; temples and towers on the same map, a model map
-# (world_models_map.png: 0 temple, 1 tower, a pixel a tile) saying which goes where.
+# Endless worlds (docs/WORLDS.md): an 8 x 8 block of terrain tiles; the terrain's tiles shaped by a
+# painted height map (world_map.png: a pixel a square of a tile's longer side, 31 voxels: 16 x 25 of the
+# terrain's 31 x 20 tiles hold its 16 x 16 pixels; white 120 voxels up); temples scattered over the same map
+# (12 x 21 of their 31 x 18 tiles); tower ruins scattered on flat ground; temples and towers on the same map,
+# a model map (world_models_map.png: 0 temple, 1 tower, pixels as the height map's) saying which goes where.
 sinrun world terrain --seed 3 --tiles 0:7,0:7 --scale 2 -o "$work/terrain_world.ply"
 sinrun render "$work/terrain_world.ply" --up z --image-size 640 --elevation 40 --azimuth 30 -o world_terrain.png
-sinrun world terrain --seed 3 --tiles 0:15,0:15 --map world_map.png --relief 120 -o "$work/painted.ply"
+sinrun world terrain --seed 3 --tiles 0:15,0:24 --map world_map.png --relief 120 -o "$work/painted.ply"
 sinrun render "$work/painted.ply" --up z --image-size 900 --elevation 30 --azimuth 210 -o world_painted.png
-sinrun world acropolis --seed 3 --tiles 0:11,0:11 --map world_map.png --relief 60 -o "$work/temples.ply"
+sinrun world acropolis --seed 3 --tiles 0:11,0:20 --map world_map.png --relief 60 -o "$work/temples.ply"
 sinrun render "$work/temples.ply" --up z --image-size 900 --elevation 35 --azimuth 210 -o world_acropolis.png
 sinrun world towerruins --seed 3 --tiles 0:11,0:11 -o "$work/towers.ply"
 sinrun render "$work/towers.ply" --up y --image-size 900 --elevation 35 --azimuth 30 -o world_towerruins.png
-sinrun world acropolis towerruins --seed 3 --tiles 0:11,0:11 --models-map world_models_map.png --map world_map.png \
+sinrun world acropolis towerruins --seed 3 --tiles 0:11,0:20 --models-map world_models_map.png --map world_map.png \
     --relief 60 -o "$work/temples_and_towers.ply"
 sinrun render "$work/temples_and_towers.ply" --up z --image-size 900 --elevation 35 --azimuth 210 -o world_models.png
 
