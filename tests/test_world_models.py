@@ -94,7 +94,7 @@ def test_models_of_other_sizes_meet_without_a_seam_in_any_order(model, two_kinds
 def test_each_object_is_coloured_by_its_own_model(model, coloured, two_kinds):
     """The plain model's objects are grey as the ground (it has no colour); the coloured model's
     show its colours; the coloured model's objects stand taller than the first model's grid."""
-    FAR_LEFT, FAR_RIGHT = (-3, 1), (8, 1)  # cells are wider here: room for the coloured model's objects
+    FAR_LEFT, FAR_RIGHT = (-3, 1), (9, 1)  # cells are wider here: room for the coloured model's objects
     assert objects(model, FAR_LEFT, two_kinds) == [0] and objects(model, FAR_RIGHT, two_kinds) == [1]
     left = world_tiles.tile_surface(model, 7, FAR_LEFT, options=two_kinds)
     right = world_tiles.tile_surface(model, 7, FAR_RIGHT, options=two_kinds)
