@@ -431,15 +431,15 @@ def apply_layout(obj) -> None:
     regenerate(obj, force=True)
 
 
-def export_asset(obj, path: Path, lods: str, texture: int, ao: bool, add_objects: bool, height: float | None = None,
-                 collision: int = 0, naming: str = "gltf", hulls: int = 0, quantise: bool = False) -> list:
+def export_asset(obj, path: Path, add_objects: bool, values: dict) -> list:
     """Write the sample of `obj` as a game asset (runtime.asset) to `path`,
     and with add_objects import it with Blender's glTF importer, placed as
     the sample is (its levels' frame is the sample's mesh's: glTF's Y up is
     turned to Blender's Z as the sample's model frame is). The importer
     puts the coarser levels, outside the file's scene, in a collection it
-    excludes from the view layer (Orphan Nodes). Returns the new objects."""
-    options = asset.options_of(lods, texture, ao, height, collision, naming, hulls, quantise)  # refused before any work
+    excludes from the view layer (Orphan Nodes). `values`: the asset's
+    options by ASSET_OPTIONS' names (asset.options_of). Returns the new objects."""
+    options = asset.options_of(**values)  # refused before any work
     try:
         import meshoptimizer  # noqa: F401
         import xatlas  # noqa: F401

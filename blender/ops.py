@@ -10,7 +10,7 @@ from bpy.props import BoolProperty, EnumProperty, FloatProperty, FloatVectorProp
 
 from sinshape import models
 from sinshape.core.errors import InputError
-from sinshape.runtime.options import OPTION
+from sinshape.runtime.options import ASSET_OPTIONS, OPTION
 
 from . import convert, live, worlds
 from .props import SEED_MAX, model_names
@@ -296,9 +296,10 @@ class SINSHAPE_OT_export_asset(SampleOperator):
         return {"RUNNING_MODAL"}
 
     def execute(self, context):
+        # 0 reads as "not given" for the numbers whose 0 the table does not take (a height) or means none.
+        values = {option.name: getattr(self, option.name) or None for option in ASSET_OPTIONS}
         return reported(self, live.export_asset, sample_object(context), Path(bpy.path.abspath(self.filepath)),
-                        self.lods, self.texture, self.ao, self.add_objects, self.height or None, self.collision,
-                        self.naming, self.hulls, self.quantise)
+                        self.add_objects, values)
 
 
 class SINSHAPE_OT_layout_show(SampleOperator):

@@ -4,6 +4,7 @@ Heavy imports (torch, onnxruntime, trimesh) happen inside the commands, so
 `--help` is instant and everything but `train` works without torch.
 """
 
+import dataclasses
 import functools
 import math
 import os
@@ -17,9 +18,9 @@ import click
 from sinshape.core import files
 from sinshape.core.errors import ConflictError, InputError, NamesParameters, spelled
 
-from sinshape.runtime.options import NAMINGS, OPTION
+from sinshape.runtime.options import ASSET_OPTIONS, OPTION
 
-from .params import FRACTIONS, SEEDS, TILES, named_output, request_option
+from .params import FRACTIONS, SEEDS, TILES, named_output, request_option, table_option
 from .progress import StageProgress, TrainProgress, format_seconds, progress_bar
 
 # The options of a sample request (runtime/options.py) the command line takes in
@@ -278,39 +279,34 @@ def mesh_options(command):
     return command
 
 
-def asset_options(command):
-    """Options of a game asset (.glb with levels of detail and baked maps)."""
-    for option in reversed([
-        click.option("--lods", default=None, metavar="N,N,...",
-                     help="Write a game asset (.glb): levels of detail of these triangle counts, finest first, "
-                          "e.g. 20000,5000,1200, simplified from the full-resolution surface, each with its own "
-                          "UVs and maps baked from the model (normal, and colour for a coloured model)."),
-        click.option("--texture", type=int, default=None,
-                     help="With --lods: texels per side of the finest level's maps, a power of two up to 8192, "
-                          "halved level by level. Default 1024."),
-        click.option("--ao", is_flag=True, help="With --lods: bake ambient occlusion too."),
-        click.option("--height", type=float, default=None, metavar="METRES",
-                     help="With --lods: the asset's height in metres, base to top (glTF's unit). Default: one unit "
-                          "of the training mesh is a metre. A sample's asset stands with the centre of its base "
-                          "at the origin."),
-        click.option("--collision", type=int, default=0, metavar="TRIANGLES",
-                     help="With --lods: add a collision mesh of this many triangles, simplified from the "
-                          "full-resolution surface (no maps). Default 0: none."),
-        click.option("--hulls", type=int, default=0, metavar="N",
-                     help="With --lods: add a collision of at most N convex hulls (CoACD's decomposition; a second or "
-                          "two), what engines simulate fastest and Unreal's only collision. Default 0: none."),
-        click.option("--naming", type=click.Choice(NAMINGS), default="gltf", show_default=True,
-                     help="With --lods: how the levels and the collision mesh are named. gltf: the finest level "
-                          "shows, the coarser ones listed by MSFT_lod (Babylon.js, UnityGLTF); godot: Godot's "
-                          "import hints, one level shown and the collision made a static body's shapes; unreal: "
-                          "the hulls named UCX_, Unreal's convex collision of the finest level."),
-        click.option("--quantise", is_flag=True,
-                     help="With --lods: store the vertices as 8- and 16-bit integers (KHR_mesh_quantization, "
-                          "a required extension: Blender, three.js, Babylon.js and glTFast read it; Godot 3 "
-                          "does not, so not with --naming godot)."),
-    ]):
-        command = option(command)
-    return command
+# How the command line shows an asset option beyond its table record.
+ASSET_SETTINGS = {"lods": dict(metavar="N,N,..."), "height": dict(metavar="METRES"),
+                  "collision": dict(metavar="TRIANGLES"), "hulls": dict(metavar="N")}
+
+
+def asset_options(kind: str):
+    """The options of a game asset of a `kind` of request
+    (runtime.options.ASSET_OPTIONS: a .glb with levels of detail and baked
+    maps), each made from its record, given to the command as one `asset`
+    (asset.AssetOptions, None for a plain file): a new asset option reaches
+    the command line without a line here."""
+    offered = [option for option in ASSET_OPTIONS if kind in option.goes_with]
+
+    def decorate(command):
+        @functools.wraps(command)
+        def with_asset(**values):
+            from sinshape.runtime import asset
+
+            return command(asset=asset.options_of(**{option.name: values.pop(option.name) for option in offered}),
+                           **values)
+
+        for option in reversed(offered):
+            text = option.help if option.name == "lods" else f"With --lods: {option.help[0].lower()}{option.help[1:]}"
+            default = f" Default {option.default}." if option.default not in (None, False, 0) else ""
+            with_asset = table_option(dataclasses.replace(option, help=text + default), default=None,
+                                      show_default=False, **ASSET_SETTINGS.get(option.name, {}))(with_asset)
+        return with_asset
+    return decorate
 
 
 RESTART_OPTION = click.option(
@@ -359,7 +355,7 @@ def sample_options(command):
                    f"{' '.join(suffix for suffix in files.MESH_FORMATS if suffix != '.ply')} (made whole in memory), "
                    f"or {' '.join(files.GRID_FORMATS)} (the occupancy grid). With --seeds, {{seed}} in the name is "
                    "replaced, or _seedN is added. Default: MODEL_seedN.ply.")
-@asset_options
+@asset_options("sample")
 @THREADS_OPTION
 @click.option("--workers", type=int, default=None,
               help="With --seeds: worker processes (--engine local; default: one per core) or Ray actors "
@@ -372,33 +368,32 @@ def sample_options(command):
               help="With --engine ray: the cluster's address. Default: Ray's own (RAY_ADDRESS, else a "
                    "local Ray on this machine).")
 @RESTART_OPTION
-def sample(model, seeds, layout_file, resample_layout, output, lods, texture, ao, height, collision, hulls, naming,
-           quantise, threads, workers, engine, address, restart, **fields):
+def sample(model, seeds, layout_file, resample_layout, output, asset, threads, workers, engine, address, restart,
+           **fields):
     """Generate new shapes from a model and write them as meshes.
 
     MODEL is a .onnx file from `sinrun train` or the name of a shipped model
     (`sinrun models` lists them); without it, the default shipped model.
     Needs no torch.
     """
-    from sinshape.runtime import asset as assets, layout_files, write
+    from sinshape.runtime import layout_files, write
     from sinshape.runtime.request import Layout, SampleRequest
 
     if seeds is None and (workers is not None or engine != "local" or address is not None or restart):
         raise ConflictError("`workers`, `engine`, `address` and `restart` are for many samples: give `seeds`",
                             ("workers", "engine", "address", "restart", "seeds"))
-    packed = assets.options_of(lods, texture, ao, height, collision, naming, hulls, quantise)
     loaded = open_model(model, threads)
     laid_out = Layout.of(layout_files.read_any(loaded, layout_file, fields["size"]), resample_layout) if layout_file else None
     request = SampleRequest.of({**fields, "layout": laid_out})
     show_warnings(loaded, request)
     output = output or Path(f"{loaded.path.stem}_{'recon' if request.recon else 'seed{seed}'}."
-                            f"{'glb' if packed else 'ply'}")
+                            f"{'glb' if asset else 'ply'}")
     if seeds:
-        return sample_seeds(loaded, seeds, output, engine, workers, threads, address, request, restart, packed)
+        return sample_seeds(loaded, seeds, output, engine, workers, threads, address, request, restart, asset)
     path = named_output(output, seed=request.sample_seed) if "{" in str(output) else output
     with StageProgress() as show:
         note = write.write_request(loaded, request, path, [layout_file] if layout_file else [], threads,
-                                   lambda done, total: show("meshing", done, total), packed)
+                                   lambda done, total: show("meshing", done, total), asset)
     report_written(path, note)
 
 
@@ -497,9 +492,9 @@ def world_options(command):
                    "pixel names. The other models follow the first: sinrun world FIRST SECOND ... --arrange "
                    "scatter --models-map map.png.")
 @RESTART_OPTION
-@asset_options
+@asset_options("tile")
 def world(model, others, tiles, output, suffix, threads, workers, engine, address, height_map, relief, models_map,
-          restart, lods, texture, ao, height, collision, hulls, naming, quantise, **fields):
+          restart, asset, **fields):
     """Write tiles of an endless world: any tile on its own, seamless with its neighbours.
 
     The world spreads along the model's two horizontal axes (the two that are
@@ -511,16 +506,15 @@ def world(model, others, tiles, output, suffix, threads, workers, engine, addres
     --models-map map.png.
     """
     from sinshape import models
-    from sinshape.runtime import asset as assets, many, request as requests, write
+    from sinshape.runtime import many, request as requests, write
 
-    packed = assets.options_of(lods, texture, ao, height, collision, naming, hulls, quantise)
     loaded = open_model(model, threads)
     wanted = requests.world_request(loaded, fields, height_map, relief, [models.find(other) for other in others],
                                     models_map)
     output = output or Path(f"{loaded.path.stem}_world_seed{wanted.sample_seed}")
-    suffix = "glb" if packed else suffix
+    suffix = "glb" if asset else suffix
     if output.suffix.lower() in files.MESH_FORMATS and "{tile}" not in output.name:  # one mesh of the block
-        if packed:
+        if asset:
             raise InputError(f"{output}: a block of tiles is one mesh; write its tiles as assets to a folder or a "
                              "name holding {tile}", "lods")
         with StageProgress() as show:
@@ -528,7 +522,7 @@ def world(model, others, tiles, output, suffix, threads, workers, engine, addres
         return click.echo(f"wrote {output} ({len(tiles)} tiles)")
     pattern = output if "{tile}" in output.name else output / f"tile_{{tile}}.{suffix}"
     run_job(lambda progress: many.write_tiles(loaded.path, iter(tiles), pattern, wanted, engine, workers, threads,
-                                              address, progress, restart, packed),
+                                              address, progress, restart, asset),
             tiles, "tiles", lambda tile: pattern.with_name(pattern.name.replace("{tile}", f"{tile[0]}_{tile[1]}")))
 
 

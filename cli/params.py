@@ -168,9 +168,14 @@ def request_option(name: str, *flags: str, more_help: str = "", **settings):
     (runtime.options.OPTION): its type, default and help from the table,
     `more_help` added and `settings` (another flag, default or type) taking
     precedence. Its parameter is the option's name unless `settings` names another."""
-    option = OPTION[name]
+    return table_option(OPTION[name], *flags, more_help=more_help, **settings)
+
+
+def table_option(option, *flags: str, more_help: str = "", **settings):
+    """A click option for a record of the options table (runtime.options), as request_option."""
+    name = option.name
     types = {"seed": int, "int": int, "number": float, "choice": click.Choice(option.choices),
-             "factors": FRACTIONS if option.high == 1 else SIZE}
+             "factors": FRACTIONS if option.high == 1 else SIZE, "counts": str}
     made = dict(help=" ".join(filter(None, (option.help, more_help))), default=option.default)
     if option.type == "bool":  # a flag; one on by default is turned off by --no-NAME
         made["is_flag"] = True

@@ -25,16 +25,15 @@ from sinshape.core.errors import ConflictError, InputError, named
 from sinshape.core.manifest import UP_AXIS
 
 from . import bake, colour as colouring, gltf, mesh, query, world, world_points, world_tiles
-from .options import NAMINGS
+from .options import ASSET_OPTION, NAMINGS
 from .request import make
 
 MAX_LODS = 8
-MIN_TRIANGLES = 4  # the fewest a closed surface has
-MAX_TEXTURE = 8192
-MIN_TEXTURE = 16
+MIN_TRIANGLES = ASSET_OPTION["lods"].low  # the fewest a closed surface has
+MIN_TEXTURE, MAX_TEXTURE = ASSET_OPTION["texture"].low, ASSET_OPTION["texture"].high
 UNWRAP_PART = 5000  # faces charted at a time (unwrap)
-MIN_HEIGHT, MAX_HEIGHT = 0.001, 10000.0  # metres: a pebble to a mountain
-MAX_HULLS = 64  # convex hulls of one asset's collision: engines step each every frame
+MIN_HEIGHT, MAX_HEIGHT = ASSET_OPTION["height"].low, ASSET_OPTION["height"].high  # metres: a pebble to a mountain
+MAX_HULLS = ASSET_OPTION["hulls"].high  # convex hulls of one asset's collision: engines step each every frame
 HULL_SOURCE = 2000  # triangles of the surface the hulls are decomposed from (CoACD's time grows with them)
 # CoACD's concavity thresholds, tried in turn until its hulls keep to the count
 # asked: 0.1 held every shipped model's solid as closely as 0.05 in a third of
@@ -75,13 +74,13 @@ class AssetOptions:
     """
 
     lods: tuple = (20000, 5000, 1200)
-    texture: int = 1024
-    ao: bool = False
-    height: float | None = None  # metres from the asset's base to its top; None: a frame unit is a metre
-    collision: int = 0  # triangles of a collision mesh simplified from the full one; 0: none
-    hulls: int = 0  # convex hulls of a collision decomposition, at most; 0: none
-    naming: str = "gltf"  # how levels and collision are named: options.NAMINGS
-    quantise: bool = False  # vertices as integers (KHR_mesh_quantization): 20 bytes a vertex instead of 48
+    texture: int = ASSET_OPTION["texture"].default
+    ao: bool = ASSET_OPTION["ao"].default
+    height: float | None = ASSET_OPTION["height"].default  # metres, base to top; None: a frame unit is a metre
+    collision: int = ASSET_OPTION["collision"].default  # triangles of a collision mesh simplified from the full one
+    hulls: int = ASSET_OPTION["hulls"].default  # convex hulls of a collision decomposition, at most
+    naming: str = ASSET_OPTION["naming"].default  # how levels and collision are named: options.NAMINGS
+    quantise: bool = ASSET_OPTION["quantise"].default  # vertices as integers (KHR_mesh_quantization)
 
     def __post_init__(self):
         lods = (self.lods,) if isinstance(self.lods, int) else self.lods
@@ -460,19 +459,20 @@ def on_its_base(vertices: np.ndarray, up: int, height: float | None) -> gltf.Pla
     return gltf.Placement(base, scale, tall * scale)
 
 
-def options_of(lods=None, texture: int | None = None, ao: bool = False, height: float | None = None,
-               collision: int = 0, naming: str = "gltf", hulls: int = 0,
-               quantise: bool = False) -> AssetOptions | None:
-    """The asset a front end's values ask for: None without lods (a plain
-    sample), which the others need. lods: counts, or their text."""
+def options_of(**values) -> AssetOptions | None:
+    """The asset a front end's values ask for, by the names of
+    options.ASSET_OPTIONS (None or False: not given, the table's default):
+    None without lods (a plain sample), which the others need. lods:
+    counts, or their text."""
+    unknown = sorted(set(values) - set(ASSET_OPTION))
+    if unknown:
+        raise InputError(f"an asset has no option {unknown[0]!r}; its options are {', '.join(ASSET_OPTION)}",
+                         unknown[0])
+    given = {name: value for name, value in values.items() if value is not None and value is not False}
+    lods = given.pop("lods", None)
     if lods is None:
-        given = [name for name, value in (("texture", texture is not None), ("ao", ao), ("height", height is not None),
-                                          ("collision", collision), ("hulls", hulls),
-                                          ("naming", naming != "gltf"), ("quantise", quantise)) if value]
         if given:
             raise ConflictError(f"{named(given, ' and ')} {'are' if len(given) > 1 else 'is'} for an asset: give `lods` "
                                 "too (its levels' triangle counts, like 20000,5000,1200)", (*given, "lods"))
         return None
-    lods = parse_lods(lods) if isinstance(lods, str) else lods
-    return AssetOptions(lods, AssetOptions.texture if texture is None else texture, bool(ao), height, collision,
-                        hulls, naming, bool(quantise))
+    return AssetOptions(parse_lods(lods) if isinstance(lods, str) else lods, **given)

@@ -42,10 +42,11 @@ NAMINGS = ("gltf", "godot", "unreal")  # how an asset's levels and collision mes
 KINDS = ("sample", "tile")  # what a request makes: a sample (plain or edited), or a tile of a world
 # What an option's value is: a seed; a flag; a whole number or any number in
 # its range; factors, one for all three axes or three; one of its choices;
-# kept parts; and the values no text spells (a Layout, a tile, a HeightMap,
-# other models' files, a ModelMap).
+# kept parts; the values no text spells (a Layout, a tile, a HeightMap,
+# other models' files, a ModelMap); and an asset's triangle counts
+# ('20000,5000,1200').
 TYPES = ("seed", "bool", "int", "number", "factors", "choice", "parts", "layout", "tile", "heights", "models",
-         "models_map")
+         "models_map", "counts")
 
 
 @dataclass(frozen=True)
@@ -148,6 +149,35 @@ OPTIONS = (
            "(a query's text: rows parted by ';', a row's pixels by ','; 0,1;1,0).", ("tile",)),
 )
 OPTION = {option.name: option for option in OPTIONS}
+
+# A game asset's options (asset.AssetOptions, what makes a request's mesh a
+# .glb): the command line, the HTTP routes and Blender's Export Asset offer
+# them from these records, and AssetOptions checks their ranges here; each
+# but `lods` needs `lods`. goes_with: the KINDS it is for (a tile keeps its
+# world's frame and is open at its sides: no height, no hulls).
+ASSET_OPTIONS = (
+    Option("lods", "counts", None, "Write a game asset (.glb): levels of detail of these triangle counts, finest "
+           "first, e.g. 20000,5000,1200, simplified from the full-resolution surface, each with its own UVs and "
+           "maps baked from the model (normal, and colour for a coloured model).", KINDS, 4),
+    Option("texture", "int", 1024, "Texels per side of the finest level's maps, a power of two from 16 to 8192, "
+           "halved level by level.", KINDS, 16, 8192),
+    Option("ao", "bool", False, "Bake ambient occlusion too.", KINDS),
+    Option("height", "number", None, "The asset's height in metres, base to top (glTF's unit); without it, one "
+           "unit of the training mesh is a metre. A sample's asset stands with the centre of its base at the "
+           "origin.", ("sample",), 0.001, 10000.0),
+    Option("collision", "int", 0, "A collision mesh of this many triangles, simplified from the full-resolution "
+           "surface (no maps); 0: none.", KINDS, 0),
+    Option("hulls", "int", 0, "A collision of at most this many convex hulls (CoACD's decomposition; a second or "
+           "two), what engines simulate fastest and Unreal's only collision; 0: none.", ("sample",), 0, 64),
+    Option("naming", "choice", NAMINGS[0], "How the levels and the collision are named. gltf: the finest level "
+           "shows, the coarser ones listed by MSFT_lod (Babylon.js, UnityGLTF); godot: Godot's import hints, one "
+           "level shown and the collision made a static body's shapes; unreal: the hulls named UCX_, Unreal's "
+           "convex collision of the finest level.", KINDS, choices=NAMINGS),
+    Option("quantise", "bool", False, "Store the vertices as 8- and 16-bit integers (KHR_mesh_quantization, a "
+           "required extension: Blender, three.js, Babylon.js and glTFast read it; Godot 3 does not, so not with "
+           "naming godot).", KINDS),
+)
+ASSET_OPTION = {option.name: option for option in ASSET_OPTIONS}
 
 
 def options_json() -> list:

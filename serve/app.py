@@ -24,7 +24,6 @@ import logging
 import socket
 from contextlib import asynccontextmanager
 import dataclasses
-from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 from typing import Annotated, Literal
@@ -40,7 +39,7 @@ from starlette.requests import ClientDisconnect
 from sinshape.core import files
 from sinshape.core.errors import InputError, MemoryLimitError
 from sinshape.runtime import asset, generate, layout, layout_files, load, world, world_maps, world_tiles
-from sinshape.runtime.options import NAMINGS, OPTION, OPTIONS
+from sinshape.runtime.options import ASSET_OPTIONS, OPTION, OPTIONS
 from sinshape.runtime.request import Layout, SampleRequest, resolved
 from sinshape.serve import catalog, http
 from sinshape.serve.catalog import load_models  # noqa: F401  the API: app.load_models, app.create_app, app.run
@@ -95,20 +94,25 @@ def option_query(name: str, optional: bool = False, **settings):
     `settings` taking precedence; it may be left out (None) where its
     default is None or `optional` says. Factors are text ('2' or '2,1,1'),
     read by the runtime as the command line reads them."""
-    option = OPTION[name]
+    return table_query(OPTION[name], optional, **settings)
+
+
+def table_query(option, optional: bool = False, limits: bool = True, **settings):
+    """The query parameter of a record of the options table, as option_query
+    (without `limits`, its range is left to the runtime's one-line messages)."""
     kind = {"seed": int, "bool": bool, "int": int, "number": float, "factors": str, "parts": list[str],
-            "models": list[str], "models_map": str,
+            "models": list[str], "models_map": str, "counts": str,
             "choice": Literal[option.choices] if option.choices else None}[option.type]
     if optional or option.default is None:
         kind = kind | None
-    limits = {}
-    if option.low is not None and option.type in ("seed", "int", "number"):
-        limits["gt" if option.bounds[0] == "(" else "ge"] = option.low
-    if option.high is not None and option.type in ("seed", "int", "number"):
-        limits["lt" if option.bounds[1] == ")" else "le"] = option.high
+    bounds = {}
+    if limits and option.low is not None and option.type in ("seed", "int", "number"):
+        bounds["gt" if option.bounds[0] == "(" else "ge"] = option.low
+    if limits and option.high is not None and option.type in ("seed", "int", "number"):
+        bounds["lt" if option.bounds[1] == ")" else "le"] = option.high
     if option.type == "number":
-        limits["allow_inf_nan"] = False
-    return Annotated[kind, Query(**{"description": option.help, **limits, **settings})]
+        bounds["allow_inf_nan"] = False
+    return Annotated[kind, Query(**{"description": option.help, **bounds, **settings})]
 
 
 # The query parameters of a sample (the layout route takes seed and size too).
@@ -119,55 +123,30 @@ FormatQuery = Annotated[Format, Query(description=f"{' '.join(files.MESH_FORMATS
                                                  f"{' '.join(files.GRID_FORMATS.values())}: the occupancy grid.")]
 
 
-LodsQuery = Annotated[str | None, Query(description="A game asset (format glb): levels of detail of these triangle "
-                                         "counts, finest first, like 20000,5000,1200, each with its UVs and maps "
-                                         "baked from the model.")]
-TextureQuery = Annotated[int | None, Query(description="With lods: texels per side of the finest level's maps, a "
-                                           "power of two up to 8192 (default 1024), halved level by level.")]
-AoQuery = Annotated[bool, Query(description="With lods: bake ambient occlusion too.")]
-CollisionQuery = Annotated[int, Query(description="With lods: the triangles of a collision mesh simplified from the "
-                                      "full-resolution surface; 0, the default, for none.")]
-HullsQuery = Annotated[int, Query(description="With lods: a collision of at most this many convex hulls (CoACD's "
-                                  "decomposition, a second or two); 0, the default, for none.")]
-NamingQuery = Annotated[Literal[NAMINGS], Query(description="With lods: how the levels and the collision are named: "
-                                                         "gltf (MSFT_lod), godot (Godot's import hints) or unreal "
-                                                         "(the hulls as UCX_ meshes).")]
-QuantiseQuery = Annotated[bool, Query(description="With lods: store the vertices as 8- and 16-bit integers "
-                                      "(KHR_mesh_quantization, a required extension).")]
-HeightQuery = Annotated[float | None, Query(description="With lods: the asset's height in metres, base to top "
-                                            "(default: one unit of the training mesh is a metre).")]
-
-
-@dataclass
-class AssetQuery:
-    """What makes a tile a game asset (a tile keeps its world's frame)."""
-
-    lods: LodsQuery = None
-    texture: TextureQuery = None
-    ao: AoQuery = False
-    collision: CollisionQuery = 0
-    naming: NamingQuery = "gltf"
-    quantise: QuantiseQuery = False
-
-    def options(self, format: str, height: float | None = None, hulls: int = 0):
-        """The runtime's asset options (None: a plain file); an asset is a .glb."""
-        options = asset.options_of(self.lods, self.texture, self.ao, height, self.collision, self.naming, hulls,
-                                   self.quantise)
-        if options is not None and format != "glb":
-            raise InputError(f"an asset is written as glb (glTF's binary), not {format}")
-        return options
-
-
-@dataclass
-class SampleAssetQuery(AssetQuery):
-    """What makes a sample a game asset: a tile's, the height it stands and
-    its convex hulls (a tile, open at its sides, has none)."""
-
-    height: HeightQuery = None
-    hulls: HullsQuery = 0
+def asset_query(name: str, kind: str) -> type:
+    """The query parameters that make a `kind` of request's file a game
+    asset (runtime.options.ASSET_OPTIONS, each from its record; None: not
+    given), as a dataclass FastAPI reads with Depends(); its
+    options(format) is the runtime's AssetOptions (None: a plain file; an
+    asset is a .glb). A new asset option reaches the routes without a line here."""
+    offered = [option for option in ASSET_OPTIONS if kind in option.goes_with]
+    fields = [(option.name, table_query(option, True, False, description=(
+        option.help if option.name == "lods" else f"With lods: {option.help[0].lower()}{option.help[1:]}")),
+        dataclasses.field(default=None)) for option in offered]
 
     def options(self, format: str):
-        return super().options(format, self.height, self.hulls)
+        made = asset.options_of(**{option.name: getattr(self, option.name) for option in offered})
+        if made is not None and format != "glb":
+            raise InputError(f"an asset is written as glb (glTF's binary), not {format}")
+        return made
+
+    made = dataclasses.make_dataclass(name, fields, namespace={"options": options})
+    made.__doc__ = f"What makes a {kind} a game asset."
+    return made
+
+
+AssetQuery = asset_query("AssetQuery", "tile")  # a tile keeps its world's frame and is open at its sides
+SampleAssetQuery = asset_query("SampleAssetQuery", "sample")
 
 
 def query_model(name: str, kind: str, first: list, special: dict, doc: str, namespace: dict | None = None):

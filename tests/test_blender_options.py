@@ -47,3 +47,20 @@ def test_the_request_of_settings_refuses_a_field_no_option_has(addon):
     assert (request.seed, request.smooth, request.frame) == (3, 2, "input")
     with pytest.raises(InputError, match="no 'colour'"):
         convert.sample_request(dict(seed=3, size=(1, 1, 1), scale=1.0, smooth=2, colour="red"), "y")
+
+
+def test_the_export_asset_button_offers_every_asset_option_of_the_table(addon):
+    """Blender's Export Asset holds a property per asset option
+    (runtime.options.ASSET_OPTIONS), with its default where the table has one and its choices."""
+    import bpy
+
+    from sinshape.runtime.options import ASSET_OPTIONS
+
+    properties = bpy.ops.sinshape.export_asset.get_rna_type().properties
+    for option in ASSET_OPTIONS:
+        assert option.name in properties, option.name
+        prop = properties[option.name]
+        if option.choices:
+            assert [item.identifier for item in prop.enum_items] == list(option.choices)
+        if option.default not in (None,) and option.name != "lods":
+            assert prop.default == option.default, option.name
