@@ -750,11 +750,10 @@ def scatter_into(out: np.ndarray, colours, model, options: WorldOptions, seed: i
     each, own, found = object_window(model, options, seed, placed_object, level)
     h0, h1, up = *own.horizontal, own.up  # the object's axes
     levels = np.clip(z - placed_object.height, 0, own.stride[up])[None, None, :]
-    if placed_object.turned:  # its grid is made in its own axes' order, then turned to the world's
-        hidden, _ = hidden_on_grid(found, own, c1 * found.cells[h0], c0 * found.cells[h1], levels * found.cells[up])
+    along0, along1 = (c1, c0) if placed_object.turned else (c0, c1)  # along its own axes, then turned to the world's
+    hidden, _ = hidden_on_grid(found, own, along0 * found.cells[h0], along1 * found.cells[h1], levels * found.cells[up])
+    if placed_object.turned:
         hidden = hidden.swapaxes(0, 1)
-    else:
-        hidden, _ = hidden_on_grid(found, own, c0 * found.cells[h0], c1 * found.cells[h1], levels * found.cells[up])
     logits = capped(head_logits(each.head, hidden), (z - placed_object.height - own.stride[up])[None, None, :])
     part = np.ix_(x, y)
     better = logits > out[part]

@@ -126,12 +126,19 @@ def test_a_changed_seed_remakes_every_tile(scene, tiny_model, tmp_path):
     assert_tiles_are_the_command_lines(obj, tmp_path, tiny_model, 9)
 
 
+def in_a_side(model, vertices, faces) -> np.ndarray:
+    """Which faces of a tile's mesh (Blender's axes) lie in one of its four sides: its skirt's."""
+    from blender import worlds
+
+    _, sides, _ = worlds.tile_sides(model, np.asarray(vertices, np.float32))
+    return np.any([(side[faces] == end).all(axis=1) for side in sides for end in (1, 2)], axis=0)
+
+
 def border_normals(obj, first, second, model_path) -> float:
     """The largest difference between the normals Blender shades two
     neighbouring tiles with at the surface's vertices they share (in the
     world's space; not their skirts' own, which hang inside the solid
     facing away from each other)."""
-    from blender import worlds
     from sinshape.runtime.load import load_model
 
     tiles = tiles_of(obj)
@@ -141,9 +148,7 @@ def border_normals(obj, first, second, model_path) -> float:
         from blender import convert
 
         vertices, faces = convert.mesh_arrays(child.data)
-        _, sides, _ = worlds.tile_sides(model, vertices.astype(np.float32))
-        in_side = np.any([(side[faces] == end).all(axis=1) for side in sides for end in (1, 2)], axis=0)
-        return np.isin(np.arange(len(vertices)), faces[~in_side])
+        return np.isin(np.arange(len(vertices)), faces[~in_a_side(model, vertices, faces)])
 
     def shading(child):
         from blender import convert
@@ -193,7 +198,7 @@ def test_a_border_with_no_tile_beyond_shades_as_its_surface_not_as_its_skirt(sce
     vertices, faces = convert.mesh_arrays(child.data)
     vertices = vertices.astype(np.float64)
     _, sides, _ = worlds.tile_sides(model, vertices.astype(np.float32))
-    in_side = np.any([(side[faces] == end).all(axis=1) for side in sides for end in (1, 2)], axis=0)
+    in_side = in_a_side(model, vertices, faces)
     assert in_side.sum() > 10  # the premise: it has a skirt
     surface = faces[~in_side]
     expected = np.zeros_like(vertices)
