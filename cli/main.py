@@ -643,10 +643,14 @@ def info(model):
               help="A blended world's contrast exponent (0.5 to 4; a model without one: 1.3): higher keeps "
                    "more relief where windows blend, in the middle of a tile. benchmarks/world.py's repetition "
                    "section measures it: the relief at tile centres against corners.")
+@click.option("--object-scale", type=float, default=None,
+              help="How big the model's objects stand in a scattered world of several models: one of its "
+                   "voxels spans this many of the world's, against the world's first model's (1/16 to 16; a "
+                   "model without one: 1). 0.5 makes its towers half as tall beside the first model's temples.")
 @click.option("-o", "--output", type=click.Path(path_type=Path), default=None,
               help="Where to write the changed model (.onnx). Default: the model's own file, changed in "
                    "place (never a shipped model's).")
-def orient(model, up, arrange, contrast, output):
+def orient(model, up, arrange, contrast, object_scale, output):
     """Record which axis of a model points up, or how its world is made, without retraining.
 
     Viewers, pictures, the page and Blender stand a model's samples on that
@@ -658,10 +662,12 @@ def orient(model, up, arrange, contrast, output):
     from sinshape.runtime import load
 
     target = models.own_file(model, output)
-    load.write_oriented(open_model(model, threads=1), up, target, arrange, contrast)
+    load.write_oriented(open_model(model, threads=1), up, target, arrange, contrast, object_scale)
     said = [f"{up} points up"] * (up is not None) + [f"its world {arrange}s"] * (arrange is not None)
     if contrast is not None:
         said.append(f"blend contrast {contrast:g}")
+    if object_scale is not None:
+        said.append(f"object scale {object_scale:g}")
     click.echo(f"wrote {target} ({', '.join(said)})")
 
 

@@ -51,6 +51,11 @@ ARRANGEMENTS = ("blend", "scatter")  # manifest `arrange`: how the model's world
 # 2.0 (28% below at 1.3). `sinrun orient --contrast` records it.
 CONTRAST = 1.3
 CONTRAST_RANGE = (0.5, 4.0)
+# Manifest `object_scale`: in a scattered world of several models, how many
+# of the world's voxels one of this model's spans, against the world's first
+# model's (absent: 1, a voxel of each model alike). `sinrun orient
+# --object-scale` records it.
+OBJECT_SCALE_RANGE = (1 / 16, 16.0)
 PLANES = ("xy", "xz", "yz")  # plane k drops grid axis 2 - k
 PLANE_AXES = ((0, 1), (0, 2), (1, 2))  # the grid axes each plane keeps, in PLANES order
 # Initializers of stage decoder_head, (D,), (D, 1), (1,): b1, w2, b2.
@@ -121,6 +126,7 @@ class Manifest:
     up: str = "y"  # the input frame's axis that points up: "y" (most meshes) or "z" (voxel data)
     arrange: str = "blend"  # how its world is made unless asked: "blend" (a landscape) or "scatter" (an object)
     contrast: float = CONTRAST  # a blended world's contrast exponent
+    object_scale: float = 1.0  # its objects' size in a world of several models, against the first model's
     colour: bool = False  # the decoder also gives sRGB colour (format 4)
     tiles: tuple | None = None  # format 5: (count, side) of the example's surface tiles
 
@@ -283,6 +289,9 @@ def parse(text: str) -> Manifest:
     contrast = raw.get("contrast", CONTRAST)
     _require(_is_number(contrast) and CONTRAST_RANGE[0] <= contrast <= CONTRAST_RANGE[1],
              f"contrast must be a number in [{CONTRAST_RANGE[0]:g}, {CONTRAST_RANGE[1]:g}]")
+    object_scale = raw.get("object_scale", 1.0)
+    _require(_is_number(object_scale) and OBJECT_SCALE_RANGE[0] <= object_scale <= OBJECT_SCALE_RANGE[1],
+             f"object_scale must be a number in [{OBJECT_SCALE_RANGE[0]:g}, {OBJECT_SCALE_RANGE[1]:g}]")
     frame = raw.get("frame")
     _require(isinstance(frame, dict), "frame is missing")
     origin, spacing = frame.get("origin"), frame.get("spacing")
@@ -323,6 +332,7 @@ def parse(text: str) -> Manifest:
         up=raw.get("up", "y"),
         arrange=raw.get("arrange", "blend"),
         contrast=float(contrast),
+        object_scale=float(object_scale),
         colour=colour,
         tiles=tiles,
     )
@@ -379,7 +389,7 @@ def describe(raw: dict) -> list:
         f"networks    {raw['channels']} channels, {raw['pool_bins']} pooling bins, MLP hidden {raw['mlp_hidden']}",
         f"frame       voxel (0, 0, 0) at ({origin}), voxel size ({spacing}); {raw.get('up', 'y')} points up",
         f"world       {raw.get('arrange', 'blend')}ed (sinrun world's arrangement unless asked), "
-        f"blend contrast {raw.get('contrast', CONTRAST):g}",
+        f"blend contrast {raw.get('contrast', CONTRAST):g}, object scale {raw.get('object_scale', 1.0):g}",
         "levels      size          noise amplitude   learning rate   iterations   seconds",
     ]
     seconds = training.get("level_seconds", [])

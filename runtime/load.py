@@ -165,7 +165,8 @@ def checksum_v2_matches(model: onnxfile.OnnxModel, raw: dict) -> bool:
 def format3_bytes(model: Model, **changes) -> bytes:
     """The model as a sealed format-3 file (its own bytes when it is one and
     nothing changes): what the browser reads, which checks seals only.
-    `changes` replace manifest fields that do not change how the model is run (`up`, `arrange`, `contrast`)."""
+    `changes` replace manifest fields that do not change how the model is run (`up`, `arrange`, `contrast`,
+    `object_scale`)."""
     if model.manifest.raw["format_version"] >= 3 and not changes:
         return model.data
     manifest = {k: v for k, v in model.manifest.raw.items() if k != "checksum"}
@@ -176,15 +177,16 @@ def format3_bytes(model: Model, **changes) -> bytes:
 
 
 def write_oriented(model: Model, up: str | None, path, arrange: str | None = None,
-                   contrast: float | None = None) -> None:
+                   contrast: float | None = None, object_scale: float | None = None) -> None:
     """The model with `up` recorded as the input's up axis (y or z),
-    `arrange` as its world's arrangement (blend or scatter) and `contrast`
-    as its blended world's contrast exponent (None: each as it was),
+    `arrange` as its world's arrangement (blend or scatter), `contrast`
+    as its blended world's contrast exponent and `object_scale` as its
+    objects' size in a world of several models (None: each as it was),
     written to `path` (its own file too: atomically, so a crash leaves the
     old one). How the model runs does not change: only viewers, pictures
     and worlds read them."""
-    if up is None and arrange is None and contrast is None:
-        raise InputError("give `up`, `arrange` or `contrast`: nothing to change", "up")
+    if up is None and arrange is None and contrast is None and object_scale is None:
+        raise InputError("give `up`, `arrange`, `contrast` or `object_scale`: nothing to change", "up")
     if up is not None and up not in fmt.UP_AXES:
         raise InputError(f"`up` must be one of {', '.join(fmt.UP_AXES)}, got {up!r}", "up")
     if arrange is not None and arrange not in fmt.ARRANGEMENTS:
@@ -192,12 +194,15 @@ def write_oriented(model: Model, up: str | None, path, arrange: str | None = Non
     low, high = fmt.CONTRAST_RANGE
     if contrast is not None and not low <= contrast <= high:
         raise InputError(f"`contrast` must be in [{low:g}, {high:g}], got {contrast:g}", "contrast")
+    low, high = fmt.OBJECT_SCALE_RANGE
+    if object_scale is not None and not low <= object_scale <= high:
+        raise InputError(f"`object_scale` must be in [{low:g}, {high:g}], got {object_scale:g}", "object_scale")
     path = Path(path)
     if path.suffix.lower() != ".onnx":
         raise InputError(f"{path}: a model is written as .onnx")
     check_writable(path)
-    changes = {key: value for key, value in (("up", up), ("arrange", arrange), ("contrast", contrast))
-               if value is not None}
+    changes = {key: value for key, value in (("up", up), ("arrange", arrange), ("contrast", contrast),
+                                             ("object_scale", object_scale)) if value is not None}
     data = format3_bytes(model, **changes)
     atomic_write(path, lambda f: f.write(data))
 

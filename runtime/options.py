@@ -192,6 +192,13 @@ def module_js() -> str:
             "// `python -m sinshape.runtime.options > serve/static/sinshape/options.js`, never by hand\n"
             "// (tests/test_options.py compares).\n"
             f"export const OPTIONS = Object.freeze([\n{rows},\n]);\n"
+            "export const OPTION = Object.freeze(Object.fromEntries(OPTIONS.map((option) => [option.name, option])));\n"
+            "/** Whether a number lies in an option's range (and is finite), as Option.admits. */\n"
+            "export function admits({ low, high, bounds }, value) {\n"
+            "  const above = low === null || (bounds[0] === '(' ? value > low : value >= low);\n"
+            "  const below = high === null || (bounds[1] === ')' ? value < high : value <= high);\n"
+            "  return above && below && Number.isFinite(value);\n"
+            "}\n"
             "// The formats a sample is written in (core.files.OUTPUT_FORMATS).\n"
             f"export const FORMATS = Object.freeze({json.dumps(OUTPUT_FORMATS)});\n")
 

@@ -21,7 +21,10 @@ extent). It is made of samples of the model arranged one of two ways:
   size, one in most cells of a lattice of `spacing` strides, at a place,
   turned and mirrored as drawn from (seed, a, b), standing on a ground; the occupancy
   is the largest of theirs and the ground's. Nothing is blended, so every
-  object is whole, and their places follow no period.
+  object is whole, and their places follow no period. In a world of
+  several models, an object of another model stands at its model's
+  `object_scale` against the first's (a voxel of it spans that many of the
+  world's): its field is read at the world's points divided by the factor.
 
 A height map (HeightMap: heights in voxels, a pixel a square of the
 tiles' longer side, a designer's painting) gives the world its large shape: a blend world's columns are
@@ -359,17 +362,31 @@ def object_model(model, options: WorldOptions, index: int) -> tuple:
         raise InputError(f"model {index} of the world: {error.template}", error.parameter) from None
 
 
+def object_factor(model, each) -> float:
+    """How many of a world's voxels (its first model's, `model`) one voxel of
+    an object of model `each` spans: the two models' `object_scale`s' ratio."""
+    return each.manifest.object_scale / model.manifest.object_scale
+
+
+def world_extent(voxels: int, factor: float):
+    """An object's extent of `voxels` in its model's voxels, in the world's:
+    an exact integer wherever it is one (factor 1, 2, ...), so that places
+    computed from it far out stay exact."""
+    extent = voxels * factor
+    return int(extent) if float(extent).is_integer() else extent
+
+
 def scatter_geometry(model, tiling: Tiling, options: WorldOptions = PLAIN) -> tuple:
     """A scatter world's cell side P per horizontal axis (`spacing` strides, or
     room for its largest model's objects, turned either way, and half a
-    stride), and each model's object extent E - 1 (voxels) along its own two
-    horizontal axes (the world's, unturned)."""
+    stride), and each model's object extent (E - 1) times its object_factor
+    (world voxels) along its own two horizontal axes (the world's, unturned)."""
     extents = []
     for index in range(len(options.models) + 1):
         each, own = object_model(model, options, index)
-        finest = each.manifest.sizes[-1]
-        extents.append((finest[own.horizontal[0]] - 1, finest[own.horizontal[1]] - 1))
-    widest = max(max(extent) for extent in extents)  # turned or not, an object fits its cell
+        finest, factor = each.manifest.sizes[-1], object_factor(model, each)
+        extents.append(tuple(world_extent(finest[h] - 1, factor) for h in own.horizontal))
+    widest = math.ceil(max(max(extent) for extent in extents))  # turned or not, an object fits its cell
     pitch = tuple(max(math.floor(options.spacing * tiling.stride[h] + 0.5), widest + tiling.stride[h] // 2)
                   for h in tiling.horizontal)
     return pitch, extents
@@ -385,11 +402,12 @@ class Placed:
 
     cell: tuple  # (a, b)
     corner: tuple  # (2,) ints, relative to the tile's lowest corner
-    extent: tuple  # (2,) E - 1 along the world's horizontal axes
+    extent: tuple  # (2,) (E - 1) * factor along the world's horizontal axes
     mirror: tuple
     height: float
     model: int = 0  # which of the world's models it is a sample of
     turned: bool = False
+    factor: float = 1.0  # world voxels per voxel of its model (object_factor)
 
     def axes(self, own: "Tiling") -> tuple:
         """The object's own horizontal axes that lie along the world's first and second."""
@@ -424,15 +442,17 @@ def objects_near(model, tiling: Tiling, seed: int, tile: tuple, level: int, opti
         for b in range((j * s1) // p1 - 1, ((j + 1) * s1) // p1 + 1):
             index = 0 if options.models_map is None else \
                 options.models_map.at((2 * a * p0 + p0) // (2 * pixel), (2 * b * p1 + p1) // (2 * pixel))  # exact
-            cell = scatter_cell(seed, a, b, extents[index], (p0, p1), options.density)
-            e0, e1 = cell.extent
+            room = tuple(math.ceil(e) for e in extents[index])  # the whole voxels it takes in its cell
+            cell = scatter_cell(seed, a, b, room, (p0, p1), options.density)
+            e0, e1 = extents[index][::-1] if cell.turned else extents[index]
             low = (a * p0 + cell.offset[0], b * p1 + cell.offset[1])  # world voxels, exact integers
             if not cell.present or low[0] > (i + 1) * s0 or low[0] + e0 < i * s0 or low[1] > (j + 1) * s1 \
                     or low[1] + e1 < j * s1:
                 continue
             height = 0.0 if heights is None else object_height(heights, tiling, low, (e0, e1))
+            factor = object_factor(model, object_model(model, options, index)[0])
             found.append(Placed((a, b), (low[0] - i * s0, low[1] - j * s1), (e0, e1), cell.mirror, height, index,
-                                cell.turned))
+                                cell.turned, factor))
     return found
 
 
@@ -532,8 +552,9 @@ def tile_grid(model, tiling: Tiling, scale: float, options: WorldOptions) -> Gri
             m = max(2, round((stride + 1) * scale * ratio))  # as a sample's grid: m points over the height
             step = stride / (m - 1)
             low, high = options.heights.bounds() if options.heights is not None else (0, 0)
-            cuts = [object_model(model, options, k)[1] for k in range(1, len(options.models) + 1)]
-            high += max([0] + [cut.stride[cut.up] - stride for cut in cuts])  # a taller model's objects
+            others = [object_model(model, options, k) for k in range(1, len(options.models) + 1)]
+            high += max([0] + [cut.stride[cut.up] * object_factor(model, each) - stride
+                               for each, cut in others])  # a taller model's objects
             count = m + math.ceil((high - low) / step)
             positions.append(low + np.arange(count) * step)
         else:
@@ -739,22 +760,23 @@ def scatter_into(out: np.ndarray, colours, model, options: WorldOptions, seed: i
                  placed_object: Placed, u0, u1, z) -> None:
     """One object's logits where they are the largest yet, on the part of a tile's grid inside its box
     (its colour there: its own model's, grey for a model without colour)."""
-    local = []
+    local, factor = [], placed_object.factor
     for u, low, extent, mirror in zip((u0, u1), placed_object.corner, placed_object.extent, placed_object.mirror):
         inside = np.flatnonzero((u - low >= 0) & (u - low <= extent))
         position = u[inside] - low
-        local.append((inside, extent - position if mirror else position))
+        local.append((inside, (extent - position if mirror else position) / factor))  # in its model's voxels
     (x, c0), (y, c1) = local
     if not len(x) or not len(y):
         return
     each, own, found = object_window(model, options, seed, placed_object, level)
     h0, h1, up = *own.horizontal, own.up  # the object's axes
-    levels = np.clip(z - placed_object.height, 0, own.stride[up])[None, None, :]
+    rise = (z - placed_object.height) / factor
+    levels = np.clip(rise, 0, own.stride[up])[None, None, :]
     along0, along1 = (c1, c0) if placed_object.turned else (c0, c1)  # along its own axes, then turned to the world's
     hidden, _ = hidden_on_grid(found, own, along0 * found.cells[h0], along1 * found.cells[h1], levels * found.cells[up])
     if placed_object.turned:
         hidden = hidden.swapaxes(0, 1)
-    logits = capped(head_logits(each.head, hidden), (z - placed_object.height - own.stride[up])[None, None, :])
+    logits = capped(head_logits(each.head, hidden), (rise - own.stride[up])[None, None, :])
     part = np.ix_(x, y)
     better = logits > out[part]
     out[part] = np.where(better, logits, out[part])

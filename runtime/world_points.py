@@ -16,8 +16,8 @@ from .generate import resize_plane
 from .query import bilinear, head_colour, sigmoid
 from .world import (GROUND, GROUND_COLOUR, GROUND_SLOPE, NORMAL_STEP, PLAIN, WINDOWS_KEPT, ContrastSum, Tiling,
                     Window, WorldOptions, along, capped, check_tile, head_logits, hidden_width, map_heights,
-                    level_in, object_model, object_window, objects_near, planes_level, sketch, window, window_sizes,
-                    window_weight, world_tiling)
+                    level_in, object_factor, object_model, object_window, objects_near, planes_level, sketch, window,
+                    window_sizes, window_weight, world_tiling)
 
 
 def point_field(model, seed: int, tile, points: np.ndarray, options: WorldOptions = PLAIN,
@@ -81,24 +81,26 @@ def point_tile(model, tiling: Tiling, seed: int, tile: tuple, points: np.ndarray
             each, own = object_model(model, options, placed_object.model)
             inside = np.ones(len(points), bool)
             cells = np.empty((len(points), 3))
-            back = np.zeros((3, 3))
+            back = np.zeros((3, 3))  # its cells' moves -> the world's voxels
+            factor = placed_object.factor
             for axis, world_axis, u, low, extent, mirror in zip(placed_object.axes(own), (h0, h1), (u0, u1),
                                                                 placed_object.corner, placed_object.extent,
                                                                 placed_object.mirror):
                 position = u - low
                 inside &= (position >= 0) & (position <= extent)
-                cells[:, axis] = extent - position if mirror else position
-                back[axis, world_axis] = -1.0 if mirror else 1.0
+                cells[:, axis] = (extent - position if mirror else position) / factor  # in its model's voxels
+                back[axis, world_axis] = -factor if mirror else factor
             if not inside.any():
                 continue
             found = object_window(model, options, seed, placed_object, level)[2]
-            cells[:, own.up] = np.clip(z - placed_object.height, 0, own.stride[own.up])
-            back[own.up, up] = 1.0
+            rise = (z - placed_object.height) / factor
+            cells[:, own.up] = np.clip(rise, 0, own.stride[own.up])
+            back[own.up, up] = factor
             cells *= np.asarray(found.cells)
             back /= np.asarray(found.cells, np.float64)[:, None]
             hid = point_hidden(found, cells[inside])
             better = np.zeros(len(points), bool)
-            candidate = capped(head_logits(each.head, hid), (z - placed_object.height - own.stride[own.up])[inside])
+            candidate = capped(head_logits(each.head, hid), (rise - own.stride[own.up])[inside])
             better[inside] = candidate > logits[inside]
             logits[better] = candidate[better[inside]]
             hidden[better] = 0  # a narrower model's vector leaves the rest zero
@@ -197,7 +199,8 @@ def tile_colours(model, seed: int, tile, vertices: np.ndarray, options: WorldOpt
             if each.colour_tiles is not None and by_correspondence:
                 own_level = level_in(each, model, level)
                 finest = cells / np.asarray(window(each, own, seed, a, b, own_level, arrange).cells)
-                rgb[index] = window_colouring(each, own, seed, a, b, arrange, own_level)(finest, footprint)
+                within = None if footprint is None else footprint / object_factor(model, each)  # its own voxels
+                rgb[index] = window_colouring(each, own, seed, a, b, arrange, own_level)(finest, within)
             elif each.manifest.colour:
                 rgb[index] = head_colour(each.head, hidden[index, :each.manifest.hidden])
                 if each.colour_tiles is not None:

@@ -49,5 +49,6 @@ def summary(name: str, model) -> dict:
         "frame": m["frame"],
         "up": model.manifest.up,
         "arrange": model.manifest.arrange,
+        "object_scale": model.manifest.object_scale,
         "format_version": m["format_version"],
     }

@@ -30,7 +30,7 @@ MODULES = sorted(STATIC.glob("sinshape/*.js")) + [STATIC / "viewer" / "heights.j
 MANIFEST = ("FORMAT_NAME", "FORMAT_VERSION", "COLOUR_VERSION", "TILES_VERSION", "READ_VERSION", "COLOUR_SPACE",
             "MAX_TILE_SIDE", "METADATA_KEY", "NOISE_SCHEME", "PLANES", "HEAD_WEIGHTS",
             "MAX_LEVELS", "MIN_LEVEL_SIDE", "MAX_LEVEL_SIDE", "MIN_SPACING", "MAX_MANIFEST_CHARS", "MAX_DEPTH",
-            "MAX_NOISE_AMP", "MAX_COORD", "CONTRAST", "CONTRAST_RANGE")
+            "MAX_NOISE_AMP", "MAX_COORD", "CONTRAST", "CONTRAST_RANGE", "OBJECT_SCALE_RANGE")
 LAYOUT = ("FIT_STEPS", "FINER_STEPS", "HOLD_STEPS", "FIT_RATE", "PULL", "MARGIN", "KEEP_WEIGHT", "SLOPE_FLOOR", "SHARE")
 WORLD = ("MAX_TILE", "MIN_STRIDE")
 WORLD_MAPS = ("MAX_MAP_SIDE", "MAX_RELIEF", "MAX_MODELS")
@@ -98,8 +98,8 @@ BROWSER_ONLY = {
 # The table of a sample's options and the output formats: options.js is written from Python and
 # tests/test_options.py holds the copy equal to it; request.js reads its fields, defaults and limits there;
 # MAKES (the options the browser runtime makes) is held by tests/test_web.py.
-OPTIONS = {("sinshape/options.js", "OPTIONS"), ("sinshape/options.js", "FORMATS")} | {
-    ("sinshape/request.js", name) for name in ("OPTION", "DEFAULTS", "MAX_PARTS", "MAKES")}
+OPTIONS = {("sinshape/options.js", name) for name in ("OPTIONS", "OPTION", "FORMATS")} | {
+    ("sinshape/request.js", name) for name in ("DEFAULTS", "MAX_PARTS", "MAKES")}
 
 # Runs in node: the named exports of each module, as JSON (BigInts as {"bigint": text}, sets sorted, typed
 # arrays as arrays, functions as their names).

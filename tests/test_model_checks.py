@@ -242,6 +242,8 @@ NONSENSE = {
     "created_by_list": (set_field(lambda m: m.update(created_by=["x"])), "created_by"),
     "contrast_9": (set_field(lambda m: m.update(contrast=9)), "contrast must be a number in [0.5, 4]"),
     "contrast_string": (set_field(lambda m: m.update(contrast="high")), "contrast"),
+    "object_scale_0": (set_field(lambda m: m.update(object_scale=0)), "object_scale must be a number in [0.0625, 16]"),
+    "object_scale_string": (set_field(lambda m: m.update(object_scale="big")), "object_scale"),
     "planes_string": (set_field(lambda m: m.update(planes="xy")), "planes"),
     "spacing_1e-300": (set_field(lambda m: m["frame"].update(spacing=[1e-300, 1, 1])), "spacing"),
     "spacing_below_origin_step": (set_field(lambda m: m["frame"].update(origin=[1e9, 0, 0], spacing=[1e-3, 1, 1])),

@@ -150,3 +150,22 @@ def test_orient_records_a_blended_worlds_contrast_and_its_tiles_follow_it(tiny_m
     assert_one_line_error(CliRunner().invoke(cli, ["orient", str(tiny_model), "--contrast", "9", "-o",
                                                    str(tmp_path / "n.onnx")]), "contrast must be in [0.5, 4]")
     assert not (tmp_path / "n.onnx").exists()
+
+
+def test_orient_records_an_objects_scale_and_info_says_it(tiny_model, tmp_path):
+    """--object-scale is recorded (and nothing else changes), `sinrun info` prints it, and a value
+    outside 1/16 to 16 is refused in one line, writing nothing."""
+    out = tmp_path / "big.onnx"
+    result = CliRunner().invoke(cli, ["orient", str(tiny_model), "--object-scale", "2", "-o", str(out)])
+    assert result.exit_code == 0 and result.output == f"wrote {out} (object scale 2)\n", result.output
+    before, after = load_model(tiny_model, threads=1), load_model(out, threads=1)
+    assert (before.manifest.object_scale, after.manifest.object_scale) == (1.0, 2.0)
+    assert {k: v for k, v in after.manifest.raw.items() if k not in ("object_scale", "format_version")} == \
+        {k: v for k, v in before.manifest.raw.items() if k != "format_version"}
+    assert "object scale 2" in CliRunner().invoke(cli, ["info", str(out)]).output
+    assert "object scale 1" in CliRunner().invoke(cli, ["info", str(tiny_model)]).output
+    assert_one_line_error(CliRunner().invoke(cli, ["orient", str(tiny_model), "--object-scale", "20", "-o",
+                                                   str(tmp_path / "n.onnx")]), "--object-scale must be in [0.0625, 16]")
+    assert not (tmp_path / "n.onnx").exists()
+    with pytest.raises(Exception, match=r"object_scale must be a number in \[0.0625, 16\]"):
+        fmt.parse(__import__("json").dumps({**before.manifest.raw, "object_scale": 0}))

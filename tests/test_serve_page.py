@@ -643,6 +643,38 @@ def test_the_world_mode_makes_far_tiles_coarser_and_remakes_them_as_they_come_ne
     assert not page.errors and not page.outside
 
 
+def test_a_scattered_worlds_density_and_spacing_are_set_in_the_page(page, terrain):
+    """Density and spacing, shown for a scattered world only: from the URL and the controls to every
+    tile asked of the tile route, each tile the runtime's at those values; a value out of range is
+    request.js's one line, as Python's; a blended world hides them and asks at the defaults."""
+    from sinshape.runtime import world, world_tiles
+
+    page.goto(f"{page.base}/?seed=3&up=z&edit=world&at=0,0&reach=1&arrange=scatter&density=1&spacing=1")
+    status = wait_world(page)
+    assert page.is_visible("#density") and page.input_value("#density") == "1" and page.input_value("#spacing") == "1"
+    tiles = [url for url in page.evaluate("performance.getEntriesByType('resource').map((entry) => entry.name)")
+             if "/tile?" in url]
+    assert len(tiles) >= 9 and all("density=1&spacing=1" in url for url in tiles)
+    faces = {(int(i), int(j)): count for i, j, count, *_ in status["tiles"]}
+    dense = world.WorldOptions("scatter", density=1.0, spacing=1.0, skirt=True)
+    default = world.WorldOptions("scatter", skirt=True)
+    surfaces = {tile: len(world_tiles.tile_surface(terrain, 3, tile, options=dense).faces) for tile in faces}
+    assert faces == surfaces
+    assert surfaces != {tile: len(world_tiles.tile_surface(terrain, 3, tile, options=default).faces) for tile in faces}
+    change(page, "#density", 0)
+    page.wait_for_function("document.body.dataset.state === 'error'")
+    assert page.text_content("#error") == "density must be above 0 and at most 1, got 0"
+    change(page, "#density", 0.5)
+    wait_world(page)
+    assert "density=0.5&spacing=1" in page.url
+    page.select_option("#arrange", "blend")
+    status = wait_world(page)
+    assert not page.is_visible("#density")
+    asked = page.evaluate("performance.getEntriesByType('resource').map((entry) => entry.name)")
+    assert any("/tile?i=0&j=0&" in url and "arrange" not in url and "density" not in url for url in asked)
+    assert not page.errors and not page.outside
+
+
 def test_a_game_asset_downloads_and_opens_in_the_pages_three_js(page, tmp_path):
     """The asset format offers the shown sample's asset (levels sized from
     its triangles), which three.js's own glTF loader opens with its maps."""

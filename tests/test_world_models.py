@@ -196,3 +196,56 @@ def test_a_tiles_memory_is_counted_at_its_widest_models_width(model, still, monk
     monkeypatch.setattr(world, "check_world_scale", lambda tiling, scale, hidden, *rest: counted.append(hidden))
     world_tiles.tile_occupancy(model, 7, (0, 0), options=world.WorldOptions("scatter", models=(still,), models_map=SPLIT))
     assert counted == [model.manifest.hidden + 7]
+
+
+def scaled(model, object_scale: float):
+    """The model (in memory) with its objects' scale recorded as `sinrun orient --object-scale` records it."""
+    import copy
+    import dataclasses
+
+    out = copy.copy(model)
+    out.manifest = dataclasses.replace(model.manifest, object_scale=object_scale)
+    return out
+
+
+def test_an_objects_scale_sizes_it_against_the_first_models(model, still):
+    """Model 1 recorded at object_scale 2 (against the first's 1) stands its objects twice as wide
+    and twice as tall: identical samples (no noise) rise to twice the height they reach at 1, in a
+    grid tall enough for them; the same scale recorded on the first model too changes nothing
+    (the ratio counts); neighbours still agree on their shared face to the bit."""
+    everywhere = world_maps.ModelMap.of([[1]])
+    tiling = world.world_tiling(model)
+    h0, h1, up = *tiling.horizontal, tiling.up
+    E = np.asarray(still.manifest.sizes[-1]) - 1
+
+    def top(options, tiles):
+        """The highest occupied level (voxels) over tiles, and the objects seen there."""
+        highest, found = 0.0, []
+        for tile in tiles:
+            grid = world.tile_grid(model, tiling, 1.0, options)
+            occupied = world_tiles.tile_occupancy(model, 7, tile, options=options) > 0.5
+            levels = np.flatnonzero(occupied.any(axis=(h0, h1)))  # the grid's axes are the model's
+            highest = max(highest, grid.positions[up][levels.max()] if len(levels) else 0.0)
+            found += world.objects_near(model, tiling, 7, tile, 0, options)
+        return highest, found
+
+    tiles = [(i, j) for i in range(4) for j in range(4)]
+    same, alone = top(world.WorldOptions("scatter", models=(still,), models_map=everywhere, density=1.0), tiles)
+    double, big = top(world.WorldOptions("scatter", models=(scaled(still, 2.0),), models_map=everywhere, density=1.0),
+                      tiles)
+    assert alone and big and {placed.factor for placed in alone} == {1.0} and {placed.factor for placed in big} == {2.0}
+    assert all(sorted(placed.extent) == sorted(2.0 * E[[h0, h1]]) for placed in big)
+    assert abs(double - 2 * same) <= 2, (same, double)
+    both = world.WorldOptions("scatter", models=(scaled(still, 2.0),), models_map=everywhere)
+    assert np.array_equal(world_tiles.tile_occupancy(scaled(model, 2.0), 7, (1, 1), options=both),
+                          world_tiles.tile_occupancy(model, 7, (1, 1), options=world.WorldOptions(
+                              "scatter", models=(still,), models_map=everywhere)))
+    options = world.WorldOptions("scatter", models=(scaled(still, 2.0),), models_map=everywhere, density=1.0)
+    assert {placed.factor for placed in world.objects_near(model, tiling, 7, (1, 1), 0, options)} == {2.0}
+    grid = world_tiles.tile_occupancy(model, 7, (1, 1), options=options)  # a row at a time; points one by one:
+    axes = np.meshgrid(*world.tile_grid(model, tiling, 1.0, options).positions, indexing="ij")
+    points = np.stack([a.ravel() for a in axes], axis=1)
+    assert np.array_equal(grid.ravel() > 0.5, world_points.point_field(model, 7, (1, 1), points, options)[0] > 0)
+    for a, b, axis in (((0, 0), (1, 0), h0), ((1, 0), (1, 1), h1)):
+        grid_a, grid_b = (world_tiles.tile_occupancy(model, 7, t, options=options) for t in (a, b))
+        assert np.array_equal(np.take(grid_a, -1, axis), np.take(grid_b, 0, axis))

@@ -115,12 +115,14 @@ async function showWorld(request, ticket, options) {
   if (ticket !== latest) return;
   if (!state.arrange) { // as the model records, shown and in the URL
     state.arrange = $('arrange').value = info.arrange ?? 'blend';
+    showMode();
     writeUrl();
     request = requestOf();
   }
   if (document.activeElement === $('edit')) $('edit').blur(); // the keys fly now, not pick another mode
   world.show({ name: state.model, seed: request.seed ?? 0n, scale: request.scale, tile: request.tile, info, others, reach, walk: walking,
-    arrange: request.arrange, heights: request.heights, models: request.models, modelsMap: request.models_map },
+    arrange: request.arrange, density: request.density, spacing: request.spacing, heights: request.heights, models: request.models,
+    modelsMap: request.models_map },
   (status) => showWorldStatus(status, ticket));
 }
 
@@ -259,7 +261,8 @@ async function start() {
     load();
   });
   const boxes = ['bx0', 'by0', 'bz0', 'bx1', 'by1', 'bz1', 'gx', 'gy', 'gz', 'ax', 'ay', 'az'];
-  for (const id of ['where', 'seed', 'sx', 'sy', 'sz', 'scale', 'smooth', 'edit', 'other', 'at', 'travel', 'reach', 'arrange', 'models', ...boxes]) {
+  for (const id of ['where', 'seed', 'sx', 'sy', 'sz', 'scale', 'smooth', 'edit', 'other', 'at', 'travel', 'reach', 'arrange', 'density', 'spacing',
+    'models', ...boxes]) {
     $(id).addEventListener('change', () => { readForm(); load(); });
   }
   for (const id of boxes) { // the box follows as it is typed

@@ -33,6 +33,7 @@ export const MAX_DEPTH = 16;
 export const MAX_NOISE_AMP = 100;
 export const CONTRAST = 1.3; // core.manifest.CONTRAST: a blended world's contrast exponent, unless the model records one
 export const CONTRAST_RANGE = [0.5, 4];
+export const OBJECT_SCALE_RANGE = [0.0625, 16]; // core.manifest.OBJECT_SCALE_RANGE: 1/16 to 16
 export const MAX_COORD = 1e12;
 // core/manifest.py's messages print these with Python's '%g'.
 export const MAX_COORD_TEXT = '1e+12', SPACING_TEXT = '[1e-09, 2.44141e+08]';
@@ -144,6 +145,9 @@ export function parseManifest(textValue) {
   const contrast = get(raw, 'contrast', CONTRAST);
   need(isNumber(contrast) && contrast >= CONTRAST_RANGE[0] && contrast <= CONTRAST_RANGE[1],
     `contrast must be a number in [${CONTRAST_RANGE[0]}, ${CONTRAST_RANGE[1]}]`);
+  const objectScale = get(raw, 'object_scale', 1); // read by worlds, which are the server's: checked as Python checks it
+  need(isNumber(objectScale) && objectScale >= OBJECT_SCALE_RANGE[0] && objectScale <= OBJECT_SCALE_RANGE[1],
+    `object_scale must be a number in [${OBJECT_SCALE_RANGE[0]}, ${OBJECT_SCALE_RANGE[1]}]`);
   const frame = raw.frame;
   need(frame !== null && typeof frame === 'object', 'frame is missing');
   need(Array.isArray(frame.origin) && frame.origin.length === 3 && frame.origin.every((v) => isNumber(v) && Math.abs(v) <= MAX_COORD),

@@ -25,5 +25,12 @@ export const OPTIONS = Object.freeze([
   {"name": "models", "type": "models", "default": [], "help": "A scattered world's other models (model files; a server's by name): model 1, 2, ... of its model map, the first model being 0.", "goes_with": ["tile"], "low": null, "high": null, "bounds": "[]", "choices": []},
   {"name": "models_map", "type": "models_map", "default": null, "help": "Which model goes where in a scattered world: a model's index per pixel, laid as the height map's (0 the first model); each object is drawn from the model its cell's centre's pixel names (a query's text: rows parted by ';', a row's pixels by ','; 0,1;1,0).", "goes_with": ["tile"], "low": null, "high": null, "bounds": "[]", "choices": []},
 ]);
+export const OPTION = Object.freeze(Object.fromEntries(OPTIONS.map((option) => [option.name, option])));
+/** Whether a number lies in an option's range (and is finite), as Option.admits. */
+export function admits({ low, high, bounds }, value) {
+  const above = low === null || (bounds[0] === '(' ? value > low : value >= low);
+  const below = high === null || (bounds[1] === ')' ? value < high : value <= high);
+  return above && below && Number.isFinite(value);
+}
 // The formats a sample is written in (core.files.OUTPUT_FORMATS).
 export const FORMATS = Object.freeze(["ply", "obj", "stl", "off", "glb", "npz"]);

@@ -10,23 +10,15 @@
 //   const request = sampleRequest({ seed: 7n, size: [2, 1, 1], keep: ['3:0%,0%,0%:50%,100%,100%'] });
 //   const tri = await make(model, request);                          // as request.make
 import { ConflictError, InputError, pyRepr, pyStr, pyTuple } from './errors.js';
-import { OPTIONS } from './options.js';
+import { OPTION, OPTIONS, admits } from './options.js';
 import { sample, scaledSizes } from './generate.js';
 import { checkPart, compose, grow, parsePart } from './edit.js';
 import { fromLayout } from './layout.js';
 import { checkTile, worldOptions } from './world.js';
 
-// The options' ranges, choices and defaults: runtime/options.py's table (options.js, its copy).
-export const OPTION = Object.freeze(Object.fromEntries(OPTIONS.map((option) => [option.name, option])));
 const DEFAULTS = Object.fromEntries(OPTIONS.map(({ name, default: value }) => [name, value]));
 const { high: MAX_SMOOTH } = OPTION.smooth, { choices: SMOOTHERS } = OPTION.smoother, { choices: FRAMES } = OPTION.frame;
 const MAX_PARTS = OPTION.keep.high; // boxes kept in one sample: each runs a whole chain of its own
-/** Whether a number lies in an option's range, as Option.admits. */
-function admits({ low, high, bounds }, value) {
-  const above = low === null || (bounds[0] === '(' ? value > low : value >= low);
-  const below = high === null || (bounds[1] === ')' ? value < high : value <= high);
-  return above && below && Number.isFinite(value);
-}
 const isNumber = (v) => typeof v === 'number';
 
 /** A coarse layout to generate from: a grid (0/1, C order) of `shape`, as request.Layout.of. */
@@ -96,7 +88,8 @@ export function sampleRequest(fields = {}) {
   if (!(Array.isArray(models) && models.every((name) => typeof name === 'string'))) {
     throw new InputError("models is the world's other models' files, as paths", 'models');
   }
-  const world = worldOptions({ arrange: given.arrange, heights: given.heights, lod: given.lod, models, models_map: given.models_map });
+  const world = worldOptions({ arrange: given.arrange, heights: given.heights, lod: given.lod, density: given.density, spacing: given.spacing,
+    models, models_map: given.models_map });
   const request = Object.freeze({
     ...given, // every option, in the table's order: one this file does not check yet as given (make refuses it)
     seed, size, scale, smooth, smoother: given.smoother,

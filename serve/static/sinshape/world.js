@@ -9,6 +9,7 @@
 //   const tiling = worldTiling(info);                                   // horizontal axes, up, stride S per axis
 //   const options = worldOptions({ arrange: 'scatter', models: ['tower'], models_map: ModelMap.of([0, 1, 1, 0], [2, 2]) });
 import { InputError, pyRepr, pyTuple } from './errors.js';
+import { OPTION, admits } from './options.js';
 
 export const MAX_TILE = 2n ** 62n; // world.MAX_TILE: |i|, |j| below it
 export const MIN_STRIDE = 4; // voxels: a window of fewer than 2 * 4 + 1 along an axis has no room to blend
@@ -89,12 +90,19 @@ export const ModelMap = {
 
 /**
  * How a world is made and how finely one of its tiles is, checked as
- * world.WorldOptions: { arrange, heights, lod, models (a scattered world's
+ * world.WorldOptions: { arrange, heights, lod, density and spacing (a
+ * scattered world's share of cells holding an object and cell side in
+ * tiles), models (a scattered world's
  * models after its first: 1, 2, ...), models_map (a ModelMap: which of them
  * each scatter cell draws its object from) }.
  */
-export function worldOptions({ arrange = 'blend', heights = null, lod = 0, models = [], models_map: map = null } = {}) {
+export function worldOptions({ arrange = 'blend', heights = null, lod = 0, density = OPTION.density.default, spacing = OPTION.spacing.default,
+  models = [], models_map: map = null } = {}) {
   if (!ARRANGEMENTS.includes(arrange)) throw new InputError(`unknown arrange ${pyRepr(arrange)}; choose ${ARRANGEMENTS.join(' or ')}`, 'arrange');
+  for (const [name, value, wanted] of [['density', density, 'above 0 and at most 1'], ['spacing', spacing, `1 to ${OPTION.spacing.high} tiles`]]) {
+    if (!(typeof value === 'number' && admits(OPTION[name], value))) throw new InputError(`${name} must be ${wanted}, got ${pyRepr(value)}`, name);
+    if (arrange !== 'scatter' && value !== OPTION[name].default) throw new InputError(`${name} places whole objects: it is for a scatter world`, name);
+  }
   if (heights !== null && !(heights?.data instanceof Float32Array && Array.isArray(heights.shape))) {
     throw new InputError('heights must be a world_maps.HeightMap (HeightMap.of(array))', 'heights');
   }
@@ -102,7 +110,7 @@ export function worldOptions({ arrange = 'blend', heights = null, lod = 0, model
   if (!(Array.isArray(models) && models.length < MAX_MODELS)) {
     throw new InputError(`models is a tuple of at most ${MAX_MODELS - 1} models after the first`, 'models');
   }
-  const options = Object.freeze({ arrange, heights, lod, models: Object.freeze([...models]), models_map: map });
+  const options = Object.freeze({ arrange, heights, lod, density, spacing, models: Object.freeze([...models]), models_map: map });
   if (map === null) {
     if (models.length) throw new InputError('several models need a model map saying which goes where', 'models_map');
     return options;

@@ -1,7 +1,6 @@
 // The controls: the state shown in them and read back from them, which of
 // them the state calls for, and the status line under them.
-import { FORMATS } from '../sinshape/options.js';
-import { OPTION } from '../sinshape/request.js';
+import { FORMATS, OPTION } from '../sinshape/options.js';
 import { STATIC_SITE, keepToBackEnd, nextSeed, state } from './state.js';
 
 export const $ = (id) => document.getElementById(id);
@@ -9,9 +8,10 @@ export const $ = (id) => document.getElementById(id);
 // The download's formats, before the game asset: core.files.OUTPUT_FORMATS.
 $('format').prepend(...FORMATS.map((format) => new Option(format)));
 // The controls of a request's options take the table's help and range (runtime/options.py).
-for (const name of ['seed', 'scale', 'smooth']) {
+for (const name of ['seed', 'scale', 'smooth', 'density', 'spacing']) {
   const { help, low, high, bounds } = OPTION[name];
   $(name).title = help;
+  if (['density', 'spacing'].includes(name)) $(name).placeholder = OPTION[name].default; // empty: the default
   if (low !== null && bounds[0] === '[') $(name).min = low;
   if (high !== null && bounds[1] === ']') $(name).max = high;
 }
@@ -27,7 +27,7 @@ for (const x of document.querySelectorAll('.xyz > input')) {
     x.after(input);
   }
 }
-const PLAIN = ['where', 'scale', 'smooth', 'up', 'format', 'edit', 'other', 'at', 'travel', 'reach', 'arrange']; // one control each, as they are
+const PLAIN = ['where', 'scale', 'smooth', 'up', 'format', 'edit', 'other', 'at', 'travel', 'reach', 'arrange', 'density', 'spacing']; // one control each, as they are
 const TRIPLES = { box: ['bx0', 'by0', 'bz0', 'bx1', 'by1', 'bz1'], grow: ['gx', 'gy', 'gz'], anchor: ['ax', 'ay', 'az'] };
 
 export function toForm() {
@@ -78,6 +78,7 @@ export function showMode() {
   for (const edit of ['keep', 'grow', 'layout', 'world']) $(`${edit}-controls`).hidden = state.edit !== edit;
   // A world has no size nor smoothing, its own up, and the world's controls, not orbiting.
   for (const id of ['size-label', 'smooth-label', 'up-label', 'orbit-help']) $(id).hidden = state.edit === 'world';
+  $('scatter-controls').hidden = state.arrange !== 'scatter'; // a scattered world's own
 }
 
 export function report(error) {

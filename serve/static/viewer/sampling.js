@@ -141,7 +141,8 @@ const server = {
     if (!infos.has(name)) {
       infos.set(name, (async () => {
         const body = await (await answer(await fetch(modelRoute(name)))).json();
-        return { sizes: body.sizes, origin: body.frame.origin, spacing: body.frame.spacing, up: body.up, arrange: body.arrange };
+        return { sizes: body.sizes, origin: body.frame.origin, spacing: body.frame.spacing, up: body.up, arrange: body.arrange,
+                 objectScale: body.object_scale };
       })());
       infos.get(name).catch(() => infos.delete(name));
     }
@@ -317,7 +318,7 @@ export function stop() {
 const backends = { server, browser };
 const layouts = new Map(); // "where|model|seed|size" -> a promise of a seed's layout { shape, grid }
 
-/** A model's grids, frame, up axis and world's arrangement: { sizes, origin, spacing, up, arrange }. */
+/** A model's grids, frame, up axis and world's arrangement: { sizes, origin, spacing, up, arrange, objectScale (the server's) }. */
 export const info = (where, name, options) => backends[where].info(name, options);
 
 /** The sample of a request: { positions, faces, status, file (a Blob to download, or null), extension,

@@ -11,9 +11,9 @@ export const STATIC_SITE = document.body.dataset.site === 'static';
 // their defaults: tests/test_options.py holds the two to the table, so that an
 // option added there is placed here too.
 export const PAGE_OPTIONS = Object.freeze({
-  set: ['seed', 'size', 'scale', 'smooth', 'frame', 'keep', 'grow', 'anchor', 'layout', 'tile', 'arrange', 'heights', 'lod', 'skirt', 'models',
-    'models_map'],
-  left: ['recon', 'smoother', 'largest', 'detail', 'density', 'spacing'],
+  set: ['seed', 'size', 'scale', 'smooth', 'frame', 'keep', 'grow', 'anchor', 'layout', 'tile', 'arrange', 'heights', 'lod', 'skirt', 'density',
+    'spacing', 'models', 'models_map'],
+  left: ['recon', 'smoother', 'largest', 'detail'],
 });
 const FIELDS = ['model', 'where', 'seed', 'size', 'scale', 'smooth', 'up', 'format'];
 // Each edit's fields, in the URL after `edit`: box (6 percentages x0,y0,z0,x1,y1,z1
@@ -21,12 +21,14 @@ const FIELDS = ['model', 'where', 'seed', 'size', 'scale', 'smooth', 'up', 'form
 // and anchor (3 factors, 3 fractions); cells (layout-cells.js's text of the edited cells).
 // The world mode's too (not an edit: the world of the seed, flown over): at (the
 // camera's tile i,j), travel (fly or walk), reach (tiles made on each side), arrange
-// (blend or scatter; empty: what the model records) and models (the world's other
-// models' names, models 1, 2, ... of its model map, parted by ','); its height map and
-// model map, files the user opened, are not in the URL.
-const EDITS = { keep: ['box', 'other'], grow: ['grow', 'anchor'], layout: ['cells'], world: ['at', 'travel', 'reach', 'arrange', 'models'] };
+// (blend or scatter; empty: what the model records), density and spacing (a scattered
+// world's; empty: the table's defaults) and models (the world's other models' names,
+// models 1, 2, ... of its model map, parted by ','); its height map and model map,
+// files the user opened, are not in the URL.
+const EDITS = { keep: ['box', 'other'], grow: ['grow', 'anchor'], layout: ['cells'],
+  world: ['at', 'travel', 'reach', 'arrange', 'density', 'spacing', 'models'] };
 const EDIT_DEFAULTS = { edit: '', box: '0,0,0,50,100,100', other: '', grow: '2,1,1', anchor: '0,0,0', cells: '', at: '0,0', travel: 'fly', reach: '3',
-  arrange: '', models: '' };
+  arrange: '', density: '', spacing: '', models: '' };
 // What makes the shape: a step of the undo history when one of these changes.
 const SHAPE_FIELDS = ['model', 'seed', 'size', 'scale', 'smooth', 'edit', 'box', 'other', 'grow', 'anchor', 'cells'];
 
@@ -116,8 +118,10 @@ const numberOf = (text) => parseNumber(text) ?? String(text);
 export function requestOf(layout = null) {
   if (state.edit === 'world') { // the tile under the camera, as the tile route takes it
     const tile = String(state.at).split(',').map((t) => (/^\s*-?\d+\s*$/.test(t) ? BigInt(t) : t));
+    const scattered = (field) => (state.arrange === 'scatter' && state[field] !== '' ? numberOf(state[field]) : undefined); // else the default
     return sampleRequest({ seed: seedOf(state.seed), scale: numberOf(state.scale), tile, frame: 'tile', arrange: state.arrange || 'blend',
-                           heights: state.heights, models: state.models ? state.models.split(',') : [], models_map: state.modelsMap });
+                           density: scattered('density'), spacing: scattered('spacing'), heights: state.heights,
+                           models: state.models ? state.models.split(',') : [], models_map: state.modelsMap });
   }
   const fields = { seed: seedOf(state.seed), size: parseSize(state.size), scale: numberOf(state.scale), smooth: numberOf(state.smooth) };
   if (state.edit === 'keep') {

@@ -14,7 +14,7 @@
 // tiles out is drawn as precisely as tile (0, 0). The camera's motion is
 // viewer/flight.js's.
 //
-//   show({ name, seed, scale, tile, info, others, reach, walk, arrange, heights, models, modelsMap }, report)  the world from `tile`
+//   show({ name, seed, scale, tile, info, others, reach, walk, arrange, density, spacing, heights, models, modelsMap }, report)  the world from `tile`
 //   stop()                                                                                drop it all, and give the view back to the shape
 import * as THREE from 'three';
 import { sampleRequest } from '../sinshape/request.js';
@@ -41,22 +41,25 @@ const keyOf = (i, j) => `${i},${j}`; // a tile's name
  * `info` is the model's { sizes, spacing, up } (`others`, the world's other
  * models', whose objects may stand taller), `reach` how many tiles to
  * make on each side of the camera's, `walk` whether to keep to the ground,
- * `arrange`, `heights`, `models` and `modelsMap` how the world is made (the
- * request's arrange, heights, models and models_map).
+ * `arrange`, `density`, `spacing`, `heights`, `models` and `modelsMap` how
+ * the world is made (the request's fields of those names, models_map).
  * The same world again keeps its tiles and the camera, unless `tile` is
  * another than the camera's (a jump). report({ at, shown, waiting, made,
  * dropped, complete, error }) follows the work.
  */
-export function show({ name, seed, scale, tile, info, others = [], reach, walk, arrange = 'blend', heights = null, models = [], modelsMap = null },
-  report) {
-  const key = `${name}|${seed}|${scale}|${arrange}|${heights ? mapId(heights) : ''}|${models.join(',')}|${modelsMap ? mapId(modelsMap) : ''}`;
+export function show({ name, seed, scale, tile, info, others = [], reach, walk, arrange = 'blend', density, spacing, heights = null, models = [],
+  modelsMap = null }, report) {
+  const key = [name, seed, scale, arrange, density, spacing, heights ? mapId(heights) : '', models.join(','), modelsMap ? mapId(modelsMap) : ''].join('|');
   const jump = !run || run.key !== key || tile[0] !== run.origin[0] || tile[1] !== run.origin[1];
   if (run?.key !== key) {
     stop(false);
     const tiling = worldTiling(info);
-    const [h0, h1] = tiling.horizontal, top = Math.max(...[info, ...others].map((each) => { const cut = worldTiling(each); return cut.stride[cut.up]; }));
+    const [h0, h1] = tiling.horizontal, top = Math.max(...[info, ...others].map((each) => {
+      const cut = worldTiling(each);
+      return (cut.stride[cut.up] * (each.objectScale ?? 1)) / (info.objectScale ?? 1); // another model's at its object scale
+    }));
     run = {
-      key, name, seed, scale, arrange, heights, models, modelsMap, tiling, report, origin: tile, tiles: new Map(), making: 0, made: 0, dropped: 0, error: null,
+      key, name, seed, scale, arrange, density, spacing, heights, models, modelsMap, tiling, report, origin: tile, tiles: new Map(), making: 0, made: 0, dropped: 0, error: null,
       coarsest: info.sizes.length - 1,
       size: [tiling.stride[h0] * info.spacing[h0], tiling.stride[h1] * info.spacing[h1]], // a tile's sides, in the input's units
       height: (top + (heights ? Math.max(...heights.data) : 0)) * info.spacing[tiling.up], // a voxel of any model is one of the world's
@@ -183,7 +186,7 @@ async function make(r, entry) {
   const lod = entry.lod === undefined ? r.coarsest : entry.want; // shown coarse first; its windows' chains go on from there
   try {
     const request = sampleRequest({ seed: r.seed, scale: r.scale, tile: [entry.i, entry.j], frame: 'tile', arrange: r.arrange,
-                                    heights: r.heights, models: r.models, models_map: r.modelsMap, lod,
+                                    density: r.density, spacing: r.spacing, heights: r.heights, models: r.models, models_map: r.modelsMap, lod,
                                     skirt: true }); // hidden beside a coarser neighbour from either side
     const { positions, faces, normals, colours } = await sampling.tile('server', r.name, request, { signal: entry.controller.signal });
     if (r.tiles.get(entry.key) !== entry) return; // dropped meanwhile
