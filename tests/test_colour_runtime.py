@@ -466,3 +466,23 @@ def test_relief_and_colour_are_the_same_on_any_number_of_threads(model):
             assert np.array_equal(chunked(points, 0.5), painted)
     finally:
         model.threads = threads
+
+
+def test_a_block_whose_match_fell_off_the_band_takes_a_block_near_it_before_the_whole_example():
+    """refine: a block matched off the example's band tries the band within LOST_REACH of its match,
+    nearest first, and takes the best of them even where a far block fits better (a near piece
+    continued); only with none within reach does it search the whole example."""
+    size = (20, 4, 4)
+    band = np.array([(2, 1, 1), (3, 1, 1), (18, 1, 1)])  # near the match, a step farther, and far away
+    values = {(2, 1, 1): 40.0, (3, 1, 1): 10.0, (18, 1, 1): 0.0}
+
+    def reference_at(voxels):
+        return np.array([[values.get(tuple(v), 99.0)] for v in voxels], np.float32)
+
+    level = colour.Level(band, reference_at, size, colour.FINEST_PATCH, rounds=0)
+    sample = lambda voxels: np.zeros((len(voxels), 1), np.float32)  # noqa: E731  fits the far block exactly
+    blocks = np.array([(0, 1, 1), (10, 1, 1)])
+    off = np.array([(0, 1, 1), (10, 1, 1)])  # both matched off the band; the second has no band within 3
+    matched = level.refine(sample, blocks, off)
+    assert matched[0].tolist() == [3, 1, 1]  # of the two in reach (2 and 3 away), the better fit
+    assert matched[1].tolist() == [18, 1, 1]  # the whole example's best
