@@ -41,8 +41,9 @@ content moved by a whole number of the coarsest blocks. The browser's runtime re
 
 import functools
 import itertools
+import os
 import threading
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -1023,6 +1024,25 @@ class SampleSurface:
             for start in starts:
                 one(start)
         return out
+
+
+def matching(model, triplane, detail: bool = True) -> Future:
+    """`colouring` as a Future, begun on a thread of its own where the model
+    has more than one: a sample's matching needs only its tri-plane, so it
+    runs while the mesh is made (its numpy work lets go of the GIL, as the
+    decoder's does): about 0.1 s less of a tower at scale 4."""
+    if model.threads > 1:
+        return matchers().submit(colouring, model, triplane, detail)
+    done = Future()
+    done.set_result(colouring(model, triplane, detail))
+    return done
+
+
+@functools.lru_cache(maxsize=None)
+def matchers() -> ThreadPoolExecutor:
+    """The threads samples' matchings run on beside their meshing: one per
+    core, so that a server's samples made at once each match at once."""
+    return ThreadPoolExecutor(os.cpu_count() or 1, thread_name_prefix="sinshape-match")
 
 
 @functools.lru_cache(maxsize=None)

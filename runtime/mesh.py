@@ -219,9 +219,10 @@ def extract(model, triplane, scale: float = 1.0, smooth: int = 0, smoother: str 
     `pieces`."""
     check_frame(frame)
     per_face = held_per_face(smooth, largest=largest) if per_face is None else per_face
+    surface = colour.matching(model, triplane, detail) if painted(model, scale, detail) else None
     mesh = finish(band_mesh(model, triplane, scale, progress=progress, memory_limit=memory_limit, threads=threads,
                             per_face=per_face), smooth, smoother, largest)
-    paint(mesh, model, triplane, scale, detail)
+    paint(mesh, model, triplane, scale, detail, surface)
     return to_frame(mesh, model.manifest) if frame == "input" else mesh
 
 
@@ -232,18 +233,29 @@ def held_per_face(smooth: int = 0, suffix: str = ".ply", largest: bool = False) 
     return TEXT_BYTES_PER_FACE if suffix.lower() in (".obj", ".off") else MESH_BYTES_PER_FACE
 
 
-def paint(mesh, model, triplane, scale: float = 1.0, detail: bool = True) -> None:
+def relieved(model, scale: float, detail: bool) -> bool:
+    """Whether a sample's mesh at `scale` takes its example's relief: at full detail, fine enough to carry it."""
+    return detail and model.example_tiles is not None and scale >= colour.RELIEF_SCALE
+
+
+def painted(model, scale: float, detail: bool) -> bool:
+    """Whether `paint` changes a sample's mesh: its relief or its colour."""
+    return bool(model.manifest.colour or relieved(model, scale, detail))
+
+
+def paint(mesh, model, triplane, scale: float = 1.0, detail: bool = True, surface=None) -> None:
     """Give a mesh in model coordinates its model's relief and colour at its
     vertices (their final places, after smoothing): on a grid at least
     colour.RELIEF_SCALE times finer than the voxels, a format-5 model's
     vertices move by its example's relief; then a coloured model's each take
     8-bit sRGB, the colour around it (a vertex of a grid `scale` times finer
     stands for 1 / scale voxels). A model with neither leaves the mesh as it
-    is. Without `detail`, no relief, and colour from the decoder's head."""
-    relief = detail and model.example_tiles is not None and scale >= colour.RELIEF_SCALE
-    if not len(mesh.vertices) or not (relief or model.manifest.colour):
+    is. Without `detail`, no relief, and colour from the decoder's head.
+    `surface`: colour.matching's, begun before the mesh was made."""
+    relief = relieved(model, scale, detail)
+    if not len(mesh.vertices) or not painted(model, scale, detail):
         return
-    surface = colour.colouring(model, triplane, detail=detail)
+    surface = colour.colouring(model, triplane, detail=detail) if surface is None else surface.result()
     if relief:
         mesh.vertices = surface.relief(mesh.vertices)
     if model.manifest.colour:

@@ -27,7 +27,7 @@ from sinshape.core.manifest import srgb_to_linear
 
 from . import mesh, world, world_tiles
 from .asset import asset_bytes
-from .colour import RELIEF_SCALE, colouring, dense_grids
+from .colour import dense_grids, matching
 from .generate import interpolate
 from .mesh import held_per_face
 from .request import make
@@ -177,16 +177,15 @@ def write_sample(model, triplane, path, scale: float = 1.0, smooth: int = 0, smo
         atomic_write(path, lambda f: f.write(data))
         return
     mesh.check_frame(frame)
+    # The matching begins first and runs while the first slabs are meshed; then each piece's new vertices are
+    # moved by relief and coloured as they come (mesh.paint): the cost is per vertex.
+    surface = matching(model, triplane, detail) if mesh.painted(model, scale, detail) else None
     pieces = mesh.pieces(model, triplane, scale, progress=mesh_progress, threads=threads)
     colour = model.manifest.colour
-    # Each piece's new vertices moved by relief and coloured as they come (mesh.paint): the cost is per vertex.
-    relief = detail and model.example_tiles is not None and scale >= RELIEF_SCALE
-    if relief or colour:
-        surface = colouring(model, triplane, detail=detail)
-    if relief:
-        pieces = ((surface.relief(v), f) for v, f in pieces)
+    if mesh.relieved(model, scale, detail):
+        pieces = ((surface.result().relief(v), f) for v, f in pieces)
     if colour:
-        pieces = ((v, f, mesh.colour_bytes(surface(v, 1 / scale))) for v, f in pieces)
+        pieces = ((v, f, mesh.colour_bytes(surface.result()(v, 1 / scale))) for v, f in pieces)
     if frame == "input":
         pieces = ((mesh.in_frame(v, model.manifest), *rest) for v, *rest in pieces)
 
