@@ -707,4 +707,18 @@ def test_a_game_asset_downloads_and_opens_in_the_pages_three_js(page, tmp_path):
     }""", href)
     assert opened["names"] == [document["nodes"][0]["name"]] and opened["normalMap"] == 1024 and opened["tangents"]
     assert opened["levels"] == [node["name"] for node in document["nodes"][1:]]
+    # Quantised (KHR_mesh_quantization, which three.js reads without a decoder): the finest level where the float one is.
+    bounds = page.evaluate("""async (urls) => {
+      const THREE = await import('three');
+      const { GLTFLoader } = await import('three/addons/loaders/GLTFLoader.js');
+      return Promise.all(urls.map(async (url) => {
+        const asset = await new GLTFLoader().parseAsync(await (await fetch(url)).arrayBuffer(), '');
+        asset.scene.updateMatrixWorld(true);
+        const box = new THREE.Box3().setFromObject(asset.scene);
+        return { extensions: asset.parser.json.extensionsUsed ?? [], min: box.min.toArray(), max: box.max.toArray() };
+      }));
+    }""", [href, href + "&quantise=true"])
+    assert "KHR_mesh_quantization" not in bounds[0]["extensions"] and "KHR_mesh_quantization" in bounds[1]["extensions"]
+    span = np.ptp([bounds[0]["min"], bounds[0]["max"]], axis=0).max()
+    np.testing.assert_allclose(bounds[1]["min"] + bounds[1]["max"], bounds[0]["min"] + bounds[0]["max"], atol=2e-4 * span)
     assert not page.errors and not page.outside
