@@ -147,20 +147,28 @@ class Tiles:
 
     def own_tiles(self, voxels: np.ndarray, directions: np.ndarray) -> np.ndarray:
         """Each (n, 3) voxel's own tile of its direction (n,), -1 for none (outside the grid: none)."""
-        size = np.array(self.along.shape[:3])
-        inside = np.all((voxels >= 0) & (voxels < size), axis=1)
-        out = np.full(len(voxels), -1, np.int64)
-        index = voxels[inside]
-        out[inside] = self.own[index[:, 0], index[:, 1], index[:, 2], directions[inside]]
-        return out
+        table = self.bordered["own"]
+        return table.ravel()[bordered_cells(table, voxels) * 6 + directions].astype(np.int64)
 
     def read(self, voxels: np.ndarray) -> np.ndarray:
         """The tiles (n, 6) each (n, 3) voxel reads, -1 for none (outside the grid: none)."""
-        size = np.array(self.along.shape[:3])
-        inside = np.all((voxels >= 0) & (voxels < size), axis=1)
-        out = np.full((len(voxels), 6), -1, np.int64)
-        out[inside] = self.along[tuple(voxels[inside].T)]
-        return out
+        table = self.bordered["along"]
+        return table.reshape(-1, 6)[bordered_cells(table, voxels)].astype(np.int64)
+
+    @functools.cached_property
+    def bordered(self) -> dict:
+        """`own` and `along` with a layer of -1 (no tile) all round, (X + 2, Y + 2, Z + 2, 6) int32:
+        a voxel is looked up by one gather, with no test of whether it is inside (bordered_cells)."""
+        return {name: np.pad(getattr(self, name), ((1, 1), (1, 1), (1, 1), (0, 0)), constant_values=-1)
+                for name in ("own", "along")}
+
+
+def bordered_cells(table: np.ndarray, voxels: np.ndarray) -> np.ndarray:
+    """The flat cell (n,) of each (n, 3) voxel in a table bordered by one
+    layer (Tiles.bordered): a voxel beyond the border reads the border's
+    nearest cell, which holds none."""
+    at = np.clip(voxels + 1, 0, np.array(table.shape[:3]) - 1)
+    return (at[:, 0] * table.shape[1] + at[:, 1]) * table.shape[2] + at[:, 2]
 
 
 def reads_along(own: np.ndarray) -> np.ndarray:
@@ -529,18 +537,18 @@ def unique_voxels(voxels: np.ndarray) -> np.ndarray:
 
 
 def voxel_lookup(voxels: np.ndarray):
-    """A function from (n, 3) voxels to their row in `voxels`, -1 where absent."""
-    low = voxels.min(axis=0) if len(voxels) else np.zeros(3, np.int64)
-    size = (voxels.max(axis=0) - low + 1) if len(voxels) else np.ones(3, np.int64)
+    """A function from (n, 3) voxels to their row in `voxels`, -1 where absent:
+    one gather from a table with a border of -1 all round (a voxel beyond
+    it reads the border's nearest cell)."""
+    low = (voxels.min(axis=0) if len(voxels) else np.zeros(3, np.int64)) - 1
+    size = (voxels.max(axis=0) - low + 2) if len(voxels) else np.full(3, 3, np.int64)
     table = np.full(tuple(size), -1, np.int64)
     table[tuple((voxels - low).T)] = np.arange(len(voxels))
+    flat, top = table.ravel(), size - 1
 
     def lookup(query_voxels: np.ndarray) -> np.ndarray:
-        local = query_voxels - low
-        inside = np.all((local >= 0) & (local < size), axis=1)
-        out = np.full(len(query_voxels), -1, np.int64)
-        out[inside] = table[tuple(local[inside].T)]
-        return out
+        at = np.clip(query_voxels - low, 0, top)
+        return flat[(at[:, 0] * size[1] + at[:, 1]) * size[2] + at[:, 2]]
     return lookup
 
 
