@@ -120,8 +120,11 @@ class Tiles:
     mips: list  # RGB [(N, T, T, 3) uint8, (N, T/2, T/2, 3), ..., (N, 1, 1, 3)]; [] for relief alone
     depth: np.ndarray  # (N, T, T) uint8: where the surface is along the tile's axis, 0..255 for -0.5..0.5 voxel
     slopes: np.ndarray  # (N, 2) float64: the surface's mean slope across the tile (depth per voxel along its rows, columns)
-    along: np.ndarray  # (X, Y, Z, 6) int32: per voxel and direction, the tile it reads (-1: none)
-    own: np.ndarray  # (X, Y, Z, 6) int32: per voxel and direction, its own tile (-1: none)
+    # Per voxel and direction, the tile it reads (`along`) and its own tile (`own`), -1 for none, with a
+    # layer of -1 all round, (X + 2, Y + 2, Z + 2, 6) int32: a voxel is looked up by one gather, with no
+    # test of whether it is inside (bordered_cells).
+    along: np.ndarray
+    own: np.ndarray
     distance: np.ndarray  # (X, Y, Z) float32: signed distance to the example's surface at voxel centres, voxels
 
     @classmethod
@@ -133,40 +136,32 @@ class Tiles:
         own = np.full((*size, 6), -1, np.int32)
         own[voxels[:, 0], voxels[:, 1], voxels[:, 2], directions] = np.arange(len(voxels), dtype=np.int32)
         mips = mip_levels(np.ascontiguousarray(images[..., :3])) if images.shape[-1] == 4 else []
-        return cls(voxels, directions, mips, depth, slopes(depth),
-                   reads_along(own), own, distance.astype(np.float32) * np.float32(DISTANCE_STEP))
+        border = ((1, 1), (1, 1), (1, 1), (0, 0))
+        return cls(voxels, directions, mips, depth, slopes(depth), np.pad(reads_along(own), border, constant_values=-1),
+                   np.pad(own, border, constant_values=-1), distance.astype(np.float32) * np.float32(DISTANCE_STEP))
 
     @staticmethod
     def bytes(count: int, side: int, size) -> int:
         """Memory of `count` tiles of `side` read for a finest level of `size`."""
-        return count * side * side * 5 + int(np.prod(size)) * (12 * 4 + 4)
+        return count * side * side * 5 + int(np.prod(np.asarray(size) + 2)) * 12 * 4 + int(np.prod(size)) * 4
 
     def band(self) -> np.ndarray:
         """The voxels (m, 3) where a match may land: every voxel with a tile to read."""
-        return np.argwhere((self.along >= 0).any(axis=3))
+        return np.argwhere((self.along[1:-1, 1:-1, 1:-1] >= 0).any(axis=3))
 
     def own_tiles(self, voxels: np.ndarray, directions: np.ndarray) -> np.ndarray:
         """Each (n, 3) voxel's own tile of its direction (n,), -1 for none (outside the grid: none)."""
-        table = self.bordered["own"]
-        return table.ravel()[bordered_cells(table, voxels) * 6 + directions].astype(np.int64)
+        return self.own.ravel()[bordered_cells(self.own, voxels) * 6 + directions].astype(np.int64)
 
     def read(self, voxels: np.ndarray) -> np.ndarray:
         """The tiles (n, 6) each (n, 3) voxel reads, -1 for none (outside the grid: none)."""
-        table = self.bordered["along"]
-        return table.reshape(-1, 6)[bordered_cells(table, voxels)].astype(np.int64)
-
-    @functools.cached_property
-    def bordered(self) -> dict:
-        """`own` and `along` with a layer of -1 (no tile) all round, (X + 2, Y + 2, Z + 2, 6) int32:
-        a voxel is looked up by one gather, with no test of whether it is inside (bordered_cells)."""
-        return {name: np.pad(getattr(self, name), ((1, 1), (1, 1), (1, 1), (0, 0)), constant_values=-1)
-                for name in ("own", "along")}
+        return self.along.reshape(-1, 6)[bordered_cells(self.along, voxels)].astype(np.int64)
 
 
 def bordered_cells(table: np.ndarray, voxels: np.ndarray) -> np.ndarray:
     """The flat cell (n,) of each (n, 3) voxel in a table bordered by one
-    layer (Tiles.bordered): a voxel beyond the border reads the border's
-    nearest cell, which holds none."""
+    layer (Tiles.along, Tiles.own): a voxel beyond the border reads the
+    border's nearest cell, which holds none."""
     at = np.clip(voxels + 1, 0, np.array(table.shape[:3]) - 1)
     return (at[:, 0] * table.shape[1] + at[:, 1]) * table.shape[2] + at[:, 2]
 
