@@ -41,7 +41,6 @@ content moved by a whole number of the coarsest blocks. The browser's runtime re
 
 import functools
 import itertools
-import os
 import threading
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
@@ -1034,18 +1033,11 @@ def matching(model, triplane, detail: bool = True) -> Future:
     has more than one: a sample's matching needs only its tri-plane, so it
     runs while the mesh is made (its numpy work lets go of the GIL, as the
     decoder's does): about 0.1 s less of a tower at scale 4."""
-    if model.threads > 1:
-        return matchers().submit(colouring, model, triplane, detail)
+    if model.threads > 1:  # the reads' threads: a sample's reads begin only once its matching is done
+        return readers(model.threads).submit(colouring, model, triplane, detail)
     done = Future()
     done.set_result(colouring(model, triplane, detail))
     return done
-
-
-@functools.lru_cache(maxsize=None)
-def matchers() -> ThreadPoolExecutor:
-    """The threads samples' matchings run on beside their meshing: one per
-    core, so that a server's samples made at once each match at once."""
-    return ThreadPoolExecutor(os.cpu_count() or 1, thread_name_prefix="sinshape-match")
 
 
 @functools.lru_cache(maxsize=None)

@@ -437,6 +437,7 @@ def objects_near(model, tiling: Tiling, seed: int, tile: tuple, level: int, opti
     (p0, p1), extents = scatter_geometry(model, tiling, options)
     s0, s1 = tiling.stride[h0], tiling.stride[h1]
     pixel = map_pixel(tiling)
+    factors = [object_factor(model, object_model(model, options, k)[0]) for k in range(len(extents))]
     found = []
     for a in range((i * s0) // p0 - 1, ((i + 1) * s0) // p0 + 1):
         for b in range((j * s1) // p1 - 1, ((j + 1) * s1) // p1 + 1):
@@ -450,9 +451,8 @@ def objects_near(model, tiling: Tiling, seed: int, tile: tuple, level: int, opti
                     or low[1] + e1 < j * s1:
                 continue
             height = 0.0 if heights is None else object_height(heights, tiling, low, (e0, e1))
-            factor = object_factor(model, object_model(model, options, index)[0])
             found.append(Placed((a, b), (low[0] - i * s0, low[1] - j * s1), (e0, e1), cell.mirror, height, index,
-                                cell.turned, factor))
+                                cell.turned, factors[index]))
     return found
 
 
