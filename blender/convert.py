@@ -81,35 +81,53 @@ def check_unchanged(reference: str, path: Path, digest: str, recorded: str) -> N
                      "its mesh is kept: choose the model again to use it as it is", "model")
 
 
+# The options a sample object and a world object offer as the table's
+# records make them (props.table_property), drawn in this order and read
+# into the request by name: a plain option (a number, a flag, a choice) is
+# offered in Blender by naming it here.
+SAMPLE_TABLE_SETTINGS = ("seed", "scale", "smooth", "detail")
+WORLD_TABLE_SETTINGS = ("seed", "scale", "arrange", "density", "spacing", "detail")
 # The options of a sample request (runtime/options.py) the extension sets, and
 # the setting that sets each: a sample object's (props.SinshapeSettings), or a
 # world object's (props.SinshapeWorld: its tiles around the followed point,
 # each tile's lod from the fine radius, its other models, model map and height map) ...
-SETTINGS = {"seed": "seed", "size": "size", "scale": "scale", "smooth": "smooth", "keep": "keep_box", "grow": "grow",
-            "anchor": "anchor", "layout": "layout_bits", "tile": "radius", "arrange": "arrange", "lod": "fine",
-            "models": "models", "models_map": "models_map", "heights": "heights", "density": "density",
-            "spacing": "spacing"}
+SETTINGS = {**{name: name for name in SAMPLE_TABLE_SETTINGS + WORLD_TABLE_SETTINGS}, "size": "size",
+            "keep": "keep_box", "grow": "grow", "anchor": "anchor", "layout": "layout_bits", "tile": "radius",
+            "lod": "fine", "models": "models", "models_map": "models_map", "heights": "heights"}
 # ... those it leaves at their defaults (a mesh in the input's frame, turned to
 # Blender's) ...
-LEFT = ("recon", "smoother", "largest", "detail", "frame")
+LEFT = ("recon", "smoother", "largest", "frame")
 # ... and those it sets to one value (worlds.world_options): every tile with a
 # skirt, so that a border between levels is closed from both sides.
 # tests/test_blender_options.py holds the three to the table.
 FIXED = {"skirt": True}
 
 
+def typed(value):
+    """A setting's value as the user typed it: Blender keeps a float
+    setting in 32 bits (1.1 is 1.100000023841858), and the request takes
+    the shortest decimal that reads back to it (1.1, as the command line's)."""
+    return float(str(np.float32(value))) if isinstance(value, float) else value
+
+
+def table_values(settings, names) -> dict:
+    """The values of the table settings `names` (SAMPLE_TABLE_SETTINGS,
+    WORLD_TABLE_SETTINGS) of an object's settings or an operator, as typed."""
+    return {name: typed(getattr(settings, name)) for name in names}
+
+
 def sample_request(values: dict, up: str) -> SampleRequest:
-    """The request an object's settings stand for. `values`: seed, size
-    (along Blender's axes), scale, smooth, edit (one of EDITS) and that
-    edit's own values: keep (a part's text, `kept_part`), grow and anchor
-    (along Blender's axes), layout (a request.Layout)."""
-    read = {"model", "seed", "size", "scale", "smooth", "edit", "keep", "grow", "anchor", "layout"}
+    """The request an object's settings stand for. `values`: the
+    SAMPLE_TABLE_SETTINGS, size (along Blender's axes), edit (one of EDITS)
+    and that edit's own values: keep (a part's text, `kept_part`), grow and
+    anchor (along Blender's axes), layout (a request.Layout)."""
+    read = {"model", "size", "edit", "keep", "grow", "anchor", "layout", *SAMPLE_TABLE_SETTINGS}
     unknown = sorted(set(values) - read)
     if unknown:  # a setting added without its place in the request: refused, never dropped
         raise InputError(f"a sample's settings have no {unknown[0]!r} that its request takes", unknown[0])
     edit = values.get("edit", "NONE")
-    fields = dict(seed=values["seed"], size=factors_to_model(values["size"], up), scale=values["scale"],
-                  smooth=values["smooth"], frame="input")
+    fields = dict({name: values[name] for name in SAMPLE_TABLE_SETTINGS if name in values},
+                  size=factors_to_model(values["size"], up), frame="input")
     if edit == "KEEP":
         fields["keep"] = values["keep"]
     elif edit == "GROW":

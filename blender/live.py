@@ -109,8 +109,8 @@ def keep_part(obj, model) -> str:
 def request_of(obj, model) -> requests.SampleRequest:
     """The request an object's settings stand for (its kept part recorded)."""
     settings = obj.sinshape
-    values = dict(seed=settings.seed, size=tuple(settings.size), scale=settings.scale, smooth=settings.smooth,
-                  edit=settings.edit, grow=tuple(settings.grow), anchor=tuple(settings.anchor),
+    values = dict(convert.table_values(settings, convert.SAMPLE_TABLE_SETTINGS),
+                  size=tuple(settings.size), edit=settings.edit, grow=tuple(settings.grow), anchor=tuple(settings.anchor),
                   layout=convert.layout_from_text(settings.layout_shape, settings.layout_bits))
     if settings.edit == "KEEP":
         values["keep"] = keep_part(obj, model)

@@ -6,14 +6,14 @@ from pathlib import Path
 
 import bpy
 import numpy as np
-from bpy.props import BoolProperty, EnumProperty, FloatProperty, FloatVectorProperty, IntProperty, StringProperty
+from bpy.props import BoolProperty, EnumProperty, FloatVectorProperty, IntProperty, StringProperty
 
 from sinshape import models
 from sinshape.core.errors import InputError
-from sinshape.runtime.options import ASSET_OPTIONS, OPTION
+from sinshape.runtime.options import ASSET_OPTIONS
 
 from . import convert, live, worlds
-from .props import SEED_MAX, model_names
+from .props import SEED_MAX, model_names, offering
 
 
 def sample_object(context):
@@ -32,15 +32,14 @@ class SampleOperator(bpy.types.Operator):
 
 
 class AddOperator:
-    """What Add > Mesh's sinshape entries share: a model, a seed and a scale
-    in their redo panel, and the new object selected alone and active."""
+    """What Add > Mesh's sinshape entries share: a model in their redo panel
+    (and the new object's table settings, as its object has them), and the
+    new object selected alone and active."""
 
     bl_options = {"REGISTER", "UNDO"}
 
     model: StringProperty(name="Model", default=models.DEFAULT, search=model_names,
                           description="A shipped model's name, or a .onnx file")
-    seed: IntProperty(name="Seed", min=0, max=SEED_MAX)
-    scale: bpy.props.FloatProperty(name="Scale", default=1.0, min=0.01, soft_max=16.0)
 
     @staticmethod
     def select(context, obj) -> None:
@@ -50,6 +49,7 @@ class AddOperator:
         context.view_layer.objects.active = obj
 
 
+@offering(convert.SAMPLE_TABLE_SETTINGS)
 class SINSHAPE_OT_add_sample(AddOperator, bpy.types.Operator):
     """Add a sinshape sample: a mesh object with a model and a seed, made again when they change"""
 
@@ -57,11 +57,10 @@ class SINSHAPE_OT_add_sample(AddOperator, bpy.types.Operator):
     bl_label = "sinshape sample"
 
     size: FloatVectorProperty(name="Size", size=3, default=(1.0, 1.0, 1.0), min=0.01, soft_max=4.0, subtype="XYZ")
-    smooth: IntProperty(name="Smooth", min=OPTION["smooth"].low, max=OPTION["smooth"].high, soft_max=20,
-                        description=OPTION["smooth"].help)
 
     def execute(self, context):
-        settings = dict(model=self.model, seed=self.seed, size=tuple(self.size), scale=self.scale, smooth=self.smooth)
+        settings = dict(model=self.model, size=tuple(self.size),
+                        **convert.table_values(self, convert.SAMPLE_TABLE_SETTINGS))
         try:
             model, digest = live.load_file(self.model)
             request = convert.sample_request(settings, model.manifest.up)
@@ -77,6 +76,7 @@ class SINSHAPE_OT_add_sample(AddOperator, bpy.types.Operator):
         return {"FINISHED"}
 
 
+@offering(("seed", "scale"))
 class SINSHAPE_OT_add_world(AddOperator, bpy.types.Operator):
     """Add a sinshape world: the tiles of an endless world around the 3D cursor (or an object it follows)"""
 
@@ -258,6 +258,7 @@ def reported(operator, function, *args) -> set:
     return {"FINISHED"}
 
 
+@offering([option.name for option in ASSET_OPTIONS])
 class SINSHAPE_OT_export_asset(SampleOperator):
     """Write this sample as a game asset, a .glb of levels of detail with UVs and maps baked from the model, and add its levels as objects"""
 
@@ -266,26 +267,6 @@ class SINSHAPE_OT_export_asset(SampleOperator):
 
     filepath: StringProperty(subtype="FILE_PATH", description="The .glb to write")
     filter_glob: StringProperty(default="*.glb", options={"HIDDEN"})
-    lods: StringProperty(name="Levels", default="20000,5000,1200",
-                         description="Triangles of each level of detail, finest first")
-    texture: IntProperty(name="Maps", default=1024, min=16, max=8192, subtype="PIXEL",
-                         description="Texels per side of each level's maps, a power of two")
-    ao: BoolProperty(name="Ambient occlusion", description="Bake an ambient occlusion map too")
-    height: FloatProperty(name="Height", default=0.0, min=0.0, max=10000.0,
-                          description="The asset's height in metres, base to top (0: one unit of the model's frame "
-                                      "is a metre); it stands with the centre of its base at the file's origin")
-    collision: IntProperty(name="Collision", default=0, min=0,
-                           description="Triangles of a collision mesh simplified from the full surface (0: none)")
-    hulls: IntProperty(name="Hulls", default=0, min=0, max=64,
-                       description="Convex hulls of a collision decomposition, at most (CoACD; 0: none)")
-    naming: EnumProperty(name="Naming", default="gltf", description="How the levels and the collision mesh are named",
-                         items=[("gltf", "glTF", "The finest level shown, the coarser ones listed by MSFT_lod"),
-                                ("godot", "Godot", "Godot's import hints: one level shown, the collision made "
-                                                   "a static body's shapes"),
-                                ("unreal", "Unreal", "The hulls named UCX_: Unreal's convex collision of the finest "
-                                                     "level")])
-    quantise: BoolProperty(name="Quantise", description="Store the vertices as 8- and 16-bit integers "
-                                                        "(KHR_mesh_quantization, a required extension)")
     add_objects: BoolProperty(name="Add to scene", default=True,
                               description="Import the written asset's levels, textured, where the sample is")
 

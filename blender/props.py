@@ -9,12 +9,70 @@ from bpy.props import (BoolProperty, CollectionProperty, EnumProperty, FloatProp
                        IntProperty, IntVectorProperty, PointerProperty, StringProperty)
 
 from sinshape import models
-from sinshape.runtime.options import OPTION
+from sinshape.runtime.options import ASSET_OPTION, OPTION
 from sinshape.runtime.world_maps import MAX_RELIEF
 
-from . import live, worlds
+from . import convert, live, worlds
 
-SEED_MAX = 2**31 - 1  # a Blender integer property; the runtime takes seeds up to 2**63
+INT_LIMIT = 2**31 - 1  # a Blender integer property's range
+SEED_MAX = INT_LIMIT  # the runtime takes seeds up to 2**63
+OPEN_MARGIN = 0.01  # Blender's min and max are in the range: an open end of a number's range is kept this far inside
+
+
+def table_property(option, update=None, **ui):
+    """The Blender property of one of the table's options (runtime/options.py):
+    its type, default, range, choices and help from the record; `ui` adds or
+    replaces what only Blender has (a shorter name, soft limits, a subtype,
+    the choices' labels). A plain option is offered in Blender by this call."""
+    settings = dict(name=option.name.replace("_", " ").capitalize(), description=option.help)
+    if update is not None:
+        settings["update"] = update
+    if option.type in ("seed", "int", "number"):
+        whole = option.type != "number"
+        low, high = option.low, option.high
+        if low is not None:
+            settings["min"] = max(low + (0 if option.bounds[0] == "[" else 1 if whole else OPEN_MARGIN), -INT_LIMIT)
+        if high is not None:
+            settings["max"] = min(high - (0 if option.bounds[1] == "]" else 1 if whole else OPEN_MARGIN), INT_LIMIT)
+        default = option.default or 0  # None, "not given", reads as 0 (asset.options_of: 0 is not given)
+        settings["default"] = int(default) if whole else float(default)
+        make = IntProperty if whole else FloatProperty
+    elif option.type == "bool":
+        settings["default"] = option.default
+        make = BoolProperty
+    elif option.type == "choice":
+        settings.update(default=option.default, items=[(choice, choice.capitalize(), "") for choice in option.choices])
+        make = EnumProperty
+    elif option.type == "counts":
+        settings["default"] = ",".join(map(str, option.default or ()))
+        make = StringProperty
+    else:
+        raise TypeError(f"option {option.name}: a {option.type} has no plain Blender property; declare its own")
+    return make(**{**settings, **ui})
+
+
+# What only Blender says of the table's options: the soft range its sliders
+# take, a name or default of its own, its choices' labels.
+BLENDER_UI = {
+    "scale": dict(soft_min=0.25, soft_max=16.0), "smooth": dict(soft_max=20), "spacing": dict(soft_max=12.0),
+    "lods": dict(name="Levels", default="20000,5000,1200"), "texture": dict(name="Maps", subtype="PIXEL"),
+    "ao": dict(name="Ambient occlusion"), "height": dict(min=0.0),  # 0: not given (one unit a metre)
+    "naming": dict(items=[
+        ("gltf", "glTF", "The finest level shown, the coarser ones listed by MSFT_lod"),
+        ("godot", "Godot", "Godot's import hints: one level shown, the collision made a static body's shapes"),
+        ("unreal", "Unreal", "The hulls named UCX_: Unreal's convex collision of the finest level")]),
+}
+RECORDS = {**OPTION, **ASSET_OPTION}  # a sample's options and a game asset's: no name in both
+
+
+def offering(names, update=None):
+    """A class decorator: the class (a PropertyGroup, an operator) gets a
+    property per table option of `names`, each made by table_property."""
+    def add(cls):
+        for name in names:
+            cls.__annotations__[name] = table_property(RECORDS[name], update, **BLENDER_UI.get(name, {}))
+        return cls
+    return add
 
 
 def model_names(settings, context, text):
@@ -37,21 +95,16 @@ def other_model_changed(other, context):
     worlds.changed(other.id_data.sinshape_world, context)
 
 
+@offering(convert.SAMPLE_TABLE_SETTINGS, live.changed)
 class SinshapeSettings(bpy.types.PropertyGroup):
     active: BoolProperty(name="sinshape sample", description="This object's mesh is a sinshape sample",
                          default=False)
     model: StringProperty(name="Model", default=models.DEFAULT, search=model_names, update=model_changed,
                           description="A shipped model's name, or a .onnx file (// is the .blend's folder)")
     model_sha256: StringProperty(name="Model SHA-256", description="The model's SHA-256 when it was chosen")
-    seed: IntProperty(name="Seed", min=OPTION["seed"].low, max=SEED_MAX, update=live.changed,
-                      description="The same seed gives the same shape")
     size: FloatVectorProperty(name="Size", size=3, default=(1.0, 1.0, 1.0), min=0.01, soft_min=0.25, soft_max=4.0,
                               subtype="XYZ", update=live.changed,
                               description="Factors of the training size along Blender's X, Y and Z")
-    scale: FloatProperty(name="Scale", default=OPTION["scale"].default, min=0.01, soft_min=0.25, soft_max=16.0,
-                         update=live.changed, description=OPTION["scale"].help)
-    smooth: IntProperty(name="Smooth", min=OPTION["smooth"].low, max=OPTION["smooth"].high, soft_max=20,
-                        update=live.changed, description=OPTION["smooth"].help)
     shade_smooth: BoolProperty(name="Shade smooth", default=True, update=live.changed,
                                description="Smooth shading on the faces")
     edit: EnumProperty(name="Edit", update=live.changed, items=[
@@ -87,6 +140,7 @@ class SinshapeWorldModel(bpy.types.PropertyGroup):
     model_sha256: StringProperty(name="Model SHA-256", description="The model's SHA-256 when it was chosen")
 
 
+@offering(convert.WORLD_TABLE_SETTINGS, worlds.changed)
 class SinshapeWorld(bpy.types.PropertyGroup):
     """A world object's settings (worlds.py): its tiles are its children."""
 
@@ -110,20 +164,8 @@ class SinshapeWorld(bpy.types.PropertyGroup):
                           update=worlds.changed,
                           description="Voxels an image height map's white stands for (0: four times the "
                                       "model's height)")
-    seed: IntProperty(name="Seed", min=OPTION["seed"].low, max=SEED_MAX, update=worlds.changed,
-                      description="The same seed gives the same world")
-    scale: FloatProperty(name="Scale", default=1.0, min=0.01, soft_min=0.25, soft_max=8.0, update=worlds.changed,
-                         description="Query the surface on a grid this many times finer per axis")
     radius: IntProperty(name="Radius", default=2, min=0, max=worlds.MAX_RADIUS, soft_max=8, update=worlds.changed,
                         description="Tiles kept on each side of the followed point's tile")
-    arrange: EnumProperty(name="Arrange", update=worlds.changed, default="blend",
-                          items=[("blend", "Blend", "Samples blended into one landscape (terrain, rock)"),
-                                 ("scatter", "Scatter", "Whole samples at drawn places on a ground (a temple, a tower)")])
-    density: FloatProperty(name="Density", default=OPTION["density"].default, min=0.01, max=OPTION["density"].high,
-                           update=worlds.changed, description=OPTION["density"].help)
-    spacing: FloatProperty(name="Spacing", default=OPTION["spacing"].default, min=OPTION["spacing"].low,
-                           max=OPTION["spacing"].high, soft_max=12.0, update=worlds.changed,
-                           description=OPTION["spacing"].help)
     fine: IntProperty(name="Fine Radius", default=1, min=0, max=32, soft_max=8, update=worlds.changed,
                       description="Tiles on each side of the followed point's made at full detail; each tile "
                                   "farther, a level coarser (with a skirt over the crack)")

@@ -3,7 +3,7 @@ and the status bar's progress."""
 
 import bpy
 
-from . import work, worlds
+from . import convert, work, worlds
 
 
 class VIEW3D_PT_sinshape(bpy.types.Panel):
@@ -26,8 +26,7 @@ class VIEW3D_PT_sinshape(bpy.types.Panel):
                 row.prop(other, "model", text=f"Model {index + 1}")
                 row.operator("sinshape.world_model_remove", text="", icon="X").index = index
             column.operator("sinshape.world_model_add", icon="ADD")
-            for name in ("models_map", "heights", "relief", "seed", "scale", "arrange", "density", "spacing", "radius",
-                         "fine", "follow"):
+            for name in ("models_map", "heights", "relief", *convert.WORLD_TABLE_SETTINGS, "radius", "fine", "follow"):
                 column.prop(settings, name)
             layout.operator("sinshape.regenerate", icon="FILE_REFRESH")
             return
@@ -39,7 +38,7 @@ class VIEW3D_PT_sinshape(bpy.types.Panel):
         settings = obj.sinshape
         self.draw_state(settings)
         column = layout.column()
-        for name in ("model", "seed", "size", "scale", "smooth", "shade_smooth"):
+        for name in ("model", "size", *convert.SAMPLE_TABLE_SETTINGS, "shade_smooth"):
             column.prop(settings, name)
         layout.operator("sinshape.regenerate", icon="FILE_REFRESH")
         layout.operator("sinshape.variations", icon="MOD_ARRAY")

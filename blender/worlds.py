@@ -36,7 +36,7 @@ from . import convert, live, work
 TILE = "sinshape_tile"  # a tile object's custom property: "I,J"
 MADE = "sinshape_made"  # ... and what it was made from: the model file's SHA-256, the seed, the scale, the
 # arrangement, the other models' SHA-256s, the model map's and height map's pixels' SHA-256s, the density
-# and spacing, its lod
+# and spacing, the detail, its lod
 MAX_RADIUS = 32  # tiles on each side: (2 r + 1)^2 = 4225 tiles at most
 # (what, path, size, mtime, relief) -> (world_maps.ModelMap or HeightMap, its pixels' SHA-256): a map is read again
 # only when it changed
@@ -126,18 +126,19 @@ def world_options(settings, model, digest: str) -> tuple:
     first, measures an image height map's white), checked by the runtime as
     the command line's are; what its tiles are made from: the
     first model's SHA-256 (`digest`), the seed, the scale, the arrangement,
-    the other models' SHA-256s and the maps')."""
+    the other models' SHA-256s, the maps', the density, spacing and detail)."""
     others = [live.load_settings(other) for other in settings.models]
     placed, placed_digest = read_map(settings.models_map, "model map", world_maps.read_model_map)
     relief = settings.relief or None  # 0: an image's white is world_maps.RELIEF times the model's height
     heights, heights_digest = read_map(settings.heights, "height map",
                                        lambda path: world_maps.read_height_map(path, model, relief), settings.relief)
-    scattered = {"density": settings.density, "spacing": settings.spacing} if settings.arrange == "scatter" else {}
+    typed = convert.table_values(settings, convert.WORLD_TABLE_SETTINGS)
+    scattered = {"density": typed["density"], "spacing": typed["spacing"]} if settings.arrange == "scatter" else {}
     options = world.WorldOptions(settings.arrange, heights=heights, models=tuple(each for each, _ in others),
-                                 models_map=placed, **scattered, **convert.FIXED)
-    made = (f"{digest}:{settings.seed}:{settings.scale!r}:{settings.arrange}:"
+                                 models_map=placed, detail=settings.detail, **scattered, **convert.FIXED)
+    made = (f"{digest}:{settings.seed}:{typed['scale']!r}:{settings.arrange}:"
             f"{','.join(each for _, each in others)}:{placed_digest}:{heights_digest}:{options.density!r}:"
-            f"{options.spacing!r}")
+            f"{options.spacing!r}:{options.detail}")
     return options, made
 
 
@@ -168,7 +169,7 @@ def refresh(obj, scene=None, force: bool = False) -> None:
         model, digest = live.load_settings(settings)
         options, made = world_options(settings, model, digest)
         tiling = world.world_tiling(model)
-        world.check_world_scale(tiling, settings.scale, world.hidden_width(model, options), None)
+        world.check_world_scale(tiling, convert.typed(settings.scale), world.hidden_width(model, options), None)
         centre = centre_tile(model, tiling, followed_point(obj, scene))
         wanted = tiles_around(centre, settings.radius)
         lods = {tile: detail(centre, tile, settings.fine, world.farthest_lod(model)) for tile in wanted}
@@ -186,7 +187,7 @@ def refresh(obj, scene=None, force: bool = False) -> None:
             remove(present.pop(tile))
         settings.error = far_warning(model, wanted)
         if todo:
-            submit(obj.name, model, made, settings.seed, settings.scale, options, todo)
+            submit(obj.name, model, made, settings.seed, convert.typed(settings.scale), options, todo)
     except InputError as error:
         settings.error = str(error)
         live.MADE.pop(obj.name, None)  # the next asking is made, even one the same as the last made

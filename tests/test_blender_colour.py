@@ -41,6 +41,18 @@ def test_a_coloured_samples_vertices_carry_the_command_lines_colours(scene, tiny
     assert convert.mesh_colours(obj.data) is None and len(obj.data.materials) == 0
 
 
+def test_detail_off_gives_the_command_lines_colours_without_it(scene, tmp_path):
+    """Detail, a setting made from the table's record, reaches the request: off, the
+    colours are `sinrun sample --no-detail`'s; on again, the correspondence's."""
+    obj = add(COLOUR_ONNX, seed=3, detail=False)
+    _, _, plain = sinrun_sample(tmp_path, COLOUR_ONNX, "--seed", 3, "--no-detail")
+    _, _, detailed = sinrun_sample(tmp_path, COLOUR_ONNX, "--seed", 3)
+    assert plain.shape == detailed.shape and np.abs(plain - detailed).max() > 0.05  # a switch one can see
+    assert_shows_its_colours(obj.data, plain)
+    obj.sinshape.detail = True
+    assert_shows_its_colours(obj.data, detailed)
+
+
 def test_a_coloured_worlds_tiles_carry_the_runtimes_colours(scene):
     from blender import convert
     from sinshape.runtime import world, world_tiles

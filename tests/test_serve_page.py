@@ -675,6 +675,40 @@ def test_a_scattered_worlds_density_and_spacing_are_set_in_the_page(page, terrai
     assert not page.errors and not page.outside
 
 
+def test_the_pages_option_controls_are_made_from_the_table(page):
+    """Each of the page's table controls is its record's: its name, help,
+    range and default (an empty box asks for the default); a flag's control
+    reaches the route: detail unticked asks for the sample without it, and the URL says so."""
+    from sinshape.runtime.options import OPTION
+
+    page.goto(f"{page.base}/?seed=3&up=z&scale=2")
+    wait_ready(page, 3)
+    names = page.evaluate("import('./static/viewer/state.js').then(({ TABLE_CONTROLS }) => "
+                          "[...TABLE_CONTROLS.sample, ...TABLE_CONTROLS.scatter])")
+    assert {"scale", "smooth", "detail", "density", "spacing"} <= set(names)
+    for name in names:
+        option = OPTION[name]
+        control = page.evaluate("(name) => { const c = document.getElementById(name); return { title: c.title, "
+                                "type: c.type, min: c.min, max: c.max, placeholder: c.placeholder ?? '', "
+                                "label: c.closest('label').textContent.trim() }; }", name)
+        assert control["title"] == option.help and control["label"] == name.replace("_", " "), name
+        assert control["type"] == {"bool": "checkbox", "choice": "select-one"}.get(option.type, "number"), name
+        if option.type in ("int", "number"):
+            assert control["placeholder"] == f"{option.default:g}", name
+            assert control["min"] == ("" if option.low is None or option.bounds[0] == "(" else f"{option.low:g}"), name
+            assert control["max"] == ("" if option.high is None or option.bounds[1] == ")" else f"{option.high:g}"), name
+    assert page.is_checked("#detail")
+    page.uncheck("#detail")
+    wait_url(page, "detail=false")
+    asked = page.evaluate("performance.getEntriesByType('resource').map((entry) => entry.name)")
+    assert any("/sample?" in url and "detail=false" in url for url in asked)
+    change(page, "#smooth", "")  # empty: the default, 0
+    wait_url(page, "smooth=&")
+    page.check("#detail")
+    wait_url(page, "detail=true")
+    assert not page.errors and not page.outside
+
+
 def test_a_game_asset_downloads_and_opens_in_the_pages_three_js(page, tmp_path):
     """The asset format offers the shown sample's asset (levels sized from
     its triangles), which three.js's own glTF loader opens with its maps."""

@@ -21,7 +21,7 @@ import * as editor from './viewer/editor.js';
 import { $, fail, finish, fromForm, report, showMode, showProgress, toForm, working } from './viewer/form.js';
 import * as sampling from './viewer/sampling.js';
 import { camera, frame, memory, orient, renderer, scene, showMesh, summary } from './viewer/scene.js';
-import { STATIC_SITE, canWalk, fileStem, readUrl, record, requestOf, state, walk, worldOptions, writeUrl } from './viewer/state.js';
+import { STATIC_SITE, TABLE_CONTROLS, canWalk, fileStem, readUrl, record, requestOf, state, walk, worldOptions, writeUrl } from './viewer/state.js';
 import * as world from './viewer/world.js';
 import { readHeightMap, readModelMap } from './viewer/heights.js';
 
@@ -120,10 +120,7 @@ async function showWorld(request, ticket, options) {
     request = requestOf();
   }
   if (document.activeElement === $('edit')) $('edit').blur(); // the keys fly now, not pick another mode
-  world.show({ name: state.model, seed: request.seed ?? 0n, scale: request.scale, tile: request.tile, info, others, reach, walk: walking,
-    arrange: request.arrange, density: request.density, spacing: request.spacing, heights: request.heights, models: request.models,
-    modelsMap: request.models_map },
-  (status) => showWorldStatus(status, ticket));
+  world.show({ name: state.model, request, info, others, reach, walk: walking }, (status) => showWorldStatus(status, ticket));
 }
 
 /** The world's work so far: the camera's tile in the controls and the URL, what is shown and made. */
@@ -261,8 +258,8 @@ async function start() {
     load();
   });
   const boxes = ['bx0', 'by0', 'bz0', 'bx1', 'by1', 'bz1', 'gx', 'gy', 'gz', 'ax', 'ay', 'az'];
-  for (const id of ['where', 'seed', 'sx', 'sy', 'sz', 'scale', 'smooth', 'edit', 'other', 'at', 'travel', 'reach', 'arrange', 'density', 'spacing',
-    'models', ...boxes]) {
+  for (const id of ['where', 'seed', 'sx', 'sy', 'sz', ...TABLE_CONTROLS.sample, 'edit', 'other', 'at', 'travel', 'reach', 'arrange',
+    ...TABLE_CONTROLS.scatter, 'models', ...boxes]) {
     $(id).addEventListener('change', () => { readForm(); load(); });
   }
   for (const id of boxes) { // the box follows as it is typed

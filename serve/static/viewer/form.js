@@ -1,20 +1,34 @@
 // The controls: the state shown in them and read back from them, which of
 // them the state calls for, and the status line under them.
 import { FORMATS, OPTION } from '../sinshape/options.js';
-import { STATIC_SITE, keepToBackEnd, nextSeed, state } from './state.js';
+import { STATIC_SITE, TABLE_CONTROLS, keepToBackEnd, nextSeed, state } from './state.js';
 
 export const $ = (id) => document.getElementById(id);
 
 // The download's formats, before the game asset: core.files.OUTPUT_FORMATS.
 $('format').prepend(...FORMATS.map((format) => new Option(format)));
-// The controls of a request's options take the table's help and range (runtime/options.py).
-for (const name of ['seed', 'scale', 'smooth', 'density', 'spacing']) {
-  const { help, low, high, bounds } = OPTION[name];
-  $(name).title = help;
-  if (['density', 'spacing'].includes(name)) $(name).placeholder = OPTION[name].default; // empty: the default
-  if (low !== null && bounds[0] === '[') $(name).min = low;
-  if (high !== null && bounds[1] === ']') $(name).max = high;
+$('seed').title = OPTION.seed.help;
+
+/** The control of one of the table's options, made from its record (runtime/options.py): its name, help, range and default. */
+function tableControl({ name, type, help, low, high, bounds, default: value, choices }) {
+  const label = document.createElement('label');
+  const input = document.createElement(type === 'choice' ? 'select' : 'input');
+  if (type === 'choice') input.append(...choices.map((choice) => new Option(choice)));
+  else if (type === 'bool') [input.type, label.className] = ['checkbox', 'check'];
+  else if (['int', 'number'].includes(type)) {
+    Object.assign(input, { type: 'number', step: type === 'int' ? '1' : 'any', inputMode: 'decimal', placeholder: value }); // empty: the default
+    if (low !== null && bounds[0] === '[') input.min = low;
+    if (high !== null && bounds[1] === ']') input.max = high;
+  } else throw new Error(`option ${name}: a ${type} has no plain control; give it its own`);
+  Object.assign(input, { id: name, name, title: help });
+  label.id = `${name}-label`;
+  const text = name.replaceAll('_', ' ');
+  if (type === 'bool') label.append(input, ` ${text}`);
+  else label.append(`${text} `, input);
+  return label;
 }
+$('sample-options').append(...TABLE_CONTROLS.sample.map((name) => tableControl(OPTION[name])));
+$('scatter-controls').append(...TABLE_CONTROLS.scatter.map((name) => tableControl(OPTION[name])));
 
 // An x,y,z row of the page (class xyz) holds its x input; the y and z inputs
 // are copies of it, with x in their id, name and title turned to their axis.
@@ -27,7 +41,9 @@ for (const x of document.querySelectorAll('.xyz > input')) {
     x.after(input);
   }
 }
-const PLAIN = ['where', 'scale', 'smooth', 'up', 'format', 'edit', 'other', 'at', 'travel', 'reach', 'arrange', 'density', 'spacing']; // one control each, as they are
+// The controls of one value each, as they are (a flag's 'true' or 'false').
+const PLAIN = ['where', 'up', 'format', 'edit', 'other', 'at', 'travel', 'reach', 'arrange', ...TABLE_CONTROLS.sample, ...TABLE_CONTROLS.scatter];
+const checkbox = (id) => $(id).type === 'checkbox';
 const TRIPLES = { box: ['bx0', 'by0', 'bz0', 'bx1', 'by1', 'bz1'], grow: ['gx', 'gy', 'gz'], anchor: ['ax', 'ay', 'az'] };
 
 export function toForm() {
@@ -37,7 +53,7 @@ export function toForm() {
   $('sx').value = x ?? 1;
   $('sy').value = y ?? x ?? 1;
   $('sz').value = z ?? x ?? 1;
-  for (const key of PLAIN) $(key).value = state[key];
+  for (const key of PLAIN) $(key)[checkbox(key) ? 'checked' : 'value'] = checkbox(key) ? state[key] === 'true' : state[key];
   const others = String(state.models).split(',');
   for (const option of $('models').options) option.selected = others.includes(option.value);
   for (const [key, ids] of Object.entries(TRIPLES)) {
@@ -53,7 +69,7 @@ export function fromForm() {
   state.model = $('model').value;
   state.seed = $('seed').value.trim();
   state.size = [$('sx').value, $('sy').value, $('sz').value].map((v) => v.trim()).join(',');
-  for (const key of PLAIN) state[key] = $(key).value.trim();
+  for (const key of PLAIN) state[key] = checkbox(key) ? String($(key).checked) : $(key).value.trim();
   keepToBackEnd();
   state.models = [...$('models').selectedOptions].map((option) => option.value).join(','); // in the list's order
   for (const [key, ids] of Object.entries(TRIPLES)) state[key] = ids.map((id) => $(id).value.trim()).join(',');
@@ -76,8 +92,9 @@ export function showMode() {
   worldMode.disabled = browser;
   worldMode.title = browser ? "the server's: this browser's runtime makes a model's geometry, not its worlds" : '';
   for (const edit of ['keep', 'grow', 'layout', 'world']) $(`${edit}-controls`).hidden = state.edit !== edit;
-  // A world has no size nor smoothing, its own up, and the world's controls, not orbiting.
-  for (const id of ['size-label', 'smooth-label', 'up-label', 'orbit-help']) $(id).hidden = state.edit === 'world';
+  // A world has no size nor the sample's options a tile does not take (smoothing), its own up, and the world's controls, not orbiting.
+  const sampleOnly = TABLE_CONTROLS.sample.filter((name) => !OPTION[name].goes_with.includes('tile')).map((name) => `${name}-label`);
+  for (const id of ['size-label', ...sampleOnly, 'up-label', 'orbit-help']) $(id).hidden = state.edit === 'world';
   $('scatter-controls').hidden = state.arrange !== 'scatter'; // a scattered world's own
 }
 

@@ -3,6 +3,7 @@
 // shared); the undo history of the shapes made; and the one sample request
 // the state stands for, which either back end makes.
 import { parseNumber, parseSize, parseTriple } from '../sinshape/generate.js';
+import { OPTION } from '../sinshape/options.js';
 import { Layout, sampleRequest } from '../sinshape/request.js';
 
 export const STATIC_SITE = document.body.dataset.site === 'static';
@@ -11,30 +12,36 @@ export const STATIC_SITE = document.body.dataset.site === 'static';
 // their defaults: tests/test_options.py holds the two to the table, so that an
 // option added there is placed here too.
 export const PAGE_OPTIONS = Object.freeze({
-  set: ['seed', 'size', 'scale', 'smooth', 'frame', 'keep', 'grow', 'anchor', 'layout', 'tile', 'arrange', 'heights', 'lod', 'skirt', 'density',
-    'spacing', 'models', 'models_map'],
-  left: ['recon', 'smoother', 'largest', 'detail'],
+  set: ['seed', 'size', 'scale', 'smooth', 'detail', 'frame', 'keep', 'grow', 'anchor', 'layout', 'tile', 'arrange', 'heights', 'lod', 'skirt',
+    'density', 'spacing', 'models', 'models_map'],
+  left: ['recon', 'smoother', 'largest'],
 });
-const FIELDS = ['model', 'where', 'seed', 'size', 'scale', 'smooth', 'up', 'format'];
+// The options the page offers as one control each, made from their records
+// (form.js): a sample's (those that go with a tile too are the world's
+// as well) and a scattered world's. A plain option (a number, a whole
+// number, a flag, a choice) is offered in the page by naming it here.
+export const TABLE_CONTROLS = Object.freeze({ sample: ['scale', 'smooth', 'detail'], scatter: ['density', 'spacing'] });
+const TABLE_DEFAULTS = Object.fromEntries([...TABLE_CONTROLS.sample, ...TABLE_CONTROLS.scatter].map((name) => [name, String(OPTION[name].default)]));
+const FIELDS = ['model', 'where', 'seed', 'size', ...TABLE_CONTROLS.sample, 'up', 'format'];
 // Each edit's fields, in the URL after `edit`: box (6 percentages x0,y0,z0,x1,y1,z1
 // of the sample, from the seed's sample) and other (the seed of the rest); grow
 // and anchor (3 factors, 3 fractions); cells (layout-cells.js's text of the edited cells).
 // The world mode's too (not an edit: the world of the seed, flown over): at (the
 // camera's tile i,j), travel (fly or walk), reach (tiles made on each side), arrange
-// (blend or scatter; empty: what the model records), density and spacing (a scattered
-// world's; empty: the table's defaults) and models (the world's other models' names,
+// (blend or scatter; empty: what the model records), the scattered world's
+// TABLE_CONTROLS and models (the world's other models' names,
 // models 1, 2, ... of its model map, parted by ','); its height map and model map,
 // files the user opened, are not in the URL.
 const EDITS = { keep: ['box', 'other'], grow: ['grow', 'anchor'], layout: ['cells'],
-  world: ['at', 'travel', 'reach', 'arrange', 'density', 'spacing', 'models'] };
+  world: ['at', 'travel', 'reach', 'arrange', ...TABLE_CONTROLS.scatter, 'models'] };
 const EDIT_DEFAULTS = { edit: '', box: '0,0,0,50,100,100', other: '', grow: '2,1,1', anchor: '0,0,0', cells: '', at: '0,0', travel: 'fly', reach: '3',
-  arrange: '', density: '', spacing: '', models: '' };
+  arrange: '', models: '' };
 // What makes the shape: a step of the undo history when one of these changes.
-const SHAPE_FIELDS = ['model', 'seed', 'size', 'scale', 'smooth', 'edit', 'box', 'other', 'grow', 'anchor', 'cells'];
+const SHAPE_FIELDS = ['model', 'seed', 'size', ...TABLE_CONTROLS.sample, 'edit', 'box', 'other', 'grow', 'anchor', 'cells'];
 
 export const state = {
-  model: '', where: STATIC_SITE ? 'browser' : 'server', seed: 0, size: '1,1,1', scale: '1', smooth: '0', up: 'y', format: 'glb',
-  ...EDIT_DEFAULTS,
+  model: '', where: STATIC_SITE ? 'browser' : 'server', seed: 0, size: '1,1,1', up: 'y', format: 'glb',
+  ...TABLE_DEFAULTS, ...EDIT_DEFAULTS,
   heights: null, // the world's height map (world.js's HeightMap), read from a file the user opened
   modelsMap: null, // the world's model map (world.js's ModelMap), likewise
 };
@@ -49,7 +56,7 @@ export function keepToBackEnd() {
 
 export function readUrl() {
   const query = new URLSearchParams(location.search);
-  for (const key of [...FIELDS, ...Object.keys(EDIT_DEFAULTS)]) if (query.has(key)) state[key] = query.get(key);
+  for (const key of [...FIELDS, ...Object.keys(EDIT_DEFAULTS), ...TABLE_CONTROLS.scatter]) if (query.has(key)) state[key] = query.get(key);
   if (STATIC_SITE || !['server', 'browser'].includes(state.where)) state.where = STATIC_SITE ? 'browser' : 'server';
   if (!(state.edit in EDITS)) state.edit = '';
   keepToBackEnd();
@@ -108,6 +115,11 @@ function parseBox(text) {
 
 const seedOf = (text) => (/^\d+$/.test(String(text).trim()) ? BigInt(String(text).trim()) : String(text)); // not digits: the request says why
 const numberOf = (text) => parseNumber(text) ?? String(text);
+// A table control's text as its option's value: a flag's 'true' or 'false', a number's digits; else the text (the request says why).
+const valueOf = ({ type }, text) => (type === 'bool' ? { true: true, false: false }[text] ?? text : ['int', 'number'].includes(type) ? numberOf(text) : text);
+/** The request's fields of the table controls `names` that go with `kind` (sample or tile); an empty one, its default. */
+const tableFields = (names, kind) => Object.fromEntries(names.filter((name) => OPTION[name].goes_with.includes(kind) && state[name] !== '')
+  .map((name) => [name, valueOf(OPTION[name], state[name])]));
 
 /**
  * The sample request the state stands for (request.js's checks: an
@@ -118,12 +130,11 @@ const numberOf = (text) => parseNumber(text) ?? String(text);
 export function requestOf(layout = null) {
   if (state.edit === 'world') { // the tile under the camera, as the tile route takes it
     const tile = String(state.at).split(',').map((t) => (/^\s*-?\d+\s*$/.test(t) ? BigInt(t) : t));
-    const scattered = (field) => (state.arrange === 'scatter' && state[field] !== '' ? numberOf(state[field]) : undefined); // else the default
-    return sampleRequest({ seed: seedOf(state.seed), scale: numberOf(state.scale), tile, frame: 'tile', arrange: state.arrange || 'blend',
-                           density: scattered('density'), spacing: scattered('spacing'), heights: state.heights,
-                           models: state.models ? state.models.split(',') : [], models_map: state.modelsMap });
+    const scattered = state.arrange === 'scatter' ? tableFields(TABLE_CONTROLS.scatter, 'tile') : {}; // else the defaults
+    return sampleRequest({ seed: seedOf(state.seed), tile, frame: 'tile', arrange: state.arrange || 'blend', ...tableFields(TABLE_CONTROLS.sample, 'tile'),
+                           ...scattered, heights: state.heights, models: state.models ? state.models.split(',') : [], models_map: state.modelsMap });
   }
-  const fields = { seed: seedOf(state.seed), size: parseSize(state.size), scale: numberOf(state.scale), smooth: numberOf(state.smooth) };
+  const fields = { seed: seedOf(state.seed), size: parseSize(state.size), ...tableFields(TABLE_CONTROLS.sample, 'sample') };
   if (state.edit === 'keep') {
     const box = parseBox(state.box).map((v) => `${v}%`);
     Object.assign(fields, { seed: seedOf(state.other), keep: [`${state.seed}:${box.slice(0, 3).join(',')}:${box.slice(3).join(',')}`] });

@@ -14,7 +14,7 @@
 // tiles out is drawn as precisely as tile (0, 0). The camera's motion is
 // viewer/flight.js's.
 //
-//   show({ name, seed, scale, tile, info, others, reach, walk, arrange, density, spacing, heights, models, modelsMap }, report)  the world from `tile`
+//   show({ name, request, info, others, reach, walk }, report)  the world of the tile request `request`, from its tile
 //   stop()                                                                                drop it all, and give the view back to the shape
 import * as THREE from 'three';
 import { sampleRequest } from '../sinshape/request.js';
@@ -37,19 +37,18 @@ let run = null; // the world in view
 const keyOf = (i, j) => `${i},${j}`; // a tile's name
 
 /**
- * Fly over the world of `seed` (a BigInt) of model `name`, made by the server at `scale`, from tile `tile` ([i, j] BigInts);
+ * Fly over the world of `request` (a tile request: its seed, scale, detail,
+ * arrangement, maps and other models make every tile) of model `name`, made by the server, from the request's tile;
  * `info` is the model's { sizes, spacing, up } (`others`, the world's other
  * models', whose objects may stand taller), `reach` how many tiles to
- * make on each side of the camera's, `walk` whether to keep to the ground,
- * `arrange`, `density`, `spacing`, `heights`, `models` and `modelsMap` how
- * the world is made (the request's fields of those names, models_map).
- * The same world again keeps its tiles and the camera, unless `tile` is
- * another than the camera's (a jump). report({ at, shown, waiting, made,
+ * make on each side of the camera's, `walk` whether to keep to the ground.
+ * The same world again keeps its tiles and the camera, unless its tile
+ * is another than the camera's (a jump). report({ at, shown, waiting, made,
  * dropped, complete, error }) follows the work.
  */
-export function show({ name, seed, scale, tile, info, others = [], reach, walk, arrange = 'blend', density, spacing, heights = null, models = [],
-  modelsMap = null }, report) {
-  const key = [name, seed, scale, arrange, density, spacing, heights ? mapId(heights) : '', models.join(','), modelsMap ? mapId(modelsMap) : ''].join('|');
+export function show({ name, request, info, others = [], reach, walk }, report) {
+  const { tile, heights } = request;
+  const key = worldKey(name, request);
   const jump = !run || run.key !== key || tile[0] !== run.origin[0] || tile[1] !== run.origin[1];
   if (run?.key !== key) {
     stop(false);
@@ -59,7 +58,7 @@ export function show({ name, seed, scale, tile, info, others = [], reach, walk, 
       return (cut.stride[cut.up] * (each.objectScale ?? 1)) / (info.objectScale ?? 1); // another model's at its object scale
     }));
     run = {
-      key, name, seed, scale, arrange, density, spacing, heights, models, modelsMap, tiling, report, origin: tile, tiles: new Map(), making: 0, made: 0, dropped: 0, error: null,
+      key, name, request, tiling, report, origin: tile, tiles: new Map(), making: 0, made: 0, dropped: 0, error: null,
       coarsest: info.sizes.length - 1,
       size: [tiling.stride[h0] * info.spacing[h0], tiling.stride[h1] * info.spacing[h1]], // a tile's sides, in the input's units
       height: (top + (heights ? Math.max(...heights.data) : 0)) * info.spacing[tiling.up], // a voxel of any model is one of the world's
@@ -110,6 +109,9 @@ export function stop(giveBack = true) {
 const mapIds = new WeakMap(); // a height map or model map -> a number naming it in a world's key
 let mapCount = 0;
 const mapId = (heights) => { if (!mapIds.has(heights)) mapIds.set(heights, ++mapCount); return mapIds.get(heights); };
+/** What names a world: its model and its request's fields but the tile (a map, by mapId; a BigInt, as its digits). */
+const worldKey = (name, request) => JSON.stringify([name, Object.entries(request).filter(([field]) => field !== 'tile').map(([field, value]) => [
+  field, ['heights', 'models_map'].includes(field) && value !== null ? mapId(value) : typeof value === 'bigint' ? String(value) : value])]);
 
 function drop(entry) {
   entry.controller?.abort();
@@ -185,9 +187,7 @@ async function make(r, entry) {
   entry.controller = new AbortController();
   const lod = entry.lod === undefined ? r.coarsest : entry.want; // shown coarse first; its windows' chains go on from there
   try {
-    const request = sampleRequest({ seed: r.seed, scale: r.scale, tile: [entry.i, entry.j], frame: 'tile', arrange: r.arrange,
-                                    density: r.density, spacing: r.spacing, heights: r.heights, models: r.models, models_map: r.modelsMap, lod,
-                                    skirt: true }); // hidden beside a coarser neighbour from either side
+    const request = sampleRequest({ ...r.request, tile: [entry.i, entry.j], lod, skirt: true }); // hidden beside a coarser neighbour from either side
     const { positions, faces, normals, colours } = await sampling.tile('server', r.name, request, { signal: entry.controller.signal });
     if (r.tiles.get(entry.key) !== entry) return; // dropped meanwhile
     entry.state = lod === entry.want ? 'done' : 'wanted'; // the camera moved meanwhile: made again at its new level
