@@ -216,6 +216,23 @@ def test_the_normal_map_turns_a_coarse_level_into_the_fields_surface(part, monke
     assert np.abs(maps.colour[rows, columns].astype(int) - colour(surface)).mean() < 2
 
 
+def test_a_rays_crossing_says_which_side_the_surface_faces():
+    """surface_points finds where rays along and against a ball's outward
+    normal cross its surface, and says which of them leave the solid there
+    (the side a relief's normal is turned to, with no gradient taken)."""
+    from sinshape.runtime import bake
+
+    rng = np.random.default_rng(0)
+    out = rng.normal(size=(300, 3))
+    out /= np.linalg.norm(out, axis=1, keepdims=True)
+    starts = out * rng.uniform(9.5, 10.5, (300, 1))
+    rays = np.concatenate([out[:150], -out[150:]])
+    points, found, outward = bake.surface_points(bake.Field(bumpy_sphere, None), bake.Frame(np.zeros(3), np.ones(3)),
+                                                 starts, rays, 1.0, 2.0, threads=1)
+    assert found.all() and np.abs(bumpy_sphere(points) - 0.5).max() < 0.01
+    assert (outward[:150] == 1).all() and (outward[150:] == -1).all()
+
+
 @pytest.mark.parametrize("with_unseen", [False, True])
 def test_a_level_charted_in_parts_keeps_every_face_once_and_no_two_overlap(monkeypatch, with_unseen):
     """Charted in parts (UNWRAP_PART faces at a time, and the unseen faces
