@@ -319,11 +319,11 @@ def tangent_space(normals: np.ndarray, tangents: np.ndarray, surface: np.ndarray
     unit. A shader's normalize(T x + B y + N z) then gives the surface's."""
     n = unit(normals)
     t = unit(tangents[:, :3])
-    b = unit(np.cross(n, t) * np.sign(tangents[:, 3:]))
+    b = unit(cross(n, t) * np.sign(tangents[:, 3:]))
     # Solve [t b n] c = surface by Cramer's rule, per texel.
-    det = (t * np.cross(b, n)).sum(axis=1, keepdims=True)
-    c = np.stack([(surface * np.cross(b, n)).sum(1), (t * np.cross(surface, n)).sum(1),
-                  (t * np.cross(b, surface)).sum(1)], axis=1) / np.where(np.abs(det) > 1e-12, det, 1)
+    det = (t * cross(b, n)).sum(axis=1, keepdims=True)
+    c = np.stack([(surface * cross(b, n)).sum(1), (t * cross(surface, n)).sum(1),
+                  (t * cross(b, surface)).sum(1)], axis=1) / np.where(np.abs(det) > 1e-12, det, 1)
     c = np.where(np.abs(det) > 1e-12, c, [0.0, 0.0, 1.0])
     c[:, 2] = np.maximum(c[:, 2], 0)  # a normal facing away from the level is bent back to its horizon
     return unit(np.where(np.linalg.norm(c, axis=1, keepdims=True) > 0, c, [0.0, 0.0, 1.0]))
@@ -404,17 +404,26 @@ def bake(field: Field, frame: Frame, vertices: np.ndarray, faces: np.ndarray, uv
 
     # Texels: each interpolates the lattice triangle it falls in, then asks for its own relief and colour.
     texels, small, weights = rasterise_uv(np.einsum("pk,pkc->pc", w, uvs[at]), lattice.triangles, size)
-    texel_values = np.einsum("tk,tkc->tc", weights, values[lattice.triangles[small]])
+
+    def per_texel(function):
+        """function(rows) (k',) -> (k', C) over all the texels' rows, CHUNK at a time on the threads."""
+        return in_chunks(function, np.arange(len(texels)), threads)
+
+    texel_values = per_texel(lambda rows: np.einsum("tk,tkc->tc", weights[rows], values[lattice.triangles[small[rows]]]))
     if field.colour is not None or field.relief is not None:
         point = texel_values[:, columns["point"]].astype(np.float64)
     if field.relief is None:
         normal = unit(texel_values[:, columns["normal"]])
     else:
-        level_normal = texel_values[:, columns["level_normal"]].astype(np.float64)
         moved = frame.from_model(in_chunks(field.relief, frame.to_model(point), threads))
-        facing = unit(level_normal) * np.where(texel_values[:, columns["outward"]] < 0, -1.0, 1.0)
-        normal = tangent_space(level_normal, texel_values[:, columns["level_tangent"]].astype(np.float64),
-                               relief_normals(point, moved, facing, texels, size, texel))
+        neighbours = TexelNeighbours(point, texels, size, texel)
+
+        def relief_normal(rows):
+            level_normal = texel_values[rows, columns["level_normal"]].astype(np.float64)
+            facing = unit(level_normal) * np.where(texel_values[rows, columns["outward"]] < 0, -1.0, 1.0)
+            return tangent_space(level_normal, texel_values[rows, columns["level_tangent"]].astype(np.float64),
+                                 neighbours.relief_normals(moved, facing, rows))
+        normal = per_texel(relief_normal)
         point = moved
     channels = [normal * 0.5 + 0.5]
     if field.colour is not None:
@@ -438,39 +447,55 @@ def bake(field: Field, frame: Frame, vertices: np.ndarray, faces: np.ndarray, uv
 SAME_CHART = 3.0
 
 
-def relief_normals(points: np.ndarray, moved: np.ndarray, facing: np.ndarray, texels: np.ndarray, size: int,
-                   texel: float) -> np.ndarray:
-    """The unit normal of the surface through texels' moved points (k, 3)
-    (asset frame; `points` before they moved) at flat map indices `texels`
-    of a size x size map: the cross product of the moved points'
-    differences along the map's columns and rows (central where both
-    neighbours are of the texel's chart, else one-sided), turned to the
-    side of `facing` (k, 3), unit (the level's normal turned to the side
-    the surface faces), which a texel with no neighbour on either axis
-    keeps. texel: a texel's size on the surface, about. (Turned instead to
-    the side the unmoved points' cross product has, the map's handedness,
-    the tower's normal-mapped levels drew 0.1-0.4 points further from its
-    dense mesh.)"""
-    grid = np.full(size * size, -1, np.int64)
-    grid[texels] = np.arange(len(texels))
-    rows, cols = np.divmod(texels, size)
-    steps = []
-    for d_row, d_col in ((0, 1), (1, 0)):
-        ends = []
-        for sign in (1, -1):
-            r, c = rows + sign * d_row, cols + sign * d_col
-            inside = (r >= 0) & (r < size) & (c >= 0) & (c < size)
-            other = np.where(inside, grid[np.where(inside, r * size + c, 0)], -1)
-            near = other >= 0
-            apart = points[other[near]] - points[near]
-            near[near] = np.einsum("kc,kc->k", apart, apart) <= (SAME_CHART * texel) ** 2
-            ends.append(np.where(near[:, None], moved[np.maximum(other, 0)], moved))
-        steps.append(ends[0] - ends[1])
-    normal = np.cross(steps[0], steps[1])
-    normal *= np.where(np.einsum("kc,kc->k", normal, facing) < 0, -1.0, 1.0)[:, None]
-    flat = np.linalg.norm(normal, axis=1) < 1e-20
-    normal[flat] = facing[flat]
-    return unit(normal)
+class TexelNeighbours:
+    """The texels beside each texel in a size x size map, along its columns
+    and its rows, where they are of its chart: texels (k,) at flat map
+    indices, their surface points (k, 3) (asset frame, before relief moves
+    them); texel: a texel's size on the surface, about."""
+
+    def __init__(self, points: np.ndarray, texels: np.ndarray, size: int, texel: float):
+        self.points, self.texels, self.size, self.reach = points, texels, size, SAME_CHART * texel
+        self.grid = np.full(size * size, -1, np.int64)
+        self.grid[texels] = np.arange(len(texels))
+
+    def beside(self, rows: np.ndarray, d_row: int, d_col: int) -> np.ndarray:
+        """The texel (k',) one step (d_row, d_col) from each of texels[rows]
+        if it is of the same chart (its point at most SAME_CHART texels
+        away), else the texel itself."""
+        r, c = np.divmod(self.texels[rows], self.size)
+        r, c = r + d_row, c + d_col
+        inside = (r >= 0) & (r < self.size) & (c >= 0) & (c < self.size)
+        other = np.where(inside, self.grid[np.where(inside, r * self.size + c, 0)], -1)
+        apart = self.points[np.maximum(other, 0)] - self.points[rows]
+        near = (other >= 0) & (np.einsum("kc,kc->k", apart, apart) <= self.reach ** 2)
+        return np.where(near, other, rows)
+
+    def relief_normals(self, moved: np.ndarray, facing: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """The unit normal of the surface through the texels' moved points
+        (k, 3) at texels[rows]: the cross product of the moved points'
+        differences along the map's columns and rows (central where both
+        neighbours are of the texel's chart, else one-sided), turned to the
+        side of `facing` (k', 3), unit (the level's normal turned to the side
+        the surface faces), which a texel with no neighbour on either axis
+        keeps. (Turned instead to the side the unmoved points' cross product
+        has, the map's handedness, the tower's normal-mapped levels drew
+        0.1-0.4 points further from its dense mesh.)"""
+        along = [moved[self.beside(rows, d_row, d_col)] - moved[self.beside(rows, -d_row, -d_col)]
+                 for d_row, d_col in ((0, 1), (1, 0))]
+        normal = cross(along[0], along[1])
+        normal *= np.where(np.einsum("kc,kc->k", normal, facing) < 0, -1.0, 1.0)[:, None]
+        flat = np.einsum("kc,kc->k", normal, normal) < 1e-40
+        normal[flat] = facing[flat]
+        return unit(normal)
+
+
+def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise cross products of (k, 3) arrays: np.cross's, several times faster on long arrays."""
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[:, 0] = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
+    out[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
+    out[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    return out
 
 
 def texel_colours(field: Field, frame: Frame, points: np.ndarray, threads: int) -> np.ndarray:
