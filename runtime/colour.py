@@ -148,9 +148,20 @@ class Tiles:
         """The voxels (m, 3) where a match may land: every voxel with a tile to read."""
         return np.argwhere((self.along[1:-1, 1:-1, 1:-1] >= 0).any(axis=3))
 
-    def own_tiles(self, voxels: np.ndarray, directions: np.ndarray) -> np.ndarray:
-        """Each (n, 3) voxel's own tile of its direction (n,), -1 for none (outside the grid: none)."""
-        return self.own.ravel()[bordered_cells(self.own, voxels) * 6 + directions].astype(np.int64)
+    def own_along(self, voxels: np.ndarray, directions: np.ndarray, reaches) -> np.ndarray:
+        """Each (n, 3) voxel's (inside the grid) own tile of its direction
+        (n,), the voxel moved by each of `reaches` along the direction's
+        axis: (r, n) int64, -1 for none (moved outside the grid: none). One
+        gather a reach: the move is made on the voxel's flat cell, clamped
+        to the border along its axis."""
+        shape = np.array(self.own.shape[:3])
+        cell = bordered_cells(self.own, voxels)
+        axis = directions // 2
+        at = voxels[np.arange(len(voxels)), axis] + 1
+        stride, top = np.array([shape[1] * shape[2], shape[2], 1])[axis], shape[axis] - 1
+        flat = self.own.ravel()
+        return np.stack([flat[(cell + (np.minimum(np.maximum(at + reach, 0), top) - at) * stride) * 6 + directions]
+                         for reach in reaches]).astype(np.int64)
 
     def read(self, voxels: np.ndarray) -> np.ndarray:
         """The tiles (n, 6) each (n, 3) voxel reads, -1 for none (outside the grid: none)."""
@@ -722,12 +733,21 @@ def tile_under(tiles: Tiles, q: np.ndarray, voxel: np.ndarray, direction: np.nda
     none; q's distance outside it along its normal, scaled by 1 / lean
     (r, n), NaN for none; where q lies on the tile's plane (r, n, 2); the
     slope (r, n, 2); lean = 1 + |slope|^2 (r, n)). (Along the plane's
-    normal, so that tiles of two axes agree where they overlap.) Only the
-    tiles found are read: most voxels along a tile's axis have none."""
+    normal, so that tiles of two axes agree where they overlap.)"""
     shape = (len(reaches), len(q))
-    moved = np.repeat(voxel[None], len(reaches), axis=0)
-    moved[:, np.arange(len(q)), direction // 2] += np.asarray(reaches)[:, None]
-    candidate = tiles.own_tiles(moved.reshape(-1, 3), np.tile(direction, len(reaches))).reshape(shape)
+    candidate, found, above_found, on_plane, tilt, tilted = tiles_found(tiles, q, voxel, direction, reaches, read)
+    above, plane, slope, lean = np.full(shape, np.nan), np.zeros((*shape, 2)), np.zeros((*shape, 2)), np.ones(shape)
+    above.ravel()[found] = above_found
+    plane.reshape(-1, 2)[found], slope.reshape(-1, 2)[found], lean.ravel()[found] = on_plane, tilt, tilted
+    return candidate, above, plane, slope, lean
+
+
+def tiles_found(tiles: Tiles, q: np.ndarray, voxel: np.ndarray, direction: np.ndarray, reaches, read=None) -> tuple:
+    """tile_under's work on the tiles found alone (most voxels along a
+    tile's axis have none): (tile (r, n), the flat indices `found` into it
+    of the tiles there, and for each found: q's distance outside it scaled
+    by 1 / lean, its place on the plane (f, 2), the slope (f, 2), lean (f,))."""
+    candidate = tiles.own_along(voxel, direction, reaches)
     found = np.flatnonzero(candidate >= 0)
     point = found % len(q)
     tile, axis = candidate.ravel()[found], direction[point] // 2
@@ -735,10 +755,8 @@ def tile_under(tiles: Tiles, q: np.ndarray, voxel: np.ndarray, direction: np.nda
     on_plane = np.take_along_axis(local, ACROSS[axis], axis=1)
     tilt = tiles.slopes[tile]
     tilted = 1 + np.einsum("nc,nc->n", tilt, tilt)
-    above, plane, slope, lean = np.full(shape, np.nan), np.zeros((*shape, 2)), np.zeros((*shape, 2)), np.ones(shape)
-    above.ravel()[found] = (local[np.arange(len(found)), axis] - (read or bilinear_depth)(tiles.depth, tile, on_plane)) / tilted
-    plane.reshape(-1, 2)[found], slope.reshape(-1, 2)[found], lean.ravel()[found] = on_plane, tilt, tilted
-    return candidate, above, plane, slope, lean
+    above = (local[np.arange(len(found)), axis] - (read or bilinear_depth)(tiles.depth, tile, on_plane)) / tilted
+    return candidate, found, above, on_plane, tilt, tilted
 
 
 def surface_under(tiles: Tiles, matched, points: np.ndarray, grid) -> tuple:
@@ -845,12 +863,14 @@ def relief_moves(tiles: Tiles, q: np.ndarray, learnt: np.ndarray) -> np.ndarray:
     height = np.zeros(len(row))  # how far q lies outside the nearest of the direction's tiles, along its normal
     for ring in RELIEF_REACH:
         at = np.flatnonzero(~np.isfinite(nearest))  # a ring is read only where the nearer ones found no tile
-        candidate, above, _, _, lean = tile_under(tiles, q[row[at]], voxel[row[at]], direction[at], ring, held_depth)
-        distance = np.where(np.isfinite(above), np.abs(above) * np.sqrt(lean), np.inf)  # NaN: no tile, or no texel held
+        _, found, above, _, _, lean = tiles_found(tiles, q[row[at]], voxel[row[at]], direction[at], ring, held_depth)
+        signed = np.full((len(ring), len(at)), np.nan)  # q's distance outside the tile along its normal
+        signed.ravel()[found] = above * np.sqrt(lean)
+        distance = np.where(np.isfinite(signed), np.abs(signed), np.inf)  # NaN: no tile, or no texel held
         first = np.argmin(distance, axis=0)  # the nearest; of equals, the first reach
         pick = (first, np.arange(len(at)))
         nearest[at] = distance[pick]
-        height[at] = above[pick] * np.sqrt(lean[pick]) * sign[at]
+        height[at] = signed[pick] * sign[at]
     found = np.isfinite(nearest)
     total = np.bincount(row[found], weight[found], minlength=len(q))  # the weights of the directions read
     blended = np.bincount(row[found], (weight * height)[found], minlength=len(q))  # their heights, weighed
@@ -934,8 +954,9 @@ def held_depth(depth: np.ndarray, tile: np.ndarray, plane: np.ndarray) -> np.nda
     fx = np.clip(x, 0, side - 1) - x0
     fy = np.clip(y, 0, side - 1) - y0
     total, weights = np.zeros(len(tile)), np.zeros(len(tile))
+    flat, first = depth.ravel(), tile * (side * side)  # one flat gather a corner: faster than three indices
     for a, b, w in ((x0, y0, (1 - fx) * (1 - fy)), (x0, y1, (1 - fx) * fy), (x1, y0, fx * (1 - fy)), (x1, y1, fx * fy)):
-        value = depth[tile, a, b]
+        value = flat[first + a * side + b]
         w = np.where((value == 0) | (value == 255), 0.0, w)
         total += w * value
         weights += w
