@@ -724,29 +724,16 @@ def example_points(tiles: Tiles, matched, points: np.ndarray, grid, distance: np
     return q, smooth, normal, voxel
 
 
-def tile_under(tiles: Tiles, q: np.ndarray, voxel: np.ndarray, direction: np.ndarray, reaches,
-               read=None) -> tuple:
-    """For each of `reaches`, the tile of each point's (n,) direction at its
-    voxel moved that far along the direction's axis, and that tile's
-    surface under q (n, 3) as a plane of its slope through its depth there
-    (`read`'s, bilinear_depth unless given): (tile (r, n) int64, -1 for
-    none; q's distance outside it along its normal, scaled by 1 / lean
-    (r, n), NaN for none; where q lies on the tile's plane (r, n, 2); the
-    slope (r, n, 2); lean = 1 + |slope|^2 (r, n)). (Along the plane's
-    normal, so that tiles of two axes agree where they overlap.)"""
-    shape = (len(reaches), len(q))
-    candidate, found, above_found, on_plane, tilt, tilted = tiles_found(tiles, q, voxel, direction, reaches, read)
-    above, plane, slope, lean = np.full(shape, np.nan), np.zeros((*shape, 2)), np.zeros((*shape, 2)), np.ones(shape)
-    above.ravel()[found] = above_found
-    plane.reshape(-1, 2)[found], slope.reshape(-1, 2)[found], lean.ravel()[found] = on_plane, tilt, tilted
-    return candidate, above, plane, slope, lean
-
-
 def tiles_found(tiles: Tiles, q: np.ndarray, voxel: np.ndarray, direction: np.ndarray, reaches, read=None) -> tuple:
-    """tile_under's work on the tiles found alone (most voxels along a
-    tile's axis have none): (tile (r, n), the flat indices `found` into it
-    of the tiles there, and for each found: q's distance outside it scaled
-    by 1 / lean, its place on the plane (f, 2), the slope (f, 2), lean (f,))."""
+    """For each of `reaches`, the tile of each point's (n,) direction at its
+    voxel moved that far along the direction's axis (tile (r, n) int64, -1
+    for none), and, for the tiles found alone (most voxels along a tile's
+    axis have none; `found`, their flat indices into tile, in order), that
+    tile's surface under q (n, 3) as a plane of its slope through its depth
+    there (`read`'s, bilinear_depth unless given): q's distance outside it
+    along its normal, scaled by 1 / lean (f,); where q lies on the tile's
+    plane (f, 2); the slope (f, 2); lean = 1 + |slope|^2 (f,). (Along the
+    plane's normal, so that tiles of two axes agree where they overlap.)"""
     candidate = tiles.own_along(voxel, direction, reaches)
     found = np.flatnonzero(candidate >= 0)
     point = found % len(q)
@@ -772,14 +759,17 @@ def surface_under(tiles: Tiles, matched, points: np.ndarray, grid) -> tuple:
     rows = np.arange(len(q))
     for direction in range(6):
         axis, positive = divmod(direction, 2)
-        candidate, above, plane, slope, lean = tile_under(tiles, q, voxel, np.full(len(q), direction), REACH_ORDER)
+        candidate, found, above, plane, slope, lean = tiles_found(tiles, q, voxel, np.full(len(q), direction),
+                                                                  REACH_ORDER)
         facing = normal[:, axis] * (1 if positive else -1)
-        score = np.where(candidate >= 0, np.abs(above) * np.sqrt(lean) + TURN * (1 - facing), np.inf)
+        score = np.full(candidate.shape, np.inf)
+        score.ravel()[found] = np.abs(above) * np.sqrt(lean) + TURN * (1 - facing[found % len(q)])
         first = np.argmin(score, axis=0)  # the nearest of the direction's reaches; of equals, the first
-        score, pick = score[first, rows], (first, rows)
-        better = score < best
-        best[better], tile[better] = score[better], candidate[pick][better]
-        across[better] = (plane[pick] + above[pick][:, None] * slope[pick])[better]
+        score, pick = score[first, rows], first * len(q) + rows
+        better = np.flatnonzero(score < best)
+        best[better], tile[better] = score[better], candidate.ravel()[pick[better]]
+        at = np.searchsorted(found, pick[better])  # each better point's tile among those found (found is sorted)
+        across[better] = plane[at] + above[at][:, None] * slope[at]
     return tile, across
 
 
