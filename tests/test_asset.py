@@ -375,8 +375,8 @@ def test_an_edit_is_packed_as_it_is_sampled():
 
 def test_a_geometry_only_model_gets_a_normal_map_no_colour_map_and_occlusion_if_asked(tmp_path):
     model = load_model(TINY_ONNX, threads=1)
-    data, _ = asset.asset_bytes(model, SampleRequest(1), asset.AssetOptions((800,), 64, ao=True, hulls=4), threads=1)
-    again, _ = asset.asset_bytes(model, SampleRequest(1), asset.AssetOptions((800,), 64, ao=True, hulls=4), threads=2)
+    data, _ = asset.asset_bytes(model, SampleRequest(1), asset.AssetOptions((800,), 64, ao=True), threads=1)
+    again, _ = asset.asset_bytes(model, SampleRequest(1), asset.AssetOptions((800,), 64, ao=True), threads=2)
     assert again == data  # the same request, the same bytes, on any number of threads
     document, binary = gltf.read(data)
     arrays = gltf.level_arrays(document, binary, 0)
