@@ -24,31 +24,31 @@ def table_property(option, update=None, **ui):
     its type, default, range, choices and help from the record; `ui` adds or
     replaces what only Blender has (a shorter name, soft limits, a subtype,
     the choices' labels). A plain option is offered in Blender by this call."""
-    settings = dict(name=option.name.replace("_", " ").capitalize(), description=option.help)
+    spec = dict(name=option.name.replace("_", " ").capitalize(), description=option.help)
     if update is not None:
-        settings["update"] = update
+        spec["update"] = update
     if option.type in ("seed", "int", "number"):
         whole = option.type != "number"
         low, high = option.low, option.high
         if low is not None:
-            settings["min"] = max(low + (0 if option.bounds[0] == "[" else 1 if whole else OPEN_MARGIN), -INT_LIMIT)
+            spec["min"] = max(low + (0 if option.bounds[0] == "[" else 1 if whole else OPEN_MARGIN), -INT_LIMIT)
         if high is not None:
-            settings["max"] = min(high - (0 if option.bounds[1] == "]" else 1 if whole else OPEN_MARGIN), INT_LIMIT)
+            spec["max"] = min(high - (0 if option.bounds[1] == "]" else 1 if whole else OPEN_MARGIN), INT_LIMIT)
         default = option.default or 0  # None, "not given", reads as 0 (asset.options_of: 0 is not given)
-        settings["default"] = int(default) if whole else float(default)
+        spec["default"] = int(default) if whole else float(default)
         make = IntProperty if whole else FloatProperty
     elif option.type == "bool":
-        settings["default"] = option.default
+        spec["default"] = option.default
         make = BoolProperty
     elif option.type == "choice":
-        settings.update(default=option.default, items=[(choice, choice.capitalize(), "") for choice in option.choices])
+        spec.update(default=option.default, items=[(choice, choice.capitalize(), "") for choice in option.choices])
         make = EnumProperty
     elif option.type == "counts":
-        settings["default"] = ",".join(map(str, option.default or ()))
+        spec["default"] = ",".join(map(str, option.default or ()))
         make = StringProperty
     else:
         raise TypeError(f"option {option.name}: a {option.type} has no plain Blender property; declare its own")
-    return make(**{**settings, **ui})
+    return make(**{**spec, **ui})
 
 
 # What only Blender says of the table's options: the soft range its sliders

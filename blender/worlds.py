@@ -132,11 +132,11 @@ def world_options(settings, model, digest: str) -> tuple:
     relief = settings.relief or None  # 0: an image's white is world_maps.RELIEF times the model's height
     heights, heights_digest = read_map(settings.heights, "height map",
                                        lambda path: world_maps.read_height_map(path, model, relief), settings.relief)
-    typed = convert.table_values(settings, convert.WORLD_TABLE_SETTINGS)
-    scattered = {"density": typed["density"], "spacing": typed["spacing"]} if settings.arrange == "scatter" else {}
-    options = world.WorldOptions(settings.arrange, heights=heights, models=tuple(each for each, _ in others),
-                                 models_map=placed, detail=settings.detail, **scattered, **convert.FIXED)
-    made = (f"{digest}:{settings.seed}:{typed['scale']!r}:{settings.arrange}:"
+    values = convert.table_values(settings, convert.WORLD_TABLE_SETTINGS)
+    scattered = {"density": values["density"], "spacing": values["spacing"]} if values["arrange"] == "scatter" else {}
+    options = world.WorldOptions(values["arrange"], heights=heights, models=tuple(each for each, _ in others),
+                                 models_map=placed, detail=values["detail"], **scattered, **convert.FIXED)
+    made = (f"{digest}:{values['seed']}:{values['scale']!r}:{values['arrange']}:"
             f"{','.join(each for _, each in others)}:{placed_digest}:{heights_digest}:{options.density!r}:"
             f"{options.spacing!r}:{options.detail}")
     return options, made
@@ -169,7 +169,8 @@ def refresh(obj, scene=None, force: bool = False) -> None:
         model, digest = live.load_settings(settings)
         options, made = world_options(settings, model, digest)
         tiling = world.world_tiling(model)
-        world.check_world_scale(tiling, convert.typed(settings.scale), world.hidden_width(model, options), None)
+        scale = convert.typed(settings.scale)
+        world.check_world_scale(tiling, scale, world.hidden_width(model, options), None)
         centre = centre_tile(model, tiling, followed_point(obj, scene))
         wanted = tiles_around(centre, settings.radius)
         lods = {tile: detail(centre, tile, settings.fine, world.farthest_lod(model)) for tile in wanted}
@@ -187,7 +188,7 @@ def refresh(obj, scene=None, force: bool = False) -> None:
             remove(present.pop(tile))
         settings.error = far_warning(model, wanted)
         if todo:
-            submit(obj.name, model, made, settings.seed, convert.typed(settings.scale), options, todo)
+            submit(obj.name, model, made, settings.seed, scale, options, todo)
     except InputError as error:
         settings.error = str(error)
         live.MADE.pop(obj.name, None)  # the next asking is made, even one the same as the last made

@@ -53,7 +53,10 @@ export function toForm() {
   $('sx').value = x ?? 1;
   $('sy').value = y ?? x ?? 1;
   $('sz').value = z ?? x ?? 1;
-  for (const key of PLAIN) $(key)[checkbox(key) ? 'checked' : 'value'] = checkbox(key) ? state[key] === 'true' : state[key];
+  for (const key of PLAIN) {
+    if (checkbox(key)) $(key).checked = state[key] === 'true';
+    else $(key).value = state[key];
+  }
   const others = String(state.models).split(',');
   for (const option of $('models').options) option.selected = others.includes(option.value);
   for (const [key, ids] of Object.entries(TRIPLES)) {
