@@ -70,7 +70,10 @@ class AssetOptions:
     quantise: store the vertices as 8- and 16-bit integers
       (KHR_mesh_quantization, then a required extension: Blender, three.js,
       Babylon.js and glTFast read it; Godot 3 ignores it and reads the
-      integers unscaled, so it is refused with naming "godot").
+      integers unscaled, so it is refused with naming "godot");
+    compress: quantise, and store every vertex and index view compressed by
+      meshoptimizer's codecs (EXT_meshopt_compression, required too; Godot 3
+      cannot read it either).
     """
 
     lods: tuple = (20000, 5000, 1200)
@@ -81,6 +84,7 @@ class AssetOptions:
     hulls: int = ASSET_OPTION["hulls"].default  # convex hulls of a collision decomposition, at most
     naming: str = ASSET_OPTION["naming"].default  # how levels and collision are named: options.NAMINGS
     quantise: bool = ASSET_OPTION["quantise"].default  # vertices as integers (KHR_mesh_quantization)
+    compress: bool = ASSET_OPTION["compress"].default  # quantised, and compressed (EXT_meshopt_compression)
 
     def __post_init__(self):
         lods = (self.lods,) if isinstance(self.lods, int) else self.lods
@@ -125,6 +129,9 @@ class AssetOptions:
         if self.quantise and self.naming == "godot":
             raise ConflictError("`quantise` and `naming` godot do not go together: Godot 3 reads quantised vertices "
                                 "as whole numbers, an asset 32767 times its size", ("quantise", "naming"))
+        if self.compress and self.naming == "godot":
+            raise ConflictError("`compress` and `naming` godot do not go together: Godot 3 cannot read "
+                                "EXT_meshopt_compression", ("compress", "naming"))
 
     def level_texture(self, k: int) -> int:
         """Level k's maps' texels per side: `texture` halved level by level
@@ -419,7 +426,7 @@ def asset_bytes(model, request, options: AssetOptions, name: str = "sample", thr
         place = on_its_base(dense.vertices, UP_AXIS[model.manifest.up], options.height)
         extras["sinshape"].update(pivot="the centre of its base", height_m=round(place.height, 6))
     data = gltf.glb_bytes(levels, name, extras, model.manifest.up, place, collision, options.naming, hulls,
-                          options.quantise)
+                          options.quantise, options.compress)
     timings["write"] = time.perf_counter() - written
     info = {"dense_triangles": len(dense.faces), "dense_vertices": len(dense.vertices), "levels": figures,
             "seconds": {k: round(v, 3) for k, v in timings.items()}, "bytes": len(data)}

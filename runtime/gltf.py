@@ -13,8 +13,13 @@ outliner; engines' own conventions (Godot's and Unreal's names) are the
 With a Grid, the vertices are quantised (KHR_mesh_quantization): positions
 as 16-bit integers on a grid the nodes' transforms undo, normals and
 tangents as 8-bit, UVs as 16-bit: 20 bytes a vertex instead of 48.
+Compressed (EXT_meshopt_compression), each vertex attribute and index view
+is stored as meshoptimizer's codec writes it (its vertices and triangles
+first put in the order that codec compresses best), and the views describe
+the bytes it decodes to, in a fallback buffer that holds no data.
 """
 
+import dataclasses
 import io
 import json
 import math
@@ -91,11 +96,40 @@ class Level:
     occlusion_map: np.ndarray | None
 
 
+def in_codec_order(faces: np.ndarray, vertex_count: int) -> tuple:
+    """(faces, order): the triangles reordered for the vertex cache and the
+    vertices renumbered in the order the triangles first use them, what
+    meshoptimizer's codecs compress best; order[new] is a vertex's old index."""
+    import meshoptimizer  # the assets extra
+
+    cached = np.empty(faces.size, np.uint32)
+    meshoptimizer.optimize_vertex_cache(cached, np.ascontiguousarray(faces, np.uint32).ravel(), faces.size, vertex_count)
+    used, first = np.unique(cached, return_index=True)
+    order = np.concatenate([used[np.argsort(first)], np.setdiff1d(np.arange(vertex_count), used)])
+    renumbered = np.empty(vertex_count, np.int64)
+    renumbered[order] = np.arange(vertex_count)
+    return renumbered[cached].reshape(-1, 3), order
+
+
+def encoded(array: np.ndarray, target: int) -> bytes:
+    """`array` as EXT_meshopt_compression stores it: triangles by the index
+    codec, a vertex attribute by the vertex codec's version 0 (the one that
+    extension reads)."""
+    import meshoptimizer  # the assets extra
+
+    if target == ELEMENT_ARRAY_BUFFER:
+        return meshoptimizer.encode_index_buffer(array.astype(np.uint32), array.size, int(array.max()) + 1)
+    meshoptimizer.encode_vertex_version(0)
+    return meshoptimizer.encode_vertex_buffer(np.ascontiguousarray(array), len(array), array.strides[0])
+
+
 class Builder:
     """glTF's JSON and its one binary buffer, filled as parts are added."""
 
-    def __init__(self, grid: Grid | None = None):
+    def __init__(self, grid: Grid | None = None, compress: bool = False):
         self.grid = grid
+        self.compress = compress
+        self.fallback = 0  # bytes the compressed views decode to: the fallback buffer's length
         self.json = {"asset": {"version": "2.0", "generator": "sinshape"}, "buffers": [], "bufferViews": [],
                      "accessors": [], "images": [], "textures": [], "samplers": [], "materials": [],
                      "meshes": [], "nodes": []}
@@ -113,6 +147,25 @@ class Builder:
         self.json["bufferViews"].append(view)
         return len(self.json["bufferViews"]) - 1
 
+    def compressed_view(self, array: np.ndarray, target: int, stride: int | None) -> int:
+        """A view of `array` stored compressed (EXT_meshopt_compression): the
+        codec's bytes in the binary, the view itself the decoded bytes' place
+        in the fallback buffer."""
+        data = encoded(array, target)
+        self.binary.write(b"\0" * (-self.binary.tell() % 4))
+        element = array.strides[0]
+        codec = {"buffer": 0, "byteOffset": self.binary.tell(), "byteLength": len(data), "byteStride": element,
+                 "count": len(array), "mode": "TRIANGLES" if target == ELEMENT_ARRAY_BUFFER else "ATTRIBUTES"}
+        self.binary.write(data)
+        self.fallback += -self.fallback % 4
+        view = {"buffer": 1, "byteOffset": self.fallback, "byteLength": array.nbytes, "target": target,
+                "extensions": {"EXT_meshopt_compression": codec}}
+        if stride:
+            view["byteStride"] = stride
+        self.fallback += array.nbytes
+        self.json["bufferViews"].append(view)
+        return len(self.json["bufferViews"]) - 1
+
     def accessor(self, array: np.ndarray, kind: str, target: int, bounds: bool = False,
                  normalised: bool = False) -> int:
         """An accessor of `array`; an integer vertex attribute padded to a
@@ -121,7 +174,9 @@ class Builder:
         component = COMPONENTS[array.dtype]
         width = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}[kind]
         padded = array.ndim > 1 and array.shape[1] > width
-        entry = {"bufferView": self.view(array.tobytes(), target, array.strides[0] if padded else None),
+        stride = array.strides[0] if padded else None
+        view = self.compressed_view(array, target, stride) if self.compress else self.view(array.tobytes(), target, stride)
+        entry = {"bufferView": view,
                  "componentType": component, "count": len(array) if array.ndim > 1 else array.size, "type": kind}
         if normalised:
             entry["normalized"] = True
@@ -187,11 +242,27 @@ class Builder:
         binary = self.binary.getvalue()
         binary += b"\0" * (-len(binary) % 4)
         self.json["buffers"].append({"byteLength": len(binary)})
+        if self.fallback:  # no data: what a reader that lacks the extension would need, so it must refuse the file
+            self.json["buffers"].append({"byteLength": self.fallback,
+                                         "extensions": {"EXT_meshopt_compression": {"fallback": True}}})
         text = json.dumps({k: v for k, v in self.json.items() if v != []}, separators=(",", ":")).encode()
         text += b" " * (-len(text) % 4)
         total = 12 + 8 + len(text) + 8 + len(binary)
         return (struct.pack("<III", GLB_MAGIC, 2, total) + struct.pack("<II", len(text), GLB_JSON) + text
                 + struct.pack("<II", len(binary), GLB_BIN) + binary)
+
+
+def in_codec_level(level: Level) -> Level:
+    """The level with its triangles and vertices in codec order (in_codec_order)."""
+    faces, order = in_codec_order(level.faces, len(level.positions))
+    return dataclasses.replace(level, positions=level.positions[order], normals=level.normals[order],
+                               tangents=level.tangents[order], uvs=level.uvs[order], faces=faces)
+
+
+def in_codec_mesh(vertices: np.ndarray, faces: np.ndarray) -> tuple:
+    """A bare mesh's (vertices, faces) in codec order (in_codec_order)."""
+    faces, order = in_codec_order(np.asarray(faces), len(vertices))
+    return np.asarray(vertices)[order], faces
 
 
 def screen_coverage(count: int) -> list:
@@ -224,7 +295,7 @@ def encoded_maps(levels: list) -> list:
 
 def glb_bytes(levels: list, name: str, extras: dict | None = None, up: str = "y",
               place: Placement | None = None, collision: tuple | None = None, naming: str = "gltf",
-              hulls: list = (), quantise: bool = False) -> bytes:
+              hulls: list = (), quantise: bool = False, compress: bool = False) -> bytes:
     """The levels (finest first) as one .glb; `extras` (plain values) go into
     the finest node's extras, beside the screen coverages. up: the axis of
     the levels' frame that points up; glTF's up is +Y, so a z-up frame's
@@ -242,11 +313,16 @@ def glb_bytes(levels: list, name: str, extras: dict | None = None, up: str = "y"
     of that name (its importer reads no concave collision from a file, so
     the collision mesh stays outside the scene, as under "gltf").
     quantise: store the vertices quantised (KHR_mesh_quantization, a
-    required extension: Grid)."""
+    required extension: Grid); compress: quantised, and every vertex and
+    index view compressed (EXT_meshopt_compression, required too)."""
+    if compress:
+        levels = [in_codec_level(level) for level in levels]
+        collision = collision and in_codec_mesh(*collision)
+        hulls = [in_codec_mesh(*hull) for hull in hulls]
     meshes = [level.positions for level in levels] + [shape[0] for shape in ([collision] if collision else [])
                                                        + list(hulls)]
-    grid = Grid.around(meshes) if quantise else None
-    builder = Builder(grid)
+    grid = Grid.around(meshes) if quantise or compress else None
+    builder = Builder(grid, compress)
     nodes = builder.json["nodes"]
     godot, unreal = naming == "godot", naming == "unreal"
     for k, (level, pngs) in enumerate(zip(levels, encoded_maps(levels))):
@@ -279,9 +355,11 @@ def glb_bytes(levels: list, name: str, extras: dict | None = None, up: str = "y"
     if len(levels) > 1:
         nodes[0]["extensions"] = {"MSFT_lod": {"ids": list(range(1, len(levels)))}}
         used.append("MSFT_lod")
-    if grid is not None:  # a reader that cannot dequantise would draw nothing right: it must refuse the file
-        used.append("KHR_mesh_quantization")
-        builder.json["extensionsRequired"] = ["KHR_mesh_quantization"]
+    # A reader that cannot dequantise or decompress would draw nothing right: it must refuse the file.
+    required = (["KHR_mesh_quantization"] if grid is not None else []) + (["EXT_meshopt_compression"] if compress else [])
+    if required:
+        used += required
+        builder.json["extensionsRequired"] = required
     if used:
         builder.json["extensionsUsed"] = used
     nodes[0]["extras"] = {"MSFT_screencoverage": screen_coverage(len(levels)), **(extras or {})}
@@ -302,6 +380,18 @@ def read(data: bytes) -> tuple:
     return json.loads(data[20:20 + size]), data[20 + size + 8:]
 
 
+def decoded(codec: dict, binary: bytes) -> bytes:
+    """The bytes a compressed view (its EXT_meshopt_compression object) decodes to."""
+    import meshoptimizer  # the assets extra
+
+    data = binary[codec["byteOffset"]:codec["byteOffset"] + codec["byteLength"]]
+    if codec["mode"] == "TRIANGLES":
+        indices = meshoptimizer.decode_index_buffer(codec["count"], 4, data)
+        return np.asarray(indices, np.uint32).astype({2: np.uint16, 4: np.uint32}[codec["byteStride"]]).tobytes()
+    # Its default output: the decoded bytes, viewed as float32 (with a dtype given, the bindings' buffer is too short)
+    return meshoptimizer.decode_vertex_buffer(codec["count"], codec["byteStride"], data).tobytes()
+
+
 def level_arrays(document: dict, binary: bytes, node: int) -> dict:
     """A level's arrays (position, normal, tangent, texcoord_0, faces; float
     where they were quantised, positions in the levels' frame) and maps
@@ -315,7 +405,10 @@ def level_arrays(document: dict, binary: bytes, node: int) -> dict:
         dtype = {v: k for k, v in COMPONENTS.items()}[a["componentType"]]
         width = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}[a["type"]]
         stride = view.get("byteStride", width * dtype.itemsize) // dtype.itemsize
-        values = np.frombuffer(binary, dtype, a["count"] * stride, view["byteOffset"]).reshape(a["count"], stride)
+        data, offset = binary, view["byteOffset"]
+        if "EXT_meshopt_compression" in view.get("extensions", {}):
+            data, offset = decoded(view["extensions"]["EXT_meshopt_compression"], binary), 0
+        values = np.frombuffer(data, dtype, a["count"] * stride, offset).reshape(a["count"], stride)
         values = values[:, :width]
         if a.get("normalized"):
             values = np.maximum(values / NORMALISED[a["componentType"]], -1.0).astype(np.float32)

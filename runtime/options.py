@@ -176,6 +176,9 @@ ASSET_OPTIONS = (
     Option("quantise", "bool", False, "Store the vertices as 8- and 16-bit integers (KHR_mesh_quantization, a "
            "required extension: Blender, three.js, Babylon.js and glTFast read it; Godot 3 does not, so not with "
            "naming godot).", KINDS),
+    Option("compress", "bool", False, "Compress the geometry with meshoptimizer's codecs (EXT_meshopt_compression, "
+           "a required extension, on quantised vertices: three.js with its meshopt decoder, Babylon.js, glTFast and "
+           "gltf-transform read it; Godot 3 does not, so not with naming godot).", KINDS),
 )
 ASSET_OPTION = {option.name: option for option in ASSET_OPTIONS}
 

@@ -397,6 +397,7 @@ def test_a_geometry_only_model_gets_a_normal_map_no_colour_map_and_occlusion_if_
     (dict(naming="unity"), "choose gltf, godot or unreal"), (dict(hulls=-1), "0 \\(none\\) to 64"),
     (dict(hulls=65), "to 64 convex hulls"), (dict(hulls=2.5), "to 64 convex hulls"),
     (dict(quantise=True, naming="godot"), "Godot 3 reads quantised vertices as whole numbers"),
+    (dict(compress=True, naming="godot"), "Godot 3 cannot read EXT_meshopt_compression"),
 ])
 def test_bad_options_are_refused_in_one_line(options, message):
     with pytest.raises(InputError, match=message) as error:
@@ -825,6 +826,42 @@ def test_a_quantised_asset_is_valid_and_puts_every_vertex_where_the_float_one_do
     def geometry(document, data):
         return len(data) - sum(document["bufferViews"][image["bufferView"]]["byteLength"] for image in document["images"])
     assert geometry(ints, files[True]) < 0.6 * geometry(floats, files[False])
+
+
+def corner_rows(arrays: dict) -> list:
+    """A level's triangles as rows of their corners' position, normal and UV,
+    each turned to start at its least corner, sorted: the same for the same
+    triangles in any order of triangles or vertices, and any turn of a
+    triangle's corners (what meshoptimizer's index codec may do; the winding stays)."""
+    corners = np.concatenate([arrays["position"], arrays["normal"], arrays["texcoord_0"]], axis=1)[arrays["faces"]]
+    rows = [tuple(map(tuple, triangle)) for triangle in np.round(corners, 6)]
+    return sorted(min(t[k:] + t[:k] for k in range(3)) for t in rows)
+
+
+def test_a_compressed_asset_is_valid_and_decodes_to_the_quantised_ones_triangles(tmp_path):
+    model = load_model(TINY_COLOUR_ONNX, threads=1)
+    files = {compress: asset.asset_bytes(model, SampleRequest(3), asset.AssetOptions(
+        LODS, TEXTURE, collision=120, quantise=True, compress=compress), "box", threads=1)[0]
+        for compress in (False, True)}
+    (tmp_path / "box.glb").write_bytes(files[True])
+    report = validate(tmp_path / "box.glb")
+    assert report["issues"]["numErrors"] == 0 and report["issues"]["numWarnings"] == 0, report["issues"]["messages"]
+    (plain, plain_binary), (packed, packed_binary) = gltf.read(files[False]), gltf.read(files[True])
+    assert packed["extensionsRequired"] == ["KHR_mesh_quantization", "EXT_meshopt_compression"]
+    fallback = packed["buffers"][1]
+    assert fallback["extensions"]["EXT_meshopt_compression"]["fallback"] and "uri" not in fallback
+    geometry_views = [view for view in packed["bufferViews"] if "target" in view]
+    assert geometry_views and all(view["buffer"] == 1 and view["extensions"]["EXT_meshopt_compression"]["buffer"] == 0
+                                  for view in geometry_views)
+    for k in range(len(LODS)):
+        exact, stored = gltf.level_arrays(plain, plain_binary, k), gltf.level_arrays(packed, packed_binary, k)
+        assert corner_rows(stored) == corner_rows(exact)
+        assert np.array_equal(stored["normal_map"], exact["normal_map"])
+        # Reordered for the codec: the vertices in the order the triangles first use them.
+        first_use = np.unique(stored["faces"].ravel(), return_index=True)[1]
+        assert np.all(np.diff(first_use) > 0)
+    compressed_bytes = sum(view["extensions"]["EXT_meshopt_compression"]["byteLength"] for view in geometry_views)
+    assert compressed_bytes < 0.6 * sum(view["byteLength"] for view in geometry_views)
 
 
 def test_a_vertex_whose_faces_have_no_area_still_gets_a_unit_normal():

@@ -741,18 +741,27 @@ def test_a_game_asset_downloads_and_opens_in_the_pages_three_js(page, tmp_path):
     }""", href)
     assert opened["names"] == [document["nodes"][0]["name"]] and opened["normalMap"] == 1024 and opened["tangents"]
     assert opened["levels"] == [node["name"] for node in document["nodes"][1:]]
-    # Quantised (KHR_mesh_quantization, which three.js reads without a decoder): the finest level where the float one is.
+    # Quantised (KHR_mesh_quantization, which three.js reads without a decoder) and compressed
+    # (EXT_meshopt_compression, read with meshoptimizer's decoder): the finest level where the float one is.
     bounds = page.evaluate("""async (urls) => {
       const THREE = await import('three');
       const { GLTFLoader } = await import('three/addons/loaders/GLTFLoader.js');
+      const { MeshoptDecoder } = await import('three/addons/libs/meshopt_decoder.module.js');
       return Promise.all(urls.map(async (url) => {
-        const asset = await new GLTFLoader().parseAsync(await (await fetch(url)).arrayBuffer(), '');
+        const loader = new GLTFLoader().setMeshoptDecoder(MeshoptDecoder);
+        const asset = await loader.parseAsync(await (await fetch(url)).arrayBuffer(), '');
         asset.scene.updateMatrixWorld(true);
         const box = new THREE.Box3().setFromObject(asset.scene);
-        return { extensions: asset.parser.json.extensionsUsed ?? [], min: box.min.toArray(), max: box.max.toArray() };
+        let triangles = 0;
+        asset.scene.traverse((object) => { if (object.isMesh) triangles += object.geometry.index.count / 3; });
+        return { extensions: asset.parser.json.extensionsUsed ?? [], min: box.min.toArray(), max: box.max.toArray(),
+                 triangles };
       }));
-    }""", [href, href + "&quantise=true"])
+    }""", [href, href + "&quantise=true", href + "&compress=true"])
     assert "KHR_mesh_quantization" not in bounds[0]["extensions"] and "KHR_mesh_quantization" in bounds[1]["extensions"]
+    assert "EXT_meshopt_compression" in bounds[2]["extensions"]
     span = np.ptp([bounds[0]["min"], bounds[0]["max"]], axis=0).max()
-    np.testing.assert_allclose(bounds[1]["min"] + bounds[1]["max"], bounds[0]["min"] + bounds[0]["max"], atol=2e-4 * span)
+    for packed in bounds[1:]:
+        np.testing.assert_allclose(packed["min"] + packed["max"], bounds[0]["min"] + bounds[0]["max"], atol=2e-4 * span)
+        assert packed["triangles"] == bounds[0]["triangles"] > 0
     assert not page.errors and not page.outside
