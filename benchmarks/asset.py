@@ -2,10 +2,13 @@
 
     python benchmarks/asset.py fidelity [--model towerruins] [--seed 3] [--scale 4] [--lods 20000,5000,1200]
                                         [--texture 2048] [--gltfpack PATH] [--pictures DIR]
-    python benchmarks/asset.py speed [--model towerruins] [--scale 4] [--lods 5000] [--texture 2048] [--repeats 3]
+    python benchmarks/asset.py speed [--model towerruins] [--scale 4] [--lods 5000] [--texture 2048 | 0] [--compress]
+                                     [--repeats 3]
     python benchmarks/asset.py cycles [--model towerruins] [--scale 2] [--lods 1200] [--texture 1024] --pictures DIR
     python benchmarks/asset.py hulls [--models towerruins acropolis terrain brickruin] [--scale 1]
     python benchmarks/asset.py base [--models towerruins acropolis terrain brickruin] [--scale 1] [--lods 5000]
+    python benchmarks/asset.py size [--models towerruins acropolis terrain brickruin] [--scale 1] [--lods 20000,5000,1200]
+                                    [--texture 1024]
 
 fidelity: the sample's asset, each level drawn with its normal map, beside
 the full-resolution mesh drawn with its own smooth normals, from 6 views
@@ -32,6 +35,10 @@ cycles: the full mesh (`sinrun sample -o x.glb`) and the asset's coarsest
 level with its maps, each imported by Blender's glTF importer and rendered
 by Cycles side by side: an engine's own reading of the normal map (Blender
 builds its own tangents).
+
+size: each model's asset with its maps sized to the sample (floats,
+quantised, compressed) and at --texture, against the full mesh's .glb
+(the plain sample), whole files and their geometry (all but the maps).
 
 hulls: the convex collision (asset.convex_hulls) of each model's sample at
 8, 16 and 32 hulls, and at 16 with CoACD's own defaults (threshold 0.05) and with V-HACD (where vhacdx is
@@ -413,7 +420,7 @@ def speed(args) -> None:
 
     model = load(args.model)
     request = SampleRequest(args.seed, scale=args.scale)
-    options = asset.AssetOptions(args.lods, args.texture)
+    options = asset.AssetOptions(args.lods, args.texture or None, compress=args.compress)
     times = {"sample": [], "asset": []}
     write.request_bytes(model, request, "x.ply")  # the imports, untimed
     for _ in range(args.repeats):
@@ -424,8 +431,10 @@ def speed(args) -> None:
         data, info = asset.asset_bytes(model, request, options, "sample")
         times["asset"].append(time.perf_counter() - started)
     best = {k: min(v) for k, v in times.items()}
+    size = info["levels"][0]["texture"]
     print(f"{args.model} seed {args.seed} scale {args.scale:g}, lods {','.join(map(str, args.lods))}, maps "
-          f"{args.texture}: best of {args.repeats}, alternated")
+          f"{size}{'' if args.texture else ' (sized to the sample)'}{', compressed' if args.compress else ''}: "
+          f"best of {args.repeats}, alternated")
     print(f"  sample alone (.ply in memory)  {best['sample']:.2f} s   (runs: {', '.join(f'{t:.2f}' for t in times['sample'])})")
     print(f"  asset (.glb)                   {best['asset']:.2f} s   (runs: {', '.join(f'{t:.2f}' for t in times['asset'])})"
           f"  = {best['asset'] / best['sample']:.2f}x the sample; stages of the last: {info['seconds']}")
@@ -442,7 +451,7 @@ def speed(args) -> None:
         np.savez(low_path, vertices=low["position"], faces=low["faces"], uvs=low["texcoord_0"])
         reach = max(level["error"] for level in info["levels"]) + 2 * max(model.manifest.spacing)
         result = blender(BLENDER_BAKE.format(root=str(ROOT), dense=str(dense_path), low=str(low_path),
-                                             size=args.texture, threads=2, reach=reach, margin=asset.padding(options.texture)))
+                                             size=size, threads=2, reach=reach, margin=asset.padding(size)))
     if result is None:
         print("  Blender's bake: bpy is not installed")
         return
@@ -593,6 +602,31 @@ def base(args) -> None:
               f"{share_apart:.4f} | {density_apart / density:.2f}x |", flush=True)
 
 
+def size(args) -> None:
+    """Each model's asset at --scale and --lods: maps sized to the sample
+    (floats, quantised, compressed) and at --texture, against the plain
+    sample's .glb (the full mesh), whole files and their geometry alone."""
+    from sinshape.runtime import SampleRequest, asset, gltf, write
+
+    print(f"seed {args.seed} scale {args.scale:g}, lods {','.join(map(str, args.lods))}; MB, whole file (geometry)")
+    print(f"| model | full mesh .glb | sized maps | floats | quantised | compressed | floats, {args.texture} maps |")
+    print("|---|---|---|---|---|---|---|")
+    for name in args.models:
+        model = load(name)
+        request = SampleRequest(args.seed, scale=args.scale)
+        dense = len(write.request_bytes(model, request, "x.glb")[0])
+        cells, sized = [], None
+        for texture, quantise, compress in ((None, False, False), (None, True, False), (None, False, True),
+                                            (args.texture, False, False)):
+            data, info = asset.asset_bytes(model, request, asset.AssetOptions(args.lods, texture, quantise=quantise,
+                                                                              compress=compress), name)
+            document, _ = gltf.read(data)
+            maps = sum(document["bufferViews"][image["bufferView"]]["byteLength"] for image in document["images"])
+            cells.append(f"{len(data) / 1e6:.2f} ({(len(data) - maps) / 1e6:.2f})")
+            sized = sized or info["levels"][0]["texture"]
+        print(f"| {name} | {dense / 1e6:.2f} | {sized} | {' | '.join(cells)} |", flush=True)
+
+
 def asset_options(args):
     from sinshape.runtime import asset
 
@@ -601,20 +635,21 @@ def asset_options(args):
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("what", choices=["fidelity", "speed", "cycles", "hulls", "base"])
+    parser.add_argument("what", choices=["fidelity", "speed", "cycles", "hulls", "base", "size"])
     parser.add_argument("--models", nargs="+", default=["towerruins", "acropolis", "terrain", "brickruin"])
     parser.add_argument("--model", default="towerruins")
     parser.add_argument("--seed", type=int, default=3)
     parser.add_argument("--scale", type=float, default=4.0)
     parser.add_argument("--lods", default=None, help="Default: 20000,5000,1200 (fidelity), 5000 (speed).")
-    parser.add_argument("--texture", type=int, default=2048)
+    parser.add_argument("--texture", type=int, default=2048, help="0: sized to the sample (speed), as without --texture")
+    parser.add_argument("--compress", action="store_true", help="speed: the geometry compressed (EXT_meshopt_compression)")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--gltfpack", default=None)
     parser.add_argument("--pictures", default=None)
     args = parser.parse_args()
     args.lods = tuple(int(n) for n in (args.lods or ("5000" if args.what in ("speed", "base") else "20000,5000,1200"))
                       .split(","))
-    {"fidelity": fidelity, "speed": speed, "cycles": cycles, "hulls": hulls, "base": base}[args.what](args)
+    {"fidelity": fidelity, "speed": speed, "cycles": cycles, "hulls": hulls, "base": base, "size": size}[args.what](args)
 
 
 if __name__ == "__main__":

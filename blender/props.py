@@ -55,7 +55,7 @@ def table_property(option, update=None, **ui):
 # take, a name or default of its own, its choices' labels.
 BLENDER_UI = {
     "scale": dict(soft_min=0.25, soft_max=16.0), "smooth": dict(soft_max=20), "spacing": dict(soft_max=12.0),
-    "lods": dict(name="Levels", default="20000,5000,1200"), "texture": dict(name="Maps", subtype="PIXEL"),
+    "lods": dict(name="Levels", default="20000,5000,1200"), "texture": dict(name="Maps", subtype="PIXEL", min=0),  # 0: sized to the sample
     "ao": dict(name="Ambient occlusion"), "height": dict(min=0.0),  # 0: not given (one unit a metre)
     "naming": dict(items=[
         ("gltf", "glTF", "The finest level shown, the coarser ones listed by MSFT_lod"),

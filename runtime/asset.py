@@ -16,7 +16,7 @@ vertices (colour.colouring; a world tile's blend, world_points.tile_colours).
 import math
 import os
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -42,6 +42,7 @@ HULL_THRESHOLDS = (0.1, 0.2, 0.4, 0.8)
 UNSEEN_SCALE = 1 / 16  # how much smaller a side the charts of faces nobody sees are (a base: unwrap)
 BASE_ANGLE = 30  # degrees from straight down within which a face at a sample's base faces the ground
 FILL = 0.6  # the share of an atlas xatlas's charts are expected to cover (0.65-0.72 measured), for its scale
+SIZED_TEXTURE = (16, 2048)  # the range of a map side sized to the sample (sized_texture)
 BAKE_BYTES_PER_TEXEL = 160  # peak bytes per texel of one level's bake and file: 118-138 measured (tracemalloc, 1024 and 2048)
 
 
@@ -53,7 +54,8 @@ class AssetOptions:
       predecessor's; those above the full mesh's triangles are capped to
       it: capped_lods);
     texture: texels per side of the finest level's maps, a power of two up
-      to MAX_TEXTURE, halved level by level (level_texture); ao: bake ambient occlusion too (an occlusion map);
+      to MAX_TEXTURE, halved level by level (level_texture); None: sized
+      to the sample (sized_texture); ao: bake ambient occlusion too (an occlusion map);
     height: the asset's height in metres (glTF's unit), base to top, as the
       file's nodes scale it (None: one unit of the frame is a metre);
     collision: the triangles of a collision mesh (no maps), 0 for none;
@@ -77,7 +79,7 @@ class AssetOptions:
     """
 
     lods: tuple = (20000, 5000, 1200)
-    texture: int = ASSET_OPTION["texture"].default
+    texture: int | None = ASSET_OPTION["texture"].default  # None: sized to the sample (sized_texture)
     ao: bool = ASSET_OPTION["ao"].default
     height: float | None = ASSET_OPTION["height"].default  # metres, base to top; None: a frame unit is a metre
     collision: int = ASSET_OPTION["collision"].default  # triangles of a collision mesh simplified from the full one
@@ -103,11 +105,12 @@ class AssetOptions:
             raise InputError(f"`lods` must fall level by level, finest first, got {','.join(map(str, lods))}", "lods")
         object.__setattr__(self, "lods", tuple(int(n) for n in lods))
         size = self.texture
-        if not (isinstance(size, (int, np.integer)) and not isinstance(size, bool)
-                and MIN_TEXTURE <= size <= MAX_TEXTURE and size & (size - 1) == 0):
-            raise InputError(f"`texture` must be a power of two from {MIN_TEXTURE} to {MAX_TEXTURE} texels, "
-                             f"got {size!r}", "texture")
-        object.__setattr__(self, "texture", int(size))
+        if size is not None:
+            if not (isinstance(size, (int, np.integer)) and not isinstance(size, bool)
+                    and MIN_TEXTURE <= size <= MAX_TEXTURE and size & (size - 1) == 0):
+                raise InputError(f"`texture` must be a power of two from {MIN_TEXTURE} to {MAX_TEXTURE} texels, "
+                                 f"got {size!r}", "texture")
+            object.__setattr__(self, "texture", int(size))
         if self.height is not None:
             if not (isinstance(self.height, (int, float, np.number)) and not isinstance(self.height, bool)
                     and MIN_HEIGHT <= self.height <= MAX_HEIGHT):
@@ -140,6 +143,17 @@ class AssetOptions:
         return max(MIN_TEXTURE, self.texture >> k)
 
 
+def sized_texture(dense_vertices: int) -> int:
+    """The finest level's maps' side when none is asked: the least power of
+    two whose square holds the full mesh's vertices, at most 2048 (SIZED_TEXTURE).
+    The maps then hold a texel for each of the full mesh's vertices or
+    more (its detail, relief included, is a vertex apart at its scale), and
+    weigh less than it: 2-4 bytes a texel as PNG, where a vertex costs the
+    full mesh's .glb about 36 (its position, normal and two triangles)."""
+    low, high = SIZED_TEXTURE
+    return int(min(max(low, 1 << max(0, math.ceil(math.log2(max(dense_vertices, 1)) / 2))), high))
+
+
 def padding(size: int) -> int:
     """Texels between charts (and grown around each) in maps of `size`: four
     at 1024, so that mip-maps to an eighth of the size still read a chart's own."""
@@ -157,7 +171,7 @@ def parse_lods(text: str) -> tuple:
 
 def check_asset_memory(options: AssetOptions, memory_limit: int | None = None) -> None:
     """Refuse up front a bake that needs more than memory_limit bytes."""
-    size = options.texture
+    size = options.texture or SIZED_TEXTURE[1]  # sized to the sample: at most the largest
     check_memory(size * size * BAKE_BYTES_PER_TEXEL, f"baking {size}x{size} maps", memory_limit)
 
 
@@ -401,6 +415,8 @@ def asset_bytes(model, request, options: AssetOptions, name: str = "sample", thr
     if not len(dense.faces):
         raise InputError("the sample has no surface at this scale and size; nothing written")
     lods = capped_lods(options.lods, len(dense.faces))
+    if options.texture is None:
+        options = replace(options, texture=sized_texture(len(dense.vertices)))
     timings = {"sample": time.perf_counter() - started}
     levels, figures = [], []
     for k, target in enumerate(lods):

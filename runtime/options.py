@@ -159,8 +159,10 @@ ASSET_OPTIONS = (
     Option("lods", "counts", None, "Write a game asset (.glb): levels of detail of these triangle counts, finest "
            "first, e.g. 20000,5000,1200, simplified from the full-resolution surface, each with its own UVs and "
            "maps baked from the model (normal, and colour for a coloured model).", KINDS, 4),
-    Option("texture", "int", 1024, "Texels per side of the finest level's maps, a power of two from 16 to 8192, "
-           "halved level by level.", KINDS, 16, 8192),
+    Option("texture", "int", None, "Texels per side of the finest level's maps, a power of two from 16 to 8192, "
+           "halved level by level. Default: sized to the sample, the least power of two whose square holds the full "
+           "mesh's vertices (at most 2048), so that the maps show what the full mesh shows and weigh less.", KINDS,
+           16, 8192),
     Option("ao", "bool", False, "Bake ambient occlusion too.", KINDS),
     Option("height", "number", None, "The asset's height in metres, base to top (glTF's unit); without it, one "
            "unit of the training mesh is a metre. A sample's asset stands with the centre of its base at the "

@@ -828,6 +828,21 @@ def test_a_quantised_asset_is_valid_and_puts_every_vertex_where_the_float_one_do
     assert geometry(ints, files[True]) < 0.6 * geometry(floats, files[False])
 
 
+def test_maps_without_a_size_are_sized_to_the_sample_and_weigh_less_than_its_full_mesh():
+    from sinshape.runtime import write
+
+    model = load_model(TINY_COLOUR_ONNX, threads=1)
+    for scale in (1, 2):
+        request = SampleRequest(3, scale=scale)
+        data, info = asset.asset_bytes(model, request, asset.AssetOptions((400, 100)), "box", threads=1)
+        size, vertices = info["levels"][0]["texture"], info["dense_vertices"]
+        assert size * size >= vertices > (size // 2) ** 2 and info["levels"][1]["texture"] == size // 2
+        document, _ = gltf.read(data)
+        maps = sum(document["bufferViews"][image["bufferView"]]["byteLength"] for image in document["images"])
+        assert maps < len(write.request_bytes(model, request, "x.glb")[0])
+    assert asset.sized_texture(10**9) == 2048 and asset.sized_texture(1) == asset.MIN_TEXTURE
+
+
 def corner_rows(arrays: dict) -> list:
     """A level's triangles as rows of their corners' position, normal and UV,
     each turned to start at its least corner, sorted: the same for the same

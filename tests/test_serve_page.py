@@ -717,7 +717,7 @@ def test_a_game_asset_downloads_and_opens_in_the_pages_three_js(page, tmp_path):
     page.goto(f"{page.base}/?seed=3&up=z&format=asset")
     wait_ready(page, 3)
     href = page.get_attribute("#download", "href")
-    assert "format=glb" in href and "lods=" in href and "texture=1024" in href
+    assert "format=glb" in href and "lods=" in href and "texture=" not in href  # maps sized to the sample
     with page.expect_download() as download:
         page.click("#download")
     saved = tmp_path / "asset.glb"
@@ -739,7 +739,8 @@ def test_a_game_asset_downloads_and_opens_in_the_pages_three_js(page, tmp_path):
       return { names: meshes.map((mesh) => mesh.name), normalMap: material.normalMap?.image?.width ?? null,
                tangents: Boolean(meshes[0].geometry.attributes.tangent), levels: levels.map((level) => level.name) };
     }""", href)
-    assert opened["names"] == [document["nodes"][0]["name"]] and opened["normalMap"] == 1024 and opened["tangents"]
+    sized = document["nodes"][0]["extras"]["sinshape"]["textures"][0]
+    assert opened["names"] == [document["nodes"][0]["name"]] and opened["normalMap"] == sized and opened["tangents"]
     assert opened["levels"] == [node["name"] for node in document["nodes"][1:]]
     # Quantised (KHR_mesh_quantization, which three.js reads without a decoder) and compressed
     # (EXT_meshopt_compression, read with meshoptimizer's decoder): the finest level where the float one is.

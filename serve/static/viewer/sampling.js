@@ -94,7 +94,7 @@ export function serverRequest(name, request, format, faces = null) {
 /**
  * The query of a game asset of a sample of `faces` triangles: levels of
  * 20000, 5000 and 1200 triangles, each at most half the one before (the
- * first, half the sample's), and 1024-texel maps. A sample's triangle
+ * first, half the sample's), and maps sized to the sample. A sample's triangle
  * count is known once it is shown: before that, an error.
  */
 export function assetQuery(faces) {
@@ -104,7 +104,7 @@ export function assetQuery(faces) {
     const count = Math.min(wanted, Math.floor((lods.at(-1) ?? faces) / 2));
     if (count >= 4) lods.push(count);
   }
-  return { lods: lods.join(','), texture: 1024 };
+  return { lods: lods.join(',') };
 }
 
 /** A height map ({ shape, data: Float32Array }) as the bytes of a .npy file: the tile route's POST body. */
