@@ -24,7 +24,7 @@ from sinshape.core.budget import check_memory
 from sinshape.core.errors import ConflictError, InputError, named
 from sinshape.core.manifest import UP_AXIS
 
-from . import bake, colour as colouring, gltf, mesh, query, world, world_points, world_tiles
+from . import bake, colour as colouring, gltf, ktx2, mesh, query, world, world_points, world_tiles
 from .options import ASSET_OPTION, NAMINGS
 from .request import make
 
@@ -75,7 +75,10 @@ class AssetOptions:
       integers unscaled, so it is refused with naming "godot");
     compress: quantise, and store every vertex and index view compressed by
       meshoptimizer's codecs (EXT_meshopt_compression, required too; Godot 3
-      cannot read it either).
+      cannot read it either);
+    ktx2: the maps as KTX2 files of Basis Universal (KHR_texture_basisu,
+      required; made by its `basisu` encoder: ktx2.py), which a GPU keeps
+      compressed; Godot 3 reads no KTX2.
     """
 
     lods: tuple = (20000, 5000, 1200)
@@ -87,6 +90,7 @@ class AssetOptions:
     naming: str = ASSET_OPTION["naming"].default  # how levels and collision are named: options.NAMINGS
     quantise: bool = ASSET_OPTION["quantise"].default  # vertices as integers (KHR_mesh_quantization)
     compress: bool = ASSET_OPTION["compress"].default  # quantised, and compressed (EXT_meshopt_compression)
+    ktx2: bool = ASSET_OPTION["ktx2"].default  # the maps as KTX2 of Basis Universal (KHR_texture_basisu)
 
     def __post_init__(self):
         lods = (self.lods,) if isinstance(self.lods, int) else self.lods
@@ -132,9 +136,10 @@ class AssetOptions:
         if self.quantise and self.naming == "godot":
             raise ConflictError("`quantise` and `naming` godot do not go together: Godot 3 reads quantised vertices "
                                 "as whole numbers, an asset 32767 times its size", ("quantise", "naming"))
-        if self.compress and self.naming == "godot":
-            raise ConflictError("`compress` and `naming` godot do not go together: Godot 3 cannot read "
-                                "EXT_meshopt_compression", ("compress", "naming"))
+        for name, extension in (("compress", "EXT_meshopt_compression"), ("ktx2", "KHR_texture_basisu")):
+            if getattr(self, name) and self.naming == "godot":
+                raise ConflictError(f"`{name}` and `naming` godot do not go together: Godot 3 cannot read "
+                                    f"{extension}", (name, "naming"))
 
     def level_texture(self, k: int) -> int:
         """Level k's maps' texels per side: `texture` halved level by level
@@ -398,6 +403,8 @@ def asset_bytes(model, request, options: AssetOptions, name: str = "sample", thr
     import xatlas  # noqa: F401
 
     check_asset_memory(options, memory_limit)
+    if options.ktx2:
+        ktx2.encoder()  # asked for before any work, as the extra's modules are
     if request.tile is not None and options.height is not None:
         raise InputError("`height` scales one asset; a world's tiles keep the world's frame, so that they meet",
                          "height")
@@ -442,7 +449,7 @@ def asset_bytes(model, request, options: AssetOptions, name: str = "sample", thr
         place = on_its_base(dense.vertices, UP_AXIS[model.manifest.up], options.height)
         extras["sinshape"].update(pivot="the centre of its base", height_m=round(place.height, 6))
     data = gltf.glb_bytes(levels, name, extras, model.manifest.up, place, collision, options.naming, hulls,
-                          options.quantise, options.compress)
+                          options.quantise, options.compress, options.ktx2)
     timings["write"] = time.perf_counter() - written
     info = {"dense_triangles": len(dense.faces), "dense_vertices": len(dense.vertices), "levels": figures,
             "seconds": {k: round(v, 3) for k, v in timings.items()}, "bytes": len(data)}

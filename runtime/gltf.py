@@ -30,6 +30,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import ktx2 as basis
+
 ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER = 34962, 34963
 BYTE, SHORT, FLOAT, UNSIGNED_SHORT, UNSIGNED_INT = 5120, 5122, 5126, 5123, 5125
 COMPONENTS = {np.dtype("int8"): BYTE, np.dtype("int16"): SHORT, np.dtype("float32"): FLOAT,
@@ -126,9 +128,10 @@ def encoded(array: np.ndarray, target: int) -> bytes:
 class Builder:
     """glTF's JSON and its one binary buffer, filled as parts are added."""
 
-    def __init__(self, grid: Grid | None = None, compress: bool = False):
+    def __init__(self, grid: Grid | None = None, compress: bool = False, ktx2: bool = False):
         self.grid = grid
         self.compress = compress
+        self.ktx2 = ktx2  # the maps' files are KTX2 (KHR_texture_basisu), not PNG
         self.fallback = 0  # bytes the compressed views decode to: the fallback buffer's length
         self.json = {"asset": {"version": "2.0", "generator": "sinshape"}, "buffers": [], "bufferViews": [],
                      "accessors": [], "images": [], "textures": [], "samplers": [], "materials": [],
@@ -192,12 +195,16 @@ class Builder:
         stored = normalised((positions - self.grid.centre) / self.grid.half, np.int16, 4)
         return self.accessor(stored, "VEC3", ARRAY_BUFFER, True, True)
 
-    def texture(self, png: bytes, name: str) -> int:
-        self.json["images"].append({"name": name, "mimeType": "image/png", "bufferView": self.view(png)})
+    def texture(self, data: bytes, name: str) -> int:
+        """A texture of a map's file (PNG, or KTX2 named by KHR_texture_basisu, which has no PNG beside it)."""
+        mime = "image/ktx2" if self.ktx2 else "image/png"
+        self.json["images"].append({"name": name, "mimeType": mime, "bufferView": self.view(data)})
         if not self.json["samplers"]:
             self.json["samplers"].append({"magFilter": LINEAR, "minFilter": LINEAR_MIPMAP_LINEAR,
                                           "wrapS": CLAMP_TO_EDGE, "wrapT": CLAMP_TO_EDGE})
-        self.json["textures"].append({"sampler": 0, "source": len(self.json["images"]) - 1})
+        image = len(self.json["images"]) - 1
+        self.json["textures"].append({"sampler": 0, "extensions": {"KHR_texture_basisu": {"source": image}}}
+                                     if self.ktx2 else {"sampler": 0, "source": image})
         return len(self.json["textures"]) - 1
 
     def material(self, level: Level, pngs: dict, name: str) -> int:
@@ -280,13 +287,17 @@ def png_bytes(image: np.ndarray) -> bytes:
     return png.getvalue()
 
 
-def encoded_maps(levels: list) -> list:
-    """Each level's maps as PNG files ({field: bytes}), encoded on all cores
-    (zlib lets go of the interpreter)."""
+def encoded_maps(levels: list, ktx2: bool = False) -> list:
+    """Each level's maps as PNG files, or KTX2 ({field: bytes}), encoded on
+    all cores (zlib lets go of the interpreter; the KTX2 encoder is a process a map)."""
     names = ("normal_map", "colour_map", "occlusion_map")
     jobs = [(k, name) for k, level in enumerate(levels) for name in names if getattr(level, name) is not None]
+
+    def encode(job):
+        image = getattr(levels[job[0]], job[1])
+        return basis.ktx2_bytes(image, job[1]) if ktx2 else png_bytes(image)
     with ThreadPoolExecutor(os.cpu_count() or 1) as pool:
-        files = list(pool.map(lambda job: png_bytes(getattr(levels[job[0]], job[1])), jobs))
+        files = list(pool.map(encode, jobs))
     pngs = [{} for _ in levels]
     for (k, name), data in zip(jobs, files):
         pngs[k][name] = data
@@ -295,7 +306,7 @@ def encoded_maps(levels: list) -> list:
 
 def glb_bytes(levels: list, name: str, extras: dict | None = None, up: str = "y",
               place: Placement | None = None, collision: tuple | None = None, naming: str = "gltf",
-              hulls: list = (), quantise: bool = False, compress: bool = False) -> bytes:
+              hulls: list = (), quantise: bool = False, compress: bool = False, ktx2: bool = False) -> bytes:
     """The levels (finest first) as one .glb; `extras` (plain values) go into
     the finest node's extras, beside the screen coverages. up: the axis of
     the levels' frame that points up; glTF's up is +Y, so a z-up frame's
@@ -314,7 +325,8 @@ def glb_bytes(levels: list, name: str, extras: dict | None = None, up: str = "y"
     the collision mesh stays outside the scene, as under "gltf").
     quantise: store the vertices quantised (KHR_mesh_quantization, a
     required extension: Grid); compress: quantised, and every vertex and
-    index view compressed (EXT_meshopt_compression, required too)."""
+    index view compressed (EXT_meshopt_compression, required too); ktx2:
+    the maps as KTX2 files (KHR_texture_basisu, required: no PNG beside them)."""
     if compress:
         levels = [in_codec_level(level) for level in levels]
         collision = collision and in_codec_mesh(*collision)
@@ -322,10 +334,10 @@ def glb_bytes(levels: list, name: str, extras: dict | None = None, up: str = "y"
     meshes = [level.positions for level in levels] + [shape[0] for shape in ([collision] if collision else [])
                                                        + list(hulls)]
     grid = Grid.around(meshes) if quantise or compress else None
-    builder = Builder(grid, compress)
+    builder = Builder(grid, compress, ktx2)
     nodes = builder.json["nodes"]
     godot, unreal = naming == "godot", naming == "unreal"
-    for k, (level, pngs) in enumerate(zip(levels, encoded_maps(levels))):
+    for k, (level, pngs) in enumerate(zip(levels, encoded_maps(levels, ktx2))):
         label = f"{name}_LOD{k}" + ("-noimp" if godot and k else "")
         nodes.append({"name": label, "mesh": builder.mesh(level, pngs, label)})
     shown = [0]
@@ -356,7 +368,8 @@ def glb_bytes(levels: list, name: str, extras: dict | None = None, up: str = "y"
         nodes[0]["extensions"] = {"MSFT_lod": {"ids": list(range(1, len(levels)))}}
         used.append("MSFT_lod")
     # A reader that cannot dequantise or decompress would draw nothing right: it must refuse the file.
-    required = (["KHR_mesh_quantization"] if grid is not None else []) + (["EXT_meshopt_compression"] if compress else [])
+    required = ((["KHR_mesh_quantization"] if grid is not None else []) + (["EXT_meshopt_compression"] if compress else [])
+                + (["KHR_texture_basisu"] if ktx2 else []))
     if required:
         used += required
         builder.json["extensionsRequired"] = required
@@ -417,8 +430,13 @@ def level_arrays(document: dict, binary: bytes, node: int) -> dict:
     def image(texture):
         if texture is None:
             return None
-        view = document["bufferViews"][document["images"][document["textures"][texture["index"]]["source"]]["bufferView"]]
-        return np.asarray(Image.open(io.BytesIO(binary[view["byteOffset"]:view["byteOffset"] + view["byteLength"]])))
+        found = document["textures"][texture["index"]]
+        source = found["extensions"]["KHR_texture_basisu"]["source"] if "source" not in found else found["source"]
+        view = document["bufferViews"][document["images"][source]["bufferView"]]
+        data = binary[view["byteOffset"]:view["byteOffset"] + view["byteLength"]]
+        if document["images"][source]["mimeType"] == "image/ktx2":
+            return basis.decoded(data)
+        return np.asarray(Image.open(io.BytesIO(data)))
 
     primitive = document["meshes"][document["nodes"][node]["mesh"]]["primitives"][0]
     out = {name.lower(): accessor(index) for name, index in primitive["attributes"].items()}

@@ -181,6 +181,10 @@ ASSET_OPTIONS = (
     Option("compress", "bool", False, "Compress the geometry with meshoptimizer's codecs (EXT_meshopt_compression, "
            "a required extension, on quantised vertices: three.js with its meshopt decoder, Babylon.js, glTFast and "
            "gltf-transform read it; Godot 3 does not, so not with naming godot).", KINDS),
+    Option("ktx2", "bool", False, "Store the maps as KTX2 files of Basis Universal with their mip-maps "
+           "(KHR_texture_basisu, a required extension), which a GPU keeps compressed: needs Basis Universal's "
+           "`basisu` encoder on PATH; three.js (KTX2Loader), Babylon.js and glTFast read it, Godot 3 does not, so "
+           "not with naming godot.", KINDS),
 )
 ASSET_OPTION = {option.name: option for option in ASSET_OPTIONS}
 

