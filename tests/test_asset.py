@@ -238,6 +238,26 @@ def test_the_normal_map_turns_a_coarse_level_into_the_fields_surface(part, monke
     assert np.abs(maps.colour[rows, columns].astype(int) - colour(surface)).mean() < 2
 
 
+def test_occlusion_darkens_by_shades_towards_a_wall_not_in_bands():
+    """On a floor beside a wall (an L of solid, its occupancy a smooth step
+    a voxel wide, as a model's is), occlusion rises from the wall's foot to
+    open floor through many shades, never in steps of a twelfth (the rays'
+    count): a map of it shows no bands."""
+    from sinshape.runtime import bake
+
+    def corner(points):  # solid where z < 0 or x < 0
+        return 1 / (1 + np.exp(4 * np.minimum(points[:, 0], points[:, 2])))
+
+    distance = np.linspace(0.05, 8, 400)
+    points = np.stack([distance, np.zeros_like(distance), np.full_like(distance, 0.02)], axis=1)
+    normals = np.tile([0.0, 0.0, 1.0], (len(points), 1))
+    openness = bake.occlusion(bake.Field(corner, None), bake.Frame(np.zeros(3), np.ones(3)), points, normals,
+                              voxel=1.0, threads=1)
+    assert openness[:20].mean() < 0.75 and openness[-20:].min() > 0.95  # dark at the wall's foot, open far off
+    assert len(np.unique(np.round(openness * 255))) > 40  # shades: 12 rays blocked outright give 13 at most
+    assert np.abs(np.diff(openness)).max() < 1 / 24  # no step as large as one ray's share
+
+
 def test_a_rays_crossing_says_which_side_the_surface_faces():
     """surface_points finds where rays along and against a ball's outward
     normal cross its surface, and says which of them leave the solid there
@@ -906,7 +926,7 @@ def test_ktx2_maps_are_basis_universal_with_mip_maps_and_read_as_the_png_ones(tm
 
 def test_ktx2_without_its_encoder_is_refused_before_any_work(monkeypatch):
     monkeypatch.setenv("PATH", "")
-    with pytest.raises(InputError, match="needs Basis Universal's encoder, the .?basisu.? command, on PATH"):
+    with pytest.raises(InputError, match="needs Basis Universal's encoder, the basisu command, on PATH"):
         asset.asset_bytes(load_model(TINY_ONNX, threads=1), SampleRequest(3), asset.AssetOptions(LODS, ktx2=True))
 
 
