@@ -238,6 +238,19 @@ def test_the_normal_map_turns_a_coarse_level_into_the_fields_surface(part, monke
     assert np.abs(maps.colour[rows, columns].astype(int) - colour(surface)).mean() < 2
 
 
+def test_levels_are_simplified_through_one_stage_whose_error_they_carry():
+    model = load_model(TINY_ONNX, threads=1)
+    dense = asset.dense_surface(model, SampleRequest(1, scale=2))
+    finest = len(dense.faces) // (2 * asset.STAGE_FROM)
+    vertices, faces, error = asset.staged(dense, finest)
+    assert len(faces) <= asset.STAGE * finest < len(dense.faces) and error > 0
+    assert asset.staged(dense, -(-len(dense.faces) // asset.STAGE_FROM))[1] is dense.faces  # near enough: its own
+    _, info = asset.asset_bytes(model, SampleRequest(1, scale=2), asset.AssetOptions((finest, finest // 4), 64))
+    direct = asset.simplify(dense.vertices, dense.faces, finest, False)[2]
+    assert info["levels"][0]["error"] == pytest.approx(asset.simplify(vertices, faces, finest, False)[2] + error,
+                                                       abs=1e-6) and info["levels"][0]["error"] < direct + 2 * error
+
+
 def test_occlusion_darkens_by_shades_towards_a_wall_not_in_bands():
     """On a floor beside a wall (an L of solid, its occupancy a smooth step
     a voxel wide, as a model's is), occlusion rises from the wall's foot to
