@@ -39,6 +39,10 @@ HULL_SOURCE = 2000  # triangles of the surface the hulls are decomposed from (Co
 # asked: 0.1 held every shipped model's solid as closely as 0.05 in a third of
 # the time, where 0.05 left the temple 16 hulls for 8, 1.5 times its volume over.
 HULL_THRESHOLDS = (0.1, 0.2, 0.4, 0.8)
+# No chart of a level charted whole larger than this share of its surface: xatlas grows a chart at a cost
+# that rises with its size, and a smooth level came out in a few large ones (the terrain's 5,000 triangles:
+# 0.95 s to chart, 0.49 s so, its atlas as full); on levels charted in parts it only cost time.
+CHART_SHARE = 4
 STAGE, STAGE_FROM = 4, 16  # levels come through a stage of 4x the finest's triangles from a full mesh of 16x (staged)
 UNSEEN_SCALE = 1 / 16  # how much smaller a side the charts of faces nobody sees are (a base: unwrap)
 BASE_ANGLE = 30  # degrees from straight down within which a face at a sample's base faces the ground
@@ -321,7 +325,10 @@ def unwrap(vertices: np.ndarray, faces: np.ndarray, size: int, unseen: np.ndarra
     # Scale the charts so that the packed atlas comes out about the texture's size.
     area = bake.area(vertices[faces[seen]]).sum() + bake.area(vertices[faces[unseen]]).sum() * UNSEEN_SCALE ** 2
     pack.texels_per_unit = size * math.sqrt(FILL / max(area, 1e-30))
-    atlas.generate(xatlas.ChartOptions(), pack)
+    charts = xatlas.ChartOptions()
+    if count == 1:  # charted whole (levels in parts have charts a part's size at most)
+        charts.max_chart_area = float(area / CHART_SHARE)
+    atlas.generate(charts, pack)
     sources, new_faces, uvs, start = [], [], [], 0
     for k, used in enumerate(kept):
         source, local_faces, local_uvs = atlas[k]
