@@ -440,6 +440,10 @@ def export_asset(obj, path: Path, add_objects: bool, values: dict) -> list:
     excludes from the view layer (Orphan Nodes). `values`: the asset's
     options by ASSET_OPTIONS' names (asset.options_of). Returns the new objects."""
     options = asset.options_of(**values)  # refused before any work
+    unread = [name for name in ("compress", "ktx2") if add_objects and getattr(options, name)]
+    if unread:  # Blender 5.0's importer refuses EXT_meshopt_compression and KHR_texture_basisu (tested)
+        raise InputError(f"Blender's glTF importer cannot read an asset made with {' or '.join(unread)}: "
+                         "untick Add to scene to write it alone", unread[0])
     try:
         import meshoptimizer  # noqa: F401
         import xatlas  # noqa: F401

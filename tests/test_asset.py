@@ -652,6 +652,32 @@ print("RESULT" + json.dumps(out))
     np.testing.assert_allclose(stored, exact, atol=1e-4 * np.ptp(exact, axis=0).max())
 
 
+def test_blender_refuses_compressed_geometry_and_ktx2_maps_by_their_required_extensions(tmp_path, basisu):
+    """Blender's importer reads neither extension: it refuses the file, by name, rather than draw it wrong."""
+    pytest.importorskip("bpy", reason="needs bpy: pip install 'sinshape[blender]'")
+    model = load_model(TINY_COLOUR_ONNX, threads=1)
+    for name in ("compress", "ktx2"):
+        data, _ = asset.asset_bytes(model, SampleRequest(3), asset.AssetOptions(LODS, TEXTURE, **{name: True}), "box",
+                                    threads=1)
+        (tmp_path / f"box_{name}.glb").write_bytes(data)
+    script = f"""
+import json, bpy
+out = {{}}
+for name in ("compress", "ktx2"):
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    try:
+        bpy.ops.import_scene.gltf(filepath={str(tmp_path)!r} + f"/box_{{name}}.glb")
+        out[name] = "imported"
+    except RuntimeError as error:
+        out[name] = str(error)
+print("RESULT" + json.dumps(out))
+"""
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
+    result = json.loads(next(line[6:] for line in done.stdout.splitlines() if line.startswith("RESULT")))
+    assert "EXT_meshopt_compression is not available" in result["compress"]
+    assert "KHR_texture_basisu is not available" in result["ktx2"]
+
+
 def godot_import(glb: Path, tmp_path: Path) -> dict:
     """What Godot 3 makes of an asset: its editor's own glTF import (headless), then the scene
     loaded by a script (tools/godot/list_meshes.gd): {"meshes": [...], "collision": [...]}."""

@@ -538,3 +538,11 @@ def test_export_asset_writes_the_samples_asset_and_adds_its_levels_where_the_sam
     with pytest.raises(RuntimeError, match="lods asks for 0 triangles") as raised:  # the ERROR report, one line
         bpy.ops.sinshape.export_asset(filepath=str(bad), lods="0", texture=64)
     assert len(str(raised.value).strip().splitlines()) == 1 and not bad.exists()
+    # Blender's importer reads no compressed geometry: asked to add it to the scene, refused before any work;
+    # written alone, it is written.
+    with pytest.raises(RuntimeError, match="importer cannot read an asset made with compress: untick Add to scene"):
+        bpy.ops.sinshape.export_asset(filepath=str(bad), lods="800,200", texture=64, compress=True)
+    assert not bad.exists()
+    assert bpy.ops.sinshape.export_asset(filepath=str(bad), lods="800,200", texture=64, compress=True,
+                                         add_objects=False) == {"FINISHED"}
+    assert "EXT_meshopt_compression" in gltf.read(bad.read_bytes())[0]["extensionsRequired"]
