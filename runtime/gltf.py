@@ -1,6 +1,6 @@
 """Write an asset as one glTF 2.0 binary (.glb): its levels of detail, each a
 mesh with normals, tangents and UVs and a PBR metallic-roughness material
-of its own baked maps (PNG), in one buffer.
+of its own baked maps (PNG, or KTX2), in one buffer.
 
 Levels of detail: with MSFT_lod (Babylon.js, UnityGLTF), the finest
 level's node lists the coarser levels' nodes, which stand outside the
@@ -19,14 +19,13 @@ first put in the order that codec compresses best), and the views describe
 the bytes it decodes to, in a fallback buffer that holds no data.
 """
 
-import dataclasses
 import io
 import json
 import math
 import os
 import struct
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -207,20 +206,20 @@ class Builder:
                                      if self.ktx2 else {"sampler": 0, "source": image})
         return len(self.json["textures"]) - 1
 
-    def material(self, level: Level, pngs: dict, name: str) -> int:
+    def material(self, level: Level, maps: dict, name: str) -> int:
         pbr = {"metallicFactor": 0.0, "roughnessFactor": ROUGHNESS}
         if level.colour_map is not None:
-            pbr["baseColorTexture"] = {"index": self.texture(pngs["colour_map"], f"{name}_basecolor")}
+            pbr["baseColorTexture"] = {"index": self.texture(maps["colour_map"], f"{name}_basecolor")}
         else:
             pbr["baseColorFactor"] = [*CLAY, 1.0]
         material = {"name": name, "pbrMetallicRoughness": pbr,
-                    "normalTexture": {"index": self.texture(pngs["normal_map"], f"{name}_normal")}}
+                    "normalTexture": {"index": self.texture(maps["normal_map"], f"{name}_normal")}}
         if level.occlusion_map is not None:
-            material["occlusionTexture"] = {"index": self.texture(pngs["occlusion_map"], f"{name}_occlusion")}
+            material["occlusionTexture"] = {"index": self.texture(maps["occlusion_map"], f"{name}_occlusion")}
         self.json["materials"].append(material)
         return len(self.json["materials"]) - 1
 
-    def mesh(self, level: Level, pngs: dict, name: str) -> int:
+    def mesh(self, level: Level, maps: dict, name: str) -> int:
         if self.grid is None:
             attributes = {"NORMAL": self.accessor(level.normals.astype(np.float32), "VEC3", ARRAY_BUFFER),
                           "TANGENT": self.accessor(level.tangents.astype(np.float32), "VEC4", ARRAY_BUFFER),
@@ -234,7 +233,7 @@ class Builder:
         index_type = np.uint16 if len(level.positions) < 65535 else np.uint32
         indices = self.accessor(level.faces.astype(index_type).ravel(), "SCALAR", ELEMENT_ARRAY_BUFFER)
         self.json["meshes"].append({"name": name, "primitives": [
-            {"attributes": attributes, "indices": indices, "material": self.material(level, pngs, name)}]})
+            {"attributes": attributes, "indices": indices, "material": self.material(level, maps, name)}]})
         return len(self.json["meshes"]) - 1
 
     def bare_mesh(self, positions: np.ndarray, faces: np.ndarray, name: str) -> int:
@@ -262,7 +261,7 @@ class Builder:
 def in_codec_level(level: Level) -> Level:
     """The level with its triangles and vertices in codec order (in_codec_order)."""
     faces, order = in_codec_order(level.faces, len(level.positions))
-    return dataclasses.replace(level, positions=level.positions[order], normals=level.normals[order],
+    return replace(level, positions=level.positions[order], normals=level.normals[order],
                                tangents=level.tangents[order], uvs=level.uvs[order], faces=faces)
 
 
@@ -298,10 +297,10 @@ def encoded_maps(levels: list, ktx2: bool = False) -> list:
         return basis.ktx2_bytes(image, job[1]) if ktx2 else png_bytes(image)
     with ThreadPoolExecutor(os.cpu_count() or 1) as pool:
         files = list(pool.map(encode, jobs))
-    pngs = [{} for _ in levels]
+    maps = [{} for _ in levels]
     for (k, name), data in zip(jobs, files):
-        pngs[k][name] = data
-    return pngs
+        maps[k][name] = data
+    return maps
 
 
 def glb_bytes(levels: list, name: str, extras: dict | None = None, up: str = "y",
@@ -337,9 +336,9 @@ def glb_bytes(levels: list, name: str, extras: dict | None = None, up: str = "y"
     builder = Builder(grid, compress, ktx2)
     nodes = builder.json["nodes"]
     godot, unreal = naming == "godot", naming == "unreal"
-    for k, (level, pngs) in enumerate(zip(levels, encoded_maps(levels, ktx2))):
+    for k, (level, maps) in enumerate(zip(levels, encoded_maps(levels, ktx2))):
         label = f"{name}_LOD{k}" + ("-noimp" if godot and k else "")
-        nodes.append({"name": label, "mesh": builder.mesh(level, pngs, label)})
+        nodes.append({"name": label, "mesh": builder.mesh(level, maps, label)})
     shown = [0]
     if collision is not None:
         label = f"{name}-colonly" if godot else f"{name}_collision"
