@@ -390,21 +390,28 @@ def bake(field: Field, frame: Frame, vertices: np.ndarray, faces: np.ndarray, uv
     level_normals = np.einsum("pk,pkc->pc", w, normals[at])  # as a shader interpolates them
     level_tangents = np.concatenate([np.einsum("pk,pkc->pc", w, tangents[at][..., :3]), tangents[at[:, 0], 3:]], 1)
     rays = unit(level_normals)
-    points, found, outward = surface_points(field, frame, starts, rays, voxel, reach, threads)
+    # The triangles around a vertex share its lattice point (a corner's one-hot weights copy the vertex and
+    # its normal exactly): each distinct start and ray is searched once, its results the same for every copy.
+    # On a level of small triangles, a lattice point a corner, that is a sixth of the searches.
+    ray_rows = np.ascontiguousarray(np.concatenate([starts, rays], axis=1))
+    _, first, copies = np.unique(ray_rows.view(np.dtype((np.void, ray_rows.strides[0]))).ravel(),
+                                 return_index=True, return_inverse=True)
+    searched = surface_points(field, frame, starts[first], rays[first], voxel, reach, threads)
+    points, found, outward = (values[copies.ravel()] for values in searched)
     named = {}  # what each texel interpolates from its lattice triangle, by name: (values (P, C), its columns)
     # The field's own normal, six queries of the model a point: the normal map's, unless the example's relief
     # gives it (from the moved texels themselves); occlusion's, if asked.
     if field.relief is None or ao:
-        surface = field_normals(field, frame, points, threads)
-        surface = np.where(np.linalg.norm(surface, axis=1, keepdims=True) > 0, surface, rays)
+        surface = field_normals(field, frame, searched[0], threads)
+        surface = np.where(np.linalg.norm(surface, axis=1, keepdims=True) > 0, surface, rays[first])
     if field.relief is None:
-        named["normal"] = tangent_space(level_normals, level_tangents, surface)
+        named["normal"] = tangent_space(level_normals, level_tangents, surface[copies.ravel()])
     if field.colour is not None or field.relief is not None:
         named["point"] = points
     if field.relief is not None:  # the frame a texel's own normal is put in, and the side it faces
         named.update(level_normal=level_normals, level_tangent=level_tangents, outward=outward[:, None])
     if ao:
-        named["occlusion"] = occlusion(field, frame, points, surface, voxel, threads)[:, None]
+        named["occlusion"] = occlusion(field, frame, searched[0], surface, voxel, threads)[copies.ravel(), None]
     columns, start = {}, 0
     for name, value in named.items():
         columns[name] = slice(start, start + value.shape[1])
