@@ -396,8 +396,9 @@ def bake(field: Field, frame: Frame, vertices: np.ndarray, faces: np.ndarray, uv
     ray_rows = np.ascontiguousarray(np.concatenate([starts, rays], axis=1))
     _, first, copies = np.unique(ray_rows.view(np.dtype((np.void, ray_rows.strides[0]))).ravel(),
                                  return_index=True, return_inverse=True)
+    copies = copies.ravel()
     searched = surface_points(field, frame, starts[first], rays[first], voxel, reach, threads)
-    points, found, outward = (values[copies.ravel()] for values in searched)
+    points, found, outward = (values[copies] for values in searched)
     named = {}  # what each texel interpolates from its lattice triangle, by name: (values (P, C), its columns)
     # The field's own normal, six queries of the model a point: the normal map's, unless the example's relief
     # gives it (from the moved texels themselves); occlusion's, if asked.
@@ -405,13 +406,13 @@ def bake(field: Field, frame: Frame, vertices: np.ndarray, faces: np.ndarray, uv
         surface = field_normals(field, frame, searched[0], threads)
         surface = np.where(np.linalg.norm(surface, axis=1, keepdims=True) > 0, surface, rays[first])
     if field.relief is None:
-        named["normal"] = tangent_space(level_normals, level_tangents, surface[copies.ravel()])
+        named["normal"] = tangent_space(level_normals, level_tangents, surface[copies])
     if field.colour is not None or field.relief is not None:
         named["point"] = points
     if field.relief is not None:  # the frame a texel's own normal is put in, and the side it faces
         named.update(level_normal=level_normals, level_tangent=level_tangents, outward=outward[:, None])
     if ao:
-        named["occlusion"] = occlusion(field, frame, searched[0], surface, voxel, threads)[copies.ravel(), None]
+        named["occlusion"] = occlusion(field, frame, searched[0], surface, voxel, threads)[copies, None]
     columns, start = {}, 0
     for name, value in named.items():
         columns[name] = slice(start, start + value.shape[1])

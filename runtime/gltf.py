@@ -294,7 +294,8 @@ def encoded_maps(levels: list, ktx2: bool = False) -> list:
 
     def encode(job):
         image = getattr(levels[job[0]], job[1])
-        return basis.ktx2_bytes(image, job[1]) if ktx2 else png_bytes(image)
+        png = png_bytes(image)
+        return basis.ktx2_bytes(png, len(image), job[1]) if ktx2 else png
     with ThreadPoolExecutor(os.cpu_count() or 1) as pool:
         files = list(pool.map(encode, jobs))
     maps = [{} for _ in levels]
@@ -328,7 +329,7 @@ def glb_bytes(levels: list, name: str, extras: dict | None = None, up: str = "y"
     the maps as KTX2 files (KHR_texture_basisu, required: no PNG beside them)."""
     if compress:
         levels = [in_codec_level(level) for level in levels]
-        collision = collision and in_codec_mesh(*collision)
+        collision = None if collision is None else in_codec_mesh(*collision)
         hulls = [in_codec_mesh(*hull) for hull in hulls]
     meshes = [level.positions for level in levels] + [shape[0] for shape in ([collision] if collision else [])
                                                        + list(hulls)]

@@ -41,16 +41,15 @@ def encoder() -> str:
     return found
 
 
-def ktx2_bytes(image: np.ndarray, kind: str) -> bytes:
-    """A (size, size, 1 or 3) uint8 map (kind: a gltf.Level map field) as a KTX2 file with its mip-maps."""
-    from PIL import Image  # pillow, as gltf.png_bytes
-
+def ktx2_bytes(png: bytes, size: int, kind: str) -> bytes:
+    """A map given as its PNG file, `size` texels a side (kind: a gltf.Level
+    map field), as a KTX2 file with its mip-maps."""
     with tempfile.TemporaryDirectory(prefix="sinshape-ktx2-") as folder:
         source, target = Path(folder, "map.png"), Path(folder, "map.ktx2")
-        Image.fromarray(image[..., 0] if image.shape[2] == 1 else image).save(source, compress_level=1)
+        source.write_bytes(png)
         command = [encoder(), "-ktx2", "-mipmap", "-no_multithreading", *MODES[kind], "-output_file", str(target),
                    str(source)]
-        timeout = 10 + SECONDS_A_MEGATEXEL * image.shape[0] * image.shape[1] / 1e6
+        timeout = 10 + SECONDS_A_MEGATEXEL * size * size / 1e6
         done = subprocess.run(command, capture_output=True, text=True, timeout=timeout)
         if done.returncode or not target.is_file():
             said = (done.stdout + done.stderr).strip().splitlines()
