@@ -636,7 +636,10 @@ def test_the_world_mode_makes_far_tiles_coarser_and_remakes_them_as_they_come_ne
     page.evaluate("window.sinshapeView.world.moveBy(1, 0)")
     status = wait_world(page)
     lods = {(int(i), int(j)): lod for i, j, _, _, lod in status["tiles"]}
-    assert lods[2, 0] == 0 and lods[3, 0] == 1 and lods[-1, 0] == 1
+    # Nearer, made again finer; farther, kept as it was (never made again coarser).
+    assert lods[2, 0] == 0 and lods[3, 0] == 1 and lods[-1, 0] == 0
+    requested = page.evaluate("performance.getEntriesByType('resource').map((entry) => entry.name)")
+    assert not any("i=-1&j=0&" in url and "lod=1" in url for url in requested)
     heights = np.array([[0, 10], [25, 40], [60, 5]], np.float32)
     np.save(tmp_path / "hills.npy", heights)
     page.set_input_files("#map-file", str(tmp_path / "hills.npy"))

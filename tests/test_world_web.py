@@ -141,6 +141,37 @@ def test_slow_frames_lower_the_worlds_resolution_and_fast_ones_raise_it_again(pa
     assert not page.errors
 
 
+# Runs in the page: how the renderer drawing now draws (its canvas's multisampling, and by what).
+DRAWING_JS = """() => { const gl = window.sinshapeView.renderer.getContext();
+  const named = gl.getExtension('WEBGL_debug_renderer_info');
+  return { by: gl.getParameter(named.UNMASKED_RENDERER_WEBGL), antialias: gl.getContextAttributes().antialias,
+           samples: gl.getParameter(gl.SAMPLES), shown: getComputedStyle(gl.canvas).display !== 'none',
+           canvases: document.querySelectorAll('#view canvas').length }; }"""
+
+
+def test_a_world_drawn_in_software_is_drawn_without_multisampling(page):
+    """Chromium here draws WebGL with SwiftShader, on the CPU, where multisampling costs the most
+    of a frame: a world is drawn on a canvas of its own without it, the shape's view on its
+    multisampled one (smoothed edges), each shown alone; the world's flies by the keys there."""
+    page.goto(f"{page.base}/?seed=3&up=z")
+    assert wait_done(page) == "ready"
+    shape = page.evaluate(DRAWING_JS)
+    assert "SwiftShader" in shape["by"] and shape["antialias"] and shape["samples"] > 0 and shape["shown"], shape
+    page.select_option("#edit", "world")
+    page.select_option("#reach", "1")
+    wait_world(page)
+    drawn = page.evaluate(DRAWING_JS)
+    assert not drawn["antialias"] and drawn["samples"] == 0 and drawn["shown"] and drawn["canvases"] == 2, drawn
+    assert page.evaluate("[...document.querySelectorAll('#view canvas')].filter((c) => getComputedStyle(c).display "
+                         "!== 'none').length") == 1
+    before = camera_pose(page)
+    assert hold(page, "w", 300)["position"] != before["position"]
+    page.select_option("#edit", "")
+    assert wait_done(page) == "ready"
+    assert page.evaluate(DRAWING_JS) == {**shape, "canvases": 2}  # the world's kept, hidden, for the next world
+    assert not page.errors
+
+
 def test_keys_and_the_mouse_move_the_camera(page):
     """W flies forward and A to the left, level, the way the view looks; the arrows turn; dragging
     the mouse looks around."""
@@ -156,7 +187,7 @@ def test_keys_and_the_mouse_move_the_camera(page):
     moved = camera_pose(page)
     turned = hold(page, "ArrowLeft", 300)
     assert turned["position"] == moved["position"] and turned["quaternion"] != moved["quaternion"]
-    box = page.locator("#view canvas").bounding_box()
+    box = page.locator("#view").bounding_box()
     x, y = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
     page.mouse.move(x, y)
     page.mouse.down()
@@ -176,7 +207,7 @@ def test_on_a_phone_fingers_look_and_move_and_walking_keeps_to_the_ground(page):
         page.goto(f"{base}/?seed=3&up=z&edit=world&reach=1")
         wait_world(page)
         touch = context.new_cdp_session(page)
-        box = page.locator("#view canvas").bounding_box()
+        box = page.locator("#view").bounding_box()
         x, y = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
 
         def swipe(fingers, dx, dy):

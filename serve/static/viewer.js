@@ -26,7 +26,7 @@ import * as world from './viewer/world.js';
 import { readHeightMap, readModelMap } from './viewer/heights.js';
 
 window.sinshapeView = { // for the tests and the console
-  scene, camera, renderer, shape: summary, memory, pick: editor.pick, facePoint: editor.facePoint,
+  scene, camera, get renderer() { return renderer; }, shape: summary, memory, pick: editor.pick, facePoint: editor.facePoint,
   layout: () => editor.layout() && { ...editor.layout(), grid: Array.from(editor.layout().grid) }, world: world.view,
 };
 

@@ -5,7 +5,7 @@
 //   steer({ side, height, walk, ground, moved })  fly over a world (null: the keys and the view are the page's again)
 //   aim(yaw, pitch)                               look that way; wake() draws the next frame
 import * as THREE from 'three';
-import { camera, frameTook, render, renderer } from './scene.js';
+import { camera, frameTook, render, view } from './scene.js';
 
 const KEYS = { // key -> [forward, right, up], in units of the speed
   w: [1, 0, 0], arrowup: [1, 0, 0], s: [-1, 0, 0], arrowdown: [-1, 0, 0], a: [0, -1, 0], d: [0, 1, 0],
@@ -121,13 +121,12 @@ window.addEventListener('blur', () => held.clear());
 
 // The mouse, or one finger: drag to look around. Two fingers: drag to move (up the screen is
 // forward), pinch to rise or sink (walking: to move forward and back).
-const canvas = renderer.domElement;
-canvas.addEventListener('pointerdown', (event) => {
+view.addEventListener('pointerdown', (event) => {
   if (!craft) return;
-  canvas.setPointerCapture(event.pointerId);
+  view.setPointerCapture(event.pointerId);
   pointers.set(event.pointerId, { x: event.clientX, y: event.clientY });
 });
-canvas.addEventListener('pointermove', (event) => {
+view.addEventListener('pointermove', (event) => {
   const before = pointers.get(event.pointerId);
   if (!craft || !before) return;
   const [first, second] = [...pointers.values()];
@@ -141,11 +140,11 @@ canvas.addEventListener('pointermove', (event) => {
   }
   const [a, b] = [...pointers.values()];
   const pinch = Math.hypot(a.x - b.x, a.y - b.y) - spread;
-  const unit = (craft.side / canvas.clientHeight) * 2 * speed; // a swipe the view's height: two tiles
+  const unit = (craft.side / view.clientHeight) * 2 * speed; // a swipe the view's height: two tiles
   move(craft.walk ? [(pinch - dy / 2) * unit, (-dx / 2) * unit, 0] : [(-dy / 2) * unit, (-dx / 2) * unit, pinch * unit]);
 });
-for (const type of ['pointerup', 'pointercancel']) canvas.addEventListener(type, (event) => pointers.delete(event.pointerId));
-canvas.addEventListener('wheel', (event) => {
+for (const type of ['pointerup', 'pointercancel']) view.addEventListener(type, (event) => pointers.delete(event.pointerId));
+view.addEventListener('wheel', (event) => {
   if (!craft) return;
   event.preventDefault();
   speed = Math.min(16, Math.max(1 / 16, speed * (event.deltaY < 0 ? 1.25 : 0.8)));

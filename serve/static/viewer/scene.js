@@ -5,10 +5,40 @@
 import * as THREE from 'three';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
 
-const view = document.getElementById('view');
-export const renderer = new THREE.WebGLRenderer({ antialias: true, preserveDrawingBuffer: true });
-renderer.setPixelRatio(window.devicePixelRatio);
-view.appendChild(renderer.domElement);
+export const view = document.getElementById('view');
+
+/** A renderer drawing into a canvas of its own in the view. */
+function canvasRenderer(antialias) {
+  const made = new THREE.WebGLRenderer({ antialias, preserveDrawingBuffer: true });
+  made.setPixelRatio(window.devicePixelRatio);
+  view.appendChild(made.domElement);
+  return made;
+}
+const shapeRenderer = canvasRenderer(true);
+export let renderer = shapeRenderer; // the one drawing now: a world's (worldRenderer) while one is shown
+
+/** Whether WebGL is drawn on the CPU: chromium's SwiftShader, Mesa's llvmpipe or softpipe, Windows' WARP. */
+function drawnInSoftware(gl) {
+  const named = gl.getExtension('WEBGL_debug_renderer_info');
+  const name = String(gl.getParameter(named ? named.UNMASKED_RENDERER_WEBGL : gl.RENDERER));
+  return /swiftshader|llvmpipe|softpipe|software|basic render driver/i.test(name);
+}
+// A world is drawn without multisampling where WebGL is drawn in software: nearly free on a GPU, it is
+// most of a frame on a CPU (a world turning in place on SwiftShader drew 27 frames a second with it, 41
+// without; docs/WORLDS.md). It needs a canvas of its own, made when a world is first shown; the shape's
+// view, drawn only when it changes, keeps its smoothed edges.
+const software = drawnInSoftware(shapeRenderer.getContext());
+let plainRenderer = null;
+const worldRenderer = () => (software ? (plainRenderer ??= canvasRenderer(false)) : shapeRenderer);
+
+/** Draw with `next` (its canvas shown, the other's hidden), sized to the view. */
+function drawWith(next) {
+  if (next === renderer) return;
+  renderer.domElement.style.display = 'none';
+  renderer = next;
+  renderer.domElement.style.display = '';
+  renderer.setSize(view.clientWidth, view.clientHeight, false);
+}
 export const scene = new THREE.Scene();
 scene.background = new THREE.Color(0x20242a);
 const FOV = 35; // degrees, vertically
@@ -22,7 +52,7 @@ key.position.set(-0.8, 1.2, 0.4);
 key.target.position.set(0, 0, -1);
 camera.add(key, key.target);
 scene.add(camera);
-const controls = new OrbitControls(camera, renderer.domElement);
+const controls = new OrbitControls(camera, shapeRenderer.domElement);
 controls.addEventListener('change', render);
 // Front faces only: the meshes are closed and wound outwards (normals out), so
 // back faces are never seen from outside; drawing them too (DoubleSide) made
@@ -155,6 +185,7 @@ export function showMesh({ positions, faces, colours = null }, up, extent) {
  * overlay are hidden. */
 export function worldView(on) {
   if (!on) setResolution();
+  drawWith(on ? worldRenderer() : shapeRenderer);
   controls.enabled = !on;
   holder.visible = !on;
   camera.fov = on ? 60 : FOV; // a wider view to fly with, as a game's
@@ -206,4 +237,7 @@ export function summary() {
 }
 
 /** What the GPU holds: three.js's count of geometries and textures, flat however many samples were shown. */
-export const memory = () => ({ geometries: renderer.info.memory.geometries, textures: renderer.info.memory.textures });
+export const memory = () => {
+  const held = [...new Set([shapeRenderer, plainRenderer ?? shapeRenderer])].map((each) => each.info.memory);
+  return { geometries: held.reduce((n, m) => n + m.geometries, 0), textures: held.reduce((n, m) => n + m.textures, 0) };
+};

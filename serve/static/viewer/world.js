@@ -2,7 +2,7 @@
 // endless world of the model and seed. Tiles are made around the camera,
 // those ahead of it first, by the server's tile route (the Python runtime
 // makes worlds; the browser's runtime makes none), coarser the farther they are (a tile's level of
-// detail follows its distance, and it is made again as that changes; a
+// detail follows its distance, and it is made again finer as the camera comes nearer; a
 // tile not shown yet comes first at the coarsest level, a sketch, so the view fills
 // in a fraction of the time, then sharpens as the finer tiles come; each hangs
 // a skirt, so that no crack shows between tiles of two levels), and
@@ -136,7 +136,7 @@ const detail = (away) => Math.min(run.coarsest > 1 ? run.coarsest - 1 : run.coar
 
 /**
  * Tiles within the reach of the camera's wanted, at the level of detail
- * their distance asks for (one shown at another is made again, and shown
+ * their distance asks for (one shown coarser is made again, and shown
  * until then); those past the reach and the hold dropped.
  */
 function refresh() {
@@ -146,7 +146,10 @@ function refresh() {
     if (away > reach + HOLD || (away > reach && entry.state === 'wanted')) drop(entry);
     else if (away <= reach) {
       entry.want = detail(away);
-      if (entry.state === 'done' && entry.lod !== entry.want) entry.state = 'wanted';
+      // Made again only to be finer: a tile farther than it was made for keeps its mesh (drawing a finer tile
+      // costs less than making a coarser one, and the tiles a flight leaves behind are out of view).
+      if (entry.state === 'done' && entry.lod > entry.want) entry.state = 'wanted';
+      else if (entry.state === 'wanted' && entry.lod <= entry.want) entry.state = 'done';
     }
   }
   for (let di = -reach; di <= reach; di++) {
@@ -190,7 +193,7 @@ async function make(r, entry) {
     const request = sampleRequest({ ...r.request, tile: [entry.i, entry.j], lod, skirt: true }); // hidden beside a coarser neighbour from either side
     const { positions, faces, normals, colours } = await sampling.tile('server', r.name, request, { signal: entry.controller.signal });
     if (r.tiles.get(entry.key) !== entry) return; // dropped meanwhile
-    entry.state = lod === entry.want ? 'done' : 'wanted'; // the camera moved meanwhile: made again at its new level
+    entry.state = lod <= entry.want ? 'done' : 'wanted'; // the camera came nearer meanwhile: made again finer
     entry.order = ++r.made;
     entry.lod = lod;
     if (entry.mesh) { // the tile at its old level of detail, replaced
