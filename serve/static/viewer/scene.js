@@ -24,7 +24,7 @@ function drawnInSoftware(gl) {
   return /swiftshader|llvmpipe|softpipe|software|basic render driver/i.test(name);
 }
 // A world is drawn without multisampling where WebGL is drawn in software: nearly free on a GPU, it is
-// most of a frame on a CPU (a world turning in place on SwiftShader drew 27 frames a second with it, 41
+// most of a frame on a CPU (a world turning in place on SwiftShader drew 20 to 24 frames a second with it, 34 to 41
 // without; docs/WORLDS.md). It needs a canvas of its own, made when a world is first shown; the shape's
 // view, drawn only when it changes, keeps its smoothed edges.
 const software = drawnInSoftware(shapeRenderer.getContext());
