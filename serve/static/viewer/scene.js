@@ -238,6 +238,6 @@ export function summary() {
 
 /** What the GPU holds: three.js's count of geometries and textures, flat however many samples were shown. */
 export const memory = () => {
-  const held = [...new Set([shapeRenderer, plainRenderer ?? shapeRenderer])].map((each) => each.info.memory);
+  const held = [shapeRenderer, plainRenderer].filter(Boolean).map((each) => each.info.memory); // the world's, if made
   return { geometries: held.reduce((n, m) => n + m.geometries, 0), textures: held.reduce((n, m) => n + m.textures, 0) };
 };
