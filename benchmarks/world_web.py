@@ -3,11 +3,13 @@ while tiles stream, in headless chromium (WebGL drawn by its software
 renderer, SwiftShader: no GPU), every tile from `sinrun serve MODEL`'s tile
 route (the Python runtime makes worlds), with the Python runtime beside it.
 
-    python benchmarks/world_web.py [MODEL] [--arrange blend|scatter] [--reach 3] [--seconds 10] [--seed 3] [--shots PNG]
+    python benchmarks/world_web.py [MODEL] [--arrange blend|scatter] [--reach 3] [--seconds 10] [--seed 3] [--settle 0]
+                                  [--shots PNG]
 
 - The page: world mode at `--reach` tiles around the camera's (each a level
   coarser per tile past the first ring), from choosing it (the model
-  already loaded) until every tile is made, with the frame intervals
+  already loaded; chosen `--settle` seconds after the page is ready, at
+  once by default) until every tile is made, with the frame intervals
   (requestAnimationFrame) meanwhile: the worst, the 95th percentile and
   the median.
 - Flying: the frame intervals for `--seconds` while the camera flies
@@ -62,12 +64,13 @@ def frames_while(page, key: str, seconds: float) -> dict:
     return intervals(page.evaluate("window.recording = false, window.frameTimes"))
 
 
-def first_view(page, base: str, seed: int, reach: int, arrange: str) -> dict:
-    """World mode chosen on a page showing a sample (its model loaded): seconds until every tile
+def first_view(page, base: str, seed: int, reach: int, arrange: str, settle: float) -> dict:
+    """World mode chosen on a page showing a sample (its model loaded), `settle` seconds after it is ready: seconds until every tile
     of the view is shown (at the coarsest level first) and until each is at its own level, its
     tiles, and the frame intervals meanwhile."""
     page.goto(f"{base}/?seed={seed}&reach={reach}")
     page.wait_for_function("document.body.dataset.state === 'ready'", timeout=120_000)
+    page.wait_for_timeout(settle * 1000)
     page.evaluate(RECORD_JS)
     started = page.evaluate(f"""() => {{ const t = performance.now(); document.getElementById('arrange').value = '{arrange}';
       const edit = document.getElementById('edit'); edit.value = 'world'; edit.dispatchEvent(new Event('change')); return t; }}""")
@@ -130,6 +133,7 @@ def main():
     parser.add_argument("--reach", type=int, default=3)
     parser.add_argument("--seconds", type=float, default=10)
     parser.add_argument("--seed", type=int, default=3)
+    parser.add_argument("--settle", type=float, default=0, help="seconds between the page ready and the world chosen")
     parser.add_argument("--shots", type=Path)
     args = parser.parse_args()
 
@@ -142,7 +146,7 @@ def main():
         with server_process([str(sinrun), "serve", args.model, "--port"], Path(tmp), "sinrun serve") as base, \
                 chromium() as browser:
             page = open_page(browser, base)
-            view = first_view(page, base, args.seed, args.reach, arrange)
+            view = first_view(page, base, args.seed, args.reach, arrange, args.settle)
             before = page.evaluate("window.sinshapeView.world.status()")
             flying = frames_while(page, "w", args.seconds)
             after = page.evaluate("window.sinshapeView.world.status()")
@@ -160,7 +164,7 @@ def main():
           f"sinrun serve; load average {load_before:.1f} before, {os.getloadavg()[0]:.1f} after\n")
     lods = sorted({t[4] for t in view["tiles"]})
     count = len(view["tiles"])
-    print(f"the page's first view, reach {args.reach}: {count} tiles shown in {view['filled']:.1f} s, "
+    print(f"the page's first view, reach {args.reach}, chosen {args.settle:g} s after the page was ready: {count} tiles shown in {view['filled']:.1f} s, "
           f"each at its level of detail ({lods}) in {view['seconds']:.1f} s; frames meanwhile: {frames(view['frames'])}")
     print(f"(the Python runtime, 1 thread, the same tiles at the same levels: {python:.1f} s, {count / python:.1f} tiles/s)")
     print(f"\nflying {args.seconds:g} s: {frames(flying)}; {after['made'] - before['made']} tiles made, "

@@ -609,7 +609,8 @@ def test_the_world_mode_takes_its_tiles_from_the_tile_route(page, terrain):
 def test_the_world_mode_makes_far_tiles_coarser_and_remakes_them_as_they_come_near(page, terrain, tmp_path):
     """Scattered, at reach 2, from the tile route: the camera's tile and those beside it at full
     detail, those two tiles out a level coarser (asked for with lod=1), each the runtime's tile with
-    its normals (unit, one per vertex); a step on remakes the tiles that came near at full detail;
+    its normals (unit, one per vertex); a step on remakes the tiles that came near at full detail,
+    and makes those it brings in once each, at their level (the view filled, no sketch first);
     a height map opened shapes the world (posted to the tile route with every tile)."""
     from sinshape.runtime import world, world_maps, world_tiles
 
@@ -640,6 +641,9 @@ def test_the_world_mode_makes_far_tiles_coarser_and_remakes_them_as_they_come_ne
     assert lods[2, 0] == 0 and lods[3, 0] == 1 and lods[-1, 0] == 0
     requested = page.evaluate("performance.getEntriesByType('resource').map((entry) => entry.name)")
     assert not any("i=-1&j=0&" in url and "lod=1" in url for url in requested)
+    brought = sorted(url.split("&")[1] for url in requested if "/tile?i=3&" in url)
+    assert brought == [f"j={j}" for j in sorted(range(-2, 3), key=str)] and all(
+        "lod=1" in url for url in requested if "/tile?i=3&" in url)
     heights = np.array([[0, 10], [25, 40], [60, 5]], np.float32)
     np.save(tmp_path / "hills.npy", heights)
     page.set_input_files("#map-file", str(tmp_path / "hills.npy"))

@@ -2,10 +2,12 @@
 // endless world of the model and seed. Tiles are made around the camera,
 // those ahead of it first, by the server's tile route (the Python runtime
 // makes worlds; the browser's runtime makes none), coarser the farther they are (a tile's level of
-// detail follows its distance, and it is made again finer as the camera comes nearer; a
-// tile not shown yet comes first at the coarsest level, a sketch, so the view fills
-// in a fraction of the time, then sharpens as the finer tiles come; each hangs
-// a skirt, so that no crack shows between tiles of two levels), and
+// detail follows its distance, and it is made again finer as the camera comes nearer; until the
+// view has filled once, a tile not shown yet comes first at the coarsest level, a sketch, so the
+// view fills in a fraction of the time, then sharpens as the finer tiles come; a tile that a
+// flight brings in later comes at the ring's edge, deep in the haze, whose colour a missing tile
+// shows too: it is made at its level at once; each hangs a skirt, so that no crack shows between
+// tiles of two levels), and
 // dropped behind it, their GPU buffers disposed, so memory stays bounded
 // however far one goes. Each tile comes with its normals, the field's
 // gradient, which agree across its borders. The origin floats: the scene's
@@ -59,6 +61,7 @@ export function show({ name, request, info, others = [], reach, walk }, report) 
     }));
     run = {
       key, name, request, tiling, report, origin: tile, tiles: new Map(), making: 0, made: 0, dropped: 0, error: null,
+      filled: false, // every tile of the view shown once: new tiles no longer come as sketches first
       coarsest: info.sizes.length - 1,
       size: [tiling.stride[h0] * info.spacing[h0], tiling.stride[h1] * info.spacing[h1]], // a tile's sides, in the input's units
       height: (top + (heights ? Math.max(...heights.data) : 0)) * info.spacing[tiling.up], // a voxel of any model is one of the world's
@@ -66,6 +69,7 @@ export function show({ name, request, info, others = [], reach, walk }, report) 
     group.rotation.set(tiling.up === 2 ? -Math.PI / 2 : 0, 0, 0); // the model's up along the view's y
     group.updateMatrixWorld(true);
   }
+  if (reach > run.reach) run.filled = false; // a wider view fills with sketches first too
   Object.assign(run, { reach, walk, report });
   steer({ side: Math.min(...run.size), height: run.height, walk, ground: group, moved: rebase });
   worldView(true);
@@ -84,6 +88,7 @@ export function show({ name, request, info, others = [], reach, walk }, report) 
 /** The camera over the middle of tile `tile`, above the world's top, looking along its first horizontal axis and down. */
 function place(tile) {
   run.origin = tile;
+  run.filled = false;
   for (const entry of run.tiles.values()) drop(entry);
   const start = new THREE.Vector3();
   start.setComponent(run.tiling.horizontal[0], run.size[0] / 2);
@@ -188,7 +193,7 @@ async function make(r, entry) {
   r.making++;
   entry.state = 'making';
   entry.controller = new AbortController();
-  const lod = entry.lod === undefined ? r.coarsest : entry.want; // shown coarse first; its windows' chains go on from there
+  const lod = entry.lod === undefined && !r.filled ? r.coarsest : entry.want; // a sketch first; its windows' chains go on from there
   try {
     const request = sampleRequest({ ...r.request, tile: [entry.i, entry.j], lod, skirt: true }); // hidden beside a coarser neighbour from either side
     const { positions, faces, normals, colours } = await sampling.tile('server', r.name, request, { signal: entry.controller.signal });
@@ -243,6 +248,7 @@ function rebase() {
 
 function tell() {
   const all = [...run.tiles.values()];
+  run.filled ||= all.every((e) => e.lod !== undefined);
   const waiting = all.filter((e) => e.state === 'wanted' || e.state === 'making').length;
   run.report({
     at: run.origin, shown: all.filter((e) => e.mesh).length, waiting, made: run.made, dropped: run.dropped,
