@@ -5,6 +5,8 @@ import json
 import os
 import re
 import time
+import urllib.parse
+import urllib.request
 from pathlib import Path
 
 import numpy as np
@@ -751,6 +753,66 @@ def test_three_js_reads_ktx2_maps_as_compressed_textures_with_their_mip_maps(pag
     }""")
     for found in maps:
         assert found["compressed"] and found["width"] == TEXTURE and found["mipmaps"] == TEXTURE.bit_length(), maps
+    assert not page.errors and not page.outside
+
+
+# The shown asset's levels: their names, the level drawn at the framing distance, and for each coarser
+# level the camera put on its line of sight just inside and just past the level's distance from the asset's
+# origin (drawn there by the page's renderer, which updates a LOD as an engine does), with the share of the
+# view's height that the finest level's bounding sphere spans there, found by projecting it.
+ASSET_LEVELS_JS = """async () => {
+  const THREE = await import('three');
+  const { scene, camera, renderer } = window.sinshapeView;
+  const lod = scene.getObjectByProperty('isLOD', true);
+  const drawnAt = (distance) => {
+    const origin = lod.getWorldPosition(new THREE.Vector3());
+    const away = camera.position.clone().sub(origin).normalize();
+    camera.position.copy(origin).addScaledVector(away, distance);
+    camera.lookAt(origin);
+    camera.updateMatrixWorld();
+    renderer.render(scene, camera);
+    return lod.getCurrentLevel();
+  };
+  const shownFirst = lod.getCurrentLevel();
+  const sphere = new THREE.Box3().setFromObject(lod.levels[0].object).getBoundingSphere(new THREE.Sphere());
+  const switches = lod.levels.slice(1).map(({ distance }) => {
+    const [inside, past] = [drawnAt(distance * 0.99), drawnAt(distance * 1.01)];
+    drawnAt(distance);
+    const origin = lod.getWorldPosition(new THREE.Vector3());
+    const up = new THREE.Vector3(0, 1, 0).applyQuaternion(camera.quaternion).multiplyScalar(sphere.radius);
+    const top = origin.clone().add(up).project(camera), bottom = origin.clone().sub(up).project(camera);
+    return { inside, past, coverage: (top.y - bottom.y) / 2 };
+  });
+  return { names: lod.levels.map(({ object }) => object.name), shownFirst, switches };
+}"""
+
+
+def test_the_page_shows_a_game_asset_with_its_levels_switched_by_distance(page):
+    """The asset format shows the sample's asset in place of the sample, as an engine would: its
+    levels (the file's nodes, finest first) in a three.js LOD, the finest drawn where the view frames
+    it, and each coarser one from where the asset spans less of the view's height than the file's
+    screen coverage for the level before it; another sample's asset takes its place, the first's
+    buffers and maps given back."""
+    from sinshape.runtime import gltf
+
+    page.goto(f"{page.base}/?seed=3&up=z&format=asset")
+    wait_ready(page, 3)
+    href = page.get_attribute("#download", "href")
+    with urllib.request.urlopen(urllib.parse.urljoin(page.base + "/", href)) as answer:
+        document, _ = gltf.read(answer.read())
+    assert "game asset:" in page.text_content("#status")
+    first = page.evaluate("window.sinshapeView.memory()")  # the finest level drawn, its maps
+    levels = page.evaluate(ASSET_LEVELS_JS)
+    coverage = document["nodes"][0]["extras"]["MSFT_screencoverage"]
+    assert levels["names"] == [node["name"] for node in document["nodes"]] and len(levels["names"]) == 3
+    assert levels["shownFirst"] == 0
+    for k, switch in enumerate(levels["switches"], 1):
+        assert (switch["inside"], switch["past"]) == (k - 1, k)
+        assert abs(switch["coverage"] - coverage[k - 1]) < 1e-6 * coverage[k - 1] + 1e-9
+    assert page.evaluate("window.sinshapeView.memory()")["geometries"] == first["geometries"] + 2  # each level drawn
+    change(page, "#seed", 4)
+    wait_ready(page, 4)
+    assert page.evaluate("window.sinshapeView.memory()") == first  # every level of the first asset given back
     assert not page.errors and not page.outside
 
 

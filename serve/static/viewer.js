@@ -20,7 +20,8 @@
 import * as editor from './viewer/editor.js';
 import { $, fail, finish, fromForm, report, showMode, showProgress, toForm, working } from './viewer/form.js';
 import * as sampling from './viewer/sampling.js';
-import { camera, frame, memory, orient, renderer, scene, showMesh, summary } from './viewer/scene.js';
+import { assetLevels } from './viewer/asset.js';
+import { camera, frame, memory, orient, renderer, scene, showAsset, showMesh, summary } from './viewer/scene.js';
 import { STATIC_SITE, TABLE_CONTROLS, canWalk, fileStem, readUrl, record, requestOf, state, walk, worldOptions, writeUrl } from './viewer/state.js';
 import * as world from './viewer/world.js';
 import { readHeightMap, readModelMap } from './viewer/heights.js';
@@ -90,13 +91,13 @@ async function load({ replay = false } = {}) {
     const made = await sampling.sample(where, name, request, { progress, signal });
     if (ticket !== latest) return;
     shownFaces = made.faces.length / 3;
-    if (where === 'server' && !request.layout && state.format === 'asset') offer(sampling.serverRequest(name, request, 'asset', shownFaces).url);
     const extent = [name, state.size, state.edit === 'grow' ? `${state.grow}|${state.anchor}` : '', state.up].join('|');
     showMesh(made, state.up, extent);
     $('status').textContent = made.status;
     $('backend').textContent = made.backend ?? '';
     if (made.file) offer(made.file, `${fileStem()}.${made.extension}`);
-    finish('ready');
+    if (where === 'server' && !request.layout && state.format === 'asset') await showGameAsset(name, request, made.status, ticket, signal);
+    if (ticket === latest) finish('ready');
   } catch (error) {
     if (ticket !== latest) return;
     $('download').removeAttribute('href'); // it would fetch the failed request again
@@ -104,6 +105,23 @@ async function load({ replay = false } = {}) {
   } finally {
     if (aborter === controller) aborter = null;
   }
+}
+
+/** The shown sample's game asset (levels sized from its triangles) in its place, its levels switched by the camera's
+ * distance as an engine switches them (viewer/asset.js), and offered as the download. */
+async function showGameAsset(name, request, status, ticket, signal) {
+  const { url } = sampling.serverRequest(name, request, 'asset', shownFaces);
+  offer(url);
+  working('making the game asset on the server');
+  const lod = await assetLevels(await sampling.assetData(url, { signal }), camera.fov);
+  if (ticket !== latest) return;
+  showAsset(lod);
+  const triangles = lod.levels.map(({ object }) => {
+    let count = 0;
+    object.traverse((node) => { if (node.isMesh) count += node.geometry.index.count / 3; });
+    return count.toLocaleString('en');
+  });
+  $('status').textContent = `${status} · game asset: ${triangles.join(' / ')} triangles, coarser as the camera draws back`;
 }
 
 /** The world of the state's model and seed, flown over from the request's tile (viewer/world.js). */

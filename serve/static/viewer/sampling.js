@@ -325,6 +325,12 @@ export const info = (where, name, options) => backends[where].info(name, options
  * backend (how the browser ran it) }. */
 export const sample = (where, name, request, options) => backends[where].sample(name, request, options);
 
+/** A game asset's .glb from the server's route `url` (serverRequest's, format 'asset'): its bytes. The server keeps
+ * the finished file, so the download link's request for it again is answered from there. */
+export async function assetData(url, { signal }) {
+  return (await answer(await fetch(url, { signal }))).arrayBuffer();
+}
+
 /** The tile of a tile request (frame 'tile'): { positions, faces, normals, colours, corner }, none where the tile
  * has no surface. The server makes it: the browser's runtime makes no worlds. */
 export const tile = (where, name, request, options) => {

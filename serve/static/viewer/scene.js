@@ -153,13 +153,22 @@ export function frame() {
   render();
 }
 
-/** Empty a group, disposing what its children hold on the GPU (not the shared materials, nor a shared geometry). */
+/** Empty a group, disposing what its children hold on the GPU (not the shared materials, nor a shared geometry;
+ * a game asset's levels, their own materials and maps too). */
 function clear(group) {
   for (const node of group.children) {
     if (node.isInstancedMesh) node.dispose(); // its instance buffers; the unit box it instances is shared
+    else if (node.isLOD) node.traverse(disposeAssetMesh);
     else node.geometry?.dispose();
   }
   group.clear();
+}
+
+function disposeAssetMesh(node) {
+  if (!node.isMesh) return;
+  node.geometry.dispose();
+  for (const value of Object.values(node.material)) if (value?.isTexture) value.dispose();
+  node.material.dispose();
 }
 
 /**
@@ -178,6 +187,16 @@ export function showMesh({ positions, faces, colours = null }, up, extent) {
   if (extent !== framed) frame();
   else render();
   framed = extent;
+}
+
+/** Show a game asset's levels (viewer/asset.js's LOD, glTF's frame: y up, on its base) in place of the last
+ * shape, framed: the camera's distance picks the level drawn. */
+export function showAsset(lod) {
+  clear(shape);
+  shape.add(lod);
+  orient('y');
+  framed = '';
+  frame();
 }
 
 /** The world mode's view (viewer/world.js) in place of the shape's, or (false) the shape again, framed
