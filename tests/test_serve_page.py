@@ -813,6 +813,10 @@ def test_the_page_shows_a_game_asset_with_its_levels_switched_by_distance(page):
     change(page, "#seed", 4)
     wait_ready(page, 4)
     assert page.evaluate("window.sinshapeView.memory()") == first  # every level of the first asset given back
+    page.select_option("#edit", "keep")  # an edit draws on the sample's own frame: the sample stays, the asset offered
+    page.wait_for_function("document.body.dataset.state === 'ready' && location.search.includes('edit=keep')")
+    assert not page.evaluate("window.sinshapeView.scene.getObjectByProperty('isLOD', true)")
+    assert "lods=" in page.get_attribute("#download", "href")
     assert not page.errors and not page.outside
 
 

@@ -96,7 +96,10 @@ async function load({ replay = false } = {}) {
     $('status').textContent = made.status;
     $('backend').textContent = made.backend ?? '';
     if (made.file) offer(made.file, `${fileStem()}.${made.extension}`);
-    if (where === 'server' && !request.layout && state.format === 'asset') await showGameAsset(name, request, made.status, ticket, signal);
+    if (where === 'server' && !request.layout && state.format === 'asset') {
+      if (state.edit) offer(sampling.serverRequest(name, request, 'asset', shownFaces).url); // an edit draws on the sample's own frame
+      else await showGameAsset(name, request, made.status, ticket, signal);
+    }
     if (ticket === latest) finish('ready');
   } catch (error) {
     if (ticket !== latest) return;
@@ -108,7 +111,8 @@ async function load({ replay = false } = {}) {
 }
 
 /** The shown sample's game asset (levels sized from its triangles) in its place, its levels switched by the camera's
- * distance as an engine switches them (viewer/asset.js), and offered as the download. */
+ * distance as an engine switches them (viewer/asset.js), and offered as the download. (While editing, the sample
+ * stays: the editor draws in its frame, and the asset stands in its own, on its base.) */
 async function showGameAsset(name, request, status, ticket, signal) {
   const { url } = sampling.serverRequest(name, request, 'asset', shownFaces);
   offer(url);
