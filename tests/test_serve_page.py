@@ -800,7 +800,10 @@ def test_the_page_shows_a_game_asset_with_its_levels_switched_by_distance(page):
     href = page.get_attribute("#download", "href")
     with urllib.request.urlopen(urllib.parse.urljoin(page.base + "/", href)) as answer:
         document, _ = gltf.read(answer.read())
-    assert "game asset:" in page.text_content("#status")
+    said = page.text_content("#status").split("game asset: ")[1].split(" triangles")[0]
+    counts = [document["accessors"][document["meshes"][node["mesh"]]["primitives"][0]["indices"]]["count"] // 3
+              for node in document["nodes"]]
+    assert [int(n.replace(",", "")) for n in said.split(" / ")] == counts
     first = page.evaluate("window.sinshapeView.memory()")  # the finest level drawn, its maps
     levels = page.evaluate(ASSET_LEVELS_JS)
     coverage = document["nodes"][0]["extras"]["MSFT_screencoverage"]

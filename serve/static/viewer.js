@@ -20,7 +20,7 @@
 import * as editor from './viewer/editor.js';
 import { $, fail, finish, fromForm, report, showMode, showProgress, toForm, working } from './viewer/form.js';
 import * as sampling from './viewer/sampling.js';
-import { assetLevels } from './viewer/asset.js';
+import { assetLevels, levelTriangles } from './viewer/asset.js';
 import { camera, frame, memory, orient, renderer, scene, showAsset, showMesh, summary } from './viewer/scene.js';
 import { STATIC_SITE, TABLE_CONTROLS, canWalk, fileStem, readUrl, record, requestOf, state, walk, worldOptions, writeUrl } from './viewer/state.js';
 import * as world from './viewer/world.js';
@@ -120,12 +120,8 @@ async function showGameAsset(name, request, status, ticket, signal) {
   const lod = await assetLevels(await sampling.assetData(url, { signal }), camera.fov);
   if (ticket !== latest) return;
   showAsset(lod);
-  const triangles = lod.levels.map(({ object }) => {
-    let count = 0;
-    object.traverse((node) => { if (node.isMesh) count += node.geometry.index.count / 3; });
-    return count.toLocaleString('en');
-  });
-  $('status').textContent = `${status} · game asset: ${triangles.join(' / ')} triangles, coarser as the camera draws back`;
+  const triangles = levelTriangles(lod).map((count) => count.toLocaleString('en')).join(' / ');
+  $('status').textContent = `${status} · game asset: ${triangles} triangles, coarser as the camera draws back`;
 }
 
 /** The world of the state's model and seed, flown over from the request's tile (viewer/world.js). */

@@ -4,6 +4,7 @@
 // draws the coarser levels, as a game does with distance.
 //
 //   assetLevels(data, fov)  the .glb's bytes -> a THREE.LOD of its levels, for a camera of that vertical field of view
+//   levelTriangles(lod)     each level's triangles, finest first
 import * as THREE from 'three';
 import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
 
@@ -25,4 +26,13 @@ export async function assetLevels(data, fov) {
   const tangent = Math.tan(THREE.MathUtils.degToRad(fov / 2));
   levels.forEach((level, k) => lod.addLevel(level, k ? radius / ((coverage[k - 1] ?? 0.5 ** k) * tangent) : 0));
   return lod;
+}
+
+/** Each of a LOD's levels' triangles, finest first. */
+export function levelTriangles(lod) {
+  return lod.levels.map(({ object }) => {
+    let count = 0;
+    object.traverse((node) => { if (node.isMesh) count += node.geometry.index.count / 3; });
+    return count;
+  });
 }
