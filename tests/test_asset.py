@@ -747,31 +747,36 @@ def babylon_import(glb: Path) -> dict:
     return json.loads(next(line[7:] for line in done.stdout.splitlines() if line.startswith("RESULT ")))
 
 
-def test_babylon_reads_the_levels_by_msft_lod_and_quantised_vertices_as_the_floats(tmp_path):
+def test_babylon_reads_the_levels_by_msft_lod_and_quantised_and_compressed_vertices_as_the_floats(tmp_path):
     """gltf naming: Babylon.js's loader applies MSFT_lod (the coarser level first, then the finest in
-    its place, with its normal map) and KHR_mesh_quantization, whose vertices land where the float
-    file's do; the collision mesh and the hulls, outside the scene, are not drawn."""
+    its place, with its normal map), KHR_mesh_quantization and EXT_meshopt_compression (decoded by
+    meshoptimizer's decoder: the file's fallback buffer holds no data), whose vertices land where the
+    float file's do; the collision mesh and the hulls, outside the scene, are not drawn."""
     model = load_model(TINY_COLOUR_ONNX, threads=1)
     found = {}
-    for quantise in (False, True):
-        options = asset.AssetOptions(LODS, TEXTURE, collision=120, hulls=2, quantise=quantise)
+    for packing in ("floats", "quantise", "compress"):
+        options = asset.AssetOptions(LODS, TEXTURE, collision=120, hulls=2, quantise=packing == "quantise",
+                                     compress=packing == "compress")
         data, _ = asset.asset_bytes(model, SampleRequest(3), options, "box", threads=1)
-        (tmp_path / f"box{quantise}.glb").write_bytes(data)
-        found[quantise] = babylon_import(tmp_path / f"box{quantise}.glb")
-    document, _ = gltf.read((tmp_path / "boxFalse.glb").read_bytes())
+        (tmp_path / f"box_{packing}.glb").write_bytes(data)
+        found[packing] = babylon_import(tmp_path / f"box_{packing}.glb")
+    document, _ = gltf.read((tmp_path / "box_floats.glb").read_bytes())
     finest = document["meshes"][document["nodes"][0]["mesh"]]["primitives"][0]
     positions = document["accessors"][finest["attributes"]["POSITION"]]
-    for quantise, extensions in ((False, ["MSFT_lod"]), (True, ["KHR_mesh_quantization", "MSFT_lod"])):
-        meshes = found[quantise]["meshes"]
-        assert [name for name in extensions if name in found[quantise]["extensions"]] == extensions
+    for packing, extensions in (("floats", ["MSFT_lod"]), ("quantise", ["KHR_mesh_quantization", "MSFT_lod"]),
+                                ("compress", ["EXT_meshopt_compression", "MSFT_lod"])):
+        meshes = found[packing]["meshes"]
+        assert [name for name in extensions if name in found[packing]["extensions"]] == extensions
         assert [(m["name"], m["triangles"], m["vertices"], m["normalMap"]) for m in meshes] == \
             [("box_LOD0", document["accessors"][finest["indices"]]["count"] // 3, positions["count"], True)]
         lift = document["nodes"][0]["translation"][1]  # on its base: up is up in both frames
         assert meshes[0]["min"][1] == pytest.approx(positions["min"][1] + lift, abs=1e-3)
         assert meshes[0]["max"][1] == pytest.approx(positions["max"][1] + lift, abs=1e-3)
-    span = np.ptp([found[False]["meshes"][0]["min"], found[False]["meshes"][0]["max"]], axis=0).max()
-    np.testing.assert_allclose(found[True]["meshes"][0]["min"], found[False]["meshes"][0]["min"], atol=1e-4 * span)
-    np.testing.assert_allclose(found[True]["meshes"][0]["max"], found[False]["meshes"][0]["max"], atol=1e-4 * span)
+    floats = found["floats"]["meshes"][0]
+    span = np.ptp([floats["min"], floats["max"]], axis=0).max()
+    for packing in ("quantise", "compress"):
+        np.testing.assert_allclose(found[packing]["meshes"][0]["min"], floats["min"], atol=1e-4 * span)
+        np.testing.assert_allclose(found[packing]["meshes"][0]["max"], floats["max"], atol=1e-4 * span)
 
 
 def test_a_collision_mesh_is_placed_as_the_levels_and_kept_out_of_the_scene_under_gltf_naming():
