@@ -202,15 +202,21 @@ class Dense:
     up: int | None
 
 
-def sample_field(model, triplane, detail: bool = True) -> bake.Field:
+def surface_read(model, detail: bool) -> bool:
+    """Whether a sample's maps read its surface by correspondence: its colour, or (with `detail`) its example's relief."""
+    return bool(model.manifest.colour or (detail and model.example_tiles is not None))
+
+
+def sample_field(model, triplane, detail: bool = True, surface=None) -> bake.Field:
     """The field of a sample (or an edit's composed tri-plane), its colour
     at full detail (a format-5 model's tiles, read at each texel's point;
     without `detail`, its colour head's) and its example's relief (a model
-    with tiles, with `detail`)."""
+    with tiles, with `detail`). `surface`: colour.matching's Future, begun
+    before the mesh was made (None: matched here)."""
     relief = detail and model.example_tiles is not None
-    if not (model.manifest.colour or relief):
+    if not surface_read(model, detail):
         return bake.Field(query.occupying(model, triplane), None)
-    surface = colouring.colouring(model, triplane, detail=detail)
+    surface = colouring.colouring(model, triplane, detail=detail) if surface is None else surface.result()
 
     def colour(points):
         return mesh.colour_bytes(surface(points))[:, :3]
@@ -253,12 +259,14 @@ def dense_surface(model, request, threads: int | None = None, progress=None) -> 
     else:
         triplane = make(model, request)
         options = request.mesh_options()
+        # The matching needs only the tri-plane: begun first, it runs beside the meshing.
+        matching = colouring.matching(model, triplane, request.detail) if surface_read(model, request.detail) else None
         surface = mesh.finish(mesh.band_mesh(model, triplane, request.scale, progress, threads=threads),
                               options["smooth"], options["smoother"], options["largest"])
         vertices, faces = np.asarray(surface.vertices), np.asarray(surface.faces)
         offset, scale = ((np.asarray(model.manifest.origin, np.float64), spacing) if request.frame == "input"
                          else (np.zeros(3), np.ones(3)))
-        field, lock, up = sample_field(model, triplane, request.detail), False, UP_AXIS[model.manifest.up]
+        field, lock, up = sample_field(model, triplane, request.detail, matching), False, UP_AXIS[model.manifest.up]
     frame = bake.Frame(offset, scale)
     return Dense(offset + vertices * scale, np.asarray(faces, np.int64), field, frame, float(np.max(scale)), lock, up)
 
