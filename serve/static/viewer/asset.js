@@ -9,10 +9,9 @@ import * as THREE from 'three';
 import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
 
 /**
- * The asset's levels, finest first, as a THREE.LOD (its `userData.coverage`, the file's screen
- * coverages): level k > 0 is drawn from the distance at which the finest level's bounding sphere
- * spans coverage[k - 1] of the height of a view `fov` degrees high. A file without MSFT_lod gives
- * its one level.
+ * The asset's levels, finest first, as a THREE.LOD: level k > 0 is drawn from the distance at
+ * which the finest level's bounding sphere spans the file's coverage[k - 1] of the height of a
+ * view `fov` degrees high. A file without MSFT_lod gives its one level.
  */
 export async function assetLevels(data, fov) {
   const asset = await new GLTFLoader().parseAsync(data, '');
@@ -21,7 +20,6 @@ export async function assetLevels(data, fov) {
   const coverage = finest.extras?.MSFT_screencoverage ?? [];
   const levels = await Promise.all([0, ...ids].map((id) => asset.parser.getDependency('node', id)));
   const lod = new THREE.LOD();
-  lod.userData.coverage = coverage;
   const radius = new THREE.Box3().setFromObject(levels[0]).getBoundingSphere(new THREE.Sphere()).radius;
   const tangent = Math.tan(THREE.MathUtils.degToRad(fov / 2));
   levels.forEach((level, k) => lod.addLevel(level, k ? radius / ((coverage[k - 1] ?? 0.5 ** k) * tangent) : 0));
