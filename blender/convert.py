@@ -95,8 +95,8 @@ SETTINGS = {**{name: name for name in SAMPLE_TABLE_SETTINGS + WORLD_TABLE_SETTIN
             "keep": "keep_box", "grow": "grow", "anchor": "anchor", "layout": "layout_bits", "tile": "radius",
             "lod": "fine", "models": "models", "models_map": "models_map", "heights": "heights"}
 # ... those it leaves at their defaults (a mesh in the input's frame, turned to
-# Blender's) ...
-LEFT = ("recon", "smoother", "largest", "frame")
+# Blender's; a world's tiles closed underneath, as one may look from below in Blender) ...
+LEFT = ("recon", "smoother", "largest", "frame", "underside")
 # ... and those it sets to one value (worlds.world_options): every tile with a
 # skirt, so that a border between levels is closed from both sides.
 # tests/test_blender_options.py holds the three to the table.

@@ -138,6 +138,8 @@ OPTIONS = (
            "that hides the crack where it meets a finer one.", ("tile",), 0),
     Option("skirt", "bool", False, "A skirt at lod 0 too: a full tile beside a coarser one, so that the crack "
            "between them is hidden from the coarser side as well.", ("tile",)),
+    Option("underside", "bool", True, "The tile closed underneath, as a solid piece of ground. Off: open below, "
+           "for a view from above, which never sees it (a quarter fewer triangles on a terrain tile).", ("tile",)),
     Option("density", "number", DENSITY, "A scattered world's share of cells that hold an object, above 0 and "
            "at most 1.", ("tile",), 0.0, 1.0, "(]"),
     Option("spacing", "number", SPACING, "A scattered world's cell side in tiles (one object at most per cell, "

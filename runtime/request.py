@@ -109,7 +109,8 @@ class SampleRequest:
     For a tile, how its world is made: arrange ('blend' or 'scatter',
       world.ARRANGEMENTS), heights (a world_maps.HeightMap: the world's large
       shape), lod (levels coarser than the finest: a distant tile), skirt
-      (a skirt at lod 0 too, for a full tile beside a coarser one), density
+      (a skirt at lod 0 too, for a full tile beside a coarser one), underside
+      (closed underneath; off: open below, for a view from above), density
       and spacing (a scattered world's share of cells holding an object and
       its cells' side in tiles), models
       (a scattered world's other models: their files' paths, as text) and
@@ -140,6 +141,7 @@ class SampleRequest:
     heights: HeightMap | None = None
     lod: int = 0
     skirt: bool = False
+    underside: bool = True
     density: float = OPTION["density"].default
     spacing: float = OPTION["spacing"].default
     models: tuple = ()
@@ -225,14 +227,14 @@ class SampleRequest:
     def world_options(self) -> WorldOptions:
         """How a tile's world is made, and how finely the tile."""
         return WorldOptions(self.arrange, self.heights, self.lod, tuple(map(other_model, self.models)),
-                            self.models_map, self.detail, self.skirt, self.density, self.spacing)
+                            self.models_map, self.detail, self.skirt, self.underside, self.density, self.spacing)
 
     def world_fields(self) -> list:
         """The names of the world's fields given other than their defaults
         (a job of many tiles holds them in a request without a tile)."""
         return [name for name, value in (("arrange", self.arrange != ARRANGEMENTS[0]),
                                          ("heights", self.heights is not None), ("lod", self.lod),
-                                         ("skirt", self.skirt),
+                                         ("skirt", self.skirt), ("underside", not self.underside),
                                          ("density", self.density != OPTION["density"].default),
                                          ("spacing", self.spacing != OPTION["spacing"].default),
                                          ("models", self.models), ("models_map", self.models_map is not None))

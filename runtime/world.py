@@ -156,11 +156,12 @@ class WorldOptions:
     models_map: ModelMap | None = None  # which of them each scatter cell draws its object from
     detail: bool = True  # the example's relief and colour by correspondence (off: the decoder's colour, no relief)
     skirt: bool = False  # a skirt at lod 0 too (a coarser tile always has one): a finer tile beside a coarser one
+    underside: bool = True  # closed underneath (off: open below, for a view from above, which never sees it)
     density: float = DENSITY  # the share of a scattered world's cells that hold an object
     spacing: float = SPACING  # a scattered world's cell side, in tiles (at least its widest object's)
 
     def __post_init__(self):
-        for name in ("detail", "skirt"):
+        for name in ("detail", "skirt", "underside"):
             if not isinstance(getattr(self, name), bool):
                 raise InputError(f"`{name}` must be true or false, got {getattr(self, name)!r}", name)
         if self.arrange not in ARRANGEMENTS:

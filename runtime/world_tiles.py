@@ -76,7 +76,11 @@ def tile_mesh(model, seed: int, tile, scale: float = 1.0, memory_limit: int | No
     bottom, open on the four sides it shares with its neighbours, whose
     border vertices it shares exactly, except the sides in `closed` ((axis,
     0 or 1) pairs: the low or high side along a horizontal axis), closed as
-    a sample's sides are (where a block of tiles ends). progress: as tile_occupancy's."""
+    a sample's sides are (where a block of tiles ends). Without
+    options.underside, open at the bottom too: solid below the grid, so
+    that no surface closes under it (and a column empty down to the floor
+    ends on a floor half a grid step below, not in a hole).
+    progress: as tile_occupancy's."""
     values = tile_occupancy(model, seed, tile, scale, memory_limit, options=options, progress=progress)
     tiling = world_tiling(model)
     grid = tile_grid(model, tiling, scale, options)
@@ -85,6 +89,10 @@ def tile_mesh(model, seed: int, tile, scale: float = 1.0, memory_limit: int | No
     for axis, side in closed:
         pad[axis][side] = 1
     padded = np.pad(values, pad)
+    if not options.underside:
+        below = [slice(None)] * 3
+        below[tiling.up] = 0
+        padded[tuple(below)] = 1.0
     corners = np.stack([padded[dx:padded.shape[0] - 1 + dx, dy:padded.shape[1] - 1 + dy, dz:padded.shape[2] - 1 + dz]
                         < cubes.LEVEL for dx in (0, 1) for dy in (0, 1) for dz in (0, 1)])
     crossing = np.argwhere(corners.any(axis=0) & ~corners.all(axis=0))
@@ -249,9 +257,10 @@ def block_mesh(model, request, tiles, progress=None, memory_limit: int | None = 
     if request.frame == "tile":
         raise InputError("a block is placed in the world: give `frame` input or model", "frame")
     options = request.world_options()
-    if options.skirt:
-        raise InputError("a block is one closed surface, its tiles of one level: `skirt` is for a tile beside "
-                         "a coarser one", "skirt")
+    if options.skirt or not options.underside:
+        name = "skirt" if options.skirt else "underside"
+        raise InputError(f"a block is one closed surface, its tiles of one level: `{name}` is for a tile of a "
+                         "streamed view", name)
     h0, h1 = world_tiling(model).horizontal
     low, high = np.min(tiles, axis=0), np.max(tiles, axis=0)
     vertices, faces, colours, count = [], [], [], 0

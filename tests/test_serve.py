@@ -590,7 +590,7 @@ def test_a_tile_is_the_runtimes_tile_with_its_corner_and_etag(server):
     assert get(url, {"If-None-Match": headers["ETag"]})[0] == 304
     params = {p["name"] for p in json.loads(get(f"{base}/openapi.json")[2])["paths"]["/api/models/{name}/tile"]["get"]
               ["parameters"]}
-    assert params == {"name", "i", "j", "seed", "scale", "format", "frame", "arrange", "lod", "skirt", "density",
+    assert params == {"name", "i", "j", "seed", "scale", "format", "frame", "arrange", "lod", "skirt", "underside", "density",
                       "spacing", "lods", "texture",
                       "ao", "collision", "naming", "quantise", "compress", "ktx2",
                       "models", "models_map", "detail"}

@@ -590,11 +590,11 @@ def test_the_world_mode_takes_its_tiles_from_the_tile_route(page, terrain):
     tiles = [url for url in requested if url.startswith("/api/models/terrain/tile?")]
     full = [url for url in tiles if "lod=" not in url]  # each asked for at the coarsest level first, shown, then at full
     coarsest = len(terrain.manifest.sizes) - 1
-    assert len(full) == 9 and "/api/models/terrain/tile?i=-3&j=7&seed=3&scale=1&format=glb&frame=tile&skirt=true" in full
+    assert len(full) == 9 and "/api/models/terrain/tile?i=-3&j=7&seed=3&scale=1&format=glb&frame=tile&skirt=true&underside=false" in full
     assert sorted(url.replace(f"&lod={coarsest}", "") for url in tiles if url not in full) == sorted(full)
     assert not [url for url in requested if "onnxruntime-web" in url or url.endswith(("/model.js", "/worker.js"))]
     assert sorted((int(i), int(j)) for i, j, *_ in status["tiles"]) == [(i, j) for i in (-4, -3, -2) for j in (6, 7, 8)]
-    skirted = world.WorldOptions(skirt=True)  # beside a coarser tile, hidden from either side
+    skirted = world.WorldOptions(skirt=True, underside=False)  # beside a coarser tile, hidden from either side; open below
     for i, j, faces, *_ in status["tiles"]:
         assert faces == len(world_tiles.tile_surface(terrain, 3, (int(i), int(j)), options=skirted).faces)
     assert page.get_attribute("#download", "href").endswith("tile?i=-3&j=7&seed=3&scale=1&format=glb&frame=tile")
@@ -623,9 +623,9 @@ def test_the_world_mode_makes_far_tiles_coarser_and_remakes_them_as_they_come_ne
     requested = page.evaluate("performance.getEntriesByType('resource').map((entry) => entry.name)")
     assert any("i=2&j=0&" in url and "arrange=scatter" in url and "lod=1" in url for url in requested)
     faces = {(int(i), int(j)): count for i, j, count, *_ in status["tiles"]}
-    coarse = world_tiles.tile_surface(terrain, 3, (2, 0), options=world.WorldOptions("scatter", lod=1))
-    assert faces[2, 0] == len(coarse.faces) > len(world_tiles.tile_mesh(terrain, 3, (2, 0), options=world.WorldOptions(
-        "scatter", lod=1))[1])  # its skirt's faces too
+    far = world.WorldOptions("scatter", lod=1, underside=False)
+    coarse = world_tiles.tile_surface(terrain, 3, (2, 0), options=far)
+    assert faces[2, 0] == len(coarse.faces) > len(world_tiles.tile_mesh(terrain, 3, (2, 0), options=far)[1])  # its skirt's too
     lengths = page.evaluate("""() => {
       const out = [];
       window.sinshapeView.scene.traverse((node) => {
@@ -652,7 +652,7 @@ def test_the_world_mode_makes_far_tiles_coarser_and_remakes_them_as_they_come_ne
     page.wait_for_function("document.getElementById('map-label').textContent === 'map: hills.npy'")
     status = wait_world(page)
     faces = {(int(i), int(j)): count for i, j, count, *_ in status["tiles"]}
-    painted = world.WorldOptions("scatter", heights=world_maps.HeightMap.of(heights), skirt=True)
+    painted = world.WorldOptions("scatter", heights=world_maps.HeightMap.of(heights), skirt=True, underside=False)
     assert faces[1, 0] == len(world_tiles.tile_surface(terrain, 3, (1, 0), options=painted).faces)
     assert not page.errors and not page.outside
 
@@ -670,8 +670,8 @@ def test_a_scattered_worlds_density_and_spacing_are_set_in_the_page(page, terrai
              if "/tile?" in url]
     assert len(tiles) >= 9 and all("density=1&spacing=1" in url for url in tiles)
     faces = {(int(i), int(j)): count for i, j, count, *_ in status["tiles"]}
-    dense = world.WorldOptions("scatter", density=1.0, spacing=1.0, skirt=True)
-    default = world.WorldOptions("scatter", skirt=True)
+    dense = world.WorldOptions("scatter", density=1.0, spacing=1.0, skirt=True, underside=False)
+    default = world.WorldOptions("scatter", skirt=True, underside=False)
     surfaces = {tile: len(world_tiles.tile_surface(terrain, 3, tile, options=dense).faces) for tile in faces}
     assert faces == surfaces
     assert surfaces != {tile: len(world_tiles.tile_surface(terrain, 3, tile, options=default).faces) for tile in faces}

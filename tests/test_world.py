@@ -198,8 +198,10 @@ def test_a_block_at_a_coarser_level_is_one_closed_mesh_and_refuses_a_skirt(model
     coarse = world_tiles.block_mesh(model, SampleRequest(3, lod=1, frame="model"), tiles)
     full = world_tiles.block_mesh(model, SampleRequest(3, frame="model"), tiles)
     assert coarse.is_watertight and coarse.volume > 0 and len(coarse.faces) < len(full.faces)
-    with pytest.raises(InputError, match="skirt is for a tile beside a coarser one"):
+    with pytest.raises(InputError, match="skirt is for a tile of a streamed view"):
         world_tiles.block_mesh(model, SampleRequest(3, skirt=True, frame="model"), tiles)
+    with pytest.raises(InputError, match="underside is for a tile of a streamed view"):
+        world_tiles.block_mesh(model, SampleRequest(3, underside=False, frame="model"), tiles)
 
 
 def test_a_block_written_as_one_mesh_is_closed_and_placed(tiny_model, model, tmp_path):
@@ -501,6 +503,36 @@ def test_a_skirt_covers_a_tiles_side_from_its_border_to_the_floor_facing_out(lod
             assert not (normal * outward < 0).any()  # none turned to face into the tile
     plain = world_tiles.tile_surface(terrain, 3, (1, 0))
     assert len(plain.faces) == len(world_tiles.tile_mesh(terrain, 3, (1, 0))[1])  # no skirt at lod 0 unless asked
+
+
+@pytest.mark.parametrize("lod", [0, 2])
+def test_a_tile_open_underneath_has_the_same_surface_above_its_floor_and_none_below(lod):
+    """Terrain, with and without `underside`: the closed tile's faces under the grid's
+    lowest plane (its bottom, facing down) are gone, a quarter of them or more, and every
+    face above that plane is the same, vertex for vertex; the skirt still hangs to the floor."""
+    from sinshape import models
+
+    terrain = load_model(models.find("terrain"), threads=1)
+    tiling = world.world_tiling(terrain)
+    up = tiling.up
+    closed_options, open_options = world.WorldOptions(lod=lod, skirt=True), world.WorldOptions(lod=lod, skirt=True,
+                                                                                              underside=False)
+    floor = world.tile_grid(terrain, tiling, 1.0, closed_options).positions[up][0]
+    closed, opened = (world_tiles.tile_surface(terrain, 3, (1, 0), options=o) for o in (closed_options, open_options))
+
+    def faces_above(surface, above: bool):
+        corners = surface.vertices[surface.faces]
+        keep = (corners[:, :, up] >= floor - 1e-9).all(axis=1) == above
+        return {tuple(np.round(np.sort(c, axis=0), 9).ravel()) for c in corners[keep]}
+
+    below = faces_above(closed, False)
+    assert faces_above(opened, False) == set() and len(below) >= 0.2 * len(opened.faces)
+    assert faces_above(opened, True) == faces_above(closed, True)
+    bottom = closed.vertices[closed.faces][:, :, up].max(axis=1) < floor - 1e-9
+    normals = np.cross(*(closed.vertices[closed.faces[bottom][:, k]] - closed.vertices[closed.faces[bottom][:, 0]]
+                         for k in (1, 2)))
+    assert (normals[:, up] < 0).all()  # what was cut is the bottom, facing down
+    assert np.isclose(opened.vertices[:, up].min(), floor)  # the skirt reaches the floor still
 
 
 def test_world_writes_a_painted_scattered_coarser_world_and_refuses_a_bad_map(tiny_model, model, tmp_path):

@@ -168,11 +168,11 @@ def test_on_sinrun_serve_the_page_asks_the_tile_route_for_a_two_model_world(brow
                          page.evaluate("performance.getEntriesByType('resource').map((entry) => entry.name)")]
             tiles = [url for url in requested if url.startswith(f"/api/models/{FIRST}/tile?")]
             # Each tile asked for at the coarsest level first, then at full detail, with its skirt.
-            assert len(tiles) == 2 * 9 and all("&models=towerruins&models_map=0%2C1%3B1%2C0" in url and "skirt=true" in url
+            assert len(tiles) == 2 * 9 and all("&models=towerruins&models_map=0%2C1%3B1%2C0" in url and "skirt=true&underside=false" in url
                                                for url in tiles), tiles
             assert not [url for url in requested if "onnxruntime-web" in url or url.endswith(("/model.js", "/worker.js"))]
             options = world.WorldOptions("scatter", models=(other_model("towerruins"),),
-                                         models_map=world_maps.ModelMap.of(CHECKERBOARD), skirt=True)
+                                         models_map=world_maps.ModelMap.of(CHECKERBOARD), skirt=True, underside=False)
             faces = {(int(i), int(j)): count for i, j, count, *_ in status["tiles"]}
             assert faces[1, -4] == len(world_tiles.tile_surface(first, 3, (1, -4), options=options).faces) > 4000
             assert page.get_attribute("#download", "href").endswith("models=towerruins&models_map=0%2C1%3B1%2C0")

@@ -122,7 +122,7 @@ function checkTogether(request) {
 
 /** The world's fields given other than their defaults, as SampleRequest.world_fields. */
 const worldFields = (request) => [['arrange', request.arrange !== DEFAULTS.arrange], ['heights', request.heights !== null], ['lod', request.lod],
-  ['skirt', request.skirt], ['density', request.density !== DEFAULTS.density], ['spacing', request.spacing !== DEFAULTS.spacing],
+  ['skirt', request.skirt], ['underside', !request.underside], ['density', request.density !== DEFAULTS.density], ['spacing', request.spacing !== DEFAULTS.spacing],
   ['models', request.models.length], ['models_map', request.models_map !== null]].filter(([, value]) => value).map(([name]) => name);
 
 // The options this runtime makes. Any other given other than its default

@@ -8,11 +8,11 @@ import { Layout, sampleRequest } from '../sinshape/request.js';
 
 export const STATIC_SITE = document.body.dataset.site === 'static';
 // The options of a sample request (runtime/options.py) the page sets, in its
-// modes and edits (world.js makes each tile's lod and skirt), and those it leaves at
+// modes and edits (world.js makes each tile's lod, skirt and underside), and those it leaves at
 // their defaults: tests/test_options.py holds the two to the table, so that an
 // option added there is placed here too.
 export const PAGE_OPTIONS = Object.freeze({
-  set: ['seed', 'size', 'scale', 'smooth', 'detail', 'frame', 'keep', 'grow', 'anchor', 'layout', 'tile', 'arrange', 'heights', 'lod', 'skirt',
+  set: ['seed', 'size', 'scale', 'smooth', 'detail', 'frame', 'keep', 'grow', 'anchor', 'layout', 'tile', 'arrange', 'heights', 'lod', 'skirt', 'underside',
     'density', 'spacing', 'models', 'models_map'],
   left: ['recon', 'smoother', 'largest'],
 });

@@ -195,7 +195,8 @@ async function make(r, entry) {
   entry.controller = new AbortController();
   const lod = entry.lod === undefined && !r.filled ? r.coarsest : entry.want; // a sketch first; its windows' chains go on from there
   try {
-    const request = sampleRequest({ ...r.request, tile: [entry.i, entry.j], lod, skirt: true }); // hidden beside a coarser neighbour from either side
+    // With a skirt, hidden beside a coarser neighbour from either side; open underneath, which no view from above sees.
+    const request = sampleRequest({ ...r.request, tile: [entry.i, entry.j], lod, skirt: true, underside: false });
     const { positions, faces, normals, colours } = await sampling.tile('server', r.name, request, { signal: entry.controller.signal });
     if (r.tiles.get(entry.key) !== entry) return; // dropped meanwhile
     entry.state = lod <= entry.want ? 'done' : 'wanted'; // the camera came nearer meanwhile: made again finer
