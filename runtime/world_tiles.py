@@ -258,9 +258,8 @@ def block_mesh(model, request, tiles, progress=None, memory_limit: int | None = 
         raise InputError("a block is placed in the world: give `frame` input or model", "frame")
     options = request.world_options()
     if options.skirt or not options.underside:
-        name = "skirt" if options.skirt else "underside"
-        raise InputError(f"a block is one closed surface, its tiles of one level: `{name}` is for a tile of a "
-                         "streamed view", name)
+        name, what = ("skirt", "`skirt`") if options.skirt else ("underside", "a tile open underneath (`underside` off)")
+        raise InputError(f"a block is one closed surface, its tiles of one level: {what} is for a streamed view", name)
     h0, h1 = world_tiling(model).horizontal
     low, high = np.min(tiles, axis=0), np.max(tiles, axis=0)
     vertices, faces, colours, count = [], [], [], 0

@@ -198,9 +198,9 @@ def test_a_block_at_a_coarser_level_is_one_closed_mesh_and_refuses_a_skirt(model
     coarse = world_tiles.block_mesh(model, SampleRequest(3, lod=1, frame="model"), tiles)
     full = world_tiles.block_mesh(model, SampleRequest(3, frame="model"), tiles)
     assert coarse.is_watertight and coarse.volume > 0 and len(coarse.faces) < len(full.faces)
-    with pytest.raises(InputError, match="skirt is for a tile of a streamed view"):
+    with pytest.raises(InputError, match="skirt is for a streamed view"):
         world_tiles.block_mesh(model, SampleRequest(3, skirt=True, frame="model"), tiles)
-    with pytest.raises(InputError, match="underside is for a tile of a streamed view"):
+    with pytest.raises(InputError, match=r"open underneath \(underside off\) is for a streamed view"):
         world_tiles.block_mesh(model, SampleRequest(3, underside=False, frame="model"), tiles)
 
 
