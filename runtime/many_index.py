@@ -23,6 +23,7 @@ from sinshape.core.budget import check_memory
 from sinshape.core.errors import InputError
 
 from . import world
+from .request import SampleRequest
 
 ENGINES = ("local", "ray")
 
@@ -178,13 +179,25 @@ def job_difference(recorded: dict, job: dict) -> str:
     return "a request with other fields"
 
 
+def later_defaults(recorded: dict | None, job: dict) -> dict | None:
+    """A recorded job with the request fields it lacks (added to requests
+    since its index was written) at their defaults, which ask for what
+    the files were made as then: an older index resumes."""
+    if not (isinstance(recorded, dict) and isinstance(recorded.get("request"), dict)):
+        return recorded
+    defaults = {field.name: field.default for field in dataclasses.fields(SampleRequest)
+                if field.default is not dataclasses.MISSING}
+    lacking = {name: defaults[name] for name in job["request"] if name not in recorded["request"] and name in defaults}
+    return {**recorded, "request": {**recorded["request"], **json.loads(json.dumps(lacking))}}
+
+
 def check_same_job(index: IndexFile | None, job: dict, path: Path, restart: bool) -> IndexFile | None:
     """The index a job resumes from: refused, naming the difference, when it
     records another job (or none), unless `restart`, which starts it afresh
     (its files are made again). An index without any line is no index."""
     if index is None or (index.job is None and not index.records):
         return None
-    if index.job == job:
+    if index.job == job or later_defaults(index.job, job) == job:
         return index
     if not restart:
         what = (f"records another job ({job_difference(index.job, job)})" if index.job is not None else

@@ -61,6 +61,22 @@ def test_a_world_over_another_worlds_folder_is_refused(tmp_path):
                           "records another job (another model")
 
 
+def test_an_index_written_before_a_request_field_was_added_resumes_at_its_default(tmp_path):
+    """A world's index from before `underside` (its job without the field) resumes the same job,
+    made as the tiles were then, closed underneath; asked open underneath, it is another job."""
+    out = tmp_path / "w"
+    assert run("world", TINY, "--tiles", "0,0:1", "-o", out, "--workers", 1).exit_code == 0
+    index = out / "tile_index.jsonl"
+    first, *rest = index.read_text().splitlines()
+    job = json.loads(first)
+    assert job["job"]["request"].pop("underside") is True
+    index.write_text("\n".join([json.dumps(job), *rest]) + "\n")
+    again = run("world", TINY, "--tiles", "0,0:2", "-o", out, "--workers", 1)
+    assert again.exit_code == 0 and "wrote 1 files, 2 already done" in again.output, again.output
+    assert_one_line_error(run("world", TINY, "--tiles", "0,0:2", "--no-underside", "-o", out, "--workers", 1),
+                          "records another job (underside null, not false)")
+
+
 def test_an_index_that_records_no_job_is_refused(tmp_path):
     (tmp_path / "index.jsonl").write_text('{"seed": 0, "file": "0.npz", "bytes": 1, "sha256": "x"}\n')
     with pytest.raises(InputError, match="records no job .*; restart makes the files again"):
