@@ -197,7 +197,7 @@ def check_same_job(index: IndexFile | None, job: dict, path: Path, restart: bool
     (its files are made again). An index without any line is no index."""
     if index is None or (index.job is None and not index.records):
         return None
-    if index.job == job or later_defaults(index.job, job) == job:
+    if later_defaults(index.job, job) == job:  # the same job (an older index: its missing fields at their defaults)
         return index
     if not restart:
         what = (f"records another job ({job_difference(index.job, job)})" if index.job is not None else
