@@ -105,6 +105,14 @@ FACING = (0.5, 0.7)
 # A sample's points are read for relief and colour this many at a time: bounded
 # temporaries, which stay in cache (16k points read 1.2 times faster than 64k).
 READ_CHUNK = 1 << 14
+# Patches are made and compared this many voxels at a time, and a sample's band
+# decided in parts of 2^15 voxels: temporaries of a few MB at most. numpy asks
+# the kernel for huge pages for every array of 4 MiB or more, and where
+# transparent huge pages are given on request (Debian's default) a new one may
+# wait while the kernel compacts memory: the tower's example side took 0.05 to
+# 0.26 s from one run to the next, its band 0.03 to 0.16 s (docs/BENCHMARKS.md).
+DISTANCE_CHUNK = 1 << 12
+BAND_CHUNK = 1 << 15
 ACROSS = np.array([(1, 2), (0, 2), (0, 1)])  # a tile's rows and columns run along these axes, by its axis
 
 
@@ -260,7 +268,7 @@ def surface_band(model, hidden_at, size) -> np.ndarray:
     where a mesh's vertices round to."""
     size = tuple(int(n) for n in size)
     solid = np.empty(size, bool)
-    rows = max(1, (1 << 18) // (size[1] * size[2]))
+    rows = max(1, BAND_CHUNK // (size[1] * size[2]))
     j, k = np.meshgrid(np.arange(size[1]), np.arange(size[2]), indexing="ij")
     for x0 in range(0, size[0], rows):
         x = np.arange(x0, min(x0 + rows, size[0]))
@@ -331,8 +339,10 @@ def patches(hidden_at, voxels: np.ndarray, offsets: np.ndarray = PATCH) -> np.nd
     """The patch of each voxel, (n, 3) -> (n, len(offsets) * D) float32: its
     integer hidden sums and those of the voxels `offsets` away (|values| <
     2^24), so squared distances are integers below 2^53, exact in float64
-    in any order of summation (a matrix product included)."""
-    return np.concatenate([hidden_at(voxels + offset) for offset in offsets], axis=1)
+    in any order of summation (a matrix product included). DISTANCE_CHUNK
+    voxels at a time: bounded temporaries."""
+    parts = [voxels[start:start + DISTANCE_CHUNK] for start in range(0, max(len(voxels), 1), DISTANCE_CHUNK)]
+    return np.concatenate([np.concatenate([hidden_at(part + offset) for offset in offsets], axis=1) for part in parts])
 
 
 def content_keys(hidden: np.ndarray) -> np.ndarray:
@@ -386,7 +396,7 @@ def improve(level: "Level", sample: np.ndarray, current: np.ndarray, best: np.nd
     weighed at COHERENT of its distance. `current`, `best` change in place."""
     for candidate, offered, coherent in candidates:
         new = np.flatnonzero(offered & np.any(candidate != current, axis=1))  # the current one is known
-        d = level.distance(sample[new], candidate[new])
+        d = level.distance(sample, candidate[new], new)
         if coherent:
             d = d * COHERENT
         won = d < best[new]
@@ -404,8 +414,7 @@ class Level:
         self.row = np.full(tuple(size), -1, np.int64)
         self.row[tuple(self.band.T)] = np.arange(len(self.band))
         self.reference = patches(reference_at, self.band, offsets)  # (B, K)
-        reference = self.reference.astype(np.float64)
-        self.norms = np.einsum("mk,mk->m", reference, reference)
+        self.norms = np.einsum("mk,mk->m", self.reference, self.reference, dtype=np.float64)  # exact, as below
 
     def rows(self, voxels: np.ndarray) -> np.ndarray:
         """The band row of each (n, 3) example block, -1 outside the band."""
@@ -415,11 +424,16 @@ class Level:
         out[inside] = self.row[tuple(voxels[inside].T)]
         return out
 
-    def distance(self, sample: np.ndarray, candidates: np.ndarray) -> np.ndarray:
-        """Patch distances of sample patches (n, K) to candidate example blocks
-        (n, 3); infinite where a candidate is outside the band."""
+    def distance(self, sample: np.ndarray, candidates: np.ndarray, which: np.ndarray | None = None) -> np.ndarray:
+        """Patch distances of sample patches (rows `which` of `sample`, all of
+        them by default) to candidate example blocks (n, 3); infinite where a
+        candidate is outside the band. DISTANCE_CHUNK rows at a time."""
         row = self.rows(candidates)
-        d = squared_distances(sample, self.reference[np.maximum(row, 0)])
+        d = np.empty(len(row))
+        for start in range(0, len(row), DISTANCE_CHUNK):
+            part = slice(start, start + DISTANCE_CHUNK)
+            own = sample[part] if which is None else sample[which[part]]
+            d[part] = squared_distances(own, self.reference[np.maximum(row[part], 0)])
         d[row < 0] = np.inf
         return d
 
