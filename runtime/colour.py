@@ -108,7 +108,7 @@ READ_CHUNK = 1 << 14
 # Patches are made and compared this many voxels at a time, and a sample's band
 # decided in parts of 2^15 voxels: temporaries of a few MB at most. numpy asks
 # the kernel for huge pages for every array of 4 MiB or more, and where
-# transparent huge pages are given on request (Debian's default) a new one may
+# transparent huge pages are given on request (`madvise`) a new one may
 # wait while the kernel compacts memory: the tower's example side took 0.05 to
 # 0.26 s from one run to the next, its band 0.03 to 0.16 s (docs/BENCHMARKS.md).
 DISTANCE_CHUNK = 1 << 12
