@@ -487,7 +487,7 @@ def dense(model, triplane: TriPlane, scale: float = 1.0, memory_limit: int | Non
     out = np.empty(grid.shape, np.float32)
     colours = np.empty((*grid.shape, 3), np.uint8) if colour else None
     yz = grid.yz[1:my + 1, 1:mz + 1]
-    rows_per_slab = max(1, (1 << 18) // (my * mz * yz.shape[-1]))  # ~1 MB of hidden sums (colour.DISTANCE_CHUNK)
+    rows_per_slab = max(1, (1 << 18) // (my * mz * yz.shape[-1]))  # ~1 MB of hidden sums: under numpy's huge pages (colour.DISTANCE_CHUNK's note)
     for x0 in range(0, mx, rows_per_slab):
         rows = slice(x0 + 1, min(x0 + rows_per_slab, mx) + 1)
         xy = grid.fine_plane(0, rows)[:, 1:my + 1]
