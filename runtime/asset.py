@@ -25,13 +25,13 @@ from sinshape.core.errors import ConflictError, InputError, named
 from sinshape.core.manifest import UP_AXIS
 
 from . import bake, colour as colouring, gltf, ktx2, mesh, query, world, world_points, world_tiles
+from .raster import rasterise
 from .options import ASSET_OPTION, NAMINGS
 from .request import make
 
 MAX_LODS = 8
 MIN_TRIANGLES = ASSET_OPTION["lods"].low  # the fewest a closed surface has
 MIN_TEXTURE, MAX_TEXTURE = ASSET_OPTION["texture"].low, ASSET_OPTION["texture"].high
-UNWRAP_PART = 5000  # faces charted at a time (unwrap)
 MIN_HEIGHT, MAX_HEIGHT = ASSET_OPTION["height"].low, ASSET_OPTION["height"].high  # metres: a pebble to a mountain
 MAX_HULLS = ASSET_OPTION["hulls"].high  # convex hulls of one asset's collision: engines step each every frame
 HULL_SOURCE = 2000  # triangles of the surface the hulls are decomposed from (CoACD's time grows with them)
@@ -39,14 +39,10 @@ HULL_SOURCE = 2000  # triangles of the surface the hulls are decomposed from (Co
 # asked: 0.1 held every shipped model's solid as closely as 0.05 in a third of
 # the time, where 0.05 left the temple 16 hulls for 8, 1.5 times its volume over.
 HULL_THRESHOLDS = (0.1, 0.2, 0.4, 0.8)
-# No chart of a level charted whole larger than this share of its surface: xatlas grows a chart at a cost
-# that rises with its size, and a smooth level came out in a few large ones (the terrain's 5,000 triangles:
-# 0.95 s to chart, 0.49 s so, its atlas as full); on levels charted in parts it only cost time.
-CHART_SHARE = 4
 STAGE, STAGE_FROM = 4, 16  # levels come through a stage of 4x the finest's triangles from a full mesh of 16x (staged)
 UNSEEN_SCALE = 1 / 16  # how much smaller a side the charts of faces nobody sees are (a base: unwrap)
 BASE_ANGLE = 30  # degrees from straight down within which a face at a sample's base faces the ground
-FILL = 0.6  # the share of an atlas xatlas's charts are expected to cover (0.65-0.72 measured), for its scale
+FILL = 0.6  # the share of an atlas the charts are expected to cover, for their scale (the atlas is then fitted)
 SIZED_TEXTURE = (16, 2048)  # the range of a map side sized to the sample (sized_texture)
 BAKE_BYTES_PER_TEXEL = 160  # peak bytes per texel of one level's bake and file: 118-138 measured (tracemalloc, 1024 and 2048)
 
@@ -299,56 +295,157 @@ def simplify(vertices: np.ndarray, faces: np.ndarray, target: int, lock_border: 
 
 
 def unwrap(vertices: np.ndarray, faces: np.ndarray, size: int, unseen: np.ndarray | None = None) -> tuple:
-    """xatlas's charts and packing: (the original vertex of each new vertex
-    (V',), faces (F, 3) of new vertices, UVs (V', 2) in [0, 1] of a square
-    texture of `size` texels a side, glTF's: u right, v down). Charts are
-    padding(size) texels apart. xatlas's charting costs more than linearly
-    in a mesh's faces (20,000 faces: 3.0 s; four parts of 5,000: 1.1 s, the
-    atlas as full), so the faces are charted in parts of at most
-    UNWRAP_PART, cut across the longest axis, and packed together.
+    """Charts by the axis each face faces, packed by xatlas: (the original
+    vertex of each new vertex (V',), faces (F, 3) of new vertices, UVs (V', 2)
+    in [0, 1] of a square texture of `size` texels a side, glTF's: u right, v
+    down). Charts are padding(size) texels apart.
+
+    A sample's surface is cut from a voxel grid, and most of it faces along
+    an axis: each face is charted with its neighbours facing the same way
+    (axis_charts) and projected along that axis, which xatlas then packs as
+    given (its own charting grew charts at a cost more than linear in the
+    faces: 0.63-0.72 s for the tower's 20,000, against 0.05 s; its atlases
+    0.6-0.7 full against 0.75-0.9). Where a chart's projection overlaps
+    itself (the surface winding round over itself, or a fold the simplifier
+    left), the faces of the overlap are charted one by one instead.
     unseen: a mask of faces nobody sees (a sample's base, on the ground):
     charted apart, UNSEEN_SCALE times smaller a side, their texels left to
     the rest, which the atlas's scale grows into."""
     import xatlas  # the assets extra
 
     unseen = np.zeros(len(faces), bool) if unseen is None else unseen
-    centres = vertices[faces].mean(axis=1)
-    axis = int(np.argmax(np.ptp(vertices, axis=0)))
-    seen = np.flatnonzero(~unseen)
-    count = max(1, -(-len(seen) // UNWRAP_PART))
-    part = np.full(len(faces), count, np.int64)  # the unseen faces: a part of their own
-    part[seen] = np.searchsorted(np.quantile(centres[seen, axis], np.linspace(0, 1, count + 1)[1:-1]),
-                                 centres[seen, axis])
-    atlas, kept = xatlas.Atlas(), []
-    for k in range(count + bool(unseen.any())):
-        mine = faces[part == k]
-        used = np.unique(mine)
-        kept.append(used)
-        positions = vertices[used] if k < count else vertices[used].mean(axis=0) + (
-            vertices[used] - vertices[used].mean(axis=0)) * UNSEEN_SCALE
-        atlas.add_mesh(np.ascontiguousarray(positions, np.float32),
-                       np.ascontiguousarray(np.searchsorted(used, mine), np.uint32))
+    chart, facing = axis_charts(vertices, faces, unseen)
     pack = xatlas.PackOptions()
     pack.padding, pack.bilinear = padding(size), True
-    # Scale the charts so that the packed atlas comes out about the texture's size.
-    area = bake.area(vertices[faces[seen]]).sum() + bake.area(vertices[faces[unseen]]).sum() * UNSEEN_SCALE ** 2
+    area = bake.area(vertices[faces[~unseen]]).sum() + bake.area(vertices[faces[unseen]]).sum() * UNSEEN_SCALE ** 2
     pack.texels_per_unit = size * math.sqrt(FILL / max(area, 1e-30))
     charts = xatlas.ChartOptions()
-    if count == 1:  # charted whole (levels in parts have charts a part's size at most)
-        charts.max_chart_area = float(area / CHART_SHARE)
-    atlas.generate(charts, pack)
-    sources, new_faces, uvs, start = [], [], [], 0
-    for k, used in enumerate(kept):
-        source, local_faces, local_uvs = atlas[k]
-        sources.append(used[source])
-        new_faces.append(local_faces.astype(np.int64) + start)
-        uvs.append(local_uvs)
-        start += len(source)
-    side = np.array([atlas.width, atlas.height], np.float64)
-    # xatlas gives UVs in [0, 1] of its own width and height: the texture's
-    # square holds the atlas as it is, or shrunk to fit if it came out larger.
-    uvs = np.concatenate(uvs) * side / max(size, side.max())
-    return np.concatenate(sources).astype(np.int64), np.concatenate(new_faces), uvs
+    charts.use_input_mesh_uvs = True
+    alone = np.zeros(len(faces), bool)
+    for last in [False] * (FOLD_PASSES - 1) + [True]:  # again while a chart overlaps itself: each face of the fold
+        # then a chart of its own (once more, as a fold finer than a texel may show at the new scale)
+        source, split_faces, positions, projected = chart_vertices(vertices, faces, chart, facing, unseen, alone)
+        atlas = xatlas.Atlas()
+        atlas.add_mesh(np.ascontiguousarray(positions, np.float32), np.ascontiguousarray(split_faces, np.uint32),
+                       None, np.ascontiguousarray(projected, np.float32))
+        atlas.generate(charts, pack)
+        mapping, packed_faces, uvs = atlas[0]  # the faces in their order, their vertices xatlas's
+        side = np.array([atlas.width, atlas.height], np.float64)
+        # xatlas gives UVs in [0, 1] of its own width and height: the atlas fills the texture's square
+        # along its longer side (its padding grows or shrinks with it).
+        uvs, packed_faces = uvs * side / side.max(), packed_faces.astype(np.int64)
+        folded = () if last else overlapping(source[mapping], packed_faces, uvs, size)
+        if not len(folded):
+            return source[mapping].astype(np.int64), packed_faces, uvs
+        chart, alone = chart.copy(), alone.copy()
+        chart[folded], alone[folded] = chart.max() + 1 + np.arange(len(folded)), True
+
+
+def chart_vertices(vertices: np.ndarray, faces: np.ndarray, chart: np.ndarray, facing: np.ndarray,
+                   unseen: np.ndarray, alone: np.ndarray) -> tuple:
+    """A vertex of its own in each chart, so that a chart's UVs are its own:
+    (the original vertex of each (V',), faces (F, 3) of them, their
+    positions (V', 3), the unseen charts' shrunk UNSEEN_SCALE times about
+    their middle (xatlas scales a chart by its area), and their projections
+    along the direction their chart faces (V', 2), those of faces charted
+    `alone` set apart from their neighbours', which xatlas would join
+    them to (it joins faces across an edge whose UVs agree): each in a
+    band of its direction and colour (greedy_colours))."""
+    count = int(chart.max()) + 1
+    keys, split_faces = np.unique(faces * count + chart[:, None], return_inverse=True)
+    source, vertex_chart = keys // count, keys % count
+    positions = vertices[source]
+    if unseen.any():
+        low = np.isin(vertex_chart, chart[unseen])
+        middle = positions[low].mean(axis=0)
+        positions[low] = middle + (positions[low] - middle) * UNSEEN_SCALE
+    chart_facing = np.zeros(count, np.int64)
+    chart_facing[chart] = facing
+    # Alone faces that share an edge, coloured apart: no two beside each other in one band.
+    colour = np.zeros(len(faces), np.int64)
+    a, b = mesh.edge_neighbours(faces)
+    both = alone[a] & alone[b]
+    colour[alone] = 1 + greedy_colours(np.flatnonzero(alone), a[both], b[both])
+    chart_colour = np.zeros(count, np.int64)
+    chart_colour[chart] = colour
+    band = chart_facing[vertex_chart] + len(FACINGS) * chart_colour[vertex_chart]
+    return source, split_faces.reshape(-1, 3), positions, projections(positions, chart_facing[vertex_chart], band)
+
+
+# Directions a chart faces (-x, +x, -y, +y, -z, +z), and the axes its u and v run along.
+FACINGS = np.array([(-1, 0, 0), (1, 0, 0), (0, -1, 0), (0, 1, 0), (0, 0, -1), (0, 0, 1)], np.float64)
+ACROSS_AXIS = np.array([(1, 2), (2, 0), (0, 1)])  # u x v is the axis: a positive direction keeps the winding
+CHART_ROUNDS = 3  # rounds of each face taking the direction most of its neighbours face (axis_charts)
+CHART_FACING = 0.5  # ... only where the face is within 60 degrees of it (a projection's stretch, 2 at most)
+FOLD_PASSES = 3  # packings at most, each with the faces of the charts' folds left charted alone (unwrap)
+
+
+def axis_charts(vertices: np.ndarray, faces: np.ndarray, unseen: np.ndarray) -> tuple:
+    """Each face's chart (F,) and the direction it faces (F,) into FACINGS:
+    the direction nearest its normal, then CHART_ROUNDS rounds of taking the
+    one most of its edge neighbours have (its own counting half a vote
+    more), so that a chart's border does not zigzag where a surface turns
+    between two; charts are the parts joined by edges of faces facing alike,
+    seen or unseen alike."""
+    corners = vertices[faces]
+    normals = bake.unit(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]))
+    nearness = normals @ FACINGS.T
+    facing = np.argmax(nearness, axis=1)
+    a, b = mesh.edge_neighbours(faces)
+    rows = np.arange(len(faces))
+    for _ in range(CHART_ROUNDS):
+        votes = np.zeros((len(faces), len(FACINGS)))
+        np.add.at(votes, (a, facing[b]), 1)
+        np.add.at(votes, (b, facing[a]), 1)
+        votes[rows, facing] += 0.5
+        votes[nearness < CHART_FACING] = -1
+        facing = np.argmax(votes, axis=1)
+    alike = (facing[a] == facing[b]) & (unseen[a] == unseen[b])
+    chart = mesh.connected_parts(a[alike], b[alike], len(faces))
+    return np.unique(chart, return_inverse=True)[1].ravel(), facing
+
+
+def greedy_colours(nodes: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The least colour (0, 1, ...) of each of `nodes` (n,) that none of its
+    neighbours before it took, joined by the edges a[i]-b[i] (node ids):
+    (n,). A face has three edge neighbours, so four colours at most."""
+    row = {node: k for k, node in enumerate(nodes.tolist())}
+    beside = [[] for _ in range(len(nodes))]
+    for x, y in zip(a.tolist(), b.tolist()):
+        beside[row[x]].append(row[y])
+        beside[row[y]].append(row[x])
+    colours = [-1] * len(nodes)
+    for k, others in enumerate(beside):
+        taken = {colours[other] for other in others}
+        colours[k] = next(c for c in range(len(others) + 1) if c not in taken)
+    return np.array(colours, np.int64)
+
+
+def projections(points: np.ndarray, facing: np.ndarray, band: np.ndarray) -> np.ndarray:
+    """Points (n, 3) projected along the direction each faces (n,) into
+    FACINGS: (n, 2), mirrored for the negative directions so that every
+    chart keeps its faces' winding, and each band (n,) of them set apart
+    from the others, so that no two charts of different bands meet in UV
+    (xatlas joins faces across an edge whose UVs agree)."""
+    uv = points[np.arange(len(points))[:, None], ACROSS_AXIS[facing // 2]]
+    uv[facing % 2 == 0, 0] *= -1
+    span = float(np.ptp(points)) + 1.0 if len(points) else 1.0
+    return uv - uv.min(axis=0, initial=0) + (band * 1.5 * span)[:, None]
+
+
+def overlapping(source: np.ndarray, faces: np.ndarray, uvs: np.ndarray, size: int) -> np.ndarray:
+    """The faces (F, 3) whose texels in a size x size map another face
+    covers that shares no vertex with them (source: each vertex's original):
+    a chart folded over itself, as packed charts never overlap each other.
+    Two z-buffers of the faces, the lowest index on top and the highest, see
+    both where two cover a texel's centre."""
+    corners, order = uvs[faces] * size, np.arange(len(faces), dtype=np.float64)[:, None].repeat(3, axis=1)
+    low, _ = rasterise(corners, -order, (size, size))
+    high, _ = rasterise(corners, order, (size, size))
+    both = np.flatnonzero((low.ravel() != high.ravel()) & (low.ravel() >= 0))
+    a, b = source[faces[low.ravel()[both]]], source[faces[high.ravel()[both]]]
+    apart = ~(a[:, :, None] == b[:, None, :]).any(axis=(1, 2))
+    return np.unique(np.concatenate([low.ravel()[both[apart]], high.ravel()[both[apart]]]))
 
 
 def on_the_ground(vertices: np.ndarray, faces: np.ndarray, up: int, reach: float) -> np.ndarray:

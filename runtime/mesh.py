@@ -309,14 +309,20 @@ def largest_part(mesh):
     import trimesh  # half a second to import, and only a whole mesh in memory needs it
 
     faces = np.asarray(mesh.faces)
-    pairs = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1).astype(np.int64)
-    key = pairs[:, 0] * len(mesh.vertices) + pairs[:, 1]
-    order = np.argsort(key, kind="stable")
-    shared = key[order[1:]] == key[order[:-1]]  # consecutive sides of one edge
-    part = connected_parts(order[:-1][shared] // 3, order[1:][shared] // 3, len(faces))
+    part = connected_parts(*edge_neighbours(faces), len(faces))
     kept = faces[part == np.argmax(np.bincount(part))]
     used = np.bincount(kept.ravel(), minlength=len(mesh.vertices)) > 0
     return trimesh.Trimesh(np.asarray(mesh.vertices)[used], (np.cumsum(used) - 1)[kept], process=False)
+
+
+def edge_neighbours(faces: np.ndarray) -> tuple:
+    """The pairs of faces (F, 3) that share an edge: (a (E,), b (E,)), one
+    pair for each two sides of an edge consecutive in a sort of its sides."""
+    pairs = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1).astype(np.int64)
+    key = pairs[:, 0] * (int(faces.max(initial=0)) + 1) + pairs[:, 1]
+    order = np.argsort(key, kind="stable")
+    shared = key[order[1:]] == key[order[:-1]]  # consecutive sides of one edge
+    return order[:-1][shared] // 3, order[1:][shared] // 3
 
 
 def connected_parts(a: np.ndarray, b: np.ndarray, count: int) -> np.ndarray:

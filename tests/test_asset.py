@@ -204,15 +204,11 @@ def sphere_level():
     return options, split_vertices, split, uvs, normals, bake.vertex_tangents(split_vertices, split, uvs, normals)
 
 
-@pytest.mark.parametrize("part", [asset.UNWRAP_PART, 90])
-def test_the_normal_map_turns_a_coarse_level_into_the_fields_surface(part, monkeypatch):
+def test_the_normal_map_turns_a_coarse_level_into_the_fields_surface():
     """Baked onto a 320-face sphere from a bumpy ball, the decoded normal map
     is the field's normal at each texel's surface point, and the colour the
-    field's colour there; the level's own normals are far from it. Charted
-    whole, or in four parts packed together (as a large level is)."""
+    field's colour there; the level's own normals are far from it."""
     from sinshape.runtime import bake
-
-    monkeypatch.setattr(asset, "UNWRAP_PART", part)
 
     options, vertices, split, uvs, normals, tangents = sphere_level()
 
@@ -288,24 +284,23 @@ def test_a_rays_crossing_says_which_side_the_surface_faces():
     assert (outward[:150] == 1).all() and (outward[150:] == -1).all()
 
 
-@pytest.mark.parametrize("with_unseen", [False, True])
-def test_a_level_charted_in_parts_keeps_every_face_once_and_no_two_overlap(monkeypatch, with_unseen):
-    """Charted in parts (UNWRAP_PART faces at a time, and the unseen faces
-    apart), the level is the same triangles, each once, and the packed
-    charts of all parts share no texel."""
-    import trimesh
+def ramp(turns: float = 2.0, steps: int = 160):
+    """A spiral ramp: a strip between radii 5 and 10 winding `turns` times
+    round the z axis, 1 unit up a turn; every face faces up, and seen from
+    above its turns lie over each other. (vertices, faces)."""
+    angle = np.linspace(0, 2 * np.pi * turns, steps)
+    rows = [np.stack([r * np.cos(angle), r * np.sin(angle), angle / (2 * np.pi)], axis=1) for r in (5.0, 10.0)]
+    vertices = np.concatenate(rows)
+    i = np.arange(steps - 1)
+    faces = np.concatenate([np.stack([i, i + steps, i + 1], 1), np.stack([i + 1, i + steps, i + steps + 1], 1)])
+    return vertices, faces
 
-    monkeypatch.setattr(asset, "UNWRAP_PART", 300)
-    sphere = trimesh.creation.icosphere(3, radius=10)  # 1,280 faces: five parts
-    vertices, faces = np.asarray(sphere.vertices), np.asarray(sphere.faces)
-    unseen = vertices[faces].mean(axis=1)[:, 2] < -8 if with_unseen else None
-    source, split, uvs = asset.unwrap(vertices, faces, 256, unseen)
-    assert sorted(map(tuple, np.sort(source[split], axis=1))) == sorted(map(tuple, np.sort(faces, axis=1)))
-    assert uvs.min() >= 0 and uvs.max() <= 1
-    size = 256
+
+def covered_texels(uvs: np.ndarray, faces: np.ndarray, size: int) -> np.ndarray:
+    """How many faces cover each texel's centre strictly inside, (size, size)."""
     covered = np.zeros((size, size), np.int64)
     centres = (np.stack(np.meshgrid(np.arange(size), np.arange(size), indexing="ij"), axis=-1) + 0.5) / size
-    for triangle in uvs[split]:
+    for triangle in uvs[faces]:
         a, b, c = triangle
         low, high = np.floor(triangle.min(axis=0) * size).astype(int), np.ceil(triangle.max(axis=0) * size).astype(int)
         box = centres[low[0]:high[0], low[1]:high[1]]
@@ -313,7 +308,36 @@ def test_a_level_charted_in_parts_keeps_every_face_once_and_no_two_overlap(monke
         w1 = ((box[..., 0] - a[0]) * (c - a)[1] - (box[..., 1] - a[1]) * (c - a)[0]) / d
         w2 = ((b - a)[0] * (box[..., 1] - a[1]) - (b - a)[1] * (box[..., 0] - a[0])) / d
         covered[low[0]:high[0], low[1]:high[1]] += (w1 > 1e-6) & (w2 > 1e-6) & (1 - w1 - w2 > 1e-6)
-    assert covered.max() == 1 and covered.sum() > 0.3 * size * size  # charts apart, the atlas well filled
+    return covered
+
+
+@pytest.mark.parametrize("with_unseen", [False, True])
+def test_a_levels_charts_keep_every_face_once_and_no_two_overlap(with_unseen):
+    """Charted by the axis each face faces (the unseen faces apart), the
+    level is the same triangles, each once and in their order, and the
+    packed charts share no texel and fill the atlas well."""
+    import trimesh
+
+    sphere = trimesh.creation.icosphere(3, radius=10)  # 1,280 faces
+    vertices, faces = np.asarray(sphere.vertices), np.asarray(sphere.faces)
+    unseen = vertices[faces].mean(axis=1)[:, 2] < -8 if with_unseen else None
+    source, split, uvs = asset.unwrap(vertices, faces, 256, unseen)
+    assert np.array_equal(source[split], faces)
+    assert uvs.min() >= 0 and uvs.max() <= 1
+    covered = covered_texels(uvs, split, 256)
+    assert covered.max() == 1 and covered.sum() > 0.4 * 256 * 256  # charts apart, the atlas well filled
+
+
+def test_a_surface_winding_over_itself_is_charted_without_overlap():
+    """A spiral ramp faces up everywhere, so its faces make one chart whose
+    projection lies over itself twice; the faces of the overlap are charted
+    apart, and no texel is covered twice."""
+    vertices, faces = ramp()
+    chart, facing = asset.axis_charts(vertices, faces, np.zeros(len(faces), bool))
+    assert len(np.unique(chart)) == 1 and (asset.FACINGS[facing] == [0, 0, 1]).all()
+    source, split, uvs = asset.unwrap(vertices, faces, 256)
+    assert np.array_equal(source[split], faces)
+    assert covered_texels(uvs, split, 256).max() == 1
 
 
 def test_a_samples_base_is_found_and_charted_small_so_that_the_rest_gets_its_texels():
