@@ -7,7 +7,8 @@ each level, in one glTF binary (.glb).
 Simplification is meshoptimizer's (the simplifier behind gltfpack; compared
 with fast-simplification in docs/ASSETS.md), with a world tile's border
 locked so that every level of a tile meets every level of its neighbours.
-UVs come from xatlas, charts padded so that mip-maps do not bleed. The maps
+UVs are charts of the faces that face along one axis, packed by xatlas,
+padded so that mip-maps do not bleed. The maps
 are baked from the model itself (bake.py): the normal from its field's
 gradient, or from its example's relief where the model carries it, the colour from the one function that colours a sample's
 vertices (colour.colouring; a world tile's blend, world_points.tile_colours).
