@@ -55,6 +55,7 @@ surface the other faces get for it.
 
 import argparse
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -62,7 +63,8 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
+os.environ.setdefault("NUMPY_MADVISE_HUGEPAGE", "0")  # as `sinrun` runs (cli/__init__.py), set before numpy loads
+import numpy as np  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 VIEWS = [(35, 25), (125, 25), (215, 25), (305, 25), (80, 70), (170, -15)]
