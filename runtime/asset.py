@@ -26,8 +26,8 @@ from sinshape.core.errors import ConflictError, InputError, named
 from sinshape.core.manifest import UP_AXIS
 
 from . import bake, colour as colouring, gltf, ktx2, mesh, query, world, world_points, world_tiles
-from .raster import rasterise
 from .options import ASSET_OPTION, NAMINGS
+from .raster import rasterise
 from .request import make
 
 MAX_LODS = 8
@@ -316,7 +316,8 @@ def unwrap(vertices: np.ndarray, faces: np.ndarray, size: int, unseen: np.ndarra
     import xatlas  # the assets extra
 
     unseen = np.zeros(len(faces), bool) if unseen is None else unseen
-    chart, facing = axis_charts(vertices, faces, unseen)
+    pairs = mesh.edge_neighbours(faces)
+    chart, facing = axis_charts(vertices, faces, unseen, pairs)
     # Packed at PACK_SIDE texels a side at most, then scaled to the map: padding grows with the side, so
     # the gutters come out as wide.
     pack, packed_side = xatlas.PackOptions(), min(size, PACK_SIDE)
@@ -325,10 +326,10 @@ def unwrap(vertices: np.ndarray, faces: np.ndarray, size: int, unseen: np.ndarra
     pack.texels_per_unit = packed_side * math.sqrt(FILL / max(area, 1e-30))
     charts = xatlas.ChartOptions()
     charts.use_input_mesh_uvs = True
-    alone = np.zeros(len(faces), bool)
+    alone, colour = np.zeros(len(faces), bool), np.zeros(len(faces), np.int64)
     for last in [False] * (FOLD_PASSES - 1) + [True]:  # again while a chart overlaps itself: each face of the fold
         # then a chart of its own (once more, as a fold finer than a texel may show at the new scale)
-        source, split_faces, positions, projected = chart_vertices(vertices, faces, chart, facing, unseen, alone)
+        source, split_faces, positions, projected = chart_vertices(vertices, faces, chart, facing, unseen, colour)
         atlas = xatlas.Atlas()
         atlas.add_mesh(np.ascontiguousarray(positions, np.float32), np.ascontiguousarray(split_faces, np.uint32),
                        None, np.ascontiguousarray(projected, np.float32))
@@ -341,20 +342,22 @@ def unwrap(vertices: np.ndarray, faces: np.ndarray, size: int, unseen: np.ndarra
         folded = () if last else overlapping(source[mapping], packed_faces, uvs, min(size, FOLD_SIDE))
         if not len(folded):
             return source[mapping].astype(np.int64), packed_faces, uvs
-        chart, alone = chart.copy(), alone.copy()
         chart[folded], alone[folded] = chart.max() + 1 + np.arange(len(folded)), True
+        # Faces alone that share an edge, coloured apart: xatlas joins faces across an edge whose UVs agree.
+        both = alone[pairs[0]] & alone[pairs[1]]
+        colour[alone] = 1 + greedy_colours(np.flatnonzero(alone), pairs[0][both], pairs[1][both])
 
 
 def chart_vertices(vertices: np.ndarray, faces: np.ndarray, chart: np.ndarray, facing: np.ndarray,
-                   unseen: np.ndarray, alone: np.ndarray) -> tuple:
+                   unseen: np.ndarray, colour: np.ndarray) -> tuple:
     """A vertex of its own in each chart, so that a chart's UVs are its own:
     (the original vertex of each (V',), faces (F, 3) of them, their
     positions (V', 3), the unseen charts' shrunk UNSEEN_SCALE times about
     their middle (xatlas scales a chart by its area), and their projections
-    along the direction their chart faces (V', 2), those of faces charted
-    `alone` set apart from their neighbours', which xatlas would join
-    them to (it joins faces across an edge whose UVs agree): each in a
-    band of its direction and colour (greedy_colours))."""
+    along the direction their chart faces (V', 2), in a band of that
+    direction and the face's `colour` (F,) (0, or that of a face charted
+    alone: greedy_colours), so that xatlas joins no face to a neighbour of
+    another chart whose UVs agree with its own)."""
     count = int(chart.max()) + 1
     keys, split_faces = np.unique(faces * count + chart[:, None], return_inverse=True)
     source, vertex_chart = keys // count, keys % count
@@ -363,15 +366,8 @@ def chart_vertices(vertices: np.ndarray, faces: np.ndarray, chart: np.ndarray, f
         low = np.isin(vertex_chart, chart[unseen])
         middle = positions[low].mean(axis=0)
         positions[low] = middle + (positions[low] - middle) * UNSEEN_SCALE
-    chart_facing = np.zeros(count, np.int64)
-    chart_facing[chart] = facing
-    # Alone faces that share an edge, coloured apart: no two beside each other in one band.
-    colour = np.zeros(len(faces), np.int64)
-    a, b = mesh.edge_neighbours(faces)
-    both = alone[a] & alone[b]
-    colour[alone] = 1 + greedy_colours(np.flatnonzero(alone), a[both], b[both])
-    chart_colour = np.zeros(count, np.int64)
-    chart_colour[chart] = colour
+    chart_facing, chart_colour = np.zeros(count, np.int64), np.zeros(count, np.int64)
+    chart_facing[chart], chart_colour[chart] = facing, colour
     band = chart_facing[vertex_chart] + len(FACINGS) * chart_colour[vertex_chart]
     return source, split_faces.reshape(-1, 3), positions, projections(positions, chart_facing[vertex_chart], band)
 
@@ -388,18 +384,18 @@ FOLD_SIDE = 512
 PACK_SIDE = 1024  # the side xatlas packs at, at most: at 2048 it took 0.4 s for a 20,000-face level, at 1024 0.1 s
 
 
-def axis_charts(vertices: np.ndarray, faces: np.ndarray, unseen: np.ndarray) -> tuple:
+def axis_charts(vertices: np.ndarray, faces: np.ndarray, unseen: np.ndarray, pairs: tuple) -> tuple:
     """Each face's chart (F,) and the direction it faces (F,) into FACINGS:
     the direction nearest its normal, then CHART_ROUNDS rounds of taking the
     one most of its edge neighbours have (its own counting half a vote
     more), so that a chart's border does not zigzag where a surface turns
     between two; charts are the parts joined by edges of faces facing alike,
-    seen or unseen alike."""
+    seen or unseen alike. pairs: mesh.edge_neighbours(faces)."""
     corners = vertices[faces]
     normals = bake.unit(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]))
     nearness = normals @ FACINGS.T
     facing = np.argmax(nearness, axis=1)
-    a, b = mesh.edge_neighbours(faces)
+    a, b = pairs
     rows = np.arange(len(faces))
     for _ in range(CHART_ROUNDS):
         votes = np.zeros((len(faces), len(FACINGS)))

@@ -18,7 +18,7 @@ from click.testing import CliRunner
 from conftest import TINY_COLOUR_ONNX, TINY_ONNX
 from sinshape.cli.main import cli
 from sinshape.core.errors import InputError, MemoryLimitError
-from sinshape.runtime import asset, colour, generate, gltf, load_model, query
+from sinshape.runtime import asset, colour, generate, gltf, load_model, mesh, query
 from sinshape.runtime.request import SampleRequest
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -333,7 +333,7 @@ def test_a_surface_winding_over_itself_is_charted_without_overlap():
     projection lies over itself twice; the faces of the overlap are charted
     apart, and no texel is covered twice."""
     vertices, faces = ramp()
-    chart, facing = asset.axis_charts(vertices, faces, np.zeros(len(faces), bool))
+    chart, facing = asset.axis_charts(vertices, faces, np.zeros(len(faces), bool), mesh.edge_neighbours(faces))
     assert len(np.unique(chart)) == 1 and (asset.FACINGS[facing] == [0, 0, 1]).all()
     source, split, uvs = asset.unwrap(vertices, faces, 256)
     assert np.array_equal(source[split], faces)
