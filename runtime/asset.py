@@ -209,16 +209,20 @@ def sample_field(model, triplane, detail: bool = True, surface=None) -> bake.Fie
     at full detail (a format-5 model's tiles, read at each texel's point;
     without `detail`, its colour head's) and its example's relief (a model
     with tiles, with `detail`). `surface`: colour.matching's Future, begun
-    before the mesh was made (None: matched here)."""
-    relief = detail and model.example_tiles is not None
+    before the mesh was made (None: begun here). It is waited for at the
+    first read, the bake's, so that the levels are simplified and
+    unwrapped while it runs."""
     if not surface_read(model, detail):
         return bake.Field(query.occupying(model, triplane), None)
-    surface = colouring.colouring(model, triplane, detail=detail) if surface is None else surface.result()
+    surface = colouring.matching(model, triplane, detail) if surface is None else surface
 
     def colour(points):
-        return mesh.colour_bytes(surface(points))[:, :3]
+        return mesh.colour_bytes(surface.result()(points))[:, :3]
+
+    def relief(points):
+        return surface.result().relief(points)
     return bake.Field(query.occupying(model, triplane), colour if model.manifest.colour else None,
-                      surface.relief if relief else None)
+                      relief if detail and model.example_tiles is not None else None)
 
 
 def tile_field(model, seed: int, tile, options) -> bake.Field:
