@@ -66,6 +66,28 @@ export const colouredMaterial = new THREE.MeshStandardMaterial({ vertexColors: t
 const worldMaterials = [new THREE.MeshLambertMaterial({ color: material.color, side: THREE.FrontSide }),
                         new THREE.MeshLambertMaterial({ vertexColors: true, side: THREE.FrontSide })];
 
+// A software renderer (SwiftShader) compiles code of its own for each way of drawing, at the first draw
+// that needs it. A triangle of each of the shape's kinds, plain and coloured (indexed, with normals), drawn
+// once as the page loads, while it waits for its first sample, takes that off the sample's first frame,
+// which it held 117 to 150 ms (50 to 100 after; docs/BENCHMARKS.md, "In the browser"). Cleared at once:
+// it is never seen.
+{
+  const triangle = (coloured) => {
+    const geometry = new THREE.BufferGeometry();
+    geometry.setAttribute('position', new THREE.BufferAttribute(new Float32Array([0, 0, -1, 0.01, 0, -1, 0, 0.01, -1]), 3));
+    geometry.setIndex(new THREE.BufferAttribute(new Uint32Array([0, 1, 2]), 1));
+    geometry.computeVertexNormals();
+    if (coloured) geometry.setAttribute('color', new THREE.BufferAttribute(new Float32Array(9), 3));
+    return new THREE.Mesh(geometry, coloured ? colouredMaterial : material);
+  };
+  const drawn = [triangle(false), triangle(true)];
+  scene.add(...drawn);
+  shapeRenderer.render(scene, camera);
+  scene.remove(...drawn);
+  for (const mesh of drawn) mesh.geometry.dispose();
+  shapeRenderer.clear();
+}
+
 /** A mesh's material (a world's tile's when `tile`) and, for a coloured model's, its 'color' attribute: the
  * runtime's sRGB turned linear, which three.js's colour management expects of vertex colours.
  * colours: Float32Array (V, 3) or null. */
