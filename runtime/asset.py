@@ -20,6 +20,7 @@ import time
 from dataclasses import dataclass, replace
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from sinshape.core.budget import check_memory
 from sinshape.core.errors import ConflictError, InputError, named
@@ -556,6 +557,14 @@ def asset_bytes(model, request, options: AssetOptions, name: str = "sample", thr
         except ImportError:
             raise InputError("`hulls` needs CoACD: pip install 'sinshape[assets]'", "hulls") from None
     threads = threads or os.cpu_count() or 1
+    # numpy's BLAS would start threads of its own in every product (the decoder's, the matching's), which
+    # then spin beside the bake's and the matching's own (as in mesh.band_mesh): one each.
+    with threadpool_limits(1, user_api="blas"):
+        return made_asset(model, request, options, name, threads, progress)
+
+
+def made_asset(model, request, options: AssetOptions, name: str, threads: int, progress) -> tuple:
+    """asset_bytes's work, its options checked."""
     started = time.perf_counter()
     dense = dense_surface(model, request, threads, progress)
     if not len(dense.faces):
