@@ -401,11 +401,10 @@ def axis_charts(vertices: np.ndarray, faces: np.ndarray, unseen: np.ndarray, pai
     nearness = normals @ FACINGS.T
     facing = np.argmax(nearness, axis=1)
     a, b = pairs
-    rows = np.arange(len(faces))
-    for _ in range(CHART_ROUNDS):
-        votes = np.zeros((len(faces), len(FACINGS)))
-        np.add.at(votes, (a, facing[b]), 1)
-        np.add.at(votes, (b, facing[a]), 1)
+    rows, sides = np.arange(len(faces)), len(FACINGS)
+    for _ in range(CHART_ROUNDS):  # each edge a vote for each of its faces: counted by one bincount
+        votes = np.bincount(np.concatenate([a * sides + facing[b], b * sides + facing[a]]),
+                            minlength=len(faces) * sides).reshape(len(faces), sides).astype(np.float64)
         votes[rows, facing] += 0.5
         votes[nearness < CHART_FACING] = -1
         facing = np.argmax(votes, axis=1)
