@@ -28,7 +28,7 @@ from sinshape.core.manifest import UP_AXIS
 
 from . import bake, colour as colouring, gltf, ktx2, mesh, query, world, world_points, world_tiles
 from .options import ASSET_OPTION, NAMINGS
-from .raster import rasterise
+from .raster import fragments, keep_nearest
 from .request import make
 
 MAX_LODS = 8
@@ -445,15 +445,19 @@ def overlapping(source: np.ndarray, faces: np.ndarray, uvs: np.ndarray, size: in
     """The faces (F, 3) whose texels in a size x size map another face
     covers that shares no vertex with them (source: each vertex's original):
     a chart folded over itself, as packed charts never overlap each other.
-    Two z-buffers of the faces, the lowest index on top and the highest, see
-    both where two cover a texel's centre."""
-    corners, order = uvs[faces] * size, np.arange(len(faces), dtype=np.float64)[:, None].repeat(3, axis=1)
-    low, _ = rasterise(corners, -order, (size, size))
-    high, _ = rasterise(corners, order, (size, size))
-    both = np.flatnonzero((low.ravel() != high.ravel()) & (low.ravel() >= 0))
-    a, b = source[faces[low.ravel()[both]]], source[faces[high.ravel()[both]]]
+    Two z-buffers of the faces, filled from one rasterising, the lowest
+    index on top and the highest, see both where two cover a texel's centre."""
+    order = np.arange(len(faces), dtype=np.float64)[:, None].repeat(3, axis=1)
+    depth = {end: np.full(size * size, -np.inf) for end in ("low", "high")}
+    owner = {end: np.full(size * size, -1, np.int64) for end in ("low", "high")}
+    for pixel, near, face, _, _ in fragments(uvs[faces] * size, order, (size, size)):
+        keep_nearest(pixel, -near, face, depth["low"], owner["low"])
+        keep_nearest(pixel, near, face, depth["high"], owner["high"])
+    low, high = owner["low"], owner["high"]
+    both = np.flatnonzero((low != high) & (low >= 0))
+    a, b = source[faces[low[both]]], source[faces[high[both]]]
     apart = ~(a[:, :, None] == b[:, None, :]).any(axis=(1, 2))
-    return np.unique(np.concatenate([low.ravel()[both[apart]], high.ravel()[both[apart]]]))
+    return np.unique(np.concatenate([low[both[apart]], high[both[apart]]]))
 
 
 def on_the_ground(vertices: np.ndarray, faces: np.ndarray, up: int, reach: float) -> np.ndarray:

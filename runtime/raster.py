@@ -17,6 +17,25 @@ def rasterise(corners: np.ndarray, nearness: np.ndarray, size, weights: bool = F
     centre, (height, width, 2) float32 (an asset's bake reads them).
 
     corners : (m, 3, 2) float pixel positions; nearness : (m, 3) float.
+    """
+    width, height = size
+    zbuffer = np.full(width * height, -np.inf)
+    owner = np.full(width * height, -1, dtype=np.int64)
+    found = np.zeros((width * height, 2), np.float32) if weights else None
+    for pixel, near, face, u, v in fragments(corners, nearness, size, weights):
+        won = keep_nearest(pixel, near, face, zbuffer, owner)
+        if weights:
+            found[pixel[won]] = np.stack([u[won], v[won]], axis=1)
+    if weights:
+        return owner.reshape(height, width), zbuffer.reshape(height, width), found.reshape(height, width, 2)
+    return owner.reshape(height, width), zbuffer.reshape(height, width)
+
+
+def fragments(corners: np.ndarray, nearness: np.ndarray, size, weights: bool = False):
+    """The pixel centres each projected face covers, in batches: (pixel
+    indices, nearness there, faces, and with `weights` the barycentric
+    weights of corners 1 and 2, else None), each (k,), for a z-buffer
+    (rasterise) or several to keep.
 
     Faces are grouped by the width and height of their pixel bounding box,
     so that one batch tests many faces against a rectangle of candidate
@@ -43,9 +62,6 @@ def rasterise(corners: np.ndarray, nearness: np.ndarray, size, weights: bool = F
     near = (nearness[:, :1] * [1, 0, 0] + (nearness[:, 1:2] - nearness[:, :1]) * w1
             + (nearness[:, 2:] - nearness[:, :1]) * w2)
 
-    zbuffer = np.full(width * height, -np.inf)
-    owner = np.full(width * height, -1, dtype=np.int64)
-    found = np.zeros((width * height, 2), np.float32) if weights else None
     boxes = span + 1
     boxes = np.where(boxes <= 8, boxes, 2 ** np.ceil(np.log2(boxes)).astype(np.int64))
     # One integer per (width, height): np.unique on rows is much slower.
@@ -65,12 +81,8 @@ def rasterise(corners: np.ndarray, nearness: np.ndarray, size, weights: bool = F
             row, col = np.nonzero(inside)
             f, dx_in, dy_in = f[row], dx[col], dy[col]
             pixel = (first[f, 1] + dy_in) * width + first[f, 0] + dx_in
-            won = keep_nearest(pixel, near[f, 0] + near[f, 1] * dx_in + near[f, 2] * dy_in, kept[f], zbuffer, owner)
-            if weights:
-                found[pixel[won]] = np.stack([u[row, col][won], v[row, col][won]], axis=1)
-    if weights:
-        return owner.reshape(height, width), zbuffer.reshape(height, width), found.reshape(height, width, 2)
-    return owner.reshape(height, width), zbuffer.reshape(height, width)
+            yield (pixel, near[f, 0] + near[f, 1] * dx_in + near[f, 2] * dy_in, kept[f],
+                   *((u[row, col], v[row, col]) if weights else (None, None)))
 
 
 def cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
