@@ -448,12 +448,11 @@ def overlapping(source: np.ndarray, faces: np.ndarray, uvs: np.ndarray, size: in
     Two z-buffers of the faces, filled from one rasterising, the lowest
     index on top and the highest, see both where two cover a texel's centre."""
     order = np.arange(len(faces), dtype=np.float64)[:, None].repeat(3, axis=1)
-    depth = {end: np.full(size * size, -np.inf) for end in ("low", "high")}
-    owner = {end: np.full(size * size, -1, np.int64) for end in ("low", "high")}
+    low, high = np.full(size * size, -1, np.int64), np.full(size * size, -1, np.int64)
+    low_depth, high_depth = np.full(size * size, -np.inf), np.full(size * size, -np.inf)
     for pixel, near, face, _, _ in fragments(uvs[faces] * size, order, (size, size)):
-        keep_nearest(pixel, -near, face, depth["low"], owner["low"])
-        keep_nearest(pixel, near, face, depth["high"], owner["high"])
-    low, high = owner["low"], owner["high"]
+        keep_nearest(pixel, -near, face, low_depth, low)
+        keep_nearest(pixel, near, face, high_depth, high)
     both = np.flatnonzero((low != high) & (low >= 0))
     a, b = source[faces[low[both]]], source[faces[high[both]]]
     apart = ~(a[:, :, None] == b[:, None, :]).any(axis=(1, 2))
