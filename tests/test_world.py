@@ -438,11 +438,12 @@ def within_tile_correlation(model, tile, lod) -> float:
 
 
 def test_a_farther_tile_keeps_the_shape_and_colour_of_its_full_self():
-    """A tile at lod 1 or 2 reads the planes one level below the finest (world.planes_level):
-    its heights correlate with its lod-0 self within the tile at 0.95 and more (read at its
-    own level, lod 2's fell to 0.79-0.87 on these tiles), and a coloured tile's mean colour
-    is its full self's within 8 sRGB levels (by correspondence in its windows; the colour
-    head gave 30-40 levels off)."""
+    """A tile at lod 1 or 2 reads the planes one level below the finest, a model coloured by
+    correspondence the finest (world.planes_level): its heights correlate with its lod-0 self
+    within the tile at 0.95 and more (read at its own level, lod 2's fell to 0.79-0.87 on these
+    tiles; the coloured terrain's lod 1 read one level below, 0.85-0.92), and a coloured tile's
+    mean colour is its full self's within 5 sRGB levels (by correspondence in its windows; the
+    colour head gave 30-40 levels off, the level below the finest up to 7.6)."""
     from sinshape import models
 
     terrain = load_model(models.find("terrain"), threads=1)
@@ -450,6 +451,7 @@ def test_a_farther_tile_keeps_the_shape_and_colour_of_its_full_self():
         assert within_tile_correlation(terrain, tile, 1) > 0.95 and within_tile_correlation(terrain, tile, 2) > 0.95
     coloured = load_model(models.find("terrain_colour"), threads=1)
     for tile in ((0, 0), (2, 1)):
+        assert within_tile_correlation(coloured, tile, 1) > 0.95
         means = []
         for lod in (0, 1):
             options = world.WorldOptions(lod=lod)
@@ -458,7 +460,7 @@ def test_a_farther_tile_keeps_the_shape_and_colour_of_its_full_self():
             corners = surface.vertices[own]
             area = np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
             means.append((surface.colours[own, :3].mean(axis=1) * area[:, None]).sum(axis=0) / area.sum())
-        assert np.abs(means[1] - means[0]).max() < 8, means
+        assert np.abs(means[1] - means[0]).max() < 5, means
 
 
 def covered_by_faces(triangles: np.ndarray, points: np.ndarray) -> np.ndarray:
