@@ -117,6 +117,12 @@ BLOCK = 5  # tiles a side of the block whose tiles share their windows
 RUN = 6  # tiles in a row measured at each distance: a scattered world's tiles hold 0 to 4 objects
 
 
+def forget_windows() -> None:
+    """Drop the windows' planes and colourings kept for the next tiles: a tile made after it makes its own."""
+    world._windows.clear()
+    world_points._colourings.clear()
+
+
 def cost(model, name: str, options) -> dict:
     """Seconds and traced memory of a tile (mesh, normals and all) with no
     window kept, the mean over a row of RUN tiles at each of four distances
@@ -132,12 +138,12 @@ def cost(model, name: str, options) -> dict:
             d, chosen = (kind[1], options) if kind[0] == "distance" else (0, dataclasses.replace(options, lod=kind[1]))
             seconds = peak = 0
             for k in range(RUN):
-                world._windows.clear()
+                forget_windows()
                 started = time.perf_counter()
                 world_tiles.tile_surface(model, 3, (d + k, -d), options=chosen)
                 seconds += (time.perf_counter() - started) / RUN
                 # The memory in a run of its own: tracing slows Python's own work (a coarser tile's most) 2 to 3 times.
-                world._windows.clear()
+                forget_windows()
                 tracemalloc.start()
                 world_tiles.tile_surface(model, 3, (d + k, -d), options=chosen)
                 peak = max(peak, tracemalloc.get_traced_memory()[1])
@@ -153,7 +159,7 @@ def cost(model, name: str, options) -> dict:
     block = {lod: np.inf for lod in (0, levels[-1])}
     for _ in range(3):
         for lod in block:
-            world._windows.clear()
+            forget_windows()
             started = time.perf_counter()
             for i in range(BLOCK):
                 for j in range(BLOCK):
@@ -339,8 +345,7 @@ def several_models(model, other, name: str, other_name: str) -> dict:
                 seconds = 0
                 tiles = [(i0 + i, j0 + j) for i in range(8) for j in range(6)]
                 for tile in tiles:
-                    world._windows.clear()
-                    world_points._colourings.clear()
+                    forget_windows()
                     started = time.perf_counter()
                     world_tiles.tile_surface(model, 3, tile, options=options)
                     seconds += (time.perf_counter() - started) / len(tiles)

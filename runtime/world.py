@@ -214,11 +214,11 @@ def planes_level(model, lod: int) -> int:
     level's own at the coarsest lod, a sketch at a tenth of a tile's cost
     (a view filled before its tiles come at their levels). A model coloured
     by correspondence reads the finest at every lod between: its coarser
-    tiles' colour is matched on planes of the finest size anyway, which
-    costs most of a tile, so the finest level costs little more (0.86-0.93
-    of a full tile against 0.85-0.90), and the level below it drifts (the
-    coloured terrain's three levels: 0.92 against 0.995, and 4 sRGB levels
-    off in colour against 0.8)."""
+    tiles' colour is matched on planes of the finest size anyway, which is
+    most of what a tile costs (read one level down, the coloured terrain's
+    lod 1 cost 0.90-0.94 of a full tile; the finest, 1.02-1.09), and the
+    level below it drifts (its three levels: 0.92 in height against 0.995,
+    and 4 sRGB levels off in colour against 0.8)."""
     level = check_lod(model, lod)
     finest = len(model.manifest.sizes) - 1
     if level == 0:
