@@ -554,9 +554,9 @@ class Level:
             off = SEAM_OFF * fit[np.isfinite(fit)].max(initial=0) + 1
             cut_cost = SEAM_CUT * off
 
-            def energy(at: np.ndarray, piece: np.ndarray) -> np.ndarray:
-                """The fit of rows `at` (of rows) copying `piece` (k, 3), plus its faces' cost."""
-                total = self.distance(sample, here[at] + piece, rows[at])
+            def faces(at: np.ndarray, piece: np.ndarray) -> np.ndarray:
+                """The cost of the faces of rows `at` (of rows) copying `piece` (k, 3)."""
+                total = np.zeros(len(at))
                 mine_here = self.rows(here[at] + piece) < 0
                 for k in range(6):
                     cut = exists[at, k] & np.any(theirs[at, k] != piece, axis=1)
@@ -566,7 +566,8 @@ class Level:
                     total += faces
                 return total
 
-            best, choice = energy(np.arange(len(rows)), own), own.copy()
+            # Multiples of a quarter below 2^53: sums exact in any order.
+            best, choice = fit + faces(np.arange(len(rows)), own), own.copy()
             exact = fit == 0
             for k in range(6):
                 # Each piece once: a neighbour's that differs from the voxel's own and from those before it.
@@ -574,7 +575,7 @@ class Level:
                 for j in range(k):
                     new &= ~(differs[:, j] & np.all(theirs[:, k] == theirs[:, j], axis=1))
                 at = np.flatnonzero(new)
-                e = energy(at, theirs[at, k])
+                e = self.distance(sample, here[at] + theirs[at, k], rows[at]) + faces(at, theirs[at, k])
                 won = e < best[at]
                 best[at[won]], choice[at[won]] = e[won], theirs[at[won], k]
             matched[rows] = here + choice
