@@ -182,9 +182,13 @@ def test_keys_and_the_mouse_move_the_camera(page):
     moved = hold(page, "w", 400)
     step = np.subtract(moved["position"], start["position"])
     level = np.array(start["forward"]) * [1, 0, 1]
-    assert step[1] == 0 and np.dot(step, level) > 0.99 * np.linalg.norm(step) * np.linalg.norm(level) > 0
+    # Level to rounding: crossing into another tile moves the origin, and the tile's place is read back
+    # through the world's rotation (up z), which can leave 1e-16 in the height (seen once in CI).
+    assert abs(step[1]) < 1e-9 * np.linalg.norm(step)
+    assert np.dot(step, level) > 0.99 * np.linalg.norm(step) * np.linalg.norm(level) > 0
     left = np.subtract(hold(page, "a", 300)["position"], moved["position"])
-    assert left[1] == 0 and abs(np.dot(left, level)) < 1e-6 * np.linalg.norm(left) and np.cross(level, left)[1] > 0
+    assert abs(left[1]) < 1e-9 * np.linalg.norm(left)
+    assert abs(np.dot(left, level)) < 1e-6 * np.linalg.norm(left) and np.cross(level, left)[1] > 0
     moved = camera_pose(page)
     turned = hold(page, "ArrowLeft", 300)
     assert turned["position"] == moved["position"] and turned["quaternion"] != moved["quaternion"]
