@@ -35,8 +35,8 @@ whose squared distances are exact in float64 in any order, and every random
 choice is drawn from the specified noise (core/noise.py) keyed by the
 block's own content, not its place, so a part of a sample that another
 sample shares (a kept box) matches alike there, and so does the same
-content moved by a whole number of the coarsest blocks. The browser's runtime repeats it
-(serve/static/sinshape/colour.js).
+content moved by a whole number of the coarsest blocks. (The browser's
+runtime leaves colour and relief to the server: docs/WEB.md, "One runtime".)
 """
 
 import functools

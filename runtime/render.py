@@ -231,21 +231,56 @@ def render_grid(meshes: list, labels: list, columns: int, size=(320, 320), progr
 
 
 def crop(mesh: trimesh.Trimesh, zoom: float, focus=(0.5, 0.5, 0.5)) -> trimesh.Trimesh:
-    """A close-up: the faces whose centres lie in a box 1/zoom the size of the
+    """A close-up: the part of the mesh in a box 1/zoom the size of its
     bounding box (zoom >= 1), centred at `focus` (fractions of the bounding
-    box per axis). InputError if the box holds none."""
+    box per axis), its faces cut at the box's sides (whole faces kept or
+    dropped would leave a sawtooth edge a face deep, which reads as the
+    shape's own). Vertex colours and PAINT follow the cut. InputError if the
+    box holds none."""
     if zoom == 1:
         return mesh
     centre = mesh.bounds[0] + np.asarray(focus) * mesh.extents
-    keep = (abs(mesh.triangles_center - centre) <= mesh.extents / (2 * zoom)).all(axis=1)
-    if not keep.any():
+    low, high = centre - mesh.extents / (2 * zoom), centre + mesh.extents / (2 * zoom)
+    corners = mesh.triangles
+    within = np.all((corners >= low) & (corners <= high), axis=2)  # (m, 3): each corner inside the box
+    beyond = np.any(np.all(corners < low, axis=1) | np.all(corners > high, axis=1), axis=1)  # all past one side
+    whole, cut = np.flatnonzero(within.all(axis=1)), np.flatnonzero(~within.all(axis=1) & ~beyond)
+    pieces = [(f, weights) for f in cut for weights in clipped_triangles(corners[f], low, high)]
+    if not len(whole) and not pieces:
         raise InputError(f"no part of the shape lies in the zoomed box at `focus` {','.join(map(str, focus))}", "focus")
-    kept = keep.nonzero()[0]
-    part = mesh.submesh([kept], append=True)
+    source = np.concatenate([whole, np.array([f for f, _ in pieces], np.int64)])
+    weights = np.concatenate([np.broadcast_to(np.eye(3), (len(whole), 3, 3)),
+                              np.array([w for _, w in pieces]).reshape(-1, 3, 3)])  # (k, corner, original corner)
+    vertices = np.einsum("kcj,kjx->kcx", weights, corners[source]).reshape(-1, 3)
+    part = trimesh.Trimesh(vertices, np.arange(len(vertices)).reshape(-1, 3), process=False)
+    if mesh.visual.kind == "vertex":
+        colours = np.asarray(mesh.visual.vertex_colors, np.float64)[mesh.faces[source]]
+        part.visual.vertex_colors = np.round(np.einsum("kcj,kjx->kcx", weights, colours)).reshape(-1, 4).astype(np.uint8)
     paint = mesh.metadata.get(PAINT)
-    if paint is not None:  # the kept faces, renumbered
-        part.metadata[PAINT] = lambda face, weights: paint(kept[face], weights)
+    if paint is not None:  # a point of a part's face, as the same point of the face it was cut from
+        part.metadata[PAINT] = lambda face, w: paint(source[face], np.einsum("nc,ncj->nj", w, weights[face]))
     return part
+
+
+def clipped_triangles(corners: np.ndarray, low: np.ndarray, high: np.ndarray) -> list:
+    """The triangles of a triangle (corners (3, 3)) inside the box [low, high]
+    (Sutherland and Hodgman's clipping, a side at a time, then a fan), each
+    as its corners' barycentric weights in the triangle, (3, 3)."""
+    polygon = list(np.eye(3))
+    for axis in range(3):
+        for bound, sign in ((low[axis], -1.0), (high[axis], 1.0)):
+            outside = [sign * (w @ corners[:, axis] - bound) for w in polygon]
+            kept = []
+            for k, (w, d) in enumerate(zip(polygon, outside)):
+                w_next, d_next = polygon[(k + 1) % len(polygon)], outside[(k + 1) % len(polygon)]
+                if d <= 0:
+                    kept.append(w)
+                if (d <= 0) != (d_next <= 0):
+                    kept.append(w + (w_next - w) * (d / (d - d_next)))
+            polygon = kept
+            if len(polygon) < 3:
+                return []
+    return [np.stack([polygon[0], polygon[k], polygon[k + 1]]) for k in range(1, len(polygon) - 1)]
 
 
 def sample_label(seed, factors=(1, 1, 1), scale: float = 1.0) -> str:

@@ -49,9 +49,10 @@ def test_shape_writes_a_closed_example(tmp_path):
 
 
 def test_zoom_box_must_hold_part_of_the_shape(tmp_path):
-    box = tmp_path / "box.obj"
+    box, ball = tmp_path / "box.obj", tmp_path / "ball.obj"
     trimesh.creation.box((2, 1, 1)).export(box)
-    assert_one_line_error(sinrun("render", box, "--zoom", 10, "--focus", "0,0,0", "-o", tmp_path / "z.png"),
+    trimesh.creation.icosphere().export(ball)  # its bounding box's corner is far from its surface
+    assert_one_line_error(sinrun("render", ball, "--zoom", 10, "--focus", "0,0,0", "-o", tmp_path / "z.png"),
                           "no part of the shape")
     assert sinrun("render", box, "--zoom", 2, "--focus", "0.5,0.5,1", "-o", tmp_path / "z.png").exit_code == 0
     assert sinrun("render", box, "--focus", "2,0,0", "-o", tmp_path / "z.png").exit_code == 2

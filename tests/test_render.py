@@ -208,6 +208,22 @@ def test_save_png_failing_midway_keeps_the_old_file(tmp_path, monkeypatch):
     assert [p.name for p in tmp_path.iterdir()] == ["box.png"]
 
 
+def test_a_close_up_cuts_faces_at_the_box_and_paints_them_as_before():
+    """A cube's top face in a box a quarter of its area: only that quarter
+    is kept (whole faces kept by their centres would keep all of it, a
+    sawtooth a face deep where faces are small), with no point outside the
+    box, and each point of a cut face is painted as the same point of the
+    face it came from."""
+    cube = box((1, 1, 1))
+    cube.metadata[R.PAINT] = lambda face, w: np.einsum("nc,ncx->nx", w, cube.triangles[face])
+    part = R.crop(cube, 2, focus=(0.5, 0.5, 1.0))  # x, y in [-0.25, 0.25], z in [0.25, 0.75]
+    assert part.area == pytest.approx(0.25)
+    assert np.all(np.abs(part.vertices[:, :2]) <= 0.25 + 1e-12) and np.allclose(part.vertices[:, 2], 0.5)
+    w = np.random.default_rng(0).dirichlet((1, 1, 1), size=len(part.faces))
+    points = np.einsum("nc,ncx->nx", w, part.triangles)
+    assert np.allclose(part.metadata[R.PAINT](np.arange(len(part.faces)), w), points)
+
+
 def test_empty_mesh_is_refused():
     with pytest.raises(ValueError, match="empty mesh"):
         R.render(trimesh.Trimesh())

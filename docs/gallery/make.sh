@@ -48,11 +48,13 @@ sinrun world acropolis towerruins --seed 3 --tiles 0:11,0:20 --models-map world_
     --relief 60 -o "$work/temples_and_towers.ply"
 sinrun render "$work/temples_and_towers.ply" --up z --image-size 900 --elevation 35 --azimuth 210 -o world_models.png
 
-# Relief of a geometry-only model: the tower, seed 3 at scale 4, close up on its wall: the example, then
-# the sample without its example's relief (--no-detail) and with it.
+# Relief of a geometry-only model: the tower at scale 4, close up on its wall: the example, then seed 3
+# without its example's relief (--no-detail), the reconstruction with it, and seed 3 with it.
 sinrun sample towerruins --seed 3 --scale 4 --no-detail -o "$work/tower_plain.ply"
+sinrun sample towerruins --recon --scale 4 -o "$work/tower_recon_relief.ply"
 sinrun sample towerruins --seed 3 --scale 4 -o "$work/tower_relief.ply"
-sinrun render "$tower" "$work/tower_plain.ply" "$work/tower_relief.ply" --zoom 2.5 --focus 0.5,0.55,0.9 --columns 3 --image-size 360 -o tower_relief.png
+sinrun render "$tower" "$work/tower_plain.ply" "$work/tower_recon_relief.ply" "$work/tower_relief.ply" --zoom 2.5 \
+    --focus 0.5,0.55,0.9 --columns 4 --image-size 320 -o tower_relief.png
 
 # A wall whose bricks stand out of recessed mortar, trained here (about 4 minutes), close up at scale 4: its
 # reconstruction and two samples, read coarse to fine with the example's relief (docs/BENCHMARKS.md, "Relief";

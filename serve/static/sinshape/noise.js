@@ -2,8 +2,7 @@
 // core/noise.py, bit for bit. Every value is a pure function of
 // (seed, stream, position), computed with unsigned 64-bit wrapping arithmetic.
 // Keys (a few per sample) use BigInt; the bulk work uses 32-bit halves, which
-// is about 50 times faster than BigInt per value (exported for colour.js's
-// draws, which are SplitMix64 outputs too).
+// is about 50 times faster than BigInt per value.
 
 export const MASK64 = (1n << 64n) - 1n;
 export const GOLDEN = 0x9e3779b97f4a7c15n;
