@@ -119,6 +119,11 @@ BAND_CHUNK = 1 << 15
 # of the seam's voxels (plus one), and each face between two pieces
 # SEAM_CUT of that.
 SEAM_OFF, SEAM_CUT = 4, 0.25
+# A seam in colour between two pieces wanders up to SEAM_WANDER voxels
+# either side of the voxels' face, by noise of a lattice WANDER_CELL voxels
+# apart (seam_voxels).
+SEAM_WANDER, WANDER_CELL = 0.4, 1.0
+SEAM_STREAM = 3  # core/noise's stream id of the seams' wander
 ACROSS = np.array([(1, 2), (0, 2), (0, 1)])  # a tile's rows and columns run along these axes, by its axis
 
 
@@ -793,20 +798,24 @@ def nearest_in_palette(colours: np.ndarray, palette: np.ndarray, chunk: int = 25
     return palette[nearest[inverse.ravel()]]
 
 
-def example_points(tiles: Tiles, matched, points: np.ndarray, grid, distance: np.ndarray | None = None) -> tuple:
-    """Where points (n, 3) (sample model units) of a sample whose voxels
-    `matched` maps to example voxels stand in the example, and what its
-    smooth surface is there. `grid`: the sample's size; a point beyond its
-    last voxel (a mesh closes half a voxel outside) belongs to that voxel.
-    Point p in voxel u = round(p) stands for q = J(u) + (p - u), near the
-    example's surface but rarely on it. Returns q (n, 3), the signed
-    distance grid's value there (n,) (voxels, positive outside; `distance`,
-    else the tiles' own), the smooth surface's outward unit normal (n, 3)
-    (the grid's gradient) and q's voxel (n, 3) int64."""
-    # Halves up, as in every runtime (numpy's rint rounds them to even).
-    u = np.clip(np.floor(points + 0.5).astype(np.int64), 0, np.asarray(grid) - 1)
-    q = matched(u) + (points - u)
-    smooth, normal = trilinear(tiles.distance if distance is None else distance, q)
+def own_voxels(points: np.ndarray, grid) -> np.ndarray:
+    """The voxel (n, 3) int64 each point (n, 3) lies in, round(p), halves up as
+    in every runtime (numpy's rint rounds them to even); a point beyond the
+    grid's last voxel (a mesh closes half a voxel outside) belongs to it."""
+    return np.clip(np.floor(points + 0.5).astype(np.int64), 0, np.asarray(grid) - 1)
+
+
+def example_points(tiles: Tiles, points: np.ndarray, voxels: np.ndarray, matches: np.ndarray) -> tuple:
+    """Where points (n, 3) (sample model units) of a sample stand in the
+    example, each read by a sample voxel (`voxels` (n, 3): its own, or a
+    neighbour's across a seam, seam_voxels) whose match is `matches` (n, 3),
+    and what its smooth surface is there. Point p read by voxel u stands for
+    q = J(u) + (p - u), near the example's surface but rarely on it.
+    Returns q (n, 3), the signed distance grid's value there (n,) (voxels,
+    positive outside), the smooth surface's outward unit normal (n, 3) (the
+    grid's gradient) and q's voxel (n, 3) int64."""
+    q = matches + (points - voxels)
+    smooth, normal = trilinear(tiles.distance, q)
     normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
     voxel = np.clip(np.floor(q + 0.5).astype(np.int64), 0, np.array(tiles.distance.shape) - 1)
     return q, smooth, normal, voxel
@@ -840,7 +849,7 @@ def surface_under(tiles: Tiles, matched, points: np.ndarray, grid) -> tuple:
     of the tiles of q's voxel and of those beside it along each tile's axis,
     the one whose surface is nearest q (REACH_ORDER, TURN), and where on
     its plane that surface's point nearest q lies: ((n,) int64, (n, 2))."""
-    q, _, normal, voxel = example_points(tiles, matched, points, grid)
+    q, _, normal, voxel = example_points(tiles, points, *seam_voxels(matched, points, grid))
     best = np.full(len(points), np.inf)
     tile = np.zeros(len(points), np.int64)
     across = np.zeros((len(points), 2))
@@ -859,6 +868,61 @@ def surface_under(tiles: Tiles, matched, points: np.ndarray, grid) -> tuple:
         at = np.searchsorted(found, pick[better])  # each better point's tile among those found (found is sorted)
         across[better] = plane[at] + above[at][:, None] * slope[at]
     return tile, across
+
+
+def seam_voxels(matched, points: np.ndarray, grid) -> tuple:
+    """The sample voxel whose match each point (n, 3) reads: its own, or,
+    across a face between two pieces, the neighbour's where the seam
+    between them, wandering up to SEAM_WANDER voxels either side of the
+    face, lies on the point's side: a seam is a curve, not the voxels'
+    straight edge. How far it wanders is smooth noise (wander) of the place
+    in the example that the lower voxel's piece copies there, so both sides
+    of a face find the same seam, and a kept box, or the same content
+    moved, the same seams. A point past two faces' seams takes the one it
+    lies farther past. The voxels (n, 3) and their matches (n, 3), int64."""
+    size = np.asarray(grid) - 1
+    own = own_voxels(points, grid)
+    match = matched(own)
+    offset = match - own
+    chosen, chosen_match, past = own.copy(), match.copy(), np.full(len(points), -1.0)
+    for axis in range(3):
+        beside = own.copy()
+        beside[:, axis] += np.where(points[:, axis] >= own[:, axis], 1, -1)
+        beside = np.clip(beside, 0, size)
+        theirs = matched(beside)
+        rows = np.flatnonzero((beside[:, axis] != own[:, axis]) & np.any(theirs - beside != offset, axis=1))
+        if not len(rows):
+            continue
+        upper = beside[rows, axis] > own[rows, axis]
+        low = np.where(upper[:, None], own[rows], beside[rows])
+        face = points[rows].copy()
+        face[:, axis] = low[:, axis] + 0.5
+        seam = SEAM_WANDER * wander(np.where(upper[:, None], match[rows], theirs[rows]) + (face - low), axis)
+        beyond = (points[rows, axis] - face[:, axis] - seam) * np.where(upper, 1, -1)  # past the seam, towards beside
+        farther = (beyond >= 0) & (beyond > past[rows])
+        take = rows[farther]
+        chosen[take], chosen_match[take], past[take] = beside[take], theirs[take], beyond[farther]
+    return chosen, chosen_match
+
+
+def wander(places: np.ndarray, axis: int) -> np.ndarray:
+    """Smooth noise in (-1, 1) over faces across `axis` of the example, at
+    places (n, 3) (voxels) on them: values drawn at the corners of a
+    lattice WANDER_CELL voxels apart across the face's plane (SplitMix64 of
+    the corner and the plane, core/noise), blended by smoothstep. (n,)."""
+    plane = np.floor(places[:, axis] + 2).astype(np.uint64) << np.uint64(42)  # places lie half a voxel out at most
+    x = (places[:, ACROSS[axis]] + 2) / WANDER_CELL
+    corner = np.floor(x).astype(np.int64)
+    f = x - corner
+    f = f * f * (3 - 2 * f)
+    weights = (1 - f, f)
+    key = noise.stream_key(0, SEAM_STREAM, axis)
+    total = np.zeros(len(places))
+    for i, j in ((0, 0), (0, 1), (1, 0), (1, 1)):
+        cell = plane | ((corner[:, 0] + i).astype(np.uint64) << np.uint64(21)) | (corner[:, 1] + j).astype(np.uint64)
+        value = (noise.bits(key, cell) >> np.uint64(11)).astype(np.float64) * 2.0 ** -52 - 1
+        total += value * weights[i][:, 0] * weights[j][:, 1]
+    return total
 
 
 def read_colours(tiles: Tiles, matched, points: np.ndarray, grid, footprint: float | None = None) -> np.ndarray:

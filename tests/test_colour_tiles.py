@@ -248,6 +248,35 @@ def test_seams_settle_where_both_pieces_go_on(model):
         assert small[1] < small[0], small
 
 
+def test_a_seam_between_two_pieces_is_a_curve_not_the_voxels_edge():
+    """Two pieces meet at the face x = 3.5 (voxels below x 4 copy themselves,
+    the rest a place ten voxels on): points on either side near the face read
+    the other piece where the seam wanders past them, by up to SEAM_WANDER;
+    along each line across the face one piece gives way to the other once;
+    where the line crosses varies along the face; and it follows what the
+    pieces copy, not where they lie (the same copies two voxels on along y
+    meet along the same curve, moved)."""
+    def matched(voxels):
+        return voxels + np.where(voxels[:, :1] >= 4, [10, 0, 0], [0, 0, 0])
+
+    grid = (8, 12, 8)
+    x = np.linspace(3.0, 4.0, 201)
+    y = np.linspace(2.0, 6.0, 81)
+    points = np.stack(np.meshgrid(x, y, indexing="ij"), axis=-1).reshape(-1, 2)
+    points = np.column_stack([points, np.full(len(points), 3.2)])
+    voxels, matches = colour.seam_voxels(matched, points, grid)
+    assert np.array_equal(matches, matched(voxels))
+    upper = (voxels[:, 0] == 4).reshape(len(x), len(y))
+    assert np.array_equal(voxels[:, 1:], colour.own_voxels(points, grid)[:, 1:])  # only across the face
+    far = np.abs(x - 3.5) > colour.SEAM_WANDER
+    assert np.array_equal(upper[far], np.broadcast_to((x > 3.5)[far, None], upper[far].shape))
+    assert np.all(np.diff(upper.astype(int), axis=0) >= 0)  # one crossing a line
+    crossing = x[np.argmax(upper, axis=0)]
+    assert crossing.std() > 0.05 and (crossing < 3.49).any() and (crossing > 3.51).any(), crossing
+    moved, _ = colour.seam_voxels(lambda v: matched(v - [0, 2, 0]), points + [0, 2, 0], grid)
+    assert np.array_equal(moved - [0, 2, 0], voxels)
+
+
 def test_a_samples_colours_are_the_examples(model):
     # The box is red above and blue below: at full detail every colour a
     # sample shows is one of the two, or a blend of neighbouring texels of both.
