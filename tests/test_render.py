@@ -222,6 +222,11 @@ def test_a_close_up_cuts_faces_at_the_box_and_paints_them_as_before():
     w = np.random.default_rng(0).dirichlet((1, 1, 1), size=len(part.faces))
     points = np.einsum("nc,ncx->nx", w, part.triangles)
     assert np.allclose(part.metadata[R.PAINT](np.arange(len(part.faces)), w), points)
+    coloured = box((1, 1, 1))  # vertex colours follow the cut too: red rising with x
+    coloured.visual.vertex_colors = np.column_stack([np.round((coloured.vertices[:, 0] + 0.5) * 200),
+                                                     np.zeros((8, 2)), np.full(8, 255)]).astype(np.uint8)
+    part = R.crop(coloured, 2, focus=(0.5, 0.5, 1.0))
+    assert np.allclose(part.visual.vertex_colors[:, 0], np.round((part.vertices[:, 0] + 0.5) * 200), atol=1)
 
 
 def test_empty_mesh_is_refused():
