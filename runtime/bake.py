@@ -40,7 +40,7 @@ from typing import Callable
 
 import numpy as np
 
-from .raster import rasterise
+from .raster import cross as flat_cross, rasterise
 
 LATTICE = 0.75  # voxels between lattice points: the model's detail is a voxel's
 # ... where the example's relief gives each texel its point and normal, the
@@ -531,6 +531,8 @@ def texel_colours(field: Field, frame: Frame, points: np.ndarray, threads: int) 
 
 
 def area(corners: np.ndarray) -> np.ndarray:
-    """Areas of triangles (F, 3, 3) or (F, 3, 2)."""
-    cross = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-    return (np.abs(cross) if cross.ndim == 1 else np.linalg.norm(cross, axis=1)) / 2
+    """Areas of triangles (F, 3, 3) or (F, 3, 2) (numpy's cross of 2-D vectors is deprecated)."""
+    u, v = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
+    if corners.shape[-1] == 2:
+        return np.abs(flat_cross(u, v)) / 2
+    return np.linalg.norm(np.cross(u, v), axis=1) / 2

@@ -358,7 +358,7 @@ def test_a_samples_base_is_found_and_charted_small_so_that_the_rest_gets_its_tex
     def density(unseen):  # UV area per unit of surface, of the base's faces and of the others
         source, split, uvs = asset.unwrap(vertices, faces, 256, unseen)
         original = np.array([np.flatnonzero((np.sort(faces, axis=1) == np.sort(source[f])).all(axis=1))[0] for f in split])
-        uv_area = np.abs(np.cross(uvs[split][:, 1] - uvs[split][:, 0], uvs[split][:, 2] - uvs[split][:, 0])) / 2
+        uv_area = bake.area(uvs[split])
         world = bake.area(vertices[faces][original])
         return uv_area[base[original]].sum() / world[base[original]].sum(), \
             uv_area[~base[original]].sum() / world[~base[original]].sum()
