@@ -870,6 +870,27 @@ def surface_under(tiles: Tiles, matched, points: np.ndarray, grid) -> tuple:
     return tile, across
 
 
+def pieces_beside(matched, points: np.ndarray, grid) -> tuple:
+    """Each point's (n, 3) own voxel (n, 3) and its match (n, 3), and per
+    axis, of the points whose neighbour along it (the voxel across the face
+    the point leans to) copies another piece, (rows (k,), that neighbour
+    (k, 3), its match (k, 3)): the seams a point's colour and relief read
+    across."""
+    size = np.asarray(grid) - 1
+    own = own_voxels(points, grid)
+    match = matched(own)
+    offset = match - own
+    across = []
+    for axis in range(3):
+        beside = own.copy()
+        beside[:, axis] += np.where(points[:, axis] >= own[:, axis], 1, -1)
+        beside = np.clip(beside, 0, size)
+        theirs = matched(beside)
+        rows = np.flatnonzero((beside[:, axis] != own[:, axis]) & np.any(theirs - beside != offset, axis=1))
+        across.append((rows, beside[rows], theirs[rows]))
+    return own, match, across
+
+
 def seam_voxels(matched, points: np.ndarray, grid) -> tuple:
     """The sample voxel whose match each point (n, 3) reads: its own, or,
     across a face between two pieces, the neighbour's where the seam
@@ -880,28 +901,18 @@ def seam_voxels(matched, points: np.ndarray, grid) -> tuple:
     of a face find the same seam, and a kept box, or the same content
     moved, the same seams. A point past two faces' seams takes the one it
     lies farther past. The voxels (n, 3) and their matches (n, 3), int64."""
-    size = np.asarray(grid) - 1
-    own = own_voxels(points, grid)
-    match = matched(own)
-    offset = match - own
+    own, match, across = pieces_beside(matched, points, grid)
     chosen, chosen_match, past = own.copy(), match.copy(), np.full(len(points), -1.0)
-    for axis in range(3):
-        beside = own.copy()
-        beside[:, axis] += np.where(points[:, axis] >= own[:, axis], 1, -1)
-        beside = np.clip(beside, 0, size)
-        theirs = matched(beside)
-        rows = np.flatnonzero((beside[:, axis] != own[:, axis]) & np.any(theirs - beside != offset, axis=1))
-        if not len(rows):
-            continue
-        upper = beside[rows, axis] > own[rows, axis]
-        low = np.where(upper[:, None], own[rows], beside[rows])
+    for axis, (rows, beside, theirs) in enumerate(across):
+        upper = beside[:, axis] > own[rows, axis]
+        low = np.where(upper[:, None], own[rows], beside)
         face = points[rows].copy()
         face[:, axis] = low[:, axis] + 0.5
-        seam = SEAM_WANDER * wander(np.where(upper[:, None], match[rows], theirs[rows]) + (face - low), axis)
+        seam = SEAM_WANDER * wander(np.where(upper[:, None], match[rows], theirs) + (face - low), axis)
         beyond = (points[rows, axis] - face[:, axis] - seam) * np.where(upper, 1, -1)  # past the seam, towards beside
         farther = (beyond >= 0) & (beyond > past[rows])
         take = rows[farther]
-        chosen[take], chosen_match[take], past[take] = beside[take], theirs[take], beyond[farther]
+        chosen[take], chosen_match[take], past[take] = beside[farther], theirs[farther], beyond[farther]
     return chosen, chosen_match
 
 
@@ -950,20 +961,11 @@ def relief(tiles: Tiles, matched, points: np.ndarray, grid, learnt: np.ndarray) 
     face between them (0 at its voxel's centre, half at the face), so that
     the seam is a ramp a voxel wide, not a step. (n, 3) float64."""
     points = np.asarray(points, np.float64)
-    size = np.asarray(grid) - 1
-    # Halves up, as in example_points.
-    u = np.clip(np.floor(points + 0.5).astype(np.int64), 0, size)
-    offset = matched(u) - u
-    places, seams = [points + offset], []  # every place read, the point's own first: one relief_moves call
-    for axis in range(3):
-        across = points[:, axis] - u[:, axis]
-        beside = u.copy()
-        beside[:, axis] += np.where(across >= 0, 1, -1)
-        beside = np.clip(beside, 0, size)
-        other = matched(beside) - beside
-        rows = np.flatnonzero(np.any(other != offset, axis=1) & (beside[:, axis] != u[:, axis]))
-        places.append(points[rows] + other[rows])
-        seams.append((rows, np.minimum(np.abs(across[rows]), 0.5)))
+    u, match, across = pieces_beside(matched, points, grid)
+    places, seams = [points + match - u], []  # every place read, the point's own first: one relief_moves call
+    for axis, (rows, beside, theirs) in enumerate(across):
+        places.append(points[rows] + theirs - beside)
+        seams.append((rows, np.minimum(np.abs(points[rows, axis] - u[rows, axis]), 0.5)))
     read = relief_moves(tiles, np.concatenate(places), learnt)
     own, start = read[:len(points)], len(points)
     moves, weights = np.zeros_like(points), np.zeros(len(points))
