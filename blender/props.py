@@ -57,9 +57,14 @@ BLENDER_UI = {
     "scale": dict(soft_min=0.25, soft_max=16.0), "smooth": dict(soft_max=20), "spacing": dict(soft_max=12.0),
     "lods": dict(name="Levels", default="20000,5000,1200"), "texture": dict(name="Maps", subtype="PIXEL", min=0),  # 0: sized to the sample
     "ao": dict(name="Ambient occlusion"), "height": dict(min=0.0),  # 0: not given (one unit a metre)
+    "collision": dict(description="A collision mesh (positions and triangles, no maps) of this many triangles, "
+                      "simplified from the full-resolution surface; 0: the coarsest level's own triangles, its "
+                      "vertices shared (no bytes added)"),  # 0: not given, the table's default
     "naming": dict(items=[
-        ("gltf", "glTF", "The finest level shown, the coarser ones listed by MSFT_lod"),
-        ("godot", "Godot", "Godot's import hints: one level shown, the collision made a static body's shapes"),
+        ("gltf", "glTF", "The finest level shown, the coarser ones listed by MSFT_lod and named with Godot's "
+         "import hints (Godot 3: one level, the collision a static body), the collision outside the scene"),
+        ("godot", "Godot", "As glTF, the collision in the scene too: Godot 4 imports the scene alone "
+         "(other importers then draw it)"),
         ("unreal", "Unreal", "The hulls named UCX_: Unreal's convex collision of the finest level")]),
 }
 RECORDS = {**OPTION, **ASSET_OPTION}  # a sample's options and a game asset's: no name in both

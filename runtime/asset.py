@@ -61,17 +61,19 @@ class AssetOptions:
       to the sample (sized_texture); ao: bake ambient occlusion too (an occlusion map);
     height: the asset's height in metres (glTF's unit), base to top, as the
       file's nodes scale it (None: one unit of the frame is a metre);
-    collision: the triangles of a collision mesh (no maps), 0 for none;
+    collision: the triangles of a collision mesh (no maps) simplified from
+      the full one, 0 for none; None: the coarsest level's own triangles,
+      sharing its vertices (no bytes added);
     hulls: at most this many convex hulls of the surface (CoACD's
       decomposition), 0 for none: the collision most engines simulate
       fastest, and the only kind Unreal reads from a file;
-    naming: "gltf" (MSFT_lod; the coarser levels and the collision
-      outside the scene, for engines that read MSFT_lod or pick meshes by
-      name), "godot" (Godot's import hints: the coarser levels `-noimp`,
-      so that one level shows, the collision mesh `-colonly` and each hull
-      `-convcolonly`, which Godot makes a static body's collision shapes)
-      or "unreal" (the hulls `UCX_NAME_LOD0_NN` in the scene, which
-      Unreal's importer makes the finest level's convex collision);
+    naming: where the collision goes (gltf.glb_bytes; every naming
+      carries Godot's import hints, which Godot 3 reads: one level shown,
+      the collision a static body's shapes): "gltf" (outside the scene,
+      for engines that read MSFT_lod or pick meshes by name), "godot" (in
+      the scene too, for Godot 4, which imports the scene alone) or
+      "unreal" (the hulls `UCX_NAME_LOD0_NN` in the scene, which Unreal's
+      importer makes the finest level's convex collision);
     quantise: store the vertices as 8- and 16-bit integers
       (KHR_mesh_quantization, then a required extension: Blender, three.js,
       Babylon.js and glTFast read it; Godot 3 ignores it and reads the
@@ -88,7 +90,7 @@ class AssetOptions:
     texture: int | None = ASSET_OPTION["texture"].default  # None: sized to the sample (sized_texture)
     ao: bool = ASSET_OPTION["ao"].default
     height: float | None = ASSET_OPTION["height"].default  # metres, base to top; None: a frame unit is a metre
-    collision: int = ASSET_OPTION["collision"].default  # triangles of a collision mesh simplified from the full one
+    collision: int | None = ASSET_OPTION["collision"].default  # a collision mesh's triangles; None: the coarsest level
     hulls: int = ASSET_OPTION["hulls"].default  # convex hulls of a collision decomposition, at most
     naming: str = ASSET_OPTION["naming"].default  # how levels and collision are named: options.NAMINGS
     quantise: bool = ASSET_OPTION["quantise"].default  # vertices as integers (KHR_mesh_quantization)
@@ -124,11 +126,12 @@ class AssetOptions:
                 raise InputError(f"`height` must be metres from {MIN_HEIGHT:g} to {MAX_HEIGHT:g}, got {self.height!r}",
                                  "height")
             object.__setattr__(self, "height", float(self.height))
-        if not (isinstance(self.collision, (int, np.integer)) and not isinstance(self.collision, bool)
-                and (self.collision == 0 or MIN_TRIANGLES <= self.collision <= self.lods[0])):
-            raise InputError(f"`collision` must be 0 (none) or {MIN_TRIANGLES} to {self.lods[0]} triangles (the finest "
-                             f"level's), got {self.collision!r}", "collision")
-        object.__setattr__(self, "collision", int(self.collision))
+        if self.collision is not None:
+            if not (isinstance(self.collision, (int, np.integer)) and not isinstance(self.collision, bool)
+                    and (self.collision == 0 or MIN_TRIANGLES <= self.collision <= self.lods[0])):
+                raise InputError(f"`collision` must be 0 (none) or {MIN_TRIANGLES} to {self.lods[0]} triangles (the "
+                                 f"finest level's), got {self.collision!r}", "collision")
+            object.__setattr__(self, "collision", int(self.collision))
         if not (isinstance(self.hulls, (int, np.integer)) and not isinstance(self.hulls, bool)
                 and 0 <= self.hulls <= MAX_HULLS):
             raise InputError(f"`hulls` must be 0 (none) to {MAX_HULLS} convex hulls, got {self.hulls!r}", "hulls")
@@ -582,7 +585,7 @@ def made_asset(model, request, options: AssetOptions, name: str, threads: int, p
         built, described = level(dense, stage, target, options.level_texture(k), options, threads, timings)
         levels.append(built)
         figures.append(described)
-    collision = None
+    collision = len(levels) - 1 if options.collision is None else None  # the coarsest level's own triangles
     if options.collision:  # at most the finest level's triangles, as the stage holds
         collision = simplify(stage[0], stage[1], options.collision, dense.lock_border)[:2]
     hulls = []
@@ -606,7 +609,10 @@ def made_asset(model, request, options: AssetOptions, name: str, threads: int, p
     info = {"dense_triangles": len(dense.faces), "dense_vertices": len(dense.vertices), "levels": figures,
             "seconds": {k: round(v, 3) for k, v in timings.items()}, "bytes": len(data)}
     if collision is not None:
-        info["collision"] = {"triangles": len(collision[1]), "vertices": len(collision[0])}
+        vertices, faces = (levels[collision].positions, levels[collision].faces) if isinstance(collision, int) \
+            else collision
+        info["collision"] = {"triangles": len(faces), "vertices": len(vertices),
+                             "level": collision if isinstance(collision, int) else None}
     if hulls:
         info["hulls"] = [len(v) for v, _ in hulls]  # each hull's vertices
     if capped:

@@ -6,9 +6,9 @@ Levels of detail: with MSFT_lod (Babylon.js, UnityGLTF), the finest
 level's node lists the coarser levels' nodes, which stand outside the
 scene, with MSFT_screencoverage in its extras; a reader that knows no
 MSFT_lod shows the finest level alone, as the extension asks. Each level's
-node and mesh is NAME_LOD0, NAME_LOD1, ..., what a person sees in an
-outliner; engines' own conventions (Godot's and Unreal's names) are the
-`naming` of glb_bytes (docs/ASSETS.md says what each engine reads).
+mesh is NAME_LOD0, NAME_LOD1, ..., what a person sees in an outliner; the
+nodes' names carry Godot's import hints too, and Unreal's where asked
+(glb_bytes; docs/ASSETS.md says what each engine reads).
 
 With a Grid, the vertices are quantised (KHR_mesh_quantization): positions
 as 16-bit integers on a grid the nodes' transforms undo, normals and
@@ -244,6 +244,13 @@ class Builder:
             "indices": self.accessor(np.asarray(faces).astype(index_type).ravel(), "SCALAR", ELEMENT_ARRAY_BUFFER)}]})
         return len(self.json["meshes"]) - 1
 
+    def mesh_of(self, mesh: int, name: str) -> int:
+        """A mesh of another's positions and triangles alone, its accessors shared (a level as the collision)."""
+        primitive = self.json["meshes"][mesh]["primitives"][0]
+        self.json["meshes"].append({"name": name, "primitives": [{
+            "attributes": {"POSITION": primitive["attributes"]["POSITION"]}, "indices": primitive["indices"]}]})
+        return len(self.json["meshes"]) - 1
+
     def glb(self) -> bytes:
         binary = self.binary.getvalue()
         binary += b"\0" * (-len(binary) % 4)
@@ -305,51 +312,61 @@ def encoded_maps(levels: list, ktx2: bool = False) -> list:
 
 
 def glb_bytes(levels: list, name: str, extras: dict | None = None, up: str = "y",
-              place: Placement | None = None, collision: tuple | None = None, naming: str = "gltf",
+              place: Placement | None = None, collision: tuple | int | None = None, naming: str = "gltf",
               hulls: list = (), quantise: bool = False, compress: bool = False, ktx2: bool = False) -> bytes:
     """The levels (finest first) as one .glb; `extras` (plain values) go into
     the finest node's extras, beside the screen coverages. up: the axis of
     the levels' frame that points up; glTF's up is +Y, so a z-up frame's
     nodes turn it there (a quarter turn about x), the vertices kept as they
     are. place: where the nodes put the levels (None: where they are).
-    collision: (vertices, faces) of a collision mesh in the levels' frame;
-    hulls: [(vertices, faces), ...] of convex hulls, the same.
+    collision: (vertices, faces) of a collision mesh in the levels' frame,
+    or the index of the level whose own triangles collide (the mesh then
+    shares that level's vertices and triangles: no bytes added); hulls:
+    [(vertices, faces), ...] of convex hulls, in the levels' frame.
+    Names carry Godot's import hints, whatever the naming: the coarser
+    levels `NAME_LODn-noimp` (Godot leaves them out, so one level shows),
+    the collision mesh `NAME_collision-colonly` and each hull
+    `NAME_hullNN-convcolonly` (a static body's concave and convex shapes,
+    not drawn). Godot 3 imports every node without a parent, in the scene
+    or not; other readers import the scene, which holds the finest level
+    alone.
     naming (options.NAMINGS): "gltf" keeps the coarser levels and the
     collision outside the scene, the levels listed by the finest one's
-    MSFT_lod; "godot" names them with Godot's import hints as well: the
-    coarser levels `-noimp` (not imported: one level shows), the collision
-    mesh `-colonly` and each hull `-convcolonly` in the scene (a static
-    body's collision shapes, not drawn); "unreal" puts the hulls in the
-    scene as `UCX_<finest level>_NN`, Unreal's convex collision of the mesh
-    of that name (its importer reads no concave collision from a file, so
-    the collision mesh stays outside the scene, as under "gltf").
+    MSFT_lod; "godot" puts the collision and the hulls in the scene too,
+    for Godot 4's importer, which (from its naming version 2) reads the
+    scene's nodes alone; "unreal" puts the hulls in the scene as
+    `UCX_<finest level>_NN`, Unreal's convex collision of the mesh of that
+    name (its importer reads no concave collision from a file, so the
+    collision mesh stays outside the scene, as under "gltf").
     quantise: store the vertices quantised (KHR_mesh_quantization, a
     required extension: Grid); compress: quantised, and every vertex and
     index view compressed (EXT_meshopt_compression, required too); ktx2:
     the maps as KTX2 files (KHR_texture_basisu, required: no PNG beside them)."""
+    shared = isinstance(collision, int)  # the collision is that level's own triangles
     if compress:
         levels = [in_codec_level(level) for level in levels]
-        collision = None if collision is None else in_codec_mesh(*collision)
+        collision = collision if shared or collision is None else in_codec_mesh(*collision)
         hulls = [in_codec_mesh(*hull) for hull in hulls]
-    meshes = [level.positions for level in levels] + [shape[0] for shape in ([collision] if collision else [])
-                                                       + list(hulls)]
+    meshes = [level.positions for level in levels] + [shape[0] for shape in ([] if shared or collision is None
+                                                                             else [collision]) + list(hulls)]
     grid = Grid.around(meshes) if quantise or compress else None
     builder = Builder(grid, compress, ktx2)
     nodes = builder.json["nodes"]
-    godot, unreal = naming == "godot", naming == "unreal"
+    in_scene = {"gltf": (), "godot": ("collision", "hull"), "unreal": ("hull",)}[naming]
     for k, (level, maps) in enumerate(zip(levels, encoded_maps(levels, ktx2))):
-        label = f"{name}_LOD{k}" + ("-noimp" if godot and k else "")
-        nodes.append({"name": label, "mesh": builder.mesh(level, maps, label)})
+        label = f"{name}_LOD{k}"
+        nodes.append({"name": label + ("-noimp" if k else ""), "mesh": builder.mesh(level, maps, label)})
     shown = [0]
     if collision is not None:
-        label = f"{name}-colonly" if godot else f"{name}_collision"
-        nodes.append({"name": label, "mesh": builder.bare_mesh(*collision, label)})
-        shown += [len(nodes) - 1] if godot else []
+        label = f"{name}_collision"
+        mesh = builder.mesh_of(nodes[collision]["mesh"], label) if shared else builder.bare_mesh(*collision, label)
+        nodes.append({"name": label + "-colonly", "mesh": mesh})
+        shown += [len(nodes) - 1] if "collision" in in_scene else []
     for k, hull in enumerate(hulls):
-        label = (f"{name}_hull{k:02d}-convcolonly" if godot else f"UCX_{name}_LOD0_{k:02d}" if unreal
-                 else f"{name}_hull{k:02d}")
-        nodes.append({"name": label, "mesh": builder.bare_mesh(*hull, label)})
-        shown += [len(nodes) - 1] if godot or unreal else []
+        label = f"UCX_{name}_LOD0_{k:02d}" if naming == "unreal" else f"{name}_hull{k:02d}"
+        nodes.append({"name": label + ("" if naming == "unreal" else "-convcolonly"),
+                      "mesh": builder.bare_mesh(*hull, label)})
+        shown += [len(nodes) - 1] if "hull" in in_scene else []
     # A node is translation * rotation * scale: the base (less the grid's centre), scaled and turned, moved to 0.
     base = np.zeros(3) if place is None else np.asarray(place.base, np.float64)
     size = 1.0 if place is None else place.scale

@@ -169,14 +169,17 @@ ASSET_OPTIONS = (
     Option("height", "number", None, "The asset's height in metres, base to top (glTF's unit); without it, one "
            "unit of the training mesh is a metre. A sample's asset stands with the centre of its base at the "
            "origin.", ("sample",), 0.001, 10000.0),
-    Option("collision", "int", 0, "A collision mesh of this many triangles, simplified from the full-resolution "
-           "surface (no maps); 0: none.", KINDS, 0),
+    Option("collision", "int", None, "A collision mesh (positions and triangles, no maps) of this many triangles, "
+           "simplified from the full-resolution surface; 0: none. Default: the coarsest level's own triangles, its "
+           "vertices shared (no bytes added).", KINDS, 0),
     Option("hulls", "int", 0, "A collision of at most this many convex hulls (CoACD's decomposition; a second or "
            "two), what engines simulate fastest and Unreal's only collision; 0: none.", ("sample",), 0, 64),
-    Option("naming", "choice", NAMINGS[0], "How the levels and the collision are named. gltf: the finest level "
-           "shows, the coarser ones listed by MSFT_lod (Babylon.js, UnityGLTF); godot: Godot's import hints, one "
-           "level shown and the collision made a static body's shapes; unreal: the hulls named UCX_, Unreal's "
-           "convex collision of the finest level.", KINDS, choices=NAMINGS),
+    Option("naming", "choice", NAMINGS[0], "Where the collision goes and how it is named. Every naming shows the "
+           "finest level alone in the scene, lists the coarser ones by MSFT_lod (Babylon.js, UnityGLTF) and names "
+           "them with Godot's import hints, which Godot 3 reads: one level shown, the collision made a static "
+           "body's shapes. gltf: the collision outside the scene, not drawn; godot: the collision in the scene "
+           "too, for Godot 4, whose importer reads the scene alone (other importers then draw it); unreal: the "
+           "hulls in the scene, named UCX_, Unreal's convex collision of the finest level.", KINDS, choices=NAMINGS),
     Option("quantise", "bool", False, "Store the vertices as 8- and 16-bit integers (KHR_mesh_quantization, a "
            "required extension: Blender, three.js, Babylon.js and glTFast read it; Godot 3 does not, so not with "
            "naming godot).", KINDS),

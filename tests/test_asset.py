@@ -78,14 +78,15 @@ def test_the_khronos_validator_finds_no_error_or_warning_and_the_levels_keep_the
     report = validate(path)
     assert report["issues"]["numErrors"] == 0 and report["issues"]["numWarnings"] == 0, report["issues"]["messages"]
     document, binary = gltf.read(path.read_bytes())
-    assert [node["name"] for node in document["nodes"]] == ["box_LOD0", "box_LOD1"]
-    assert document["nodes"][0]["extensions"]["MSFT_lod"]["ids"] == [1]
+    assert [node["name"] for node in document["nodes"]] == ["box_LOD0", "box_LOD1-noimp", "box_collision-colonly"]
+    assert document["nodes"][0]["extensions"]["MSFT_lod"]["ids"] == [1] and document["scenes"][0]["nodes"] == [0]
     for node, target in enumerate(LODS):
         arrays = gltf.level_arrays(document, binary, node)
         assert target * 0.8 <= len(arrays["faces"]) <= target  # at most the count asked for, and near it
         size = TEXTURE >> node  # a coarser level's maps are half as wide: it shows half as large
         assert [arrays[name].shape[:2] for name in ("normal_map", "colour_map", "occlusion_map")] == [(size, size)] * 3
-    assert report["info"]["totalTriangleCount"] == sum(len(gltf.level_arrays(document, binary, k)["faces"]) for k in range(2))
+    levels = sum(len(gltf.level_arrays(document, binary, k)["faces"]) for k in range(2))
+    assert report["info"]["totalTriangleCount"] == levels + info["collision"]["triangles"]  # the validator counts all
     assert info["dense_triangles"] > LODS[0]
 
 
@@ -505,7 +506,7 @@ def test_sinrun_writes_an_asset_and_nothing_for_bad_values(tmp_path):
                                       "--height", "3", "-o", str(out)])
     assert result.exit_code == 0, result.output
     document, _ = gltf.read(out.read_bytes())
-    assert [n["name"] for n in document["nodes"]] == ["rock_LOD0", "rock_LOD1"]
+    assert [n["name"] for n in document["nodes"]] == ["rock_LOD0", "rock_LOD1-noimp", "rock_collision-colonly"]
     assert document["nodes"][0]["extras"]["sinshape"]["height_m"] == 3
     for args, said in [(["--lods", "600", "--texture", "100"], "--texture must be a power of two"),
                        (["--lods", "0"], "--lods asks for 0 triangles"),
@@ -565,7 +566,7 @@ def placed_levels(document: dict, binary: bytes) -> list:
     """Each level's positions where its node puts them: translation + rotation(scale * p), glTF's
     order; the one rotation the writer uses is z up to +Y, (x, y, z) -> (x, z, -y)."""
     out = []
-    for k, node in enumerate(document["nodes"]):
+    for k, node in enumerate(document["nodes"][:len(document["nodes"][0]["extras"]["sinshape"]["lods"])]):
         p = gltf.level_arrays(document, binary, k)["position"].astype(np.float64) * node.get("scale", [1.0])[0]
         if "rotation" in node:
             assert np.allclose(node["rotation"], gltf.Z_UP_TO_Y_UP)
@@ -624,7 +625,7 @@ def test_the_web_api_hands_out_assets_and_refuses_bad_values_in_one_line_of_json
         assert get(f"{route}/sample?seed=3&lods=300&texture=32&height=0")[0] == 400
         assert get(f"{route}/tile?i=0&j=0&lods=500&texture=32&height=2")[0] == 422  # a tile keeps its world's frame
         status, _, body = get(f"{route}/sample?seed=3&lods=300&texture=32&hulls=2&naming=unreal")
-        assert status == 200 and gltf.read(body)[0]["nodes"][1]["name"] == "UCX_tiny_colour_seed3_asset300_LOD0_00"
+        assert status == 200 and gltf.read(body)[0]["nodes"][-1]["name"] == "UCX_tiny_colour_seed3_asset300_LOD0_00"
         assert "to 64 convex hulls" in json.loads(get(f"{route}/sample?seed=3&lods=300&hulls=65")[2])["detail"]
         assert get(f"{route}/tile?i=0&j=0&lods=500&texture=32&hulls=2")[0] == 422  # a tile is open: no hulls
 
@@ -733,13 +734,30 @@ def godot_import(glb: Path, tmp_path: Path) -> dict:
     return json.loads(next(line[7:] for line in done.stdout.splitlines() if line.startswith("RESULT ")))
 
 
-def test_godot_imports_every_level_with_its_maps(coloured_asset, tmp_path):
-    """gltf naming: Godot 3 reads no MSFT_lod, and makes a mesh of every level (stacked in one place)."""
+def test_godot_imports_one_level_and_the_coarsest_as_a_static_body_at_the_defaults(coloured_asset, tmp_path):
+    """The default naming: Godot 3 reads no MSFT_lod, but it imports every node (in the scene or
+    not) and reads the names' hints: the coarser level is left out (-noimp), and the collision, the
+    coarsest level's own triangles, becomes a static body's concave shape (-colonly), not drawn."""
+    _, _, info = coloured_asset
     found = godot_import(coloured_asset[0], tmp_path)
-    meshes = found["meshes"]
-    assert [(m["name"], m["albedo"], m["normal"]) for m in meshes] == [("box_LOD0", TEXTURE, TEXTURE),
-                                                                        ("box_LOD1", TEXTURE // 2, TEXTURE // 2)]
-    assert [m["triangles"] <= n for m, n in zip(meshes, LODS)] == [True, True] and found["collision"] == []
+    assert [(m["name"], m["albedo"], m["normal"]) for m in found["meshes"]] == [("box_LOD0", TEXTURE, TEXTURE)]
+    assert found["collision"] == [{"body": "StaticBody", "shape": "ConcavePolygonShape",
+                                   "triangles": info["levels"][-1]["triangles"], "points": 0}]
+
+
+def test_by_default_the_coarsest_level_is_the_collision_and_adds_no_bytes(coloured_asset):
+    path, model, info = coloured_asset
+    document, binary = gltf.read(path.read_bytes())
+    coarsest = document["meshes"][document["nodes"][len(LODS) - 1]["mesh"]]["primitives"][0]
+    collision = document["meshes"][document["nodes"][-1]["mesh"]]["primitives"][0]
+    assert collision == {"attributes": {"POSITION": coarsest["attributes"]["POSITION"]}, "indices": coarsest["indices"]}
+    assert info["collision"] == {"triangles": info["levels"][-1]["triangles"], "vertices": info["levels"][-1]["vertices"],
+                                 "level": len(LODS) - 1}
+    options = asset.AssetOptions(LODS, TEXTURE, ao=True, collision=0)
+    bare, bare_info = asset.asset_bytes(model, SampleRequest(3, frame="model"), options, "box", threads=1)
+    document_bare, binary_bare = gltf.read(bare)
+    assert binary_bare == binary and "collision" not in bare_info
+    assert [node["name"] for node in document_bare["nodes"]] == ["box_LOD0", "box_LOD1-noimp"]
 
 
 def test_godot_naming_shows_one_level_and_makes_the_collision_mesh_a_static_bodys_shape(tmp_path):
@@ -821,7 +839,7 @@ def test_a_collision_mesh_is_placed_as_the_levels_and_kept_out_of_the_scene_unde
                                    threads=1)
     document, binary = gltf.read(data)
     names = [node["name"] for node in document["nodes"]]
-    assert names == ["box_LOD0", "box_LOD1", "box_collision"] and document["scenes"][0]["nodes"] == [0]
+    assert names == ["box_LOD0", "box_LOD1-noimp", "box_collision-colonly"] and document["scenes"][0]["nodes"] == [0]
     collision = document["nodes"][2]
     assert "material" not in document["meshes"][collision["mesh"]]["primitives"][0]
     assert {k: v for k, v in collision.items() if k not in ("name", "mesh")} == \
@@ -872,12 +890,12 @@ def test_convex_hulls_are_convex_and_hold_the_solid(hulled):
 
 
 @pytest.mark.parametrize("naming, names, in_scene", [
-    ("gltf", ["box_hull{:02d}"], False), ("godot", ["box_hull{:02d}-convcolonly"], True),
+    ("gltf", ["box_hull{:02d}-convcolonly"], False), ("godot", ["box_hull{:02d}-convcolonly"], True),
     ("unreal", ["UCX_box_LOD0_{:02d}"], True)])
 def test_hulls_are_named_for_each_engine_and_placed_as_the_levels(naming, names, in_scene):
     model = load_model(TINY_COLOUR_ONNX, threads=1)
-    data, info = asset.asset_bytes(model, SampleRequest(3), asset.AssetOptions(LODS, TEXTURE, hulls=4, naming=naming),
-                                   "box", threads=1)
+    options = asset.AssetOptions(LODS, TEXTURE, collision=0, hulls=4, naming=naming)
+    data, info = asset.asset_bytes(model, SampleRequest(3), options, "box", threads=1)
     document, _ = gltf.read(data)
     hulls = document["nodes"][len(LODS):]
     assert [node["name"] for node in hulls] == [names[0].format(k) for k in range(len(info["hulls"]))]
@@ -943,7 +961,7 @@ def test_a_quantised_asset_is_valid_and_puts_every_vertex_where_the_float_one_do
                                             / np.linalg.norm(stored["normal"], axis=1), -1, 1))).max() < 1
         np.testing.assert_allclose(stored["texcoord_0"], exact["texcoord_0"], atol=1e-5)
         assert np.array_equal(stored["faces"], exact["faces"])
-    collision = [n for n in ints["nodes"] if n["name"] == "box_collision"][0]
+    collision = [n for n in ints["nodes"] if n["name"] == "box_collision-colonly"][0]
     assert collision["scale"] == ints["nodes"][0]["scale"] != [1, 1, 1]  # one grid for every mesh, placed alike
 
     def geometry(document, data):

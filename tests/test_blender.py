@@ -517,10 +517,11 @@ def test_export_asset_writes_the_samples_asset_and_adds_its_levels_where_the_sam
     path = tmp_path / "rock.glb"
     assert bpy.ops.sinshape.export_asset(filepath=str(path), lods="800,200", texture=64) == {"FINISHED"}
     document, _ = gltf.read(path.read_bytes())
-    assert [node["name"] for node in document["nodes"]] == ["rock_LOD0", "rock_LOD1"]
+    assert [node["name"] for node in document["nodes"]] == ["rock_LOD0", "rock_LOD1-noimp", "rock_collision-colonly"]
     level = bpy.data.objects["rock_LOD0"]
     assert len(level.data.polygons) <= 800 and level.name in bpy.context.scene.objects
-    assert "rock_LOD1" not in bpy.context.view_layer.objects  # a coarser level: in the importer's excluded collection
+    for outside in ("rock_LOD1-noimp", "rock_collision-colonly"):  # in the importer's excluded collection
+        assert outside in bpy.data.objects and outside not in bpy.context.view_layer.objects
     images = {node.image.size[0] for node in level.active_material.node_tree.nodes if node.type == "TEX_IMAGE"}
     assert images == {64}
     def corners(o):
@@ -532,7 +533,8 @@ def test_export_asset_writes_the_samples_asset_and_adds_its_levels_where_the_sam
     assert bpy.ops.sinshape.export_asset(filepath=str(godot), lods="800,200", texture=64, height=2.0, collision=100,
                                          naming="godot", add_objects=False) == {"FINISHED"}
     document, _ = gltf.read(godot.read_bytes())
-    assert [node["name"] for node in document["nodes"]] == ["godot_LOD0", "godot_LOD1-noimp", "godot-colonly"]
+    assert [node["name"] for node in document["nodes"]] == ["godot_LOD0", "godot_LOD1-noimp", "godot_collision-colonly"]
+    assert document["scenes"][0]["nodes"] == [0, 2]  # the collision in the scene, as Godot 4 reads it
     assert document["nodes"][0]["extras"]["sinshape"]["height_m"] == 2.0
     bad = tmp_path / "bad.glb"
     with pytest.raises(RuntimeError, match="lods asks for 0 triangles") as raised:  # the ERROR report, one line
