@@ -9,6 +9,7 @@
     python benchmarks/asset.py base [--models towerruins acropolis terrain brickruin] [--scale 1] [--lods 5000]
     python benchmarks/asset.py size [--models towerruins acropolis terrain brickruin] [--scale 1] [--lods 20000,5000,1200]
                                     [--texture 1024]
+    python benchmarks/asset.py engines [--models ...] [--scale 1] [--seeds 10] [--lods 20000,5000,1200]
 
 fidelity: the sample's asset, each level drawn with its normal map, beside
 the full-resolution mesh drawn with its own smooth normals, from 6 views
@@ -46,6 +47,10 @@ installed): seconds, hulls,
 and, from 200,000 random points in the sample's bounds judged by the
 model's own field, the share of the solid inside some hull (covered) and
 the hulls' volume outside the solid, as a share of the solid's (excess).
+
+engines: each model's asset at the defaults, seeds 0 to --seeds - 1, in
+the validator, Godot 3 and Babylon.js (tools/importers.py, as the tests
+drive them): errors and warnings, what each draws, the collision Godot makes.
 
 base: the share of a level's atlas the faces of its base take (those on
 the ground: asset.on_the_ground), charted with the others and charted
@@ -636,6 +641,53 @@ def size(args) -> None:
               f"{texels * 4 / 3 / 1e6:.1f} |", flush=True)
 
 
+def engines(args) -> None:
+    """Each model's asset at the defaults (--lods, maps sized to the sample,
+    the coarsest level as its collision) for --seeds at --scale, as the
+    importers read it (tools/importers.py): the Khronos validator's errors
+    and warnings, and what Godot 3 and Babylon.js make of it (meshes drawn,
+    collision shapes), one row a model; a tool not installed is a dash."""
+    sys.path.insert(0, str(ROOT / "tools"))
+    import importers
+
+    from sinshape.runtime import SampleRequest, asset
+
+    seeds = range(args.seeds)
+    print(f"seeds 0-{args.seeds - 1}, scale {args.scale:g}, lods {','.join(map(str, args.lods))}, maps sized; "
+          "each cell: what the seeds gave, and how many gave it")
+    print("| model | validator errors / warnings (all seeds) | Godot 3: meshes drawn; collision shapes | "
+          "Babylon.js: meshes drawn |")
+    print("|---|---|---|---|")
+    for name in args.models:
+        model = load(name)
+        issues, godot, babylon = [0, 0], {}, {}
+        with tempfile.TemporaryDirectory() as folder:
+            for seed in seeds:
+                path = Path(folder, f"{name}_{seed}.glb")
+                data, info = asset.asset_bytes(model, SampleRequest(seed, scale=args.scale),
+                                               asset.AssetOptions(args.lods), name)
+                path.write_bytes(data)
+                report = importers.validator_report(path)
+                if report is not None:
+                    issues[0] += report["issues"]["numErrors"]
+                    issues[1] += report["issues"]["numWarnings"]
+                found = importers.godot_scene(path, Path(folder, f"godot{seed}"))
+                if found is not None:
+                    coarsest = info["levels"][-1]["triangles"]
+                    shapes = [f"{c['body']} {c['shape']}" + (" of the coarsest level" if c["triangles"] == coarsest else "")
+                              for c in found["collision"]]
+                    key = f"{', '.join(m['name'].split('_')[-1] for m in found['meshes'])}; {', '.join(shapes) or 'none'}"
+                    godot[key] = godot.get(key, 0) + 1
+                found = importers.babylon_scene(path)
+                if found is not None:
+                    key = ", ".join(m["name"].split("_")[-1] for m in found["meshes"])
+                    babylon[key] = babylon.get(key, 0) + 1
+
+        def cell(counts):
+            return " / ".join(f"{key} (x{n})" for key, n in counts.items()) or "-"
+        print(f"| {name} | {issues[0]} / {issues[1]} | {cell(godot)} | {cell(babylon)} |", flush=True)
+
+
 def asset_options(args):
     from sinshape.runtime import asset
 
@@ -644,7 +696,7 @@ def asset_options(args):
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("what", choices=["fidelity", "speed", "cycles", "hulls", "base", "size"])
+    parser.add_argument("what", choices=["fidelity", "speed", "cycles", "hulls", "base", "size", "engines"])
     parser.add_argument("--models", nargs="+", default=["towerruins", "acropolis", "terrain", "brickruin"])
     parser.add_argument("--model", default="towerruins")
     parser.add_argument("--seed", type=int, default=3)
@@ -653,12 +705,14 @@ def main() -> None:
     parser.add_argument("--texture", type=int, default=2048, help="0: sized to the sample (speed), as without --texture")
     parser.add_argument("--compress", action="store_true", help="speed: the geometry compressed (EXT_meshopt_compression)")
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--seeds", type=int, default=10, help="engines: seeds 0 to N-1")
     parser.add_argument("--gltfpack", default=None)
     parser.add_argument("--pictures", default=None)
     args = parser.parse_args()
     args.lods = tuple(int(n) for n in (args.lods or ("5000" if args.what in ("speed", "base") else "20000,5000,1200"))
                       .split(","))
-    {"fidelity": fidelity, "speed": speed, "cycles": cycles, "hulls": hulls, "base": base, "size": size}[args.what](args)
+    {"fidelity": fidelity, "speed": speed, "cycles": cycles, "hulls": hulls, "base": base, "size": size,
+     "engines": engines}[args.what](args)
 
 
 if __name__ == "__main__":

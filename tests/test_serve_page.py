@@ -801,13 +801,14 @@ def test_the_page_shows_a_game_asset_with_its_levels_switched_by_distance(page):
     with urllib.request.urlopen(urllib.parse.urljoin(page.base + "/", href)) as answer:
         document, _ = gltf.read(answer.read())
     said = page.text_content("#status").split("game asset: ")[1].split(" triangles")[0]
+    level_nodes = [document["nodes"][k] for k in [0, *document["nodes"][0]["extensions"]["MSFT_lod"]["ids"]]]
     counts = [document["accessors"][document["meshes"][node["mesh"]]["primitives"][0]["indices"]]["count"] // 3
-              for node in document["nodes"]]
+              for node in level_nodes]
     assert [int(n.replace(",", "")) for n in said.split(" / ")] == counts
     first = page.evaluate("window.sinshapeView.memory()")  # the finest level drawn, its maps
     levels = page.evaluate(ASSET_LEVELS_JS)
     coverage = document["nodes"][0]["extras"]["MSFT_screencoverage"]
-    assert levels["names"] == [node["name"] for node in document["nodes"]] and len(levels["names"]) == 3
+    assert levels["names"] == [node["name"] for node in level_nodes] and len(levels["names"]) == 3
     assert levels["shownFirst"] == 0
     for k, switch in enumerate(levels["switches"], 1):
         assert (switch["inside"], switch["past"]) == (k - 1, k)
@@ -840,7 +841,7 @@ def test_a_game_asset_downloads_and_opens_in_the_pages_three_js(page, tmp_path):
     assert download.value.suggested_filename.startswith("terrain_seed3_asset")
     faces = int(page.text_content("#status").split()[0].replace(",", ""))
     lods = [int(n) for n in href.split("lods=")[1].split("&")[0].replace("%2C", ",").split(",")]
-    assert lods[0] <= faces // 2 and len(document["nodes"]) == len(lods)
+    assert lods[0] <= faces // 2 and len(document["nodes"][0]["extensions"]["MSFT_lod"]["ids"]) == len(lods) - 1
     opened = page.evaluate("""async (url) => {
       const { GLTFLoader } = await import('three/addons/loaders/GLTFLoader.js');
       const data = await (await fetch(url)).arrayBuffer();
@@ -855,7 +856,7 @@ def test_a_game_asset_downloads_and_opens_in_the_pages_three_js(page, tmp_path):
     }""", href)
     sized = document["nodes"][0]["extras"]["sinshape"]["textures"][0]
     assert opened["names"] == [document["nodes"][0]["name"]] and opened["normalMap"] == sized and opened["tangents"]
-    assert opened["levels"] == [node["name"] for node in document["nodes"][1:]]
+    assert opened["levels"] == [node["name"] for node in document["nodes"][1:len(lods)]]
     # Quantised (KHR_mesh_quantization, which three.js reads without a decoder) and compressed
     # (EXT_meshopt_compression, read with meshoptimizer's decoder): the finest level where the float one is.
     bounds = page.evaluate("""async (urls) => {
