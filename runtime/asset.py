@@ -295,12 +295,36 @@ def simplify(vertices: np.ndarray, faces: np.ndarray, target: int, lock_border: 
         why = " (a world tile keeps every vertex of its border)" if lock_border else ""
         raise InputError(f"`lods` asks for {target} triangles, but the surface simplifies to no fewer than "
                          f"{count // 3}{why}", "lods")
-    kept = out[:count].reshape(-1, 3).astype(np.int64)
+    kept = without_folds(out[:count].reshape(-1, 3).astype(np.int64))
     used = np.unique(kept)
     remap = np.zeros(len(vertices), np.int64)
     remap[used] = np.arange(len(used))
     extent = float(np.max(vertices.max(axis=0) - vertices.min(axis=0))) if len(vertices) else 0.0
     return vertices[used], remap[kept], float(error[0]) * extent
+
+
+def without_folds(faces: np.ndarray) -> np.ndarray:
+    """Faces (F, 3) less what the simplifier can leave that has no surface:
+    a face that names a vertex twice, and faces on the same three vertices,
+    of which those wound one way cancel those wound the other (a pair back
+    to back, whose normals sum to zero: it drew as a black triangle) and
+    copies wound alike are kept once. The faces kept stay in their order."""
+    faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 2] != faces[:, 0])]
+    corners = np.sort(faces, axis=1)
+    _, group, count = np.unique(corners, axis=0, return_inverse=True, return_counts=True)
+    group = group.ravel()
+    shared = count[group] > 1
+    if not shared.any():
+        return faces
+    # A face's winding against its sorted corners: turning one into the other is an even permutation or odd.
+    winding = np.where(np.all(np.roll(corners, 1, axis=1) == faces, axis=1)
+                       | np.all(np.roll(corners, -1, axis=1) == faces, axis=1)
+                       | np.all(corners == faces, axis=1), 1, -1)
+    net = np.bincount(group, winding, minlength=len(count))
+    first = np.full(len(count), len(faces))
+    np.minimum.at(first, group[winding == np.sign(net[group])], np.flatnonzero(winding == np.sign(net[group])))
+    keep = ~shared | (np.arange(len(faces)) == first[group])
+    return faces[keep]
 
 
 def unwrap(vertices: np.ndarray, faces: np.ndarray, size: int, unseen: np.ndarray | None = None) -> tuple:

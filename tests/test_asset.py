@@ -1060,6 +1060,15 @@ def test_a_compressed_asset_is_valid_and_decodes_to_the_quantised_ones_triangles
     assert compressed_bytes < 0.6 * sum(view["byteLength"] for view in geometry_views)
 
 
+def test_faces_back_to_back_and_repeated_faces_leave_a_level():
+    """The simplifier can leave two faces on the same three vertices, wound opposite ways: their
+    normals cancel (a black triangle in an engine). Both go; a copy wound alike is kept once; a face
+    naming a vertex twice goes; the rest keep their order."""
+    faces = np.array([(0, 1, 2), (2, 1, 0), (3, 4, 5), (4, 5, 3), (6, 6, 7), (1, 2, 3), (3, 2, 1), (2, 3, 1), (5, 6, 7)])
+    assert asset.without_folds(faces).tolist() == [[3, 4, 5], [1, 2, 3], [5, 6, 7]]
+    assert asset.without_folds(faces[[2, 8]]).tolist() == [[3, 4, 5], [5, 6, 7]]  # nothing to take out
+
+
 def test_a_vertex_whose_faces_have_no_area_still_gets_a_unit_normal():
     """A simplified level can leave a vertex whose faces are all degenerate:
     its normal comes from its neighbours' (glTF requires unit normals)."""
