@@ -535,4 +535,4 @@ def area(corners: np.ndarray) -> np.ndarray:
     u, v = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
     if corners.shape[-1] == 2:
         return np.abs(flat_cross(u, v)) / 2
-    return np.linalg.norm(np.cross(u, v), axis=1) / 2
+    return np.linalg.norm(cross(u, v), axis=1) / 2
